@@ -1,0 +1,42 @@
+"""jaxsem: semantic navigation with ellipsoid objects in JAX.
+
+The geometry core and the metrics are re-exported here; the larger parts are subpackages,
+imported on first use so that ``import jaxsem`` stays light:
+
+- :mod:`jaxsem.quadrics`  ellipsoids as dual/primal quadrics, boxes, texture planes, ground conics
+- :mod:`jaxsem.metrics`   pose/shape errors, 3D IoU, ADI, AUC
+- :mod:`jaxsem.factors`   ROSHAN residuals and the class shape table
+- :mod:`jaxsem.slam`      batch and online solvers, initialisation, OpenCV front end
+- :mod:`jaxsem.sim`       simulated ellipsoid maps, camera paths, rendering
+- :mod:`jaxsem.models`    flax MobileNetV2, VoluMon, LSD
+- :mod:`jaxsem.data`      FAT-layout loaders, synthetic writers, input pipelines
+- :mod:`jaxsem.planning`  buildings, sensors, shortest paths, PRM, navigation loop
+"""
+
+import importlib as _importlib
+
+from . import quadrics as quadrics
+from .quadrics import (
+    algebraic_distance as algebraic_distance,
+    conic_bbox as conic_bbox,
+    dual_quadric as dual_quadric,
+    ground_conic as ground_conic,
+    primal_quadric as primal_quadric,
+    project_bbox as project_bbox,
+    project_dual_conic as project_dual_conic,
+    rasterize_footprint as rasterize_footprint,
+    surface_points as surface_points,
+    texture_plane_depth as texture_plane_depth,
+)
+
+__version__ = "0.1.0"
+
+_SUBPACKAGES = ("metrics", "factors", "slam", "sim", "models", "data", "planning", "demos")
+
+
+def __getattr__(name):
+    if name in _SUBPACKAGES:
+        module = _importlib.import_module(f".{name}", __name__)
+        globals()[name] = module
+        return module
+    raise AttributeError(f"module 'jaxsem' has no attribute {name!r}")
