@@ -1,0 +1,609 @@
+r"""Geometry core: ellipsoids as dual and primal quadrics, and what a camera sees of them.
+
+One file a reader can check against the equations of the thesis (chapter 4.2, 4.3.1-4.3.3 and
+5.2). It imports nothing else of the package.
+
+Conventions (the only ones in jaxsem):
+
+- An ellipsoid is ``rotation`` (..., 3, 3) object-to-world, ``center`` (..., 3) in the world and
+  ``radii`` (..., 3), the semi-axis lengths in metres. Chapter 5's "size d" is ``2 * radii``.
+- Dual quadric (eq. 4.1-4.3): ``Q* = Z diag(r0^2, r1^2, r2^2, -1) Z^T`` with ``Z = [[R, t], [0, 1]]``.
+- Primal quadric (eq. 5.5): ``Q = [[A, -A t], [-t^T A, t^T A t - 1]]``, ``A = R diag(1/r^2) R^T``;
+  ``x^T Q x < 0`` inside, ``= 0`` on the surface, ``> 0`` outside.
+- A camera is ``K`` (..., 3, 3) and ``camera_T_world`` (..., 4, 4), which maps world points into the
+  camera frame (OpenCV axes: x right, y down, z forward). ``P = K [I | 0] camera_T_world`` and the
+  projected dual conic is ``C* = P Q* P^T`` (eq. 4.9).
+- Image boxes are ``[u_min, v_min, u_max, v_max]`` in pixels (eq. 4.10).
+
+Every public function broadcasts leading batch axes numpy-style, works under ``jit``, ``vmap`` and
+``grad`` in float32 and float64, and never returns NaN values or NaN gradients for finite inputs.
+Where the closed form has no real answer (camera inside or on the ellipsoid, ellipsoid behind or
+straddling the image plane, a conic that is not an ellipse) a ``valid`` mask is returned next to
+a finite value. Wrong trailing shapes raise ``ValueError`` naming the argument; non-finite
+concrete inputs where they would poison everything (``K``, poses) raise too.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "dual_quadric",
+    "primal_quadric",
+    "project_dual_conic",
+    "conic_bbox",
+    "project_bbox",
+    "texture_plane_depth",
+    "algebraic_distance",
+    "ground_conic",
+    "ground_bounds",
+    "rasterize_footprint",
+    "surface_points",
+    "camera_depth",
+    "camera_frame",
+    "look_at",
+    "quaternion_to_rotation",
+    "rotation_to_quaternion",
+    "random_rotation",
+    "safe_sqrt",
+    "safe_div",
+    "safe_norm",
+]
+
+
+# --------------------------------------------------------------------------------------------
+# Boundary checks (re-exported for the rest of the package by jaxsem._checks).
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False):
+    """``x`` as a floating jax array of shape ``(..., *trailing)``; ``ValueError`` naming ``name``.
+
+    jaxlie ``SO3`` / ``SE3`` objects are accepted where a (3, 3) or (4, 4) matrix is expected.
+    Finiteness is checked only for concrete values (under ``jit`` the masks carry validity).
+    """
+    if hasattr(x, "as_matrix") and callable(x.as_matrix):  # jaxlie SO3 / SE3 at the boundary
+        x = x.as_matrix()
+    try:
+        arr = jnp.asarray(x)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    trailing = tuple(trailing)
+    if arr.ndim < len(trailing) or tuple(arr.shape[arr.ndim - len(trailing):]) != trailing:
+        want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got shape {tuple(arr.shape)}")
+    if jnp.issubdtype(arr.dtype, jnp.complexfloating):
+        raise ValueError(f"{name}: expected a real floating array, got dtype {arr.dtype}")
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = arr.astype(jnp.result_type(float))
+    if check_finite and _is_concrete(arr):
+        if not bool(np.all(np.isfinite(np.asarray(arr)))):
+            raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
+    return arr
+
+
+def _batch_shape(**named: tuple) -> tuple:
+    """Broadcast of several leading shapes; the error names every argument and its shape."""
+    try:
+        return tuple(np.broadcast_shapes(*named.values()))
+    except ValueError:
+        listing = ", ".join(f"{k} {tuple(v)}" for k, v in named.items())
+        raise ValueError(f"batch shapes do not broadcast: {listing}") from None
+
+
+def _ellipsoid_args(rotation, center, radii):
+    rotation = _as_float_array("rotation", rotation, (3, 3))
+    center = _as_float_array("center", center, (3,))
+    radii = _as_float_array("radii", radii, (3,))
+    dtype = jnp.result_type(rotation.dtype, center.dtype, radii.dtype)
+    batch = _batch_shape(
+        rotation=rotation.shape[:-2], center=center.shape[:-1], radii=radii.shape[:-1]
+    )
+    return rotation.astype(dtype), center.astype(dtype), radii.astype(dtype), batch
+
+
+def _camera_args(K, camera_T_world, *, need_K=True):
+    out = []
+    if need_K:
+        K = _as_float_array("K", K, (3, 3), check_finite=True)
+        if _is_concrete(K):
+            Kn = np.asarray(K)
+            bottom = Kn[..., 2, :]
+            if not (np.allclose(bottom, [0.0, 0.0, 1.0]) and np.allclose(Kn[..., 1, 0], 0.0)):
+                raise ValueError(
+                    "K: expected intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got "
+                    f"{Kn.reshape(-1, 3, 3)[0].tolist()} (first of batch)"
+                )
+        out.append(K)
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
+    out.append(pose)
+    return out
+
+
+def _eps(dtype) -> float:
+    """Dtype-dependent tolerance: about 1e-6 in float32, 1e-15 in float64."""
+    return float(jnp.finfo(dtype).eps) * 8.0
+
+
+# --------------------------------------------------------------------------------------------
+# NaN-safe primitives: the branch not taken by a `where` must have finite gradients too.
+
+
+def safe_sqrt(x):
+    """``sqrt(max(x, 0))`` whose value and gradient are finite everywhere (gradient 0 for x <= 0)."""
+    x = jnp.asarray(x)
+    positive = x > jnp.finfo(jnp.result_type(x, float)).tiny
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+def safe_div(numerator, denominator, eps=None):
+    """``numerator / denominator`` with ``|denominator|`` clamped to at least ``eps`` (sign kept)."""
+    denominator = jnp.asarray(denominator)
+    if eps is None:
+        eps = jnp.finfo(jnp.result_type(denominator, float)).tiny ** 0.5
+    small = jnp.abs(denominator) < eps
+    safe = jnp.where(small, jnp.where(denominator < 0, -eps, eps), denominator)
+    return numerator / safe
+
+
+def safe_norm(x, axis=-1, keepdims: bool = False):
+    """Euclidean norm along ``axis`` with a zero (not NaN) gradient at the origin."""
+    return safe_sqrt(jnp.sum(jnp.square(x), axis=axis, keepdims=keepdims))
+
+
+def _matvec(m, v):
+    """(..., 3, 3) @ (..., 3) as a broadcasted product and sum: fuses into elementwise loops."""
+    return jnp.sum(m * v[..., None, :], axis=-1)
+
+
+def _matmul3(a, b):
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+
+
+def _cross(a, b):
+    return jnp.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        axis=-1,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Quadric matrices.
+
+
+def dual_quadric(rotation, center, radii):
+    """Dual quadric ``Q*`` of an ellipsoid (eq. 4.3).
+
+    Args:
+      rotation: (..., 3, 3) object-to-world rotation ``R``.
+      center: (..., 3) centre ``t`` in the world.
+      radii: (..., 3) semi-axes ``r`` in metres.
+
+    Returns:
+      (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    rotation = jnp.broadcast_to(rotation, batch + (3, 3))
+    center = jnp.broadcast_to(center, batch + (3,))
+    radii = jnp.broadcast_to(radii, batch + (3,))
+    shape = _matmul3(rotation * jnp.square(radii)[..., None, :], jnp.swapaxes(rotation, -1, -2))
+    top_left = shape - center[..., :, None] * center[..., None, :]
+    top = jnp.concatenate([top_left, -center[..., :, None]], axis=-1)
+    bottom = jnp.concatenate([-center, -jnp.ones(batch + (1,), center.dtype)], axis=-1)
+    return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
+
+
+def _inverse_square_radii(radii):
+    # Radii below eps(dtype) are clamped so that 1/r^2 stays finite (and far from overflow).
+    floor = jnp.finfo(radii.dtype).eps
+    return 1.0 / jnp.square(jnp.maximum(jnp.abs(radii), floor))
+
+
+def primal_quadric(rotation, center, radii):
+    """Primal (point) quadric ``Q`` of an ellipsoid (eq. 5.5): ``x^T Q x = 0`` on the surface.
+
+    Args:
+      rotation: (..., 3, 3) object-to-world; center: (..., 3); radii: (..., 3) semi-axes.
+
+    Returns:
+      (..., 4, 4) ``[[A, -A t], [-t^T A, t^T A t - 1]]`` with ``A = R diag(1/r^2) R^T``; radii are
+      clamped below at ``eps(dtype)`` so the matrix stays finite.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    rotation = jnp.broadcast_to(rotation, batch + (3, 3))
+    center = jnp.broadcast_to(center, batch + (3,))
+    inv_sq = jnp.broadcast_to(_inverse_square_radii(radii), batch + (3,))
+    A = _matmul3(rotation * inv_sq[..., None, :], jnp.swapaxes(rotation, -1, -2))
+    At = _matvec(A, center)
+    corner = jnp.sum(center * At, axis=-1, keepdims=True) - 1.0
+    top = jnp.concatenate([A, -At[..., :, None]], axis=-1)
+    bottom = jnp.concatenate([-At, corner], axis=-1)
+    return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
+
+
+def project_dual_conic(dual_quadric, K, camera_T_world):
+    """Dual conic ``C* = P Q* P^T`` with ``P = K [I | 0] camera_T_world`` (eq. 4.9).
+
+    Args:
+      dual_quadric: (..., 4, 4) ``Q*``.
+      K: (..., 3, 3) intrinsics.
+      camera_T_world: (..., 4, 4) world-to-camera transform.
+
+    Returns:
+      (..., 3, 3) dual conic in pixels.
+    """
+    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4))
+    K, pose = _camera_args(K, camera_T_world)
+    _batch_shape(dual_quadric=Qs.shape[:-2], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    P = jnp.matmul(K, pose[..., :3, :])
+    return jnp.matmul(jnp.matmul(P, Qs), jnp.swapaxes(P, -1, -2))
+
+
+def conic_bbox(dual_conic):
+    """Axis-aligned box of a dual conic (eq. 4.10): the lines ``u = const`` and ``v = const``
+    tangent to it.
+
+    ``u_min, u_max = (C13 -+ sqrt(C13^2 - C11 C33)) / C33`` and likewise for ``v``.
+
+    Args:
+      dual_conic: (..., 3, 3) ``C*``, in jaxsem's normalisation (``P Q* P^T`` with ``Q*[3,3] = -1``,
+        or any positive multiple of it; the sign tells a real ellipse from an imaginary one).
+
+    Returns:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite everywhere.
+      valid: (...) bool, False where the conic is not a real ellipse (``C33 >= 0`` or
+        ``det C* >= 0``: camera inside the ellipsoid, or the image plane cutting it). A dual conic
+        alone cannot tell an ellipsoid in front of the camera from its mirror image behind it;
+        :func:`project_bbox` checks the depth as well.
+    """
+    C = _as_float_array("dual_conic", dual_conic, (3, 3))
+    C = 0.5 * (C + jnp.swapaxes(C, -1, -2))
+    # Scale to O(1) by a positive factor: the box is scale-invariant and det() cannot overflow.
+    scale = jnp.max(jnp.abs(C), axis=(-2, -1), keepdims=True)
+    C = C / jnp.where(scale > 0, scale, 1.0)
+    c11, c12, c13 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
+    c22, c23, c33 = C[..., 1, 1], C[..., 1, 2], C[..., 2, 2]
+    det = c11 * (c22 * c33 - c23 * c23) - c12 * (c12 * c33 - c23 * c13) + c13 * (c12 * c23 - c22 * c13)
+    disc_u = c13 * c13 - c11 * c33
+    disc_v = c23 * c23 - c22 * c33
+    eps = _eps(C.dtype)
+    valid = (c33 < -eps) & (det < 0) & (disc_u > 0) & (disc_v > 0)
+    c33_safe = jnp.where(valid, c33, -1.0)
+    su = safe_sqrt(jnp.where(valid, disc_u, 0.0))
+    sv = safe_sqrt(jnp.where(valid, disc_v, 0.0))
+    box = jnp.stack(
+        [(c13 + su) / c33_safe, (c23 + sv) / c33_safe, (c13 - su) / c33_safe, (c23 - sv) / c33_safe],
+        axis=-1,
+    )
+    return box, valid
+
+
+def camera_frame(rotation, center, camera_T_world):
+    """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame."""
+    R_cw = camera_T_world[..., :3, :3]
+    return _matmul3(R_cw, rotation), _matvec(R_cw, center) + camera_T_world[..., :3, 3]
+
+
+def _project_bbox(rotation, center, radii, K, camera_T_world):
+    """Closed form of eq. 4.9-4.10 in the camera frame, written elementwise so XLA fuses it.
+
+    With ``M = S - t t^T`` (``S = Rc diag(r^2) Rc^T``, ``t`` the centre in the camera frame) and
+    ``a = (fx, s, 0)``, the box edges are ``u = cx + (a^T M e3 -+ sqrt(disc)) / M33`` where the
+    discriminant ``(a^T M e3)^2 - (a^T M a) M33`` equals ``|t_z r*g_a - (a.t) r*g_3|^2 -
+    |r*g_a x r*g_3|^2`` (Lagrange's identity, ``g_v = Rc^T v``): a difference of two
+    non-negative terms without the cancellation of the pixel-space form.
+    """
+    Rc, tc = camera_frame(rotation, center, camera_T_world)
+    fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    fy, cy = K[..., 1, 1], K[..., 1, 2]
+    g3 = Rc[..., 2, :]
+    ga = fx[..., None] * Rc[..., 0, :] + s[..., None] * Rc[..., 1, :]
+    gb = fy[..., None] * Rc[..., 1, :]
+    r3, ra, rb = radii * g3, radii * ga, radii * gb
+    tx, ty, tz = tc[..., 0], tc[..., 1], tc[..., 2]
+    s33 = jnp.sum(r3 * r3, axis=-1)
+    half_depth = safe_sqrt(s33)
+    near = tz - half_depth  # texture-plane depth: the camera-facing tangent plane z = tz - sqrt(S33)
+    alpha = fx * tx + s * ty
+    beta = fy * ty
+    m33 = s33 - tz * tz
+    num_u = jnp.sum(ra * r3, axis=-1) - alpha * tz
+    num_v = jnp.sum(rb * r3, axis=-1) - beta * tz
+    wa = tz[..., None] * ra - alpha[..., None] * r3
+    wb = tz[..., None] * rb - beta[..., None] * r3
+    disc_u = jnp.sum(wa * wa, -1) - jnp.sum(jnp.square(_cross(ra, r3)), -1)
+    disc_v = jnp.sum(wb * wb, -1) - jnp.sum(jnp.square(_cross(rb, r3)), -1)
+    eps = _eps(near.dtype)
+    valid = (near > eps * (jnp.abs(tz) + half_depth)) & (disc_u >= 0) & (disc_v >= 0)
+    m33_safe = jnp.where(valid, m33, -jnp.maximum(tz * tz, 1.0))
+    su = safe_sqrt(jnp.where(valid, disc_u, 0.0))
+    sv = safe_sqrt(jnp.where(valid, disc_v, 0.0))
+    box = jnp.stack(
+        [
+            cx + (num_u + su) / m33_safe,
+            cy + (num_v + sv) / m33_safe,
+            cx + (num_u - su) / m33_safe,
+            cy + (num_v - sv) / m33_safe,
+        ],
+        axis=-1,
+    )
+    return box, valid
+
+
+def project_bbox(rotation, center, radii, K, camera_T_world):
+    """Image box of an ellipsoid seen by a pinhole camera (eq. 4.9-4.10 in closed form).
+
+    Args:
+      rotation: (..., 3, 3) object-to-world; center: (..., 3) world; radii: (..., 3) semi-axes.
+      K: (..., 3, 3) intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``.
+      camera_T_world: (..., 4, 4) world-to-camera transform (OpenCV axes).
+
+    Returns:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]`` in pixels, finite everywhere, with finite
+        gradients. It is not truncated to any image size.
+      valid: (...) bool, True iff the whole ellipsoid lies strictly in front of the camera's
+        principal plane (so the camera is outside it and the outline is a real ellipse). Where
+        False (camera inside or on the ellipsoid, ellipsoid behind or straddling the image plane)
+        the box is an arbitrary finite value.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    K, pose = _camera_args(K, camera_T_world)
+    _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
+    return _project_bbox(
+        rotation.astype(dtype), center.astype(dtype), radii.astype(dtype),
+        K.astype(dtype), pose.astype(dtype),
+    )
+
+
+def texture_plane_depth(rotation, center, radii, camera_T_world):
+    """Depth of the camera-facing tangent plane parallel to the image plane (eq. 4.11).
+
+    Solving ``[0, 0, 1, -z] Q*_cam [0, 0, 1, -z]^T = 0`` gives ``z = t_z -+ sqrt(S33)``; the
+    texture plane is the smaller root, ``t_z - sqrt(e3^T R_c diag(r^2) R_c^T e3)``.
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3); camera_T_world: (..., 4, 4).
+
+    Returns:
+      depth: (...) metres along the optical axis (finite everywhere).
+      valid: (...) bool, False where the plane is not in front of the camera (camera inside the
+        ellipsoid, or the ellipsoid behind or straddling the image plane).
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    (pose,) = _camera_args(None, camera_T_world, need_K=False)
+    _batch_shape(ellipsoid=batch, camera_T_world=pose.shape[:-2])
+    dtype = jnp.result_type(rotation.dtype, pose.dtype)
+    pose = pose.astype(dtype)
+    Rc, tc = camera_frame(rotation.astype(dtype), center.astype(dtype), pose)
+    half_depth = safe_norm(radii.astype(dtype) * Rc[..., 2, :], axis=-1)
+    depth = tc[..., 2] - half_depth
+    valid = depth > _eps(dtype) * (jnp.abs(tc[..., 2]) + half_depth)
+    return depth, valid
+
+
+def camera_depth(center, camera_T_world):
+    """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4)."""
+    center = _as_float_array("center", center, (3,))
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4))
+    return jnp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]
+
+
+def algebraic_distance(points, rotation, center, radii):
+    """Primal algebraic distance ``x^T Q x`` of points to an ellipsoid (eq. 5.5, 5.12).
+
+    Evaluated as ``|diag(1/r) R^T (x - t)|^2 - 1``, which equals ``[x, 1] Q [x, 1]^T`` exactly and
+    keeps its precision far from the origin.
+
+    Args:
+      points: (..., N, 3) world points.
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3) (batch axes broadcast with the
+        points' leading axes).
+
+    Returns:
+      (..., N): negative inside, zero on the surface, positive outside.
+    """
+    points = _as_float_array("points", points, (3,))
+    if points.ndim < 2:
+        raise ValueError(f"points: expected shape (..., N, 3), got shape {tuple(points.shape)}")
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    _batch_shape(points=points.shape[:-2], ellipsoid=batch)
+    dtype = jnp.result_type(points.dtype, rotation.dtype)
+    local = _matvec(
+        jnp.swapaxes(rotation, -1, -2)[..., None, :, :].astype(dtype),
+        points.astype(dtype) - center[..., None, :].astype(dtype),
+    )
+    inv_sq = _inverse_square_radii(radii.astype(dtype))[..., None, :]
+    return jnp.sum(local * local * inv_sq, axis=-1) - 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# Top-down (planning) view: orthographic projection along z onto the ground plane z = 0.
+
+_P_ORTHO = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+
+
+def ground_conic(rotation, center, radii):
+    """Dual conic of the ellipsoid's orthographic projection along z (``P_ortho Q* P_ortho^T``).
+
+    ``P_ortho = [[1,0,0,0], [0,1,0,0], [0,0,0,1]]``, so the result is ``Q*`` restricted to the rows
+    and columns (x, y, w). Its :func:`conic_bbox` is the footprint's extent in world x, y.
+
+    Returns:
+      (..., 3, 3) dual conic in world metres (x, y).
+    """
+    Qs = dual_quadric(rotation, center, radii)
+    idx = jnp.array([0, 1, 3])
+    return Qs[..., idx[:, None], idx[None, :]]
+
+
+def ground_bounds(rotation, center, radii):
+    """Footprint extent ``[x_min, y_min, x_max, y_max]`` (..., 4) of an ellipsoid seen from above."""
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    shape = _matmul3(rotation * jnp.square(radii)[..., None, :], jnp.swapaxes(rotation, -1, -2))
+    hx = safe_sqrt(shape[..., 0, 0])
+    hy = safe_sqrt(shape[..., 1, 1])
+    cx, cy = center[..., 0], center[..., 1]
+    return jnp.broadcast_to(jnp.stack([cx - hx, cy - hy, cx + hx, cy + hy], -1), batch + (4,))
+
+
+def rasterize_footprint(
+    rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None
+):
+    """Rasterises ellipsoid footprints (top-down, along z) into a class-id grid.
+
+    A cell ``[row, col]`` has its centre at world ``(origin[0] + (col + 0.5) * resolution,
+    origin[1] + (row + 0.5) * resolution)``; it takes the class id of an ellipsoid whose footprint
+    ellipse (the 2x2 x-y block of ``R diag(r^2) R^T`` around the centre) contains that centre.
+    Overlaps take the largest class id; cells covered by nothing are 0.
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3): all ellipsoids of the batch are
+        drawn into the same grid (``vmap`` for one grid per map).
+      class_id: (...) int, the value to write (use ids >= 1).
+      grid_shape: static ``(H, W)``.
+      origin: (2,) world ``(x, y)`` of the grid corner at cell ``[0, 0]``.
+      resolution: metres per cell.
+      mask: optional (...) bool; False ellipsoids are not drawn.
+
+    Returns:
+      (H, W) int32 grid.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    if len(grid_shape) != 2 or any(int(g) <= 0 for g in grid_shape):
+        raise ValueError(f"grid_shape: expected (H, W) of positive ints, got {grid_shape}")
+    origin = _as_float_array("origin", origin, (2,))
+    if origin.ndim != 1:
+        raise ValueError(f"origin: expected shape (2,), got {tuple(origin.shape)}")
+    class_id = jnp.broadcast_to(jnp.asarray(class_id, jnp.int32), batch)
+    mask = jnp.ones(batch, bool) if mask is None else jnp.broadcast_to(jnp.asarray(mask, bool), batch)
+    rot = jnp.broadcast_to(rotation, batch + (3, 3)).reshape(-1, 3, 3)
+    ctr = jnp.broadcast_to(center, batch + (3,)).reshape(-1, 3)
+    rad = jnp.broadcast_to(radii, batch + (3,)).reshape(-1, 3)
+    shape = _matmul3(rot * jnp.square(rad)[..., None, :], jnp.swapaxes(rot, -1, -2))
+    a, b, c = shape[:, 0, 0], shape[:, 0, 1], shape[:, 1, 1]
+    det = a * c - b * b
+    H, W = int(grid_shape[0]), int(grid_shape[1])
+    xs = origin[0] + (jnp.arange(W, dtype=ctr.dtype) + 0.5) * resolution
+    ys = origin[1] + (jnp.arange(H, dtype=ctr.dtype) + 0.5) * resolution
+    dx = xs[None, None, :] - ctr[:, 0, None, None]
+    dy = ys[None, :, None] - ctr[:, 1, None, None]
+    # (d^T S_xy^{-1} d <= 1) multiplied through by det(S_xy) > 0: no division by a tiny det.
+    quad = c[:, None, None] * dx * dx - 2 * b[:, None, None] * dx * dy + a[:, None, None] * dy * dy
+    inside = (quad <= det[:, None, None]) & (det[:, None, None] > 0) & mask.reshape(-1)[:, None, None]
+    values = jnp.where(inside, class_id.reshape(-1)[:, None, None], 0)
+    return jnp.max(values, axis=0, initial=0).astype(jnp.int32)
+
+
+# --------------------------------------------------------------------------------------------
+# Sampling and rotations.
+
+
+def surface_points(key, rotation, center, radii, n: int):
+    """Random points on the ellipsoid surface, (..., n, 3).
+
+    Directions are uniform on the unit sphere, then scaled by the radii and moved to the world
+    (so the density is uniform in the ellipsoid's parametric angle, not in area).
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    u = jax.random.normal(key, batch + (int(n), 3), dtype=center.dtype)
+    norm = safe_norm(u, axis=-1, keepdims=True)
+    fallback = jnp.array([1.0, 0.0, 0.0], u.dtype)
+    u = jnp.where(norm > 0, u / jnp.where(norm > 0, norm, 1.0), fallback)
+    local = u * radii[..., None, :]
+    return _matvec(rotation[..., None, :, :], local) + center[..., None, :]
+
+
+def quaternion_to_rotation(quaternion_wxyz):
+    """(..., 4) quaternion ``[w, x, y, z]`` (normalised here; zero maps to identity) -> (..., 3, 3)."""
+    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,))
+    norm = safe_norm(q, axis=-1, keepdims=True)
+    identity = jnp.array([1.0, 0.0, 0.0, 0.0], q.dtype)
+    q = jnp.where(norm > 0, q / jnp.where(norm > 0, norm, 1.0), identity)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack(
+        [
+            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def rotation_to_quaternion(rotation):
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` with ``w >= 0``.
+
+    Shepperd's method: of the four algebraically equal formulas the one with the largest
+    square-root argument is taken, so no branch divides by a small number.
+    """
+    R = _as_float_array("rotation", rotation, (3, 3))
+    r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    trace = r00 + r11 + r22
+    cands = []
+    s = 2 * safe_sqrt(1 + trace)
+    cands.append((s, jnp.stack([s / 4, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1), 1 + trace))
+    s = 2 * safe_sqrt(1 + r00 - r11 - r22)
+    cands.append((s, jnp.stack([R[..., 2, 1] - R[..., 1, 2], s / 4, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1), 1 + r00 - r11 - r22))
+    s = 2 * safe_sqrt(1 - r00 + r11 - r22)
+    cands.append((s, jnp.stack([R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], s / 4, R[..., 1, 2] + R[..., 2, 1]], -1), 1 - r00 + r11 - r22))
+    s = 2 * safe_sqrt(1 - r00 - r11 + r22)
+    cands.append((s, jnp.stack([R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], s / 4], -1), 1 - r00 - r11 + r22))
+    args = jnp.stack([c[2] for c in cands], -1)
+    best = jnp.argmax(args, axis=-1)
+    qs = []
+    for i, (s_i, q_i, _) in enumerate(cands):
+        s_safe = jnp.where(best == i, s_i, 1.0)[..., None]
+        # The s/4 entry was written unscaled; the others are divided by s.
+        scale = jnp.ones(4, R.dtype).at[i].set(0.0)
+        qs.append(q_i * (scale / s_safe + (1 - scale)))
+    q = jnp.take_along_axis(jnp.stack(qs, -2), best[..., None, None], axis=-2)[..., 0, :]
+    q = q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
+    return q / jnp.maximum(safe_norm(q, axis=-1, keepdims=True), jnp.finfo(q.dtype).tiny)
+
+
+def random_rotation(key, shape: tuple = (), dtype=None):
+    """Uniformly random rotations (..., 3, 3) from normalised Gaussian quaternions."""
+    dtype = dtype or jnp.result_type(float)
+    q = jax.random.normal(key, tuple(shape) + (4,), dtype=dtype)
+    return quaternion_to_rotation(q)
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)):
+    """``camera_T_world`` (..., 4, 4) of an OpenCV camera at ``eye`` looking at ``target``.
+
+    The camera's z axis points at the target, its y axis down (against ``up``). When the view
+    direction is parallel to ``up`` another up vector is used, so the result is always a rotation.
+    """
+    eye = _as_float_array("eye", eye, (3,))
+    target = _as_float_array("target", target, (3,))
+    up = _as_float_array("up", up, (3,))
+    dtype = jnp.result_type(eye.dtype, target.dtype, up.dtype)
+    eye, target, up = eye.astype(dtype), target.astype(dtype), up.astype(dtype)
+    batch = _batch_shape(eye=eye.shape[:-1], target=target.shape[:-1], up=up.shape[:-1])
+    forward = target - eye
+    forward = forward / jnp.maximum(safe_norm(forward, keepdims=True), _eps(dtype))
+    right = _cross(forward, up)
+    alt = _cross(forward, jnp.array([1.0, 0.0, 0.0], dtype))
+    alt = jnp.where(safe_norm(alt, keepdims=True) > 1e-3, alt, _cross(forward, jnp.array([0.0, 1.0, 0.0], dtype)))
+    right = jnp.where(safe_norm(right, keepdims=True) > 1e-6, right, alt)
+    right = right / jnp.maximum(safe_norm(right, keepdims=True), _eps(dtype))
+    down = _cross(forward, right)
+    world_R_cam = jnp.stack([right, down, forward], axis=-1)
+    cam_R_world = jnp.swapaxes(world_R_cam, -1, -2)
+    cam_R_world = jnp.broadcast_to(cam_R_world, batch + (3, 3))
+    t = -_matvec(cam_R_world, jnp.broadcast_to(eye, batch + (3,)))
+    top = jnp.concatenate([cam_R_world, t[..., None]], -1)
+    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
+    return jnp.concatenate([top, bottom[..., None, :]], -2)
