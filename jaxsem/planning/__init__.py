@@ -1,0 +1,28 @@
+"""LSD planning world: procedural buildings, ray-cast sensors, soft-cost shortest paths, PRM,
+the online navigation loop and expert data generation (thesis chapter 3)."""
+
+from ._buildings import (
+    BuildingParams as BuildingParams,
+    Building as Building,
+    TEST_PARAMS as TEST_PARAMS,
+    TRAIN_PARAMS as TRAIN_PARAMS,
+    building_family as building_family,
+    generate_building as generate_building,
+)
+from ._grid import (
+    DEFAULT_RESOLUTION as DEFAULT_RESOLUTION,
+    DOOR as DOOR,
+    EXIT_SIGN as EXIT_SIGN,
+    FREE as FREE,
+    MapState as MapState,
+    NONE as NONE,
+    OBJECT_CLASSES as OBJECT_CLASSES,
+    OCCUPIED as OCCUPIED,
+    SEMANTIC_NAMES as SEMANTIC_NAMES,
+    UNKNOWN as UNKNOWN,
+    WALL as WALL,
+    WINDOW as WINDOW,
+    cell_to_world as cell_to_world,
+    empty_map_state as empty_map_state,
+    world_to_cell as world_to_cell,
+)

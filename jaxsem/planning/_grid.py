@@ -1,0 +1,108 @@
+"""Grid conventions shared by the planning world: class constants, the map state, conversions.
+
+Grids are indexed ``[row, col] = [y, x]``. ``origin`` is the world (x, y) of the corner of cell
+``[0, 0]`` and ``resolution`` is metres per cell, so the centre of cell ``[r, c]`` is
+``origin + (c + 0.5, r + 0.5) * resolution``. World z is up; the robot moves on z = 0.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+# Semantic classes of the true world (int8). Walls, windows and exit signs are occupied cells;
+# doors are free cells (open doorways).
+NONE = 0
+WALL = 1
+DOOR = 2
+WINDOW = 3
+EXIT_SIGN = 4
+SEMANTIC_NAMES = {NONE: "none", WALL: "wall", DOOR: "door", WINDOW: "window", EXIT_SIGN: "exit sign"}
+#: Classes the object camera reports into the partial semantic map.
+OBJECT_CLASSES = (DOOR, WINDOW, EXIT_SIGN)
+
+# Partial occupancy map states (int8). Unknown is optimistically free for planning.
+UNKNOWN = -1
+FREE = 0
+OCCUPIED = 1
+
+DEFAULT_RESOLUTION = 0.1
+
+
+class MapState(NamedTuple):
+    """The robot's partial maps, a pytree (all leaves JAX arrays; batch axes may lead).
+
+    occupancy: (..., H, W) int8 in {UNKNOWN, FREE, OCCUPIED}.
+    semantic:  (..., H, W) int8, ``NONE`` where nothing has been seen, else one of
+               ``OBJECT_CLASSES`` (door / window / exit sign) as seen by the object camera.
+    """
+
+    occupancy: jax.Array
+    semantic: jax.Array
+
+
+def empty_map_state(shape) -> MapState:
+    """An all-unknown partial map of grid ``shape`` (H, W)."""
+    shape = tuple(int(s) for s in shape)
+    if len(shape) != 2 or min(shape) < 1:
+        raise ValueError(f"shape: expected (H, W) with H, W >= 1, got {shape}")
+    return MapState(
+        occupancy=jnp.full(shape, UNKNOWN, jnp.int8), semantic=jnp.zeros(shape, jnp.int8)
+    )
+
+
+def world_to_cell(xy, origin, resolution):
+    """World (x, y) (..., 2) -> integer cell (row, col) (..., 2) (floor; may lie off the grid)."""
+    xy = jnp.asarray(xy)
+    origin = jnp.asarray(origin, xy.dtype if jnp.issubdtype(xy.dtype, jnp.floating) else None)
+    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)
+    return rc[..., ::-1]
+
+
+def cell_to_world(rc, origin, resolution):
+    """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the cell centre."""
+    rc = jnp.asarray(rc)
+    origin = jnp.asarray(origin)
+    return origin + (rc[..., ::-1].astype(origin.dtype) + 0.5) * resolution
+
+
+def check_grid(name: str, grid, dtype_kind: str, shape=None) -> np.ndarray:
+    """Python-boundary check of a 2-D grid; returns it as numpy. ``dtype_kind``: 'bool' or 'int'."""
+    try:
+        arr = np.asarray(grid)
+    except Exception as exc:  # pragma: no cover - exotic objects
+        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    if arr.ndim != 2:
+        raise ValueError(f"{name}: expected a 2-D grid (H, W), got shape {arr.shape}")
+    if shape is not None and tuple(arr.shape) != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got shape {arr.shape}")
+    if dtype_kind == "bool" and arr.dtype != np.bool_:
+        raise ValueError(f"{name}: expected dtype bool, got dtype {arr.dtype}")
+    if dtype_kind == "int" and not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{name}: expected an integer dtype (int8), got dtype {arr.dtype}")
+    return arr
+
+
+def check_point(name: str, xy, occupancy: np.ndarray, origin, resolution) -> np.ndarray:
+    """A world point (2,) that lies on the grid and in a free cell, else ``ValueError``."""
+    try:
+        p = np.asarray(xy, dtype=np.float64)
+    except Exception as exc:
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    if p.shape != (2,):
+        raise ValueError(f"{name}: expected a world point (x, y) of shape (2,), got shape {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"{name}: must be finite, got {p.tolist()}")
+    rc = np.floor((p - np.asarray(origin, np.float64)) / resolution).astype(np.int64)[::-1]
+    H, W = occupancy.shape
+    if not (0 <= rc[0] < H and 0 <= rc[1] < W):
+        raise ValueError(
+            f"{name}: point {p.tolist()} (cell {rc.tolist()}) is off the map of {H}x{W} cells "
+            f"with origin {np.asarray(origin).tolist()} and resolution {resolution}"
+        )
+    if occupancy[rc[0], rc[1]]:
+        raise ValueError(f"{name}: point {p.tolist()} (cell {rc.tolist()}) lies in an occupied cell")
+    return p
