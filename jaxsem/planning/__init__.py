@@ -26,3 +26,11 @@ from ._grid import (
     empty_map_state as empty_map_state,
     world_to_cell as world_to_cell,
 )
+from ._sensors import SensorConfig as SensorConfig, cast_rays as cast_rays, sense as sense
+from ._shortest_path import (
+    GridPath as GridPath,
+    SearchTree as SearchTree,
+    SoftCostGraph as SoftCostGraph,
+    shortest_path as shortest_path,
+    soft_cost as soft_cost,
+)

@@ -1,0 +1,191 @@
+"""Ray-cast sensors with line of sight on the grid (jitted JAX).
+
+Rays are marched at a fixed step (a fraction of a cell); a sample is *blocked* when its cell is
+occupied or off the grid; the samples a ray sees are those up to and including its first blocked
+sample, found with an argmax (no loop, so a whole fan of rays is one gather). Seen cells
+take their true state:
+
+- depth sensor (85.2 deg, 5 m): occupancy becomes FREE or OCCUPIED;
+- object camera (69.4 deg, 10 m): doors (free cells the ray crosses), windows and exit signs
+  (the occupied cells it stops at) are written into the partial semantic map.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState
+
+
+class SensorConfig(NamedTuple):
+    """Static sensor settings (hashable: changing one recompiles)."""
+
+    depth_fov_deg: float = 85.2
+    depth_range: float = 5.0
+    object_fov_deg: float = 69.4
+    object_range: float = 10.0
+    rays: int = 192  # one fan over the wider field of view (0.45 deg apart: < a cell at 10 m)
+    step_cells: float = 0.5  # march step as a fraction of a cell
+
+
+def _samples(max_range, resolution, step_cells):
+    return int(math.ceil(max_range / (resolution * step_cells)))
+
+
+def _cast(occupancy, origin, resolution, xy, angles, max_range, n_samples):
+    """Marches rays; returns (rows, cols) (R, S) int32, visible (R, S), blocked (R, S), ranges (R,)."""
+    H, W = occupancy.shape
+    dtype = origin.dtype
+    step = max_range / n_samples
+    t = (jnp.arange(n_samples, dtype=dtype) + 1.0) * step
+    direction = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1).astype(dtype)  # (R, 2)
+    pts = xy[None, None, :] + t[None, :, None] * direction[:, None, :]  # (R, S, 2)
+    cr = jnp.floor((pts - origin) / resolution).astype(jnp.int32)
+    cols, rows = cr[..., 0], cr[..., 1]
+    on_map = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+    rows_c, cols_c = jnp.clip(rows, 0, H - 1), jnp.clip(cols, 0, W - 1)
+    blocked = occupancy[rows_c, cols_c] | ~on_map
+    # Seen: samples up to and including the first blocked one. The index of the first hit comes
+    # from argmax, not a cumulative sum: XLA's CPU cumsum is a quadratic reduce-window (5x slower
+    # here at 200 samples per ray).
+    any_hit = jnp.any(blocked, -1)
+    first = jnp.where(any_hit, jnp.argmax(blocked, axis=-1), n_samples)
+    visible = jnp.arange(n_samples)[None, :] <= first[:, None]
+    ranges = jnp.where(any_hit, t[jnp.minimum(first, n_samples - 1)], max_range)
+    rows_out = jnp.where(on_map, rows, H)  # H: dropped by the scatter below
+    return rows_out, cols_c, visible & on_map, blocked, ranges
+
+
+def _fan(yaw, fov_deg, n_rays, dtype):
+    half = 0.5 * math.radians(fov_deg)
+    return yaw + jnp.linspace(-half, half, n_rays, dtype=dtype)
+
+
+def sense(true_occupancy, true_semantic, state: MapState, pose, origin, resolution,
+          config: SensorConfig = SensorConfig()) -> MapState:
+    """Updates the partial maps with what both sensors see from ``pose``.
+
+    true_occupancy: (H, W) bool; true_semantic: (H, W) int8 (class constants of the world);
+    state: :class:`MapState` with (H, W) leaves; pose: (3,) world (x, y, yaw) in metres/radians;
+    origin: (2,) world (x, y) of cell [0, 0]'s corner; resolution: metres per cell (a Python
+    float: it sets the number of march samples). Jitted; ``jax.vmap`` over ``state`` and ``pose``
+    senses many robots at once. Returns the new :class:`MapState`.
+    """
+    resolution = _check_resolution(resolution)
+    origin = jnp.asarray(origin)
+    if not jnp.issubdtype(origin.dtype, jnp.floating):
+        origin = origin.astype(jnp.result_type(float))
+    if origin.shape != (2,):
+        raise ValueError(f"origin: expected shape (2,), got shape {origin.shape}")
+    pose = jnp.asarray(pose, origin.dtype)
+    if pose.shape[-1:] != (3,):
+        raise ValueError(f"pose: expected shape (..., 3) = (x, y, yaw), got shape {pose.shape}")
+    _check_true_maps(true_occupancy, true_semantic)
+    return _sense_jit(jnp.asarray(true_occupancy), jnp.asarray(true_semantic, jnp.int8), state,
+                      pose, origin, resolution, config)
+
+
+def _check_resolution(resolution):
+    try:
+        r = float(resolution)
+    except TypeError:
+        raise ValueError(
+            f"resolution: expected a Python float (metres per cell), got {type(resolution).__name__}"
+        ) from None
+    if not (r > 0 and math.isfinite(r)):
+        raise ValueError(f"resolution: expected a positive finite float, got {resolution!r}")
+    return r
+
+
+def _check_true_maps(true_occupancy, true_semantic):
+    if isinstance(true_occupancy, jax.core.Tracer):
+        return
+    occ = np.asarray(true_occupancy) if not isinstance(true_occupancy, jax.Array) else true_occupancy
+    if occ.ndim != 2 or occ.dtype != np.bool_:
+        raise ValueError(
+            f"true_occupancy: expected a (H, W) bool grid, got shape {tuple(occ.shape)} dtype {occ.dtype}"
+        )
+    sem = true_semantic
+    if not isinstance(sem, jax.core.Tracer):
+        sem = np.asarray(sem) if not isinstance(sem, jax.Array) else sem
+        if tuple(sem.shape) != tuple(occ.shape) or not np.issubdtype(sem.dtype, np.integer):
+            raise ValueError(
+                f"true_semantic: expected an integer (H, W) grid of shape {tuple(occ.shape)}, got "
+                f"shape {tuple(sem.shape)} dtype {sem.dtype}"
+            )
+
+
+@functools.partial(jax.jit, static_argnames=("resolution", "config"))
+def _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config):
+    if pose.ndim > 1:  # a batch of robots, each with its own state
+        fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, origin, resolution, config)  # noqa: E731
+        return jax.vmap(fn)(state, pose)
+    return _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, config)
+
+
+def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, config):
+    H, W = true_occupancy.shape
+    xy, yaw = pose[:2], pose[2]
+    dtype = origin.dtype
+    # Work in a window that holds every cell the sensors can reach: the full-grid updates would
+    # otherwise dominate (a building map has ~2e5 cells, the sensors see a few thousand).
+    max_range = max(config.depth_range, config.object_range)
+    half = int(math.ceil(max_range / resolution)) + 2
+    wh, ww = min(2 * half + 1, H), min(2 * half + 1, W)
+    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
+    start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww]))
+    win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))  # noqa: E731
+    occ_t, sem_t = win(true_occupancy), win(true_semantic)
+    occ, sem = win(state.occupancy), win(state.semantic)
+    w_origin = origin + start[::-1].astype(dtype) * resolution
+
+    # One fan covering the wider field of view out to the longer range; each sensor keeps the
+    # samples inside its own cone and range.
+    wide = max(config.depth_fov_deg, config.object_fov_deg)
+    n_rays = config.rays
+    n_s = _samples(max_range, resolution, config.step_cells)
+    angles = _fan(yaw, wide, n_rays, dtype)
+    rows, cols, vis, _, _ = _cast(occ_t, w_origin, resolution, xy, angles, max_range, n_s)
+    t = (jnp.arange(n_s, dtype=dtype) + 1.0) * (max_range / n_s)
+    rel = jnp.abs(angles - yaw)[:, None]
+    eps = 1e-6
+    in_depth = (rel <= 0.5 * math.radians(config.depth_fov_deg) + eps) & (t <= config.depth_range + eps)
+    in_obj = (rel <= 0.5 * math.radians(config.object_fov_deg) + eps) & (t <= config.object_range + eps)
+    # One scatter for both sensors (bit 0: depth, bit 1: object camera): scatters dominate here.
+    code = (vis & in_depth).astype(jnp.uint8) + 2 * (vis & in_obj).astype(jnp.uint8)
+    hits = jnp.zeros((wh, ww), jnp.uint8).at[rows, cols].max(code, mode="drop")
+    seen, seen_obj = (hits & 1) > 0, (hits & 2) > 0
+    # The robot's own cell is known (it stands there).
+    seen = seen.at[rc[0] - start[0], rc[1] - start[1]].set(True, mode="drop")
+    truth = jnp.where(occ_t, OCCUPIED, FREE).astype(occ.dtype)
+    occ = jnp.where(seen, truth, occ)
+    is_object = (sem_t == DOOR) | (sem_t == WINDOW) | (sem_t == EXIT_SIGN)
+    sem = jnp.where(seen_obj & is_object, sem_t.astype(sem.dtype), sem)
+    return MapState(
+        jax.lax.dynamic_update_slice(state.occupancy, occ, (start[0], start[1])),
+        jax.lax.dynamic_update_slice(state.semantic, sem, (start[0], start[1])),
+    )
+
+
+def cast_rays(occupancy, origin, resolution, xy, angles, max_range):
+    """Ranges (R,) to the first occupied (or off-grid) cell along each ray, ``max_range`` if none.
+
+    occupancy: (H, W) bool; xy: (2,) world start; angles: (R,) world headings in radians. Marched
+    at half a cell, so a range is exact to half a cell. Jitted per (shape, ranges).
+    """
+    resolution = _check_resolution(resolution)
+    origin = jnp.asarray(origin, jnp.result_type(float))
+    n = _samples(float(max_range), resolution, 0.5)
+    return _cast_ranges(jnp.asarray(occupancy), origin, resolution, jnp.asarray(xy, origin.dtype),
+                        jnp.asarray(angles, origin.dtype), float(max_range), n)
+
+
+@functools.partial(jax.jit, static_argnames=("resolution", "max_range", "n"))
+def _cast_ranges(occupancy, origin, resolution, xy, angles, max_range, n):
+    return _cast(occupancy, origin, resolution, xy, angles, max_range, n)[4]
