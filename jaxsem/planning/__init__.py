@@ -34,3 +34,13 @@ from ._shortest_path import (
     shortest_path as shortest_path,
     soft_cost as soft_cost,
 )
+from ._prm import (
+    Roadmap as Roadmap,
+    RoadmapPath as RoadmapPath,
+    build_roadmap as build_roadmap,
+    default_radius as default_radius,
+    embed_local_distribution as embed_local_distribution,
+    knn_within_radius as knn_within_radius,
+    roadmap_shortest_path as roadmap_shortest_path,
+    sample_points as sample_points,
+)
