@@ -44,3 +44,13 @@ from ._prm import (
     roadmap_shortest_path as roadmap_shortest_path,
     sample_points as sample_points,
 )
+from ._navigate import (
+    CONTEXT_SIZE as CONTEXT_SIZE,
+    CROP_SIZE as CROP_SIZE,
+    LocalInputs as LocalInputs,
+    NavConfig as NavConfig,
+    NavResult as NavResult,
+    Trial as Trial,
+    local_inputs as local_inputs,
+    navigate as navigate,
+)

@@ -1,0 +1,299 @@
+"""The online loop of thesis section 3.3.3: plan, follow, sense, replan; and the local inputs.
+
+Each timestep the robot turns towards the next point of its plan, senses (depth + object camera),
+replans if the rest of the plan now crosses a known obstacle or if ``replan_every`` steps have
+passed, then moves ``step_length`` metres along the plan. Because it senses facing the way it is
+about to move (the depth sensor reaches 5 m, a step is 0.25 m), it never drives into an obstacle
+it has not seen. A trial succeeds when the robot is within ``goal_tolerance`` of the goal; it
+fails when a plan cannot be found or after ``max_steps`` steps.
+
+Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM + Unf). Otherwise
+``sampler(inputs: LocalInputs) -> (160, 160)`` probabilities over the robot-centred window
+(e.g. the LSD network's softmax); the window is embedded in the full map (outside: the window's
+minimum, renormalised, section 3.2.5), the PRM samples from it, and edges are weighted by the
+integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwise.
+
+Where the loop runs: sensing, crops, sampling, neighbour search and edge checks are jitted JAX
+(and vmappable: ``sense`` and the roadmap builder take batches); the graph search is scipy's
+Dijkstra on the host, and so is the control flow of a trial, which is why trials run one after
+another (:func:`navigate`) rather than under ``vmap``. Per step the host work is a few
+milliseconds; see ``benchmarks/lsd_speed.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
+from ._prm import build_roadmap, embed_local_distribution, roadmap_shortest_path
+from ._sensors import SensorConfig, _check_resolution, _sense_jit
+
+CROP_SIZE = 160
+CONTEXT_SIZE = 4
+
+
+class LocalInputs(NamedTuple):
+    """What a learned sampler sees (one robot; batch axes may lead when stacked).
+
+    occupancy: (160, 160) int8 partial occupancy crop centred on the robot's cell (the robot is
+        at crop cell [80, 80]); UNKNOWN -1 / FREE 0 / OCCUPIED 1; off the map: OCCUPIED.
+    semantic: (160, 160) int8 partial semantic crop (NONE 0, DOOR 2, WINDOW 3, EXIT_SIGN 4).
+    context: (4,) float32 [cos a, sin a, min(d, d_max) / d_max, goal_outdoors], a the world
+        heading of the goal from the robot (x along crop columns, y along crop rows), d its
+        distance in metres, goal_outdoors 1.0 for a goal outside the building else 0.0.
+    center_cell: (2,) int32 (row, col) of the robot in the full map.
+    """
+
+    occupancy: jax.Array
+    semantic: jax.Array
+    context: jax.Array
+    center_cell: jax.Array
+
+
+@functools.partial(jax.jit, static_argnames=("size", "max_distance", "resolution"))
+def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance):
+    H, W = occupancy.shape
+    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
+    pad = size
+    occ = jnp.pad(occupancy, pad, constant_values=OCCUPIED)
+    sem = jnp.pad(semantic, pad, constant_values=NONE)
+    r0, c0 = rc[0] - size // 2 + pad, rc[1] - size // 2 + pad
+    occ_c = jax.lax.dynamic_slice(occ, (r0, c0), (size, size))
+    sem_c = jax.lax.dynamic_slice(sem, (r0, c0), (size, size))
+    d = goal - xy
+    dist = jnp.sqrt(jnp.sum(d**2) + 1e-12)  # safe: the goal may coincide with the robot
+    ctx = jnp.stack([d[0] / dist, d[1] / dist, jnp.minimum(dist, max_distance) / max_distance,
+                     goal_outdoors.astype(dist.dtype)]).astype(jnp.float32)
+    return LocalInputs(occ_c, sem_c, ctx, rc)
+
+
+def local_inputs(state: MapState, xy, goal, goal_outdoors, origin, resolution: float,
+                 size: int = CROP_SIZE, max_distance: float = 20.0) -> LocalInputs:
+    """Robot-centred crops of the partial maps plus the goal context (see :class:`LocalInputs`).
+
+    state: :class:`MapState` (H, W); xy, goal: (2,) world (x, y); goal_outdoors: bool;
+    max_distance: metres at which the context's distance saturates. Jitted.
+    """
+    resolution = _check_resolution(resolution)
+    origin = jnp.asarray(origin, jnp.result_type(float))
+    return _local_inputs(state.occupancy, state.semantic, jnp.asarray(xy, origin.dtype),
+                         jnp.asarray(goal, origin.dtype), jnp.asarray(bool(goal_outdoors)),
+                         origin, resolution, int(size), float(max_distance))
+
+
+@dataclasses.dataclass(frozen=True)
+class NavConfig:
+    """Settings of the online loop (thesis 3.3.3 defaults where it gives them)."""
+
+    n_samples: int = 500
+    k: int = 10
+    radius: float | None = None  # PRM connection radius (m); None: default_radius(n_samples)
+    step_length: float = 0.25  # metres moved per timestep
+    replan_every: int = 20  # planning timesteps a plan is followed before replanning
+    max_steps: int = 10_000
+    goal_tolerance: float = 0.2
+    edge_weight: str | None = None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
+    sensor: SensorConfig = SensorConfig()
+    max_context_distance: float = 20.0
+
+
+@dataclasses.dataclass
+class NavResult:
+    """Outcome of one trial. path: (T, 2) world positions visited (start first); cost: metres
+    travelled; success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
+    final_state: the partial maps at the end; last_distribution: (H, W) or None."""
+
+    path: np.ndarray
+    cost: float
+    success: bool
+    reason: str
+    steps: int
+    plans: int
+    final_state: MapState
+    last_distribution: np.ndarray | None = None
+
+
+def _polyline_blocked(points: np.ndarray, blocked: np.ndarray, origin, resolution) -> bool:
+    """True when the polyline crosses a blocked cell (samples at most half a cell apart)."""
+    if len(points) < 2:
+        return False
+    seg = np.diff(points, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    n = np.maximum(2, np.ceil(lengths / (0.5 * resolution)).astype(int) + 1)
+    t = np.concatenate([np.linspace(0.0, 1.0, m) for m in n])
+    idx = np.repeat(np.arange(len(seg)), n)
+    pts = points[idx] + t[:, None] * seg[idx]
+    rc = np.floor((pts - origin) / resolution).astype(np.int64)[:, ::-1]
+    H, W = blocked.shape
+    off = (rc[:, 0] < 0) | (rc[:, 0] >= H) | (rc[:, 1] < 0) | (rc[:, 1] >= W)
+    if off.any():
+        return True
+    return bool(blocked[rc[:, 0], rc[:, 1]].any())
+
+
+class Trial:
+    """One navigation trial, advanced a step at a time (:func:`navigate` runs it to the end; the
+    expert data generator interleaves its own queries between steps).
+
+    world: anything with ``occupancy`` (H, W) bool, ``semantic`` (H, W) int8, ``indoor`` (H, W)
+    bool, ``origin`` (2,), ``resolution`` (e.g. a :class:`~jaxsem.planning.Building`).
+    """
+
+    def __init__(self, world, start, goal, key, config: NavConfig = NavConfig(), sampler: Callable | None = None,
+                 yaw0: float = 0.0, goal_outdoors: bool | None = None, state: MapState | None = None):
+        occ = check_grid("world.occupancy", world.occupancy, "bool")
+        sem = check_grid("world.semantic", world.semantic, "int", shape=occ.shape)
+        self.world = world
+        self.origin = np.asarray(world.origin, np.float64)
+        self.resolution = _check_resolution(world.resolution)
+        self.start = check_point("start", start, occ, self.origin, self.resolution)
+        self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
+        if goal_outdoors is None:
+            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[::-1]
+            goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
+        self.goal_outdoors = bool(goal_outdoors)
+        if config.n_samples < 1 or config.max_steps < 1 or not config.step_length > 0:
+            raise ValueError(f"config: n_samples, max_steps >= 1 and step_length > 0 expected, got {config}")
+        self.config = config
+        self.sampler = sampler
+        weight = config.edge_weight or ("euclidean" if sampler is None else "neglogp")
+        if weight not in ("euclidean", "neglogp") or (weight == "neglogp" and sampler is None):
+            raise ValueError(f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}")
+        self.weight = weight
+        self._occ_j = jnp.asarray(occ)
+        self._sem_j = jnp.asarray(sem, jnp.int8)
+        self._origin_j = jnp.asarray(self.origin, jnp.result_type(float))
+        self.key = key
+        self.xy = self.start.copy()
+        self.yaw = float(yaw0)
+        self.state = state if state is not None else empty_map_state(occ.shape)
+        self.path = [self.xy.copy()]
+        self.cost = 0.0
+        self.steps = 0
+        self.plans = 0
+        self.plan: np.ndarray | None = None  # remaining waypoints, current position first
+        self.since_plan = 0
+        self.done = False
+        self.success = False
+        self.reason = ""
+        self.last_distribution = None
+        self._sense()
+
+    def _sense(self):
+        pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._origin_j.dtype)
+        self.state = _sense_jit(self._occ_j, self._sem_j, self.state, pose, self._origin_j,
+                                self.resolution, self.config.sensor)
+
+    def local_inputs(self) -> LocalInputs:
+        return local_inputs(self.state, self.xy, self.goal, self.goal_outdoors, self.origin,
+                            self.resolution, CROP_SIZE, self.config.max_context_distance)
+
+    def _replan(self) -> bool:
+        cfg = self.config
+        self.key, sub = jax.random.split(self.key)
+        known = np.asarray(self.state.occupancy)
+        dist = None
+        if self.sampler is not None:
+            inputs = self.local_inputs()
+            local = self.sampler(inputs)
+            dist = embed_local_distribution(jnp.asarray(local), inputs.center_cell, known.shape)
+            self.last_distribution = dist
+        rm = build_roadmap(sub, known, self.xy, self.goal, cfg.n_samples, self.origin, self.resolution,
+                           distribution=dist, k=cfg.k, radius=cfg.radius, weight=self.weight)
+        self.plans += 1
+        res = roadmap_shortest_path(rm)
+        if not res.found:
+            return False
+        self.plan = np.asarray(res.points, np.float64)
+        self.plan[0] = self.xy
+        self.plan[-1] = self.goal
+        self.since_plan = 0
+        return True
+
+    def _finish(self, success, reason):
+        self.done, self.success, self.reason = True, success, reason
+
+    def step(self) -> bool:
+        """Advances one timestep; returns True while the trial is running."""
+        if self.done:
+            return False
+        cfg = self.config
+        if np.linalg.norm(self.goal - self.xy) <= cfg.goal_tolerance:
+            self._finish(True, "goal")
+            return False
+        if self.steps >= cfg.max_steps:
+            self._finish(False, "max_steps")
+            return False
+        blocked = None
+        if self.plan is not None:
+            # Face the next waypoint and look before moving (so the move itself is always seen).
+            nxt = self.plan[1] if len(self.plan) > 1 else self.goal
+            d = nxt - self.xy
+            if np.hypot(*d) > 1e-9:
+                self.yaw = math.atan2(d[1], d[0])
+                self._sense()
+            blocked = np.asarray(self.state.occupancy) == OCCUPIED
+        if (self.plan is None or self.since_plan >= cfg.replan_every
+                or _polyline_blocked(self.plan, blocked, self.origin, self.resolution)):
+            if not self._replan():
+                self._finish(False, "no_plan")
+                return False
+            d = self.plan[1] - self.xy
+            if np.hypot(*d) > 1e-9:
+                self.yaw = math.atan2(d[1], d[0])
+                self._sense()
+                blocked = np.asarray(self.state.occupancy) == OCCUPIED
+                if _polyline_blocked(self.plan[:2], blocked, self.origin, self.resolution):
+                    # The first leg is blocked by what the turn revealed; replan next step.
+                    self.plan = None
+                    self.steps += 1
+                    return True
+        # Move step_length along the plan.
+        remaining = cfg.step_length
+        plan = self.plan
+        while remaining > 1e-12 and len(plan) > 1:
+            seg = plan[1] - plan[0]
+            L = float(np.hypot(*seg))
+            if L <= remaining:
+                remaining -= L
+                plan = plan[1:]
+            else:
+                plan = plan.copy()
+                plan[0] = plan[0] + seg * (remaining / L)
+                remaining = 0.0
+        moved = cfg.step_length - remaining
+        self.cost += moved
+        self.xy = plan[0].copy()
+        self.plan = plan
+        self.path.append(self.xy.copy())
+        self.steps += 1
+        self.since_plan += 1
+        return True
+
+    def result(self) -> NavResult:
+        dist = None if self.last_distribution is None else np.asarray(self.last_distribution)
+        return NavResult(np.array(self.path), float(self.cost), self.success, self.reason, self.steps,
+                         self.plans, self.state, dist)
+
+
+def navigate(world, start, goal, key, config: NavConfig = NavConfig(), sampler: Callable | None = None,
+             yaw0: float = 0.0, goal_outdoors: bool | None = None) -> NavResult:
+    """Runs one online navigation trial from ``start`` to ``goal`` (world (x, y), (2,)).
+
+    world: a :class:`~jaxsem.planning.Building` (or an object with the same map fields); key: a
+    JAX PRNG key (roadmap samples); sampler: None (uniform PRM) or a function of
+    :class:`LocalInputs` returning (160, 160) probabilities; yaw0: initial heading (radians);
+    goal_outdoors: the context flag (default: from ``world.indoor`` at the goal).
+    Returns a :class:`NavResult`.
+    """
+    trial = Trial(world, start, goal, key, config, sampler, yaw0, goal_outdoors)
+    while trial.step():
+        pass
+    return trial.result()
