@@ -54,3 +54,13 @@ from ._navigate import (
     local_inputs as local_inputs,
     navigate as navigate,
 )
+from ._expert import (
+    ExpertConfig as ExpertConfig,
+    SCHEMA_KEYS as SCHEMA_KEYS,
+    Task as Task,
+    generate_expert_samples as generate_expert_samples,
+    load_expert_dataset as load_expert_dataset,
+    sample_tasks as sample_tasks,
+    write_expert_dataset as write_expert_dataset,
+)
+from ._expert import __doc__ as EXPERT_SCHEMA

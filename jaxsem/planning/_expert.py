@@ -1,0 +1,277 @@
+"""Expert data (thesis section 3.3.2) and the Inside-Inside / Inside-Outside test tasks.
+
+A robot starts indoors and navigates towards a random goal with the uniform PRM (Euclidean
+weights, no prior map), uncovering the partial maps. At random moments (probability
+``sample_prob`` per step) it draws ``goals_per_moment`` new goals and computes their soft-cost
+optimal paths on the *true* map (one single-source Dijkstra from the robot's cell serves them
+all). Each (goal, path) becomes one sample paired with the partial maps at that moment. When the
+robot reaches its goal (or fails), a new navigation task starts from where it stands.
+
+Shard schema (``np.savez_compressed``; ``S`` samples; written by :func:`write_expert_dataset`,
+read by :func:`load_expert_dataset`):
+
+======================  ===================  ==============================================
+key                     shape, dtype         meaning
+======================  ===================  ==============================================
+``occupancy``           (S, 160, 160) int8   partial occupancy crop centred on the robot
+                                             (crop cell [80, 80]); -1 unknown, 0 free,
+                                             1 occupied (off the map: 1)
+``semantic``            (S, 160, 160) int8   partial semantic crop: 0 none, 2 door,
+                                             3 window, 4 exit sign
+``context``             (S, 4) float32       [cos a, sin a, min(d, 20 m) / 20 m, outdoors]
+                                             (a: world heading of the goal, x = crop
+                                             columns, y = crop rows; outdoors 1.0 / 0.0)
+``path_mask``           (S, 160, 160) bool   cells of the optimal path inside the crop
+``path_cells``          (P, 2) int16         the same cells as (row, col) crop indices ...
+``path_offsets``        (S + 1,) int64       ... sample i owns rows offsets[i]:offsets[i+1]
+``robot_xy``            (S, 2) float32       world position of the robot (metres)
+``goal_xy``             (S, 2) float32       world position of the goal
+``goal_outdoors``       (S,) bool            goal outside the building
+``path_cost``           (S,) float32         soft cost of the full optimal path
+``building_seed``       () int64             seed of the building (with ``family``)
+``family``              () str               'train' or 'test'
+``resolution``          () float32           metres per cell (0.1)
+======================  ===================  ==============================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import multiprocessing
+import os
+import pathlib
+from typing import NamedTuple
+
+import jax
+import numpy as np
+import scipy.ndimage
+
+from ._buildings import Building, generate_building
+from ._grid import DEFAULT_RESOLUTION
+from ._navigate import CROP_SIZE, NavConfig, Trial, local_inputs
+from ._shortest_path import SoftCostGraph
+
+SCHEMA_VERSION = 1
+SCHEMA_KEYS = ("occupancy", "semantic", "context", "path_mask", "path_cells", "path_offsets",
+               "robot_xy", "goal_xy", "goal_outdoors", "path_cost", "building_seed", "family",
+               "resolution")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpertConfig:
+    """Settings of expert data generation."""
+
+    samples_per_building: int = 200
+    sample_prob: float = 0.1  # chance per step of a sampling moment
+    goals_per_moment: int = 4
+    min_goal_distance: float = 3.0  # metres, straight line from the robot
+    clearance: float = 0.3  # start/goal cells at least this far from any obstacle
+    outdoor_goal_prob: float = 0.4
+    nav: NavConfig = NavConfig(n_samples=1000, max_steps=600)
+    max_tasks: int = 200  # safety bound on navigation tasks per building
+
+
+def _clear_cells(b: Building, clearance: float):
+    d = scipy.ndimage.distance_transform_edt(~b.occupancy) * b.resolution
+    ok = d >= clearance
+    return np.argwhere(ok & b.indoor), np.argwhere(ok & ~b.indoor & (d >= clearance))
+
+
+def _to_world(b, rc):
+    return b.origin + (np.asarray(rc)[..., ::-1] + 0.5) * b.resolution
+
+
+class Task(NamedTuple):
+    """A test task: start/goal world (x, y) (2,), initial yaw, goal_outdoors, c_star (metres of
+    the soft-cost optimal path on the true map), c_star_cost (its soft cost)."""
+
+    start: np.ndarray
+    goal: np.ndarray
+    yaw0: float
+    goal_outdoors: bool
+    c_star: float
+    c_star_cost: float
+
+
+def sample_tasks(building: Building, kind: str, count: int, seed: int, min_distance: float = 8.0,
+                 clearance: float = 0.3, graph: SoftCostGraph | None = None) -> list:
+    """``count`` test tasks of ``kind`` 'II' (start and goal indoors) or 'IO' (start indoors,
+    goal outdoors), at least ``min_distance`` apart, each with its resolution-optimal C*."""
+    if kind not in ("II", "IO"):
+        raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
+    rng = np.random.default_rng([int(seed), building.seed, 0x7A5C])
+    inside, outside = _clear_cells(building, clearance)
+    graph = graph or SoftCostGraph(building.occupancy, building.origin, building.resolution)
+    tasks = []
+    for _ in range(50 * count):
+        if len(tasks) == count:
+            break
+        s = _to_world(building, inside[rng.integers(len(inside))])
+        pool = inside if kind == "II" else outside
+        g = _to_world(building, pool[rng.integers(len(pool))])
+        if np.linalg.norm(g - s) < min_distance:
+            continue
+        p = graph.path(s, g)
+        if not p.found:
+            continue
+        tasks.append(Task(s, g, float(rng.uniform(-math.pi, math.pi)), kind == "IO", p.length, p.cost))
+    return tasks
+
+
+def _crop_path(cells: np.ndarray, center: np.ndarray, size: int):
+    local = cells - center[None, :] + size // 2
+    keep = np.all((local >= 0) & (local < size), axis=1)
+    local = local[keep]
+    mask = np.zeros((size, size), bool)
+    mask[local[:, 0], local[:, 1]] = True
+    return mask, np.unique(local, axis=0).astype(np.int16)
+
+
+def generate_expert_samples(building: Building, seed: int, config: ExpertConfig = ExpertConfig(),
+                            progress=None) -> dict:
+    """Expert samples for one building as a dict of arrays (the shard schema of this module).
+
+    ``progress``: optional callable ``progress(n_new)`` called as samples are made.
+    """
+    rng = np.random.default_rng([int(seed), building.seed, 0xE4])
+    key = jax.random.PRNGKey(int(rng.integers(2**31)))
+    graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
+    inside, outside = _clear_cells(building, config.clearance)
+    out = {k: [] for k in ("occupancy", "semantic", "context", "path_mask", "path_cells",
+                           "robot_xy", "goal_xy", "goal_outdoors", "path_cost")}
+    n = 0
+    start = _to_world(building, inside[rng.integers(len(inside))])
+    state = None
+    for _ in range(config.max_tasks):
+        if n >= config.samples_per_building:
+            break
+        pool = outside if rng.random() < config.outdoor_goal_prob else inside
+        goal = _to_world(building, pool[rng.integers(len(pool))])
+        key, sub = jax.random.split(key)
+        trial = Trial(building, start, goal, sub, config.nav, None, float(rng.uniform(-math.pi, math.pi)),
+                      state=state)
+        while n < config.samples_per_building:
+            if rng.random() < config.sample_prob:
+                tree = graph.search(trial.xy)
+                for _ in range(config.goals_per_moment):
+                    out_goal = rng.random() < config.outdoor_goal_prob
+                    pool = outside if out_goal else inside
+                    for _try in range(20):
+                        g = _to_world(building, pool[rng.integers(len(pool))])
+                        if np.linalg.norm(g - trial.xy) >= config.min_goal_distance:
+                            break
+                    p = tree.path_to(g)
+                    if not p.found:
+                        continue
+                    inp = local_inputs(trial.state, trial.xy, g, out_goal, building.origin,
+                                       building.resolution, CROP_SIZE, config.nav.max_context_distance)
+                    mask, cells = _crop_path(p.cells, np.asarray(inp.center_cell), CROP_SIZE)
+                    out["occupancy"].append(np.asarray(inp.occupancy))
+                    out["semantic"].append(np.asarray(inp.semantic))
+                    out["context"].append(np.asarray(inp.context))
+                    out["path_mask"].append(mask)
+                    out["path_cells"].append(cells)
+                    out["robot_xy"].append(trial.xy.astype(np.float32))
+                    out["goal_xy"].append(g.astype(np.float32))
+                    out["goal_outdoors"].append(out_goal)
+                    out["path_cost"].append(np.float32(p.cost))
+                    n += 1
+                    if progress is not None:
+                        progress(1)
+                    if n >= config.samples_per_building:
+                        break
+            if not trial.step():
+                break
+        start, state = trial.xy.copy(), trial.state
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in out["path_cells"]])]).astype(np.int64)
+    size = CROP_SIZE
+    return {
+        "occupancy": np.asarray(out["occupancy"], np.int8).reshape(-1, size, size),
+        "semantic": np.asarray(out["semantic"], np.int8).reshape(-1, size, size),
+        "context": np.asarray(out["context"], np.float32).reshape(-1, 4),
+        "path_mask": np.asarray(out["path_mask"], bool).reshape(-1, size, size),
+        "path_cells": (np.concatenate(out["path_cells"]) if out["path_cells"] else np.zeros((0, 2))).astype(np.int16),
+        "path_offsets": offsets,
+        "robot_xy": np.asarray(out["robot_xy"], np.float32).reshape(-1, 2),
+        "goal_xy": np.asarray(out["goal_xy"], np.float32).reshape(-1, 2),
+        "goal_outdoors": np.asarray(out["goal_outdoors"], bool),
+        "path_cost": np.asarray(out["path_cost"], np.float32),
+        "building_seed": np.int64(building.seed),
+        "family": np.str_(building.family),
+        "resolution": np.float32(building.resolution),
+    }
+
+
+def _shard_job(args):
+    family, seed, config, out_dir, resolution = args
+    b = generate_building(seed, family, resolution)
+    data = generate_expert_samples(b, seed, config)
+    path = pathlib.Path(out_dir) / f"expert_{family}_{seed:05d}.npz"
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, **data)
+    os.replace(tmp, path)
+    return str(path), int(len(data["context"]))
+
+
+def write_expert_dataset(out_dir, family: str, seeds, config: ExpertConfig = ExpertConfig(),
+                         workers: int = 2, resolution: float = DEFAULT_RESOLUTION, progress: bool = True):
+    """Generates one shard per building seed into ``out_dir`` (``expert_<family>_<seed>.npz``),
+    in parallel over buildings (``workers`` processes, spawned), with a tqdm bar; also writes
+    ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths."""
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "schema.json").write_text(json.dumps(
+        {"version": SCHEMA_VERSION, "keys": list(SCHEMA_KEYS), "crop_size": CROP_SIZE,
+         "doc": "see jaxsem.planning._expert module docstring / jaxsem.planning.EXPERT_SCHEMA"}, indent=1))
+    jobs = [(family, int(s), config, str(out), resolution) for s in seeds
+            if not (out / f"expert_{family}_{int(s):05d}.npz").exists()]
+    done = [str(out / f"expert_{family}_{int(s):05d}.npz") for s in seeds
+            if (out / f"expert_{family}_{int(s):05d}.npz").exists()]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), desc=f"expert {family}", unit="building")
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            done.append(_shard_job(job)[0])
+            if bar:
+                bar.update(1)
+    else:
+        ctx = multiprocessing.get_context("spawn")  # JAX is multithreaded: never fork it
+        with ctx.Pool(workers) as pool:
+            for path, _ in pool.imap_unordered(_shard_job, jobs):
+                done.append(path)
+                if bar:
+                    bar.update(1)
+    if bar:
+        bar.close()
+    return sorted(done)
+
+
+def load_expert_dataset(paths) -> dict:
+    """Concatenates shards (paths or a folder) into one dict with the schema's per-sample keys
+    plus ``building_seed`` (S,) and ``family`` (S,); ``path_offsets`` is re-based."""
+    if isinstance(paths, (str, os.PathLike)) and pathlib.Path(paths).is_dir():
+        paths = sorted(pathlib.Path(paths).glob("expert_*.npz"))
+    paths = [pathlib.Path(p) for p in paths]
+    if not paths:
+        raise ValueError("paths: no expert shards given (expected expert_*.npz files)")
+    parts = {k: [] for k in SCHEMA_KEYS}
+    base = 0
+    for p in paths:
+        with np.load(p) as z:
+            S = len(z["context"])
+            for k in ("occupancy", "semantic", "context", "path_mask", "path_cells", "robot_xy",
+                      "goal_xy", "goal_outdoors", "path_cost"):
+                parts[k].append(z[k])
+            parts["path_offsets"].append(z["path_offsets"][:-1] + base)
+            base += int(z["path_offsets"][-1])
+            parts["building_seed"].append(np.full(S, int(z["building_seed"])))
+            parts["family"].append(np.full(S, str(z["family"])))
+            parts["resolution"].append(np.full(S, float(z["resolution"]), np.float32))
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["path_offsets"] = np.append(out["path_offsets"], base)
+    return out
