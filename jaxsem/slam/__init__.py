@@ -1,0 +1,19 @@
+"""ROSHAN object SLAM: problems, batch and online solvers, single-view initialisation.
+
+Data structures (padded to capacity with masks, equinox pytrees): :class:`SlamProblem`,
+:class:`SlamEstimate`, :class:`Frame`, :class:`Capacity`, :class:`NoiseModel`,
+:class:`SolverConfig`. The residual functions and the class shape table are in
+:mod:`jaxsem.factors`.
+"""
+
+from ._problem import (
+    Capacity as Capacity,
+    Frame as Frame,
+    NoiseModel as NoiseModel,
+    SlamEstimate as SlamEstimate,
+    SlamProblem as SlamProblem,
+    SolverConfig as SolverConfig,
+    make_frame as make_frame,
+    make_problem as make_problem,
+    stack_problems as stack_problems,
+)

@@ -1,0 +1,449 @@
+"""Data structures of ROSHAN object SLAM: problems, estimates, frames and solver settings.
+
+Everything is an equinox module (a pytree) padded to a fixed capacity with boolean masks, so the
+shapes are static: a problem with fewer poses / boxes / objects than its capacity compiles once,
+and many problems of the same padded size can be stacked and ``vmap``-ed.
+
+Index conventions:
+
+- poses ``t`` in ``[0, T)``, boxes ``m`` in ``[0, M)``, objects ``j`` in ``[0, J)``;
+- ``box_pose[m]`` / ``box_object[m]`` say which pose saw box ``m`` and which object it is;
+- ``object_class[j]`` indexes the class table :data:`jaxsem.factors.CLASS_NAMES`
+  (``jaxsem.factors.class_index("car")``);
+- padded entries have ``mask == False``; their index fields must still be in range (use 0).
+
+Build problems from numpy with :func:`make_problem` (validates and raises ``ValueError``); the
+simulator and the front end may construct the modules directly when they know the data is sane.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "SlamProblem",
+    "SlamEstimate",
+    "Frame",
+    "Capacity",
+    "NoiseModel",
+    "SolverConfig",
+    "make_problem",
+    "make_frame",
+    "stack_problems",
+]
+
+
+class SlamProblem(eqx.Module):
+    """Measurements of one map, padded to capacity (T poses, M boxes, J objects).
+
+    Attributes:
+      K: (3, 3) pinhole intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``.
+      image_size: (2,) ``[width, height]`` in pixels (for the border-edge classification).
+      pose_prior: (T, 4, 4) ``camera_T_world`` from odometry / VIO (the pose-prior factor mean).
+      pose_mask: (T,) bool, True for real poses.
+      box: (M, 4) measured boxes ``[u_min, v_min, u_max, v_max]`` in pixels.
+      box_pose: (M,) int32 pose index of each box.
+      box_object: (M,) int32 object index of each box (ground-truth or front-end association).
+      box_mask: (M,) bool, True for real boxes.
+      texture_depth: (M,) metres, texture-plane depth measured with box ``m`` (eq. 4.11).
+      texture_mask: (M,) bool, True where a texture-plane measurement exists.
+      object_class: (J,) int32 index into :data:`jaxsem.factors.CLASS_NAMES`.
+      object_mask: (J,) bool, True for real objects.
+    """
+
+    K: jnp.ndarray
+    image_size: jnp.ndarray
+    pose_prior: jnp.ndarray
+    pose_mask: jnp.ndarray
+    box: jnp.ndarray
+    box_pose: jnp.ndarray
+    box_object: jnp.ndarray
+    box_mask: jnp.ndarray
+    texture_depth: jnp.ndarray
+    texture_mask: jnp.ndarray
+    object_class: jnp.ndarray
+    object_mask: jnp.ndarray
+
+    @property
+    def num_poses(self) -> int:
+        return self.pose_prior.shape[-3]
+
+    @property
+    def num_boxes(self) -> int:
+        return self.box.shape[-2]
+
+    @property
+    def num_objects(self) -> int:
+        return self.object_class.shape[-1]
+
+
+class SlamEstimate(eqx.Module):
+    """Values of the variables (or ground truth) of one map.
+
+    Attributes:
+      camera_T_world: (T, 4, 4) camera poses (world-to-camera, OpenCV axes).
+      rotation: (J, 3, 3) ellipsoid rotations, object-to-world.
+      center: (J, 3) ellipsoid centres in the world.
+      radii: (J, 3) semi-axis lengths in metres (always positive in a solver's output).
+    """
+
+    camera_T_world: jnp.ndarray
+    rotation: jnp.ndarray
+    center: jnp.ndarray
+    radii: jnp.ndarray
+
+
+class Frame(eqx.Module):
+    """One frame for the online smoother, with up to D detections (padded).
+
+    Attributes:
+      pose_prior: (4, 4) ``camera_T_world`` from odometry / VIO.
+      box: (D, 4) detected boxes ``[u_min, v_min, u_max, v_max]`` in pixels.
+      box_class: (D,) int32 class index into :data:`jaxsem.factors.CLASS_NAMES`.
+      texture_depth: (D,) metres (ignored where ``texture_mask`` is False).
+      texture_mask: (D,) bool.
+      object_id: (D,) int32 association id of each detection, in ``[0, capacity.max_objects)``;
+        an id seen for the first time creates (initialises) a new object.
+      box_mask: (D,) bool, True for real detections.
+    """
+
+    pose_prior: jnp.ndarray
+    box: jnp.ndarray
+    box_class: jnp.ndarray
+    texture_depth: jnp.ndarray
+    texture_mask: jnp.ndarray
+    object_id: jnp.ndarray
+    box_mask: jnp.ndarray
+
+
+class Capacity(NamedTuple):
+    """Static sizes of an online smoother (changing any of them recompiles).
+
+    ``max_poses`` is the sliding window of poses kept in the graph (older poses are
+    marginalised by freezing them); ``max_boxes`` the number of box factors kept;
+    ``max_objects`` the number of object slots (= the range of association ids);
+    ``max_detections`` the padded number of detections per :class:`Frame`.
+    """
+
+    max_poses: int = 64
+    max_objects: int = 32
+    max_boxes: int = 512
+    max_detections: int = 16
+
+
+class NoiseModel(eqx.Module):
+    """Standard deviations that whiten the residuals (all traced floats, so vmappable).
+
+    Attributes:
+      pose_rotation_sigma: radians, pose-prior rotation noise (per tangent axis).
+      pose_translation_sigma: metres, pose-prior translation noise (per axis).
+      box_sigma: pixels, per box edge.
+      texture_sigma: metres, texture-plane depth.
+      shape_prior_scale: multiplies the class table's per-axis sigmas (1.0 = the table).
+    """
+
+    pose_rotation_sigma: float | jnp.ndarray = 0.0175
+    pose_translation_sigma: float | jnp.ndarray = 0.05
+    box_sigma: float | jnp.ndarray = 3.0
+    texture_sigma: float | jnp.ndarray = 0.3
+    shape_prior_scale: float | jnp.ndarray = 1.0
+
+
+class SolverConfig(eqx.Module):
+    """Which factors are used, how they are weighted, and how the solvers iterate.
+
+    The thesis' baseline is ``SolverConfig(use_texture=False, use_shape_prior=False)``; ROSHAN is
+    the default. The class table (``shape_prior_mean``, ``shape_prior_sigma``, both (C, 3) semi-axis
+    radii in metres) is a traced field so one can differentiate through it; ``None`` means the
+    table of :data:`jaxsem.factors.SHAPE_PRIORS`.
+
+    Attributes (static ones set shapes / control flow; changing them recompiles):
+      noise: :class:`NoiseModel`.
+      use_texture, use_shape_prior: static bools, enable factors 3 and 4 of eq. 4.13.
+      baseline_shape_weight: weak shape regulariser kept when ``use_shape_prior`` is False
+        (the thesis keeps shape regularisation in the baseline), as a multiple of the
+        class sigma (e.g. 10.0 = ten times looser than ROSHAN's prior). 0 disables it.
+      border_margin: pixels; a measured box edge within this distance of the image border is
+        non-constraining and dropped (section 4.3.2).
+      box_loss, texture_loss, shape_loss, pose_loss: static robust loss names per factor type,
+        ``"l2"``, ``"huber"`` or ``"cauchy"``.
+      robust_scale: threshold of the robust losses in whitened units (sigmas).
+      default_depth: metres, single-view initialisation depth without a texture plane.
+      max_steps: static, Levenberg-Marquardt iteration cap.
+      rtol, atol: LM tolerances.
+      barrier_weight: weight of the degenerate-geometry penalty (depth / camera-inside).
+      min_depth: metres, the depth below which the near side of an ellipsoid counts as too close.
+    """
+
+    noise: NoiseModel = NoiseModel()
+    use_texture: bool = eqx.field(static=True, default=True)
+    use_shape_prior: bool = eqx.field(static=True, default=True)
+    baseline_shape_weight: float | jnp.ndarray = 0.0
+    border_margin: float | jnp.ndarray = 10.0
+    box_loss: str = eqx.field(static=True, default="l2")
+    texture_loss: str = eqx.field(static=True, default="l2")
+    shape_loss: str = eqx.field(static=True, default="l2")
+    pose_loss: str = eqx.field(static=True, default="l2")
+    robust_scale: float | jnp.ndarray = 2.0
+    default_depth: float | jnp.ndarray = 10.0
+    max_steps: int = eqx.field(static=True, default=50)
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-8)
+    barrier_weight: float | jnp.ndarray = 10.0
+    min_depth: float | jnp.ndarray = 0.1
+    shape_prior_mean: jnp.ndarray | None = None
+    shape_prior_sigma: jnp.ndarray | None = None
+
+
+# --------------------------------------------------------------------------------------------
+# Validating constructors (numpy in, equinox modules out).
+
+
+def _np(name, x, shape_tail, dtype=float):
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to a {np.dtype(dtype).name} array ({exc})") from None
+    if shape_tail is not None and arr.shape[arr.ndim - len(shape_tail):] != tuple(shape_tail):
+        raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    return arr
+
+
+def _check_boxes(name, box, mask, image_size=None):
+    """Raise on non-finite or inverted boxes among the unmasked ones."""
+    bad_finite = mask & ~np.all(np.isfinite(box), axis=-1)
+    if bad_finite.any():
+        idx = np.flatnonzero(bad_finite)[:5].tolist()
+        raise ValueError(f"{name}: non-finite box values at indices {idx} (first values {box[bad_finite][0].tolist()})")
+    inverted = mask & ((box[..., 2] <= box[..., 0]) | (box[..., 3] <= box[..., 1]))
+    if inverted.any():
+        idx = np.flatnonzero(inverted)[:5].tolist()
+        raise ValueError(
+            f"{name}: inverted or empty boxes at indices {idx} (first {box[inverted][0].tolist()}); "
+            "expected [u_min, v_min, u_max, v_max] with u_max > u_min and v_max > v_min"
+        )
+
+
+def make_problem(
+    K,
+    image_size,
+    pose_prior,
+    box,
+    box_pose,
+    box_object,
+    object_class,
+    texture_depth=None,
+    texture_mask=None,
+    *,
+    pose_mask=None,
+    box_mask=None,
+    object_mask=None,
+    capacity: tuple[int, int, int] | None = None,
+    dtype=None,
+) -> SlamProblem:
+    """Validated :class:`SlamProblem` from numpy-like inputs, optionally padded to capacity.
+
+    Args:
+      K: (3, 3) intrinsics. image_size: (2,) ``[width, height]``.
+      pose_prior: (T, 4, 4) ``camera_T_world``; box: (M, 4); box_pose, box_object: (M,) ints.
+      object_class: (J,) class indices, or class names (``"car"``) resolved with
+        :func:`jaxsem.factors.class_index`.
+      texture_depth: optional (M,) metres; entries that are NaN are treated as missing.
+      texture_mask: optional (M,) bool (default: where ``texture_depth`` is finite and positive).
+      pose_mask, box_mask, object_mask: optional masks (default all True).
+      capacity: optional ``(T_cap, M_cap, J_cap)`` to pad to (>= the data sizes).
+      dtype: float dtype of the arrays (default: jax's default float).
+
+    Raises:
+      ValueError: wrong shapes, non-finite K or poses, NaN or inverted boxes, class names not
+        in the table, box indices that refer to poses or objects that do not exist (or are
+        masked out: "detections for frames never posed"), non-positive image size.
+    """
+    from .. import factors as _factors
+
+    dtype = dtype or jnp.result_type(float)
+    K = _np("K", K, (3, 3))
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
+    image_size = _np("image_size", image_size, (2,))
+    if image_size.shape != (2,) or not np.all(image_size > 0):
+        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+    pose_prior = _np("pose_prior", pose_prior, (4, 4))
+    if pose_prior.ndim != 3:
+        raise ValueError(f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}")
+    if not np.all(np.isfinite(pose_prior)):
+        raise ValueError("pose_prior: must be finite, got NaN or inf")
+    T = pose_prior.shape[0]
+    box = _np("box", box, (4,))
+    if box.ndim != 2:
+        raise ValueError(f"box: expected shape (M, 4), got {box.shape}")
+    M = box.shape[0]
+    box_pose = _np("box_pose", box_pose, None, dtype=np.int64).reshape(-1)
+    box_object = _np("box_object", box_object, None, dtype=np.int64).reshape(-1)
+    for name, arr in (("box_pose", box_pose), ("box_object", box_object)):
+        if arr.shape != (M,):
+            raise ValueError(f"{name}: expected shape ({M},) to match box, got {arr.shape}")
+    object_class = np.asarray(object_class)
+    if object_class.dtype.kind in "USO":
+        object_class = np.array([_factors.class_index(str(c)) for c in object_class.reshape(-1)])
+    object_class = object_class.astype(np.int64).reshape(-1)
+    J = object_class.shape[0]
+    n_classes = len(_factors.CLASS_NAMES)
+    if np.any((object_class < 0) | (object_class >= n_classes)):
+        raise ValueError(
+            f"object_class: indices must be in [0, {n_classes}) (classes {list(_factors.CLASS_NAMES)}), "
+            f"got {object_class.tolist()}"
+        )
+    pose_mask = np.ones(T, bool) if pose_mask is None else _np("pose_mask", pose_mask, None, bool).reshape(-1)
+    box_mask = np.ones(M, bool) if box_mask is None else _np("box_mask", box_mask, None, bool).reshape(-1)
+    object_mask = np.ones(J, bool) if object_mask is None else _np("object_mask", object_mask, None, bool).reshape(-1)
+    if pose_mask.shape != (T,) or box_mask.shape != (M,) or object_mask.shape != (J,):
+        raise ValueError(
+            f"masks: expected pose_mask ({T},), box_mask ({M},), object_mask ({J},), got "
+            f"{pose_mask.shape}, {box_mask.shape}, {object_mask.shape}"
+        )
+    _check_boxes("box", box, box_mask)
+    bad_pose = box_mask & ((box_pose < 0) | (box_pose >= T))
+    if bad_pose.any():
+        raise ValueError(f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}")
+    unposed = box_mask & ~pose_mask[np.clip(box_pose, 0, T - 1)]
+    if unposed.any():
+        raise ValueError(
+            f"box_pose: boxes {np.flatnonzero(unposed)[:5].tolist()} refer to frames that were never "
+            f"posed (pose_mask False at poses {np.unique(box_pose[unposed])[:5].tolist()})"
+        )
+    bad_obj = box_mask & ((box_object < 0) | (box_object >= J))
+    if bad_obj.any():
+        raise ValueError(f"box_object: indices must be in [0, {J}), got {box_object[bad_obj][:5].tolist()}")
+    unknown = box_mask & ~object_mask[np.clip(box_object, 0, J - 1)]
+    if unknown.any():
+        raise ValueError(f"box_object: boxes {np.flatnonzero(unknown)[:5].tolist()} refer to masked-out objects")
+    if texture_depth is None:
+        texture_depth = np.zeros(M)
+        tex_default = np.zeros(M, bool)
+    else:
+        texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
+        if texture_depth.shape != (M,):
+            raise ValueError(f"texture_depth: expected shape ({M},), got {texture_depth.shape}")
+        tex_default = np.isfinite(texture_depth) & (texture_depth > 0)
+    if texture_mask is None:
+        texture_mask = tex_default
+    else:
+        texture_mask = _np("texture_mask", texture_mask, None, bool).reshape(-1)
+        bad = texture_mask & ~tex_default
+        if bad.any():
+            warnings.warn(
+                f"texture_depth: {int(bad.sum())} measurements are non-finite or <= 0; masked out",
+                stacklevel=2,
+            )
+            texture_mask = texture_mask & tex_default
+    texture_mask = texture_mask & box_mask
+    texture_depth = np.where(texture_mask, texture_depth, 0.0)
+
+    if capacity is not None:
+        Tc, Mc, Jc = capacity
+        if Tc < T or Mc < M or Jc < J:
+            raise ValueError(f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}")
+        eye = np.broadcast_to(np.eye(4), (Tc - T, 4, 4))
+        pose_prior = np.concatenate([pose_prior, eye])
+        pose_mask = np.concatenate([pose_mask, np.zeros(Tc - T, bool)])
+        pad_box = np.broadcast_to(np.array([0.0, 0.0, 1.0, 1.0]), (Mc - M, 4))
+        box = np.concatenate([box, pad_box])
+        zi = np.zeros(Mc - M, np.int64)
+        box_pose = np.concatenate([box_pose, zi])
+        box_object = np.concatenate([box_object, zi])
+        box_mask = np.concatenate([box_mask, np.zeros(Mc - M, bool)])
+        texture_depth = np.concatenate([texture_depth, np.zeros(Mc - M)])
+        texture_mask = np.concatenate([texture_mask, np.zeros(Mc - M, bool)])
+        object_class = np.concatenate([object_class, np.zeros(Jc - J, np.int64)])
+        object_mask = np.concatenate([object_mask, np.zeros(Jc - J, bool)])
+    # Padded / masked boxes get a harmless finite value so nothing downstream sees NaN.
+    box = np.where(box_mask[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
+    f = lambda a: jnp.asarray(a, dtype)
+    i = lambda a: jnp.asarray(np.clip(a, 0, None), jnp.int32)
+    return SlamProblem(
+        K=f(K), image_size=f(image_size), pose_prior=f(pose_prior), pose_mask=jnp.asarray(pose_mask),
+        box=f(box), box_pose=i(box_pose), box_object=i(box_object), box_mask=jnp.asarray(box_mask),
+        texture_depth=f(texture_depth), texture_mask=jnp.asarray(texture_mask),
+        object_class=i(object_class), object_mask=jnp.asarray(object_mask),
+    )
+
+
+def make_frame(
+    pose_prior,
+    box,
+    box_class,
+    object_id,
+    texture_depth=None,
+    *,
+    max_detections: int = 16,
+    max_objects: int | None = None,
+    dtype=None,
+) -> Frame:
+    """Validated :class:`Frame` padded to ``max_detections`` from numpy-like inputs.
+
+    Args:
+      pose_prior: (4, 4) ``camera_T_world``. box: (N, 4). box_class: (N,) indices or class names.
+      object_id: (N,) association ids (``>= 0``, ``< max_objects`` when given).
+      texture_depth: optional (N,); NaN / non-positive entries mean "no texture plane".
+
+    NaN or inverted boxes are dropped with a ``warnings.warn`` (a detector glitch should not
+    stop an online system); wrong shapes, unknown class names and out-of-range ids raise.
+    """
+    from .. import factors as _factors
+
+    dtype = dtype or jnp.result_type(float)
+    pose_prior = _np("pose_prior", pose_prior, (4, 4))
+    if pose_prior.shape != (4, 4) or not np.all(np.isfinite(pose_prior)):
+        raise ValueError(f"pose_prior: expected a finite (4, 4) camera_T_world, got shape {pose_prior.shape}")
+    box = _np("box", box, (4,)).reshape(-1, 4)
+    N = box.shape[0]
+    if N > max_detections:
+        raise ValueError(f"box: {N} detections exceed max_detections={max_detections}")
+    box_class = np.asarray(box_class).reshape(-1)
+    if box_class.dtype.kind in "USO":
+        box_class = np.array([_factors.class_index(str(c)) for c in box_class], np.int64)
+    box_class = box_class.astype(np.int64)
+    object_id = _np("object_id", object_id, None, np.int64).reshape(-1)
+    if box_class.shape != (N,) or object_id.shape != (N,):
+        raise ValueError(f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}")
+    n_classes = len(_factors.CLASS_NAMES)
+    if np.any((box_class < 0) | (box_class >= n_classes)):
+        raise ValueError(f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}")
+    if np.any(object_id < 0) or (max_objects is not None and np.any(object_id >= max_objects)):
+        raise ValueError(f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}")
+    ok = np.all(np.isfinite(box), axis=-1) & (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
+    if not ok.all():
+        warnings.warn(
+            f"box: dropped {int((~ok).sum())} NaN or inverted detections (indices {np.flatnonzero(~ok).tolist()})",
+            stacklevel=2,
+        )
+    if texture_depth is None:
+        texture_depth = np.full(N, np.nan)
+    texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
+    if texture_depth.shape != (N,):
+        raise ValueError(f"texture_depth: expected shape ({N},), got {texture_depth.shape}")
+    tex_mask = ok & np.isfinite(texture_depth) & (texture_depth > 0)
+    pad = max_detections - N
+    box = np.where(ok[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
+    return Frame(
+        pose_prior=jnp.asarray(pose_prior, dtype),
+        box=jnp.asarray(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype),
+        box_class=jnp.asarray(np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32),
+        texture_depth=jnp.asarray(np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)]), dtype),
+        texture_mask=jnp.asarray(np.concatenate([tex_mask, np.zeros(pad, bool)])),
+        object_id=jnp.asarray(np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32),
+        box_mask=jnp.asarray(np.concatenate([ok, np.zeros(pad, bool)])),
+    )
+
+
+def stack_problems(problems):
+    """Stack problems of equal padded size along a new leading axis (for ``jax.vmap``)."""
+    import jax
+
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *problems)
