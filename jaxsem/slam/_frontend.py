@@ -536,7 +536,7 @@ def _check_estimates(estimates, known_ids):
         arrays[name] = value
     keep = np.array([int(i) in known_ids for i in ids], dtype=bool).reshape(-1)
     for name, value in arrays.items():
-        bad = keep & ~np.all(np.isfinite(value.reshape(n, -1)), axis=-1)
+        bad = keep & ~np.all(np.isfinite(value.reshape(n, int(np.prod(value.shape[1:])))), axis=-1)
         if bad.any():
             raise ValueError(
                 f"landmark_estimates.{name}: must be finite, got non-finite values for ids "
