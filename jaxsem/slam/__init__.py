@@ -17,3 +17,12 @@ from ._problem import (
     make_problem as make_problem,
     stack_problems as stack_problems,
 )
+from ._frontend import (  # OpenCV front end for image sequences (thesis 4.5.1)
+    AssociatedDetection as AssociatedDetection,
+    FrontEnd as FrontEnd,
+    FrontEndConfig as FrontEndConfig,
+    LandmarkEstimates as LandmarkEstimates,
+    hs_histogram as hs_histogram,
+    to_frame as to_frame,
+    triangulate_points as triangulate_points,
+)
