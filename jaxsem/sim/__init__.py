@@ -1,0 +1,21 @@
+"""Simulation: random ellipsoid maps, camera paths and noisy ROSHAN measurements (thesis 4.4).
+
+Public names are re-exported from private modules; import them from here.
+"""
+
+from ._ellipsoid_maps import (
+    SimConfig as SimConfig,
+    SimulatedMap as SimulatedMap,
+    camera_path as camera_path,
+    class_table as class_table,
+    detect as detect,
+    intrinsics as intrinsics,
+    perturb_poses as perturb_poses,
+    quadricslam_config as quadricslam_config,
+    random_objects as random_objects,
+    simulate as simulate,
+    simulate_batch as simulate_batch,
+    simulate_views as simulate_views,
+    single_view_init as single_view_init,
+    thesis_config as thesis_config,
+)
