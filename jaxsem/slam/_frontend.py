@@ -600,7 +600,8 @@ class _Landmark:
     points: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2), np.float32))
     anchor_uv: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
     anchor_pose: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4, 4)))
-    flow: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    # image centroid predicted without an estimate: last box centre moved by the tracks' flow
+    centre: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
 
 
 class FrontEnd:
@@ -675,7 +676,7 @@ class FrontEnd:
           landmark_estimates: the smoother's current ellipsoids
             (:class:`LandmarkEstimates` or ``{id: (rotation, center, radii)}``), or None. Used to
             predict landmark centroids; landmarks without an estimate (or behind the camera) fall
-            back on their last box moved by their tracks' median flow.
+            back on their last box centre moved by their tracks' median flow since then.
 
         Returns:
           list of :class:`AssociatedDetection`, one per box, in input order.
@@ -725,6 +726,7 @@ class FrontEnd:
                 is_new = False
             lm.histograms = (lm.histograms + [hists[i]])[-cfg.max_histograms:]
             lm.last_box = box
+            lm.centre = 0.5 * (box[:2] + box[2:])
             lm.last_frame = self._frame
             lm.missed = 0
             self._reseed(lm, gray, box, pose)
@@ -753,8 +755,6 @@ class FrontEnd:
     def _track(self, gray):
         """Pyramidal LK of every landmark's corners from the previous image, forward-backward."""
         cfg = self.config
-        for lm in self._landmarks.values():
-            lm.flow = np.zeros(2)
         owners = [lm for lm in self._landmarks.values() if lm.points.shape[0] > 0]
         if self._prev_gray is None or not owners:
             return
@@ -778,18 +778,15 @@ class FrontEnd:
             stop = start + lm.points.shape[0]
             k = keep[start:stop]
             if np.any(k):
-                lm.flow = np.median(p1[start:stop][k] - p0[start:stop][k], axis=0).astype(np.float64)
+                lm.centre = lm.centre + np.median(p1[start:stop][k] - p0[start:stop][k], axis=0)
             lm.points = p1[start:stop][k]
             lm.anchor_uv = lm.anchor_uv[k]
             lm.anchor_pose = lm.anchor_pose[k]
             start = stop
 
     def _predict(self, pose, estimates):
-        """Predicted centroid (2,) per landmark id: from the estimate, else last box + flow."""
-        predicted = {}
-        for lm in self._landmarks.values():
-            b = lm.last_box
-            predicted[lm.id] = 0.5 * (b[:2] + b[2:]) + lm.flow
+        """Predicted centroid (2,) per landmark id: from the estimate, else last box + flow since."""
+        predicted = {lm.id: lm.centre for lm in self._landmarks.values()}
         if estimates is not None and estimates.ids.shape[0] > 0:
             centres, valid = _predicted_centroids(self.K, pose, estimates)
             for lid, c, v in zip(estimates.ids, centres, valid):
