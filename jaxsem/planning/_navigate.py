@@ -135,7 +135,12 @@ def _polyline_blocked(points: np.ndarray, blocked: np.ndarray, origin, resolutio
     off = (rc[:, 0] < 0) | (rc[:, 0] >= H) | (rc[:, 1] < 0) | (rc[:, 1] >= W)
     if off.any():
         return True
-    return bool(blocked[rc[:, 0], rc[:, 1]].any())
+    if blocked[rc[:, 0], rc[:, 1]].any():
+        return True
+    # Diagonal steps between consecutive samples: both side cells (same rule as the PRM's edges).
+    a, b = rc[:-1], rc[1:]
+    diag = (a[:, 0] != b[:, 0]) & (a[:, 1] != b[:, 1])
+    return bool(np.any(diag & (blocked[a[:, 0], b[:, 1]] | blocked[b[:, 0], a[:, 1]])))
 
 
 class Trial:

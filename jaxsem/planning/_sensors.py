@@ -87,6 +87,11 @@ def sense(true_occupancy, true_semantic, state: MapState, pose, origin, resoluti
     if pose.shape[-1:] != (3,):
         raise ValueError(f"pose: expected shape (..., 3) = (x, y, yaw), got shape {pose.shape}")
     _check_true_maps(true_occupancy, true_semantic)
+    occ_shape = tuple(np.shape(true_occupancy))
+    for name, leaf in (("state.occupancy", state.occupancy), ("state.semantic", state.semantic)):
+        if tuple(leaf.shape[-2:]) != occ_shape or leaf.dtype != jnp.int8:
+            raise ValueError(f"{name}: expected int8 (..., {occ_shape[0]}, {occ_shape[1]}) like "
+                             f"true_occupancy, got shape {tuple(leaf.shape)} dtype {leaf.dtype}")
     return _sense_jit(jnp.asarray(true_occupancy), jnp.asarray(true_semantic, jnp.int8), state,
                       pose, origin, resolution, config)
 

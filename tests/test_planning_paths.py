@@ -1,0 +1,269 @@
+"""Soft-cost shortest paths (vs a pure-Python Dijkstra) and the PRM."""
+
+import heapq
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem.planning import (OCCUPIED, UNKNOWN, SoftCostGraph, build_roadmap, embed_local_distribution,
+                             knn_within_radius, roadmap_shortest_path, shortest_path, soft_cost)
+
+RES = 0.1
+ORIGIN = np.array([0.0, 0.0])
+# One map shape, sample count and radius for all PRM tests: each combination is one compile.
+N, RADIUS = 1000, 1.5
+
+
+def _blocks(seed, shape=(32, 36), n=10):
+    rng = np.random.default_rng(seed)
+    occ = np.zeros(shape, bool)
+    for _ in range(n):
+        r, c = rng.integers(0, shape[0] - 3), rng.integers(0, shape[1] - 3)
+        occ[r:r + rng.integers(1, 6), c:c + rng.integers(1, 4)] = True
+    return occ
+
+
+def _python_dijkstra(occ, cost, start):
+    """Independent reference: heapq Dijkstra over 8 neighbours, no corner cutting."""
+    H, W = occ.shape
+    dist = np.full((H, W), np.inf)
+    dist[start] = 0.0
+    heap = [(0.0, start)]
+    while heap:
+        d, (r, c) = heapq.heappop(heap)
+        if d > dist[r, c]:
+            continue
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr == dc == 0:
+                    continue
+                rr, cc = r + dr, c + dc
+                if not (0 <= rr < H and 0 <= cc < W) or occ[rr, cc]:
+                    continue
+                if dr and dc and (occ[r + dr, c] or occ[r, c + dc]):
+                    continue
+                step = RES * (math.sqrt(2) if dr and dc else 1.0)
+                nd = d + step * 0.5 * (cost[r, c] + cost[rr, cc])
+                if nd < dist[rr, cc] - 1e-15:
+                    dist[rr, cc] = nd
+                    heapq.heappush(heap, (nd, (rr, cc)))
+    return dist
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_soft_cost_dijkstra_matches_python_reference(seed):
+    occ = _blocks(seed)
+    free = np.argwhere(~occ)
+    start = tuple(free[seed * 7 % len(free)])
+    g = SoftCostGraph(occ, ORIGIN, RES)
+    tree = g.search(ORIGIN + (np.array(start[::-1]) + 0.5) * RES)
+    ref = _python_dijkstra(occ, soft_cost(occ, RES), start)
+    np.testing.assert_allclose(tree.dist, ref, rtol=1e-12, atol=1e-12)
+    # Paths: 8-connected cell chains from start to goal whose edge costs add up to the distance.
+    cost = g.cost
+    for goal in free[::37]:
+        p = tree.path_to_cell(goal)
+        if not np.isfinite(ref[tuple(goal)]):
+            assert not p.found
+            continue
+        assert tuple(p.cells[0]) == start and tuple(p.cells[-1]) == tuple(goal)
+        steps = np.diff(p.cells, axis=0)
+        assert np.all(np.abs(steps).max(1) == 1)
+        lens = RES * np.linalg.norm(steps, axis=1)
+        c = np.sum(lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)]))
+        assert c == pytest.approx(ref[tuple(goal)], rel=1e-12)
+        assert p.length == pytest.approx(lens.sum(), rel=1e-12)
+
+
+def test_soft_cost_rises_near_walls():
+    occ = np.zeros((20, 20), bool)
+    occ[:, 0] = True
+    c = soft_cost(occ, RES)
+    assert np.isinf(c[0, 0])
+    assert np.all(np.diff(c[5, 1:]) <= 0) and c[5, 1] > c[5, 19] >= 1.0
+    # The optimal path keeps away from the wall when it can.
+    p = shortest_path(occ, [0.15, 0.15], [0.15, 1.85], ORIGIN, RES)
+    assert p.found and p.cells[:, 1].max() > 2
+
+
+def test_shortest_path_bad_input():
+    occ = _blocks(0)
+    occ[0, 0] = True
+    occ[5, 5] = False
+    with pytest.raises(ValueError, match="start"):
+        shortest_path(occ, [0.05, 0.05], [0.55, 0.55], ORIGIN, RES)
+    with pytest.raises(ValueError, match="goal"):
+        shortest_path(occ, [0.55, 0.55], [50.0, 0.55], ORIGIN, RES)
+    with pytest.raises(ValueError, match="occupancy"):
+        shortest_path(occ.astype(np.uint8), [0.55, 0.55], [0.55, 0.55], ORIGIN, RES)
+    with pytest.raises(ValueError, match="occupancy"):
+        shortest_path(occ[None], [0.55, 0.55], [0.55, 0.55], ORIGIN, RES)
+
+
+# ----------------------------------------------------------------------------------------- PRM
+
+
+def _one_route_map():
+    """10 x 6 m room split by a wall with one 0.6 m gap; start and goal on a line through it."""
+    occ = np.zeros((60, 100), bool)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    occ[:, 49:51] = True
+    occ[27:33, 49:51] = False
+    return occ
+
+
+def test_prm_finds_the_corridor_path():
+    occ = _one_route_map()
+    start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
+    found = 0
+    for seed in range(3):
+        rm = build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS)
+        p = roadmap_shortest_path(rm)
+        found += p.found
+        if p.found:
+            assert p.length <= 8.0 * 1.06, p.length  # the straight route through the gap is 8 m
+            assert np.allclose(p.points[0], start) and np.allclose(p.points[-1], goal)
+            crossing = np.interp(5.0, p.points[:, 0], p.points[:, 1])
+            assert 2.7 <= crossing <= 3.3
+    assert found >= 2
+    # With the gap closed there is no route.
+    closed = occ.copy()
+    closed[:, 49:51] = True
+    rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
+    assert not roadmap_shortest_path(rm).found
+
+
+def test_unknown_counts_as_free():
+    occ = _one_route_map()
+    partial = np.full(occ.shape, UNKNOWN, np.int8)
+    partial[occ] = UNKNOWN
+    partial[:, 49:51] = OCCUPIED
+    partial[27:33, 49:51] = UNKNOWN
+    rm = build_roadmap(jax.random.PRNGKey(1), partial, [1.0, 3.0], [9.0, 3.0], N, ORIGIN, RES, radius=RADIUS)
+    assert roadmap_shortest_path(rm).found
+
+
+def test_concentrated_distribution_places_vertices_there():
+    occ = np.zeros((60, 100), bool)
+    dist = np.zeros(occ.shape)
+    dist[10:20, 70:80] = 1.0
+    rm = build_roadmap(jax.random.PRNGKey(0), occ, [0.5, 0.5], [9.5, 5.5], N, ORIGIN, RES, distribution=dist,
+                       radius=RADIUS)
+    pts = np.asarray(rm.points)[2:]
+    assert np.all((pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0))
+    # Uniform inside the cells: the in-cell offsets fill the cells.
+    frac = (pts / RES) % 1.0
+    assert frac.std(0).min() > 0.25
+    # A 90 / 10 split of mass shows up in the counts.
+    dist2 = np.full(occ.shape, 0.1 / (6000 - 100))
+    dist2[10:20, 70:80] = 0.9 / 100
+    rm = build_roadmap(jax.random.PRNGKey(1), occ, [0.5, 0.5], [9.5, 5.5], N, ORIGIN, RES, distribution=dist2,
+                       radius=RADIUS)
+    pts = np.asarray(rm.points)[2:]
+    inside = (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
+    assert abs(inside.mean() - 0.9) < 0.03
+
+
+@pytest.mark.parametrize("weight", ["euclidean", "neglogp"])
+def test_edges_never_cross_known_obstacles(weight):
+    occ = _blocks(4, shape=(60, 100), n=50)
+    free = np.argwhere(~occ)
+    start = ORIGIN + (free[0][::-1] + 0.5) * RES
+    goal = ORIGIN + (free[-1][::-1] + 0.5) * RES
+    dist = np.random.default_rng(0).random(occ.shape) + 0.1
+    rm = build_roadmap(jax.random.PRNGKey(2), occ, start, goal, N, ORIGIN, RES, distribution=dist,
+                       weight=weight, radius=RADIUS)
+    pts = np.asarray(rm.points)
+    nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
+    assert ok.sum() > 3000
+    t = np.linspace(0.0, 1.0, 801)[None, :, None]
+    ii, jj = np.nonzero(ok)
+    for chunk in np.array_split(np.arange(len(ii)), 20):
+        a, b = pts[ii[chunk]][:, None], pts[nbr[ii[chunk], jj[chunk]]][:, None]
+        u = (a + t * (b - a) - ORIGIN) / RES  # (E, 801, 2) dense points along each edge
+        interior = np.all(np.abs(u - np.round(u)) > 1e-7, axis=-1)  # not on a cell boundary
+        rc = np.floor(u).astype(int)
+        hit = occ[rc[..., 1], rc[..., 0]] & interior
+        assert not hit.any(), chunk[np.any(hit, axis=1)]
+    # Invalid vertices are exactly those in occupied cells.
+    rc = np.floor((pts - ORIGIN) / RES).astype(int)[:, ::-1]
+    np.testing.assert_array_equal(np.asarray(rm.valid), ~occ[rc[:, 0], rc[:, 1]])
+    # Weights: lengths, or the -log p integral that is larger where p is small.
+    w = np.asarray(rm.edge_weight)[ok]
+    lengths = np.linalg.norm(pts[nbr[ok]] - pts[np.nonzero(ok)[0]], axis=1)
+    if weight == "euclidean":
+        np.testing.assert_allclose(w, lengths, rtol=1e-9)
+    else:
+        p = dist / dist.sum()
+        assert np.all(w >= lengths * -np.log(p.max()) - 1e-9)
+        assert np.all(w <= lengths * -np.log(p.min()) + 1e-9)
+
+
+def test_knn_matches_brute_force():
+    rng = np.random.default_rng(0)
+    pts = rng.random((700, 2)) * np.array([12.0, 7.0])
+    valid = rng.random(700) > 0.1
+    knn = jax.jit(knn_within_radius, static_argnums=(2, 3, 4, 5))
+    nb = np.asarray(knn(jnp.asarray(pts), jnp.asarray(valid), 6, 0.9, 64, (12.0, 7.0)))
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    d[~valid] = np.inf
+    d[:, ~valid] = np.inf
+    np.fill_diagonal(d, np.inf)
+    for i in np.nonzero(valid)[0]:
+        ref = np.argsort(d[i])[:6]
+        ref = set(ref[d[i, ref] <= 0.9].tolist())
+        assert set(nb[i][nb[i] < 700].tolist()) == ref
+
+
+def test_roadmap_shapes_and_no_nan():
+    occ = _one_route_map()
+    rm = build_roadmap(jax.random.PRNGKey(0), occ, [1.0, 3.0], [9.0, 3.0], N, ORIGIN, RES,
+                       distribution=np.ones(occ.shape), weight="neglogp", radius=RADIUS)
+    w = np.asarray(rm.edge_weight)
+    assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
+    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 10)
+
+
+def test_embed_local_distribution():
+    local = np.random.default_rng(0).random((16, 16)) + 0.5
+    local /= local.sum()
+    full = np.asarray(embed_local_distribution(local, (10, 30), (40, 50)))
+    assert full.shape == (40, 50) and full.sum() == pytest.approx(1.0)
+    window = full[2:18, 22:38]
+    scale = window.sum() / local.sum()
+    np.testing.assert_allclose(window, local * scale, rtol=1e-12)
+    outside = np.ones(full.shape, bool)
+    outside[2:18, 22:38] = False
+    np.testing.assert_allclose(full[outside], local.min() * scale, rtol=1e-12)
+    # Near the border the window is clipped, not shifted.
+    full = np.asarray(embed_local_distribution(local, (0, 0), (40, 50)))
+    np.testing.assert_allclose(full[:8, :8] / full[:8, :8].sum(), local[8:, 8:] / local[8:, 8:].sum())
+    # Jittable with a traced centre.
+    f = jax.jit(embed_local_distribution, static_argnums=2)
+    np.testing.assert_allclose(np.asarray(f(local, jnp.array([10, 30]), (40, 50))),
+                               np.asarray(embed_local_distribution(local, (10, 30), (40, 50))))
+
+
+def test_prm_bad_input():
+    occ = _one_route_map()
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="start"):
+        build_roadmap(key, occ, [5.0, 1.0], [9.0, 3.0], 10, ORIGIN, RES)  # in the wall
+    with pytest.raises(ValueError, match="goal"):
+        build_roadmap(key, occ, [1.0, 3.0], [19.0, 3.0], 10, ORIGIN, RES)  # off the map
+    with pytest.raises(ValueError, match="known_map"):
+        build_roadmap(key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
+    with pytest.raises(ValueError, match="known_map"):
+        build_roadmap(key, occ[None], [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
+    with pytest.raises(ValueError, match="distribution"):
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, distribution=np.ones((3, 3)))
+    with pytest.raises(ValueError, match="distribution"):
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp")
+    with pytest.raises(ValueError, match="n"):
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
+    with pytest.raises(ValueError, match="weight"):
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="l1")
