@@ -417,6 +417,22 @@ def test_no_detections_and_missed_frames(three):
     assert out.texture_status == "ok"  # re-seeded at frame 3
 
 
+def test_fallback_prediction_follows_the_tracks_through_missed_frames(three):
+    """Without estimates, a landmark missed for a few frames is predicted where its corners went:
+    the red box moves about 11 px per frame, 45 px over the gap, beyond a 20 px gate."""
+    frontend = FrontEnd(three["K"], FrontEndConfig(gate_pixels=20.0))
+    frontend.process(three["rgb"][0], three["poses"][0], detections(three, 0, ("red",))[0])
+    for f in (1, 2, 3):
+        frontend.process(three["rgb"][f], three["poses"][f], np.zeros((0, 4)))
+    boxes, _ = detections(three, 4, ("red",))
+    out = frontend.process(three["rgb"][4], three["poses"][4], boxes)[0]
+    first, _ = detections(three, 0, ("red",))
+    assert np.linalg.norm(0.5 * (boxes[0, :2] + boxes[0, 2:] - first[0, :2] - first[0, 2:])) > 40
+    assert not out.is_new and out.landmark_id == 0
+    assert out.centroid_distance < 5.0
+    assert out.texture_status == "ok" and out.baseline == pytest.approx(0.6, abs=1e-6)
+
+
 # --------------------------------------------------------------------------------------------
 # Output conversion.
 
