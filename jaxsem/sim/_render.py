@@ -1,0 +1,389 @@
+"""Headless MuJoCo renderer for textured boxes, cylinders and ellipsoids (RGB, depth, segmentation).
+
+Host-side (numpy) data generation, not a jax function: it builds one MuJoCo model per scene with
+``MjSpec``, compiles it once and renders any number of views of it through MuJoCo's offscreen
+OpenGL context (``MUJOCO_GL=egl`` runs it headless on the CPU through Mesa llvmpipe).
+
+Camera conventions are jaxsem's (OpenCV): ``camera_T_world`` (4, 4) maps world points into the
+camera frame, x right, y down, z forward, and ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]``. MuJoCo
+cameras look along their -z axis with y up, so the MuJoCo camera frame is
+``world_R_cam @ diag(1, -1, -1)``; the vertical field of view is ``fovy = 2 atan(0.5 H / f)``.
+A MuJoCo image always has square pixels and its principal point at the image centre, which in
+OpenCV's pixel-centre coordinates (pixel ``i`` covers ``[i - 0.5, i + 0.5]``) is
+``((W - 1) / 2, (H - 1) / 2)``. ``K`` must have ``fx == fy``, zero skew and its principal point
+within half a pixel of that centre (so both ``W / 2`` and ``(W - 1) / 2`` are accepted; the images
+are rendered for ``(W - 1) / 2``, and a caller who needs sub-pixel exactness should use that).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import Sequence
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+
+__all__ = ["SceneObject", "SceneRenderer", "render_views", "SHAPES", "bounding_ellipsoid_radii"]
+
+SHAPES = ("box", "cylinder", "ellipsoid")
+
+# Tessellation of ellipsoids in MuJoCo's visualiser: the silhouette of an inscribed polygon with
+# n slices is cos(pi / n) of the true radius; 96 slices keep a 200 px object within 0.1 px.
+_NUM_SLICES = 96
+_NUM_STACKS = 64
+_TEXTURE_SIZE = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneObject:
+    """One rigid object to render.
+
+    Attributes:
+      class_name: free-form class label (kept for the caller; the renderer ignores it).
+      shape: one of ``'box'``, ``'cylinder'`` (axis along the object's z, diameter
+        ``extents[0] == extents[1]``), ``'ellipsoid'`` (semi-axes ``extents / 2``).
+      extents: (3,) full extents in metres along the object's x, y, z axes.
+      rotation: (3, 3) object-to-world rotation.
+      center: (3,) centre in the world frame, metres.
+      texture_seed: seed of the object's random block texture (colours and pattern).
+      rgb: optional (3,) base colour in [0, 1]; the texture is drawn around it. ``None``: random.
+    """
+
+    class_name: str
+    shape: str
+    extents: np.ndarray
+    rotation: np.ndarray
+    center: np.ndarray
+    texture_seed: int = 0
+    rgb: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.shape not in SHAPES:
+            raise ValueError(f"SceneObject.shape: expected one of {SHAPES}, got {self.shape!r}")
+        ext = np.asarray(self.extents, dtype=np.float64)
+        if ext.shape != (3,) or not np.all(np.isfinite(ext)) or np.any(ext <= 0):
+            raise ValueError(
+                f"SceneObject.extents: expected 3 positive finite lengths (m), got {np.asarray(self.extents).tolist()}"
+            )
+        if self.shape == "cylinder" and not math.isclose(ext[0], ext[1], rel_tol=1e-6):
+            raise ValueError(
+                f"SceneObject.extents: a cylinder needs extents[0] == extents[1] (its diameter), got {ext.tolist()}"
+            )
+        rot = np.asarray(self.rotation, dtype=np.float64)
+        if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
+            raise ValueError(f"SceneObject.rotation: expected a (3, 3) rotation matrix, got {rot.tolist()}")
+        cen = np.asarray(self.center, dtype=np.float64)
+        if cen.shape != (3,) or not np.all(np.isfinite(cen)):
+            raise ValueError(f"SceneObject.center: expected a finite (3,) point, got {np.asarray(self.center).tolist()}")
+        object.__setattr__(self, "extents", ext)
+        object.__setattr__(self, "rotation", rot)
+        object.__setattr__(self, "center", cen)
+        if self.rgb is not None:
+            object.__setattr__(self, "rgb", np.clip(np.asarray(self.rgb, dtype=np.float64).reshape(3), 0, 1))
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) world corners of the object's bounding cuboid."""
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        return (signs * self.extents / 2) @ self.rotation.T + self.center
+
+
+def bounding_ellipsoid_radii(shape: str, extents) -> np.ndarray:
+    """Semi-axes (3,) of the smallest axis-aligned ellipsoid containing the shape (object frame).
+
+    A box needs ``sqrt(3) / 2`` times its extents (the ellipsoid through the 8 corners), a
+    cylinder ``sqrt(2) / 2`` of its diameter and ``sqrt(2) / 2`` of its height (through its two
+    rim circles), an ellipsoid is itself (``extents / 2``).
+    """
+    ext = np.asarray(extents, dtype=np.float64)
+    if shape == "box":
+        return ext * math.sqrt(3) / 2
+    if shape == "cylinder":
+        return ext * math.sqrt(2) / 2
+    if shape == "ellipsoid":
+        return ext / 2
+    raise ValueError(f"shape: expected one of {SHAPES}, got {shape!r}")
+
+
+def _block_texture(rng: np.random.Generator, size: int, faces: int, base=None) -> np.ndarray:
+    """(faces * size, size, 3) uint8 texture of random colour blocks with dark grid lines.
+
+    Blocks of 4-16 px give ORB corners at any scale; a base colour keeps objects of a class
+    recognisable while textures vary.
+    """
+    base = rng.uniform(0.2, 0.9, 3) if base is None else np.asarray(base, float)
+    out = np.empty((faces * size, size, 3), np.uint8)
+    for f in range(faces):
+        cells = int(rng.choice([4, 8, 16]))
+        n = size // cells
+        colours = np.clip(base + rng.normal(0, 0.25, (n, n, 3)), 0, 1)
+        face = np.repeat(np.repeat(colours, cells, 0), cells, 1)
+        face[::cells, :, :] *= 0.3
+        face[:, ::cells, :] *= 0.3
+        out[f * size : (f + 1) * size] = (face * 255).astype(np.uint8)
+    return out
+
+
+def _noise_texture(rng: np.random.Generator, size: int, faces: int) -> np.ndarray:
+    """Background texture: smooth colour noise plus random blocks (a cluttered, feature-rich scene)."""
+    out = np.empty((faces * size, size, 3), np.uint8)
+    for f in range(faces):
+        coarse = rng.uniform(0, 1, (8, 8, 3))
+        face = np.kron(coarse, np.ones((size // 8, size // 8, 1)))
+        for _ in range(12):
+            y0, x0 = rng.integers(0, size - 8, 2)
+            h, w = rng.integers(4, size // 3, 2)
+            face[y0 : y0 + h, x0 : x0 + w] = rng.uniform(0, 1, 3)
+        out[f * size : (f + 1) * size] = (np.clip(face, 0, 1) * 255).astype(np.uint8)
+    return out
+
+
+def _add_texture(spec, name: str, kind, pixels: np.ndarray):
+    tex = spec.add_texture(name=name, type=kind, width=pixels.shape[1], height=pixels.shape[0], nchannel=3)
+    tex.data = np.ascontiguousarray(pixels).tobytes()
+    return tex
+
+
+def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).reshape(9))
+    return q
+
+
+def _check_intrinsics(K, width: int, height: int) -> float:
+    """Validate ``K`` for MuJoCo's pinhole model; returns ``fovy`` in degrees."""
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
+    fx, fy, s, cx, cy = K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]
+    if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0 or abs(s) > 1e-9 or fx <= 0:
+        raise ValueError(f"K: expected [[f, 0, cx], [0, f, cy], [0, 0, 1]] with f > 0, got {K.tolist()}")
+    if not math.isclose(fx, fy, rel_tol=1e-6):
+        raise ValueError(f"K: MuJoCo renders square pixels, expected fx == fy, got fx={fx}, fy={fy}")
+    if abs(cx - (width - 1) / 2) > 0.5 + 1e-9 or abs(cy - (height - 1) / 2) > 0.5 + 1e-9:
+        raise ValueError(
+            f"K: MuJoCo renders the principal point at the image centre, expected cx, cy within 0.5 px "
+            f"of ({(width - 1) / 2}, {(height - 1) / 2}) for a {width}x{height} image, got ({cx}, {cy})"
+        )
+    return math.degrees(2 * math.atan(0.5 * height / fy))
+
+
+class SceneRenderer:
+    """One compiled MuJoCo scene and its offscreen renderer; render many views, then ``close()``.
+
+    Use as a context manager. The model is compiled once; each ``render`` only moves the camera.
+
+    Args:
+      objects: sequence of :class:`SceneObject`; their index is the segmentation label.
+      width, height: image size in pixels.
+      background_seed: seed of the skybox and floor textures (different seeds, different scenes).
+      light_seed: seed of the number (1-3), directions, colours and intensity of the lights.
+      textured: random block textures on objects (True) or flat colours (False).
+      floor_z: world height of a textured floor plane (z up), or ``None`` for no floor. Floor and
+        skybox are labelled -1 in the segmentation; the floor has depth, the skybox depth 0.
+    """
+
+    def __init__(
+        self,
+        objects: Sequence[SceneObject],
+        width: int,
+        height: int,
+        *,
+        background_seed: int = 0,
+        light_seed: int = 0,
+        textured: bool = True,
+        floor_z: float | None = None,
+    ):
+        width, height = int(width), int(height)
+        if width < 8 or height < 8:
+            raise ValueError(f"width, height: expected at least 8 px each, got {width}x{height}")
+        objects = list(objects)
+        for i, ob in enumerate(objects):
+            if not isinstance(ob, SceneObject):
+                raise ValueError(f"objects[{i}]: expected a SceneObject, got {type(ob).__name__}")
+        self.objects = objects
+        self.width, self.height = width, height
+        spec = mujoco.MjSpec()
+        spec.visual.global_.offwidth = max(width, 64)
+        spec.visual.global_.offheight = max(height, 64)
+        spec.visual.quality.numslices = _NUM_SLICES
+        spec.visual.quality.numstacks = _NUM_STACKS
+        spec.visual.quality.shadowsize = 1024
+        # Clip planes are fractions of the model extent; fix the extent so depth precision does
+        # not depend on how large the floor is: near 1 cm, far 100 m.
+        spec.stat.extent = 10.0
+        spec.visual.map.znear = 0.001
+        spec.visual.map.zfar = 10.0
+
+        bg = np.random.default_rng([int(background_seed), 7919])
+        sky = _noise_texture(bg, 128, 6)
+        _add_texture(spec, "sky", mujoco.mjtTexture.mjTEXTURE_SKYBOX, sky)
+        if floor_z is not None:
+            floor_px = _block_texture(bg, 128, 1)
+            _add_texture(spec, "floor_tex", mujoco.mjtTexture.mjTEXTURE_2D, floor_px)
+            mat = spec.add_material(
+                name="floor_mat", texrepeat=[2, 2], texuniform=True, specular=0.1, shininess=0.1,
+                rgba=[*bg.uniform(0.4, 0.8, 3), 1.0],
+            )
+            mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "floor_tex"
+            spec.worldbody.add_geom(
+                name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
+                pos=[0, 0, float(floor_z)], material="floor_mat",
+            )
+
+        self._geom_names = []
+        for i, ob in enumerate(objects):
+            tr = np.random.default_rng([int(ob.texture_seed), 104729])
+            base = ob.rgb if ob.rgb is not None else tr.uniform(0.2, 0.9, 3)
+            kwargs = {}
+            if textured:
+                px = _block_texture(tr, _TEXTURE_SIZE, 6, base)
+                _add_texture(spec, f"tex{i}", mujoco.mjtTexture.mjTEXTURE_CUBE, px)
+                mat = spec.add_material(name=f"mat{i}")
+                mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = f"tex{i}"
+                kwargs["material"] = f"mat{i}"
+            else:
+                kwargs["rgba"] = [*base, 1.0]
+            if ob.shape == "box":
+                gtype, size = mujoco.mjtGeom.mjGEOM_BOX, ob.extents / 2
+            elif ob.shape == "cylinder":
+                gtype, size = mujoco.mjtGeom.mjGEOM_CYLINDER, [ob.extents[0] / 2, ob.extents[2] / 2, 0]
+            else:
+                gtype, size = mujoco.mjtGeom.mjGEOM_ELLIPSOID, ob.extents / 2
+            spec.worldbody.add_geom(
+                name=f"object{i}", type=gtype, size=list(map(float, size)), pos=list(map(float, ob.center)),
+                quat=list(map(float, _mat_to_quat(ob.rotation))), **kwargs,
+            )
+            self._geom_names.append(f"object{i}")
+
+        lr = np.random.default_rng([int(light_seed), 15485863])
+        spec.visual.headlight.ambient = list(lr.uniform(0.15, 0.35, 3))
+        spec.visual.headlight.diffuse = list(lr.uniform(0.1, 0.4, 3))
+        centre = np.mean([ob.center for ob in objects], axis=0) if objects else np.zeros(3)
+        for j in range(int(lr.integers(1, 4))):
+            direction = lr.normal(size=3)
+            direction[2] = -abs(direction[2]) - 0.5  # from above, so floors and tops are lit
+            direction /= np.linalg.norm(direction)
+            spec.worldbody.add_light(
+                name=f"light{j}", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                pos=list(map(float, centre - 3 * direction)), dir=list(map(float, direction)),
+                diffuse=list(lr.uniform(0.25, 0.6, 3)), specular=[0.1, 0.1, 0.1],
+                castshadow=bool(lr.random() < 0.5),
+            )
+        spec.worldbody.add_camera(name="view", pos=[0, 0, 0], quat=[1, 0, 0, 0], fovy=45.0)
+
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        # Geom id -> object index (or -1 for the floor and anything else).
+        self._label = np.full(self.model.ngeom + 1, -1, np.int32)
+        for i, name in enumerate(self._geom_names):
+            self._label[self.model.geom(name).id] = i
+        self._renderer = mujoco.Renderer(self.model, height, width)
+
+    def render(self, K, camera_T_world) -> dict:
+        """Render one view. ``K`` (3, 3), ``camera_T_world`` (4, 4).
+
+        Returns:
+          dict with ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 z-depth in metres (0 where
+          nothing, i.e. the skybox), ``seg`` (H, W) int32 object index or -1.
+        """
+        if self._renderer is None:
+            raise ValueError("SceneRenderer: render() called after close()")
+        fovy = _check_intrinsics(K, self.width, self.height)
+        T = np.asarray(camera_T_world, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+            raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
+        world_R_cam = R.T
+        self.model.cam_pos[0] = -world_R_cam @ T[:3, 3]
+        self.model.cam_quat[0] = _mat_to_quat(world_R_cam @ np.diag([1.0, -1.0, -1.0]))
+        self.model.cam_fovy[0] = fovy
+        mujoco.mj_forward(self.model, self.data)
+        r = self._renderer
+        r.update_scene(self.data, camera=0)
+        rgb = r.render().copy()
+        r.enable_segmentation_rendering()
+        try:
+            r.update_scene(self.data, camera=0)
+            ids = r.render()
+        finally:
+            r.disable_segmentation_rendering()
+        geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
+        seg = self._label[geom]  # index -1 hits the trailing -1 entry
+        r.enable_depth_rendering()
+        try:
+            r.update_scene(self.data, camera=0)
+            depth = r.render().astype(np.float32)
+        finally:
+            r.disable_depth_rendering()
+        depth = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
+        return {"rgb": rgb, "depth": depth, "seg": seg.astype(np.int32)}
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def render_views(
+    objects: Sequence[SceneObject],
+    K,
+    camera_T_world,
+    width: int,
+    height: int,
+    *,
+    background_seed: int = 0,
+    light_seed: int = 0,
+    textured: bool = True,
+    floor_z: float | None = None,
+) -> dict:
+    """Render N views of one scene (one compiled model, one renderer, closed on return).
+
+    Args:
+      objects: sequence of :class:`SceneObject` (segmentation label = index in this list).
+      K: (3, 3) or (N, 3, 3) intrinsics ``[[f, 0, cx], [0, f, cy], [0, 0, 1]]``, principal point
+        at the image centre (see the module docstring).
+      camera_T_world: (N, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
+      width, height: image size in pixels.
+      background_seed, light_seed, textured, floor_z: see :class:`SceneRenderer`.
+
+    Returns:
+      dict of numpy arrays: ``rgb`` (N, H, W, 3) uint8, ``depth`` (N, H, W) float32 metres
+      (z-depth, 0 where nothing), ``seg`` (N, H, W) int32 object index or -1.
+    """
+    poses = np.asarray(camera_T_world, dtype=np.float64)
+    if poses.ndim == 2:
+        poses = poses[None]
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"camera_T_world: expected shape (N, 4, 4), got {np.asarray(camera_T_world).shape}")
+    Ks = np.asarray(K, dtype=np.float64)
+    if Ks.shape == (3, 3):
+        Ks = np.broadcast_to(Ks, (len(poses), 3, 3))
+    if Ks.shape != (len(poses), 3, 3):
+        raise ValueError(f"K: expected shape (3, 3) or ({len(poses)}, 3, 3), got {np.asarray(K).shape}")
+    for i in range(len(poses)):
+        _check_intrinsics(Ks[i], int(width), int(height))
+    out = {"rgb": [], "depth": [], "seg": []}
+    with SceneRenderer(
+        objects, width, height, background_seed=background_seed, light_seed=light_seed,
+        textured=textured, floor_z=floor_z,
+    ) as scene:
+        for Ki, Ti in zip(Ks, poses):
+            view = scene.render(Ki, Ti)
+            for k in out:
+                out[k].append(view[k])
+    return {k: np.stack(v) if v else np.zeros((0, int(height), int(width)) + ((3,) if k == "rgb" else ()),
+                                               {"rgb": np.uint8, "depth": np.float32, "seg": np.int32}[k])
+            for k, v in out.items()}
