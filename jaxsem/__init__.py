@@ -19,6 +19,8 @@ from . import quadrics as quadrics
 from .quadrics import (
     algebraic_distance as algebraic_distance,
     conic_bbox as conic_bbox,
+    conic_outline as conic_outline,
+    look_at as look_at,
     dual_quadric as dual_quadric,
     ground_conic as ground_conic,
     primal_quadric as primal_quadric,

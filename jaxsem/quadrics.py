@@ -36,6 +36,7 @@ __all__ = [
     "primal_quadric",
     "project_dual_conic",
     "conic_bbox",
+    "conic_outline",
     "project_bbox",
     "texture_plane_depth",
     "algebraic_distance",
@@ -289,6 +290,41 @@ def conic_bbox(dual_conic):
     return box, valid
 
 
+def conic_outline(dual_conic, num_points: int = 64):
+    """Points on a dual conic's ellipse, for drawing: (..., num_points, 2) and a (...) valid mask.
+
+    The point conic is the adjugate of ``C*``; writing it as ``(x - x0)^T A (x - x0) = k`` gives the
+    centre ``x0`` and, from the eigen-decomposition of ``A``, the semi-axes ``sqrt(k / lambda)``.
+    Where the conic is not a real ellipse the points collapse to a finite point and valid is False.
+    """
+    Cs = _as_float_array("dual_conic", dual_conic, (3, 3))
+    _, valid = conic_bbox(Cs)
+    scale = jnp.max(jnp.abs(Cs), axis=(-2, -1), keepdims=True)
+    Cs = Cs / jnp.where(scale > 0, scale, 1.0)
+    a, b, c = Cs[..., 0, :], Cs[..., 1, :], Cs[..., 2, :]
+    # Adjugate (= det * inverse) of the symmetric dual conic, i.e. the point conic up to scale.
+    C = jnp.stack([_cross(b, c), _cross(c, a), _cross(a, b)], axis=-2)
+    A = 0.5 * (C[..., :2, :2] + jnp.swapaxes(C[..., :2, :2], -1, -2))
+    lin = C[..., :2, 2]
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    adjA = jnp.stack([jnp.stack([A[..., 1, 1], -A[..., 0, 1]], -1), jnp.stack([-A[..., 1, 0], A[..., 0, 0]], -1)], -2)
+    det_safe = jnp.where(jnp.abs(det) > 0, det, 1.0)
+    x0 = -_matvec2(adjA, lin) / det_safe[..., None]
+    k = jnp.sum(x0 * _matvec2(A, x0), -1) - C[..., 2, 2]
+    lam, vec = jnp.linalg.eigh(A)
+    lam_safe = jnp.where(jnp.abs(lam) > 0, lam, 1.0)
+    axes_len = safe_sqrt(jnp.where(valid[..., None], k[..., None] / lam_safe, 0.0))
+    t = jnp.linspace(0.0, 2 * jnp.pi, int(num_points), dtype=Cs.dtype)
+    circle = jnp.stack([jnp.cos(t), jnp.sin(t)], -1)  # (n, 2)
+    local = circle * axes_len[..., None, :]
+    pts = jnp.einsum("...ij,...nj->...ni", vec, local) + x0[..., None, :]
+    return jnp.where(valid[..., None, None], pts, 0.0), valid
+
+
+def _matvec2(m, v):
+    return jnp.sum(m * v[..., None, :], axis=-1)
+
+
 def camera_frame(rotation, center, camera_T_world):
     """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame."""
     R_cw = camera_T_world[..., :3, :3]
@@ -296,7 +332,8 @@ def camera_frame(rotation, center, camera_T_world):
 
 
 def _project_bbox(rotation, center, radii, K, camera_T_world):
-    """Closed form of eq. 4.9-4.10 in the camera frame, written elementwise so XLA fuses it.
+    """Closed form of eq. 4.9-4.10 in the camera frame, written on scalar components so that XLA
+    fuses the whole computation into one elementwise loop (no small matmuls, no reductions).
 
     With ``M = S - t t^T`` (``S = Rc diag(r^2) Rc^T``, ``t`` the centre in the camera frame) and
     ``a = (fx, s, 0)``, the box edges are ``u = cx + (a^T M e3 -+ sqrt(disc)) / M33`` where the
@@ -304,37 +341,50 @@ def _project_bbox(rotation, center, radii, K, camera_T_world):
     |r*g_a x r*g_3|^2`` (Lagrange's identity, ``g_v = Rc^T v``): a difference of two
     non-negative terms without the cancellation of the pixel-space form.
     """
-    Rc, tc = camera_frame(rotation, center, camera_T_world)
+    W = [[camera_T_world[..., i, j] for j in range(3)] for i in range(3)]
+    Ro = [[rotation[..., i, j] for j in range(3)] for i in range(3)]
+    c = [center[..., i] for i in range(3)]
+    r = [radii[..., i] for i in range(3)]
+    # Rows of Rc = W R (camera-from-object rotation) and the centre in the camera frame.
+    Rc = [[W[i][0] * Ro[0][j] + W[i][1] * Ro[1][j] + W[i][2] * Ro[2][j] for j in range(3)] for i in range(3)]
+    tx, ty, tz = [W[i][0] * c[0] + W[i][1] * c[1] + W[i][2] * c[2] + camera_T_world[..., i, 3] for i in range(3)]
     fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     fy, cy = K[..., 1, 1], K[..., 1, 2]
-    g3 = Rc[..., 2, :]
-    ga = fx[..., None] * Rc[..., 0, :] + s[..., None] * Rc[..., 1, :]
-    gb = fy[..., None] * Rc[..., 1, :]
-    r3, ra, rb = radii * g3, radii * ga, radii * gb
-    tx, ty, tz = tc[..., 0], tc[..., 1], tc[..., 2]
-    s33 = jnp.sum(r3 * r3, axis=-1)
+    r3 = [r[k] * Rc[2][k] for k in range(3)]
+    ra = [r[k] * (fx * Rc[0][k] + s * Rc[1][k]) for k in range(3)]
+    rb = [r[k] * (fy * Rc[1][k]) for k in range(3)]
+    dot = lambda a, b: a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def cross_sq(a, b):
+        return (
+            jnp.square(a[1] * b[2] - a[2] * b[1])
+            + jnp.square(a[2] * b[0] - a[0] * b[2])
+            + jnp.square(a[0] * b[1] - a[1] * b[0])
+        )
+
+    s33 = dot(r3, r3)
     half_depth = safe_sqrt(s33)
-    near = tz - half_depth  # texture-plane depth: the camera-facing tangent plane z = tz - sqrt(S33)
+    near = tz - half_depth  # texture-plane depth: the camera-facing tangent plane
     alpha = fx * tx + s * ty
     beta = fy * ty
     m33 = s33 - tz * tz
-    num_u = jnp.sum(ra * r3, axis=-1) - alpha * tz
-    num_v = jnp.sum(rb * r3, axis=-1) - beta * tz
-    wa = tz[..., None] * ra - alpha[..., None] * r3
-    wb = tz[..., None] * rb - beta[..., None] * r3
-    disc_u = jnp.sum(wa * wa, -1) - jnp.sum(jnp.square(_cross(ra, r3)), -1)
-    disc_v = jnp.sum(wb * wb, -1) - jnp.sum(jnp.square(_cross(rb, r3)), -1)
+    num_u = dot(ra, r3) - alpha * tz
+    num_v = dot(rb, r3) - beta * tz
+    wa = [tz * ra[k] - alpha * r3[k] for k in range(3)]
+    wb = [tz * rb[k] - beta * r3[k] for k in range(3)]
+    disc_u = dot(wa, wa) - cross_sq(ra, r3)
+    disc_v = dot(wb, wb) - cross_sq(rb, r3)
     eps = _eps(near.dtype)
     valid = (near > eps * (jnp.abs(tz) + half_depth)) & (disc_u >= 0) & (disc_v >= 0)
-    m33_safe = jnp.where(valid, m33, -jnp.maximum(tz * tz, 1.0))
+    inv_m33 = 1.0 / jnp.where(valid, m33, -jnp.maximum(tz * tz, 1.0))
     su = safe_sqrt(jnp.where(valid, disc_u, 0.0))
     sv = safe_sqrt(jnp.where(valid, disc_v, 0.0))
     box = jnp.stack(
         [
-            cx + (num_u + su) / m33_safe,
-            cy + (num_v + sv) / m33_safe,
-            cx + (num_u - su) / m33_safe,
-            cy + (num_v - sv) / m33_safe,
+            cx + (num_u + su) * inv_m33,
+            cy + (num_v + sv) * inv_m33,
+            cx + (num_u - su) * inv_m33,
+            cy + (num_v - sv) * inv_m33,
         ],
         axis=-1,
     )

@@ -431,3 +431,17 @@ def test_look_at_points_camera_at_target():
         assert p[2] > 0
     # Up (world z) appears as image-up (negative camera y) for the level camera.
     assert (pose[0, :3, :3] @ np.array([0, 0, 1.0]))[1] < 0
+
+
+def test_conic_outline_touches_the_box(cases):
+    R, c, r, K, pose = cases
+    conic = q.project_dual_conic(q.dual_quadric(R[:30], c[:30], r[:30]), K[:30], pose[:30])
+    pts, valid = q.conic_outline(conic, 4000)
+    box, _ = q.project_bbox(R[:30], c[:30], r[:30], K[:30], pose[:30])
+    assert np.all(np.asarray(valid))
+    extent = np.concatenate([pts.min(axis=-2), pts.max(axis=-2)], axis=-1)
+    width = np.asarray(box[:, 2:] - box[:, :2]).max(-1, keepdims=True)
+    # A 4000-gon misses the extreme by at most ~ (2 pi / 4000)^2 / 2 of the semi-axis.
+    assert np.all(np.abs(extent - np.asarray(box)) <= 1e-5 * width + 1e-9)
+    bad, bad_valid = q.conic_outline(np.eye(3), 8)
+    assert not bool(bad_valid) and np.all(np.isfinite(bad))
