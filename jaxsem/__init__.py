@@ -14,6 +14,10 @@ imported on first use so that ``import jaxsem`` stays light:
 """
 
 import importlib as _importlib
+import os as _os
+
+# MuJoCo renders headless through EGL on machines without a display; set before mujoco loads.
+_os.environ.setdefault("MUJOCO_GL", "egl")
 
 from . import quadrics as quadrics
 from .quadrics import (
