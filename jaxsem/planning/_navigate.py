@@ -106,8 +106,8 @@ class NavConfig:
 
 @dataclasses.dataclass
 class NavResult:
-    """Outcome of one trial. path: (T, 2) world positions visited (start first); cost: metres
-    travelled; success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
+    """Outcome of one trial. path: (T, 2) world polyline travelled (start first: the position after
+    each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
     final_state: the partial maps at the end; last_distribution: (H, W) or None."""
 
     path: np.ndarray
@@ -269,6 +269,8 @@ class Trial:
             if L <= remaining:
                 remaining -= L
                 plan = plan[1:]
+                if remaining > 1e-12 and len(plan) > 1:
+                    self.path.append(plan[0].copy())  # a corner passed within the step
             else:
                 plan = plan.copy()
                 plan[0] = plan[0] + seg * (remaining / L)
