@@ -140,3 +140,18 @@ def test_bad_input():
         scene.render(K, np.eye(4))
     with pytest.raises(ValueError, match="close"):
         scene.render(K, np.eye(4))
+
+
+def test_move_object_matches_fresh_scene():
+    """Regression: geoms compiled with an identity pose ignored later rotations (geom_sameframe)."""
+    R = np.asarray(quadrics.random_rotation(jax.random.PRNGKey(5)))
+    ext = np.array([0.164, 0.213, 0.0718])
+    fresh = render_views([SceneObject("b", "box", ext, R, np.array([0.05, 0.02, 0.7]))], K, np.eye(4), W, H)
+    start = SceneObject("b", "box", ext * 1.2, np.eye(3), np.array([1.0, 1.0, 1.0]))
+    with SceneRenderer([start], W, H) as scene:
+        scene.move_object(0, R, np.array([0.05, 0.02, 0.7]), ext)
+        moved = scene.render(K, np.eye(4))
+        scene.move_object(0, R, np.zeros(3), hidden=True)
+        hidden = scene.render(K, np.eye(4))
+    np.testing.assert_array_equal(moved["seg"], fresh["seg"][0])
+    assert np.all(hidden["seg"] == -1)

@@ -281,8 +281,32 @@ class SceneRenderer:
         # Geom id -> object index (or -1 for the floor and anything else).
         self._label = np.full(self.model.ngeom + 1, -1, np.int32)
         for i, name in enumerate(self._geom_names):
-            self._label[self.model.geom(name).id] = i
+            gid = self.model.geom(name).id
+            self._label[gid] = i
+            # The compiler marks geoms posed like their body (here: identity rotation) to skip
+            # their own pose in kinematics; move_object changes poses, so always use them.
+            self.model.geom_sameframe[gid] = 0
         self._renderer = mujoco.Renderer(self.model, height, width)
+
+    def move_object(self, index: int, rotation, center, extents=None, *, hidden: bool = False):
+        """Change object ``index``'s pose (and extents) without recompiling; ``hidden`` parks it
+        far below the scene so that one compiled model can render frames with fewer objects."""
+        ob = self.objects[index]
+        new = SceneObject(
+            ob.class_name, ob.shape, ob.extents if extents is None else extents, rotation, center,
+            ob.texture_seed, ob.rgb,
+        )
+        self.objects[index] = new
+        gid = self.model.geom(self._geom_names[index]).id
+        pos = new.center if not hidden else np.array([0.0, 0.0, -1e4])
+        self.model.geom_pos[gid] = pos
+        self.model.geom_quat[gid] = _mat_to_quat(new.rotation)
+        if new.shape == "cylinder":
+            self.model.geom_size[gid] = [new.extents[0] / 2, new.extents[2] / 2, 0.0]
+        else:
+            self.model.geom_size[gid] = new.extents / 2
+        # MuJoCo's visualiser culls geoms by their bounding radius; keep it in step with the size.
+        self.model.geom_rbound[gid] = float(np.linalg.norm(new.extents) / 2)
 
     def render(self, K, camera_T_world) -> dict:
         """Render one view. ``K`` (3, 3), ``camera_T_world`` (4, 4).

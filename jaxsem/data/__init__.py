@@ -1,0 +1,24 @@
+"""Data: the Falling Things (FAT) layout loader, a synthetic FAT-layout writer, input pipelines.
+
+Public names are re-exported from private modules; import them from here.
+"""
+
+from ._fat import (
+    FAT_BASELINE as FAT_BASELINE,
+    FAT_DEPTH_SCALE as FAT_DEPTH_SCALE,
+    FAT_LENGTH_SCALE as FAT_LENGTH_SCALE,
+    FatFormatError as FatFormatError,
+    FatFrame as FatFrame,
+    FatSequence as FatSequence,
+    cuboid_corners as cuboid_corners,
+    load_fat_frame as load_fat_frame,
+    load_fat_scene as load_fat_scene,
+    right_T_left as right_T_left,
+)
+from ._synthetic import (
+    DEFAULT_CLASSES as DEFAULT_CLASSES,
+    ObjectClass as ObjectClass,
+    object_box as object_box,
+    synthetic_intrinsics as synthetic_intrinsics,
+    write_synthetic_dataset as write_synthetic_dataset,
+)

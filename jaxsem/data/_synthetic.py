@@ -1,0 +1,381 @@
+"""Synthetic stereo dataset of textured household objects, written in the FAT layout.
+
+Each scene directory (``<out_dir>/<split>/scene_NNN/``) has one compiled MuJoCo model holding one
+instance of every class, with its own background, floor, lights and object textures; each frame
+shows 1 to ``max_objects`` of them (the others are parked out of view) at random poses
+0.4-1.5 m in front of a randomly placed and tilted camera, never occluding each other and never
+cut by the image border (as the thesis filters FAT). Object sizes are the class size times a
+small per-frame variation. Per frame the writer saves, as FAT does:
+
+- ``XXXXXX.{left,right}.{jpg|png}`` RGB, ``XXXXXX.{left,right}.depth.png`` uint16 z-depth in
+  units of 0.1 mm (0 = no depth: the skybox and anything beyond 6.5535 m),
+  ``XXXXXX.{left,right}.seg.png`` uint8 with the class's ``segmentation_class_id`` (0 elsewhere),
+- ``XXXXXX.{left,right}.json`` with FAT's fields in centimetres: ``location`` and
+  ``cuboid_centroid`` (the object centre), ``quaternion_xyzw`` (object-to-camera rotation),
+  ``cuboid`` / ``projected_cuboid`` (FAT's corner order), ``projected_cuboid_centroid``,
+  ``bounding_box`` (exact amodal box of the projected object, stored ``[y, x]`` like FAT unless
+  ``bbox_order='xy'``), ``visibility`` (1: nothing occludes the objects), and a ``shape`` field.
+- ``_camera_settings.json`` (``fx == fy``, principal point ``((W-1)/2, (H-1)/2)``: exact for the
+  renderer) and ``_object_settings.json`` (nominal ``cuboid_dimensions`` in cm, ``shape``).
+
+Train and test splits draw backgrounds, lights, textures, poses and sizes from disjoint seed
+streams (``split`` is part of every seed), so the test split shows unseen backgrounds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from ..sim._render import SceneObject, SceneRenderer
+from ._fat import FAT_BASELINE, cuboid_corners, right_T_left
+
+__all__ = ["ObjectClass", "DEFAULT_CLASSES", "write_synthetic_dataset", "object_box", "synthetic_intrinsics"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectClass:
+    """A class of objects: its rendered shape, nominal full extents (m) and colour.
+
+    ``size_variation`` is the relative standard deviation of each instance's extents (clipped to
+    2.5 sigma); a cylinder keeps its cross-section round.
+    """
+
+    name: str
+    shape: str
+    extents: tuple
+    rgb: tuple
+    segmentation_class_id: int
+    size_variation: float = 0.03
+
+
+# Real sizes: the YCB cracker box of FAT (16.4036 x 21.3437 x 7.18 cm), the YCB tomato soup can
+# (6.77 cm x 10.18 cm) and a slightly squashed 7 cm ball (an ellipsoid with distinct axes, so its
+# orientation is defined).
+DEFAULT_CLASSES = (
+    ObjectClass("cracker_box", "box", (0.164036, 0.213437, 0.0718), (0.85, 0.2, 0.15), 40),
+    ObjectClass("soup_can", "cylinder", (0.0677, 0.0677, 0.1018), (0.8, 0.8, 0.75), 80),
+    ObjectClass("ball", "ellipsoid", (0.064, 0.07, 0.078), (0.2, 0.45, 0.85), 120),
+)
+
+_SPLIT_STREAM = {"train": 0, "val": 1, "test": 2}
+
+
+def synthetic_intrinsics(width: int, height: int, horizontal_fov_deg: float = 64.0) -> np.ndarray:
+    """(3, 3) K with FAT's 64 degree horizontal field of view and a centred principal point."""
+    f = 0.5 * width / math.tan(math.radians(horizontal_fov_deg) / 2)
+    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+def _project(K, pts):
+    p = pts @ K.T
+    return p[..., :2] / p[..., 2:]
+
+
+def object_box(shape: str, rotation, center, extents, K) -> np.ndarray:
+    """Exact amodal image box ``[u_min, v_min, u_max, v_max]`` of a shape in the camera frame.
+
+    Box: its 8 projected corners. Ellipsoid: the bounds of its dual conic (eq. 5.10). Cylinder:
+    each rim circle is a planar ellipse, whose dual conic ``C* = H diag(r^2, r^2, -1) H^T`` with
+    ``H = K [x_axis, y_axis, centre]`` has the same closed-form bounds.
+    Requires the object entirely in front of the camera.
+    """
+    R, c, e = (np.asarray(a, np.float64) for a in (rotation, center, extents))
+    if shape == "box":
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        uv = _project(K, (signs * e / 2) @ R.T + c)
+        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+
+    def bounds(C):
+        su = math.sqrt(max(C[0, 2] ** 2 - C[0, 0] * C[2, 2], 0.0))
+        sv = math.sqrt(max(C[1, 2] ** 2 - C[1, 1] * C[2, 2], 0.0))
+        u = sorted([(C[0, 2] + su) / C[2, 2], (C[0, 2] - su) / C[2, 2]])
+        v = sorted([(C[1, 2] + sv) / C[2, 2], (C[1, 2] - sv) / C[2, 2]])
+        return np.array([u[0], v[0], u[1], v[1]])
+
+    if shape == "ellipsoid":
+        Z = np.eye(4)
+        Z[:3, :3], Z[:3, 3] = R, c
+        Q = Z @ np.diag([*(e / 2) ** 2, -1.0]) @ Z.T
+        P = K @ np.eye(3, 4)
+        return bounds(P @ Q @ P.T)
+    if shape == "cylinder":
+        boxes = []
+        for s in (-1.0, 1.0):
+            H = K @ np.stack([R[:, 0], R[:, 1], c + s * e[2] / 2 * R[:, 2]], axis=1)
+            boxes.append(bounds(H @ np.diag([(e[0] / 2) ** 2, (e[0] / 2) ** 2, -1.0]) @ H.T))
+        b = np.stack(boxes)
+        return np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()])
+    raise ValueError(f"shape: expected 'box', 'cylinder' or 'ellipsoid', got {shape!r}")
+
+
+def _random_rotation(rng) -> np.ndarray:
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _quat_xyzw(R) -> list:
+    import mujoco
+
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, np.float64).reshape(9))
+    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+
+
+def _camera_pose(rng) -> np.ndarray:
+    """camera_T_world of a camera 0.5-1.4 m above the floor (z up), random yaw, tilted down."""
+    h = rng.uniform(0.5, 1.4)
+    yaw = rng.uniform(-np.pi, np.pi)
+    pitch = np.radians(rng.uniform(10, 35))
+    fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    world_R_cam = np.stack([right, down, fwd], axis=1)
+    T = np.eye(4)
+    T[:3, :3] = world_R_cam.T
+    T[:3, 3] = -world_R_cam.T @ np.array([0.0, 0.0, h])
+    return T
+
+
+def _boxes_overlap(a, b, margin=2.0) -> bool:
+    return not (a[2] + margin < b[0] or b[2] + margin < a[0] or a[3] + margin < b[1] or b[3] + margin < a[1])
+
+
+def _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_range, max_tries=60):
+    """Poses for one frame; returns camera_T_world and a list of (class index, R_cam, c_cam, ext)."""
+    T_rl = right_T_left(baseline)
+    for _ in range(20):
+        T = _camera_pose(rng)
+        world_R_cam, eye = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+        k = int(rng.integers(1, max_objects + 1))
+        chosen = rng.choice(len(classes), size=k, replace=False)
+        placed = []
+        for ci in chosen:
+            cls = classes[ci]
+            for _ in range(max_tries):
+                scale = 1 + np.clip(rng.normal(size=3), -2.5, 2.5) * cls.size_variation
+                if cls.shape == "cylinder":
+                    scale[1] = scale[0]
+                ext = np.asarray(cls.extents) * scale
+                R = _random_rotation(rng)
+                z = rng.uniform(*depth_range)
+                u, v = rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height
+                c = z * np.linalg.solve(K, [u, v, 1.0])
+                half_diag = np.linalg.norm(ext) / 2
+                if (world_R_cam @ c + eye)[2] - half_diag < 0.01:  # keep above the floor
+                    continue
+                bl = object_box(cls.shape, R, c, ext, K)
+                br = object_box(cls.shape, R, c + T_rl[:3, 3], ext, K)
+                inside = all(b[0] >= 1 and b[1] >= 1 and b[2] <= width - 2 and b[3] <= height - 2 for b in (bl, br))
+                if not inside or c[2] - half_diag < 0.1:
+                    continue
+                if any(_boxes_overlap(bl, p[4]) or _boxes_overlap(br, p[5]) for p in placed):
+                    continue
+                placed.append((int(ci), R, c, ext, bl, br))
+                break
+        if placed:
+            return T, placed
+    raise RuntimeError("could not place any object in 20 camera poses; image too small for the classes?")
+
+
+def _bbox_json(box, bbox_order):
+    tl, br = [box[0], box[1]], [box[2], box[3]]
+    if bbox_order == "yx":
+        tl, br = tl[::-1], br[::-1]
+    return {"top_left": [float(x) for x in tl], "bottom_right": [float(x) for x in br]}
+
+
+def _frame_json(placed, classes, K, camera_T_world, offset, bbox_order):
+    """FAT frame JSON for one camera; ``offset`` (3,) moves left-camera points into this camera."""
+    cam_R_world = camera_T_world[:3, :3]
+    eye = -cam_R_world.T @ camera_T_world[:3, 3]
+    objs = []
+    for ci, R, c, ext, bl, br in placed:
+        cls = classes[ci]
+        cc = c + offset
+        box = bl if not offset.any() else br
+        corners = cuboid_corners(R, cc, ext)
+        objs.append(
+            {
+                "class": cls.name,
+                "instance_id": int(cls.segmentation_class_id),
+                "visibility": 1.0,
+                "location": (cc * 100).tolist(),
+                "quaternion_xyzw": _quat_xyzw(R),
+                "cuboid_centroid": (cc * 100).tolist(),
+                "projected_cuboid_centroid": _project(K, cc[None])[0].tolist(),
+                "bounding_box": _bbox_json(box, bbox_order),
+                "cuboid": (corners * 100).tolist(),
+                "projected_cuboid": _project(K, corners).tolist(),
+                "shape": cls.shape,
+                "dimensions": (ext * 100).tolist(),
+            }
+        )
+    return {
+        "camera_data": {
+            "location_worldframe": (eye * 100).tolist(),
+            "quaternion_xyzw_worldframe": _quat_xyzw(cam_R_world.T),
+        },
+        "objects": objs,
+    }
+
+
+def _write_png(path, array):
+    if not cv2.imwrite(str(path), array):
+        raise OSError(f"could not write {path}")
+
+
+def write_synthetic_dataset(
+    out_dir,
+    num_frames: int,
+    seed: int = 0,
+    split: str = "train",
+    image_size: tuple = (160, 120),
+    *,
+    frames_per_scene: int = 25,
+    classes: Sequence[ObjectClass] = DEFAULT_CLASSES,
+    max_objects: int = 3,
+    depth_range: tuple = (0.4, 1.5),
+    baseline: float = FAT_BASELINE,
+    image_format: str = "jpg",
+    bbox_order: str = "yx",
+    progress: bool = True,
+) -> list:
+    """Render ``num_frames`` stereo frames into ``<out_dir>/<split>/scene_NNN/`` in the FAT layout.
+
+    Args:
+      out_dir: root directory (created).
+      num_frames: total frames of this split, spread over scenes of ``frames_per_scene``.
+      seed: dataset seed; with ``split`` it fixes every random choice (same arguments, same files).
+      split: ``'train'``, ``'val'`` or ``'test'`` (disjoint seed streams: unseen backgrounds).
+      image_size: ``(W, H)`` pixels; small by default for the CPU.
+      frames_per_scene: frames sharing one background, lighting and set of object textures.
+      classes: the :class:`ObjectClass` table (default: cracker box, soup can, ball).
+      max_objects: at most this many objects per frame (at most one per class).
+      depth_range: (min, max) metres of object centres in front of the camera.
+      baseline: stereo baseline in metres (right camera at +x of the left one).
+      image_format: ``'jpg'`` (as FAT; lossy) or ``'png'`` (exact).
+      bbox_order: ``'yx'`` reproduces FAT's ``[y, x]`` box quirk; ``'xy'`` writes ``[x, y]``.
+      progress: show a tqdm bar.
+
+    Returns:
+      List of the scene directories written (``pathlib.Path``).
+    """
+    if split not in _SPLIT_STREAM:
+        raise ValueError(f"split: expected one of {tuple(_SPLIT_STREAM)}, got {split!r}")
+    num_frames, frames_per_scene, max_objects = int(num_frames), int(frames_per_scene), int(max_objects)
+    if num_frames < 1 or frames_per_scene < 1:
+        raise ValueError(f"num_frames, frames_per_scene: expected >= 1, got {num_frames}, {frames_per_scene}")
+    if not 1 <= max_objects <= len(classes):
+        raise ValueError(f"max_objects: expected 1..{len(classes)} (one per class), got {max_objects}")
+    width, height = (int(x) for x in image_size)
+    if width < 32 or height < 32:
+        raise ValueError(f"image_size: expected (W, H) of at least 32 px each, got {image_size}")
+    if image_format not in ("jpg", "png"):
+        raise ValueError(f"image_format: expected 'jpg' or 'png', got {image_format!r}")
+    if bbox_order not in ("yx", "xy"):
+        raise ValueError(f"bbox_order: expected 'yx' or 'xy', got {bbox_order!r}")
+    ids = [c.segmentation_class_id for c in classes]
+    if len(set(ids)) != len(ids) or not all(0 < i < 256 for i in ids):
+        raise ValueError(f"classes: segmentation_class_id values must be distinct in 1..255, got {ids}")
+
+    from tqdm.auto import tqdm
+
+    K = synthetic_intrinsics(width, height)
+    T_rl = right_T_left(baseline)
+    root = pathlib.Path(out_dir) / split
+    stream = _SPLIT_STREAM[split]
+    num_scenes = -(-num_frames // frames_per_scene)
+    scene_dirs = []
+    bar = tqdm(total=num_frames, desc=f"synthetic {split}", disable=not progress, unit="frame")
+    for s in range(num_scenes):
+        rng = np.random.default_rng([int(seed), stream, s])
+        scene_dir = root / f"scene_{s:03d}"
+        scene_dir.mkdir(parents=True, exist_ok=True)
+        scene_dirs.append(scene_dir)
+        _write_settings(scene_dir, classes, K, width, height)
+        objects = [
+            SceneObject(c.name, c.shape, np.asarray(c.extents), np.eye(3), np.array([0.0, 0.0, -1e4]),
+                        int(rng.integers(2**31)), np.asarray(c.rgb))
+            for c in classes
+        ]
+        n_here = min(frames_per_scene, num_frames - s * frames_per_scene)
+        with SceneRenderer(
+            objects, width, height, background_seed=int(rng.integers(2**31)),
+            light_seed=int(rng.integers(2**31)), floor_z=0.0,
+        ) as scene:
+            for f in range(n_here):
+                T, placed = _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_range)
+                world_R_cam, eye = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+                shown = {p[0]: p for p in placed}
+                for ci in range(len(classes)):
+                    if ci in shown:
+                        _, R, c, ext, _, _ = shown[ci]
+                        scene.move_object(ci, world_R_cam @ R, world_R_cam @ c + eye, ext)
+                    else:
+                        scene.move_object(ci, np.eye(3), np.zeros(3), hidden=True)
+                stem = f"{f:06d}"
+                for side, pose, offset in (("left", T, np.zeros(3)), ("right", T_rl @ T, T_rl[:3, 3])):
+                    view = scene.render(K, pose)
+                    base = scene_dir / f"{stem}.{side}"
+                    _write_png(f"{base}.{image_format}", view["rgb"][..., ::-1])
+                    depth = np.round(view["depth"].astype(np.float64) / 1e-4)
+                    depth = np.where(depth > 65535, 0, depth).astype(np.uint16)
+                    _write_png(f"{base}.depth.png", depth)
+                    seg = np.zeros(view["seg"].shape, np.uint8)
+                    for ci in shown:
+                        seg[view["seg"] == ci] = classes[ci].segmentation_class_id
+                    _write_png(f"{base}.seg.png", seg)
+                    frame = _frame_json(placed, classes, K, pose, offset, bbox_order)
+                    with open(f"{base}.json", "w") as fh:
+                        json.dump(frame, fh)
+                bar.update(1)
+    bar.close()
+    return scene_dirs
+
+
+def _write_settings(scene_dir, classes, K, width, height):
+    intr = {
+        "resX": width, "resY": height, "fx": float(K[0, 0]), "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]), "cy": float(K[1, 2]), "s": 0.0,
+    }
+    hfov = math.degrees(2 * math.atan(0.5 * width / K[0, 0]))
+    cams = {
+        "camera_settings": [
+            {"name": name, "horizontal_fov": hfov, "intrinsic_settings": intr,
+             "captured_image_size": {"width": width, "height": height}}
+            for name in ("left", "right")
+        ]
+    }
+    objs = {
+        "exported_object_classes": [c.name for c in classes],
+        "exported_objects": [
+            {
+                "class": c.name,
+                "segmentation_class_id": int(c.segmentation_class_id),
+                "segmentation_instance_id": int(c.segmentation_class_id),
+                "fixed_model_transform": np.eye(4).tolist(),
+                "cuboid_dimensions": [float(x) * 100 for x in c.extents],
+                "shape": c.shape,
+            }
+            for c in classes
+        ],
+    }
+    with open(scene_dir / "_camera_settings.json", "w") as fh:
+        json.dump(cams, fh, indent=1)
+    with open(scene_dir / "_object_settings.json", "w") as fh:
+        json.dump(objs, fh, indent=1)
