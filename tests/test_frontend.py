@@ -227,6 +227,53 @@ def test_texture_depth_on_a_forward_path_with_jittered_boxes():
             assert abs(det.texture_depth - rendered) < 0.03 * rendered, (f, name, det.texture_depth, rendered)
 
 
+def test_on_the_library_renderer_in_a_cluttered_scene():
+    """The front end on :func:`jaxsem.sim.render_views` images: block-textured ellipsoid, box and
+    cylinder in front of a cluttered wall and floor (background corners inside the boxes)."""
+    from jaxsem import quadrics
+    from jaxsem.sim import SceneObject, render_views
+
+    f = 250.0
+    K = np.array([[f, 0, (WIDTH - 1) / 2], [0, f, (HEIGHT - 1) / 2], [0, 0, 1.0]])
+
+    def yaw(a):
+        c, s = np.cos(a), np.sin(a)
+        return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+    objects = [
+        SceneObject("chair", "ellipsoid", np.array([0.8, 0.6, 1.0]), yaw(0.3), np.array([0.0, 0.0, 0.5]),
+                    1, np.array([0.8, 0.2, 0.1])),
+        SceneObject("box", "box", np.array([0.6, 0.5, 0.7]), yaw(-0.2), np.array([1.3, 0.6, 0.35]),
+                    2, np.array([0.1, 0.3, 0.8])),
+        SceneObject("bin", "cylinder", np.array([0.5, 0.5, 0.8]), np.eye(3), np.array([-1.2, 0.4, 0.4]),
+                    3, np.array([0.2, 0.8, 0.2])),
+    ]
+    R_cv = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # OpenCV camera axes (columns) in the world
+    poses = []
+    for i in range(5):
+        T = np.eye(4)
+        T[:3, :3] = R_cv.T
+        T[:3, 3] = -R_cv.T @ np.array([-0.4 + 0.15 * i, -3.2, 0.7])
+        poses.append(T)
+    views = render_views(objects, K, np.stack(poses), WIDTH, HEIGHT, floor_z=0.0)
+    frontend = FrontEnd(K)
+    for t in range(5):
+        boxes = np.array([seg_box(views["seg"][t], j) for j in range(3)])
+        out = frontend.process(views["rgb"][t], poses[t], boxes)
+        assert [d.landmark_id for d in out] == [0, 1, 2]
+        if t == 0:
+            continue
+        for j, det in enumerate(out):
+            obj = objects[j]
+            rendered = float(np.median(views["depth"][t][views["seg"][t] == j]))
+            tangent, valid = quadrics.texture_plane_depth(obj.rotation, obj.center, obj.extents / 2, poses[t])
+            assert bool(valid)
+            assert det.texture_status == "ok", (t, obj.shape, det)
+            assert abs(det.texture_depth - rendered) < 0.03 * rendered, (t, obj.shape, det.texture_depth, rendered)
+            # the points lie on the surface, behind (or on) the tangent plane of eq. 4.11
+            assert det.texture_depth > float(tangent) - 0.01 * rendered
+
+
 def test_short_baseline_rejected_with_stationary_camera(three):
     frontend = FrontEnd(three["K"])
     boxes, _ = detections(three, 0)
