@@ -21,8 +21,10 @@ Per frame, :meth:`FrontEnd.process` does:
 3. **Texture plane.** Every tracked corner remembers the pose of the frame where it was detected
    (its anchor). For an associated detection, the corners inside the box are triangulated between
    their anchor view and the current view (linear DLT, both poses known), the depth of each point
-   is taken in the current camera frame, and the texture-plane depth is their mean (the thesis'
-   "texture plane fit to the mean depth of the points"). The measurement is rejected, with a
+   is taken in the current camera frame, points that reproject badly or lie far from the median
+   depth (robust 3-sigma, mostly background corners at the box edge) are dropped, and the
+   texture-plane depth is the mean of the rest (the thesis' "texture plane fit to the mean depth
+   of the points"). The measurement is rejected, with a
    reason, when the baseline between the two views is too short, too few points survive, or the
    variance of the point depths is too large (an oblong, rotated object breaks the single-plane
    assumption). The variance is returned in every case where it could be computed, so the texture
