@@ -311,6 +311,15 @@ def test_high_variance_rejected_for_rotated_oblong_object(oblong):
     z = oblong["depth"][f][mask]
     assert z.min() < last.texture_depth < z.max()
     assert last.texture_variance == pytest.approx(np.var(z), rel=0.5)
+    # the scale-free criterion rejects it too, and keeps the frontal faces of the other scene
+    relative = FrontEndConfig(max_depth_variance=1.0, max_relative_depth_std=0.05)
+    assert run(oblong, FrontEnd(oblong["K"], relative))[-1]["long"].texture_status == "high_variance"
+
+
+def test_relative_depth_spread_keeps_frontal_faces(three):
+    relative = FrontEndConfig(max_depth_variance=1.0, max_relative_depth_std=0.05)
+    per_frame = run(three, FrontEnd(three["K"], relative), frames=range(3))
+    assert all(per_frame[f][n].texture_status == "ok" for f in (1, 2) for n in ("red", "blue"))
 
 
 def test_triangulation_matches_opencv_and_truth():

@@ -111,6 +111,9 @@ class FrontEndConfig:
         (background corners at the box edge); ``math.inf`` disables it.
       max_depth_variance: m^2; measurements whose point-depth variance exceeds it are rejected as
         ``"high_variance"``.
+      max_relative_depth_std: the same rejection when the points' depth standard deviation exceeds
+        this fraction of their mean depth; scale-free, for scenes whose depths span a wide range
+        (cars at 5-30 m). ``math.inf`` (default) disables it.
       min_depth: metres; points closer than this to either camera are dropped.
 
     Association:
@@ -141,6 +144,7 @@ class FrontEndConfig:
     max_reprojection_error: float = 2.0
     max_outlier_deviations: float = 3.0
     max_depth_variance: float = 0.04
+    max_relative_depth_std: float = math.inf
     min_depth: float = 0.05
     gate_pixels: float = 60.0
     hist_bins: tuple = (30, 32)
@@ -166,7 +170,7 @@ class FrontEndConfig:
                 raise ValueError(f"FrontEndConfig.{name}: expected an integer >= 3, got {value!r}")
         positive = (
             "max_forward_backward_error", "max_reprojection_error", "max_outlier_deviations",
-            "max_depth_variance", "min_depth", "gate_pixels",
+            "max_depth_variance", "max_relative_depth_std", "min_depth", "gate_pixels",
         )
         for name in positive:
             value = getattr(self, name)
@@ -405,7 +409,7 @@ def _texture_from_points(points, K, pose_now, uv_now, pose_anchor, uv_anchor, co
         return None, variance, TEXTURE_TOO_FEW_POINTS, n, good
     mean = float(np.mean(depths))
     variance = float(np.var(depths))
-    if variance > config.max_depth_variance:
+    if variance > config.max_depth_variance or math.sqrt(variance) > config.max_relative_depth_std * mean:
         return None, variance, TEXTURE_HIGH_VARIANCE, n, good
     return mean, variance, TEXTURE_OK, n, good
 
