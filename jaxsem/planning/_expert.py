@@ -204,6 +204,12 @@ def generate_expert_samples(building: Building, seed: int, config: ExpertConfig 
     }
 
 
+def _init_worker(cache_dir):
+    if cache_dir:
+        jax.config.update("jax_compilation_cache_dir", cache_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
 def _shard_job(args):
     family, seed, config, out_dir, resolution = args
     b = generate_building(seed, family, resolution)
@@ -241,7 +247,8 @@ def write_expert_dataset(out_dir, family: str, seeds, config: ExpertConfig = Exp
                 bar.update(1)
     else:
         ctx = multiprocessing.get_context("spawn")  # JAX is multithreaded: never fork it
-        with ctx.Pool(workers) as pool:
+        cache = jax.config.jax_compilation_cache_dir  # workers share the parent's compile cache
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(cache,)) as pool:
             for path, _ in pool.imap_unordered(_shard_job, jobs):
                 done.append(path)
                 if bar:
