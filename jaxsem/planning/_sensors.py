@@ -78,22 +78,30 @@ def sense(true_occupancy, true_semantic, state: MapState, pose, origin, resoluti
     senses many robots at once. Returns the new :class:`MapState`.
     """
     resolution = _check_resolution(resolution)
-    origin = jnp.asarray(origin)
-    if not jnp.issubdtype(origin.dtype, jnp.floating):
-        origin = origin.astype(jnp.result_type(float))
-    if origin.shape != (2,):
-        raise ValueError(f"origin: expected shape (2,), got shape {origin.shape}")
-    pose = jnp.asarray(pose, origin.dtype)
-    if pose.shape[-1:] != (3,):
-        raise ValueError(f"pose: expected shape (..., 3) = (x, y, yaw), got shape {pose.shape}")
+    # Cheap conversions only (numpy in, jit converts at dispatch): this wrapper runs every step
+    # and a jnp.asarray per argument cost more than the sensing itself.
+    dtype = np.dtype(jnp.result_type(float))
+    origin = _host_or_jax(origin, dtype)
+    if tuple(origin.shape) != (2,):
+        raise ValueError(f"origin: expected shape (2,), got shape {tuple(origin.shape)}")
+    pose = _host_or_jax(pose, dtype)
+    if tuple(pose.shape[-1:]) != (3,):
+        raise ValueError(f"pose: expected shape (..., 3) = (x, y, yaw), got shape {tuple(pose.shape)}")
     _check_true_maps(true_occupancy, true_semantic)
     occ_shape = tuple(np.shape(true_occupancy))
     for name, leaf in (("state.occupancy", state.occupancy), ("state.semantic", state.semantic)):
         if tuple(leaf.shape[-2:]) != occ_shape or leaf.dtype != jnp.int8:
             raise ValueError(f"{name}: expected int8 (..., {occ_shape[0]}, {occ_shape[1]}) like "
                              f"true_occupancy, got shape {tuple(leaf.shape)} dtype {leaf.dtype}")
-    return _sense_jit(jnp.asarray(true_occupancy), jnp.asarray(true_semantic, jnp.int8), state,
-                      pose, origin, resolution, config)
+    if not (isinstance(true_semantic, jax.Array) and true_semantic.dtype == jnp.int8):
+        true_semantic = np.asarray(true_semantic, np.int8)
+    return _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config)
+
+
+def _host_or_jax(x, dtype):
+    if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating):
+        return x.astype(dtype) if x.dtype != dtype else x
+    return np.asarray(x, dtype)
 
 
 def _check_resolution(resolution):
