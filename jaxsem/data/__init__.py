@@ -22,3 +22,11 @@ from ._synthetic import (
     synthetic_intrinsics as synthetic_intrinsics,
     write_synthetic_dataset as write_synthetic_dataset,
 )
+from ._pipeline import (
+    PipelineConfig as PipelineConfig,
+    VolumonDataset as VolumonDataset,
+    crop_inputs as crop_inputs,
+    find_scenes as find_scenes,
+    mask_depth_points as mask_depth_points,
+    thesis_config as thesis_config,
+)

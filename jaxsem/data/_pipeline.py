@@ -1,0 +1,429 @@
+"""VoluMon input pipeline: fixed-shape batches of detections from a FAT-layout split.
+
+Host-side numpy/OpenCV (data loading is not traced). A *sample* is one object in one frame. Each
+batch carries what the network sees (a local patch of the input box and the masked global image),
+what the losses need (the clean left box, the right box, K, the stereo baseline, the class and
+surface points from mask + depth) and, for evaluation only, the ground-truth pose and size.
+
+Determinism: the order of epoch ``e`` is a permutation drawn from ``(seed, e)`` and every random
+augmentation of step ``s`` from ``(seed, e, s)``, so ``batch(e, s)`` is a pure function and a
+training run resumed at any step sees exactly the batches of an uninterrupted one.
+
+Augmentations (thesis 5.5.1-5.5.2; each off when its parameter is 0):
+
+- box noise: the *input* box (crop and global mask) has each edge moved by
+  ``N(0, box_noise * box size)``; the loss keeps the clean box (``box`` vs ``input_box``);
+- hue / saturation jitter: hue shifted by ``U(-hue_jitter, hue_jitter)`` of the colour circle,
+  saturation scaled by ``U(1 - saturation_jitter, 1 + saturation_jitter)``, the same for the
+  patch and the global image of a sample;
+- random erasing (torchvision's ``RandomErasing``: probability ``erase_prob``, area fraction in
+  ``erase_scale``, aspect ratio in (0.3, 3.3), value 0) on the local patch.
+
+Documented skips, never NaN:
+
+- objects whose clean box extends past the image are dropped when the split is loaded
+  (``drop_truncated``, as the thesis filters FAT), and so are boxes smaller than
+  ``min_box_size`` pixels; :func:`crop_inputs` on its own accepts any box that overlaps the image
+  (the part outside is zero) and raises ``ValueError`` for one that does not;
+- an object with an empty mask or no positive depth on it gets ``points_mask`` all False (its
+  ``points`` are zeros) and ``has_points`` False: a primal loss must weigh points by the mask.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+from typing import Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from ._fat import FatFrame, FatSequence
+
+__all__ = [
+    "PipelineConfig",
+    "VolumonDataset",
+    "crop_inputs",
+    "mask_depth_points",
+    "find_scenes",
+    "thesis_config",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Sizes and augmentations of the VoluMon input pipeline.
+
+    Attributes:
+      patch_size: side of the local patch (64 for the CPU config, 224 in the thesis).
+      global_size: side of the masked global image (non-uniformly resized, as the thesis).
+      global_margin: padding of the kept region around the input box, as a fraction of the
+        box's width / height (plus ``global_margin_px`` pixels).
+      n_points: surface points per sample (drawn with replacement from the object's pixels).
+      erode_mask: pixels eroded from the object mask before taking points (0 = none).
+      box_noise, hue_jitter, saturation_jitter, erase_prob, erase_scale: augmentations (see the
+        module docstring); used only when the dataset is built with ``augment=True``.
+      drop_truncated: drop objects whose box extends past the image; min_box_size: drop boxes
+        narrower or shorter than this many pixels.
+    """
+
+    patch_size: int = 64
+    global_size: int = 64
+    global_margin: float = 0.1
+    global_margin_px: float = 2.0
+    n_points: int = 256
+    erode_mask: int = 0
+    box_noise: float = 0.0
+    hue_jitter: float = 0.05
+    saturation_jitter: float = 0.3
+    erase_prob: float = 0.5
+    erase_scale: tuple = (0.02, 0.2)
+    drop_truncated: bool = True
+    min_box_size: float = 2.0
+
+    def __post_init__(self):
+        for name in ("patch_size", "global_size", "n_points"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"PipelineConfig.{name}: expected a positive integer, got {getattr(self, name)}")
+        for name in ("global_margin", "global_margin_px", "box_noise", "hue_jitter", "saturation_jitter", "erode_mask"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"PipelineConfig.{name}: expected >= 0, got {getattr(self, name)}")
+        if not 0 <= self.erase_prob <= 1:
+            raise ValueError(f"PipelineConfig.erase_prob: expected in [0, 1], got {self.erase_prob}")
+        lo, hi = self.erase_scale
+        if not 0 < lo <= hi < 1:
+            raise ValueError(f"PipelineConfig.erase_scale: expected 0 < lo <= hi < 1, got {self.erase_scale}")
+
+
+def thesis_config(**changes) -> PipelineConfig:
+    """The thesis-sized pipeline (224 x 224 inputs); keyword arguments override fields."""
+    return dataclasses.replace(PipelineConfig(patch_size=224, global_size=224), **changes)
+
+
+def _check_image(image) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise ValueError(f"image: expected dtype uint8 (RGB 0-255), got {image.dtype} with shape {image.shape}")
+    if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] < 1 or image.shape[1] < 1:
+        raise ValueError(f"image: expected shape (H, W, 3), got {image.shape}")
+    return image
+
+
+def _check_box(box, width, height, name="box") -> np.ndarray:
+    box = np.asarray(box, np.float64)
+    if box.shape != (4,) or not np.all(np.isfinite(box)):
+        raise ValueError(f"{name}: expected 4 finite numbers [u_min, v_min, u_max, v_max], got {box.tolist()}")
+    if box[2] <= box[0] or box[3] <= box[1]:
+        raise ValueError(f"{name}: expected u_max > u_min and v_max > v_min, got {box.tolist()}")
+    if box[2] <= -0.5 or box[0] >= width - 0.5 or box[3] <= -0.5 or box[1] >= height - 0.5:
+        raise ValueError(f"{name}: {box.tolist()} lies entirely outside the {width}x{height} image")
+    return box
+
+
+def _crop(image_f: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:
+    """Sub-pixel crop of ``box`` (pixel-centre coordinates) resized to ``size``; zero outside."""
+    sx = size / (box[2] - box[0])
+    sy = size / (box[3] - box[1])
+    # Output pixel centre x' = (x - u_min) * sx - 0.5 maps the box edges onto the patch edges.
+    # (A box spanning the whole image, [-0.5, -0.5, W - 0.5, H - 0.5], is the identity at size W.)
+    M = np.array([[sx, 0.0, -box[0] * sx - 0.5], [0.0, sy, -box[1] * sy - 0.5]])
+    return cv2.warpAffine(image_f, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def _masked_global(image_f: np.ndarray, box: np.ndarray, size: int, margin: float, margin_px: float) -> np.ndarray:
+    h, w = image_f.shape[:2]
+    mx = margin * (box[2] - box[0]) + margin_px
+    my = margin * (box[3] - box[1]) + margin_px
+    keep = np.zeros((h, w, 1), np.float32)
+    u0, u1 = max(0, math.ceil(box[0] - mx)), min(w, math.floor(box[2] + mx) + 1)
+    v0, v1 = max(0, math.ceil(box[1] - my)), min(h, math.floor(box[3] + my) + 1)
+    keep[v0:v1, u0:u1] = 1.0
+    interp = cv2.INTER_AREA if size < min(h, w) else cv2.INTER_LINEAR
+    return cv2.resize(image_f * keep, (size, size), interpolation=interp)
+
+
+def crop_inputs(image, boxes, patch_size: int = 64, global_size: int = 64, margin: float = 0.1, margin_px: float = 2.0):
+    """The two network inputs for each box of one image.
+
+    Args:
+      image: (H, W, 3) uint8 RGB.
+      boxes: (n, 4) or (4,) ``[u_min, v_min, u_max, v_max]`` pixels; each must overlap the image.
+      patch_size, global_size: output sides; margin, margin_px: padding of the global mask.
+
+    Returns:
+      patches (n, patch_size, patch_size, 3) and globals (n, global_size, global_size, 3),
+      float32 in [0, 1]: the box crop (sub-pixel, zero outside the image) and the whole image
+      with everything outside the padded box set to zero, resized non-uniformly.
+    """
+    image = _check_image(image)
+    boxes = np.asarray(boxes, np.float64)
+    single = boxes.ndim == 1
+    boxes = boxes.reshape(-1, 4) if boxes.size else np.zeros((0, 4))
+    h, w = image.shape[:2]
+    image_f = image.astype(np.float32) / 255.0
+    patches = np.zeros((len(boxes), patch_size, patch_size, 3), np.float32)
+    globs = np.zeros((len(boxes), global_size, global_size, 3), np.float32)
+    for i, b in enumerate(boxes):
+        b = _check_box(b, w, h, f"boxes[{i}]")
+        patches[i] = _crop(image_f, b, patch_size)
+        globs[i] = _masked_global(image_f, b, global_size, margin, margin_px)
+    if single:
+        return patches[0], globs[0]
+    return patches, globs
+
+
+def mask_depth_points(depth, mask, K, erode: int = 0) -> np.ndarray:
+    """3D points (M, 3) in the camera frame of the mask's pixels that have a positive depth.
+
+    Args:
+      depth: (H, W) z-depth in metres (0 or negative = unknown); mask: (H, W) bool; K: (3, 3).
+      erode: pixels to erode the mask by first (drops mixed depth at silhouettes).
+
+    Returns:
+      float32 (M, 3); M = 0 for an empty mask or no valid depth (a documented skip, no error).
+    """
+    depth = np.asarray(depth)
+    mask = np.asarray(mask, bool)
+    if depth.ndim != 2 or mask.shape != depth.shape:
+        raise ValueError(f"depth, mask: expected equal (H, W) shapes, got {depth.shape} and {mask.shape}")
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise ValueError(f"depth: expected floating metres, got dtype {depth.dtype} (scale uint16 PNGs first)")
+    K = np.asarray(K, np.float64)
+    if erode > 0 and mask.any():
+        mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * erode + 1, 2 * erode + 1), np.uint8)) > 0
+    ok = mask & np.isfinite(depth) & (depth > 0)
+    vs, us = np.nonzero(ok)
+    z = depth[vs, us].astype(np.float64)
+    y = (vs - K[1, 2]) / K[1, 1]
+    x = (us - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return np.stack([x * z, y * z, z], axis=1).astype(np.float32)
+
+
+def find_scenes(path) -> list:
+    """Scene directories (holding ``_camera_settings.json``) at or below ``path``, sorted."""
+    path = pathlib.Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"dataset directory missing: {path}")
+    if (path / "_camera_settings.json").is_file():
+        return [path]
+    return sorted(p.parent for p in path.rglob("_camera_settings.json"))
+
+
+@dataclasses.dataclass
+class _Frame:
+    image: np.ndarray
+    K: np.ndarray
+    baseline: float
+
+
+class VolumonDataset:
+    """A split held in memory; yields fixed-shape VoluMon batches.
+
+    Args:
+      frames: :class:`FatFrame` objects (e.g. from :meth:`from_directory`).
+      config: :class:`PipelineConfig`.
+      class_names: the class list (class id = index). ``None``: sorted names found in ``frames``.
+        Objects of other classes are skipped.
+      augment: apply the augmentations of ``config`` (training) or not (evaluation).
+      seed: seed of the epoch order and of the augmentations.
+
+    Attributes:
+      num_samples, class_names, skipped (dict reason -> count of objects dropped).
+    """
+
+    def __init__(
+        self,
+        frames: Sequence[FatFrame],
+        config: PipelineConfig = PipelineConfig(),
+        *,
+        class_names: Sequence[str] | None = None,
+        augment: bool = False,
+        seed: int = 0,
+    ):
+        self.config = config
+        self.augment = bool(augment)
+        self.seed = int(seed)
+        if self.seed < 0:
+            raise ValueError(f"seed: expected a non-negative integer, got {seed}")
+        frames = list(frames)
+        if class_names is None:
+            class_names = sorted({n for fr in frames for n in fr.class_names})
+        self.class_names = tuple(class_names)
+        ids = {n: i for i, n in enumerate(self.class_names)}
+        self._frames: list[_Frame] = []
+        self.skipped = {"truncated": 0, "small": 0, "unknown_class": 0}
+        rows = []
+        for fi, fr in enumerate(frames):
+            image = _check_image(fr.image)
+            h, w = image.shape[:2]
+            self._frames.append(_Frame(image, np.asarray(fr.K, np.float64), float(fr.baseline)))
+            for i, name in enumerate(fr.class_names):
+                box = fr.boxes_left[i]
+                if name not in ids:
+                    self.skipped["unknown_class"] += 1
+                    continue
+                if config.drop_truncated and (box[0] < -0.5 or box[1] < -0.5 or box[2] > w - 0.5 or box[3] > h - 0.5):
+                    self.skipped["truncated"] += 1
+                    continue
+                if min(box[2] - box[0], box[3] - box[1]) < config.min_box_size:
+                    self.skipped["small"] += 1
+                    continue
+                pts = mask_depth_points(fr.depth, fr.seg == i, fr.K, config.erode_mask)
+                rows.append(
+                    dict(
+                        frame=len(self._frames) - 1, class_id=ids[name], box=box.copy(),
+                        box_right=fr.boxes_right[i].copy(), has_right_box=bool(fr.has_right_box[i]),
+                        points=pts, rotation=fr.rotation[i].copy(), center=fr.center[i].copy(),
+                        dimensions=fr.dimensions[i].copy(), source=f"{fr.path}#{i}",
+                    )
+                )
+        self._rows = rows
+
+    @classmethod
+    def from_directory(cls, path, config: PipelineConfig = PipelineConfig(), *, loader_options=None, **kwargs):
+        """Load every scene at or below ``path`` (a split directory or one scene)."""
+        frames = []
+        for scene in find_scenes(path):
+            frames.extend(FatSequence(scene, **(loader_options or {})))
+        return cls(frames, config, **kwargs)
+
+    @property
+    def num_samples(self) -> int:
+        return len(self._rows)
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def steps_per_epoch(self, batch_size: int) -> int:
+        """Full batches per epoch (the incomplete last batch of an epoch is dropped)."""
+        return len(self._rows) // int(batch_size)
+
+    def epoch_order(self, epoch: int) -> np.ndarray:
+        return np.random.default_rng([self.seed, int(epoch)]).permutation(len(self._rows))
+
+    def batch(self, epoch: int, step: int, batch_size: int) -> dict:
+        """Training batch ``step`` of ``epoch`` (pure function of seed, epoch, step)."""
+        steps = self.steps_per_epoch(batch_size)
+        if steps == 0:
+            raise ValueError(f"batch_size: {batch_size} exceeds the {len(self._rows)} samples of the dataset")
+        if int(epoch) < 0:
+            raise ValueError(f"epoch: expected >= 0, got {epoch}")
+        if not 0 <= step < steps:
+            raise ValueError(f"step: expected 0 <= step < {steps} (steps per epoch), got {step}")
+        idx = self.epoch_order(epoch)[step * batch_size : (step + 1) * batch_size]
+        rng = np.random.default_rng([self.seed, int(epoch), int(step), 1])
+        return self._make(idx, rng, self.augment)
+
+    def batch_at(self, global_step: int, batch_size: int) -> dict:
+        """Batch number ``global_step`` counted across epochs (for resuming at a step)."""
+        steps = self.steps_per_epoch(batch_size)
+        if steps == 0:
+            raise ValueError(f"batch_size: {batch_size} exceeds the {len(self._rows)} samples of the dataset")
+        return self.batch(global_step // steps, global_step % steps, batch_size)
+
+    def epoch(self, epoch: int, batch_size: int, start_step: int = 0) -> Iterator[dict]:
+        for s in range(int(start_step), self.steps_per_epoch(batch_size)):
+            yield self.batch(epoch, s, batch_size)
+
+    def eval_batches(self, batch_size: int) -> Iterator[dict]:
+        """Every sample once, in order, without augmentation; the last batch is padded by
+        repeating its final sample, with ``valid`` False on the padding."""
+        n = len(self._rows)
+        for start in range(0, n, batch_size):
+            idx = np.arange(start, min(start + batch_size, n))
+            valid = np.ones(batch_size, bool)
+            valid[len(idx):] = False
+            idx = np.concatenate([idx, np.full(batch_size - len(idx), idx[-1])])
+            rng = np.random.default_rng([self.seed, 2**32 - 1, start])  # not an epoch's stream
+            out = self._make(idx, rng, False)
+            out["valid"] = valid
+            yield out
+
+    # ----------------------------------------------------------------------------------------
+
+    def _noisy_box(self, rng, box, w, h):
+        c = self.config
+        size = np.array([box[2] - box[0], box[3] - box[1]] * 2)
+        for _ in range(10):
+            noisy = box + rng.normal(size=4) * c.box_noise * size
+            noisy = np.clip(noisy, -0.5, [w - 0.5, h - 0.5, w - 0.5, h - 0.5])
+            if noisy[2] - noisy[0] >= 1 and noisy[3] - noisy[1] >= 1:
+                return noisy
+        return box.copy()
+
+    def _colour_jitter(self, rng, images):
+        c = self.config
+        dh = rng.uniform(-c.hue_jitter, c.hue_jitter) * 360.0
+        ds = rng.uniform(1 - c.saturation_jitter, 1 + c.saturation_jitter)
+        out = []
+        for im in images:
+            hsv = cv2.cvtColor(im, cv2.COLOR_RGB2HSV)  # float32: H in [0, 360), S, V in [0, 1]
+            hsv[..., 0] = np.mod(hsv[..., 0] + dh, 360.0)
+            hsv[..., 1] = np.clip(hsv[..., 1] * ds, 0.0, 1.0)
+            out.append(np.clip(cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), 0.0, 1.0))
+        return out
+
+    def _erase(self, rng, patch):
+        c = self.config
+        if rng.random() >= c.erase_prob:
+            return patch
+        p = patch.shape[0]
+        for _ in range(10):
+            area = rng.uniform(*c.erase_scale) * p * p
+            ratio = math.exp(rng.uniform(math.log(0.3), math.log(3.3)))
+            eh, ew = int(round(math.sqrt(area * ratio))), int(round(math.sqrt(area / ratio)))
+            if 0 < eh < p and 0 < ew < p:
+                y, x = rng.integers(0, p - eh + 1), rng.integers(0, p - ew + 1)
+                patch = patch.copy()
+                patch[y : y + eh, x : x + ew] = 0.0
+                return patch
+        return patch
+
+    def _make(self, idx, rng, augment: bool) -> dict:
+        c = self.config
+        B, P, G, N = len(idx), int(c.patch_size), int(c.global_size), int(c.n_points)
+        out = {
+            "patch": np.zeros((B, P, P, 3), np.float32),
+            "global_image": np.zeros((B, G, G, 3), np.float32),
+            "input_box": np.zeros((B, 4), np.float32),
+            "box": np.zeros((B, 4), np.float32),
+            "box_right": np.zeros((B, 4), np.float32),
+            "has_right_box": np.zeros(B, bool),
+            "K": np.zeros((B, 3, 3), np.float32),
+            "baseline": np.zeros(B, np.float32),
+            "image_size": np.zeros((B, 2), np.float32),
+            "class_id": np.zeros(B, np.int32),
+            "points": np.zeros((B, N, 3), np.float32),
+            "points_mask": np.zeros((B, N), bool),
+            "has_points": np.zeros(B, bool),
+            "rotation": np.zeros((B, 3, 3), np.float32),
+            "center": np.zeros((B, 3), np.float32),
+            "dimensions": np.zeros((B, 3), np.float32),
+            "index": np.asarray(idx, np.int32),
+        }
+        for b, i in enumerate(idx):
+            row = self._rows[i]
+            fr = self._frames[row["frame"]]
+            h, w = fr.image.shape[:2]
+            box = row["box"]
+            in_box = self._noisy_box(rng, box, w, h) if augment and c.box_noise > 0 else box
+            image_f = fr.image.astype(np.float32) / 255.0
+            patch = _crop(image_f, in_box, P)
+            glob = _masked_global(image_f, in_box, G, c.global_margin, c.global_margin_px)
+            if augment and (c.hue_jitter > 0 or c.saturation_jitter > 0):
+                patch, glob = self._colour_jitter(rng, [patch, glob])
+            if augment and c.erase_prob > 0:
+                patch = self._erase(rng, patch)
+            pts = row["points"]
+            if len(pts):
+                out["points"][b] = pts[rng.integers(0, len(pts), N)]
+                out["points_mask"][b] = True
+                out["has_points"][b] = True
+            out["patch"][b], out["global_image"][b] = patch, glob
+            out["input_box"][b], out["box"][b] = in_box, box
+            out["box_right"][b], out["has_right_box"][b] = row["box_right"], row["has_right_box"]
+            out["K"][b], out["baseline"][b], out["image_size"][b] = fr.K, fr.baseline, (w, h)
+            out["class_id"][b] = row["class_id"]
+            out["rotation"][b], out["center"][b], out["dimensions"][b] = row["rotation"], row["center"], row["dimensions"]
+        return out
