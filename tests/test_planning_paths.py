@@ -267,3 +267,22 @@ def test_prm_bad_input():
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
     with pytest.raises(ValueError, match="weight"):
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="l1")
+
+
+def test_roadmap_builder_vmaps_over_trials():
+    from jaxsem.planning import make_roadmap_builder
+
+    occ = _one_route_map()
+    build = make_roadmap_builder(N, occ.shape, RES, radius=RADIUS, weight="neglogp", uniform=False)
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    dist = np.random.default_rng(0).random((3,) + occ.shape) + 0.1
+    starts = np.array([[1.0, 3.0], [1.5, 2.0], [2.0, 4.0]])
+    goals = np.array([[9.0, 3.0], [8.5, 1.0], [9.0, 5.0]])
+    batch = jax.jit(jax.vmap(build, in_axes=(0, None, 0, 0, 0, None)))(
+        keys, jnp.asarray(occ), dist, starts, goals, jnp.asarray(ORIGIN))
+    for i in range(3):
+        one = build_roadmap(keys[i], occ, starts[i], goals[i], N, ORIGIN, RES, distribution=dist[i],
+                            weight="neglogp", radius=RADIUS)
+        np.testing.assert_allclose(np.asarray(batch.points[i]), np.asarray(one.points), rtol=1e-12)
+        np.testing.assert_array_equal(np.asarray(batch.edge_valid[i]), np.asarray(one.edge_valid))
+        np.testing.assert_allclose(np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9)

@@ -41,6 +41,7 @@ from ._prm import (
     default_radius as default_radius,
     embed_local_distribution as embed_local_distribution,
     knn_within_radius as knn_within_radius,
+    make_roadmap_builder as make_roadmap_builder,
     roadmap_shortest_path as roadmap_shortest_path,
     sample_points as sample_points,
 )

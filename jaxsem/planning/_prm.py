@@ -226,6 +226,34 @@ def build_roadmap(key, known_map, start, goal, n: int, origin, resolution: float
     )
 
 
+def make_roadmap_builder(n: int, shape, resolution: float, *, k: int = 10, radius: float | None = None,
+                         weight: str = "euclidean", uniform: bool = True, bucket_cap: int = 32):
+    """A pure, jittable and vmappable roadmap builder for a fixed ``n`` and map ``shape``.
+
+    Returns ``build(key, blocked, distribution, start, goal, origin) -> Roadmap`` with
+    blocked: (H, W) bool known obstacles; distribution: (H, W) cell weights (ignored when
+    ``uniform``); start, goal: (2,); origin: (2,) float. No input checks (use
+    :func:`build_roadmap` at the Python boundary); ``jax.vmap`` it to build the roadmaps of many
+    trials at once, e.g. ``jax.vmap(build)(keys, blocked_maps, dists, starts, goals, origins)``.
+    """
+    if weight not in ("euclidean", "neglogp"):
+        raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+    if weight == "neglogp" and uniform:
+        raise ValueError("uniform: weight='neglogp' needs a distribution (uniform=False)")
+    H, W = (int(s) for s in shape)
+    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
+    edge_samples = max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
+
+    def build(key, blocked, distribution, start, goal, origin):
+        return _build.__wrapped__(
+            key, blocked, distribution, start, goal, origin, n=int(n), k=int(k),
+            resolution=float(resolution), radius=radius, edge_samples=edge_samples,
+            bucket_cap=int(bucket_cap), neglogp=weight == "neglogp", uniform=bool(uniform),
+        )
+
+    return build
+
+
 class RoadmapPath(NamedTuple):
     """vertices: (K,) roadmap indices from start (0) to goal (1); points: (K, 2) world;
     cost: summed edge weights; length: metres; found: bool (False: empty path, inf cost)."""
