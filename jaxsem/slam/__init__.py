@@ -4,6 +4,10 @@ Data structures (padded to capacity with masks, equinox pytrees): :class:`SlamPr
 :class:`SlamEstimate`, :class:`Frame`, :class:`Capacity`, :class:`NoiseModel`,
 :class:`SolverConfig`. The residual functions and the class shape table are in
 :mod:`jaxsem.factors`.
+
+Solvers: :func:`solve_batch` (optimistix Levenberg-Marquardt, differentiable; or
+``method="schur"``), :func:`solve_schur` (structured LM), and the online smoother
+:func:`online_init` / :func:`online_update` / :func:`online_estimate`.
 """
 
 from ._problem import (
@@ -16,6 +20,18 @@ from ._problem import (
     make_frame as make_frame,
     make_problem as make_problem,
     stack_problems as stack_problems,
+)
+from ._cost import (
+    Delta as Delta,
+    residual_blocks as residual_blocks,
+    retract as retract,
+    total_cost as total_cost,
+)
+from ._init import initialize as initialize
+from ._batch import (
+    SolveInfo as SolveInfo,
+    solve_batch as solve_batch,
+    solve_schur as solve_schur,
 )
 from ._frontend import (  # OpenCV front end for image sequences (thesis 4.5.1)
     AssociatedDetection as AssociatedDetection,

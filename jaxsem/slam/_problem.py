@@ -178,6 +178,8 @@ class SolverConfig(eqx.Module):
       rtol, atol: LM tolerances.
       barrier_weight: weight of the degenerate-geometry penalty (depth / camera-inside).
       min_depth: metres, the depth below which the near side of an ellipsoid counts as too close.
+      degenerate_residual: pixels, soft cap of a box edge error and the base residual of an
+        invalid projection (see :func:`jaxsem.factors.box_residual`).
     """
 
     noise: NoiseModel = NoiseModel()
@@ -196,6 +198,7 @@ class SolverConfig(eqx.Module):
     atol: float = eqx.field(static=True, default=1e-8)
     barrier_weight: float | jnp.ndarray = 10.0
     min_depth: float | jnp.ndarray = 0.1
+    degenerate_residual: float | jnp.ndarray = 1000.0
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
