@@ -161,3 +161,17 @@ def test_bad_input_errors_and_documented_skips(frames):
         ds.batch(0, 0, 1000)
     with pytest.raises(ValueError, match="patch_size"):
         PipelineConfig(patch_size=0)
+
+
+def test_image_scale_and_point_cap(frames):
+    """Half-size images: K and boxes follow, so the crop of a box shows the same content."""
+    full = VolumonDataset(frames[:2], PipelineConfig(patch_size=16, global_size=16, n_points=8))
+    half = VolumonDataset(frames[:2], PipelineConfig(patch_size=16, global_size=16, n_points=8, image_scale=0.5,
+                                                     max_points_per_object=5))
+    a, b = next(full.eval_batches(4)), next(half.eval_batches(4))
+    np.testing.assert_allclose(b["K"][:, 0, 0], a["K"][:, 0, 0] / 2, rtol=1e-6)
+    # The principal point (W - 1) / 2 of the full image maps to (W / 2 - 1) / 2 of the half one.
+    np.testing.assert_allclose(b["K"][:, 0, 2], (a["image_size"][:, 0] / 2 - 1) / 2, rtol=1e-6)
+    np.testing.assert_allclose((b["box"] + 0.5), (a["box"] + 0.5) / 2, rtol=1e-5)
+    assert np.abs(a["patch"] - b["patch"]).mean() < 0.08
+    assert all(len(r["points"]) <= 5 for r in half._rows)

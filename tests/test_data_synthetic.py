@@ -8,6 +8,7 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.data import DEFAULT_CLASSES, load_fat_scene, object_box, write_synthetic_dataset
+from jaxsem.data.make_synthetic import main as make_synthetic_main
 
 
 @pytest.fixture(scope="module")
@@ -100,3 +101,13 @@ def test_bad_arguments(tmp_path):
         write_synthetic_dataset(tmp_path, 1, image_size=(16, 16))
     with pytest.raises(ValueError, match="max_objects"):
         write_synthetic_dataset(tmp_path, 1, max_objects=5)
+
+
+def test_command_line_entry(tmp_path, capsys):
+    make_synthetic_main(["--out", str(tmp_path), "--frames", "1", "--split", "test", "--width", "64",
+                         "--height", "48", "--format", "png", "--bbox-order", "xy"])
+    assert "test: 1 frames" in capsys.readouterr().out
+    fr = load_fat_scene(tmp_path / "test" / "scene_000", bbox_order="xy")[0]
+    assert fr.image.shape == (48, 64, 3) and fr.num_objects >= 1
+    ys, xs = np.nonzero(fr.seg == 0)
+    np.testing.assert_allclose(fr.boxes_left[0], [xs.min() - 0.5, ys.min() - 0.5, xs.max() + 0.5, ys.max() + 0.5], atol=1.0)

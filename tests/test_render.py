@@ -98,6 +98,9 @@ def test_plane_depth_and_floor():
     out = render_views([slab], K, np.eye(4), W, H, textured=False)
     np.testing.assert_allclose(out["depth"][0], 0.75, atol=1e-3)
     assert np.all(out["seg"][0] == 0)
+    only = render_views([slab], K, np.eye(4), W, H, textured=False, outputs=("depth",))
+    assert set(only) == {"depth"}
+    np.testing.assert_array_equal(only["depth"], out["depth"])
     # A floor is depth but not an object: z up world, camera 1 m above looking down at the floor.
     T = np.asarray(quadrics.look_at(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.001, 0.0])))
     out = render_views([], K, T[None], W, H, floor_z=0.0)
@@ -126,6 +129,8 @@ def test_bad_input():
         render_views([ob], K * np.array([[1, 1, 1], [1, 1.1, 1], [1, 1, 1]]), np.eye(4), W, H)
     with pytest.raises(ValueError, match="principal point"):
         render_views([ob], K + np.array([[0, 0, 5.0], [0, 0, 0], [0, 0, 0]]), np.eye(4), W, H)
+    with pytest.raises(ValueError, match="outputs"):
+        render_views([ob], K, np.eye(4), W, H, outputs=("normals",))
     with pytest.raises(ValueError, match="camera_T_world"):
         render_views([ob], K, np.eye(3), W, H)
     with pytest.raises(ValueError, match="shape"):

@@ -66,6 +66,10 @@ class PipelineConfig:
         module docstring); used only when the dataset is built with ``augment=True``.
       drop_truncated: drop objects whose box extends past the image; min_box_size: drop boxes
         narrower or shorter than this many pixels.
+      image_scale: images are resized by this factor when the split is loaded (K and boxes
+        scaled to match), to hold large splits such as FAT's 960 x 540 frames in memory.
+      max_points_per_object: surface points kept per object at load time (a seeded random
+        subset; batches draw ``n_points`` from them).
     """
 
     patch_size: int = 64
@@ -81,9 +85,13 @@ class PipelineConfig:
     erase_scale: tuple = (0.02, 0.2)
     drop_truncated: bool = True
     min_box_size: float = 2.0
+    image_scale: float = 1.0
+    max_points_per_object: int = 4096
 
     def __post_init__(self):
-        for name in ("patch_size", "global_size", "n_points"):
+        if not 0 < self.image_scale <= 1:
+            raise ValueError(f"PipelineConfig.image_scale: expected in (0, 1], got {self.image_scale}")
+        for name in ("patch_size", "global_size", "n_points", "max_points_per_object"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"PipelineConfig.{name}: expected a positive integer, got {getattr(self, name)}")
         for name in ("global_margin", "global_margin_px", "box_noise", "hue_jitter", "saturation_jitter", "erode_mask"):
@@ -210,6 +218,21 @@ def find_scenes(path) -> list:
     return sorted(p.parent for p in path.rglob("_camera_settings.json"))
 
 
+def _rescale(image, scale):
+    """Resize by ``scale``; returns the image, the K update and a box map (pixel-centre coords)."""
+    h, w = image.shape[:2]
+    nw, nh = max(1, int(round(w * scale))), max(1, int(round(h * scale)))
+    sx, sy = nw / w, nh / h
+    out = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
+    # Edge coordinates (x + 0.5) scale; pixel-centre coordinates follow.
+    S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+
+    def box_map(b):
+        return np.array([(b[0] + 0.5) * sx - 0.5, (b[1] + 0.5) * sy - 0.5, (b[2] + 0.5) * sx - 0.5, (b[3] + 0.5) * sy - 0.5])
+
+    return out, S, box_map
+
+
 @dataclasses.dataclass
 class _Frame:
     image: np.ndarray
@@ -254,10 +277,15 @@ class VolumonDataset:
         self._frames: list[_Frame] = []
         self.skipped = {"truncated": 0, "small": 0, "unknown_class": 0}
         rows = []
+        load_rng = np.random.default_rng([self.seed, 2**32 - 2])
         for fi, fr in enumerate(frames):
             image = _check_image(fr.image)
             h, w = image.shape[:2]
-            self._frames.append(_Frame(image, np.asarray(fr.K, np.float64), float(fr.baseline)))
+            if config.image_scale != 1.0:
+                image, scale_K, scale_box = _rescale(image, config.image_scale)
+            else:
+                scale_K, scale_box = np.eye(3), (lambda b: b)
+            self._frames.append(_Frame(image, scale_K @ np.asarray(fr.K, np.float64), float(fr.baseline)))
             for i, name in enumerate(fr.class_names):
                 box = fr.boxes_left[i]
                 if name not in ids:
@@ -266,14 +294,17 @@ class VolumonDataset:
                 if config.drop_truncated and (box[0] < -0.5 or box[1] < -0.5 or box[2] > w - 0.5 or box[3] > h - 0.5):
                     self.skipped["truncated"] += 1
                     continue
-                if min(box[2] - box[0], box[3] - box[1]) < config.min_box_size:
+                sbox = scale_box(box)
+                if min(sbox[2] - sbox[0], sbox[3] - sbox[1]) < config.min_box_size:
                     self.skipped["small"] += 1
                     continue
                 pts = mask_depth_points(fr.depth, fr.seg == i, fr.K, config.erode_mask)
+                if len(pts) > config.max_points_per_object:
+                    pts = pts[np.sort(load_rng.choice(len(pts), config.max_points_per_object, replace=False))]
                 rows.append(
                     dict(
-                        frame=len(self._frames) - 1, class_id=ids[name], box=box.copy(),
-                        box_right=fr.boxes_right[i].copy(), has_right_box=bool(fr.has_right_box[i]),
+                        frame=len(self._frames) - 1, class_id=ids[name], box=scale_box(box.copy()),
+                        box_right=scale_box(fr.boxes_right[i].copy()), has_right_box=bool(fr.has_right_box[i]),
                         points=pts, rotation=fr.rotation[i].copy(), center=fr.center[i].copy(),
                         dimensions=fr.dimensions[i].copy(), source=f"{fr.path}#{i}",
                     )

@@ -148,6 +148,17 @@ def _add_texture(spec, name: str, kind, pixels: np.ndarray):
     return tex
 
 
+_OUTPUTS = ("rgb", "depth", "seg")
+
+
+def _check_outputs(outputs) -> tuple:
+    outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
+    bad = [o for o in outputs if o not in _OUTPUTS]
+    if bad or not outputs:
+        raise ValueError(f"outputs: expected a non-empty subset of {_OUTPUTS}, got {outputs}")
+    return outputs
+
+
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).reshape(9))
@@ -308,15 +319,19 @@ class SceneRenderer:
         # MuJoCo's visualiser culls geoms by their bounding radius; keep it in step with the size.
         self.model.geom_rbound[gid] = float(np.linalg.norm(new.extents) / 2)
 
-    def render(self, K, camera_T_world) -> dict:
+    def render(self, K, camera_T_world, *, outputs: Sequence[str] = _OUTPUTS) -> dict:
         """Render one view. ``K`` (3, 3), ``camera_T_world`` (4, 4).
+
+        ``outputs`` picks the passes (each costs a render): any of ``'rgb'``, ``'depth'``,
+        ``'seg'`` (depth also renders the segmentation pass, to zero the skybox).
 
         Returns:
           dict with ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 z-depth in metres (0 where
-          nothing, i.e. the skybox), ``seg`` (H, W) int32 object index or -1.
+          nothing, i.e. the skybox), ``seg`` (H, W) int32 object index or -1 (those asked for).
         """
         if self._renderer is None:
             raise ValueError("SceneRenderer: render() called after close()")
+        outputs = _check_outputs(outputs)
         fovy = _check_intrinsics(K, self.width, self.height)
         T = np.asarray(camera_T_world, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -330,24 +345,29 @@ class SceneRenderer:
         self.model.cam_fovy[0] = fovy
         mujoco.mj_forward(self.model, self.data)
         r = self._renderer
-        r.update_scene(self.data, camera=0)
-        rgb = r.render().copy()
-        r.enable_segmentation_rendering()
-        try:
+        out = {}
+        if "rgb" in outputs:
             r.update_scene(self.data, camera=0)
-            ids = r.render()
-        finally:
-            r.disable_segmentation_rendering()
-        geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
-        seg = self._label[geom]  # index -1 hits the trailing -1 entry
-        r.enable_depth_rendering()
-        try:
-            r.update_scene(self.data, camera=0)
-            depth = r.render().astype(np.float32)
-        finally:
-            r.disable_depth_rendering()
-        depth = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
-        return {"rgb": rgb, "depth": depth, "seg": seg.astype(np.int32)}
+            out["rgb"] = r.render().copy()
+        if "seg" in outputs or "depth" in outputs:
+            r.enable_segmentation_rendering()
+            try:
+                r.update_scene(self.data, camera=0)
+                ids = r.render().copy()
+            finally:
+                r.disable_segmentation_rendering()
+            if "seg" in outputs:
+                geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
+                out["seg"] = self._label[geom].astype(np.int32)  # index -1 hits the trailing -1
+        if "depth" in outputs:
+            r.enable_depth_rendering()
+            try:
+                r.update_scene(self.data, camera=0)
+                depth = r.render().astype(np.float32)
+            finally:
+                r.disable_depth_rendering()
+            out["depth"] = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
+        return out
 
     def close(self):
         if self._renderer is not None:
@@ -372,6 +392,7 @@ def render_views(
     light_seed: int = 0,
     textured: bool = True,
     floor_z: float | None = None,
+    outputs: Sequence[str] = _OUTPUTS,
 ) -> dict:
     """Render N views of one scene (one compiled model, one renderer, closed on return).
 
@@ -382,6 +403,7 @@ def render_views(
       camera_T_world: (N, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
       width, height: image size in pixels.
       background_seed, light_seed, textured, floor_z: see :class:`SceneRenderer`.
+      outputs: the passes to render (default all three; see :meth:`SceneRenderer.render`).
 
     Returns:
       dict of numpy arrays: ``rgb`` (N, H, W, 3) uint8, ``depth`` (N, H, W) float32 metres
@@ -399,13 +421,14 @@ def render_views(
         raise ValueError(f"K: expected shape (3, 3) or ({len(poses)}, 3, 3), got {np.asarray(K).shape}")
     for i in range(len(poses)):
         _check_intrinsics(Ks[i], int(width), int(height))
-    out = {"rgb": [], "depth": [], "seg": []}
+    outputs = _check_outputs(outputs)
+    out = {k: [] for k in outputs}
     with SceneRenderer(
         objects, width, height, background_seed=background_seed, light_seed=light_seed,
         textured=textured, floor_z=floor_z,
     ) as scene:
         for Ki, Ti in zip(Ks, poses):
-            view = scene.render(Ki, Ti)
+            view = scene.render(Ki, Ti, outputs=outputs)
             for k in out:
                 out[k].append(view[k])
     return {k: np.stack(v) if v else np.zeros((0, int(height), int(width)) + ((3,) if k == "rgb" else ()),
