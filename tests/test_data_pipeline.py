@@ -175,3 +175,17 @@ def test_image_scale_and_point_cap(frames):
     np.testing.assert_allclose((b["box"] + 0.5), (a["box"] + 0.5) / 2, rtol=1e-5)
     assert np.abs(a["patch"] - b["patch"]).mean() < 0.08
     assert all(len(r["points"]) <= 5 for r in half._rows)
+
+
+def test_colour_jitter_keeps_value_and_identity_at_zero():
+    rng = np.random.default_rng(0)
+    im = rng.uniform(0, 1, (16, 16, 3)).astype(np.float32)
+    still = VolumonDataset([], PipelineConfig(hue_jitter=0.0, saturation_jitter=0.0))
+    np.testing.assert_allclose(still._colour_jitter(rng, [im])[0], im, atol=1e-5)
+    moved = VolumonDataset([], PipelineConfig(hue_jitter=0.5, saturation_jitter=0.5))
+    a, b = moved._colour_jitter(np.random.default_rng(3), [im, im[::-1]])
+    # HSV's V = max(R, G, B) is untouched; hue and saturation move; both inputs get the same jitter.
+    np.testing.assert_allclose(a.max(-1), im.max(-1), atol=1e-5)
+    assert np.abs(a - im).max() > 0.1
+    np.testing.assert_allclose(b, a[::-1], atol=1e-6)
+    assert a.min() >= 0 and a.max() <= 1

@@ -129,26 +129,41 @@ def _check_box(box, width, height, name="box") -> np.ndarray:
     return box
 
 
-def _crop(image_f: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:
-    """Sub-pixel crop of ``box`` (pixel-centre coordinates) resized to ``size``; zero outside."""
+def _crop(image: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:
+    """Sub-pixel crop of ``box`` (pixel-centre coordinates) of a uint8 image, resized to
+    ``size`` x ``size``, float32 in [0, 1]; zero outside the image.
+
+    Only the box's pixels (plus one for interpolation) are converted to float, so the cost does
+    not grow with the image.
+    """
+    h, w = image.shape[:2]
+    x0 = int(np.clip(math.floor(box[0]) - 1, 0, w - 1))
+    y0 = int(np.clip(math.floor(box[1]) - 1, 0, h - 1))
+    x1 = int(np.clip(math.ceil(box[2]) + 2, x0 + 1, w))
+    y1 = int(np.clip(math.ceil(box[3]) + 2, y0 + 1, h))
+    roi = image[y0:y1, x0:x1].astype(np.float32) * np.float32(1.0 / 255.0)
     sx = size / (box[2] - box[0])
     sy = size / (box[3] - box[1])
-    # Output pixel centre x' = (x - u_min) * sx - 0.5 maps the box edges onto the patch edges.
-    # (A box spanning the whole image, [-0.5, -0.5, W - 0.5, H - 0.5], is the identity at size W.)
-    M = np.array([[sx, 0.0, -box[0] * sx - 0.5], [0.0, sy, -box[1] * sy - 0.5]])
-    return cv2.warpAffine(image_f, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # Output pixel centre x' = (x - u_min) * sx - 0.5 maps the box edges onto the patch edges
+    # (a box spanning the whole image, [-0.5, -0.5, W - 0.5, H - 0.5], is the identity at size W);
+    # x is counted from the region's corner (x0, y0). Pixels outside the image stay zero.
+    M = np.array([[sx, 0.0, -(box[0] - x0) * sx - 0.5], [0.0, sy, -(box[1] - y0) * sy - 0.5]])
+    return cv2.warpAffine(roi, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def _masked_global(image_f: np.ndarray, box: np.ndarray, size: int, margin: float, margin_px: float) -> np.ndarray:
-    h, w = image_f.shape[:2]
+def _masked_global(image: np.ndarray, box: np.ndarray, size: int, margin: float, margin_px: float) -> np.ndarray:
+    """The uint8 image with everything outside the padded box zeroed, resized non-uniformly to
+    ``size`` x ``size``, float32 in [0, 1]."""
+    h, w = image.shape[:2]
     mx = margin * (box[2] - box[0]) + margin_px
     my = margin * (box[3] - box[1]) + margin_px
-    keep = np.zeros((h, w, 1), np.float32)
     u0, u1 = max(0, math.ceil(box[0] - mx)), min(w, math.floor(box[2] + mx) + 1)
     v0, v1 = max(0, math.ceil(box[1] - my)), min(h, math.floor(box[3] + my) + 1)
-    keep[v0:v1, u0:u1] = 1.0
+    kept = np.zeros_like(image)
+    kept[v0:v1, u0:u1] = image[v0:v1, u0:u1]
     interp = cv2.INTER_AREA if size < min(h, w) else cv2.INTER_LINEAR
-    return cv2.resize(image_f * keep, (size, size), interpolation=interp)
+    # Resizing in float keeps averages exact (uint8 resizing rounds).
+    return cv2.resize(kept.astype(np.float32) * np.float32(1.0 / 255.0), (size, size), interpolation=interp)
 
 
 def crop_inputs(image, boxes, patch_size: int = 64, global_size: int = 64, margin: float = 0.1, margin_px: float = 2.0):
@@ -169,13 +184,12 @@ def crop_inputs(image, boxes, patch_size: int = 64, global_size: int = 64, margi
     single = boxes.ndim == 1
     boxes = boxes.reshape(-1, 4) if boxes.size else np.zeros((0, 4))
     h, w = image.shape[:2]
-    image_f = image.astype(np.float32) / 255.0
     patches = np.zeros((len(boxes), patch_size, patch_size, 3), np.float32)
     globs = np.zeros((len(boxes), global_size, global_size, 3), np.float32)
     for i, b in enumerate(boxes):
         b = _check_box(b, w, h, f"boxes[{i}]")
-        patches[i] = _crop(image_f, b, patch_size)
-        globs[i] = _masked_global(image_f, b, global_size, margin, margin_px)
+        patches[i] = _crop(image, b, patch_size)
+        globs[i] = _masked_global(image, b, global_size, margin, margin_px)
     if single:
         return patches[0], globs[0]
     return patches, globs
@@ -390,9 +404,13 @@ class VolumonDataset:
         out = []
         for im in images:
             hsv = cv2.cvtColor(im, cv2.COLOR_RGB2HSV)  # float32: H in [0, 360), S, V in [0, 1]
-            hsv[..., 0] = np.mod(hsv[..., 0] + dh, 360.0)
-            hsv[..., 1] = np.clip(hsv[..., 1] * ds, 0.0, 1.0)
-            out.append(np.clip(cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), 0.0, 1.0))
+            h, sat, v = cv2.split(hsv)
+            h = cv2.add(h, float(dh))
+            h[h >= 360.0] -= 360.0
+            h[h < 0.0] += 360.0
+            sat = np.minimum(cv2.multiply(sat, float(ds)), 1.0)
+            rgb = cv2.cvtColor(cv2.merge([h, sat, v]), cv2.COLOR_HSV2RGB)
+            out.append(np.clip(rgb, 0.0, 1.0, out=rgb))
         return out
 
     def _erase(self, rng, patch):
@@ -439,9 +457,8 @@ class VolumonDataset:
             h, w = fr.image.shape[:2]
             box = row["box"]
             in_box = self._noisy_box(rng, box, w, h) if augment and c.box_noise > 0 else box
-            image_f = fr.image.astype(np.float32) / 255.0
-            patch = _crop(image_f, in_box, P)
-            glob = _masked_global(image_f, in_box, G, c.global_margin, c.global_margin_px)
+            patch = _crop(fr.image, in_box, P)
+            glob = _masked_global(fr.image, in_box, G, c.global_margin, c.global_margin_px)
             if augment and (c.hue_jitter > 0 or c.saturation_jitter > 0):
                 patch, glob = self._colour_jitter(rng, [patch, glob])
             if augment and c.erase_prob > 0:
