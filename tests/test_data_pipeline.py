@@ -139,12 +139,15 @@ def test_bad_input_errors_and_documented_skips(frames):
     f0 = dataclasses.replace(frames[0], seg=np.full_like(frames[0].seg, -1))
     f1 = dataclasses.replace(frames[1], depth=np.zeros_like(frames[1].depth))
     # A box past the image border is dropped (as the thesis filters FAT).
-    boxes = frames[2].boxes_left.copy()
+    k = next(i for i, f in enumerate(frames) if i >= 2 and f.num_objects >= 2)
+    boxes = frames[k].boxes_left.copy()
     boxes[0, 2] = 500.0
-    f2 = dataclasses.replace(frames[2], boxes_left=boxes)
+    right = frames[k].boxes_right.copy()
+    right[-1, 0] = -3.0  # truncated in the right image only: kept, right term masked
+    f2 = dataclasses.replace(frames[k], boxes_left=boxes, boxes_right=right)
     ds = VolumonDataset([f0, f1, f2], CFG, augment=True, seed=0)
     assert ds.skipped["truncated"] == 1
-    assert ds.num_samples == frames[0].num_objects + frames[1].num_objects + frames[2].num_objects - 1
+    assert ds.num_samples == frames[0].num_objects + frames[1].num_objects + frames[k].num_objects - 1
     b = next(ds.eval_batches(8))
     n01 = frames[0].num_objects + frames[1].num_objects
     assert not b["has_points"][:n01].any() and not b["points_mask"][:n01].any()
@@ -153,6 +156,7 @@ def test_bad_input_errors_and_documented_skips(frames):
         if v.dtype.kind == "f":
             assert np.all(np.isfinite(v)), k
     assert b["valid"].sum() == ds.num_samples and b["patch"].shape[0] == 8
+    assert b["has_right_box"][: ds.num_samples].tolist() == [True] * (ds.num_samples - 1) + [False]
     with pytest.raises(ValueError, match="image: expected dtype uint8"):
         VolumonDataset([dataclasses.replace(frames[0], image=frames[0].image.astype(np.float64))], CFG)
     with pytest.raises(ValueError, match="step"):

@@ -3,7 +3,9 @@
 A scene directory holds ``_camera_settings.json``, ``_object_settings.json`` and, per frame
 ``XXXXXX``, the files ``XXXXXX.{left,right}.{jpg,json,seg.png,depth.png}``. The loader returns
 arrays in jaxsem conventions (metres, OpenCV camera axes, boxes ``[u_min, v_min, u_max, v_max]``,
-rotations object-to-camera). The layout's quirks, each a documented option:
+rotations object-to-camera). FAT's per-object poses are taken to be in the left camera's frame
+with OpenCV axes (x right, y down, z forward), as DOPE's PnP uses them. The layout's quirks, each
+a documented option:
 
 - Depth PNGs are uint16 in units of 0.1 mm: metres = value * ``depth_scale`` (1e-4). 0 = no depth.
 - Lengths in the JSON (``location``, ``cuboid_centroid``, ``cuboid``, ``cuboid_dimensions``) are in

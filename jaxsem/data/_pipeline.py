@@ -25,6 +25,8 @@ Documented skips, never NaN:
   (``drop_truncated``, as the thesis filters FAT), and so are boxes smaller than
   ``min_box_size`` pixels; :func:`crop_inputs` on its own accepts any box that overlaps the image
   (the part outside is zero) and raises ``ValueError`` for one that does not;
+- a right box that is missing or extends past the right image (its edge is the border, not the
+  object) gets ``has_right_box`` False, with the sample kept: a dual loss must mask its right term;
 - an object with an empty mask or no positive depth on it gets ``points_mask`` all False (its
   ``points`` are zeros) and ``has_points`` False: a primal loss must weigh points by the mask.
 """
@@ -312,13 +314,17 @@ class VolumonDataset:
                 if min(sbox[2] - sbox[0], sbox[3] - sbox[1]) < config.min_box_size:
                     self.skipped["small"] += 1
                     continue
+                rb = fr.boxes_right[i]
+                right_ok = bool(fr.has_right_box[i]) and not (
+                    rb[0] < -0.5 or rb[1] < -0.5 or rb[2] > w - 0.5 or rb[3] > h - 0.5
+                )
                 pts = mask_depth_points(fr.depth, fr.seg == i, fr.K, config.erode_mask)
                 if len(pts) > config.max_points_per_object:
                     pts = pts[np.sort(load_rng.choice(len(pts), config.max_points_per_object, replace=False))]
                 rows.append(
                     dict(
                         frame=len(self._frames) - 1, class_id=ids[name], box=scale_box(box.copy()),
-                        box_right=scale_box(fr.boxes_right[i].copy()), has_right_box=bool(fr.has_right_box[i]),
+                        box_right=scale_box(fr.boxes_right[i].copy()), has_right_box=right_ok,
                         points=pts, rotation=fr.rotation[i].copy(), center=fr.center[i].copy(),
                         dimensions=fr.dimensions[i].copy(), source=f"{fr.path}#{i}",
                     )
