@@ -9,6 +9,8 @@ from ._ellipsoid_maps import (
     camera_path as camera_path,
     class_table as class_table,
     detect as detect,
+    ground_truth as ground_truth,
+    initial_estimate as initial_estimate,
     intrinsics as intrinsics,
     perturb_poses as perturb_poses,
     quadricslam_config as quadricslam_config,
@@ -18,4 +20,6 @@ from ._ellipsoid_maps import (
     simulate_views as simulate_views,
     single_view_init as single_view_init,
     thesis_config as thesis_config,
+    to_problem as to_problem,
 )
+from ._render import SceneObject as SceneObject, SceneRenderer as SceneRenderer, bounding_ellipsoid_radii as bounding_ellipsoid_radii, render_views as render_views  # noqa: E501  (B1: renderer)

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import factors
 from ..quadrics import camera_frame, look_at, project_bbox, safe_norm, texture_plane_depth
 
 __all__ = [
@@ -45,76 +46,26 @@ __all__ = [
     "single_view_init",
     "intrinsics",
     "class_table",
+    "to_problem",
+    "ground_truth",
+    "initial_estimate",
 ]
 
 PATHS = ("orbit", "forward", "views")
 INIT_MODES = ("single_view", "noisy_truth")
 
-# Fallback shape table (semi-axes in metres: length, width, height), used only while
-# `jaxsem.factors` does not provide one. Car: Toyota Camry 4.88 x 1.84 x 1.44 m (thesis 4.3.4),
-# with the largest spread on the length (longer cars).
-_FALLBACK_CLASSES = {
-    "car": ((2.44, 0.92, 0.72), (0.25, 0.06, 0.06)),
-    "person": ((0.25, 0.20, 0.87), (0.04, 0.04, 0.08)),
-    "chair": ((0.28, 0.28, 0.45), (0.05, 0.05, 0.05)),
-    "door": ((0.45, 0.03, 1.02), (0.05, 0.01, 0.03)),
-}
-
-
 def class_table(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Mean radii and per-axis standard deviations, (C, 3) each, of the classes ``names``.
 
-    Taken from :mod:`jaxsem.factors`' class table when it exists (the one the shape prior uses),
-    else from a small built-in table. Unknown names raise ``ValueError`` listing the known ones.
+    From :data:`jaxsem.factors.SHAPE_PRIORS` (the table ROSHAN's shape prior uses), so simulated
+    sizes are consistent with the prior. Unknown names raise ``ValueError`` listing known ones.
     """
-    table = _factors_table()
     means, sigmas = [], []
     for name in names:
-        if name not in table:
-            raise ValueError(
-                f"classes: unknown class name {name!r}; expected one of {sorted(table)}"
-            )
-        mean, sigma = table[name]
-        means.append(np.asarray(mean, np.float64))
-        sigmas.append(np.asarray(sigma, np.float64))
+        prior = factors.shape_prior(name)  # ValueError naming the known classes
+        means.append(np.asarray(prior.mean, np.float64))
+        sigmas.append(np.asarray(prior.sigma, np.float64))
     return np.stack(means), np.stack(sigmas)
-
-
-def _factors_table() -> dict:
-    """{name: (mean radii (3,), sigma (3,))} from jaxsem.factors if available."""
-    try:
-        from .. import factors  # noqa: PLC0415  (A1's module; optional while it lands)
-    except Exception:
-        return dict(_FALLBACK_CLASSES)
-    for attr in ("CLASS_TABLE", "CLASS_SHAPES", "SHAPE_PRIORS", "class_table"):
-        table = getattr(factors, attr, None)
-        if callable(table):
-            try:
-                table = table()
-            except TypeError:
-                table = None
-        if isinstance(table, dict) and table:
-            out = {}
-            for name, entry in table.items():
-                mean, sigma = _table_entry(entry)
-                if mean is not None:
-                    out[name] = (mean, sigma)
-            if out:
-                return out
-    return dict(_FALLBACK_CLASSES)
-
-
-def _table_entry(entry):
-    if isinstance(entry, dict):
-        mean = entry.get("mean_radii", entry.get("mean"))
-        sigma = entry.get("sigma_radii", entry.get("sigma", entry.get("std")))
-        return mean, sigma
-    for mean_attr, sigma_attr in (("mean_radii", "sigma_radii"), ("mean", "sigma"), ("mean", "std")):
-        if hasattr(entry, mean_attr) and hasattr(entry, sigma_attr):
-            return getattr(entry, mean_attr), getattr(entry, sigma_attr)
-    if isinstance(entry, (tuple, list)) and len(entry) == 2:
-        return entry
-    return None, None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,7 +79,9 @@ class SimConfig:
       num_objects: object capacity of a map; min_objects: at least this many are attempted (the
         count is uniform in [min_objects, num_objects]); placement is by rejection, so a
         crowded patch may place fewer (``object_mask``).
-      classes: class names (``jaxsem.factors`` table); each object draws one uniformly.
+      classes: class names of :data:`jaxsem.factors.CLASS_NAMES`; each object draws one
+        uniformly (``object_class`` holds the index into ``CLASS_NAMES``, as
+        :class:`jaxsem.slam.SlamProblem` does).
       size_sigma_scale: multiplies the class's per-axis size sigma when drawing radii.
       patch_size: side of the square ground patch (m) holding object centres.
       corridor_half_width: Forward only: object centres keep at least this lateral distance from
@@ -298,7 +251,7 @@ class SimulatedMap(eqx.Module):
 
     Ground truth:
       object_rotation (N, 3, 3) object-to-world; object_center (N, 3); object_radii (N, 3);
-      object_class (N,) int32 index into ``config.classes``; object_mask (N,) bool;
+      object_class (N,) int32 index into :data:`jaxsem.factors.CLASS_NAMES`; object_mask (N,) bool;
       camera_T_world (T, 4, 4) true poses.
     Measurements:
       K (3, 3); pose_prior (T, 4, 4) noisy odometry poses (also the initial poses);
@@ -469,11 +422,12 @@ def _random_objects(pool: _Pool, config: SimConfig, dtype):
     r = radii[source]
     center = jnp.concatenate([xy[source], r[:, 2:3]], axis=-1)
     rotation = _yaw_rotation(yaw[source])
+    global_ids = jnp.asarray([factors.class_index(c) for c in config.classes], jnp.int32)
     return {
         "rotation": rotation,
         "center": center,
         "radii": r,
-        "class_id": cls[source].astype(jnp.int32),
+        "class_id": global_ids[cls[source]],
         "mask": mask,
     }
 
@@ -643,8 +597,8 @@ def _initial_landmarks(pool: _Pool, objects, det, pose_prior, K, config: SimConf
         box = det["boxes"][idx, n_idx]
         pose = pose_prior[idx]
         if config.init_radii is None:
-            means, _ = class_table(config.classes)
-            radii = jnp.asarray(means, dtype)[objects["class_id"]]
+            table, _ = factors.shape_prior_table(dtype)
+            radii = table[objects["class_id"]]
         else:
             radii = jnp.full(objects["radii"].shape, config.init_radii, dtype)
         depth = jnp.full(first.shape, config.init_depth, dtype)
@@ -809,3 +763,56 @@ def simulate_views(key, num_views, yaw_range, config: SimConfig, max_views: int 
             first,
         ),
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Into the solver's structures (jaxsem.slam).
+
+
+def to_problem(sim: SimulatedMap, config: SimConfig):
+    """The :class:`jaxsem.slam.SlamProblem` of a simulated map (vmappable over maps).
+
+    Boxes are flattened frame-major: box ``m = t * N + j`` is object ``j`` seen in frame ``t``
+    (ground-truth association); dropped detections keep their slot with ``box_mask`` False, so
+    every map of a config has the same padded size M = T * N. Objects never detected are masked
+    out (``object_mask = observed``).
+    """
+    from ..slam import SlamProblem  # noqa: PLC0415  (slam imports nothing of sim)
+
+    T, N = sim.box_mask.shape[-2:]
+    batch = sim.box_mask.shape[:-2]
+    dtype = sim.boxes.dtype
+    flat = lambda x, tail=(): x.reshape(batch + (T * N,) + tail)
+    box_pose = jnp.broadcast_to(jnp.repeat(jnp.arange(T, dtype=jnp.int32), N), batch + (T * N,))
+    box_object = jnp.broadcast_to(jnp.tile(jnp.arange(N, dtype=jnp.int32), T), batch + (T * N,))
+    image_size = jnp.broadcast_to(
+        jnp.asarray([config.image_width, config.image_height], dtype), batch + (2,)
+    )
+    return SlamProblem(
+        K=sim.K,
+        image_size=image_size,
+        pose_prior=sim.pose_prior,
+        pose_mask=jnp.ones(sim.pose_prior.shape[:-2], bool),
+        box=flat(sim.boxes, (4,)),
+        box_pose=box_pose,
+        box_object=box_object,
+        box_mask=flat(sim.box_mask),
+        texture_depth=flat(sim.texture_depth),
+        texture_mask=flat(sim.texture_mask),
+        object_class=sim.object_class,
+        object_mask=sim.observed,
+    )
+
+
+def ground_truth(sim: SimulatedMap):
+    """The true poses and ellipsoids as a :class:`jaxsem.slam.SlamEstimate`."""
+    from ..slam import SlamEstimate  # noqa: PLC0415
+
+    return SlamEstimate(sim.camera_T_world, sim.object_rotation, sim.object_center, sim.object_radii)
+
+
+def initial_estimate(sim: SimulatedMap):
+    """The config's initial estimate (pose priors + ``init_*`` landmarks) as a ``SlamEstimate``."""
+    from ..slam import SlamEstimate  # noqa: PLC0415
+
+    return SlamEstimate(sim.pose_prior, sim.init_rotation, sim.init_center, sim.init_radii)
