@@ -23,3 +23,18 @@ from ._ellipsoid_maps import (
     to_problem as to_problem,
 )
 from ._render import SceneObject as SceneObject, SceneRenderer as SceneRenderer, bounding_ellipsoid_radii as bounding_ellipsoid_radii, render_views as render_views  # noqa: E501  (B1: renderer)
+from ._experiments import (
+    BASELINE as BASELINE,
+    ROSHAN as ROSHAN,
+    box_iou as box_iou,
+    map_errors as map_errors,
+    solve_online as solve_online,
+    solver_config as solver_config,
+)
+from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mujoco loads lazily)
+    SHAPES as SHAPES,
+    SceneObject as SceneObject,
+    SceneRenderer as SceneRenderer,
+    bounding_ellipsoid_radii as bounding_ellipsoid_radii,
+    render_views as render_views,
+)
