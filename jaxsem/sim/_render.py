@@ -5,14 +5,17 @@ Host-side (numpy) data generation, not a jax function: it builds one MuJoCo mode
 OpenGL context (``MUJOCO_GL=egl`` runs it headless on the CPU through Mesa llvmpipe).
 
 Camera conventions are jaxsem's (OpenCV): ``camera_T_world`` (4, 4) maps world points into the
-camera frame, x right, y down, z forward, and ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]``. MuJoCo
-cameras look along their -z axis with y up, so the MuJoCo camera frame is
-``world_R_cam @ diag(1, -1, -1)``; the vertical field of view is ``fovy = 2 atan(0.5 H / f)``.
-A MuJoCo image always has square pixels and its principal point at the image centre, which in
-OpenCV's pixel-centre coordinates (pixel ``i`` covers ``[i - 0.5, i + 0.5]``) is
-``((W - 1) / 2, (H - 1) / 2)``. ``K`` must have ``fx == fy``, zero skew and its principal point
-within half a pixel of that centre (so both ``W / 2`` and ``(W - 1) / 2`` are accepted; the images
-are rendered for ``(W - 1) / 2``, and a caller who needs sub-pixel exactness should use that).
+camera frame, x right, y down, z forward, and ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` in
+pixel-centre coordinates (pixel ``i`` covers ``[i - 0.5, i + 0.5]``, so the image centre is
+``((W - 1) / 2, (H - 1) / 2)``). MuJoCo cameras look along their -z axis with y up, so the MuJoCo
+camera frame is ``world_R_cam @ diag(1, -1, -1)``. Any ``fx, fy > 0`` and principal point are
+rendered exactly through MuJoCo's camera intrinsics (sensor size ``(W, H)`` in pixel units,
+focal ``(fx, fy)``, principal offset ``-(cx - (W - 1) / 2), -(cy - (H - 1) / 2)``: the signs were
+measured against :func:`jaxsem.quadrics.project_bbox`); skew must be zero (MuJoCo has none).
+With ``fx == fy`` and a centred principal point this is MuJoCo's ``fovy = 2 atan(0.5 H / f)``.
+
+``MUJOCO_GL`` must name a headless backend (``egl``) before ``mujoco`` is first imported;
+``import jaxsem`` sets it by default, but not if ``mujoco`` was imported earlier.
 """
 
 from __future__ import annotations
@@ -165,22 +168,17 @@ def _mat_to_quat(R: np.ndarray) -> np.ndarray:
     return q
 
 
-def _check_intrinsics(K, width: int, height: int) -> float:
-    """Validate ``K`` for MuJoCo's pinhole model; returns ``fovy`` in degrees."""
+def _check_intrinsics(K, width: int, height: int) -> np.ndarray:
+    """Validate ``K`` for MuJoCo's pinhole model; returns MuJoCo's ``cam_intrinsic`` (4,)."""
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
         raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
     fx, fy, s, cx, cy = K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]
-    if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0 or abs(s) > 1e-9 or fx <= 0:
-        raise ValueError(f"K: expected [[f, 0, cx], [0, f, cy], [0, 0, 1]] with f > 0, got {K.tolist()}")
-    if not math.isclose(fx, fy, rel_tol=1e-6):
-        raise ValueError(f"K: MuJoCo renders square pixels, expected fx == fy, got fx={fx}, fy={fy}")
-    if abs(cx - (width - 1) / 2) > 0.5 + 1e-9 or abs(cy - (height - 1) / 2) > 0.5 + 1e-9:
-        raise ValueError(
-            f"K: MuJoCo renders the principal point at the image centre, expected cx, cy within 0.5 px "
-            f"of ({(width - 1) / 2}, {(height - 1) / 2}) for a {width}x{height} image, got ({cx}, {cy})"
-        )
-    return math.degrees(2 * math.atan(0.5 * height / fy))
+    if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0 or fx <= 0 or fy <= 0:
+        raise ValueError(f"K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}")
+    if abs(s) > 1e-9 * fx:
+        raise ValueError(f"K: MuJoCo cameras have no skew, expected K[0, 1] == 0, got {s}")
+    return np.array([fx, fy, -(cx - (width - 1) / 2), -(cy - (height - 1) / 2)])
 
 
 class SceneRenderer:
@@ -304,7 +302,14 @@ class SceneRenderer:
             # The compiler marks geoms posed like their body (here: identity rotation) to skip
             # their own pose in kinematics; move_object changes poses, so always use them.
             self.model.geom_sameframe[gid] = 0
-        self._renderer = mujoco.Renderer(self.model, height, width)
+        try:
+            self._renderer = mujoco.Renderer(self.model, height, width)
+        except mujoco.FatalError as exc:
+            raise RuntimeError(
+                f"MuJoCo could not create an OpenGL context ({exc}). On a machine without a display set "
+                "MUJOCO_GL=egl (or osmesa) before mujoco is first imported (import jaxsem first, or "
+                f"export it); MUJOCO_GL is {os.environ.get('MUJOCO_GL')!r} here."
+            ) from None
 
     def move_object(self, index: int, rotation, center, extents=None, *, hidden: bool = False):
         """Change object ``index``'s pose (and extents) without recompiling; ``hidden`` parks it
@@ -339,7 +344,7 @@ class SceneRenderer:
         if self._renderer is None:
             raise ValueError("SceneRenderer: render() called after close()")
         outputs = _check_outputs(outputs)
-        fovy = _check_intrinsics(K, self.width, self.height)
+        intrinsic = _check_intrinsics(K, self.width, self.height)
         T = np.asarray(camera_T_world, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
@@ -349,7 +354,9 @@ class SceneRenderer:
         world_R_cam = R.T
         self.model.cam_pos[0] = -world_R_cam @ T[:3, 3]
         self.model.cam_quat[0] = _mat_to_quat(world_R_cam @ np.diag([1.0, -1.0, -1.0]))
-        self.model.cam_fovy[0] = fovy
+        self.model.cam_sensorsize[0] = [self.width, self.height]
+        self.model.cam_resolution[0] = [self.width, self.height]
+        self.model.cam_intrinsic[0] = intrinsic
         mujoco.mj_forward(self.model, self.data)
         r = self._renderer
         out = {}
@@ -407,8 +414,7 @@ def render_views(
 
     Args:
       objects: sequence of :class:`SceneObject` (segmentation label = index in this list).
-      K: (3, 3) or (N, 3, 3) intrinsics ``[[f, 0, cx], [0, f, cy], [0, 0, 1]]``, principal point
-        at the image centre (see the module docstring).
+      K: (3, 3) or (N, 3, 3) intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (no skew).
       camera_T_world: (N, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
       width, height: image size in pixels.
       background_seed, light_seed, textured, floor_z, antialias, tessellation: see
