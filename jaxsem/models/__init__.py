@@ -13,3 +13,22 @@ from ._lsd import (
     path_cells_to_mask as path_cells_to_mask,
     split_params as split_params,
 )
+
+from ._mobilenet import MobileNetV2 as MobileNetV2, feature_dim as feature_dim, make_divisible as make_divisible
+from ._volumon import (
+    Ellipsoid as Ellipsoid,
+    ReconstructionConfig as ReconstructionConfig,
+    VoluMonConfig as VoluMonConfig,
+    VoluMonNet as VoluMonNet,
+    VoluMonOutput as VoluMonOutput,
+    allocentric_rotation as allocentric_rotation,
+    expected_params as expected_params,
+    init_volumon as init_volumon,
+    ray_rotation as ray_rotation,
+    reconstruct as reconstruct,
+    select_class_params as select_class_params,
+)
+from ._convert import (
+    convert_torchvision_mobilenet_v2 as convert_torchvision_mobilenet_v2,
+    load_backbone_into_volumon as load_backbone_into_volumon,
+)

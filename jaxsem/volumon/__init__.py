@@ -1,0 +1,46 @@
+"""VoluMon (thesis chapter 5): losses, inputs, synthetic data, training, refinement, evaluation."""
+
+from ._inputs import (
+    check_image_and_boxes as check_image_and_boxes,
+    crop_and_resize as crop_and_resize,
+    masked_global_image as masked_global_image,
+    prepare_inputs as prepare_inputs,
+    to_float_image as to_float_image,
+)
+from ._losses import (
+    LossConfig as LossConfig,
+    LossTerms as LossTerms,
+    box_error as box_error,
+    dual_loss as dual_loss,
+    dual_loss_per_sample as dual_loss_per_sample,
+    primal_loss as primal_loss,
+    primal_loss_per_sample as primal_loss_per_sample,
+    size_variance_loss as size_variance_loss,
+    stereo_right_T_left as stereo_right_T_left,
+    volumon_loss as volumon_loss,
+)
+from ._synthetic import CLASSES as CLASSES, SceneConfig as SceneConfig, make_batch as make_batch
+from ._configs import (
+    VARIANTS as VARIANTS,
+    TrainConfig as TrainConfig,
+    default_config as default_config,
+    get_config as get_config,
+    thesis_config as thesis_config,
+    tiny_config as tiny_config,
+)
+from ._eval import (
+    cuboid_surface_points as cuboid_surface_points,
+    detection_errors as detection_errors,
+    evaluate_predictions as evaluate_predictions,
+)
+from ._train import (
+    augment as augment,
+    batch_indices as batch_indices,
+    evaluate as evaluate,
+    init_state as init_state,
+    load_trained as load_trained,
+    make_predict_fn as make_predict_fn,
+    make_train_step as make_train_step,
+    predict_params as predict_params,
+    train_and_evaluate as train_and_evaluate,
+)

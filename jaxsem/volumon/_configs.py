@@ -1,0 +1,136 @@
+"""Training configs: one default (CPU-sized, VoluMon Both) and variants that change a few fields.
+
+- :func:`default_config`: CPU-sized (MobileNetV2 width 0.35, 64 x 64 inputs, synthetic 128 x 96
+  stereo images) -- trains to a useful model in minutes on a 2-core CPU.
+- :func:`thesis_config`: the thesis' network (width 1.0, 224 x 224), batch 50, lr 1e-5 (section
+  5.5.1): for a GPU.
+- :func:`get_config(variant, size)`: ``variant`` in :data:`VARIANTS` (Dual only, Primal only,
+  Both, Both Noisy; section 5.5.1 weights) on top of ``size`` in ``("cpu", "thesis", "tiny")``
+  (tiny: for tests).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..models._volumon import ReconstructionConfig, VoluMonConfig
+from ._losses import LossConfig
+from ._synthetic import SceneConfig
+
+VARIANTS = ("dual", "primal", "both", "both_noisy")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything :func:`jaxsem.volumon.train_and_evaluate` needs.
+
+    Attributes:
+      model, recon, loss, scene: sub-configs (network, eq. 5.7, eq. 5.8-5.14, synthetic data).
+      variant: a name recorded with the results.
+      noisy: box noise on the network input / f, clean box in the loss (Both Noisy).
+      class_mode: multi-class head: "true" (row of the true class) or "expectation" (eq. 5.18).
+      num_train: size of the training set (sample indices 0..num_train-1 of the train split).
+      batch_size, num_steps, learning_rate: optax Adam settings.
+      reset_optimizer_at: step at which the Adam state is re-initialised (thesis: halfway);
+        None for never.
+      augment: hue/saturation jitter and random erasing on the inputs (thesis 5.5.2).
+      seed: PRNG seed of initialisation, data order, augmentation and the dataset.
+      checkpoint_every, keep_checkpoints: orbax saves every K steps, keep the latest N.
+      eval_every, num_eval: periodic evaluation on the held-out split (0: only at the end).
+      log_every: steps between logged loss lines.
+    """
+
+    model: VoluMonConfig = VoluMonConfig()
+    recon: ReconstructionConfig = ReconstructionConfig()
+    loss: LossConfig = LossConfig()
+    scene: SceneConfig = SceneConfig()
+    variant: str = "both"
+    noisy: bool = False
+    class_mode: str = "true"
+    num_train: int = 2000
+    batch_size: int = 32
+    num_steps: int = 600
+    learning_rate: float = 1e-3
+    reset_optimizer_at: int | None = None
+    augment: bool = True
+    seed: int = 0
+    checkpoint_every: int = 100
+    keep_checkpoints: int = 3
+    eval_every: int = 0
+    num_eval: int = 128
+    log_every: int = 10
+
+    def __post_init__(self):
+        if self.class_mode not in ("true", "expectation"):
+            raise ValueError(f"class_mode: expected 'true' or 'expectation', got {self.class_mode!r}")
+        for name in ("num_train", "batch_size", "num_steps", "checkpoint_every", "keep_checkpoints", "log_every"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name}: expected a positive int, got {getattr(self, name)!r}")
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate: expected > 0, got {self.learning_rate}")
+
+    def replace(self, **changes) -> "TrainConfig":
+        return dataclasses.replace(self, **changes)
+
+
+def default_config() -> TrainConfig:
+    """CPU-sized VoluMon Both: width 0.35, 64 x 64 inputs, 128 x 96 images (f = 110 px)."""
+    scene = SceneConfig()
+    recon = ReconstructionConfig(baseline_focal=scene.baseline * scene.focal, alpha_delta=30.0)
+    # box errors in units of 10 px keep the dual term on the primal term's scale
+    loss = LossConfig(pixel_scale=10.0)
+    return TrainConfig(recon=recon, loss=loss, scene=scene)
+
+
+def thesis_config() -> TrainConfig:
+    """The thesis' network (MobileNetV2 width 1.0, 224 x 224), batch 50, lr 1e-5, optimiser reset
+    halfway (section 5.5.1); images of FAT's size and focal length. For a GPU."""
+    scene = SceneConfig(height=540, width=960, focal=768.16, depth_range=(0.5, 1.5), num_points=100)
+    recon = ReconstructionConfig(baseline_focal=0.06 * 768.16, alpha_delta=150.0)
+    return TrainConfig(
+        model=VoluMonConfig(width_multiplier=1.0, input_size=224),
+        recon=recon,
+        loss=LossConfig(),
+        scene=scene,
+        batch_size=50,
+        learning_rate=1e-5,
+        num_steps=20000,
+        reset_optimizer_at=10000,
+        checkpoint_every=1000,
+        eval_every=2000,
+        num_eval=264,
+    )
+
+
+def tiny_config() -> TrainConfig:
+    """For tests: 32 x 32 inputs, small heads, few steps."""
+    base = default_config()
+    return base.replace(
+        model=VoluMonConfig(width_multiplier=0.35, input_size=32, hidden=(32,)),
+        scene=dataclasses.replace(base.scene, height=48, width=64, focal=55.0, num_points=16),
+        recon=dataclasses.replace(base.recon, baseline_focal=0.06 * 55.0, alpha_delta=15.0),
+        num_train=16,
+        batch_size=4,
+        num_steps=4,
+        checkpoint_every=2,
+        num_eval=4,
+        log_every=1,
+        augment=False,
+    )
+
+
+def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
+    """A variant (section 5.5.1) of a sized base config.
+
+    dual: alpha_D = 1, alpha_P = 0; primal: alpha_D = 0, alpha_P = 1; both: 1, 1; both_noisy:
+    both with noisy input boxes. alpha_S = 100 in all (thesis).
+    """
+    bases = {"cpu": default_config, "thesis": thesis_config, "tiny": tiny_config}
+    if size not in bases:
+        raise ValueError(f"size: expected one of {sorted(bases)}, got {size!r}")
+    if variant not in VARIANTS:
+        raise ValueError(f"variant: expected one of {VARIANTS}, got {variant!r}")
+    cfg = bases[size]()
+    weights = {"dual": (1.0, 0.0), "primal": (0.0, 1.0), "both": (1.0, 1.0), "both_noisy": (1.0, 1.0)}[variant]
+    loss = dataclasses.replace(cfg.loss, alpha_D=weights[0], alpha_P=weights[1])
+    return cfg.replace(loss=loss, variant=variant, noisy=variant == "both_noisy")

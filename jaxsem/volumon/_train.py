@@ -1,0 +1,274 @@
+"""Training loop: ``train_and_evaluate(config, workdir)`` (optax Adam, orbax checkpoints, tqdm).
+
+Exact resume: the train state (step, params, batch-norm statistics, Adam state, PRNG key) is
+checkpointed every ``checkpoint_every`` steps; the data of step ``s`` is a pure function of
+``(seed, s)`` (epoch permutations seeded by ``(seed, epoch)``) and the augmentation key is
+``fold_in(rng, s)``, so a run interrupted after any checkpoint and restarted with the same config
+and workdir reproduces the uninterrupted run step for step.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import time
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..checkpoint import Checkpointer
+from ..models._volumon import VoluMonNet, expected_params, reconstruct, select_class_params
+from ._configs import TrainConfig
+from ._eval import evaluate_predictions
+from ._losses import volumon_loss
+from ._synthetic import make_batch
+
+TRAIN_KEYS = ("local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points", "point_mask",
+              "class_id", "sample_mask")
+
+
+# --------------------------------------------------------------------------------------------
+# augmentation (thesis 5.5.2: hue/saturation jitter, random erasing)
+
+
+def _hue_saturation(img, hue, sat):
+    gray = jnp.mean(img, -1, keepdims=True)
+    c = img - gray
+    # hue: rotation of the chroma about the gray axis (Rodrigues about (1,1,1)/sqrt 3)
+    k = jnp.ones(3, img.dtype) / jnp.sqrt(3.0)
+    cos, sin = jnp.cos(hue), jnp.sin(hue)
+    rot = c * cos + jnp.cross(k, c) * sin + k * jnp.sum(k * c, -1, keepdims=True) * (1 - cos)
+    return jnp.clip(gray + sat * rot, 0.0, 1.0)
+
+
+def _erase(key, img, prob=0.5):
+    S = img.shape[0]
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    wh = jax.random.uniform(k1, (2,), minval=0.1, maxval=0.4) * S
+    xy = jax.random.uniform(k2, (2,)) * (S - wh)
+    r = jnp.arange(S, dtype=img.dtype)
+    inside = ((r >= xy[1]) & (r < xy[1] + wh[1]))[:, None] & ((r >= xy[0]) & (r < xy[0] + wh[0]))[None, :]
+    on = jax.random.uniform(k3) < prob
+    val = jax.random.uniform(k4, (3,))
+    return jnp.where(on & inside[..., None], val, img)
+
+
+def augment(key, local, glob):
+    """Per-sample hue (+-0.1 turn) and saturation (0.7-1.3) jitter on both inputs, random erasing
+    on the local patch. local, glob: (B, S, S, 3)."""
+    B = local.shape[0]
+    keys = jax.random.split(key, 3 * B).reshape(B, 3, 2)
+
+    def one(k, lo, gl):
+        hue = jax.random.uniform(k[0], (), minval=-0.2 * jnp.pi, maxval=0.2 * jnp.pi)
+        sat = jax.random.uniform(k[1], (), minval=0.7, maxval=1.3)
+        lo = _hue_saturation(lo, hue, sat)
+        gl = _hue_saturation(gl, hue, sat) * (jnp.max(gl, -1, keepdims=True) > 0)  # keep zeros zero
+        return _erase(k[2], lo), gl
+
+    return jax.vmap(one)(keys, local, glob)
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def predict_params(model: VoluMonNet, variables, local, glob, class_id=None, class_mode="true", train=False):
+    """Network free parameters (B, 10) (class row or expectation) and class logits (B, N)."""
+    if train:
+        out, new_vars = model.apply(variables, local, glob, train=True, mutable=["batch_stats"])
+    else:
+        out, new_vars = model.apply(variables, local, glob, train=False), {}
+    if model.config.num_classes == 1:
+        phi = out.phi[..., 0, :]
+    elif class_mode == "expectation" or class_id is None:
+        phi = expected_params(out.phi, out.class_logits)
+    else:
+        phi = select_class_params(out.phi, class_id)
+    return phi, out.class_logits, new_vars
+
+
+def make_predict_fn(model: VoluMonNet, config: TrainConfig) -> Callable:
+    """Jitted ``(variables, local, glob, box, K, class_id) -> (phi (B,10), Ellipsoid)`` for inference."""
+
+    @jax.jit
+    def predict(variables, local, glob, box, K, class_id=None):
+        phi, logits, _ = predict_params(model, variables, local, glob, class_id, config.class_mode)
+        return phi, reconstruct(phi, box, K, config.recon), logits
+
+    return predict
+
+
+def init_state(config: TrainConfig):
+    """Fresh train state (a dict pytree) and the model and optimiser."""
+    model = VoluMonNet(config.model)
+    key = jax.random.PRNGKey(config.seed)
+    k_init, k_rng = jax.random.split(key)
+    s = config.model.input_size
+    x = jnp.zeros((1, s, s, 3), jnp.float32)
+    variables = model.init(k_init, x, x, train=False)
+    tx = optax.adam(config.learning_rate)
+    state = {
+        "step": jnp.zeros((), jnp.int32),
+        "params": variables["params"],
+        "batch_stats": variables["batch_stats"],
+        "opt_state": tx.init(variables["params"]),
+        "rng": k_rng,
+    }
+    return state, model, tx
+
+
+def batch_indices(config: TrainConfig, step: int) -> np.ndarray:
+    """Training-set indices of ``step``: consecutive slices of per-epoch permutations."""
+    B, N = config.batch_size, config.num_train
+    start = step * B
+    out = []
+    while len(out) < B:
+        epoch, offset = divmod(start + len(out), N)
+        perm = np.random.default_rng([config.seed, 104729, epoch]).permutation(N)
+        out.extend(perm[offset: offset + B - len(out)].tolist())
+    return np.asarray(out)
+
+
+def get_train_batch(config: TrainConfig, step: int):
+    batch = make_batch(config.seed, batch_indices(config, step), config.scene, config.model.input_size,
+                       config.model.global_padding, "train", config.noisy)
+    return {k: batch[k] for k in TRAIN_KEYS}
+
+
+def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
+    n = config.model.num_classes
+
+    def loss_fn(params, batch_stats, batch, key):
+        local, glob = batch["local"], batch["global"]
+        if config.augment:
+            local, glob = augment(key, local, glob)
+        phi, logits, new_vars = predict_params(
+            model, {"params": params, "batch_stats": batch_stats}, local, glob, batch["class_id"], config.class_mode, train=True
+        )
+        ell = reconstruct(phi, batch["box_input"], batch["K"], config.recon)
+        terms = volumon_loss(ell, batch, config.loss, n, logits)
+        return terms.total, (terms, new_vars["batch_stats"])
+
+    @jax.jit
+    def train_step(state, batch):
+        key = jax.random.fold_in(state["rng"], state["step"])
+        (_, (terms, new_bs)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+            state["params"], state["batch_stats"], batch, key
+        )
+        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
+        params = optax.apply_updates(state["params"], updates)
+        new_state = {**state, "step": state["step"] + 1, "params": params, "batch_stats": new_bs, "opt_state": opt_state}
+        return new_state, terms._asdict()
+
+    return train_step
+
+
+def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_size: int = 32, split: str = "test"):
+    """Predict the held-out split and score it (translation / ADI AUC, 3D IoU, ...)."""
+    num = config.num_eval if num is None else num
+    predict = make_predict_fn(model, config)
+    variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
+    preds, gts = [], []
+    for start in range(0, num, batch_size):
+        idx = np.arange(start, min(num, start + batch_size))
+        b = make_batch(config.seed, idx, config.scene, config.model.input_size, config.model.global_padding, split,
+                       config.noisy)
+        _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+        preds.append(jax.tree.map(np.asarray, ell._asdict()))
+        gts.append({k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id",
+                                                   "sample_mask")})
+    cat = lambda xs: {k: np.concatenate([x[k] for x in xs]) for k in xs[0]}
+    return evaluate_predictions(cat(preds), cat(gts))
+
+
+def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None = None, progress: bool = True,
+                       log: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
+
+    Args:
+      config: :class:`TrainConfig`.
+      workdir: output folder (checkpoints, ``metrics.jsonl``, ``eval.json``, ``config.json``).
+      stop_after: stop after this many steps of *this* run (simulates an interruption; the last
+        step is checkpointed).
+      progress: tqdm bar with the loss terms.
+
+    Returns:
+      dict with ``state`` (final train state), ``model``, ``history`` (per-step loss terms of this
+      run, keyed by step), ``eval`` (metrics of the final evaluation, if the run completed).
+    """
+    workdir = pathlib.Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    state, model, tx = init_state(config)
+    ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=config.keep_checkpoints)
+    start = 0
+    if ckpt.latest_step() is not None:
+        state = ckpt.restore(state)
+        start = int(state["step"])
+    (workdir / "config.json").write_text(json.dumps(_config_dict(config), indent=1, default=str))
+    train_step = make_train_step(model, tx, config)
+    history: dict[int, dict[str, float]] = {}
+    end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
+    it = range(start, end)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(it, initial=start, total=config.num_steps, desc=f"volumon[{config.variant}]", leave=False)
+        it = bar
+    metrics_file = open(workdir / "metrics.jsonl", "a")
+    t0 = time.perf_counter()
+    result_eval = None
+    try:
+        for step in it:
+            if config.reset_optimizer_at is not None and step == config.reset_optimizer_at:
+                state = {**state, "opt_state": tx.init(state["params"])}
+            batch = get_train_batch(config, step)
+            state, terms = train_step(state, batch)
+            if (step + 1) % config.log_every == 0 or step + 1 == end:
+                terms = {k: float(v) for k, v in terms.items()}
+                if not all(np.isfinite(v) for v in terms.values()):
+                    raise FloatingPointError(f"non-finite loss at step {step + 1}: {terms}")
+                history[step + 1] = terms
+                rec = {"step": step + 1, "time_s": time.perf_counter() - t0, **terms}
+                metrics_file.write(json.dumps(rec) + "\n")
+                metrics_file.flush()
+                if bar is not None:
+                    bar.set_postfix({k: f"{v:.3g}" for k, v in terms.items() if k != "cls" or model.config.num_classes > 1})
+                if log is not None:
+                    log(" ".join(f"{k}={v:.4g}" for k, v in rec.items()))
+            if (step + 1) % config.checkpoint_every == 0 or step + 1 == end:
+                ckpt.save(step + 1, state, force=True)
+            if config.eval_every and (step + 1) % config.eval_every == 0 and step + 1 < config.num_steps:
+                ev = evaluate(model, state, config)
+                metrics_file.write(json.dumps({"step": step + 1, "eval": ev}) + "\n")
+                if log is not None:
+                    log(f"eval step {step + 1}: " + " ".join(f"{k}={v:.4g}" for k, v in ev.items()))
+        if end == config.num_steps:
+            result_eval = evaluate(model, state, config)
+            (workdir / "eval.json").write_text(json.dumps(result_eval, indent=1))
+    finally:
+        metrics_file.close()
+        if bar is not None:
+            bar.close()
+        ckpt.close()
+    return {"state": state, "model": model, "history": history, "eval": result_eval}
+
+
+def load_trained(workdir, config: TrainConfig, step: int | None = None):
+    """(model, variables) of a checkpoint in ``workdir/checkpoints`` (for inference)."""
+    state, model, _ = init_state(config)
+    ckpt = Checkpointer(pathlib.Path(workdir) / "checkpoints", max_to_keep=None)
+    try:
+        state = ckpt.restore(state, step)
+    finally:
+        ckpt.close()
+    return model, {"params": state["params"], "batch_stats": state["batch_stats"]}
+
+
+def _config_dict(config):
+    import dataclasses
+
+    return dataclasses.asdict(config)
