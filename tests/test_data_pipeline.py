@@ -9,6 +9,7 @@ from jaxsem import quadrics
 from jaxsem.data import (
     PipelineConfig,
     VolumonDataset,
+    as_volumon_batch,
     crop_inputs,
     load_fat_scene,
     mask_depth_points,
@@ -193,3 +194,19 @@ def test_colour_jitter_keeps_value_and_identity_at_zero():
     assert np.abs(a - im).max() > 0.1
     np.testing.assert_allclose(b, a[::-1], atol=1e-6)
     assert a.min() >= 0 and a.max() <= 1
+
+
+def test_shape_ids_and_volumon_keys(frames):
+    ds = VolumonDataset(frames, CFG, augment=False)
+    b = next(ds.eval_batches(4))
+    names = [ds.class_names[c] for c in b["class_id"]]
+    expected = {"cracker_box": 0, "ball": 1, "soup_can": 2}
+    assert b["shape_id"].tolist() == [expected[n] for n in names]
+    v = as_volumon_batch(b)
+    np.testing.assert_array_equal(v["local"], b["patch"])
+    np.testing.assert_array_equal(v["box_left"], b["box"])
+    np.testing.assert_allclose(v["gt_half_extents"], b["dimensions"] / 2)
+    assert v["gt_shape_id"].tolist() == [1 if n == "ball" else 0 for n in names]
+    np.testing.assert_array_equal(v["sample_mask"], b["valid"] & b["has_right_box"])
+    assert set(v) >= {"local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points",
+                      "point_mask", "class_id", "sample_mask", "gt_rotation", "gt_center"}

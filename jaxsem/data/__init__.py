@@ -23,8 +23,10 @@ from ._synthetic import (
     write_synthetic_dataset as write_synthetic_dataset,
 )
 from ._pipeline import (
+    SHAPE_IDS as SHAPE_IDS,
     PipelineConfig as PipelineConfig,
     VolumonDataset as VolumonDataset,
+    as_volumon_batch as as_volumon_batch,
     crop_inputs as crop_inputs,
     find_scenes as find_scenes,
     mask_depth_points as mask_depth_points,

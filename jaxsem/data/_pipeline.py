@@ -50,6 +50,8 @@ __all__ = [
     "mask_depth_points",
     "find_scenes",
     "thesis_config",
+    "as_volumon_batch",
+    "SHAPE_IDS",
 ]
 
 
@@ -249,6 +251,47 @@ def _rescale(image, scale):
     return out, S, box_map
 
 
+# Ground-truth shape of a class: FAT objects are cuboids; the synthetic writer records the shape.
+SHAPE_IDS = {"box": 0, "ellipsoid": 1, "cylinder": 2}
+
+
+def extra_of(frame: FatFrame, i: int) -> dict:
+    return frame.extra[i] if i < len(frame.extra) else {}
+
+
+def as_volumon_batch(batch: dict) -> dict:
+    """Rename a :class:`VolumonDataset` batch to the keys of :mod:`jaxsem.volumon`'s training loop.
+
+    ``local`` / ``global`` (network inputs), ``box_input`` (noisy input box), ``box_left`` /
+    ``box_right`` (clean labels), ``K``, ``baseline``, ``points``, ``point_mask``, ``class_id``,
+    ``sample_mask`` (``valid`` of an evaluation batch and ``has_right_box``: a sample whose right
+    box is unusable is left out; an empty point set is already masked by ``point_mask``) and
+    ground truth ``gt_rotation``, ``gt_center``, ``gt_half_extents`` (half the cuboid extents) and
+    ``gt_shape_id`` (0 cuboid, 1 ellipsoid; a cylinder is scored as its bounding cuboid, 0).
+    """
+    sample_mask = np.asarray(batch["has_right_box"], bool)
+    if "valid" in batch:
+        sample_mask = sample_mask & np.asarray(batch["valid"], bool)
+    shape = np.asarray(batch["shape_id"])
+    return {
+        "local": batch["patch"],
+        "global": batch["global_image"],
+        "box_input": batch["input_box"],
+        "box_left": batch["box"],
+        "box_right": batch["box_right"],
+        "K": batch["K"],
+        "baseline": batch["baseline"],
+        "points": batch["points"],
+        "point_mask": batch["points_mask"],
+        "class_id": batch["class_id"],
+        "sample_mask": sample_mask,
+        "gt_rotation": batch["rotation"],
+        "gt_center": batch["center"],
+        "gt_half_extents": np.asarray(batch["dimensions"]) / 2,
+        "gt_shape_id": np.where(shape == SHAPE_IDS["ellipsoid"], 1, 0).astype(np.int32),
+    }
+
+
 @dataclasses.dataclass
 class _Frame:
     image: np.ndarray
@@ -269,6 +312,17 @@ class VolumonDataset:
 
     Attributes:
       num_samples, class_names, skipped (dict reason -> count of objects dropped).
+
+    A batch (``B`` samples) is a dict of numpy arrays: ``patch`` (B, P, P, 3) and
+    ``global_image`` (B, G, G, 3) float32 in [0, 1]; ``input_box`` (B, 4) the (noisy) box the
+    inputs were cut from and ``box`` (B, 4) the clean left box; ``box_right`` (B, 4) with
+    ``has_right_box`` (B,); ``K`` (B, 3, 3); ``baseline`` (B,) metres (right camera at +x);
+    ``image_size`` (B, 2) ``(W, H)``; ``class_id`` (B,) int32; ``points`` (B, n_points, 3) in the
+    left camera frame with ``points_mask`` (B, n_points) and ``has_points`` (B,); ground truth for
+    evaluation only: ``rotation`` (B, 3, 3) object-to-camera, ``center`` (B, 3), ``dimensions``
+    (B, 3) full cuboid extents, ``shape_id`` (B,) (see ``SHAPE_IDS``); ``index`` (B,) sample
+    numbers; and ``valid`` (B,) in evaluation batches. :func:`as_volumon_batch` renames them for
+    :mod:`jaxsem.volumon`.
     """
 
     def __init__(
@@ -327,6 +381,7 @@ class VolumonDataset:
                         box_right=scale_box(fr.boxes_right[i].copy()), has_right_box=right_ok,
                         points=pts, rotation=fr.rotation[i].copy(), center=fr.center[i].copy(),
                         dimensions=fr.dimensions[i].copy(), source=f"{fr.path}#{i}",
+                        shape_id=SHAPE_IDS.get(str(extra_of(fr, i).get("shape", "box")), 0),
                     )
                 )
         self._rows = rows
@@ -455,6 +510,7 @@ class VolumonDataset:
             "rotation": np.zeros((B, 3, 3), np.float32),
             "center": np.zeros((B, 3), np.float32),
             "dimensions": np.zeros((B, 3), np.float32),
+            "shape_id": np.zeros(B, np.int32),
             "index": np.asarray(idx, np.int32),
         }
         for b, i in enumerate(idx):
@@ -480,4 +536,5 @@ class VolumonDataset:
             out["K"][b], out["baseline"][b], out["image_size"][b] = fr.K, fr.baseline, (w, h)
             out["class_id"][b] = row["class_id"]
             out["rotation"][b], out["center"][b], out["dimensions"][b] = row["rotation"], row["center"], row["dimensions"]
+            out["shape_id"][b] = row["shape_id"]
         return out
