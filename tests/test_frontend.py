@@ -520,6 +520,42 @@ def test_to_frame_and_slam_estimate_input(three):
         to_frame(out, three["poses"][1], max_detections=4, max_objects=1)
 
 
+@pytest.mark.slow
+def test_end_to_end_with_the_online_smoother():
+    """Rendered images -> front end -> online smoother: two chair-sized boxes are recovered, and
+    the estimates fed back into the front end keep the association.
+
+    Marked slow: about 30-90 s on the shared 2-core CPU, almost all of it compiling
+    ``online_update`` (the front end itself takes a few tens of ms per frame)."""
+    from jaxsem import factors
+    from jaxsem.slam import Capacity, SolverConfig, online_estimate, online_init, online_optimize, online_update
+
+    objects = [
+        ("red", "red", (0.0, 0.0, 0.45), (0.25, 0.25, 0.45), 0.0),
+        ("blue", "blue", (1.0, 0.4, 0.45), (0.25, 0.25, 0.45), 0.0),
+    ]
+    seq = render_sequence(objects, [(-0.5 + 0.15 * i, -3.0, 0.8) for i in range(8)])
+    capacity = Capacity(max_poses=8, max_objects=4, max_boxes=32, max_detections=4)
+    state = online_init(SolverConfig(default_depth=3.0), capacity, seq["K"], (WIDTH, HEIGHT),
+                        optimize_every=2, iterations=5)
+    frontend = FrontEnd(seq["K"], FrontEndConfig(gate_pixels=30.0))
+    chair = factors.class_index("chair")
+    for f in range(8):
+        boxes, names = detections(seq, f)
+        assert names == ["red", "blue"]
+        estimates = LandmarkEstimates.from_estimate(online_estimate(state), mask=state.problem.object_mask)
+        dets = frontend.process(seq["rgb"][f], seq["poses"][f], boxes, class_ids=[chair, chair],
+                                landmark_estimates=estimates)
+        assert [d.landmark_id for d in dets] == [0, 1]
+        assert all(d.has_texture for d in dets) == (f > 0)
+        state = online_update(state, to_frame(dets, seq["poses"][f], max_detections=4, max_objects=4))
+    estimate = online_estimate(online_optimize(state))
+    centers = np.asarray(estimate.center)[:2]
+    truth = np.array([objects[0][2], objects[1][2]])
+    assert np.all(np.linalg.norm(centers - truth, axis=-1) < 0.1), centers
+    np.testing.assert_allclose(np.asarray(estimate.radii)[:2], [objects[0][3], objects[1][3]], atol=0.08)
+
+
 # --------------------------------------------------------------------------------------------
 # Bad input.
 
