@@ -42,3 +42,12 @@ from ._frontend import (  # OpenCV front end for image sequences (thesis 4.5.1)
     to_frame as to_frame,
     triangulate_points as triangulate_points,
 )
+from ._online import (
+    OnlineState as OnlineState,
+    online_estimate as online_estimate,
+    online_init as online_init,
+    online_optimize as online_optimize,
+    online_problem as online_problem,
+    online_update as online_update,
+)
+from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map

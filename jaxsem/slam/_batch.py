@@ -101,7 +101,8 @@ def solve_batch(
     )
     estimate = retract(init, sol.value)
     ok = sol.result == optx.RESULTS.successful
-    code = jnp.where(ok, 0, jnp.where(sol.result == optx.RESULTS.max_steps_reached, 1, 2))
+    code = jnp.where(ok, 0, jnp.where((sol.result == optx.RESULTS.max_steps_reached)
+                                  | (sol.result == optx.RESULTS.nonlinear_max_steps_reached), 1, 2))
     info = SolveInfo(
         success=ok,
         result=code.astype(jnp.int32),

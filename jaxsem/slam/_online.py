@@ -1,0 +1,238 @@
+"""Online smoother (section 4.3.6) with an optax-like functional API.
+
+    state = online_init(config, capacity, K, image_size)
+    for frame in frames:                      # jaxsem.slam.Frame / make_frame(...)
+        state = online_update(state, frame)   # jitted; compiles once per capacity
+    state = online_optimize(state)            # optional final full optimisation
+    estimate = online_estimate(state)
+
+All buffers have the static sizes of :class:`~jaxsem.slam.Capacity` (poses, boxes, objects,
+detections per frame) with masks, so nothing recompiles as frames arrive. Poses live in a ring
+of ``max_poses`` slots: once it wraps, the oldest pose and its box factors are dropped (not
+marginalised), so size ``max_poses`` to the horizon you want to keep. Boxes live in a ring of
+``max_boxes``; when it wraps the oldest box factors are dropped. Object slots are the association
+ids (``0 <= object_id < max_objects``); an id seen for the first time is initialised from that
+single detection (section 4.3.5).
+
+Every ``optimize_every`` frames the graph is relinearised and ``iterations`` steps of the
+structured (Schur) Levenberg-Marquardt of :func:`jaxsem.slam.solve_schur` are run over the poses
+of the last ``window`` frames (older poses held fixed) and all objects.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .. import factors as F
+from ._batch import solve_schur
+from ._cost import class_table
+from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, SolverConfig
+
+
+class OnlineState(eqx.Module):
+    """State of the online smoother (a pytree; the int settings are static).
+
+    Attributes:
+      problem: :class:`SlamProblem` at capacity (pose slots, box ring, object slots).
+      estimate: :class:`SlamEstimate` of the same sizes.
+      pose_frame: (P,) int32 frame number held by each pose slot (-1 = empty).
+      frame_count: () int32 frames seen. box_count: () int32 boxes written.
+      config: :class:`SolverConfig`.
+      optimize_every, iterations, window, max_detections: static ints.
+    """
+
+    problem: SlamProblem
+    estimate: SlamEstimate
+    pose_frame: jnp.ndarray
+    frame_count: jnp.ndarray
+    box_count: jnp.ndarray
+    config: SolverConfig
+    optimize_every: int = eqx.field(static=True)
+    iterations: int = eqx.field(static=True)
+    window: int = eqx.field(static=True)
+    max_detections: int = eqx.field(static=True)
+
+
+def online_init(
+    config: SolverConfig,
+    capacity: Capacity,
+    K,
+    image_size,
+    *,
+    optimize_every: int = 5,
+    iterations: int = 3,
+    window: int | None = None,
+    dtype=None,
+) -> OnlineState:
+    """Empty smoother.
+
+    Args:
+      config: :class:`SolverConfig` (factors, noise, robust losses).
+      capacity: :class:`Capacity` (static sizes).
+      K: (3, 3) intrinsics; image_size: (2,) ``[width, height]``.
+      optimize_every: relinearise and optimise every this many frames (>= 1).
+      iterations: LM iterations per optimisation.
+      window: number of most recent frames whose poses are optimised (default: all kept).
+    """
+    import numpy as np
+
+    if optimize_every < 1 or iterations < 1:
+        raise ValueError(
+            f"optimize_every, iterations: expected >= 1, got {optimize_every}, {iterations}"
+        )
+    P, J, B, D = capacity
+    if min(P, J, B, D) < 1:
+        raise ValueError(f"capacity: every size must be >= 1, got {capacity}")
+    dtype = dtype or jnp.result_type(float)
+    K = np.asarray(K, float)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise ValueError(f"K: expected finite (3, 3) intrinsics, got shape {K.shape}")
+    image_size = np.asarray(image_size, float)
+    if image_size.shape != (2,) or not np.all(image_size > 0):
+        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+    # Concrete, non-weak float leaves: the jitted update returns the same avals it was given,
+    # so the second call hits the compilation cache.
+    config = jax.tree_util.tree_map(
+        lambda x: jnp.asarray(x, dtype) if isinstance(x, (float, int)) and not isinstance(x, bool)
+        else x, config,
+    )
+    eye4 = jnp.broadcast_to(jnp.eye(4, dtype=dtype), (P, 4, 4))
+    problem = SlamProblem(
+        K=jnp.asarray(K, dtype), image_size=jnp.asarray(image_size, dtype),
+        pose_prior=eye4, pose_mask=jnp.zeros(P, bool),
+        box=jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0, 1.0], dtype), (B, 4)),
+        box_pose=jnp.zeros(B, jnp.int32), box_object=jnp.zeros(B, jnp.int32),
+        box_mask=jnp.zeros(B, bool), texture_depth=jnp.zeros(B, dtype),
+        texture_mask=jnp.zeros(B, bool), object_class=jnp.zeros(J, jnp.int32),
+        object_mask=jnp.zeros(J, bool),
+    )
+    estimate = SlamEstimate(
+        camera_T_world=eye4, rotation=jnp.broadcast_to(jnp.eye(3, dtype=dtype), (J, 3, 3)),
+        center=jnp.zeros((J, 3), dtype), radii=jnp.ones((J, 3), dtype),
+    )
+    return OnlineState(
+        problem=problem, estimate=estimate, pose_frame=jnp.full(P, -1, jnp.int32),
+        frame_count=jnp.asarray(0, jnp.int32), box_count=jnp.asarray(0, jnp.int32),
+        config=config, optimize_every=int(optimize_every), iterations=int(iterations),
+        window=int(P if window is None else window), max_detections=int(D),
+    )
+
+
+def _pose_free(state: OnlineState):
+    recent = state.pose_frame >= state.frame_count - state.window
+    return state.problem.pose_mask & recent
+
+
+def _optimize(state: OnlineState, iterations: int, all_poses: bool) -> OnlineState:
+    free = state.problem.pose_mask if all_poses else _pose_free(state)
+    est, _ = solve_schur(state.problem, state.estimate, state.config,
+                         max_steps=iterations, pose_free=free)
+    return eqx.tree_at(lambda s: s.estimate, state, est)
+
+
+def _insert(state: OnlineState, frame: Frame) -> OnlineState:
+    pb, est, cfg = state.problem, state.estimate, state.config
+    P = pb.pose_prior.shape[0]
+    B = pb.box.shape[0]
+    J = pb.object_class.shape[0]
+    dtype = pb.pose_prior.dtype
+    slot = state.frame_count % P
+    # Reusing a slot drops the old pose's box factors.
+    stale = pb.box_mask & (pb.box_pose == slot)
+    box_mask = pb.box_mask & ~stale
+    prior = jnp.asarray(frame.pose_prior, dtype)
+    pose_prior = pb.pose_prior.at[slot].set(prior)
+    pose_mask = pb.pose_mask.at[slot].set(True)
+    cam = est.camera_T_world.at[slot].set(prior)
+    pose_frame = state.pose_frame.at[slot].set(state.frame_count)
+
+    # New objects: initialised from their (first) detection in this frame.
+    det = frame.box_mask & (frame.object_id >= 0) & (frame.object_id < J)
+    oid = jnp.clip(frame.object_id, 0, J - 1)
+    is_new = det & ~pb.object_mask[oid]
+    mean, _ = class_table(cfg, dtype)
+    tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
+    R0, c0, r0 = F.single_view_init(
+        prior, frame.box.astype(dtype), pb.K, mean[frame.box_class],
+        texture_depth=frame.texture_depth.astype(dtype), texture_mask=tex_ok,
+        default_depth=cfg.default_depth,
+    )
+    tgt = jnp.where(is_new, oid, J)  # J = out of range -> dropped
+    rotation = est.rotation.at[tgt].set(R0, mode="drop")
+    center = est.center.at[tgt].set(c0, mode="drop")
+    radii = est.radii.at[tgt].set(r0, mode="drop")
+    object_class = pb.object_class.at[tgt].set(frame.box_class, mode="drop")
+    object_mask = pb.object_mask.at[tgt].set(True, mode="drop")
+
+    # Box factors into the ring buffer.
+    order = jnp.cumsum(det.astype(jnp.int32)) - 1
+    pos = jnp.where(det, (state.box_count + order) % B, B)
+    box = pb.box.at[pos].set(frame.box.astype(dtype), mode="drop")
+    box_pose = pb.box_pose.at[pos].set(slot, mode="drop")
+    box_object = pb.box_object.at[pos].set(oid, mode="drop")
+    box_mask = box_mask.at[pos].set(True, mode="drop")
+    tex_depth = pb.texture_depth.at[pos].set(frame.texture_depth.astype(dtype), mode="drop")
+    tex_mask = pb.texture_mask.at[pos].set(frame.texture_mask & det, mode="drop")
+    tex_mask = tex_mask & box_mask
+
+    problem = SlamProblem(
+        K=pb.K, image_size=pb.image_size, pose_prior=pose_prior, pose_mask=pose_mask,
+        box=box, box_pose=box_pose, box_object=box_object, box_mask=box_mask,
+        texture_depth=tex_depth, texture_mask=tex_mask, object_class=object_class,
+        object_mask=object_mask,
+    )
+    estimate = SlamEstimate(cam, rotation, center, radii)
+    return OnlineState(
+        problem=problem, estimate=estimate, pose_frame=pose_frame,
+        frame_count=state.frame_count + 1,
+        box_count=(state.box_count + jnp.sum(det)).astype(jnp.int32),
+        config=cfg, optimize_every=state.optimize_every, iterations=state.iterations,
+        window=state.window, max_detections=state.max_detections,
+    )
+
+
+def _update(state: OnlineState, frame: Frame) -> OnlineState:
+    if frame.box.shape != (state.max_detections, 4):
+        raise ValueError(
+            f"frame.box: expected shape ({state.max_detections}, 4) (capacity.max_detections), "
+            f"got {frame.box.shape}; build frames with make_frame(..., max_detections=...)"
+        )
+    state = _insert(state, frame)
+    due = (state.frame_count % state.optimize_every) == 0
+    return jax.lax.cond(
+        due, lambda s: _optimize(s, s.iterations, False), lambda s: s, state
+    )
+
+
+online_update = jax.jit(_update)
+online_update.__doc__ = """Adds one :class:`Frame` and, every ``optimize_every`` frames, optimises.
+
+Jitted: the first call compiles; later calls with the same capacity reuse the executable.
+
+Args:
+  state: :class:`OnlineState`; frame: :class:`Frame` with ``max_detections`` rows.
+
+Returns:
+  the new :class:`OnlineState`.
+"""
+
+
+def online_optimize(state: OnlineState, iterations: int = 50) -> OnlineState:
+    """Relinearises and runs up to ``iterations`` LM steps over all kept poses and objects
+    (the final optimisation after the last frame)."""
+    return _final(state, iterations)
+
+
+_final = jax.jit(lambda s, n: _optimize(s, n, True), static_argnums=1)
+
+
+def online_estimate(state: OnlineState) -> SlamEstimate:
+    """Current :class:`SlamEstimate` (pose slots in ring order; see ``state.pose_frame``)."""
+    return state.estimate
+
+
+def online_problem(state: OnlineState) -> SlamProblem:
+    """The factor graph the smoother holds, as a :class:`SlamProblem` (e.g. to batch-solve it)."""
+    return state.problem

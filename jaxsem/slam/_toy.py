@@ -1,0 +1,149 @@
+"""A small numpy generator of ellipsoid maps for the solvers' tests, examples and benchmarks.
+
+It exists so that the solvers can be tested on their own; the full simulator is
+:mod:`jaxsem.sim`. Objects are car-sized ellipsoids (the ``car`` class with per-object size
+noise) on a ground patch; the camera follows an ``"orbit"`` (circle looking at the centre) or a
+``"forward"`` path (straight line along x past the objects); boxes are projected exactly, clipped
+to the image (so truncated edges sit on the border and are dropped by the edge mask), and noised.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import factors as F
+from .. import quadrics as Q
+from ._problem import SlamEstimate, make_problem
+
+
+def _yaw(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_small(rng, sigma):
+    w = rng.normal(0.0, sigma, 3)
+    th = np.linalg.norm(w)
+    if th < 1e-12:
+        return np.eye(3)
+    k = w / th
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+
+
+def toy_map(
+    seed: int = 0,
+    *,
+    num_objects: int = 5,
+    num_frames: int = 30,
+    path: str = "forward",
+    box_noise: float = 2.0,
+    texture_noise: float = 0.1,
+    pose_noise: tuple[float, float] = (0.02, 0.005),
+    size_noise: float = 0.1,
+    image_size=(640, 480),
+    focal: float = 525.0,
+    capacity: tuple[int, int, int] | None = None,
+    class_name: str = "car",
+):
+    """One random map and its measurements.
+
+    Args:
+      seed: numpy seed. num_objects, num_frames: sizes. path: ``"forward"`` or ``"orbit"``.
+      box_noise: pixels (Gaussian per edge). texture_noise: metres.
+      pose_noise: (metres, radians) Gaussian noise of the pose priors.
+      size_noise: relative Gaussian noise of each object's radii around the class mean.
+      capacity: optional ``(T, M, J)`` padding (see :func:`jaxsem.slam.make_problem`).
+
+    Returns:
+      ``(problem, truth)``: a :class:`SlamProblem` and the true :class:`SlamEstimate`.
+    """
+    rng = np.random.default_rng(seed)
+    W, H = image_size
+    K = np.array([[focal, 0, W / 2], [0, focal, H / 2], [0, 0, 1.0]])
+    mean = np.array(F.shape_prior(class_name).mean)
+    scale = mean[0] / 2.44  # patch sized to the class (cars: about 30 m)
+    radii = mean * (1 + size_noise * rng.normal(size=(num_objects, 3)))
+    radii = np.clip(radii, 0.3 * mean, None)
+    if path == "forward":
+        x = rng.uniform(5, 40, num_objects) * scale
+        y = rng.choice([-1, 1], num_objects) * rng.uniform(3, 8, num_objects) * scale
+    else:
+        x = rng.uniform(-8, 8, num_objects) * scale
+        y = rng.uniform(-8, 8, num_objects) * scale
+    center = np.stack([x, y, radii[:, 2]], -1)
+    rotation = np.stack([_yaw(a) for a in rng.uniform(-np.pi, np.pi, num_objects)])
+    if path == "forward":
+        xs = np.linspace(-10, 35, num_frames) * scale
+        eyes = np.stack([xs, np.zeros_like(xs), np.full_like(xs, 1.5 * scale)], -1)
+        poses = np.asarray(Q.look_at(eyes, eyes + np.array([1.0, 0, 0])))
+    elif path == "orbit":
+        a = np.linspace(0, 2 * np.pi, num_frames, endpoint=False)
+        eyes = np.stack([25 * np.cos(a), 25 * np.sin(a), np.full_like(a, 1.5)], -1) * scale
+        poses = np.asarray(Q.look_at(eyes, np.zeros(3)))
+    else:
+        raise ValueError(f"path: expected 'forward' or 'orbit', got {path!r}")
+    box, valid = Q.project_bbox(rotation[None], center[None], radii[None], K, poses[:, None])
+    depth, _ = Q.texture_plane_depth(rotation[None], center[None], radii[None], poses[:, None])
+    box, valid, depth = np.asarray(box), np.asarray(valid), np.asarray(depth)
+    box = box + box_noise * rng.normal(size=box.shape)
+    clipped = np.stack(
+        [np.clip(box[..., 0], 0, W), np.clip(box[..., 1], 0, H),
+         np.clip(box[..., 2], 0, W), np.clip(box[..., 3], 0, H)], -1
+    )
+    area = np.prod(np.maximum(clipped[..., 2:] - clipped[..., :2], 0), -1)
+    full = np.prod(np.maximum(box[..., 2:] - box[..., :2], 1e-9), -1)
+    seen = valid & (area > 100) & (area > 0.3 * full)
+    t_idx, j_idx = np.nonzero(seen)
+    boxes = clipped[t_idx, j_idx]
+    tex = depth[t_idx, j_idx] + texture_noise * rng.normal(size=len(t_idx))
+    noisy = []
+    for P in poses:
+        dR = _rot_small(rng, pose_noise[1])
+        dt = rng.normal(0, pose_noise[0], 3)
+        N = np.eye(4)
+        N[:3, :3], N[:3, 3] = dR, dt
+        noisy.append(N @ P)
+    problem = make_problem(
+        K, [W, H], np.stack(noisy), boxes, t_idx, j_idx, [class_name] * num_objects,
+        texture_depth=tex, capacity=capacity,
+    )
+    truth = SlamEstimate(poses, rotation, center, radii)
+    if capacity is not None:
+        Tc, _, Jc = capacity
+        eye = np.broadcast_to(np.eye(4), (Tc - num_frames, 4, 4))
+        truth = SlamEstimate(
+            np.concatenate([poses, eye]),
+            np.concatenate([rotation, np.broadcast_to(np.eye(3), (Jc - num_objects, 3, 3))]),
+            np.concatenate([center, np.zeros((Jc - num_objects, 3))]),
+            np.concatenate([radii, np.ones((Jc - num_objects, 3))]),
+        )
+    import jax.numpy as jnp
+
+    dtype = problem.K.dtype
+    truth = SlamEstimate(*(jnp.asarray(a, dtype) for a in (
+        truth.camera_T_world, truth.rotation, truth.center, truth.radii)))
+    return problem, truth
+
+
+def frames_from_problem(problem, max_detections: int = 16):
+    """Splits a :class:`SlamProblem` into per-pose :class:`Frame` s (for the online smoother);
+    the association id is the object index. Returns a list of frames, one per real pose."""
+    from ._problem import make_frame
+
+    out = []
+    box = np.asarray(problem.box)
+    bp = np.asarray(problem.box_pose)
+    bo = np.asarray(problem.box_object)
+    bm = np.asarray(problem.box_mask)
+    td = np.asarray(problem.texture_depth)
+    tm = np.asarray(problem.texture_mask)
+    cls = np.asarray(problem.object_class)
+    for t in np.flatnonzero(np.asarray(problem.pose_mask)):
+        sel = bm & (bp == t)
+        out.append(make_frame(
+            np.asarray(problem.pose_prior[t]), box[sel], cls[bo[sel]], bo[sel],
+            np.where(tm[sel], td[sel], np.nan), max_detections=max_detections,
+            dtype=problem.K.dtype,
+        ))
+    return out
