@@ -7,9 +7,10 @@ padded shapes: after every ``every`` frames the problem restricted to the frames
 (masks, so nothing recompiles) is re-solved, warm-started from the previous estimate.
 
 One more rule, the lesson of QuadricSLAM's forward-path failure (FACTS.md): an object whose
-estimate is behind the camera of its latest detection, or whose predicted box has lost its
-latest measured box (IoU below ``reinit_iou``), is re-initialised from that detection (section
-4.3.5, texture depth when the system uses it), instead of being left stranded.
+estimate is behind (or around) the camera of its latest detection, so that it has no valid
+projection there, is re-initialised from that detection (section 4.3.5, texture depth when the
+system uses it) instead of being left stranded. Optionally (``reinit_iou > 0``) also an object
+whose predicted box overlaps its latest measured box by less than that IoU.
 
 Everything is jittable and vmappable over maps of one config.
 """
@@ -82,7 +83,7 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
     pose = est.camera_T_world[problem.box_pose[last]]
     box = problem.box[last]
     pred, valid = project_bbox(est.rotation, est.center, est.radii, problem.K, pose)
-    lost = has & (~valid | (box_iou(pred, box) < reinit_iou))
+    lost = has & (~valid | (box_iou(pred, box) < reinit_iou))  # IoU < 0 never holds
     tex_mask = problem.texture_mask[last] & config.use_texture
     R, c, r = factors.single_view_init(
         pose, box, problem.K, init_radii, texture_depth=problem.texture_depth[last],
@@ -94,8 +95,8 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
     ), lost
 
 
-def solve_online(problem, init, config, *, every: int = 5, reinit_iou: float = 0.1,
-                 init_radii=None):
+def solve_online(problem, init, config, *, every: int = 10, reinit: bool = True,
+                 reinit_iou: float = 0.0, init_radii=None):
     """Online protocol: re-solve after every ``every`` frames with the frames seen so far.
 
     Args:
@@ -105,8 +106,10 @@ def solve_online(problem, init, config, *, every: int = 5, reinit_iou: float = 0
         its first detection.
       config: :class:`jaxsem.slam.SolverConfig` (``max_steps`` per round).
       every: static, frames between two optimisations.
-      reinit_iou: a stranded object (behind the camera of its latest box, or predicted box IoU
-        with it below this) is re-initialised from that box; 0 disables the rule.
+      reinit: static; re-initialise an object from its latest box when the estimate has no
+        valid projection in that frame (behind or around the camera).
+      reinit_iou: also re-initialise when the predicted box's IoU with the latest measured box is
+        below this (0: only the validity rule).
       init_radii: (J, 3) radii of a re-initialised object (default: ``init.radii``).
 
     Returns:
@@ -128,7 +131,7 @@ def solve_online(problem, init, config, *, every: int = 5, reinit_iou: float = 0
             object_mask=problem.object_mask & seen,
             pose_mask=problem.pose_mask & (jnp.arange(T) < k),
         )
-        if reinit_iou > 0:
+        if reinit:
             est, lost = _reinitialise(sub, est, bm, config, init_radii, reinit_iou)
             n_reinit = n_reinit + lost.astype(jnp.int32)
         est, info = solve_schur(sub, est, config)
