@@ -613,12 +613,21 @@ class _Landmark:
 class FrontEnd:
     """ROSHAN's per-frame OpenCV front end: association ids and texture-plane depths.
 
-    Usage::
+    Usage with the online smoother (the landmark ids are its object slots)::
 
-        fe = FrontEnd(K, FrontEndConfig())
+        from jaxsem.slam import (Capacity, FrontEnd, LandmarkEstimates, SolverConfig,
+                                 online_estimate, online_init, online_update, to_frame)
+
+        cap = Capacity()
+        state = online_init(SolverConfig(), cap, K, (width, height))
+        fe = FrontEnd(K)
         for image, pose, boxes, classes in sequence:
-            dets = fe.process(image, pose, boxes, classes, landmark_estimates=estimates)
-            # dets[i].landmark_id, dets[i].texture_depth, dets[i].texture_variance ...
+            est = LandmarkEstimates.from_estimate(online_estimate(state), state.problem.object_mask)
+            dets = fe.process(image, pose, boxes, classes, landmark_estimates=est)
+            # dets[i].landmark_id, .texture_depth, .texture_variance, .texture_status ...
+            frame = to_frame(dets, pose, max_detections=cap.max_detections,
+                             max_objects=cap.max_objects)
+            state = online_update(state, frame)
 
     Args:
       K: (3, 3) intrinsics of the (single) camera.
