@@ -274,6 +274,30 @@ def test_on_the_library_renderer_in_a_cluttered_scene():
             assert det.texture_depth > float(tangent) - 0.01 * rendered
 
 
+def test_partial_occlusion_keeps_ids_and_depths():
+    """A near red box passes in front of a far blue one: the boxes overlap, the blue one's
+    occluded corners are lost by the tracker, and neither id nor depth is confused."""
+    objects = [
+        ("red", "red", (0.3, -0.8, 0.35), (0.2, 0.2, 0.35), 0.0),
+        ("blue", "blue", (0.0, 0.8, 0.5), (0.5, 0.3, 0.5), 0.0),
+    ]
+    seq = render_sequence(objects, [(-1.0 + 0.2 * i, -3.0, 0.6) for i in range(8)])
+    frontend = FrontEnd(seq["K"])
+    overlapped = 0
+    for f in range(8):
+        boxes, names = detections(seq, f)
+        assert names == ["red", "blue"]
+        overlap = min(boxes[0, 2], boxes[1, 2]) - max(boxes[0, 0], boxes[1, 0])
+        overlapped += overlap > 10
+        out = frontend.process(seq["rgb"][f], seq["poses"][f], boxes)
+        assert [d.landmark_id for d in out] == [0, 1]
+        for name, det in zip(names, out[: (0 if f == 0 else 2)]):
+            rendered = float(np.median(seq["depth"][f][seq["seg"][f] == seq["ids"][name]]))
+            assert det.texture_status == "ok", (f, name, det)
+            assert abs(det.texture_depth - rendered) < 0.02 * rendered, (f, name, det.texture_depth, rendered)
+    assert overlapped >= 3
+
+
 def test_short_baseline_rejected_with_stationary_camera(three):
     frontend = FrontEnd(three["K"])
     boxes, _ = detections(three, 0)
