@@ -638,6 +638,18 @@ def test_bad_inputs_raise_naming_the_argument(three):
         frontend.num_tracks(99)
 
 
+def test_jaxlie_pose_accepted(three):
+    import jaxlie
+
+    plain, lie = FrontEnd(three["K"]), FrontEnd(three["K"])
+    for f in (0, 2):
+        boxes, _ = detections(three, f)
+        a = plain.process(three["rgb"][f], three["poses"][f], boxes)
+        b = lie.process(three["rgb"][f], jaxlie.SE3.from_matrix(three["poses"][f]), boxes)
+    assert [d.texture_status for d in b] == ["ok", "ok"]
+    np.testing.assert_allclose([d.texture_depth for d in b], [d.texture_depth for d in a], rtol=1e-6)
+
+
 def test_bgr_input_gives_the_same_result(three):
     a = run(three, FrontEnd(three["K"]), frames=range(3))
     bgr = dict(three, rgb=three["rgb"][..., ::-1].copy())

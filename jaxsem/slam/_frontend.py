@@ -435,6 +435,8 @@ def _check_K(K):
 
 
 def _check_pose(pose):
+    if hasattr(pose, "as_matrix") and callable(pose.as_matrix):  # jaxlie.SE3, as in jaxsem.quadrics
+        pose = pose.as_matrix()
     try:
         pose = np.asarray(pose, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -684,7 +686,7 @@ class FrontEnd:
           image: (H, W, 3) uint8 colour image (RGB unless ``config.color_order == "bgr"``); the
             same size in every frame.
           camera_T_world: (4, 4) world-to-camera pose of this frame (OpenCV axes), finite and
-            rigid.
+            rigid, or a ``jaxlie.SE3``.
           boxes: (M, 4) detections ``[u_min, v_min, u_max, v_max]`` in pixels (M may be 0).
           class_ids: (M,) class ids (ints, e.g. indices of :data:`jaxsem.factors.CLASS_NAMES`, or
             names), or None for a single class.
