@@ -599,7 +599,7 @@ def _predicted_centroids(K, pose, estimates):
 @dataclasses.dataclass
 class _Landmark:
     id: int
-    class_id: int
+    class_id: Any
     histograms: list
     last_box: np.ndarray
     last_frame: int
@@ -690,8 +690,10 @@ class FrontEnd:
           boxes: (M, 4) detections ``[u_min, v_min, u_max, v_max]`` in pixels (M may be 0).
           class_ids: (M,) class ids (ints, e.g. indices of :data:`jaxsem.factors.CLASS_NAMES`, or
             names), or None for a single class.
-          landmark_estimates: the smoother's current ellipsoids
-            (:class:`LandmarkEstimates` or ``{id: (rotation, center, radii)}``), or None. Used to
+          landmark_estimates: the smoother's current ellipsoids (:class:`LandmarkEstimates`,
+            ``{id: (rotation, center, radii)}``, or a :class:`jaxsem.slam.SlamEstimate` whose
+            object slot ``j`` is landmark ``j``), or None. Ids this front end never issued are
+            ignored. Used to
             predict landmark centroids; landmarks without an estimate (or behind the camera) fall
             back on their last box centre moved by their tracks' median flow since then.
 
