@@ -22,7 +22,6 @@ from ._ellipsoid_maps import (
     thesis_config as thesis_config,
     to_problem as to_problem,
 )
-from ._render import SceneObject as SceneObject, SceneRenderer as SceneRenderer, bounding_ellipsoid_radii as bounding_ellipsoid_radii, render_views as render_views  # noqa: E501  (B1: renderer)
 from ._experiments import (
     BASELINE as BASELINE,
     ROSHAN as ROSHAN,
