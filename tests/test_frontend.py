@@ -513,6 +513,33 @@ def test_fallback_prediction_follows_the_tracks_through_missed_frames(three):
     assert out.texture_status == "ok" and out.baseline == pytest.approx(0.6, abs=1e-6)
 
 
+def test_random_frames_never_give_nan():
+    """Noise images, random boxes and random rigid poses (some identical, some far apart): every
+    number the front end returns is finite, and rejected measurements are None."""
+    rng = np.random.default_rng(4)
+    K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+    frontend = FrontEnd(K, FrontEndConfig(gate_pixels=1e3, min_correlation=-1.0, min_points=3))
+    base = rng.integers(0, 256, size=(120, 160, 3), dtype=np.uint8)
+    statuses = set()
+    for f in range(12):
+        shift = rng.integers(-3, 4, size=2)
+        image = np.roll(base, tuple(shift), axis=(0, 1))
+        pose = np.eye(4)
+        if f % 3:
+            pose[:3, :3] = cv2.Rodrigues(rng.normal(scale=0.05, size=3))[0]
+            pose[:3, 3] = rng.normal(scale=[0.3, 0.3, 0.3])
+        corners = rng.uniform([0, 0], [120, 80], size=(3, 2))
+        boxes = np.concatenate([corners, corners + rng.uniform(10, 40, size=(3, 2))], axis=1)
+        for det in frontend.process(image, pose, boxes):
+            statuses.add(det.texture_status)
+            assert np.all(np.isfinite(det.box))
+            assert np.isfinite(det.baseline)
+            for value in (det.texture_depth, det.texture_variance, det.correlation, det.centroid_distance):
+                assert value is None or np.isfinite(value)
+            assert (det.texture_depth is None) == (det.texture_status != "ok")
+    assert len(statuses) >= 3, statuses
+
+
 # --------------------------------------------------------------------------------------------
 # Output conversion.
 
