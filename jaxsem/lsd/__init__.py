@@ -1,0 +1,29 @@
+"""LSD training and use: expert data, two-stage training, the planner's sampler (thesis ch. 3).
+
+The network itself is :class:`jaxsem.models.LSDNet`; the planning world, the PRM and the online
+loop are in :mod:`jaxsem.planning`.
+"""
+
+from ._config import (
+    TrainConfig as TrainConfig,
+    cpu_config as cpu_config,
+    default_config as default_config,
+    get_config as get_config,
+    tiny_config as tiny_config,
+)
+from ._data import (
+    batch_indices as batch_indices,
+    check_expert_data as check_expert_data,
+    dihedral_augment as dihedral_augment,
+    load_expert_data as load_expert_data,
+    split_by_building as split_by_building,
+)
+from ._sampler import LSDSampler as LSDSampler, full_map_distribution as full_map_distribution
+from ._train import (
+    TrainResult as TrainResult,
+    evaluate_nll as evaluate_nll,
+    load_trained as load_trained,
+    make_train_step as make_train_step,
+    save_distribution_figure as save_distribution_figure,
+    train_and_evaluate as train_and_evaluate,
+)

@@ -1,0 +1,91 @@
+"""Training configurations for the LSD network (defaults, then variants that change a few fields).
+
+A config is a frozen dataclass; ``dataclasses.replace(cfg, field=value)`` makes a variant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..models import LSDConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything :func:`jaxsem.lsd.train_and_evaluate` needs besides the data and workdir.
+
+    model: network sizes (:class:`jaxsem.models.LSDConfig`).
+    stage1_steps / stage2_steps: optimiser steps of stage one (encoder + decoder, general
+        distribution) and stage two (context branch only, encoder + decoder frozen).
+    batch_size, learning_rate (Adam, per stage), weight_decay (decoupled, AdamW; 0 = Adam).
+    eval_every: steps between evaluations (validation NLL + a PNG of predicted distributions);
+        the end of each stage is always evaluated.
+    checkpoint_every: steps between checkpoints (the last step is always saved); keep: how many.
+    val_fraction: share of the samples held out for validation (split by shard file when there
+        are several shards, so validation maps come from other buildings), at least one sample.
+    num_figure_samples: validation samples drawn in each evaluation figure.
+    seed: parameter init, batch order, dropout.
+    dtype: parameter / compute dtype name ('float32' or 'float64').
+    """
+
+    model: LSDConfig = LSDConfig()
+    stage1_steps: int = 2000
+    stage2_steps: int = 1000
+    batch_size: int = 16
+    learning_rate: float = 1e-3
+    stage2_learning_rate: float = 1e-3
+    weight_decay: float = 0.0
+    eval_every: int = 500
+    checkpoint_every: int = 500
+    keep: int = 2
+    val_fraction: float = 0.1
+    num_figure_samples: int = 4
+    seed: int = 0
+    dtype: str = "float32"
+
+    def __post_init__(self):
+        for name in ("stage1_steps", "stage2_steps"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
+        for name in ("batch_size", "eval_every", "checkpoint_every", "keep"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction: expected in [0, 1), got {self.val_fraction}")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"dtype: expected 'float32' or 'float64', got {self.dtype!r}")
+
+    @property
+    def total_steps(self) -> int:
+        return self.stage1_steps + self.stage2_steps
+
+
+def default_config() -> TrainConfig:
+    """The default (a few minutes of training on a 2-core CPU for a few thousand samples)."""
+    return TrainConfig()
+
+
+def cpu_config() -> TrainConfig:
+    """CPU-sized run used by ``benchmarks/lsd_table31.py`` when it trains its own model."""
+    return dataclasses.replace(default_config(), stage1_steps=1200, stage2_steps=600,
+                               eval_every=600, checkpoint_every=600)
+
+
+def tiny_config() -> TrainConfig:
+    """Seconds-long run for tests and the quick demo (a smaller network, few steps)."""
+    return dataclasses.replace(
+        default_config(),
+        model=LSDConfig(features=(4, 8, 8, 8), context_features=8),
+        stage1_steps=30, stage2_steps=20, batch_size=4, learning_rate=3e-3,
+        stage2_learning_rate=3e-3, eval_every=25, checkpoint_every=25, num_figure_samples=2,
+    )
+
+
+CONFIGS = {"default": default_config, "cpu": cpu_config, "tiny": tiny_config}
+
+
+def get_config(name: str) -> TrainConfig:
+    """A named config: 'default', 'cpu' or 'tiny'."""
+    if name not in CONFIGS:
+        raise ValueError(f"name: expected one of {sorted(CONFIGS)}, got {name!r}")
+    return CONFIGS[name]()

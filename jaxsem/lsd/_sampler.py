@@ -1,0 +1,62 @@
+"""The LSD network as the planner's sampling distribution (thesis 3.2.5).
+
+:class:`LSDSampler` is the ``sampler`` callable of :func:`jaxsem.planning.navigate`: it takes the
+robot-centred :class:`jaxsem.planning.LocalInputs` (160 x 160 crops + context) and returns the
+network's probabilities over the window. The planner embeds the window into the full map (cells
+outside it get the window's minimum, then everything is renormalised:
+:func:`jaxsem.planning.embed_local_distribution`), samples PRM vertices from it and weights edges
+by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
+:func:`full_map_distribution` does the same embedding for a map state, for figures and users.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..models import LSDNet, lsd_distribution
+
+
+class LSDSampler:
+    """``sampler(inputs) -> (k, k)`` probabilities from a trained LSD network (dropout off).
+
+    model, params: the network and its parameters; use_context: False gives the general
+    (stage one) distribution; uniform_mix: weight of a uniform distribution mixed into the
+    network's (0 = the thesis' rule; a small value keeps every cell reachable by sampling even
+    when the network is very confident). The forward pass is jitted once per input shape.
+    """
+
+    def __init__(self, model: LSDNet, params, use_context: bool = True, uniform_mix: float = 0.0):
+        if not 0.0 <= float(uniform_mix) < 1.0:
+            raise ValueError(f"uniform_mix: expected in [0, 1), got {uniform_mix}")
+        self.model, self.params = model, params
+        self.use_context, self.uniform_mix = bool(use_context), float(uniform_mix)
+        self._dtype = jax.tree_util.tree_leaves(params)[0].dtype
+        mix = self.uniform_mix
+
+        def fn(p, occ, sem, ctx):
+            prob = lsd_distribution(model, p, occ, sem, ctx, use_context=self.use_context)
+            n = prob.shape[-1] * prob.shape[-2]
+            return (1.0 - mix) * prob + mix / n
+
+        self._fn = jax.jit(fn)
+
+    def __call__(self, inputs) -> jax.Array:
+        ctx = jnp.asarray(inputs.context, self._dtype)
+        return self._fn(self.params, jnp.asarray(inputs.occupancy), jnp.asarray(inputs.semantic), ctx)
+
+
+def full_map_distribution(sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, origin,
+                          resolution: float, max_distance: float = 20.0) -> np.ndarray:
+    """The planner's full-map distribution (H, W) (sums to 1) at robot position ``xy``.
+
+    state: :class:`jaxsem.planning.MapState`; xy, goal: (2,) world (x, y); goal_outdoors: the
+    context flag. Crops and context exactly as in the online loop.
+    """
+    from ..planning import embed_local_distribution, local_inputs
+
+    inputs = local_inputs(state, xy, goal, goal_outdoors, origin, resolution,
+                          sampler.model.config.map_size, max_distance)
+    local = sampler(inputs)
+    return np.asarray(embed_local_distribution(local, inputs.center_cell, state.occupancy.shape))

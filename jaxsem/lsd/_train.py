@@ -1,0 +1,384 @@
+"""Two-stage training of the LSD network (thesis 3.2.4, figure 3-4), with checkpoints and figures.
+
+Stage one optimises the encoder and the general decoder on ``softmax(phi_gen)``; stage two
+freezes them and optimises only the context branch on ``softmax(phi_gen + phi_cs)``. The freeze
+is structural: each stage's optimiser (optax Adam, or AdamW with ``weight_decay``) is built over
+its own parameter subset (:func:`jaxsem.models.split_params`) and gradients are taken only with
+respect to that subset, so the frozen weights are never touched (bit-identical) and no gradient
+is computed for them (stage two does not backpropagate through the encoder).
+
+Checkpoints (orbax, ``workdir/checkpoints``) hold the parameters, the current stage's optimiser
+state and the step; a run restarted with the same config resumes from the latest one and, since
+batches and dropout keys are functions of (seed, step), continues exactly as an uninterrupted
+run would. Each evaluation writes ``workdir/figures/eval_<step>.png`` with the predicted
+distributions over a few validation maps and appends to ``workdir/metrics.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import pathlib
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
+from ._config import TrainConfig
+from ._data import (
+    batch_indices,
+    check_expert_data,
+    dihedral_augment,
+    gather_batch,
+    load_expert_data,
+    split_by_building,
+)
+
+
+class TrainResult(NamedTuple):
+    """What :func:`train_and_evaluate` returns.
+
+    model: the :class:`~jaxsem.models.LSDNet`; params: trained parameters; history: one dict per
+    evaluation (step, stage, train_nll, val_nll, uniform_nll, figure); resumed_from: the step the
+    run started from (0 for a fresh run); workdir.
+    """
+
+    model: LSDNet
+    params: dict
+    history: list
+    resumed_from: int
+    workdir: pathlib.Path
+
+
+def _optimizer(config: TrainConfig, stage: int) -> optax.GradientTransformation:
+    lr = config.learning_rate if stage == 1 else config.stage2_learning_rate
+    return _optimizer_for(float(lr), float(config.weight_decay))
+
+
+@functools.lru_cache(maxsize=16)
+def _optimizer_for(lr: float, weight_decay: float) -> optax.GradientTransformation:
+    if weight_decay > 0:
+        return optax.adamw(lr, weight_decay=weight_decay)
+    return optax.adam(lr)
+
+
+def _stage_of(step: int, config: TrainConfig) -> int:
+    """Stage that the *next* optimiser step belongs to."""
+    return 1 if step < config.stage1_steps else 2
+
+
+def _trainable(params, stage):
+    gen, cs = split_params(params)
+    return (gen, cs) if stage == 1 else (cs, gen)
+
+
+def make_loss_fn(model: LSDNet, stage: int, augment: bool):
+    """``loss(trainable, frozen, batch, key) -> nll``: stage 1 trains ``gen`` with the general
+    distribution only, stage 2 trains ``cs`` on the full product."""
+
+    def loss(trainable, frozen, batch, key):
+        params = {**frozen, **trainable}
+        k_aug, k_drop = jax.random.split(key)
+        occ, sem, ctx, mask = batch["occupancy"], batch["semantic"], batch["context"], batch["path_mask"]
+        if augment:
+            occ, sem, ctx, mask = dihedral_augment(k_aug, occ, sem, ctx, mask)
+        out = model.apply({"params": params}, occ, sem, ctx, deterministic=False,
+                          use_context=(stage == 2), rngs={"dropout": k_drop})
+        return lsd_nll(out.log_prob, mask)
+
+    return loss
+
+
+@functools.lru_cache(maxsize=16)
+def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True):
+    """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
+    ``stage`` (cached per arguments, so a second run in the same process does not recompile)."""
+    loss_fn = make_loss_fn(model, stage, augment)
+
+    @jax.jit
+    def step(params, opt_state, batch, key):
+        trainable, frozen = _trainable(params, stage)
+        value, grads = jax.value_and_grad(loss_fn)(trainable, frozen, batch, key)
+        updates, opt_state = tx.update(grads, opt_state, trainable)
+        trainable = optax.apply_updates(trainable, updates)
+        return {**frozen, **trainable}, opt_state, value
+
+    return step
+
+
+@functools.lru_cache(maxsize=16)
+def make_eval_fn(model: LSDNet, stage: int):
+    """Jitted ``(params, batch) -> (per-sample nll (B,), has_path (B,), log_prob (B, k, k))``
+    (cached per model and stage, so repeated evaluations do not recompile)."""
+
+    @jax.jit
+    def evaluate(params, batch):
+        out = model.apply({"params": params}, batch["occupancy"], batch["semantic"], batch["context"],
+                          deterministic=True, use_context=(stage == 2))
+        w = batch["path_mask"].astype(out.log_prob.dtype)
+        count = jnp.sum(w, axis=(-2, -1))
+        nll = -jnp.sum(w * out.log_prob, axis=(-2, -1)) / jnp.maximum(count, 1.0)
+        return nll, count > 0, out.log_prob
+
+    return evaluate
+
+
+def evaluate_nll(model: LSDNet, params, data: dict, idx: np.ndarray, stage: int = 2,
+                 batch_size: int = 32) -> float:
+    """Mean per-path-cell NLL over samples ``idx`` (samples without path cells skipped)."""
+    if len(idx) == 0:
+        return float("nan")
+    fn = make_eval_fn(model, stage)
+    tot, n = 0.0, 0
+    for i in range(0, len(idx), batch_size):
+        sel = idx[i:i + batch_size]
+        pad = batch_size - len(sel)
+        b = gather_batch(data, np.concatenate([sel, np.repeat(sel[:1], pad)]))  # one compile
+        nll, has, _ = fn(params, b)
+        nll, has = np.asarray(nll)[:len(sel)], np.asarray(has)[:len(sel)]
+        tot += float(nll[has].sum())
+        n += int(has.sum())
+    return tot / max(n, 1)
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+
+class _Checkpoints:
+    """Thin orbax wrapper: keep-latest-N, StandardSave / StandardRestore of a pytree."""
+
+    def __init__(self, directory: pathlib.Path, keep: int):
+        import orbax.checkpoint as ocp
+
+        self._ocp = ocp
+        directory.mkdir(parents=True, exist_ok=True)
+        self.manager = ocp.CheckpointManager(
+            directory.resolve(), options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
+        )
+
+    def latest_step(self):
+        return self.manager.latest_step()
+
+    def save(self, step: int, state) -> None:
+        self.manager.save(step, args=self._ocp.args.StandardSave(state), force=True)
+
+    def restore(self, step: int, like):
+        abstract = jax.tree_util.tree_map(self._ocp.utils.to_shape_dtype_struct, like)
+        return self.manager.restore(step, args=self._ocp.args.StandardRestore(abstract))
+
+    def close(self) -> None:
+        self.manager.wait_until_finished()
+        self.manager.close()
+
+
+def _state_like(model_params, config: TrainConfig, stage: int):
+    trainable, _ = _trainable(model_params, stage)
+    return {"params": model_params, "opt_state": _optimizer(config, stage).init(trainable),
+            "step": np.zeros((), np.int64)}
+
+
+def config_to_dict(config: TrainConfig) -> dict:
+    d = dataclasses.asdict(config)
+    d["model"]["features"] = list(d["model"]["features"])
+    return d
+
+
+def config_from_dict(d: dict) -> TrainConfig:
+    d = dict(d)
+    model = dict(d.pop("model"))
+    model["features"] = tuple(model["features"])
+    d.pop("data_dir", None)
+    return TrainConfig(model=LSDConfig(**model), **{k: v for k, v in d.items() if k in
+                                                     {f.name for f in dataclasses.fields(TrainConfig)}})
+
+
+def load_trained(workdir, step: int | None = None):
+    """``(model, params, config)`` from a training ``workdir`` (its ``config.json`` and latest
+    checkpoint, or ``step``). ``ValueError`` if there is none."""
+    workdir = pathlib.Path(workdir)
+    cfg_path = workdir / "config.json"
+    if not cfg_path.exists():
+        raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
+    config = config_from_dict(json.loads(cfg_path.read_text()))
+    dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
+    model, params = init_lsd(jax.random.PRNGKey(config.seed), config.model, dtype)
+    ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
+    try:
+        step = ckpt.latest_step() if step is None else step
+        if step is None:
+            raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
+        state = ckpt.restore(step, _state_like(params, config, _stage_of(max(step - 1, 0), config)))
+    finally:
+        ckpt.close()
+    return model, state["params"], config
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str = "") -> None:
+    """PNG of predicted distributions over the partial maps (one column per sample).
+
+    Row 1: the partial occupancy (white free, grey unknown, black occupied) with objects (door
+    green, window blue, exit sign red) and the expert path (magenta). Row 2: log10 of the
+    predicted probability over the same map, the path on top, the goal direction as an arrow.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    occ, sem, ctx, mask = (np.asarray(batch[k]) for k in ("occupancy", "semantic", "context", "path_mask"))
+    n = len(occ)
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 6.4), squeeze=False)
+    for i in range(n):
+        k = occ[i].shape[0]
+        img = np.full(occ[i].shape + (3,), 0.6)
+        img[occ[i] == 0] = 1.0
+        img[occ[i] == 1] = 0.0
+        for cls, col in ((2, (0.1, 0.7, 0.1)), (3, (0.2, 0.4, 1.0)), (4, (1.0, 0.1, 0.1))):
+            img[sem[i] == cls] = col
+        ax = axes[0, i]
+        ax.imshow(img, origin="lower", interpolation="nearest")
+        pr, pc = np.nonzero(mask[i])
+        ax.scatter(pc, pr, s=1, c="m")
+        ax.set_title(f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7)
+        ax = axes[1, i]
+        im = ax.imshow(np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis")
+        ax.contour(occ[i] == 1, levels=[0.5], colors="w", linewidths=0.4)
+        ax.scatter(pc, pr, s=1, c="m", alpha=0.5)
+        c = k / 2
+        ax.arrow(c, c, 0.3 * k * ctx[i, 0], 0.3 * k * ctx[i, 1], color="r", width=0.8)
+        fig.colorbar(im, ax=ax, fraction=0.046, label="log10 p")
+        ax.set_title("predicted distribution", fontsize=8)
+        for a in axes[:, i]:
+            a.set_xticks([])
+            a.set_yticks([])
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- main entry
+
+
+def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool = True) -> TrainResult:
+    """Trains the LSD network in two stages; checkpoints, metrics and figures go to ``workdir``.
+
+    config: :class:`TrainConfig`; workdir: folder (created); an existing checkpoint there is
+    resumed. data: a dict of arrays in the expert-shard schema, or shard paths / a folder of
+    ``expert_*.npz``; default: ``workdir / 'data'``. progress: tqdm bar. Returns a
+    :class:`TrainResult`.
+    """
+    if not isinstance(config, TrainConfig):
+        raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
+    workdir = pathlib.Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    if data is None:
+        data = workdir / "data"
+    if not isinstance(data, dict):
+        data = load_expert_data(data)
+    check_expert_data(data, config.model.map_size, config.model.context_dim)
+    cfg_json = json.dumps(config_to_dict(config), indent=1)
+    cfg_path = workdir / "config.json"
+    if cfg_path.exists() and json.loads(cfg_path.read_text()) != json.loads(cfg_json):
+        old = config_from_dict(json.loads(cfg_path.read_text()))
+        if old.model != config.model:
+            raise ValueError(
+                f"config: model {config.model} differs from the one in {str(cfg_path)!r} "
+                f"({old.model}); use a new workdir"
+            )
+    cfg_path.write_text(cfg_json)
+
+    dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
+    key = jax.random.PRNGKey(config.seed)
+    model, params = init_lsd(key, config.model, dtype)
+    # Dropout / augmentation keys use the 'rbg' generator: threefry dropout masks made the
+    # train step's compile 2-3x slower on this CPU (measured 42 s vs 19 s under load).
+    drop_key = jax.random.key(config.seed, impl="rbg")
+    train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed)
+    fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
+
+    ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
+    metrics_path = workdir / "metrics.json"
+    history = json.loads(metrics_path.read_text()) if metrics_path.exists() else []
+    start = 0
+    latest = ckpt.latest_step()
+    stage = _stage_of(0, config)
+    opt_state = None
+    if latest is not None:
+        saved_stage = _stage_of(max(latest - 1, 0), config)
+        state = ckpt.restore(latest, _state_like(params, config, saved_stage))
+        params, start = state["params"], int(state["step"])
+        if _stage_of(start, config) == saved_stage:
+            opt_state = state["opt_state"]
+        history = [h for h in history if h["step"] <= start]
+    resumed_from = start
+
+    bar = None
+    if progress and config.total_steps > start:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config.total_steps, initial=start, desc="lsd train", unit="step")
+    uniform_nll = float(np.log(config.model.map_size ** 2))
+    figures = workdir / "figures"
+    figures.mkdir(exist_ok=True)
+    step = start
+    steps_fn = {}
+    recent = []
+
+    def evaluate(stage_now: int):
+        val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
+        b = gather_batch(data, fig_idx)
+        _, _, lp = make_eval_fn(model, stage_now)(params, b)
+        fig = figures / f"eval_{step:06d}.png"
+        save_distribution_figure(
+            fig, b, np.asarray(lp),
+            f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})")
+        rec = {"step": step, "stage": stage_now,
+               "train_nll": float(np.mean(recent)) if recent else float("nan"),
+               "val_nll": val_nll, "uniform_nll": uniform_nll, "figure": str(fig), "time": time.time()}
+        history.append(rec)
+        metrics_path.write_text(json.dumps(history, indent=1))
+        return rec
+
+    try:
+        while step < config.total_steps:
+            stage = _stage_of(step, config)
+            tx = _optimizer(config, stage)
+            if opt_state is None:
+                opt_state = tx.init(_trainable(params, stage)[0])
+            if stage not in steps_fn:
+                steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
+            batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
+            skey = jax.random.fold_in(drop_key, step)
+            params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
+            step += 1
+            recent.append(float(loss))
+            recent = recent[-50:]
+            if bar:
+                bar.update(1)
+                bar.set_postfix(stage=stage, nll=f"{np.mean(recent):.3f}")
+            end_of_stage = step == config.stage1_steps or step == config.total_steps
+            if step % config.eval_every == 0 or end_of_stage:
+                rec = evaluate(stage)
+                if bar:
+                    bar.write(f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
+                              f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})")
+            if step % config.checkpoint_every == 0 or end_of_stage:
+                ckpt.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
+            if step == config.stage1_steps:
+                opt_state = None  # stage two: a fresh optimiser over the context branch
+                recent = []
+    finally:
+        if bar:
+            bar.close()
+        ckpt.close()
+    return TrainResult(model, params, history, resumed_from, workdir)
