@@ -200,7 +200,7 @@ class FrontEndConfig:
             raise ValueError(f"FrontEndConfig.color_order: expected 'rgb' or 'bgr', got {self.color_order!r}")
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # eq on an array field would be ambiguous
 class AssociatedDetection:
     """One input detection after association and texture-plane measurement.
 
