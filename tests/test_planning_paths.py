@@ -225,7 +225,7 @@ def test_roadmap_shapes_and_no_nan():
                        distribution=np.ones(occ.shape), weight="neglogp", radius=RADIUS)
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
-    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 10)
+    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 15)
 
 
 def test_embed_local_distribution():
@@ -267,6 +267,8 @@ def test_prm_bad_input():
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
     with pytest.raises(ValueError, match="weight"):
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="l1")
+    with pytest.raises(ValueError, match="k"):
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, k=0)
 
 
 def test_roadmap_builder_vmaps_over_trials():

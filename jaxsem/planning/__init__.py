@@ -1,5 +1,23 @@
 """LSD planning world: procedural buildings, ray-cast sensors, soft-cost shortest paths, PRM,
-the online navigation loop and expert data generation (thesis chapter 3)."""
+the online navigation loop and expert data generation (thesis chapter 3).
+
+Conventions: grids are ``[row, col] = [y, x]`` with an explicit ``origin`` (world x, y of the
+corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); world z is up.
+
+- World (:func:`generate_building`, :class:`Building`): ``occupancy`` (H, W) bool, ``semantic``
+  (H, W) int8 with ``NONE, WALL, DOOR, WINDOW, EXIT_SIGN = 0, 1, 2, 3, 4``, ``indoor`` mask;
+  families 'train' / 'test' (disjoint seed streams, different size and room ranges).
+- Partial maps (:class:`MapState`): occupancy int8 ``UNKNOWN, FREE, OCCUPIED = -1, 0, 1`` and a
+  semantic int8 map of the objects seen; :func:`sense` updates them (jitted, vmappable).
+- Expert / C*: :class:`SoftCostGraph` (scipy Dijkstra, cost rising near walls),
+  :func:`shortest_path`.
+- PRM: :func:`build_roadmap` (checked, jitted), :func:`make_roadmap_builder` (pure, vmappable),
+  :func:`roadmap_shortest_path` (scipy, host), :func:`embed_local_distribution` (section 3.2.5).
+- Online loop: :func:`navigate` / :class:`Trial` with ``sampler=None`` (uniform) or a function
+  of :class:`LocalInputs` (160 x 160 crops + context) returning a 160 x 160 distribution.
+- Data: :func:`generate_expert_samples`, :func:`write_expert_dataset`,
+  :func:`load_expert_dataset` (schema: ``EXPERT_SCHEMA``), :func:`sample_tasks` ('II' / 'IO').
+"""
 
 from ._buildings import (
     BuildingParams as BuildingParams,

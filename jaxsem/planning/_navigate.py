@@ -93,7 +93,7 @@ class NavConfig:
     """Settings of the online loop (thesis 3.3.3 defaults where it gives them)."""
 
     n_samples: int = 500
-    k: int = 10
+    k: int = 15  # PRM neighbours per vertex (see jaxsem.planning._prm)
     radius: float | None = None  # PRM connection radius (m); None: default_radius(n_samples)
     step_length: float = 0.25  # metres moved per timestep
     replan_every: int = 20  # planning timesteps a plan is followed before replanning
