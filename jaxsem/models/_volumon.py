@@ -201,6 +201,8 @@ class VoluMonConfig:
       hidden: widths of the fully connected layers of each head.
       num_classes: N; the heads output N x 10 free parameters (and N class logits if N > 1).
       global_padding: fraction of the box size kept around the box in the masked global image.
+      backbone: "mobilenet_v2" (the thesis) or "small_cnn" (four strided 3x3 convolutions with
+        batch norm: compiles in seconds; for unit tests and the quick demo only).
     """
 
     width_multiplier: float = 0.35
@@ -208,14 +210,31 @@ class VoluMonConfig:
     hidden: tuple[int, ...] = (256, 128)
     num_classes: int = 1
     global_padding: float = 0.1
+    backbone: str = "mobilenet_v2"
 
     def __post_init__(self):
+        if self.backbone not in ("mobilenet_v2", "small_cnn"):
+            raise ValueError(f"backbone: expected 'mobilenet_v2' or 'small_cnn', got {self.backbone!r}")
         if not self.width_multiplier > 0:
             raise ValueError(f"width_multiplier: expected > 0, got {self.width_multiplier}")
         if int(self.input_size) < 32:
             raise ValueError(f"input_size: expected >= 32 pixels, got {self.input_size}")
         if int(self.num_classes) < 1:
             raise ValueError(f"num_classes: expected >= 1, got {self.num_classes}")
+
+
+class SmallCNN(nn.Module):
+    """Four strided 3x3 conv + batch norm + ReLU layers and global pooling (test-sized backbone)."""
+
+    width: int = 16
+
+    @nn.compact
+    def __call__(self, x, train: bool = False):
+        for i, c in enumerate((self.width, 2 * self.width, 4 * self.width, 4 * self.width)):
+            x = nn.Conv(c, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)), use_bias=False, name=f"conv{i}")(x)
+            x = nn.BatchNorm(use_running_average=not train, momentum=0.9, name=f"bn{i}")(x)
+            x = nn.relu(x)
+        return jnp.mean(x, axis=(-3, -2))
 
 
 class VoluMonOutput(NamedTuple):
@@ -255,8 +274,12 @@ class VoluMonNet(nn.Module):
         # ImageNet normalisation, as torchvision's pretrained MobileNetV2 expects
         mean = jnp.array([0.485, 0.456, 0.406], local_patch.dtype)
         std = jnp.array([0.229, 0.224, 0.225], local_patch.dtype)
-        fl = MobileNetV2(cfg.width_multiplier, name="local_backbone")((local_patch - mean) / std, train)
-        fg = MobileNetV2(cfg.width_multiplier, name="global_backbone")((global_image - mean) / std, train)
+        if cfg.backbone == "mobilenet_v2":
+            make = lambda name: MobileNetV2(cfg.width_multiplier, name=name)
+        else:
+            make = lambda name: SmallCNN(name=name)
+        fl = make("local_backbone")((local_patch - mean) / std, train)
+        fg = make("global_backbone")((global_image - mean) / std, train)
         small = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
         h = fl
         for i, w in enumerate(cfg.hidden):

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import metrics
-from ..quadrics import surface_points
 
 NUM_TRUE_POINTS = 300
 NUM_PRED_POINTS = 600
@@ -35,14 +34,35 @@ def cuboid_surface_points(key, rotation, center, half_extents, n: int):
     return jnp.einsum("...ij,...nj->...ni", rotation, local) + center[..., None, :]
 
 
+def _sphere_directions(n: int) -> np.ndarray:
+    """Fibonacci-lattice unit vectors (n, 3): deterministic, near-uniform on the sphere."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5**0.5) * i
+    rho = np.sqrt(1 - z * z)
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], -1)
+
+
+def _cuboid_unit_points(n: int, half) -> np.ndarray:
+    """Deterministic area-weighted points on a cuboid of half extents ``half`` (B, 3) -> (B, n, 3)."""
+    rng = np.random.default_rng(12345)
+    half = np.asarray(half, np.float64)
+    areas = np.stack([half[:, 1] * half[:, 2], half[:, 0] * half[:, 2], half[:, 0] * half[:, 1]], -1)
+    u = rng.uniform(-1, 1, size=(half.shape[0], n, 3))
+    sign = np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0)
+    c = np.cumsum(areas / areas.sum(-1, keepdims=True), -1)
+    axis = (rng.uniform(size=(half.shape[0], n))[..., None] > c[:, None, :]).sum(-1)
+    onehot = np.eye(3)[axis]
+    u = u * (1 - onehot) + onehot * sign[..., None]
+    return u * half[:, None, :]
+
+
 @jax.jit
-def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, gt_h, gt_shape):
-    key = jax.random.PRNGKey(0)
+def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, gt_local, pred_dirs, gt_h):
+    # deterministic sample sets (no threefry: its compile costs seconds on this CPU)
     trans = jnp.linalg.norm(pred_t - gt_t, axis=-1)
-    true_cub = cuboid_surface_points(key, gt_R, gt_t, gt_h, NUM_TRUE_POINTS)
-    true_ell = surface_points(key, gt_R, gt_t, gt_h, NUM_TRUE_POINTS)
-    true_pts = jnp.where((gt_shape == 0)[:, None, None], true_cub, true_ell)
-    pred_pts = surface_points(jax.random.fold_in(key, 1), pred_R, pred_t, pred_r, NUM_PRED_POINTS)
+    true_pts = jnp.einsum("bij,bnj->bni", gt_R, gt_local) + gt_t[:, None, :]
+    pred_pts = jnp.einsum("bij,bnj->bni", pred_R, pred_dirs[None] * pred_r[:, None, :]) + pred_t[:, None, :]
     adi = metrics.adi(true_pts, pred_pts)
     iou = metrics.iou_3d_boxes(gt_R, gt_t, gt_h, pred_R, pred_t, pred_r)
     return trans, adi, iou
@@ -75,7 +95,13 @@ def evaluate_predictions(pred, gt, max_threshold: float = 0.1) -> dict:
 def detection_errors(pred, gt):
     """Per-detection (translation error, ADI, IoU) numpy arrays over the unskipped samples."""
     keep = np.asarray(gt.get("sample_mask", np.ones(len(gt["gt_center"]), bool)), bool)
-    f = lambda x: jnp.asarray(np.asarray(x)[keep], jnp.float32)
-    trans, adi, iou = _errors(f(pred["rotation"]), f(pred["center"]), f(pred["radii"]), f(gt["gt_rotation"]),
-                              f(gt["gt_center"]), f(gt["gt_half_extents"]), jnp.asarray(np.asarray(gt["gt_shape_id"])[keep]))
+    sel = lambda x: np.asarray(x)[keep]
+    gt_h = sel(gt["gt_half_extents"]).astype(np.float64)
+    shape = sel(gt["gt_shape_id"])
+    dirs = _sphere_directions(NUM_TRUE_POINTS)
+    local = np.where((shape == 0)[:, None, None], _cuboid_unit_points(NUM_TRUE_POINTS, gt_h), dirs[None] * gt_h[:, None, :])
+    f = lambda x: jnp.asarray(x, jnp.float32)
+    trans, adi, iou = _errors(f(sel(pred["rotation"])), f(sel(pred["center"])), f(sel(pred["radii"])),
+                              f(sel(gt["gt_rotation"])), f(sel(gt["gt_center"])), f(local),
+                              f(_sphere_directions(NUM_PRED_POINTS)), f(gt_h))
     return np.asarray(trans), np.asarray(adi), np.asarray(iou)

@@ -97,8 +97,10 @@ _FACE_TINTS = jnp.array(
 )
 
 
-def render_sample(key, pose, K, height: int, width: int, split_test: bool):
-    """Render one sample; ``pose`` is a dict of traced scene parameters (see :func:`sample_poses`).
+def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
+    """Render one sample; ``pose`` is a dict of traced scene parameters (see :func:`sample_poses`),
+    ``noise`` a dict of host-drawn random numbers (``light`` (3,), ``bg0``, ``bg1`` (3,), ``bg_noise``
+    (H, W, 3)): drawn with numpy, because threefry sampling costs seconds of XLA compile per call.
 
     Returns image (H, W, 3) float32 in [0, 1], depth (H, W) (0 = background), mask (H, W) bool.
     """
@@ -121,15 +123,12 @@ def render_sample(key, pose, K, height: int, width: int, split_test: bool):
     sgn = (jnp.take_along_axis(q, ax[..., None], -1)[..., 0] > 0).astype(jnp.int32)
     tint = _FACE_TINTS[2 * ax + sgn]
     n_cam = n_obj @ R.T
-    k1, k2, k3, k4 = jax.random.split(key, 4)
-    light = jax.random.normal(k1, (3,)) * 0.5 + jnp.array([0.3, -0.6, -1.0])
+    light = noise["light"] * 0.5 + jnp.array([0.3, -0.6, -1.0])
     light = light / jnp.linalg.norm(light)
     shade = 0.4 + 0.6 * jnp.clip(jnp.sum(n_cam * light, -1), 0.0, 1.0)  # light: towards the camera
     obj_rgb = color * tint * shade[..., None]
-    c0 = jax.random.uniform(k2, (3,))
-    c1 = jax.random.uniform(k3, (3,))
     g = (us / width)[..., None]
-    bg = c0 * (1 - g) + c1 * g + 0.08 * jax.random.normal(k4, (height, width, 3))
+    bg = noise["bg0"] * (1 - g) + noise["bg1"] * g + 0.08 * noise["bg_noise"]
     stripes = 0.5 + 0.5 * jnp.sin((us + 0.7 * vs) / 4.0)[..., None] * jnp.array([0.9, 0.2, 0.6])
     bg = jnp.where(split_test, 0.5 * bg + 0.5 * stripes, bg)
     image = jnp.clip(jnp.where(hit[..., None], obj_rgb, bg), 0.0, 1.0)
@@ -181,30 +180,43 @@ def sample_poses(seed: int, indices, scene: SceneConfig):
     return {k: np.asarray(v, np.int32 if k in ("shape_id", "class_id") else np.float32) for k, v in out.items()}
 
 
+def sample_noise(seed: int, indices, scene: SceneConfig):
+    """Host-drawn random numbers of the rendering (deterministic in (seed, index))."""
+    H, W = scene.height, scene.width
+    out = {k: [] for k in ("light", "bg0", "bg1", "bg_noise", "box_noise", "point_scores")}
+    for i in np.asarray(indices).ravel():
+        rng = np.random.default_rng([int(seed), int(i), 1])
+        out["light"].append(rng.normal(size=3))
+        out["bg0"].append(rng.uniform(size=3))
+        out["bg1"].append(rng.uniform(size=3))
+        out["bg_noise"].append(rng.normal(size=(H, W, 3)))
+        out["box_noise"].append(rng.normal(size=4))
+        out["point_scores"].append(rng.uniform(size=H * W))
+    return {k: jnp.asarray(np.asarray(v, np.float32)) for k, v in out.items()}
+
+
 def _true_box(pose, K, camera_T):
     cub = cuboid_box(pose["rotation"], pose["center"], pose["half"], K, camera_T)
     ell, _ = project_bbox(pose["rotation"], pose["center"], pose["half"], K, camera_T)
     return jnp.where(pose["shape_id"] == 0, cub, ell)
 
 
-def _render_batch(keys, poses, K, baseline, scene: SceneConfig, input_size: int, padding: float, split_test: bool, noisy_scale):
+def _render_batch(noise, poses, K, baseline, scene: SceneConfig, input_size: int, padding: float, split_test: bool, noisy_scale):
     H, W, J = scene.height, scene.width, scene.num_points
 
-    def one(key, pose):
-        kr, kp, kn = jax.random.split(key, 3)
-        image, depth, mask = render_sample(kr, pose, K, H, W, split_test)
+    def one(noise, pose):
+        image, depth, mask = render_sample(noise, pose, K, H, W, split_test)
         eye = jnp.eye(4, dtype=jnp.float32)
         right = eye.at[0, 3].set(-baseline)
         box_l = _true_box(pose, K, eye)
         box_r = _true_box(pose, K, right)
         size = box_l[2:] - box_l[:2]
-        noise = noisy_scale * jax.random.normal(kn, (4,)) * jnp.concatenate([size, size])
-        box_in = box_l + noise
+        box_in = box_l + noisy_scale * noise["box_noise"] * jnp.concatenate([size, size])
         box_in = jnp.concatenate([jnp.minimum(box_in[:2], box_in[2:] - 1.0), box_in[2:]])
         box_in = jnp.clip(box_in, -0.5, jnp.array([W - 0.5, H - 0.5, W - 0.5, H - 0.5]))
         # surface points: J distinct mask pixels drawn uniformly (top-k of random scores; far
         # cheaper on CPU than categorical sampling), back-projected with the depth
-        scores = jnp.where(mask.ravel(), jax.random.uniform(kp, (H * W,)), -1.0)
+        scores = jnp.where(mask.ravel(), noise["point_scores"], -1.0)
         any_hit = jnp.any(mask)
         _, idx = jax.lax.top_k(scores, J)
         r, c = idx // W, idx % W
@@ -224,7 +236,7 @@ def _render_batch(keys, poses, K, baseline, scene: SceneConfig, input_size: int,
             "image": image,
         }
 
-    return jax.vmap(one)(keys, poses)
+    return jax.vmap(one)(noise, poses)
 
 
 _render_batch_jit = jax.jit(_render_batch, static_argnames=("scene", "input_size", "padding", "split_test"))
@@ -247,11 +259,9 @@ def make_batch(seed: int, indices, scene: SceneConfig = SceneConfig(), input_siz
     indices = np.asarray(indices).ravel()
     poses = sample_poses(seed + (0 if split == "train" else 7919), indices, scene)
     K = jnp.asarray(scene.K())
-    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(seed + (0 if split == "train" else 7919)), i))(
-        jnp.asarray(indices, jnp.uint32)
-    )
+    noise = sample_noise(seed + (0 if split == "train" else 7919), indices, scene)
     jp = {k: jnp.asarray(v) for k, v in poses.items() if k != "class_id"}
-    out = _render_batch_jit(keys, jp, K, jnp.float32(scene.baseline), scene, int(input_size), float(padding),
+    out = _render_batch_jit(noise, jp, K, jnp.float32(scene.baseline), scene, int(input_size), float(padding),
                             split == "test", jnp.float32(scene.box_noise if noisy else 0.0))
     out = dict(out)
     if not keep_images:

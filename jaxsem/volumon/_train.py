@@ -2,13 +2,14 @@
 
 Exact resume: the train state (step, params, batch-norm statistics, Adam state, PRNG key) is
 checkpointed every ``checkpoint_every`` steps; the data of step ``s`` is a pure function of
-``(seed, s)`` (epoch permutations seeded by ``(seed, epoch)``) and the augmentation key is
-``fold_in(rng, s)``, so a run interrupted after any checkpoint and restarted with the same config
+``(seed, s)`` (epoch permutations seeded by ``(seed, epoch)``, augmentation numbers by
+``(seed, s)``), so a run interrupted after any checkpoint and restarted with the same config
 and workdir reproduces the uninterrupted run step for step.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import pathlib
 import time
@@ -44,32 +45,40 @@ def _hue_saturation(img, hue, sat):
     return jnp.clip(gray + sat * rot, 0.0, 1.0)
 
 
-def _erase(key, img, prob=0.5):
+def _erase(img, rect, on, val):
     S = img.shape[0]
-    k1, k2, k3, k4 = jax.random.split(key, 4)
-    wh = jax.random.uniform(k1, (2,), minval=0.1, maxval=0.4) * S
-    xy = jax.random.uniform(k2, (2,)) * (S - wh)
+    wh = rect[2:] * S
+    xy = rect[:2] * (S - wh)
     r = jnp.arange(S, dtype=img.dtype)
     inside = ((r >= xy[1]) & (r < xy[1] + wh[1]))[:, None] & ((r >= xy[0]) & (r < xy[0] + wh[0]))[None, :]
-    on = jax.random.uniform(k3) < prob
-    val = jax.random.uniform(k4, (3,))
     return jnp.where(on & inside[..., None], val, img)
 
 
-def augment(key, local, glob):
-    """Per-sample hue (+-0.1 turn) and saturation (0.7-1.3) jitter on both inputs, random erasing
-    on the local patch. local, glob: (B, S, S, 3)."""
-    B = local.shape[0]
-    keys = jax.random.split(key, 3 * B).reshape(B, 3, 2)
+def augmentation_params(seed: int, step: int, batch_size: int, erase_prob: float = 0.5):
+    """Host-drawn augmentation numbers of ``step`` (numpy: deterministic in (seed, step), and no
+    threefry compile): hue (+-0.1 turn), saturation (0.7-1.3), erase rectangle, on/off, colour."""
+    rng = np.random.default_rng([seed, 15485863, step])
+    B = batch_size
+    rect = np.concatenate([rng.uniform(size=(B, 2)), rng.uniform(0.1, 0.4, size=(B, 2))], -1)
+    return {
+        "hue": rng.uniform(-0.2 * np.pi, 0.2 * np.pi, B).astype(np.float32),
+        "sat": rng.uniform(0.7, 1.3, B).astype(np.float32),
+        "erase_rect": rect.astype(np.float32),
+        "erase_on": rng.uniform(size=B) < erase_prob,
+        "erase_val": rng.uniform(size=(B, 3)).astype(np.float32),
+    }
 
-    def one(k, lo, gl):
-        hue = jax.random.uniform(k[0], (), minval=-0.2 * jnp.pi, maxval=0.2 * jnp.pi)
-        sat = jax.random.uniform(k[1], (), minval=0.7, maxval=1.3)
-        lo = _hue_saturation(lo, hue, sat)
-        gl = _hue_saturation(gl, hue, sat) * (jnp.max(gl, -1, keepdims=True) > 0)  # keep zeros zero
-        return _erase(k[2], lo), gl
 
-    return jax.vmap(one)(keys, local, glob)
+def augment(aug, local, glob):
+    """Per-sample hue / saturation jitter on both inputs and random erasing on the local patch
+    (thesis 5.5.2). ``aug`` from :func:`augmentation_params`; local, glob: (B, S, S, 3)."""
+
+    def one(a, lo, gl):
+        lo = _hue_saturation(lo, a["hue"], a["sat"])
+        gl = _hue_saturation(gl, a["hue"], a["sat"]) * (jnp.max(gl, -1, keepdims=True) > 0)  # keep zeros zero
+        return _erase(lo, a["erase_rect"], a["erase_on"], a["erase_val"]), gl
+
+    return jax.vmap(one)(aug, local, glob)
 
 
 # --------------------------------------------------------------------------------------------
@@ -90,6 +99,7 @@ def predict_params(model: VoluMonNet, variables, local, glob, class_id=None, cla
     return phi, out.class_logits, new_vars
 
 
+@functools.lru_cache(maxsize=16)
 def make_predict_fn(model: VoluMonNet, config: TrainConfig) -> Callable:
     """Jitted ``(variables, local, glob, box, K, class_id) -> (phi (B,10), Ellipsoid)`` for inference."""
 
@@ -101,15 +111,21 @@ def make_predict_fn(model: VoluMonNet, config: TrainConfig) -> Callable:
     return predict
 
 
+@functools.lru_cache(maxsize=16)
+def _model_and_init(model_config, learning_rate):
+    model = VoluMonNet(model_config)
+    s = model_config.input_size
+    x = jnp.zeros((1, s, s, 3), jnp.float32)
+    init = jax.jit(lambda key: model.init(key, x, x, train=False))
+    return model, init, optax.adam(learning_rate)
+
+
 def init_state(config: TrainConfig):
     """Fresh train state (a dict pytree) and the model and optimiser."""
-    model = VoluMonNet(config.model)
+    model, init, tx = _model_and_init(config.model, config.learning_rate)
     key = jax.random.PRNGKey(config.seed)
     k_init, k_rng = jax.random.split(key)
-    s = config.model.input_size
-    x = jnp.zeros((1, s, s, 3), jnp.float32)
-    variables = model.init(k_init, x, x, train=False)
-    tx = optax.adam(config.learning_rate)
+    variables = init(k_init)
     state = {
         "step": jnp.zeros((), jnp.int32),
         "params": variables["params"],
@@ -135,16 +151,21 @@ def batch_indices(config: TrainConfig, step: int) -> np.ndarray:
 def get_train_batch(config: TrainConfig, step: int):
     batch = make_batch(config.seed, batch_indices(config, step), config.scene, config.model.input_size,
                        config.model.global_padding, "train", config.noisy)
-    return {k: batch[k] for k in TRAIN_KEYS}
+    out = {k: batch[k] for k in TRAIN_KEYS}
+    if config.augment:
+        out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))
+    return out
 
 
+@functools.lru_cache(maxsize=16)
 def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
+    """Jitted ``(state, batch) -> (state, loss terms)`` (cached per config: no recompiles across runs)."""
     n = config.model.num_classes
 
-    def loss_fn(params, batch_stats, batch, key):
+    def loss_fn(params, batch_stats, batch):
         local, glob = batch["local"], batch["global"]
         if config.augment:
-            local, glob = augment(key, local, glob)
+            local, glob = augment(batch["aug"], local, glob)
         phi, logits, new_vars = predict_params(
             model, {"params": params, "batch_stats": batch_stats}, local, glob, batch["class_id"], config.class_mode, train=True
         )
@@ -154,9 +175,8 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
 
     @jax.jit
     def train_step(state, batch):
-        key = jax.random.fold_in(state["rng"], state["step"])
         (_, (terms, new_bs)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
-            state["params"], state["batch_stats"], batch, key
+            state["params"], state["batch_stats"], batch
         )
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
@@ -246,7 +266,7 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
                 metrics_file.write(json.dumps({"step": step + 1, "eval": ev}) + "\n")
                 if log is not None:
                     log(f"eval step {step + 1}: " + " ".join(f"{k}={v:.4g}" for k, v in ev.items()))
-        if end == config.num_steps:
+        if end == config.num_steps and config.num_eval > 0:
             result_eval = evaluate(model, state, config)
             (workdir / "eval.json").write_text(json.dumps(result_eval, indent=1))
     finally:
