@@ -22,7 +22,7 @@ def main(argv=None):
     ap.add_argument("--buildings", type=int, default=20, help="number of buildings (seeds)")
     ap.add_argument("--first-seed", type=int, default=0, help="seed of the first building")
     ap.add_argument("--samples-per-building", type=int, default=200)
-    ap.add_argument("--goals-per-moment", type=int, default=4)
+    ap.add_argument("--goals-per-moment", type=int, default=8)
     ap.add_argument("--sample-prob", type=float, default=0.1, help="chance per step of a sampling moment")
     ap.add_argument("--nav-samples", type=int, default=1000, help="PRM samples of the navigating robot")
     ap.add_argument("--workers", type=int, default=2, help="processes (parallel over buildings)")
