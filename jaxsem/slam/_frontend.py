@@ -782,10 +782,22 @@ class FrontEnd:
             winSize=(cfg.lk_window, cfg.lk_window), maxLevel=cfg.lk_levels,
             criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
         )
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, p0, None, **params)
-        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._prev_gray, p1, None, **params)
-        p0, p1, p0r = p0.reshape(-1, 2), p1.reshape(-1, 2), p0r.reshape(-1, 2)
+        # LK builds image pyramids of whatever it is given: crop both images to the corners'
+        # bounding box plus the tracker's reach (window times the coarsest level's scale).
         h, w = gray.shape
+        reach = cfg.lk_window * 2 ** cfg.lk_levels + 8
+        lo = np.floor(p0.reshape(-1, 2).min(axis=0)) - reach
+        hi = np.ceil(p0.reshape(-1, 2).max(axis=0)) + reach + 1
+        x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
+        x1, y1 = int(min(hi[0], w)), int(min(hi[1], h))
+        prev_crop = np.ascontiguousarray(self._prev_gray[y0:y1, x0:x1])
+        crop = np.ascontiguousarray(gray[y0:y1, x0:x1])
+        offset = np.array([x0, y0], dtype=np.float32)
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev_crop, crop, p0 - offset, None, **params)
+        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(crop, prev_crop, p1, None, **params)
+        p1 = p1 + offset
+        p0r = p0r + offset
+        p0, p1, p0r = p0.reshape(-1, 2), p1.reshape(-1, 2), p0r.reshape(-1, 2)
         fb = np.linalg.norm(p0 - p0r, axis=-1)
         keep = (
             (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb <= cfg.max_forward_backward_error)
@@ -875,14 +887,24 @@ class FrontEnd:
         if lm.points.shape[0] >= cfg.redetect_fraction * cfg.max_features and lm.points.shape[0] > 0:
             return
         x0, y0, x1, y1 = _box_pixels(box, gray.shape, cfg.box_shrink)
-        mask = np.zeros(gray.shape, dtype=np.uint8)
-        mask[y0:y1, x0:x1] = 255
+        # ORB on a crop around the box, not the whole image (its cost scales with the area); the
+        # margin covers ORB's border exclusion at its coarsest level, so corners near the box
+        # edge survive as they would on the full image.
+        h, w = gray.shape
+        margin = int(math.ceil(cfg.orb_patch_size * 1.2 ** (cfg.orb_levels - 1))) + 2
+        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
+        cx1, cy1 = min(x1 + margin, w), min(y1 + margin, h)
+        crop = np.ascontiguousarray(gray[cy0:cy1, cx0:cx1])
+        mask = np.zeros(crop.shape, dtype=np.uint8)
+        mask[y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0] = 255
         for u, v in lm.points:  # keep new corners away from surviving ones
-            cv2.circle(mask, (int(round(float(u))), int(round(float(v)))), 3, 0, -1)
-        keypoints = self._orb.detect(gray, mask)
+            cv2.circle(mask, (int(round(float(u))) - cx0, int(round(float(v))) - cy0), 3, 0, -1)
+        keypoints = self._orb.detect(crop, mask)
         if not keypoints:
             return
+        keypoints = sorted(keypoints, key=lambda kp: -kp.response)
         new = np.array([kp.pt for kp in keypoints], dtype=np.float32).reshape(-1, 2)
+        new += np.array([cx0, cy0], dtype=np.float32)
         budget = max(cfg.max_features - lm.points.shape[0], 0)
         new = new[:budget]
         if new.shape[0] == 0:
