@@ -207,8 +207,12 @@ class Trial:
         dist = None
         if self.sampler is not None:
             inputs = self.local_inputs()
-            local = self.sampler(inputs)
-            dist = embed_local_distribution(jnp.asarray(local), inputs.center_cell, known.shape)
+            local = jnp.asarray(self.sampler(inputs))
+            if local.size != CROP_SIZE * CROP_SIZE:
+                raise ValueError(f"sampler: expected a ({CROP_SIZE}, {CROP_SIZE}) distribution (a leading "
+                                 f"axis of 1 is fine), got shape {tuple(local.shape)}")
+            local = local.reshape(CROP_SIZE, CROP_SIZE)
+            dist = embed_local_distribution(local, inputs.center_cell, known.shape)
             self.last_distribution = dist
         rm = build_roadmap(sub, known, self.xy, self.goal, cfg.n_samples, self.origin, self.resolution,
                            distribution=dist, k=cfg.k, radius=cfg.radius, weight=self.weight)
