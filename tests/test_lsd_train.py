@@ -1,0 +1,163 @@
+"""LSD training (jaxsem.lsd): two stages, frozen weights, checkpoint resume, sampler adapter."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem.lsd import (
+    LSDSampler,
+    TrainConfig,
+    dihedral_augment,
+    full_map_distribution,
+    load_trained,
+    split_by_building,
+    train_and_evaluate,
+)
+from jaxsem.models import LSDConfig, init_lsd, split_params
+
+K = 32
+MODEL = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8)
+
+
+def _data(n=8, seed=0):
+    """Synthetic expert samples: a corridor row; the path runs along it towards the goal side."""
+    rng = np.random.default_rng(seed)
+    occ = np.full((n, K, K), -1, np.int8)
+    sem = np.zeros((n, K, K), np.int8)
+    ctx = np.zeros((n, 4), np.float32)
+    mask = np.zeros((n, K, K), bool)
+    for i in range(n):
+        r = rng.integers(8, K - 8)
+        occ[i, r - 2] = occ[i, r + 2] = 1
+        occ[i, r - 1:r + 2] = 0
+        sem[i, r - 2, rng.integers(K)] = 2
+        right = i % 2 == 0
+        ctx[i] = [1.0 if right else -1.0, 0.0, 0.5, 0.0]
+        if right:
+            mask[i, r, K // 2:] = True
+        else:
+            mask[i, r, : K // 2 + 1] = True
+    return {"occupancy": occ, "semantic": sem, "context": ctx, "path_mask": mask,
+            "building_seed": np.arange(n) % 4}
+
+
+CFG = TrainConfig(model=MODEL, stage1_steps=2, stage2_steps=2, batch_size=4, eval_every=100,
+                  checkpoint_every=2, num_figure_samples=2, learning_rate=1e-2,
+                  stage2_learning_rate=1e-2)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    wd = tmp_path_factory.mktemp("lsd_a")
+    res = train_and_evaluate(CFG, wd, data=_data(), progress=False)
+    return wd, res
+
+
+def test_stage_two_leaves_encoder_decoder_bit_identical(run):
+    wd, res = run
+    _, after_stage1, _ = load_trained(wd, step=CFG.stage1_steps)
+    gen1, cs1 = split_params(after_stage1)
+    gen2, cs2 = split_params(res.params)
+    assert gen1 and cs1
+    for a, b in zip(jax.tree_util.tree_leaves(gen1), jax.tree_util.tree_leaves(gen2)):
+        assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
+    changed = [not np.array_equal(a, b) for a, b in
+               zip(jax.tree_util.tree_leaves(cs1), jax.tree_util.tree_leaves(cs2))]
+    assert all(changed)
+    # Stage one trains the encoder/decoder: they moved away from the initialisation.
+    _, init = init_lsd(jax.random.PRNGKey(CFG.seed), MODEL)
+    moved = [not np.array_equal(a, b) for a, b in
+             zip(jax.tree_util.tree_leaves(split_params(init)[0]), jax.tree_util.tree_leaves(gen1))]
+    assert all(moved)
+    # Evaluations wrote figures and metrics for both stages.
+    assert [h["stage"] for h in res.history] == [1, 2]
+    assert all((wd / "figures" / f"eval_{s:06d}.png").exists() for s in (2, 4))
+
+
+def test_checkpoint_resume_equals_uninterrupted(run, tmp_path):
+    wd, res = run
+    longer = dataclasses.replace(CFG, stage2_steps=4)
+    resumed = train_and_evaluate(longer, wd, data=_data(), progress=False)
+    assert resumed.resumed_from == 4
+    fresh = train_and_evaluate(longer, tmp_path / "b", data=_data(), progress=False)
+    assert fresh.resumed_from == 0
+    for a, b in zip(jax.tree_util.tree_leaves(resumed.params), jax.tree_util.tree_leaves(fresh.params)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    _, restored, cfg = load_trained(wd)
+    assert cfg.stage2_steps == 4
+    for a, b in zip(jax.tree_util.tree_leaves(restored), jax.tree_util.tree_leaves(resumed.params)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_training_errors_name_the_argument(tmp_path):
+    bad = _data()
+    bad["path_mask"] = bad["path_mask"][:, :, :5]
+    with pytest.raises(ValueError, match=r"data\['path_mask'\]: expected shape"):
+        train_and_evaluate(CFG, tmp_path, data=bad, progress=False)
+    with pytest.raises(ValueError, match="config: expected a jaxsem.lsd.TrainConfig"):
+        train_and_evaluate({"lr": 1}, tmp_path, data=_data(), progress=False)
+    with pytest.raises(ValueError, match="batch_size"):
+        TrainConfig(batch_size=0)
+    with pytest.raises(ValueError, match="workdir: no config.json"):
+        load_trained(tmp_path / "nothing")
+
+
+def test_split_by_building_holds_out_whole_buildings():
+    d = _data(n=12)
+    tr, va = split_by_building(d, 0.25, seed=0)
+    assert len(tr) + len(va) == 12 and len(va) > 0
+    assert not set(d["building_seed"][tr]) & set(d["building_seed"][va])
+
+
+def test_dihedral_augment_keeps_goal_direction_consistent():
+    # The path heads along the goal direction: after any flip/transpose it still does.
+    d = _data(n=8)
+    occ, sem, ctx, mask = dihedral_augment(jax.random.PRNGKey(3), d["occupancy"], d["semantic"],
+                                           d["context"], d["path_mask"])
+    for i in range(8):
+        r, c = np.nonzero(np.asarray(mask[i]))
+        centre = (K - 1) / 2
+        v = np.array([c.mean() - centre, r.mean() - centre])  # (x = cols, y = rows)
+        assert v @ np.asarray(ctx[i, :2]) > 0
+        assert int((np.asarray(occ[i]) == 1).sum()) == int((d["occupancy"][i] == 1).sum())
+
+
+def test_sampler_adapter_embedding_rule():
+    from jaxsem.planning import FREE, MapState, embed_local_distribution, local_inputs
+
+    model, params = init_lsd(jax.random.PRNGKey(1), MODEL)
+    sampler = LSDSampler(model, params)
+    H, W = 50, 70
+    rng = np.random.default_rng(0)
+    state = MapState(jnp.asarray(rng.integers(-1, 2, (H, W)), jnp.int8), jnp.zeros((H, W), jnp.int8))
+    origin, res = np.zeros(2), 0.1
+    xy, goal = np.array([2.05, 1.55]), np.array([6.0, 4.0])  # cell (row 15, col 20)
+    full = full_map_distribution(sampler, state, xy, goal, False, origin, res)
+    inputs = local_inputs(state, xy, goal, False, origin, res, K)
+    local = np.asarray(sampler(inputs), np.float64)
+    assert np.isclose(local.sum(), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(inputs.center_cell), [15, 20])
+    # Independent reference of section 3.2.5: window where it lies on the map, the window's
+    # minimum elsewhere, renormalised.
+    ref = np.full((H, W), local.min())
+    for i in range(K):
+        for j in range(K):
+            r, c = 15 - K // 2 + i, 20 - K // 2 + j
+            if 0 <= r < H and 0 <= c < W:
+                ref[r, c] = local[i, j]
+    ref /= ref.sum()
+    np.testing.assert_allclose(full, ref, rtol=1e-5)
+    np.testing.assert_allclose(full.sum(), 1.0, rtol=1e-5)
+    assert full.shape == (H, W) and np.all(full > 0)
+    # The crop the network saw is the partial map around the robot (inside the map).
+    np.testing.assert_array_equal(np.asarray(inputs.occupancy)[K // 2, K // 2], np.asarray(state.occupancy)[15, 20])
+    # uniform_mix keeps a floor; context-free mode works too.
+    mixed = LSDSampler(model, params, uniform_mix=0.5, use_context=False)(inputs)
+    assert float(jnp.min(mixed)) >= 0.5 / K**2 - 1e-9
+    np.testing.assert_allclose(float(jnp.sum(mixed)), 1.0, rtol=1e-5)
+    with pytest.raises(ValueError, match="uniform_mix"):
+        LSDSampler(model, params, uniform_mix=1.5)
+    del FREE, embed_local_distribution
