@@ -37,7 +37,7 @@ def _boxes(seed, n):
 def test_centroid_projects_inside_box_and_sizes_increase():
     phi, box = _phis(0, 200), _boxes(1, 200)
     for cfg in (ReconstructionConfig(), ReconstructionConfig(depth_mode="absolute", max_depth=50.0)):
-        ell = reconstruct(phi, box, K, cfg)
+        ell = jax.jit(lambda p, b: reconstruct(p, b, K, cfg))(phi, box)
         uvw = ell.center @ np.asarray(K).T
         uv = uvw[:, :2] / uvw[:, 2:]
         assert np.all(uvw[:, 2] > 0)
@@ -78,14 +78,13 @@ def test_ray_rotation_and_allocentric_inverse():
     rng = np.random.default_rng(3)
     d = rng.normal(size=(20, 3))
     d[:, 2] = np.abs(d[:, 2]) + 0.1
-    R = np.asarray(ray_rotation(jnp.asarray(d)))
+    R = np.asarray(jax.jit(ray_rotation)(jnp.asarray(d)))
     n = d / np.linalg.norm(d, axis=-1, keepdims=True)
     np.testing.assert_allclose(R[:, :, 2], n, atol=1e-12)  # takes e_z to the ray
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
     # the smallest rotation: its axis is perpendicular to both e_z and the ray
     phi, box = _phis(4, 20), _boxes(5, 20)
-    ell = reconstruct(phi, box, K)
-    allo = allocentric_rotation(ell.rotation, ell.center)
+    allo = jax.jit(lambda p, b: allocentric_rotation(*reconstruct(p, b, K)[:2]))(phi, box)
     np.testing.assert_allclose(allo, quadrics.quaternion_to_rotation(phi[:, 3:7]), atol=1e-10)
     np.testing.assert_allclose(ray_rotation(jnp.zeros(3)), np.eye(3))
 
@@ -93,11 +92,11 @@ def test_ray_rotation_and_allocentric_inverse():
 def test_reconstruct_no_nan_extremes_and_grad():
     phi = jnp.array([[80.0, -80, 0, 0, 0, 0, 0, 200, -200, -200.0], [0.0] * 10])  # zero quaternion too
     box = jnp.array([[10.0, 10, 10, 10], [5.0, 5, 6, 6]])  # zero-size box
+    total = lambda p, b, k: jnp.sum(jnp.concatenate([x.reshape(-1) for x in reconstruct(p, b, k)]))
+    f = jax.jit(jax.value_and_grad(total))
     for dtype in (jnp.float32, jnp.float64):
-        ell = reconstruct(phi.astype(dtype), box.astype(dtype), K.astype(dtype))
-        assert all(np.all(np.isfinite(x)) for x in ell)
-        g = jax.grad(lambda p: jnp.sum(jnp.concatenate([x.reshape(-1) for x in reconstruct(p, box.astype(dtype), K.astype(dtype))])))(phi.astype(dtype))
-        assert np.all(np.isfinite(g))
+        val, g = f(phi.astype(dtype), box.astype(dtype), K.astype(dtype))
+        assert np.isfinite(val) and np.all(np.isfinite(g)) and g.dtype == dtype
     with pytest.raises(ValueError, match="phi"):
         reconstruct(jnp.zeros((2, 9)), box, K)
     with pytest.raises(ValueError, match="box"):
@@ -125,7 +124,7 @@ def test_network_shapes_multiclass_and_inputs():
     boxes = np.array([[10.0, 20, 40, 60], [60, 10, 120, 90]])
     local, glob = prepare_inputs(image, boxes, size=32)
     assert local.shape == glob.shape == (2, 32, 32, 3) and local.dtype == jnp.float32
-    out = model.apply(variables, local, glob)
+    out = jax.jit(model.apply)(variables, local, glob)
     assert out.phi.shape == (2, 3, 10) and out.class_logits.shape == (2, 3)
     # initial predictions are sensible: identity allocentric quaternion, centroid near the box centre
     ell = reconstruct(select_class_params(out.phi, jnp.array([0, 1])), jnp.asarray(boxes, jnp.float32), K)
@@ -242,7 +241,7 @@ def test_converter_matches_numpy_reference():
     x = rng.uniform(0, 1, (2, 3, 33, 33))  # odd size: exercises torch's symmetric stride-2 padding
     ref = _np_forward(sd, x, width)
     vx = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), variables)
-    got = MobileNetV2(width).apply(vx, jnp.asarray(np.transpose(x, (0, 2, 3, 1))), train=False)
+    got = jax.jit(MobileNetV2(width).apply)(vx, jnp.asarray(np.transpose(x, (0, 2, 3, 1))))
     np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
     # errors name the key
     bad = dict(sd)

@@ -303,5 +303,6 @@ def init_volumon(key, config: VoluMonConfig = VoluMonConfig(), batch: int = 1):
     model = VoluMonNet(config)
     s = int(config.input_size)
     x = jnp.zeros((batch, s, s, 3), jnp.float32)
-    variables = model.init(key, x, x, train=False)
+    # jitted: flax's eager init compiles every primitive separately (slow on a small CPU)
+    variables = jax.jit(lambda k: model.init(k, x, x, train=False))(key)
     return model, variables

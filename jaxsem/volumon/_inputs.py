@@ -13,6 +13,8 @@ Pixel convention (OpenCV): pixel ``(row i, col j)`` has its centre at ``(u, v) =
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -109,8 +111,11 @@ def prepare_inputs(image, boxes, size: int = 64, padding: float = 0.1):
     :func:`crop_and_resize` / :func:`masked_global_image` inside traced code.
     """
     check_image_and_boxes(image, boxes)
-    img = to_float_image(image)
-    b = jnp.asarray(boxes, jnp.float32)
-    local = jax.vmap(lambda bb: crop_and_resize(img, bb, size))(b)
-    glob = jax.vmap(lambda bb: masked_global_image(img, bb, size, padding))(b)
+    return _prepare(to_float_image(image), jnp.asarray(boxes, jnp.float32), int(size), float(padding))
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _prepare(img, boxes, size, padding):
+    local = jax.vmap(lambda bb: crop_and_resize(img, bb, size))(boxes)
+    glob = jax.vmap(lambda bb: masked_global_image(img, bb, size, padding))(boxes)
     return local, glob
