@@ -27,3 +27,12 @@ from ._train import (
     save_distribution_figure as save_distribution_figure,
     train_and_evaluate as train_and_evaluate,
 )
+from ._experiment import (
+    ExperimentSetup as ExperimentSetup,
+    format_table as format_table,
+    plot_navigation as plot_navigation,
+    plot_success as plot_success,
+    prepare_model as prepare_model,
+    run_trials as run_trials,
+    summarise as summarise,
+)

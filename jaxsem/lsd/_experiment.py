@@ -1,0 +1,237 @@
+"""The Table 3.1 / figure 3-8 experiment: PRM + LSD against PRM + Unf on unseen buildings.
+
+For every test building, test set ('II': start and goal indoors; 'IO': start indoors, goal
+outdoors), sample budget N and trial, both planners run the online loop of
+:func:`jaxsem.planning.navigate` from the same start, initial yaw and PRNG key: the uniform PRM
+with Euclidean edge weights, and the LSD-sampled PRM with ``-log p`` edge weights. A record keeps
+success, the distance travelled ``C`` (metres) and the resolution-optimal length ``C*`` (soft-cost
+optimal path on the true map). :func:`summarise` gives per (set, N): success rates of both, and
+on mutually successful trials the mean +- s.e.m. of ``C_l / C*`` and ``C_b / C*``, the
+zero-intercept regression slope of ``C_b`` on ``C_l`` and its R^2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import jax
+import numpy as np
+
+from ..metrics import mean_sem, zero_intercept_slope
+
+
+def run_trials(buildings, sampler, sets=("II", "IO"), ns=(100, 500, 1000, 5000), trials: int = 3,
+               seed: int = 0, max_steps: int = 10_000, progress: bool = True, log=print) -> list:
+    """Runs both planners on every (building, set, N, trial); returns a list of dict records.
+
+    buildings: test :class:`jaxsem.planning.Building` s; sampler: an :class:`LSDSampler` (or any
+    ``sampler(LocalInputs) -> (k, k)`` probabilities); trials: tasks per building and set (the
+    same tasks for every N); max_steps: the loop's step limit (thesis: 10,000).
+    """
+    from ..planning import NavConfig, navigate, sample_tasks
+
+    for kind in sets:
+        if kind not in ("II", "IO"):
+            raise ValueError(f"sets: expected 'II' and/or 'IO', got {kind!r}")
+    if trials < 1:
+        raise ValueError(f"trials: expected >= 1, got {trials}")
+    jobs = []
+    for b in buildings:
+        for kind in sets:
+            for t_i, task in enumerate(sample_tasks(b, kind, trials, seed)):
+                for n in ns:
+                    jobs.append((b, kind, t_i, task, int(n)))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), desc="table 3.1 trials", unit="pair")
+    records = []
+    for b, kind, t_i, task, n in jobs:
+        # Same key for both planners; a function of the trial only (not of Python's hash seed).
+        key = jax.random.PRNGKey(int(np.random.default_rng(
+            [int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]).integers(2**31)))
+        rec = {"building": int(b.seed), "set": kind, "trial": t_i, "n": n,
+               "c_star": float(task.c_star), "start": task.start.tolist(), "goal": task.goal.tolist()}
+        for name, smp in (("uniform", None), ("lsd", sampler)):
+            cfg = NavConfig(n_samples=n, max_steps=max_steps)
+            t0 = time.perf_counter()
+            res = navigate(b, task.start, task.goal, key, cfg, smp, yaw0=task.yaw0,
+                           goal_outdoors=task.goal_outdoors)
+            rec[name] = {"success": bool(res.success), "cost": float(res.cost), "reason": res.reason,
+                         "steps": int(res.steps), "plans": int(res.plans),
+                         "seconds": time.perf_counter() - t0}
+        records.append(rec)
+        if bar:
+            bar.update(1)
+            bar.set_postfix(set=kind, n=n, unf=int(rec["uniform"]["success"]), lsd=int(rec["lsd"]["success"]))
+    if bar:
+        bar.close()
+    return records
+
+
+def summarise(records: list) -> dict:
+    """Per ``f"{set}-{N}"``: trials, success rates, mutual successes and the cost statistics."""
+    out = {}
+    keys = sorted({(r["set"], r["n"]) for r in records}, key=lambda k: (k[0], k[1]))
+    for kind, n in keys:
+        rs = [r for r in records if r["set"] == kind and r["n"] == n]
+        su = np.array([r["uniform"]["success"] for r in rs])
+        sl = np.array([r["lsd"]["success"] for r in rs])
+        both = su & sl
+        cs = np.array([r["c_star"] for r in rs])[both]
+        cl = np.array([r["lsd"]["cost"] for r in rs])[both]
+        cb = np.array([r["uniform"]["cost"] for r in rs])[both]
+        slope = zero_intercept_slope(cl, cb) if both.any() else float("nan")
+        if both.sum() >= 2:
+            ss_res = float(np.sum((cb - slope * cl) ** 2))
+            ss_tot = float(np.sum((cb - cb.mean()) ** 2))
+            r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+        else:
+            r2 = float("nan")
+        out[f"{kind}-{n}"] = {
+            "set": kind, "n": int(n), "trials": len(rs), "mutual": int(both.sum()),
+            "success_uniform": float(su.mean()), "success_lsd": float(sl.mean()),
+            "cl_over_cstar": mean_sem(cl / cs) if both.any() else (float("nan"), float("nan")),
+            "cb_over_cstar": mean_sem(cb / cs) if both.any() else (float("nan"), float("nan")),
+            "slope_cb_on_cl": slope, "r2": r2,
+        }
+    return out
+
+
+def _pm(ms):
+    m, s = ms
+    return "-" if not np.isfinite(m) else f"{m:.2f} +- {s:.2f}"
+
+
+def format_table(summary: dict) -> str:
+    """A markdown table of :func:`summarise`'s output (one row per set and N)."""
+    lines = ["| set | N | trials | success Unf | success LSD | mutual | C_l/C* | C_b/C* | slope C_b~C_l | R^2 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for v in summary.values():
+        lines.append(
+            f"| {v['set']} | {v['n']} | {v['trials']} | {100 * v['success_uniform']:.0f} % | "
+            f"{100 * v['success_lsd']:.0f} % | {v['mutual']} | {_pm(v['cl_over_cstar'])} | "
+            f"{_pm(v['cb_over_cstar'])} | {v['slope_cb_on_cl']:.2f} | {v['r2']:.2f} |")
+    return "\n".join(lines)
+
+
+def plot_success(summary: dict, path) -> None:
+    """Success rate against N for both planners and each set (figure 3-8), saved as PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sets = sorted({v["set"] for v in summary.values()})
+    fig, axes = plt.subplots(1, len(sets), figsize=(4.5 * len(sets), 3.6), squeeze=False)
+    for ax, kind in zip(axes[0], sets):
+        rows = sorted((v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"])
+        ns = [v["n"] for v in rows]
+        ax.plot(ns, [100 * v["success_lsd"] for v in rows], "o-", color="tab:red", label="PRM + LSD")
+        ax.plot(ns, [100 * v["success_uniform"] for v in rows], "s--", color="k", label="PRM + Unf")
+        ax.set_xscale("log")
+        ax.set_ylim(-5, 105)
+        ax.set_xlabel("N (samples per roadmap)")
+        ax.set_ylabel("success rate (%)")
+        ax.set_title(f"{kind}: {rows[0]['trials'] if rows else 0} trials per N")
+        ax.legend()
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentSetup:
+    """How :func:`prepare_model` makes a CPU-sized model when no checkpoint is given."""
+
+    train_buildings: int = 6
+    samples_per_building: int = 80
+    workers: int = 2
+
+
+def prepare_model(workdir, checkpoint=None, setup: ExperimentSetup = ExperimentSetup(), config=None,
+                  progress: bool = True, log=print):
+    """``(model, params, info)``: loads ``checkpoint`` (a training workdir) or generates expert
+    data on train-family buildings into ``workdir/data`` and trains there (resuming if present)."""
+    import pathlib
+
+    from ._config import cpu_config
+    from ._train import load_trained, train_and_evaluate
+
+    if checkpoint:
+        model, params, cfg = load_trained(checkpoint)
+        return model, params, {"checkpoint": str(checkpoint), "trained_here": False}
+    from ..planning import ExpertConfig, write_expert_dataset
+
+    workdir = pathlib.Path(workdir)
+    t0 = time.perf_counter()
+    shards = write_expert_dataset(workdir / "data", "train", range(setup.train_buildings),
+                                  ExpertConfig(samples_per_building=setup.samples_per_building),
+                                  workers=setup.workers, progress=progress)
+    t_data = time.perf_counter() - t0
+    cfg = config or cpu_config()
+    t0 = time.perf_counter()
+    res = train_and_evaluate(cfg, workdir, data=shards, progress=progress)
+    t_train = time.perf_counter() - t0
+    last = res.history[-1] if res.history else {}
+    info = {"checkpoint": str(workdir), "trained_here": True, "shards": len(shards),
+            "data_seconds": t_data, "train_seconds": t_train, "val_nll": last.get("val_nll"),
+            "uniform_nll": last.get("uniform_nll"), "stage1_steps": cfg.stage1_steps,
+            "stage2_steps": cfg.stage2_steps}
+    log(f"trained LSD in {workdir}: {info}")
+    return res.model, res.params, info
+
+
+def plot_navigation(world, results: dict, path, start=None, goal=None, distribution=None,
+                    title: str = "") -> None:
+    """PNG: the true map (walls black, doors green, windows blue, exit signs red), the last
+    full-map LSD distribution (log scale, when given), and each planner's trajectory.
+
+    world: a Building-like object; results: ``{name: NavResult}``; distribution: (H, W) or None.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    occ = np.asarray(world.occupancy)
+    sem = np.asarray(world.semantic)
+    H, W = occ.shape
+    ox, oy = np.asarray(world.origin, float)
+    ext = [ox, ox + W * world.resolution, oy, oy + H * world.resolution]
+    ncols = 2 if distribution is not None else 1
+    fig, axes = plt.subplots(1, ncols, figsize=(6.5 * ncols, 6.5 * H / W + 0.8), squeeze=False)
+    img = np.ones((H, W, 3))
+    img[occ] = 0.0
+    for cls, col in ((2, (0.1, 0.7, 0.1)), (3, (0.2, 0.4, 1.0)), (4, (1.0, 0.1, 0.1))):
+        img[sem == cls] = col
+    colors = {"uniform": "tab:blue", "lsd": "tab:green"}
+    panels = [(axes[0, 0], "map and trajectories")]
+    if distribution is not None:
+        ax = axes[0, 1]
+        ax.imshow(np.log10(np.maximum(np.asarray(distribution), 1e-30)), origin="lower", extent=ext,
+                  cmap="viridis")
+        ax.contour(occ, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower")
+        panels.append((ax, "last LSD sampling distribution (log10 p)"))
+    axes[0, 0].imshow(img, origin="lower", extent=ext, interpolation="nearest")
+    for ax, t in panels:
+        for name, res in results.items():
+            p = np.asarray(res.path)
+            label = f"{name}: {'ok' if res.success else res.reason}, {res.cost:.1f} m"
+            ax.plot(p[:, 0], p[:, 1], "-", color=colors.get(name, None), lw=1.5, label=label)
+        if start is not None:
+            ax.plot(*start, "rx", ms=9, mew=2)
+        if goal is not None:
+            ax.plot(*goal, "o", mfc="none", mec="r", ms=9, mew=2)
+        ax.set_title(t, fontsize=9)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    axes[0, 0].legend(fontsize=8, loc="upper right")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
