@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from ._grid import OCCUPIED, check_grid
+from ._grid import OCCUPIED, check_point
 
 
 class Roadmap(NamedTuple):
@@ -197,8 +197,6 @@ def build_roadmap(key, known_map, start, goal, n: int, origin, resolution: float
     origin_np = np.asarray(origin, np.float64)
     if origin_np.shape != (2,):
         raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
-    from ._grid import check_point
-
     start = check_point("start", start, blocked, origin_np, resolution)
     goal = check_point("goal", goal, blocked, origin_np, resolution)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
