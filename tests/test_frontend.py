@@ -569,6 +569,17 @@ def test_to_frame_and_slam_estimate_input(three):
     assert np.all(np.isfinite(np.asarray(frame.texture_depth)))
     with pytest.raises(ValueError, match="max_objects|object_id"):
         to_frame(out, three["poses"][1], max_detections=4, max_objects=1)
+    # class names pass through to the smoother's class indices
+    from jaxsem import factors
+
+    named = FrontEnd(three["K"]).process(three["rgb"][0], three["poses"][0], boxes, class_ids=["chair", "car"])
+    assert [d.class_id for d in named] == ["chair", "car"]
+    frame = to_frame(named, three["poses"][0], max_detections=2)
+    assert np.asarray(frame.box_class).tolist() == [factors.class_index("chair"), factors.class_index("car")]
+    assert not np.asarray(frame.texture_mask).any()
+    with pytest.raises(ValueError, match="class"):
+        to_frame(FrontEnd(three["K"]).process(three["rgb"][0], three["poses"][0], boxes, class_ids=["chair", "ufo"]),
+                 three["poses"][0])
 
 
 CHAIRS = [
