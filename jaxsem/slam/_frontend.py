@@ -110,7 +110,9 @@ class FrontEndConfig:
         deviations (1.4826 MAD) from the median depth are dropped before the mean and variance
         (background corners at the box edge); ``math.inf`` disables it.
       max_depth_variance: m^2; measurements whose point-depth variance exceeds it are rejected as
-        ``"high_variance"``.
+        ``"high_variance"``. The default (0.2 m standard deviation) suits objects of up to a metre
+        or so a few metres away; for cars tens of metres away raise it or use
+        ``max_relative_depth_std``, since triangulation noise grows with depth squared.
       max_relative_depth_std: the same rejection when the points' depth standard deviation exceeds
         this fraction of their mean depth; scale-free, for scenes whose depths span a wide range
         (cars at 5-30 m). ``math.inf`` (default) disables it.
