@@ -44,3 +44,9 @@ from ._train import (
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
 )
+from ._refine import (
+    init_from_points as init_from_points,
+    optimise_from_scratch as optimise_from_scratch,
+    postopt as postopt,
+    refine as refine,
+)

@@ -1,0 +1,67 @@
+"""Train VoluMon (thesis chapter 5) on the synthetic stereo set: a thin wrapper over
+:func:`jaxsem.volumon.train_and_evaluate`.
+
+Examples::
+
+    python train/volumon.py --workdir runs/volumon_both                    # CPU config, Both
+    python train/volumon.py --variant primal --steps 800 --workdir runs/p  # Primal only
+    python train/volumon.py --size thesis --workdir runs/thesis            # 224x224, width 1.0 (GPU)
+
+Re-running with the same ``--workdir`` resumes from the latest checkpoint. Writes
+``metrics.jsonl``, ``eval.json``, ``config.json`` and ``loss.png`` into the workdir.
+"""
+
+import argparse
+import json
+import pathlib
+
+from jaxsem.volumon import VARIANTS, get_config, train_and_evaluate
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--workdir", type=pathlib.Path, required=True)
+    p.add_argument("--variant", choices=VARIANTS, default="both")
+    p.add_argument("--size", choices=("cpu", "thesis", "tiny"), default="cpu")
+    p.add_argument("--steps", type=int, default=None, help="number of training steps")
+    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--lr", type=float, default=None)
+    p.add_argument("--num-train", type=int, default=None, help="training-set size")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--checkpoint-every", type=int, default=None)
+    p.add_argument("--eval-every", type=int, default=None)
+    p.add_argument("--num-eval", type=int, default=None)
+    a = p.parse_args()
+    cfg = get_config(a.variant, a.size)
+    changes = {k: v for k, v in dict(num_steps=a.steps, batch_size=a.batch_size, learning_rate=a.lr,
+                                     num_train=a.num_train, seed=a.seed, checkpoint_every=a.checkpoint_every,
+                                     eval_every=a.eval_every, num_eval=a.num_eval).items() if v is not None}
+    cfg = cfg.replace(**changes)
+    result = train_and_evaluate(cfg, a.workdir, log=print)
+    if result["eval"] is not None:
+        print(json.dumps(result["eval"], indent=1))
+    _plot(a.workdir)
+
+
+def _plot(workdir):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recs = [json.loads(line) for line in (workdir / "metrics.jsonl").read_text().splitlines()]
+    recs = [r for r in recs if "total" in r]
+    if not recs:
+        return
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k in ("total", "dual", "primal", "size"):
+        ax.semilogy([r["step"] for r in recs], [max(r[k], 1e-12) for r in recs], label=k)
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(workdir / "loss.png", dpi=100)
+
+
+if __name__ == "__main__":
+    main()
