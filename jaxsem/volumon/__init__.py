@@ -22,6 +22,7 @@ from ._losses import (
 from ._synthetic import CLASSES as CLASSES, SceneConfig as SceneConfig, make_batch as make_batch
 from ._configs import (
     VARIANTS as VARIANTS,
+    config_from_dict as config_from_dict,
     TrainConfig as TrainConfig,
     default_config as default_config,
     get_config as get_config,
@@ -44,6 +45,7 @@ from ._train import (
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
 )
+from ._draw import box_corners_2d as box_corners_2d, conic_outline as conic_outline, draw_predictions as draw_predictions
 from ._refine import (
     init_from_points as init_from_points,
     optimise_from_scratch as optimise_from_scratch,

@@ -135,3 +135,20 @@ def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
     weights = {"dual": (1.0, 0.0), "primal": (0.0, 1.0), "both": (1.0, 1.0), "both_noisy": (1.0, 1.0)}[variant]
     loss = dataclasses.replace(cfg.loss, alpha_D=weights[0], alpha_P=weights[1])
     return cfg.replace(loss=loss, variant=variant, noisy=variant == "both_noisy")
+
+
+def config_from_dict(d: dict) -> TrainConfig:
+    """Inverse of ``dataclasses.asdict(TrainConfig)`` (e.g. the ``config.json`` of a training run)."""
+    from ..models._volumon import ReconstructionConfig as _R, VoluMonConfig as _V
+
+    def tup(x):
+        return tuple(tup(v) for v in x) if isinstance(x, list) else x
+
+    sub = {"model": _V, "recon": _R, "loss": LossConfig, "scene": SceneConfig}
+    kw = {}
+    for k, v in d.items():
+        if k in sub:
+            kw[k] = sub[k](**{kk: tup(vv) for kk, vv in v.items()})
+        else:
+            kw[k] = tup(v)
+    return TrainConfig(**kw)
