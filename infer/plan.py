@@ -38,7 +38,8 @@ def main(argv=None) -> int:
     p.add_argument("--start", type=float, nargs=2, default=None, metavar=("X", "Y"))
     p.add_argument("--goal", type=float, nargs=2, default=None, metavar=("X", "Y"))
     p.add_argument("--kind", default="IO", help="task kind when start/goal are omitted: II | IO")
-    p.add_argument("--checkpoint", default=None, help="LSD training workdir (needed for lsd)")
+    p.add_argument("--checkpoint", default=None,
+                   help="LSD training workdir or exported .npz (default: the bundled CPU model)")
     p.add_argument("--sampler", default="both", help="lsd | uniform | both")
     p.add_argument("--n", type=int, default=500, help="PRM samples per roadmap")
     p.add_argument("--max-steps", type=int, default=10_000)
@@ -48,15 +49,13 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.sampler not in ("lsd", "uniform", "both"):
         raise SystemExit(f"--sampler: expected lsd, uniform or both, got {args.sampler!r}")
-    if args.sampler != "uniform" and not args.checkpoint:
-        raise SystemExit("--checkpoint: needed for --sampler lsd/both (a train/lsd.py workdir)")
 
     import jax
     import numpy as np
     from tqdm import tqdm
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import LSDSampler, full_map_distribution, load_trained, plot_navigation
+    from jaxsem.lsd import LSDSampler, full_map_distribution, load_model, plot_navigation
     from jaxsem.planning import NavConfig, Trial, generate_building, sample_tasks
 
     enable_compilation_cache()
@@ -73,7 +72,7 @@ def main(argv=None) -> int:
         start, goal = np.asarray(args.start), np.asarray(args.goal)
     sampler = None
     if args.sampler != "uniform":
-        model, params, _ = load_trained(args.checkpoint)
+        model, params, _ = load_model(args.checkpoint)
         sampler = LSDSampler(model, params)
     names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)

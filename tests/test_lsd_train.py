@@ -161,3 +161,20 @@ def test_sampler_adapter_embedding_rule():
     with pytest.raises(ValueError, match="uniform_mix"):
         LSDSampler(model, params, uniform_mix=1.5)
     del FREE, embed_local_distribution
+
+
+def test_export_and_load_model_file_round_trip(run, tmp_path):
+    from jaxsem.lsd import PRETRAINED_CPU, export_model, load_model
+
+    wd, res = run
+    _, params, cfg = load_trained(wd)
+    path = export_model(tmp_path / "m.npz", cfg, params)
+    model, p2, cfg2 = load_model(path)
+    assert cfg2 == cfg and model.config == MODEL
+    for a, b in zip(jax.tree_util.tree_leaves(params), jax.tree_util.tree_leaves(p2)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="path: no such model file"):
+        load_model(tmp_path / "missing.npz")
+    if PRETRAINED_CPU.exists():  # the bundled model matches the 160 x 160 planner crops
+        m, _, c = load_model()
+        assert m.config.map_size == 160 and c.model.context_dim == 4

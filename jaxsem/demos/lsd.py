@@ -1,7 +1,8 @@
 """LSD demo: one unseen building, one Inside-Outside trial, PRM + LSD against PRM + Unf.
 
-A trained model is used when one is found (``$JAXSEM_LSD_CHECKPOINT``, a training workdir);
-otherwise the demo makes a few expert samples on one train-family building and trains a small
+A trained model is used when one is found: ``$JAXSEM_LSD_CHECKPOINT`` (a training workdir or an
+exported .npz), else the bundled CPU-trained model ``jaxsem/lsd/pretrained_cpu.npz``; without
+either, the demo makes a few expert samples on one train-family building and trains a small
 network for a few steps first (it says so in the table): that model has seen very little, so
 the comparison shows the pipeline rather than the thesis' result (benchmarks/lsd_table31.py).
 """
@@ -18,8 +19,8 @@ import time
 def run(out_dir: pathlib.Path, quick: bool) -> str:
     import jax
 
-    from ..lsd import (LSDSampler, full_map_distribution, load_trained, plot_navigation,
-                       tiny_config, train_and_evaluate)
+    from ..lsd import (PRETRAINED_CPU, LSDSampler, full_map_distribution, load_model,
+                       plot_navigation, tiny_config, train_and_evaluate)
     from ..planning import (ExpertConfig, NavConfig, generate_building, generate_expert_samples,
                             navigate, sample_tasks)
 
@@ -27,9 +28,12 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     ckpt = os.environ.get("JAXSEM_LSD_CHECKPOINT")
-    if ckpt and (pathlib.Path(ckpt) / "config.json").exists():
-        model, params, _ = load_trained(ckpt)
+    if ckpt:
+        model, params, _ = load_model(ckpt)
         how = f"loaded trained model from {ckpt}"
+    elif PRETRAINED_CPU.exists():
+        model, params, _ = load_model(PRETRAINED_CPU)
+        how = f"bundled CPU-trained model {PRETRAINED_CPU.name}"
     else:
         b_train = generate_building(0, "train")
         n_samples = 8 if quick else 120

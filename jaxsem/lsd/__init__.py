@@ -21,7 +21,11 @@ from ._data import (
 from ._sampler import LSDSampler as LSDSampler, full_map_distribution as full_map_distribution
 from ._train import (
     TrainResult as TrainResult,
+    PRETRAINED_CPU as PRETRAINED_CPU,
     evaluate_nll as evaluate_nll,
+    export_model as export_model,
+    load_model as load_model,
+    load_model_file as load_model_file,
     load_trained as load_trained,
     make_train_step as make_train_step,
     save_distribution_figure as save_distribution_figure,

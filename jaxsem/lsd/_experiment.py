@@ -154,15 +154,16 @@ class ExperimentSetup:
 
 def prepare_model(workdir, checkpoint=None, setup: ExperimentSetup = ExperimentSetup(), config=None,
                   progress: bool = True, log=print):
-    """``(model, params, info)``: loads ``checkpoint`` (a training workdir) or generates expert
+    """``(model, params, info)``: loads ``checkpoint`` (a training workdir or an exported .npz,
+    :func:`jaxsem.lsd.load_model`) or generates expert
     data on train-family buildings into ``workdir/data`` and trains there (resuming if present)."""
     import pathlib
 
     from ._config import cpu_config
-    from ._train import load_trained, train_and_evaluate
+    from ._train import load_model, train_and_evaluate
 
     if checkpoint:
-        model, params, cfg = load_trained(checkpoint)
+        model, params, cfg = load_model(checkpoint)
         return model, params, {"checkpoint": str(checkpoint), "trained_here": False}
     from ..planning import ExpertConfig, write_expert_dataset
 

@@ -382,3 +382,55 @@ def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool =
             bar.close()
         ckpt.close()
     return TrainResult(model, params, history, resumed_from, workdir)
+
+
+# ----------------------------------------------------------------------------- single-file export
+
+
+def export_model(path, config: TrainConfig, params) -> pathlib.Path:
+    """Writes the network config and parameters to one ``.npz`` file (no optimiser state).
+
+    Keys: ``config_json`` (the :class:`TrainConfig` as JSON) and one ``params/<layer>/<name>``
+    array per parameter. Read it back with :func:`load_model_file`.
+    """
+    path = pathlib.Path(path)
+    flat = {}
+    for layer, leaves in params.items():
+        for name, arr in leaves.items():
+            flat[f"params/{layer}/{name}"] = np.asarray(arr)
+    np.savez_compressed(path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat)
+    return path
+
+
+def load_model_file(path):
+    """``(model, params, config)`` from a file written by :func:`export_model`."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise ValueError(f"path: no such model file {str(path)!r}")
+    with np.load(path) as z:
+        if "config_json" not in z:
+            raise ValueError(f"path: {str(path)!r} is not an exported LSD model (no config_json)")
+        config = config_from_dict(json.loads(str(z["config_json"])))
+        params: dict = {}
+        for key in z.files:
+            if key.startswith("params/"):
+                _, layer, name = key.split("/")
+                params.setdefault(layer, {})[name] = jnp.asarray(z[key])
+    model, like = init_lsd(jax.random.PRNGKey(0), config.model)
+    if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
+        raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")
+    return model, params, config
+
+
+#: A CPU-sized model trained by ``train/lsd.py --config cpu`` (6 train buildings x 80 expert
+#: samples, 300 + 150 steps); the demo and scripts use it when no checkpoint is given.
+PRETRAINED_CPU = pathlib.Path(__file__).resolve().parent / "pretrained_cpu.npz"
+
+
+def load_model(source=None):
+    """``(model, params, config)`` from a training workdir, an exported ``.npz`` file, or (None)
+    the bundled CPU-trained model :data:`PRETRAINED_CPU`."""
+    source = PRETRAINED_CPU if source is None else pathlib.Path(source)
+    if source.suffix == ".npz":
+        return load_model_file(source)
+    return load_trained(source)
