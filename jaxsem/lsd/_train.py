@@ -7,7 +7,7 @@ its own parameter subset (:func:`jaxsem.models.split_params`) and gradients are 
 respect to that subset, so the frozen weights are never touched (bit-identical) and no gradient
 is computed for them (stage two does not backpropagate through the encoder).
 
-Checkpoints (orbax, ``workdir/checkpoints``) hold the parameters, the current stage's optimiser
+Checkpoints (:mod:`jaxsem.checkpoint`, orbax, ``workdir/checkpoints``) hold the parameters, the current stage's optimiser
 state and the step; a run restarted with the same config resumes from the latest one and, since
 batches and dropout keys are functions of (seed, step), continues exactly as an uninterrupted
 run would. Each evaluation writes ``workdir/figures/eval_<step>.png`` with the predicted
@@ -150,30 +150,24 @@ def evaluate_nll(model: LSDNet, params, data: dict, idx: np.ndarray, stage: int 
 
 
 class _Checkpoints:
-    """Thin orbax wrapper: keep-latest-N, StandardSave / StandardRestore of a pytree."""
+    """Adapter over :class:`jaxsem.checkpoint.Checkpointer` (orbax, keep-latest-N, atomic)."""
 
     def __init__(self, directory: pathlib.Path, keep: int):
-        import orbax.checkpoint as ocp
+        from ..checkpoint import Checkpointer
 
-        self._ocp = ocp
-        directory.mkdir(parents=True, exist_ok=True)
-        self.manager = ocp.CheckpointManager(
-            directory.resolve(), options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
-        )
+        self._ckpt = Checkpointer(directory, max_to_keep=keep)
 
     def latest_step(self):
-        return self.manager.latest_step()
+        return self._ckpt.latest_step()
 
     def save(self, step: int, state) -> None:
-        self.manager.save(step, args=self._ocp.args.StandardSave(state), force=True)
+        self._ckpt.save(step, state, force=True)
 
     def restore(self, step: int, like):
-        abstract = jax.tree_util.tree_map(self._ocp.utils.to_shape_dtype_struct, like)
-        return self.manager.restore(step, args=self._ocp.args.StandardRestore(abstract))
+        return self._ckpt.restore(like, step=step)
 
     def close(self) -> None:
-        self.manager.wait_until_finished()
-        self.manager.close()
+        self._ckpt.close()
 
 
 def _state_like(model_params, config: TrainConfig, stage: int):
