@@ -142,8 +142,8 @@ def encode_maps(occupancy, semantic, num_semantic_classes: int, dtype) -> jax.Ar
 
 
 class LSDNet(nn.Module):
-    """The LSD network (module docstring). ``config``: :class:`LSDConfig`; ``dtype``: compute dtype
-    (parameters are float32 unless initialised from float64 inputs under x64)."""
+    """The LSD network (module docstring). ``config``: :class:`LSDConfig`. The compute dtype
+    follows the context's floating dtype (and the parameters': :func:`init_lsd` ``dtype``)."""
 
     config: LSDConfig = LSDConfig()
 
