@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     p.add_argument("--checkpoint", default=None,
                    help="LSD training workdir or exported .npz (default: the bundled CPU model)")
     p.add_argument("--sampler", default="both", help="lsd | uniform | both")
+    p.add_argument("--uniform-mix", type=float, default=0.1,
+                   help="share of uniform mixed into the LSD window (0 = the thesis' rule)")
     p.add_argument("--n", type=int, default=500, help="PRM samples per roadmap")
     p.add_argument("--max-steps", type=int, default=10_000)
     p.add_argument("--yaw", type=float, default=0.0, help="initial heading (rad)")
@@ -73,7 +75,7 @@ def main(argv=None) -> int:
     sampler = None
     if args.sampler != "uniform":
         model, params, _ = load_model(args.checkpoint)
-        sampler = LSDSampler(model, params)
+        sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix)
     names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)
     cfg = NavConfig(n_samples=args.n, max_steps=args.max_steps)

@@ -410,7 +410,12 @@ def load_model_file(path):
             if key.startswith("params/"):
                 _, layer, name = key.split("/")
                 params.setdefault(layer, {})[name] = jnp.asarray(z[key])
-    model, like = init_lsd(jax.random.PRNGKey(0), config.model)
+    model = LSDNet(config.model)
+    k = config.model.map_size
+    occ = jnp.zeros((1, k, k), jnp.int8)
+    # eval_shape: the parameter structure without compiling an initialisation.
+    like = jax.eval_shape(lambda: model.init(jax.random.PRNGKey(0), occ, occ,
+                                             jnp.zeros((1, config.model.context_dim))))["params"]
     if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
         raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")
     return model, params, config
