@@ -27,9 +27,9 @@ def _scene(seed=0):
 
 def _fd_check(f, x, eps=1e-6, rtol=1e-5, atol=1e-6):
     """jacfwd of f at x against central finite differences (one vmapped compile)."""
-    jac = jax.jacfwd(f)(x)
     steps = eps * jnp.eye(x.shape[0])
-    vals = jax.jit(jax.vmap(f))(jnp.concatenate([x + steps, x - steps]))
+    both = jax.jit(lambda x: (jax.jacfwd(f)(x), jax.vmap(f)(jnp.concatenate([x + steps, x - steps]))))
+    jac, vals = both(x)
     n = x.shape[0]
     fd = ((vals[:n] - vals[n:]) / (2 * eps)).T
     np.testing.assert_allclose(jac, fd, rtol=rtol, atol=atol)
@@ -48,9 +48,8 @@ def _pose_obj_fn(factor, pose, R, c, r):
     return f
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_box_residual_jacobian_matches_finite_differences(seed):
-    pose, R, c, r = _scene(seed)
+def test_box_residual_jacobian_matches_finite_differences():
+    pose, R, c, r = _scene(0)
     box_true, valid = Q.project_bbox(R, c, r, K, pose)
     assert bool(valid)
     meas = box_true + jnp.array([3.0, -2.0, 4.0, 1.0])
@@ -63,7 +62,7 @@ def test_box_residual_jacobian_matches_finite_differences(seed):
         R2, c2, r2 = C.first_order_object(R, c, r, x[6:15])
         return F.box_residual(P, R2, c2, r2, meas, K, IMAGE)
 
-    np.testing.assert_allclose(jax.jacfwd(g)(jnp.zeros(15)), jac, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(jax.jit(jax.jacfwd(g))(jnp.zeros(15)), jac, rtol=1e-9, atol=1e-9)
 
 
 def test_texture_pose_shape_jacobians_match_finite_differences():
