@@ -432,6 +432,11 @@ def _random_objects(pool: _Pool, config: SimConfig, dtype):
     }
 
 
+def _up(dtype):
+    # An explicit array: a Python tuple would become float64 under x64 and promote everything.
+    return jnp.array([0.0, 0.0, 1.0], dtype)
+
+
 def camera_path(config: SimConfig, dtype=None) -> jax.Array:
     """True camera poses ``camera_T_world`` (T, 4, 4) of the Orbit or Forward path.
 
@@ -453,14 +458,14 @@ def camera_path(config: SimConfig, dtype=None) -> jax.Array:
             -1,
         )
         target = jnp.array([0.0, 0.0, config.orbit_target_height], dtype)
-        return look_at(eye, jnp.broadcast_to(target, eye.shape))
+        return look_at(eye, jnp.broadcast_to(target, eye.shape), _up(dtype)).astype(dtype)
     if config.path == "forward":
         length = (T - 1) * config.forward_step
         end = config.patch_size / 2.0 + config.forward_end_margin
         x = end - length + jnp.arange(T, dtype=dtype) * config.forward_step
         eye = jnp.stack([x, jnp.zeros_like(x), jnp.full_like(x, config.camera_height)], -1)
         target = eye + jnp.array([1.0, 0.0, 0.0], dtype)
-        return look_at(eye, target)
+        return look_at(eye, target, _up(dtype)).astype(dtype)
     raise ValueError(f"config.path: camera_path needs 'orbit' or 'forward', got {config.path!r}")
 
 
@@ -746,7 +751,7 @@ def simulate_views(key, num_views, yaw_range, config: SimConfig, max_views: int 
         [dist * jnp.cos(az), dist * jnp.sin(az), jnp.full_like(az, cfg.camera_height)], -1
     )
     target = jnp.broadcast_to(objects["center"][0], eye.shape)
-    poses = look_at(eye, target)
+    poses = look_at(eye, target, _up(dtype)).astype(dtype)
     sim = _assemble(pool, objects, poses, intrinsics(cfg, dtype), cfg)
     active = jnp.arange(T) < num_views
     box_mask = sim.box_mask & active[:, None]
