@@ -51,3 +51,8 @@ from ._online import (
     online_update as online_update,
 )
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
+from ._sequence import (  # figures; sequence directories (JSON layout) for infer/roshan.py
+    draw_camera_path as draw_camera_path,
+    draw_overlay as draw_overlay,
+    draw_top_down as draw_top_down,
+)
