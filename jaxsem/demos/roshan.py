@@ -16,7 +16,8 @@ orientation (deg, symmetry-aware) error, and writes ``roshan_forward.png``: a to
 the first map (true ellipsoids, both estimates, the camera path).
 
 ``quick``: 1 map of 4 cars and 30 frames (about 20-30 s on a 2-core CPU, mostly compilation);
-otherwise 8 maps of 10 cars and 60 frames (the Table 4.1 setting at a small scale).
+otherwise 16 maps of 10 cars and 60 frames (the Table 4.1 setting at a small scale; about a
+minute).
 """
 
 from __future__ import annotations
@@ -128,7 +129,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         num_maps, cfg = 1, sim.quadricslam_config("forward", num_objects=4, num_frames=30,
                                                   forward_step=0.75 * 59 / 29)
     else:
-        num_maps, cfg = 8, sim.quadricslam_config("forward")
+        num_maps, cfg = 16, sim.quadricslam_config("forward")
     t0 = time.perf_counter()
     maps, estimates, errors, seconds = simulate_and_solve(0, num_maps, cfg)
     path = out_dir / "roshan_forward.png"

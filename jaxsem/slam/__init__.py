@@ -51,8 +51,20 @@ from ._online import (
     online_update as online_update,
 )
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
-from ._sequence import (  # figures; sequence directories (JSON layout) for infer/roshan.py
+from ._sequence import (  # sequence directories (JSON layout), online runs over them, figures
+    Sequence as Sequence,
+    SequenceFrame as SequenceFrame,
+    SequenceResult as SequenceResult,
+    default_capacity as default_capacity,
     draw_camera_path as draw_camera_path,
     draw_overlay as draw_overlay,
     draw_top_down as draw_top_down,
+    load_image as load_image,
+    load_sequence as load_sequence,
+    map_to_json as map_to_json,
+    run_sequence as run_sequence,
+    save_sequence as save_sequence,
+    sequence_from_simulation as sequence_from_simulation,
+    sequence_to_json as sequence_to_json,
+    truth_errors as truth_errors,
 )

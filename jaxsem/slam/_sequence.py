@@ -54,11 +54,24 @@ import dataclasses
 import json
 import math
 import pathlib
-from typing import Any, Callable, Mapping, Sequence as _Seq
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 __all__ = [
+    "SEQUENCE_FILE",
+    "SequenceFrame",
+    "Sequence",
+    "SequenceResult",
+    "load_sequence",
+    "save_sequence",
+    "load_image",
+    "sequence_to_json",
+    "default_capacity",
+    "sequence_from_simulation",
+    "run_sequence",
+    "map_to_json",
+    "truth_errors",
     "draw_top_down",
     "draw_camera_path",
     "draw_overlay",
@@ -66,6 +79,576 @@ __all__ = [
 
 SEQUENCE_FILE = "sequence.json"
 FORMAT_TAG = "jaxsem.roshan.sequence/1"
+
+
+# --------------------------------------------------------------------------------------------
+# The sequence layout.
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceFrame:
+    """One posed frame with its detections (N of them; numpy, not padded).
+
+    Attributes:
+      camera_T_world: (4, 4) odometry / VIO pose (the pose prior).
+      boxes: (N, 4) ``[u_min, v_min, u_max, v_max]`` pixels.
+      classes: (N,) class names of :data:`jaxsem.factors.CLASS_NAMES`.
+      ids: (N,) association ids as written in the file (int or str).
+      texture_depth: (N,) metres, NaN where the detection has none.
+      image: image file name relative to the sequence directory, or None.
+    """
+
+    camera_T_world: np.ndarray
+    boxes: np.ndarray
+    classes: tuple
+    ids: tuple
+    texture_depth: np.ndarray
+    image: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Sequence:
+    """A posed detection sequence (see the module docstring for its JSON layout).
+
+    Attributes:
+      K: (3, 3) intrinsics; image_size: ``(width, height)`` pixels.
+      frames: tuple of :class:`SequenceFrame` in time order.
+      root: directory the image names are relative to (None: no images).
+      truth: optional ``{"camera_T_world": (T, 4, 4), "objects": [{"id", "class", "center" (3,),
+        "radii" (3,), "rotation" (3, 3)}]}`` (numpy arrays), for evaluation.
+    """
+
+    K: np.ndarray
+    image_size: tuple
+    frames: tuple
+    root: pathlib.Path | None = None
+    truth: dict | None = None
+
+    @property
+    def object_ids(self) -> tuple:
+        """Association ids in order of first appearance; object slot ``j`` holds ``object_ids[j]``."""
+        seen: dict = {}
+        for frame in self.frames:
+            for i in frame.ids:
+                seen.setdefault(i, None)
+        return tuple(seen)
+
+    @property
+    def object_classes(self) -> tuple:
+        """Class name of each object slot (from its first detection)."""
+        first: dict = {}
+        for frame in self.frames:
+            for i, c in zip(frame.ids, frame.classes):
+                first.setdefault(i, c)
+        return tuple(first[i] for i in self.object_ids)
+
+    def image_path(self, index: int) -> pathlib.Path | None:
+        """Path of frame ``index``'s image, or None when the frame names none."""
+        name = self.frames[index].image
+        if name is None:
+            return None
+        return (self.root or pathlib.Path(".")) / name
+
+
+def _fail(where, field, message):
+    raise ValueError(f"{where}: {field}: {message}")
+
+
+def _matrix(where, field, value, shape):
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        _fail(where, field, f"expected a {shape[0]}x{shape[1]} array of numbers, got {value!r:.80}")
+    if arr.shape != shape:
+        _fail(where, field, f"expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        _fail(where, field, f"expected finite numbers, got {arr.tolist()}")
+    return arr
+
+
+def _pose(where, field, value):
+    T = _matrix(where, field, value, (4, 4))
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        _fail(where, field, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+        _fail(where, field, "expected a rotation (orthonormal, det +1) in the top-left 3x3 block")
+    return T
+
+
+def _rotation(where, field, value):
+    R = _matrix(where, field, value, (3, 3))
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+        _fail(where, field, "expected a rotation matrix (orthonormal, det +1)")
+    return R
+
+
+def _vector(where, field, value, n, positive=False):
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        _fail(where, field, f"expected {n} numbers, got {value!r:.80}")
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)):
+        _fail(where, field, f"expected {n} finite{' positive' if positive else ''} numbers, got {value!r:.80}")
+    return arr
+
+
+def _class_name(where, field, value):
+    from .. import factors
+
+    if not isinstance(value, str):
+        _fail(where, field, f"expected a class name string, got {value!r}")
+    if value not in factors.CLASS_NAMES:
+        _fail(where, field, f"unknown class {value!r}; known classes are {list(factors.CLASS_NAMES)}")
+    return value
+
+
+def _assoc_id(where, field, value):
+    if isinstance(value, bool) or not isinstance(value, (int, str)):
+        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
+    if isinstance(value, int) and value < 0 or isinstance(value, str) and not value:
+        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
+    return value
+
+
+def _box(where, field, value, image_size):
+    try:
+        b = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        b = None
+    ok = b is not None and b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]
+    if not ok:
+        _fail(where, field, f"expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, "
+                            f"v_max > v_min), got {value!r:.80}")
+    W, H = image_size
+    if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
+        _fail(where, field, f"box {b.tolist()} lies outside the {W}x{H} image")
+    return b
+
+
+def _parse(data, where, root):
+    if not isinstance(data, dict):
+        _fail(where, "top level", f"expected a JSON object, got {type(data).__name__}")
+    for key in ("K", "image_size", "frames"):
+        if key not in data:
+            _fail(where, key, "missing")
+    K = _matrix(where, "K", data["K"], (3, 3))
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
+        _fail(where, "K", f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}")
+    size = data["image_size"]
+    if (not isinstance(size, (list, tuple)) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        _fail(where, "image_size", f"expected [width, height] as two positive ints, got {size!r}")
+    image_size = (int(size[0]), int(size[1]))
+    if not isinstance(data["frames"], list) or not data["frames"]:
+        _fail(where, "frames", "expected a non-empty list of frames")
+    frames = []
+    for t, fr in enumerate(data["frames"]):
+        f = f"frames[{t}]"
+        if not isinstance(fr, dict):
+            _fail(where, f, f"expected an object, got {type(fr).__name__}")
+        if "camera_T_world" not in fr:
+            _fail(where, f"{f}.camera_T_world", "missing")
+        pose = _pose(where, f"{f}.camera_T_world", fr["camera_T_world"])
+        image = fr.get("image")
+        if image is not None:
+            if not isinstance(image, str) or not image:
+                _fail(where, f"{f}.image", f"expected a file name, got {image!r}")
+            path = (root or pathlib.Path(".")) / image
+            if not path.is_file():
+                _fail(where, f"{f}.image", f"image file {str(path)!r} does not exist")
+        dets = fr.get("detections", [])
+        if not isinstance(dets, list):
+            _fail(where, f"{f}.detections", f"expected a list, got {type(dets).__name__}")
+        boxes, classes, ids, depth = [], [], [], []
+        for n, d in enumerate(dets):
+            g = f"{f}.detections[{n}]"
+            if not isinstance(d, dict):
+                _fail(where, g, f"expected an object, got {type(d).__name__}")
+            for key in ("box", "class", "id"):
+                if key not in d:
+                    _fail(where, f"{g}.{key}", "missing")
+            boxes.append(_box(where, f"{g}.box", d["box"], image_size))
+            classes.append(_class_name(where, f"{g}.class", d["class"]))
+            ids.append(_assoc_id(where, f"{g}.id", d["id"]))
+            tex = d.get("texture_depth")
+            if tex is None:
+                depth.append(np.nan)
+            elif isinstance(tex, bool) or not isinstance(tex, (int, float)) or not (math.isfinite(tex) and tex > 0):
+                _fail(where, f"{g}.texture_depth", f"expected null or a finite depth > 0 (metres), got {tex!r}")
+            else:
+                depth.append(float(tex))
+        if len(set(ids)) != len(ids):
+            _fail(where, f"{f}.detections", f"an association id appears twice in one frame: {ids}")
+        frames.append(SequenceFrame(
+            camera_T_world=pose, boxes=np.asarray(boxes, np.float64).reshape(-1, 4),
+            classes=tuple(classes), ids=tuple(ids), texture_depth=np.asarray(depth, np.float64),
+            image=image,
+        ))
+    first_class: dict = {}
+    for t, fr in enumerate(frames):
+        for n, (i, c) in enumerate(zip(fr.ids, fr.classes)):
+            if first_class.setdefault(i, c) != c:
+                _fail(where, f"frames[{t}].detections[{n}].class",
+                      f"id {i!r} was first seen as {first_class[i]!r}, now {c!r}")
+    truth = None
+    if data.get("truth") is not None:
+        truth = _parse_truth(where, data["truth"], len(frames))
+    return Sequence(K=K, image_size=image_size, frames=tuple(frames), root=root, truth=truth)
+
+
+def _parse_truth(where, tr, num_frames):
+    if not isinstance(tr, dict):
+        _fail(where, "truth", f"expected an object, got {type(tr).__name__}")
+    out: dict = {"objects": []}
+    if tr.get("camera_T_world") is not None:
+        poses = tr["camera_T_world"]
+        if not isinstance(poses, list) or len(poses) != num_frames:
+            _fail(where, "truth.camera_T_world", f"expected a list of {num_frames} 4x4 poses")
+        out["camera_T_world"] = np.stack([_pose(where, f"truth.camera_T_world[{t}]", p) for t, p in enumerate(poses)])
+    objects = tr.get("objects", [])
+    if not isinstance(objects, list):
+        _fail(where, "truth.objects", "expected a list")
+    for j, o in enumerate(objects):
+        g = f"truth.objects[{j}]"
+        if not isinstance(o, dict):
+            _fail(where, g, "expected an object")
+        for key in ("id", "class", "center", "radii", "rotation"):
+            if key not in o:
+                _fail(where, f"{g}.{key}", "missing")
+        out["objects"].append({
+            "id": _assoc_id(where, f"{g}.id", o["id"]),
+            "class": _class_name(where, f"{g}.class", o["class"]),
+            "center": _vector(where, f"{g}.center", o["center"], 3),
+            "radii": _vector(where, f"{g}.radii", o["radii"], 3, positive=True),
+            "rotation": _rotation(where, f"{g}.rotation", o["rotation"]),
+        })
+    return out
+
+
+def load_sequence(path) -> Sequence:
+    """Reads a sequence directory (or its ``sequence.json``), validating every field.
+
+    Args:
+      path: the directory holding ``sequence.json``, or the JSON file itself. Image names are
+        relative to the JSON file's directory.
+
+    Returns:
+      :class:`Sequence`.
+
+    Raises:
+      ValueError: naming the file and the field (``frames[3].detections[1].box: ...``) for a
+        missing file, malformed JSON, a missing or malformed field, an unknown class name, a bad
+        box, a missing image file or an id whose class changes.
+    """
+    path = pathlib.Path(path)
+    file = path / SEQUENCE_FILE if path.is_dir() else path
+    if not file.is_file():
+        raise ValueError(
+            f"{file}: no such file (expected a sequence directory holding {SEQUENCE_FILE}, or the "
+            "JSON file itself)"
+        )
+    try:
+        data = json.loads(file.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
+    return _parse(data, str(file), file.parent)
+
+
+def _list(x):
+    return np.asarray(x, np.float64).tolist()
+
+
+def sequence_to_json(sequence: Sequence) -> dict:
+    """The JSON-ready dict of a :class:`Sequence` (the layout of the module docstring)."""
+    frames = []
+    for fr in sequence.frames:
+        dets = []
+        for b, c, i, d in zip(fr.boxes, fr.classes, fr.ids, fr.texture_depth):
+            det = {"box": _list(b), "class": c, "id": i}
+            if np.isfinite(d):
+                det["texture_depth"] = float(d)
+            dets.append(det)
+        entry = {"camera_T_world": _list(fr.camera_T_world)}
+        if fr.image is not None:
+            entry["image"] = fr.image
+        entry["detections"] = dets
+        frames.append(entry)
+    out = {"format": FORMAT_TAG, "K": _list(sequence.K), "image_size": list(sequence.image_size),
+           "frames": frames}
+    if sequence.truth is not None:
+        tr = {"objects": [
+            {"id": o["id"], "class": o["class"], "center": _list(o["center"]), "radii": _list(o["radii"]),
+             "rotation": _list(o["rotation"])} for o in sequence.truth.get("objects", [])
+        ]}
+        if "camera_T_world" in sequence.truth:
+            tr["camera_T_world"] = _list(sequence.truth["camera_T_world"])
+        out["truth"] = tr
+    return out
+
+
+def save_sequence(sequence: Sequence, directory) -> pathlib.Path:
+    """Writes ``sequence.json`` into ``directory`` (created); returns the file's path.
+
+    Image names are written as they are; copy the images next to it yourself.
+    """
+    directory = pathlib.Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    file = directory / SEQUENCE_FILE
+    file.write_text(json.dumps(sequence_to_json(sequence), indent=1))
+    return file
+
+
+def load_image(sequence: Sequence, index: int):
+    """RGB image (H, W, 3) uint8 of frame ``index``, or None when the frame names none.
+
+    Raises ValueError naming the file when it cannot be read or its size is not ``image_size``.
+    """
+    path = sequence.image_path(index)
+    if path is None:
+        return None
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"frames[{index}].image: cannot read image file {str(path)!r}")
+    if (img.shape[1], img.shape[0]) != tuple(sequence.image_size):
+        raise ValueError(
+            f"frames[{index}].image: {str(path)!r} is {img.shape[1]}x{img.shape[0]}, expected "
+            f"image_size {sequence.image_size[0]}x{sequence.image_size[1]}"
+        )
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def sequence_from_simulation(sim_map, image_size) -> Sequence:
+    """A simulated map (:func:`jaxsem.sim.simulate`, one map, no batch axis) as a :class:`Sequence`.
+
+    Poses are the noisy odometry (``pose_prior``), detections the noisy boxes with the
+    ground-truth association (id = object slot) and the texture-plane depth where the simulator
+    gives one; ``truth`` holds the true poses and every object of the map. No images.
+
+    Args:
+      sim_map: a :class:`jaxsem.sim.SimulatedMap` (fields ``pose_prior`` (T, 4, 4), ``boxes``
+        (T, N, 4), ``box_mask`` (T, N), ``texture_depth`` / ``texture_mask`` (T, N), ``object_*``,
+        ``camera_T_world``, ``K``).
+      image_size: ``(width, height)``, e.g. ``config.image_size``.
+    """
+    from .. import factors
+
+    g = lambda name: np.asarray(getattr(sim_map, name))
+    pose, boxes, mask = g("pose_prior"), g("boxes"), g("box_mask")
+    if pose.ndim != 3 or boxes.ndim != 3:
+        raise ValueError(f"sim_map: expected one map (pose_prior (T, 4, 4)), got pose_prior {pose.shape}")
+    tex, tex_mask, cls = g("texture_depth"), g("texture_mask"), g("object_class")
+    names = [factors.CLASS_NAMES[int(c)] for c in cls]
+    frames = []
+    for t in range(pose.shape[0]):
+        js = np.flatnonzero(mask[t])
+        frames.append(SequenceFrame(
+            camera_T_world=pose[t].astype(np.float64), boxes=boxes[t, js].astype(np.float64).reshape(-1, 4),
+            classes=tuple(names[j] for j in js), ids=tuple(int(j) for j in js),
+            texture_depth=np.where(tex_mask[t, js], tex[t, js], np.nan).astype(np.float64),
+        ))
+    objects = [
+        {"id": int(j), "class": names[j], "center": g("object_center")[j].astype(np.float64),
+         "radii": g("object_radii")[j].astype(np.float64), "rotation": g("object_rotation")[j].astype(np.float64)}
+        for j in np.flatnonzero(g("object_mask"))
+    ]
+    truth = {"camera_T_world": g("camera_T_world").astype(np.float64), "objects": objects}
+    return Sequence(K=g("K").astype(np.float64), image_size=(int(image_size[0]), int(image_size[1])),
+                    frames=tuple(frames), truth=truth)
+
+
+# --------------------------------------------------------------------------------------------
+# The online smoother over a sequence.
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceResult:
+    """What :func:`run_sequence` returns (numpy).
+
+    Attributes:
+      object_ids: (J,) association ids; object_classes: (J,) class names.
+      rotation (J, 3, 3), center (J, 3), radii (J, 3): the estimated ellipsoids.
+      camera_T_world: (T, 4, 4) estimated pose of every frame (the latest estimate it had
+        before it left the smoother's window, or the final one).
+      frame_seconds: (T,) wall time of each ``online_update`` (the first includes compilation).
+      state: the final :class:`jaxsem.slam.OnlineState`.
+    """
+
+    object_ids: tuple
+    object_classes: tuple
+    rotation: np.ndarray
+    center: np.ndarray
+    radii: np.ndarray
+    camera_T_world: np.ndarray
+    frame_seconds: np.ndarray
+    state: Any = None
+
+
+def _bucket(n: int, step: int) -> int:
+    return max(step, -(-int(n) // step) * step)
+
+
+def default_capacity(sequence: Sequence, max_poses: int = 256):
+    """A :class:`jaxsem.slam.Capacity` that fits ``sequence`` (sizes rounded up to buckets so that
+    similar sequences share a compilation): every frame up to ``max_poses``, every object, the
+    most detections of any frame."""
+    from ._problem import Capacity
+
+    T = len(sequence.frames)
+    D = max([len(f.ids) for f in sequence.frames] + [1])
+    J = max(len(sequence.object_ids), 1)
+    P = min(_bucket(T, 16), max_poses)
+    n_boxes = sum(len(f.ids) for f in sequence.frames)
+    B = _bucket(min(n_boxes, P * D), 64)
+    return Capacity(max_poses=P, max_objects=_bucket(J, 8), max_boxes=B, max_detections=_bucket(D, 4))
+
+
+def run_sequence(
+    sequence: Sequence,
+    config=None,
+    *,
+    capacity=None,
+    optimize_every: int = 5,
+    iterations: int = 3,
+    final_iterations: int = 20,
+    window: int | None = None,
+    callback: Callable[[int, Any, float], None] | None = None,
+    dtype=None,
+) -> SequenceResult:
+    """Runs the online smoother (:func:`online_init`, then :func:`online_update` per frame).
+
+    New association ids are initialised from their first detection (section 4.3.5), the graph is
+    optimised every ``optimize_every`` frames, and after the last frame ``final_iterations``
+    LM steps run over everything kept (0 skips it).
+
+    Args:
+      sequence: :class:`Sequence`.
+      config: :class:`jaxsem.slam.SolverConfig` (default: ROSHAN's defaults).
+      capacity: :class:`jaxsem.slam.Capacity` (default :func:`default_capacity`); it must hold
+        every object and the largest frame.
+      optimize_every, iterations, window: as :func:`jaxsem.slam.online_init`.
+      callback: called after every frame as ``callback(index, state, seconds)``.
+      dtype: float dtype (default: jax's default float).
+
+    Returns:
+      :class:`SequenceResult`.
+    """
+    import time
+
+    import jax
+
+    from ._online import online_init, online_optimize, online_update
+    from ._problem import SolverConfig, make_frame
+
+    if not isinstance(sequence, Sequence):
+        raise ValueError(f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}")
+    config = SolverConfig() if config is None else config
+    capacity = default_capacity(sequence) if capacity is None else capacity
+    ids = sequence.object_ids
+    slot = {i: j for j, i in enumerate(ids)}
+    if len(ids) > capacity.max_objects:
+        raise ValueError(f"capacity.max_objects: {capacity.max_objects} < {len(ids)} objects in the sequence")
+    D_max = max(len(f.ids) for f in sequence.frames)
+    if D_max > capacity.max_detections:
+        raise ValueError(f"capacity.max_detections: {capacity.max_detections} < {D_max} detections in one frame")
+    state = online_init(config, capacity, sequence.K, sequence.image_size, optimize_every=optimize_every,
+                        iterations=iterations, window=window, dtype=dtype)
+    T, P = len(sequence.frames), capacity.max_poses
+    poses = np.zeros((T, 4, 4))
+    seconds = np.zeros(T)
+    for t, fr in enumerate(sequence.frames):
+        frame = make_frame(fr.camera_T_world, fr.boxes, list(fr.classes), [slot[i] for i in fr.ids],
+                           fr.texture_depth, max_detections=capacity.max_detections,
+                           max_objects=capacity.max_objects, dtype=state.problem.K.dtype)
+        start = time.perf_counter()
+        state = jax.block_until_ready(online_update(state, frame))
+        seconds[t] = time.perf_counter() - start
+        if t + 1 >= P and t + 1 < T:  # the next frame reuses the slot of frame t + 1 - P
+            poses[t + 1 - P] = np.asarray(state.estimate.camera_T_world[(t + 1) % P])
+        if callback is not None:
+            callback(t, state, seconds[t])
+    if final_iterations > 0:
+        state = online_optimize(state, final_iterations)
+    est = state.estimate
+    pose_frame = np.asarray(state.pose_frame)
+    cams = np.asarray(est.camera_T_world, np.float64)
+    for s, t in enumerate(pose_frame):
+        if 0 <= t < T:
+            poses[t] = cams[s]
+    J = len(ids)
+    return SequenceResult(
+        object_ids=ids, object_classes=sequence.object_classes,
+        rotation=np.asarray(est.rotation[:J], np.float64), center=np.asarray(est.center[:J], np.float64),
+        radii=np.asarray(est.radii[:J], np.float64), camera_T_world=poses, frame_seconds=seconds,
+        state=state,
+    )
+
+
+def map_to_json(object_ids, object_classes, rotation, center, radii, camera_T_world=None) -> dict:
+    """An estimated map as a JSON-ready dict.
+
+    Args:
+      object_ids: (J,) association ids; object_classes: (J,) class names.
+      rotation: (J, 3, 3) object-to-world; center: (J, 3) world; radii: (J, 3) semi-axes (m).
+      camera_T_world: optional (T, 4, 4) estimated poses, written as ``"camera_T_world"``.
+
+    Returns:
+      ``{"format", "frame": "world", "units": "metres", "objects": [{"id", "class", "center",
+      "radii", "rotation"}], ["camera_T_world"]}``. ``SequenceResult`` fields fit directly:
+      ``map_to_json(r.object_ids, r.object_classes, r.rotation, r.center, r.radii, r.camera_T_world)``.
+    """
+    rotation = np.asarray(rotation, np.float64).reshape(-1, 3, 3)
+    center = np.asarray(center, np.float64).reshape(-1, 3)
+    radii = np.asarray(radii, np.float64).reshape(-1, 3)
+    J = len(object_ids)
+    if not (len(object_classes) == rotation.shape[0] == center.shape[0] == radii.shape[0] == J):
+        raise ValueError(
+            f"object_ids, object_classes, rotation, center, radii: expected {J} objects each, got "
+            f"{len(object_classes)}, {rotation.shape[0]}, {center.shape[0]}, {radii.shape[0]}"
+        )
+    out = {
+        "format": "jaxsem.roshan.map/1", "frame": "world", "units": "metres",
+        "objects": [
+            {"id": object_ids[j], "class": object_classes[j], "center": center[j].tolist(),
+             "radii": radii[j].tolist(), "rotation": rotation[j].tolist()}
+            for j in range(J)
+        ],
+    }
+    if camera_T_world is not None:
+        out["camera_T_world"] = np.asarray(camera_T_world, np.float64).tolist()
+    return out
+
+
+def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
+    """Per-object errors of ``result`` against ``sequence.truth`` (matched by id).
+
+    Returns:
+      ``{"ids": [...], "shape": (K,), "position": (K,), "orientation": (K,) deg, "mean": {metric:
+      float}}`` over the K estimated objects that have a true counterpart
+      (:func:`jaxsem.metrics.ellipsoid_errors`, symmetry-aware).
+    """
+    from ..metrics import ellipsoid_errors
+
+    by_id = {o["id"]: o for o in truth.get("objects", [])}
+    keep = [j for j, i in enumerate(result.object_ids) if i in by_id]
+    out: dict = {"ids": [result.object_ids[j] for j in keep]}
+    if not keep:
+        return {**out, "shape": np.zeros(0), "position": np.zeros(0), "orientation": np.zeros(0),
+                "mean": {}}
+    tr = [by_id[result.object_ids[j]] for j in keep]
+    e = ellipsoid_errors(
+        result.rotation[keep], result.center[keep], result.radii[keep],
+        np.stack([o["rotation"] for o in tr]), np.stack([o["center"] for o in tr]),
+        np.stack([o["radii"] for o in tr]),
+    )
+    for k, v in e.items():
+        out[k] = np.asarray(v, np.float64)
+    out["mean"] = {k: float(np.mean(out[k])) for k in ("shape", "position", "orientation")}
+    return out
 
 
 # --------------------------------------------------------------------------------------------
