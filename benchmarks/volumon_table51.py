@@ -48,6 +48,16 @@ def _median_time(fn, repeats):
     return float(np.median(ts))
 
 
+def _machine() -> str:
+    """Where the run happened, for the results table (timings are only comparable on one machine)."""
+    import os
+
+    dev = jax.devices()[0]
+    if dev.platform == "cpu":
+        return f"{os.cpu_count()}-core CPU (shared, noisy)"
+    return f"{dev.device_kind} ({dev.platform}), jax {jax.__version__}"
+
+
 def _test_set(cfg, num, batch=32, noisy=False):
     from jaxsem.volumon import make_batch
 
@@ -70,7 +80,10 @@ def main():
     p.add_argument("--skip-thesis-net", action="store_true", help="skip timing the 224x224 width-1.0 network")
     p.add_argument("--workdir", type=pathlib.Path, default=None, help="training runs (default: a temp dir)")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
+    p.add_argument("--tag", default="volumon_table51", help="name of the result files (<tag>.json, <tag>.md)")
     a = p.parse_args()
+    machine = _machine()
+    print(f"machine: {machine}", flush=True)
 
     from jaxsem.models import VoluMonConfig, init_volumon
     from jaxsem.volumon import evaluate_predictions, get_config, make_predict_fn, optimise_from_scratch, postopt, train_and_evaluate
@@ -94,6 +107,10 @@ def main():
         rows[NAMES[v]] = evaluate_predictions(ell._asdict(), test)
         models[v] = (cfg, variables, predict, test, phi)
         print(NAMES[v], rows[NAMES[v]], flush=True)
+        # partial results survive an interrupted run (a long benchmark must not lose finished rows)
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / f"{a.tag}.partial.json").write_text(json.dumps(
+            {"machine": machine, "args": {k: str(x) for k, x in vars(a).items()}, "rows": rows}, indent=1))
 
     # network time per detection (batched), CPU config
     cfg0, variables0, predict0, test0, _ = models[a.variants[0]]
@@ -155,8 +172,8 @@ def main():
 
     cmd = "python benchmarks/volumon_table51.py " + " ".join(sys.argv[1:])
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
-    (a.out / "volumon_table51.json").write_text(json.dumps({
-        "command": cmd, "date": date, "machine": "2-core CPU (shared, noisy)", "args": {k: str(v) for k, v in vars(a).items()},
+    (a.out / f"{a.tag}.json").write_text(json.dumps({
+        "command": cmd, "date": date, "machine": machine, "args": {k: str(v) for k, v in vars(a).items()},
         "rows": rows, "timing_ms": timing, "thesis": THESIS, "total_s": time.perf_counter() - t_start}, indent=1))
     best_adi = max(r["adi_auc"] for r in rows.values())
     behind = []
@@ -164,15 +181,16 @@ def main():
         behind.append(f"Dual only reaches {100 * rows['Dual only']['adi_auc'] / best_adi:.0f} % of the best ADI AUC (thesis: about 67 %)")
     if "Scratch (500)" in rows and rows["Scratch (500)"]["trans_auc"] > 0:
         behind.append(f"PostOpt / Scratch(500) translation AUC ratio {rows['PostOpt (50)']['trans_auc'] / rows['Scratch (500)']['trans_auc']:.2f} (thesis 1.41)")
-    md = (f"## VoluMon, thesis Table 5.1 (synthetic held-out split)\n\n"
-          f"Command: `{cmd}`  \nDate: {date}  \nMachine: 2-core CPU (shared, noisy)  \n"
+    md = (f"## VoluMon, thesis Table 5.1 (synthetic held-out split{'' if a.tag == 'volumon_table51' else ', ' + a.tag})\n\n"
+          f"Command: `{cmd}`  \nDate: {date}  \nMachine: {machine}  \n"
           f"Training: {a.steps} steps x batch {a.batch_size} per variant on {a.num_train} synthetic samples; "
           f"{n} held-out detections (unseen backgrounds and poses); AUCs out of 10 up to 10 cm.\n\n"
           f"{table}\n\n{speed_table}\n\n"
-          f"Where we are behind: the networks are trained for minutes on a CPU (the thesis: 14000 epochs on a GPU), "
+          f"Where we are behind: the networks are trained for {a.steps} steps x batch {a.batch_size} (the thesis: 14000 epochs on a GPU), "
           f"so the learned variants' absolute accuracy is far below the thesis; {'; '.join(behind)}.\n")
-    (a.out / "volumon_table51.md").write_text(md)
-    print(f"wrote {a.out / 'volumon_table51.json'} and .md ({time.perf_counter() - t_start:.0f} s)")
+    (a.out / f"{a.tag}.md").write_text(md)
+    (a.out / f"{a.tag}.partial.json").unlink(missing_ok=True)
+    print(f"wrote {a.out / (a.tag + '.json')} and .md ({time.perf_counter() - t_start:.0f} s)")
 
 
 if __name__ == "__main__":
