@@ -329,6 +329,12 @@ def _parse_truth(where, tr, num_frames):
 def load_sequence(path) -> Sequence:
     """Reads a sequence directory (or its ``sequence.json``), validating every field.
 
+    Layout: ``{"K": 3x3, "image_size": [width, height], "frames": [{"camera_T_world": 4x4,
+    "image": optional file name relative to the directory, "detections": [{"box": [u_min,
+    v_min, u_max, v_max], "class": name, "id": int >= 0 or string, "texture_depth": optional
+    metres}]}], "truth": optional {"camera_T_world": [4x4 per frame], "objects": [{"id", "class",
+    "center", "radii", "rotation"}]}}``.
+
     Args:
       path: the directory holding ``sequence.json``, or the JSON file itself. Image names are
         relative to the JSON file's directory.
