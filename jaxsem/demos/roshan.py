@@ -43,19 +43,20 @@ def simulate_and_solve(seed: int, num_maps: int, cfg, *, every: int = 10, steps:
     from .. import sim, slam
 
     maps = sim.simulate_batch(seed, num_maps, cfg)
-    problems = jax.vmap(lambda m: sim.to_problem(m, cfg))(maps)
     estimates, errors, seconds = {}, {}, {}
     for system in (sim.BASELINE, sim.ROSHAN):
         sc = sim.solver_config(system, cfg, max_steps=steps)
+
+        def one(m, c, system=system):  # everything in one jit: eager ops compile one by one
+            problem = sim.to_problem(m, cfg)
+            init = sim.initial_estimate(m)
+            if system == sim.ROSHAN and cfg.init_mode == "single_view":
+                init = slam.initialize(problem, c)
+            est, _ = sim.solve_online(problem, init, c, every=every, init_radii=init.radii)
+            return est, sim.map_errors(est, m)
+
         start = time.perf_counter()
-        init = jax.vmap(sim.initial_estimate)(maps)
-        if system == sim.ROSHAN and cfg.init_mode == "single_view":
-            init = jax.vmap(slam.initialize, in_axes=(0, None))(problems, sc)
-        solve = jax.jit(jax.vmap(
-            lambda p, i, r, c: sim.solve_online(p, i, c, every=every, init_radii=r)[0],
-            in_axes=(0, 0, 0, None)))
-        est = solve(problems, init, init.radii, sc)
-        err = jax.vmap(sim.map_errors)(est, maps)
+        est, err = jax.jit(jax.vmap(one, in_axes=(0, None)))(maps, sc)
         errors[system] = jax.tree_util.tree_map(np.asarray, jax.block_until_ready(err))
         estimates[system] = est
         seconds[system] = time.perf_counter() - start
