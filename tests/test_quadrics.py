@@ -131,6 +131,93 @@ def test_conic_route_equals_closed_form(cases):
     assert np.all(np.asarray(valid2))
 
 
+def _composed_bbox(R, c, r, K, pose):
+    """The readable reference: dual quadric -> dual conic -> eq. 4.10."""
+    return q.conic_bbox(q.project_dual_conic(q.dual_quadric(R, c, r), K, pose))
+
+
+def _cases_with_invalid(rng, n):
+    """Random cases in front of the camera, plus cases with the camera inside the ellipsoid and
+    cases straddling the principal plane (far from the boundaries of either mask)."""
+    R, c, r, K, pose = random_case(rng, n)
+    kind = np.arange(n) % 4  # 0, 1: in front; 2: camera inside; 3: straddling the image plane
+    cam_R, cam_t = pose[:, :3, :3], pose[:, :3, 3]
+    center_cam = np.einsum("nij,nj->ni", cam_R, c) + cam_t
+    inside = rng.uniform(-0.3, 0.3, size=(n, 3)) * r.min(axis=1, keepdims=True)
+    center_cam = np.where((kind == 2)[:, None], inside, center_cam)
+    r_depth = np.sqrt(np.sum(np.square(np.einsum("nij,njk->nik", cam_R, R)[:, 2, :] * r), axis=1))
+    straddle = center_cam * 0.0
+    straddle[:, :2] = rng.uniform(-0.2, 0.2, size=(n, 2)) * r.min(axis=1, keepdims=True)
+    straddle[:, 2] = rng.uniform(-0.5, 0.5, size=n) * r_depth
+    center_cam = np.where((kind == 3)[:, None], straddle, center_cam)
+    c = np.einsum("nji,nj->ni", cam_R, center_cam - cam_t)
+    return (R, c, r, K, pose), kind
+
+
+def test_fused_path_agrees_with_composed_conic_path():
+    rng = np.random.default_rng(21)
+    (R, c, r, K, pose), kind = _cases_with_invalid(rng, 400)
+    box, valid = q.project_bbox(R, c, r, K, pose)
+    ref, ref_valid = _composed_bbox(R, c, r, K, pose)
+    box, valid, ref, ref_valid = map(np.asarray, (box, valid, ref, ref_valid))
+    assert np.array_equal(valid, ref_valid)
+    assert np.array_equal(valid, kind < 2)
+    np.testing.assert_allclose(box[valid], ref[valid], rtol=1e-9, atol=1e-9 * np.abs(ref[valid]).max())
+    assert np.all(np.isfinite(box))
+    # Behind the camera the dual conic is that of the mirror image (conic_bbox cannot tell the
+    # two apart, as documented); the fused path's depth test rejects it.
+    behind = (R[:20], -c[:20] + 2 * np.einsum("nji,nj->ni", pose[:20, :3, :3], -pose[:20, :3, 3]), r[:20], K[:20], pose[:20])
+    _, v_behind = q.project_bbox(*behind)
+    _, ref_behind = _composed_bbox(*behind)
+    assert not np.any(np.asarray(v_behind)) and np.all(np.asarray(ref_behind)[np.asarray(kind[:20] < 2)])
+
+
+_K_USED = np.zeros((3, 3), bool)
+_K_USED[0, 0] = _K_USED[0, 1] = _K_USED[0, 2] = _K_USED[1, 1] = _K_USED[1, 2] = True
+
+
+def test_fused_path_gradients_match_composed_conic_path():
+    rng = np.random.default_rng(22)
+    R, c, r, K, pose = random_case(rng, 200)
+    weights = rng.normal(size=(200, 4))
+    loss = lambda fn: (lambda *args: jnp.sum(fn(*args)[0] * weights))
+    grads = jax.grad(loss(q.project_bbox), argnums=(0, 1, 2, 3, 4))(R, c, r, K, pose)
+    ref = jax.grad(loss(_composed_bbox), argnums=(0, 1, 2, 3, 4))(R, c, r, K, pose)
+    grads, ref = [np.asarray(g) for g in grads], [np.asarray(g) for g in ref]
+    # K enters only through fx, s, cx, fy, cy (K is checked to have that form at the boundary);
+    # the composed path also differentiates the structural zeros and ones.
+    assert np.all(grads[3][:, ~_K_USED] == 0)
+    grads[3], ref[3] = grads[3][:, _K_USED], ref[3][:, _K_USED]
+    for name, g, g_ref in zip(["rotation", "center", "radii", "K", "camera_T_world"], grads, ref):
+        np.testing.assert_allclose(g, g_ref, rtol=1e-7, atol=1e-10 * np.abs(g_ref).max(), err_msg=name)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_fused_path_custom_jvp_matches_plain_autodiff(dtype):
+    """The hand-written JVP rule (and so its transpose, the gradient) against autodiff of the same
+    forward formulas, on valid and invalid cases alike (invalid boxes have a defined gradient too)."""
+    rng = np.random.default_rng(23)
+    (R, c, r, K, pose), kind = _cases_with_invalid(rng, 400)
+    r[::37] = 0.0  # zero radii: the square roots sit at zero
+    c[1::41] = -c[1::41]  # some behind the camera
+    args = [jnp.asarray(a, dtype) for a in (R, c, r, K, pose)]
+    tangents = [jnp.asarray(rng.normal(size=np.shape(a)), dtype) for a in args]
+    (box, valid), (dbox, _) = jax.jvp(q._project_bbox, args, tangents)
+    (box_p, valid_p), (dbox_p, _) = jax.jvp(q._project_bbox_plain, args, tangents)
+    assert np.array_equal(valid, valid_p) and not np.all(valid) and np.any(valid)
+    np.testing.assert_array_equal(box, box_p)
+    tol = 1e-10 if dtype == np.float64 else 1e-4
+    scale = np.abs(np.asarray(dbox_p, np.float64)) + 1e-3 * np.abs(np.asarray(dbox_p, np.float64)).max()
+    assert np.all(np.abs(np.asarray(dbox, np.float64) - np.asarray(dbox_p, np.float64)) <= tol * scale)
+    g = jnp.asarray(rng.normal(size=box.shape), dtype)
+    vjp = jax.vjp(lambda *a: q._project_bbox(*a)[0], *args)[1](g)
+    vjp_p = jax.vjp(lambda *a: q._project_bbox_plain(*a)[0], *args)[1](g)
+    for a, b in zip(vjp, vjp_p):
+        a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        assert np.all(np.isfinite(a))
+        np.testing.assert_allclose(a, b, rtol=tol, atol=tol * np.abs(b).max())
+
+
 def test_texture_plane_depth_matches_nearest_surface_point(cases):
     R, c, r, K, pose = cases
     depth, valid = q.texture_plane_depth(R, c, r, pose)
