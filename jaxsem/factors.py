@@ -178,7 +178,14 @@ def robust_residual(r, loss: str = "l2", scale=1.0):
 
 
 def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma):
-    """Pose prior factor: ``log(prior^-1 pose) / sigma`` on SE(3).
+    """Pose prior factor: ``log(prior pose^-1) / sigma`` on SE(3), in the camera frame.
+
+    The error is expressed in the camera (body) frame, as GTSAM's ``PriorFactor<Pose3>`` on
+    ``world_T_camera`` does (``prior pose^-1 = world_T_prior^-1 world_T_camera``): odometry noise
+    is a rotation about the camera's own centre plus a shift of that centre, so its whitened
+    residual has unit variance whatever the camera's distance from the world origin. (The
+    world-frame error ``log(prior^-1 pose)`` turns a 1 deg rotation 30 m from the origin into a
+    0.5 m translation residual and over-weights the prior far from the origin.)
 
     Args:
       camera_T_world: (..., 4, 4) pose estimate; prior: (..., 4, 4) measured pose.
@@ -188,7 +195,7 @@ def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma
       (..., 6) whitened ``[translation part v (3), rotation part omega (3)]`` of jaxlie's log.
     """
     err = (
-        jaxlie.SE3.from_matrix(prior).inverse() @ jaxlie.SE3.from_matrix(camera_T_world)
+        jaxlie.SE3.from_matrix(prior) @ jaxlie.SE3.from_matrix(camera_T_world).inverse()
     ).log()
     ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
