@@ -85,22 +85,45 @@ def test_dual_loss_on_rendered_data():
     assert float(loss) < 1e-6
 
 
-def test_primal_loss_zero_on_surface_and_formula():
+@pytest.mark.parametrize("power", [None, 0.5, 0.0])
+def test_primal_loss_zero_on_surface_and_formula(power):
     ell = _random_ellipsoids(2, 4)
     pts = quadrics.surface_points(jax.random.PRNGKey(0), *ell, 50)
     mask = jnp.ones(pts.shape[:-1], bool)
     assert float(primal_loss(ell, pts, mask)) < 1e-20
-    # independent reference: eq. 5.12 with the primal quadric matrix, sizes in cm
+    # independent reference: eq. 5.12 with the primal quadric matrix, sizes in cm; the default
+    # weight is Solina and Bajcsy's (sqrt(d0 d1 d2) x^T Q x)^2, 0.5 the literal eq. 5.12
     off = pts * 1.1
-    cfg = LossConfig()
+    cfg = LossConfig() if power is None else LossConfig(primal_size_power=power)
+    p = 1.0 if power is None else power
     Q = np.asarray(quadrics.primal_quadric(*ell))
     ref = []
     for k in range(4):
         X = np.concatenate([np.asarray(off[k]), np.ones((50, 1))], -1)
         q = np.einsum("ni,ij,nj->n", X, Q[k], X)
         d = 2 * np.asarray(ell.radii[k]) / cfg.length_unit
-        ref.append(np.sqrt(np.prod(d)) * np.mean(q**2))
+        ref.append(np.prod(d) ** p * np.mean(q**2))
     np.testing.assert_allclose(primal_loss(ell, off, mask, config=cfg), np.mean(ref), rtol=1e-8)
+
+
+def test_primal_size_weight_does_not_favour_large_ellipsoids():
+    """The size weight is there to "mitigate the bias of fitting to larger primitive sizes": at the
+    same geometric distance of the points from the surface, a larger ellipsoid must not score
+    better. With eq. 5.12 read literally (weight sqrt(d0 d1 d2)) it does (error ~ delta^2 / sqrt(r)),
+    which let Optimise from scratch grow boxes' ellipsoids to a metre and recede."""
+    dirs = np.asarray(quadrics.surface_points(jax.random.PRNGKey(3), jnp.eye(3), jnp.zeros(3), jnp.ones(3), 40))
+    delta = 0.005
+    eye, zero, mask = jnp.eye(3)[None], jnp.zeros((1, 3)), jnp.ones((1, 40), bool)
+
+    def loss(r, cfg):
+        pts = jnp.asarray(dirs * (r + delta))[None]  # all points delta outside a sphere of radius r
+        return float(primal_loss(Ellipsoid(eye, zero, jnp.full((1, 3), r)), pts, mask, config=cfg))
+
+    default = LossConfig()
+    for r in (0.03, 0.06, 0.12):
+        assert loss(2 * r, default) > loss(r, default)
+    literal = LossConfig(primal_size_power=0.5)
+    assert loss(0.12, literal) < loss(0.06, literal)  # the documented flaw of the literal reading
 
 
 def test_primal_loss_masks_and_empty_masks():
@@ -179,3 +202,5 @@ def test_loss_config_validation():
         LossConfig(alpha_D=-1.0)
     with pytest.raises(ValueError, match="length_unit"):
         LossConfig(length_unit=0.0)
+    with pytest.raises(ValueError, match="primal_size_power"):
+        LossConfig(primal_size_power=-0.5)

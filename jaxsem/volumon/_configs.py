@@ -78,8 +78,11 @@ def default_config() -> TrainConfig:
     """CPU-sized VoluMon Both: width 0.35, 64 x 64 inputs, 128 x 96 images (f = 110 px)."""
     scene = SceneConfig()
     recon = ReconstructionConfig(baseline_focal=scene.baseline * scene.focal, alpha_delta=30.0)
-    # box errors in units of 10 px keep the dual term on the primal term's scale
-    loss = LossConfig(pixel_scale=10.0)
+    # box errors in pixels (the thesis). With the primal size weight of eq. 5.12 read literally
+    # (sqrt(d0 d1 d2)) this config divided them by 10 to keep the dual term near the primal term's
+    # scale; with the default weight (d0 d1 d2, ~50 times larger at cracker-box sizes) plain pixels
+    # give about the same balance (primal : dual ~15 : 1 on a trained Both network, was ~10 : 1).
+    loss = LossConfig(pixel_scale=1.0)
     return TrainConfig(recon=recon, loss=loss, scene=scene)
 
 
