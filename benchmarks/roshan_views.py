@@ -51,21 +51,12 @@ INIT_TEXT = {
 }
 
 
-def _ints(text, name):
+def _numbers(text, name, kind=float):
+    """A comma list of ``kind`` values from the command line (at least one)."""
     try:
-        values = [int(x) for x in text.split(",") if x.strip()]
+        values = [kind(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise SystemExit(f"{name}: expected a comma list of ints, got {text!r}") from None
-    if not values:
-        raise SystemExit(f"{name}: expected at least one value")
-    return values
-
-
-def _floats(text, name):
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise SystemExit(f"{name}: expected a comma list of numbers, got {text!r}") from None
+        raise SystemExit(f"{name}: expected a comma list of {kind.__name__}s, got {text!r}") from None
     if not values:
         raise SystemExit(f"{name}: expected at least one value")
     return values
@@ -88,9 +79,9 @@ def parse_args(argv=None):
                    help="folder for roshan_views.json / .md / .png")
     p.add_argument("--name", default="roshan_views", help="output file stem")
     args = p.parse_args(argv)
-    args.seed_list = _ints(args.seeds, "--seeds")
-    args.view_list = _ints(args.views, "--views")
-    args.yaw_list = _floats(args.yaw_ranges, "--yaw-ranges")
+    args.seed_list = _numbers(args.seeds, "--seeds", kind=int)
+    args.view_list = _numbers(args.views, "--views", kind=int)
+    args.yaw_list = _numbers(args.yaw_ranges, "--yaw-ranges")
     if args.objects < 1 or args.steps < 1 or min(args.view_list) < 1:
         raise SystemExit("--objects, --steps and every --views entry must be positive")
     if args.pose_noise_deg is not None and not args.pose_noise_deg >= 0:

@@ -662,21 +662,11 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
 
 
 def _ground_outline(rotation, center, radii, num_points: int = 72):
-    """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y.
+    """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y."""
+    from .. import quadrics as Q
 
-    The shadow of ``{x : (x - c)^T (R diag(r^2) R^T)^-1 (x - c) <= 1}`` on the ground is the
-    ellipse whose shape matrix is the top-left 2x2 block of ``R diag(r^2) R^T``.
-    """
-    rotation = np.asarray(rotation, np.float64)
-    radii = np.abs(np.asarray(radii, np.float64))
-    center = np.asarray(center, np.float64)
-    shape = np.einsum("...ik,...k,...jk->...ij", rotation, radii**2, rotation)[..., :2, :2]
-    lam, vec = np.linalg.eigh(shape)
-    axes = np.sqrt(np.maximum(lam, 0.0))
-    t = np.linspace(0.0, 2.0 * np.pi, num_points)
-    circle = np.stack([np.cos(t), np.sin(t)], -1)  # (n, 2)
-    local = circle * axes[..., None, :]
-    return np.einsum("...ij,...nj->...ni", vec, local) + center[..., None, :2]
+    outline, _ = Q.conic_outline(Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points)
+    return np.asarray(outline, np.float64)
 
 
 def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style):

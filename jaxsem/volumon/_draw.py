@@ -4,29 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..quadrics import dual_quadric, project_dual_conic
+from ..quadrics import conic_outline as quadrics_conic_outline, dual_quadric, project_dual_conic
 
 _EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (4, 5), (4, 6), (5, 7), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
 
 
 def conic_outline(rotation, center, radii, K, n: int = 100):
     """(n, 2) pixel points of the ellipse outline (camera-frame ellipsoid), or None if not an ellipse."""
-    Cs = np.asarray(project_dual_conic(dual_quadric(rotation, center, radii), K, np.eye(4)), np.float64)
-    try:
-        C = np.linalg.inv(Cs)
-    except np.linalg.LinAlgError:
-        return None
-    A, b, c = C[:2, :2], C[:2, 2], C[2, 2]
-    try:
-        x0 = -np.linalg.solve(A, b)
-    except np.linalg.LinAlgError:
-        return None
-    k = b @ np.linalg.solve(A, b) - c
-    w, V = np.linalg.eigh(A / k)
-    if np.any(w <= 0):
-        return None
-    t = np.linspace(0, 2 * np.pi, n)
-    return x0 + (V @ (np.stack([np.cos(t), np.sin(t)]) / np.sqrt(w)[:, None])).T
+    conic = project_dual_conic(dual_quadric(rotation, center, radii), K, np.eye(4))
+    outline, valid = quadrics_conic_outline(conic, n)
+    return np.asarray(outline, np.float64) if bool(valid) else None
 
 
 def box_corners_2d(rotation, center, radii, K):
