@@ -1,0 +1,62 @@
+"""Object maps for planning (thesis 5.8.2-5.8.3): ellipsoid estimates in, LSD's semantic grid out.
+
+A functional store with a fixed capacity (an equinox pytree; jit once, ``vmap`` over robots):
+
+- :func:`init` (capacity) -> :class:`ObjectMap`; :func:`update` (state, :class:`Ellipsoids` of
+  one frame) -> state: greedy class-aware association by centroid distance with a gate, then
+  fusion (``"latest"`` as the thesis, or ``"mean"``); :func:`associate` alone.
+- :func:`semantic_grid`: each object's ground footprint (orthographic projection along z,
+  :func:`jaxsem.quadrics.rasterize_footprint`) with its class id, on the occupancy grid's cells.
+  Use the planning world's ids (``jaxsem.planning.DOOR``, ``WINDOW``, ``EXIT_SIGN``).
+- Planning glue: :func:`with_object_map` (a ``MapState`` whose semantic channel is the raster),
+  :func:`object_map_sampler` (an LSD sampler that reads the object map).
+- Ground truth: :func:`building_objects` / :func:`ground_truth_map` turn a generated building's
+  doors, windows and exit signs into boxes and inscribed ellipsoids.
+
+Example::
+
+    from jaxsem import mapping, planning
+    state = mapping.init(64)
+    dets = mapping.ellipsoids(rotation, center, radii, class_id=[planning.DOOR] * len(center))
+    state = mapping.update(state, dets, gate=1.0)
+    grid = mapping.semantic_grid(state, building.shape, building.origin, building.resolution)
+"""
+
+from ._building import (
+    BuildingObjects,
+    ObjectHeights,
+    box_ellipsoids,
+    building_objects,
+    ground_truth_map,
+)
+from ._planning import object_map_sampler, with_object_map
+from ._store import (
+    FUSIONS,
+    Association,
+    Ellipsoids,
+    ObjectMap,
+    associate,
+    ellipsoids,
+    init,
+    semantic_grid,
+    update,
+)
+
+__all__ = [
+    "FUSIONS",
+    "Association",
+    "BuildingObjects",
+    "Ellipsoids",
+    "ObjectHeights",
+    "ObjectMap",
+    "associate",
+    "box_ellipsoids",
+    "building_objects",
+    "ellipsoids",
+    "ground_truth_map",
+    "init",
+    "object_map_sampler",
+    "semantic_grid",
+    "update",
+    "with_object_map",
+]
