@@ -8,8 +8,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem.planning import (OCCUPIED, UNKNOWN, SoftCostGraph, build_roadmap, embed_local_distribution,
-                             knn_within_radius, roadmap_shortest_path, shortest_path, soft_cost)
+from jaxsem.planning import (
+    OCCUPIED,
+    PRM,
+    UNKNOWN,
+    SoftCostGraph,
+    build_roadmap,
+    embed_local_distribution,
+    knn_within_radius,
+    roadmap_grow,
+    roadmap_init,
+    roadmap_shortest_path,
+    shortest_path,
+    soft_cost,
+)
 
 RES = 0.1
 ORIGIN = np.array([0.0, 0.0])
@@ -22,7 +34,7 @@ def _blocks(seed, shape=(32, 36), n=10):
     occ = np.zeros(shape, bool)
     for _ in range(n):
         r, c = rng.integers(0, shape[0] - 3), rng.integers(0, shape[1] - 3)
-        occ[r:r + rng.integers(1, 6), c:c + rng.integers(1, 4)] = True
+        occ[r : r + rng.integers(1, 6), c : c + rng.integers(1, 4)] = True
     return occ
 
 
@@ -73,7 +85,9 @@ def test_soft_cost_dijkstra_matches_python_reference(seed):
         steps = np.diff(p.cells, axis=0)
         assert np.all(np.abs(steps).max(1) == 1)
         lens = RES * np.linalg.norm(steps, axis=1)
-        c = np.sum(lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)]))
+        c = np.sum(
+            lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)])
+        )
         assert c == pytest.approx(ref[tuple(goal)], rel=1e-12)
         assert p.length == pytest.approx(lens.sum(), rel=1e-12)
 
@@ -121,11 +135,15 @@ def test_prm_finds_the_corridor_path():
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
     found = 0
     for seed in range(3):
-        rm = build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS)
+        rm = build_roadmap(
+            jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS
+        )
         p = roadmap_shortest_path(rm)
         found += p.found
         if p.found:
-            assert p.length <= 8.0 * 1.06, p.length  # the straight route through the gap is 8 m
+            assert p.length <= 8.0 * 1.06, (
+                p.length
+            )  # the straight route through the gap is 8 m
             assert np.allclose(p.points[0], start) and np.allclose(p.points[-1], goal)
             crossing = np.interp(5.0, p.points[:, 0], p.points[:, 1])
             assert 2.7 <= crossing <= 3.3
@@ -133,7 +151,9 @@ def test_prm_finds_the_corridor_path():
     # With the gap closed there is no route.
     closed = occ.copy()
     closed[:, 49:51] = True
-    rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS
+    )
     assert not roadmap_shortest_path(rm).found
 
 
@@ -143,7 +163,16 @@ def test_unknown_counts_as_free():
     partial[occ] = UNKNOWN
     partial[:, 49:51] = OCCUPIED
     partial[27:33, 49:51] = UNKNOWN
-    rm = build_roadmap(jax.random.PRNGKey(1), partial, [1.0, 3.0], [9.0, 3.0], N, ORIGIN, RES, radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(1),
+        partial,
+        [1.0, 3.0],
+        [9.0, 3.0],
+        N,
+        ORIGIN,
+        RES,
+        radius=RADIUS,
+    )
     assert roadmap_shortest_path(rm).found
 
 
@@ -151,20 +180,42 @@ def test_concentrated_distribution_places_vertices_there():
     occ = np.zeros((60, 100), bool)
     dist = np.zeros(occ.shape)
     dist[10:20, 70:80] = 1.0
-    rm = build_roadmap(jax.random.PRNGKey(0), occ, [0.5, 0.5], [9.5, 5.5], N, ORIGIN, RES, distribution=dist,
-                       radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(0),
+        occ,
+        [0.5, 0.5],
+        [9.5, 5.5],
+        N,
+        ORIGIN,
+        RES,
+        distribution=dist,
+        radius=RADIUS,
+    )
     pts = np.asarray(rm.points)[2:]
-    assert np.all((pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0))
+    assert np.all(
+        (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
+    )
     # Uniform inside the cells: the in-cell offsets fill the cells.
     frac = (pts / RES) % 1.0
     assert frac.std(0).min() > 0.25
     # A 90 / 10 split of mass shows up in the counts.
     dist2 = np.full(occ.shape, 0.1 / (6000 - 100))
     dist2[10:20, 70:80] = 0.9 / 100
-    rm = build_roadmap(jax.random.PRNGKey(1), occ, [0.5, 0.5], [9.5, 5.5], N, ORIGIN, RES, distribution=dist2,
-                       radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(1),
+        occ,
+        [0.5, 0.5],
+        [9.5, 5.5],
+        N,
+        ORIGIN,
+        RES,
+        distribution=dist2,
+        radius=RADIUS,
+    )
     pts = np.asarray(rm.points)[2:]
-    inside = (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
+    inside = (
+        (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
+    )
     assert abs(inside.mean() - 0.9) < 0.03
 
 
@@ -175,8 +226,18 @@ def test_edges_never_cross_known_obstacles(weight):
     start = ORIGIN + (free[0][::-1] + 0.5) * RES
     goal = ORIGIN + (free[-1][::-1] + 0.5) * RES
     dist = np.random.default_rng(0).random(occ.shape) + 0.1
-    rm = build_roadmap(jax.random.PRNGKey(2), occ, start, goal, N, ORIGIN, RES, distribution=dist,
-                       weight=weight, radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(2),
+        occ,
+        start,
+        goal,
+        N,
+        ORIGIN,
+        RES,
+        distribution=dist,
+        weight=weight,
+        radius=RADIUS,
+    )
     pts = np.asarray(rm.points)
     nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
     assert ok.sum() > 3000
@@ -185,7 +246,9 @@ def test_edges_never_cross_known_obstacles(weight):
     for chunk in np.array_split(np.arange(len(ii)), 20):
         a, b = pts[ii[chunk]][:, None], pts[nbr[ii[chunk], jj[chunk]]][:, None]
         u = (a + t * (b - a) - ORIGIN) / RES  # (E, 801, 2) dense points along each edge
-        interior = np.all(np.abs(u - np.round(u)) > 1e-7, axis=-1)  # not on a cell boundary
+        interior = np.all(
+            np.abs(u - np.round(u)) > 1e-7, axis=-1
+        )  # not on a cell boundary
         rc = np.floor(u).astype(int)
         hit = occ[rc[..., 1], rc[..., 0]] & interior
         assert not hit.any(), chunk[np.any(hit, axis=1)]
@@ -203,29 +266,155 @@ def test_edges_never_cross_known_obstacles(weight):
         assert np.all(w <= lengths * -np.log(p.min()) + 1e-9)
 
 
-def test_knn_matches_brute_force():
+def _brute_knn(pts, valid, k, radius, queries=None, self_idx=None):
+    q = pts if queries is None else queries
+    d = np.linalg.norm(q[:, None] - pts[None], axis=-1)
+    d[:, ~valid] = np.inf
+    if self_idx is not None:
+        d[np.arange(len(q)), self_idx] = np.inf
+    d[d > radius] = np.inf
+    return np.sort(d, axis=1)[:, :k]
+
+
+def _sorted_dists(pts, queries, idx):
+    M = len(pts)
+    d = np.where(
+        idx < M,
+        np.linalg.norm(queries[:, None] - pts[np.minimum(idx, M - 1)], axis=-1),
+        np.inf,
+    )
+    return np.sort(d, axis=1)
+
+
+def _samples(kind, rng, n):
+    if kind == "uniform":
+        return rng.random((n, 2)) * np.array([12.0, 7.0])
+    # Concentrated as under a confident learned distribution: 80 % in one 0.3 m cell.
+    pts = rng.random((n, 2)) * np.array([12.0, 7.0])
+    hot = rng.random(n) < 0.8
+    pts[hot] = np.array([6.0, 3.0]) + rng.random((hot.sum(), 2)) * 0.3
+    return pts
+
+
+@pytest.mark.parametrize("kind", ["uniform", "concentrated"])
+def test_knn_matches_brute_force(kind):
     rng = np.random.default_rng(0)
-    pts = rng.random((700, 2)) * np.array([12.0, 7.0])
+    pts = _samples(kind, rng, 700)
     valid = rng.random(700) > 0.1
     knn = jax.jit(knn_within_radius, static_argnums=(2, 3, 4, 5))
-    nb = np.asarray(knn(jnp.asarray(pts), jnp.asarray(valid), 6, 0.9, 64, (12.0, 7.0)))
-    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
-    d[~valid] = np.inf
-    d[:, ~valid] = np.inf
-    np.fill_diagonal(d, np.inf)
-    for i in np.nonzero(valid)[0]:
-        ref = np.argsort(d[i])[:6]
-        ref = set(ref[d[i, ref] <= 0.9].tolist())
-        assert set(nb[i][nb[i] < 700].tolist()) == ref
+    ref = _brute_knn(pts, valid, 6, 0.9, self_idx=np.arange(700))
+    for cap in (None, 8, 512):
+        nb, overflow = knn(
+            jnp.asarray(pts), jnp.asarray(valid), 6, 0.9, (12.0, 7.0), cap
+        )
+        nb = np.asarray(nb)
+        got = _sorted_dists(pts, pts, nb)[valid]
+        if (
+            cap == 8
+        ):  # 8 slots per bucket cannot hold these samples: flagged, never silent
+            assert bool(overflow)
+            continue
+        assert not bool(overflow)
+        np.testing.assert_allclose(got, ref[valid], rtol=1e-12)
+        assert np.all(nb[~valid] == 700)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "concentrated"])
+def test_grown_roadmap_neighbours_are_exact(kind):
+    """Two batches, a tiny starting bucket cap (forces the rerun): every vertex holds the k
+    nearest of the vertices present when its batch was added, as brute force finds them."""
+    occ = np.zeros((70, 120), bool)
+    dist = np.ones(occ.shape)
+    if kind == "concentrated":
+        dist[30:33, 60:63] = 1e4
+    rm = roadmap_init(800, 6)
+    rm = roadmap_grow(
+        rm,
+        jax.random.PRNGKey(0),
+        occ,
+        400,
+        ORIGIN,
+        RES,
+        distribution=dist,
+        radius=0.9,
+        bucket_cap=2,
+    )
+    rm = roadmap_grow(
+        rm,
+        jax.random.PRNGKey(1),
+        occ,
+        400,
+        ORIGIN,
+        RES,
+        distribution=dist,
+        radius=0.9,
+        bucket_cap=2,
+    )
+    assert not bool(rm.overflow) and int(rm.count) == 800
+    pts = np.asarray(rm.points)
+    nbr = np.asarray(rm.neighbors)
+    valid = np.array(rm.valid)
+    valid[:2] = False  # query slots
+    for lo, hi in ((2, 402), (402, 802)):
+        present = valid.copy()
+        present[hi:] = False
+        ref = _brute_knn(
+            pts, present, 6, 0.9, queries=pts[lo:hi], self_idx=np.arange(lo, hi)
+        )
+        np.testing.assert_allclose(
+            _sorted_dists(pts, pts[lo:hi], nbr[lo:hi]), ref, rtol=1e-12
+        )
+
+
+def test_prm_reuse_grow_and_update():
+    occ = _one_route_map()
+    prm = PRM(occ, ORIGIN, RES, capacity=2 * N, radius=RADIUS)
+    prm.grow(jax.random.PRNGKey(0), N)
+    queries = [
+        ([1.0, 3.0], [9.0, 3.0]),
+        ([1.0, 1.0], [9.0, 5.0]),
+        ([2.0, 5.0], [8.0, 1.0]),
+    ]
+    for s, g in queries:
+        p = prm.query(s, g)
+        assert p.found and np.allclose(p.points[0], s) and np.allclose(p.points[-1], g)
+        # The cached search equals an undirected Dijkstra over the whole edge list.
+        ref = roadmap_shortest_path(prm.roadmap, 0, 1)
+        assert p.cost == pytest.approx(ref.cost, rel=1e-12)
+    before = np.asarray(prm.roadmap.edge_valid).sum()
+    prm.grow(jax.random.PRNGKey(1), N)
+    rm = prm.roadmap
+    assert (
+        prm.count == 2 * N and np.asarray(rm.edge_valid)[2 : N + 2].sum() >= before - 60
+    )
+    # Closing the gap in a newer map removes every edge through it: no route any more.
+    closed = occ.copy()
+    closed[:, 49:51] = True
+    assert prm.update_map(closed) and not prm.update_map(closed)
+    assert not prm.query([1.0, 3.0], [9.0, 3.0]).found
+    assert prm.query([1.0, 3.0], [4.0, 1.0]).found
+    with pytest.raises(ValueError, match="capacity"):
+        prm.grow(jax.random.PRNGKey(2), 1)
 
 
 def test_roadmap_shapes_and_no_nan():
     occ = _one_route_map()
-    rm = build_roadmap(jax.random.PRNGKey(0), occ, [1.0, 3.0], [9.0, 3.0], N, ORIGIN, RES,
-                       distribution=np.ones(occ.shape), weight="neglogp", radius=RADIUS)
+    rm = build_roadmap(
+        jax.random.PRNGKey(0),
+        occ,
+        [1.0, 3.0],
+        [9.0, 3.0],
+        N,
+        ORIGIN,
+        RES,
+        distribution=np.ones(occ.shape),
+        weight="neglogp",
+        radius=RADIUS,
+    )
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
     assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 15)
+    assert not bool(rm.overflow) and int(rm.count) == N
 
 
 def test_embed_local_distribution():
@@ -241,11 +430,15 @@ def test_embed_local_distribution():
     np.testing.assert_allclose(full[outside], local.min() * scale, rtol=1e-12)
     # Near the border the window is clipped, not shifted.
     full = np.asarray(embed_local_distribution(local, (0, 0), (40, 50)))
-    np.testing.assert_allclose(full[:8, :8] / full[:8, :8].sum(), local[8:, 8:] / local[8:, 8:].sum())
+    np.testing.assert_allclose(
+        full[:8, :8] / full[:8, :8].sum(), local[8:, 8:] / local[8:, 8:].sum()
+    )
     # Jittable with a traced centre.
     f = jax.jit(embed_local_distribution, static_argnums=2)
-    np.testing.assert_allclose(np.asarray(f(local, jnp.array([10, 30]), (40, 50))),
-                               np.asarray(embed_local_distribution(local, (10, 30), (40, 50))))
+    np.testing.assert_allclose(
+        np.asarray(f(local, jnp.array([10, 30]), (40, 50))),
+        np.asarray(embed_local_distribution(local, (10, 30), (40, 50))),
+    )
 
 
 def test_prm_bad_input():
@@ -256,13 +449,26 @@ def test_prm_bad_input():
     with pytest.raises(ValueError, match="goal"):
         build_roadmap(key, occ, [1.0, 3.0], [19.0, 3.0], 10, ORIGIN, RES)  # off the map
     with pytest.raises(ValueError, match="known_map"):
-        build_roadmap(key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
+        build_roadmap(
+            key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES
+        )
     with pytest.raises(ValueError, match="known_map"):
         build_roadmap(key, occ[None], [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
     with pytest.raises(ValueError, match="distribution"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, distribution=np.ones((3, 3)))
+        build_roadmap(
+            key,
+            occ,
+            [1.0, 3.0],
+            [9.0, 3.0],
+            10,
+            ORIGIN,
+            RES,
+            distribution=np.ones((3, 3)),
+        )
     with pytest.raises(ValueError, match="distribution"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp")
+        build_roadmap(
+            key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp"
+        )
     with pytest.raises(ValueError, match="n"):
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
     with pytest.raises(ValueError, match="weight"):
@@ -275,16 +481,35 @@ def test_roadmap_builder_vmaps_over_trials():
     from jaxsem.planning import make_roadmap_builder
 
     occ = _one_route_map()
-    build = make_roadmap_builder(N, occ.shape, RES, radius=RADIUS, weight="neglogp", uniform=False)
+    build = make_roadmap_builder(
+        N, occ.shape, RES, radius=RADIUS, weight="neglogp", uniform=False
+    )
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
     dist = np.random.default_rng(0).random((3,) + occ.shape) + 0.1
     starts = np.array([[1.0, 3.0], [1.5, 2.0], [2.0, 4.0]])
     goals = np.array([[9.0, 3.0], [8.5, 1.0], [9.0, 5.0]])
     batch = jax.jit(jax.vmap(build, in_axes=(0, None, 0, 0, 0, None)))(
-        keys, jnp.asarray(occ), dist, starts, goals, jnp.asarray(ORIGIN))
+        keys, jnp.asarray(occ), dist, starts, goals, jnp.asarray(ORIGIN)
+    )
     for i in range(3):
-        one = build_roadmap(keys[i], occ, starts[i], goals[i], N, ORIGIN, RES, distribution=dist[i],
-                            weight="neglogp", radius=RADIUS)
-        np.testing.assert_allclose(np.asarray(batch.points[i]), np.asarray(one.points), rtol=1e-12)
-        np.testing.assert_array_equal(np.asarray(batch.edge_valid[i]), np.asarray(one.edge_valid))
-        np.testing.assert_allclose(np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9)
+        one = build_roadmap(
+            keys[i],
+            occ,
+            starts[i],
+            goals[i],
+            N,
+            ORIGIN,
+            RES,
+            distribution=dist[i],
+            weight="neglogp",
+            radius=RADIUS,
+        )
+        np.testing.assert_allclose(
+            np.asarray(batch.points[i]), np.asarray(one.points), rtol=1e-12
+        )
+        np.testing.assert_array_equal(
+            np.asarray(batch.edge_valid[i]), np.asarray(one.edge_valid)
+        )
+        np.testing.assert_allclose(
+            np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9
+        )

@@ -5,7 +5,8 @@ Example:
     python train/lsd.py --data data/expert --workdir runs/lsd --config cpu
     python train/lsd.py --data data/expert --workdir runs/lsd --config cpu --stage1-steps 3000
 
-Re-running with the same workdir resumes from its latest checkpoint. Figures of predicted
+Re-running with the same workdir resumes from its latest checkpoint; --chunk-steps K ends a run K
+steps past it (run it in a loop to train in chunks, e.g. on data that is still being generated). Figures of predicted
 distributions land in <workdir>/figures, metrics in <workdir>/metrics.json.
 """
 
@@ -20,15 +21,23 @@ def main(argv=None) -> int:
     from jaxsem.lsd import get_config
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, help="folder of expert_*.npz shards (or one shard)")
+    p.add_argument(
+        "--data", required=True, help="folder of expert_*.npz shards (or one shard)"
+    )
     p.add_argument("--workdir", required=True, help="checkpoints, figures, metrics")
-    p.add_argument("--config", default="default", help="default | cpu | tiny")
+    p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
     p.add_argument("--stage1-steps", type=int, default=None)
     p.add_argument("--stage2-steps", type=int, default=None)
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--learning-rate", type=float, default=None)
     p.add_argument("--eval-every", type=int, default=None)
     p.add_argument("--seed", type=int, default=None)
+    p.add_argument(
+        "--chunk-steps",
+        type=int,
+        default=None,
+        help="stop after this many steps past the latest checkpoint (a rerun resumes)",
+    )
     args = p.parse_args(argv)
 
     from jaxsem.cli import enable_compilation_cache
@@ -36,15 +45,34 @@ def main(argv=None) -> int:
 
     enable_compilation_cache()
     cfg = get_config(args.config)
-    changes = {k: v for k, v in {
-        "stage1_steps": args.stage1_steps, "stage2_steps": args.stage2_steps,
-        "batch_size": args.batch_size, "learning_rate": args.learning_rate,
-        "eval_every": args.eval_every, "seed": args.seed}.items() if v is not None}
+    changes = {
+        k: v
+        for k, v in {
+            "stage1_steps": args.stage1_steps,
+            "stage2_steps": args.stage2_steps,
+            "batch_size": args.batch_size,
+            "learning_rate": args.learning_rate,
+            "eval_every": args.eval_every,
+            "seed": args.seed,
+        }.items()
+        if v is not None
+    }
     cfg = dataclasses.replace(cfg, **changes)
-    res = train_and_evaluate(cfg, args.workdir, data=args.data)
+    stop_at = None
+    if args.chunk_steps is not None:
+        import pathlib
+
+        from jaxsem.checkpoint import latest_step
+
+        stop_at = (
+            latest_step(pathlib.Path(args.workdir) / "checkpoints") or 0
+        ) + args.chunk_steps
+    res = train_and_evaluate(cfg, args.workdir, data=args.data, stop_at=stop_at)
     for h in res.history:
-        print(f"step {h['step']:6d} stage {h['stage']}: val NLL {h['val_nll']:.3f} "
-              f"(uniform {h['uniform_nll']:.3f})  {h['figure']}")
+        print(
+            f"step {h['step']:6d} stage {h['stage']}: val NLL {h['val_nll']:.3f} "
+            f"(uniform {h['uniform_nll']:.3f})  {h['figure']}"
+        )
     return 0
 
 

@@ -23,6 +23,9 @@ class TrainConfig:
     checkpoint_every: steps between checkpoints (the last step is always saved); keep: how many.
     val_fraction: share of the samples held out for validation (split by shard file when there
         are several shards, so validation maps come from other buildings), at least one sample.
+    val_every_nth_building: when > 0, validation is instead every building whose seed is a
+        multiple of this, a split that stays fixed while shards are still being added (chunked
+        runs that train on data as it is generated).
     num_figure_samples: validation samples drawn in each evaluation figure.
     seed: parameter init, batch order, dropout.
     dtype: parameter / compute dtype name ('float32' or 'float64').
@@ -39,6 +42,7 @@ class TrainConfig:
     checkpoint_every: int = 500
     keep: int = 2
     val_fraction: float = 0.1
+    val_every_nth_building: int = 0
     num_figure_samples: int = 4
     seed: int = 0
     dtype: str = "float32"
@@ -51,9 +55,13 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
         if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(f"val_fraction: expected in [0, 1), got {self.val_fraction}")
+            raise ValueError(
+                f"val_fraction: expected in [0, 1), got {self.val_fraction}"
+            )
         if self.dtype not in ("float32", "float64"):
-            raise ValueError(f"dtype: expected 'float32' or 'float64', got {self.dtype!r}")
+            raise ValueError(
+                f"dtype: expected 'float32' or 'float64', got {self.dtype!r}"
+            )
 
     @property
     def total_steps(self) -> int:
@@ -67,8 +75,30 @@ def default_config() -> TrainConfig:
 
 def cpu_config() -> TrainConfig:
     """CPU-sized run used by ``benchmarks/lsd_table31.py`` when it trains its own model."""
-    return dataclasses.replace(default_config(), stage1_steps=1200, stage2_steps=600,
-                               eval_every=600, checkpoint_every=600)
+    return dataclasses.replace(
+        default_config(),
+        stage1_steps=1200,
+        stage2_steps=600,
+        eval_every=600,
+        checkpoint_every=600,
+    )
+
+
+def scale_config() -> TrainConfig:
+    """The shipped model's run: expert data from 240 train buildings, bounded output range
+    (``log_range=8``, see :class:`jaxsem.models.LSDConfig`), sized for about 75 minutes on one
+    CPU thread in the background (chunked: checkpoints every 250 steps, a restart resumes)."""
+    return dataclasses.replace(
+        default_config(),
+        model=LSDConfig(log_range=8.0),
+        stage1_steps=3000,
+        stage2_steps=1000,
+        batch_size=16,
+        eval_every=500,
+        checkpoint_every=250,
+        keep=2,
+        val_every_nth_building=20,
+    )
 
 
 def tiny_config() -> TrainConfig:
@@ -76,16 +106,27 @@ def tiny_config() -> TrainConfig:
     return dataclasses.replace(
         default_config(),
         model=LSDConfig(features=(4, 8, 8, 8), context_features=8),
-        stage1_steps=30, stage2_steps=20, batch_size=4, learning_rate=3e-3,
-        stage2_learning_rate=3e-3, eval_every=25, checkpoint_every=25, num_figure_samples=2,
+        stage1_steps=30,
+        stage2_steps=20,
+        batch_size=4,
+        learning_rate=3e-3,
+        stage2_learning_rate=3e-3,
+        eval_every=25,
+        checkpoint_every=25,
+        num_figure_samples=2,
     )
 
 
-CONFIGS = {"default": default_config, "cpu": cpu_config, "tiny": tiny_config}
+CONFIGS = {
+    "default": default_config,
+    "cpu": cpu_config,
+    "scale": scale_config,
+    "tiny": tiny_config,
+}
 
 
 def get_config(name: str) -> TrainConfig:
-    """A named config: 'default', 'cpu' or 'tiny'."""
+    """A named config: 'default', 'cpu', 'scale' or 'tiny'."""
     if name not in CONFIGS:
         raise ValueError(f"name: expected one of {sorted(CONFIGS)}, got {name!r}")
     return CONFIGS[name]()

@@ -37,10 +37,14 @@ def check_expert_data(data: dict, map_size: int, context_dim: int) -> int:
     for k, shape in want.items():
         arr = np.asarray(data[k])
         if arr.shape != shape:
-            raise ValueError(f"data['{k}']: expected shape {shape}, got shape {arr.shape}")
+            raise ValueError(
+                f"data['{k}']: expected shape {shape}, got shape {arr.shape}"
+            )
     for k in ("occupancy", "semantic"):
         if not np.issubdtype(np.asarray(data[k]).dtype, np.integer):
-            raise ValueError(f"data['{k}']: expected an integer dtype, got {np.asarray(data[k]).dtype}")
+            raise ValueError(
+                f"data['{k}']: expected an integer dtype, got {np.asarray(data[k]).dtype}"
+            )
     return S
 
 
@@ -53,11 +57,18 @@ def load_expert_data(paths) -> dict:
     return load_expert_dataset(paths)
 
 
-def split_by_building(data: dict, val_fraction: float, seed: int) -> tuple:
+def split_by_building(
+    data: dict, val_fraction: float, seed: int, every_nth: int = 0
+) -> tuple:
     """``(train_idx, val_idx)`` int arrays. Whole buildings go to validation when there are
     several (``building_seed``); otherwise a random share of samples. Validation gets at least
-    one sample when ``val_fraction > 0`` and there are at least two samples."""
+    one sample when ``val_fraction > 0`` and there are at least two samples. ``every_nth > 0``:
+    validation is the buildings whose seed is a multiple of it (fixed as shards are added)."""
     S = len(data["context"])
+    if every_nth > 0 and "building_seed" in data:
+        is_val = np.asarray(data["building_seed"]) % int(every_nth) == 0
+        if 0 < is_val.sum() < S:
+            return np.flatnonzero(~is_val), np.flatnonzero(is_val)
     rng = np.random.default_rng([int(seed), 0x5A11])
     if val_fraction <= 0 or S < 2:
         return np.arange(S), np.zeros(0, np.int64)
@@ -75,7 +86,9 @@ def split_by_building(data: dict, val_fraction: float, seed: int) -> tuple:
     return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
-def batch_indices(train_idx: np.ndarray, batch_size: int, step: int, seed: int) -> np.ndarray:
+def batch_indices(
+    train_idx: np.ndarray, batch_size: int, step: int, seed: int
+) -> np.ndarray:
     """The batch of ``step``: a function of (seed, step) only, so a resumed run sees the same
     batches as an uninterrupted one. Epoch-wise shuffling without replacement."""
     n = len(train_idx)
@@ -83,7 +96,7 @@ def batch_indices(train_idx: np.ndarray, batch_size: int, step: int, seed: int) 
     epoch, pos = divmod(step, per_epoch)
     perm = np.random.default_rng([int(seed), int(epoch), 0xBA7C]).permutation(n)
     if n >= batch_size:
-        sel = perm[pos * batch_size:(pos + 1) * batch_size]
+        sel = perm[pos * batch_size : (pos + 1) * batch_size]
     else:  # fewer samples than a batch: repeat them
         sel = np.resize(perm, batch_size)
     return train_idx[sel]

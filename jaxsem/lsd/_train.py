@@ -84,18 +84,32 @@ def make_loss_fn(model: LSDNet, stage: int, augment: bool):
     def loss(trainable, frozen, batch, key):
         params = {**frozen, **trainable}
         k_aug, k_drop = jax.random.split(key)
-        occ, sem, ctx, mask = batch["occupancy"], batch["semantic"], batch["context"], batch["path_mask"]
+        occ, sem, ctx, mask = (
+            batch["occupancy"],
+            batch["semantic"],
+            batch["context"],
+            batch["path_mask"],
+        )
         if augment:
             occ, sem, ctx, mask = dihedral_augment(k_aug, occ, sem, ctx, mask)
-        out = model.apply({"params": params}, occ, sem, ctx, deterministic=False,
-                          use_context=(stage == 2), rngs={"dropout": k_drop})
+        out = model.apply(
+            {"params": params},
+            occ,
+            sem,
+            ctx,
+            deterministic=False,
+            use_context=(stage == 2),
+            rngs={"dropout": k_drop},
+        )
         return lsd_nll(out.log_prob, mask)
 
     return loss
 
 
 @functools.lru_cache(maxsize=16)
-def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True):
+def make_train_step(
+    model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True
+):
     """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
     ``stage`` (cached per arguments, so a second run in the same process does not recompile)."""
     loss_fn = make_loss_fn(model, stage, augment)
@@ -118,8 +132,14 @@ def make_eval_fn(model: LSDNet, stage: int):
 
     @jax.jit
     def evaluate(params, batch):
-        out = model.apply({"params": params}, batch["occupancy"], batch["semantic"], batch["context"],
-                          deterministic=True, use_context=(stage == 2))
+        out = model.apply(
+            {"params": params},
+            batch["occupancy"],
+            batch["semantic"],
+            batch["context"],
+            deterministic=True,
+            use_context=(stage == 2),
+        )
         w = batch["path_mask"].astype(out.log_prob.dtype)
         count = jnp.sum(w, axis=(-2, -1))
         nll = -jnp.sum(w * out.log_prob, axis=(-2, -1)) / jnp.maximum(count, 1.0)
@@ -128,19 +148,27 @@ def make_eval_fn(model: LSDNet, stage: int):
     return evaluate
 
 
-def evaluate_nll(model: LSDNet, params, data: dict, idx: np.ndarray, stage: int = 2,
-                 batch_size: int = 32) -> float:
+def evaluate_nll(
+    model: LSDNet,
+    params,
+    data: dict,
+    idx: np.ndarray,
+    stage: int = 2,
+    batch_size: int = 32,
+) -> float:
     """Mean per-path-cell NLL over samples ``idx`` (samples without path cells skipped)."""
     if len(idx) == 0:
         return float("nan")
     fn = make_eval_fn(model, stage)
     tot, n = 0.0, 0
     for i in range(0, len(idx), batch_size):
-        sel = idx[i:i + batch_size]
+        sel = idx[i : i + batch_size]
         pad = batch_size - len(sel)
-        b = gather_batch(data, np.concatenate([sel, np.repeat(sel[:1], pad)]))  # one compile
+        b = gather_batch(
+            data, np.concatenate([sel, np.repeat(sel[:1], pad)])
+        )  # one compile
         nll, has, _ = fn(params, b)
-        nll, has = np.asarray(nll)[:len(sel)], np.asarray(has)[:len(sel)]
+        nll, has = np.asarray(nll)[: len(sel)], np.asarray(has)[: len(sel)]
         tot += float(nll[has].sum())
         n += int(has.sum())
     return tot / max(n, 1)
@@ -172,8 +200,11 @@ class _Checkpoints:
 
 def _state_like(model_params, config: TrainConfig, stage: int):
     trainable, _ = _trainable(model_params, stage)
-    return {"params": model_params, "opt_state": _optimizer(config, stage).init(trainable),
-            "step": np.zeros((), np.int64)}
+    return {
+        "params": model_params,
+        "opt_state": _optimizer(config, stage).init(trainable),
+        "step": np.zeros((), np.int64),
+    }
 
 
 def config_to_dict(config: TrainConfig) -> dict:
@@ -187,8 +218,14 @@ def config_from_dict(d: dict) -> TrainConfig:
     model = dict(d.pop("model"))
     model["features"] = tuple(model["features"])
     d.pop("data_dir", None)
-    return TrainConfig(model=LSDConfig(**model), **{k: v for k, v in d.items() if k in
-                                                     {f.name for f in dataclasses.fields(TrainConfig)}})
+    return TrainConfig(
+        model=LSDConfig(**model),
+        **{
+            k: v
+            for k, v in d.items()
+            if k in {f.name for f in dataclasses.fields(TrainConfig)}
+        },
+    )
 
 
 def load_trained(workdir, step: int | None = None):
@@ -197,7 +234,9 @@ def load_trained(workdir, step: int | None = None):
     workdir = pathlib.Path(workdir)
     cfg_path = workdir / "config.json"
     if not cfg_path.exists():
-        raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
+        raise ValueError(
+            f"workdir: no config.json in {str(workdir)!r} (not a training workdir)"
+        )
     config = config_from_dict(json.loads(cfg_path.read_text()))
     dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
     model, params = init_lsd(jax.random.PRNGKey(config.seed), config.model, dtype)
@@ -205,8 +244,12 @@ def load_trained(workdir, step: int | None = None):
     try:
         step = ckpt.latest_step() if step is None else step
         if step is None:
-            raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
-        state = ckpt.restore(step, _state_like(params, config, _stage_of(max(step - 1, 0), config)))
+            raise ValueError(
+                f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}"
+            )
+        state = ckpt.restore(
+            step, _state_like(params, config, _stage_of(max(step - 1, 0), config))
+        )
     finally:
         ckpt.close()
     return model, state["params"], config
@@ -215,7 +258,9 @@ def load_trained(workdir, step: int | None = None):
 # ----------------------------------------------------------------------------- figures
 
 
-def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str = "") -> None:
+def save_distribution_figure(
+    path, batch: dict, log_prob: np.ndarray, title: str = ""
+) -> None:
     """PNG of predicted distributions over the partial maps (one column per sample).
 
     Row 1: the partial occupancy (white free, grey unknown, black occupied) with objects (door
@@ -227,7 +272,9 @@ def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    occ, sem, ctx, mask = (np.asarray(batch[k]) for k in ("occupancy", "semantic", "context", "path_mask"))
+    occ, sem, ctx, mask = (
+        np.asarray(batch[k]) for k in ("occupancy", "semantic", "context", "path_mask")
+    )
     n = len(occ)
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 6.4), squeeze=False)
     for i in range(n):
@@ -235,15 +282,23 @@ def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str
         img = np.full(occ[i].shape + (3,), 0.6)
         img[occ[i] == 0] = 1.0
         img[occ[i] == 1] = 0.0
-        for cls, col in ((2, (0.1, 0.7, 0.1)), (3, (0.2, 0.4, 1.0)), (4, (1.0, 0.1, 0.1))):
+        for cls, col in (
+            (2, (0.1, 0.7, 0.1)),
+            (3, (0.2, 0.4, 1.0)),
+            (4, (1.0, 0.1, 0.1)),
+        ):
             img[sem[i] == cls] = col
         ax = axes[0, i]
         ax.imshow(img, origin="lower", interpolation="nearest")
         pr, pc = np.nonzero(mask[i])
         ax.scatter(pc, pr, s=1, c="m")
-        ax.set_title(f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7)
+        ax.set_title(
+            f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7
+        )
         ax = axes[1, i]
-        im = ax.imshow(np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis")
+        im = ax.imshow(
+            np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis"
+        )
         ax.contour(occ[i] == 1, levels=[0.5], colors="w", linewidths=0.4)
         ax.scatter(pc, pr, s=1, c="m", alpha=0.5)
         c = k / 2
@@ -263,16 +318,25 @@ def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str
 # ----------------------------------------------------------------------------- main entry
 
 
-def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool = True) -> TrainResult:
+def train_and_evaluate(
+    config: TrainConfig,
+    workdir,
+    data=None,
+    progress: bool = True,
+    stop_at: int | None = None,
+) -> TrainResult:
     """Trains the LSD network in two stages; checkpoints, metrics and figures go to ``workdir``.
 
     config: :class:`TrainConfig`; workdir: folder (created); an existing checkpoint there is
     resumed. data: a dict of arrays in the expert-shard schema, or shard paths / a folder of
-    ``expert_*.npz``; default: ``workdir / 'data'``. progress: tqdm bar. Returns a
+    ``expert_*.npz``; default: ``workdir / 'data'``. progress: tqdm bar. stop_at: end this run
+    (with a checkpoint) at that step, for chunked runs; a later call resumes. Returns a
     :class:`TrainResult`.
     """
     if not isinstance(config, TrainConfig):
-        raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
+        raise ValueError(
+            f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}"
+        )
     workdir = pathlib.Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     if data is None:
@@ -297,8 +361,14 @@ def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool =
     # Dropout / augmentation keys use the 'rbg' generator: threefry dropout masks made the
     # train step's compile 2-3x slower on this CPU (measured 42 s vs 19 s under load).
     drop_key = jax.random.key(config.seed, impl="rbg")
-    train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed)
-    fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
+    train_idx, val_idx = split_by_building(
+        data, config.val_fraction, config.seed, config.val_every_nth_building
+    )
+    fig_idx = (
+        val_idx[: config.num_figure_samples]
+        if len(val_idx)
+        else train_idx[: config.num_figure_samples]
+    )
 
     ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
     metrics_path = workdir / "metrics.json"
@@ -320,8 +390,10 @@ def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool =
     if progress and config.total_steps > start:
         from tqdm import tqdm
 
-        bar = tqdm(total=config.total_steps, initial=start, desc="lsd train", unit="step")
-    uniform_nll = float(np.log(config.model.map_size ** 2))
+        bar = tqdm(
+            total=config.total_steps, initial=start, desc="lsd train", unit="step"
+        )
+    uniform_nll = float(np.log(config.model.map_size**2))
     figures = workdir / "figures"
     figures.mkdir(exist_ok=True)
     step = start
@@ -329,29 +401,47 @@ def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool =
     recent = []
 
     def evaluate(stage_now: int):
-        val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
+        val_nll = (
+            evaluate_nll(model, params, data, val_idx, stage_now)
+            if len(val_idx)
+            else float("nan")
+        )
         b = gather_batch(data, fig_idx)
         _, _, lp = make_eval_fn(model, stage_now)(params, b)
         fig = figures / f"eval_{step:06d}.png"
         save_distribution_figure(
-            fig, b, np.asarray(lp),
-            f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})")
-        rec = {"step": step, "stage": stage_now,
-               "train_nll": float(np.mean(recent)) if recent else float("nan"),
-               "val_nll": val_nll, "uniform_nll": uniform_nll, "figure": str(fig), "time": time.time()}
+            fig,
+            b,
+            np.asarray(lp),
+            f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})",
+        )
+        rec = {
+            "step": step,
+            "stage": stage_now,
+            "train_nll": float(np.mean(recent)) if recent else float("nan"),
+            "val_nll": val_nll,
+            "uniform_nll": uniform_nll,
+            "figure": str(fig),
+            "time": time.time(),
+        }
         history.append(rec)
         metrics_path.write_text(json.dumps(history, indent=1))
         return rec
 
+    last = (
+        config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
+    )
     try:
-        while step < config.total_steps:
+        while step < last:
             stage = _stage_of(step, config)
             tx = _optimizer(config, stage)
             if opt_state is None:
                 opt_state = tx.init(_trainable(params, stage)[0])
             if stage not in steps_fn:
                 steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
-            batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
+            batch = gather_batch(
+                data, batch_indices(train_idx, config.batch_size, step, config.seed)
+            )
             skey = jax.random.fold_in(drop_key, step)
             params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
             step += 1
@@ -364,10 +454,19 @@ def train_and_evaluate(config: TrainConfig, workdir, data=None, progress: bool =
             if step % config.eval_every == 0 or end_of_stage:
                 rec = evaluate(stage)
                 if bar:
-                    bar.write(f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
-                              f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})")
-            if step % config.checkpoint_every == 0 or end_of_stage:
-                ckpt.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
+                    bar.write(
+                        f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
+                        f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})"
+                    )
+            if step % config.checkpoint_every == 0 or end_of_stage or step == last:
+                ckpt.save(
+                    step,
+                    {
+                        "params": params,
+                        "opt_state": opt_state,
+                        "step": np.asarray(step, np.int64),
+                    },
+                )
             if step == config.stage1_steps:
                 opt_state = None  # stage two: a fresh optimiser over the context branch
                 recent = []
@@ -392,7 +491,9 @@ def export_model(path, config: TrainConfig, params) -> pathlib.Path:
     for layer, leaves in params.items():
         for name, arr in leaves.items():
             flat[f"params/{layer}/{name}"] = np.asarray(arr)
-    np.savez_compressed(path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat)
+    np.savez_compressed(
+        path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat
+    )
     return path
 
 
@@ -403,7 +504,9 @@ def load_model_file(path):
         raise ValueError(f"path: no such model file {str(path)!r}")
     with np.load(path) as z:
         if "config_json" not in z:
-            raise ValueError(f"path: {str(path)!r} is not an exported LSD model (no config_json)")
+            raise ValueError(
+                f"path: {str(path)!r} is not an exported LSD model (no config_json)"
+            )
         config = config_from_dict(json.loads(str(z["config_json"])))
         params: dict = {}
         for key in z.files:
@@ -414,10 +517,15 @@ def load_model_file(path):
     k = config.model.map_size
     occ = jnp.zeros((1, k, k), jnp.int8)
     # eval_shape: the parameter structure without compiling an initialisation.
-    like = jax.eval_shape(lambda: model.init(jax.random.PRNGKey(0), occ, occ,
-                                             jnp.zeros((1, config.model.context_dim))))["params"]
+    like = jax.eval_shape(
+        lambda: model.init(
+            jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim))
+        )
+    )["params"]
     if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
-        raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")
+        raise ValueError(
+            f"path: parameters in {str(path)!r} do not match the model config"
+        )
     return model, params, config
 
 

@@ -11,7 +11,9 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
   semantic int8 map of the objects seen; :func:`sense` updates them (jitted, vmappable).
 - Expert / C*: :class:`SoftCostGraph` (scipy Dijkstra, cost rising near walls),
   :func:`shortest_path`.
-- PRM: :func:`build_roadmap` (checked, jitted), :func:`make_roadmap_builder` (pure, vmappable),
+- PRM: :class:`PRM` (build once, grow, update the map, many queries), the pure pieces
+  :func:`roadmap_init` / :func:`roadmap_grow` / :func:`roadmap_recheck` / :func:`roadmap_connect`,
+  :func:`build_roadmap` (one shot), :func:`make_roadmap_builder` (pure, vmappable),
   :func:`roadmap_shortest_path` (scipy, host), :func:`embed_local_distribution` (section 3.2.5).
 - Online loop: :func:`navigate` / :class:`Trial` with ``sampler=None`` (uniform) or a function
   of :class:`LocalInputs` (160 x 160 crops + context) returning a 160 x 160 distribution.
@@ -53,6 +55,7 @@ from ._shortest_path import (
     soft_cost as soft_cost,
 )
 from ._prm import (
+    PRM as PRM,
     Roadmap as Roadmap,
     RoadmapPath as RoadmapPath,
     build_roadmap as build_roadmap,
@@ -60,6 +63,10 @@ from ._prm import (
     embed_local_distribution as embed_local_distribution,
     knn_within_radius as knn_within_radius,
     make_roadmap_builder as make_roadmap_builder,
+    roadmap_connect as roadmap_connect,
+    roadmap_grow as roadmap_grow,
+    roadmap_init as roadmap_init,
+    roadmap_recheck as roadmap_recheck,
     roadmap_shortest_path as roadmap_shortest_path,
     sample_points as sample_points,
 )

@@ -7,6 +7,16 @@ about to move (the depth sensor reaches 5 m, a step is 0.25 m), it never drives 
 it has not seen. A trial succeeds when the robot is within ``goal_tolerance`` of the goal; it
 fails when a plan cannot be found or after ``max_steps`` steps.
 
+Roadmap reuse and failed roadmaps. The loop keeps its :class:`~jaxsem.planning.PRM`. The uniform
+planner's distribution never changes, so its roadmap (of ``n_samples``) is reused for every replan: the newer
+partial map only removes the vertices and edges it blocks (and costs nothing where the map has
+not changed), and the robot's position and the goal are connected as a new query. A learned
+sampler's window moves with the robot, so each replan samples a new roadmap from the current
+distribution (thesis 3.2.5). When a roadmap has no path, it is grown by ``n_samples`` more
+samples from the current distribution, up to ``max_growth`` times; a trial fails with
+'no_plan' only when the largest roadmap still has none (``max_growth=0`` is the thesis' rule:
+the first failed roadmap ends the trial). ``NavResult.grown`` counts the growths.
+
 Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM + Unf). Otherwise
 ``sampler(inputs: LocalInputs) -> (160, 160)`` probabilities over the robot-centred window
 (e.g. the LSD network's softmax); the window is embedded in the full map (outside: the window's
@@ -25,14 +35,15 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
-from ._prm import build_roadmap, embed_local_distribution, roadmap_shortest_path
+from ._prm import PRM, default_radius, embed_local_distribution
 from ._sensors import SensorConfig, _check_resolution, _sense_jit
 
 CROP_SIZE = 160
@@ -58,7 +69,9 @@ class LocalInputs(NamedTuple):
 
 
 @functools.partial(jax.jit, static_argnames=("size", "max_distance", "resolution"))
-def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance):
+def _local_inputs(
+    occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance
+):
     H, W = occupancy.shape
     rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
     pad = size
@@ -69,13 +82,27 @@ def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resoluti
     sem_c = jax.lax.dynamic_slice(sem, (r0, c0), (size, size))
     d = goal - xy
     dist = jnp.sqrt(jnp.sum(d**2) + 1e-12)  # safe: the goal may coincide with the robot
-    ctx = jnp.stack([d[0] / dist, d[1] / dist, jnp.minimum(dist, max_distance) / max_distance,
-                     goal_outdoors.astype(dist.dtype)]).astype(jnp.float32)
+    ctx = jnp.stack(
+        [
+            d[0] / dist,
+            d[1] / dist,
+            jnp.minimum(dist, max_distance) / max_distance,
+            goal_outdoors.astype(dist.dtype),
+        ]
+    ).astype(jnp.float32)
     return LocalInputs(occ_c, sem_c, ctx, rc)
 
 
-def local_inputs(state: MapState, xy, goal, goal_outdoors, origin, resolution: float,
-                 size: int = CROP_SIZE, max_distance: float = 20.0) -> LocalInputs:
+def local_inputs(
+    state: MapState,
+    xy,
+    goal,
+    goal_outdoors,
+    origin,
+    resolution: float,
+    size: int = CROP_SIZE,
+    max_distance: float = 20.0,
+) -> LocalInputs:
     """Robot-centred crops of the partial maps plus the goal context (see :class:`LocalInputs`).
 
     state: :class:`MapState` (H, W); xy, goal: (2,) world (x, y); goal_outdoors: bool;
@@ -83,9 +110,17 @@ def local_inputs(state: MapState, xy, goal, goal_outdoors, origin, resolution: f
     """
     resolution = _check_resolution(resolution)
     origin = jnp.asarray(origin, jnp.result_type(float))
-    return _local_inputs(state.occupancy, state.semantic, jnp.asarray(xy, origin.dtype),
-                         jnp.asarray(goal, origin.dtype), jnp.asarray(bool(goal_outdoors)),
-                         origin, resolution, int(size), float(max_distance))
+    return _local_inputs(
+        state.occupancy,
+        state.semantic,
+        jnp.asarray(xy, origin.dtype),
+        jnp.asarray(goal, origin.dtype),
+        jnp.asarray(bool(goal_outdoors)),
+        origin,
+        resolution,
+        int(size),
+        float(max_distance),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,12 +129,20 @@ class NavConfig:
 
     n_samples: int = 500
     k: int = 15  # PRM neighbours per vertex (see jaxsem.planning._prm)
-    radius: float | None = None  # PRM connection radius (m); None: default_radius(n_samples)
+    radius: float | None = (
+        None  # PRM connection radius (m); None: default_radius(n_samples)
+    )
     step_length: float = 0.25  # metres moved per timestep
     replan_every: int = 20  # planning timesteps a plan is followed before replanning
     max_steps: int = 10_000
     goal_tolerance: float = 0.2
-    edge_weight: str | None = None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
+    edge_weight: str | None = (
+        None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
+    )
+    max_growth: int = (
+        2  # a roadmap without a path grows by n_samples up to this many times
+    )
+    reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
 
@@ -108,7 +151,9 @@ class NavConfig:
 class NavResult:
     """Outcome of one trial. path: (T, 2) world polyline travelled (start first: the position after
     each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
-    final_state: the partial maps at the end; last_distribution: (H, W) or None."""
+    final_state: the partial maps at the end; last_distribution: (H, W) or None; grown: roadmap
+    growths after failed searches; searches: roadmap queries (replans); distributions: (step, xy, (H, W) distribution) snapshots when
+    the trial was asked to keep them (``Trial(keep_distributions=...)``)."""
 
     path: np.ndarray
     cost: float
@@ -118,9 +163,14 @@ class NavResult:
     plans: int
     final_state: MapState
     last_distribution: np.ndarray | None = None
+    grown: int = 0
+    searches: int = 0
+    distributions: list = dataclasses.field(default_factory=list)
 
 
-def _polyline_blocked(points: np.ndarray, blocked: np.ndarray, origin, resolution) -> bool:
+def _polyline_blocked(
+    points: np.ndarray, blocked: np.ndarray, origin, resolution
+) -> bool:
     """True when the polyline crosses a blocked cell (samples at most half a cell apart)."""
     if len(points) < 2:
         return False
@@ -151,8 +201,19 @@ class Trial:
     bool, ``origin`` (2,), ``resolution`` (e.g. a :class:`~jaxsem.planning.Building`).
     """
 
-    def __init__(self, world, start, goal, key, config: NavConfig = NavConfig(), sampler: Callable | None = None,
-                 yaw0: float = 0.0, goal_outdoors: bool | None = None, state: MapState | None = None):
+    def __init__(
+        self,
+        world,
+        start,
+        goal,
+        key,
+        config: NavConfig = NavConfig(),
+        sampler: Callable | None = None,
+        yaw0: float = 0.0,
+        goal_outdoors: bool | None = None,
+        state: MapState | None = None,
+        keep_distributions: int = 0,
+    ):
         occ = check_grid("world.occupancy", world.occupancy, "bool")
         sem = check_grid("world.semantic", world.semantic, "int", shape=occ.shape)
         self.world = world
@@ -161,16 +222,30 @@ class Trial:
         self.start = check_point("start", start, occ, self.origin, self.resolution)
         self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
         if goal_outdoors is None:
-            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[::-1]
+            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[
+                ::-1
+            ]
             goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
         self.goal_outdoors = bool(goal_outdoors)
-        if config.n_samples < 1 or config.max_steps < 1 or not config.step_length > 0:
-            raise ValueError(f"config: n_samples, max_steps >= 1 and step_length > 0 expected, got {config}")
+        if (
+            config.n_samples < 1
+            or config.max_steps < 1
+            or not config.step_length > 0
+            or config.max_growth < 0
+        ):
+            raise ValueError(
+                f"config: n_samples, max_steps >= 1, step_length > 0 and max_growth >= 0 "
+                f"expected, got {config}"
+            )
         self.config = config
         self.sampler = sampler
         weight = config.edge_weight or ("euclidean" if sampler is None else "neglogp")
-        if weight not in ("euclidean", "neglogp") or (weight == "neglogp" and sampler is None):
-            raise ValueError(f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}")
+        if weight not in ("euclidean", "neglogp") or (
+            weight == "neglogp" and sampler is None
+        ):
+            raise ValueError(
+                f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}"
+            )
         self.weight = weight
         self._occ_j = jnp.asarray(occ)
         self._sem_j = jnp.asarray(sem, jnp.int8)
@@ -183,43 +258,116 @@ class Trial:
         self.cost = 0.0
         self.steps = 0
         self.plans = 0
-        self.plan: np.ndarray | None = None  # remaining waypoints, current position first
+        self.plan: np.ndarray | None = (
+            None  # remaining waypoints, current position first
+        )
         self.since_plan = 0
         self.done = False
         self.success = False
         self.reason = ""
         self.last_distribution = None
+        self.grown = 0
+        self.searches = 0
+        self.keep_distributions = int(keep_distributions)
+        self.distributions: list = []
+        self.prm: PRM | None = None
+        self.radius = (
+            config.radius
+            if config.radius is not None
+            else default_radius(config.n_samples, occ.shape, self.resolution)
+        )
         self._sense()
 
     def _sense(self):
         pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._origin_j.dtype)
-        self.state = _sense_jit(self._occ_j, self._sem_j, self.state, pose, self._origin_j,
-                                self.resolution, self.config.sensor)
+        self.state = _sense_jit(
+            self._occ_j,
+            self._sem_j,
+            self.state,
+            pose,
+            self._origin_j,
+            self.resolution,
+            self.config.sensor,
+        )
 
     def local_inputs(self) -> LocalInputs:
-        return local_inputs(self.state, self.xy, self.goal, self.goal_outdoors, self.origin,
-                            self.resolution, CROP_SIZE, self.config.max_context_distance)
+        return local_inputs(
+            self.state,
+            self.xy,
+            self.goal,
+            self.goal_outdoors,
+            self.origin,
+            self.resolution,
+            CROP_SIZE,
+            self.config.max_context_distance,
+        )
+
+    def _new_prm(self, known) -> PRM:
+        cfg = self.config
+        return PRM(
+            known,
+            self.origin,
+            self.resolution,
+            capacity=cfg.n_samples * (1 + cfg.max_growth),
+            k=cfg.k,
+            radius=self.radius,
+            weight=self.weight,
+        )
 
     def _replan(self) -> bool:
         cfg = self.config
-        self.key, sub = jax.random.split(self.key)
         known = np.asarray(self.state.occupancy)
         dist = None
         if self.sampler is not None:
             inputs = self.local_inputs()
             local = jnp.asarray(self.sampler(inputs))
             if local.size != CROP_SIZE * CROP_SIZE:
-                raise ValueError(f"sampler: expected a ({CROP_SIZE}, {CROP_SIZE}) distribution (a leading "
-                                 f"axis of 1 is fine), got shape {tuple(local.shape)}")
+                raise ValueError(
+                    f"sampler: expected a ({CROP_SIZE}, {CROP_SIZE}) distribution (a leading "
+                    f"axis of 1 is fine), got shape {tuple(local.shape)}"
+                )
             local = local.reshape(CROP_SIZE, CROP_SIZE)
             dist = embed_local_distribution(local, inputs.center_cell, known.shape)
             self.last_distribution = dist
-        rm = build_roadmap(sub, known, self.xy, self.goal, cfg.n_samples, self.origin, self.resolution,
-                           distribution=dist, k=cfg.k, radius=cfg.radius, weight=self.weight)
-        self.plans += 1
-        res = roadmap_shortest_path(rm)
-        if not res.found:
-            return False
+            if (
+                self.keep_distributions
+                and len(self.distributions) < self.keep_distributions
+            ):
+                self.distributions.append(
+                    (self.steps, self.xy.copy(), np.asarray(dist))
+                )
+        # Reuse only a roadmap of the nominal size: one grown for an earlier failure is not kept
+        # (so both planners plan with n_samples until a search fails).
+        reuse = (
+            self.prm is not None
+            and self.sampler is None
+            and cfg.reuse_roadmap
+            and self.prm.count == cfg.n_samples
+        )
+        if reuse:
+            self.prm.update_map(known)
+        else:
+            self.prm = self._new_prm(known)
+            self.key, sub = jax.random.split(self.key)
+            self.prm.grow(sub, cfg.n_samples, dist)
+            self.plans += 1
+        res = self.prm.query(self.xy, self.goal)
+        self.searches += 1
+        while not res.found:
+            if self.prm.count + cfg.n_samples > self.prm.capacity:
+                if (
+                    reuse
+                ):  # a reused roadmap at capacity: start a fresh one before giving up
+                    reuse = False
+                    self.prm = self._new_prm(known)
+                    self.plans += 1
+                else:
+                    return False
+            self.key, sub = jax.random.split(self.key)
+            self.prm.grow(sub, cfg.n_samples, dist)
+            self.grown += 1
+            res = self.prm.query(self.xy, self.goal)
+            self.searches += 1
         self.plan = np.asarray(res.points, np.float64)
         self.plan[0] = self.xy
         self.plan[-1] = self.goal
@@ -249,8 +397,11 @@ class Trial:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
             blocked = np.asarray(self.state.occupancy) == OCCUPIED
-        if (self.plan is None or self.since_plan >= cfg.replan_every
-                or _polyline_blocked(self.plan, blocked, self.origin, self.resolution)):
+        if (
+            self.plan is None
+            or self.since_plan >= cfg.replan_every
+            or _polyline_blocked(self.plan, blocked, self.origin, self.resolution)
+        ):
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
@@ -259,7 +410,9 @@ class Trial:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
                 blocked = np.asarray(self.state.occupancy) == OCCUPIED
-                if _polyline_blocked(self.plan[:2], blocked, self.origin, self.resolution):
+                if _polyline_blocked(
+                    self.plan[:2], blocked, self.origin, self.resolution
+                ):
                     # The first leg is blocked by what the turn revealed; replan next step.
                     self.plan = None
                     self.steps += 1
@@ -289,13 +442,36 @@ class Trial:
         return True
 
     def result(self) -> NavResult:
-        dist = None if self.last_distribution is None else np.asarray(self.last_distribution)
-        return NavResult(np.array(self.path), float(self.cost), self.success, self.reason, self.steps,
-                         self.plans, self.state, dist)
+        dist = (
+            None
+            if self.last_distribution is None
+            else np.asarray(self.last_distribution)
+        )
+        return NavResult(
+            np.array(self.path),
+            float(self.cost),
+            self.success,
+            self.reason,
+            self.steps,
+            self.plans,
+            self.state,
+            dist,
+            self.grown,
+            self.searches,
+            list(self.distributions),
+        )
 
 
-def navigate(world, start, goal, key, config: NavConfig = NavConfig(), sampler: Callable | None = None,
-             yaw0: float = 0.0, goal_outdoors: bool | None = None) -> NavResult:
+def navigate(
+    world,
+    start,
+    goal,
+    key,
+    config: NavConfig = NavConfig(),
+    sampler: Callable | None = None,
+    yaw0: float = 0.0,
+    goal_outdoors: bool | None = None,
+) -> NavResult:
     """Runs one online navigation trial from ``start`` to ``goal`` (world (x, y), (2,)).
 
     world: a :class:`~jaxsem.planning.Building` (or an object with the same map fields); key: a

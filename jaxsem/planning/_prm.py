@@ -1,32 +1,46 @@
-"""Probabilistic roadmap on a partial grid map, vectorised and jitted at a fixed vertex count.
+"""Probabilistic roadmap on a partial grid map: built once, grown, rechecked, queried many times.
 
-Build (one jitted call, :func:`build_roadmap`):
+A :class:`Roadmap` is a pytree of fixed capacity (so growing it never recompiles): slots 0 and 1
+hold the current query's start and goal, slots ``2 .. 2 + count`` the samples. The pieces are
+pure jitted functions (:func:`roadmap_init`, :func:`roadmap_grow`, :func:`roadmap_recheck`,
+:func:`roadmap_connect`) and :class:`PRM` is the host-side object most users want::
 
-1. vertices: the start (index 0), the goal (index 1) and ``n`` samples drawn from a distribution
-   over cells (inverse CDF over the flattened grid), each placed uniformly inside its cell; or
-   uniformly over the map when no distribution is given;
-2. state check: a vertex in a *known occupied* cell is invalid (unknown counts as free);
-3. neighbours: the ``k`` nearest vertices within ``radius``, found through a bucket grid of cell
-   size ``radius`` (each vertex looks at the 3 x 3 buckets around its own, at most ``bucket_cap``
-   vertices per bucket), so the cost is O(n * 9 * bucket_cap) instead of the O(n^2) of brute
-   force (which measured 418 ms at n = 5000 on this CPU);
-4. edge check: ``edge_samples`` points along each edge, at most half a cell apart, must all lie in
-   cells that are not known occupied, and so must both side cells of any diagonal step between
-   consecutive samples (so the check is exact: a valid edge touches no known-occupied cell);
-5. edge weight: Euclidean length, or the integral of ``-log p`` along the edge (mean over the
-   samples times the length; thesis eq. 3.3) when ``weight='neglogp'``.
+    prm = PRM(known_map, origin, resolution, capacity=2000)
+    prm.grow(key, 1000)                    # uniform over cells not known occupied
+    path = prm.query(start, goal)          # many queries on one roadmap
+    prm.update_map(newer_map)              # a partial map only gains obstacles: drop what they hit
+    prm.grow(key2, 1000, distribution=p)   # densify (e.g. from a learned distribution)
 
-Search (:func:`roadmap_shortest_path`) runs scipy's Dijkstra on the sparse roadmap on the host:
-at n = 5000 it takes a few milliseconds (most of it building the sparse matrix), below a jitted JAX
-alternative (a Bellman-Ford style relaxation needs O(n) sweeps over all edges).
+Sampling. A vertex is drawn from the distribution over cells *restricted to cells that are not
+known occupied* (inverse CDF over the flattened grid), then placed uniformly inside its cell.
+That is rejection sampling done exactly: ``N`` counts valid vertices, as OMPL's PRM counts
+milestones (its valid-state sampler retries until a state is valid). Unknown cells are free.
 
-Default k = 15: the k nearest of the *final* vertex set give a sparser graph than OMPL's PRM
-with its default k = 10, which links each new milestone to the k nearest of those inserted
-before it (so early milestones get long edges). Measured on test buildings at n = 5000: OMPL's
-roadmap has about 16 distinct edges per vertex, ours 14.4 at k = 15 (see
-``benchmarks/lsd_speed.py``). Checking 2k candidates and keeping the k nearest clear edges
-raised success on 24 Inside-Inside queries from 21 to 22 for 60 % more build time, so it is
-not done.
+Connection policy (documented, tested against brute force). Every vertex added in a batch links
+to its ``k`` nearest vertices within ``radius`` among all vertices present once the batch is in
+(its own batch included); the graph is undirected, so a vertex's degree is its own ``k`` plus
+the links later vertices make to it. For one batch this is "k nearest of the final vertex set";
+OMPL's PRM is the same rule with batches of one milestone (k = 10, no radius). A query's start
+links to its ``k`` nearest samples and the goal (when within ``radius``), the goal to its ``k``
+nearest samples; samples never link to the query slots, so queries do not change the roadmap.
+
+Neighbour search is exact. Vertices are bucketed on a grid of cell size ``radius`` and each
+query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``.
+A bucket is read through ``bucket_cap`` slots; the search reports ``overflow`` (a result code
+in :attr:`Roadmap.overflow`) when any bucket holds more, and the Python entry points then rerun
+with enough slots, so nothing is dropped silently (samples concentrated by a learned
+distribution put hundreds of vertices in one bucket). When ``9 * bucket_cap`` would reach the
+vertex count, the search is brute force over all vertices (same result, no cap at all).
+
+Edge check: ``edge_samples`` points along each edge, at most half a cell apart, must lie in
+cells that are not known occupied, and so must both side cells of any diagonal step between
+consecutive samples, so a valid edge touches no known-occupied cell. Edge weight: Euclidean
+length, or the integral of ``-log p`` along the edge (mean over the samples times the length,
+thesis eq. 3.3) with ``weight='neglogp'``.
+
+Search (:func:`roadmap_shortest_path`, :meth:`PRM.query`) is scipy's Dijkstra on the host; the
+PRM keeps the roadmap's edge list in CSR form, so a query only adds its start's and goal's
+edges (a few milliseconds at 5000 vertices).
 """
 
 from __future__ import annotations
@@ -43,13 +57,22 @@ import scipy.sparse.csgraph
 
 from ._grid import OCCUPIED, check_point
 
+#: Query slots: the start and goal of the current query.
+START, GOAL = 0, 1
+_QUERY = 2
+
 
 class Roadmap(NamedTuple):
-    """A roadmap (pytree). M = n + 2 vertices: index 0 is the start, 1 the goal.
+    """A roadmap (pytree) of capacity ``M - 2`` samples; ``M`` slots in all.
 
-    points: (M, 2) world (x, y); valid: (M,) bool (state check passed);
-    neighbors: (M, k) int32 vertex indices (M where there is none);
+    points: (M, 2) world (x, y); slot 0 the query start, slot 1 the goal, then the samples.
+    valid: (M,) bool, the slot holds a vertex whose cell is not known occupied.
+    neighbors: (M, k) int32 slot indices (``M`` where there is none).
     edge_valid: (M, k) bool; edge_weight: (M, k) float (inf where invalid).
+    count: () int32, samples so far (slots ``2 .. 2 + count``).
+    overflow: () bool result code: a neighbour search had fewer candidate slots than a bucket
+        held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
+        :func:`roadmap_grow` rerun with more slots and never return it set.
     """
 
     points: jax.Array
@@ -57,15 +80,22 @@ class Roadmap(NamedTuple):
     neighbors: jax.Array
     edge_valid: jax.Array
     edge_weight: jax.Array
+    count: jax.Array
+    overflow: jax.Array
 
 
 def default_radius(n: int, shape, resolution: float) -> float:
-    """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 2.5 x the mean sample
+    """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 3 x the mean sample
     spacing, within [1, 8] m, rounded up to 0.5 m so that few distinct values (each a compile)
-    occur."""
+    occur. It only bounds the search; the ``k`` nearest are usually closer (see
+    ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL)."""
     area = shape[0] * shape[1] * resolution**2
-    r = min(8.0, max(1.0, 2.5 * math.sqrt(area / max(n, 1))))
+    r = min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1))))
     return math.ceil(r * 2.0) / 2.0
+
+
+def _edge_samples(radius: float, resolution: float) -> int:
+    return max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
 
 
 def sample_points(key, distribution, n: int, origin, resolution: float):
@@ -90,60 +120,78 @@ def _cells(points, origin, resolution, shape):
     return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
 
 
-def knn_within_radius(points, valid, k: int, radius, bucket_cap: int, extent):
-    """(M, k) indices of the k nearest valid points within ``radius`` (M where fewer), by bucket
-    grid. points: (M, 2) local coordinates in [0, extent); extent: (2,) Python floats."""
-    M = points.shape[0]
-    gx = max(1, int(math.ceil(extent[0] / radius)))
-    gy = max(1, int(math.ceil(extent[1] / radius)))
-    b = jnp.floor(points / radius).astype(jnp.int32)
-    bx, by = jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
-    bid = jnp.where(valid, by * gx + bx, gx * gy)  # invalid vertices go to a bucket never read
-    order = jnp.argsort(bid)
-    sorted_bid = bid[order]
-    ids = jnp.arange(gx * gy)
-    start = jnp.searchsorted(sorted_bid, ids, side="left")
-    count = jnp.searchsorted(sorted_bid, ids, side="right") - start
-    off = jnp.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], jnp.int32)  # (9, 2)
-    nx, ny = bx[:, None] + off[None, :, 0], by[:, None] + off[None, :, 1]  # (M, 9)
-    inside = (nx >= 0) & (nx < gx) & (ny >= 0) & (ny < gy)
-    nb = jnp.where(inside, ny * gx + nx, 0)
-    j = jnp.arange(bucket_cap)
-    slot = start[nb][..., None] + j  # (M, 9, cap)
-    ok = inside[..., None] & (j < count[nb][..., None])
-    cand = order[jnp.clip(slot, 0, M - 1)].reshape(M, -1)
-    ok = ok.reshape(M, -1) & (cand != jnp.arange(M)[:, None]) & valid[:, None]
-    d2 = jnp.sum((points[cand] - points[:, None, :]) ** 2, -1)
-    d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
-    neg, pos = jax.lax.top_k(-d2, k)
-    return jnp.where(jnp.isfinite(neg), cand[jnp.arange(M)[:, None], pos], M)
-
-
-@functools.partial(
-    jax.jit,
-    static_argnames=("n", "k", "resolution", "radius", "edge_samples", "bucket_cap", "neglogp", "uniform"),
-)
-def _build(key, blocked, distribution, start, goal, origin, *, n, k, resolution, radius,
-           edge_samples, bucket_cap, neglogp, uniform):
-    H, W = blocked.shape
-    dtype = origin.dtype
-    if uniform:
-        u = jax.random.uniform(key, (n, 2), dtype)
-        samples = origin + u * jnp.array([W, H], dtype) * resolution
+def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
+    """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
+    excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
+    overflow). ``cap=None``: brute force. Local coordinates in [0, extent)."""
+    M = db.shape[0]
+    Q = queries.shape[0]
+    if cap is None or 9 * cap >= M:
+        cand = jnp.broadcast_to(jnp.arange(M)[None, :], (Q, M))
+        ok = jnp.broadcast_to(db_ok[None, :], (Q, M))
+        overflow = jnp.zeros((), bool)
     else:
-        samples = sample_points(key, distribution, n, origin, resolution)
-    pts = jnp.concatenate([start[None], goal[None], samples], 0)
-    M = n + 2
-    r, c, on = _cells(pts, origin, resolution, (H, W))
-    valid = on & ~blocked[r, c]
-    valid = valid.at[0].set(True).at[1].set(True)
-    extent = (W * resolution, H * resolution)
-    nbr = knn_within_radius(pts - origin, valid, k, radius, bucket_cap, extent)
-    has = nbr < M
-    other = pts[jnp.minimum(nbr, M - 1)]  # (M, k, 2)
-    t = (jnp.arange(edge_samples, dtype=dtype) / (edge_samples - 1))[None, None, :, None]
-    along = pts[:, None, None, :] + t * (other - pts[:, None, :])[:, :, None, :]  # (M, k, S, 2)
-    er, ec, eon = _cells(along, origin, resolution, (H, W))
+        gx = max(1, int(math.ceil(extent[0] / radius)))
+        gy = max(1, int(math.ceil(extent[1] / radius)))
+
+        def bucket(p):
+            b = jnp.floor(p / radius).astype(jnp.int32)
+            return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
+
+        bx, by = bucket(db)
+        bid = jnp.where(
+            db_ok, by * gx + bx, gx * gy
+        )  # unusable points: a bucket never read
+        order = jnp.argsort(bid)
+        sorted_bid = bid[order]
+        ids = jnp.arange(gx * gy)
+        start = jnp.searchsorted(sorted_bid, ids, side="left")
+        count = jnp.searchsorted(sorted_bid, ids, side="right") - start
+        overflow = jnp.max(count) > cap
+        qx, qy = bucket(queries)
+        off = jnp.array(
+            [(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], jnp.int32
+        )  # (9, 2)
+        nx, ny = qx[:, None] + off[None, :, 0], qy[:, None] + off[None, :, 1]  # (Q, 9)
+        inside = (nx >= 0) & (nx < gx) & (ny >= 0) & (ny < gy)
+        nb = jnp.where(inside, ny * gx + nx, 0)
+        j = jnp.arange(cap)
+        slot = start[nb][..., None] + j  # (Q, 9, cap)
+        ok = (inside[..., None] & (j < count[nb][..., None])).reshape(Q, -1)
+        cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
+    ok = ok & (cand != q_self[:, None])
+    d2 = jnp.sum((db[cand] - queries[:, None, :]) ** 2, -1)
+    d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
+    kk = min(k, cand.shape[1])
+    neg, pos = jax.lax.top_k(-d2, kk)
+    idx = jnp.where(jnp.isfinite(neg), jnp.take_along_axis(cand, pos, axis=1), M)
+    if kk < k:
+        idx = jnp.concatenate([idx, jnp.full((Q, k - kk), M, idx.dtype)], 1)
+    return idx.astype(jnp.int32), overflow
+
+
+def knn_within_radius(
+    points, valid, k: int, radius: float, extent, bucket_cap: int | None = None
+):
+    """(M, k) indices of the k nearest valid points within ``radius`` of every valid point (``M``
+    where fewer; invalid points get none) and the overflow flag (see :class:`Roadmap`).
+
+    points: (M, 2) local coordinates in [0, extent); extent: (2,) Python floats; bucket_cap: slots
+    per bucket (None: brute force). Jittable with k, radius, extent, bucket_cap static.
+    """
+    M = points.shape[0]
+    idx, overflow = _knn(
+        points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap
+    )
+    return jnp.where(valid[:, None], idx, M), overflow
+
+
+def _edges(blocked, cost, a, b, origin, resolution, edge_samples):
+    """Clear flag and weight of segments a -> b (..., 2) on the grid (see the module docstring)."""
+    dtype = a.dtype
+    t = jnp.arange(edge_samples, dtype=dtype) / (edge_samples - 1)
+    along = a[..., None, :] + t[:, None] * (b - a)[..., None, :]  # (..., S, 2)
+    er, ec, eon = _cells(along, origin, resolution, blocked.shape)
     clear = jnp.all(eon & ~blocked[er, ec], axis=-1)
     # Consecutive samples are at most half a cell apart, so they lie in the same or 8-adjacent
     # cells and the segment between them stays inside the 2 x 2 block they span; on a diagonal
@@ -152,23 +200,177 @@ def _build(key, blocked, distribution, start, goal, origin, *, n, k, resolution,
     diag = (er[..., 1:] != er[..., :-1]) & (ec[..., 1:] != ec[..., :-1])
     sides = blocked[er[..., :-1], ec[..., 1:]] | blocked[er[..., 1:], ec[..., :-1]]
     clear &= ~jnp.any(diag & sides, axis=-1)
-    length = jnp.sqrt(jnp.sum((other - pts[:, None, :]) ** 2, -1) + 1e-30)
-    edge_valid = has & clear & valid[:, None]
-    if neglogp:
-        p = distribution / jnp.sum(distribution)
-        cost_per_m = jnp.mean(-jnp.log(jnp.maximum(p[er, ec], 1e-30)), axis=-1)
-        w = length * cost_per_m
+    # Safe norm: a zero-length edge (a vertex drawn twice at one point) has weight ~0, no NaN.
+    length = jnp.sqrt(jnp.sum((b - a) ** 2, -1) + 1e-30)
+    if cost is None:
+        return clear, length
+    return clear, length * jnp.mean(cost[er, ec], axis=-1)
+
+
+def _cost_grid(distribution):
+    p = distribution / jnp.sum(distribution)
+    return -jnp.log(jnp.maximum(p, 1e-30))
+
+
+def _sampling_weights(blocked, distribution):
+    """Cell weights restricted to cells not known occupied (falls back to all free cells when
+    the distribution has no mass there, and to the whole map when nothing is free)."""
+    free = (~blocked).astype(jnp.result_type(float))
+    if distribution is None:
+        w = free
     else:
-        w = length
-    w = jnp.where(edge_valid, w, jnp.inf)
-    return Roadmap(pts, valid, nbr.astype(jnp.int32), edge_valid, w)
+        w = distribution * free
+        w = jnp.where(jnp.sum(w) > 0, w, free)
+    return jnp.where(jnp.sum(w) > 0, w, jnp.ones_like(w))
+
+
+def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
+    """An empty roadmap with room for ``capacity`` samples and ``k`` neighbours per vertex."""
+    if not (isinstance(capacity, (int, np.integer)) and capacity >= 1):
+        raise ValueError(f"capacity: expected a positive int, got {capacity!r}")
+    if not (isinstance(k, (int, np.integer)) and k >= 1):
+        raise ValueError(f"k: expected a positive int number of neighbours, got {k!r}")
+    dtype = dtype or jnp.result_type(float)
+    M = int(capacity) + _QUERY
+    return Roadmap(
+        points=jnp.zeros((M, 2), dtype),
+        valid=jnp.zeros(M, bool),
+        neighbors=jnp.full((M, int(k)), M, jnp.int32),
+        edge_valid=jnp.zeros((M, int(k)), bool),
+        edge_weight=jnp.full((M, int(k)), jnp.inf, dtype),
+        count=jnp.zeros((), jnp.int32),
+        overflow=jnp.zeros((), bool),
+    )
+
+
+def _grow_impl(
+    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp
+):
+    M, k = rm.neighbors.shape
+    H, W = blocked.shape
+    dtype = rm.points.dtype
+    new = sample_points(
+        key, _sampling_weights(blocked, distribution), n, origin, resolution
+    )
+    r, c, on = _cells(new, origin, resolution, (H, W))
+    ok_new = on & ~blocked[r, c]
+    s0 = (_QUERY + rm.count).astype(jnp.int32)
+    z = jnp.zeros((), jnp.int32)
+    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
+    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    slots = s0 + jnp.arange(n, dtype=jnp.int32)
+    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    extent = (W * resolution, H * resolution)
+    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap)
+    other = points[jnp.minimum(nbr, M - 1)]
+    cost = _cost_grid(distribution) if neglogp else None
+    clear, w = _edges(
+        blocked,
+        cost,
+        new[:, None, :],
+        other,
+        origin,
+        resolution,
+        _edge_samples(radius, resolution),
+    )
+    ev = (nbr < M) & clear & ok_new[:, None]
+    w = jnp.where(ev, w, jnp.inf)
+    return Roadmap(
+        points,
+        valid,
+        jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
+        jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
+        jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), (s0, z)),
+        rm.count + n,
+        rm.overflow | ovf,
+    )
+
+
+_grow_jit = functools.partial(
+    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp")
+)(_grow_impl)
+
+
+def _recheck_impl(rm, blocked, origin, *, radius, resolution):
+    M, _ = rm.neighbors.shape
+    r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
+    valid = rm.valid & on & ~blocked[r, c]
+    j = jnp.minimum(rm.neighbors, M - 1)
+    clear, _ = _edges(
+        blocked,
+        None,
+        rm.points[:, None, :],
+        rm.points[j],
+        origin,
+        resolution,
+        _edge_samples(radius, resolution),
+    )
+    ev = rm.edge_valid & clear & valid[:, None] & valid[j]
+    return rm._replace(
+        valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf)
+    )
+
+
+_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(
+    _recheck_impl
+)
+
+
+def _connect_impl(
+    rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp
+):
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    q = jnp.stack([start, goal]).astype(dtype)
+    points = rm.points.at[:_QUERY].set(q)
+    valid = rm.valid.at[:_QUERY].set(True)
+    # Brute force over all slots (2 x M distances): the start may link to the goal, the goal not
+    # back to the start (one edge), neither to itself.
+    ok = jnp.broadcast_to((valid & (jnp.arange(M) >= _QUERY))[None, :], (2, M))
+    ok = ok.at[0, GOAL].set(True)
+    d2 = jnp.sum((points[None, :, :] - q[:, None, :]) ** 2, -1)
+    d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
+    kk = min(k, M)
+    neg, pos = jax.lax.top_k(-d2, kk)
+    nbr = jnp.where(jnp.isfinite(neg), pos, M).astype(jnp.int32)
+    if kk < k:
+        nbr = jnp.concatenate([nbr, jnp.full((2, k - kk), M, jnp.int32)], 1)
+    other = points[jnp.minimum(nbr, M - 1)]
+    cost = _cost_grid(distribution) if neglogp else None
+    clear, w = _edges(
+        blocked,
+        cost,
+        q[:, None, :],
+        other,
+        origin,
+        resolution,
+        _edge_samples(radius, resolution),
+    )
+    ev = (nbr < M) & clear
+    w = jnp.where(ev, w, jnp.inf).astype(dtype)
+    return rm._replace(
+        points=points,
+        valid=valid,
+        neighbors=rm.neighbors.at[:_QUERY].set(nbr),
+        edge_valid=rm.edge_valid.at[:_QUERY].set(ev),
+        edge_weight=rm.edge_weight.at[:_QUERY].set(w),
+    )
+
+
+_connect_jit = functools.partial(
+    jax.jit, static_argnames=("radius", "resolution", "neglogp")
+)(_connect_impl)
+
+
+# ----------------------------------------------------------------------------- boundary checks
 
 
 def _blocked_from(name, known_map):
-    arr = known_map
-    if isinstance(arr, jax.core.Tracer):
-        raise ValueError(f"{name}: build_roadmap runs at the Python boundary; pass a concrete map")
-    arr = np.asarray(arr)
+    if isinstance(known_map, jax.core.Tracer):
+        raise ValueError(
+            f"{name}: the roadmap entry points run at the Python boundary; pass a concrete map"
+        )
+    arr = np.asarray(known_map)
     if arr.ndim != 2:
         raise ValueError(f"{name}: expected a 2-D grid (H, W), got shape {arr.shape}")
     if arr.dtype == np.bool_:
@@ -181,88 +383,299 @@ def _blocked_from(name, known_map):
     )
 
 
-def build_roadmap(key, known_map, start, goal, n: int, origin, resolution: float, *,
-                  distribution=None, k: int = 15, radius: float | None = None,
-                  weight: str = "euclidean", bucket_cap: int = 32) -> Roadmap:
-    """Builds a PRM of ``n`` samples plus the start and goal on a partial map.
+def _check_distribution(distribution, shape):
+    if distribution is None or isinstance(distribution, jax.core.Tracer):
+        return distribution
+    d = np.asarray(distribution)
+    if d.shape != tuple(shape):
+        raise ValueError(
+            f"distribution: expected shape {tuple(shape)} (the map's), got shape {d.shape}"
+        )
+    if not np.issubdtype(d.dtype, np.floating):
+        raise ValueError(f"distribution: expected a float grid, got dtype {d.dtype}")
+    if not (np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0):
+        raise ValueError(
+            "distribution: expected finite, non-negative weights with a positive sum"
+        )
+    return distribution
 
-    known_map: (H, W) int8 partial map (OCCUPIED blocks; UNKNOWN and FREE are free) or a bool
-    obstacle grid; start, goal: (2,) world (x, y): on the map, not in a known-occupied cell;
-    distribution: (H, W) non-negative cell weights (``None``: uniform over the map); k: neighbours
-    per vertex (default 15, see the module docstring); radius: connection radius in metres (``None``: :func:`default_radius`);
-    weight: 'euclidean' or 'neglogp' (needs ``distribution``). Returns a :class:`Roadmap`.
+
+def _initial_cap(n_total: int, shape, resolution, radius) -> int:
+    """Bucket slots for uniform samples: 4 x the mean bucket load, a power of two, >= 16."""
+    buckets = max(1.0, shape[0] * shape[1] * resolution**2 / radius**2)
+    return max(16, 1 << int(math.ceil(math.log2(max(1.0, 4.0 * n_total / buckets)))))
+
+
+def roadmap_grow(
+    roadmap: Roadmap,
+    key,
+    known_map,
+    n: int,
+    origin,
+    resolution: float,
+    *,
+    distribution=None,
+    radius: float,
+    weight: str = "euclidean",
+    bucket_cap: int | None = None,
+) -> Roadmap:
+    """Adds ``n`` samples (valid vertices) to ``roadmap`` and links them (module docstring).
+
+    known_map: (H, W) int8 partial map or bool obstacle grid; distribution: (H, W) cell weights
+    (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
+    it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
+    bucket_cap: neighbour-search slots per bucket to start with (None: a size for uniform
+    samples); on overflow the search reruns with enough slots. Returns the grown roadmap.
     """
     blocked = _blocked_from("known_map", known_map)
-    H, W = blocked.shape
-    origin_np = np.asarray(origin, np.float64)
-    if origin_np.shape != (2,):
-        raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
-    start = check_point("start", start, blocked, origin_np, resolution)
-    goal = check_point("goal", goal, blocked, origin_np, resolution)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
-    if not (isinstance(k, (int, np.integer)) and k >= 1):
-        raise ValueError(f"k: expected a positive int number of neighbours, got {k!r}")
-    k = min(int(k), int(n) + 1)  # there are only n + 1 other vertices
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
-    if distribution is None:
-        if weight == "neglogp":
-            raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
-        dist = jnp.ones((1, 1))
-        uniform = True
-    else:
-        dist = distribution
-        if not isinstance(dist, jax.core.Tracer):
-            d = np.asarray(dist)
-            if d.shape != (H, W):
-                raise ValueError(f"distribution: expected shape {(H, W)} (the map's), got shape {d.shape}")
-            if not np.issubdtype(d.dtype, np.floating):
-                raise ValueError(f"distribution: expected a float grid, got dtype {d.dtype}")
-            if not (np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0):
-                raise ValueError("distribution: expected finite, non-negative weights with a positive sum")
-        uniform = False
-    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
-    edge_samples = max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
-    origin_j = jnp.asarray(origin_np, jnp.result_type(float))
-    return _build(
-        key, jnp.asarray(blocked), jnp.asarray(dist, origin_j.dtype), jnp.asarray(start, origin_j.dtype),
-        jnp.asarray(goal, origin_j.dtype), origin_j, n=int(n), k=int(k), resolution=float(resolution),
-        radius=radius, edge_samples=edge_samples, bucket_cap=int(bucket_cap),
-        neglogp=weight == "neglogp", uniform=uniform,
+    if weight == "neglogp" and distribution is None:
+        raise ValueError(
+            "distribution: weight='neglogp' needs a distribution, got None"
+        )
+    distribution = _check_distribution(distribution, blocked.shape)
+    M = roadmap.points.shape[0]
+    count = int(roadmap.count)
+    if count + int(n) > M - _QUERY:
+        raise ValueError(
+            f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, "
+            f"{count} used)"
+        )
+    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
+    cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, resolution, radius)
+    dist = (
+        None
+        if distribution is None
+        else jnp.asarray(distribution, roadmap.points.dtype)
+    )
+    return _grow_exact(
+        roadmap,
+        key,
+        jnp.asarray(blocked),
+        dist,
+        origin_j,
+        int(n),
+        float(radius),
+        float(resolution),
+        cap,
+        weight == "neglogp",
+    )[0]
+
+
+def _grow_exact(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp
+):
+    """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
+    Returns (roadmap, the cap that sufficed)."""
+    M = roadmap.points.shape[0]
+    before = bool(roadmap.overflow)
+    while True:
+        out = _grow_jit(
+            roadmap,
+            key,
+            blocked,
+            dist,
+            origin,
+            n=n,
+            radius=radius,
+            resolution=resolution,
+            cap=cap if 9 * cap < M else None,
+            neglogp=neglogp,
+        )
+        if 9 * cap >= M or before or not bool(out.overflow):
+            return out, cap
+        cap *= 4  # a bucket held more than ``cap`` vertices: rerun, nothing dropped
+
+
+def roadmap_recheck(
+    roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float
+) -> Roadmap:
+    """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` shows
+    blocked. A partial map only gains obstacles (unknown -> occupied), so nothing is added back;
+    when cells are freed, build a new roadmap. ``radius`` as when the roadmap was grown."""
+    blocked = _blocked_from("known_map", known_map)
+    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
+    return _recheck_jit(
+        roadmap,
+        jnp.asarray(blocked),
+        origin_j,
+        radius=float(radius),
+        resolution=float(resolution),
     )
 
 
-def make_roadmap_builder(n: int, shape, resolution: float, *, k: int = 15, radius: float | None = None,
-                         weight: str = "euclidean", uniform: bool = True, bucket_cap: int = 32):
-    """A pure, jittable and vmappable roadmap builder for a fixed ``n`` and map ``shape``.
+def roadmap_connect(
+    roadmap: Roadmap,
+    start,
+    goal,
+    known_map,
+    origin,
+    resolution: float,
+    *,
+    radius: float,
+    distribution=None,
+    weight: str = "euclidean",
+) -> Roadmap:
+    """Puts a query's ``start`` and ``goal`` (world (2,), not known occupied) into slots 0 and 1
+    and links them (module docstring); the samples' own links are unchanged."""
+    blocked = _blocked_from("known_map", known_map)
+    origin_np = np.asarray(origin, np.float64)
+    start = check_point("start", start, blocked, origin_np, resolution)
+    goal = check_point("goal", goal, blocked, origin_np, resolution)
+    if weight == "neglogp" and distribution is None:
+        raise ValueError(
+            "distribution: weight='neglogp' needs a distribution, got None"
+        )
+    distribution = _check_distribution(distribution, blocked.shape)
+    dtype = roadmap.points.dtype
+    dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    return _connect_jit(
+        roadmap,
+        jnp.asarray(start, dtype),
+        jnp.asarray(goal, dtype),
+        jnp.asarray(blocked),
+        dist,
+        jnp.asarray(origin_np, dtype),
+        radius=float(radius),
+        resolution=float(resolution),
+        neglogp=weight == "neglogp",
+    )
+
+
+def build_roadmap(
+    key,
+    known_map,
+    start,
+    goal,
+    n: int,
+    origin,
+    resolution: float,
+    *,
+    distribution=None,
+    k: int = 15,
+    radius: float | None = None,
+    weight: str = "euclidean",
+    bucket_cap: int | None = None,
+) -> Roadmap:
+    """One-shot PRM: ``n`` samples plus the start (slot 0) and goal (slot 1) on a partial map.
+
+    known_map: (H, W) int8 partial map (OCCUPIED blocks; UNKNOWN and FREE are free) or a bool
+    obstacle grid; start, goal: (2,) world (x, y), on the map, not known occupied; distribution:
+    (H, W) non-negative cell weights (None: uniform); k: neighbours per vertex (default 15);
+    radius: connection radius in metres (None: :func:`default_radius`); weight: 'euclidean' or
+    'neglogp' (needs ``distribution``). Search it with :func:`roadmap_shortest_path`; to reuse
+    one roadmap for many queries use :class:`PRM`.
+    """
+    blocked = _blocked_from("known_map", known_map)
+    origin_np = np.asarray(origin, np.float64)
+    if origin_np.shape != (2,):
+        raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
+    check_point("start", start, blocked, origin_np, resolution)
+    check_point("goal", goal, blocked, origin_np, resolution)
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
+    if weight not in ("euclidean", "neglogp"):
+        raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+    radius = (
+        float(radius)
+        if radius is not None
+        else default_radius(n, blocked.shape, resolution)
+    )
+    rm = roadmap_init(int(n), k)
+    rm = roadmap_grow(
+        rm,
+        key,
+        blocked,
+        int(n),
+        origin_np,
+        resolution,
+        distribution=distribution,
+        radius=radius,
+        weight=weight,
+        bucket_cap=bucket_cap,
+    )
+    return roadmap_connect(
+        rm,
+        start,
+        goal,
+        blocked,
+        origin_np,
+        resolution,
+        radius=radius,
+        distribution=distribution,
+        weight=weight,
+    )
+
+
+def make_roadmap_builder(
+    n: int,
+    shape,
+    resolution: float,
+    *,
+    k: int = 15,
+    radius: float | None = None,
+    weight: str = "euclidean",
+    uniform: bool = True,
+    bucket_cap: int | None = None,
+):
+    """A pure, jittable and vmappable one-shot builder for a fixed ``n`` and map ``shape``.
 
     Returns ``build(key, blocked, distribution, start, goal, origin) -> Roadmap`` with
     blocked: (H, W) bool known obstacles; distribution: (H, W) cell weights (ignored when
     ``uniform``); start, goal: (2,); origin: (2,) float. No input checks (use
-    :func:`build_roadmap` at the Python boundary); ``jax.vmap`` it to build the roadmaps of many
-    trials at once, e.g. ``jax.vmap(build)(keys, blocked_maps, dists, starts, goals, origins)``.
+    :func:`build_roadmap` at the Python boundary). ``bucket_cap=None`` searches neighbours by
+    brute force (exact, O(n^2)); with a cap, read :attr:`Roadmap.overflow` (a result code: when
+    set, rerun with a larger cap). E.g. ``jax.vmap(build)(keys, maps, dists, starts, goals, origins)``.
     """
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
     if weight == "neglogp" and uniform:
-        raise ValueError("uniform: weight='neglogp' needs a distribution (uniform=False)")
+        raise ValueError(
+            "uniform: weight='neglogp' needs a distribution (uniform=False)"
+        )
     H, W = (int(s) for s in shape)
-    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
-    edge_samples = max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
+    radius = (
+        float(radius) if radius is not None else default_radius(n, (H, W), resolution)
+    )
 
     def build(key, blocked, distribution, start, goal, origin):
-        return _build.__wrapped__(
-            key, blocked, distribution, start, goal, origin, n=int(n), k=int(k),
-            resolution=float(resolution), radius=radius, edge_samples=edge_samples,
-            bucket_cap=int(bucket_cap), neglogp=weight == "neglogp", uniform=bool(uniform),
+        rm = roadmap_init(int(n), int(k), origin.dtype)
+        dist = None if uniform else distribution
+        rm = _grow_impl(
+            rm,
+            key,
+            blocked,
+            dist,
+            origin,
+            n=int(n),
+            radius=radius,
+            resolution=float(resolution),
+            cap=bucket_cap,
+            neglogp=weight == "neglogp",
+        )
+        return _connect_impl(
+            rm,
+            start,
+            goal,
+            blocked,
+            dist,
+            origin,
+            radius=radius,
+            resolution=float(resolution),
+            neglogp=weight == "neglogp",
         )
 
     return build
 
 
+# ----------------------------------------------------------------------------- search (host)
+
+
 class RoadmapPath(NamedTuple):
-    """vertices: (K,) roadmap indices from start (0) to goal (1); points: (K, 2) world;
+    """vertices: (K,) roadmap slots from start (0) to goal (1); points: (K, 2) world;
     cost: summed edge weights; length: metres; found: bool (False: empty path, inf cost)."""
 
     vertices: np.ndarray
@@ -272,23 +685,102 @@ class RoadmapPath(NamedTuple):
     found: bool
 
 
-def roadmap_shortest_path(roadmap: Roadmap, source: int = 0, target: int = 1) -> RoadmapPath:
-    """Shortest path on the roadmap by scipy Dijkstra (host). Default: start (0) to goal (1)."""
+_NOT_FOUND = RoadmapPath(
+    np.zeros(0, np.int64), np.zeros((0, 2)), float("inf"), float("inf"), False
+)
+
+
+def _edge_list(nbr, ok, w, rows):
+    src = np.repeat(rows, nbr.shape[1])[ok.ravel()]
+    dst = nbr.ravel()[ok.ravel()]
+    # A zero weight would vanish from the sparse matrix; clamp tiny ones.
+    return src, dst, np.maximum(w.ravel()[ok.ravel()], 1e-12)
+
+
+class _SampleGraph:
+    """The samples' edges as a symmetric CSR (both directions), rows 0 and 1 empty."""
+
+    def __init__(self, roadmap: Roadmap):
+        nbr = np.asarray(roadmap.neighbors)[_QUERY:]
+        ok = np.asarray(roadmap.edge_valid)[_QUERY:]
+        w = np.asarray(roadmap.edge_weight)[_QUERY:]
+        M = nbr.shape[0] + _QUERY
+        src, dst, wt = _edge_list(nbr, ok, w, np.arange(_QUERY, M))
+        s = np.concatenate([src, dst])
+        d = np.concatenate([dst, src])
+        ww = np.concatenate([wt, wt])
+        order = np.argsort(s, kind="stable")
+        self.indices = d[order].astype(np.int32)
+        self.data = ww[order]
+        self.indptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int32)
+        self.M = M
+
+
+def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
+    """Dijkstra from the start over the sample graph plus the start's edges; the goal's edges
+    are read off the distances (the goal is only entered, never left)."""
+    M = graph.M
+    nbr = np.asarray(roadmap.neighbors[:_QUERY])
+    ok = np.asarray(roadmap.edge_valid[:_QUERY])
+    w = np.asarray(roadmap.edge_weight[:_QUERY])
+    s_dst, s_w = nbr[0][ok[0]], np.maximum(w[0][ok[0]], 1e-12)
+    g_dst, g_w = nbr[1][ok[1]], np.maximum(w[1][ok[1]], 1e-12)
+    if len(s_dst) == 0 or (len(g_dst) == 0 and GOAL not in s_dst):
+        return _NOT_FOUND
+    n0 = len(s_dst)
+    indptr = graph.indptr + n0
+    indptr[0] = 0
+    csr = scipy.sparse.csr_matrix(
+        (
+            np.concatenate([s_w, graph.data]),
+            np.concatenate([s_dst.astype(np.int32), graph.indices]),
+            indptr,
+        ),
+        shape=(M, M),
+    )
+    dist, pred = scipy.sparse.csgraph.dijkstra(
+        csr, directed=True, indices=START, return_predecessors=True
+    )
+    best, via = dist[GOAL], -1
+    if len(g_dst):
+        through = dist[g_dst] + g_w
+        i = int(np.argmin(through))
+        if through[i] < best:
+            best, via = float(through[i]), int(g_dst[i])
+    if not np.isfinite(best):
+        return _NOT_FOUND
+    path = [GOAL] if via < 0 else [GOAL, via]
+    node = path[-1] if via >= 0 else GOAL
+    while node != START:
+        node = int(pred[node])
+        path.append(node)
+    path = np.array(path[::-1])
+    pts = np.asarray(roadmap.points)[path]
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=-1)))
+    return RoadmapPath(path, pts, float(best), length, True)
+
+
+def roadmap_shortest_path(
+    roadmap: Roadmap, source: int = START, target: int = GOAL
+) -> RoadmapPath:
+    """Shortest path on the roadmap by scipy Dijkstra (host). Default: start (0) to goal (1);
+    other slots search the whole undirected edge list."""
+    if (source, target) == (START, GOAL):
+        return _search(_SampleGraph(roadmap), roadmap)
     pts = np.asarray(roadmap.points)
     M = pts.shape[0]
-    nbr = np.asarray(roadmap.neighbors)
-    ok = np.asarray(roadmap.edge_valid)
-    w = np.asarray(roadmap.edge_weight)
-    src = np.repeat(np.arange(M), nbr.shape[1])[ok.ravel()]
-    dst = nbr.ravel()[ok.ravel()]
-    # A zero weight would vanish from the sparse matrix; weights are lengths, so clamp tiny ones.
-    wt = np.maximum(w.ravel()[ok.ravel()], 1e-12)
+    src, dst, wt = _edge_list(
+        np.asarray(roadmap.neighbors),
+        np.asarray(roadmap.edge_valid),
+        np.asarray(roadmap.edge_weight),
+        np.arange(M),
+    )
     graph = scipy.sparse.csr_matrix((wt, (src, dst)), shape=(M, M))
     dist, pred = scipy.sparse.csgraph.dijkstra(
         graph, directed=False, indices=int(source), return_predecessors=True
     )
     if not np.isfinite(dist[target]):
-        return RoadmapPath(np.zeros(0, np.int64), np.zeros((0, 2)), float("inf"), float("inf"), False)
+        return _NOT_FOUND
     path = [int(target)]
     while path[-1] != source:
         path.append(int(pred[path[-1]]))
@@ -296,6 +788,141 @@ def roadmap_shortest_path(roadmap: Roadmap, source: int = 0, target: int = 1) ->
     p = pts[path]
     length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=-1)))
     return RoadmapPath(path, p, float(dist[target]), length, True)
+
+
+class PRM:
+    """A roadmap on a partial map that is built once, grown, rechecked and queried many times.
+
+    known_map: (H, W) int8 partial map or bool obstacle grid; origin: (2,) world (x, y) of cell
+    [0, 0]'s corner; resolution: metres per cell; capacity: most samples it will hold (fixed
+    shapes: growing never recompiles); k: neighbours per vertex; radius: connection radius in
+    metres (None: :func:`default_radius` of ``capacity``); weight: 'euclidean' or 'neglogp'
+    (edge weights from the distribution given to :meth:`grow`; the latest one also weights the
+    query's edges). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
+    :attr:`roadmap`.
+    """
+
+    def __init__(
+        self,
+        known_map,
+        origin,
+        resolution: float,
+        *,
+        capacity: int,
+        k: int = 15,
+        radius: float | None = None,
+        weight: str = "euclidean",
+    ):
+        blocked = _blocked_from("known_map", known_map)
+        origin_np = np.asarray(origin, np.float64)
+        if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
+            raise ValueError(
+                f"origin: expected a finite (2,) world point, got {origin_np.tolist()}"
+            )
+        if not (isinstance(resolution, (int, float)) and resolution > 0):
+            raise ValueError(
+                f"resolution: expected metres per cell > 0, got {resolution!r}"
+            )
+        if weight not in ("euclidean", "neglogp"):
+            raise ValueError(
+                f"weight: expected 'euclidean' or 'neglogp', got {weight!r}"
+            )
+        self.roadmap = roadmap_init(capacity, k)
+        self.blocked = blocked
+        self._blocked_j = jnp.asarray(blocked)
+        self.origin = origin_np
+        self.resolution = float(resolution)
+        self.radius = (
+            float(radius)
+            if radius is not None
+            else default_radius(capacity, blocked.shape, resolution)
+        )
+        self.weight = weight
+        self.distribution = None
+        self._cap: int | None = None
+        self._graph: _SampleGraph | None = None
+
+    @property
+    def count(self) -> int:
+        """Samples in the roadmap."""
+        return int(self.roadmap.count)
+
+    @property
+    def capacity(self) -> int:
+        return int(self.roadmap.points.shape[0]) - _QUERY
+
+    def grow(self, key, n: int, distribution=None) -> int:
+        """Adds ``n`` samples from ``distribution`` ((H, W) cell weights; None: uniform over the
+        cells not known occupied). Returns the sample count."""
+        if self.weight == "neglogp" and distribution is None:
+            distribution = self.distribution
+        if self.weight == "neglogp" and distribution is None:
+            raise ValueError(
+                "distribution: weight='neglogp' needs a distribution, got None"
+            )
+        if not (isinstance(n, (int, np.integer)) and n >= 1):
+            raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
+        if self.count + int(n) > self.capacity:
+            raise ValueError(
+                f"n: {n} more samples exceed the capacity ({self.capacity}, {self.count} used)"
+            )
+        distribution = _check_distribution(distribution, self.blocked.shape)
+        dtype = self.roadmap.points.dtype
+        dist = None if distribution is None else jnp.asarray(distribution, dtype)
+        cap = self._cap or _initial_cap(
+            self.capacity, self.blocked.shape, self.resolution, self.radius
+        )
+        self.roadmap, self._cap = _grow_exact(
+            self.roadmap,
+            key,
+            self._blocked_j,
+            dist,
+            jnp.asarray(self.origin, dtype),
+            int(n),
+            self.radius,
+            self.resolution,
+            cap,
+            self.weight == "neglogp",
+        )
+        if distribution is not None:
+            self.distribution = distribution
+        self._graph = None
+        return self.count
+
+    def update_map(self, known_map) -> bool:
+        """Adopts a newer partial map; drops vertices and edges it blocks (only where something
+        changed: an unchanged map costs nothing). Returns True if the map changed."""
+        blocked = _blocked_from("known_map", known_map)
+        if blocked.shape != self.blocked.shape:
+            raise ValueError(
+                f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}"
+            )
+        if np.array_equal(blocked, self.blocked):
+            return False
+        self.blocked = blocked
+        self._blocked_j = jnp.asarray(blocked)
+        self.roadmap = roadmap_recheck(
+            self.roadmap, blocked, self.origin, self.resolution, radius=self.radius
+        )
+        self._graph = None
+        return True
+
+    def query(self, start, goal) -> RoadmapPath:
+        """Shortest roadmap path from ``start`` to ``goal`` (world (2,), not known occupied)."""
+        self.roadmap = roadmap_connect(
+            self.roadmap,
+            start,
+            goal,
+            self.blocked,
+            self.origin,
+            self.resolution,
+            radius=self.radius,
+            distribution=self.distribution,
+            weight=self.weight,
+        )
+        if self._graph is None:
+            self._graph = _SampleGraph(self.roadmap)
+        return _search(self._graph, self.roadmap)
 
 
 def embed_local_distribution(local, center_cell, full_shape):
@@ -318,5 +945,5 @@ def embed_local_distribution(local, center_cell, full_shape):
     r0 = jnp.clip(r0, 0, H + 2 * pad_r - h)
     c0 = jnp.clip(c0, 0, W + 2 * pad_c - w)
     big = jax.lax.dynamic_update_slice(big, local, (r0, c0))
-    full = big[pad_r:pad_r + H, pad_c:pad_c + W]
+    full = big[pad_r : pad_r + H, pad_c : pad_c + W]
     return full / jnp.sum(full)
