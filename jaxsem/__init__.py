@@ -11,6 +11,10 @@ imported on first use so that ``import jaxsem`` stays light:
 - :mod:`jaxsem.models`    flax MobileNetV2, VoluMon, LSD
 - :mod:`jaxsem.data`      FAT-layout loaders, synthetic writers, input pipelines
 - :mod:`jaxsem.planning`  buildings, sensors, shortest paths, PRM, navigation loop
+- :mod:`jaxsem.volumon`   VoluMon losses, training, refinement, evaluation
+- :mod:`jaxsem.lsd`       LSD training and the learned PRM sampler
+- :mod:`jaxsem.mapping`   object maps for planning (ellipsoid estimates -> semantic grid)
+- :mod:`jaxsem.classes`   the one object class table (sizes, shapes)
 """
 
 import importlib as _importlib
@@ -37,7 +41,21 @@ from .quadrics import (
 
 __version__ = "0.1.0"
 
-_SUBPACKAGES = ("metrics", "factors", "slam", "sim", "models", "data", "planning", "demos")
+_SUBPACKAGES = (
+    "classes",
+    "metrics",
+    "factors",
+    "slam",
+    "sim",
+    "models",
+    "data",
+    "planning",
+    "volumon",
+    "lsd",
+    "mapping",
+    "parallel",
+    "demos",
+)
 
 
 def __getattr__(name):

@@ -10,14 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .quadrics import (
-    _as_float_array,
-    _batch_shape,
-    _cross,
-    rotation_to_quaternion,
-    safe_norm,
-    safe_sqrt,
-)
+from ._checks import as_float_array as _as_float_array
+from ._checks import batch_shape as _batch_shape
+from .quadrics import rotation_to_quaternion_wxyz, safe_norm, safe_sqrt
 
 __all__ = [
     "ellipsoid_errors",
@@ -36,13 +31,13 @@ __all__ = [
 def rotation_angle(rotation_a, rotation_b):
     """Geodesic angle (radians, in [0, pi]) between rotations (..., 3, 3); NaN-free everywhere."""
     rel = jnp.matmul(jnp.swapaxes(rotation_a, -1, -2), rotation_b)
-    q = rotation_to_quaternion(rel)
+    q = rotation_to_quaternion_wxyz(rel)
     return 2.0 * jnp.arctan2(safe_norm(q[..., 1:], axis=-1), jnp.abs(q[..., 0]))
 
 
 def _line_angle(a, b):
     """Angle (radians, [0, pi/2]) between the unsigned lines along unit vectors a, b (..., 3)."""
-    return jnp.arctan2(safe_norm(_cross(a, b), axis=-1), jnp.abs(jnp.sum(a * b, axis=-1)))
+    return jnp.arctan2(safe_norm(jnp.cross(a, b), axis=-1), jnp.abs(jnp.sum(a * b, axis=-1)))
 
 
 _SIGN_FLIPS = np.array(
@@ -177,7 +172,7 @@ def _polygon_volume_term(verts, count):
     """Signed volume contribution ``sum v0 . (vi x vi+1) / 6`` of a polygon fan."""
     V = verts.shape[0]
     i = jnp.arange(1, V - 1)
-    tri = _cross(verts[i], verts[i + 1])
+    tri = jnp.cross(verts[i], verts[i + 1])
     terms = jnp.sum(verts[0] * tri, axis=-1) / 6.0
     return jnp.sum(jnp.where(i + 1 < count, terms, 0.0))
 

@@ -47,8 +47,18 @@ __all__ = [
     "camera_depth",
     "camera_frame",
     "look_at",
-    "quaternion_to_rotation",
-    "rotation_to_quaternion",
+    "transform_points",
+    "invert_pose",
+    "project_points",
+    "back_project",
+    "single_view_ellipsoid",
+    "cuboid_corners",
+    "CUBOID_CORNER_SIGNS",
+    "so3_exp",
+    "quaternion_wxyz_to_rotation",
+    "rotation_to_quaternion_wxyz",
+    "quaternion_xyzw_to_rotation",
+    "rotation_to_quaternion_xyzw",
     "random_rotation",
     "safe_sqrt",
     "safe_div",
@@ -99,10 +109,42 @@ def _batch_shape(**named: tuple) -> tuple:
         raise ValueError(f"batch shapes do not broadcast: {listing}") from None
 
 
+def _check_rotation(name: str, rotation) -> None:
+    """Concrete ``rotation`` (..., 3, 3) must be a proper rotation: ``R^T R = I`` to 1e-3, det > 0."""
+    if not _is_concrete(rotation):
+        return
+    R = np.asarray(rotation, np.float64)
+    if R.size == 0:
+        return
+    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(R)
+    bad = (err > 1e-3) | (det <= 0)
+    if np.any(bad):
+        i = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
+        raise ValueError(
+            f"{name}: expected rotation matrices (R^T R = I, det R = +1), got one with "
+            f"|R^T R - I| = {float(np.asarray(err)[i]):.3g} and det = {float(np.asarray(det)[i]):.3g}"
+            + (f" at batch index {tuple(int(k) for k in i)}" if i else "")
+        )
+
+
+def _check_positive(name: str, x) -> None:
+    if _is_concrete(x) and np.asarray(x).size and not bool(np.all(np.asarray(x) > 0)):
+        raise ValueError(f"{name}: expected positive values, got min {float(np.min(np.asarray(x))):.3g}")
+
+
 def _ellipsoid_args(rotation, center, radii):
-    rotation = _as_float_array("rotation", rotation, (3, 3))
-    center = _as_float_array("center", center, (3,))
-    radii = _as_float_array("radii", radii, (3,))
+    """Ellipsoid arguments as arrays of one dtype, and their broadcast batch shape.
+
+    Concrete (not traced) values are checked: finite, ``rotation`` a proper rotation, ``radii``
+    positive; each failure is a ``ValueError`` naming the argument. Traced values are not checked
+    (the functions' ``valid`` masks and result codes carry validity under ``jit``).
+    """
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True)
+    center = _as_float_array("center", center, (3,), check_finite=True)
+    radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    _check_rotation("rotation", rotation)
+    _check_positive("radii", radii)
     dtype = jnp.result_type(rotation.dtype, center.dtype, radii.dtype)
     batch = _batch_shape(
         rotation=rotation.shape[:-2], center=center.shape[:-1], radii=radii.shape[:-1]
@@ -122,8 +164,14 @@ def _camera_args(K, camera_T_world, *, need_K=True):
                     "K: expected intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got "
                     f"{Kn.reshape(-1, 3, 3)[0].tolist()} (first of batch)"
                 )
+            if Kn.size and not (np.all(Kn[..., 0, 0] > 0) and np.all(Kn[..., 1, 1] > 0)):
+                raise ValueError(
+                    f"K: expected positive focal lengths fx, fy, got fx min {float(np.min(Kn[..., 0, 0])):.3g}, "
+                    f"fy min {float(np.min(Kn[..., 1, 1])):.3g}"
+                )
         out.append(K)
     pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
+    _check_rotation("camera_T_world", pose[..., :3, :3])
     out.append(pose)
     return out
 
@@ -138,10 +186,11 @@ def _eps(dtype) -> float:
 
 
 def safe_sqrt(x):
-    """``sqrt(max(x, 0))`` whose value and gradient are finite everywhere (gradient 0 for x <= 0)."""
+    """``sqrt(max(x, 0))`` whose value and gradient are finite for finite ``x`` (gradient 0 for
+    x <= 0). NaN stays NaN: a guard must not turn a poisoned input into a finite-looking 0."""
     x = jnp.asarray(x)
     positive = x > jnp.finfo(jnp.result_type(x, float)).tiny
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), jnp.where(jnp.isnan(x), x, 0.0))
 
 
 def safe_div(numerator, denominator, eps=None):
@@ -244,7 +293,7 @@ def project_dual_conic(dual_quadric, K, camera_T_world):
     Returns:
       (..., 3, 3) dual conic in pixels.
     """
-    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4))
+    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True)
     K, pose = _camera_args(K, camera_T_world)
     _batch_shape(dual_quadric=Qs.shape[:-2], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
     P = jnp.matmul(K, pose[..., :3, :])
@@ -268,7 +317,7 @@ def conic_bbox(dual_conic):
         alone cannot tell an ellipsoid in front of the camera from its mirror image behind it;
         :func:`project_bbox` checks the depth as well.
     """
-    C = _as_float_array("dual_conic", dual_conic, (3, 3))
+    C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True)
     C = 0.5 * (C + jnp.swapaxes(C, -1, -2))
     # Scale to O(1) by a positive factor: the box is scale-invariant and det() cannot overflow.
     scale = jnp.max(jnp.abs(C), axis=(-2, -1), keepdims=True)
@@ -293,31 +342,36 @@ def conic_bbox(dual_conic):
 def conic_outline(dual_conic, num_points: int = 64):
     """Points on a dual conic's ellipse, for drawing: (..., num_points, 2) and a (...) valid mask.
 
-    The point conic is the adjugate of ``C*``; writing it as ``(x - x0)^T A (x - x0) = k`` gives the
-    centre ``x0`` and, from the eigen-decomposition of ``A``, the semi-axes ``sqrt(k / lambda)``.
-    Where the conic is not a real ellipse the points collapse to a finite point and valid is False.
+    A real ellipse with centre ``x0`` and shape ``M`` (the points ``x`` with
+    ``(x - x0)^T M^-1 (x - x0) = 1``) has the dual conic ``C* ~ [[M - x0 x0^T, -x0], [-x0^T, -1]]``
+    (the 2D analogue of eq. 4.3), so after scaling ``C*`` to ``C*33 = -1`` both are read off
+    directly: ``x0 = -C*[:2, 2]`` and ``M = C*[:2, :2] + x0 x0^T``. The points are
+    ``x0 + L [cos t, sin t]`` with ``L`` the closed-form 2x2 Cholesky factor of ``M``: no
+    adjugate, no determinant and no eigen-decomposition, so the gradients are finite in float32
+    and correct for circles (where an eigenvector gradient is undefined). Where the conic is not
+    a real ellipse the points collapse to a finite point and valid is False.
     """
-    Cs = _as_float_array("dual_conic", dual_conic, (3, 3))
+    Cs = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True)
+    if int(num_points) < 1:
+        raise ValueError(f"num_points: expected a positive integer, got {num_points}")
     _, valid = conic_bbox(Cs)
-    scale = jnp.max(jnp.abs(Cs), axis=(-2, -1), keepdims=True)
-    Cs = Cs / jnp.where(scale > 0, scale, 1.0)
-    a, b, c = Cs[..., 0, :], Cs[..., 1, :], Cs[..., 2, :]
-    # Adjugate (= det * inverse) of the symmetric dual conic, i.e. the point conic up to scale.
-    C = jnp.stack([_cross(b, c), _cross(c, a), _cross(a, b)], axis=-2)
-    A = 0.5 * (C[..., :2, :2] + jnp.swapaxes(C[..., :2, :2], -1, -2))
-    lin = C[..., :2, 2]
-    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
-    adjA = jnp.stack([jnp.stack([A[..., 1, 1], -A[..., 0, 1]], -1), jnp.stack([-A[..., 1, 0], A[..., 0, 0]], -1)], -2)
-    det_safe = jnp.where(jnp.abs(det) > 0, det, 1.0)
-    x0 = -_matvec2(adjA, lin) / det_safe[..., None]
-    k = jnp.sum(x0 * _matvec2(A, x0), -1) - C[..., 2, 2]
-    lam, vec = jnp.linalg.eigh(A)
-    lam_safe = jnp.where(jnp.abs(lam) > 0, lam, 1.0)
-    axes_len = safe_sqrt(jnp.where(valid[..., None], k[..., None] / lam_safe, 0.0))
+    Cs = 0.5 * (Cs + jnp.swapaxes(Cs, -1, -2))
+    c33 = jnp.where(valid, Cs[..., 2, 2], -1.0)
+    Cn = Cs / (-c33)[..., None, None]
+    x0 = -Cn[..., :2, 2]
+    m11 = Cn[..., 0, 0] + x0[..., 0] * x0[..., 0]
+    m12 = Cn[..., 0, 1] + x0[..., 0] * x0[..., 1]
+    m22 = Cn[..., 1, 1] + x0[..., 1] * x0[..., 1]
+    # M = L L^T, L = [[l11, 0], [l21, l22]]; on invalid conics the inputs are replaced by 1 so the
+    # branch not taken has finite gradients.
+    l11 = safe_sqrt(jnp.where(valid, m11, 1.0))
+    l21 = safe_div(jnp.where(valid, m12, 0.0), l11)
+    l22 = safe_sqrt(jnp.where(valid, m22 - l21 * l21, 1.0))
     t = jnp.linspace(0.0, 2 * jnp.pi, int(num_points), dtype=Cs.dtype)
-    circle = jnp.stack([jnp.cos(t), jnp.sin(t)], -1)  # (n, 2)
-    local = circle * axes_len[..., None, :]
-    pts = jnp.einsum("...ij,...nj->...ni", vec, local) + x0[..., None, :]
+    cos_t, sin_t = jnp.cos(t), jnp.sin(t)
+    u = x0[..., 0, None] + l11[..., None] * cos_t
+    v = x0[..., 1, None] + l21[..., None] * cos_t + l22[..., None] * sin_t
+    pts = jnp.stack([u, v], -1)
     return jnp.where(valid[..., None, None], pts, 0.0), valid
 
 
@@ -597,8 +651,8 @@ def texture_plane_depth(rotation, center, radii, camera_T_world):
 
 def camera_depth(center, camera_T_world):
     """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4)."""
-    center = _as_float_array("center", center, (3,))
-    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4))
+    center = _as_float_array("center", center, (3,), check_finite=True)
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
     return jnp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]
 
 
@@ -616,7 +670,7 @@ def algebraic_distance(points, rotation, center, radii):
     Returns:
       (..., N): negative inside, zero on the surface, positive outside.
     """
-    points = _as_float_array("points", points, (3,))
+    points = _as_float_array("points", points, (3,), check_finite=True)
     if points.ndim < 2:
         raise ValueError(f"points: expected shape (..., N, 3), got shape {tuple(points.shape)}")
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
@@ -685,9 +739,14 @@ def rasterize_footprint(
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     if len(grid_shape) != 2 or any(int(g) <= 0 for g in grid_shape):
         raise ValueError(f"grid_shape: expected (H, W) of positive ints, got {grid_shape}")
-    origin = _as_float_array("origin", origin, (2,))
+    origin = _as_float_array("origin", origin, (2,), check_finite=True)
     if origin.ndim != 1:
         raise ValueError(f"origin: expected shape (2,), got {tuple(origin.shape)}")
+    res = jnp.asarray(resolution)
+    if res.ndim != 0:
+        raise ValueError(f"resolution: expected a scalar (metres per cell), got shape {tuple(res.shape)}")
+    if _is_concrete(res) and not (np.isfinite(float(res)) and float(res) > 0):
+        raise ValueError(f"resolution: expected a positive, finite number of metres per cell, got {float(res)}")
     class_id = jnp.broadcast_to(jnp.asarray(class_id, jnp.int32), batch)
     mask = jnp.ones(batch, bool) if mask is None else jnp.broadcast_to(jnp.asarray(mask, bool), batch)
     rot = jnp.broadcast_to(rotation, batch + (3, 3)).reshape(-1, 3, 3)
@@ -727,12 +786,30 @@ def surface_points(key, rotation, center, radii, n: int):
     return _matvec(rotation[..., None, :, :], local) + center[..., None, :]
 
 
-def quaternion_to_rotation(quaternion_wxyz):
-    """(..., 4) quaternion ``[w, x, y, z]`` (normalised here; zero maps to identity) -> (..., 3, 3)."""
-    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,))
+def quaternion_wxyz_to_rotation(quaternion_wxyz):
+    """(..., 4) quaternion ``[w, x, y, z]`` (scalar first, jaxlie's order) -> (..., 3, 3) rotation.
+
+    The quaternion is normalised here; a zero quaternion maps to the identity (a documented
+    convention, e.g. for a network head before training). A non-finite concrete quaternion raises
+    ``ValueError``; under ``jit`` a NaN propagates to the result (never a finite-looking matrix).
+    """
+    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True)
+    return _quaternion_wxyz_to_rotation(q)
+
+
+def quaternion_xyzw_to_rotation(quaternion_xyzw):
+    """(..., 4) quaternion ``[x, y, z, w]`` (scalar last: ROS, scipy, FAT's ``quaternion_xyzw``)
+    -> (..., 3, 3) rotation. Same rules as :func:`quaternion_wxyz_to_rotation`."""
+    q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True)
+    return _quaternion_wxyz_to_rotation(jnp.roll(q, 1, axis=-1))
+
+
+def _quaternion_wxyz_to_rotation(q):
     norm = safe_norm(q, axis=-1, keepdims=True)
     identity = jnp.array([1.0, 0.0, 0.0, 0.0], q.dtype)
-    q = jnp.where(norm > 0, q / jnp.where(norm > 0, norm, 1.0), identity)
+    # `norm > 0` is False for NaN too: keep NaN (honest) instead of mapping it to the identity.
+    keep = (norm > 0) | jnp.isnan(norm)
+    q = jnp.where(keep, q / jnp.where(keep, norm, 1.0), identity)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return jnp.stack(
         [
@@ -744,8 +821,8 @@ def quaternion_to_rotation(quaternion_wxyz):
     )
 
 
-def rotation_to_quaternion(rotation):
-    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` with ``w >= 0``.
+def rotation_to_quaternion_wxyz(rotation):
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` (scalar first) with ``w >= 0``.
 
     Shepperd's method: of the four algebraically equal formulas the one with the largest
     square-root argument is taken, so no branch divides by a small number.
@@ -779,7 +856,7 @@ def random_rotation(key, shape: tuple = (), dtype=None):
     """Uniformly random rotations (..., 3, 3) from normalised Gaussian quaternions."""
     dtype = dtype or jnp.result_type(float)
     q = jax.random.normal(key, tuple(shape) + (4,), dtype=dtype)
-    return quaternion_to_rotation(q)
+    return _quaternion_wxyz_to_rotation(q)
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)):
@@ -794,6 +871,15 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)):
     dtype = jnp.result_type(eye.dtype, target.dtype, up.dtype)
     eye, target, up = eye.astype(dtype), target.astype(dtype), up.astype(dtype)
     batch = _batch_shape(eye=eye.shape[:-1], target=target.shape[:-1], up=up.shape[:-1])
+    for name, x in (("eye", eye), ("target", target), ("up", up)):
+        if _is_concrete(x) and not bool(np.all(np.isfinite(np.asarray(x)))):
+            raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
+    if _is_concrete(eye) and _is_concrete(target):
+        gap = np.linalg.norm(np.asarray(target, np.float64) - np.asarray(eye, np.float64), axis=-1)
+        if np.any(gap <= 0):
+            raise ValueError("target: must differ from eye (the view direction is undefined)")
+    if _is_concrete(up) and np.any(np.linalg.norm(np.asarray(up, np.float64), axis=-1) <= 0):
+        raise ValueError("up: must be a non-zero vector")
     forward = target - eye
     forward = forward / jnp.maximum(safe_norm(forward, keepdims=True), _eps(dtype))
     right = _cross(forward, up)
@@ -809,3 +895,167 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)):
     top = jnp.concatenate([cam_R_world, t[..., None]], -1)
     bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
     return jnp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def rotation_to_quaternion_xyzw(rotation):
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``."""
+    return jnp.roll(rotation_to_quaternion_wxyz(rotation), -1, axis=-1)
+
+
+# Old names (scalar-first convention), kept so that existing code keeps working.
+quaternion_to_rotation = quaternion_wxyz_to_rotation
+rotation_to_quaternion = rotation_to_quaternion_wxyz
+
+
+def so3_exp(omega):
+    """Rotation (..., 3, 3) of the axis-angle vector ``omega`` (..., 3) (radians), through jaxlie.
+
+    ``jaxlie.SO3.exp`` handles the small-angle case with a Taylor branch whose untaken side has
+    finite gradients, so this is NaN-free at zero."""
+    import jaxlie
+
+    omega = _as_float_array("omega", omega, (3,), check_finite=True)
+    return jaxlie.SO3.exp(omega).as_matrix()
+
+
+# --------------------------------------------------------------------------------------------
+# Points, poses and pinhole projection.
+
+
+def transform_points(T, points):
+    """Apply rigid transforms ``T`` (..., 4, 4) to points (..., 3): ``T[:3, :3] p + T[:3, 3]``."""
+    T = _as_float_array("T", T, (4, 4), check_finite=True)
+    points = _as_float_array("points", points, (3,), check_finite=True)
+    _batch_shape(T=T.shape[:-2], points=points.shape[:-1])
+    dtype = jnp.result_type(T.dtype, points.dtype)
+    T, points = T.astype(dtype), points.astype(dtype)
+    return _matvec(T[..., :3, :3], points) + T[..., :3, 3]
+
+
+def invert_pose(T):
+    """Inverse (..., 4, 4) of rigid transforms ``T`` (..., 4, 4): ``[[R^T, -R^T t], [0, 1]]``.
+
+    Exact for rigid transforms (the same as ``jaxlie.SE3.from_matrix(T).inverse().as_matrix()``
+    without the round trip through a quaternion)."""
+    T = _as_float_array("T", T, (4, 4), check_finite=True)
+    Rt = jnp.swapaxes(T[..., :3, :3], -1, -2)
+    t = -_matvec(Rt, T[..., :3, 3])
+    top = jnp.concatenate([Rt, t[..., None]], -1)
+    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], T.dtype), T.shape[:-2] + (4,))
+    return jnp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def project_points(points, K, camera_T_world):
+    """Pinhole projection of world points: ``uv = (K p_cam)[:2] / z``, with ``p_cam = camera_T_world p``.
+
+    Args:
+      points: (..., 3) world points.
+      K: (..., 3, 3) intrinsics; camera_T_world: (..., 4, 4) (OpenCV axes).
+
+    Returns:
+      uv: (..., 2) pixels, finite everywhere (a point at or behind the principal plane is
+        divided by a clamped depth, so its ``uv`` is meaningless: check ``depth``).
+      depth: (...) camera z in metres; a point is in front of the camera iff ``depth > 0``.
+    """
+    points = _as_float_array("points", points, (3,), check_finite=True)
+    K, pose = _camera_args(K, camera_T_world)
+    _batch_shape(points=points.shape[:-1], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    dtype = jnp.result_type(points.dtype, K.dtype, pose.dtype)
+    p = _matvec(pose[..., :3, :3].astype(dtype), points.astype(dtype)) + pose[..., :3, 3].astype(dtype)
+    pix = _matvec(K.astype(dtype), p)
+    z = p[..., 2]
+    z_safe = jnp.where(jnp.abs(z) > _eps(dtype), z, _eps(dtype))
+    return pix[..., :2] / z_safe[..., None], z
+
+
+def back_project(uv, depth, K, camera_T_world):
+    """World points (..., 3) at camera depth ``depth`` (z, not range) on the rays through pixels ``uv``.
+
+    The inverse of :func:`project_points`: ``project_points(back_project(uv, z, K, T), K, T)``
+    gives back ``(uv, z)``.
+
+    Args:
+      uv: (..., 2) pixels; depth: (...) metres along the optical axis.
+      K: (..., 3, 3) intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; camera_T_world: (..., 4, 4).
+    """
+    uv = _as_float_array("uv", uv, (2,), check_finite=True)
+    depth = jnp.asarray(depth)
+    if _is_concrete(depth) and not bool(np.all(np.isfinite(np.asarray(depth)))):
+        raise ValueError("depth: must be finite, got non-finite values (NaN or inf)")
+    K, pose = _camera_args(K, camera_T_world)
+    _batch_shape(uv=uv.shape[:-1], depth=depth.shape, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    dtype = jnp.result_type(uv.dtype, depth.dtype, K.dtype, pose.dtype, float)
+    uv, depth, K, pose = uv.astype(dtype), depth.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    fy, cy = K[..., 1, 1], K[..., 1, 2]
+    y = (uv[..., 1] - cy) / fy
+    x = (uv[..., 0] - cx - s * y) / fx
+    p_cam = jnp.stack([x * depth, y * depth, jnp.broadcast_to(depth, x.shape)], -1)
+    # world p = R^T (p_cam - t)
+    R = pose[..., :3, :3]
+    return _matvec(jnp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
+
+
+def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
+    """Single-view initialisation of an ellipsoid from one box (thesis section 4.3.5).
+
+    The centre lies on the ray through the box centre at camera depth ``depth`` (z, not range),
+    the rotation is the identity (object axes = world axes) and the radii are ``radii``.
+    ROSHAN's :func:`jaxsem.factors.single_view_init` chooses the depth (texture plane or default)
+    and calls this.
+
+    Args:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``; K: (..., 3, 3); camera_T_world: (..., 4, 4);
+      depth: (...) metres; radii: (..., 3) semi-axes.
+
+    Returns:
+      rotation (..., 3, 3), center (..., 3), radii (..., 3), broadcast to one batch shape.
+    """
+    box = _as_float_array("box", box, (4,), check_finite=True)
+    radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    uv = 0.5 * (box[..., :2] + box[..., 2:])
+    center = back_project(uv, depth, K, camera_T_world)
+    batch = _batch_shape(center=center.shape[:-1], radii=radii.shape[:-1])
+    center = jnp.broadcast_to(center, batch + (3,))
+    rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
+    return rotation, center, jnp.broadcast_to(radii.astype(center.dtype), batch + (3,))
+
+
+# Corner order of NVIDIA's NDDS exporter, used by the Falling Things dataset (FAT) and DOPE:
+# FrontTopRight, FrontTopLeft, FrontBottomLeft, FrontBottomRight, then the same four at the rear,
+# in the cuboid frame x right, y down, z out of the front. Rows are the signs of (x, y, z).
+CUBOID_CORNER_SIGNS = np.array(
+    [
+        [1, -1, 1],
+        [-1, -1, 1],
+        [-1, 1, 1],
+        [1, 1, 1],
+        [1, -1, -1],
+        [-1, -1, -1],
+        [-1, 1, -1],
+        [1, 1, -1],
+    ],
+    dtype=np.float64,
+)
+
+
+def cuboid_corners(rotation, center, half_extents):
+    """The 8 corners (..., 8, 3) of an oriented box, in :data:`CUBOID_CORNER_SIGNS` order (NDDS / FAT).
+
+    Corner ``k`` is ``center + rotation @ (CUBOID_CORNER_SIGNS[k] * half_extents)``: the box's own
+    axes are the columns of ``rotation`` (any right- or left-handed frame the caller chooses, e.g.
+    FAT's x right, y down, z out of the front).
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); half_extents: (..., 3) (an ellipsoid's radii give
+        its bounding box).
+    """
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True)
+    center = _as_float_array("center", center, (3,), check_finite=True)
+    half = _as_float_array("half_extents", half_extents, (3,), check_finite=True)
+    if _is_concrete(half) and bool(np.any(np.asarray(half) < 0)):
+        raise ValueError("half_extents: expected non-negative values, got a negative one")
+    _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], half_extents=half.shape[:-1])
+    dtype = jnp.result_type(rotation.dtype, center.dtype, half.dtype)
+    local = jnp.asarray(CUBOID_CORNER_SIGNS, dtype) * half.astype(dtype)[..., None, :]
+    return _matvec(rotation.astype(dtype)[..., None, :, :], local) + center.astype(dtype)[..., None, :]

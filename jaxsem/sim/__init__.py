@@ -18,7 +18,6 @@ from ._ellipsoid_maps import (
     simulate as simulate,
     simulate_batch as simulate_batch,
     simulate_views as simulate_views,
-    single_view_init as single_view_init,
     thesis_config as thesis_config,
     to_problem as to_problem,
 )

@@ -29,8 +29,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import classes as _classes
 from .. import factors
-from ..quadrics import camera_frame, look_at, project_bbox, safe_norm, texture_plane_depth
+from ..quadrics import (
+    camera_frame,
+    invert_pose,
+    look_at,
+    project_bbox,
+    safe_norm,
+    single_view_ellipsoid,
+    so3_exp,
+    texture_plane_depth,
+)
 
 __all__ = [
     "SimConfig",
@@ -43,7 +53,6 @@ __all__ = [
     "camera_path",
     "random_objects",
     "detect",
-    "single_view_init",
     "intrinsics",
     "class_table",
     "to_problem",
@@ -57,15 +66,10 @@ INIT_MODES = ("single_view", "noisy_truth")
 def class_table(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Mean radii and per-axis standard deviations, (C, 3) each, of the classes ``names``.
 
-    From :data:`jaxsem.factors.SHAPE_PRIORS` (the table ROSHAN's shape prior uses), so simulated
-    sizes are consistent with the prior. Unknown names raise ``ValueError`` listing known ones.
+    From :mod:`jaxsem.classes` (the table ROSHAN's shape prior reads too), so simulated sizes are
+    consistent with the prior. Unknown names raise ``ValueError`` listing the known ones.
     """
-    means, sigmas = [], []
-    for name in names:
-        prior = factors.shape_prior(name)  # ValueError naming the known classes
-        means.append(np.asarray(prior.mean, np.float64))
-        sigmas.append(np.asarray(prior.sigma, np.float64))
-    return np.stack(means), np.stack(sigmas)
+    return _classes.radii_table(names)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -301,28 +305,9 @@ def intrinsics(config: SimConfig, dtype=None) -> jax.Array:
 
 
 def _yaw_rotation(yaw):
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    z, o = jnp.zeros_like(yaw), jnp.ones_like(yaw)
-    return jnp.stack(
-        [jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2
-    )
-
-
-def _rodrigues(omega):
-    """so(3) vector (..., 3) -> rotation (..., 3, 3), NaN-free at zero."""
-    theta = safe_norm(omega, axis=-1)
-    small = theta < 1e-8
-    t = jnp.where(small, 1.0, theta)
-    a = jnp.where(small, 1.0 - theta**2 / 6.0, jnp.sin(t) / t)
-    b = jnp.where(small, 0.5 - theta**2 / 24.0, (1.0 - jnp.cos(t)) / (t * t))
-    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
-    zero = jnp.zeros_like(x)
-    W = jnp.stack(
-        [jnp.stack([zero, -z, y], -1), jnp.stack([z, zero, -x], -1), jnp.stack([-y, x, zero], -1)],
-        -2,
-    )
-    eye = jnp.eye(3, dtype=omega.dtype)
-    return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
+    """Rotation (..., 3, 3) about world z by ``yaw`` (...) radians."""
+    zero = jnp.zeros_like(yaw)
+    return so3_exp(jnp.stack([zero, zero, yaw], -1))
 
 
 class _Pool:
@@ -469,15 +454,6 @@ def camera_path(config: SimConfig, dtype=None) -> jax.Array:
     raise ValueError(f"config.path: camera_path needs 'orbit' or 'forward', got {config.path!r}")
 
 
-def _invert_pose(T):
-    R = T[..., :3, :3]
-    Rt = jnp.swapaxes(R, -1, -2)
-    t = -jnp.sum(Rt * T[..., None, :3, 3], axis=-1)
-    top = jnp.concatenate([Rt, t[..., None]], -1)
-    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], T.dtype), T.shape[:-2] + (4,))
-    return jnp.concatenate([top, bottom[..., None, :]], -2)
-
-
 def perturb_poses(key, camera_T_world, sigma_m: float, sigma_deg: float):
     """Noisy odometry: the camera's world position gets N(0, sigma_m^2) per axis and its
     orientation a rotation with N(0, sigma_deg^2) per axis (applied in the camera frame)."""
@@ -488,13 +464,13 @@ def perturb_poses(key, camera_T_world, sigma_m: float, sigma_deg: float):
 
 def _perturb_poses(pool: _Pool, camera_T_world, sigma_m, sigma_deg):
     batch = camera_T_world.shape[:-2]
-    world_T_cam = _invert_pose(camera_T_world)
-    d_rot = _rodrigues(jnp.deg2rad(sigma_deg) * pool.normal(batch + (3,)))
+    world_T_cam = invert_pose(camera_T_world)
+    d_rot = so3_exp(jnp.deg2rad(sigma_deg) * pool.normal(batch + (3,)))
     R = world_T_cam[..., :3, :3] @ d_rot
     t = world_T_cam[..., :3, 3] + sigma_m * pool.normal(batch + (3,))
     top = jnp.concatenate([R, t[..., None]], -1)
     noisy = jnp.concatenate([top, world_T_cam[..., 3:, :]], -2)
-    return _invert_pose(noisy)
+    return invert_pose(noisy)
 
 
 def detect(key, rotation, center, radii, object_mask, camera_T_world, K, config: SimConfig):
@@ -566,30 +542,6 @@ def _detect(pool: _Pool, rotation, center, radii, object_mask, camera_T_world, K
     }
 
 
-def single_view_init(box, camera_T_world, K, depth, radii):
-    """Single-image initialisation (thesis 4.3.5) of ellipsoids from one box each.
-
-    The centre lies on the camera ray through the box centre at camera depth ``depth`` (z, not
-    range), the rotation is the identity and the radii are ``radii``.
-
-    Args:
-      box: (..., 4) boxes; camera_T_world: (..., 4, 4) poses of their frames; K: (3, 3);
-      depth: (...) camera z of the centre; radii: (..., 3).
-
-    Returns:
-      rotation (..., 3, 3), center (..., 3), radii (..., 3).
-    """
-    u = 0.5 * (box[..., 0] + box[..., 2])
-    v = 0.5 * (box[..., 1] + box[..., 3])
-    x = (u - K[0, 2] - K[0, 1] * (v - K[1, 2]) / K[1, 1]) / K[0, 0]
-    y = (v - K[1, 2]) / K[1, 1]
-    p_cam = jnp.stack([x * depth, y * depth, depth], -1)
-    world_T_cam = _invert_pose(camera_T_world)
-    center = jnp.sum(world_T_cam[..., :3, :3] * p_cam[..., None, :], -1) + world_T_cam[..., :3, 3]
-    rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), center.shape[:-1] + (3, 3))
-    return rotation, center, jnp.broadcast_to(radii, center.shape)
-
-
 def _initial_landmarks(pool: _Pool, objects, det, pose_prior, K, config: SimConfig):
     T = pose_prior.shape[0]
     mask = det["box_mask"]  # (T, N)
@@ -607,7 +559,7 @@ def _initial_landmarks(pool: _Pool, objects, det, pose_prior, K, config: SimConf
         else:
             radii = jnp.full(objects["radii"].shape, config.init_radii, dtype)
         depth = jnp.full(first.shape, config.init_depth, dtype)
-        rot, ctr, rad = single_view_init(box, pose, K, depth, radii)
+        rot, ctr, rad = single_view_ellipsoid(box, K, pose, depth, radii)
         # Unobserved slots keep the truth (they are masked out of every problem anyway).
         rot = jnp.where(observed[:, None, None], rot, objects["rotation"])
         ctr = jnp.where(observed[:, None], ctr, objects["center"])

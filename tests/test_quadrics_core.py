@@ -1,0 +1,308 @@
+"""The geometry core's points/poses/corners API, conic outlines, and validation at the door.
+
+References are independent of the code under test: OpenCV's ``projectPoints`` for the pinhole
+model, eq. 4.10's closed-form box (:func:`conic_bbox`) for the outline, round trips through a
+second function, and float64 for float32 gradients.
+"""
+
+import cv2
+import hypothesis.extra.numpy as hnp
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxsem import quadrics as q
+
+K = np.array([[525.0, 0.0, 320.0], [0.0, 520.0, 240.0], [0.0, 0.0, 1.0]])
+
+batch_shapes = hnp.array_shapes(min_dims=0, max_dims=3, min_side=1, max_side=3)
+dtypes = st.sampled_from([np.float32, np.float64])
+
+
+def _random_pose(rng, shape=()):
+    R = np.asarray(q.random_rotation(jax.random.PRNGKey(int(rng.integers(1 << 30))), shape))
+    T = np.zeros(shape + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = rng.normal(size=shape + (3,))
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def test_project_points_matches_opencv():
+    rng = np.random.default_rng(0)
+    T = _random_pose(rng)
+    pts_cam = np.concatenate([rng.uniform(-2, 2, (50, 2)), rng.uniform(1, 8, (50, 1))], -1)
+    world = (pts_cam - T[:3, 3]) @ T[:3, :3]  # world points that land in front of the camera
+    uv, depth = q.project_points(world, K, T)
+    rvec, _ = cv2.Rodrigues(T[:3, :3])
+    ref, _ = cv2.projectPoints(world, rvec, T[:3, 3], K, None)
+    np.testing.assert_allclose(uv, ref[:, 0, :], rtol=1e-10, atol=1e-8)
+    np.testing.assert_allclose(depth, pts_cam[:, 2], rtol=1e-12)
+
+
+@settings(max_examples=25, deadline=None)
+@given(shape=batch_shapes, dtype=dtypes, seed=st.integers(0, 2**31 - 1))
+def test_back_project_inverts_project_points_over_batch_shapes(shape, dtype, seed):
+    rng = np.random.default_rng(seed)
+    T = _random_pose(rng, shape).astype(dtype)
+    uv = rng.uniform(0, 640, shape + (2,)).astype(dtype)
+    z = rng.uniform(0.5, 20, shape).astype(dtype)
+    p = q.back_project(uv, z, K.astype(dtype), T)
+    assert p.shape == shape + (3,) and p.dtype == dtype
+    uv2, z2 = q.project_points(p, K.astype(dtype), T)
+    tol = 2e-3 if dtype == np.float32 else 1e-8
+    np.testing.assert_allclose(uv2, uv, atol=tol * 100)
+    np.testing.assert_allclose(z2, z, rtol=tol)
+
+
+@settings(max_examples=20, deadline=None)
+@given(shape=batch_shapes, seed=st.integers(0, 2**31 - 1))
+def test_invert_pose_and_transform_points_round_trip(shape, seed):
+    rng = np.random.default_rng(seed)
+    T = _random_pose(rng, shape)
+    p = rng.normal(size=shape + (3,))
+    back = q.transform_points(q.invert_pose(T), q.transform_points(T, p))
+    np.testing.assert_allclose(back, p, atol=1e-12)
+    np.testing.assert_allclose(jnp.matmul(q.invert_pose(T), T), np.broadcast_to(np.eye(4), shape + (4, 4)), atol=1e-12)
+
+
+def test_single_view_ellipsoid_puts_the_centre_on_the_box_ray():
+    rng = np.random.default_rng(1)
+    T = _random_pose(rng, (5,))
+    box = np.array([[100.0, 80, 220, 200]] * 5)
+    depth = rng.uniform(2, 12, 5)
+    R, c, r = q.single_view_ellipsoid(box, K, T, depth, np.array([0.5, 0.4, 0.3]))
+    uv, z = q.project_points(c, K, T)
+    np.testing.assert_allclose(uv, np.broadcast_to([160.0, 140.0], (5, 2)), atol=1e-9)
+    np.testing.assert_allclose(z, depth, rtol=1e-12)
+    np.testing.assert_allclose(R, np.broadcast_to(np.eye(3), (5, 3, 3)))
+    assert r.shape == (5, 3)
+
+
+def test_cuboid_corners_follow_the_ndds_order():
+    # FAT / NDDS: FrontTopRight, FrontTopLeft, FrontBottomLeft, FrontBottomRight, rear likewise; frame
+    # x right, y down, z out of the front. Name each corner from its coordinates and compare.
+    half = np.array([0.3, 0.2, 0.1])
+    corners = np.asarray(q.cuboid_corners(np.eye(3), np.zeros(3), half))
+    names = [
+        ("Front" if p[2] > 0 else "Rear") + ("Top" if p[1] < 0 else "Bottom") + ("Right" if p[0] > 0 else "Left")
+        for p in corners
+    ]
+    expected = [f + v + h for f in ("Front", "Rear") for v, h in (("Top", "Right"), ("Top", "Left"), ("Bottom", "Left"), ("Bottom", "Right"))]
+    assert names == expected
+    np.testing.assert_allclose(np.abs(corners), np.broadcast_to(half, (8, 3)))
+    # Oriented and moved: the corners are rigidly carried along (distances preserved).
+    R = np.asarray(q.random_rotation(jax.random.PRNGKey(3)))
+    moved = np.asarray(q.cuboid_corners(R, np.array([1.0, 2, 3]), half))
+    d0 = np.linalg.norm(corners[:, None] - corners[None], axis=-1)
+    d1 = np.linalg.norm(moved[:, None] - moved[None], axis=-1)
+    np.testing.assert_allclose(d0, d1, atol=1e-12)
+    np.testing.assert_allclose(moved.mean(0), [1.0, 2, 3], atol=1e-12)
+
+
+def test_quaternion_conventions_are_named_and_consistent():
+    R = np.asarray(q.random_rotation(jax.random.PRNGKey(4), (6,)))
+    wxyz = q.rotation_to_quaternion_wxyz(R)
+    xyzw = q.rotation_to_quaternion_xyzw(R)
+    np.testing.assert_allclose(np.roll(np.asarray(wxyz), -1, -1), xyzw)
+    np.testing.assert_allclose(q.quaternion_wxyz_to_rotation(wxyz), R, atol=1e-12)
+    np.testing.assert_allclose(q.quaternion_xyzw_to_rotation(xyzw), R, atol=1e-12)
+    # scipy's scalar-last convention as the outside reference
+    from scipy.spatial.transform import Rotation
+
+    np.testing.assert_allclose(q.quaternion_xyzw_to_rotation(Rotation.from_matrix(R).as_quat()), R, atol=1e-12)
+
+
+def test_so3_exp_matches_rodrigues_of_opencv():
+    omega = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.9], [1e-9, 0, 0]])
+    ref = np.stack([cv2.Rodrigues(w)[0] for w in omega])
+    np.testing.assert_allclose(q.so3_exp(omega), ref, atol=1e-12)
+    g = jax.grad(lambda w: jnp.sum(q.so3_exp(w)))(jnp.zeros(3))
+    assert bool(jnp.all(jnp.isfinite(g)))
+
+
+# --------------------------------------------------------------------------------------------
+# conic_outline: on the conic, finite float32 gradients, circles.
+
+
+def _scene(key, n, dtype):
+    k1, k2, k3 = jax.random.split(key, 3)
+    R = q.random_rotation(k1, (n,), dtype=dtype)
+    c = jnp.concatenate(
+        [jax.random.uniform(k2, (n, 2), dtype, -1.5, 1.5), jax.random.uniform(k3, (n, 1), dtype, 4.0, 9.0)], -1
+    )
+    r = jax.random.uniform(jax.random.fold_in(key, 9), (n, 3), dtype, 0.2, 1.0)
+    return R, c, r
+
+
+def test_conic_outline_extremes_match_the_closed_form_box():
+    R, c, r = _scene(jax.random.PRNGKey(0), 50, jnp.float64)
+    C = q.project_dual_conic(q.dual_quadric(R, c, r), K, np.eye(4))
+    pts, valid = q.conic_outline(C, 4000)
+    box, bvalid = q.conic_bbox(C)
+    assert bool(jnp.all(valid == bvalid)) and bool(jnp.all(valid))
+    extent = jnp.concatenate([pts.min(-2), pts.max(-2)], -1)
+    np.testing.assert_allclose(extent, box, atol=0.05)  # 4000 points: sub-0.05 px sampling error
+
+
+def test_conic_outline_gradients_finite_in_float32_and_match_float64():
+    def loss(c, R, r):
+        C = q.project_dual_conic(q.dual_quadric(R, c, r), K.astype(c.dtype), jnp.eye(4, dtype=c.dtype))
+        pts, valid = q.conic_outline(C, 16)
+        return jnp.sum(jnp.where(valid[..., None, None], pts, 0.0)) / 1000.0
+
+    R, c, r = _scene(jax.random.PRNGKey(1), 10_000, jnp.float64)
+    g64 = jax.jit(jax.grad(loss))(c, R, r)
+    g32 = jax.jit(jax.grad(loss))(c.astype(jnp.float32), R.astype(jnp.float32), r.astype(jnp.float32))
+    assert bool(jnp.all(jnp.isfinite(g32)))
+    scale = jnp.max(jnp.abs(g64), axis=-1, keepdims=True)
+    assert float(jnp.max(jnp.abs(g32 - g64) / scale)) < 2e-2
+
+
+def test_conic_outline_of_a_sphere_seen_head_on_has_a_radius_gradient():
+    def mean_radius(rad, dtype):
+        C = q.project_dual_conic(
+            q.dual_quadric(jnp.eye(3, dtype=dtype), jnp.array([0.0, 0.0, 5.0], dtype), jnp.full(3, rad, dtype)),
+            K.astype(dtype),
+            jnp.eye(4, dtype=dtype),
+        )
+        pts, _ = q.conic_outline(C, 64)
+        return jnp.mean(jnp.linalg.norm(pts - jnp.array([320.0, 240.0], dtype), axis=-1))
+
+    for dtype in (jnp.float32, jnp.float64):
+        r0 = jnp.asarray(0.5, dtype)
+        g = jax.grad(mean_radius)(r0, dtype)
+        eps = 1e-4
+        fd = (mean_radius(0.5 + eps, jnp.float64) - mean_radius(0.5 - eps, jnp.float64)) / (2 * eps)
+        assert bool(jnp.isfinite(g)) and abs(float(g) - float(fd)) / float(fd) < 1e-3
+
+
+# --------------------------------------------------------------------------------------------
+# Validation at the door: ValueError naming the argument, never a finite-looking wrong value.
+
+R0 = np.eye(3)
+C0 = np.array([0.0, 0.0, 5.0])
+r0 = np.array([0.5, 0.4, 0.3])
+T0 = np.eye(4)
+
+
+def _calls():
+    pts = np.zeros((4, 3))
+    return {
+        "dual_quadric": lambda R, c, r: q.dual_quadric(R, c, r),
+        "primal_quadric": lambda R, c, r: q.primal_quadric(R, c, r),
+        "project_bbox": lambda R, c, r: q.project_bbox(R, c, r, K, T0),
+        "texture_plane_depth": lambda R, c, r: q.texture_plane_depth(R, c, r, T0),
+        "algebraic_distance": lambda R, c, r: q.algebraic_distance(pts, R, c, r),
+        "ground_conic": lambda R, c, r: q.ground_conic(R, c, r),
+        "ground_bounds": lambda R, c, r: q.ground_bounds(R, c, r),
+        "rasterize_footprint": lambda R, c, r: q.rasterize_footprint(R, c, r, 1, (8, 8), np.zeros(2), 0.5),
+        "surface_points": lambda R, c, r: q.surface_points(jax.random.PRNGKey(0), R, c, r, 4),
+        "cuboid_corners": lambda R, c, r: q.cuboid_corners(R, c, r),
+    }
+
+
+@pytest.mark.parametrize("fn", sorted(_calls()))
+@pytest.mark.parametrize(
+    "arg, bad, match",
+    [
+        ("rotation", np.full((3, 3), np.nan), "rotation: must be finite"),
+        ("rotation", np.zeros((3, 3)), "rotation: expected rotation"),
+        ("rotation", 2 * np.eye(3), "rotation: expected rotation"),
+        ("rotation", np.diag([1.0, 1.0, -1.0]), "rotation: expected rotation"),
+        ("center", np.array([0.0, np.inf, 1.0]), "center: must be finite"),
+        ("radii", np.array([0.5, np.nan, 0.3]), "radii: must be finite"),
+        ("radii", np.array([0.5, -0.4, 0.3]), "radii"),
+    ],
+)
+def test_bad_ellipsoids_are_rejected_naming_the_argument(fn, arg, bad, match):
+    if fn == "cuboid_corners" and match == "radii":
+        match = "half_extents"
+    if fn == "cuboid_corners" and arg == "radii" and "finite" in match:
+        match = "half_extents: must be finite"
+    if fn == "cuboid_corners" and arg == "rotation" and "expected rotation" in match:
+        pytest.skip("cuboid_corners accepts any frame, left-handed ones included (FAT's)")
+    args = {"rotation": R0, "center": C0, "radii": r0}
+    args[arg] = bad
+    with pytest.raises(ValueError, match=match):
+        _calls()[fn](args["rotation"], args["center"], args["radii"])
+
+
+def test_texture_plane_depth_with_nan_radii_is_not_a_valid_depth():
+    with pytest.raises(ValueError, match="radii"):
+        q.texture_plane_depth(R0, C0, np.array([0.5, np.nan, 0.3]), T0)
+    depth, ok = jax.jit(q.texture_plane_depth)(R0, C0, jnp.array([0.5, jnp.nan, 0.3]), T0)
+    assert not (bool(ok) and bool(jnp.isfinite(depth)))
+
+
+@pytest.mark.parametrize("K_bad, match", [(np.diag([0.0, 520.0, 1.0]), "focal"), (np.diag([-525.0, 520.0, 1.0]), "focal"), (np.full((3, 3), np.nan), "K: must be finite")])
+def test_bad_intrinsics_are_rejected(K_bad, match):
+    with pytest.raises(ValueError, match=match):
+        q.project_bbox(R0, C0, r0, K_bad, T0)
+    with pytest.raises(ValueError, match=match):
+        q.project_points(C0, K_bad, T0)
+
+
+def test_bad_pose_is_rejected():
+    T = np.eye(4)
+    T[:3, :3] *= 3.0
+    with pytest.raises(ValueError, match="camera_T_world"):
+        q.project_bbox(R0, C0, r0, K, T)
+
+
+def test_quaternion_nan_is_rejected_or_stays_nan():
+    with pytest.raises(ValueError, match="quaternion_wxyz"):
+        q.quaternion_wxyz_to_rotation(np.array([np.nan, 0, 0, 0]))
+    out = jax.jit(q.quaternion_wxyz_to_rotation)(jnp.array([jnp.nan, 0.0, 0.0, 0.0]))
+    assert bool(jnp.all(jnp.isnan(out)))
+    np.testing.assert_allclose(q.quaternion_wxyz_to_rotation(np.zeros(4)), np.eye(3))  # documented
+
+
+def test_look_at_rejects_a_degenerate_view():
+    with pytest.raises(ValueError, match="target: must differ from eye"):
+        q.look_at(np.ones(3), np.ones(3))
+    with pytest.raises(ValueError, match="eye: must be finite"):
+        q.look_at(np.array([np.nan, 0, 0]), np.ones(3))
+    # straight down (view parallel to up) is still a proper rotation
+    T = np.asarray(q.look_at(np.array([0.0, 0, 5]), np.zeros(3)))
+    np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(T[:3, :3]) > 0
+
+
+@pytest.mark.parametrize("res", [0.0, -0.1, np.nan, np.inf])
+def test_rasterize_footprint_rejects_bad_resolution(res):
+    with pytest.raises(ValueError, match="resolution"):
+        q.rasterize_footprint(R0, C0, r0, 1, (8, 8), np.zeros(2), res)
+
+
+def test_points_must_be_finite():
+    with pytest.raises(ValueError, match="points: must be finite"):
+        q.algebraic_distance(np.array([[np.nan, 0.0, 0.0]]), R0, C0, r0)
+    with pytest.raises(ValueError, match="points: must be finite"):
+        q.project_points(np.array([np.nan, 0.0, 0.0]), K, T0)
+
+
+def test_validation_is_skipped_under_jit_without_recompiling():
+    f = jax.jit(q.project_bbox)
+    f(R0, C0, r0, K, T0)[0].block_until_ready()
+    n = f._cache_size()
+    f(R0, C0 + 1.0, r0, K, T0)[0].block_until_ready()
+    assert f._cache_size() == n
+
+
+@pytest.mark.parametrize("arg", ["rotation", "center", "radii"])
+def test_nan_under_jit_is_never_a_valid_finite_answer(arg):
+    # Regression: safe_sqrt mapped NaN to 0, so NaN radii gave texture depth 5.025 and valid=True.
+    args = {"rotation": jnp.eye(3), "center": jnp.array([0.0, 0.0, 5.0]), "radii": jnp.array([0.5, 0.4, 0.3])}
+    args[arg] = args[arg].at[..., 0].set(jnp.nan)
+    R, c, r = args["rotation"], args["center"], args["radii"]
+    box, ok = jax.jit(q.project_bbox)(R, c, r, K, T0)
+    assert not bool(ok)
+    depth, ok = jax.jit(q.texture_plane_depth)(R, c, r, T0)
+    assert not bool(ok)
+    _, ok = jax.jit(lambda R, c, r: q.conic_bbox(q.project_dual_conic(q.dual_quadric(R, c, r), K, T0)))(R, c, r)
+    assert not bool(ok)
+    assert bool(jnp.isnan(q.safe_sqrt(jnp.nan)))
