@@ -1,11 +1,80 @@
-"""Argument checks at the Python boundary, shared by the package.
+"""Argument checks at the Python boundary, shared by the package (private to jaxsem).
 
-They live in :mod:`jaxsem.quadrics` (which imports nothing else of the package) and are
-re-exported here for the other modules.
+Used by the geometry core (:mod:`jaxsem.quadrics`) and every other module that takes arrays from
+a user: each failure is a ``ValueError`` naming the argument, its shape or value, and what was
+expected. Only concrete values are checked; under ``jit`` the values are tracers and validity is
+carried by masks and result codes instead. This module imports nothing else of the package.
 """
 
-from .quadrics import _as_float_array as as_float_array
-from .quadrics import _batch_shape as batch_shape
-from .quadrics import _is_concrete as is_concrete
+from __future__ import annotations
 
-__all__ = ["as_float_array", "batch_shape", "is_concrete"]
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["as_float_array", "batch_shape", "check_positive", "check_rotation", "is_concrete"]
+
+
+def is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False):
+    """``x`` as a floating jax array of shape ``(..., *trailing)``; ``ValueError`` naming ``name``.
+
+    jaxlie ``SO3`` / ``SE3`` objects are accepted where a (3, 3) or (4, 4) matrix is expected.
+    Finiteness is checked only for concrete values (under ``jit`` the masks carry validity).
+    """
+    if hasattr(x, "as_matrix") and callable(x.as_matrix):  # jaxlie SO3 / SE3 at the boundary
+        x = x.as_matrix()
+    try:
+        arr = jnp.asarray(x)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
+    trailing = tuple(trailing)
+    if arr.ndim < len(trailing) or tuple(arr.shape[arr.ndim - len(trailing):]) != trailing:
+        want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got shape {tuple(arr.shape)}")
+    if jnp.issubdtype(arr.dtype, jnp.complexfloating):
+        raise ValueError(f"{name}: expected a real floating array, got dtype {arr.dtype}")
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = arr.astype(jnp.result_type(float))
+    if check_finite and is_concrete(arr):
+        if not bool(np.all(np.isfinite(np.asarray(arr)))):
+            raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
+    return arr
+
+
+def batch_shape(**named: tuple) -> tuple:
+    """Broadcast of several leading shapes; the error names every argument and its shape."""
+    try:
+        return tuple(np.broadcast_shapes(*named.values()))
+    except ValueError:
+        listing = ", ".join(f"{k} {tuple(v)}" for k, v in named.items())
+        raise ValueError(f"batch shapes do not broadcast: {listing}") from None
+
+
+def check_rotation(name: str, rotation) -> None:
+    """Concrete ``rotation`` (..., 3, 3) must be a proper rotation: ``R^T R = I`` to 1e-3, det > 0."""
+    if not is_concrete(rotation):
+        return
+    R = np.asarray(rotation, np.float64)
+    if R.size == 0:
+        return
+    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(R)
+    bad = (err > 1e-3) | (det <= 0)
+    if np.any(bad):
+        i = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
+        raise ValueError(
+            f"{name}: expected rotation matrices (R^T R = I, det R = +1), got one with "
+            f"|R^T R - I| = {float(np.asarray(err)[i]):.3g} and det = {float(np.asarray(det)[i]):.3g}"
+            + (f" at batch index {tuple(int(k) for k in i)}" if i else "")
+        )
+
+
+def check_positive(name: str, x) -> None:
+    if is_concrete(x) and np.asarray(x).size and not bool(np.all(np.asarray(x) > 0)):
+        raise ValueError(f"{name}: expected positive values, got min {float(np.min(np.asarray(x))):.3g}")

@@ -25,13 +25,22 @@ concrete inputs where they would poison everything (``K``, poses) raise too.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+# Boundary checks live in the core's private helper module (re-exported for the package there).
+from ._checks import as_float_array as _as_float_array
+from ._checks import batch_shape as _batch_shape
+from ._checks import check_positive as _check_positive
+from ._checks import check_rotation as _check_rotation
+from ._checks import is_concrete as _is_concrete
+
 __all__ = [
+    "Ellipsoid",
+    "Camera",
     "dual_quadric",
     "primal_quadric",
     "project_dual_conic",
@@ -68,69 +77,6 @@ __all__ = [
 
 # --------------------------------------------------------------------------------------------
 # Boundary checks (re-exported for the rest of the package by jaxsem._checks).
-
-
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False):
-    """``x`` as a floating jax array of shape ``(..., *trailing)``; ``ValueError`` naming ``name``.
-
-    jaxlie ``SO3`` / ``SE3`` objects are accepted where a (3, 3) or (4, 4) matrix is expected.
-    Finiteness is checked only for concrete values (under ``jit`` the masks carry validity).
-    """
-    if hasattr(x, "as_matrix") and callable(x.as_matrix):  # jaxlie SO3 / SE3 at the boundary
-        x = x.as_matrix()
-    try:
-        arr = jnp.asarray(x)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
-    trailing = tuple(trailing)
-    if arr.ndim < len(trailing) or tuple(arr.shape[arr.ndim - len(trailing):]) != trailing:
-        want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
-        raise ValueError(f"{name}: expected shape {want}, got shape {tuple(arr.shape)}")
-    if jnp.issubdtype(arr.dtype, jnp.complexfloating):
-        raise ValueError(f"{name}: expected a real floating array, got dtype {arr.dtype}")
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(jnp.result_type(float))
-    if check_finite and _is_concrete(arr):
-        if not bool(np.all(np.isfinite(np.asarray(arr)))):
-            raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
-    return arr
-
-
-def _batch_shape(**named: tuple) -> tuple:
-    """Broadcast of several leading shapes; the error names every argument and its shape."""
-    try:
-        return tuple(np.broadcast_shapes(*named.values()))
-    except ValueError:
-        listing = ", ".join(f"{k} {tuple(v)}" for k, v in named.items())
-        raise ValueError(f"batch shapes do not broadcast: {listing}") from None
-
-
-def _check_rotation(name: str, rotation) -> None:
-    """Concrete ``rotation`` (..., 3, 3) must be a proper rotation: ``R^T R = I`` to 1e-3, det > 0."""
-    if not _is_concrete(rotation):
-        return
-    R = np.asarray(rotation, np.float64)
-    if R.size == 0:
-        return
-    err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-2, -1))
-    det = np.linalg.det(R)
-    bad = (err > 1e-3) | (det <= 0)
-    if np.any(bad):
-        i = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
-        raise ValueError(
-            f"{name}: expected rotation matrices (R^T R = I, det R = +1), got one with "
-            f"|R^T R - I| = {float(np.asarray(err)[i]):.3g} and det = {float(np.asarray(det)[i]):.3g}"
-            + (f" at batch index {tuple(int(k) for k in i)}" if i else "")
-        )
-
-
-def _check_positive(name: str, x) -> None:
-    if _is_concrete(x) and np.asarray(x).size and not bool(np.all(np.asarray(x) > 0)):
-        raise ValueError(f"{name}: expected positive values, got min {float(np.min(np.asarray(x))):.3g}")
 
 
 def _ellipsoid_args(rotation, center, radii):
@@ -179,6 +125,49 @@ def _camera_args(K, camera_T_world, *, need_K=True):
 def _eps(dtype) -> float:
     """Dtype-dependent tolerance: about 1e-6 in float32, 1e-15 in float64."""
     return float(jnp.finfo(dtype).eps) * 8.0
+
+
+# --------------------------------------------------------------------------------------------
+# Typed pytrees. NamedTuples are pytrees, so they pass through jit / vmap / grad unchanged, and
+# every function below also takes the plain arrays (``project_bbox(*ellipsoid, *camera)``).
+
+
+class Ellipsoid(NamedTuple):
+    """An ellipsoid in jaxsem's one representation.
+
+    Attributes:
+      rotation: (..., 3, 3) object-to-world (or -camera, for VoluMon's camera-frame outputs).
+      center: (..., 3) metres.
+      radii: (..., 3) semi-axes in metres (chapter 5's size ``d = 2 * radii``).
+    """
+
+    rotation: jax.Array
+    center: jax.Array
+    radii: jax.Array
+
+    @classmethod
+    def create(cls, rotation, center, radii) -> "Ellipsoid":
+        """Checked constructor: shapes, finiteness, proper rotations, positive radii."""
+        rotation, center, radii, _ = _ellipsoid_args(rotation, center, radii)
+        return cls(rotation, center, radii)
+
+    @property
+    def sizes(self):
+        """Full axis lengths ``d = 2 * radii`` (chapter 5's size)."""
+        return 2.0 * self.radii
+
+
+class Camera(NamedTuple):
+    """A pinhole camera: ``K`` (..., 3, 3) and ``camera_T_world`` (..., 4, 4), OpenCV axes."""
+
+    K: jax.Array
+    camera_T_world: jax.Array
+
+    @classmethod
+    def create(cls, K, camera_T_world) -> "Camera":
+        """Checked constructor: intrinsics with positive focal lengths, a rigid pose."""
+        K, pose = _camera_args(K, camera_T_world)
+        return cls(K, pose)
 
 
 # --------------------------------------------------------------------------------------------
@@ -261,7 +250,7 @@ def _inverse_square_radii(radii):
 
 
 def primal_quadric(rotation, center, radii):
-    """Primal (point) quadric ``Q`` of an ellipsoid (eq. 5.5): ``x^T Q x = 0`` on the surface.
+    """Primal (point) quadric ``Q`` of an ellipsoid (eq. 5.2-5.5): ``x^T Q x = 0`` on the surface.
 
     Args:
       rotation: (..., 3, 3) object-to-world; center: (..., 3); radii: (..., 3) semi-axes.
@@ -283,7 +272,7 @@ def primal_quadric(rotation, center, radii):
 
 
 def project_dual_conic(dual_quadric, K, camera_T_world):
-    """Dual conic ``C* = P Q* P^T`` with ``P = K [I | 0] camera_T_world`` (eq. 4.9).
+    """Dual conic ``C* = P Q* P^T`` with ``P = K [I | 0] camera_T_world`` (eq. 4.9, 5.9).
 
     Args:
       dual_quadric: (..., 4, 4) ``Q*``.
@@ -301,7 +290,7 @@ def project_dual_conic(dual_quadric, K, camera_T_world):
 
 
 def conic_bbox(dual_conic):
-    """Axis-aligned box of a dual conic (eq. 4.10): the lines ``u = const`` and ``v = const``
+    """Axis-aligned box of a dual conic (eq. 4.8, 4.10, 5.10): the lines ``u = const`` and ``v = const``
     tangent to it.
 
     ``u_min, u_max = (C13 -+ sqrt(C13^2 - C11 C33)) / C33`` and likewise for ``v``.
@@ -592,7 +581,7 @@ def _project_bbox_jvp(primals, tangents):
 
 
 def project_bbox(rotation, center, radii, K, camera_T_world):
-    """Image box of an ellipsoid seen by a pinhole camera (eq. 4.9-4.10 in closed form).
+    """Image box of an ellipsoid seen by a pinhole camera (eq. 4.5, 4.9-4.10 and 5.10 in closed form).
 
     Args:
       rotation: (..., 3, 3) object-to-world; center: (..., 3) world; radii: (..., 3) semi-axes.
@@ -624,7 +613,7 @@ def project_bbox(rotation, center, radii, K, camera_T_world):
 
 
 def texture_plane_depth(rotation, center, radii, camera_T_world):
-    """Depth of the camera-facing tangent plane parallel to the image plane (eq. 4.11).
+    """Depth of the camera-facing tangent plane parallel to the image plane (eq. 4.11-4.12).
 
     Solving ``[0, 0, 1, -z] Q*_cam [0, 0, 1, -z]^T = 0`` gives ``z = t_z -+ sqrt(S33)``; the
     texture plane is the smaller root, ``t_z - sqrt(e3^T R_c diag(r^2) R_c^T e3)``.

@@ -306,3 +306,18 @@ def test_nan_under_jit_is_never_a_valid_finite_answer(arg):
     _, ok = jax.jit(lambda R, c, r: q.conic_bbox(q.project_dual_conic(q.dual_quadric(R, c, r), K, T0)))(R, c, r)
     assert not bool(ok)
     assert bool(jnp.isnan(q.safe_sqrt(jnp.nan)))
+
+
+def test_typed_pytrees_pass_through_transforms_and_check_their_input():
+    e = q.Ellipsoid.create(np.eye(3), np.array([0.0, 0.0, 5.0]), np.array([0.5, 0.4, 0.3]))
+    cam = q.Camera.create(K, np.eye(4))
+    box, ok = jax.jit(lambda e, cam: q.project_bbox(*e, *cam))(e, cam)
+    assert bool(ok) and box.shape == (4,)
+    batched = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), e)
+    boxes, _ = jax.vmap(lambda e: q.project_bbox(*e, *cam))(batched)
+    np.testing.assert_allclose(boxes[0], box)
+    np.testing.assert_allclose(e.sizes, [1.0, 0.8, 0.6])
+    with pytest.raises(ValueError, match="radii"):
+        q.Ellipsoid.create(np.eye(3), np.zeros(3), np.array([1.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="focal"):
+        q.Camera.create(np.diag([0.0, 1.0, 1.0]), np.eye(4))

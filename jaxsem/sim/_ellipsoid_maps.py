@@ -212,7 +212,7 @@ class SimConfig:
 
 
 def quadricslam_config(path: str = "forward", **changes) -> SimConfig:
-    """The QuadricSLAM setting of FACTS.md, so jaxsem and the peer compare on equal terms.
+    """The setting in which QuadricSLAM (gtsam_quadrics LM) was measured, so both compare on equal terms.
 
     10 car-sized ellipsoids (semi-axes about 2.4 x 0.9 x 0.75 m) on a 30 x 30 m patch, 60 frames,
     640x480, f = 525, camera 1.5 m high; Orbit radius 25 m looking at the centre; Forward a
