@@ -248,32 +248,51 @@ def sharded_vmap(
             raise ValueError(
                 f"args: batched arguments disagree on the batch size: {sorted(sizes)}"
             )
-        args = list(args)
-        n = sizes.pop()
-        for i in batched:
-            args[i], _ = pad_batch(args[i], mesh.size)
-        key = axes
+        key = (axes, len(args))
         if key not in cache:
             cache[key] = _compile(fn, mesh, axis, axes, method)
-        out = cache[key](*args)
-        return unpad_batch(out, n)
+        return cache[key](*args)
 
     return run
 
 
 def _compile(fn, mesh, axis, axes, method):
+    """One jitted function: pad the batch, constrain shardings, run, cut the padding off (one
+    dispatch per call; padding and slicing eagerly would add a dispatch and a transfer each)."""
     vfn = jax.vmap(fn, in_axes=axes)
-    spec = tuple(PartitionSpec(axis) if a == 0 else PartitionSpec() for a in axes)
-    if method == "jit":
-        shardings = tuple(NamedSharding(mesh, s) for s in spec)
-        return jax.jit(
+    batch_sh = NamedSharding(mesh, PartitionSpec(axis))
+    rep_sh = NamedSharding(mesh, PartitionSpec())
+    if method == "shard_map":
+        spec = tuple(PartitionSpec(axis) if a == 0 else PartitionSpec() for a in axes)
+        # check_vma=False: fn is arbitrary user code (solver loops over replicated settings),
+        # and every output is batched, so there is nothing for the replication checker to prove.
+        inner = jax.shard_map(
             vfn,
-            in_shardings=shardings,
-            out_shardings=NamedSharding(mesh, PartitionSpec(axis)),
+            mesh=mesh,
+            in_specs=spec,
+            out_specs=PartitionSpec(axis),
+            check_vma=False,
         )
-    # check_vma=False: fn is arbitrary user code (solver loops over replicated settings), and
-    # every output is batched, so there is nothing for the replication checker to prove.
-    smap = jax.shard_map(
-        vfn, mesh=mesh, in_specs=spec, out_specs=PartitionSpec(axis), check_vma=False
-    )
-    return jax.jit(smap)
+    else:
+        inner = vfn
+
+    def run(*args):
+        n = _batch_size(args[axes.index(0)], f"args[{axes.index(0)}]")
+        placed = []
+        for a, ax in zip(args, axes):
+            if ax == 0:
+                a = pad_batch(a, mesh.size)[0]
+            sh = batch_sh if ax == 0 else rep_sh
+            placed.append(
+                jax.tree_util.tree_map(
+                    lambda x, sh=sh: jax.lax.with_sharding_constraint(x, sh), a
+                )
+            )
+        out = inner(*placed)
+        if method == "jit":
+            out = jax.tree_util.tree_map(
+                lambda x: jax.lax.with_sharding_constraint(x, batch_sh), out
+            )
+        return unpad_batch(out, n)
+
+    return jax.jit(run)
