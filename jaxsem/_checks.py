@@ -14,11 +14,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+# jax.core.Tracer is public at run time but missing from jax's type stubs.
+_TRACER = getattr(jax.core, "Tracer")
+
 __all__ = ["as_float_array", "batch_shape", "check_positive", "check_rotation", "is_concrete"]
 
 
 def is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+    return not isinstance(x, _TRACER)
 
 
 def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False):

@@ -194,7 +194,7 @@ def from_dict(cls: type[C], data: Mapping[str, Any], *, base: C | None = None) -
             changes[key] = tuple(value)
         else:
             changes[key] = value
-    return _replace(config, **changes)
+    return typing.cast(C, _replace(config, **changes))
 
 
 def save(config, path: str | pathlib.Path) -> pathlib.Path:

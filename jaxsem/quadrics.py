@@ -25,7 +25,7 @@ concrete inputs where they would poison everything (``K``, poses) raise too.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -408,11 +408,11 @@ _BOX_COL_IS_U = np.array([True, False, True, False])  # [u_min, v_min, u_max, v_
 _BOX_COL_SIGN = np.array([1.0, 1.0, -1.0, -1.0])
 
 
-def _dot3(a, b):
+def _dot3(a, b) -> Any:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross3(a, b):
+def _cross3(a, b) -> Any:
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
@@ -570,8 +570,9 @@ _project_bbox = jax.custom_jvp(_project_bbox_plain)
 
 @_project_bbox.defjvp
 def _project_bbox_jvp(primals, tangents):
-    box, valid = _project_bbox(*primals)
-    lower, upper, den = _bbox_sensitivities(*primals, valid)
+    R, c, r, K, T = primals
+    box, valid = _project_bbox(R, c, r, K, T)
+    lower, upper, den = _bbox_sensitivities(R, c, r, K, T, valid)
     # Dividing the tangent (not the sensitivities) by den puts the division at the end of the
     # reverse pass, which makes XLA keep that (..., 2, 9) cotangent in memory instead of
     # recomputing it in every consumer.
