@@ -10,6 +10,7 @@ from jaxsem.sim import (
     BuildingRenderer,
     building_mjcf,
     detect_from_segmentation,
+    ellipsoids_from_depth,
     robot_camera,
     robot_intrinsics,
 )
@@ -145,3 +146,38 @@ def test_objects_are_the_mapping_ground_truth(building, scene):
     objs = mapping.building_objects(building)
     np.testing.assert_array_equal(scene.objects.cells, objs.cells)
     np.testing.assert_array_equal(scene.objects.class_id, objs.class_id)
+
+
+def test_pixels_to_object_map_to_semantic_grid(building, scene):
+    """Render -> segmentation + depth -> ellipsoids -> object map -> LSD's semantic grid."""
+    objects = scene.objects
+    k = _entrance_door(building, objects)
+    T, centre = _view_of_door(building, objects, k)
+    K = robot_intrinsics(W, H)
+    state = mapping.init(16)
+    for dx in (-0.3, 0.0, 0.3):  # three views from slightly different places
+        Tv = T.copy()
+        Tv[:3, 3] -= np.array([dx, 0.0, 0.0])  # the camera moves dx along its own x axis
+        out = scene.render(K, Tv, outputs=("depth", "seg"))
+        ell, idx = ellipsoids_from_depth(
+            out["seg"], out["depth"], K, Tv, objects.class_id, capacity=8
+        )
+        assert k in idx
+        state = mapping.update(state, ell, gate=0.5)
+    # The entrance door was associated across views, and its estimate is the true box's.
+    j = int(np.argmin(np.linalg.norm(np.asarray(state.center) - centre, axis=1)))
+    assert int(state.observations[j]) == 3
+    np.testing.assert_allclose(np.asarray(state.center[j]), centre, atol=0.05)
+    half = 0.5 * (objects.box_max[k] - objects.box_min[k])
+    np.testing.assert_allclose(np.asarray(state.radii[j]), half, atol=0.05)
+    grid = np.asarray(
+        mapping.semantic_grid(
+            state, building.shape, building.origin, building.resolution
+        )
+    )
+    r0, c0, r1, c1 = objects.cells[k]
+    truth = np.zeros(building.shape, bool)
+    truth[r0:r1, c0:c1] = True
+    got = grid == planning.DOOR
+    overlap = (got & truth).sum() / truth.sum()
+    assert overlap > 0.6

@@ -103,8 +103,10 @@ def box_ellipsoids(
         raise ValueError(
             f"box_min, box_max: expected two (K, 3) arrays, got {box_min.shape} and {box_max.shape}"
         )
-    if not np.all(box_max >= box_min):
-        raise ValueError("box_max: expected box_max >= box_min in every coordinate")
+    if not np.all(box_max > box_min):
+        raise ValueError(
+            "box_max: expected box_max > box_min in every coordinate (no flat boxes)"
+        )
     if class_id.shape != box_min.shape[:1]:
         raise ValueError(
             f"class_id: expected shape {box_min.shape[:1]}, got {class_id.shape}"

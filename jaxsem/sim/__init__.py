@@ -36,4 +36,4 @@ from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mu
     bounding_ellipsoid_radii as bounding_ellipsoid_radii,
     render_views as render_views,
 )
-from ._building_scene import BuildingRenderer as BuildingRenderer, SceneDetections as SceneDetections, building_mjcf as building_mjcf, detect_from_segmentation as detect_from_segmentation, robot_camera as robot_camera, robot_intrinsics as robot_intrinsics  # noqa: E501  (LSD buildings in MuJoCo)
+from ._building_scene import BuildingRenderer as BuildingRenderer, SceneDetections as SceneDetections, building_mjcf as building_mjcf, detect_from_segmentation as detect_from_segmentation, ellipsoids_from_depth as ellipsoids_from_depth, robot_camera as robot_camera, robot_intrinsics as robot_intrinsics  # noqa: E501  (LSD buildings in MuJoCo)

@@ -42,6 +42,7 @@ __all__ = [
     "SceneDetections",
     "building_mjcf",
     "detect_from_segmentation",
+    "ellipsoids_from_depth",
     "robot_camera",
     "robot_intrinsics",
 ]
@@ -291,6 +292,74 @@ def detect_from_segmentation(
         object_index=np.asarray(idx, np.int64),
         area=np.asarray(area, np.int64),
     )
+
+
+def ellipsoids_from_depth(
+    seg,
+    depth,
+    K,
+    camera_T_world,
+    object_class,
+    classes=None,
+    *,
+    min_pixels: int = 20,
+    min_extent: float = 0.02,
+    capacity: int | None = None,
+):
+    """A stand-in 3D estimator: each visible object's segmented depth pixels, back-projected
+    (:func:`jaxsem.quadrics.back_project`), give a world-axis-aligned box whose inscribed
+    ellipsoid (:func:`jaxsem.mapping.box_ellipsoids`) is the estimate.
+
+    Building objects are axis-aligned, so this is exact for a fully seen object; a partly seen
+    one shrinks to its seen part. It is what the object map receives in place of VoluMon or
+    ROSHAN when the pipeline is checked from pixels (``tests/test_building_scene.py``).
+
+    seg: (H, W) object indices (-1 none); depth: (H, W) z-depth (0 = none); K (3, 3);
+    camera_T_world (4, 4); object_class: (K,) semantic ids; classes: ids to report (default door
+    and exit sign); min_pixels: fewest pixels with depth; min_extent: smallest box side in metres
+    (flat point sets are thickened to it); capacity: pad to this many slots.
+    Returns ``(ellipsoids, object_index)``: :class:`jaxsem.mapping.Ellipsoids` and the (D,)
+    object index of each estimate.
+    """
+    from .. import quadrics
+    from ..mapping import box_ellipsoids
+    from ..planning import DOOR, EXIT_SIGN
+
+    seg, depth = np.asarray(seg), np.asarray(depth, np.float64)
+    if seg.ndim != 2 or depth.shape != seg.shape:
+        raise ValueError(
+            f"seg, depth: expected two (H, W) images of one shape, got {seg.shape} and {depth.shape}"
+        )
+    object_class = np.asarray(object_class)
+    classes = (DOOR, EXIT_SIGN) if classes is None else tuple(classes)
+    lo, hi, cls, idx = [], [], [], []
+    for k in np.unique(seg[seg >= 0]):
+        if k >= len(object_class) or object_class[k] not in classes:
+            continue
+        rows, cols = np.nonzero((seg == k) & (depth > 0))
+        if len(rows) < min_pixels:
+            continue
+        uv = np.stack([cols, rows], -1).astype(np.float64)
+        pts = np.asarray(
+            quadrics.back_project(uv, depth[rows, cols], K, camera_T_world)
+        )
+        lo.append(pts.min(0))
+        hi.append(pts.max(0))
+        cls.append(int(object_class[k]))
+        idx.append(int(k))
+    n = len(idx)
+    lo_a, hi_a = np.asarray(lo).reshape(-1, 3), np.asarray(hi).reshape(-1, 3)
+    # Points of one flat face (a jamb seen edge-on, a sign's front) have no thickness: give every
+    # box at least min_extent so the ellipsoid has positive radii.
+    mid, half = 0.5 * (lo_a + hi_a), np.maximum(0.5 * (hi_a - lo_a), 0.5 * min_extent)
+    cap = capacity if capacity is not None else max(n, 1)
+    ell = box_ellipsoids(
+        mid - half,
+        mid + half,
+        np.asarray(cls, np.int32),
+        cap,
+    )
+    return ell, np.asarray(idx, np.int64)
 
 
 class BuildingRenderer:
