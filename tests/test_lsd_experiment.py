@@ -13,39 +13,80 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def _rec(kind, n, cs, cl, cb, sl=True, su=True):
-    return {"set": kind, "n": n, "c_star": cs, "lsd": {"success": sl, "cost": cl},
-            "uniform": {"success": su, "cost": cb}}
+    return {
+        "set": kind,
+        "n": n,
+        "c_star": cs,
+        "lsd": {"success": sl, "cost": cl},
+        "uniform": {"success": su, "cost": cb},
+    }
 
 
 def test_summarise_against_hand_computed_statistics():
-    recs = [_rec("II", 500, 10.0, 12.0, 15.0), _rec("II", 500, 20.0, 22.0, 30.0),
-            _rec("II", 500, 10.0, 11.0, 99.0, su=False), _rec("II", 500, 10.0, 50.0, 12.0, sl=False),
-            _rec("IO", 100, 10.0, 10.0, 10.0, sl=False, su=False)]
+    recs = [
+        _rec("II", 500, 10.0, 12.0, 15.0),
+        _rec("II", 500, 20.0, 22.0, 30.0),
+        _rec("II", 500, 10.0, 11.0, 99.0, su=False),
+        _rec("II", 500, 10.0, 50.0, 12.0, sl=False),
+        _rec("IO", 100, 10.0, 10.0, 10.0, sl=False, su=False),
+    ]
     s = summarise(recs)
     ii = s["II-500"]
     assert ii["trials"] == 4 and ii["mutual"] == 2
     assert ii["success_lsd"] == 0.75 and ii["success_uniform"] == 0.75
+    assert ii["lsd_only"] == 1 and ii["uniform_only"] == 1
+    np.testing.assert_allclose(ii["success_lsd_sem"], np.sqrt(0.75 * 0.25 / 4))
     ratios_l = np.array([1.2, 1.1])
-    np.testing.assert_allclose(ii["cl_over_cstar"], (ratios_l.mean(), ratios_l.std(ddof=1) / np.sqrt(2)))
+    np.testing.assert_allclose(
+        ii["cl_over_cstar"], (ratios_l.mean(), ratios_l.std(ddof=1) / np.sqrt(2))
+    )
     np.testing.assert_allclose(ii["cb_over_cstar"][0], (1.5 + 1.5) / 2)
     # Zero-intercept least squares of C_b on C_l over the mutual trials only.
-    np.testing.assert_allclose(ii["slope_cb_on_cl"], (12 * 15 + 22 * 30) / (12**2 + 22**2))
+    np.testing.assert_allclose(
+        ii["slope_cb_on_cl"], (12 * 15 + 22 * 30) / (12**2 + 22**2)
+    )
     io = s["IO-100"]
-    assert io["mutual"] == 0 and io["success_lsd"] == 0.0 and np.isnan(io["slope_cb_on_cl"])
+    assert (
+        io["mutual"] == 0
+        and io["success_lsd"] == 0.0
+        and np.isnan(io["slope_cb_on_cl"])
+    )
     table = format_table(s)
-    assert "| II | 500 | 4 | 75 % | 75 % | 2 |" in table and "| IO | 100 |" in table
+    assert (
+        "| II | 500 | 4 | 75 % | 75 % | 1 / 1 | 2 |" in table
+        and "| IO | 100 |" in table
+    )
 
 
 def test_table_script_end_to_end_tiny(tmp_path):
-    spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
+    spec = importlib.util.spec_from_file_location(
+        "lsd_table31", ROOT / "benchmarks" / "lsd_table31.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    rc = mod.main([
-        # The bundled CPU model keeps this test short; training is covered by test_lsd_train.
-        "--checkpoint", str(PRETRAINED_CPU), "--out", str(tmp_path / "res"), "--name", "t31",
-        "--test-buildings", "1", "--trials", "1",
-        "--n", "100", "--sets", "II", "IO", "--max-steps", "40", "--no-progress",
-    ])
+    rc = mod.main(
+        [
+            # The bundled CPU model keeps this test short; training is covered by test_lsd_train.
+            "--checkpoint",
+            str(PRETRAINED_CPU),
+            "--out",
+            str(tmp_path / "res"),
+            "--name",
+            "t31",
+            "--test-buildings",
+            "1",
+            "--trials",
+            "1",
+            "--n",
+            "100",
+            "--sets",
+            "II",
+            "IO",
+            "--max-steps",
+            "40",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     out = json.loads((tmp_path / "res" / "t31.json").read_text())
     assert set(out["summary"]) == {"II-100", "IO-100"}
@@ -55,9 +96,17 @@ def test_table_script_end_to_end_tiny(tmp_path):
             assert r[planner]["reason"] in ("goal", "no_plan", "max_steps")
             assert r[planner]["steps"] <= 40 and r[planner]["cost"] <= 40 * 0.25 + 1e-9
         assert r["c_star"] > 0
-    assert not out["model"]["trained_here"] and out["args"]["uniform_mix"] == 0.1
+    assert not out["model"]["trained_here"] and out["args"]["uniform_mix"] == 0.0
+    assert {
+        "success_lsd_sem",
+        "success_uniform_sem",
+        "lsd_only",
+        "uniform_only",
+    } <= set(out["summary"]["II-100"])
     assert (tmp_path / "res" / "t31.png").stat().st_size > 0
     md = (tmp_path / "res" / "t31.md").read_text()
     assert "Machine: 2-core CPU (shared, noisy)" in md and "| II | 100 | 1 |" in md
     with pytest.raises(SystemExit):
         mod.main(["--help"])
+    with pytest.raises(SystemExit, match="--sets"):
+        mod.main(["--sets", "OO", "--out", str(tmp_path)])

@@ -5,7 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem.models import LSDConfig, init_lsd, lsd_distribution, lsd_nll, path_cells_to_mask
+from jaxsem.models import (
+    LSDConfig,
+    init_lsd,
+    lsd_distribution,
+    lsd_nll,
+    path_cells_to_mask,
+)
 
 K = 32  # small crops keep the compiles short; the network is size-agnostic
 CFG = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8)
@@ -13,7 +19,9 @@ CFG = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8)
 
 def _maps(rng, batch):
     occ = rng.integers(-1, 2, batch + (K, K)).astype(np.int8)
-    sem = rng.choice([0, 2, 3, 4], batch + (K, K), p=[0.9, 0.04, 0.03, 0.03]).astype(np.int8)
+    sem = rng.choice([0, 2, 3, 4], batch + (K, K), p=[0.9, 0.04, 0.03, 0.03]).astype(
+        np.int8
+    )
     return occ, sem
 
 
@@ -22,7 +30,9 @@ def net():
     return init_lsd(jax.random.PRNGKey(0), CFG, jnp.float32)
 
 
-@pytest.mark.parametrize("dtype,batch", [(jnp.float32, ()), (jnp.float64, (3,)), (jnp.float32, (2, 1))])
+@pytest.mark.parametrize(
+    "dtype,batch", [(jnp.float32, ()), (jnp.float64, (3,)), (jnp.float32, (2, 1))]
+)
 def test_distribution_sums_to_one(net, dtype, batch):
     model, params = net
     params = jax.tree_util.tree_map(lambda p: p.astype(dtype), params)
@@ -43,7 +53,9 @@ def test_product_is_sum_in_log_space(net):
     occ, sem = _maps(rng, (2,))
     ctx = rng.normal(size=(2, 4)).astype(np.float32)
     out = model.apply({"params": params}, occ, sem, ctx)
-    ref = jax.nn.log_softmax((out.general + out.modifier).reshape(2, -1), -1).reshape(2, K, K)
+    ref = jax.nn.log_softmax((out.general + out.modifier).reshape(2, -1), -1).reshape(
+        2, K, K
+    )
     np.testing.assert_allclose(out.log_prob, ref, atol=1e-5)
     # The context changes the distribution only through the modifier.
     out2 = model.apply({"params": params}, occ, sem, ctx + 1.0)
@@ -107,16 +119,22 @@ def test_bad_input_names_argument(net):
     model, params = net
     good = np.zeros((K, K), np.int8)
     ctx = np.zeros(4, np.float32)
-    with pytest.raises(ValueError, match=r"occupancy: expected shape \(\.\.\., 32, 32\)"):
+    with pytest.raises(
+        ValueError, match=r"occupancy: expected shape \(\.\.\., 32, 32\)"
+    ):
         model.apply({"params": params}, np.zeros((K, K + 1), np.int8), good, ctx)
     with pytest.raises(ValueError, match="semantic: expected an integer dtype"):
         model.apply({"params": params}, good, np.zeros((K, K), np.float32), ctx)
-    with pytest.raises(ValueError, match=r"context: expected shape \(\.\.\., 4\), got shape \(3,\)"):
+    with pytest.raises(
+        ValueError, match=r"context: expected shape \(\.\.\., 4\), got shape \(3,\)"
+    ):
         model.apply({"params": params}, good, good, np.zeros(3, np.float32))
     with pytest.raises(ValueError, match="context: expected a floating dtype"):
         model.apply({"params": params}, good, good, np.zeros(4, np.int32))
     with pytest.raises(ValueError, match="batch shapes do not broadcast"):
-        model.apply({"params": params}, np.zeros((2, K, K), np.int8), good, np.zeros((3, 4)))
+        model.apply(
+            {"params": params}, np.zeros((2, K, K), np.int8), good, np.zeros((3, 4))
+        )
     with pytest.raises(ValueError, match="map_size"):
         LSDConfig(map_size=30, features=(4, 8, 8))
     with pytest.raises(ValueError, match="path_mask: expected shape"):
@@ -129,6 +147,52 @@ def test_jit_vmap_grad_finite(net):
     occ, sem = _maps(rng, (2,))
     ctx = rng.normal(size=(2, 4)).astype(np.float32)
     f = jax.jit(jax.vmap(lambda o, s, c: lsd_distribution(model, params, o, s, c)))
-    np.testing.assert_allclose(f(occ, sem, ctx), lsd_distribution(model, params, occ, sem, ctx), atol=1e-6)
-    g = jax.grad(lambda c: jnp.sum(lsd_distribution(model, params, occ, sem, c) ** 2))(ctx)
+    np.testing.assert_allclose(
+        f(occ, sem, ctx), lsd_distribution(model, params, occ, sem, ctx), atol=1e-6
+    )
+    g = jax.grad(lambda c: jnp.sum(lsd_distribution(model, params, occ, sem, c) ** 2))(
+        ctx
+    )
     assert np.all(np.isfinite(g))
+
+
+def _parity_spread(x):
+    """Spread of the means of the four (row, col) parity classes of a 2-D map."""
+    means = [float(np.mean(x[i::2, j::2])) for i in (0, 1) for j in (0, 1)]
+    return max(means) - min(means)
+
+
+def test_resize_upsampling_has_no_stripes():
+    """The stripes of the distribution images are the transposed convolutions' parity pattern:
+    on a constant input the 'transpose' network's output varies with cell parity, the 'resize'
+    network's has (almost) none: what remains comes from the zero-padded borders."""
+    cfg = dict(map_size=32, features=(4, 8), context_features=4)
+    occ = jnp.zeros((1, 32, 32), jnp.int8)
+    ctx = jnp.zeros((1, 4), jnp.float32)
+    spread = {}
+    for up in ("transpose", "resize"):
+        model, params = init_lsd(jax.random.PRNGKey(1), LSDConfig(upsample=up, **cfg))
+        out = model.apply({"params": params}, occ, occ, ctx)
+        inner = np.asarray(out.log_prob[0, 6:-6, 6:-6])
+        spread[up] = _parity_spread(inner)
+    assert spread["transpose"] > 1e-3
+    assert spread["resize"] < 0.1 * spread["transpose"]
+
+
+def test_log_range_bounds_the_spread():
+    cfg = LSDConfig(map_size=32, features=(4, 8), context_features=4, log_range=3.0)
+    model, params = init_lsd(jax.random.PRNGKey(2), cfg)
+    params = jax.tree_util.tree_map(
+        lambda p: 50.0 * p, params
+    )  # a wildly confident network
+    occ = jnp.asarray(np.random.default_rng(0).integers(-1, 2, (2, 32, 32)), jnp.int8)
+    lp = np.asarray(
+        model.apply(
+            {"params": params}, occ, occ, jnp.ones((2, 4), jnp.float32)
+        ).log_prob
+    )
+    assert np.all(lp.max(axis=(1, 2)) - lp.min(axis=(1, 2)) <= 3.0 + 1e-5)
+    with pytest.raises(ValueError, match="log_range"):
+        LSDConfig(log_range=0.0)
+    with pytest.raises(ValueError, match="upsample"):
+        LSDConfig(upsample="bilinear")

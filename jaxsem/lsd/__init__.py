@@ -18,9 +18,13 @@ from ._data import (
     load_expert_data as load_expert_data,
     split_by_building as split_by_building,
 )
-from ._sampler import LSDSampler as LSDSampler, full_map_distribution as full_map_distribution
+from ._sampler import (
+    LSDSampler as LSDSampler,
+    full_map_distribution as full_map_distribution,
+)
 from ._train import (
     TrainResult as TrainResult,
+    PRETRAINED as PRETRAINED,
     PRETRAINED_CPU as PRETRAINED_CPU,
     evaluate_nll as evaluate_nll,
     export_model as export_model,

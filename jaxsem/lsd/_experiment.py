@@ -21,13 +21,25 @@ import numpy as np
 from ..metrics import mean_sem, zero_intercept_slope
 
 
-def run_trials(buildings, sampler, sets=("II", "IO"), ns=(100, 500, 1000, 5000), trials: int = 3,
-               seed: int = 0, max_steps: int = 10_000, progress: bool = True, log=print) -> list:
-    """Runs both planners on every (building, set, N, trial); returns a list of dict records.
+def run_trials(
+    buildings,
+    sampler,
+    sets=("II", "IO"),
+    ns=(100, 500, 1000, 5000),
+    trials: int = 3,
+    seed: int = 0,
+    max_steps: int = 10_000,
+    progress: bool = True,
+    log=print,
+    variants: dict | None = None,
+) -> list:
+    """Runs the planners on every (building, set, N, trial); returns a list of dict records.
 
     buildings: test :class:`jaxsem.planning.Building` s; sampler: an :class:`LSDSampler` (or any
     ``sampler(LocalInputs) -> (k, k)`` probabilities); trials: tasks per building and set (the
-    same tasks for every N); max_steps: the loop's step limit (thesis: 10,000).
+    same tasks for every N); max_steps: the loop's step limit (thesis: 10,000). variants: extra
+    planners (ablation rows) run on the same tasks with the same key, ``{name: (sampler or
+    None, dict of NavConfig changes)}``; 'uniform' and 'lsd' always run.
     """
     from ..planning import NavConfig, navigate, sample_tasks
 
@@ -36,6 +48,8 @@ def run_trials(buildings, sampler, sets=("II", "IO"), ns=(100, 500, 1000, 5000),
             raise ValueError(f"sets: expected 'II' and/or 'IO', got {kind!r}")
     if trials < 1:
         raise ValueError(f"trials: expected >= 1, got {trials}")
+    planners = {"uniform": (None, {}), "lsd": (sampler, {})}
+    planners.update(variants or {})
     jobs = []
     for b in buildings:
         for kind in sets:
@@ -46,33 +60,75 @@ def run_trials(buildings, sampler, sets=("II", "IO"), ns=(100, 500, 1000, 5000),
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(jobs), desc="table 3.1 trials", unit="pair")
+        bar = tqdm(total=len(jobs), desc="table 3.1 trials", unit="task")
     records = []
     for b, kind, t_i, task, n in jobs:
-        # Same key for both planners; a function of the trial only (not of Python's hash seed).
-        key = jax.random.PRNGKey(int(np.random.default_rng(
-            [int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]).integers(2**31)))
-        rec = {"building": int(b.seed), "set": kind, "trial": t_i, "n": n,
-               "c_star": float(task.c_star), "start": task.start.tolist(), "goal": task.goal.tolist()}
-        for name, smp in (("uniform", None), ("lsd", sampler)):
-            cfg = NavConfig(n_samples=n, max_steps=max_steps)
+        # Same key for every planner; a function of the trial only (not of Python's hash seed).
+        key = jax.random.PRNGKey(
+            int(
+                np.random.default_rng(
+                    [int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]
+                ).integers(2**31)
+            )
+        )
+        rec = {
+            "building": int(b.seed),
+            "set": kind,
+            "trial": t_i,
+            "n": n,
+            "c_star": float(task.c_star),
+            "start": task.start.tolist(),
+            "goal": task.goal.tolist(),
+        }
+        for name, (smp, changes) in planners.items():
+            cfg = dataclasses.replace(
+                NavConfig(n_samples=n, max_steps=max_steps), **changes
+            )
             t0 = time.perf_counter()
-            res = navigate(b, task.start, task.goal, key, cfg, smp, yaw0=task.yaw0,
-                           goal_outdoors=task.goal_outdoors)
-            rec[name] = {"success": bool(res.success), "cost": float(res.cost), "reason": res.reason,
-                         "steps": int(res.steps), "plans": int(res.plans),
-                         "seconds": time.perf_counter() - t0}
+            res = navigate(
+                b,
+                task.start,
+                task.goal,
+                key,
+                cfg,
+                smp,
+                yaw0=task.yaw0,
+                goal_outdoors=task.goal_outdoors,
+            )
+            rec[name] = {
+                "success": bool(res.success),
+                "cost": float(res.cost),
+                "reason": res.reason,
+                "steps": int(res.steps),
+                "plans": int(res.plans),
+                "grown": int(res.grown),
+                "seconds": time.perf_counter() - t0,
+            }
         records.append(rec)
         if bar:
             bar.update(1)
-            bar.set_postfix(set=kind, n=n, unf=int(rec["uniform"]["success"]), lsd=int(rec["lsd"]["success"]))
+            bar.set_postfix(
+                set=kind,
+                n=n,
+                unf=int(rec["uniform"]["success"]),
+                lsd=int(rec["lsd"]["success"]),
+            )
     if bar:
         bar.close()
     return records
 
 
+def _rate_sem(x):
+    x = np.asarray(x, np.float64)
+    p = float(x.mean()) if x.size else float("nan")
+    return p, float(np.sqrt(p * (1 - p) / x.size)) if x.size > 1 else 0.0
+
+
 def summarise(records: list) -> dict:
-    """Per ``f"{set}-{N}"``: trials, success rates, mutual successes and the cost statistics."""
+    """Per ``f"{set}-{N}"``: trials, success rates (``success_<planner>`` and its binomial s.e.m.
+    ``success_<planner>_sem``), the paired count of LSD-only and uniform-only successes, mutual
+    successes and the cost statistics of LSD against uniform; ablation planners get their
+    success rates too."""
     out = {}
     keys = sorted({(r["set"], r["n"]) for r in records}, key=lambda k: (k[0], k[1]))
     for kind, n in keys:
@@ -90,13 +146,41 @@ def summarise(records: list) -> dict:
             r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
         else:
             r2 = float("nan")
-        out[f"{kind}-{n}"] = {
-            "set": kind, "n": int(n), "trials": len(rs), "mutual": int(both.sum()),
-            "success_uniform": float(su.mean()), "success_lsd": float(sl.mean()),
-            "cl_over_cstar": mean_sem(cl / cs) if both.any() else (float("nan"), float("nan")),
-            "cb_over_cstar": mean_sem(cb / cs) if both.any() else (float("nan"), float("nan")),
-            "slope_cb_on_cl": slope, "r2": r2,
+        row = {
+            "set": kind,
+            "n": int(n),
+            "trials": len(rs),
+            "mutual": int(both.sum()),
+            "success_uniform": float(su.mean()),
+            "success_lsd": float(sl.mean()),
+            "success_uniform_sem": _rate_sem(su)[1],
+            "success_lsd_sem": _rate_sem(sl)[1],
+            "lsd_only": int((sl & ~su).sum()),
+            "uniform_only": int((su & ~sl).sum()),
+            "cl_over_cstar": mean_sem(cl / cs)
+            if both.any()
+            else (float("nan"), float("nan")),
+            "cb_over_cstar": mean_sem(cb / cs)
+            if both.any()
+            else (float("nan"), float("nan")),
+            "slope_cb_on_cl": slope,
+            "r2": r2,
         }
+        for name in rs[0]:
+            if (
+                isinstance(rs[0][name], dict)
+                and name not in ("uniform", "lsd")
+                and "success" in rs[0][name]
+            ):
+                x = np.array([r[name]["success"] for r in rs])
+                row[f"success_{name}"], row[f"success_{name}_sem"] = _rate_sem(x)
+                mut = x & su
+                cx = np.array([r[name]["cost"] for r in rs])[mut]
+                csx = np.array([r["c_star"] for r in rs])[mut]
+                row[f"c_{name}_over_cstar_vs_uniform"] = (
+                    mean_sem(cx / csx) if mut.any() else (float("nan"), float("nan"))
+                )
+        out[f"{kind}-{n}"] = row
     return out
 
 
@@ -106,32 +190,91 @@ def _pm(ms):
 
 
 def format_table(summary: dict) -> str:
-    """A markdown table of :func:`summarise`'s output (one row per set and N)."""
-    lines = ["| set | N | trials | success Unf | success LSD | mutual | C_l/C* | C_b/C* | slope C_b~C_l | R^2 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    """A markdown table of :func:`summarise`'s output (one row per set and N), plus one row
+    per ablation planner when there are any."""
+    lines = [
+        "| set | N | trials | success Unf | success LSD | LSD-only / Unf-only | mutual | C_l/C* | C_b/C* | "
+        "slope C_b~C_l | R^2 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for v in summary.values():
         lines.append(
             f"| {v['set']} | {v['n']} | {v['trials']} | {100 * v['success_uniform']:.0f} % | "
-            f"{100 * v['success_lsd']:.0f} % | {v['mutual']} | {_pm(v['cl_over_cstar'])} | "
-            f"{_pm(v['cb_over_cstar'])} | {v['slope_cb_on_cl']:.2f} | {v['r2']:.2f} |")
+            f"{100 * v['success_lsd']:.0f} % | {v.get('lsd_only', '-')} / {v.get('uniform_only', '-')} | "
+            f"{v['mutual']} | {_pm(v['cl_over_cstar'])} | "
+            f"{_pm(v['cb_over_cstar'])} | {v['slope_cb_on_cl']:.2f} | {v['r2']:.2f} |"
+        )
+    abl = sorted(
+        {
+            k[len("success_") : -len("_sem")]
+            for v in summary.values()
+            for k in v
+            if k.startswith("success_") and k.endswith("_sem")
+        }
+        - {"uniform", "lsd"}
+    )
+    if abl:
+        lines += [
+            "",
+            "| set | N | planner | success | C/C* (on trials Unf also solved) |",
+            "|---|---|---|---|---|",
+        ]
+        for v in summary.values():
+            for name in ("uniform", "lsd", *abl):
+                c = v.get(
+                    f"c_{name}_over_cstar_vs_uniform",
+                    v["cl_over_cstar"]
+                    if name == "lsd"
+                    else (
+                        v["cb_over_cstar"]
+                        if name == "uniform"
+                        else (float("nan"), float("nan"))
+                    ),
+                )
+                lines.append(
+                    f"| {v['set']} | {v['n']} | {name} | {100 * v[f'success_{name}']:.0f} +- "
+                    f"{100 * v[f'success_{name}_sem']:.0f} % | {_pm(c)} |"
+                )
     return "\n".join(lines)
 
 
 def plot_success(summary: dict, path) -> None:
-    """Success rate against N for both planners and each set (figure 3-8), saved as PNG."""
+    """Success rate against N for both planners and each set (figure 3-8), with binomial
+    standard errors as error bars, saved as PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     sets = sorted({v["set"] for v in summary.values()})
-    fig, axes = plt.subplots(1, len(sets), figsize=(4.5 * len(sets), 3.6), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(sets), figsize=(4.5 * len(sets), 3.6), squeeze=False
+    )
     for ax, kind in zip(axes[0], sets):
-        rows = sorted((v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"])
+        rows = sorted(
+            (v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"]
+        )
         ns = [v["n"] for v in rows]
-        ax.plot(ns, [100 * v["success_lsd"] for v in rows], "o-", color="tab:red", label="PRM + LSD")
-        ax.plot(ns, [100 * v["success_uniform"] for v in rows], "s--", color="k", label="PRM + Unf")
-        ax.set_xscale("log")
+        ax.errorbar(
+            ns,
+            [100 * v["success_lsd"] for v in rows],
+            yerr=[100 * v.get("success_lsd_sem", 0.0) for v in rows],
+            fmt="o-",
+            color="tab:red",
+            capsize=3,
+            label="PRM + LSD",
+        )
+        ax.errorbar(
+            ns,
+            [100 * v["success_uniform"] for v in rows],
+            yerr=[100 * v.get("success_uniform_sem", 0.0) for v in rows],
+            fmt="s--",
+            color="k",
+            capsize=3,
+            label="PRM + Unf",
+        )
+        if len(set(ns)) > 1:
+            ax.set_xscale("log")
         ax.set_ylim(-5, 105)
         ax.set_xlabel("N (samples per roadmap)")
         ax.set_ylabel("success rate (%)")
@@ -152,8 +295,14 @@ class ExperimentSetup:
     workers: int = 2
 
 
-def prepare_model(workdir, checkpoint=None, setup: ExperimentSetup = ExperimentSetup(), config=None,
-                  progress: bool = True, log=print):
+def prepare_model(
+    workdir,
+    checkpoint=None,
+    setup: ExperimentSetup = ExperimentSetup(),
+    config=None,
+    progress: bool = True,
+    log=print,
+):
     """``(model, params, info)``: loads ``checkpoint`` (a training workdir or an exported .npz,
     :func:`jaxsem.lsd.load_model`) or generates expert
     data on train-family buildings into ``workdir/data`` and trains there (resuming if present)."""
@@ -169,25 +318,44 @@ def prepare_model(workdir, checkpoint=None, setup: ExperimentSetup = ExperimentS
 
     workdir = pathlib.Path(workdir)
     t0 = time.perf_counter()
-    shards = write_expert_dataset(workdir / "data", "train", range(setup.train_buildings),
-                                  ExpertConfig(samples_per_building=setup.samples_per_building),
-                                  workers=setup.workers, progress=progress)
+    shards = write_expert_dataset(
+        workdir / "data",
+        "train",
+        range(setup.train_buildings),
+        ExpertConfig(samples_per_building=setup.samples_per_building),
+        workers=setup.workers,
+        progress=progress,
+    )
     t_data = time.perf_counter() - t0
     cfg = config or cpu_config()
     t0 = time.perf_counter()
     res = train_and_evaluate(cfg, workdir, data=shards, progress=progress)
     t_train = time.perf_counter() - t0
     last = res.history[-1] if res.history else {}
-    info = {"checkpoint": str(workdir), "trained_here": True, "shards": len(shards),
-            "data_seconds": t_data, "train_seconds": t_train, "val_nll": last.get("val_nll"),
-            "uniform_nll": last.get("uniform_nll"), "stage1_steps": cfg.stage1_steps,
-            "stage2_steps": cfg.stage2_steps}
+    info = {
+        "checkpoint": str(workdir),
+        "trained_here": True,
+        "shards": len(shards),
+        "data_seconds": t_data,
+        "train_seconds": t_train,
+        "val_nll": last.get("val_nll"),
+        "uniform_nll": last.get("uniform_nll"),
+        "stage1_steps": cfg.stage1_steps,
+        "stage2_steps": cfg.stage2_steps,
+    }
     log(f"trained LSD in {workdir}: {info}")
     return res.model, res.params, info
 
 
-def plot_navigation(world, results: dict, path, start=None, goal=None, distribution=None,
-                    title: str = "") -> None:
+def plot_navigation(
+    world,
+    results: dict,
+    path,
+    start=None,
+    goal=None,
+    distribution=None,
+    title: str = "",
+) -> None:
     """PNG: the true map (walls black, doors green, windows blue, exit signs red), the last
     full-map LSD distribution (log scale, when given), and each planner's trajectory.
 
@@ -204,7 +372,9 @@ def plot_navigation(world, results: dict, path, start=None, goal=None, distribut
     ox, oy = np.asarray(world.origin, float)
     ext = [ox, ox + W * world.resolution, oy, oy + H * world.resolution]
     ncols = 2 if distribution is not None else 1
-    fig, axes = plt.subplots(1, ncols, figsize=(6.5 * ncols, 6.5 * H / W + 0.8), squeeze=False)
+    fig, axes = plt.subplots(
+        1, ncols, figsize=(6.5 * ncols, 6.5 * H / W + 0.8), squeeze=False
+    )
     img = np.ones((H, W, 3))
     img[occ] = 0.0
     for cls, col in ((2, (0.1, 0.7, 0.1)), (3, (0.2, 0.4, 1.0)), (4, (1.0, 0.1, 0.1))):
@@ -213,16 +383,24 @@ def plot_navigation(world, results: dict, path, start=None, goal=None, distribut
     panels = [(axes[0, 0], "map and trajectories")]
     if distribution is not None:
         ax = axes[0, 1]
-        ax.imshow(np.log10(np.maximum(np.asarray(distribution), 1e-30)), origin="lower", extent=ext,
-                  cmap="viridis")
-        ax.contour(occ, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower")
+        ax.imshow(
+            np.log10(np.maximum(np.asarray(distribution), 1e-30)),
+            origin="lower",
+            extent=ext,
+            cmap="viridis",
+        )
+        ax.contour(
+            occ, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower"
+        )
         panels.append((ax, "last LSD sampling distribution (log10 p)"))
     axes[0, 0].imshow(img, origin="lower", extent=ext, interpolation="nearest")
     for ax, t in panels:
         for name, res in results.items():
             p = np.asarray(res.path)
             label = f"{name}: {'ok' if res.success else res.reason}, {res.cost:.1f} m"
-            ax.plot(p[:, 0], p[:, 1], "-", color=colors.get(name, None), lw=1.5, label=label)
+            ax.plot(
+                p[:, 0], p[:, 1], "-", color=colors.get(name, None), lw=1.5, label=label
+            )
         if start is not None:
             ax.plot(*start, "rx", ms=9, mew=2)
         if goal is not None:

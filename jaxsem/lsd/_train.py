@@ -529,15 +529,22 @@ def load_model_file(path):
     return model, params, config
 
 
-#: A CPU-sized model trained by ``train/lsd.py --config cpu`` (6 train buildings x 80 expert
-#: samples, 300 + 150 steps); the demo and scripts use it when no checkpoint is given.
+#: The first CPU-sized model (``train/lsd.py --config cpu``: 6 train buildings x 80 expert samples,
+#: 300 + 150 steps, unbounded output). Kept for comparison; not the default.
 PRETRAINED_CPU = pathlib.Path(__file__).resolve().parent / "pretrained_cpu.npz"
+
+#: The shipped model, the default of every LSD entry point (``train/lsd.py --config scale``:
+#: bounded output range; buildings, steps, curves and held-out results in ``MODEL_CARD.md``
+#: next to it).
+PRETRAINED = pathlib.Path(__file__).resolve().parent / "pretrained.npz"
 
 
 def load_model(source=None):
     """``(model, params, config)`` from a training workdir, an exported ``.npz`` file, or (None)
-    the bundled CPU-trained model :data:`PRETRAINED_CPU`."""
-    source = PRETRAINED_CPU if source is None else pathlib.Path(source)
+    the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent)."""
+    if source is None:
+        source = PRETRAINED if PRETRAINED.exists() else PRETRAINED_CPU
+    source = pathlib.Path(source)
     if source.suffix == ".npz":
         return load_model_file(source)
     return load_trained(source)

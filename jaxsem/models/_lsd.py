@@ -64,6 +64,14 @@ class LSDConfig:
         the 6-building model on 16 first steps of held-out tasks: outside share of the samples
         0.000-0.58, 0.000-0.007 in 4 of them. With R = 8 the outside keeps about a quarter of
         the samples even when the network is fully confident (see the LSD model card).
+    upsample: 'transpose' (2 x 2 transposed convolutions, stride 2: the networks trained so far)
+        or 'resize' (nearest-neighbour doubling, then a 3 x 3 convolution). The transposed
+        convolutions are where the stripes of the distribution images come from: each output
+        cell takes one of four kernel weights by its position parity, so every upsampling stage
+        stamps a period-2 pattern and the context branch, four stages from the 10 x 10 latent
+        with no skip connections, shows 2-, 4-, 8- and 16-cell blocks (Odena et al., 2016,
+        "Deconvolution and checkerboard artifacts"). Resize + convolution has no parity
+        dependence; a constant input gives a constant output (tested).
     """
 
     map_size: int = 160
@@ -74,6 +82,7 @@ class LSDConfig:
     skip: bool = True
     dropout_rate: float = 0.1
     log_range: float | None = None
+    upsample: str = "transpose"
 
     def __post_init__(self):
         feats = tuple(int(f) for f in self.features)
@@ -96,6 +105,10 @@ class LSDConfig:
         if not 0.0 <= self.dropout_rate < 1.0:
             raise ValueError(
                 f"dropout_rate: expected in [0, 1), got {self.dropout_rate}"
+            )
+        if self.upsample not in ("transpose", "resize"):
+            raise ValueError(
+                f"upsample: expected 'transpose' or 'resize', got {self.upsample!r}"
             )
         if self.log_range is not None and not float(self.log_range) > 0:
             raise ValueError(
@@ -171,6 +184,20 @@ def encode_maps(occupancy, semantic, num_semantic_classes: int, dtype) -> jax.Ar
     return jnp.concatenate([occ, sem], -1).astype(dtype)
 
 
+def _up_layer(features: int, kind: str, name: str):
+    """A 2 x 2 stride-2 transposed convolution, or (``kind='resize'``) the 3 x 3 convolution that
+    follows a nearest-neighbour doubling (:func:`_upsample`); same parameter names either way."""
+    if kind == "transpose":
+        return nn.ConvTranspose(features, (2, 2), strides=(2, 2), name=name)
+    return nn.Conv(features, (3, 3), name=name)
+
+
+def _upsample(layer, x, kind: str):
+    if kind == "resize":  # no parity-dependent weights: no checkerboard / stripes
+        x = jnp.repeat(jnp.repeat(x, 2, axis=-3), 2, axis=-2)
+    return layer(x)
+
+
 class LSDNet(nn.Module):
     """The LSD network (module docstring). ``config``: :class:`LSDConfig`. The compute dtype
     follows the context's floating dtype (and the parameters': :func:`init_lsd` ``dtype``)."""
@@ -185,10 +212,7 @@ class LSDNet(nn.Module):
         ]
         self.enc_mix = nn.Conv(c.features[-1], (3, 3), name="enc_mix")
         up = list(c.features[:-1][::-1]) + [max(4, c.features[0] // 2)]
-        self.dec = [
-            nn.ConvTranspose(f, (2, 2), strides=(2, 2), name=f"dec_{i}")
-            for i, f in enumerate(up)
-        ]
+        self.dec = [_up_layer(f, c.upsample, f"dec_{i}") for i, f in enumerate(up)]
         self.dec_out = nn.Conv(1, (3, 3), name="dec_out")
         self.ctx_in = nn.Dense(c.context_features, name="cs_context")
         self.ctx_mix = [
@@ -196,8 +220,7 @@ class LSDNet(nn.Module):
         ]
         cs_up = [max(4, f // 2) for f in up]
         self.ctx_up = [
-            nn.ConvTranspose(f, (2, 2), strides=(2, 2), name=f"cs_up_{i}")
-            for i, f in enumerate(cs_up)
+            _up_layer(f, c.upsample, f"cs_up_{i}") for i, f in enumerate(cs_up)
         ]
         self.ctx_out = nn.Conv(1, (3, 3), name="cs_out")
         self.drop = nn.Dropout(c.dropout_rate)
@@ -236,7 +259,7 @@ class LSDNet(nn.Module):
 
         h = latent
         for i, deconv in enumerate(self.dec):
-            h = nn.relu(deconv(h))
+            h = nn.relu(_upsample(deconv, h, c.upsample))
             if c.skip:
                 h = jnp.concatenate([h, skips[-1 - i]], -1)
             if i == 0:
@@ -251,7 +274,7 @@ class LSDNet(nn.Module):
                 g = nn.relu(conv(g))
             g = self.drop(g, deterministic=deterministic)
             for deconv in self.ctx_up:
-                g = nn.relu(deconv(g))
+                g = nn.relu(_upsample(deconv, g, c.upsample))
             modifier = self.ctx_out(g)[..., 0]
         else:
             modifier = jnp.zeros_like(general)

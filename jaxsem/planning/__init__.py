@@ -46,7 +46,11 @@ from ._grid import (
     empty_map_state as empty_map_state,
     world_to_cell as world_to_cell,
 )
-from ._sensors import SensorConfig as SensorConfig, cast_rays as cast_rays, sense as sense
+from ._sensors import (
+    SensorConfig as SensorConfig,
+    cast_rays as cast_rays,
+    sense as sense,
+)
 from ._shortest_path import (
     GridPath as GridPath,
     SearchTree as SearchTree,
@@ -63,6 +67,7 @@ from ._prm import (
     embed_local_distribution as embed_local_distribution,
     knn_within_radius as knn_within_radius,
     make_roadmap_builder as make_roadmap_builder,
+    prm_star_k as prm_star_k,
     roadmap_connect as roadmap_connect,
     roadmap_grow as roadmap_grow,
     roadmap_init as roadmap_init,

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
-from ._prm import PRM, default_radius, embed_local_distribution
+from ._prm import PRM, default_radius, embed_local_distribution, prm_star_k
 from ._sensors import SensorConfig, _check_resolution, _sense_jit
 
 CROP_SIZE = 160
@@ -128,7 +128,7 @@ class NavConfig:
     """Settings of the online loop (thesis 3.3.3 defaults where it gives them)."""
 
     n_samples: int = 500
-    k: int = 15  # PRM neighbours per vertex (see jaxsem.planning._prm)
+    k: int | None = None  # PRM neighbours per vertex; None: prm_star_k(n_samples)
     radius: float | None = (
         None  # PRM connection radius (m); None: default_radius(n_samples)
     )
@@ -152,8 +152,9 @@ class NavResult:
     """Outcome of one trial. path: (T, 2) world polyline travelled (start first: the position after
     each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
     final_state: the partial maps at the end; last_distribution: (H, W) or None; grown: roadmap
-    growths after failed searches; searches: roadmap queries (replans); distributions: (step, xy, (H, W) distribution) snapshots when
-    the trial was asked to keep them (``Trial(keep_distributions=...)``)."""
+    growths after failed searches; searches: roadmap queries (replans);
+    distributions: (step, xy, (160, 160) window distribution, (2,) window centre cell) at each
+    of the first ``keep_distributions`` LSD replans (``Trial(keep_distributions=...)``)"""
 
     path: np.ndarray
     cost: float
@@ -309,7 +310,7 @@ class Trial:
             self.origin,
             self.resolution,
             capacity=cfg.n_samples * (1 + cfg.max_growth),
-            k=cfg.k,
+            k=cfg.k if cfg.k is not None else prm_star_k(cfg.n_samples),
             radius=self.radius,
             weight=self.weight,
         )
@@ -334,7 +335,12 @@ class Trial:
                 and len(self.distributions) < self.keep_distributions
             ):
                 self.distributions.append(
-                    (self.steps, self.xy.copy(), np.asarray(dist))
+                    (
+                        self.steps,
+                        self.xy.copy(),
+                        np.asarray(local, np.float32),
+                        np.asarray(inputs.center_cell),
+                    )
                 )
         # Reuse only a roadmap of the nominal size: one grown for an earlier failure is not kept
         # (so both planners plan with n_samples until a search fails).
