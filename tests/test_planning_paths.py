@@ -350,7 +350,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
         radius=0.9,
         bucket_cap=2,
     )
-    assert not bool(rm.overflow) and int(rm.count) == 800
+    assert not bool(rm.overflow) and int(rm.num_samples) == 800
     pts = np.asarray(rm.points)
     nbr = np.asarray(rm.neighbors)
     valid = np.array(rm.valid)
@@ -388,7 +388,7 @@ def test_prm_reuse_grow_and_update():
     prm.grow(jax.random.PRNGKey(1), N)
     rm = prm.roadmap
     # Growing adds the new vertices' links and leaves the old vertices' lists as they were.
-    assert prm.count == 2 * N and int(rm.count) == 2 * N
+    assert prm.count == 2 * N and int(rm.num_samples) == 2 * N
     np.testing.assert_array_equal(np.asarray(rm.neighbors)[2 : N + 2], before[0])
     np.testing.assert_array_equal(np.asarray(rm.edge_valid)[2 : N + 2], before[1])
     assert np.asarray(rm.edge_valid)[N + 2 :].sum() > 0.5 * before[1].sum()
@@ -419,7 +419,7 @@ def test_roadmap_shapes_and_no_nan():
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
     assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 15)
-    assert not bool(rm.overflow) and int(rm.count) == N
+    assert not bool(rm.overflow) and int(rm.num_samples) == N
 
 
 def test_embed_local_distribution():

@@ -344,35 +344,34 @@ class Trial:
                 )
         # Reuse only a roadmap of the nominal size: one grown for an earlier failure is not kept
         # (so both planners plan with n_samples until a search fails).
+        prm = self.prm
         reuse = (
-            self.prm is not None
+            prm is not None
             and self.sampler is None
             and cfg.reuse_roadmap
-            and self.prm.count == cfg.n_samples
+            and prm.count == cfg.n_samples
         )
-        if reuse:
-            self.prm.update_map(known)
+        if prm is not None and reuse:
+            prm.update_map(known)
         else:
-            self.prm = self._new_prm(known)
+            prm = self.prm = self._new_prm(known)
             self.key, sub = jax.random.split(self.key)
-            self.prm.grow(sub, cfg.n_samples, dist)
+            prm.grow(sub, cfg.n_samples, dist)
             self.plans += 1
-        res = self.prm.query(self.xy, self.goal)
+        res = prm.query(self.xy, self.goal)
         self.searches += 1
         while not res.found:
-            if self.prm.count + cfg.n_samples > self.prm.capacity:
-                if (
-                    reuse
-                ):  # a reused roadmap at capacity: start a fresh one before giving up
-                    reuse = False
-                    self.prm = self._new_prm(known)
-                    self.plans += 1
-                else:
+            if prm.count + cfg.n_samples > prm.capacity:
+                if not reuse:
                     return False
+                # A reused roadmap at capacity: start a fresh one before giving up.
+                reuse = False
+                prm = self.prm = self._new_prm(known)
+                self.plans += 1
             self.key, sub = jax.random.split(self.key)
-            self.prm.grow(sub, cfg.n_samples, dist)
+            prm.grow(sub, cfg.n_samples, dist)
             self.grown += 1
-            res = self.prm.query(self.xy, self.goal)
+            res = prm.query(self.xy, self.goal)
             self.searches += 1
         self.plan = np.asarray(res.points, np.float64)
         self.plan[0] = self.xy

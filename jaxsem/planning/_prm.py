@@ -69,7 +69,7 @@ class Roadmap(NamedTuple):
     valid: (M,) bool, the slot holds a vertex whose cell is not known occupied.
     neighbors: (M, k) int32 slot indices (``M`` where there is none).
     edge_valid: (M, k) bool; edge_weight: (M, k) float (inf where invalid).
-    count: () int32, samples so far (slots ``2 .. 2 + count``).
+    num_samples: () int32, samples so far (slots ``2 .. 2 + num_samples``).
     overflow: () bool result code: a neighbour search had fewer candidate slots than a bucket
         held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
         :func:`roadmap_grow` rerun with more slots and never return it set.
@@ -80,7 +80,7 @@ class Roadmap(NamedTuple):
     neighbors: jax.Array
     edge_valid: jax.Array
     edge_weight: jax.Array
-    count: jax.Array
+    num_samples: jax.Array
     overflow: jax.Array
 
 
@@ -248,7 +248,7 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
         neighbors=jnp.full((M, int(k)), M, jnp.int32),
         edge_valid=jnp.zeros((M, int(k)), bool),
         edge_weight=jnp.full((M, int(k)), jnp.inf, dtype),
-        count=jnp.zeros((), jnp.int32),
+        num_samples=jnp.zeros((), jnp.int32),
         overflow=jnp.zeros((), bool),
     )
 
@@ -264,7 +264,7 @@ def _grow_impl(
     )
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
-    s0 = (_QUERY + rm.count).astype(jnp.int32)
+    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
     z = jnp.zeros((), jnp.int32)
     points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
     valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
@@ -291,7 +291,7 @@ def _grow_impl(
         jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
         jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
         jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), (s0, z)),
-        rm.count + n,
+        rm.num_samples + n,
         rm.overflow | ovf,
     )
 
@@ -448,7 +448,7 @@ def roadmap_grow(
         )
     distribution = _check_distribution(distribution, blocked.shape)
     M = roadmap.points.shape[0]
-    count = int(roadmap.count)
+    count = int(roadmap.num_samples)
     if count + int(n) > M - _QUERY:
         raise ValueError(
             f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, "
@@ -857,7 +857,7 @@ class PRM:
     @property
     def count(self) -> int:
         """Samples in the roadmap."""
-        return int(self.roadmap.count)
+        return int(self.roadmap.num_samples)
 
     @property
     def capacity(self) -> int:
