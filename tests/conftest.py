@@ -11,3 +11,17 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def strict_numpy():
+    """optimistix-style strictness for a test: dtype promotion is strict (no silent float32 ->
+    float64 or int -> float mixing). The geometry core's tests use it, with warnings as errors.
+
+    Rank promotion stays allowed: numpy broadcasting of leading batch axes (a (3, 3) ``K`` with
+    (N, 3) points) is part of the API by design."""
+    with jax.numpy_dtype_promotion("strict"):
+        yield
