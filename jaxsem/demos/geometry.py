@@ -21,9 +21,7 @@ def make_scene(seed: int = 0, num_objects: int = 6):
     xy = jax.random.uniform(k_pos, (num_objects, 2), minval=jnp.array([-6.0, 6.0]), maxval=jnp.array([6.0, 18.0]))
     center = jnp.concatenate([xy, radii[:, 2:3]], axis=1)  # resting on z = 0
     yaw = jax.random.uniform(k_yaw, (num_objects,), minval=-jnp.pi, maxval=jnp.pi)
-    rotation = q.quaternion_to_rotation(
-        jnp.stack([jnp.cos(yaw / 2), 0 * yaw, 0 * yaw, jnp.sin(yaw / 2)], axis=-1)
-    )
+    rotation = q.so3_exp(jnp.stack([0 * yaw, 0 * yaw, yaw], axis=-1))  # yaw about world z
     K = jnp.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
     camera_T_world = q.look_at(jnp.array([0.0, -2.0, 1.5]), jnp.array([0.0, 10.0, 1.0]))
     return rotation, center, radii, K, camera_T_world
@@ -43,9 +41,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
     outline, _ = q.conic_outline(conics, 200)
     # An independent check drawn beside: dense surface points projected into the image.
     pts = q.surface_points(jax.random.PRNGKey(1), rotation, center, radii, 4000)
-    cam = jnp.einsum("ij,onj->oni", pose[:3, :3], pts) + pose[:3, 3]
-    pix = jnp.einsum("ij,onj->oni", K, cam)
-    pix = pix[..., :2] / pix[..., 2:]
+    pix, _ = q.project_points(pts, K, pose)
     footprint = q.rasterize_footprint(
         rotation, center, radii, jnp.arange(1, len(radii) + 1), (250, 200), jnp.array([-10.0, -3.0]), 0.1
     )

@@ -31,6 +31,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco  # noqa: E402
 
+from .. import quadrics  # noqa: E402
+
 __all__ = ["SceneObject", "SceneRenderer", "render_views", "SHAPES", "bounding_ellipsoid_radii"]
 
 SHAPES = ("box", "cylinder", "ellipsoid")
@@ -163,9 +165,8 @@ def _check_outputs(outputs) -> tuple:
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).reshape(9))
-    return q
+    """MuJoCo's ``quat`` (w, x, y, z) of a rotation, from the geometry core."""
+    return np.asarray(quadrics.rotation_to_quaternion_wxyz(np.asarray(R, dtype=np.float64)), dtype=np.float64)
 
 
 def _check_intrinsics(K, width: int, height: int) -> np.ndarray:
