@@ -16,6 +16,7 @@ from jaxsem.planning import (
     build_roadmap,
     embed_local_distribution,
     knn_within_radius,
+    prm_star_k,
     roadmap_grow,
     roadmap_init,
     roadmap_shortest_path,
@@ -418,7 +419,7 @@ def test_roadmap_shapes_and_no_nan():
     )
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
-    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, 15)
+    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, prm_star_k(N))
     assert not bool(rm.overflow) and int(rm.num_samples) == N
 
 
