@@ -41,29 +41,31 @@ import numpy as np
 from . import classes as _classes
 from .quadrics import (
     algebraic_distance,
+    invert_pose,
     project_bbox,
     safe_div,
     safe_sqrt,
+    single_view_ellipsoid,
     texture_plane_depth,
 )
 
 __all__ = [
-    "ShapePrior",
-    "SHAPE_PRIORS",
     "CLASS_NAMES",
-    "class_index",
-    "shape_prior",
-    "shape_prior_table",
-    "radii_from_param",
-    "param_from_radii",
-    "robust_residual",
     "ROBUST_LOSSES",
-    "pose_prior_residual",
-    "edge_mask",
+    "SHAPE_PRIORS",
+    "ShapePrior",
     "box_residual",
-    "texture_residual",
+    "class_index",
+    "edge_mask",
+    "param_from_radii",
+    "pose_prior_residual",
+    "radii_from_param",
+    "robust_residual",
+    "shape_prior",
     "shape_prior_residual",
+    "shape_prior_table",
     "single_view_init",
+    "texture_residual",
 ]
 
 
@@ -122,7 +124,10 @@ def radii_from_param(s):
 def param_from_radii(radii):
     """Inverse of :func:`radii_from_param`: ``s = r + log(-expm1(-r))`` (radii must be > 0)."""
     radii = jnp.asarray(radii)
-    tiny = jnp.finfo(jnp.result_type(radii, float)).tiny
+    if not jnp.issubdtype(radii.dtype, jnp.inexact):
+        radii = radii.astype(jnp.result_type(float))
+    # A Python float (weak type): float32 radii stay float32 under x64.
+    tiny = float(jnp.finfo(radii.dtype).tiny)
     r = jnp.maximum(radii, 1e-6)
     return r + jnp.log(jnp.maximum(-jnp.expm1(-r), tiny))
 
@@ -178,10 +183,15 @@ def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma
     Returns:
       (..., 6) whitened ``[translation part v (3), rotation part omega (3)]`` of jaxlie's log.
     """
-    err = (
-        jaxlie.SE3.from_matrix(prior) @ jaxlie.SE3.from_matrix(camera_T_world).inverse()
-    ).log()
-    ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
+    camera_T_world = jnp.asarray(camera_T_world)
+    dtype = jnp.result_type(camera_T_world, prior)
+    # Matrix product, then log, cast back: jaxlie's SE3 inverse / compose / log promote float32
+    # to float64 under x64.
+    rel = jnp.asarray(prior, dtype) @ invert_pose(camera_T_world.astype(dtype))
+    err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
+    ts = jnp.broadcast_to(
+        jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,)
+    )
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
     return err / jnp.concatenate([ts, rs], axis=-1)
 
@@ -272,7 +282,9 @@ def box_residual(
     )
 
 
-def texture_residual(camera_T_world, rotation, center, radii, texture_depth, texture_sigma=0.3):
+def texture_residual(
+    camera_T_world, rotation, center, radii, texture_depth, texture_sigma=0.3
+):
     """Texture-plane factor (section 4.3.3): ``(near-plane depth - measured depth) / sigma``.
 
     Args:
@@ -293,7 +305,13 @@ def shape_prior_residual(radii, mean, sigma):
 
 
 def single_view_init(
-    camera_T_world, box, K, mean_radii, texture_depth=None, texture_mask=None, default_depth=10.0
+    camera_T_world,
+    box,
+    K,
+    mean_radii,
+    texture_depth=None,
+    texture_mask=None,
+    default_depth=10.0,
 ):
     """Single-image initialisation (section 4.3.5).
 
@@ -315,22 +333,15 @@ def single_view_init(
     K = jnp.asarray(K, dtype)
     pose = jnp.asarray(camera_T_world, dtype)
     mean_radii = jnp.asarray(mean_radii, dtype)
-    uc = 0.5 * (box[..., 0] + box[..., 2])
-    vc = 0.5 * (box[..., 1] + box[..., 3])
-    fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
-    fy, cy = K[..., 1, 1], K[..., 1, 2]
-    y = (vc - cy) / fy
-    x = (uc - cx - s * y) / fx
-    ray = jnp.stack([x, y, jnp.ones_like(x)], axis=-1)  # camera frame, z = 1
     R_cw = pose[..., :3, :3]
     half_depth = safe_sqrt(jnp.sum(jnp.square(mean_radii * R_cw[..., 2, :]), axis=-1))
-    depth = jnp.broadcast_to(jnp.asarray(default_depth, dtype), uc.shape)
+    depth = jnp.broadcast_to(jnp.asarray(default_depth, dtype), box.shape[:-1])
     if texture_depth is not None:
         tex = jnp.asarray(texture_depth, dtype)
-        mask = jnp.ones(tex.shape, bool) if texture_mask is None else jnp.asarray(texture_mask)
+        mask = (
+            jnp.ones(tex.shape, bool)
+            if texture_mask is None
+            else jnp.asarray(texture_mask)
+        )
         depth = jnp.where(mask & (tex > 0), tex + half_depth, depth)
-    p_cam = ray * depth[..., None]
-    center = jnp.sum(R_cw * (p_cam - pose[..., :3, 3])[..., :, None], axis=-2)  # R^T (p - t)
-    rotation = jnp.broadcast_to(jnp.eye(3, dtype=dtype), center.shape[:-1] + (3, 3))
-    radii = jnp.broadcast_to(mean_radii, center.shape)
-    return rotation, center, radii
+    return single_view_ellipsoid(box.astype(dtype), K, pose, depth, mean_radii)

@@ -14,6 +14,8 @@ Each box row touches exactly one pose and one ellipsoid, which the structured so
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -40,7 +42,9 @@ def zero_delta(estimate: SlamEstimate) -> Delta:
     T = estimate.camera_T_world.shape[-3]
     J = estimate.center.shape[-2]
     return Delta(
-        jnp.zeros((T, 6), dtype), jnp.zeros((J, 3), dtype), jnp.zeros((J, 3), dtype),
+        jnp.zeros((T, 6), dtype),
+        jnp.zeros((J, 3), dtype),
+        jnp.zeros((J, 3), dtype),
         jnp.zeros((J, 3), dtype),
     )
 
@@ -51,12 +55,13 @@ def retract_pose(pose, dp):
     Multiplying matrices (rather than ``SE3.from_matrix(pose) @ ...``) avoids the branchy
     matrix-to-quaternion conversion, which dominates compile time under ``jacfwd``.
     """
-    return pose @ jaxlie.SE3.exp(dp).as_matrix()
+    # Cast: jaxlie's SE3.exp promotes float32 to float64 under x64.
+    return pose @ jaxlie.SE3.exp(dp).as_matrix().astype(pose.dtype)
 
 
 def retract_object(rotation, center, radii, dobj):
     """Applies a 9-vector ``[dw, dc, ds]`` to one ellipsoid (or a batch of them)."""
-    R = rotation @ jaxlie.SO3.exp(dobj[..., 0:3]).as_matrix()
+    R = rotation @ jaxlie.SO3.exp(dobj[..., 0:3]).as_matrix().astype(rotation.dtype)
     c = center + dobj[..., 3:6]
     r = F.radii_from_param(F.param_from_radii(radii) + dobj[..., 6:9])
     return R, c, r
@@ -94,7 +99,9 @@ def first_order_object(rotation, center, radii, dobj):
 
 def retract(estimate: SlamEstimate, delta: Delta) -> SlamEstimate:
     R, c, r = retract_object(
-        estimate.rotation, estimate.center, estimate.radii,
+        estimate.rotation,
+        estimate.center,
+        estimate.radii,
         jnp.concatenate([delta.rotation, delta.center, delta.radii], -1),
     )
     return SlamEstimate(retract_pose(estimate.camera_T_world, delta.pose), R, c, r)
@@ -109,19 +116,41 @@ def class_table(config: SolverConfig, dtype):
     return mean, sigma
 
 
-def box_rows(pose, rotation, center, radii, box, texture_depth, texture_mask, box_mask,
-             K, image_size, config: SolverConfig):
+def box_rows(
+    pose,
+    rotation,
+    center,
+    radii,
+    box,
+    texture_depth,
+    texture_mask,
+    box_mask,
+    K,
+    image_size,
+    config: SolverConfig,
+):
     """(7,) residual of one box (unbatched; vmap over boxes)."""
     n = config.noise
     r = F.box_residual(
-        pose, rotation, center, radii, box, K, image_size,
-        box_sigma=n.box_sigma, border_margin=config.border_margin,
-        barrier_weight=config.barrier_weight, min_depth=config.min_depth,
-        degenerate_residual=config.degenerate_residual, loss=config.box_loss,
+        pose,
+        rotation,
+        center,
+        radii,
+        box,
+        K,
+        image_size,
+        box_sigma=n.box_sigma,
+        border_margin=config.border_margin,
+        barrier_weight=config.barrier_weight,
+        min_depth=config.min_depth,
+        degenerate_residual=config.degenerate_residual,
+        loss=config.box_loss,
         robust_scale=config.robust_scale,
     )
     if config.use_texture:
-        t = F.texture_residual(pose, rotation, center, radii, texture_depth, n.texture_sigma)
+        t = F.texture_residual(
+            pose, rotation, center, radii, texture_depth, n.texture_sigma
+        )
         t = F.robust_residual(t, config.texture_loss, config.robust_scale)
         t = jnp.where(texture_mask, t, 0.0)
     else:
@@ -133,7 +162,9 @@ def box_rows(pose, rotation, center, radii, box, texture_depth, texture_mask, bo
 def pose_rows(pose, prior, mask, config: SolverConfig):
     """(6,) pose-prior residual of one pose."""
     n = config.noise
-    r = F.pose_prior_residual(pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma)
+    r = F.pose_prior_residual(
+        pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma
+    )
     r = F.robust_residual(r, config.pose_loss, config.robust_scale)
     return jnp.where(mask, r, 0.0)
 
@@ -149,8 +180,9 @@ def shape_weight(config: SolverConfig, dtype):
 def shape_rows(radii, object_class, mask, config: SolverConfig, mean, sigma):
     """(3,) shape-prior residual of one object (``mean``/``sigma`` are the (C, 3) table)."""
     r = F.shape_prior_residual(radii, mean[object_class], sigma[object_class])
-    r = F.robust_residual(r * shape_weight(config, radii.dtype), config.shape_loss,
-                          config.robust_scale)
+    r = F.robust_residual(
+        r * shape_weight(config, radii.dtype), config.shape_loss, config.robust_scale
+    )
     return jnp.where(mask, r, 0.0)
 
 
@@ -160,9 +192,17 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     mean, sigma = class_table(config, dtype)
     bp, bo = problem.box_pose, problem.box_object
     boxes = jax.vmap(box_rows, in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, None, None))(
-        estimate.camera_T_world[bp], estimate.rotation[bo], estimate.center[bo],
-        estimate.radii[bo], problem.box, problem.texture_depth, problem.texture_mask,
-        problem.box_mask, problem.K, problem.image_size, config,
+        estimate.camera_T_world[bp],
+        estimate.rotation[bo],
+        estimate.center[bo],
+        estimate.radii[bo],
+        problem.box,
+        problem.texture_depth,
+        problem.texture_mask,
+        problem.box_mask,
+        problem.K,
+        problem.image_size,
+        config,
     )
     poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None))(
         estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config
@@ -175,4 +215,144 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
 
 def total_cost(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
     """``0.5 * sum(r**2)`` over all factors (scalar): the quantity every solver minimises."""
-    return 0.5 * sum(jnp.sum(jnp.square(b)) for b in residual_blocks(problem, estimate, config))
+    blocks = residual_blocks(problem, estimate, config)
+    return jnp.asarray(0.5 * sum(jnp.sum(jnp.square(b)) for b in blocks))
+
+
+# --------------------------------------------------------------------------------------------
+# Linearisation in block form (the structured solvers' view of the same cost).
+
+
+class Normal(NamedTuple):
+    """Gauss-Newton normal equations ``J^T J`` and ``J^T r`` in block form.
+
+    ``Hpp`` (T, 6, 6) pose blocks, ``Hoo`` (J, 9, 9) object blocks, ``Hpo`` (T, J, 6, 9) the
+    pose-object coupling, ``gp`` (T, 6) and ``go`` (J, 9) the gradient. ``cost`` () is
+    ``0.5 * sum(r**2)`` at the linearisation point (:func:`total_cost`).
+    """
+
+    Hpp: jnp.ndarray
+    Hoo: jnp.ndarray
+    Hpo: jnp.ndarray
+    gp: jnp.ndarray
+    go: jnp.ndarray
+    cost: jnp.ndarray
+
+
+def linearize(
+    problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pose_free
+) -> Normal:
+    """Block normal equations at ``est`` from per-factor ``jacfwd`` (15 columns per box factor).
+
+    Every box residual touches one pose and one ellipsoid, every pose prior one pose and every
+    shape prior one ellipsoid, so the Jacobian is recovered exactly by a fixed number of
+    forward-mode columns and accumulated into the blocks with scatter-adds. Poses where
+    ``pose_free`` (T,) is 0 are held: their columns vanish.
+    """
+    dtype = est.center.dtype
+    mean, sigma = class_table(config, dtype)
+    bp, bo = problem.box_pose, problem.box_object
+    T, J = est.camera_T_world.shape[0], est.center.shape[0]
+
+    def box_fn(dp, dobj, pose, R, c, r, box, td, tm, bm):
+        R2, c2, r2 = first_order_object(R, c, r, dobj)
+        out = box_rows(
+            first_order_pose(pose, dp),
+            R2,
+            c2,
+            r2,
+            box,
+            td,
+            tm,
+            bm,
+            problem.K,
+            problem.image_size,
+            config,
+        )
+        return out, out
+
+    z6, z9 = jnp.zeros(6, dtype), jnp.zeros(9, dtype)
+    (Jp, Jo), rb = jax.vmap(
+        jax.jacfwd(box_fn, argnums=(0, 1), has_aux=True),
+        in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0, 0),
+    )(
+        z6,
+        z9,
+        est.camera_T_world[bp],
+        est.rotation[bo],
+        est.center[bo],
+        est.radii[bo],
+        problem.box,
+        problem.texture_depth,
+        problem.texture_mask,
+        problem.box_mask,
+    )
+    Jp = Jp * pose_free[bp][:, None, None]
+
+    def pose_fn(dp, pose, prior, mask):
+        out = pose_rows(first_order_pose(pose, dp), prior, mask, config)
+        return out, out
+
+    Jpp, rp = jax.vmap(jax.jacfwd(pose_fn, has_aux=True), in_axes=(None, 0, 0, 0))(
+        z6, est.camera_T_world, problem.pose_prior, problem.pose_mask
+    )
+
+    def shape_fn(ds, radii, cls, mask):
+        r2 = F.radii_from_param(F.param_from_radii(radii) + ds)
+        out = shape_rows(r2, cls, mask, config, mean, sigma)
+        return out, out
+
+    Js3, rs = jax.vmap(jax.jacfwd(shape_fn, has_aux=True), in_axes=(None, 0, 0, 0))(
+        jnp.zeros(3, dtype), est.radii, problem.object_class, problem.object_mask
+    )
+    Js = jnp.zeros((J, 3, 9), dtype).at[:, :, 6:9].set(Js3)
+
+    JpT = jnp.swapaxes(Jp, -1, -2)
+    JoT = jnp.swapaxes(Jo, -1, -2)
+    Hpp = jnp.zeros((T, 6, 6), dtype).at[bp].add(JpT @ Jp)
+    Hpp = Hpp + jnp.swapaxes(Jpp, -1, -2) @ Jpp
+    gp = jnp.zeros((T, 6), dtype).at[bp].add(jnp.einsum("mij,mi->mj", Jp, rb))
+    gp = gp + jnp.einsum("tij,ti->tj", Jpp, rp)
+    Hoo = jnp.zeros((J, 9, 9), dtype).at[bo].add(JoT @ Jo)
+    Hoo = Hoo + jnp.swapaxes(Js, -1, -2) @ Js
+    go = jnp.zeros((J, 9), dtype).at[bo].add(jnp.einsum("mij,mi->mj", Jo, rb))
+    go = go + jnp.einsum("jik,ji->jk", Js, rs)
+    Hpo = jnp.zeros((T, J, 6, 9), dtype).at[bp, bo].add(JpT @ Jo)
+    gp = gp * pose_free[:, None]
+    cost = 0.5 * (
+        jnp.sum(jnp.square(rb)) + jnp.sum(jnp.square(rp)) + jnp.sum(jnp.square(rs))
+    )
+    return Normal(Hpp, Hoo, Hpo, gp, go, cost)
+
+
+def box_health(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
+    """Per-object diagnostics of the box factors at ``est``.
+
+    Returns:
+      ``(invalid, rms)``: (J,) bool, some real box of the object has no valid projection
+      (ellipsoid behind or around that camera, camera inside it); (J,) root-mean-square of the
+      object's whitened, constraining edge residuals (0 for objects without boxes).
+    """
+    from ..quadrics import project_bbox
+
+    dtype = est.center.dtype
+    bp, bo, bm = problem.box_pose, problem.box_object, problem.box_mask
+    J = est.center.shape[0]
+    pred, valid = project_bbox(
+        est.rotation[bo],
+        est.center[bo],
+        est.radii[bo],
+        problem.K,
+        est.camera_T_world[bp],
+    )
+    bad = bm & ~valid
+    invalid = jnp.zeros(J, bool).at[bo].max(bad)
+    emask = (
+        F.edge_mask(problem.box, problem.image_size, config.border_margin) & bm[:, None]
+    )
+    sigma = jnp.asarray(config.noise.box_sigma, dtype)
+    e = jnp.where(emask & valid[:, None], (pred - problem.box) / sigma, 0.0)
+    sq = jnp.zeros(J, dtype).at[bo].add(jnp.sum(jnp.square(e), -1))
+    n = jnp.zeros(J, dtype).at[bo].add(jnp.sum(emask, -1).astype(dtype))
+    rms = jnp.sqrt(sq / jnp.maximum(n, 1.0))
+    return invalid, rms

@@ -26,14 +26,15 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
-    "SlamProblem",
-    "SlamEstimate",
-    "Frame",
     "Capacity",
+    "Frame",
     "NoiseModel",
+    "SlamEstimate",
+    "SlamProblem",
     "SolverConfig",
-    "make_problem",
+    "baseline_config",
     "make_frame",
+    "make_problem",
     "stack_problems",
 ]
 
@@ -157,25 +158,45 @@ class NoiseModel(eqx.Module):
 class SolverConfig(eqx.Module):
     """Which factors are used, how they are weighted, and how the solvers iterate.
 
-    The thesis' baseline is ``SolverConfig(use_texture=False, use_shape_prior=False)``; ROSHAN is
-    the default. The class table (``shape_prior_mean``, ``shape_prior_sigma``, both (C, 3) semi-axis
-    radii in metres) is a traced field so one can differentiate through it; ``None`` means the
-    table of :data:`jaxsem.factors.SHAPE_PRIORS`.
+    ROSHAN is the default; the thesis' baseline is :func:`baseline_config` (equivalently
+    ``SolverConfig(use_texture=False, use_shape_prior=False)``): the same system with only the
+    pose-prior and box factors plus a weak shape regulariser (``baseline_shape_weight``), the one
+    definition of "baseline" used by the library, the CLI (``infer/roshan.py --baseline``) and
+    the benchmarks. QuadricSLAM's own factor set (no shape term at all) is
+    ``baseline_config(baseline_shape_weight=0.0)``. The class table (``shape_prior_mean``,
+    ``shape_prior_sigma``, both (C, 3) semi-axis radii in metres) is a traced field so one can
+    differentiate through it; ``None`` means the table of :data:`jaxsem.factors.SHAPE_PRIORS`.
+
+    Stopping rule (as GTSAM's ``LevenbergMarquardtParams`` defaults): an accepted step whose
+    cost decrease is at most ``atol`` (absolute, in units of ``0.5 * sum(r**2)``) or at most
+    ``rtol`` times the cost before it (relative) ends the solve successfully; both default to
+    1e-5, as GTSAM's ``absoluteErrorTol`` / ``relativeErrorTol``. :meth:`tight` gives 1e-10 and
+    a larger step budget for reference solutions.
 
     Attributes (static ones set shapes / control flow; changing them recompiles):
       noise: :class:`NoiseModel`.
       use_texture, use_shape_prior: static bools, enable factors 3 and 4 of eq. 4.13.
       baseline_shape_weight: weak shape regulariser kept when ``use_shape_prior`` is False
         (the thesis keeps shape regularisation in the baseline), as a multiple of the
-        class sigma (e.g. 10.0 = ten times looser than ROSHAN's prior). 0 disables it.
+        class sigma (10.0 = ten times looser than ROSHAN's prior). 0 disables it.
       border_margin: pixels; a measured box edge within this distance of the image border is
         non-constraining and dropped (section 4.3.2).
       box_loss, texture_loss, shape_loss, pose_loss: static robust loss names per factor type,
         ``"l2"``, ``"huber"`` or ``"cauchy"``.
       robust_scale: threshold of the robust losses in whitened units (sigmas).
       default_depth: metres, single-view initialisation depth without a texture plane.
-      max_steps: static, Levenberg-Marquardt iteration cap.
-      rtol, atol: LM tolerances.
+      max_steps: static, Levenberg-Marquardt step cap (trial steps, rejected ones included) per
+        phase of a solve.
+      rtol, atol: the stopping rule above (traced floats: vmappable, no recompile).
+      lambda_init, lambda_max: initial Marquardt damping and the limit at which a solve that
+        finds no cost-lowering step stops with ``RESULTS.damping_limit``.
+      robust_init: static; the batch Schur solver first rescues objects whose initial estimate
+        has no valid projection in one of their frames (multi-view triangulation of the box
+        centres, then an objects-only solve with the poses held), and objects the data still
+        cannot fix are flagged (``SolveInfo.unfixable``) and left out of the joint solve, so
+        they cannot drag camera poses off their priors.
+      unfixable_rms: whitened RMS box-edge residual above which a rescued object counts as
+        unfixable.
       barrier_weight: weight of the degenerate-geometry penalty (depth / camera-inside).
       min_depth: metres, the depth below which the near side of an ellipsoid counts as too close.
       degenerate_residual: pixels, soft cap of a box edge error and the base residual of an
@@ -185,7 +206,7 @@ class SolverConfig(eqx.Module):
     noise: NoiseModel = NoiseModel()
     use_texture: bool = eqx.field(static=True, default=True)
     use_shape_prior: bool = eqx.field(static=True, default=True)
-    baseline_shape_weight: float | jnp.ndarray = 0.0
+    baseline_shape_weight: float | jnp.ndarray = 10.0
     border_margin: float | jnp.ndarray = 10.0
     box_loss: str = eqx.field(static=True, default="l2")
     texture_loss: str = eqx.field(static=True, default="l2")
@@ -193,14 +214,38 @@ class SolverConfig(eqx.Module):
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = 2.0
     default_depth: float | jnp.ndarray = 10.0
-    max_steps: int = eqx.field(static=True, default=50)
-    rtol: float = eqx.field(static=True, default=1e-8)
-    atol: float = eqx.field(static=True, default=1e-8)
+    max_steps: int = eqx.field(static=True, default=100)
+    rtol: float | jnp.ndarray = 1e-5
+    atol: float | jnp.ndarray = 1e-5
+    lambda_init: float | jnp.ndarray = 1e-3
+    lambda_max: float | jnp.ndarray = 1e10
+    robust_init: bool = eqx.field(static=True, default=True)
+    unfixable_rms: float | jnp.ndarray = 5.0
     barrier_weight: float | jnp.ndarray = 10.0
     min_depth: float | jnp.ndarray = 0.1
     degenerate_residual: float | jnp.ndarray = 1000.0
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
+
+    def replace(self, **changes) -> SolverConfig:
+        """A copy with some fields changed."""
+        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        unknown = set(changes) - set(values)
+        if unknown:
+            raise ValueError(f"SolverConfig: unknown fields {sorted(unknown)}")
+        values.update(changes)
+        return SolverConfig(**values)
+
+    def tight(self, max_steps: int = 500) -> SolverConfig:
+        """Tight stopping (``rtol = atol = 1e-10``, ``max_steps`` 500): reference solutions."""
+        return self.replace(rtol=1e-10, atol=1e-10, max_steps=max_steps)
+
+
+def baseline_config(**changes) -> SolverConfig:
+    """The thesis' baseline: pose priors + box factors (no texture plane, no semantic prior) with
+    the weak shape regulariser of :attr:`SolverConfig.baseline_shape_weight` (10 class sigmas).
+    The one definition used by the library, ``infer/roshan.py --baseline`` and the benchmarks."""
+    return SolverConfig(use_texture=False, use_shape_prior=False, **changes)
 
 
 # --------------------------------------------------------------------------------------------
@@ -211,9 +256,15 @@ def _np(name, x, shape_tail, dtype=float):
     try:
         arr = np.asarray(x, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot be converted to a {np.dtype(dtype).name} array ({exc})") from None
-    if shape_tail is not None and arr.shape[arr.ndim - len(shape_tail):] != tuple(shape_tail):
-        raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, shape_tail))}), got {arr.shape}")
+        raise ValueError(
+            f"{name}: cannot be converted to a {np.dtype(dtype).name} array ({exc})"
+        ) from None
+    if shape_tail is not None and arr.shape[arr.ndim - len(shape_tail) :] != tuple(
+        shape_tail
+    ):
+        raise ValueError(
+            f"{name}: expected shape (..., {', '.join(map(str, shape_tail))}), got {arr.shape}"
+        )
     return arr
 
 
@@ -222,7 +273,9 @@ def _check_boxes(name, box, mask, image_size=None):
     bad_finite = mask & ~np.all(np.isfinite(box), axis=-1)
     if bad_finite.any():
         idx = np.flatnonzero(bad_finite)[:5].tolist()
-        raise ValueError(f"{name}: non-finite box values at indices {idx} (first values {box[bad_finite][0].tolist()})")
+        raise ValueError(
+            f"{name}: non-finite box values at indices {idx} (first values {box[bad_finite][0].tolist()})"
+        )
     inverted = mask & ((box[..., 2] <= box[..., 0]) | (box[..., 3] <= box[..., 1]))
     if inverted.any():
         idx = np.flatnonzero(inverted)[:5].tolist()
@@ -272,13 +325,19 @@ def make_problem(
     dtype = dtype or jnp.result_type(float)
     K = _np("K", K, (3, 3))
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
+        raise ValueError(
+            f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}"
+        )
     image_size = _np("image_size", image_size, (2,))
     if image_size.shape != (2,) or not np.all(image_size > 0):
-        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+        raise ValueError(
+            f"image_size: expected [width, height] > 0, got {image_size.tolist()}"
+        )
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.ndim != 3:
-        raise ValueError(f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}")
+        raise ValueError(
+            f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}"
+        )
     if not np.all(np.isfinite(pose_prior)):
         raise ValueError("pose_prior: must be finite, got NaN or inf")
     T = pose_prior.shape[0]
@@ -290,10 +349,14 @@ def make_problem(
     box_object = _np("box_object", box_object, None, dtype=np.int64).reshape(-1)
     for name, arr in (("box_pose", box_pose), ("box_object", box_object)):
         if arr.shape != (M,):
-            raise ValueError(f"{name}: expected shape ({M},) to match box, got {arr.shape}")
+            raise ValueError(
+                f"{name}: expected shape ({M},) to match box, got {arr.shape}"
+            )
     object_class = np.asarray(object_class)
     if object_class.dtype.kind in "USO":
-        object_class = np.array([_factors.class_index(str(c)) for c in object_class.reshape(-1)])
+        object_class = np.array(
+            [_factors.class_index(str(c)) for c in object_class.reshape(-1)]
+        )
     object_class = object_class.astype(np.int64).reshape(-1)
     J = object_class.shape[0]
     n_classes = len(_factors.CLASS_NAMES)
@@ -302,9 +365,21 @@ def make_problem(
             f"object_class: indices must be in [0, {n_classes}) (classes {list(_factors.CLASS_NAMES)}), "
             f"got {object_class.tolist()}"
         )
-    pose_mask = np.ones(T, bool) if pose_mask is None else _np("pose_mask", pose_mask, None, bool).reshape(-1)
-    box_mask = np.ones(M, bool) if box_mask is None else _np("box_mask", box_mask, None, bool).reshape(-1)
-    object_mask = np.ones(J, bool) if object_mask is None else _np("object_mask", object_mask, None, bool).reshape(-1)
+    pose_mask = (
+        np.ones(T, bool)
+        if pose_mask is None
+        else _np("pose_mask", pose_mask, None, bool).reshape(-1)
+    )
+    box_mask = (
+        np.ones(M, bool)
+        if box_mask is None
+        else _np("box_mask", box_mask, None, bool).reshape(-1)
+    )
+    object_mask = (
+        np.ones(J, bool)
+        if object_mask is None
+        else _np("object_mask", object_mask, None, bool).reshape(-1)
+    )
     if pose_mask.shape != (T,) or box_mask.shape != (M,) or object_mask.shape != (J,):
         raise ValueError(
             f"masks: expected pose_mask ({T},), box_mask ({M},), object_mask ({J},), got "
@@ -313,7 +388,9 @@ def make_problem(
     _check_boxes("box", box, box_mask)
     bad_pose = box_mask & ((box_pose < 0) | (box_pose >= T))
     if bad_pose.any():
-        raise ValueError(f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}")
+        raise ValueError(
+            f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}"
+        )
     unposed = box_mask & ~pose_mask[np.clip(box_pose, 0, T - 1)]
     if unposed.any():
         raise ValueError(
@@ -322,17 +399,23 @@ def make_problem(
         )
     bad_obj = box_mask & ((box_object < 0) | (box_object >= J))
     if bad_obj.any():
-        raise ValueError(f"box_object: indices must be in [0, {J}), got {box_object[bad_obj][:5].tolist()}")
+        raise ValueError(
+            f"box_object: indices must be in [0, {J}), got {box_object[bad_obj][:5].tolist()}"
+        )
     unknown = box_mask & ~object_mask[np.clip(box_object, 0, J - 1)]
     if unknown.any():
-        raise ValueError(f"box_object: boxes {np.flatnonzero(unknown)[:5].tolist()} refer to masked-out objects")
+        raise ValueError(
+            f"box_object: boxes {np.flatnonzero(unknown)[:5].tolist()} refer to masked-out objects"
+        )
     if texture_depth is None:
         texture_depth = np.zeros(M)
         tex_default = np.zeros(M, bool)
     else:
         texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
         if texture_depth.shape != (M,):
-            raise ValueError(f"texture_depth: expected shape ({M},), got {texture_depth.shape}")
+            raise ValueError(
+                f"texture_depth: expected shape ({M},), got {texture_depth.shape}"
+            )
         tex_default = np.isfinite(texture_depth) & (texture_depth > 0)
     if texture_mask is None:
         texture_mask = tex_default
@@ -351,7 +434,9 @@ def make_problem(
     if capacity is not None:
         Tc, Mc, Jc = capacity
         if Tc < T or Mc < M or Jc < J:
-            raise ValueError(f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}")
+            raise ValueError(
+                f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}"
+            )
         eye = np.broadcast_to(np.eye(4), (Tc - T, 4, 4))
         pose_prior = np.concatenate([pose_prior, eye])
         pose_mask = np.concatenate([pose_mask, np.zeros(Tc - T, bool)])
@@ -370,10 +455,18 @@ def make_problem(
     f = lambda a: jnp.asarray(a, dtype)
     i = lambda a: jnp.asarray(np.clip(a, 0, None), jnp.int32)
     return SlamProblem(
-        K=f(K), image_size=f(image_size), pose_prior=f(pose_prior), pose_mask=jnp.asarray(pose_mask),
-        box=f(box), box_pose=i(box_pose), box_object=i(box_object), box_mask=jnp.asarray(box_mask),
-        texture_depth=f(texture_depth), texture_mask=jnp.asarray(texture_mask),
-        object_class=i(object_class), object_mask=jnp.asarray(object_mask),
+        K=f(K),
+        image_size=f(image_size),
+        pose_prior=f(pose_prior),
+        pose_mask=jnp.asarray(pose_mask),
+        box=f(box),
+        box_pose=i(box_pose),
+        box_object=i(box_object),
+        box_mask=jnp.asarray(box_mask),
+        texture_depth=f(texture_depth),
+        texture_mask=jnp.asarray(texture_mask),
+        object_class=i(object_class),
+        object_mask=jnp.asarray(object_mask),
     )
 
 
@@ -403,24 +496,40 @@ def make_frame(
     dtype = dtype or jnp.result_type(float)
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.shape != (4, 4) or not np.all(np.isfinite(pose_prior)):
-        raise ValueError(f"pose_prior: expected a finite (4, 4) camera_T_world, got shape {pose_prior.shape}")
+        raise ValueError(
+            f"pose_prior: expected a finite (4, 4) camera_T_world, got shape {pose_prior.shape}"
+        )
     box = _np("box", box, (4,)).reshape(-1, 4)
     N = box.shape[0]
     if N > max_detections:
         raise ValueError(f"box: {N} detections exceed max_detections={max_detections}")
     box_class = np.asarray(box_class).reshape(-1)
     if box_class.dtype.kind in "USO":
-        box_class = np.array([_factors.class_index(str(c)) for c in box_class], np.int64)
+        box_class = np.array(
+            [_factors.class_index(str(c)) for c in box_class], np.int64
+        )
     box_class = box_class.astype(np.int64)
     object_id = _np("object_id", object_id, None, np.int64).reshape(-1)
     if box_class.shape != (N,) or object_id.shape != (N,):
-        raise ValueError(f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}")
+        raise ValueError(
+            f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}"
+        )
     n_classes = len(_factors.CLASS_NAMES)
     if np.any((box_class < 0) | (box_class >= n_classes)):
-        raise ValueError(f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}")
-    if np.any(object_id < 0) or (max_objects is not None and np.any(object_id >= max_objects)):
-        raise ValueError(f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}")
-    ok = np.all(np.isfinite(box), axis=-1) & (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
+        raise ValueError(
+            f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}"
+        )
+    if np.any(object_id < 0) or (
+        max_objects is not None and np.any(object_id >= max_objects)
+    ):
+        raise ValueError(
+            f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}"
+        )
+    ok = (
+        np.all(np.isfinite(box), axis=-1)
+        & (box[:, 2] > box[:, 0])
+        & (box[:, 3] > box[:, 1])
+    )
     if not ok.all():
         warnings.warn(
             f"box: dropped {int((~ok).sum())} NaN or inverted detections (indices {np.flatnonzero(~ok).tolist()})",
@@ -430,17 +539,28 @@ def make_frame(
         texture_depth = np.full(N, np.nan)
     texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
     if texture_depth.shape != (N,):
-        raise ValueError(f"texture_depth: expected shape ({N},), got {texture_depth.shape}")
+        raise ValueError(
+            f"texture_depth: expected shape ({N},), got {texture_depth.shape}"
+        )
     tex_mask = ok & np.isfinite(texture_depth) & (texture_depth > 0)
     pad = max_detections - N
     box = np.where(ok[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
     return Frame(
         pose_prior=jnp.asarray(pose_prior, dtype),
-        box=jnp.asarray(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype),
-        box_class=jnp.asarray(np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32),
-        texture_depth=jnp.asarray(np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)]), dtype),
+        box=jnp.asarray(
+            np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype
+        ),
+        box_class=jnp.asarray(
+            np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32
+        ),
+        texture_depth=jnp.asarray(
+            np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)]),
+            dtype,
+        ),
         texture_mask=jnp.asarray(np.concatenate([tex_mask, np.zeros(pad, bool)])),
-        object_id=jnp.asarray(np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32),
+        object_id=jnp.asarray(
+            np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32
+        ),
         box_mask=jnp.asarray(np.concatenate([ok, np.zeros(pad, bool)])),
     )
 
