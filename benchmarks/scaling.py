@@ -31,6 +31,7 @@ import platform
 import subprocess
 import sys
 import time
+from typing import Any
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
@@ -101,9 +102,8 @@ def child(args) -> dict:
     mask = jnp.asarray(rng.random((B, k, k)) < 0.02)
 
     def nll(p, o, s, c, m):
-        return lsd_nll(
-            model.apply({"params": p}, o[None], s[None], c[None]).log_prob, m[None]
-        )
+        out: Any = model.apply({"params": p}, o[None], s[None], c[None])  # LSDOutput
+        return lsd_nll(out.log_prob, m[None])
 
     axes = (None, 0, 0, 0, 0)
     v_nll = jax.jit(jax.vmap(nll, in_axes=axes))
@@ -216,20 +216,22 @@ def main(argv=None) -> int:
             return 1
         runs.append(json.loads(lines[-1][len("RESULT ") :]))
     total = time.perf_counter() - t0
-    base = {name: job["single_s"] for name, job in runs[0]["jobs"].items()}
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     head = (
         ["job", "batch"]
-        + [f"D={r['devices']} sharded (ms)" for r in runs]
-        + ["1-device vmap (ms)", "max |sharded - vmap|"]
+        + [f"D={r['devices']}: sharded / vmap (ms)" for r in runs]
+        + ["max |sharded - vmap|"]
     )
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name in runs[0]["jobs"]:
         cells = [name, str(runs[0]["jobs"][name]["batch"])]
-        cells += [f"{1e3 * r['jobs'][name]['sharded_s']:.1f}" for r in runs]
-        cells += [
-            f"{1e3 * base[name]:.1f}",
-            f"{max(r['jobs'][name]['max_diff'] for r in runs):.1e}",
-        ]
+        for r in runs:
+            j = r["jobs"][name]
+            cells.append(
+                f"{1e3 * j['sharded_s']:.1f} / {1e3 * j['single_s']:.1f} "
+                f"(x{j['single_s'] / j['sharded_s']:.2f})"
+            )
+        cells.append(f"{max(r['jobs'][name]['max_diff'] for r in runs):.1e}")
         lines.append("| " + " | ".join(cells) + " |")
     table = "\n".join(lines)
     print(table)
@@ -267,9 +269,10 @@ def main(argv=None) -> int:
         "",
         (
             "Each D is a separate process with D devices; `sharded` is `parallel.sharded_vmap` "
-            "(shard_map over a data-axis Mesh, batch padded to a multiple of D), the baseline is "
-            "`jit(vmap)` on one device in the D = 1 process; medians of "
-            f"{args.repeats} repeats after warm-up."
+            "(shard_map over a data-axis Mesh, batch padded to a multiple of D), `vmap` is "
+            "`jit(vmap)` on one device in the same process (x: vmap time / sharded time); "
+            f"medians of {args.repeats} repeats after warm-up. Load average during the run: "
+            f"{load}."
         ),
         "",
         table,
