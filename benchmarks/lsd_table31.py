@@ -117,7 +117,16 @@ def main(argv=None) -> int:
     p.add_argument("--name", default="lsd_table31", help="result file stem")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        default=None,
+        metavar="JSON",
+        help="instead of running: merge the records of earlier result files into <out>/<name>",
+    )
     args = p.parse_args(argv)
+    if args.merge:
+        return _merge(args, argv)
     _check(args)
     try:
         return _run(args, argv)
@@ -126,6 +135,98 @@ def main(argv=None) -> int:
             raise
         print(f"lsd_table31: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
+
+
+def _merge(args, argv) -> int:
+    from jaxsem.lsd import format_table, plot_success, summarise
+
+    records, parts = [], []
+    for f in args.merge:
+        try:
+            d = json.loads(pathlib.Path(f).read_text())
+        except (OSError, ValueError) as exc:
+            raise SystemExit(
+                f"--merge: cannot read {f!r} ({type(exc).__name__})"
+            ) from None
+        if "records" not in d:
+            raise SystemExit(
+                f"--merge: {f!r} has no 'records' (not a lsd_table31 result)"
+            )
+        records += d["records"]
+        parts.append(
+            {
+                "file": str(f),
+                "command": d.get("command"),
+                "date": d.get("date"),
+                "seconds": d.get("seconds"),
+                "model": d.get("model"),
+            }
+        )
+    summary = summarise(records)
+    table = format_table(summary)
+    print(table)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = "python benchmarks/lsd_table31.py " + " ".join(
+        sys.argv[1:] if argv is None else argv
+    )
+    date = subprocess.run(
+        ["date", "-u"], capture_output=True, text=True, check=False
+    ).stdout.strip()
+    _write(
+        out / f"{args.name}.json",
+        json.dumps(
+            {
+                "command": cmd,
+                "date": date,
+                "machine": "2-core CPU (shared, noisy)",
+                "parts": parts,
+                "model": parts[0]["model"] if parts else None,
+                "summary": summary,
+                "records": records,
+            },
+            indent=1,
+        ),
+    )
+    plot_success(summary, out / f"{args.name}.png")
+    verdict = [
+        f"{k}: LSD {100 * v['success_lsd']:.0f} +- {100 * v['success_lsd_sem']:.0f} % vs Unf "
+        f"{100 * v['success_uniform']:.0f} +- {100 * v['success_uniform_sem']:.0f} % "
+        f"({100 * (v['success_lsd'] - v['success_uniform']):+.0f} points; target >= +15), "
+        f"{v['lsd_only']} LSD-only vs {v['uniform_only']} uniform-only successes"
+        for k, v in summary.items()
+    ]
+    md = [
+        f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)",
+        "",
+        f"Merged by: `{cmd}`",
+        "",
+        f"Date: {date}",
+        "",
+        "Machine: 2-core CPU (shared, noisy)",
+        "",
+        f"Model: {json.dumps(parts[0]['model'] if parts else None)}",
+        "",
+        "Parts (each a run of this script; buildings and tasks as in its command):",
+        "",
+        *[
+            f"- `{q['command']}` ({q['date']}, {(q['seconds'] or 0) / 60:.1f} min)"
+            for q in parts
+        ],
+        "",
+        table,
+        "",
+        "Success (binomial s.e.m.): " + "; ".join(verdict) + ".",
+        "",
+        "Thesis (10 train / 3 test real floorplans, 1500 tasks): N=500 success Unf 25 % vs LSD 69 %; "
+        "II C_l/C* 1.21-1.42 vs C_b/C* 1.32-1.51.",
+        "",
+        f"![success rates]({args.name}.png)",
+        "",
+    ]
+    _write(out / f"{args.name}.md", "\n".join(md))
+    print(f"wrote {out / (args.name + '.json')}, .md, .png")
+    return 0
 
 
 def _run(args, argv) -> int:
