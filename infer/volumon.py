@@ -1,8 +1,14 @@
-"""VoluMon inference: ellipsoids from an image and boxes (or a synthetic split) with a trained checkpoint.
+"""VoluMon inference: ellipsoids from an image and boxes (or held-out synthetic images).
+
+Uses the model that ships in the package (``jaxsem/volumon/pretrained``, see its
+``MODEL_CARD.md``) unless ``--workdir`` names a training run (``train/volumon.py``), or
+``--train-steps N`` trains one from scratch first (into ``--workdir``).
 
 Examples::
 
-    # a trained run (train/volumon.py --workdir runs/both) on its synthetic held-out split
+    # the shipped model on held-out synthetic images (seed 1)
+    python infer/volumon.py --split test --num 8 --out out/volumon
+    # a trained run on its synthetic held-out split
     python infer/volumon.py --workdir runs/both --split test --num 8 --out out/volumon
     # your own image and boxes (JSON list of [u_min, v_min, u_max, v_max]) and intrinsics
     python infer/volumon.py --workdir runs/both --image img.png --boxes boxes.json \
@@ -22,13 +28,19 @@ import numpy as np
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--workdir", type=pathlib.Path, required=True, help="training run (config.json + checkpoints/)")
+    p.add_argument("--workdir", type=pathlib.Path, default=None,
+                   help="training run (config.json + checkpoints/); default: the shipped model")
+    p.add_argument("--train-steps", type=int, default=None,
+                   help="train from scratch for this many steps into --workdir first (fast preset)")
+    p.add_argument("--seed", type=int, default=1, help="held-out seed of --split test")
     p.add_argument("--step", type=int, default=None, help="checkpoint step (default latest)")
     p.add_argument("--image", type=pathlib.Path, help="image file (RGB)")
     p.add_argument("--boxes", type=pathlib.Path, help="JSON file: list of [u_min, v_min, u_max, v_max]")
     p.add_argument("--K", type=str, default=None, help="fx,fy,cx,cy (default: the training camera)")
     p.add_argument("--split", choices=("train", "test"), default=None, help="use the synthetic split instead")
     p.add_argument("--num", type=int, default=8, help="detections from --split")
+    p.add_argument("--class-id", type=int, default=0,
+                   help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)")
     p.add_argument("--out", type=pathlib.Path, required=True)
     a = p.parse_args()
 
@@ -38,16 +50,40 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxsem.volumon import config_from_dict, draw_predictions, load_trained, make_batch, make_predict_fn, prepare_inputs
+    from jaxsem.volumon import (
+        config_from_dict,
+        draw_predictions,
+        get_config,
+        held_out_set,
+        load_pretrained,
+        load_trained,
+        make_batch,
+        make_predict_fn,
+        prepare_inputs,
+        train_and_evaluate,
+    )
 
-    cfg = config_from_dict(json.loads((a.workdir / "config.json").read_text()))
-    model, variables = load_trained(a.workdir, cfg, a.step)
+    if a.train_steps is not None:
+        if a.workdir is None:
+            p.error("--train-steps needs --workdir (where the new model is trained)")
+        train_and_evaluate(get_config("both", "fast").replace(num_steps=a.train_steps), a.workdir, progress=False)
+    if a.workdir is not None and a.step is not None:
+        cfg = config_from_dict(json.loads((a.workdir / "config.json").read_text()))
+        model, variables = load_trained(a.workdir, cfg, a.step)
+    else:
+        try:
+            model, variables, cfg, _ = load_pretrained(a.workdir)
+        except ValueError as exc:
+            raise SystemExit(f"--workdir: {exc}")
     predict = make_predict_fn(model, cfg)
     a.out.mkdir(parents=True, exist_ok=True)
     records = []
     if a.split is not None:
-        b = make_batch(cfg.seed, np.arange(a.num), cfg.scene, cfg.model.input_size, cfg.model.global_padding, a.split,
-                       keep_images=True)
+        if cfg.data == "device" and a.split == "test":
+            b = held_out_set(a.seed, a.num, cfg.scene, cfg.model.input_size, cfg.model.global_padding, keep_images=True)
+        else:
+            b = make_batch(cfg.seed, np.arange(a.num), cfg.scene, cfg.model.input_size, cfg.model.global_padding,
+                           a.split, keep_images=True)
         _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
         K = np.asarray(b["K"][0])
         for i in range(a.num):
@@ -76,8 +112,9 @@ def main():
             K = cfg.scene.K().astype(np.float64)
         local, glob = prepare_inputs(img, boxes, cfg.model.input_size, cfg.model.global_padding)
         n = len(boxes)
+        class_ids = jnp.full(n, a.class_id, jnp.int32)
         _, ell, _ = predict(variables, local, glob, jnp.asarray(boxes, jnp.float32), jnp.broadcast_to(jnp.asarray(K, jnp.float32), (n, 3, 3)),
-                            jnp.zeros(n, jnp.int32))
+                            class_ids)
         es = [[np.asarray(x[i]) for x in ell] for i in range(n)]
         for i, e in enumerate(es):
             records.append({"index": i, "box": boxes[i].tolist(), "rotation": e[0].tolist(), "center": e[1].tolist(),

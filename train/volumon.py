@@ -14,15 +14,20 @@ Re-running with the same ``--workdir`` resumes from the latest checkpoint. Write
 import argparse
 import json
 import pathlib
+import sys
 
 from jaxsem.volumon import VARIANTS, get_config, train_and_evaluate
+from jaxsem.volumon._configs import SIZES
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--workdir", type=pathlib.Path, required=True)
     p.add_argument("--variant", choices=VARIANTS, default="both")
-    p.add_argument("--size", choices=("cpu", "thesis", "tiny"), default="cpu")
+    p.add_argument("--size", choices=SIZES, default="fast", help="config preset (fast: the shipped model's CPU preset)")
+    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+    p.add_argument("--stop-after", type=int, default=None, help="stop after this many steps of this call (a chunk)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.add_argument("--steps", type=int, default=None, help="number of training steps")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--lr", type=float, default=None)
@@ -37,7 +42,13 @@ def main():
                                      num_train=a.num_train, seed=a.seed, checkpoint_every=a.checkpoint_every,
                                      eval_every=a.eval_every, num_eval=a.num_eval).items() if v is not None}
     cfg = cfg.replace(**changes)
-    result = train_and_evaluate(cfg, a.workdir, log=print)
+    try:
+        result = train_and_evaluate(cfg, a.workdir, log=lambda line: print(line, flush=True), force=a.force,
+                                    stop_after=a.stop_after, progress=False)
+    except ValueError as exc:
+        if a.debug:
+            raise
+        sys.exit(f"error: {exc}")
     if result["eval"] is not None:
         print(json.dumps(result["eval"], indent=1))
     _plot(a.workdir)

@@ -1,4 +1,9 @@
-"""VoluMon demo: train on a small synthetic stereo set, predict ellipsoids on held-out images.
+"""VoluMon demo: the shipped model on held-out synthetic images (or train one from scratch).
+
+By default the demo loads the model that ships in the package (``jaxsem/volumon/pretrained``,
+see its ``MODEL_CARD.md``), predicts ellipsoids for held-out detections of four classes (cracker
+box, ball, melon, soup can; unseen backgrounds), refines them with PostOpt and draws them.
+``train=True`` (or no shipped model) runs the older path below instead:
 
 The training set is rendered on the fly by :mod:`jaxsem.volumon`'s exact ray-caster (stereo
 boxes, depth, masks of cracker-box-like cuboids over random backgrounds); the held-out split
@@ -16,15 +21,72 @@ import pathlib
 import numpy as np
 
 
-def run(out_dir: pathlib.Path, quick: bool) -> str:
+def run(out_dir: pathlib.Path, quick: bool, train: bool = False) -> str:
+    from jaxsem.volumon import PRETRAINED_DIR
+
+    if not train and (PRETRAINED_DIR / "volumon_fast.npz").exists():
+        return _run_shipped(pathlib.Path(out_dir), quick)
+    return _run_training(pathlib.Path(out_dir), quick)
+
+
+def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxsem.volumon import draw_predictions, evaluate_predictions, get_config, make_batch, make_predict_fn, postopt, train_and_evaluate
+    from jaxsem.volumon import (
+        draw_predictions,
+        evaluate_held_out,
+        held_out_set,
+        load_pretrained,
+        make_predict_fn,
+    )
 
-    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model, variables, cfg, meta = load_pretrained()
+    num = 16 if quick else 64
+    res = evaluate_held_out(model, variables, cfg, seed=1, num=num, postopt_steps=0 if quick else 50)
+    b = held_out_set(1, 8, cfg.scene, cfg.model.input_size, cfg.model.global_padding, keep_images=True, batch_size=8)
+    _, ell, _ = make_predict_fn(model, cfg)(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    K = np.asarray(b["K"][0])
+    fig, axes = plt.subplots(2, 4, figsize=(12, 5))
+    for i, ax in enumerate(axes.ravel()):
+        e = [np.asarray(x[i]) for x in ell]
+        truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
+        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i:i + 1]), truth)
+    fig.suptitle(f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)")
+    fig.tight_layout()
+    fig.savefig(out_dir / "volumon_predictions.png", dpi=100)
+    plt.close(fig)
+    (out_dir / "volumon.json").write_text(json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1))
+    lines = [f"VoluMon shipped model (step {meta.get('step')}), {res['num']} held-out detections of 4 classes",
+             f"{'method':<22}{'size err':>9}{'size corr':>10}{'trans AUC':>10}{'ADI AUC':>9}{'centre (m)':>11}",
+             (f"{'network':<22}{res['median_size_rel_error']:>9.2f}{res['size_corr']:>10.2f}{res['trans_auc']:>10.2f}"
+              f"{res['adi_auc']:>9.2f}{res['median_center_error_m']:>11.3f}")]
+    if "postopt_trans_auc" in res:
+        lines.append(f"{'network + PostOpt(50)':<22}{res['postopt_median_size_rel_error']:>9.2f}{res['postopt_size_corr']:>10.2f}"
+                     f"{res['postopt_trans_auc']:>10.2f}{res['postopt_adi_auc']:>9.2f}{res['postopt_median_center_error_m']:>11.3f}")
+    lines.append(f"constant mean-size baseline: size err {res['baseline_median_size_rel_error']:.2f}")
+    return "\n".join(lines)
+
+
+def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxsem.volumon import (
+        draw_predictions,
+        evaluate_predictions,
+        get_config,
+        make_batch,
+        make_predict_fn,
+        postopt,
+        train_and_evaluate,
+    )
+
     out_dir.mkdir(parents=True, exist_ok=True)
     if quick:
         cfg = get_config("dual", "tiny").replace(num_train=64, batch_size=8, num_steps=40, learning_rate=3e-3,
@@ -32,7 +94,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         num_test = 16
     else:
         cfg = get_config("both", "cpu").replace(num_steps=300, batch_size=16, num_train=800, num_eval=0,
-                                                checkpoint_every=100)
+                                                checkpoint_every=100, data="host")
         num_test = 64
     res = train_and_evaluate(cfg, out_dir / "volumon_run", progress=False)
     st = res["state"]

@@ -190,6 +190,10 @@ def expected_params(phi, class_logits):
     return jnp.sum(p[..., None] * phi, axis=-2)
 
 
+# allocentric quaternions [w, x, y, z] of the head's initial bias (see VoluMonConfig.rotation_init)
+ROTATION_INITS = {"identity": (1.0, 0.0, 0.0, 0.0), "short_axis_along_ray": (0.5, -0.5, -0.5, -0.5)}
+
+
 @dataclasses.dataclass(frozen=True)
 class VoluMonConfig:
     """Network sizes. Defaults are the CPU-sized config (width 0.35, 64 x 64); the thesis uses
@@ -202,7 +206,21 @@ class VoluMonConfig:
       num_classes: N; the heads output N x 10 free parameters (and N class logits if N > 1).
       global_padding: fraction of the box size kept around the box in the masked global image.
       backbone: "mobilenet_v2" (the thesis) or "small_cnn" (four strided 3x3 convolutions with
-        batch norm: compiles in seconds; for unit tests and the quick demo only).
+        batch norm: compiles in seconds; the CPU preset -- XLA's CPU depthwise convolutions make a
+        width-0.35 MobileNetV2 at 64 x 64 about 40x slower to train on a 2-core CPU, 2.4 s against
+        0.055 s per step of 32).
+      cnn_width: channels of the first ``small_cnn`` layer (then 2x, 4x, 4x).
+      rotation_init: starting allocentric rotation of the head's bias. "identity" (object axes =
+        camera axes: the longest axis d2 along the viewing ray) or "short_axis_along_ray" (object
+        x, the shortest axis d0, along the ray; y, z across the image). A box (silhouette) says
+        nothing about the extent along the ray, and the visible surface little: started at the
+        identity, the untrained rotation hides the longest axis there, where it inflates unseen
+        (the size collapse, seen as near-circle overlays); along the shortest axis the error
+        of the unseen extent is bounded by the ordering d0 <= d1 <= d2 of the seen ones.
+      box_input: also feed the input box, normalised by the intrinsics (:func:`box_features`), to
+        both heads. The thesis' network sees the box only through the resized masked global image,
+        from which a small CNN reads the box's pixel size -- hence the depth -- poorly; the
+        pseudo-disparity is proportional to that size for a class of fixed size.
     """
 
     width_multiplier: float = 0.35
@@ -211,8 +229,13 @@ class VoluMonConfig:
     num_classes: int = 1
     global_padding: float = 0.1
     backbone: str = "mobilenet_v2"
+    cnn_width: int = 16
+    box_input: bool = False
+    rotation_init: str = "identity"
 
     def __post_init__(self):
+        if self.rotation_init not in ROTATION_INITS:
+            raise ValueError(f"rotation_init: expected one of {tuple(ROTATION_INITS)}, got {self.rotation_init!r}")
         if self.backbone not in ("mobilenet_v2", "small_cnn"):
             raise ValueError(f"backbone: expected 'mobilenet_v2' or 'small_cnn', got {self.backbone!r}")
         if not self.width_multiplier > 0:
@@ -237,6 +260,22 @@ class SmallCNN(nn.Module):
         return jnp.mean(x, axis=(-3, -2))
 
 
+NUM_BOX_FEATURES = 6
+
+
+def box_features(box, K):
+    """Box normalised by the intrinsics (..., 6): the corners as ray slopes ``(u - c_x) / f_x``,
+    ``(v - c_y) / f_y`` and ``log`` of the box's width and height over the focal lengths."""
+    box = jnp.asarray(box)
+    K = jnp.asarray(K, box.dtype)
+    fx, fy, cx, cy = K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]
+    x0, y0 = (box[..., 0] - cx) / fx, (box[..., 1] - cy) / fy
+    x1, y1 = (box[..., 2] - cx) / fx, (box[..., 3] - cy) / fy
+    w = jnp.maximum(x1 - x0, 1e-4)
+    h = jnp.maximum(y1 - y0, 1e-4)
+    return jnp.stack([x0, y0, x1, y1, jnp.log(w), jnp.log(h)], -1)
+
+
 class VoluMonOutput(NamedTuple):
     """phi: (..., N, 10) free parameters per class; class_logits: (..., N) (zeros if N == 1)."""
 
@@ -244,13 +283,13 @@ class VoluMonOutput(NamedTuple):
     class_logits: jax.Array
 
 
-def _head_bias_init(num_classes: int, part: str):
+def _head_bias_init(num_classes: int, part: str, quaternion=(1.0, 0.0, 0.0, 0.0)):
     # Start from sensible ellipsoids: identity allocentric quaternion, centroid at the box centre,
     # mid-range sizes and depth. The kernels start small so the bias dominates early on.
     def init(key, shape, dtype=jnp.float32):
         if part == "local":
             row = np.zeros(9, np.float32)
-            row[3] = 1.0  # quaternion w
+            row[3:7] = quaternion  # allocentric quaternion [w, x, y, z]
             return jnp.asarray(np.tile(row, num_classes), dtype)
         return jnp.zeros(shape, dtype)
 
@@ -260,15 +299,16 @@ def _head_bias_init(num_classes: int, part: str):
 class VoluMonNet(nn.Module):
     """The two-branch VoluMon network (figure 5-2).
 
-    ``__call__(local_patch, global_image, train)``: both (B, S, S, 3) float images in [0, 1]
-    (see :func:`jaxsem.volumon.prepare_inputs`) -> :class:`VoluMonOutput` with ``phi``
-    (B, N, 10) and ``class_logits`` (B, N).
+    ``__call__(local_patch, global_image, train, box_feats)``: both (B, S, S, 3) float images in
+    [0, 1] (see :func:`jaxsem.volumon.prepare_inputs`) and, with ``config.box_input``, the
+    (B, 6) :func:`box_features` -> :class:`VoluMonOutput` with ``phi`` (B, N, 10) and
+    ``class_logits`` (B, N).
     """
 
     config: VoluMonConfig = VoluMonConfig()
 
     @nn.compact
-    def __call__(self, local_patch, global_image, train: bool = False) -> VoluMonOutput:
+    def __call__(self, local_patch, global_image, train: bool = False, box_feats=None) -> VoluMonOutput:
         cfg = self.config
         n = cfg.num_classes
         # ImageNet normalisation, as torchvision's pretrained MobileNetV2 expects
@@ -277,14 +317,20 @@ class VoluMonNet(nn.Module):
         if cfg.backbone == "mobilenet_v2":
             make = lambda name: MobileNetV2(cfg.width_multiplier, name=name)
         else:
-            make = lambda name: SmallCNN(name=name)
+            make = lambda name: SmallCNN(width=cfg.cnn_width, name=name)
         fl = make("local_backbone")((local_patch - mean) / std, train)
         fg = make("global_backbone")((global_image - mean) / std, train)
         small = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
+        if cfg.box_input:
+            if box_feats is None:
+                box_feats = jnp.zeros(fl.shape[:-1] + (NUM_BOX_FEATURES,), fl.dtype)
+            fl = jnp.concatenate([fl, box_feats.astype(fl.dtype)], -1)
+            fg = jnp.concatenate([fg, box_feats.astype(fg.dtype)], -1)
         h = fl
         for i, w in enumerate(cfg.hidden):
             h = nn.relu(nn.Dense(w, name=f"local_fc{i}")(h))
-        local = nn.Dense(9 * n, kernel_init=small, bias_init=_head_bias_init(n, "local"), name="local_out")(h)
+        local = nn.Dense(9 * n, kernel_init=small, bias_init=_head_bias_init(n, "local", ROTATION_INITS[cfg.rotation_init]),
+                         name="local_out")(h)
         g = fg
         for i, w in enumerate(cfg.hidden):
             g = nn.relu(nn.Dense(w, name=f"global_fc{i}")(g))

@@ -19,7 +19,13 @@ from ._losses import (
     stereo_right_T_left as stereo_right_T_left,
     volumon_loss as volumon_loss,
 )
-from ._synthetic import CLASSES as CLASSES, SceneConfig as SceneConfig, make_batch as make_batch
+from ._synthetic import (
+    CLASSES as CLASSES,
+    SHAPE_IDS as SHAPE_IDS,
+    VOLUMON_CLASS_NAMES as VOLUMON_CLASS_NAMES,
+    SceneConfig as SceneConfig,
+    make_batch as make_batch,
+)
 from ._configs import (
     VARIANTS as VARIANTS,
     config_from_dict as config_from_dict,
@@ -45,6 +51,24 @@ from ._train import (
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
 )
+from ._device_data import (
+    augmentation_numbers as augmentation_numbers,
+    device_batch as device_batch,
+    eval_key as eval_key,
+    held_out_set as held_out_set,
+    sample_scene as sample_scene,
+    train_key as train_key,
+)
+from ._losses import oracle_loss_per_sample as oracle_loss_per_sample, shape_box as shape_box, shape_distance as shape_distance
+from ._eval import size_errors as size_errors
+from ._pretrained import (
+    PRETRAINED_DIR as PRETRAINED_DIR,
+    evaluate_held_out as evaluate_held_out,
+    export_pretrained as export_pretrained,
+    load_pretrained as load_pretrained,
+    mean_size_radii as mean_size_radii,
+)
+from ._train import ConfigMismatchError as ConfigMismatchError
 from ._draw import box_corners_2d as box_corners_2d, conic_outline as conic_outline, draw_predictions as draw_predictions
 from ._refine import (
     init_from_points as init_from_points,

@@ -57,6 +57,37 @@ def _cuboid_unit_points(n: int, half) -> np.ndarray:
     return u * half[:, None, :]
 
 
+def _cylinder_unit_points(n: int, half) -> np.ndarray:
+    """Deterministic area-weighted points on elliptic cylinders (axis z) of half extents (B, 3) -> (B, n, 3)."""
+    rng = np.random.default_rng(54321)
+    half = np.asarray(half, np.float64)
+    a, b, c = half[:, 0], half[:, 1], half[:, 2]
+    side = 2 * np.pi * np.sqrt(0.5 * (a * a + b * b)) * 2 * c  # Ramanujan-free approximation of the side area
+    caps = 2 * np.pi * a * b
+    p_side = side / (side + caps)
+    theta = rng.uniform(0, 2 * np.pi, (half.shape[0], n))
+    on_side = rng.uniform(size=(half.shape[0], n)) < p_side[:, None]
+    rad = np.where(on_side, 1.0, np.sqrt(rng.uniform(size=(half.shape[0], n))))
+    z = np.where(on_side, rng.uniform(-1, 1, (half.shape[0], n)), np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0))
+    return np.stack([rad * np.cos(theta), rad * np.sin(theta), z], -1) * half[:, None, :]
+
+
+def size_errors(pred_radii, gt_half_extents):
+    """Per-object relative size error (B,) and the Pearson correlation of all sorted radii.
+
+    Each object's three radii are sorted, predicted and true; its error is the mean over the three
+    of ``|r_pred - r_true| / r_true``. The correlation is over all 3B sorted radii pairs (0 when
+    either side is constant).
+    """
+    p = np.sort(np.asarray(pred_radii, np.float64), -1)
+    t = np.sort(np.asarray(gt_half_extents, np.float64), -1)
+    rel = np.mean(np.abs(p - t) / t, -1)
+    pf, tf = p.ravel(), t.ravel()
+    if pf.size < 2 or np.ptp(pf) == 0 or np.ptp(tf) == 0:
+        return rel, 0.0
+    return rel, float(np.corrcoef(pf, tf)[0, 1])
+
+
 @jax.jit
 def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, gt_local, pred_dirs, gt_h):
     # deterministic sample sets (no threefry: its compile costs seconds on this CPU)
@@ -74,15 +105,22 @@ def evaluate_predictions(pred, gt, max_threshold: float = 0.1) -> dict:
     Args:
       pred: dict with ``rotation`` (B, 3, 3), ``center`` (B, 3), ``radii`` (B, 3) (camera frame).
       gt: dict with ``gt_rotation``, ``gt_center``, ``gt_half_extents``, ``gt_shape_id`` (0 cuboid,
-        1 ellipsoid) and optionally ``sample_mask`` (skipped samples are left out).
+        1 ellipsoid, 2 cylinder along z) and optionally ``sample_mask`` (skipped samples are left out).
 
     Returns:
       dict of floats: ``trans_auc``, ``adi_auc`` (0-10, thresholds up to ``max_threshold`` m),
-      ``iou`` (mean 3D IoU), ``trans_median``, ``adi_median`` (m), ``n``; plus ``per_sample``-free
-      summary only (use :func:`detection_errors` for arrays).
+      ``iou`` (mean 3D IoU), ``trans_median``, ``adi_median`` (m), ``n``; the size figures of
+      :func:`size_errors` (``median_size_rel_error``, ``size_corr``) and
+      ``median_center_error_m`` (= ``trans_median``); summaries only (use
+      :func:`detection_errors` for arrays).
     """
     trans, adi, iou = detection_errors(pred, gt)
+    keep = np.asarray(gt.get("sample_mask", np.ones(len(gt["gt_center"]), bool)), bool)
+    rel, corr = size_errors(np.asarray(pred["radii"])[keep], np.asarray(gt["gt_half_extents"])[keep])
     return {
+        "median_size_rel_error": float(np.median(rel)) if rel.size else float("nan"),
+        "size_corr": corr,
+        "median_center_error_m": float(np.median(trans)) if trans.size else float("nan"),
         "trans_auc": float(metrics.auc_pass_rate(trans, max_threshold)),
         "adi_auc": float(metrics.auc_pass_rate(adi, max_threshold)),
         "iou": float(np.mean(iou)) if iou.size else 0.0,
@@ -100,6 +138,7 @@ def detection_errors(pred, gt):
     shape = sel(gt["gt_shape_id"])
     dirs = _sphere_directions(NUM_TRUE_POINTS)
     local = np.where((shape == 0)[:, None, None], _cuboid_unit_points(NUM_TRUE_POINTS, gt_h), dirs[None] * gt_h[:, None, :])
+    local = np.where((shape == 2)[:, None, None], _cylinder_unit_points(NUM_TRUE_POINTS, gt_h), local)
     f = lambda x: jnp.asarray(x, jnp.float32)
     trans, adi, iou = _errors(f(sel(pred["rotation"])), f(sel(pred["center"])), f(sel(pred["radii"])),
                               f(sel(gt["gt_rotation"])), f(sel(gt["gt_center"])), f(local),

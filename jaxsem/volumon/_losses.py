@@ -39,8 +39,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..models._volumon import Ellipsoid
-from ..quadrics import algebraic_distance, project_bbox, safe_div, texture_plane_depth
+from ..models import Ellipsoid
+from ..quadrics import (
+    algebraic_distance,
+    cuboid_corners,
+    project_bbox,
+    project_points,
+    safe_div,
+    texture_plane_depth,
+)
+from ._synthetic import CYLINDER_RIM
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +68,21 @@ class LossConfig:
         (sizes in ``length_unit``). 1 (default): Solina and Bajcsy's ``(sqrt(d0 d1 d2) x^T Q x)^2``,
         which the thesis cites for this term; 0.5: eq. 5.12 read literally, which still favours
         large ellipsoids (see the module docstring); 0: no weight.
+      shape_aware: render the prediction with its class's shape in the dual and primal terms (a
+        cuboid class: the box of the cuboid with half extents = radii, and a superquadric
+        inside-outside function; see :func:`shape_box`, :func:`shape_distance`); needs
+        ``class_shape`` (B,) in the batch. False: the thesis' ellipsoid for every class.
+      primal_distance: "algebraic" (eq. 5.12: ``x^T Q x``, weighted by the size) or "radial" (the
+        radial Euclidean distance ``|x - t| |1 - G(x)^(-1/2)|`` from the point to the surface
+        along the line through the centre, ``G = x^T Q x + 1`` or its superquadric form, in
+        ``length_unit``, squared; no size weight). The algebraic distance is bounded inside the
+        object (>= -1) and unbounded outside, so when the centre is uncertain (early training,
+        depth from one view) a larger object that swallows the points costs less than a
+        misplaced one of the right size; the network then inflates the axis a silhouette cannot
+        see, the one along the viewing ray (the size collapse). The radial distance is
+        symmetric and in metres.
+      alpha_O: weight of the fully supervised *oracle* term (:func:`oracle_loss`, 3D labels; a
+        diagnostic upper bound on what the backbone can learn, not a VoluMon variant).
     """
 
     alpha_P: float = 1.0
@@ -72,12 +95,17 @@ class LossConfig:
     invalid_penalty: float = 1e5
     min_depth: float = 0.05
     primal_size_power: float = 1.0
+    shape_aware: bool = False
+    alpha_O: float = 0.0
+    primal_distance: str = "algebraic"
 
     def __post_init__(self):
         for name in ("alpha_P", "alpha_D", "alpha_S", "alpha_C", "eps_v", "invalid_penalty", "min_depth",
-                     "primal_size_power"):
+                     "primal_size_power", "alpha_O"):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"{name}: expected a non-negative number, got {getattr(self, name)!r}")
+        if self.primal_distance not in ("algebraic", "radial"):
+            raise ValueError(f"primal_distance: expected 'algebraic' or 'radial', got {self.primal_distance!r}")
         for name in ("length_unit", "pixel_scale"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"{name}: expected a positive number, got {getattr(self, name)!r}")
@@ -105,13 +133,62 @@ def stereo_right_T_left(baseline, dtype=jnp.float32):
     return T.at[..., 0, 3].set(-b)
 
 
-def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig()):
+SHAPE_CUBOID, SHAPE_ELLIPSOID, SHAPE_CYLINDER = 0, 1, 2
+SUPERQUADRIC_EPS = 0.1  # Solina-Bajcsy exponent of a cuboid's faces / a cylinder's caps
+
+
+def shape_box(rotation, center, radii, shape, K, camera_T_world):
+    """Image box (..., 4) and validity (...) of the object of semi-axes ``radii`` drawn with ``shape``.
+
+    ``shape`` (...) int: 0 cuboid (box of the 8 corners of half extents ``radii``,
+    :func:`jaxsem.quadrics.cuboid_corners`), 1 ellipsoid (:func:`jaxsem.quadrics.project_bbox`),
+    2 cylinder along the object's z axis (box of its two rims, sampled at 48 points: within 0.2 %
+    of the radius). Valid where the ellipsoid is projectable and all bounding-box corners lie in front of
+    the camera.
+    """
+    ell, valid = project_bbox(rotation, center, radii, K, camera_T_world)
+    corners = cuboid_corners(rotation, center, radii)
+    pose = camera_T_world[..., None, :, :]
+    uv, depth = project_points(corners, K[..., None, :, :], pose)
+    cub = jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
+    rim = jnp.einsum("...ij,...nj->...ni", rotation, jnp.asarray(CYLINDER_RIM, center.dtype) * radii[..., None, :])
+    uv_c, _ = project_points(rim + center[..., None, :], K[..., None, :, :], pose)
+    cyl = jnp.concatenate([uv_c.min(-2), uv_c.max(-2)], -1)
+    shape = jnp.asarray(shape)[..., None]
+    box = jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, ell))
+    return box, valid & jnp.all(depth > 1e-3, -1)
+
+
+def shape_distance(points, rotation, center, radii, shape):
+    """Inside-outside function (..., J) of points (..., J, 3) for the object drawn with ``shape`` (...).
+
+    Ellipsoid (1): ``x^T Q x`` (:func:`jaxsem.quadrics.algebraic_distance`). Cuboid (0) and
+    cylinder (2): Solina and Bajcsy's superquadric ``F - 1`` with ``F = ((x/a)^(2/e2) +
+    (y/b)^(2/e2))^(e2/e1) + (z/c)^(2/e1)`` raised to ``e1`` (so it is ``~ 2 delta / r`` near the
+    surface, as the ellipsoid's), ``e1 = e2 = 0.1`` for a cuboid, ``e1 = 0.1, e2 = 1`` for a
+    cylinder; evaluated as a log-sum-exp (finite for any point, also at the centre).
+    """
+    q_ell = algebraic_distance(points, rotation, center, radii)
+    x = jnp.einsum("...ji,...nj->...ni", rotation, points - center[..., None, :]) / radii[..., None, :]
+    tiny = jnp.finfo(x.dtype).tiny ** 0.5
+    e = SUPERQUADRIC_EPS
+    lx = jnp.log(jnp.square(x) + tiny)  # log x_i^2
+    cub = jnp.exp(e * jax.nn.logsumexp(lx / e, axis=-1)) - 1.0
+    lxy = jnp.log(jnp.square(x[..., 0]) + jnp.square(x[..., 1]) + tiny)
+    cyl = jnp.exp(e * jnp.logaddexp(lxy / e, lx[..., 2] / e)) - 1.0
+    shape = jnp.asarray(shape)[..., None]
+    return jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, q_ell))
+
+
+def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig(),
+                         shape=None):
     """Per-sample ``e_b(B_L, h(q, P_L)) + e_b(B_R, h(q, P_R))``, with the invalid-geometry penalty.
 
     Args:
       ellipsoid: in the left camera frame, batch (...).
       box_left, box_right: (..., 4) labelled boxes (pixels).
       K: (..., 3, 3) intrinsics (both cameras); right_T_left: (..., 4, 4).
+      shape: optional (...) class shapes (:func:`shape_box`); None: ellipsoids (the thesis).
 
     Returns:
       (...) per-sample loss (finite, with finite gradients).
@@ -120,7 +197,10 @@ def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_l
     eye = jnp.broadcast_to(jnp.eye(4, dtype=t.dtype), t.shape[:-1] + (4, 4))
     total = 0.0
     for box_true, pose in ((box_left, eye), (box_right, right_T_left)):
-        pred, valid = project_bbox(R, t, r, K, pose)
+        if shape is None:
+            pred, valid = project_bbox(R, t, r, K, pose)
+        else:
+            pred, valid = shape_box(R, t, r, shape, K, pose)
         err = box_error(box_true, pred, config.pixel_scale)
         near, _ = texture_plane_depth(R, t, r, pose)
         # the penalty grows as the ellipsoid crosses the image plane and leads back in front of it
@@ -129,35 +209,47 @@ def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_l
     return total
 
 
-def dual_loss(ellipsoid, box_left, box_right, K, right_T_left, sample_mask=None, config: LossConfig = LossConfig()):
+def dual_loss(ellipsoid, box_left, box_right, K, right_T_left, sample_mask=None, config: LossConfig = LossConfig(),
+              shape=None):
     """L_D (eq. 5.11): mean over samples of the stereo box error; scalar."""
-    per = dual_loss_per_sample(ellipsoid, box_left, box_right, K, right_T_left, config)
+    per = dual_loss_per_sample(ellipsoid, box_left, box_right, K, right_T_left, config, shape)
     mask = jnp.ones(per.shape, bool) if sample_mask is None else jnp.asarray(sample_mask, bool)
     mask = mask & jnp.all(box_left[..., 2:] > box_left[..., :2], -1)  # degenerate label: skip
     return _masked_mean(per, mask)
 
 
-def primal_loss_per_sample(ellipsoid: Ellipsoid, points, point_mask, config: LossConfig = LossConfig()):
+def primal_loss_per_sample(ellipsoid: Ellipsoid, points, point_mask, config: LossConfig = LossConfig(), shape=None):
     """Per-sample mean of ``(d0 d1 d2)^p (x^T Q x)^2`` (eq. 5.12, ``p = primal_size_power``) over valid points.
 
     Args:
       ellipsoid: batch (...); points: (..., J, 3) in the same frame; point_mask: (..., J) bool.
+      shape: optional (...) class shapes (:func:`shape_distance`); None: ellipsoids (the thesis).
 
     Returns:
       (per_sample (...), has_points (...) bool). Samples without points give 0.
     """
     R, t, r = ellipsoid
-    q = algebraic_distance(points, R, t, r)
+    q = algebraic_distance(points, R, t, r) if shape is None else shape_distance(points, R, t, r, shape)
+    m = jnp.asarray(point_mask, bool)
+    if config.primal_distance == "radial":
+        # |x - t| |1 - G^(-1/2)| = |x - t| - (distance from the centre to the surface along x - t)
+        rho2 = jnp.sum(jnp.square(points - t[..., None, :]), -1) + 1e-12
+        G = jnp.maximum(q + 1.0, 1e-12)
+        # G is homogeneous of degree 2 in x - t, so rho / sqrt(G) is the centre-to-surface distance
+        # along x - t (at most |r|; clipped there for a point at the very centre)
+        surface = jnp.minimum(jnp.sqrt(rho2 / G), jnp.linalg.norm(r, axis=-1)[..., None])
+        dist = (jnp.sqrt(rho2) - surface) / config.length_unit
+        per = safe_div(jnp.sum(jnp.where(m, jnp.square(dist), 0.0), -1), jnp.sum(m, -1).astype(q.dtype), 1.0)
+        return per, jnp.any(m, -1)
     d = 2.0 * r / config.length_unit
     weight = jnp.prod(d, axis=-1) ** config.primal_size_power  # d > 0 by construction (eps_s)
-    m = jnp.asarray(point_mask, bool)
     per = weight * safe_div(jnp.sum(jnp.where(m, jnp.square(q), 0.0), -1), jnp.sum(m, -1).astype(q.dtype), 1.0)
     return per, jnp.any(m, -1)
 
 
-def primal_loss(ellipsoid, points, point_mask, sample_mask=None, config: LossConfig = LossConfig()):
+def primal_loss(ellipsoid, points, point_mask, sample_mask=None, config: LossConfig = LossConfig(), shape=None):
     """L_P (eq. 5.13): mean over samples that have points of the per-sample primal error; scalar."""
-    per, has = primal_loss_per_sample(ellipsoid, points, point_mask, config)
+    per, has = primal_loss_per_sample(ellipsoid, points, point_mask, config, shape)
     if sample_mask is not None:
         has = has & jnp.asarray(sample_mask, bool)
     return _masked_mean(per, has)
@@ -186,12 +278,30 @@ def size_variance_loss(sizes, class_id, num_classes: int, sample_mask=None, conf
     return jnp.sum(var) + config.eps_v
 
 
+def oracle_loss_per_sample(ellipsoid: Ellipsoid, gt_rotation, gt_center, gt_half_extents):
+    """Fully supervised loss on 3D labels (the diagnostic *oracle*), per sample (...).
+
+    ``100 sum_i log(r_i / h_i)^2`` over the sorted semi-axes (the network's sizes increase along
+    its axes) + the centre error in cm, squared + ``10 sum_i (1 - (R e_i . R_true e_pi(i))^2)``,
+    ``pi`` the axis order that sorts the true half extents (sign-free: a box is symmetric).
+    """
+    R, t, r = ellipsoid
+    order = jnp.argsort(gt_half_extents, axis=-1)
+    h = jnp.take_along_axis(gt_half_extents, order, -1)
+    size = jnp.sum(jnp.square(jnp.log(r) - jnp.log(h)), -1)
+    centre = jnp.sum(jnp.square((t - gt_center) / 0.01), -1)
+    Rt = jnp.take_along_axis(gt_rotation, jnp.broadcast_to(order[..., None, :], gt_rotation.shape), -1)
+    rot = jnp.sum(1.0 - jnp.square(jnp.sum(R * Rt, -2)), -1)
+    return 100.0 * size + centre + 10.0 * rot
+
+
 class LossTerms(NamedTuple):
     total: jax.Array
     dual: jax.Array
     primal: jax.Array
     size: jax.Array
     cls: jax.Array
+    oracle: jax.Array
 
 
 def volumon_loss(
@@ -207,12 +317,16 @@ def volumon_loss(
     dtype = ellipsoid.center.dtype
     zero = jnp.zeros((), dtype)
     mask = batch.get("sample_mask")
-    dual = primal = size = cls = zero
+    dual = primal = size = cls = oracle = zero
+    shape = batch["class_shape"] if config.shape_aware else None
     if config.alpha_D > 0:
         right_T_left = stereo_right_T_left(batch["baseline"], dtype)
-        dual = dual_loss(ellipsoid, batch["box_left"], batch["box_right"], batch["K"], right_T_left, mask, config)
+        dual = dual_loss(ellipsoid, batch["box_left"], batch["box_right"], batch["K"], right_T_left, mask, config, shape)
     if config.alpha_P > 0:
-        primal = primal_loss(ellipsoid, batch["points"], batch["point_mask"], mask, config)
+        primal = primal_loss(ellipsoid, batch["points"], batch["point_mask"], mask, config, shape)
+    if config.alpha_O > 0:
+        per = oracle_loss_per_sample(ellipsoid, batch["gt_rotation"], batch["gt_center"], batch["gt_half_extents"])
+        oracle = _masked_mean(per, jnp.ones(per.shape, bool) if mask is None else jnp.asarray(mask, bool))
     if config.alpha_S > 0:
         size = size_variance_loss(ellipsoid.sizes, batch["class_id"], num_classes, mask, config)
     if class_logits is not None and num_classes > 1 and config.alpha_C > 0:
@@ -220,6 +334,7 @@ def volumon_loss(
 
         ce = optax.softmax_cross_entropy_with_integer_labels(class_logits, batch["class_id"])
         cls = _masked_mean(ce, jnp.ones(ce.shape, bool) if mask is None else jnp.asarray(mask, bool))
-    total = config.alpha_D * dual + config.alpha_P * primal + config.alpha_S * size + config.alpha_C * cls
-    return LossTerms(total, dual, primal, size, cls)
+    total = (config.alpha_D * dual + config.alpha_P * primal + config.alpha_S * size + config.alpha_C * cls
+             + config.alpha_O * oracle)
+    return LossTerms(total, dual, primal, size, cls, oracle)
 

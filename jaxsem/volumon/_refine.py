@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ..models._volumon import Ellipsoid, ReconstructionConfig, reconstruct
+from ..models import Ellipsoid, ReconstructionConfig, reconstruct
 from ._losses import LossConfig, primal_loss_per_sample
 
 POSE_MASK = jnp.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1], bool)

@@ -22,15 +22,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..quadrics import project_bbox
+from .. import classes as _classes
+from ..quadrics import cuboid_corners, project_bbox, project_points
 from ._inputs import crop_and_resize, masked_global_image
 
-# class table: name, shape, full dimensions (m), base colour
-CLASSES = (
-    ("cracker_box", "cuboid", (0.164, 0.213, 0.072), (0.85, 0.25, 0.15)),
-    ("ball", "ellipsoid", (0.12, 0.12, 0.12), (0.2, 0.6, 0.9)),
-    ("melon", "ellipsoid", (0.14, 0.14, 0.20), (0.4, 0.8, 0.3)),
-)
+#: VoluMon's tabletop classes, rows of :data:`jaxsem.classes.CLASSES` (the one class table):
+#: (name, shape, full dimensions (m), base colour). Indices are what ``SceneConfig.classes``
+#: and the multi-class head use.
+VOLUMON_CLASS_NAMES = ("cracker_box", "ball", "melon", "soup_can")
+CLASSES = tuple((c.name, c.shape, tuple(c.dimensions), tuple(c.color)) for c in map(_classes.get, VOLUMON_CLASS_NAMES))
+#: shape ids of the generators and losses
+SHAPE_IDS = {"cuboid": 0, "ellipsoid": 1, "cylinder": 2}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +94,30 @@ def _ellipsoid_hit(o, d, r):
     return s, hit, n
 
 
+def _cylinder_hit(o, d, h):
+    """Elliptic cylinder with axis z (semi-axes h[0], h[1], half height h[2]) in its own frame."""
+    a = (d[..., 0] / h[0]) ** 2 + (d[..., 1] / h[1]) ** 2
+    b = 2 * (o[..., 0] * d[..., 0] / h[0] ** 2 + o[..., 1] * d[..., 1] / h[1] ** 2)
+    c = (o[..., 0] / h[0]) ** 2 + (o[..., 1] / h[1]) ** 2 - 1
+    disc = b * b - 4 * a * c
+    s_side = (-b - jnp.sqrt(jnp.maximum(disc, 0))) / (2 * jnp.maximum(a, 1e-12))
+    z_side = o[..., 2] + s_side * d[..., 2]
+    side_ok = (disc > 0) & (s_side > 0) & (jnp.abs(z_side) <= h[2])
+    dz = jnp.where(jnp.abs(d[..., 2]) < 1e-9, 1e-9, d[..., 2])
+    s_cap = jnp.minimum((h[2] - o[..., 2]) / dz, (-h[2] - o[..., 2]) / dz)
+    pc = o + s_cap[..., None] * d
+    cap_ok = (s_cap > 0) & ((pc[..., 0] / h[0]) ** 2 + (pc[..., 1] / h[1]) ** 2 <= 1)
+    big = jnp.asarray(1e9, o.dtype)
+    s = jnp.minimum(jnp.where(side_ok, s_side, big), jnp.where(cap_ok, s_cap, big))
+    hit = side_ok | cap_ok
+    p = o + s[..., None] * d
+    n_side = jnp.stack([p[..., 0] / h[0] ** 2, p[..., 1] / h[1] ** 2, jnp.zeros_like(s)], -1)
+    n_side = n_side / jnp.maximum(jnp.linalg.norm(n_side, axis=-1, keepdims=True), 1e-9)
+    n_cap = jnp.stack([jnp.zeros_like(s), jnp.zeros_like(s), jnp.sign(p[..., 2])], -1)
+    use_cap = cap_ok & (~side_ok | (s_cap <= s_side))
+    return s, hit, jnp.where(use_cap[..., None], n_cap, n_side)
+
+
 _FACE_TINTS = jnp.array(
     [[1.0, 1.0, 1.0], [0.55, 0.55, 0.55], [1.0, 0.85, 0.35], [0.35, 0.45, 1.0], [0.3, 1.0, 0.5], [1.0, 0.4, 0.9]]
 )
@@ -111,10 +137,11 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
     d = rays @ R  # R^T ray, row-vector form
     s_c, hit_c, n_c = _cuboid_hit(o, d, half)
     s_e, hit_e, n_e = _ellipsoid_hit(o, d, half)
-    is_cub = shape_id == 0
-    s = jnp.where(is_cub, s_c, s_e)
-    hit = jnp.where(is_cub, hit_c, hit_e)
-    n_obj = jnp.where(is_cub, n_c, n_e)
+    s_y, hit_y, n_y = _cylinder_hit(o, d, half)
+    is_cub, is_cyl = shape_id == 0, shape_id == 2
+    s = jnp.where(is_cub, s_c, jnp.where(is_cyl, s_y, s_e))
+    hit = jnp.where(is_cub, hit_c, jnp.where(is_cyl, hit_y, hit_e))
+    n_obj = jnp.where(is_cub, n_c, jnp.where(is_cyl, n_y, n_e))
     depth = jnp.where(hit, s, 0.0)  # rays have z = 1, so the ray parameter is the z-depth
     # texture: tint by the dominant local axis of the hit point (orientation is visible)
     p_local = o + s[..., None] * d
@@ -137,12 +164,22 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
 
 def cuboid_box(rotation, center, half, K, camera_T):
     """Exact image box of a cuboid from its 8 projected corners (all in front of the camera)."""
-    signs = jnp.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], rotation.dtype)
-    corners = (signs * half) @ rotation.T + center
-    cam = corners @ camera_T[:3, :3].T + camera_T[:3, 3]
-    uv = cam @ K.T
-    uv = uv[:, :2] / uv[:, 2:]
-    return jnp.concatenate([uv.min(0), uv.max(0)])
+    uv, _ = project_points(cuboid_corners(rotation, center, half), K, camera_T)
+    return jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
+
+
+_RIM = np.linspace(0.0, 2 * np.pi, 48, endpoint=False)
+#: unit points on the two rims of a cylinder (axis z): its box is theirs to within
+#: ``1 - cos(pi / 48)`` (0.2 %) of the radius
+CYLINDER_RIM = np.concatenate([np.stack([np.cos(_RIM), np.sin(_RIM), np.full_like(_RIM, z)], -1) for z in (-1.0, 1.0)])
+
+
+def cylinder_box(rotation, center, half, K, camera_T):
+    """Image box of an elliptic cylinder (axis z) from its projected rims (in front of the camera)."""
+    local = jnp.asarray(CYLINDER_RIM, center.dtype) * half[..., None, :]
+    pts = jnp.einsum("...ij,...nj->...ni", rotation, local) + center[..., None, :]
+    uv, _ = project_points(pts, K, camera_T)
+    return jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
 
 
 def _quat_to_rot_np(q):
@@ -174,7 +211,7 @@ def sample_poses(seed: int, indices, scene: SceneConfig):
         out["rotation"].append(R)
         out["center"].append(center)
         out["half"].append(half)
-        out["shape_id"].append(0 if shape == "cuboid" else 1)
+        out["shape_id"].append(SHAPE_IDS[shape])
         out["color"].append(np.asarray(color) * rng.uniform(0.85, 1.15))
         out["class_id"].append(cls)
     return {k: np.asarray(v, np.int32 if k in ("shape_id", "class_id") else np.float32) for k, v in out.items()}
@@ -197,8 +234,10 @@ def sample_noise(seed: int, indices, scene: SceneConfig):
 
 def _true_box(pose, K, camera_T):
     cub = cuboid_box(pose["rotation"], pose["center"], pose["half"], K, camera_T)
+    cyl = cylinder_box(pose["rotation"], pose["center"], pose["half"], K, camera_T)
     ell, _ = project_bbox(pose["rotation"], pose["center"], pose["half"], K, camera_T)
-    return jnp.where(pose["shape_id"] == 0, cub, ell)
+    sid = pose["shape_id"]
+    return jnp.where(sid == 0, cub, jnp.where(sid == 2, cyl, ell))
 
 
 def _render_batch(noise, poses, K, baseline, scene: SceneConfig, input_size: int, padding: float, split_test: bool, noisy_scale):
@@ -274,4 +313,5 @@ def make_batch(seed: int, indices, scene: SceneConfig = SceneConfig(), input_siz
     out["gt_center"] = jp["center"]
     out["gt_half_extents"] = jp["half"]
     out["gt_shape_id"] = jp["shape_id"]
+    out["class_shape"] = jp["shape_id"]  # the class's shape (class table), what shape-aware losses may use
     return out

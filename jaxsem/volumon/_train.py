@@ -1,10 +1,17 @@
 """Training loop: ``train_and_evaluate(config, workdir)`` (optax Adam, orbax checkpoints, tqdm).
 
+Data: with ``config.data == "device"`` (default) each step's batch is made inside the jitted train
+step from ``fold_in(train_key(seed), step)`` (:mod:`jaxsem.volumon._device_data`): no host work
+per step, one compilation. ``"host"`` keeps the numpy generator indexed by ``(seed, index)``
+(:func:`jaxsem.volumon.make_batch`, epoch permutations of ``num_train`` samples).
+
 Exact resume: the train state (step, params, batch-norm statistics, Adam state, PRNG key) is
 checkpointed every ``checkpoint_every`` steps; the data of step ``s`` is a pure function of
-``(seed, s)`` (epoch permutations seeded by ``(seed, epoch)``, augmentation numbers by
-``(seed, s)``), so a run interrupted after any checkpoint and restarted with the same config
-and workdir reproduces the uninterrupted run step for step.
+``(seed, s)``, so a run interrupted after any checkpoint and restarted with the same config
+and workdir reproduces the uninterrupted run step for step. On resume ``metrics.jsonl`` is cut
+back to the checkpoint's step (no duplicate rows), a "resumed from step N" line is logged, and a
+config that differs from the run's ``config.json`` in anything but its length and logging
+settings raises :class:`ConfigMismatchError` unless ``force=True``.
 """
 
 from __future__ import annotations
@@ -21,14 +28,23 @@ import numpy as np
 import optax
 
 from ..checkpoint import Checkpointer
-from ..models._volumon import VoluMonNet, expected_params, reconstruct, select_class_params
+from ..models import VoluMonNet, expected_params, reconstruct, select_class_params
+from ..models._volumon import box_features
 from ._configs import TrainConfig
+from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
 from ._losses import volumon_loss
 from ._synthetic import make_batch
 
 TRAIN_KEYS = ("local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points", "point_mask",
-              "class_id", "sample_mask")
+              "class_id", "sample_mask", "class_shape", "gt_rotation", "gt_center", "gt_half_extents")
+
+#: config fields that may change between the chunks of one run (length, logging, evaluation)
+RESUMABLE_FIELDS = ("num_steps", "checkpoint_every", "keep_checkpoints", "eval_every", "num_eval", "log_every")
+
+
+class ConfigMismatchError(ValueError):
+    """The config of a resumed run differs from the one its checkpoints were trained with."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -84,12 +100,20 @@ def augment(aug, local, glob):
 # --------------------------------------------------------------------------------------------
 
 
-def predict_params(model: VoluMonNet, variables, local, glob, class_id=None, class_mode="true", train=False):
-    """Network free parameters (B, 10) (class row or expectation) and class logits (B, N)."""
+def predict_params(model: VoluMonNet, variables, local, glob, class_id=None, class_mode="true", train=False,
+                   box=None, K=None):
+    """Network free parameters (B, 10) (class row or expectation) and class logits (B, N).
+
+    ``box`` (B, 4) and ``K`` (B, 3, 3) are needed by networks with ``config.box_input``."""
+    feats = None
+    if model.config.box_input:
+        if box is None or K is None:
+            raise ValueError("box, K: this network (box_input=True) needs the input boxes and intrinsics")
+        feats = box_features(box, K)
     if train:
-        out, new_vars = model.apply(variables, local, glob, train=True, mutable=["batch_stats"])
+        out, new_vars = model.apply(variables, local, glob, train=True, box_feats=feats, mutable=["batch_stats"])
     else:
-        out, new_vars = model.apply(variables, local, glob, train=False), {}
+        out, new_vars = model.apply(variables, local, glob, train=False, box_feats=feats), {}
     if model.config.num_classes == 1:
         phi = out.phi[..., 0, :]
     elif class_mode == "expectation" or class_id is None:
@@ -105,7 +129,7 @@ def make_predict_fn(model: VoluMonNet, config: TrainConfig) -> Callable:
 
     @jax.jit
     def predict(variables, local, glob, box, K, class_id=None):
-        phi, logits, _ = predict_params(model, variables, local, glob, class_id, config.class_mode)
+        phi, logits, _ = predict_params(model, variables, local, glob, class_id, config.class_mode, box=box, K=K)
         return phi, reconstruct(phi, box, K, config.recon), logits
 
     return predict
@@ -157,9 +181,24 @@ def get_train_batch(config: TrainConfig, step: int):
     return out
 
 
+def device_train_batch(config: TrainConfig, step):
+    """The batch of ``step`` (traced or int) made on the device (augmentation numbers included)."""
+    key = jax.random.fold_in(train_key(config.seed), step)
+    b = device_batch(key, config.batch_size, config.scene, config.model.input_size, config.model.global_padding,
+                     False, config.noisy)
+    out: dict[str, Any] = {k: b[k] for k in TRAIN_KEYS}
+    if config.augment:
+        out["aug"] = augmentation_numbers(jax.random.fold_in(key, 1), config.batch_size)
+    return out
+
+
 @functools.lru_cache(maxsize=16)
 def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
-    """Jitted ``(state, batch) -> (state, loss terms)`` (cached per config: no recompiles across runs)."""
+    """Jitted train step (cached per config: no recompiles across runs).
+
+    ``config.data == "device"``: ``(state) -> (state, loss terms)``, the batch made inside from
+    the state's step; ``"host"``: ``(state, batch) -> (state, loss terms)``.
+    """
     n = config.model.num_classes
 
     def loss_fn(params, batch_stats, batch):
@@ -167,14 +206,14 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
         if config.augment:
             local, glob = augment(batch["aug"], local, glob)
         phi, logits, new_vars = predict_params(
-            model, {"params": params, "batch_stats": batch_stats}, local, glob, batch["class_id"], config.class_mode, train=True
+            model, {"params": params, "batch_stats": batch_stats}, local, glob, batch["class_id"], config.class_mode, train=True,
+            box=batch["box_input"], K=batch["K"],
         )
         ell = reconstruct(phi, batch["box_input"], batch["K"], config.recon)
         terms = volumon_loss(ell, batch, config.loss, n, logits)
         return terms.total, (terms, new_vars["batch_stats"])
 
-    @jax.jit
-    def train_step(state, batch):
+    def step_fn(state, batch):
         (_, (terms, new_bs)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
             state["params"], state["batch_stats"], batch
         )
@@ -183,14 +222,28 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
         new_state = {**state, "step": state["step"] + 1, "params": params, "batch_stats": new_bs, "opt_state": opt_state}
         return new_state, terms._asdict()
 
-    return train_step
+    if config.data == "device":
+        return jax.jit(lambda state: step_fn(state, device_train_batch(config, state["step"])))
+    return jax.jit(step_fn)
 
 
-def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_size: int = 32, split: str = "test"):
-    """Predict the held-out split and score it (translation / ADI AUC, 3D IoU, ...)."""
+def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_size: int = 32, split: str = "test",
+             seed: int | None = None):
+    """Predict held-out samples and score them (translation / ADI AUC, 3D IoU, size errors, ...).
+
+    ``config.data == "device"``: ``num`` samples of :func:`jaxsem.volumon.held_out_set` with seed
+    ``seed`` (default ``config.seed``; the held-out stream never meets the training stream);
+    ``"host"``: indices ``0..num-1`` of the host generator's ``split``.
+    """
     num = config.num_eval if num is None else num
     predict = make_predict_fn(model, config)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
+    if config.data == "device":
+        b = held_out_set(config.seed if seed is None else seed, num, config.scene, config.model.input_size,
+                         config.model.global_padding, config.noisy, batch_size=batch_size)
+        _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+        gt = {k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")}
+        return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), gt)
     preds, gts = [], []
     for start in range(0, num, batch_size):
         idx = np.arange(start, min(num, start + batch_size))
@@ -204,8 +257,48 @@ def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_si
     return evaluate_predictions(cat(preds), cat(gts))
 
 
+def _check_config(workdir: pathlib.Path, config: TrainConfig, force: bool) -> None:
+    path = workdir / "config.json"
+    if not path.exists():
+        return
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigMismatchError(f"{path}: cannot read the run's config ({exc}); pass force=True / --force to overwrite") from exc
+    try:  # through the dataclasses: fields added since the run was written take their defaults
+        from ._configs import config_from_dict
+
+        old = json.loads(json.dumps(_config_dict(config_from_dict(old)), default=str))
+    except (TypeError, ValueError):
+        pass
+    new = json.loads(json.dumps(_config_dict(config), default=str))
+    diff = sorted(k for k in set(old) | set(new) if k not in RESUMABLE_FIELDS and old.get(k) != new.get(k))
+    if diff and not force:
+        detail = "; ".join(f"{k}: checkpoint {old.get(k)!r}, now {new.get(k)!r}" for k in diff)
+        raise ConfigMismatchError(
+            f"{path}: the config differs from the one the checkpoints in {workdir / 'checkpoints'} were trained "
+            f"with ({detail}); use another workdir, or force=True / --force to resume anyway"
+        )
+
+
+def _truncate_metrics(path: pathlib.Path, step: int) -> None:
+    """Keep the rows of ``metrics.jsonl`` up to ``step`` (rows after the checkpoint are redone)."""
+    if not path.exists():
+        return
+    keep = []
+    for line in path.read_text().splitlines():
+        try:
+            if int(json.loads(line).get("step", 0)) <= step:
+                keep.append(line)
+        except (ValueError, AttributeError):
+            continue
+    tmp = path.with_suffix(".jsonl.tmp")
+    tmp.write_text("".join(x + "\n" for x in keep))
+    tmp.replace(path)
+
+
 def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None = None, progress: bool = True,
-                       log: Callable[[str], None] | None = None) -> dict[str, Any]:
+                       log: Callable[[str], None] | None = None, force: bool = False) -> dict[str, Any]:
     """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
 
     Args:
@@ -214,6 +307,9 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
       stop_after: stop after this many steps of *this* run (simulates an interruption; the last
         step is checkpointed).
       progress: tqdm bar with the loss terms.
+      log: called with one line per logged step (and "resumed from step N").
+      force: resume even if ``config`` differs from the run's ``config.json`` (else
+        :class:`ConfigMismatchError`); the new config is written.
 
     Returns:
       dict with ``state`` (final train state), ``model``, ``history`` (per-step loss terms of this
@@ -225,9 +321,21 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
     ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=config.keep_checkpoints)
     start = 0
     if ckpt.latest_step() is not None:
+        try:
+            _check_config(workdir, config, force)
+        except ConfigMismatchError:
+            ckpt.close()
+            raise
         state = ckpt.restore(state)
         start = int(state["step"])
-    (workdir / "config.json").write_text(json.dumps(_config_dict(config), indent=1, default=str))
+        _truncate_metrics(workdir / "metrics.jsonl", start)
+        if log is not None:
+            log(f"resumed from step {start}")
+    else:
+        _truncate_metrics(workdir / "metrics.jsonl", 0)
+    tmp = workdir / "config.json.tmp"
+    tmp.write_text(json.dumps(_config_dict(config), indent=1, default=str))
+    tmp.replace(workdir / "config.json")
     train_step = make_train_step(model, tx, config)
     history: dict[int, dict[str, float]] = {}
     end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
@@ -245,8 +353,10 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
         for step in it:
             if config.reset_optimizer_at is not None and step == config.reset_optimizer_at:
                 state = {**state, "opt_state": tx.init(state["params"])}
-            batch = get_train_batch(config, step)
-            state, terms = train_step(state, batch)
+            if config.data == "device":
+                state, terms = train_step(state)
+            else:
+                state, terms = train_step(state, get_train_batch(config, step))
             if (step + 1) % config.log_every == 0 or step + 1 == end:
                 terms = {k: float(v) for k, v in terms.items()}
                 if not all(np.isfinite(v) for v in terms.values()):
@@ -261,13 +371,16 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
                     log(" ".join(f"{k}={v:.4g}" for k, v in rec.items()))
             if (step + 1) % config.checkpoint_every == 0 or step + 1 == end:
                 ckpt.save(step + 1, state, force=True)
-            if config.eval_every and (step + 1) % config.eval_every == 0 and step + 1 < config.num_steps:
+            if config.eval_every and config.num_eval > 0 and (step + 1) % config.eval_every == 0:
                 ev = evaluate(model, state, config)
+                if step + 1 == config.num_steps:
+                    result_eval = ev
                 metrics_file.write(json.dumps({"step": step + 1, "eval": ev}) + "\n")
+                metrics_file.flush()
                 if log is not None:
                     log(f"eval step {step + 1}: " + " ".join(f"{k}={v:.4g}" for k, v in ev.items()))
         if end == config.num_steps and config.num_eval > 0:
-            result_eval = evaluate(model, state, config)
+            result_eval = result_eval or evaluate(model, state, config)
             (workdir / "eval.json").write_text(json.dumps(result_eval, indent=1))
     finally:
         metrics_file.close()

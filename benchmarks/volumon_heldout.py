@@ -1,0 +1,127 @@
+"""The shipped VoluMon model on held-out seeds (issue 10 targets), with PostOpt, a constant-size
+baseline and the ground-truth-ellipsoid ceiling row.
+
+The seeds here were never used for training or tuning (training: seed 0's training stream;
+tuning looked at seed 0's held-out stream only).
+
+    python benchmarks/volumon_heldout.py --seeds 101 202 303 --num 256
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import pathlib
+import sys
+
+import numpy as np
+
+TARGETS = {
+    "median_size_rel_error": ("<=", 0.25),
+    "size_corr": (">=", 0.6),
+    "trans_auc": (">=", 4.3),
+}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--seeds", type=int, nargs="+", default=[101, 202, 303])
+    p.add_argument("--num", type=int, default=256)
+    p.add_argument("--postopt", type=int, default=50)
+    p.add_argument(
+        "--workdir", default=None, help="a training run instead of the shipped model"
+    )
+    p.add_argument(
+        "--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results"
+    )
+    p.add_argument("--tag", default="volumon_heldout")
+    a = p.parse_args(argv)
+
+    import jax
+
+    from jaxsem.volumon import evaluate_held_out, load_pretrained
+
+    model, variables, cfg, meta = load_pretrained(a.workdir)
+    per_seed = {
+        s: evaluate_held_out(model, variables, cfg, s, a.num, postopt_steps=a.postopt)
+        for s in a.seeds
+    }
+    keys = [k for k, v in per_seed[a.seeds[0]].items() if isinstance(v, float)]
+    mean = {k: float(np.mean([per_seed[s][k] for s in a.seeds])) for k in keys}
+    dev = jax.devices()[0]
+    record = {
+        "command": "python "
+        + " ".join(
+            [os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))
+        ),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime(
+            "%Y-%m-%d %H:%M UTC"
+        ),
+        "machine": f"{os.cpu_count()}-core CPU (shared)"
+        if dev.platform == "cpu"
+        else dev.device_kind,
+        "model": meta.get("name"),
+        "model_step": meta.get("step"),
+        "seeds": a.seeds,
+        "num_per_seed": a.num,
+        "per_seed": {str(s): r for s, r in per_seed.items()},
+        "mean": mean,
+    }
+    a.out.mkdir(parents=True, exist_ok=True)
+    tmp = a.out / f"{a.tag}.json.tmp"
+    tmp.write_text(json.dumps(record, indent=1))
+    tmp.replace(a.out / f"{a.tag}.json")
+
+    def row(name, prefix):
+        m = mean
+        return (
+            f"| {name} | {m[prefix + 'median_size_rel_error']:.3f} | {m[prefix + 'size_corr']:.2f} | "
+            f"{m[prefix + 'median_center_error_m']:.3f} | {m[prefix + 'trans_auc']:.2f} | {m[prefix + 'adi_auc']:.2f} | "
+            f"{m[prefix + 'iou_auc']:.2f} | {m[prefix + 'iou']:.2f} |"
+        )
+
+    lines = [
+        "## VoluMon shipped model on held-out seeds (4 classes, unseen backgrounds)",
+        "",
+        f"Command: `{record['command']}`  ",
+        f"Date: {record['date']}  ",
+        f"Machine: {record['machine']}  ",
+        f"Model: `{meta.get('name')}`, step {meta.get('step')}; seeds {a.seeds} x {a.num} detections (mean over seeds).",
+        "",
+        "| row | median size rel. error | size corr | median centre error (m) | trans AUC | ADI AUC | IoU AUC | mean 3D IoU |",
+        "|---|---|---|---|---|---|---|---|",
+        row("network", ""),
+    ]
+    if a.postopt:
+        lines.append(row(f"network + PostOpt ({a.postopt})", "postopt_"))
+    lines.append(row("ground-truth ellipsoid (ceiling)", "ceiling_"))
+    lines.append(
+        f"| constant mean size (baseline) | {mean['baseline_median_size_rel_error']:.3f} | "
+        f"{mean['baseline_size_corr']:.2f} | - | - | - | - | - |"
+    )
+    lines += [
+        "",
+        f"Network: {mean['network_ms_per_detection']:.2f} ms per detection (batched, CPU).",
+        "",
+        "| target (network alone) | measured (mean over seeds) | per seed | met |",
+        "|---|---|---|---|",
+    ]
+    for k, (op, v) in TARGETS.items():
+        vals = [per_seed[s][k] for s in a.seeds]
+        ok = all(x <= v for x in vals) if op == "<=" else all(x >= v for x in vals)
+        lines.append(
+            f"| {k} {op} {v} | {mean[k]:.3f} | {', '.join(f'{x:.3f}' for x in vals)} | {'yes' if ok else 'no'} |"
+        )
+    tmp = a.out / f"{a.tag}.md.tmp"
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(a.out / f"{a.tag}.md")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

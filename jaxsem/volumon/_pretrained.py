@@ -1,0 +1,252 @@
+"""The shipped VoluMon model: export, load, and the one evaluation used by ``jaxsem volumon eval``.
+
+The weights ship inside the package (``jaxsem/volumon/pretrained/<name>.npz``: the flax
+variables flattened with ``/``-joined names, float32) next to ``<name>.json`` (the training
+config, the step, the seed) and ``MODEL_CARD.md``. Nothing downloads at run time.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._configs import TrainConfig, config_from_dict
+
+PRETRAINED_DIR = pathlib.Path(__file__).resolve().parent / "pretrained"
+DEFAULT_NAME = "volumon_fast"
+
+
+def _flatten(tree, prefix=""):
+    out = {}
+    for k, v in tree.items():
+        name = f"{prefix}/{k}" if prefix else str(k)
+        if isinstance(v, dict) or hasattr(v, "items"):
+            out.update(_flatten(dict(v), name))
+        else:
+            out[name] = np.asarray(v, np.float32)
+    return out
+
+
+def _unflatten(flat):
+    tree: dict = {}
+    for name, v in flat.items():
+        node = tree
+        parts = name.split("/")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = jnp.asarray(v)
+    return tree
+
+
+def export_pretrained(
+    workdir,
+    out_dir=PRETRAINED_DIR,
+    name: str = DEFAULT_NAME,
+    step: int | None = None,
+    extra: dict | None = None,
+) -> pathlib.Path:
+    """Write the checkpoint of a training run (``workdir``) as a shippable ``name.npz`` + ``name.json``.
+
+    Atomic (written to temporary names, then renamed). Returns the ``.npz`` path.
+    """
+    from ._train import load_trained
+
+    workdir = pathlib.Path(workdir)
+    cfg_path = workdir / "config.json"
+    if not cfg_path.exists():
+        raise ValueError(f"workdir: {workdir} has no config.json (not a training run)")
+    config = config_from_dict(json.loads(cfg_path.read_text()))
+    _, variables = load_trained(workdir, config, step)
+    from ..checkpoint import latest_step
+
+    used = latest_step(workdir / "checkpoints") if step is None else int(step)
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    flat = _flatten(jax.device_get(variables))
+    tmp = out_dir / f"{name}.tmp.npz"
+    np.savez_compressed(tmp, **flat)
+    tmp.replace(out_dir / f"{name}.npz")
+    meta = {
+        "name": name,
+        "step": used,
+        "config": json.loads(cfg_path.read_text()),
+        **(extra or {}),
+    }
+    tmp = out_dir / f"{name}.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=1))
+    tmp.replace(out_dir / f"{name}.json")
+    return out_dir / f"{name}.npz"
+
+
+def load_pretrained(path=None):
+    """``(model, variables, config, meta)`` of a shipped model (default: the one in the package) or of
+    a training run's workdir (a folder with ``config.json`` and ``checkpoints/``).
+
+    Raises ValueError naming the path when it is neither.
+    """
+    from ._train import init_state, load_trained
+
+    p = PRETRAINED_DIR / f"{DEFAULT_NAME}.npz" if path is None else pathlib.Path(path)
+    if p.is_dir() and (p / "config.json").exists():
+        config = config_from_dict(json.loads((p / "config.json").read_text()))
+        model, variables = load_trained(p, config)
+        from ..checkpoint import latest_step
+
+        return (
+            model,
+            variables,
+            config,
+            {"name": str(p), "step": latest_step(p / "checkpoints")},
+        )
+    if p.is_dir():
+        p = p / f"{DEFAULT_NAME}.npz"
+    meta_path = p.with_suffix(".json")
+    if not p.exists() or not meta_path.exists():
+        raise ValueError(
+            f"model: no shipped model at {p} (expected {p.name} and {meta_path.name}), "
+            "and not a training workdir with config.json"
+        )
+    meta = json.loads(meta_path.read_text())
+    config = config_from_dict(meta["config"])
+    with np.load(p) as z:
+        variables = _unflatten({k: z[k] for k in z.files})
+    _, model, _ = init_state(config)
+    return model, variables, config, meta
+
+
+def mean_size_radii(config: TrainConfig) -> np.ndarray:
+    """Sorted semi-axes (3,) of the *constant* baseline: the mean over the training classes' sorted radii."""
+    from ._synthetic import CLASSES
+
+    r = np.sort(
+        np.asarray([CLASSES[i][2] for i in config.scene.classes], np.float64) / 2, -1
+    )
+    return r.mean(0)
+
+
+def evaluate_held_out(
+    model,
+    variables,
+    config: TrainConfig,
+    seed: int,
+    num: int,
+    batch_size: int = 32,
+    postopt_steps: int = 0,
+    repeats: int = 5,
+) -> dict:
+    """The figures of ``jaxsem volumon eval`` on ``num`` held-out detections of seed ``seed``.
+
+    Returns a dict: ``num``, ``median_size_rel_error``, ``size_corr``, ``median_center_error_m``,
+    ``trans_auc``, ``adi_auc``, ``iou_auc`` (see below), ``iou`` (mean 3D IoU), ``network_ms_per_detection`` (median of
+    ``repeats`` batched forward passes after a warm-up, divided by the batch), the same size
+    figures of the constant mean-size baseline (``baseline_*``), the ground-truth ellipsoid's
+    figures (``ceiling_*``: what an exact ellipsoid scores against the true cuboids and
+    cylinders under these metrics), and with ``postopt_steps > 0``
+    the PostOpt rows (``postopt_*``).
+
+    ``iou_auc``: area under the curve "fraction of detections with 3D IoU >= tau" for tau in
+    [0, 1], times 10 (so it is on the same 0-10 scale as the other AUCs; equal to 10 x mean IoU
+    up to the trapezoid rule).
+    """
+    from ._device_data import held_out_set
+    from ._eval import detection_errors, evaluate_predictions, size_errors
+    from ._train import make_predict_fn
+
+    if int(num) < 1:
+        raise ValueError(f"num: expected a positive number of detections, got {num}")
+    b = held_out_set(
+        int(seed),
+        int(num),
+        config.scene,
+        config.model.input_size,
+        config.model.global_padding,
+        config.noisy,
+        batch_size=batch_size,
+    )
+    predict = make_predict_fn(model, config)
+    args = (variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    phi, ell, _ = jax.block_until_ready(predict(*args))
+    ts = []
+    for _ in range(int(repeats)):
+        t = time.perf_counter()
+        jax.block_until_ready(predict(*args))
+        ts.append(time.perf_counter() - t)
+    gt = {
+        k: np.asarray(b[k])
+        for k in (
+            "gt_rotation",
+            "gt_center",
+            "gt_half_extents",
+            "gt_shape_id",
+            "sample_mask",
+        )
+    }
+    pred = jax.tree.map(np.asarray, ell._asdict())
+    out: dict[str, Any] = {"num": int(np.sum(gt["sample_mask"])), "seed": int(seed)}
+    out.update(_summary(pred, gt, evaluate_predictions, detection_errors))
+    out["network_ms_per_detection"] = 1000.0 * float(np.median(ts)) / int(num)
+    keep = gt["sample_mask"].astype(bool)
+    base = np.broadcast_to(mean_size_radii(config), gt["gt_half_extents"].shape)
+    rel, corr = size_errors(base[keep], gt["gt_half_extents"][keep])
+    out["baseline_median_size_rel_error"] = float(np.median(rel))
+    out["baseline_size_corr"] = corr
+    # ceiling: the exact ground-truth ellipsoid (true pose, radii = half extents) under the same metrics
+    truth = {
+        "rotation": gt["gt_rotation"],
+        "center": gt["gt_center"],
+        "radii": gt["gt_half_extents"],
+    }
+    out.update(
+        {
+            f"ceiling_{k}": v
+            for k, v in _summary(
+                truth, gt, evaluate_predictions, detection_errors
+            ).items()
+        }
+    )
+    if postopt_steps > 0:
+        from ._refine import postopt
+
+        t = time.perf_counter()
+        _, ell_po, _ = postopt(
+            phi,
+            b["box_input"],
+            b["K"],
+            b["points"],
+            b["point_mask"],
+            config.recon,
+            config.loss,
+            int(postopt_steps),
+        )
+        jax.block_until_ready(ell_po)
+        po = _summary(
+            jax.tree.map(np.asarray, ell_po._asdict()),
+            gt,
+            evaluate_predictions,
+            detection_errors,
+        )
+        out.update({f"postopt_{k}": v for k, v in po.items()})
+        out["postopt_ms_per_detection"] = 1000.0 * (time.perf_counter() - t) / int(num)
+    return out
+
+
+def _summary(pred, gt, evaluate_predictions, detection_errors):
+    ev = evaluate_predictions(pred, gt)
+    _, _, iou = detection_errors(pred, gt)
+    tau = np.linspace(0.0, 1.0, 101)
+    rate = (iou[None, :] >= tau[:, None]).mean(1) if iou.size else np.zeros_like(tau)
+    return {
+        "median_size_rel_error": ev["median_size_rel_error"],
+        "size_corr": ev["size_corr"],
+        "median_center_error_m": ev["median_center_error_m"],
+        "trans_auc": ev["trans_auc"],
+        "adi_auc": ev["adi_auc"],
+        "iou_auc": float(10.0 * np.trapezoid(rate, tau)),
+        "iou": ev["iou"],
+    }

@@ -1,0 +1,237 @@
+"""VoluMon on-device data, shape-aware losses, resume rules (issue 10)."""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem import quadrics
+from jaxsem.models import Ellipsoid
+from jaxsem.volumon import (
+    ConfigMismatchError,
+    LossConfig,
+    SceneConfig,
+    device_batch,
+    dual_loss_per_sample,
+    get_config,
+    held_out_set,
+    init_state,
+    make_train_step,
+    primal_loss_per_sample,
+    shape_distance,
+    size_errors,
+    stereo_right_T_left,
+    train_and_evaluate,
+)
+
+SCENE = SceneConfig(
+    height=48,
+    width=64,
+    focal=55.0,
+    classes=(0, 1, 2, 3),
+    num_points=16,
+    depth_range=(0.45, 0.8),
+)
+_batch = jax.jit(lambda key: device_batch(key, 8, SCENE, 32))
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return _batch(jax.random.PRNGKey(3))
+
+
+def test_device_batch_deterministic_per_key(batch):
+    again = _batch(jax.random.PRNGKey(3))
+    for k in batch:
+        np.testing.assert_array_equal(
+            np.asarray(batch[k]), np.asarray(again[k]), err_msg=k
+        )
+    other = _batch(jax.random.PRNGKey(4))
+    assert not np.allclose(
+        np.asarray(other["gt_center"]), np.asarray(batch["gt_center"])
+    )
+    assert _batch._cache_size() == 1  # same shapes: one compilation for all keys
+
+
+def test_device_batch_geometry(batch):
+    b = {k: np.asarray(v) for k, v in batch.items()}
+    assert set(b["gt_shape_id"].tolist()) <= {0, 1, 2}
+    np.testing.assert_array_equal(b["class_shape"], b["gt_shape_id"])
+    # rectified stereo: same rows, the right box shifted left by the disparity b f / z (+- the extent)
+    np.testing.assert_allclose(
+        b["box_left"][:, [1, 3]], b["box_right"][:, [1, 3]], atol=1e-3
+    )
+    disparity = 0.06 * 55.0 / b["gt_center"][:, 2]
+    shift = 0.5 * (
+        b["box_left"][:, 0]
+        + b["box_left"][:, 2]
+        - b["box_right"][:, 0]
+        - b["box_right"][:, 2]
+    )
+    np.testing.assert_allclose(shift, disparity, rtol=0.35)
+    # surface points project inside the left box and lie on the object's surface
+    uv, _ = quadrics.project_points(b["points"], b["K"][:, None], np.eye(4)[None, None])
+    m = b["point_mask"]
+    uv = np.asarray(uv)
+    assert np.all(uv[..., 0][m] >= b["box_left"][:, None, 0].repeat(16, 1)[m] - 1)
+    assert np.all(uv[..., 0][m] <= b["box_left"][:, None, 2].repeat(16, 1)[m] + 1)
+    d = np.asarray(
+        shape_distance(
+            b["points"],
+            b["gt_rotation"],
+            b["gt_center"],
+            b["gt_half_extents"],
+            b["gt_shape_id"],
+        )
+    )
+    assert np.median(np.abs(d[m])) < 0.02
+
+
+def test_shape_aware_losses_zero_at_truth(batch):
+    b = batch
+    truth = Ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"])
+    rtl = stereo_right_T_left(b["baseline"])
+    aware = dual_loss_per_sample(
+        truth,
+        b["box_left"],
+        b["box_right"],
+        b["K"],
+        rtl,
+        LossConfig(),
+        b["class_shape"],
+    )
+    thesis = dual_loss_per_sample(
+        truth, b["box_left"], b["box_right"], b["K"], rtl, LossConfig()
+    )
+    assert float(jnp.max(aware)) < 0.05  # pixels^2: the truth reproduces its own boxes
+    boxes = np.asarray(b["gt_shape_id"]) != 1
+    # an ellipsoid with the half extents of a box or can is too small for its boxes: the size bias
+    assert float(jnp.min(thesis[boxes])) > 1.0
+    cfg = LossConfig()
+    per, _ = primal_loss_per_sample(
+        truth, b["points"], b["point_mask"], cfg, b["class_shape"]
+    )
+    per_thesis, _ = primal_loss_per_sample(truth, b["points"], b["point_mask"], cfg)
+    assert float(jnp.mean(per)) < 0.2 * float(jnp.mean(per_thesis[boxes]))
+
+    def dual_sum(r):
+        e = truth._replace(radii=r)
+        return jnp.sum(
+            dual_loss_per_sample(
+                e, b["box_left"], b["box_right"], b["K"], rtl, cfg, b["class_shape"]
+            )
+        )
+
+    g = jax.grad(dual_sum)(b["gt_half_extents"])
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_shape_distance_finite_at_centre_and_float32():
+    R = jnp.eye(3, dtype=jnp.float32)
+    t = jnp.zeros(3, jnp.float32)
+    r = jnp.array([0.1, 0.2, 0.3], jnp.float32)
+    pts = jnp.array(
+        [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.2, 0.3], [0.0, 0.0, 0.3]],
+        jnp.float32,
+    )
+    for shape in (0, 1, 2):
+        d = shape_distance(pts, R, t, r, jnp.int32(shape))
+        g = jax.grad(
+            lambda p, s=shape: jnp.sum(shape_distance(p, R, t, r, jnp.int32(s)))
+        )(pts)
+        assert d.dtype == jnp.float32
+        assert np.all(np.isfinite(np.asarray(d))) and np.all(np.isfinite(np.asarray(g)))
+        np.testing.assert_allclose(float(d[0]), -1.0, atol=1e-3)
+        np.testing.assert_allclose(
+            float(d[3]), 0.0, atol=1e-3
+        )  # on every shape (a pole / cap / face)
+    assert (
+        float(shape_distance(pts[2:3], R, t, r, jnp.int32(0))[0]) < 0.2
+    )  # corner: on the cuboid
+    assert (
+        float(shape_distance(pts[2:3], R, t, r, jnp.int32(1))[0]) > 1.5
+    )  # far outside the ellipsoid
+
+
+def test_size_errors_definition():
+    true = np.array([[0.1, 0.2, 0.3], [0.05, 0.05, 0.05]])
+    pred = np.array([[0.3, 0.1, 0.2], [0.1, 0.1, 0.1]])  # sorting: first object exact
+    rel, _ = size_errors(pred, true)
+    np.testing.assert_allclose(rel, [0.0, 1.0])
+    _, const = size_errors(np.full_like(true, 0.1), true)
+    assert const == 0.0
+
+
+def _device_cfg():
+    cfg = get_config("both", "tiny").replace(
+        data="device", num_steps=6, checkpoint_every=3, log_every=1
+    )
+    return cfg.replace(
+        scene=dataclasses.replace(cfg.scene, classes=(0, 1, 2, 3)),
+        loss=dataclasses.replace(cfg.loss, shape_aware=True),
+        model=dataclasses.replace(cfg.model, num_classes=4),
+    )
+
+
+def test_device_train_step_no_recompiles():
+    cfg = _device_cfg()
+    state, model, tx = init_state(cfg)
+    step = make_train_step(model, tx, cfg)
+    for _ in range(3):
+        state, terms = step(state)
+    assert int(state["step"]) == 3
+    assert all(np.isfinite(float(v)) for v in terms.values())
+    assert step._cache_size() == 1
+
+
+def test_resume_rules(tmp_path):
+    cfg = _device_cfg()
+    lines = []
+    full = train_and_evaluate(cfg, tmp_path / "full", progress=False)
+    train_and_evaluate(
+        cfg, tmp_path / "run", stop_after=4, progress=False
+    )  # checkpoint at 3 and 4
+    # a crash after the step-4 checkpoint but with rows written past it: they are cut back
+    with open(tmp_path / "run" / "metrics.jsonl", "a") as f:
+        f.write(json.dumps({"step": 5, "total": 1.0}) + "\n")
+    res = train_and_evaluate(cfg, tmp_path / "run", progress=False, log=lines.append)
+    assert "resumed from step 4" in lines
+    steps = [
+        json.loads(x)["step"]
+        for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
+    ]
+    assert steps == sorted(set(steps)) == list(range(1, 7))  # no duplicate rows
+    for a, b in zip(jax.tree.leaves(res["state"]), jax.tree.leaves(full["state"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # still bit-exact
+    with pytest.raises(ConfigMismatchError, match="learning_rate"):
+        train_and_evaluate(
+            cfg.replace(learning_rate=0.5, num_steps=8),
+            tmp_path / "run",
+            progress=False,
+        )
+    longer = train_and_evaluate(
+        cfg.replace(num_steps=7), tmp_path / "run", progress=False
+    )  # length may change
+    assert int(longer["state"]["step"]) == 7
+    forced = train_and_evaluate(
+        cfg.replace(learning_rate=0.5, num_steps=8),
+        tmp_path / "run",
+        progress=False,
+        force=True,
+    )
+    assert int(forced["state"]["step"]) == 8
+
+
+def test_held_out_set_is_deterministic_and_disjoint_from_training():
+    a = held_out_set(5, 4, SCENE, 32, batch_size=4)
+    b = held_out_set(5, 4, SCENE, 32, batch_size=4)
+    np.testing.assert_array_equal(
+        np.asarray(a["gt_center"]), np.asarray(b["gt_center"])
+    )
+    c = held_out_set(6, 4, SCENE, 32, batch_size=4)
+    assert not np.allclose(np.asarray(a["gt_center"]), np.asarray(c["gt_center"]))
+    with pytest.raises(ValueError, match="num"):
+        held_out_set(5, 0, SCENE, 32)
