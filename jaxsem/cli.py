@@ -49,6 +49,36 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _volumon_eval(args: argparse.Namespace) -> int:
+    """``jaxsem volumon eval``: held-out figures of the shipped model (or ``--workdir``) as JSON."""
+    import json
+
+    from jaxsem.volumon import evaluate_held_out, load_pretrained
+
+    if args.num < 1:
+        raise SystemExit(f"jaxsem volumon eval: --num must be a positive number of detections, got {args.num}")
+    if args.workdir is not None and not pathlib.Path(args.workdir).exists():
+        raise SystemExit(f"jaxsem volumon eval: --workdir {args.workdir} does not exist")
+    enable_compilation_cache()
+    try:
+        model, variables, config, meta = load_pretrained(args.workdir)
+        result = evaluate_held_out(model, variables, config, args.seed, args.num, postopt_steps=args.postopt)
+    except ValueError as exc:
+        if args.debug:
+            raise
+        raise SystemExit(f"jaxsem volumon eval: {exc}")
+    result = {"model": str(meta.get("name")), "model_step": meta.get("step"), **result}
+    text = json.dumps(result, indent=1)
+    if args.json:
+        out = pathlib.Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(text + "\n")
+        tmp.replace(out)
+    print(text)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jaxsem", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -59,6 +89,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     demo.add_argument("--quick", action="store_true", help="smallest sizes (used by the tests)")
     demo.set_defaults(func=_demo)
+    volumon = sub.add_parser("volumon", help="VoluMon: evaluate the shipped (or a trained) model")
+    vsub = volumon.add_subparsers(dest="volumon_command", required=True)
+    ev = vsub.add_parser("eval", help="held-out synthetic detections of several classes -> JSON figures")
+    ev.add_argument("--seed", type=int, default=1, help="held-out seed (a stream no training seed uses)")
+    ev.add_argument("--num", type=int, default=256, help="number of detections")
+    ev.add_argument("--json", default=None, help="write the figures here (atomically)")
+    ev.add_argument("--workdir", default=None, help="a training run (config.json + checkpoints/) or a .npz model")
+    ev.add_argument("--postopt", type=int, default=0, help="also refine with PostOpt for this many steps")
+    ev.add_argument("--debug", action="store_true", help="show tracebacks")
+    ev.set_defaults(func=_volumon_eval)
     args = parser.parse_args(argv)
     return args.func(args)
 
