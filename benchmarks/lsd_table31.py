@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--checkpoint",
         default=None,
-        help="LSD training workdir or exported .npz (default: the shipped model)",
+        help="LSD training workdir or exported .npz (None: the shipped model)",
     )
     p.add_argument(
         "--train",

@@ -118,7 +118,7 @@ def main(argv=None) -> int:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument(
-        "--map", default=None, help="npz map file (else a generated building)"
+        "--map", default=None, help="npz map file (None: a generated building)"
     )
     p.add_argument(
         "--family", default="test", choices=("train", "test"), help="building family"
@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--checkpoint",
         default=None,
-        help="LSD training workdir or exported .npz (default: the shipped model)",
+        help="LSD training workdir or exported .npz (None: the shipped model)",
     )
     p.add_argument(
         "--sampler",
