@@ -32,6 +32,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     out_dir = pathlib.Path(out_dir)
     rotation, center, radii, K, pose = make_scene(num_objects=4 if quick else 6)
@@ -58,9 +59,9 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
         ax_img.scatter(pix[i, :, 0], pix[i, :, 1], s=0.2, color=colour, alpha=0.25)
         ax_img.plot(outline[i, :, 0], outline[i, :, 1], color=colour, lw=1.5)
         u0, v0, u1, v1 = np.asarray(box[i])
-        ax_img.add_patch(plt.Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, ls="--", color=colour))
+        ax_img.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, ls="--", color=colour))
         ax_img.text(u0, v0 - 4, f"#{i}", color=colour, fontsize=8)
-    ax_img.add_patch(plt.Rectangle((0, 0), 640, 480, fill=False, color="k"))
+    ax_img.add_patch(Rectangle((0, 0), 640, 480, fill=False, color="k"))
     from matplotlib.colors import ListedColormap
 
     n = len(radii)

@@ -361,6 +361,7 @@ class SceneRenderer:
         mujoco.mj_forward(self.model, self.data)
         r = self._renderer
         out = {}
+        ids = np.full((self.height, self.width, 2), -1, np.int32)  # (object id, object type) per pixel
         if "rgb" in outputs:
             r.update_scene(self.data, camera=0)
             out["rgb"] = r.render().copy()
