@@ -12,22 +12,28 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 import time
+
+from jaxsem import scripting as sc
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="out/lsd_expert", help="output folder for the shards")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=sc.HelpFormatter)
+    ap.add_argument("--out", type=sc.output_dir, default="out/lsd_expert", help="output folder for the shards")
     ap.add_argument("--family", choices=("train", "test"), default="train", help="building family")
-    ap.add_argument("--buildings", type=int, default=20, help="number of buildings (seeds)")
-    ap.add_argument("--first-seed", type=int, default=0, help="seed of the first building")
-    ap.add_argument("--samples-per-building", type=int, default=200)
-    ap.add_argument("--goals-per-moment", type=int, default=8)
-    ap.add_argument("--sample-prob", type=float, default=0.1, help="chance per step of a sampling moment")
-    ap.add_argument("--nav-samples", type=int, default=1000, help="PRM samples of the navigating robot")
-    ap.add_argument("--workers", type=int, default=2, help="processes (parallel over buildings)")
-    ap.add_argument("--no-figure", action="store_true")
+    ap.add_argument("--buildings", type=sc.positive_int, default=20, help="number of buildings (seeds)")
+    ap.add_argument("--first-seed", type=sc.nonnegative_int, default=0, help="seed of the first building")
+    ap.add_argument("--samples-per-building", type=sc.positive_int, default=200, help="expert samples per building")
+    ap.add_argument("--goals-per-moment", type=sc.positive_int, default=8, help="goals drawn at each sampling moment")
+    ap.add_argument("--sample-prob", type=sc.probability, default=0.1, help="chance per step of a sampling moment")
+    ap.add_argument("--nav-samples", type=sc.positive_int, default=1000, help="PRM samples of the navigating robot")
+    ap.add_argument("--workers", type=sc.positive_int, default=2, help="processes (parallel over buildings)")
+    ap.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
+    ap.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     args = ap.parse_args(argv)
+    if args.sample_prob == 0:
+        raise sc.UsageError("--sample-prob: must be above 0 (no sampling moment would ever happen)")
 
     from jaxsem.cli import enable_compilation_cache
     from jaxsem import planning
@@ -77,10 +83,10 @@ def save_figure(data, path, count=8):
     fig.suptitle("expert samples: partial occupancy (grey unknown), doors green, windows blue, "
                  "exit signs magenta, expert path red, goal direction blue", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    sc.atomic_savefig(fig, path, dpi=90)
     plt.close(fig)
     print(f"figure: {path}")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(sc.run_main(main))

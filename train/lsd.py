@@ -14,31 +14,47 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import pathlib
 import sys
+
+from jaxsem import config as jcfg
+from jaxsem import scripting as sc
 
 
 def main(argv=None) -> int:
     from jaxsem.lsd import get_config
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument(
-        "--data", required=True, help="folder of expert_*.npz shards (or one shard)"
-    )
-    p.add_argument("--workdir", required=True, help="checkpoints, figures, metrics")
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=sc.HelpFormatter)
+    p.add_argument("--data", type=pathlib.Path, required=True, help="folder of expert_*.npz shards (or one shard)")
+    p.add_argument("--workdir", type=sc.output_dir, required=True, help="checkpoints, figures, metrics")
     p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
-    p.add_argument("--stage1-steps", type=int, default=None)
-    p.add_argument("--stage2-steps", type=int, default=None)
-    p.add_argument("--batch-size", type=int, default=None)
-    p.add_argument("--learning-rate", type=float, default=None)
-    p.add_argument("--eval-every", type=int, default=None)
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--stage1-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-1 steps")
+    p.add_argument("--stage2-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-2 steps")
+    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="override the config's batch size")
+    p.add_argument("--learning-rate", type=sc.positive_float, default=None, help="override the learning rate")
+    p.add_argument("--eval-every", type=sc.positive_int, default=None, help="override the evaluation interval")
+    p.add_argument("--seed", type=sc.nonnegative_int, default=None, help="override the seed")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any TrainConfig field by name (repeatable)",
+    )
     p.add_argument(
         "--chunk-steps",
-        type=int,
+        type=sc.positive_int,
         default=None,
         help="stop after this many steps past the latest checkpoint (a rerun resumes)",
     )
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     args = p.parse_args(argv)
+    # Validate the inputs before any long work.
+    if not args.data.exists():
+        raise sc.UsageError(f"--data: {args.data}: no such file or directory")
+    if args.data.is_dir() and not any(args.data.glob("*.npz")):
+        raise sc.UsageError(f"--data: {args.data}: no expert *.npz shards in this folder")
 
     from jaxsem.cli import enable_compilation_cache
     from jaxsem.lsd import train_and_evaluate
@@ -57,11 +73,9 @@ def main(argv=None) -> int:
         }.items()
         if v is not None
     }
-    cfg = dataclasses.replace(cfg, **changes)
+    cfg = jcfg.override(dataclasses.replace(cfg, **changes), args.overrides)
     stop_at = None
     if args.chunk_steps is not None:
-        import pathlib
-
         from jaxsem.checkpoint import latest_step
 
         stop_at = (
@@ -77,4 +91,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(sc.run_main(main))
