@@ -419,7 +419,10 @@ def test_roadmap_shapes_and_no_nan():
     )
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
-    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (N + 2, prm_star_k(N))
+    assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (
+        N + 2,
+        prm_star_k(N),
+    )
     assert not bool(rm.overflow) and int(rm.num_samples) == N
 
 
@@ -519,3 +522,31 @@ def test_roadmap_builder_vmaps_over_trials():
         np.testing.assert_allclose(
             np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9
         )
+
+
+def test_found_paths_pass_the_navigation_check():
+    """Regression (issue 11): the loop re-checked plans with a second, stricter segment test, so a
+    path grazing a wall corner was 'blocked' right after the PRM found it clear and a robot on a
+    reused roadmap replanned the same path forever without moving. Both now share one check."""
+    from jaxsem.planning import polyline_clear
+
+    occ = _blocks(7, shape=(60, 100), n=60)
+    prm = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS)
+    prm.grow(jax.random.PRNGKey(5), N)
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(0)
+    found = 0
+    for _ in range(25):
+        s, g = (
+            ORIGIN + (free[rng.integers(len(free))][::-1] + rng.random(2)) * RES
+            for _ in range(2)
+        )
+        p = prm.query(s, g)
+        if p.found:
+            found += 1
+            assert polyline_clear(p.points, occ, ORIGIN, RES, RADIUS)
+            # Every sub-leg from a point part-way along the first segment too (the robot moved).
+            mid = p.points[0] + 0.37 * (p.points[1] - p.points[0])
+            q = prm.query(mid, g)
+            assert q.found and polyline_clear(q.points, occ, ORIGIN, RES, RADIUS)
+    assert found >= 15

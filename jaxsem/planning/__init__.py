@@ -67,6 +67,7 @@ from ._prm import (
     embed_local_distribution as embed_local_distribution,
     knn_within_radius as knn_within_radius,
     make_roadmap_builder as make_roadmap_builder,
+    polyline_clear as polyline_clear,
     prm_star_k as prm_star_k,
     roadmap_connect as roadmap_connect,
     roadmap_grow as roadmap_grow,

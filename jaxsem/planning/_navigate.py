@@ -43,7 +43,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
-from ._prm import PRM, default_radius, embed_local_distribution, prm_star_k
+from ._prm import (
+    PRM,
+    default_radius,
+    embed_local_distribution,
+    polyline_clear,
+    prm_star_k,
+)
 from ._sensors import SensorConfig, _check_resolution, _sense_jit
 
 CROP_SIZE = 160
@@ -169,31 +175,6 @@ class NavResult:
     distributions: list = dataclasses.field(default_factory=list)
 
 
-def _polyline_blocked(
-    points: np.ndarray, blocked: np.ndarray, origin, resolution
-) -> bool:
-    """True when the polyline crosses a blocked cell (samples at most half a cell apart)."""
-    if len(points) < 2:
-        return False
-    seg = np.diff(points, axis=0)
-    lengths = np.linalg.norm(seg, axis=1)
-    n = np.maximum(2, np.ceil(lengths / (0.5 * resolution)).astype(int) + 1)
-    t = np.concatenate([np.linspace(0.0, 1.0, m) for m in n])
-    idx = np.repeat(np.arange(len(seg)), n)
-    pts = points[idx] + t[:, None] * seg[idx]
-    rc = np.floor((pts - origin) / resolution).astype(np.int64)[:, ::-1]
-    H, W = blocked.shape
-    off = (rc[:, 0] < 0) | (rc[:, 0] >= H) | (rc[:, 1] < 0) | (rc[:, 1] >= W)
-    if off.any():
-        return True
-    if blocked[rc[:, 0], rc[:, 1]].any():
-        return True
-    # Diagonal steps between consecutive samples: both side cells (same rule as the PRM's edges).
-    a, b = rc[:-1], rc[1:]
-    diag = (a[:, 0] != b[:, 0]) & (a[:, 1] != b[:, 1])
-    return bool(np.any(diag & (blocked[a[:, 0], b[:, 1]] | blocked[b[:, 0], a[:, 1]])))
-
-
 class Trial:
     """One navigation trial, advanced a step at a time (:func:`navigate` runs it to the end; the
     expert data generator interleaves its own queries between steps).
@@ -303,6 +284,12 @@ class Trial:
             self.config.max_context_distance,
         )
 
+    def _clear(self, points, blocked) -> bool:
+        # The PRM's own edge check, so a plan it found clear is clear here on the same map.
+        return polyline_clear(
+            points, blocked, self.origin, self.resolution, self.radius
+        )
+
     def _new_prm(self, known) -> PRM:
         cfg = self.config
         return PRM(
@@ -405,7 +392,7 @@ class Trial:
         if (
             self.plan is None
             or self.since_plan >= cfg.replan_every
-            or _polyline_blocked(self.plan, blocked, self.origin, self.resolution)
+            or not self._clear(self.plan, blocked)
         ):
             if not self._replan():
                 self._finish(False, "no_plan")
@@ -415,9 +402,7 @@ class Trial:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
                 blocked = np.asarray(self.state.occupancy) == OCCUPIED
-                if _polyline_blocked(
-                    self.plan[:2], blocked, self.origin, self.resolution
-                ):
+                if not self._clear(self.plan[:2], blocked):
                     # The first leg is blocked by what the turn revealed; replan next step.
                     self.plan = None
                     self.steps += 1

@@ -217,6 +217,45 @@ def _edges(blocked, cost, a, b, origin, resolution, edge_samples):
     return clear, length * jnp.mean(cost[er, ec], axis=-1)
 
 
+@functools.partial(jax.jit, static_argnames=("resolution", "edge_samples"))
+def _segments_clear(blocked, a, b, origin, *, resolution, edge_samples):
+    clear, _ = _edges(blocked, None, a, b, origin, resolution, edge_samples)
+    return jnp.all(clear)
+
+
+def polyline_clear(
+    points, blocked, origin, resolution: float, radius: float, dtype=None
+) -> bool:
+    """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
+    check on the bool grid ``blocked`` (same samples for segments up to ``radius``, same
+    precision ``dtype``), so a plan the PRM found clear is never judged blocked on the same map
+    (a looser or stricter second test made robots stand still, replanning the same path)."""
+    pts = np.asarray(points, np.float64)
+    if len(pts) < 2:
+        return True
+    dtype = dtype or jnp.result_type(float)
+    a, b = pts[:-1], pts[1:]
+    longest = float(np.max(np.linalg.norm(b - a, axis=1)))
+    reach = (
+        radius
+        if longest <= radius * (1 + 1e-6)
+        else 2.0 ** math.ceil(math.log2(longest))
+    )
+    m = 1 << max(0, (len(a) - 1).bit_length())  # pad to a power of two: few compiles
+    a = np.concatenate([a, np.repeat(b[-1:], m - len(a), 0)])
+    b = np.concatenate([b, np.repeat(b[-1:], m - len(b), 0)])
+    return bool(
+        _segments_clear(
+            jnp.asarray(blocked),
+            jnp.asarray(a, dtype),
+            jnp.asarray(b, dtype),
+            jnp.asarray(np.asarray(origin, np.float64), dtype),
+            resolution=float(resolution),
+            edge_samples=_edge_samples(reach, resolution),
+        )
+    )
+
+
 def _cost_grid(distribution):
     p = distribution / jnp.sum(distribution)
     return -jnp.log(jnp.maximum(p, 1e-30))
