@@ -58,7 +58,7 @@ def main(argv=None):
         cfg = slam.SolverConfig(shape_prior_mean=mean, shape_prior_sigma=sigma, max_steps=40)
 
         def one(p, t):
-            est, _ = slam.solve_batch(p, slam.initialize(p, cfg), cfg)
+            est, _ = slam.solve_batch(p, slam.initialize(p, cfg), cfg, method="optimistix")
             err = jnp.sum(jnp.square(est.radii - t.radii), -1)
             return jnp.sum(jnp.where(p.object_mask, err, 0.0)) / jnp.maximum(jnp.sum(p.object_mask), 1)
 

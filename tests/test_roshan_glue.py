@@ -61,29 +61,56 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
     for a, b in zip(seq.frames, back.frames):
         np.testing.assert_allclose(b.camera_T_world, a.camera_T_world)
         np.testing.assert_allclose(b.boxes, a.boxes)
-        np.testing.assert_array_equal(np.isnan(b.texture_depth), np.isnan(a.texture_depth))
-        np.testing.assert_allclose(b.texture_depth[~np.isnan(b.texture_depth)],
-                                   a.texture_depth[~np.isnan(a.texture_depth)])
+        np.testing.assert_array_equal(
+            np.isnan(b.texture_depth), np.isnan(a.texture_depth)
+        )
+        np.testing.assert_allclose(
+            b.texture_depth[~np.isnan(b.texture_depth)],
+            a.texture_depth[~np.isnan(a.texture_depth)],
+        )
         assert b.ids == a.ids and b.classes == a.classes
     assert back.object_ids == seq.object_ids
-    assert [o["id"] for o in back.truth["objects"]] == [o["id"] for o in seq.truth["objects"]]
+    assert [o["id"] for o in back.truth["objects"]] == [
+        o["id"] for o in seq.truth["objects"]
+    ]
     # Detections = the simulator's (ground-truth association, noisy odometry poses).
     mask = np.asarray(one.box_mask)
     assert sum(len(f.ids) for f in back.frames) == int(mask.sum())
     t, j = np.argwhere(mask)[0]
     k = back.frames[t].ids.index(int(j))
     np.testing.assert_allclose(back.frames[t].boxes[k], np.asarray(one.boxes[t, j]))
-    np.testing.assert_allclose(back.frames[t].camera_T_world, np.asarray(one.pose_prior[t]))
+    np.testing.assert_allclose(
+        back.frames[t].camera_T_world, np.asarray(one.pose_prior[t])
+    )
 
     frames_seen = []
-    result = slam.run_sequence(back, sim.solver_config(sim.ROSHAN, cfg), optimize_every=5, iterations=3,
-                               final_iterations=10, callback=lambda i, s, dt: frames_seen.append(i))
+    result = slam.run_sequence(
+        back,
+        sim.solver_config(sim.ROSHAN, cfg),
+        optimize_every=5,
+        iterations=3,
+        final_iterations=10,
+        callback=lambda i, s, dt: frames_seen.append(i),
+    )
     assert frames_seen == list(range(cfg.num_frames))
-    out = json.loads(json.dumps(slam.map_to_json(result.object_ids, result.object_classes, result.rotation,
-                                                 result.center, result.radii, result.camera_T_world)))
+    out = json.loads(
+        json.dumps(
+            slam.map_to_json(
+                result.object_ids,
+                result.object_classes,
+                result.rotation,
+                result.center,
+                result.radii,
+                result.camera_T_world,
+            )
+        )
+    )
     assert [o["id"] for o in out["objects"]] == list(back.object_ids)
     truth = {o["id"]: o for o in back.truth["objects"]}
-    err = [np.linalg.norm(np.array(o["center"]) - truth[o["id"]]["center"]) for o in out["objects"]]
+    err = [
+        np.linalg.norm(np.array(o["center"]) - truth[o["id"]]["center"])
+        for o in out["objects"]
+    ]
     assert np.median(err) < 1.0 and max(err) < 2.5, err
     for o in out["objects"]:
         assert o["class"] == "car" and min(o["radii"]) > 0
@@ -99,7 +126,8 @@ def test_infer_script_writes_map_and_figures(tmp_path, simulated):
     import json
 
     spec = importlib.util.spec_from_file_location(
-        "infer_roshan", pathlib.Path(__file__).parents[1] / "infer" / "roshan.py")
+        "infer_roshan", pathlib.Path(__file__).parents[1] / "infer" / "roshan.py"
+    )
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     cfg, _, seq = simulated
@@ -107,18 +135,44 @@ def test_infer_script_writes_map_and_figures(tmp_path, simulated):
 
     out = tmp_path / "out"
     # The fixture's map again (same seed and sizes), so the online solver's compilation is reused.
-    assert script.main(["--simulate", "forward", "--seed", "2", "--objects", "4", "--frames", "30",
-                        "--write-sequence", str(tmp_path / "seq"), "--out", str(out), "--overlays", "2",
-                        "--final-iterations", "10", "--quiet"]) == 0
+    assert (
+        script.main(
+            [
+                "--simulate",
+                "forward",
+                "--seed",
+                "2",
+                "--objects",
+                "4",
+                "--frames",
+                "30",
+                "--write-sequence",
+                str(tmp_path / "seq"),
+                "--out",
+                str(out),
+                "--overlays",
+                "2",
+                "--final-iterations",
+                "10",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     written = slam.load_sequence(tmp_path / "seq")
     assert written.object_ids == seq.object_ids
-    np.testing.assert_allclose(np.stack([f.camera_T_world for f in written.frames]),
-                               np.stack([f.camera_T_world for f in seq.frames]))
+    np.testing.assert_allclose(
+        np.stack([f.camera_T_world for f in written.frames]),
+        np.stack([f.camera_T_world for f in seq.frames]),
+    )
     data = json.loads((out / "map.json").read_text())
     assert len(data["objects"]) == len(seq.object_ids)
     assert (out / "top_down.png").stat().st_size > 10_000
     overlays = sorted(out.glob("overlay_*.png"))
-    assert [p.name for p in overlays] == ["overlay_000000.png", f"overlay_{cfg.num_frames - 1:06d}.png"]
+    assert [p.name for p in overlays] == [
+        "overlay_000000.png",
+        f"overlay_{cfg.num_frames - 1:06d}.png",
+    ]
 
 
 def _write(tmp_path, data, name="sequence.json"):
@@ -131,10 +185,24 @@ def _write(tmp_path, data, name="sequence.json"):
 
 
 def _good():
-    return {"K": [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], "image_size": [640, 480],
-            "frames": [{"camera_T_world": np.eye(4).tolist(),
-                        "detections": [{"box": [10, 20, 50, 60], "class": "car", "id": 0, "texture_depth": 9.0},
-                                       {"box": [100, 20, 150, 60], "class": "person", "id": "p1"}]}]}
+    return {
+        "K": [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]],
+        "image_size": [640, 480],
+        "frames": [
+            {
+                "camera_T_world": np.eye(4).tolist(),
+                "detections": [
+                    {
+                        "box": [10, 20, 50, 60],
+                        "class": "car",
+                        "id": 0,
+                        "texture_depth": 9.0,
+                    },
+                    {"box": [100, 20, 150, 60], "class": "person", "id": "p1"},
+                ],
+            }
+        ],
+    }
 
 
 def test_sequence_bad_input_names_file_and_field(tmp_path):
@@ -156,16 +224,66 @@ def test_sequence_bad_input_names_file_and_field(tmp_path):
             slam.load_sequence(_write(tmp_path, data))
 
     det = lambda d: d["frames"][0]["detections"]
-    bad(lambda d: det(d)[1].update({"class": "unicorn"}),
-        r"sequence\.json: frames\[0\]\.detections\[1\]\.class: unknown class 'unicorn'")
-    bad(lambda d: det(d)[0].update({"box": [50, 20, 10, 60]}), r"frames\[0\]\.detections\[0\]\.box")
-    bad(lambda d: det(d)[0].update({"box": [1, 2, 3]}), r"frames\[0\]\.detections\[0\]\.box")
-    bad(lambda d: det(d)[0].update({"box": [700, 20, 800, 60]}), r"detections\[0\]\.box: .*outside")
-    bad(lambda d: det(d)[0].update({"texture_depth": -1}), r"detections\[0\]\.texture_depth")
+    bad(
+        lambda d: det(d)[1].update({"class": "unicorn"}),
+        r"sequence\.json: frames\[0\]\.detections\[1\]\.class: unknown class 'unicorn'",
+    )
+    bad(
+        lambda d: det(d)[0].update({"box": [50, 20, 10, 60]}),
+        r"frames\[0\]\.detections\[0\]\.box",
+    )
+    bad(
+        lambda d: det(d)[0].update({"box": [1, 2, 3]}),
+        r"frames\[0\]\.detections\[0\]\.box",
+    )
+    bad(
+        lambda d: det(d)[0].update({"box": [700, 20, 800, 60]}),
+        r"detections\[0\]\.box: .*outside",
+    )
+    bad(
+        lambda d: det(d)[0].update({"texture_depth": -1}),
+        r"detections\[0\]\.texture_depth",
+    )
     bad(lambda d: det(d)[0].pop("id"), r"detections\[0\]\.id: missing")
-    bad(lambda d: det(d)[1].update({"id": 0}), r"frames\[0\]\.detections: an association id appears twice")
+    bad(
+        lambda d: det(d)[1].update({"id": 0}),
+        r"frames\[0\]\.detections: an association id appears twice",
+    )
     bad(lambda d: d.pop("K"), r"sequence\.json: K: missing")
     bad(lambda d: d.update({"image_size": [640]}), r"image_size")
-    bad(lambda d: d["frames"][0].update({"camera_T_world": [[1, 0], [0, 1]]}), r"frames\[0\]\.camera_T_world")
-    bad(lambda d: d["frames"][0].update({"image": "missing.png"}), r"frames\[0\]\.image: .*missing\.png.*does not exist")
+    bad(
+        lambda d: d["frames"][0].update({"camera_T_world": [[1, 0], [0, 1]]}),
+        r"frames\[0\]\.camera_T_world",
+    )
+    bad(
+        lambda d: d["frames"][0].update({"image": "missing.png"}),
+        r"frames\[0\]\.image: .*missing\.png.*does not exist",
+    )
     bad(lambda d: d.update({"frames": []}), r"frames: expected a non-empty list")
+
+
+def test_sequence_noise_model_loads_validates_and_round_trips(tmp_path):
+    import math
+
+    from jaxsem import slam
+
+    data = _good()
+    data["noise"] = {"box_sigma": 2.0, "pose_rotation_sigma_deg": 2.0}
+    seq = slam.load_sequence(_write(tmp_path, data))
+    noise = slam.noise_model(seq)
+    assert noise.box_sigma == 2.0 and math.isclose(
+        noise.pose_rotation_sigma, math.radians(2.0)
+    )
+    assert (
+        noise.texture_sigma == slam.NoiseModel().texture_sigma
+    )  # untouched fields keep defaults
+    slam.save_sequence(seq, tmp_path / "rt")
+    assert slam.load_sequence(tmp_path / "rt").noise == seq.noise
+    for noise_field, pattern in (
+        ({"box_sigma": -1}, r"noise\.box_sigma: expected a finite number > 0"),
+        ({"bogus": 1.0}, r"noise\.bogus: unknown field"),
+        ([1, 2], r"sequence\.json: noise: expected an object"),
+    ):
+        data["noise"] = noise_field
+        with pytest.raises(ValueError, match=pattern):
+            slam.load_sequence(_write(tmp_path, data))

@@ -34,7 +34,7 @@ def test_gradient_of_solved_shape_wrt_prior_mean_matches_finite_differences():
         mean = mean0.at[car].set(car_mean)
         cfg = slam.SolverConfig(shape_prior_mean=mean, shape_prior_sigma=sigma,
                                 max_steps=200, rtol=1e-13, atol=1e-13)
-        est, info = slam.solve_batch(problem, slam.initialize(problem, cfg), cfg)
+        est, info = slam.solve_batch(problem, slam.initialize(problem, cfg), cfg, method="optimistix")
         return jnp.sum(jnp.square(est.radii[0] - r_true)), info
 
     x0 = mean0[car]

@@ -49,9 +49,11 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
         texture_sigma=max(sim_config.texture_noise_m + 20.0 * sim_config.texture_noise_rel, 0.05),
     )
     kwargs = dict(noise=noise, max_steps=max_steps, default_depth=sim_config.init_depth)
-    if system == BASELINE:
-        kwargs.update(use_texture=False, use_shape_prior=False, baseline_shape_weight=10.0)
     kwargs.update(changes)
+    if system == BASELINE:
+        from ..slam import baseline_config  # noqa: PLC0415  (the one definition of the baseline)
+
+        return baseline_config(**kwargs)
     return SolverConfig(**kwargs)
 
 

@@ -110,6 +110,7 @@ from ._problem import (
 )
 from ._problem import (
     baseline_config as baseline_config,
+    bucket_capacity as bucket_capacity,
 )
 from ._problem import (
     make_frame as make_frame,
@@ -134,6 +135,7 @@ from ._sequence import (
 )
 from ._sequence import (
     default_capacity as default_capacity,
+    noise_model as noise_model,
 )
 from ._sequence import (
     draw_camera_path as draw_camera_path,

@@ -21,6 +21,10 @@ v_max]``)::
           ]
         }
       ],
+      "noise": {"box_sigma": 3.0,                     # optional noise model (any subset):
+                "texture_sigma": 0.3,                 #   px per box edge, m texture depth,
+                "pose_translation_sigma": 0.05,       #   m per axis (pose prior),
+                "pose_rotation_sigma_deg": 1.0},      #   deg per axis (pose prior)
       "truth": {                                      # optional (simulated sequences)
         "camera_T_world": [4x4 per frame],
         "objects": [{"id": 3, "class": "car", "center": [x, y, z], "radii": [a, b, c],
@@ -68,6 +72,7 @@ __all__ = [
     "load_image",
     "sequence_to_json",
     "default_capacity",
+    "noise_model",
     "sequence_from_simulation",
     "run_sequence",
     "map_to_json",
@@ -116,6 +121,8 @@ class Sequence:
       root: directory the image names are relative to (None: no images).
       truth: optional ``{"camera_T_world": (T, 4, 4), "objects": [{"id", "class", "center" (3,),
         "radii" (3,), "rotation" (3, 3)}]}`` (numpy arrays), for evaluation.
+      noise: optional noise model ``{"box_sigma", "texture_sigma", "pose_translation_sigma",
+        "pose_rotation_sigma_deg"}`` (any subset; :func:`noise_model` makes it a NoiseModel).
     """
 
     K: np.ndarray
@@ -123,6 +130,7 @@ class Sequence:
     frames: tuple
     root: pathlib.Path | None = None
     truth: dict | None = None
+    noise: dict | None = None
 
     @property
     def object_ids(self) -> tuple:
@@ -158,7 +166,11 @@ def _matrix(where, field, value, shape):
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        _fail(where, field, f"expected a {shape[0]}x{shape[1]} array of numbers, got {value!r:.80}")
+        _fail(
+            where,
+            field,
+            f"expected a {shape[0]}x{shape[1]} array of numbers, got {value!r:.80}",
+        )
     if arr.shape != shape:
         _fail(where, field, f"expected shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -172,7 +184,11 @@ def _pose(where, field, value):
         _fail(where, field, f"expected the last row [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-        _fail(where, field, "expected a rotation (orthonormal, det +1) in the top-left 3x3 block")
+        _fail(
+            where,
+            field,
+            "expected a rotation (orthonormal, det +1) in the top-left 3x3 block",
+        )
     return T
 
 
@@ -188,8 +204,16 @@ def _vector(where, field, value, n, positive=False):
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         _fail(where, field, f"expected {n} numbers, got {value!r:.80}")
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)):
-        _fail(where, field, f"expected {n} finite{' positive' if positive else ''} numbers, got {value!r:.80}")
+    if (
+        arr.shape != (n,)
+        or not np.all(np.isfinite(arr))
+        or (positive and np.any(arr <= 0))
+    ):
+        _fail(
+            where,
+            field,
+            f"expected {n} finite{' positive' if positive else ''} numbers, got {value!r:.80}",
+        )
     return arr
 
 
@@ -199,15 +223,23 @@ def _class_name(where, field, value):
     if not isinstance(value, str):
         _fail(where, field, f"expected a class name string, got {value!r}")
     if value not in factors.CLASS_NAMES:
-        _fail(where, field, f"unknown class {value!r}; known classes are {list(factors.CLASS_NAMES)}")
+        _fail(
+            where,
+            field,
+            f"unknown class {value!r}; known classes are {list(factors.CLASS_NAMES)}",
+        )
     return value
 
 
 def _assoc_id(where, field, value):
     if isinstance(value, bool) or not isinstance(value, (int, str)):
-        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
+        _fail(
+            where, field, f"expected an int >= 0 or a non-empty string, got {value!r}"
+        )
     if isinstance(value, int) and value < 0 or isinstance(value, str) and not value:
-        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
+        _fail(
+            where, field, f"expected an int >= 0 or a non-empty string, got {value!r}"
+        )
     return value
 
 
@@ -216,10 +248,20 @@ def _box(where, field, value, image_size):
         b = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         b = None
-    ok = b is not None and b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]
+    ok = (
+        b is not None
+        and b.shape == (4,)
+        and np.all(np.isfinite(b))
+        and b[2] > b[0]
+        and b[3] > b[1]
+    )
     if not ok:
-        _fail(where, field, f"expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, "
-                            f"v_max > v_min), got {value!r:.80}")
+        _fail(
+            where,
+            field,
+            f"expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, "
+            f"v_max > v_min), got {value!r:.80}",
+        )
     W, H = image_size
     if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
         _fail(where, field, f"box {b.tolist()} lies outside the {W}x{H} image")
@@ -234,11 +276,24 @@ def _parse(data, where, root):
             _fail(where, key, "missing")
     K = _matrix(where, "K", data["K"], (3, 3))
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
-        _fail(where, "K", f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}")
+        _fail(
+            where,
+            "K",
+            f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}",
+        )
     size = data["image_size"]
-    if (not isinstance(size, (list, tuple)) or len(size) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
-        _fail(where, "image_size", f"expected [width, height] as two positive ints, got {size!r}")
+    if (
+        not isinstance(size, (list, tuple))
+        or len(size) != 2
+        or not all(
+            isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size
+        )
+    ):
+        _fail(
+            where,
+            "image_size",
+            f"expected [width, height] as two positive ints, got {size!r}",
+        )
     image_size = (int(size[0]), int(size[1]))
     if not isinstance(data["frames"], list) or not data["frames"]:
         _fail(where, "frames", "expected a non-empty list of frames")
@@ -259,7 +314,9 @@ def _parse(data, where, root):
                 _fail(where, f"{f}.image", f"image file {str(path)!r} does not exist")
         dets = fr.get("detections", [])
         if not isinstance(dets, list):
-            _fail(where, f"{f}.detections", f"expected a list, got {type(dets).__name__}")
+            _fail(
+                where, f"{f}.detections", f"expected a list, got {type(dets).__name__}"
+            )
         boxes, classes, ids, depth = [], [], [], []
         for n, d in enumerate(dets):
             g = f"{f}.detections[{n}]"
@@ -274,27 +331,110 @@ def _parse(data, where, root):
             tex = d.get("texture_depth")
             if tex is None:
                 depth.append(np.nan)
-            elif isinstance(tex, bool) or not isinstance(tex, (int, float)) or not (math.isfinite(tex) and tex > 0):
-                _fail(where, f"{g}.texture_depth", f"expected null or a finite depth > 0 (metres), got {tex!r}")
+            elif (
+                isinstance(tex, bool)
+                or not isinstance(tex, (int, float))
+                or not (math.isfinite(tex) and tex > 0)
+            ):
+                _fail(
+                    where,
+                    f"{g}.texture_depth",
+                    f"expected null or a finite depth > 0 (metres), got {tex!r}",
+                )
             else:
                 depth.append(float(tex))
         if len(set(ids)) != len(ids):
-            _fail(where, f"{f}.detections", f"an association id appears twice in one frame: {ids}")
-        frames.append(SequenceFrame(
-            camera_T_world=pose, boxes=np.asarray(boxes, np.float64).reshape(-1, 4),
-            classes=tuple(classes), ids=tuple(ids), texture_depth=np.asarray(depth, np.float64),
-            image=image,
-        ))
+            _fail(
+                where,
+                f"{f}.detections",
+                f"an association id appears twice in one frame: {ids}",
+            )
+        frames.append(
+            SequenceFrame(
+                camera_T_world=pose,
+                boxes=np.asarray(boxes, np.float64).reshape(-1, 4),
+                classes=tuple(classes),
+                ids=tuple(ids),
+                texture_depth=np.asarray(depth, np.float64),
+                image=image,
+            )
+        )
     first_class: dict = {}
     for t, fr in enumerate(frames):
         for n, (i, c) in enumerate(zip(fr.ids, fr.classes)):
             if first_class.setdefault(i, c) != c:
-                _fail(where, f"frames[{t}].detections[{n}].class",
-                      f"id {i!r} was first seen as {first_class[i]!r}, now {c!r}")
+                _fail(
+                    where,
+                    f"frames[{t}].detections[{n}].class",
+                    f"id {i!r} was first seen as {first_class[i]!r}, now {c!r}",
+                )
     truth = None
     if data.get("truth") is not None:
         truth = _parse_truth(where, data["truth"], len(frames))
-    return Sequence(K=K, image_size=image_size, frames=tuple(frames), root=root, truth=truth)
+    noise = _parse_noise(where, data.get("noise"))
+    return Sequence(
+        K=K,
+        image_size=image_size,
+        frames=tuple(frames),
+        root=root,
+        truth=truth,
+        noise=noise,
+    )
+
+
+NOISE_FIELDS = {
+    "box_sigma": "pixels per box edge",
+    "texture_sigma": "metres, texture-plane depth",
+    "pose_translation_sigma": "metres per axis, pose prior",
+    "pose_rotation_sigma_deg": "degrees per axis, pose prior",
+}
+
+
+def _parse_noise(where, noise):
+    """Optional ``"noise"`` object: each of :data:`NOISE_FIELDS` a finite number > 0."""
+    if noise is None:
+        return None
+    if not isinstance(noise, dict):
+        _fail(
+            where,
+            "noise",
+            f"expected an object with fields {sorted(NOISE_FIELDS)}, got {noise!r}",
+        )
+    out = {}
+    for key, value in noise.items():
+        if key not in NOISE_FIELDS:
+            _fail(
+                where,
+                f"noise.{key}",
+                f"unknown field; expected one of {sorted(NOISE_FIELDS)}",
+            )
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not (math.isfinite(value) and value > 0)
+        ):
+            _fail(
+                where,
+                f"noise.{key}",
+                f"expected a finite number > 0 ({NOISE_FIELDS[key]}), got {value!r}",
+            )
+        out[key] = float(value)
+    return out
+
+
+def noise_model(sequence: "Sequence", base=None):
+    """The :class:`jaxsem.slam.NoiseModel` of ``base`` (default ``NoiseModel()``) with the
+    sequence's ``"noise"`` fields applied (degrees converted to radians)."""
+    from ._problem import NoiseModel
+
+    base = NoiseModel() if base is None else base
+    values = {name: getattr(base, name) for name in base.__dataclass_fields__}
+    for key, value in (sequence.noise or {}).items():
+        if key == "pose_rotation_sigma_deg":
+            values["pose_rotation_sigma"] = math.radians(value)
+        else:
+            values[key] = value
+    return NoiseModel(**values)
 
 
 def _parse_truth(where, tr, num_frames):
@@ -304,8 +444,14 @@ def _parse_truth(where, tr, num_frames):
     if tr.get("camera_T_world") is not None:
         poses = tr["camera_T_world"]
         if not isinstance(poses, list) or len(poses) != num_frames:
-            _fail(where, "truth.camera_T_world", f"expected a list of {num_frames} 4x4 poses")
-        out["camera_T_world"] = np.stack([_pose(where, f"truth.camera_T_world[{t}]", p) for t, p in enumerate(poses)])
+            _fail(
+                where,
+                "truth.camera_T_world",
+                f"expected a list of {num_frames} 4x4 poses",
+            )
+        out["camera_T_world"] = np.stack(
+            [_pose(where, f"truth.camera_T_world[{t}]", p) for t, p in enumerate(poses)]
+        )
     objects = tr.get("objects", [])
     if not isinstance(objects, list):
         _fail(where, "truth.objects", "expected a list")
@@ -316,13 +462,15 @@ def _parse_truth(where, tr, num_frames):
         for key in ("id", "class", "center", "radii", "rotation"):
             if key not in o:
                 _fail(where, f"{g}.{key}", "missing")
-        out["objects"].append({
-            "id": _assoc_id(where, f"{g}.id", o["id"]),
-            "class": _class_name(where, f"{g}.class", o["class"]),
-            "center": _vector(where, f"{g}.center", o["center"], 3),
-            "radii": _vector(where, f"{g}.radii", o["radii"], 3, positive=True),
-            "rotation": _rotation(where, f"{g}.rotation", o["rotation"]),
-        })
+        out["objects"].append(
+            {
+                "id": _assoc_id(where, f"{g}.id", o["id"]),
+                "class": _class_name(where, f"{g}.class", o["class"]),
+                "center": _vector(where, f"{g}.center", o["center"], 3),
+                "radii": _vector(where, f"{g}.radii", o["radii"], 3, positive=True),
+                "rotation": _rotation(where, f"{g}.rotation", o["rotation"]),
+            }
+        )
     return out
 
 
@@ -357,7 +505,9 @@ def load_sequence(path) -> Sequence:
     try:
         data = json.loads(file.read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+        raise ValueError(
+            f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}"
+        ) from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
     return _parse(data, str(file), file.parent)
@@ -382,16 +532,30 @@ def sequence_to_json(sequence: Sequence) -> dict:
             entry["image"] = fr.image
         entry["detections"] = dets
         frames.append(entry)
-    out = {"format": FORMAT_TAG, "K": _list(sequence.K), "image_size": list(sequence.image_size),
-           "frames": frames}
+    out = {
+        "format": FORMAT_TAG,
+        "K": _list(sequence.K),
+        "image_size": list(sequence.image_size),
+        "frames": frames,
+    }
     if sequence.truth is not None:
-        tr = {"objects": [
-            {"id": o["id"], "class": o["class"], "center": _list(o["center"]), "radii": _list(o["radii"]),
-             "rotation": _list(o["rotation"])} for o in sequence.truth.get("objects", [])
-        ]}
+        tr = {
+            "objects": [
+                {
+                    "id": o["id"],
+                    "class": o["class"],
+                    "center": _list(o["center"]),
+                    "radii": _list(o["radii"]),
+                    "rotation": _list(o["rotation"]),
+                }
+                for o in sequence.truth.get("objects", [])
+            ]
+        }
         if "camera_T_world" in sequence.truth:
             tr["camera_T_world"] = _list(sequence.truth["camera_T_world"])
         out["truth"] = tr
+    if sequence.noise:
+        out["noise"] = dict(sequence.noise)
     return out
 
 
@@ -446,25 +610,45 @@ def sequence_from_simulation(sim_map, image_size) -> Sequence:
     g = lambda name: np.asarray(getattr(sim_map, name))
     pose, boxes, mask = g("pose_prior"), g("boxes"), g("box_mask")
     if pose.ndim != 3 or boxes.ndim != 3:
-        raise ValueError(f"sim_map: expected one map (pose_prior (T, 4, 4)), got pose_prior {pose.shape}")
+        raise ValueError(
+            f"sim_map: expected one map (pose_prior (T, 4, 4)), got pose_prior {pose.shape}"
+        )
     tex, tex_mask, cls = g("texture_depth"), g("texture_mask"), g("object_class")
     names = [factors.CLASS_NAMES[int(c)] for c in cls]
     frames = []
     for t in range(pose.shape[0]):
         js = np.flatnonzero(mask[t])
-        frames.append(SequenceFrame(
-            camera_T_world=pose[t].astype(np.float64), boxes=boxes[t, js].astype(np.float64).reshape(-1, 4),
-            classes=tuple(names[j] for j in js), ids=tuple(int(j) for j in js),
-            texture_depth=np.where(tex_mask[t, js], tex[t, js], np.nan).astype(np.float64),
-        ))
+        frames.append(
+            SequenceFrame(
+                camera_T_world=pose[t].astype(np.float64),
+                boxes=boxes[t, js].astype(np.float64).reshape(-1, 4),
+                classes=tuple(names[j] for j in js),
+                ids=tuple(int(j) for j in js),
+                texture_depth=np.where(tex_mask[t, js], tex[t, js], np.nan).astype(
+                    np.float64
+                ),
+            )
+        )
     objects = [
-        {"id": int(j), "class": names[j], "center": g("object_center")[j].astype(np.float64),
-         "radii": g("object_radii")[j].astype(np.float64), "rotation": g("object_rotation")[j].astype(np.float64)}
+        {
+            "id": int(j),
+            "class": names[j],
+            "center": g("object_center")[j].astype(np.float64),
+            "radii": g("object_radii")[j].astype(np.float64),
+            "rotation": g("object_rotation")[j].astype(np.float64),
+        }
         for j in np.flatnonzero(g("object_mask"))
     ]
-    truth = {"camera_T_world": g("camera_T_world").astype(np.float64), "objects": objects}
-    return Sequence(K=g("K").astype(np.float64), image_size=(int(image_size[0]), int(image_size[1])),
-                    frames=tuple(frames), truth=truth)
+    truth = {
+        "camera_T_world": g("camera_T_world").astype(np.float64),
+        "objects": objects,
+    }
+    return Sequence(
+        K=g("K").astype(np.float64),
+        image_size=(int(image_size[0]), int(image_size[1])),
+        frames=tuple(frames),
+        truth=truth,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -510,7 +694,12 @@ def default_capacity(sequence: Sequence, max_poses: int = 256):
     P = min(_bucket(T, 16), max_poses)
     n_boxes = sum(len(f.ids) for f in sequence.frames)
     B = _bucket(min(n_boxes, P * D), 64)
-    return Capacity(max_poses=P, max_objects=_bucket(J, 8), max_boxes=B, max_detections=_bucket(D, 4))
+    return Capacity(
+        max_poses=P,
+        max_objects=_bucket(J, 8),
+        max_boxes=B,
+        max_detections=_bucket(D, 4),
+    )
 
 
 def run_sequence(
@@ -551,29 +740,52 @@ def run_sequence(
     from ._problem import SolverConfig, make_frame
 
     if not isinstance(sequence, Sequence):
-        raise ValueError(f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}")
+        raise ValueError(
+            f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}"
+        )
     config = SolverConfig() if config is None else config
     capacity = default_capacity(sequence) if capacity is None else capacity
     ids = sequence.object_ids
     slot = {i: j for j, i in enumerate(ids)}
     if len(ids) > capacity.max_objects:
-        raise ValueError(f"capacity.max_objects: {capacity.max_objects} < {len(ids)} objects in the sequence")
+        raise ValueError(
+            f"capacity.max_objects: {capacity.max_objects} < {len(ids)} objects in the sequence"
+        )
     D_max = max(len(f.ids) for f in sequence.frames)
     if D_max > capacity.max_detections:
-        raise ValueError(f"capacity.max_detections: {capacity.max_detections} < {D_max} detections in one frame")
-    state = online_init(config, capacity, sequence.K, sequence.image_size, optimize_every=optimize_every,
-                        iterations=iterations, window=window, dtype=dtype)
+        raise ValueError(
+            f"capacity.max_detections: {capacity.max_detections} < {D_max} detections in one frame"
+        )
+    state = online_init(
+        config,
+        capacity,
+        sequence.K,
+        sequence.image_size,
+        optimize_every=optimize_every,
+        iterations=iterations,
+        window=window,
+        dtype=dtype,
+    )
     T, P = len(sequence.frames), capacity.max_poses
     poses = np.zeros((T, 4, 4))
     seconds = np.zeros(T)
     for t, fr in enumerate(sequence.frames):
-        frame = make_frame(fr.camera_T_world, fr.boxes, list(fr.classes), [slot[i] for i in fr.ids],
-                           fr.texture_depth, max_detections=capacity.max_detections,
-                           max_objects=capacity.max_objects, dtype=state.problem.K.dtype)
+        frame = make_frame(
+            fr.camera_T_world,
+            fr.boxes,
+            list(fr.classes),
+            [slot[i] for i in fr.ids],
+            fr.texture_depth,
+            max_detections=capacity.max_detections,
+            max_objects=capacity.max_objects,
+            dtype=state.problem.K.dtype,
+        )
         start = time.perf_counter()
         state = jax.block_until_ready(online_update(state, frame))
         seconds[t] = time.perf_counter() - start
-        if t + 1 >= P and t + 1 < T:  # the next frame reuses the slot of frame t + 1 - P
+        if (
+            t + 1 >= P and t + 1 < T
+        ):  # the next frame reuses the slot of frame t + 1 - P
             poses[t + 1 - P] = np.asarray(state.estimate.camera_T_world[(t + 1) % P])
         if callback is not None:
             callback(t, state, seconds[t])
@@ -587,14 +799,20 @@ def run_sequence(
             poses[t] = cams[s]
     J = len(ids)
     return SequenceResult(
-        object_ids=ids, object_classes=sequence.object_classes,
-        rotation=np.asarray(est.rotation[:J], np.float64), center=np.asarray(est.center[:J], np.float64),
-        radii=np.asarray(est.radii[:J], np.float64), camera_T_world=poses, frame_seconds=seconds,
+        object_ids=ids,
+        object_classes=sequence.object_classes,
+        rotation=np.asarray(est.rotation[:J], np.float64),
+        center=np.asarray(est.center[:J], np.float64),
+        radii=np.asarray(est.radii[:J], np.float64),
+        camera_T_world=poses,
+        frame_seconds=seconds,
         state=state,
     )
 
 
-def map_to_json(object_ids, object_classes, rotation, center, radii, camera_T_world=None) -> dict:
+def map_to_json(
+    object_ids, object_classes, rotation, center, radii, camera_T_world=None
+) -> dict:
     """An estimated map as a JSON-ready dict.
 
     Args:
@@ -611,16 +829,29 @@ def map_to_json(object_ids, object_classes, rotation, center, radii, camera_T_wo
     center = np.asarray(center, np.float64).reshape(-1, 3)
     radii = np.asarray(radii, np.float64).reshape(-1, 3)
     J = len(object_ids)
-    if not (len(object_classes) == rotation.shape[0] == center.shape[0] == radii.shape[0] == J):
+    if not (
+        len(object_classes)
+        == rotation.shape[0]
+        == center.shape[0]
+        == radii.shape[0]
+        == J
+    ):
         raise ValueError(
             f"object_ids, object_classes, rotation, center, radii: expected {J} objects each, got "
             f"{len(object_classes)}, {rotation.shape[0]}, {center.shape[0]}, {radii.shape[0]}"
         )
     out = {
-        "format": "jaxsem.roshan.map/1", "frame": "world", "units": "metres",
+        "format": "jaxsem.roshan.map/1",
+        "frame": "world",
+        "units": "metres",
         "objects": [
-            {"id": object_ids[j], "class": object_classes[j], "center": center[j].tolist(),
-             "radii": radii[j].tolist(), "rotation": rotation[j].tolist()}
+            {
+                "id": object_ids[j],
+                "class": object_classes[j],
+                "center": center[j].tolist(),
+                "radii": radii[j].tolist(),
+                "rotation": rotation[j].tolist(),
+            }
             for j in range(J)
         ],
     }
@@ -643,17 +874,27 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
     keep = [j for j, i in enumerate(result.object_ids) if i in by_id]
     out: dict = {"ids": [result.object_ids[j] for j in keep]}
     if not keep:
-        return {**out, "shape": np.zeros(0), "position": np.zeros(0), "orientation": np.zeros(0),
-                "mean": {}}
+        return {
+            **out,
+            "shape": np.zeros(0),
+            "position": np.zeros(0),
+            "orientation": np.zeros(0),
+            "mean": {},
+        }
     tr = [by_id[result.object_ids[j]] for j in keep]
     e = ellipsoid_errors(
-        result.rotation[keep], result.center[keep], result.radii[keep],
-        np.stack([o["rotation"] for o in tr]), np.stack([o["center"] for o in tr]),
+        result.rotation[keep],
+        result.center[keep],
+        result.radii[keep],
+        np.stack([o["rotation"] for o in tr]),
+        np.stack([o["center"] for o in tr]),
         np.stack([o["radii"] for o in tr]),
     )
     for k, v in e.items():
         out[k] = np.asarray(v, np.float64)
-    out["mean"] = {k: float(np.mean(out[k])) for k in ("shape", "position", "orientation")}
+    out["mean"] = {
+        k: float(np.mean(out[k])) for k in ("shape", "position", "orientation")
+    }
     return out
 
 
@@ -665,11 +906,15 @@ def _ground_outline(rotation, center, radii, num_points: int = 72):
     """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y."""
     from .. import quadrics as Q
 
-    outline, _ = Q.conic_outline(Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points)
+    outline, _ = Q.conic_outline(
+        Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points
+    )
     return np.asarray(outline, np.float64)
 
 
-def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style):
+def draw_top_down(
+    ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style
+):
     """Draws ellipsoids seen from above (world x right, y up) on matplotlib axes ``ax``.
 
     Args:
@@ -684,18 +929,42 @@ def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=
     """
     outline = _ground_outline(rotation, center, radii)
     center = np.asarray(center, np.float64).reshape(-1, 3)
-    mask = np.ones(len(outline), bool) if mask is None else np.asarray(mask, bool).reshape(-1)
+    mask = (
+        np.ones(len(outline), bool)
+        if mask is None
+        else np.asarray(mask, bool).reshape(-1)
+    )
     lines = []
     for j in np.flatnonzero(mask):
-        (line,) = ax.plot(outline[j, :, 0], outline[j, :, 1], label=label if not lines else None, **style)
+        (line,) = ax.plot(
+            outline[j, :, 0],
+            outline[j, :, 1],
+            label=label if not lines else None,
+            **style,
+        )
         lines.append(line)
         if labels is not None:
-            ax.text(center[j, 0], center[j, 1], str(labels[j]), fontsize=7, ha="center", va="center",
-                    color=style.get("color", "k"))
+            ax.text(
+                center[j, 0],
+                center[j, 1],
+                str(labels[j]),
+                fontsize=7,
+                ha="center",
+                va="center",
+                color=style.get("color", "k"),
+            )
     return lines
 
 
-def draw_camera_path(ax, camera_T_world, *, arrows: int = 8, arrow_length: float = 2.0, label="camera path", **style):
+def draw_camera_path(
+    ax,
+    camera_T_world,
+    *,
+    arrows: int = 8,
+    arrow_length: float = 2.0,
+    label="camera path",
+    **style,
+):
     """Draws camera centres (top-down) and a few viewing directions.
 
     Args:
@@ -715,13 +984,28 @@ def draw_camera_path(ax, camera_T_world, *, arrows: int = 8, arrow_length: float
             n = np.linalg.norm(d)
             if n > 1e-9:
                 d = d / n * arrow_length
-                ax.annotate("", xy=(eye[t, 0] + d[0], eye[t, 1] + d[1]), xytext=(eye[t, 0], eye[t, 1]),
-                            arrowprops=dict(arrowstyle="->", color=style["color"], lw=0.8))
+                ax.annotate(
+                    "",
+                    xy=(eye[t, 0] + d[0], eye[t, 1] + d[1]),
+                    xytext=(eye[t, 0], eye[t, 1]),
+                    arrowprops=dict(arrowstyle="->", color=style["color"], lw=0.8),
+                )
     return line
 
 
-def draw_overlay(ax, image, K, camera_T_world, image_size, boxes=None, ids=None, estimate=None,
-                 object_ids=None, *, title=None):
+def draw_overlay(
+    ax,
+    image,
+    K,
+    camera_T_world,
+    image_size,
+    boxes=None,
+    ids=None,
+    estimate=None,
+    object_ids=None,
+    *,
+    title=None,
+):
     """Detections and projected estimates over one image (or a blank canvas of the image size).
 
     Args:
@@ -743,7 +1027,11 @@ def draw_overlay(ax, image, K, camera_T_world, image_size, boxes=None, ids=None,
     if image is None:
         ax.imshow(np.full((H, W, 3), 0.92), extent=(0, W, H, 0))
     else:
-        ax.imshow(np.asarray(image), extent=(0, W, H, 0), cmap="gray" if np.ndim(image) == 2 else None)
+        ax.imshow(
+            np.asarray(image),
+            extent=(0, W, H, 0),
+            cmap="gray" if np.ndim(image) == 2 else None,
+        )
     ax.set_xlim(0, W)
     ax.set_ylim(H, 0)
     if boxes is not None:
@@ -761,7 +1049,9 @@ def draw_overlay(ax, image, K, camera_T_world, image_size, boxes=None, ids=None,
         if keep.any():
             Kf = jnp.asarray(K, jnp.float32)
             pose = jnp.asarray(camera_T_world, jnp.float32)
-            R, c, r = (jnp.asarray(x[keep], jnp.float32) for x in (rotation, center, radii))
+            R, c, r = (
+                jnp.asarray(x[keep], jnp.float32) for x in (rotation, center, radii)
+            )
             conic = Q.project_dual_conic(Q.dual_quadric(R, c, r), Kf, pose)
             outline, ok_c = Q.conic_outline(conic, 96)
             pbox, ok_b = Q.project_bbox(R, c, r, Kf, pose)
@@ -769,7 +1059,9 @@ def draw_overlay(ax, image, K, camera_T_world, image_size, boxes=None, ids=None,
                 if bool(ok_b[k]) and bool(ok_c[k]):
                     pts = np.asarray(outline[k])
                     ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.2)
-                    ax.add_patch(_rect(np.asarray(pbox[k]), color="tab:blue", lw=0.8, ls="--"))
+                    ax.add_patch(
+                        _rect(np.asarray(pbox[k]), color="tab:blue", lw=0.8, ls="--")
+                    )
     if title:
         ax.set_title(title, fontsize=9)
     ax.set_xticks([])
@@ -779,4 +1071,6 @@ def draw_overlay(ax, image, K, camera_T_world, image_size, boxes=None, ids=None,
 def _rect(b, **style):
     import matplotlib.patches as mpatches
 
-    return mpatches.Rectangle((b[0], b[1]), b[2] - b[0], b[3] - b[1], fill=False, **style)
+    return mpatches.Rectangle(
+        (b[0], b[1]), b[2] - b[0], b[3] - b[1], fill=False, **style
+    )
