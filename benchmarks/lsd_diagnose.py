@@ -234,6 +234,9 @@ def main(argv=None) -> int:
             f"({s['uniform_logp']:.2f}) | {100 * fr['uniform']:.0f} % / {100 * fr['lsd']:.0f} % / "
             f"{100 * fr['lsd_euclid']:.0f} % |"
         )
+    finding = pathlib.Path(__file__).with_name("lsd_diagnose_finding.md")
+    if finding.exists():  # the write-up of the committed run (numbers from its table)
+        lines.append(finding.read_text())
     _write(out / f"{args.name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
