@@ -178,3 +178,12 @@ def test_export_and_load_model_file_round_trip(run, tmp_path):
     if PRETRAINED_CPU.exists():  # the bundled model matches the 160 x 160 planner crops
         m, _, c = load_model()
         assert m.config.map_size == 160 and c.model.context_dim == 4
+
+
+def test_shipped_model_is_the_default():
+    from jaxsem.lsd import PRETRAINED, load_model, load_model_file
+
+    assert PRETRAINED.exists() and PRETRAINED.with_name("MODEL_CARD.md").exists()
+    model, params, cfg = load_model()
+    _, _, cfg_file = load_model_file(PRETRAINED)
+    assert cfg == cfg_file and cfg.model.log_range == 8.0 and model.config.map_size == 160
