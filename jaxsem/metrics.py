@@ -79,14 +79,16 @@ def ellipsoid_errors(
       equal_rtol: relative tolerance under which two true radii count as equal.
 
     Returns:
-      dict of (...) arrays ``shape``, ``position``, ``orientation``.
+      dict of (...) arrays ``shape``, ``position``, ``orientation``. A non-finite prediction (a
+      failed estimate) gives NaN errors, never a finite-looking one; non-finite concrete ground
+      truth raises ``ValueError`` naming the argument.
     """
     Rp = _as_float_array("pred_rotation", pred_rotation, (3, 3))
-    Rt = _as_float_array("true_rotation", true_rotation, (3, 3))
+    Rt = _as_float_array("true_rotation", true_rotation, (3, 3), check_finite=True)
     cp = _as_float_array("pred_center", pred_center, (3,))
-    ct = _as_float_array("true_center", true_center, (3,))
+    ct = _as_float_array("true_center", true_center, (3,), check_finite=True)
     rp = jnp.abs(_as_float_array("pred_radii", pred_radii, (3,)))
-    rt = jnp.abs(_as_float_array("true_radii", true_radii, (3,)))
+    rt = jnp.abs(_as_float_array("true_radii", true_radii, (3,), check_finite=True))
     batch = _batch_shape(
         pred_rotation=Rp.shape[:-2], true_rotation=Rt.shape[:-2], pred_center=cp.shape[:-1],
         true_center=ct.shape[:-1], pred_radii=rp.shape[:-1], true_radii=rt.shape[:-1],
@@ -218,12 +220,12 @@ def box_volume_intersection(rotation_a, center_a, half_extents_a, rotation_b, ce
 
 
 def _box_args(Ra, ca, ha, Rb, cb, hb):
-    Ra = _as_float_array("rotation_a", Ra, (3, 3))
-    Rb = _as_float_array("rotation_b", Rb, (3, 3))
-    ca = _as_float_array("center_a", ca, (3,))
-    cb = _as_float_array("center_b", cb, (3,))
-    ha = jnp.abs(_as_float_array("half_extents_a", ha, (3,)))
-    hb = jnp.abs(_as_float_array("half_extents_b", hb, (3,)))
+    Ra = _as_float_array("rotation_a", Ra, (3, 3), check_finite=True)
+    Rb = _as_float_array("rotation_b", Rb, (3, 3), check_finite=True)
+    ca = _as_float_array("center_a", ca, (3,), check_finite=True)
+    cb = _as_float_array("center_b", cb, (3,), check_finite=True)
+    ha = jnp.abs(_as_float_array("half_extents_a", ha, (3,), check_finite=True))
+    hb = jnp.abs(_as_float_array("half_extents_b", hb, (3,), check_finite=True))
     batch = _batch_shape(
         rotation_a=Ra.shape[:-2], center_a=ca.shape[:-1], half_extents_a=ha.shape[:-1],
         rotation_b=Rb.shape[:-2], center_b=cb.shape[:-1], half_extents_b=hb.shape[:-1],
@@ -265,7 +267,7 @@ def iou_3d_boxes(rotation_a, center_a, half_extents_a, rotation_b, center_b, hal
 
 def add(model_points_true, model_points_pred):
     """ADD: mean distance between corresponding points (..., N, 3) under two poses."""
-    a = _as_float_array("model_points_true", model_points_true, (3,))
+    a = _as_float_array("model_points_true", model_points_true, (3,), check_finite=True)
     b = _as_float_array("model_points_pred", model_points_pred, (3,))
     return jnp.mean(safe_norm(a - b, axis=-1), axis=-1)
 
@@ -281,7 +283,7 @@ def adi(true_points, pred_points, true_mask=None, pred_mask=None):
     Returns:
       (...) mean nearest-neighbour distance (metres); 0 where no true point is valid.
     """
-    a = _as_float_array("true_points", true_points, (3,))
+    a = _as_float_array("true_points", true_points, (3,), check_finite=True)
     b = _as_float_array("pred_points", pred_points, (3,))
     d2 = jnp.sum(jnp.square(a[..., :, None, :] - b[..., None, :, :]), axis=-1)
     if pred_mask is not None:

@@ -116,3 +116,13 @@ def test_cost_statistics():
     assert m.zero_intercept_slope([1.0, 2.0], [2.0, 4.0]) == pytest.approx(2.0)
     with pytest.raises(ValueError, match="x, y"):
         m.zero_intercept_slope([1.0], [1.0, 2.0])
+
+
+def test_non_finite_ground_truth_is_refused_and_failed_predictions_stay_nan():
+    eye, c, r = np.eye(3), np.zeros(3), np.array([0.3, 0.2, 0.1])
+    with pytest.raises(ValueError, match="true_center: must be finite"):
+        m.ellipsoid_errors(eye, c, r, eye, np.array([np.nan, 0, 0]), r)
+    with pytest.raises(ValueError, match="half_extents_b: must be finite"):
+        m.iou_3d_boxes(eye, c, r, eye, c, np.array([np.inf, 0.1, 0.1]))
+    err = m.ellipsoid_errors(eye, jnp.array([jnp.nan, 0.0, 0.0]), r, eye, c, r)
+    assert bool(jnp.isnan(err["position"]))
