@@ -394,14 +394,17 @@ def _triangulate(problem: SlamProblem, est: SlamEstimate):
 
 
 def _rescue(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
-    invalid, _ = box_health(problem, est, config)
-    stranded = invalid & problem.object_mask
+    """Suspect objects: no valid projection in one of their frames, or a whitened box-edge RMS
+    above ``config.unfixable_rms`` at ``est``. Those whose box-centre rays triangulate well are
+    re-placed there (rotation and radii kept)."""
+    invalid, rms = box_health(problem, est, config)
+    suspect = (invalid | (rms > config.unfixable_rms)) & problem.object_mask
     point, ok = _triangulate(problem, est)
-    move = stranded & ok
+    move = suspect & ok
     center = jnp.where(move[:, None], point, est.center)
     return (
         SlamEstimate(est.camera_T_world, est.rotation, center, est.radii),
-        stranded,
+        suspect,
         move,
     )
 
@@ -427,10 +430,11 @@ def solve_schur(
 
     With ``config.robust_init`` (the default) a solve has up to three phases:
 
-    1. objects with no valid projection in one of their frames at ``init`` ("stranded", e.g.
-       QuadricSLAM's plain initialisation 10 m along the first bearing, which the camera later
-       passes) are re-placed at the triangulated intersection of their box-centre rays when
-       the rays are well spread (rotation and radii kept);
+    1. objects with no valid projection in one of their frames at ``init`` (e.g. QuadricSLAM's
+       plain initialisation 10 m along the first bearing, which the camera later passes), or
+       whose box edges disagree with the data by more than ``config.unfixable_rms`` sigmas
+       (RMS), are "stranded"; they are re-placed at the triangulated intersection of their
+       box-centre rays when the rays are well spread (rotation and radii kept);
     2. the stranded objects alone are solved with every pose held (poses cannot be pulled);
        those still invalid, or with a box-edge RMS above ``config.unfixable_rms`` sigmas, are
        flagged ``info.unfixable`` and left out of phase 3 (their boxes are masked there);

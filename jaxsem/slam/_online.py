@@ -26,9 +26,10 @@ import jax
 import jax.numpy as jnp
 
 from .. import factors as F
-from ._batch import solve_schur
+from ._batch import _all_finite, _to_results, levenberg_marquardt
 from ._cost import class_table
 from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, SolverConfig
+from ._results import RESULTS
 
 
 class OnlineState(eqx.Module):
@@ -39,6 +40,10 @@ class OnlineState(eqx.Module):
       estimate: :class:`SlamEstimate` of the same sizes.
       pose_frame: (P,) int32 frame number held by each pose slot (-1 = empty).
       frame_count: () int32 frames seen. box_count: () int32 boxes written.
+      result: :data:`jaxsem.slam.RESULTS` of this frame's update: ``successful`` when the
+        frame needed no optimisation or its LM met the stopping rule with a finite state;
+        ``max_steps_reached`` when the ``iterations`` budget ran out first (normal online,
+        the next optimisation continues); a failure code otherwise.
       config: :class:`SolverConfig`.
       optimize_every, iterations, window, max_detections: static ints.
     """
@@ -48,6 +53,7 @@ class OnlineState(eqx.Module):
     pose_frame: jnp.ndarray
     frame_count: jnp.ndarray
     box_count: jnp.ndarray
+    result: RESULTS
     config: SolverConfig
     optimize_every: int = eqx.field(static=True)
     iterations: int = eqx.field(static=True)
@@ -91,32 +97,52 @@ def online_init(
         raise ValueError(f"K: expected finite (3, 3) intrinsics, got shape {K.shape}")
     image_size = np.asarray(image_size, float)
     if image_size.shape != (2,) or not np.all(image_size > 0):
-        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+        raise ValueError(
+            f"image_size: expected [width, height] > 0, got {image_size.tolist()}"
+        )
     # Concrete, non-weak float leaves: the jitted update returns the same avals it was given,
     # so the second call hits the compilation cache.
     config = jax.tree_util.tree_map(
-        lambda x: jnp.asarray(x, dtype) if isinstance(x, (float, int)) and not isinstance(x, bool)
-        else x, config,
+        lambda x: (
+            jnp.asarray(x, dtype)
+            if isinstance(x, (float, int)) and not isinstance(x, bool)
+            else x
+        ),
+        config,
     )
     eye4 = jnp.broadcast_to(jnp.eye(4, dtype=dtype), (P, 4, 4))
     problem = SlamProblem(
-        K=jnp.asarray(K, dtype), image_size=jnp.asarray(image_size, dtype),
-        pose_prior=eye4, pose_mask=jnp.zeros(P, bool),
+        K=jnp.asarray(K, dtype),
+        image_size=jnp.asarray(image_size, dtype),
+        pose_prior=eye4,
+        pose_mask=jnp.zeros(P, bool),
         box=jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0, 1.0], dtype), (B, 4)),
-        box_pose=jnp.zeros(B, jnp.int32), box_object=jnp.zeros(B, jnp.int32),
-        box_mask=jnp.zeros(B, bool), texture_depth=jnp.zeros(B, dtype),
-        texture_mask=jnp.zeros(B, bool), object_class=jnp.zeros(J, jnp.int32),
+        box_pose=jnp.zeros(B, jnp.int32),
+        box_object=jnp.zeros(B, jnp.int32),
+        box_mask=jnp.zeros(B, bool),
+        texture_depth=jnp.zeros(B, dtype),
+        texture_mask=jnp.zeros(B, bool),
+        object_class=jnp.zeros(J, jnp.int32),
         object_mask=jnp.zeros(J, bool),
     )
     estimate = SlamEstimate(
-        camera_T_world=eye4, rotation=jnp.broadcast_to(jnp.eye(3, dtype=dtype), (J, 3, 3)),
-        center=jnp.zeros((J, 3), dtype), radii=jnp.ones((J, 3), dtype),
+        camera_T_world=eye4,
+        rotation=jnp.broadcast_to(jnp.eye(3, dtype=dtype), (J, 3, 3)),
+        center=jnp.zeros((J, 3), dtype),
+        radii=jnp.ones((J, 3), dtype),
     )
     return OnlineState(
-        problem=problem, estimate=estimate, pose_frame=jnp.full(P, -1, jnp.int32),
-        frame_count=jnp.asarray(0, jnp.int32), box_count=jnp.asarray(0, jnp.int32),
-        config=config, optimize_every=int(optimize_every), iterations=int(iterations),
-        window=int(P if window is None else window), max_detections=int(D),
+        problem=problem,
+        estimate=estimate,
+        pose_frame=jnp.full(P, -1, jnp.int32),
+        frame_count=jnp.asarray(0, jnp.int32),
+        box_count=jnp.asarray(0, jnp.int32),
+        result=RESULTS.successful,
+        config=config,
+        optimize_every=int(optimize_every),
+        iterations=int(iterations),
+        window=int(P if window is None else window),
+        max_detections=int(D),
     )
 
 
@@ -127,9 +153,19 @@ def _pose_free(state: OnlineState):
 
 def _optimize(state: OnlineState, iterations: int, all_poses: bool) -> OnlineState:
     free = state.problem.pose_mask if all_poses else _pose_free(state)
-    est, _ = solve_schur(state.problem, state.estimate, state.config,
-                         max_steps=iterations, pose_free=free)
-    return eqx.tree_at(lambda s: s.estimate, state, est)
+    dtype = state.problem.pose_prior.dtype
+    # Plain LM (no rescue phases): online objects are initialised from one detection each.
+    est, _, _, _, code = levenberg_marquardt(
+        state.problem,
+        state.estimate,
+        state.config,
+        free.astype(dtype),
+        state.problem.object_mask,
+        iterations,
+    )
+    return eqx.tree_at(
+        lambda s: (s.estimate, s.result), state, (est, _to_results(code))
+    )
 
 
 def _insert(state: OnlineState, frame: Frame) -> OnlineState:
@@ -155,8 +191,12 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     mean, _ = class_table(cfg, dtype)
     tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
     R0, c0, r0 = F.single_view_init(
-        prior, frame.box.astype(dtype), pb.K, mean[frame.box_class],
-        texture_depth=frame.texture_depth.astype(dtype), texture_mask=tex_ok,
+        prior,
+        frame.box.astype(dtype),
+        pb.K,
+        mean[frame.box_class],
+        texture_depth=frame.texture_depth.astype(dtype),
+        texture_mask=tex_ok,
         default_depth=cfg.default_depth,
     )
     tgt = jnp.where(is_new, oid, J)  # J = out of range -> dropped
@@ -173,23 +213,39 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     box_pose = pb.box_pose.at[pos].set(slot, mode="drop")
     box_object = pb.box_object.at[pos].set(oid, mode="drop")
     box_mask = box_mask.at[pos].set(True, mode="drop")
-    tex_depth = pb.texture_depth.at[pos].set(frame.texture_depth.astype(dtype), mode="drop")
+    tex_depth = pb.texture_depth.at[pos].set(
+        frame.texture_depth.astype(dtype), mode="drop"
+    )
     tex_mask = pb.texture_mask.at[pos].set(frame.texture_mask & det, mode="drop")
     tex_mask = tex_mask & box_mask
 
     problem = SlamProblem(
-        K=pb.K, image_size=pb.image_size, pose_prior=pose_prior, pose_mask=pose_mask,
-        box=box, box_pose=box_pose, box_object=box_object, box_mask=box_mask,
-        texture_depth=tex_depth, texture_mask=tex_mask, object_class=object_class,
+        K=pb.K,
+        image_size=pb.image_size,
+        pose_prior=pose_prior,
+        pose_mask=pose_mask,
+        box=box,
+        box_pose=box_pose,
+        box_object=box_object,
+        box_mask=box_mask,
+        texture_depth=tex_depth,
+        texture_mask=tex_mask,
+        object_class=object_class,
         object_mask=object_mask,
     )
     estimate = SlamEstimate(cam, rotation, center, radii)
     return OnlineState(
-        problem=problem, estimate=estimate, pose_frame=pose_frame,
+        problem=problem,
+        estimate=estimate,
+        pose_frame=pose_frame,
         frame_count=state.frame_count + 1,
         box_count=(state.box_count + jnp.sum(det)).astype(jnp.int32),
-        config=cfg, optimize_every=state.optimize_every, iterations=state.iterations,
-        window=state.window, max_detections=state.max_detections,
+        result=RESULTS.successful,
+        config=cfg,
+        optimize_every=state.optimize_every,
+        iterations=state.iterations,
+        window=state.window,
+        max_detections=state.max_detections,
     )
 
 
@@ -201,9 +257,15 @@ def _update(state: OnlineState, frame: Frame) -> OnlineState:
         )
     state = _insert(state, frame)
     due = (state.frame_count % state.optimize_every) == 0
-    return jax.lax.cond(
+    state = jax.lax.cond(
         due, lambda s: _optimize(s, s.iterations, False), lambda s: s, state
     )
+    # Never success on non-finite data: this frame, the held graph or the estimate.
+    finite = (
+        _all_finite(frame) & _all_finite(state.problem) & _all_finite(state.estimate)
+    )
+    result = RESULTS.where(finite, state.result, RESULTS.nonfinite)
+    return eqx.tree_at(lambda s: s.result, state, result)
 
 
 online_update = jax.jit(_update)

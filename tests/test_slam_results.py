@@ -1,0 +1,139 @@
+"""Issue 12: result codes never lie (NaN / inf input, step budget), throw=, float32 under x64,
+no recompile within a capacity bucket, online codes per frame, pose priors hold under
+QuadricSLAM's plain initialisation on a small Forward problem."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem import factors as F
+from jaxsem import slam
+
+CFG = slam.SolverConfig(max_steps=30)
+SOLVE = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
+
+
+def _small(seed=0, capacity=None, num_frames=8):
+    return slam.toy_map(
+        seed, num_objects=2, num_frames=num_frames, path="orbit", capacity=capacity
+    )
+
+
+def test_clean_problem_succeeds_and_reports_steps():
+    problem, _ = _small()
+    _, info = SOLVE(problem, slam.initialize(problem, CFG))
+    assert bool(info.success) and bool(info.result == slam.RESULTS.successful)
+    assert int(info.accepted) >= 1 and int(info.steps) >= int(info.accepted)
+    assert float(info.cost) < float(info.initial_cost)
+
+
+@pytest.mark.parametrize("where", ["init_center", "init_pose", "box", "prior_inf"])
+def test_nonfinite_input_is_never_success(where):
+    problem, _ = _small()
+    init = slam.initialize(problem, CFG)
+    if where == "init_center":
+        init = eqx.tree_at(lambda e: e.center, init, init.center.at[0, 0].set(jnp.nan))
+    elif where == "init_pose":
+        init = eqx.tree_at(
+            lambda e: e.camera_T_world,
+            init,
+            init.camera_T_world.at[1, 0, 3].set(jnp.nan),
+        )
+    elif where == "box":
+        problem = eqx.tree_at(
+            lambda p: p.box, problem, problem.box.at[0, 2].set(jnp.nan)
+        )
+    else:
+        problem = eqx.tree_at(
+            lambda p: p.pose_prior, problem, problem.pose_prior.at[2, 1, 3].set(jnp.inf)
+        )
+    _, info = SOLVE(problem, init)
+    assert not bool(info.success)
+    assert bool(info.result == slam.RESULTS.nonfinite)
+    with pytest.raises(Exception, match="Non-finite"):
+        jax.block_until_ready(slam.solve_schur(problem, init, CFG, throw=True))
+
+
+def test_step_budget_is_not_success_and_throw_raises():
+    problem, _ = _small()
+    init = slam.initialize(problem, CFG)
+    init = eqx.tree_at(lambda e: e.center, init, init.center + 3.0)
+    _, info = slam.solve_schur(problem, init, CFG, max_steps=1)
+    assert bool(info.result == slam.RESULTS.max_steps_reached) and not bool(
+        info.success
+    )
+    with pytest.raises(Exception, match="maximum number of steps"):
+        jax.block_until_ready(
+            slam.solve_schur(problem, init, CFG, max_steps=1, throw=True)
+        )
+
+
+def test_float32_problem_under_x64():
+    assert jax.config.jax_enable_x64
+    problem, _ = _small()
+    f32 = jax.tree_util.tree_map(
+        lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, problem
+    )
+    init = slam.initialize(f32, CFG)
+    est, info = slam.solve_schur(f32, init, CFG)
+    assert est.center.dtype == jnp.float32 and info.cost.dtype == jnp.float32
+    assert bool(info.success), slam.result_message(info.result)
+
+
+def test_no_recompile_for_another_size_in_the_same_bucket():
+    cap = slam.bucket_capacity(9, 18, 2)
+    assert cap == slam.bucket_capacity(12, 20, 2)
+    a, _ = _small(1, capacity=cap, num_frames=7)
+    b, _ = _small(2, capacity=cap, num_frames=9)
+    solve = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
+    solve(a, slam.initialize(a, CFG))
+    before = solve._cache_size()
+    _, info = solve(b, slam.initialize(b, CFG))
+    assert solve._cache_size() == before == 1
+    assert bool(jnp.isfinite(info.cost))
+
+
+def test_online_update_returns_a_code_per_frame():
+    problem, _ = _small(3)
+    frames = slam.frames_from_problem(problem, max_detections=2)
+    cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
+    state = slam.online_init(
+        CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=3
+    )
+    codes = []
+    for frame in frames:
+        state = slam.online_update(state, frame)
+        codes.append(int(slam.result_code(state.result)))
+    assert set(codes) <= {0, 1}, (
+        codes
+    )  # successful or step budget; never a failure here
+    bad = eqx.tree_at(lambda f: f.box, frames[1], frames[1].box.at[0, 0].set(jnp.nan))
+    state = slam.online_update(state, bad)
+    assert bool(state.result == slam.RESULTS.nonfinite)
+
+
+def test_pose_priors_hold_under_plain_initialisation_forward():
+    """QuadricSLAM's initial values (10 m along the first bearing, identity, radii 1 m) on a
+    Forward path: cameras stay within 3 sigma of their priors; no object drags them."""
+    problem, _ = slam.toy_map(
+        4, num_objects=4, num_frames=24, path="forward", pose_noise=(0.05, 0.0175)
+    )
+    cfg = slam.baseline_config(baseline_shape_weight=0.0, max_steps=60)
+    init = slam.initialize(problem, cfg)  # default depth 10 m, class-mean radii ...
+    init = slam.SlamEstimate(
+        init.camera_T_world, init.rotation, init.center, jnp.ones_like(init.radii)
+    )
+    est, info = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))(problem, init)
+    assert bool(jnp.isfinite(info.cost))
+    n = cfg.noise
+    w = F.pose_prior_residual(
+        est.camera_T_world,
+        problem.pose_prior,
+        n.pose_rotation_sigma,
+        n.pose_translation_sigma,
+    )
+    # Mahalanobis distance per pose (6 dof): 3 sigma per axis at most, as a norm.
+    r = jnp.linalg.norm(w, axis=-1)
+    assert float(jnp.max(r)) < 3.0 * np.sqrt(6.0), np.asarray(r)
