@@ -565,6 +565,19 @@ def make_frame(
     )
 
 
+def bucket_capacity(
+    num_poses: int, num_boxes: int, num_objects: int, *, minimum: int = 8
+):
+    """Padded ``(T, M, J)`` capacity for a problem of these sizes: each rounded up to a power of
+    two (at least ``minimum``). Problems in one bucket share one compilation of every solver
+    (pass it as ``make_problem(..., capacity=...)``); a bucket wastes at most half its slots."""
+    sizes = (num_poses, num_boxes, num_objects)
+    if any(int(n) < 0 for n in sizes):
+        raise ValueError(f"bucket_capacity: sizes must be >= 0, got {sizes}")
+    up = lambda n: max(int(minimum), 1 << max(int(n) - 1, 0).bit_length())
+    return up(num_poses), up(num_boxes), up(num_objects)
+
+
 def stack_problems(problems):
     """Stack problems of equal padded size along a new leading axis (for ``jax.vmap``)."""
     import jax
