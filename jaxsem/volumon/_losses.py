@@ -81,6 +81,10 @@ class LossConfig:
         misplaced one of the right size; the network then inflates the axis a silhouette cannot
         see, the one along the viewing ray (the size collapse). The radial distance is
         symmetric and in metres.
+      alpha_V: weight of a small volume prior, the batch mean of ``log(d0 d1 d2)``: boxes fix
+        the extents across the view and the depth points the visible surface, but nothing seen
+        from one side fixes the extent behind it; the prior takes the smallest object consistent
+        with both (0: off, the thesis).
       alpha_O: weight of the fully supervised *oracle* term (:func:`oracle_loss`, 3D labels; a
         diagnostic upper bound on what the backbone can learn, not a VoluMon variant).
     """
@@ -98,10 +102,11 @@ class LossConfig:
     shape_aware: bool = False
     alpha_O: float = 0.0
     primal_distance: str = "algebraic"
+    alpha_V: float = 0.0
 
     def __post_init__(self):
         for name in ("alpha_P", "alpha_D", "alpha_S", "alpha_C", "eps_v", "invalid_penalty", "min_depth",
-                     "primal_size_power", "alpha_O"):
+                     "primal_size_power", "alpha_O", "alpha_V"):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"{name}: expected a non-negative number, got {getattr(self, name)!r}")
         if self.primal_distance not in ("algebraic", "radial"):
@@ -336,5 +341,9 @@ def volumon_loss(
         cls = _masked_mean(ce, jnp.ones(ce.shape, bool) if mask is None else jnp.asarray(mask, bool))
     total = (config.alpha_D * dual + config.alpha_P * primal + config.alpha_S * size + config.alpha_C * cls
              + config.alpha_O * oracle)
+    if config.alpha_V > 0:
+        logvol = jnp.sum(jnp.log(ellipsoid.sizes / config.length_unit), -1)
+        total = total + config.alpha_V * _masked_mean(logvol, jnp.ones(logvol.shape, bool) if mask is None
+                                                      else jnp.asarray(mask, bool))
     return LossTerms(total, dual, primal, size, cls, oracle)
 
