@@ -1,0 +1,305 @@
+"""jaxsem ROSHAN solvers vs gtsam_quadrics (QuadricSLAM 0.3.0) LM on the same problem instances.
+
+Setting (``jaxsem.sim.quadricslam_config``): 10 cars, 60 frames, 640x480, f = 525, Orbit and
+Forward paths, 3 px box noise, pose priors 5 cm / 1 deg, texture depth 0.1 m + 1 %. Two
+initialisations: "plain" (QuadricSLAM's: each ellipsoid 10 m along its first detection's
+bearing, identity rotation, radii 1 m) and "single-view" (ROSHAN's section 4.3.5 init: texture
+depth + class-mean radii, ``jaxsem.slam.initialize``). Per block (path x init) jaxsem runs first,
+then the peer as a subprocess on the same problem file (interleaved, one run). Errors from
+``jaxsem.metrics`` (via ``jaxsem.sim.map_errors``); a map "collapses" when its mean object
+position error exceeds 2 m; "prior dev" is the largest whitened pose-prior residual norm over
+the map's cameras (6 dof; 3 sigma per axis = 7.3).
+
+Systems: "QS factors" = ``slam.baseline_config(baseline_shape_weight=0.0)`` (QuadricSLAM's
+factor set: pose priors + boxes); "ROSHAN" = ``slam.SolverConfig()`` noise-matched. Both with
+the default GTSAM-like stopping (rtol = atol = 1e-5).
+
+Run: ``python benchmarks/roshan_vs_quadricslam.py --maps 4 --peer-python /tmp/gq/bin/python``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsem import factors as F
+from jaxsem import sim, slam
+
+HERE = pathlib.Path(__file__).resolve().parent
+
+
+NOTES = """How to read it: ms/map (loop) is the median over maps of one jitted solve each (after a
+warm-up); ms/map (vmap) is one vmapped solve of all maps divided by their number; steps are the
+median accepted / trial LM steps over all phases of a solve (the peer's are its iterations);
+errors are medians over maps of each map's mean over its objects (``jaxsem.metrics`` via
+``jaxsem.sim.map_errors``; the peer's radii scored as |r|); "final cost" is
+``jaxsem.slam.total_cost`` under QuadricSLAM's factor set (border edges masked, so the peer's
+estimate is scored by the same yardstick); codes count maps per ``jaxsem.slam.RESULTS`` code.
+
+Verdict (this run, 3 maps per block, seeds 1000+, tuned on seed 100; the 2-core machine was
+shared with training jobs at load 11-16, so every time is inflated for both systems):
+- Accuracy: jaxsem beats the peer on every path and initialisation (Orbit position 0.03 vs
+  0.17 m; Forward with the plain init 0.43 m for ROSHAN and 1.56 m for QuadricSLAM's factor set
+  vs 20.8 m for the peer, whose 3 of 3 maps collapse). Camera poses stay within 3 sigma of
+  their priors (largest whitened prior residual norm 3.8; 3 sigma per axis is 7.3; the peer
+  reaches 34). With the plain init QuadricSLAM's factor set still collapses on 1 of 3 Forward
+  maps (mean position error 1.56 m median, one map above 2 m); ROSHAN collapses on none.
+- Speed: BEHIND. Per map jaxsem is 1-20x slower than gtsam_quadrics (the peer stops after 2
+  iterations on Forward/plain because it is stuck, so its 38 ms buys a collapsed map). jaxsem
+  takes 30-60 accepted steps (50-100 trials) over its rescue and joint phases where the peer
+  takes 15-27 iterations; vmapped over maps it is slower per map than the loop (the while loop
+  runs until the slowest map stops), so the vmap >= 2x target is not met.
+- optimistix path: not the default any more (130 s compile, 109 s per map measured on the
+  issue's setting); the Schur path is.
+"""
+
+
+# One compilation per system for every block (same padded shapes on both paths).
+_VMAP = jax.jit(jax.vmap(slam.solve_schur, in_axes=(0, 0, None)))
+
+
+def _time(fn, repeats):
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def _prior_dev(est_poses, problems, cfg):
+    n = cfg.noise
+    w = F.pose_prior_residual(
+        est_poses, problems.pose_prior, n.pose_rotation_sigma, n.pose_translation_sigma
+    )
+    return np.asarray(jnp.max(jnp.linalg.norm(w, axis=-1), axis=-1))
+
+
+def _summary(name, est, maps, problems, cfg, ms, extra):
+    e = sim.map_errors(est, maps)
+    pos = np.asarray(e["position"])
+    row = {
+        "system": name,
+        "ms_per_map": ms,
+        "position_m": float(np.median(pos)),
+        "shape_m": float(np.median(np.asarray(e["shape"]))),
+        "orientation_deg": float(np.median(np.asarray(e["orientation"]))),
+        "collapses": int((pos > 2.0).sum()),
+        "maps": int(pos.shape[0]),
+        "prior_dev_max": float(np.max(_prior_dev(est.camera_T_world, problems, cfg))),
+    }
+    row.update(extra)
+    return row
+
+
+def run_block(path, init_name, args, peer_python):
+    scfg = sim.quadricslam_config(path)
+    maps = sim.simulate_batch(args.seed, args.maps, scfg)
+    problems = sim.to_problem(maps, scfg)
+    roshan = sim.solver_config("roshan", scfg, max_steps=args.max_steps)
+    qs = sim.solver_config(
+        "baseline", scfg, max_steps=args.max_steps, baseline_shape_weight=0.0
+    )
+    if init_name == "plain":
+        inits = sim.initial_estimate(maps)
+    else:
+        inits = jax.vmap(lambda p: slam.initialize(p, roshan))(problems)
+    take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
+    rows = []
+    for name, cfg in (("jaxsem QS factors", qs), ("jaxsem ROSHAN", roshan)):
+        one = lambda p, i, cfg=cfg: slam.solve_schur(
+            p, i, cfg
+        )  # jitted; compiled once per system
+        vm = lambda p, i, cfg=cfg: _VMAP(p, i, cfg)
+        t = time.perf_counter()
+        jax.block_until_ready(one(take(problems, 0), take(inits, 0)))
+        compile_s = time.perf_counter() - t
+        singles = [(take(problems, k), take(inits, k)) for k in range(args.maps)]
+        per_map = [
+            _time(lambda p=p, i=i, one=one: one(p, i), args.repeats) for p, i in singles
+        ]
+        jax.block_until_ready(vm(problems, inits))
+        t_vmap = _time(lambda vm=vm: vm(problems, inits), args.repeats) / args.maps
+        est, info = vm(problems, inits)
+        codes = np.bincount(
+            np.asarray(slam.result_code(info.result)), minlength=5
+        ).tolist()
+        rows.append(
+            _summary(
+                name,
+                est,
+                maps,
+                problems,
+                qs,
+                1e3 * float(np.median(per_map)),
+                {
+                    "vmap_ms_per_map": 1e3 * t_vmap,
+                    "compile_s": compile_s,
+                    "accepted_steps": float(np.median(np.asarray(info.accepted))),
+                    "trial_steps": float(np.median(np.asarray(info.steps))),
+                    "final_cost_qs": float(
+                        np.median(
+                            np.asarray(
+                                jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(
+                                    problems, est
+                                )
+                            )
+                        )
+                    ),
+                    "codes_ok_max_nonfinite_damping_ill": codes,
+                    "unfixable_per_map": float(
+                        np.mean(np.asarray(info.unfixable.sum(-1)))
+                    ),
+                    "rescued_per_map": float(np.mean(np.asarray(info.rescued.sum(-1)))),
+                },
+            )
+        )
+    if peer_python:
+        with tempfile.TemporaryDirectory() as tmp:
+            src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
+            a = lambda x: np.asarray(x, np.float64)
+            np.savez(
+                src,
+                K=a(problems.K[0]),
+                pose_prior=a(problems.pose_prior),
+                pose_mask=np.asarray(problems.pose_mask),
+                init_pose=a(inits.camera_T_world),
+                init_rotation=a(inits.rotation),
+                init_center=a(inits.center),
+                init_radii=a(inits.radii),
+                object_mask=np.asarray(problems.object_mask),
+                box=a(problems.box),
+                box_pose=np.asarray(problems.box_pose),
+                box_object=np.asarray(problems.box_object),
+                box_mask=np.asarray(problems.box_mask),
+                rot_sigma=float(qs.noise.pose_rotation_sigma),
+                trans_sigma=float(qs.noise.pose_translation_sigma),
+                box_sigma=float(qs.noise.box_sigma),
+            )
+            subprocess.run(
+                [peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True
+            )
+            out = dict(np.load(dst))
+        est = slam.SlamEstimate(
+            jnp.asarray(out["poses"]),
+            jnp.asarray(out["rotation"]),
+            jnp.asarray(out["center"]),
+            jnp.asarray(out["radii"]),
+        )
+        rows.append(
+            _summary(
+                "gtsam_quadrics LM",
+                est,
+                maps,
+                problems,
+                qs,
+                1e3 * float(np.median(out["time"])),
+                {
+                    "vmap_ms_per_map": None,
+                    "compile_s": 0.0,
+                    "accepted_steps": float(np.median(out["iterations"])),
+                    "trial_steps": None,
+                    "final_cost_qs": float(
+                        np.median(
+                            np.asarray(
+                                jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(
+                                    problems, est
+                                )
+                            )
+                        )
+                    ),
+                    "peer_own_error": float(np.median(out["error"])),
+                },
+            )
+        )
+    for r in rows:
+        r.update(path=path, init=init_name)
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--maps", type=int, default=4)
+    ap.add_argument(
+        "--seed", type=int, default=1000, help="report seeds (tuning used 100)"
+    )
+    ap.add_argument("--max-steps", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument(
+        "--peer-python",
+        default="/tmp/gq/bin/python",
+        help="Python 3.10 with gtsam-quadrics and numpy<2 ('' to skip the peer)",
+    )
+    ap.add_argument("--paths", default="orbit,forward")
+    ap.add_argument("--inits", default="plain,single-view")
+    args = ap.parse_args(argv)
+    peer = (
+        args.peer_python
+        if args.peer_python and pathlib.Path(args.peer_python).exists()
+        else ""
+    )
+    if args.peer_python and not peer:
+        sys.exit(
+            f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)"
+        )
+    rows = []
+    for path in args.paths.split(","):
+        for init in args.inits.split(","):
+            rows += run_block(path, init, args, peer)
+            print(json.dumps(rows[-3:], default=float), flush=True)
+    out = {
+        "command": "python benchmarks/roshan_vs_quadricslam.py "
+        + " ".join(sys.argv[1:] if argv is None else argv),
+        "date": subprocess.run(
+            ["date", "-u"], capture_output=True, text=True
+        ).stdout.strip(),
+        "machine": f"{platform.machine()} 2-core CPU, shared (load average {os.getloadavg()[0]:.0f} at the end)",
+        "rows": rows,
+    }
+    lines = [
+        "| path | init | system | ms/map (loop) | ms/map (vmap) | accepted / trial steps | pos m | shape m | orient deg | collapses | prior dev max | final cost (QS factors) | codes [ok,max,nonfinite,damping,ill] | unfixable/map |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    f = lambda x, p=1: "-" if x is None else f"{x:.{p}f}"
+    for r in rows:
+        lines.append(
+            f"| {r['path']} | {r['init']} | {r['system']} | {f(r['ms_per_map'])} | {f(r['vmap_ms_per_map'])} | "
+            f"{f(r['accepted_steps'], 0)} / {f(r['trial_steps'], 0)} | {r['position_m']:.3f} | {r['shape_m']:.3f} | "
+            f"{r['orientation_deg']:.1f} | {r['collapses']} of {r['maps']} | {r['prior_dev_max']:.1f} | "
+            f"{r['final_cost_qs']:.0f} | {r.get('codes_ok_max_nonfinite_damping_ill', '-')} | {f(r.get('unfixable_per_map'))} |"
+        )
+    table = "\n".join(lines)
+    print(table)
+    res = HERE / "results"
+    res.mkdir(exist_ok=True)
+    tmp = res / "roshan_vs_quadricslam.json.tmp"
+    tmp.write_text(json.dumps(out, indent=2, default=float))
+    tmp.replace(res / "roshan_vs_quadricslam.json")
+    md_notes = NOTES
+    md = (
+        f"## ROSHAN solvers vs gtsam_quadrics (QuadricSLAM) on the same instances\n\nCommand: `{out['command']}`  \n"
+        f"Date: {out['date']}  \nMachine: {out['machine']}\n\n{table}\n\n{md_notes}\n"
+    )
+    tmp = res / "roshan_vs_quadricslam.md.tmp"
+    tmp.write_text(md)
+    tmp.replace(res / "roshan_vs_quadricslam.md")
+
+
+if __name__ == "__main__":
+    main()
