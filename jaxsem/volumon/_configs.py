@@ -135,7 +135,7 @@ def fast_config() -> TrainConfig:
     melon, soup can, from :mod:`jaxsem.classes`) in one multi-class head, a small CNN backbone
     (width 24) on 48 x 48 inputs with the normalised box fed to the heads, the rotation head
     started with the shortest axis along the viewing ray, the radial (symmetric, metric) primal
-    distance, a small volume prior (alpha_V = 2, added at step 1000 of the shipped run), shape-aware losses
+    distance, shape-aware losses
     (each class drawn with its own shape in the dual and primal terms): the fixes of the size
     collapse, see the model card."""
     base = default_config()
@@ -143,7 +143,7 @@ def fast_config() -> TrainConfig:
         model=VoluMonConfig(input_size=48, hidden=(128,), num_classes=4, backbone="small_cnn", cnn_width=24,
                             box_input=True, rotation_init="short_axis_along_ray"),
         scene=dataclasses.replace(base.scene, classes=(0, 1, 2, 3)),
-        loss=dataclasses.replace(base.loss, shape_aware=True, primal_distance="radial", alpha_V=2.0),
+        loss=dataclasses.replace(base.loss, shape_aware=True, primal_distance="radial"),
         num_steps=20000,
         checkpoint_every=500,
         eval_every=500,
