@@ -73,6 +73,7 @@ from ._draw import box_corners_2d as box_corners_2d, conic_outline as conic_outl
 from ._refine import (
     init_from_points as init_from_points,
     optimise_from_scratch as optimise_from_scratch,
+    phi_from_ellipsoid as phi_from_ellipsoid,
     postopt as postopt,
     refine as refine,
 )

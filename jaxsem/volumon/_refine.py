@@ -36,7 +36,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ..models import Ellipsoid, ReconstructionConfig, reconstruct
+from ..models import Ellipsoid, ReconstructionConfig, allocentric_rotation, reconstruct
+from ..quadrics import rotation_to_quaternion_wxyz
 from ._losses import LossConfig, primal_loss_per_sample
 
 POSE_MASK = jnp.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1], bool)
@@ -75,6 +76,38 @@ def init_from_points(box, K, points, point_mask, recon: ReconstructionConfig = R
     phi_r = jnp.broadcast_to(jnp.array([1.0, 0, 0, 0], points.dtype), phi_d.shape[:-1] + (4,))
     phi_uv = jnp.zeros(phi_d.shape[:-1] + (2,), points.dtype)
     return jnp.concatenate([phi_d, phi_r, phi_uv, phi_z[..., None]], -1)
+
+
+_RECON = ReconstructionConfig()
+
+
+def phi_from_ellipsoid(rotation, center, radii, box, K, recon: ReconstructionConfig = _RECON):
+    """Free parameters (..., 10) whose reconstruction (eq. 5.7, inside ``box``) is the given object.
+
+    The inverse of :func:`jaxsem.models.reconstruct` for an object whose projected centre lies in
+    the box: the axes are reordered so the radii increase (the network's convention; a column is
+    negated where needed to keep a proper rotation), sizes below ``eps_s`` and equal sizes are
+    clamped to tiny increments. Used to start PostOpt from the ground truth.
+    """
+    order = jnp.argsort(radii, axis=-1)
+    r = jnp.take_along_axis(radii, order, -1)
+    R = jnp.take_along_axis(rotation, jnp.broadcast_to(order[..., None, :], rotation.shape), -1)
+    det = jnp.linalg.det(R)
+    R = R.at[..., :, 0].multiply(jnp.sign(det)[..., None])
+    d = 2.0 * r
+    inc = jnp.diff(d, axis=-1, prepend=jnp.full(d.shape[:-1] + (1,), recon.eps_s, d.dtype))
+    phi_d = jnp.log(jnp.maximum(inc / recon.alpha_y, 1e-4))
+    q = rotation_to_quaternion_wxyz(allocentric_rotation(R, center))
+    uvw = jnp.einsum("...ij,...j->...i", K, center)
+    uv = uvw[..., :2] / uvw[..., 2:]
+    uv01 = (uv - box[..., :2]) / jnp.maximum(box[..., 2:] - box[..., :2], 1e-6)
+    phi_uv = _logit(uv01)
+    z = center[..., 2]
+    if recon.depth_mode == "disparity":
+        sdisp = recon.baseline_focal / (recon.alpha_delta * z)
+    else:
+        sdisp = (z - recon.min_depth) / (recon.max_depth - recon.min_depth)
+    return jnp.concatenate([phi_d, q, phi_uv, _logit(sdisp)[..., None]], -1)
 
 
 def _refine_one(phi0, box, K, points, mask, free, recon, loss_cfg, num_steps, lr):
@@ -148,4 +181,4 @@ def optimise_from_scratch(box, K, points, point_mask, recon: ReconstructionConfi
     return refine(phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate)
 
 
-__all__ = ["Ellipsoid", "init_from_points", "optimise_from_scratch", "postopt", "refine"]
+__all__ = ["Ellipsoid", "init_from_points", "optimise_from_scratch", "phi_from_ellipsoid", "postopt", "refine"]
