@@ -43,6 +43,10 @@ def main():
                    help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)")
     p.add_argument("--out", type=pathlib.Path, required=True)
     a = p.parse_args()
+    if a.num < 1:
+        p.error(f"--num: expected a positive number of detections, got {a.num}")
+    if a.train_steps is not None and a.train_steps < 1:
+        p.error(f"--train-steps: expected a positive number of steps, got {a.train_steps}")
 
     import jax.numpy as jnp
     import matplotlib

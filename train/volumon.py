@@ -37,6 +37,14 @@ def main():
     p.add_argument("--eval-every", type=int, default=None)
     p.add_argument("--num-eval", type=int, default=None)
     a = p.parse_args()
+    for flag, value in (("--steps", a.steps), ("--batch-size", a.batch_size), ("--num-train", a.num_train),
+                        ("--checkpoint-every", a.checkpoint_every), ("--stop-after", a.stop_after)):
+        if value is not None and value < 1:
+            p.error(f"{flag}: expected a positive integer, got {value}")
+    if a.lr is not None and not a.lr > 0:
+        p.error(f"--lr: expected a positive learning rate, got {a.lr}")
+    if a.workdir.exists() and not a.workdir.is_dir():
+        p.error(f"--workdir: {a.workdir} exists and is not a folder")
     cfg = get_config(a.variant, a.size)
     changes = {k: v for k, v in dict(num_steps=a.steps, batch_size=a.batch_size, learning_rate=a.lr,
                                      num_train=a.num_train, seed=a.seed, checkpoint_every=a.checkpoint_every,
