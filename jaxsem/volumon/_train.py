@@ -336,7 +336,8 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
     tmp = workdir / "config.json.tmp"
     tmp.write_text(json.dumps(_config_dict(config), indent=1, default=str))
     tmp.replace(workdir / "config.json")
-    train_step = make_train_step(model, tx, config)
+    # the step does not depend on the run-length / logging fields: one compiled step for every chunk
+    train_step = make_train_step(model, tx, config.replace(**{k: getattr(TrainConfig(), k) for k in RESUMABLE_FIELDS}))
     history: dict[int, dict[str, float]] = {}
     end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
     it = range(start, end)
