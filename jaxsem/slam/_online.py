@@ -137,7 +137,10 @@ def online_init(
         pose_frame=jnp.full(P, -1, jnp.int32),
         frame_count=jnp.asarray(0, jnp.int32),
         box_count=jnp.asarray(0, jnp.int32),
-        result=RESULTS.successful,
+        # A jax int32 code, not the enum's numpy constant: the second update hits the jit cache.
+        result=RESULTS.where(
+            jnp.asarray(True), RESULTS.successful, RESULTS.max_steps_reached
+        ),
         config=config,
         optimize_every=int(optimize_every),
         iterations=int(iterations),
