@@ -66,9 +66,7 @@ def solve(d, k):
         q = gq.ConstrainedDualQuadric.getFromValues(res, Q(j))
         R[j] = q.pose().rotation().matrix()
         c[j] = q.centroid()
-        r[j] = np.abs(
-            q.radii()
-        )  # radii may go negative in the peer (only r^2 enters Q*)
+        r[j] = np.abs(q.radii())  # radii may go negative in the peer (only r^2 enters Q*)
     return {
         "time": el,
         "iterations": opt.iterations(),

@@ -1,6 +1,6 @@
 """Assembles benchmarks/RESULTS.md from the per-claim sections in benchmarks/results/*.md.
 
-    python benchmarks/collect_results.py
+python benchmarks/collect_results.py
 """
 
 import pathlib

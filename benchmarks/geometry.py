@@ -139,13 +139,15 @@ def measure(n, repeats, with_numpy=True, layout="batch-leading"):
         ref = numpy_project_bbox(*[a.astype(np.float64) for a in host])  # float64, same formulas
         ok = np.asarray(valid)
         err = lambda b: float(np.max(np.abs(np.asarray(b, np.float64) - ref)[ok]))
-        out.update({
-            "numpy_matrix_formulation_ms_per_million": 1e3 * med["numpy"] * scale,
-            "speedup_vs_numpy": med["numpy"] / med["fwd"],
-            "max_abs_diff_px_vs_numpy": float(np.max(np.abs(np.asarray(box, np.float64) - box_np)[ok])),
-            "max_abs_err_px_jax_float32_vs_float64": err(box),
-            "max_abs_err_px_numpy_float32_vs_float64": err(box_np),
-        })
+        out.update(
+            {
+                "numpy_matrix_formulation_ms_per_million": 1e3 * med["numpy"] * scale,
+                "speedup_vs_numpy": med["numpy"] / med["fwd"],
+                "max_abs_diff_px_vs_numpy": float(np.max(np.abs(np.asarray(box, np.float64) - box_np)[ok])),
+                "max_abs_err_px_jax_float32_vs_float64": err(box),
+                "max_abs_err_px_numpy_float32_vs_float64": err(box_np),
+            }
+        )
     return out
 
 
@@ -153,7 +155,12 @@ def study(n, repeats):
     """Re-runs this script's measurement in subprocesses under other settings."""
     settings = [
         ("pinned to one core (`taskset -c 0`)", ["taskset", "-c", "0"], {}, "batch-leading"),
-        ("XLA:CPU legacy loop emitter (`--xla_cpu_use_fusion_emitters=false`)", [], {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=false"}, "batch-leading"),
+        (
+            "XLA:CPU legacy loop emitter (`--xla_cpu_use_fusion_emitters=false`)",
+            [],
+            {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=false"},
+            "batch-leading",
+        ),
         ("inputs stored component-major (batch axis last)", [], {}, "component-major"),
         ("reference (same settings as the main table)", [], {}, "batch-leading"),
     ]
@@ -163,8 +170,18 @@ def study(n, repeats):
             continue
         with tempfile.TemporaryDirectory() as tmp:
             path = pathlib.Path(tmp) / "out.json"
-            cmd = prefix + [sys.executable, __file__, "--pairs", str(n), "--repeats", str(repeats),
-                            "--layout", layout, "--measure-only", str(path)]
+            cmd = prefix + [
+                sys.executable,
+                __file__,
+                "--pairs",
+                str(n),
+                "--repeats",
+                str(repeats),
+                "--layout",
+                layout,
+                "--measure-only",
+                str(path),
+            ]
             subprocess.run(cmd, check=True, env={**os.environ, **env})
             rows.append((label, json.loads(path.read_text())))
     return rows
@@ -181,8 +198,8 @@ def notes(r):
         "inputs alone (160 bytes per pair: R, c, r, K and the 4x4 pose in float32) bounds the forward "
         "from below at roughly 15 ms per million here.",
         "",
-        "How: `project_bbox` runs a fused private path (`jaxsem/quadrics.py`, comment \"project_bbox: a "
-        "fused private path\") that agrees with `conic_bbox(project_dual_conic(dual_quadric(...)))` to "
+        'How: `project_bbox` runs a fused private path (`jaxsem/quadrics.py`, comment "project_bbox: a '
+        'fused private path") that agrees with `conic_bbox(project_dual_conic(dual_quadric(...)))` to '
         "~1e-12 relative in float64, masks and gradients included (`tests/test_quadrics.py`). The "
         "forward is two elementwise XLA loops over the inputs: the validity mask, and the four edges "
         "computed in a (..., 4) lane space (one lane per edge, so the loop vectorises across lanes "
@@ -192,8 +209,11 @@ def notes(r):
         "slower in this run).",
         "",
         "Where we are behind: "
-        + ("the forward targets were missed in this run, with the machine shared (load average above); "
-           if not (speedup >= 10 and fwd < 40) else "")
+        + (
+            "the forward targets were missed in this run, with the machine shared (load average above); "
+            if not (speedup >= 10 and fwd < 40)
+            else ""
+        )
         + f"the forward is {fwd / 15:.1f}x the ~15 ms memory-traffic bound (XLA:CPU gives a loop one "
         "output, so the mask is a second pass over the inputs, and the edge loop uses 4 vector lanes "
         "per pair). The gradient has no target in the issue; it is about "
@@ -206,7 +226,7 @@ def notes(r):
         "ulp is 6e-5 px). The camera-frame formulation avoids the cancellation of the matrix form, "
         "where C* = P Q* P^T is assembled from world-frame terms of order |t|^2 f^2 and the "
         "discriminant C13^2 - C11 C33 is a difference of large, nearly equal numbers; that is the "
-        "numpy column's larger error and most of the \"difference to numpy\".",
+        'numpy column\'s larger error and most of the "difference to numpy".',
         "",
     ]
     study = r.get("study", {})
@@ -263,16 +283,20 @@ def main():
     load_before = os.getloadavg()[0]
     rows = measure(args.pairs, args.repeats)
     load_after = os.getloadavg()[0]
-    rows.update({
-        "devices": str(jax.devices()),
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()}-core CPU (shared, noisy)",
-        "load_average_1min_before_after": [load_before, load_after],
-        "jax_version": jax.__version__,
-        "date": time.strftime("%Y-%m-%d", time.gmtime()),
-    })
+    rows.update(
+        {
+            "devices": str(jax.devices()),
+            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()}-core CPU (shared, noisy)",
+            "load_average_1min_before_after": [load_before, load_after],
+            "jax_version": jax.__version__,
+            "date": time.strftime("%Y-%m-%d", time.gmtime()),
+        }
+    )
     if args.study:
         rows["study"] = {label: res for label, res in study(args.pairs, args.repeats)}
-    cmd = f"python benchmarks/geometry.py --pairs {args.pairs} --repeats {args.repeats}" + (" --study" if args.study else "")
+    cmd = f"python benchmarks/geometry.py --pairs {args.pairs} --repeats {args.repeats}" + (
+        " --study" if args.study else ""
+    )
     rows["command"] = cmd
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "geometry.json").write_text(json.dumps(rows, indent=2))
@@ -307,14 +331,18 @@ def write_md(r):
         "",
     ]
     if r.get("study"):
-        md += [
-            "| setting (separate processes, after the main table) | forward | gradient | compile fwd / grad |",
-            "|---|---|---|---|",
-        ] + [
-            f"| {label} | {res['jax_project_bbox_ms_per_million']:.1f} ms | {res['grad_all_inputs_ms_per_million']:.1f} ms"
-            f" | {res['compile_forward_s']:.2f} s / {res['compile_grad_s']:.2f} s |"
-            for label, res in r["study"].items()
-        ] + [""]
+        md += (
+            [
+                "| setting (separate processes, after the main table) | forward | gradient | compile fwd / grad |",
+                "|---|---|---|---|",
+            ]
+            + [
+                f"| {label} | {res['jax_project_bbox_ms_per_million']:.1f} ms | {res['grad_all_inputs_ms_per_million']:.1f} ms"
+                f" | {res['compile_forward_s']:.2f} s / {res['compile_grad_s']:.2f} s |"
+                for label, res in r["study"].items()
+            ]
+            + [""]
+        )
     md += notes(r)
     text = "\n".join(md)
     (RESULTS / "geometry.md").write_text(text)

@@ -46,8 +46,8 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
     from jaxsem.lsd import LSDSampler, load_model
     from jaxsem.planning import (
         CROP_SIZE,
-        PRM,
         OCCUPIED,
+        PRM,
         NavConfig,
         SoftCostGraph,
         Trial,
@@ -61,9 +61,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
     for b in buildings:
         graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
         for kind in ("II", "IO"):
-            for ti, t in enumerate(
-                sample_tasks(b, kind, tasks_per_set, seed, graph=graph)
-            ):
+            for ti, t in enumerate(sample_tasks(b, kind, tasks_per_set, seed, graph=graph)):
                 tr = Trial(
                     b,
                     t.start,
@@ -78,11 +76,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
                 local = np.asarray(smp(inp), np.float64).reshape(CROP_SIZE, CROP_SIZE)
                 occ = np.asarray(inp.occupancy)
                 known = np.asarray(tr.state.occupancy)
-                full = np.asarray(
-                    embed_local_distribution(
-                        jnp.asarray(local), inp.center_cell, known.shape
-                    )
-                )
+                full = np.asarray(embed_local_distribution(jnp.asarray(local), inp.center_cell, known.shape))
                 r0, c0 = (int(v) - CROP_SIZE // 2 for v in np.asarray(inp.center_cell))
                 inwin = np.zeros(known.shape, bool)
                 inwin[max(r0, 0) : r0 + CROP_SIZE, max(c0, 0) : c0 + CROP_SIZE] = True
@@ -94,11 +88,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
                 p = graph.path(t.start, t.goal)
                 cells = p.cells - np.array([r0, c0])
                 ok = np.all((cells >= 0) & (cells < CROP_SIZE), axis=1)
-                lp_path = (
-                    float(np.mean(np.log(local[cells[ok, 0], cells[ok, 1]])))
-                    if ok.any()
-                    else float("nan")
-                )
+                lp_path = float(np.mean(np.log(local[cells[ok, 0], cells[ok, 1]]))) if ok.any() else float("nan")
                 found = {}
                 for name, dist, weight in (
                     ("uniform", None, "euclidean"),
@@ -140,10 +130,9 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
 
 def summary(res):
     r = res["rows"]
-    arr = lambda k: np.array([x[k] for x in r], float)  # noqa: E731
+    arr = lambda k: np.array([x[k] for x in r], float)
     fr = {
-        name: float(np.mean([x["first_roadmap_found"][name] for x in r]))
-        for name in ("uniform", "lsd", "lsd_euclid")
+        name: float(np.mean([x["first_roadmap_found"][name] for x in r])) for name in ("uniform", "lsd", "lsd_euclid")
     }
     return {
         "tasks": len(r),
@@ -171,9 +160,7 @@ def main(argv=None) -> int:
         help="model files / workdirs (default: shipped)",
     )
     ap.add_argument("--buildings", type=int, default=4, help="test-family buildings")
-    ap.add_argument(
-        "--first", type=int, default=50, help="first building seed (50+: tuning seeds)"
-    )
+    ap.add_argument("--first", type=int, default=50, help="first building seed (50+: tuning seeds)")
     ap.add_argument("--tasks", type=int, default=3, help="tasks per building and set")
     ap.add_argument("--n", type=int, default=500, help="samples of the first roadmap")
     ap.add_argument("--seed", type=int, default=0)
@@ -197,12 +184,8 @@ def main(argv=None) -> int:
         print(json.dumps(res["summary"], indent=1), flush=True)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    date = subprocess.run(
-        ["date", "-u"], capture_output=True, text=True, check=False
-    ).stdout.strip()
-    cmd = "python benchmarks/lsd_diagnose.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
+    date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
+    cmd = "python benchmarks/lsd_diagnose.py " + " ".join(sys.argv[1:] if argv is None else argv)
     _write(
         out / f"{args.name}.json",
         json.dumps({"command": cmd, "date": date, "results": results}, indent=1),

@@ -43,9 +43,7 @@ class OmplPRM:
     """OMPL's PRM on a grid map from Python, grown to exactly ``n`` milestones."""
 
     def __init__(self, b, n, k=10, trivial=False, seed=0):
-        from ompl import base as ob
-        from ompl import geometric as og
-        from ompl import util as ou
+        from ompl import base as ob, geometric as og, util as ou
 
         ou.RNG.setSeed(int(seed) + 1)
         ou.setLogLevel(ou.LOG_ERROR)
@@ -66,9 +64,7 @@ class OmplPRM:
 
             def valid(s):
                 c, r = int((s[0] - ox) / res), int((s[1] - oy) / res)
-                return bool(
-                    0 <= r < H and 0 <= c < W and not occ[r, c]
-                )  # OMPL needs a real bool
+                return bool(0 <= r < H and 0 <= c < W and not occ[r, c])  # OMPL needs a real bool
 
             si.setStateValidityChecker(valid)
         si.setStateValidityCheckingResolution(0.5 * res / space.getMaximumExtent())
@@ -80,19 +76,12 @@ class OmplPRM:
         planner.setup()
         t0 = time.perf_counter()
         # Exactly n milestones; growRoadmap runs in this thread, so a Python condition is safe.
-        planner.growRoadmapPtc(
-            ob.PlannerTerminationCondition(lambda: planner.milestoneCount() >= n)
-        )
+        planner.growRoadmapPtc(ob.PlannerTerminationCondition(lambda: planner.milestoneCount() >= n))
         self.build_s = time.perf_counter() - t0
         pd = ob.PlannerData(si)
         planner.getPlannerData(pd)
         M = pd.numVertices()
-        self.pts = np.array(
-            [
-                [pd.getVertex(i).getState()[0], pd.getVertex(i).getState()[1]]
-                for i in range(M)
-            ]
-        )
+        self.pts = np.array([[pd.getVertex(i).getState()[0], pd.getVertex(i).getState()[1]] for i in range(M)])
         src, dst = [], []
         for i in range(M):
             for j in pd.getEdges(i):
@@ -128,9 +117,7 @@ class OmplPRM:
 
 
 def jaxsem_build(b, n, key, k, radius):
-    prm = planning.PRM(
-        b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius
-    )
+    prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius)
     prm.grow(key, n)
     jax.block_until_ready(prm.roadmap)
     return prm
@@ -142,18 +129,10 @@ def main(argv=None) -> int:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     ap.add_argument("--maps", type=int, default=4, help="test-family buildings")
-    ap.add_argument(
-        "--first-map", type=int, default=0, help="seed of the first building"
-    )
-    ap.add_argument(
-        "--tasks", type=int, default=6, help="Inside-Inside queries per map"
-    )
-    ap.add_argument(
-        "--n", type=int, nargs="+", default=[500, 1000, 5000], help="roadmap sizes N"
-    )
-    ap.add_argument(
-        "--repeats", type=int, default=3, help="roadmaps per (map, N) and planner"
-    )
+    ap.add_argument("--first-map", type=int, default=0, help="seed of the first building")
+    ap.add_argument("--tasks", type=int, default=6, help="Inside-Inside queries per map")
+    ap.add_argument("--n", type=int, nargs="+", default=[500, 1000, 5000], help="roadmap sizes N")
+    ap.add_argument("--repeats", type=int, default=3, help="roadmaps per (map, N) and planner")
     ap.add_argument(
         "--k",
         type=int,
@@ -174,16 +153,9 @@ def main(argv=None) -> int:
     from jaxsem.cli import enable_compilation_cache
 
     enable_compilation_cache()
-    buildings = [
-        planning.generate_building(s, "test")
-        for s in range(args.first_map, args.first_map + args.maps)
-    ]
+    buildings = [planning.generate_building(s, "test") for s in range(args.first_map, args.first_map + args.maps)]
     recs = []
-    times = {
-        (c, n): []
-        for c in ("ompl_py", "ompl_cpp", "jaxsem", "jaxsem_reuse")
-        for n in args.n
-    }
+    times = {(c, n): [] for c in ("ompl_py", "ompl_cpp", "jaxsem", "jaxsem_reuse") for n in args.n}
     for b in buildings:
         tasks = planning.sample_tasks(b, "II", args.tasks, seed=args.seed)
         for n in args.n:
@@ -192,9 +164,7 @@ def main(argv=None) -> int:
             else:
                 area = b.shape[0] * b.shape[1] * b.resolution**2
                 radius = float(np.ceil(2 * args.radius_scale * np.sqrt(area / n)) / 2)
-            jaxsem_build(b, n, jax.random.PRNGKey(10_000), args.k, radius).query(
-                tasks[0].start, tasks[0].goal
-            )
+            jaxsem_build(b, n, jax.random.PRNGKey(10_000), args.k, radius).query(tasks[0].start, tasks[0].goal)
             for rep in range(args.repeats):
                 seed = args.seed * 1000 + rep
                 om = OmplPRM(b, n, seed=seed)
@@ -248,10 +218,7 @@ def main(argv=None) -> int:
         both = of & jf
         ol = np.array([r["ompl"]["length"] / r["c_star"] for r in rs])[both]
         jl = np.array([r["jaxsem"]["length"] / r["c_star"] for r in rs])[both]
-        med = {
-            c: float(np.median(times[(c, n)]))
-            for c in ("ompl_py", "ompl_cpp", "jaxsem", "jaxsem_reuse")
-        }
+        med = {c: float(np.median(times[(c, n)])) for c in ("ompl_py", "ompl_cpp", "jaxsem", "jaxsem_reuse")}
         rows.append(
             {
                 "n": n,
@@ -261,12 +228,8 @@ def main(argv=None) -> int:
                 "both": int(both.sum()),
                 "len_ompl": float(ol.mean()) if both.any() else None,
                 "len_jaxsem": float(jl.mean()) if both.any() else None,
-                "len_sem_ompl": float(ol.std(ddof=1) / np.sqrt(len(ol)))
-                if both.sum() > 1
-                else None,
-                "len_sem_jaxsem": float(jl.std(ddof=1) / np.sqrt(len(jl)))
-                if both.sum() > 1
-                else None,
+                "len_sem_ompl": float(ol.std(ddof=1) / np.sqrt(len(ol))) if both.sum() > 1 else None,
+                "len_sem_jaxsem": float(jl.std(ddof=1) / np.sqrt(len(jl))) if both.sum() > 1 else None,
                 "times_s": med,
             }
         )
@@ -301,32 +264,22 @@ def main(argv=None) -> int:
     for r in rows:
         t = r["times_s"]
         if r["found_jaxsem"] < r["found_ompl"]:
-            behind.append(
-                f"N={r['n']}: jaxsem found {r['found_jaxsem']} paths to OMPL's {r['found_ompl']}"
-            )
+            behind.append(f"N={r['n']}: jaxsem found {r['found_jaxsem']} paths to OMPL's {r['found_ompl']}")
         if r["len_jaxsem"] is not None and r["len_jaxsem"] > r["len_ompl"]:
-            behind.append(
-                f"N={r['n']}: length / C* {r['len_jaxsem']:.3f} vs OMPL {r['len_ompl']:.3f}"
-            )
+            behind.append(f"N={r['n']}: length / C* {r['len_jaxsem']:.3f} vs OMPL {r['len_ompl']:.3f}")
         if t["jaxsem"] > t["ompl_py"]:
-            behind.append(
-                f"N={r['n']}: build + query slower than OMPL with the Python checker"
-            )
+            behind.append(f"N={r['n']}: build + query slower than OMPL with the Python checker")
         if t["jaxsem"] > t["ompl_cpp"]:
             behind.append(
                 f"N={r['n']}: build + query {t['jaxsem'] / t['ompl_cpp']:.1f}x OMPL's C++ core with a "
                 f"checker that checks nothing"
             )
         if t["jaxsem_reuse"] > t["ompl_cpp"]:
-            behind.append(
-                f"N={r['n']}: per query with reuse slower than OMPL's C++ core build"
-            )
+            behind.append(f"N={r['n']}: per query with reuse slower than OMPL's C++ core build")
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
-    cmd = "python benchmarks/lsd_prm.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
+    cmd = "python benchmarks/lsd_prm.py " + " ".join(sys.argv[1:] if argv is None else argv)
     payload = {
         "command": cmd,
         "date": date,
@@ -365,9 +318,7 @@ def main(argv=None) -> int:
         "OMPL-C++ checks nothing (AllValidStateValidityChecker): the floor of its own cost, not a planner "
         "for these maps; jaxsem checks every vertex and edge against the grid in every row.",
         "",
-        "Where we are behind: "
-        + ("; ".join(behind) if behind else "nowhere on these rows")
-        + ".",
+        "Where we are behind: " + ("; ".join(behind) if behind else "nowhere on these rows") + ".",
         "",
     ]
     tmp = out / f"{args.name}.md.tmp"

@@ -48,8 +48,9 @@ def median_time(fn, repeats):
 
 
 def ours_prm(b, task, n, seed, k):
-    rm = planning.build_roadmap(jax.random.PRNGKey(seed), b.occupancy, task.start, task.goal, n,
-                                b.origin, b.resolution, k=k)
+    rm = planning.build_roadmap(
+        jax.random.PRNGKey(seed), b.occupancy, task.start, task.goal, n, b.origin, b.resolution, k=k
+    )
     jax.block_until_ready(rm)
     return rm
 
@@ -70,8 +71,7 @@ class OmplPRM:
     """OMPL's PRM on a grid map from Python, built to exactly ``n`` milestones."""
 
     def __init__(self, b, n, k=10):
-        from ompl import base as ob
-        from ompl import geometric as og
+        from ompl import base as ob, geometric as og
 
         occ, res = b.occupancy, b.resolution
         H, W = occ.shape
@@ -172,18 +172,36 @@ def main(argv=None):
             ours_q.append(t_query)
             ours_deg.append(ours_degree(rm))
             ours_found += path.found
-            rec = {"building": b.seed, "task": ti, "shape": list(b.shape), "c_star": task.c_star,
-                   "ours": {"build_s": t_build, "query_s": t_query, "found": path.found,
-                            "length": path.length, "degree": ours_deg[-1]}}
-            line = (f"building {b.seed} task {ti}: ours build {t_build * 1e3:.1f} ms, query "
-                    f"{t_query * 1e3:.2f} ms, found {path.found}, length {path.length:.2f} m")
+            rec = {
+                "building": b.seed,
+                "task": ti,
+                "shape": list(b.shape),
+                "c_star": task.c_star,
+                "ours": {
+                    "build_s": t_build,
+                    "query_s": t_query,
+                    "found": path.found,
+                    "length": path.length,
+                    "degree": ours_deg[-1],
+                },
+            }
+            line = (
+                f"building {b.seed} task {ti}: ours build {t_build * 1e3:.1f} ms, query "
+                f"{t_query * 1e3:.2f} ms, found {path.found}, length {path.length:.2f} m"
+            )
             if om is not None:
                 t_oq, o_found, o_len = om.query(task.start, task.goal)
                 # OMPL builds one roadmap per map and reuses it: its build counts once per map.
                 om_q.append(t_oq)
                 om_found += o_found
-                rec["ompl"] = {"build_s": om.build_s, "extract_s": om.extract_s, "query_s": t_oq,
-                               "found": o_found, "length": o_len, "degree": om.degree}
+                rec["ompl"] = {
+                    "build_s": om.build_s,
+                    "extract_s": om.extract_s,
+                    "query_s": t_oq,
+                    "found": o_found,
+                    "length": o_len,
+                    "degree": om.degree,
+                }
                 line += f" | OMPL query {t_oq * 1e3:.1f} ms, found {o_found}, length {o_len:.2f} m"
                 if o_found and path.found:
                     ours_len.append(path.length / task.c_star)
@@ -192,19 +210,24 @@ def main(argv=None):
             print(line, flush=True)
         if om is not None:
             om_b.append(om.build_s + om.extract_s)
-            print(f"building {b.seed}: OMPL build {om.build_s * 1e3:.0f} ms + extract "
-                  f"{om.extract_s * 1e3:.0f} ms, degree {om.degree:.1f} (ours {np.mean(ours_deg[-len(tasks):]):.1f})",
-                  flush=True)
+            print(
+                f"building {b.seed}: OMPL build {om.build_s * 1e3:.0f} ms + extract "
+                f"{om.extract_s * 1e3:.0f} ms, degree {om.degree:.1f} (ours {np.mean(ours_deg[-len(tasks) :]):.1f})",
+                flush=True,
+            )
     ours_total = float(np.median(ours_b) + np.median(ours_q))
     peer_total = float(np.median(om_b) + np.median(om_q)) if om_b else None
-    rows.append(("PRM build (N=%d)" % args.n, float(np.median(ours_b)), float(np.median(om_b)) if om_b else None))
+    rows.append((f"PRM build (N={args.n})", float(np.median(ours_b)), float(np.median(om_b)) if om_b else None))
     rows.append(("PRM query", float(np.median(ours_q)), float(np.median(om_q)) if om_q else None))
     rows.append(("PRM build + query", ours_total, peer_total))
     detail["found"] = {"ours": ours_found, "ompl": om_found, "tasks": n_tasks}
     detail["degree"] = {"ours": float(np.mean(ours_deg)), "ompl": float(np.mean(om_deg)) if om_deg else None}
     if ours_len:
-        detail["length_over_c_star"] = {"ours": float(np.mean(ours_len)), "ompl": float(np.mean(om_len)),
-                                        "both_found": len(ours_len)}
+        detail["length_over_c_star"] = {
+            "ours": float(np.mean(ours_len)),
+            "ompl": float(np.mean(om_len)),
+            "both_found": len(ours_len),
+        }
 
     # Sensing one pose.
     b = buildings[0]
@@ -241,33 +264,47 @@ def main(argv=None):
         net_note = f"network row skipped: {type(exc).__name__}: {exc}"
         print(net_note)
 
-    header = f"| step | jaxsem (ms) | OMPL PRM (ms) | OMPL / jaxsem |\n|---|---|---|---|"
+    header = "| step | jaxsem (ms) | OMPL PRM (ms) | OMPL / jaxsem |\n|---|---|---|---|"
     lines = [header]
     for name, ours, peer in rows:
         ratio = f"{peer / ours:.1f}x" if peer else "-"
-        lines.append(f"| {name} | {ours * 1e3:.2f} | {peer * 1e3:.1f} |  {ratio} |" if peer
-                     else f"| {name} | {ours * 1e3:.2f} | - | - |")
+        lines.append(
+            f"| {name} | {ours * 1e3:.2f} | {peer * 1e3:.1f} |  {ratio} |"
+            if peer
+            else f"| {name} | {ours * 1e3:.2f} | - | - |"
+        )
     lines.append(f"| expert data throughput | {detail['expert_samples_per_s']:.1f} samples/s | - | - |")
     table = "\n".join(lines)
     print(table)
     quality = ""
     if ours_len:
-        quality = (f"Paths found: jaxsem {ours_found} / {n_tasks}, OMPL {om_found} / {n_tasks} Inside-Inside "
-                   f"tasks; where both found one ({len(ours_len)}), mean length / C*: jaxsem "
-                   f"{np.mean(ours_len):.3f}, OMPL {np.mean(om_len):.3f} (C*: soft-cost optimal path length; "
-                   f"N = {args.n}; jaxsem k = {args.k}, OMPL k = 10; distinct edges per vertex: jaxsem "
-                   f"{detail['degree']['ours']:.1f}, OMPL {detail['degree']['ompl']:.1f}). OMPL's build is "
-                   f"one roadmap per map, reused by its {args.tasks} queries; jaxsem builds one per query.")
+        quality = (
+            f"Paths found: jaxsem {ours_found} / {n_tasks}, OMPL {om_found} / {n_tasks} Inside-Inside "
+            f"tasks; where both found one ({len(ours_len)}), mean length / C*: jaxsem "
+            f"{np.mean(ours_len):.3f}, OMPL {np.mean(om_len):.3f} (C*: soft-cost optimal path length; "
+            f"N = {args.n}; jaxsem k = {args.k}, OMPL k = 10; distinct edges per vertex: jaxsem "
+            f"{detail['degree']['ours']:.1f}, OMPL {detail['degree']['ompl']:.1f}). OMPL's build is "
+            f"one roadmap per map, reused by its {args.tasks} queries; jaxsem builds one per query."
+        )
         print(quality)
 
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
     cmd = "python benchmarks/lsd_speed.py " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
-    payload = {"command": cmd.strip(), "date": date, "machine": "2-core CPU (shared, noisy)",
-               "platform": platform.platform(), "jax": jax.__version__, "n": args.n, "maps": args.maps,
-               "rows": [{"step": n, "jaxsem_s": o, "ompl_s": p} for n, o, p in rows],
-               "expert_samples_per_s": detail["expert_samples_per_s"], "network_note": net_note, "detail": detail}
+    payload = {
+        "command": cmd.strip(),
+        "date": date,
+        "machine": "2-core CPU (shared, noisy)",
+        "platform": platform.platform(),
+        "jax": jax.__version__,
+        "n": args.n,
+        "maps": args.maps,
+        "rows": [{"step": n, "jaxsem_s": o, "ompl_s": p} for n, o, p in rows],
+        "expert_samples_per_s": detail["expert_samples_per_s"],
+        "network_note": net_note,
+        "detail": detail,
+    }
     (out / "lsd_speed.json").write_text(json.dumps(payload, indent=1, default=float))
     behind = []
     if t_sense > 1e-3:
@@ -280,11 +317,24 @@ def main(argv=None):
         behind.append(f"our mean path is {np.mean(ours_len) / np.mean(om_len) - 1:.1%} longer than OMPL's")
     if om_b and ours_found < om_found:
         behind.append(f"we found {ours_found} paths to OMPL's {om_found}")
-    summary = ("Where we are behind: " + "; ".join(behind) + ".") if behind else (
-        "Where we are behind: nowhere on these rows; note OMPL runs a Python validity checker (its "
-        "C++ core waits on Python callbacks), which is how a Python user meets it.")
-    md = [f"## LSD planner speed", "", f"Command: `{cmd.strip()}`  ", f"Date: {date}  ",
-          "Machine: 2-core CPU (shared, noisy)", "", table, ""]
+    summary = (
+        ("Where we are behind: " + "; ".join(behind) + ".")
+        if behind
+        else (
+            "Where we are behind: nowhere on these rows; note OMPL runs a Python validity checker (its "
+            "C++ core waits on Python callbacks), which is how a Python user meets it."
+        )
+    )
+    md = [
+        "## LSD planner speed",
+        "",
+        f"Command: `{cmd.strip()}`  ",
+        f"Date: {date}  ",
+        "Machine: 2-core CPU (shared, noisy)",
+        "",
+        table,
+        "",
+    ]
     if quality:
         md += [quality, ""]
     if net_note:

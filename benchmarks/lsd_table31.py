@@ -40,18 +40,14 @@ def _check(args) -> None:
             raise SystemExit(f"--sets: expected II and/or IO, got {kind!r}")
     for name in ("test_buildings", "trials", "max_steps"):
         if getattr(args, name) < 1:
-            raise SystemExit(
-                f"--{name.replace('_', '-')}: expected >= 1, got {getattr(args, name)}"
-            )
+            raise SystemExit(f"--{name.replace('_', '-')}: expected >= 1, got {getattr(args, name)}")
     if min(args.n) < 1:
         raise SystemExit(f"--n: expected positive sample budgets, got {args.n}")
     if not 0.0 <= args.uniform_mix < 1.0:
         raise SystemExit(f"--uniform-mix: expected in [0, 1), got {args.uniform_mix}")
     for a in args.ablations:
         if a not in ABLATIONS:
-            raise SystemExit(
-                f"--ablations: expected some of {', '.join(ABLATIONS)}, got {a!r}"
-            )
+            raise SystemExit(f"--ablations: expected some of {', '.join(ABLATIONS)}, got {a!r}")
     if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
         raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
 
@@ -81,9 +77,7 @@ def main(argv=None) -> int:
         default="cpu",
         help="training config name with --train (default | cpu | tiny)",
     )
-    p.add_argument(
-        "--test-buildings", type=int, default=2, help="test-family buildings"
-    )
+    p.add_argument("--test-buildings", type=int, default=2, help="test-family buildings")
     p.add_argument("--test-start", type=int, default=0, help="first test-family seed")
     p.add_argument("--trials", type=int, default=3, help="tasks per building and set")
     p.add_argument(
@@ -145,13 +139,9 @@ def _merge(args, argv) -> int:
         try:
             d = json.loads(pathlib.Path(f).read_text())
         except (OSError, ValueError) as exc:
-            raise SystemExit(
-                f"--merge: cannot read {f!r} ({type(exc).__name__})"
-            ) from None
+            raise SystemExit(f"--merge: cannot read {f!r} ({type(exc).__name__})") from None
         if "records" not in d:
-            raise SystemExit(
-                f"--merge: {f!r} has no 'records' (not a lsd_table31 result)"
-            )
+            raise SystemExit(f"--merge: {f!r} has no 'records' (not a lsd_table31 result)")
         records += d["records"]
         parts.append(
             {
@@ -167,12 +157,8 @@ def _merge(args, argv) -> int:
     print(table)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cmd = "python benchmarks/lsd_table31.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
-    date = subprocess.run(
-        ["date", "-u"], capture_output=True, text=True, check=False
-    ).stdout.strip()
+    cmd = "python benchmarks/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
     _write(
         out / f"{args.name}.json",
         json.dumps(
@@ -209,10 +195,7 @@ def _merge(args, argv) -> int:
         "",
         "Parts (each a run of this script; buildings and tasks as in its command):",
         "",
-        *[
-            f"- `{q['command']}` ({q['date']}, {(q['seconds'] or 0) / 60:.1f} min)"
-            for q in parts
-        ],
+        *[f"- `{q['command']}` ({q['date']}, {(q['seconds'] or 0) / 60:.1f} min)" for q in parts],
         "",
         table,
         "",
@@ -255,9 +238,7 @@ def _run(args, argv) -> int:
             stage2_steps=args.stage2_steps,
         )
         setup = ExperimentSetup(args.train_buildings, args.samples_per_building)
-        model, params, info = prepare_model(
-            args.workdir, args.checkpoint, setup, cfg, progress=not args.no_progress
-        )
+        model, params, info = prepare_model(args.workdir, args.checkpoint, setup, cfg, progress=not args.no_progress)
     else:
         model, params, mcfg = load_model(args.checkpoint)
         info = {
@@ -293,9 +274,7 @@ def _run(args, argv) -> int:
 
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cmd = "python benchmarks/lsd_table31.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
+    cmd = "python benchmarks/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
     date = (
         subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
         or datetime.datetime.now(datetime.timezone.utc).isoformat()

@@ -20,9 +20,7 @@ def main(argv=None) -> int:
         description=__doc__.splitlines()[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    ap.add_argument(
-        "--log", required=True, help="stdout/stderr of train/lsd.py (tqdm lines)"
-    )
+    ap.add_argument("--log", required=True, help="stdout/stderr of train/lsd.py (tqdm lines)")
     ap.add_argument("--workdir", required=True, help="training workdir (metrics.json)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--name", default="lsd_training")
@@ -58,9 +56,7 @@ def main(argv=None) -> int:
         label="validation NLL",
     )
     if metrics:
-        ax.axhline(
-            metrics[0]["uniform_nll"], color="k", ls="--", lw=0.8, label="uniform"
-        )
+        ax.axhline(metrics[0]["uniform_nll"], color="k", ls="--", lw=0.8, label="uniform")
     stage2 = [s for s in steps if train[s][1] == 2]
     if stage2:
         ax.axvline(stage2[0], color="grey", lw=0.8)
@@ -79,9 +75,7 @@ def main(argv=None) -> int:
             indent=1,
         )
     )
-    print(
-        f"wrote {out / (args.name + '.png')}: {len(steps)} train points, {len(metrics)} validations"
-    )
+    print(f"wrote {out / (args.name + '.png')}: {len(steps)} train points, {len(metrics)} validations")
     return 0
 
 

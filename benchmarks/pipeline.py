@@ -97,9 +97,7 @@ def run(args) -> dict:
     records = []
     for b in buildings:
         objects = mapping.building_objects(b)
-        capacity = int(
-            2 ** np.ceil(np.log2(max(len(objects), 1)))
-        )  # one compile per bucket
+        capacity = int(2 ** np.ceil(np.log2(max(len(objects), 1))))  # one compile per bucket
         for kind in args.sets:
             for t_i, task in enumerate(sample_tasks(b, kind, args.trials, args.seed)):
                 for n in args.n:
@@ -129,9 +127,7 @@ def run(args) -> dict:
                         if name == "lsd":
                             sampler = lsd
                         elif name in ("lsd_objmap", "lsd_prior"):
-                            sampler = ObjectMapSampler(
-                                lsd, b, objects, capacity, name == "lsd_prior"
-                            )
+                            sampler = ObjectMapSampler(lsd, b, objects, capacity, name == "lsd_prior")
                         cfg = NavConfig(n_samples=int(n), max_steps=args.max_steps)
                         t0 = time.perf_counter()
                         trial = Trial(
@@ -164,8 +160,7 @@ def run(args) -> dict:
                         print(
                             f"building {b.seed} {kind} trial {t_i} N={n}: "
                             + ", ".join(
-                                f"{p} {'ok' if rec[p]['success'] else 'fail'} {rec[p]['cost']:.1f} m"
-                                for p in PLANNERS
+                                f"{p} {'ok' if rec[p]['success'] else 'fail'} {rec[p]['cost']:.1f} m" for p in PLANNERS
                             ),
                             flush=True,
                         )
@@ -176,14 +171,8 @@ def run(args) -> dict:
             mutual = [r for r in rs if all(r[p]["success"] for p in PLANNERS)]
             row = {"set": kind, "n": int(n), "trials": len(rs), "mutual": len(mutual)}
             for p in PLANNERS:
-                row[f"success_{p}"] = (
-                    float(np.mean([r[p]["success"] for r in rs]))
-                    if rs
-                    else float("nan")
-                )
-                row[f"ratio_{p}"] = mean_sem(
-                    [r[p]["cost"] / r["c_star"] for r in mutual]
-                )
+                row[f"success_{p}"] = float(np.mean([r[p]["success"] for r in rs])) if rs else float("nan")
+                row[f"ratio_{p}"] = mean_sem([r[p]["cost"] / r["c_star"] for r in mutual])
             summary[f"{kind}-{n}"] = row
     return {"summary": summary, "records": records}
 
@@ -193,11 +182,7 @@ def format_table(summary: dict) -> str:
         m, s = ms
         return "-" if not np.isfinite(m) else f"{m:.2f} +- {s:.2f}"
 
-    head = (
-        ["set", "N", "trials", "mutual"]
-        + [f"success {p}" for p in PLANNERS]
-        + [f"C/C* {p}" for p in PLANNERS]
-    )
+    head = ["set", "N", "trials", "mutual"] + [f"success {p}" for p in PLANNERS] + [f"C/C* {p}" for p in PLANNERS]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in summary.values():
         cells = [row["set"], str(row["n"]), str(row["trials"]), str(row["mutual"])]
@@ -209,9 +194,7 @@ def format_table(summary: dict) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=(__doc__ or "pipeline").splitlines()[0])
-    p.add_argument(
-        "--checkpoint", default=None, help="LSD model (default: the bundled CPU model)"
-    )
+    p.add_argument("--checkpoint", default=None, help="LSD model (default: the bundled CPU model)")
     p.add_argument("--test-buildings", type=int, default=2)
     p.add_argument("--test-start", type=int, default=0)
     p.add_argument("--trials", type=int, default=2, help="tasks per building and set")
@@ -235,9 +218,7 @@ def main(argv=None) -> int:
     total = time.perf_counter() - t0
     table = format_table(result["summary"])
     print(table)
-    cmd = "python benchmarks/pipeline.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
+    cmd = "python benchmarks/pipeline.py " + " ".join(sys.argv[1:] if argv is None else argv)
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     machine = f"{platform.machine()} CPU, {subprocess.run(['nproc'], capture_output=True, text=True, check=False).stdout.strip()} cores (shared, noisy)"
     out = pathlib.Path(args.out)

@@ -26,8 +26,11 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxsem import sim, slam  # noqa: E402
-from jaxsem import factors as F  # noqa: E402
+from jaxsem import (  # noqa: E402
+    factors as F,
+    sim,
+    slam,
+)
 
 HERE = pathlib.Path(__file__).resolve().parent
 
@@ -80,14 +83,19 @@ def gtsam_solve(problem, init, cfg, max_iterations=20):
     X = lambda t: gtsam.symbol("x", t)
     L = lambda j: gtsam.symbol("l", j)
     prior_noise = gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([n.pose_rotation_sigma] * 3 + [n.pose_translation_sigma] * 3, float))
+        np.array([n.pose_rotation_sigma] * 3 + [n.pose_translation_sigma] * 3, float)
+    )
     pm = np.asarray(problem.pose_mask)
     for t in np.flatnonzero(pm):
         graph.add(gtsam.PriorFactorPose3(X(t), gtsam.Pose3(np.asarray(problem.pose_prior[t])), prior_noise))
         values.insert(X(t), gtsam.Pose3(np.asarray(init.camera_T_world[t])))
     om = np.asarray(problem.object_mask)
     for j in np.flatnonzero(om):
-        rv = gtsam.Rot3(np.asarray(init.rotation[j])).ravel() if False else gtsam.Rot3.Logmap(gtsam.Rot3(np.asarray(init.rotation[j])))
+        rv = (
+            gtsam.Rot3(np.asarray(init.rotation[j])).ravel()
+            if False
+            else gtsam.Rot3.Logmap(gtsam.Rot3(np.asarray(init.rotation[j])))
+        )
         s = np.asarray(F.param_from_radii(init.radii[j]))
         values.insert(L(j), np.concatenate([rv, np.asarray(init.center[j]), s]))
     unit = gtsam.noiseModel.Unit.Create(4)
@@ -173,12 +181,12 @@ def batch_benchmark(args):
     est_v, info_v = vm(problems, inits)
     cost_jax = np.asarray(info_v.cost)
     rows = {
-        "jaxsem vmap (Schur LM)": dict(ms_per_map=1e3 * t_vmap / args.maps,
-                                        median_final_cost=float(np.median(cost_jax)),
-                                        compile_s=compile_vmap),
-        "jaxsem loop of jitted solves": dict(ms_per_map=1e3 * t_loop / args.maps,
-                                              median_final_cost=float(np.median(cost_jax)),
-                                              compile_s=compile_one),
+        "jaxsem vmap (Schur LM)": dict(
+            ms_per_map=1e3 * t_vmap / args.maps, median_final_cost=float(np.median(cost_jax)), compile_s=compile_vmap
+        ),
+        "jaxsem loop of jitted solves": dict(
+            ms_per_map=1e3 * t_loop / args.maps, median_final_cost=float(np.median(cost_jax)), compile_s=compile_one
+        ),
     }
     if not args.skip_gtsam:
         g_costs, g_times, j_costs = [], [], []
@@ -189,21 +197,28 @@ def batch_benchmark(args):
             g_costs.append(float(slam.total_cost(p, est, cfg)))
             j_costs.append(float(cost_jax[k]))
         rows["GTSAM LM (Python CustomFactor)"] = dict(
-            ms_per_map=1e3 * float(np.median(g_times)), median_final_cost=float(np.median(g_costs)),
-            compile_s=0.0, maps=len(g_costs), jaxsem_median_cost_same_maps=float(np.median(j_costs)))
+            ms_per_map=1e3 * float(np.median(g_times)),
+            median_final_cost=float(np.median(g_costs)),
+            compile_s=0.0,
+            maps=len(g_costs),
+            jaxsem_median_cost_same_maps=float(np.median(j_costs)),
+        )
     return rows
 
 
 def online_benchmark(args):
-    problem, truth = slam.toy_map(args.seed, num_objects=args.online_objects,
-                                  num_frames=args.online_frames, path="forward")
+    problem, truth = slam.toy_map(
+        args.seed, num_objects=args.online_objects, num_frames=args.online_frames, path="forward"
+    )
     D = int(max(np.bincount(np.asarray(problem.box_pose)[np.asarray(problem.box_mask)]).max(), 1))
     frames = slam.frames_from_problem(problem, max_detections=D)
-    cap = slam.Capacity(max_poses=args.window, max_objects=args.online_objects,
-                        max_boxes=args.window * D, max_detections=D)
+    cap = slam.Capacity(
+        max_poses=args.window, max_objects=args.online_objects, max_boxes=args.window * D, max_detections=D
+    )
     cfg = slam.SolverConfig()
-    state = slam.online_init(cfg, cap, problem.K, problem.image_size,
-                             optimize_every=args.optimize_every, iterations=args.iterations)
+    state = slam.online_init(
+        cfg, cap, problem.K, problem.image_size, optimize_every=args.optimize_every, iterations=args.iterations
+    )
     lat = []
     t = time.perf_counter()
     state = slam.online_update(state, frames[0])
@@ -217,12 +232,20 @@ def online_benchmark(args):
     lat = np.array(lat) * 1e3
     est = slam.online_estimate(state)
     err = np.linalg.norm(np.asarray(est.center - truth.center), axis=-1)
-    return dict(frames=len(frames), objects=args.online_objects, max_detections=D,
-                window=args.window, optimize_every=args.optimize_every, iterations=args.iterations,
-                median_ms=float(np.median(lat)), p95_ms=float(np.percentile(lat, 95)),
-                max_ms=float(lat.max()), first_call_s=first,
-                median_position_error_m=float(np.median(err)),
-                recompiles=int(slam.online_update._cache_size()) - 1)
+    return dict(
+        frames=len(frames),
+        objects=args.online_objects,
+        max_detections=D,
+        window=args.window,
+        optimize_every=args.optimize_every,
+        iterations=args.iterations,
+        median_ms=float(np.median(lat)),
+        p95_ms=float(np.percentile(lat, 95)),
+        max_ms=float(lat.max()),
+        first_call_s=first,
+        median_position_error_m=float(np.median(err)),
+        recompiles=int(slam.online_update._cache_size()) - 1,
+    )
 
 
 def main(argv=None):
@@ -242,42 +265,61 @@ def main(argv=None):
     ap.add_argument("--skip-online", action="store_true")
     args = ap.parse_args(argv)
 
-    out = {"command": "python benchmarks/roshan_speed.py " + " ".join(argv or __import__("sys").argv[1:]),
-           "date": subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip(),
-           "machine": "2-core CPU (shared, noisy)"}
+    out = {
+        "command": "python benchmarks/roshan_speed.py " + " ".join(argv or __import__("sys").argv[1:]),
+        "date": subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip(),
+        "machine": "2-core CPU (shared, noisy)",
+    }
     lines = []
     if not args.skip_batch:
         rows = batch_benchmark(args)
         out["batch"] = rows
         base = rows["jaxsem vmap (Schur LM)"]["ms_per_map"]
-        lines += [f"### Batch: {args.maps} Forward maps (QuadricSLAM setting: 10 cars, 60 frames)", "",
-                  "| system | ms / map | ratio to vmap | median final cost | compile (s) |",
-                  "|---|---|---|---|---|"]
+        lines += [
+            f"### Batch: {args.maps} Forward maps (QuadricSLAM setting: 10 cars, 60 frames)",
+            "",
+            "| system | ms / map | ratio to vmap | median final cost | compile (s) |",
+            "|---|---|---|---|---|",
+        ]
         for name, r in rows.items():
-            extra = f" ({r['maps']} maps; jaxsem on the same maps: {r['jaxsem_median_cost_same_maps']:.1f})" if "maps" in r else ""
-            lines.append(f"| {name} | {r['ms_per_map']:.1f} | {r['ms_per_map'] / base:.2f} | "
-                         f"{r['median_final_cost']:.1f}{extra} | {r['compile_s']:.1f} |")
+            extra = (
+                f" ({r['maps']} maps; jaxsem on the same maps: {r['jaxsem_median_cost_same_maps']:.1f})"
+                if "maps" in r
+                else ""
+            )
+            lines.append(
+                f"| {name} | {r['ms_per_map']:.1f} | {r['ms_per_map'] / base:.2f} | "
+                f"{r['median_final_cost']:.1f}{extra} | {r['compile_s']:.1f} |"
+            )
         lines.append("")
     if not args.skip_online:
         o = online_benchmark(args)
         out["online"] = o
-        lines += [f"### Online: {o['frames']}-frame Forward sequence, {o['objects']} objects "
-                  f"(window {o['window']} poses, optimise every {o['optimize_every']} frames, "
-                  f"{o['iterations']} LM steps)", "",
-                  "| median ms/frame | p95 ms/frame | max ms | first call (compile) s | recompiles | median position error (m) |",
-                  "|---|---|---|---|---|---|",
-                  f"| {o['median_ms']:.2f} | {o['p95_ms']:.2f} | {o['max_ms']:.1f} | {o['first_call_s']:.1f} | "
-                  f"{o['recompiles']} | {o['median_position_error_m']:.2f} |", ""]
+        lines += [
+            f"### Online: {o['frames']}-frame Forward sequence, {o['objects']} objects "
+            f"(window {o['window']} poses, optimise every {o['optimize_every']} frames, "
+            f"{o['iterations']} LM steps)",
+            "",
+            "| median ms/frame | p95 ms/frame | max ms | first call (compile) s | recompiles | median position error (m) |",
+            "|---|---|---|---|---|---|",
+            f"| {o['median_ms']:.2f} | {o['p95_ms']:.2f} | {o['max_ms']:.1f} | {o['first_call_s']:.1f} | "
+            f"{o['recompiles']} | {o['median_position_error_m']:.2f} |",
+            "",
+        ]
     table = "\n".join(lines)
     print(table)
     res = HERE / "results"
     res.mkdir(exist_ok=True)
     (res / "roshan_speed.json").write_text(json.dumps(out, indent=2))
-    behind = ("Target: online median under 33 ms/frame. Where we are behind: compile time (tens of "
-              "seconds on this CPU) and the p95 latency of optimisation frames; vmap over maps runs "
-              "until the slowest map stops, so it is not faster than the loop here.")
-    md = (f"## ROSHAN solver speed\n\nCommand: `{out['command']}`  \nDate: {out['date']}  \n"
-          f"Machine: {out['machine']}\n\n{table}\n{behind}\n")
+    behind = (
+        "Target: online median under 33 ms/frame. Where we are behind: compile time (tens of "
+        "seconds on this CPU) and the p95 latency of optimisation frames; vmap over maps runs "
+        "until the slowest map stops, so it is not faster than the loop here."
+    )
+    md = (
+        f"## ROSHAN solver speed\n\nCommand: `{out['command']}`  \nDate: {out['date']}  \n"
+        f"Machine: {out['machine']}\n\n{table}\n{behind}\n"
+    )
     (res / "roshan_speed.md").write_text(md)
 
 

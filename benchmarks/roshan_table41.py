@@ -20,17 +20,13 @@ its own single-view initialisation (texture depth, class-mean radii, section 4.3
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import datetime
 import json
-import math
 import pathlib
 import subprocess
 import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 THESIS = {  # Table 4.1 (median over 50 maps of per-map mean errors)
@@ -57,8 +53,9 @@ def parse_args(argv=None):
     p.add_argument("--every", type=int, default=10, help="frames between online optimisations")
     p.add_argument("--steps", type=int, default=10, help="LM steps per optimisation")
     p.add_argument("--float32", action="store_true", help="solve in float32 (default float64)")
-    p.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"),
-                   help="folder for roshan_table41.json / .md")
+    p.add_argument(
+        "--out", default=str(pathlib.Path(__file__).parent / "results"), help="folder for roshan_table41.json / .md"
+    )
     p.add_argument("--name", default="roshan_table41", help="output file stem")
     return p.parse_args(argv)
 
@@ -149,10 +146,7 @@ def main(argv=None) -> int:
             results[(preset, path)] = res
             print(
                 f"[{preset}/{path}] {args.maps} maps in {time.perf_counter() - t0:.1f} s: "
-                + "; ".join(
-                    f"{s} " + " / ".join(f"{np.median(res[s][k]):.2f}" for k in METRICS)
-                    for s in res
-                ),
+                + "; ".join(f"{s} " + " / ".join(f"{np.median(res[s][k]):.2f}" for k in METRICS) for s in res),
                 flush=True,
             )
 
@@ -168,16 +162,24 @@ def main(argv=None) -> int:
                     ref, ref_name = QUADRICSLAM[path], "QuadricSLAM (FACTS.md)"
                 else:
                     ref, ref_name = None, ""
-                rows.append({
-                    "preset": preset, "path": path, "system": system,
-                    "shape_m": med[0], "position_m": med[1], "orientation_deg": med[2],
-                    "reference": ref_name, "ref_shape_m": ref and ref[0],
-                    "ref_position_m": ref and ref[1], "ref_orientation_deg": ref and ref[2],
-                    "objects_scored": int(np.sum(res[system]["objects"])),
-                    "maps": args.maps,
-                    "reinitialised_per_map": float(np.mean(res[system]["reinitialised"])),
-                    "seconds_per_map": res[system]["seconds"] / args.maps,
-                })
+                rows.append(
+                    {
+                        "preset": preset,
+                        "path": path,
+                        "system": system,
+                        "shape_m": med[0],
+                        "position_m": med[1],
+                        "orientation_deg": med[2],
+                        "reference": ref_name,
+                        "ref_shape_m": ref and ref[0],
+                        "ref_position_m": ref and ref[1],
+                        "ref_orientation_deg": ref and ref[2],
+                        "objects_scored": int(np.sum(res[system]["objects"])),
+                        "maps": args.maps,
+                        "reinitialised_per_map": float(np.mean(res[system]["reinitialised"])),
+                        "seconds_per_map": res[system]["seconds"] / args.maps,
+                    }
+                )
 
     header = (
         "| preset | path | system | shape (m) | pos (m) | orient (deg) | reference | ref shape | "
@@ -198,12 +200,29 @@ def main(argv=None) -> int:
     noise = {}
     for key, cfg in configs.items():
         noise[key] = {
-            f: getattr(cfg, f) for f in (
-                "num_objects", "num_frames", "image_width", "image_height", "focal",
-                "camera_height", "orbit_radius", "forward_step", "box_noise_px",
-                "texture_noise_m", "texture_noise_rel", "pose_noise_m", "pose_noise_deg",
-                "init_mode", "init_depth", "init_radii", "init_position_noise_m",
-                "init_yaw_noise_deg", "init_radii_noise_m", "yaw_range", "size_sigma_scale",
+            f: getattr(cfg, f)
+            for f in (
+                "num_objects",
+                "num_frames",
+                "image_width",
+                "image_height",
+                "focal",
+                "camera_height",
+                "orbit_radius",
+                "forward_step",
+                "box_noise_px",
+                "texture_noise_m",
+                "texture_noise_rel",
+                "pose_noise_m",
+                "pose_noise_deg",
+                "init_mode",
+                "init_depth",
+                "init_radii",
+                "init_position_noise_m",
+                "init_yaw_noise_deg",
+                "init_radii_noise_m",
+                "yaw_range",
+                "size_sigma_scale",
                 "border_margin_px",
             )
         }
@@ -212,12 +231,16 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     payload = {
-        "command": command, "date": date, "machine": "2-core CPU (shared, noisy)",
-        "args": vars(args), "rows": rows, "settings": noise,
+        "command": command,
+        "date": date,
+        "machine": "2-core CPU (shared, noisy)",
+        "args": vars(args),
+        "rows": rows,
+        "settings": noise,
         "per_map": {
-            f"{p}/{q}/{s}": {k: np.asarray(v).tolist() for k, v in results[(p, q)][s].items()
-                             if k != "seconds"}
-            for (p, q) in results for s in results[(p, q)]
+            f"{p}/{q}/{s}": {k: np.asarray(v).tolist() for k, v in results[(p, q)][s].items() if k != "seconds"}
+            for (p, q) in results
+            for s in results[(p, q)]
         },
     }
     (out / f"{args.name}.json").write_text(json.dumps(payload, indent=1, default=float))
@@ -256,9 +279,12 @@ def _behind_sentence(rows):
     for r in rows:
         if r["preset"] == "thesis" and r["ref_shape_m"] is not None and r["system"] == "roshan":
             worse = [
-                m for m, k, rk in (("shape", "shape_m", "ref_shape_m"),
-                                   ("position", "position_m", "ref_position_m"),
-                                   ("orientation", "orientation_deg", "ref_orientation_deg"))
+                m
+                for m, k, rk in (
+                    ("shape", "shape_m", "ref_shape_m"),
+                    ("position", "position_m", "ref_position_m"),
+                    ("orientation", "orientation_deg", "ref_orientation_deg"),
+                )
                 if r[k] > r[rk]
             ]
             if worse:

@@ -46,7 +46,7 @@ UNITS = {"shape": "m", "position": "m", "orientation": "deg"}
 SYSTEMS = ("baseline", "roshan")
 INIT_TEXT = {
     "single_view": "each system's own from the first view: baseline at 10 m depth, identity "
-                   "rotation, radii 1 m; ROSHAN at the texture depth with class-mean radii",
+    "rotation, radii 1 m; ROSHAN at the texture depth with class-mean radii",
     "noisy_truth": "truth + N(0, 1 m) position, N(0, 20 deg) yaw, N(0, 0.3 m) radii for both",
 }
 
@@ -67,16 +67,26 @@ def parse_args(argv=None):
     p.add_argument("--objects", type=int, default=20, help="ellipsoids per seed (thesis: 20)")
     p.add_argument("--seeds", default="0", help="comma list of seeds; the medians pool all seeds")
     p.add_argument("--views", default="1,2,3,5,8,12", help="comma list of numbers of views")
-    p.add_argument("--yaw-ranges", default="0,15,30,60,90,180,360",
-                   help="comma list of yaw range widths (deg)")
+    p.add_argument("--yaw-ranges", default="0,15,30,60,90,180,360", help="comma list of yaw range widths (deg)")
     p.add_argument("--steps", type=int, default=50, help="LM iterations per solve")
-    p.add_argument("--init", choices=("single_view", "noisy_truth"), default="single_view",
-                   help="initial ellipsoids (see the module docstring)")
-    p.add_argument("--pose-noise-deg", type=float, default=None,
-                   help="override the pose prior's rotation noise (deg per axis; preset 1.0)")
+    p.add_argument(
+        "--init",
+        choices=("single_view", "noisy_truth"),
+        default="single_view",
+        help="initial ellipsoids (see the module docstring)",
+    )
+    p.add_argument(
+        "--pose-noise-deg",
+        type=float,
+        default=None,
+        help="override the pose prior's rotation noise (deg per axis; preset 1.0)",
+    )
     p.add_argument("--float32", action="store_true", help="solve in float32 (default float64)")
-    p.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results"),
-                   help="folder for roshan_views.json / .md / .png")
+    p.add_argument(
+        "--out",
+        default=str(pathlib.Path(__file__).parent / "results"),
+        help="folder for roshan_views.json / .md / .png",
+    )
     p.add_argument("--name", default="roshan_views", help="output file stem")
     args = p.parse_args(argv)
     args.seed_list = _numbers(args.seeds, "--seeds", kind=int)
@@ -118,12 +128,18 @@ def make_solver(system, cfg, max_views, steps, init_mode):
         est, info = slam.solve_schur(problem, init, sc)
         err = sim.map_errors(est, m)
         # Pose-prior residual at the true poses (noise-model check), over the active views.
-        r = factors.pose_prior_residual(m.camera_T_world, m.pose_prior, sc.noise.pose_rotation_sigma,
-                                        sc.noise.pose_translation_sigma)
+        r = factors.pose_prior_residual(
+            m.camera_T_world, m.pose_prior, sc.noise.pose_rotation_sigma, sc.noise.pose_translation_sigma
+        )
         w = (jnp.arange(max_views) < n).astype(r.dtype)[:, None]
         chi = jnp.sum(w * r**2, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
-        return {**{k: err[k] for k in METRICS}, "count": err["count"], "steps": info.steps,
-                "pose_chi2_translation": jnp.mean(chi[:3]), "pose_chi2_rotation": jnp.mean(chi[3:])}
+        return {
+            **{k: err[k] for k in METRICS},
+            "count": err["count"],
+            "steps": info.steps,
+            "pose_chi2_translation": jnp.mean(chi[:3]),
+            "pose_chi2_rotation": jnp.mean(chi[3:]),
+        }
 
     return jax.jit(jax.vmap(one))
 
@@ -135,9 +151,9 @@ def run(args):
 
     cfg = sim_config(args)
     V, Y = len(args.view_list), len(args.yaw_list)
-    keys = jnp.stack([
-        jax.random.split(jax.random.key(s), args.objects) for s in args.seed_list
-    ]).reshape(-1)  # (N,) the same ellipsoids in every cell
+    keys = jnp.stack([jax.random.split(jax.random.key(s), args.objects) for s in args.seed_list]).reshape(
+        -1
+    )  # (N,) the same ellipsoids in every cell
     N = keys.shape[0]
     views = jnp.asarray(args.view_list, jnp.int32)[:, None, None]
     yaw = jnp.deg2rad(jnp.asarray(args.yaw_list))[None, :, None]
@@ -161,15 +177,29 @@ def medians(res):
     for system, r in res.items():
         seen = r["count"] > 0
         out[system] = {
-            k: np.array([[np.median(r[k][i, j][seen[i, j]]) if seen[i, j].any() else np.nan
-                          for j in range(r[k].shape[1])] for i in range(r[k].shape[0])])
+            k: np.array(
+                [
+                    [np.median(r[k][i, j][seen[i, j]]) if seen[i, j].any() else np.nan for j in range(r[k].shape[1])]
+                    for i in range(r[k].shape[0])
+                ]
+            )
             for k in METRICS
         }
         for q in (25, 75):
-            out[system].update({
-                f"{k}_p{q}": np.array([[np.percentile(r[k][i, j][seen[i, j]], q) if seen[i, j].any() else np.nan
-                                        for j in range(r[k].shape[1])] for i in range(r[k].shape[0])])
-                for k in ("shape", "position")})
+            out[system].update(
+                {
+                    f"{k}_p{q}": np.array(
+                        [
+                            [
+                                np.percentile(r[k][i, j][seen[i, j]], q) if seen[i, j].any() else np.nan
+                                for j in range(r[k].shape[1])
+                            ]
+                            for i in range(r[k].shape[0])
+                        ]
+                    )
+                    for k in ("shape", "position")
+                }
+            )
         out[system]["detected_fraction"] = seen.mean(-1)
     return out
 
@@ -180,18 +210,33 @@ def trend_checks(med, views, yaws):
     checks = []
     i1 = views.index(min(views))
     s_b, s_r = np.nanmean(b["shape"][i1]), np.nanmean(r["shape"][i1])
-    checks.append((f"ROSHAN's shape error is small with {min(views)} view(s) (below the baseline's)",
-                   bool(s_r < s_b), f"mean over yaw ranges: ROSHAN {s_r:.2f} m vs baseline {s_b:.2f} m"))
+    checks.append(
+        (
+            f"ROSHAN's shape error is small with {min(views)} view(s) (below the baseline's)",
+            bool(s_r < s_b),
+            f"mean over yaw ranges: ROSHAN {s_r:.2f} m vs baseline {s_b:.2f} m",
+        )
+    )
     low = np.array([[v <= 3 or w <= 30 for w in yaws] for v in views])
     for metric in ("shape", "position"):
         better = (r[metric] <= b[metric])[low]
-        checks.append((f"ROSHAN {metric} error <= baseline's in the low-diversity cells (<= 3 views or <= 30 deg)",
-                       bool(better.all()), f"{int(better.sum())} of {better.size} cells"))
+        checks.append(
+            (
+                f"ROSHAN {metric} error <= baseline's in the low-diversity cells (<= 3 views or <= 30 deg)",
+                bool(better.all()),
+                f"{int(better.sum())} of {better.size} cells",
+            )
+        )
     for metric in ("shape", "position"):
         lo, hi = b[metric][0, 0], b[metric][-1, -1]
-        checks.append((f"the baseline's {metric} error falls with more views over a wider range",
-                       bool(hi < lo), f"{lo:.2f} m at ({views[0]} views, {yaws[0]:g} deg) -> {hi:.2f} m at "
-                                      f"({views[-1]} views, {yaws[-1]:g} deg)"))
+        checks.append(
+            (
+                f"the baseline's {metric} error falls with more views over a wider range",
+                bool(hi < lo),
+                f"{lo:.2f} m at ({views[0]} views, {yaws[0]:g} deg) -> {hi:.2f} m at "
+                f"({views[-1]} views, {yaws[-1]:g} deg)",
+            )
+        )
     return checks
 
 
@@ -211,18 +256,25 @@ def plot(med, args, path):
             for i in range(data.shape[0]):
                 for j in range(data.shape[1]):
                     v = data[i, j]
-                    ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7,
-                            color="white" if v < 0.6 * vmax else "black")
+                    ax.text(
+                        j,
+                        i,
+                        f"{v:.2f}",
+                        ha="center",
+                        va="center",
+                        fontsize=7,
+                        color="white" if v < 0.6 * vmax else "black",
+                    )
             ax.set_xticks(range(len(args.yaw_list)), [f"{w:g}" for w in args.yaw_list])
             ax.set_yticks(range(len(args.view_list)), [str(v) for v in args.view_list])
             ax.set_xlabel("yaw range of the views (deg)")
             ax.set_ylabel("number of views")
-            ax.set_title(f"{'ROSHAN' if system == 'roshan' else 'baseline'}: median {metric} error (m)",
-                         fontsize=10)
+            ax.set_title(f"{'ROSHAN' if system == 'roshan' else 'baseline'}: median {metric} error (m)", fontsize=10)
         fig.colorbar(im, ax=axes[row, :].tolist(), shrink=0.9, label=f"{metric} error (m)")
     n = args.objects * len(args.seed_list)
-    fig.suptitle(f"View diversity (thesis fig. 4-5): {n} ellipsoids, init {args.init}, {args.steps} LM steps",
-                 fontsize=11)
+    fig.suptitle(
+        f"View diversity (thesis fig. 4-5): {n} ellipsoids, init {args.init}, {args.steps} LM steps", fontsize=11
+    )
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -257,23 +309,32 @@ def main(argv=None) -> int:
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
     failed = [c for c in checks if not c[1]]
     if failed:
-        behind = "Where we are behind: the thesis' trend is not reproduced in: " + "; ".join(
-            f"{c[0]} ({c[2]})" for c in failed) + "."
+        behind = (
+            "Where we are behind: the thesis' trend is not reproduced in: "
+            + "; ".join(f"{c[0]} ({c[2]})" for c in failed)
+            + "."
+        )
     else:
-        behind = ("Where we are behind: nowhere on the thesis' trend (ROSHAN better with few views "
-                  "and a small yaw range; the baseline needs more views from a wider range).")
+        behind = (
+            "Where we are behind: nowhere on the thesis' trend (ROSHAN better with few views "
+            "and a small yaw range; the baseline needs more views from a wider range)."
+        )
     payload = {
-        "command": command, "date": date, "machine": "2-core CPU (shared, noisy)", "args": {
-            k: v for k, v in vars(args).items() if k not in ("seed_list", "view_list", "yaw_list")},
-        "views": args.view_list, "yaw_ranges_deg": args.yaw_list,
+        "command": command,
+        "date": date,
+        "machine": "2-core CPU (shared, noisy)",
+        "args": {k: v for k, v in vars(args).items() if k not in ("seed_list", "view_list", "yaw_list")},
+        "views": args.view_list,
+        "yaw_ranges_deg": args.yaw_list,
         "ellipsoids_per_cell": args.objects * len(args.seed_list),
         "seconds": seconds,
         "pose_prior_chi2_at_truth": {
             "translation": float(np.mean(res["roshan"]["pose_chi2_translation"])),
-            "rotation": float(np.mean(res["roshan"]["pose_chi2_rotation"]))},
+            "rotation": float(np.mean(res["roshan"]["pose_chi2_rotation"])),
+        },
         "median": {s: {k: np.round(np.asarray(v), 4).tolist() for k, v in med[s].items()} for s in SYSTEMS},
         "note": "median[system][metric][i][j]: median over ellipsoids at views[i], yaw_ranges_deg[j]; "
-                "*_p25 / *_p75: quartiles; detected_fraction: share of ellipsoids with a detection",
+        "*_p25 / *_p75: quartiles; detected_fraction: share of ellipsoids with a detection",
         "trend_checks": [{"claim": c[0], "held": c[1], "detail": c[2]} for c in checks],
         "median_steps": {s: float(np.median(res[s]["steps"])) for s in SYSTEMS},
     }
@@ -299,31 +360,43 @@ def main(argv=None) -> int:
         "",
     ]
     if args.pose_noise_deg is not None:
-        md += [f"Variant: the pose prior's rotation noise is {args.pose_noise_deg:g} deg per axis "
-               "(`--pose-noise-deg`; the preset's is 1 deg). With no rotation noise the simulated pose "
-               "error is a pure translation, which the solver's pose-prior residual models exactly "
-               "(noise-model check below), so this run isolates the effect of that model.", ""]
+        md += [
+            f"Variant: the pose prior's rotation noise is {args.pose_noise_deg:g} deg per axis "
+            "(`--pose-noise-deg`; the preset's is 1 deg). With no rotation noise the simulated pose "
+            "error is a pure translation, which the solver's pose-prior residual models exactly "
+            "(noise-model check below), so this run isolates the effect of that model.",
+            "",
+        ]
     for metric in ("shape", "position"):
         for system in SYSTEMS:
             md += [f"Median {metric} error (m), {system}:", "", _table(med, system, metric, args), ""]
     chi_t = float(np.mean(res["roshan"]["pose_chi2_translation"]))
     chi_r = float(np.mean(res["roshan"]["pose_chi2_rotation"]))
-    md += [f"Noise-model check: mean square of the whitened pose-prior residual at the true poses = "
-           f"{chi_t:.1f} per translation component and {chi_r:.2f} per rotation component (1 if the "
-           "solver's pose-prior model matched the simulated pose noise).", ""]
-    md += [f"Median LM steps taken (cap {args.steps}): baseline "
-           f"{float(np.median(res['baseline']['steps'])):g}, ROSHAN {float(np.median(res['roshan']['steps'])):g} "
-           "(the baseline's nearly degenerate problems often run to the cap; a spot check at 150 steps "
-           "moved cell medians by at most about 0.15 m).", ""]
+    md += [
+        f"Noise-model check: mean square of the whitened pose-prior residual at the true poses = "
+        f"{chi_t:.1f} per translation component and {chi_r:.2f} per rotation component (1 if the "
+        "solver's pose-prior model matched the simulated pose noise).",
+        "",
+    ]
+    md += [
+        f"Median LM steps taken (cap {args.steps}): baseline "
+        f"{float(np.median(res['baseline']['steps'])):g}, ROSHAN {float(np.median(res['roshan']['steps'])):g} "
+        "(the baseline's nearly degenerate problems often run to the cap; a spot check at 150 steps "
+        "moved cell medians by at most about 0.15 m).",
+        "",
+    ]
     md += ["Thesis trend checks:", ""]
     md += [f"- {'held' if c[1] else 'NOT reproduced'}: {c[0]} ({c[2]})" for c in checks]
     grow = med["roshan"]["position"][-1, 0] / max(med["roshan"]["position"][0, 0], 1e-9)
     if grow > 1.2:
-        md += ["", f"Not in the thesis' figure: at a {args.yaw_list[0]:g} deg yaw range ROSHAN's position error "
-               f"grows with the number of views ({med['roshan']['position'][0, 0]:.2f} m with "
-               f"{args.view_list[0]} -> {med['roshan']['position'][-1, 0]:.2f} m with {args.view_list[-1]}), "
-               "as the baseline's does; it coincides with the pose-prior noise-model mismatch above "
-               "(the `--pose-noise-deg 0` variant, `roshan_views_norot`, isolates it)."]
+        md += [
+            "",
+            f"Not in the thesis' figure: at a {args.yaw_list[0]:g} deg yaw range ROSHAN's position error "
+            f"grows with the number of views ({med['roshan']['position'][0, 0]:.2f} m with "
+            f"{args.view_list[0]} -> {med['roshan']['position'][-1, 0]:.2f} m with {args.view_list[-1]}), "
+            "as the baseline's does; it coincides with the pose-prior noise-model mismatch above "
+            "(the `--pose-noise-deg 0` variant, `roshan_views_norot`, isolates it).",
+        ]
     md += ["", behind, ""]
     (out / f"{args.name}.md").write_text("\n".join(md))
     print("\n".join(md))

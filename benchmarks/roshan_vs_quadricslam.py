@@ -33,11 +33,14 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp
-import numpy as np
+import jax.numpy as jnp  # noqa: E402  (after enabling x64)
+import numpy as np  # noqa: E402
 
-from jaxsem import factors as F
-from jaxsem import sim, slam
+from jaxsem import (  # noqa: E402
+    factors as F,
+    sim,
+    slam,
+)
 
 HERE = pathlib.Path(__file__).resolve().parent
 
@@ -83,9 +86,7 @@ def _time(fn, repeats):
 
 def _prior_dev(est_poses, problems, cfg):
     n = cfg.noise
-    w = F.pose_prior_residual(
-        est_poses, problems.pose_prior, n.pose_rotation_sigma, n.pose_translation_sigma
-    )
+    w = F.pose_prior_residual(est_poses, problems.pose_prior, n.pose_rotation_sigma, n.pose_translation_sigma)
     return np.asarray(jnp.max(jnp.linalg.norm(w, axis=-1), axis=-1))
 
 
@@ -111,9 +112,7 @@ def run_block(path, init_name, args, peer_python):
     maps = sim.simulate_batch(args.seed, args.maps, scfg)
     problems = sim.to_problem(maps, scfg)
     roshan = sim.solver_config("roshan", scfg, max_steps=args.max_steps)
-    qs = sim.solver_config(
-        "baseline", scfg, max_steps=args.max_steps, baseline_shape_weight=0.0
-    )
+    qs = sim.solver_config("baseline", scfg, max_steps=args.max_steps, baseline_shape_weight=0.0)
     if init_name == "plain":
         inits = sim.initial_estimate(maps)
     else:
@@ -121,23 +120,17 @@ def run_block(path, init_name, args, peer_python):
     take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
     rows = []
     for name, cfg in (("jaxsem QS factors", qs), ("jaxsem ROSHAN", roshan)):
-        one = lambda p, i, cfg=cfg: slam.solve_schur(
-            p, i, cfg
-        )  # jitted; compiled once per system
+        one = lambda p, i, cfg=cfg: slam.solve_schur(p, i, cfg)  # jitted; compiled once per system
         vm = lambda p, i, cfg=cfg: _VMAP(p, i, cfg)
         t = time.perf_counter()
         jax.block_until_ready(one(take(problems, 0), take(inits, 0)))
         compile_s = time.perf_counter() - t
         singles = [(take(problems, k), take(inits, k)) for k in range(args.maps)]
-        per_map = [
-            _time(lambda p=p, i=i, one=one: one(p, i), args.repeats) for p, i in singles
-        ]
+        per_map = [_time(lambda p=p, i=i, one=one: one(p, i), args.repeats) for p, i in singles]
         jax.block_until_ready(vm(problems, inits))
         t_vmap = _time(lambda vm=vm: vm(problems, inits), args.repeats) / args.maps
         est, info = vm(problems, inits)
-        codes = np.bincount(
-            np.asarray(slam.result_code(info.result)), minlength=5
-        ).tolist()
+        codes = np.bincount(np.asarray(slam.result_code(info.result)), minlength=5).tolist()
         rows.append(
             _summary(
                 name,
@@ -152,18 +145,10 @@ def run_block(path, init_name, args, peer_python):
                     "accepted_steps": float(np.median(np.asarray(info.accepted))),
                     "trial_steps": float(np.median(np.asarray(info.steps))),
                     "final_cost_qs": float(
-                        np.median(
-                            np.asarray(
-                                jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(
-                                    problems, est
-                                )
-                            )
-                        )
+                        np.median(np.asarray(jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(problems, est)))
                     ),
                     "codes_ok_max_nonfinite_damping_ill": codes,
-                    "unfixable_per_map": float(
-                        np.mean(np.asarray(info.unfixable.sum(-1)))
-                    ),
+                    "unfixable_per_map": float(np.mean(np.asarray(info.unfixable.sum(-1)))),
                     "rescued_per_map": float(np.mean(np.asarray(info.rescued.sum(-1)))),
                 },
             )
@@ -190,9 +175,7 @@ def run_block(path, init_name, args, peer_python):
                 trans_sigma=float(qs.noise.pose_translation_sigma),
                 box_sigma=float(qs.noise.box_sigma),
             )
-            subprocess.run(
-                [peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True
-            )
+            subprocess.run([peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True)
             out = dict(np.load(dst))
         est = slam.SlamEstimate(
             jnp.asarray(out["poses"]),
@@ -214,13 +197,7 @@ def run_block(path, init_name, args, peer_python):
                     "accepted_steps": float(np.median(out["iterations"])),
                     "trial_steps": None,
                     "final_cost_qs": float(
-                        np.median(
-                            np.asarray(
-                                jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(
-                                    problems, est
-                                )
-                            )
-                        )
+                        np.median(np.asarray(jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(problems, est)))
                     ),
                     "peer_own_error": float(np.median(out["error"])),
                 },
@@ -232,13 +209,9 @@ def run_block(path, init_name, args, peer_python):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--maps", type=int, default=4)
-    ap.add_argument(
-        "--seed", type=int, default=1000, help="report seeds (tuning used 100)"
-    )
+    ap.add_argument("--seed", type=int, default=1000, help="report seeds (tuning used 100)")
     ap.add_argument("--max-steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument(
@@ -249,26 +222,17 @@ def main(argv=None):
     ap.add_argument("--paths", default="orbit,forward")
     ap.add_argument("--inits", default="plain,single-view")
     args = ap.parse_args(argv)
-    peer = (
-        args.peer_python
-        if args.peer_python and pathlib.Path(args.peer_python).exists()
-        else ""
-    )
+    peer = args.peer_python if args.peer_python and pathlib.Path(args.peer_python).exists() else ""
     if args.peer_python and not peer:
-        sys.exit(
-            f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)"
-        )
+        sys.exit(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
     rows = []
     for path in args.paths.split(","):
         for init in args.inits.split(","):
             rows += run_block(path, init, args, peer)
             print(json.dumps(rows[-3:], default=float), flush=True)
     out = {
-        "command": "python benchmarks/roshan_vs_quadricslam.py "
-        + " ".join(sys.argv[1:] if argv is None else argv),
-        "date": subprocess.run(
-            ["date", "-u"], capture_output=True, text=True
-        ).stdout.strip(),
+        "command": "python benchmarks/roshan_vs_quadricslam.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        "date": subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip(),
         "machine": f"{platform.machine()} 2-core CPU, shared (load average {os.getloadavg()[0]:.0f} at the end)",
         "rows": rows,
     }

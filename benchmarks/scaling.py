@@ -68,10 +68,7 @@ def child(args) -> dict:
 
     def maxdiff(a, b):
         la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
-        return max(
-            float(jnp.max(jnp.abs(jnp.asarray(x, float) - jnp.asarray(y, float))))
-            for x, y in zip(la, lb)
-        )
+        return max(float(jnp.max(jnp.abs(jnp.asarray(x, float) - jnp.asarray(y, float)))) for x, y in zip(la, lb))
 
     def record(name, vfn, sfn, inputs, batch):
         t_single = _median_time(vfn, *inputs, repeats=args.repeats)
@@ -95,9 +92,7 @@ def child(args) -> dict:
     cfg = LSDConfig(map_size=k, features=(8, 16, 32), context_features=16)
     model, params = init_lsd(jax.random.PRNGKey(0), cfg, jnp.float32)
     occ = jnp.asarray(rng.integers(-1, 2, (B, k, k)), jnp.int8)
-    sem = jnp.asarray(
-        rng.choice([0, 2, 3, 4], (B, k, k), p=[0.9, 0.04, 0.03, 0.03]), jnp.int8
-    )
+    sem = jnp.asarray(rng.choice([0, 2, 3, 4], (B, k, k), p=[0.9, 0.04, 0.03, 0.03]), jnp.int8)
     ctx = jnp.asarray(rng.normal(size=(B, 4)), jnp.float32)
     mask = jnp.asarray(rng.random((B, k, k)) < 0.02)
 
@@ -109,9 +104,7 @@ def child(args) -> dict:
     v_nll = jax.jit(jax.vmap(nll, in_axes=axes))
     s_nll = parallel.sharded_vmap(nll, mesh, in_axes=axes)
     record("lsd_eval", v_nll, s_nll, (params, occ, sem, ctx, mask), B)
-    v_grad = jax.jit(
-        jax.grad(lambda p, *a: jnp.sum(jax.vmap(nll, in_axes=axes)(p, *a)))
-    )
+    v_grad = jax.jit(jax.grad(lambda p, *a: jnp.sum(jax.vmap(nll, in_axes=axes)(p, *a))))
     s_grad = jax.jit(jax.grad(lambda p, *a: jnp.sum(s_nll(p, *a))))
     record("lsd_grad", v_grad, s_grad, (params, occ, sem, ctx, mask), B)
 
@@ -145,9 +138,7 @@ def child(args) -> dict:
     if args.slam:
         from jaxsem import sim, slam
 
-        scfg = sim.quadricslam_config(
-            "orbit", num_frames=20, num_objects=5, min_objects=5
-        )
+        scfg = sim.quadricslam_config("orbit", num_frames=20, num_objects=5, min_objects=5)
         maps = sim.simulate_batch(0, B, scfg)
         problems = jax.vmap(lambda m: sim.to_problem(m, scfg))(maps)
         inits = jax.vmap(sim.initial_estimate)(maps)
@@ -173,9 +164,7 @@ def main(argv=None) -> int:
     p.add_argument("--crop", type=int, default=64, help="LSD crop side (cells)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--slam", action="store_true")
-    p.add_argument(
-        "--cpu", action="store_true", help="force CPU devices (default on CPU hosts)"
-    )
+    p.add_argument("--cpu", action="store_true", help="force CPU devices (default on CPU hosts)")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--name", default="scaling")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -203,13 +192,7 @@ def main(argv=None) -> int:
             str(args.repeats),
         ] + (["--slam"] if args.slam else [])
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
-        sys.stdout.write(
-            "".join(
-                ln + "\n"
-                for ln in proc.stdout.splitlines()
-                if not ln.startswith("RESULT ")
-            )
-        )
+        sys.stdout.write("".join(ln + "\n" for ln in proc.stdout.splitlines() if not ln.startswith("RESULT ")))
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
         if proc.returncode or not lines:
             print(proc.stderr[-3000:], file=sys.stderr)
@@ -217,31 +200,22 @@ def main(argv=None) -> int:
         runs.append(json.loads(lines[-1][len("RESULT ") :]))
     total = time.perf_counter() - t0
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    head = (
-        ["job", "batch"]
-        + [f"D={r['devices']}: sharded / vmap (ms)" for r in runs]
-        + ["max |sharded - vmap|"]
-    )
+    head = ["job", "batch"] + [f"D={r['devices']}: sharded / vmap (ms)" for r in runs] + ["max |sharded - vmap|"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name in runs[0]["jobs"]:
         cells = [name, str(runs[0]["jobs"][name]["batch"])]
         for r in runs:
             j = r["jobs"][name]
             cells.append(
-                f"{1e3 * j['sharded_s']:.1f} / {1e3 * j['single_s']:.1f} "
-                f"(x{j['single_s'] / j['sharded_s']:.2f})"
+                f"{1e3 * j['sharded_s']:.1f} / {1e3 * j['single_s']:.1f} (x{j['single_s'] / j['sharded_s']:.2f})"
             )
         cells.append(f"{max(r['jobs'][name]['max_diff'] for r in runs):.1e}")
         lines.append("| " + " | ".join(cells) + " |")
     table = "\n".join(lines)
     print(table)
-    cmd = "python benchmarks/scaling.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
+    cmd = "python benchmarks/scaling.py " + " ".join(sys.argv[1:] if argv is None else argv)
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    nproc = subprocess.run(
-        ["nproc"], capture_output=True, text=True, check=False
-    ).stdout.strip()
+    nproc = subprocess.run(["nproc"], capture_output=True, text=True, check=False).stdout.strip()
     machine = f"{platform.machine()} host, {nproc} cores, platform {runs[0]['platform']} (shared, noisy)"
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

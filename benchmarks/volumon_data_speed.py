@@ -35,25 +35,23 @@ def _median(fn, repeats):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--size", default="fast")
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--repeats", type=int, default=10)
-    p.add_argument(
-        "--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results"
-    )
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
     p.add_argument("--tag", default="volumon_data_speed")
     a = p.parse_args(argv)
 
-    from jaxsem.volumon import get_config, make_batch
-    from jaxsem.volumon._device_data import device_batch_jit, train_key
-    from jaxsem.volumon._train import (
+    from jaxsem.volumon import (
         TRAIN_KEYS,
         augmentation_params,
+        device_batch_jit,
+        get_config,
         init_state,
+        make_batch,
         make_train_step,
+        train_key,
     )
 
     base = get_config("both", a.size).replace(batch_size=a.batch_size)
@@ -70,15 +68,11 @@ def main(argv=None) -> int:
         return make_batch(base.seed, np.arange(i * B, (i + 1) * B), sc, S, pad, "train")
 
     def dev_data(i):
-        return device_batch_jit(
-            jax.random.fold_in(train_key(base.seed), i), B, sc, S, pad
-        )
+        return device_batch_jit(jax.random.fold_in(train_key(base.seed), i), B, sc, S, pad)
 
     rows = {
         "data only: host (numpy draws + jitted render)": _median(host_data, a.repeats),
-        "data only: device (jax.random + render, one jit)": _median(
-            dev_data, a.repeats
-        ),
+        "data only: device (jax.random + render, one jit)": _median(dev_data, a.repeats),
     }
 
     state, model, tx = init_state(host_cfg)
@@ -89,9 +83,7 @@ def main(argv=None) -> int:
         b = host_data(i)
         batch = {k: b[k] for k in TRAIN_KEYS}
         if host_cfg.augment:
-            batch["aug"] = jax.tree.map(
-                jax.numpy.asarray, augmentation_params(base.seed, i, B)
-            )
+            batch["aug"] = jax.tree.map(jax.numpy.asarray, augmentation_params(base.seed, i, B))
         holder["s"], terms = step_h(holder["s"], batch)
         return terms
 
@@ -111,19 +103,10 @@ def main(argv=None) -> int:
         rows["train step: new (device data)"],
     )
     dev = jax.devices()[0]
-    machine = (
-        f"{os.cpu_count()}-core CPU (shared with other jobs)"
-        if dev.platform == "cpu"
-        else dev.device_kind
-    )
+    machine = f"{os.cpu_count()}-core CPU (shared with other jobs)" if dev.platform == "cpu" else dev.device_kind
     record = {
-        "command": "python "
-        + " ".join(
-            [os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))
-        ),
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime(
-            "%Y-%m-%d %H:%M UTC"
-        ),
+        "command": "python " + " ".join([os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine,
         "jax": jax.__version__,
         "size": a.size,

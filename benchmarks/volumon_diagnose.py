@@ -55,19 +55,11 @@ RUNS = {
 
 
 def _slug(name: str) -> str:
-    return (
-        name.replace(" ", "_")
-        .replace("(", "")
-        .replace(")", "")
-        .replace("-", "_")
-        .replace(",", "")
-    )
+    return name.replace(" ", "_").replace("(", "").replace(")", "").replace("-", "_").replace(",", "")
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--eval-every", type=int, default=100)
     p.add_argument("--num-eval", type=int, default=96)
@@ -80,12 +72,8 @@ def main(argv=None) -> int:
     p.add_argument("--size", default="fast")
     p.add_argument("--batch-size", type=int, default=16)
     p.add_argument("--runs", nargs="+", default=list(RUNS), choices=list(RUNS))
-    p.add_argument(
-        "--workdir", type=pathlib.Path, default=pathlib.Path("runs/volumon_diagnose")
-    )
-    p.add_argument(
-        "--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results"
-    )
+    p.add_argument("--workdir", type=pathlib.Path, default=pathlib.Path("runs/volumon_diagnose"))
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
     p.add_argument("--tag", default="volumon_diagnose")
     a = p.parse_args(argv)
 
@@ -123,13 +111,8 @@ def main(argv=None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     _figure(curves, a.out / f"{a.tag}.png")
     record = {
-        "command": "python "
-        + " ".join(
-            [os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))
-        ),
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime(
-            "%Y-%m-%d %H:%M UTC"
-        ),
+        "command": "python " + " ".join([os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": f"{os.cpu_count()}-core CPU (shared)",
         "steps": a.steps,
         "size": a.size,
@@ -178,13 +161,9 @@ def _figure(curves, path):
     for name, c in curves.items():
         ev = c["eval"]
         st = [e["step"] for e in ev]
-        axes[0].plot(
-            st, [e["median_size_rel_error"] for e in ev], marker="o", label=name
-        )
+        axes[0].plot(st, [e["median_size_rel_error"] for e in ev], marker="o", label=name)
         axes[1].plot(st, [e["size_corr"] for e in ev], marker="o", label=name)
-        axes[2].plot(
-            st, [e["median_center_error_m"] for e in ev], marker="o", label=name
-        )
+        axes[2].plot(st, [e["median_center_error_m"] for e in ev], marker="o", label=name)
         loss = c["loss"]
         for term, ls in (("dual", "-"), ("primal", "--"), ("oracle", ":")):
             vals = [r[term] for r in loss]

@@ -26,18 +26,12 @@ TARGETS = {
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seeds", type=int, nargs="+", default=[101, 202, 303])
     p.add_argument("--num", type=int, default=256)
     p.add_argument("--postopt", type=int, default=50)
-    p.add_argument(
-        "--workdir", default=None, help="a training run instead of the shipped model"
-    )
-    p.add_argument(
-        "--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results"
-    )
+    p.add_argument("--workdir", default=None, help="a training run instead of the shipped model")
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
     p.add_argument("--tag", default="volumon_heldout")
     a = p.parse_args(argv)
 
@@ -46,24 +40,14 @@ def main(argv=None) -> int:
     from jaxsem.volumon import evaluate_held_out, load_pretrained
 
     model, variables, cfg, meta = load_pretrained(a.workdir)
-    per_seed = {
-        s: evaluate_held_out(model, variables, cfg, s, a.num, postopt_steps=a.postopt)
-        for s in a.seeds
-    }
+    per_seed = {s: evaluate_held_out(model, variables, cfg, s, a.num, postopt_steps=a.postopt) for s in a.seeds}
     keys = [k for k, v in per_seed[a.seeds[0]].items() if isinstance(v, float)]
     mean = {k: float(np.mean([per_seed[s][k] for s in a.seeds])) for k in keys}
     dev = jax.devices()[0]
     record = {
-        "command": "python "
-        + " ".join(
-            [os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))
-        ),
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime(
-            "%Y-%m-%d %H:%M UTC"
-        ),
-        "machine": f"{os.cpu_count()}-core CPU (shared)"
-        if dev.platform == "cpu"
-        else dev.device_kind,
+        "command": "python " + " ".join([os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))),
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": f"{os.cpu_count()}-core CPU (shared)" if dev.platform == "cpu" else dev.device_kind,
         "model": meta.get("name"),
         "model_step": meta.get("step"),
         "seeds": a.seeds,

@@ -61,8 +61,18 @@ def _machine() -> str:
 def _test_set(cfg, num, batch=32, noisy=False):
     from jaxsem.volumon import make_batch
 
-    parts = [make_batch(cfg.seed, np.arange(s, min(num, s + batch)), cfg.scene, cfg.model.input_size,
-                        cfg.model.global_padding, "test", noisy) for s in range(0, num, batch)]
+    parts = [
+        make_batch(
+            cfg.seed,
+            np.arange(s, min(num, s + batch)),
+            cfg.scene,
+            cfg.model.input_size,
+            cfg.model.global_padding,
+            "test",
+            noisy,
+        )
+        for s in range(0, num, batch)
+    ]
     return {k: jnp.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
@@ -86,19 +96,34 @@ def main():
     print(f"machine: {machine}", flush=True)
 
     from jaxsem.models import VoluMonConfig, init_volumon
-    from jaxsem.volumon import evaluate_predictions, get_config, make_predict_fn, optimise_from_scratch, postopt, train_and_evaluate
+    from jaxsem.volumon import (
+        evaluate_predictions,
+        get_config,
+        make_predict_fn,
+        optimise_from_scratch,
+        postopt,
+        train_and_evaluate,
+    )
 
     workdir = a.workdir or pathlib.Path(tempfile.mkdtemp(prefix="volumon_table51_"))
     rows, timing = {}, {}
     models = {}
     t_start = time.perf_counter()
     for v in a.variants:
-        cfg = get_config(v, a.size).replace(num_steps=a.steps, batch_size=a.batch_size, num_train=a.num_train,
-                                           learning_rate=a.lr, seed=a.seed, num_eval=0,
-                                           checkpoint_every=max(a.steps, 1))
+        cfg = get_config(v, a.size).replace(
+            num_steps=a.steps,
+            batch_size=a.batch_size,
+            num_train=a.num_train,
+            learning_rate=a.lr,
+            seed=a.seed,
+            num_eval=0,
+            checkpoint_every=max(a.steps, 1),
+        )
         t0 = time.perf_counter()
         res = train_and_evaluate(cfg, workdir / v, progress=False)
-        print(f"trained {v} in {time.perf_counter() - t0:.0f} s: final {res['history'][max(res['history'])]}", flush=True)
+        print(
+            f"trained {v} in {time.perf_counter() - t0:.0f} s: final {res['history'][max(res['history'])]}", flush=True
+        )
         st = res["state"]
         variables = {"params": st["params"], "batch_stats": st["batch_stats"]}
         test = _test_set(cfg, a.num_test, noisy=cfg.noisy)
@@ -109,13 +134,21 @@ def main():
         print(NAMES[v], rows[NAMES[v]], flush=True)
         # partial results survive an interrupted run (a long benchmark must not lose finished rows)
         a.out.mkdir(parents=True, exist_ok=True)
-        (a.out / f"{a.tag}.partial.json").write_text(json.dumps(
-            {"machine": machine, "args": {k: str(x) for k, x in vars(a).items()}, "rows": rows}, indent=1))
+        (a.out / f"{a.tag}.partial.json").write_text(
+            json.dumps({"machine": machine, "args": {k: str(x) for k, x in vars(a).items()}, "rows": rows}, indent=1)
+        )
 
     # network time per detection (batched), CPU config
     cfg0, variables0, predict0, test0, _ = models[a.variants[0]]
     B = min(32, a.num_test)
-    args = (variables0, test0["local"][:B], test0["global"][:B], test0["box_input"][:B], test0["K"][:B], test0["class_id"][:B])
+    args = (
+        variables0,
+        test0["local"][:B],
+        test0["global"][:B],
+        test0["box_input"][:B],
+        test0["K"][:B],
+        test0["class_id"][:B],
+    )
     timing["network_cpu_config_ms"] = 1e3 * _median_time(lambda: predict0(*args)[1], a.repeats) / B
     if not a.skip_thesis_net:
         tcfg = VoluMonConfig(width_multiplier=1.0, input_size=224)
@@ -132,25 +165,38 @@ def main():
     n = pts.shape[0]
     out = postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, num_steps=50)
     rows["PostOpt (50)"] = evaluate_predictions(out[1]._asdict(), test)
-    timing["postopt50_ms_per_det"] = 1e3 * _median_time(lambda: postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, 50)[0], a.repeats) / n
+    timing["postopt50_ms_per_det"] = (
+        1e3 * _median_time(lambda: postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, 50)[0], a.repeats) / n
+    )
     for steps in (50, 500):
         out = optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, num_steps=steps)
         rows[f"Scratch ({steps})"] = evaluate_predictions(out[1]._asdict(), test)
-        timing[f"scratch{steps}_ms_per_det"] = 1e3 * _median_time(
-            lambda: optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, steps)[0], a.repeats) / n
+        timing[f"scratch{steps}_ms_per_det"] = (
+            1e3
+            * _median_time(lambda: optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, steps)[0], a.repeats)
+            / n
+        )
 
     # table
     order = ["PostOpt (50)", "Dual only", "Primal only", "Both", "Both Noisy", "Scratch (500)", "Scratch (50)"]
-    tmap = {"PostOpt (50)": f"{timing['network_cpu_config_ms']:.2f} ms net + {timing['postopt50_ms_per_det']:.2f} ms opt",
-            "Scratch (500)": f"{timing['scratch500_ms_per_det']:.2f} ms", "Scratch (50)": f"{timing['scratch50_ms_per_det']:.2f} ms"}
-    lines = ["| variant | trans AUC | ADI AUC | 3D IoU | time / detection | thesis (trans, ADI, IoU, time) |", "|---|---|---|---|---|---|"]
+    tmap = {
+        "PostOpt (50)": f"{timing['network_cpu_config_ms']:.2f} ms net + {timing['postopt50_ms_per_det']:.2f} ms opt",
+        "Scratch (500)": f"{timing['scratch500_ms_per_det']:.2f} ms",
+        "Scratch (50)": f"{timing['scratch50_ms_per_det']:.2f} ms",
+    }
+    lines = [
+        "| variant | trans AUC | ADI AUC | 3D IoU | time / detection | thesis (trans, ADI, IoU, time) |",
+        "|---|---|---|---|---|---|",
+    ]
     for name in order:
         if name not in rows:
             continue
         r = rows[name]
         th = THESIS[name]
         tt = tmap.get(name, f"{timing['network_cpu_config_ms']:.2f} ms")
-        lines.append(f"| {name} | {r['trans_auc']:.2f} | {r['adi_auc']:.2f} | {r['iou']:.2f} | {tt} | {th[0]}, {th[1]}, {th[2]}, {th[3]} |")
+        lines.append(
+            f"| {name} | {r['trans_auc']:.2f} | {r['adi_auc']:.2f} | {r['iou']:.2f} | {tt} | {th[0]}, {th[1]}, {th[2]}, {th[3]} |"
+        )
     table = "\n".join(lines)
     speed = [
         "| timing (per detection) | ours | target | thesis (GTX 1070 Ti) |",
@@ -158,7 +204,9 @@ def main():
         f"| network, CPU config (width 0.35, 64x64), batch {B} | {timing['network_cpu_config_ms']:.2f} ms | < 15 ms | 15 ms |",
     ]
     if "network_thesis_224_ms" in timing:
-        speed.append(f"| network, thesis config (width 1.0, 224x224), batch 8 | {timing['network_thesis_224_ms']:.2f} ms | - | 15 ms |")
+        speed.append(
+            f"| network, thesis config (width 1.0, 224x224), batch 8 | {timing['network_thesis_224_ms']:.2f} ms | - | 15 ms |"
+        )
     speed += [
         f"| PostOpt 50 steps, vmapped over {n} | {timing['postopt50_ms_per_det']:.3f} ms | < 10 ms | 341 ms |",
         f"| Scratch 50 steps, vmapped | {timing['scratch50_ms_per_det']:.3f} ms | - | 341 ms |",
@@ -172,22 +220,40 @@ def main():
 
     cmd = "python benchmarks/volumon_table51.py " + " ".join(sys.argv[1:])
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
-    (a.out / f"{a.tag}.json").write_text(json.dumps({
-        "command": cmd, "date": date, "machine": machine, "args": {k: str(v) for k, v in vars(a).items()},
-        "rows": rows, "timing_ms": timing, "thesis": THESIS, "total_s": time.perf_counter() - t_start}, indent=1))
+    (a.out / f"{a.tag}.json").write_text(
+        json.dumps(
+            {
+                "command": cmd,
+                "date": date,
+                "machine": machine,
+                "args": {k: str(v) for k, v in vars(a).items()},
+                "rows": rows,
+                "timing_ms": timing,
+                "thesis": THESIS,
+                "total_s": time.perf_counter() - t_start,
+            },
+            indent=1,
+        )
+    )
     best_adi = max(r["adi_auc"] for r in rows.values())
     behind = []
     if "Dual only" in rows and best_adi > 0:
-        behind.append(f"Dual only reaches {100 * rows['Dual only']['adi_auc'] / best_adi:.0f} % of the best ADI AUC (thesis: about 67 %)")
+        behind.append(
+            f"Dual only reaches {100 * rows['Dual only']['adi_auc'] / best_adi:.0f} % of the best ADI AUC (thesis: about 67 %)"
+        )
     if "Scratch (500)" in rows and rows["Scratch (500)"]["trans_auc"] > 0:
-        behind.append(f"PostOpt / Scratch(500) translation AUC ratio {rows['PostOpt (50)']['trans_auc'] / rows['Scratch (500)']['trans_auc']:.2f} (thesis 1.41)")
-    md = (f"## VoluMon, thesis Table 5.1 (synthetic held-out split{'' if a.tag == 'volumon_table51' else ', ' + a.tag})\n\n"
-          f"Command: `{cmd}`  \nDate: {date}  \nMachine: {machine}  \n"
-          f"Training: {a.steps} steps x batch {a.batch_size} per variant on {a.num_train} synthetic samples; "
-          f"{n} held-out detections (unseen backgrounds and poses); AUCs out of 10 up to 10 cm.\n\n"
-          f"{table}\n\n{speed_table}\n\n"
-          f"Where we are behind: the networks are trained for {a.steps} steps x batch {a.batch_size} (the thesis: 14000 epochs on a GPU), "
-          f"so the learned variants' absolute accuracy is far below the thesis; {'; '.join(behind)}.\n")
+        behind.append(
+            f"PostOpt / Scratch(500) translation AUC ratio {rows['PostOpt (50)']['trans_auc'] / rows['Scratch (500)']['trans_auc']:.2f} (thesis 1.41)"
+        )
+    md = (
+        f"## VoluMon, thesis Table 5.1 (synthetic held-out split{'' if a.tag == 'volumon_table51' else ', ' + a.tag})\n\n"
+        f"Command: `{cmd}`  \nDate: {date}  \nMachine: {machine}  \n"
+        f"Training: {a.steps} steps x batch {a.batch_size} per variant on {a.num_train} synthetic samples; "
+        f"{n} held-out detections (unseen backgrounds and poses); AUCs out of 10 up to 10 cm.\n\n"
+        f"{table}\n\n{speed_table}\n\n"
+        f"Where we are behind: the networks are trained for {a.steps} steps x batch {a.batch_size} (the thesis: 14000 epochs on a GPU), "
+        f"so the learned variants' absolute accuracy is far below the thesis; {'; '.join(behind)}.\n"
+    )
     (a.out / f"{a.tag}.md").write_text(md)
     (a.out / f"{a.tag}.partial.json").unlink(missing_ok=True)
     print(f"wrote {a.out / (a.tag + '.json')} and .md ({time.perf_counter() - t_start:.0f} s)")

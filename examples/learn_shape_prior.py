@@ -23,14 +23,21 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
-from jaxsem import factors as F  # noqa: E402
-from jaxsem import slam  # noqa: E402
+from jaxsem import factors as F, slam  # noqa: E402
 
 
 def make_maps(num_maps, seed, num_frames, num_objects):
-    maps = [slam.toy_map(seed + k, num_objects=num_objects, num_frames=num_frames, path="forward",
-                         size_noise=0.05, capacity=(num_frames, num_frames * num_objects, num_objects))
-            for k in range(num_maps)]
+    maps = [
+        slam.toy_map(
+            seed + k,
+            num_objects=num_objects,
+            num_frames=num_frames,
+            path="forward",
+            size_noise=0.05,
+            capacity=(num_frames, num_frames * num_objects, num_objects),
+        )
+        for k in range(num_maps)
+    ]
     problems = slam.stack_problems([m[0] for m in maps])
     truths = slam.stack_problems([m[1] for m in maps])
     return problems, truths
@@ -75,8 +82,11 @@ def main(argv=None):
         updates, state = opt.update(grad, state, param)
         param = optax.apply_updates(param, updates)
         history.append((float(loss), np.exp(np.asarray(param))))
-        print(f"step {step:3d}  loss {float(loss):.4f}  car mean radii {np.round(np.exp(np.asarray(param)), 3)}"
-              f"  ({time.time() - t0:.0f} s)", flush=True)
+        print(
+            f"step {step:3d}  loss {float(loss):.4f}  car mean radii {np.round(np.exp(np.asarray(param)), 3)}"
+            f"  ({time.time() - t0:.0f} s)",
+            flush=True,
+        )
     print(f"table mean {np.asarray(true_mean)}  learned {np.exp(np.asarray(param))}")
 
     import matplotlib

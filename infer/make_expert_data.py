@@ -35,8 +35,8 @@ def main(argv=None):
     if args.sample_prob == 0:
         raise sc.UsageError("--sample-prob: must be above 0 (no sampling moment would ever happen)")
 
-    from jaxsem.cli import enable_compilation_cache
     from jaxsem import planning
+    from jaxsem.cli import enable_compilation_cache
 
     enable_compilation_cache()
     cfg = planning.ExpertConfig(
@@ -51,8 +51,10 @@ def main(argv=None):
     data = planning.load_expert_dataset(paths)
     n = len(data["context"])
     dt = time.perf_counter() - t0
-    print(f"{len(paths)} shards, {n} samples in {args.out} ({dt:.1f} s, {n / max(dt, 1e-9):.1f} samples/s); "
-          f"goals outdoors: {data['goal_outdoors'].mean():.0%}")
+    print(
+        f"{len(paths)} shards, {n} samples in {args.out} ({dt:.1f} s, {n / max(dt, 1e-9):.1f} samples/s); "
+        f"goals outdoors: {data['goal_outdoors'].mean():.0%}"
+    )
     if not args.no_figure and n:
         save_figure(data, pathlib.Path(args.out) / "samples.png")
 
@@ -80,8 +82,11 @@ def save_figure(data, path, count=8):
         ax.set_title(f"d={c[2] * 20:.1f} m, {'outdoors' if c[3] else 'indoors'}", fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle("expert samples: partial occupancy (grey unknown), doors green, windows blue, "
-                 "exit signs magenta, expert path red, goal direction blue", fontsize=9)
+    fig.suptitle(
+        "expert samples: partial occupancy (grey unknown), doors green, windows blue, "
+        "exit signs magenta, expert path red, goal direction blue",
+        fontsize=9,
+    )
     fig.tight_layout()
     sc.atomic_savefig(fig, path, dpi=90)
     plt.close(fig)

@@ -30,15 +30,11 @@ def _load_map(path):
     try:
         z = np.load(path)
     except Exception as exc:
-        raise SystemExit(
-            f"--map: {path} is not a readable npz file ({type(exc).__name__})"
-        ) from None
+        raise SystemExit(f"--map: {path} is not a readable npz file ({type(exc).__name__})") from None
     with z:
         for k in ("occupancy", "semantic", "origin", "resolution"):
             if k not in z:
-                raise SystemExit(
-                    f"--map: {path} lacks key {k!r} (needs occupancy, semantic, origin, resolution)"
-                )
+                raise SystemExit(f"--map: {path} lacks key {k!r} (needs occupancy, semantic, origin, resolution)")
         occ = z["occupancy"].astype(bool)
         return types.SimpleNamespace(
             occupancy=occ,
@@ -50,9 +46,7 @@ def _load_map(path):
         )
 
 
-def plot_over_time(
-    world, snapshots, path, goal, out, panels: int = 6, title: str = ""
-) -> None:
+def plot_over_time(world, snapshots, path, goal, out, panels: int = 6, title: str = "") -> None:
     """A strip of ``panels`` window distributions (log10 p over the robot-centred 160 x 160
     window; the true walls in white) at evenly spaced replans, with the whole travelled path,
     the robot (x) and the goal direction."""
@@ -64,11 +58,7 @@ def plot_over_time(
 
     if not snapshots:
         return
-    idx = np.unique(
-        np.linspace(0, len(snapshots) - 1, min(panels, len(snapshots)))
-        .round()
-        .astype(int)
-    )
+    idx = np.unique(np.linspace(0, len(snapshots) - 1, min(panels, len(snapshots))).round().astype(int))
     fig, axes = plt.subplots(1, len(idx), figsize=(3.3 * len(idx), 3.6), squeeze=False)
     res = world.resolution
     occ = np.asarray(world.occupancy)
@@ -89,9 +79,7 @@ def plot_over_time(
         on = (rr >= 0) & (rr < occ.shape[0]) & (cc >= 0) & (cc < occ.shape[1])
         walls = np.zeros(local.shape, bool)
         walls[on] = occ[rr[on], cc[on]]
-        ax.contour(
-            walls, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower"
-        )
+        ax.contour(walls, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower")
         p = np.asarray(path)
         ax.plot(p[:, 0], p[:, 1], "-", color="tab:green", lw=1.0, alpha=0.6)
         ax.plot(*xy, "rx", ms=8, mew=2)
@@ -117,12 +105,8 @@ def main(argv=None) -> int:
         description=__doc__.splitlines()[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument(
-        "--map", default=None, help="npz map file (None: a generated building)"
-    )
-    p.add_argument(
-        "--family", default="test", choices=("train", "test"), help="building family"
-    )
+    p.add_argument("--map", default=None, help="npz map file (None: a generated building)")
+    p.add_argument("--family", default="test", choices=("train", "test"), help="building family")
     p.add_argument("--building", type=int, default=0, help="building seed")
     p.add_argument(
         "--start",
@@ -132,9 +116,7 @@ def main(argv=None) -> int:
         metavar=("X", "Y"),
         help="start (m)",
     )
-    p.add_argument(
-        "--goal", type=float, nargs=2, default=None, metavar=("X", "Y"), help="goal (m)"
-    )
+    p.add_argument("--goal", type=float, nargs=2, default=None, metavar=("X", "Y"), help="goal (m)")
     p.add_argument(
         "--kind",
         default="IO",
@@ -213,30 +195,21 @@ def _run(args) -> int:
     from jaxsem.planning import NavConfig, Trial, generate_building, sample_tasks
 
     enable_compilation_cache()
-    world = (
-        _load_map(args.map)
-        if args.map
-        else generate_building(args.building, args.family)
-    )
+    world = _load_map(args.map) if args.map else generate_building(args.building, args.family)
     yaw = args.yaw
     if args.start is None or args.goal is None:
         if args.map:
             raise SystemExit("--start/--goal: required with --map")
         task = sample_tasks(world, args.kind, 1, args.seed)[0]
         start, goal, yaw = task.start, task.goal, task.yaw0
-        print(
-            f"task {args.kind}: start {start.round(2).tolist()} goal {goal.round(2).tolist()} "
-            f"C* {task.c_star:.1f} m"
-        )
+        print(f"task {args.kind}: start {start.round(2).tolist()} goal {goal.round(2).tolist()} C* {task.c_star:.1f} m")
     else:
         start, goal = np.asarray(args.start), np.asarray(args.goal)
     sampler = None
     if args.sampler != "uniform":
         model, params, _ = load_model(args.checkpoint)
         sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix)
-    names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[
-        args.sampler
-    ]
+    names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)
     cfg = NavConfig(n_samples=args.n, max_steps=args.max_steps)
     results, dist, trial_lsd = {}, None, None
@@ -292,9 +265,7 @@ def _run(args) -> int:
     print(f"figure: {out}")
     if trial_lsd is not None and trial_lsd.distributions:
         strip = out.with_name(out.stem + "_over_time.png")
-        plot_over_time(
-            world, trial_lsd.distributions, trial_lsd.path, goal, strip, args.panels
-        )
+        plot_over_time(world, trial_lsd.distributions, trial_lsd.path, goal, strip, args.panels)
         print(f"figure: {strip}")
     return 0
 

@@ -33,50 +33,38 @@ import pathlib
 import sys
 import time
 
+from jaxsem import scripting as sc
+
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
         "--sequence",
         type=pathlib.Path,
         help="sequence directory (or its sequence.json)",
     )
-    src.add_argument(
-        "--simulate", choices=("forward", "orbit"), help="simulate a sequence instead"
-    )
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (--simulate)")
-    p.add_argument("--objects", type=int, default=10, help="cars in the simulated map")
-    p.add_argument(
-        "--frames", type=int, default=60, help="frames of the simulated flight"
-    )
+    src.add_argument("--simulate", choices=("forward", "orbit"), help="simulate a sequence instead")
+    p.add_argument("--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate)")
+    p.add_argument("--objects", type=sc.positive_int, default=10, help="cars in the simulated map")
+    p.add_argument("--frames", type=sc.positive_int, default=60, help="frames of the simulated flight")
     p.add_argument(
         "--write-sequence",
         type=pathlib.Path,
         default=None,
         help="also save the simulated sequence as a sequence directory here",
     )
-    p.add_argument("--out", type=pathlib.Path, required=True, help="output folder")
+    p.add_argument("--out", type=sc.output_dir, required=True, help="output folder")
     p.add_argument(
         "--baseline",
         action="store_true",
         help="boxes + pose priors only (no texture, no prior)",
     )
-    p.add_argument(
-        "--optimize-every", type=int, default=5, help="frames between optimisations"
-    )
-    p.add_argument(
-        "--iterations", type=int, default=3, help="LM steps per online optimisation"
-    )
-    p.add_argument(
-        "--final-iterations", type=int, default=20, help="LM steps after the last frame"
-    )
-    p.add_argument("--box-sigma", type=float, default=None, help="box edge sigma (px)")
-    p.add_argument(
-        "--texture-sigma", type=float, default=None, help="texture depth sigma (m)"
-    )
+    p.add_argument("--optimize-every", type=sc.positive_int, default=5, help="frames between optimisations")
+    p.add_argument("--iterations", type=sc.positive_int, default=3, help="LM steps per online optimisation")
+    p.add_argument("--final-iterations", type=sc.nonnegative_int, default=20, help="LM steps after the last frame")
+    p.add_argument("--box-sigma", type=sc.positive_float, default=None, help="box edge sigma (px)")
+    p.add_argument("--texture-sigma", type=sc.positive_float, default=None, help="texture depth sigma (m)")
     p.add_argument(
         "--pose-sigma",
         type=str,
@@ -85,15 +73,14 @@ def parse_args(argv=None):
     )
     p.add_argument(
         "--default-depth",
-        type=float,
+        type=sc.positive_float,
         default=None,
         help="init depth without a texture plane (m)",
     )
-    p.add_argument(
-        "--overlays", type=int, default=4, help="number of frames to draw overlays for"
-    )
+    p.add_argument("--overlays", type=sc.nonnegative_int, default=4, help="number of frames to draw overlays for")
     p.add_argument("--float64", action="store_true", help="solve in float64")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return p.parse_args(argv)
 
 
@@ -122,15 +109,11 @@ def solver_config(args, sim_cfg=None, sequence=None):
         try:
             m, deg = (float(x) for x in args.pose_sigma.split(","))
         except ValueError:
-            raise ValueError(
-                f"--pose-sigma: expected 'metres,degrees', got {args.pose_sigma!r}"
-            ) from None
+            raise ValueError(f"--pose-sigma: expected 'metres,degrees', got {args.pose_sigma!r}") from None
         noise.update(pose_translation_sigma=m, pose_rotation_sigma=math.radians(deg))
     for name, value in noise.items():
         if not value > 0:
-            raise ValueError(
-                f"--{name.replace('_', '-')}: expected a positive number, got {value}"
-            )
+            raise ValueError(f"--{name.replace('_', '-')}: expected a positive number, got {value}")
     if noise:
         values = {k: getattr(cfg.noise, k) for k in cfg.noise.__dataclass_fields__}
         cfg = _replace(cfg, noise=type(cfg.noise)(**{**values, **noise}))
@@ -162,14 +145,10 @@ def main(argv=None) -> int:
     enable_compilation_cache()
     sim_cfg = None
     if args.simulate:
-        sim_cfg = sim.quadricslam_config(
-            args.simulate, num_objects=args.objects, num_frames=args.frames
-        )
+        sim_cfg = sim.quadricslam_config(args.simulate, num_objects=args.objects, num_frames=args.frames)
         if args.simulate == "forward" and args.frames != 60:  # keep the path length
             sim_cfg = sim_cfg.replace(forward_step=0.75 * 59 / max(args.frames - 1, 1))
-        one = jax.jit(sim.simulate, static_argnums=1)(
-            jax.random.key(args.seed), sim_cfg
-        )
+        one = jax.jit(sim.simulate, static_argnums=1)(jax.random.key(args.seed), sim_cfg)
         sequence = slam.sequence_from_simulation(one, sim_cfg.image_size)
         if args.write_sequence:
             print(f"wrote {slam.save_sequence(sequence, args.write_sequence)}")
@@ -243,9 +222,7 @@ def main(argv=None) -> int:
         label="estimate",
         labels=[str(i) for i in result.object_ids],
     )
-    slam.draw_camera_path(
-        ax, result.camera_T_world, color="tab:green", label="estimated camera path"
-    )
+    slam.draw_camera_path(ax, result.camera_T_world, color="tab:green", label="estimated camera path")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -255,11 +232,7 @@ def main(argv=None) -> int:
     fig.savefig(args.out / "top_down.png", dpi=110)
     plt.close(fig)
 
-    picks = (
-        np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int))
-        if args.overlays
-        else []
-    )
+    picks = np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int)) if args.overlays else []
     for t in picks:
         fr = sequence.frames[t]
         W, H = sequence.image_size
@@ -282,23 +255,14 @@ def main(argv=None) -> int:
 
     if truth and truth.get("objects"):
         err = slam.truth_errors(result, truth)
-        print(
-            "| id | shape (m) | position (m) | orientation (deg) |\n|---|---|---|---|"
-        )
+        print("| id | shape (m) | position (m) | orientation (deg) |\n|---|---|---|---|")
         for k, i in enumerate(err["ids"]):
-            print(
-                f"| {i} | {err['shape'][k]:.2f} | {err['position'][k]:.2f} | {err['orientation'][k]:.1f} |"
-            )
+            print(f"| {i} | {err['shape'][k]:.2f} | {err['position'][k]:.2f} | {err['orientation'][k]:.1f} |")
         m = err["mean"]
-        print(
-            f"| mean | {m['shape']:.2f} | {m['position']:.2f} | {m['orientation']:.1f} |"
-        )
+        print(f"| mean | {m['shape']:.2f} | {m['position']:.2f} | {m['orientation']:.1f} |")
     print(f"wrote {args.out / 'map.json'}, top_down.png and {len(picks)} overlays")
     return 0
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except ValueError as exc:
-        raise SystemExit(f"infer/roshan.py: error: {exc}") from None
+    sys.exit(sc.run_main(main, prog="infer/roshan.py"))

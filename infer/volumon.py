@@ -28,10 +28,18 @@ import numpy as np
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--workdir", type=pathlib.Path, default=None,
-                   help="training run (config.json + checkpoints/); default: the shipped model")
-    p.add_argument("--train-steps", type=int, default=None,
-                   help="train from scratch for this many steps into --workdir first (fast preset)")
+    p.add_argument(
+        "--workdir",
+        type=pathlib.Path,
+        default=None,
+        help="training run (config.json + checkpoints/); default: the shipped model",
+    )
+    p.add_argument(
+        "--train-steps",
+        type=int,
+        default=None,
+        help="train from scratch for this many steps into --workdir first (fast preset)",
+    )
     p.add_argument("--seed", type=int, default=1, help="held-out seed of --split test")
     p.add_argument("--step", type=int, default=None, help="checkpoint step (default latest)")
     p.add_argument("--image", type=pathlib.Path, help="image file (RGB)")
@@ -39,8 +47,12 @@ def main():
     p.add_argument("--K", type=str, default=None, help="fx,fy,cx,cy (default: the training camera)")
     p.add_argument("--split", choices=("train", "test"), default=None, help="use the synthetic split instead")
     p.add_argument("--num", type=int, default=8, help="detections from --split")
-    p.add_argument("--class-id", type=int, default=0,
-                   help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)")
+    p.add_argument(
+        "--class-id",
+        type=int,
+        default=0,
+        help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)",
+    )
     p.add_argument("--out", type=pathlib.Path, required=True)
     a = p.parse_args()
     if a.num < 1:
@@ -86,17 +98,34 @@ def main():
         if cfg.data == "device" and a.split == "test":
             b = held_out_set(a.seed, a.num, cfg.scene, cfg.model.input_size, cfg.model.global_padding, keep_images=True)
         else:
-            b = make_batch(cfg.seed, np.arange(a.num), cfg.scene, cfg.model.input_size, cfg.model.global_padding,
-                           a.split, keep_images=True)
+            b = make_batch(
+                cfg.seed,
+                np.arange(a.num),
+                cfg.scene,
+                cfg.model.input_size,
+                cfg.model.global_padding,
+                a.split,
+                keep_images=True,
+            )
         _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
         K = np.asarray(b["K"][0])
         for i in range(a.num):
             e = [np.asarray(x[i]) for x in ell]
-            truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
-            records.append({"index": i, "box": np.asarray(b["box_input"][i]).tolist(), "rotation": e[0].tolist(),
-                            "center": e[1].tolist(), "radii": e[2].tolist(), "true_center": truth[0][1].tolist()})
+            truth = [
+                (np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))
+            ]
+            records.append(
+                {
+                    "index": i,
+                    "box": np.asarray(b["box_input"][i]).tolist(),
+                    "rotation": e[0].tolist(),
+                    "center": e[1].tolist(),
+                    "radii": e[2].tolist(),
+                    "true_center": truth[0][1].tolist(),
+                }
+            )
             fig, ax = plt.subplots(figsize=(4, 3))
-            draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i:i + 1]), truth)
+            draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
             fig.savefig(a.out / f"overlay_{i:03d}.png", dpi=120, bbox_inches="tight")
             plt.close(fig)
     else:
@@ -117,18 +146,32 @@ def main():
         local, glob = prepare_inputs(img, boxes, cfg.model.input_size, cfg.model.global_padding)
         n = len(boxes)
         class_ids = jnp.full(n, a.class_id, jnp.int32)
-        _, ell, _ = predict(variables, local, glob, jnp.asarray(boxes, jnp.float32), jnp.broadcast_to(jnp.asarray(K, jnp.float32), (n, 3, 3)),
-                            class_ids)
+        _, ell, _ = predict(
+            variables,
+            local,
+            glob,
+            jnp.asarray(boxes, jnp.float32),
+            jnp.broadcast_to(jnp.asarray(K, jnp.float32), (n, 3, 3)),
+            class_ids,
+        )
         es = [[np.asarray(x[i]) for x in ell] for i in range(n)]
         for i, e in enumerate(es):
-            records.append({"index": i, "box": boxes[i].tolist(), "rotation": e[0].tolist(), "center": e[1].tolist(),
-                            "radii": e[2].tolist()})
+            records.append(
+                {
+                    "index": i,
+                    "box": boxes[i].tolist(),
+                    "rotation": e[0].tolist(),
+                    "center": e[1].tolist(),
+                    "radii": e[2].tolist(),
+                }
+            )
         fig, ax = plt.subplots(figsize=(6, 4.5))
         draw_predictions(ax, img, es, K, boxes)
         fig.savefig(a.out / "overlay_000.png", dpi=120, bbox_inches="tight")
         plt.close(fig)
-    (a.out / "ellipsoids.json").write_text(json.dumps({"frame": "camera (OpenCV axes)", "units": "metres",
-                                                       "detections": records}, indent=1))
+    (a.out / "ellipsoids.json").write_text(
+        json.dumps({"frame": "camera (OpenCV axes)", "units": "metres", "detections": records}, indent=1)
+    )
     print(f"wrote {len(records)} ellipsoids to {a.out / 'ellipsoids.json'} and overlays")
 
 

@@ -8,7 +8,7 @@ carried by masks and result codes instead. This module imports nothing else of t
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +37,7 @@ def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool 
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
     trailing = tuple(trailing)
-    if arr.ndim < len(trailing) or tuple(arr.shape[arr.ndim - len(trailing):]) != trailing:
+    if arr.ndim < len(trailing) or tuple(arr.shape[arr.ndim - len(trailing) :]) != trailing:
         want = "(..., " + ", ".join(str(t) for t in trailing) + ")"
         raise ValueError(f"{name}: expected shape {want}, got shape {tuple(arr.shape)}")
     if jnp.issubdtype(arr.dtype, jnp.complexfloating):

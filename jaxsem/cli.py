@@ -21,9 +21,7 @@ def enable_compilation_cache(cache_dir: str | None = None) -> None:
     """Turns on JAX's persistent compilation cache (compile time is part of the user's wait)."""
     import jax
 
-    cache_dir = cache_dir or os.environ.get(
-        "JAXSEM_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "jaxsem" / "jax")
-    )
+    cache_dir = cache_dir or os.environ.get("JAXSEM_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "jaxsem" / "jax"))
     try:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
@@ -84,9 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run the demo on built-in synthetic data")
     demo.add_argument("--out", default="jaxsem_demo", help="folder for figures and JSON")
-    demo.add_argument(
-        "--parts", default="all", help=f"comma-separated subset of {','.join(DEMO_PARTS)}"
-    )
+    demo.add_argument("--parts", default="all", help=f"comma-separated subset of {','.join(DEMO_PARTS)}")
     demo.add_argument("--quick", action="store_true", help="smallest sizes (used by the tests)")
     demo.set_defaults(func=_demo)
     volumon = sub.add_parser("volumon", help="VoluMon: evaluate the shipped (or a trained) model")

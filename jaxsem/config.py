@@ -24,7 +24,8 @@ import dataclasses
 import json
 import pathlib
 import typing
-from typing import Any, Callable, Generic, Iterable, Mapping, TypeVar
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, Generic, TypeVar
 
 __all__ = [
     "Presets",
@@ -56,7 +57,9 @@ def fields(config) -> dict[str, Any]:
         return dict(zip(config._fields, config))
     if dataclasses.is_dataclass(config) and not isinstance(config, type):
         return {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.init}
-    raise ValueError(f"config: expected a dataclass, equinox Module or NamedTuple instance, got {type(config).__name__}")
+    raise ValueError(
+        f"config: expected a dataclass, equinox Module or NamedTuple instance, got {type(config).__name__}"
+    )
 
 
 def _replace(config, **changes):
@@ -67,7 +70,12 @@ def _replace(config, **changes):
 
         if isinstance(config, eqx.Module):
             names = list(changes)
-            return eqx.tree_at(lambda c: [getattr(c, n) for n in names], config, [changes[n] for n in names], is_leaf=lambda x: x is None)
+            return eqx.tree_at(
+                lambda c: [getattr(c, n) for n in names],
+                config,
+                [changes[n] for n in names],
+                is_leaf=lambda x: x is None,
+            )
     except ImportError:  # pragma: no cover - equinox is a dependency
         pass
     return dataclasses.replace(config, **changes)
@@ -113,7 +121,15 @@ def _coerce(value, current, hint, where: str):
         if target is str or (target is None and text[:1] not in "[{0123456789-."):
             return text
         if target in (tuple, list) or isinstance(current, (tuple, list)):
-            parsed = json.loads(text) if text.startswith("[") else [json.loads(p) if p.strip()[:1] in "0123456789-.[{\"tfn" else p.strip() for p in text.split(",") if p.strip()]
+            parsed = (
+                json.loads(text)
+                if text.startswith("[")
+                else [
+                    json.loads(p) if p.strip()[:1] in '0123456789-.[{"tfn' else p.strip()
+                    for p in text.split(",")
+                    if p.strip()
+                ]
+            )
             return tuple(parsed) if target is tuple or isinstance(current, tuple) else list(parsed)
         return json.loads(text)
     except (ValueError, json.JSONDecodeError):
@@ -142,7 +158,9 @@ def _set(config, path: list[str], value, full: str):
     names = fields(config)
     head = path[0]
     if head not in names:
-        raise ValueError(f"{full}: unknown config field {head!r} of {type(config).__name__}; fields are {sorted(names)}")
+        raise ValueError(
+            f"{full}: unknown config field {head!r} of {type(config).__name__}; fields are {sorted(names)}"
+        )
     if len(path) > 1:
         child = names[head]
         if not _is_config(child):

@@ -82,9 +82,7 @@ class ShapePrior(NamedTuple):
 
 # The rows come from the one class table, :mod:`jaxsem.classes` (full dimensions there, radii
 # here: the residual of section 4.3.4 is on the semi-axes).
-SHAPE_PRIORS: dict[str, ShapePrior] = {
-    c.name: ShapePrior(c.radii, c.radii_sigma) for c in _classes.CLASSES
-}
+SHAPE_PRIORS: dict[str, ShapePrior] = {c.name: ShapePrior(c.radii, c.radii_sigma) for c in _classes.CLASSES}
 
 CLASS_NAMES: tuple[str, ...] = tuple(SHAPE_PRIORS)
 
@@ -94,9 +92,7 @@ def class_index(name: str) -> int:
     try:
         return CLASS_NAMES.index(name)
     except ValueError:
-        raise ValueError(
-            f"class name: unknown class {name!r}; known classes are {list(CLASS_NAMES)}"
-        ) from None
+        raise ValueError(f"class name: unknown class {name!r}; known classes are {list(CLASS_NAMES)}") from None
 
 
 def shape_prior(name: str) -> ShapePrior:
@@ -189,9 +185,7 @@ def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma
     # to float64 under x64.
     rel = jnp.asarray(prior, dtype) @ invert_pose(camera_T_world.astype(dtype))
     err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
-    ts = jnp.broadcast_to(
-        jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,)
-    )
+    ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
     return err / jnp.concatenate([ts, rs], axis=-1)
 
@@ -277,14 +271,10 @@ def box_residual(
     alg = algebraic_distance(cam[..., None, :], rotation, center, radii)[..., 0]
     depth_barrier = barrier_weight * deficit
     inside_barrier = barrier_weight * jnp.maximum(-alg, 0.0)
-    return jnp.concatenate(
-        [edges, depth_barrier[..., None], inside_barrier[..., None]], axis=-1
-    )
+    return jnp.concatenate([edges, depth_barrier[..., None], inside_barrier[..., None]], axis=-1)
 
 
-def texture_residual(
-    camera_T_world, rotation, center, radii, texture_depth, texture_sigma=0.3
-):
+def texture_residual(camera_T_world, rotation, center, radii, texture_depth, texture_sigma=0.3):
     """Texture-plane factor (section 4.3.3): ``(near-plane depth - measured depth) / sigma``.
 
     Args:
@@ -338,10 +328,6 @@ def single_view_init(
     depth = jnp.broadcast_to(jnp.asarray(default_depth, dtype), box.shape[:-1])
     if texture_depth is not None:
         tex = jnp.asarray(texture_depth, dtype)
-        mask = (
-            jnp.ones(tex.shape, bool)
-            if texture_mask is None
-            else jnp.asarray(texture_mask)
-        )
+        mask = jnp.ones(tex.shape, bool) if texture_mask is None else jnp.asarray(texture_mask)
         depth = jnp.where(mask & (tex > 0), tex + half_depth, depth)
     return single_view_ellipsoid(box.astype(dtype), K, pose, depth, mean_radii)

@@ -10,8 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_float_array as _as_float_array
-from ._checks import batch_shape as _batch_shape
+from ._checks import as_float_array as _as_float_array, batch_shape as _batch_shape
 from .quadrics import rotation_to_quaternion_wxyz, safe_norm, safe_sqrt
 
 __all__ = [
@@ -40,9 +39,7 @@ def _line_angle(a, b):
     return jnp.arctan2(safe_norm(jnp.cross(a, b), axis=-1), jnp.abs(jnp.sum(a * b, axis=-1)))
 
 
-_SIGN_FLIPS = np.array(
-    [np.diag(d) for d in ([1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1])], dtype=np.float64
-)
+_SIGN_FLIPS = np.array([np.diag(d) for d in ([1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1])], dtype=np.float64)
 
 
 def _sorted_axes(rotation, radii):
@@ -90,8 +87,12 @@ def ellipsoid_errors(
     rp = jnp.abs(_as_float_array("pred_radii", pred_radii, (3,)))
     rt = jnp.abs(_as_float_array("true_radii", true_radii, (3,), check_finite=True))
     batch = _batch_shape(
-        pred_rotation=Rp.shape[:-2], true_rotation=Rt.shape[:-2], pred_center=cp.shape[:-1],
-        true_center=ct.shape[:-1], pred_radii=rp.shape[:-1], true_radii=rt.shape[:-1],
+        pred_rotation=Rp.shape[:-2],
+        true_rotation=Rt.shape[:-2],
+        pred_center=cp.shape[:-1],
+        true_center=ct.shape[:-1],
+        pred_radii=rp.shape[:-1],
+        true_radii=rt.shape[:-1],
     )
     Rp, rp = _sorted_axes(jnp.broadcast_to(Rp, batch + (3, 3)), jnp.broadcast_to(rp, batch + (3,)))
     Rt, rt = _sorted_axes(jnp.broadcast_to(Rt, batch + (3, 3)), jnp.broadcast_to(rt, batch + (3,)))
@@ -227,8 +228,12 @@ def _box_args(Ra, ca, ha, Rb, cb, hb):
     ha = jnp.abs(_as_float_array("half_extents_a", ha, (3,), check_finite=True))
     hb = jnp.abs(_as_float_array("half_extents_b", hb, (3,), check_finite=True))
     batch = _batch_shape(
-        rotation_a=Ra.shape[:-2], center_a=ca.shape[:-1], half_extents_a=ha.shape[:-1],
-        rotation_b=Rb.shape[:-2], center_b=cb.shape[:-1], half_extents_b=hb.shape[:-1],
+        rotation_a=Ra.shape[:-2],
+        center_a=ca.shape[:-1],
+        half_extents_a=ha.shape[:-1],
+        rotation_b=Rb.shape[:-2],
+        center_b=cb.shape[:-1],
+        half_extents_b=hb.shape[:-1],
     )
     dtype = jnp.result_type(Ra, ca, ha, Rb, cb, hb)
     out = []

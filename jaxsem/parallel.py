@@ -84,13 +84,8 @@ def initialize_distributed(
     if jax.distributed.is_initialized():
         return True
     env = os.environ
-    multi_task = any(
-        int(env.get(name, "1") or "1") > 1
-        for name in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE")
-    )
-    explicit = any(
-        v is not None for v in (coordinator_address, num_processes, process_id)
-    )
+    multi_task = any(int(env.get(name, "1") or "1") > 1 for name in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE"))
+    explicit = any(v is not None for v in (coordinator_address, num_processes, process_id))
     if not (explicit or force or multi_task or env.get("JAX_COORDINATOR_ADDRESS")):
         return False
     if num_processes is None and env.get("JAX_NUM_PROCESSES"):
@@ -120,9 +115,7 @@ def _mesh(mesh: Mesh | None) -> Mesh:
     if mesh is None:
         return data_mesh()
     if not isinstance(mesh, Mesh) or len(mesh.axis_names) != 1:
-        raise ValueError(
-            f"mesh: expected a one-axis jax.sharding.Mesh (data_mesh()), got {mesh!r}"
-        )
+        raise ValueError(f"mesh: expected a one-axis jax.sharding.Mesh (data_mesh()), got {mesh!r}")
     return mesh
 
 
@@ -144,9 +137,7 @@ def _batch_size(tree, name: str) -> int:
     sizes = {int(np.shape(x)[0]) if np.ndim(x) else -1 for x in leaves}
     if len(sizes) != 1 or -1 in sizes:
         shapes = [tuple(np.shape(x)) for x in leaves]
-        raise ValueError(
-            f"{name}: every leaf needs the same leading (batch) axis, got leaf shapes {shapes}"
-        )
+        raise ValueError(f"{name}: every leaf needs the same leading (batch) axis, got leaf shapes {shapes}")
     return sizes.pop()
 
 
@@ -191,17 +182,14 @@ def shard_batch(tree, mesh: Mesh | None = None, *, process_local: bool = False):
         n_local = len(sharding.mesh.local_devices or ())
         if n % n_local:
             raise ValueError(
-                f"tree: the local batch ({n}) must be a multiple of the local device count "
-                f"({n_local}); use pad_batch"
+                f"tree: the local batch ({n}) must be a multiple of the local device count ({n_local}); use pad_batch"
             )
         return jax.tree_util.tree_map(
             lambda x: jax.make_array_from_process_local_data(sharding, np.asarray(x)),
             tree,
         )
     if n % n_dev:
-        raise ValueError(
-            f"tree: the batch ({n}) must be a multiple of the device count ({n_dev}); use pad_batch"
-        )
+        raise ValueError(f"tree: the batch ({n}) must be a multiple of the device count ({n_dev}); use pad_batch")
     return jax.device_put(tree, sharding)
 
 
@@ -231,23 +219,15 @@ def sharded_vmap(
     cache: dict = {}
 
     def run(*args):
-        axes = (
-            (in_axes,) * len(args)
-            if not isinstance(in_axes, (list, tuple))
-            else tuple(in_axes)
-        )
+        axes = (in_axes,) * len(args) if not isinstance(in_axes, (list, tuple)) else tuple(in_axes)
         if len(axes) != len(args) or any(a not in (0, None) for a in axes):
-            raise ValueError(
-                f"in_axes: expected 0 or None for each of the {len(args)} arguments, got {in_axes!r}"
-            )
+            raise ValueError(f"in_axes: expected 0 or None for each of the {len(args)} arguments, got {in_axes!r}")
         batched = [i for i, a in enumerate(axes) if a == 0]
         if not batched:
             raise ValueError("in_axes: at least one argument must be batched (0)")
         sizes = {_batch_size(args[i], f"args[{i}]") for i in batched}
         if len(sizes) != 1:
-            raise ValueError(
-                f"args: batched arguments disagree on the batch size: {sorted(sizes)}"
-            )
+            raise ValueError(f"args: batched arguments disagree on the batch size: {sorted(sizes)}")
         key = (axes, len(args))
         if key not in cache:
             cache[key] = _compile(fn, mesh, axis, axes, method)
@@ -283,16 +263,10 @@ def _compile(fn, mesh, axis, axes, method):
             if ax == 0:
                 a = pad_batch(a, mesh.size)[0]
             sh = batch_sh if ax == 0 else rep_sh
-            placed.append(
-                jax.tree_util.tree_map(
-                    lambda x, sh=sh: jax.lax.with_sharding_constraint(x, sh), a
-                )
-            )
+            placed.append(jax.tree_util.tree_map(lambda x, sh=sh: jax.lax.with_sharding_constraint(x, sh), a))
         out = inner(*placed)
         if method == "jit":
-            out = jax.tree_util.tree_map(
-                lambda x: jax.lax.with_sharding_constraint(x, batch_sh), out
-            )
+            out = jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, batch_sh), out)
         return unpad_batch(out, n)
 
     return jax.jit(run)

@@ -32,11 +32,13 @@ import jax.numpy as jnp
 import numpy as np
 
 # Boundary checks live in the core's private helper module (re-exported for the package there).
-from ._checks import as_float_array as _as_float_array
-from ._checks import batch_shape as _batch_shape
-from ._checks import check_positive as _check_positive
-from ._checks import check_rotation as _check_rotation
-from ._checks import is_concrete as _is_concrete
+from ._checks import (
+    as_float_array as _as_float_array,
+    batch_shape as _batch_shape,
+    check_positive as _check_positive,
+    check_rotation as _check_rotation,
+    is_concrete as _is_concrete,
+)
 
 __all__ = [
     "Ellipsoid",
@@ -92,9 +94,7 @@ def _ellipsoid_args(rotation, center, radii):
     _check_rotation("rotation", rotation)
     _check_positive("radii", radii)
     dtype = jnp.result_type(rotation.dtype, center.dtype, radii.dtype)
-    batch = _batch_shape(
-        rotation=rotation.shape[:-2], center=center.shape[:-1], radii=radii.shape[:-1]
-    )
+    batch = _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], radii=radii.shape[:-1])
     return rotation.astype(dtype), center.astype(dtype), radii.astype(dtype), batch
 
 
@@ -146,7 +146,7 @@ class Ellipsoid(NamedTuple):
     radii: jax.Array
 
     @classmethod
-    def create(cls, rotation, center, radii) -> "Ellipsoid":
+    def create(cls, rotation, center, radii) -> Ellipsoid:
         """Checked constructor: shapes, finiteness, proper rotations, positive radii."""
         rotation, center, radii, _ = _ellipsoid_args(rotation, center, radii)
         return cls(rotation, center, radii)
@@ -164,7 +164,7 @@ class Camera(NamedTuple):
     camera_T_world: jax.Array
 
     @classmethod
-    def create(cls, K, camera_T_world) -> "Camera":
+    def create(cls, K, camera_T_world) -> Camera:
         """Checked constructor: intrinsics with positive focal lengths, a rigid pose."""
         K, pose = _camera_args(K, camera_T_world)
         return cls(K, pose)
@@ -469,8 +469,9 @@ def _bbox_axis(R, c, r, K, T, valid, lift, is_u):
     sq = jnp.where(pos, jnp.sqrt(jnp.where(pos, disc, 1.0)), 0.0)  # safe_sqrt of the masked disc
     fallback = tz * tz
     den = jnp.where(V, _dot3(r3, r3) - fallback, -jnp.maximum(fallback, 1.0))
-    return dict(c0=c0, ra=ra, r3=r3, alpha=alpha, tz=tz, num=num, wa=wa, cr=cr, sq=sq, den=den,
-                V=V, pos=pos, fallback=fallback)
+    return dict(
+        c0=c0, ra=ra, r3=r3, alpha=alpha, tz=tz, num=num, wa=wa, cr=cr, sq=sq, den=den, V=V, pos=pos, fallback=fallback
+    )
 
 
 def _bbox_edges(R, c, r, K, T, valid):
@@ -498,13 +499,18 @@ def _bbox_sensitivities(R, c, r, K, T, valid):
     # Partial derivatives of num, disc and den with respect to the entries of x.
     d_num = r3 + ra + [-tz, -alpha, zero]
     r3_x_cr, cr_x_ra = _cross3(r3, cr), _cross3(cr, ra)  # d|ra x r3|^2 = 2 (r3 x cr) dra + 2 (cr x ra) dr3
-    d_disc = ([2.0 * (tz * wa[k] - r3_x_cr[k]) for k in range(3)]
-              + [2.0 * (-alpha * wa[k] - cr_x_ra[k]) for k in range(3)]
-              + [-2.0 * _dot3(wa, r3), 2.0 * _dot3(wa, ra), zero])
+    d_disc = (
+        [2.0 * (tz * wa[k] - r3_x_cr[k]) for k in range(3)]
+        + [2.0 * (-alpha * wa[k] - cr_x_ra[k]) for k in range(3)]
+        + [-2.0 * _dot3(wa, r3), 2.0 * _dot3(wa, ra), zero]
+    )
     fb = q["fallback"]  # where not valid, den = -max(tz^2, 1); jnp.maximum splits a tie evenly
     d_fb = jnp.where(fb > 1.0, 1.0, jnp.where(fb == 1.0, 0.5, 0.0))
-    d_den = ([zero] * 3 + [jnp.where(V, 2.0 * r3[k], 0.0) for k in range(3)]
-             + [zero, -2.0 * tz * jnp.where(V, 1.0, d_fb), zero])
+    d_den = (
+        [zero] * 3
+        + [jnp.where(V, 2.0 * r3[k], 0.0) for k in range(3)]
+        + [zero, -2.0 * tz * jnp.where(V, 1.0, d_fb), zero]
+    )
     m = jnp.broadcast_to(jnp.arange(9), (2, 9))
 
     def pick(values):
@@ -537,7 +543,11 @@ def _bbox_primitive_tangents(R, c, r, K, T, dR, dc, dr, dK, dT):
     dW, dtw = dT[..., :3, :3], dT[..., :3, 3]
     # Rows h = A W (world axes) and h_t = A t_w of the u axis, the v axis and the depth row, as
     # (weights A, tangent of A) pairs; dh = A dW + dA W, dh_t = A dt_w + dA t_w.
-    rows = [([fx, s, zero], [dfx, ds, None]), ([zero, fy, zero], [None, dfy, None]), ([zero, zero, zero + 1.0], [None] * 3)]
+    rows = [
+        ([fx, s, zero], [dfx, ds, None]),
+        ([zero, fy, zero], [None, dfy, None]),
+        ([zero, zero, zero + 1.0], [None] * 3),
+    ]
     proj, lin = [], []
     for A, dA in rows:
         h = [A[0] * W[0][i] + A[1] * W[1][i] + A[2] * W[2][i] for i in range(3)]
@@ -549,9 +559,10 @@ def _bbox_primitive_tangents(R, c, r, K, T, dR, dc, dr, dK, dT):
                 dh = dh + jnp.stack([dA[j] * W[j][i] for i in range(3)], -1)
                 dht = dht + dA[j] * tw[j]
         p = jnp.stack([h[0] * R[..., 0, k] + h[1] * R[..., 1, k] + h[2] * R[..., 2, k] for k in range(3)], -1)
-        dp = (jnp.stack([jnp.sum(dh * R[..., :, k], -1) for k in range(3)], -1)
-              + jnp.sum(jnp.stack(h, -1)[..., :, None] * dR, -2))
-        proj.append(dr * p + r * dp)                                         # d (r_k h . R_k)
+        dp = jnp.stack([jnp.sum(dh * R[..., :, k], -1) for k in range(3)], -1) + jnp.sum(
+            jnp.stack(h, -1)[..., :, None] * dR, -2
+        )
+        proj.append(dr * p + r * dp)  # d (r_k h . R_k)
         lin.append(jnp.sum(dh * c, -1) + dht + jnp.sum(jnp.stack(h, -1) * dc, -1))  # d (h . c + h_t)
     dx_u = jnp.concatenate([proj[0], proj[2], jnp.stack([lin[0], lin[2], dK[..., 0, 2]], -1)], -1)
     dx_v = jnp.concatenate([proj[1], proj[2], jnp.stack([lin[1], lin[2], dK[..., 1, 2]], -1)], -1)
@@ -704,9 +715,7 @@ def ground_bounds(rotation, center, radii):
     return jnp.broadcast_to(jnp.stack([cx - hx, cy - hy, cx + hx, cy + hy], -1), batch + (4,))
 
 
-def rasterize_footprint(
-    rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None
-):
+def rasterize_footprint(rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None):
     """Rasterises ellipsoid footprints (top-down, along z) into a class-id grid.
 
     A cell ``[row, col]`` has its centre at world ``(origin[0] + (col + 0.5) * resolution,
@@ -822,13 +831,45 @@ def rotation_to_quaternion_wxyz(rotation):
     trace = r00 + r11 + r22
     cands = []
     s = 2 * safe_sqrt(1 + trace)
-    cands.append((s, jnp.stack([s / 4, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1), 1 + trace))
+    cands.append(
+        (
+            s,
+            jnp.stack(
+                [s / 4, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
+            ),
+            1 + trace,
+        )
+    )
     s = 2 * safe_sqrt(1 + r00 - r11 - r22)
-    cands.append((s, jnp.stack([R[..., 2, 1] - R[..., 1, 2], s / 4, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1), 1 + r00 - r11 - r22))
+    cands.append(
+        (
+            s,
+            jnp.stack(
+                [R[..., 2, 1] - R[..., 1, 2], s / 4, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1
+            ),
+            1 + r00 - r11 - r22,
+        )
+    )
     s = 2 * safe_sqrt(1 - r00 + r11 - r22)
-    cands.append((s, jnp.stack([R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], s / 4, R[..., 1, 2] + R[..., 2, 1]], -1), 1 - r00 + r11 - r22))
+    cands.append(
+        (
+            s,
+            jnp.stack(
+                [R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], s / 4, R[..., 1, 2] + R[..., 2, 1]], -1
+            ),
+            1 - r00 + r11 - r22,
+        )
+    )
     s = 2 * safe_sqrt(1 - r00 - r11 + r22)
-    cands.append((s, jnp.stack([R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], s / 4], -1), 1 - r00 - r11 + r22))
+    cands.append(
+        (
+            s,
+            jnp.stack(
+                [R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], s / 4], -1
+            ),
+            1 - r00 - r11 + r22,
+        )
+    )
     args = jnp.stack([c[2] for c in cands], -1)
     best = jnp.argmax(args, axis=-1)
     qs = []

@@ -25,7 +25,7 @@ import pathlib
 import sys
 import tempfile
 import zipfile
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 __all__ = [
     "UsageError",
@@ -80,7 +80,9 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
-def run_main(main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None, prog: str | None = None) -> int:
+def run_main(
+    main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None, prog: str | None = None
+) -> int:
     """Runs ``main(argv)`` and turns expected failures into one line on stderr and exit status 2.
 
     ``--debug`` (or ``JAXSEM_DEBUG=1``) re-raises with the full traceback. ``SystemExit`` from
@@ -109,7 +111,9 @@ def _number(text: str, kind):
     try:
         value = kind(text)
     except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected {'an integer' if kind is int else 'a number'}, got {text!r}"
+        ) from None
     if kind is float and not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value

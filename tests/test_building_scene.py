@@ -47,9 +47,7 @@ def _view_of_door(building, objects, k, distance=3.0):
     """A camera outside the building, ``distance`` m in front of door k, looking at its centre."""
     centre = 0.5 * (objects.box_min[k] + objects.box_max[k])
     # The outward direction: from the building's centre through the door.
-    mid = np.asarray(building.origin) + 0.5 * building.resolution * np.array(
-        building.shape[::-1]
-    )
+    mid = np.asarray(building.origin) + 0.5 * building.resolution * np.array(building.shape[::-1])
     r0, c0, r1, c1 = objects.cells[k]
     normal = np.array([0.0, 1.0]) if (c1 - c0) >= (r1 - r0) else np.array([1.0, 0.0])
     normal *= np.sign(np.dot(centre[:2] - mid, normal)) or 1.0
@@ -98,11 +96,7 @@ def test_depth_back_projects_onto_the_door_frame(building, scene):
     out = scene.render(K, T, outputs=("depth", "seg"))
     rows, cols = np.nonzero(out["seg"] == k)
     assert len(rows) > 50
-    pts = np.asarray(
-        quadrics.back_project(
-            np.stack([cols, rows], -1).astype(float), out["depth"][rows, cols], K, T
-        )
-    )
+    pts = np.asarray(quadrics.back_project(np.stack([cols, rows], -1).astype(float), out["depth"][rows, cols], K, T))
     lo, hi = objects.box_min[k] - 0.02, objects.box_max[k] + 0.02
     inside = np.all((pts >= lo) & (pts <= hi), axis=1)
     assert inside.mean() > 0.99
@@ -159,9 +153,7 @@ def test_pixels_to_object_map_to_semantic_grid(building, scene):
         Tv = T.copy()
         Tv[:3, 3] -= np.array([dx, 0.0, 0.0])  # the camera moves dx along its own x axis
         out = scene.render(K, Tv, outputs=("depth", "seg"))
-        ell, idx = ellipsoids_from_depth(
-            out["seg"], out["depth"], K, Tv, objects.class_id, capacity=8
-        )
+        ell, idx = ellipsoids_from_depth(out["seg"], out["depth"], K, Tv, objects.class_id, capacity=8)
         assert k in idx
         state = mapping.update(state, ell, gate=0.5)
     # The entrance door was associated across views, and its estimate is the true box's.
@@ -170,11 +162,7 @@ def test_pixels_to_object_map_to_semantic_grid(building, scene):
     np.testing.assert_allclose(np.asarray(state.center[j]), centre, atol=0.05)
     half = 0.5 * (objects.box_max[k] - objects.box_min[k])
     np.testing.assert_allclose(np.asarray(state.radii[j]), half, atol=0.05)
-    grid = np.asarray(
-        mapping.semantic_grid(
-            state, building.shape, building.origin, building.resolution
-        )
-    )
+    grid = np.asarray(mapping.semantic_grid(state, building.shape, building.origin, building.resolution))
     r0, c0, r1, c1 = objects.cells[k]
     truth = np.zeros(building.shape, bool)
     truth[r0:r1, c0:c1] = True

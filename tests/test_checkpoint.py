@@ -8,7 +8,7 @@ import numpy as np
 import optax
 import pytest
 
-from jaxsem.checkpoint import CheckpointError, Checkpointer, latest_step, restore_checkpoint, save_checkpoint
+from jaxsem.checkpoint import Checkpointer, CheckpointError, latest_step, restore_checkpoint, save_checkpoint
 
 
 def _state(seed):

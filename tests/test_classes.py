@@ -11,7 +11,10 @@ def test_table_rows_are_consistent():
     car = classes.get("car")
     np.testing.assert_allclose(car.dimensions, [4.88, 1.84, 1.45])
     np.testing.assert_allclose(np.array(car.radii) * 2, car.dimensions)
-    assert classes.get("soup_can").shape == "cylinder" and classes.get("soup_can").dimensions[2] > classes.get("soup_can").dimensions[0]
+    assert (
+        classes.get("soup_can").shape == "cylinder"
+        and classes.get("soup_can").dimensions[2] > classes.get("soup_can").dimensions[0]
+    )
     with pytest.raises(ValueError, match="known classes"):
         classes.get("truck")
     with pytest.raises(ValueError, match="dimensions"):

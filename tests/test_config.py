@@ -46,14 +46,23 @@ def _tiny(c):
 
 
 def test_override_by_dotted_name_parses_types():
-    c = cfg.override(Train(), ["steps=7", "lr=3e-4", "loss.primal_weight=0.5", "use_noise=true", "sizes=32,48", "limit=5", "name=abc"])
+    c = cfg.override(
+        Train(),
+        ["steps=7", "lr=3e-4", "loss.primal_weight=0.5", "use_noise=true", "sizes=32,48", "limit=5", "name=abc"],
+    )
     assert c == Train(steps=7, lr=3e-4, name="abc", use_noise=True, sizes=(32, 48), limit=5, loss=Loss(0.5, 1))
     assert cfg.override(c, {"limit": "none"}).limit is None
 
 
 @pytest.mark.parametrize(
     "change, match",
-    [("stepz=3", "unknown config field 'stepz'.*steps"), ("steps=abc", "steps: cannot read 'abc' as int"), ("loss.x=1", "unknown config field 'x'"), ("steps", "expected key=value"), ("lr.a=1", "not a nested config")],
+    [
+        ("stepz=3", "unknown config field 'stepz'.*steps"),
+        ("steps=abc", "steps: cannot read 'abc' as int"),
+        ("loss.x=1", "unknown config field 'x'"),
+        ("steps", "expected key=value"),
+        ("lr.a=1", "not a nested config"),
+    ],
 )
 def test_bad_overrides_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):

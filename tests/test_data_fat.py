@@ -57,18 +57,39 @@ def scene(tmp_path):
     d = tmp_path / "kitchen_0"
     d.mkdir()
     intr = {"resX": W, "resY": H, "fx": FX, "fy": FX, "cx": CX, "cy": CY, "s": 0}
-    cams = {"camera_settings": [{"name": n, "horizontal_fov": 64, "intrinsic_settings": intr,
-                                 "captured_image_size": {"width": W, "height": H}} for n in ("left", "right")]}
+    cams = {
+        "camera_settings": [
+            {
+                "name": n,
+                "horizontal_fov": 64,
+                "intrinsic_settings": intr,
+                "captured_image_size": {"width": W, "height": H},
+            }
+            for n in ("left", "right")
+        ]
+    }
     (d / "_camera_settings.json").write_text(json.dumps(cams))
-    objs = {"exported_object_classes": ["003_cracker_box_16k"], "exported_objects": [{
-        "class": "003_cracker_box_16k", "segmentation_class_id": SEG_ID,
-        "fixed_model_transform": np.eye(4).tolist(), "cuboid_dimensions": DIMS_CM.tolist()}]}
+    objs = {
+        "exported_object_classes": ["003_cracker_box_16k"],
+        "exported_objects": [
+            {
+                "class": "003_cracker_box_16k",
+                "segmentation_class_id": SEG_ID,
+                "fixed_model_transform": np.eye(4).tolist(),
+                "cuboid_dimensions": DIMS_CM.tolist(),
+            }
+        ],
+    }
     (d / "_object_settings.json").write_text(json.dumps(objs))
     for stem, shift in (("000000", 0.0), ("000001", 1.0)):
-        left = {"camera_data": {"location_worldframe": [0, 0, 0], "quaternion_xyzw_worldframe": [0, 0, 0, 1]},
-                "objects": [_object(CENTER_CM + shift, (10 + shift, 20, 40, 50))]}
-        right = {"camera_data": left["camera_data"],
-                 "objects": [_object(CENTER_CM + shift - np.array([6.0, 0, 0]), (4 + shift, 20, 34, 50))]}
+        left = {
+            "camera_data": {"location_worldframe": [0, 0, 0], "quaternion_xyzw_worldframe": [0, 0, 0, 1]},
+            "objects": [_object(CENTER_CM + shift, (10 + shift, 20, 40, 50))],
+        }
+        right = {
+            "camera_data": left["camera_data"],
+            "objects": [_object(CENTER_CM + shift - np.array([6.0, 0, 0]), (4 + shift, 20, 34, 50))],
+        }
         (d / f"{stem}.left.json").write_text(json.dumps(left))
         (d / f"{stem}.right.json").write_text(json.dumps(right))
         img = np.zeros((H, W, 3), np.uint8)

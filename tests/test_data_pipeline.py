@@ -22,8 +22,9 @@ CFG = PipelineConfig(patch_size=32, global_size=40, n_points=64, box_noise=0.1)
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     root = tmp_path_factory.mktemp("pipe")
-    dirs = write_synthetic_dataset(root, 5, seed=11, split="train", image_size=(128, 96), frames_per_scene=5,
-                                   image_format="png", progress=False)
+    dirs = write_synthetic_dataset(
+        root, 5, seed=11, split="train", image_size=(128, 96), frames_per_scene=5, image_format="png", progress=False
+    )
     return list(load_fat_scene(dirs[0]))
 
 
@@ -36,10 +37,21 @@ def test_batch_shapes_and_dtypes(dataset):
     B = 4
     b = dataset.batch(0, 0, B)
     shapes = {
-        "patch": (B, 32, 32, 3), "global_image": (B, 40, 40, 3), "input_box": (B, 4), "box": (B, 4),
-        "box_right": (B, 4), "has_right_box": (B,), "K": (B, 3, 3), "baseline": (B,), "class_id": (B,),
-        "points": (B, 64, 3), "points_mask": (B, 64), "has_points": (B,), "rotation": (B, 3, 3),
-        "center": (B, 3), "dimensions": (B, 3),
+        "patch": (B, 32, 32, 3),
+        "global_image": (B, 40, 40, 3),
+        "input_box": (B, 4),
+        "box": (B, 4),
+        "box_right": (B, 4),
+        "has_right_box": (B,),
+        "K": (B, 3, 3),
+        "baseline": (B,),
+        "class_id": (B,),
+        "points": (B, 64, 3),
+        "points_mask": (B, 64),
+        "has_points": (B,),
+        "rotation": (B, 3, 3),
+        "center": (B, 3),
+        "dimensions": (B, 3),
     }
     for k, s in shapes.items():
         assert b[k].shape == s, k
@@ -171,8 +183,9 @@ def test_bad_input_errors_and_documented_skips(frames):
 def test_image_scale_and_point_cap(frames):
     """Half-size images: K and boxes follow, so the crop of a box shows the same content."""
     full = VolumonDataset(frames[:2], PipelineConfig(patch_size=16, global_size=16, n_points=8))
-    half = VolumonDataset(frames[:2], PipelineConfig(patch_size=16, global_size=16, n_points=8, image_scale=0.5,
-                                                     max_points_per_object=5))
+    half = VolumonDataset(
+        frames[:2], PipelineConfig(patch_size=16, global_size=16, n_points=8, image_scale=0.5, max_points_per_object=5)
+    )
     a, b = next(full.eval_batches(4)), next(half.eval_batches(4))
     np.testing.assert_allclose(b["K"][:, 0, 0], a["K"][:, 0, 0] / 2, rtol=1e-6)
     # The principal point (W - 1) / 2 of the full image maps to (W / 2 - 1) / 2 of the half one.
@@ -208,5 +221,18 @@ def test_shape_ids_and_volumon_keys(frames):
     np.testing.assert_allclose(v["gt_half_extents"], b["dimensions"] / 2)
     assert v["gt_shape_id"].tolist() == [1 if n == "ball" else 0 for n in names]
     np.testing.assert_array_equal(v["sample_mask"], b["valid"] & b["has_right_box"])
-    assert set(v) >= {"local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points",
-                      "point_mask", "class_id", "sample_mask", "gt_rotation", "gt_center"}
+    assert set(v) >= {
+        "local",
+        "global",
+        "box_input",
+        "box_left",
+        "box_right",
+        "K",
+        "baseline",
+        "points",
+        "point_mask",
+        "class_id",
+        "sample_mask",
+        "gt_rotation",
+        "gt_center",
+    }

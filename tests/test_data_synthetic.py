@@ -14,10 +14,12 @@ from jaxsem.data.make_synthetic import main as make_synthetic_main
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("synthetic")
-    train = write_synthetic_dataset(root, 6, seed=3, split="train", image_size=(128, 96), frames_per_scene=3,
-                                    progress=False)
-    test = write_synthetic_dataset(root, 2, seed=3, split="test", image_size=(128, 96), frames_per_scene=2,
-                                   image_format="png", progress=False)
+    train = write_synthetic_dataset(
+        root, 6, seed=3, split="train", image_size=(128, 96), frames_per_scene=3, progress=False
+    )
+    test = write_synthetic_dataset(
+        root, 2, seed=3, split="test", image_size=(128, 96), frames_per_scene=2, image_format="png", progress=False
+    )
     return root, train, test
 
 
@@ -40,7 +42,9 @@ def test_layout_and_round_trip(dataset):
     seq = load_fat_scene(train[0], load_right_image=True)
     fr = seq[0]
     # The [y, x] quirk is reproduced and undone by the loader.
-    np.testing.assert_allclose(fr.boxes_left[0], [bb["top_left"][1], bb["top_left"][0], bb["bottom_right"][1], bb["bottom_right"][0]])
+    np.testing.assert_allclose(
+        fr.boxes_left[0], [bb["top_left"][1], bb["top_left"][0], bb["bottom_right"][1], bb["bottom_right"][0]]
+    )
     assert fr.image.shape == (96, 128, 3) and fr.right_image.shape == (96, 128, 3)
     classes = {c.name: c for c in DEFAULT_CLASSES}
     counts = {}
@@ -56,10 +60,14 @@ def test_layout_and_round_trip(dataset):
                 assert 0.4 <= fr.center[i, 2] <= 1.5
                 # Exact boxes agree with the rendered masks (left and right) to a pixel.
                 np.testing.assert_allclose(fr.boxes_left[i], _mask_box(fr.seg == i), atol=1.0)
-                np.testing.assert_allclose(fr.boxes_right[i], _mask_box(right_seg == cls.segmentation_class_id), atol=1.0)
+                np.testing.assert_allclose(
+                    fr.boxes_right[i], _mask_box(right_seg == cls.segmentation_class_id), atol=1.0
+                )
                 # ... and with an independent projection of the loaded pose for the ellipsoid class.
                 if cls.shape == "ellipsoid":
-                    ref, valid = quadrics.project_bbox(fr.rotation[i], fr.center[i], fr.dimensions[i] / 2, fr.K, np.eye(4))
+                    ref, valid = quadrics.project_bbox(
+                        fr.rotation[i], fr.center[i], fr.dimensions[i] / 2, fr.K, np.eye(4)
+                    )
                     assert bool(valid)
                     np.testing.assert_allclose(fr.boxes_left[i], np.asarray(ref), atol=1e-6)
                     # Depth on the mask back-projects onto the true ellipsoid surface.
@@ -68,7 +76,9 @@ def test_layout_and_round_trip(dataset):
                     vs, us = np.nonzero(inner)
                     z = fr.depth[vs, us].astype(np.float64)
                     pts = np.stack([(us - fr.K[0, 2]) * z / fr.K[0, 0], (vs - fr.K[1, 2]) * z / fr.K[1, 1], z], 1)
-                    alg = np.asarray(quadrics.algebraic_distance(pts, fr.rotation[i], fr.center[i], fr.dimensions[i] / 2))
+                    alg = np.asarray(
+                        quadrics.algebraic_distance(pts, fr.rotation[i], fr.center[i], fr.dimensions[i] / 2)
+                    )
                     assert np.median(np.abs(alg)) < 0.03
                 else:
                     ref = object_box(cls.shape, fr.rotation[i], fr.center[i], fr.dimensions[i], fr.K)
@@ -80,8 +90,9 @@ def test_layout_and_round_trip(dataset):
 
 def test_deterministic_and_splits_differ(dataset, tmp_path):
     root, train, test = dataset
-    again = write_synthetic_dataset(tmp_path, 3, seed=3, split="train", image_size=(128, 96), frames_per_scene=3,
-                                    progress=False)
+    again = write_synthetic_dataset(
+        tmp_path, 3, seed=3, split="train", image_size=(128, 96), frames_per_scene=3, progress=False
+    )
     for name in ("000002.left.json", "000001.right.json"):
         assert (again[0] / name).read_text() == (train[0] / name).read_text()
     a = load_fat_scene(again[0])[1]
@@ -104,10 +115,28 @@ def test_bad_arguments(tmp_path):
 
 
 def test_command_line_entry(tmp_path, capsys):
-    make_synthetic_main(["--out", str(tmp_path), "--frames", "1", "--split", "test", "--width", "64",
-                         "--height", "48", "--format", "png", "--bbox-order", "xy"])
+    make_synthetic_main(
+        [
+            "--out",
+            str(tmp_path),
+            "--frames",
+            "1",
+            "--split",
+            "test",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--format",
+            "png",
+            "--bbox-order",
+            "xy",
+        ]
+    )
     assert "test: 1 frames" in capsys.readouterr().out
     fr = load_fat_scene(tmp_path / "test" / "scene_000", bbox_order="xy")[0]
     assert fr.image.shape == (48, 64, 3) and fr.num_objects >= 1
     ys, xs = np.nonzero(fr.seg == 0)
-    np.testing.assert_allclose(fr.boxes_left[0], [xs.min() - 0.5, ys.min() - 0.5, xs.max() + 0.5, ys.max() + 0.5], atol=1.0)
+    np.testing.assert_allclose(
+        fr.boxes_left[0], [xs.min() - 0.5, ys.min() - 0.5, xs.max() + 0.5, ys.max() + 0.5], atol=1.0
+    )

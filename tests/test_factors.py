@@ -6,9 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import factors as F
-from jaxsem import quadrics as Q
-from jaxsem.slam import _cost as C
+from jaxsem import factors as F, quadrics as Q, slam as C
 
 K = jnp.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
 IMAGE = jnp.array([640.0, 480.0])
@@ -56,6 +54,7 @@ def test_box_residual_jacobian_matches_finite_differences():
     f = _pose_obj_fn(lambda P, R2, c2, r2: F.box_residual(P, R2, c2, r2, meas, K, IMAGE), pose, R, c, r)
     jac = _fd_check(f, jnp.zeros(15))
     assert np.abs(jac[:4]).max() > 1.0  # edges depend on every block
+
     # The first-order twins used by the structured solver give the same Jacobian at zero.
     def g(x):
         P = C.first_order_pose(pose, x[:6])
@@ -68,8 +67,7 @@ def test_box_residual_jacobian_matches_finite_differences():
 def test_texture_pose_shape_jacobians_match_finite_differences():
     pose, R, c, r = _scene(2)
     depth, _ = Q.texture_plane_depth(R, c, r, pose)
-    f = _pose_obj_fn(lambda P, R2, c2, r2: F.texture_residual(P, R2, c2, r2, depth + 0.3, 0.2)[None],
-                     pose, R, c, r)
+    f = _pose_obj_fn(lambda P, R2, c2, r2: F.texture_residual(P, R2, c2, r2, depth + 0.3, 0.2)[None], pose, R, c, r)
     _fd_check(f, jnp.zeros(15))
     prior = C.retract_pose(pose, jnp.array([0.1, -0.05, 0.02, 0.03, -0.02, 0.04]))
     fp = lambda x: F.pose_prior_residual(C.retract_pose(pose, x), prior, 0.02, 0.05)
@@ -131,8 +129,11 @@ def test_degenerate_geometry_is_finite_and_points_back_to_validity(case):
     pose = Q.look_at(jnp.array([0.0, 0.0, 1.5]), jnp.array([10.0, 0.0, 1.5]))
     R = jnp.eye(3)
     r = jnp.array([2.4, 0.9, 0.7])
-    c = {"inside": jnp.array([0.5, 0.2, 1.3]), "behind": jnp.array([-8.0, 1.0, 1.5]),
-         "straddling": jnp.array([0.3, 4.0, 1.5])}[case]
+    c = {
+        "inside": jnp.array([0.5, 0.2, 1.3]),
+        "behind": jnp.array([-8.0, 1.0, 1.5]),
+        "straddling": jnp.array([0.3, 4.0, 1.5]),
+    }[case]
     meas = jnp.array([300.0, 200.0, 360.0, 260.0])
     _, valid = Q.project_bbox(R, c, r, K, pose)
     assert not bool(valid)
@@ -205,6 +206,5 @@ def test_single_view_init_on_ray_and_matches_texture_plane():
     np.testing.assert_allclose(p[:2] / p[2], [(box[0] + box[2]) / 2, (box[1] + box[3]) / 2], atol=1e-8)
     np.testing.assert_allclose(Q.texture_plane_depth(R0, c0, r0, pose)[0], depth, atol=1e-9)
     # Without a texture plane: the default depth along the optical axis.
-    _, c1, _ = F.single_view_init(pose, box, K, mean, texture_depth=depth, texture_mask=False,
-                                  default_depth=7.0)
+    _, c1, _ = F.single_view_init(pose, box, K, mean, texture_depth=depth, texture_mask=False, default_depth=7.0)
     np.testing.assert_allclose(Q.camera_depth(c1, pose), 7.0, atol=1e-9)

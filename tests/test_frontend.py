@@ -12,15 +12,15 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import cv2
+import numpy as np
+import pytest
 
-from jaxsem.slam import _frontend as fe_mod  # noqa: E402  (private cache, one test)
-from jaxsem.slam import (  # noqa: E402
+from jaxsem.slam import (
     FrontEnd,
     FrontEndConfig,
     LandmarkEstimates,
+    _frontend as fe_mod,  # layers: white-box (the projection cache, one test)
     to_frame,
     triangulate_points,
 )
@@ -49,22 +49,20 @@ def _scene_xml(objects):
         )
         p = " ".join(f"{c:g}" for c in pos)
         s = " ".join(f"{c:g}" for c in half)
-        geoms.append(
-            f'<geom name="{name}" type="box" pos="{p}" size="{s}" euler="0 0 {yaw_deg:g}" material="m{i}"/>'
-        )
+        geoms.append(f'<geom name="{name}" type="box" pos="{p}" size="{s}" euler="0 0 {yaw_deg:g}" material="m{i}"/>')
     return f"""
 <mujoco>
   <compiler angle="degree"/>
   <visual><global offwidth="{WIDTH}" offheight="{HEIGHT}"/>
     <headlight ambient="0.5 0.5 0.5" diffuse="0.5 0.5 0.5"/></visual>
-  <asset>{''.join(assets)}
+  <asset>{"".join(assets)}
     <texture name="tg" type="2d" builtin="checker" rgb1="0.5 0.5 0.5" rgb2="0.55 0.55 0.55"
       width="64" height="64"/>
     <material name="mg" texture="tg" texrepeat="10 10"/>
   </asset>
   <worldbody>
     <geom name="ground" type="plane" size="20 20 0.1" material="mg"/>
-    {''.join(geoms)}
+    {"".join(geoms)}
     <camera name="cam" pos="0 -3 0.5" fovy="{FOVY:g}"/>
   </worldbody>
 </mujoco>"""
@@ -241,12 +239,27 @@ def test_on_the_library_renderer_in_a_cluttered_scene():
         return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
 
     objects = [
-        SceneObject("chair", "ellipsoid", np.array([0.8, 0.6, 1.0]), yaw(0.3), np.array([0.0, 0.0, 0.5]),
-                    1, np.array([0.8, 0.2, 0.1])),
-        SceneObject("box", "box", np.array([0.6, 0.5, 0.7]), yaw(-0.2), np.array([1.3, 0.6, 0.35]),
-                    2, np.array([0.1, 0.3, 0.8])),
-        SceneObject("bin", "cylinder", np.array([0.5, 0.5, 0.8]), np.eye(3), np.array([-1.2, 0.4, 0.4]),
-                    3, np.array([0.2, 0.8, 0.2])),
+        SceneObject(
+            "chair",
+            "ellipsoid",
+            np.array([0.8, 0.6, 1.0]),
+            yaw(0.3),
+            np.array([0.0, 0.0, 0.5]),
+            1,
+            np.array([0.8, 0.2, 0.1]),
+        ),
+        SceneObject(
+            "box", "box", np.array([0.6, 0.5, 0.7]), yaw(-0.2), np.array([1.3, 0.6, 0.35]), 2, np.array([0.1, 0.3, 0.8])
+        ),
+        SceneObject(
+            "bin",
+            "cylinder",
+            np.array([0.5, 0.5, 0.8]),
+            np.eye(3),
+            np.array([-1.2, 0.4, 0.4]),
+            3,
+            np.array([0.2, 0.8, 0.2]),
+        ),
     ]
     R_cv = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # OpenCV camera axes (columns) in the world
     poses = []
@@ -438,7 +451,9 @@ def test_gate_uses_the_estimates(three):
     frontend2 = FrontEnd(three["K"], FrontEndConfig(gate_pixels=40.0))
     frontend2.process(three["rgb"][0], three["poses"][0], detections(three, 0, ("red",))[0])
     near = {0: (rot, centre, half)}
-    out = frontend2.process(three["rgb"][1], three["poses"][1], boxes, landmark_estimates=LandmarkEstimates.from_mapping(near))
+    out = frontend2.process(
+        three["rgb"][1], three["poses"][1], boxes, landmark_estimates=LandmarkEstimates.from_mapping(near)
+    )
     assert not out[0].is_new and out[0].landmark_id == 0
 
 
@@ -578,8 +593,10 @@ def test_to_frame_and_slam_estimate_input(three):
     assert np.asarray(frame.box_class).tolist() == [factors.class_index("chair"), factors.class_index("car")]
     assert not np.asarray(frame.texture_mask).any()
     with pytest.raises(ValueError, match="class"):
-        to_frame(FrontEnd(three["K"]).process(three["rgb"][0], three["poses"][0], boxes, class_ids=["chair", "ufo"]),
-                 three["poses"][0])
+        to_frame(
+            FrontEnd(three["K"]).process(three["rgb"][0], three["poses"][0], boxes, class_ids=["chair", "ufo"]),
+            three["poses"][0],
+        )
 
 
 CHAIRS = [
@@ -603,8 +620,9 @@ def test_texture_depth_places_single_view_initialisation():
         dets = frontend.process(seq["rgb"][f], seq["poses"][f], boxes, class_ids=[chair] * len(names))
     assert all(d.texture_status == "ok" for d in dets)
     depth = np.array([d.texture_depth for d in dets])
-    _, center, _ = factors.single_view_init(seq["poses"][3], boxes, seq["K"], mean, texture_depth=depth,
-                                            default_depth=10.0)
+    _, center, _ = factors.single_view_init(
+        seq["poses"][3], boxes, seq["K"], mean, texture_depth=depth, default_depth=10.0
+    )
     truth = np.array([o[2] for o in CHAIRS])
     assert np.all(np.linalg.norm(np.asarray(center) - truth, axis=-1) < 0.05), center
     _, far, _ = factors.single_view_init(seq["poses"][3], boxes, seq["K"], mean, default_depth=10.0)
@@ -624,16 +642,18 @@ def test_end_to_end_with_the_online_smoother():
     objects = CHAIRS
     seq = render_sequence(objects, [(-0.5 + 0.15 * i, -3.0, 0.8) for i in range(8)])
     capacity = Capacity(max_poses=8, max_objects=4, max_boxes=32, max_detections=4)
-    state = online_init(SolverConfig(default_depth=3.0), capacity, seq["K"], (WIDTH, HEIGHT),
-                        optimize_every=2, iterations=5)
+    state = online_init(
+        SolverConfig(default_depth=3.0), capacity, seq["K"], (WIDTH, HEIGHT), optimize_every=2, iterations=5
+    )
     frontend = FrontEnd(seq["K"], FrontEndConfig(gate_pixels=30.0))
     chair = factors.class_index("chair")
     for f in range(8):
         boxes, names = detections(seq, f)
         assert names == ["red", "blue"]
         estimates = LandmarkEstimates.from_estimate(online_estimate(state), mask=state.problem.object_mask)
-        dets = frontend.process(seq["rgb"][f], seq["poses"][f], boxes, class_ids=[chair, chair],
-                                landmark_estimates=estimates)
+        dets = frontend.process(
+            seq["rgb"][f], seq["poses"][f], boxes, class_ids=[chair, chair], landmark_estimates=estimates
+        )
         assert [d.landmark_id for d in dets] == [0, 1]
         assert all(d.has_texture for d in dets) == (f > 0)
         state = online_update(state, to_frame(dets, seq["poses"][f], max_detections=4, max_objects=4))
@@ -677,10 +697,20 @@ def test_bad_inputs_raise_naming_the_argument(three):
     raises(r"boxes\[0\].*finite", img, pose, [[np.nan, 10.0, 40.0, 50.0]])
     raises(r"boxes.*\(M, 4\)", img, pose, [[1.0, 2.0, 3.0]])
     raises("class_ids", img, pose, boxes, class_ids=[0])
-    raises("landmark_estimates.center", img, pose, boxes,
-           landmark_estimates=LandmarkEstimates(np.array([0]), np.eye(3)[None], np.zeros((2, 3)), np.ones((1, 3))))
-    raises("landmark_estimates.radii", img, pose, boxes,
-           landmark_estimates={0: (np.eye(3), np.zeros(3), np.array([1.0, -1.0, 1.0]))})
+    raises(
+        "landmark_estimates.center",
+        img,
+        pose,
+        boxes,
+        landmark_estimates=LandmarkEstimates(np.array([0]), np.eye(3)[None], np.zeros((2, 3)), np.ones((1, 3))),
+    )
+    raises(
+        "landmark_estimates.radii",
+        img,
+        pose,
+        boxes,
+        landmark_estimates={0: (np.eye(3), np.zeros(3), np.array([1.0, -1.0, 1.0]))},
+    )
     raises("landmark_estimates", img, pose, boxes, landmark_estimates="nope")
     # boxes a pixel beyond the border are clipped, not refused
     out = frontend.process(img, pose, [[-1.0, -1.0, 40.0, 50.0]])

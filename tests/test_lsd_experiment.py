@@ -37,31 +37,18 @@ def test_summarise_against_hand_computed_statistics():
     assert ii["lsd_only"] == 1 and ii["uniform_only"] == 1
     np.testing.assert_allclose(ii["success_lsd_sem"], np.sqrt(0.75 * 0.25 / 4))
     ratios_l = np.array([1.2, 1.1])
-    np.testing.assert_allclose(
-        ii["cl_over_cstar"], (ratios_l.mean(), ratios_l.std(ddof=1) / np.sqrt(2))
-    )
+    np.testing.assert_allclose(ii["cl_over_cstar"], (ratios_l.mean(), ratios_l.std(ddof=1) / np.sqrt(2)))
     np.testing.assert_allclose(ii["cb_over_cstar"][0], (1.5 + 1.5) / 2)
     # Zero-intercept least squares of C_b on C_l over the mutual trials only.
-    np.testing.assert_allclose(
-        ii["slope_cb_on_cl"], (12 * 15 + 22 * 30) / (12**2 + 22**2)
-    )
+    np.testing.assert_allclose(ii["slope_cb_on_cl"], (12 * 15 + 22 * 30) / (12**2 + 22**2))
     io = s["IO-100"]
-    assert (
-        io["mutual"] == 0
-        and io["success_lsd"] == 0.0
-        and np.isnan(io["slope_cb_on_cl"])
-    )
+    assert io["mutual"] == 0 and io["success_lsd"] == 0.0 and np.isnan(io["slope_cb_on_cl"])
     table = format_table(s)
-    assert (
-        "| II | 500 | 4 | 75 % | 75 % | 1 / 1 | 2 |" in table
-        and "| IO | 100 |" in table
-    )
+    assert "| II | 500 | 4 | 75 % | 75 % | 1 / 1 | 2 |" in table and "| IO | 100 |" in table
 
 
 def test_table_script_end_to_end_tiny(tmp_path):
-    spec = importlib.util.spec_from_file_location(
-        "lsd_table31", ROOT / "benchmarks" / "lsd_table31.py"
-    )
+    spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     rc = mod.main(

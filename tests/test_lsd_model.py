@@ -19,9 +19,7 @@ CFG = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8)
 
 def _maps(rng, batch):
     occ = rng.integers(-1, 2, batch + (K, K)).astype(np.int8)
-    sem = rng.choice([0, 2, 3, 4], batch + (K, K), p=[0.9, 0.04, 0.03, 0.03]).astype(
-        np.int8
-    )
+    sem = rng.choice([0, 2, 3, 4], batch + (K, K), p=[0.9, 0.04, 0.03, 0.03]).astype(np.int8)
     return occ, sem
 
 
@@ -30,9 +28,7 @@ def net():
     return init_lsd(jax.random.PRNGKey(0), CFG, jnp.float32)
 
 
-@pytest.mark.parametrize(
-    "dtype,batch", [(jnp.float32, ()), (jnp.float64, (3,)), (jnp.float32, (2, 1))]
-)
+@pytest.mark.parametrize("dtype,batch", [(jnp.float32, ()), (jnp.float64, (3,)), (jnp.float32, (2, 1))])
 def test_distribution_sums_to_one(net, dtype, batch):
     model, params = net
     params = jax.tree_util.tree_map(lambda p: p.astype(dtype), params)
@@ -53,9 +49,7 @@ def test_product_is_sum_in_log_space(net):
     occ, sem = _maps(rng, (2,))
     ctx = rng.normal(size=(2, 4)).astype(np.float32)
     out = model.apply({"params": params}, occ, sem, ctx)
-    ref = jax.nn.log_softmax((out.general + out.modifier).reshape(2, -1), -1).reshape(
-        2, K, K
-    )
+    ref = jax.nn.log_softmax((out.general + out.modifier).reshape(2, -1), -1).reshape(2, K, K)
     np.testing.assert_allclose(out.log_prob, ref, atol=1e-5)
     # The context changes the distribution only through the modifier.
     out2 = model.apply({"params": params}, occ, sem, ctx + 1.0)
@@ -119,22 +113,16 @@ def test_bad_input_names_argument(net):
     model, params = net
     good = np.zeros((K, K), np.int8)
     ctx = np.zeros(4, np.float32)
-    with pytest.raises(
-        ValueError, match=r"occupancy: expected shape \(\.\.\., 32, 32\)"
-    ):
+    with pytest.raises(ValueError, match=r"occupancy: expected shape \(\.\.\., 32, 32\)"):
         model.apply({"params": params}, np.zeros((K, K + 1), np.int8), good, ctx)
     with pytest.raises(ValueError, match="semantic: expected an integer dtype"):
         model.apply({"params": params}, good, np.zeros((K, K), np.float32), ctx)
-    with pytest.raises(
-        ValueError, match=r"context: expected shape \(\.\.\., 4\), got shape \(3,\)"
-    ):
+    with pytest.raises(ValueError, match=r"context: expected shape \(\.\.\., 4\), got shape \(3,\)"):
         model.apply({"params": params}, good, good, np.zeros(3, np.float32))
     with pytest.raises(ValueError, match="context: expected a floating dtype"):
         model.apply({"params": params}, good, good, np.zeros(4, np.int32))
     with pytest.raises(ValueError, match="batch shapes do not broadcast"):
-        model.apply(
-            {"params": params}, np.zeros((2, K, K), np.int8), good, np.zeros((3, 4))
-        )
+        model.apply({"params": params}, np.zeros((2, K, K), np.int8), good, np.zeros((3, 4)))
     with pytest.raises(ValueError, match="map_size"):
         LSDConfig(map_size=30, features=(4, 8, 8))
     with pytest.raises(ValueError, match="path_mask: expected shape"):
@@ -147,12 +135,8 @@ def test_jit_vmap_grad_finite(net):
     occ, sem = _maps(rng, (2,))
     ctx = rng.normal(size=(2, 4)).astype(np.float32)
     f = jax.jit(jax.vmap(lambda o, s, c: lsd_distribution(model, params, o, s, c)))
-    np.testing.assert_allclose(
-        f(occ, sem, ctx), lsd_distribution(model, params, occ, sem, ctx), atol=1e-6
-    )
-    g = jax.grad(lambda c: jnp.sum(lsd_distribution(model, params, occ, sem, c) ** 2))(
-        ctx
-    )
+    np.testing.assert_allclose(f(occ, sem, ctx), lsd_distribution(model, params, occ, sem, ctx), atol=1e-6)
+    g = jax.grad(lambda c: jnp.sum(lsd_distribution(model, params, occ, sem, c) ** 2))(ctx)
     assert np.all(np.isfinite(g))
 
 
@@ -182,15 +166,9 @@ def test_resize_upsampling_has_no_stripes():
 def test_log_range_bounds_the_spread():
     cfg = LSDConfig(map_size=32, features=(4, 8), context_features=4, log_range=3.0)
     model, params = init_lsd(jax.random.PRNGKey(2), cfg)
-    params = jax.tree_util.tree_map(
-        lambda p: 50.0 * p, params
-    )  # a wildly confident network
+    params = jax.tree_util.tree_map(lambda p: 50.0 * p, params)  # a wildly confident network
     occ = jnp.asarray(np.random.default_rng(0).integers(-1, 2, (2, 32, 32)), jnp.int8)
-    lp = np.asarray(
-        model.apply(
-            {"params": params}, occ, occ, jnp.ones((2, 4), jnp.float32)
-        ).log_prob
-    )
+    lp = np.asarray(model.apply({"params": params}, occ, occ, jnp.ones((2, 4), jnp.float32)).log_prob)
     assert np.all(lp.max(axis=(1, 2)) - lp.min(axis=(1, 2)) <= 3.0 + 1e-5)
     with pytest.raises(ValueError, match="log_range"):
         LSDConfig(log_range=0.0)

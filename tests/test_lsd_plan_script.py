@@ -9,9 +9,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location(
-        "plan_script", ROOT / "infer" / "plan.py"
-    )
+    spec = importlib.util.spec_from_file_location("plan_script", ROOT / "infer" / "plan.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -21,9 +19,7 @@ def test_help_shows_defaults(capsys):
     with pytest.raises(SystemExit):
         _module().main(["--help"])
     out = capsys.readouterr().out
-    assert (
-        "(default: 500)" in out and "(default: 2000)" in out and "(default: 0.0)" in out
-    )
+    assert "(default: 500)" in out and "(default: 2000)" in out and "(default: 0.0)" in out
 
 
 def test_bad_flags_name_the_flag(tmp_path):

@@ -32,21 +32,28 @@ def _data(n=8, seed=0):
     for i in range(n):
         r = rng.integers(8, K - 8)
         occ[i, r - 2] = occ[i, r + 2] = 1
-        occ[i, r - 1:r + 2] = 0
+        occ[i, r - 1 : r + 2] = 0
         sem[i, r - 2, rng.integers(K)] = 2
         right = i % 2 == 0
         ctx[i] = [1.0 if right else -1.0, 0.0, 0.5, 0.0]
         if right:
-            mask[i, r, K // 2:] = True
+            mask[i, r, K // 2 :] = True
         else:
             mask[i, r, : K // 2 + 1] = True
-    return {"occupancy": occ, "semantic": sem, "context": ctx, "path_mask": mask,
-            "building_seed": np.arange(n) % 4}
+    return {"occupancy": occ, "semantic": sem, "context": ctx, "path_mask": mask, "building_seed": np.arange(n) % 4}
 
 
-CFG = TrainConfig(model=MODEL, stage1_steps=2, stage2_steps=2, batch_size=4, eval_every=100,
-                  checkpoint_every=2, num_figure_samples=2, learning_rate=1e-2,
-                  stage2_learning_rate=1e-2)
+CFG = TrainConfig(
+    model=MODEL,
+    stage1_steps=2,
+    stage2_steps=2,
+    batch_size=4,
+    eval_every=100,
+    checkpoint_every=2,
+    num_figure_samples=2,
+    learning_rate=1e-2,
+    stage2_learning_rate=1e-2,
+)
 
 
 @pytest.fixture(scope="module")
@@ -64,13 +71,14 @@ def test_stage_two_leaves_encoder_decoder_bit_identical(run):
     assert gen1 and cs1
     for a, b in zip(jax.tree_util.tree_leaves(gen1), jax.tree_util.tree_leaves(gen2)):
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
-    changed = [not np.array_equal(a, b) for a, b in
-               zip(jax.tree_util.tree_leaves(cs1), jax.tree_util.tree_leaves(cs2))]
+    changed = [not np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(cs1), jax.tree_util.tree_leaves(cs2))]
     assert all(changed)
     # Stage one trains the encoder/decoder: they moved away from the initialisation.
     _, init = init_lsd(jax.random.PRNGKey(CFG.seed), MODEL)
-    moved = [not np.array_equal(a, b) for a, b in
-             zip(jax.tree_util.tree_leaves(split_params(init)[0]), jax.tree_util.tree_leaves(gen1))]
+    moved = [
+        not np.array_equal(a, b)
+        for a, b in zip(jax.tree_util.tree_leaves(split_params(init)[0]), jax.tree_util.tree_leaves(gen1))
+    ]
     assert all(moved)
     # Evaluations wrote figures and metrics for both stages.
     assert [h["stage"] for h in res.history] == [1, 2]
@@ -115,8 +123,9 @@ def test_split_by_building_holds_out_whole_buildings():
 def test_dihedral_augment_keeps_goal_direction_consistent():
     # The path heads along the goal direction: after any flip/transpose it still does.
     d = _data(n=8)
-    occ, sem, ctx, mask = dihedral_augment(jax.random.PRNGKey(3), d["occupancy"], d["semantic"],
-                                           d["context"], d["path_mask"])
+    occ, sem, ctx, mask = dihedral_augment(
+        jax.random.PRNGKey(3), d["occupancy"], d["semantic"], d["context"], d["path_mask"]
+    )
     for i in range(8):
         r, c = np.nonzero(np.asarray(mask[i]))
         centre = (K - 1) / 2

@@ -34,15 +34,9 @@ def test_footprint_matches_dense_surface_samples(seed):
     rot, center, radii = _random_ellipsoids(seed, 4, spread=3.0)
     res, shape = 0.05, (200, 200)
     origin = np.array([-5.0, -5.0])
-    pts = np.asarray(
-        quadrics.surface_points(
-            jax.random.PRNGKey(seed + 10), rot, center, radii, 40000
-        )
-    )
+    pts = np.asarray(quadrics.surface_points(jax.random.PRNGKey(seed + 10), rot, center, radii, 40000))
     for j in range(4):
-        dets = mapping.ellipsoids(
-            rot[j : j + 1], center[j : j + 1], radii[j : j + 1], [planning.DOOR]
-        )
+        dets = mapping.ellipsoids(rot[j : j + 1], center[j : j + 1], radii[j : j + 1], [planning.DOOR])
         grid = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=None))
         rows, cols = np.nonzero(grid == planning.DOOR)
         xs, ys = origin[0] + (cols + 0.5) * res, origin[1] + (rows + 0.5) * res
@@ -70,9 +64,7 @@ def test_tiled_equals_full_grid_for_many_objects_and_edges():
 
 
 def test_window_too_small_names_window():
-    dets = mapping.ellipsoids(
-        None, [[0.0, 0.0, 1.0]], [[3.0, 0.5, 1.0]], [planning.DOOR]
-    )
+    dets = mapping.ellipsoids(None, [[0.0, 0.0, 1.0]], [[3.0, 0.5, 1.0]], [planning.DOOR])
     with pytest.raises(ValueError, match="window"):
         mapping.semantic_grid(dets, (100, 100), (-5.0, -5.0), 0.1, window=16)
 
@@ -93,9 +85,7 @@ def test_ground_truth_map_reproduces_generator_semantics(family, seed):
     state = mapping.ground_truth_map(b, capacity=len(objs) + 8)
     assert int(state.valid.sum()) == len(objs) and int(state.dropped) == 0
     grid = np.asarray(mapping.semantic_grid(state, b.shape, b.origin, b.resolution))
-    truth = np.where(
-        np.isin(b.semantic, planning.OBJECT_CLASSES), b.semantic, planning.NONE
-    )
+    truth = np.where(np.isin(b.semantic, planning.OBJECT_CLASSES), b.semantic, planning.NONE)
     assert grid.shape == truth.shape
     for cls in planning.OBJECT_CLASSES:
         got, want = grid == cls, truth == cls
@@ -121,9 +111,7 @@ def _frame(center, cls, radii=0.5, valid=None):
 def test_repeated_detections_associate_and_new_ones_create():
     D, W, S = planning.DOOR, planning.WINDOW, planning.EXIT_SIGN
     state = mapping.init(8)
-    state = mapping.update(
-        state, _frame([[0, 0, 1], [4, 0, 1], [0, 4, 1]], [D, D, W]), gate=1.0
-    )
+    state = mapping.update(state, _frame([[0, 0, 1], [4, 0, 1], [0, 4, 1]], [D, D, W]), gate=1.0)
     assert state.valid.sum() == 3
     # The same objects moved by 0.3 m, a far new door, a sign on top of the window (other class),
     # and one padded entry that must be ignored.
@@ -139,9 +127,7 @@ def test_repeated_detections_associate_and_new_ones_create():
     state = mapping.update(state, f2, gate=1.0)
     assert state.valid.sum() == 5
     np.testing.assert_array_equal(state.observations, [2, 2, 1, 1, 1, 0, 0, 0])
-    np.testing.assert_allclose(
-        state.center[1], [4.3, 0, 1]
-    )  # "latest" overwrites (thesis)
+    np.testing.assert_allclose(state.center[1], [4.3, 0, 1])  # "latest" overwrites (thesis)
     np.testing.assert_array_equal(state.class_id[:5], [D, D, W, D, S])
     # Without class awareness the sign would have matched the window.
     a2 = mapping.associate(mapping.init(8), f2)
@@ -156,16 +142,12 @@ def test_greedy_is_global_and_order_independent():
     f = _frame([[0.6, 0, 1], [0.95, 0, 1]], [D, D])
     np.testing.assert_array_equal(mapping.associate(state, f, gate=1.0).slot, [0, 1])
     f_rev = _frame([[0.95, 0, 1], [0.6, 0, 1]], [D, D])
-    np.testing.assert_array_equal(
-        mapping.associate(state, f_rev, gate=1.0).slot, [1, 0]
-    )
+    np.testing.assert_array_equal(mapping.associate(state, f_rev, gate=1.0).slot, [1, 0])
 
 
 def test_capacity_overflow_is_counted():
     D = planning.DOOR
-    state = mapping.update(
-        mapping.init(2), _frame([[0, 0, 1], [5, 0, 1], [10, 0, 1]], [D, D, D])
-    )
+    state = mapping.update(mapping.init(2), _frame([[0, 0, 1], [5, 0, 1], [10, 0, 1]], [D, D, D]))
     assert state.valid.all() and int(state.dropped) == 1
     state = mapping.update(state, _frame([[20, 0, 1], [0.1, 0, 1]], [D, D]))
     assert int(state.dropped) == 2 and int(state.observations[0]) == 2
@@ -206,9 +188,7 @@ def test_jit_vmap_grad():
     g = jax.grad(loss)(centers[0])
     assert np.all(np.isfinite(g))
     grid = jax.jit(lambda s: mapping.semantic_grid(s, (40, 40), jnp.zeros(2), 0.1))(
-        mapping.update(
-            mapping.init(2), _frame_jax(jnp.array([[2.0, 2, 1], [1, 1, 1]]), D)
-        )
+        mapping.update(mapping.init(2), _frame_jax(jnp.array([[2.0, 2, 1], [1, 1, 1]]), D))
     )
     assert grid.dtype == jnp.int8 and int((grid == D).sum()) > 0
 
@@ -226,9 +206,7 @@ def _frame_jax(c, cls):
 
 def test_float32_stays_float32():
     state = mapping.init(3, jnp.float32)
-    f = mapping.ellipsoids(
-        None, np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), [2]
-    )
+    f = mapping.ellipsoids(None, np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), [2])
     state = mapping.update(state, f, fusion="mean")
     state = mapping.update(state, f, fusion="mean")
     assert state.center.dtype == jnp.float32 and state.radii.dtype == jnp.float32
@@ -256,9 +234,7 @@ def test_object_map_sampler_sees_the_object_map_crop():
     b = planning.generate_building(1, "train")
     state = mapping.ground_truth_map(b, capacity=128)
     sem = mapping.semantic_grid(state, b.shape, b.origin, b.resolution)
-    ms = mapping.with_object_map(
-        planning.empty_map_state(b.shape), state, b.origin, b.resolution
-    )
+    ms = mapping.with_object_map(planning.empty_map_state(b.shape), state, b.origin, b.resolution)
     np.testing.assert_array_equal(ms.semantic, sem)
     xy = b.entrance
     reference = planning.local_inputs(ms, xy, xy, False, b.origin, b.resolution)
@@ -266,13 +242,9 @@ def test_object_map_sampler_sees_the_object_map_crop():
 
     def sampler(inputs):
         seen["semantic"] = inputs.semantic
-        return (
-            jnp.ones((planning.CROP_SIZE, planning.CROP_SIZE)) / planning.CROP_SIZE**2
-        )
+        return jnp.ones((planning.CROP_SIZE, planning.CROP_SIZE)) / planning.CROP_SIZE**2
 
-    own = planning.local_inputs(
-        planning.empty_map_state(b.shape), xy, xy, False, b.origin, b.resolution
-    )
+    own = planning.local_inputs(planning.empty_map_state(b.shape), xy, xy, False, b.origin, b.resolution)
     mapping.object_map_sampler(sampler, sem)(own)
     np.testing.assert_array_equal(seen["semantic"], reference.semantic)
     assert int((reference.semantic > 0).sum()) > 0

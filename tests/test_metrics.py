@@ -3,8 +3,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import metrics as m
-from jaxsem import quadrics as q
+from jaxsem import metrics as m, quadrics as q
 
 
 def _monte_carlo_iou(Ra, ca, ha, Rb, cb, hb, n=400_000, seed=0):

@@ -11,14 +11,16 @@ from jaxsem.models import (
     ReconstructionConfig,
     VoluMonConfig,
     allocentric_rotation,
+    block_layout,
     convert_torchvision_mobilenet_v2,
     expected_params,
     init_volumon,
+    last_channel,
+    make_divisible,
     ray_rotation,
     reconstruct,
     select_class_params,
 )
-from jaxsem.models._mobilenet import block_layout, last_channel, make_divisible
 from jaxsem.volumon import prepare_inputs
 
 K = jnp.array([[110.0, 0, 63.5], [0, 110.0, 47.5], [0, 0, 1]])
@@ -203,9 +205,9 @@ def _np_conv(x, w, stride, groups):
     out = np.zeros((N, O, Ho, Wo))
     og = O // groups
     for g in range(groups):
-        xs = win[:, g * Cg:(g + 1) * Cg]  # N, Cg, Ho, Wo, k, k
-        ws = w[g * og:(g + 1) * og]  # og, Cg, k, k
-        out[:, g * og:(g + 1) * og] = np.einsum("nchwij,ocij->nohw", xs, ws)
+        xs = win[:, g * Cg : (g + 1) * Cg]  # N, Cg, Ho, Wo, k, k
+        ws = w[g * og : (g + 1) * og]  # og, Cg, k, k
+        out[:, g * og : (g + 1) * og] = np.einsum("nchwij,ocij->nohw", xs, ws)
     return out
 
 

@@ -63,8 +63,10 @@ def test_exit_signs_beside_exterior_doors(building):
         ext[r0:r1, c0:c1] = True
         assert (b.semantic[r0:r1, c0:c1] == DOOR).all()
         # an exterior door touches the outdoors
-        touch = scipy.ndimage.binary_dilation(ext[r0 - 1:r1 + 1, c0 - 1:c1 + 1])
-        assert (touch & ~b.indoor[r0 - 1:r1 + 1, c0 - 1:c1 + 1] & ~b.occupancy[r0 - 1:r1 + 1, c0 - 1:c1 + 1]).any()
+        touch = scipy.ndimage.binary_dilation(ext[r0 - 1 : r1 + 1, c0 - 1 : c1 + 1])
+        assert (
+            touch & ~b.indoor[r0 - 1 : r1 + 1, c0 - 1 : c1 + 1] & ~b.occupancy[r0 - 1 : r1 + 1, c0 - 1 : c1 + 1]
+        ).any()
     near_ext = scipy.ndimage.binary_dilation(ext, iterations=3)
     sign = b.semantic == EXIT_SIGN
     assert sign.any()

@@ -60,10 +60,7 @@ def test_navigate_reaches_goal_through_the_door():
     start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
     res = navigate(w, start, goal, jax.random.PRNGKey(0), CFG, yaw0=0.0)
     assert res.success and res.reason == "goal", res.reason
-    assert (
-        np.allclose(res.path[0], start)
-        and np.linalg.norm(res.path[-1] - goal) <= CFG.goal_tolerance
-    )
+    assert np.allclose(res.path[0], start) and np.linalg.norm(res.path[-1] - goal) <= CFG.goal_tolerance
     # The cost is the travelled length; it can only exceed the geodesic through the door.
     seg = np.linalg.norm(np.diff(res.path, axis=0), axis=1)
     assert res.cost == pytest.approx(seg.sum())
@@ -115,14 +112,10 @@ def test_learned_sampler_hook_gets_local_inputs():
         p = np.ones((CROP_SIZE, CROP_SIZE))
         return p / p.sum()
 
-    res = navigate(
-        w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(2), CFG, sampler=sampler
-    )
+    res = navigate(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(2), CFG, sampler=sampler)
     assert res.success and len(seen) == res.plans == res.searches - res.grown
     inp = seen[0]
-    assert (
-        inp.occupancy.shape == (CROP_SIZE, CROP_SIZE) and inp.occupancy.dtype == np.int8
-    )
+    assert inp.occupancy.shape == (CROP_SIZE, CROP_SIZE) and inp.occupancy.dtype == np.int8
     assert inp.semantic.shape == (CROP_SIZE, CROP_SIZE) and inp.context.shape == (4,)
     assert res.last_distribution.shape == w.occupancy.shape
     assert res.last_distribution.sum() == pytest.approx(1.0, rel=1e-5)
@@ -136,8 +129,7 @@ def test_local_inputs_crop_and_context():
     occ[21, 30] = OCCUPIED
     st = st._replace(
         occupancy=occ,
-        semantic=np.where(np.arange(120)[None] == 33, EXIT_SIGN, 0).astype(np.int8)
-        * np.ones((60, 1), np.int8),
+        semantic=np.where(np.arange(120)[None] == 33, EXIT_SIGN, 0).astype(np.int8) * np.ones((60, 1), np.int8),
     )
     xy = np.array([3.05, 2.05])  # cell (20, 30)
     inp = local_inputs(st, xy, [3.05 + 30.0, 2.05], True, w.origin, RES)
@@ -148,9 +140,7 @@ def test_local_inputs_crop_and_context():
     assert np.all(np.asarray(inp.semantic)[c - 20 : c + 39, c + 3] == EXIT_SIGN)
     np.testing.assert_allclose(np.asarray(inp.context), [1.0, 0.0, 1.0, 1.0], atol=1e-6)
     inp = local_inputs(st, xy, [3.05, 2.05 - 5.0], False, w.origin, RES)
-    np.testing.assert_allclose(
-        np.asarray(inp.context), [0.0, -1.0, 0.25, 0.0], atol=1e-6
-    )
+    np.testing.assert_allclose(np.asarray(inp.context), [0.0, -1.0, 0.25, 0.0], atol=1e-6)
     assert tuple(np.asarray(inp.center_cell)) == (20, 30)
 
 
@@ -192,15 +182,10 @@ def test_expert_samples_schema_and_paths(building, tmp_path):
         goals_per_moment=3,
         nav=NavConfig(n_samples=400, max_steps=60),
     )
-    d = generate_expert_samples(
-        building, 5, cfg
-    )  # the shard job uses the building seed
+    d = generate_expert_samples(building, 5, cfg)  # the shard job uses the building seed
     S = len(d["context"])
     assert S == 6
-    assert (
-        d["occupancy"].shape == (S, CROP_SIZE, CROP_SIZE)
-        and d["occupancy"].dtype == np.int8
-    )
+    assert d["occupancy"].shape == (S, CROP_SIZE, CROP_SIZE) and d["occupancy"].dtype == np.int8
     assert d["semantic"].dtype == np.int8 and d["path_mask"].dtype == bool
     assert set(np.unique(d["occupancy"])) <= {UNKNOWN, FREE, OCCUPIED}
     c = CROP_SIZE // 2
@@ -212,26 +197,14 @@ def test_expert_samples_schema_and_paths(building, tmp_path):
         m[cells[:, 0], cells[:, 1]] = True
         assert np.array_equal(m, d["path_mask"][i])
         # Path cells are free in the true map.
-        rc = (
-            cells.astype(int)
-            - c
-            + np.floor((d["robot_xy"][i] - building.origin) / RES).astype(int)[::-1]
-        )
+        rc = cells.astype(int) - c + np.floor((d["robot_xy"][i] - building.origin) / RES).astype(int)[::-1]
         assert not building.occupancy[rc[:, 0], rc[:, 1]].any()
         # Context: unit direction to the goal, clipped distance, outdoor flag from the true map.
         rel = d["goal_xy"][i] - d["robot_xy"][i]
-        np.testing.assert_allclose(
-            d["context"][i, :2], rel / np.linalg.norm(rel), atol=1e-4
-        )
-        assert d["context"][i, 2] == pytest.approx(
-            min(np.linalg.norm(rel), 20.0) / 20.0, abs=1e-4
-        )
+        np.testing.assert_allclose(d["context"][i, :2], rel / np.linalg.norm(rel), atol=1e-4)
+        assert d["context"][i, 2] == pytest.approx(min(np.linalg.norm(rel), 20.0) / 20.0, abs=1e-4)
         g = np.floor((d["goal_xy"][i] - building.origin) / RES).astype(int)[::-1]
-        assert (
-            bool(d["context"][i, 3])
-            == (not building.indoor[g[0], g[1]])
-            == d["goal_outdoors"][i]
-        )
+        assert bool(d["context"][i, 3]) == (not building.indoor[g[0], g[1]]) == d["goal_outdoors"][i]
     # Shards round-trip through disk (one process here; the script uses two workers).
     paths = write_expert_dataset(tmp_path, "train", [5], cfg, workers=1, progress=False)
     assert len(paths) == 1 and (tmp_path / "schema.json").exists()
@@ -254,17 +227,11 @@ def test_sample_tasks(building):
             s = np.floor((t.start - building.origin) / RES).astype(int)[::-1]
             g = np.floor((t.goal - building.origin) / RES).astype(int)[::-1]
             assert building.indoor[s[0], s[1]] and not building.occupancy[s[0], s[1]]
-            assert (
-                building.indoor[g[0], g[1]] == (kind == "II")
-                and not building.occupancy[g[0], g[1]]
-            )
+            assert building.indoor[g[0], g[1]] == (kind == "II") and not building.occupancy[g[0], g[1]]
             assert t.goal_outdoors == (kind == "IO")
             assert t.c_star >= np.linalg.norm(t.goal - t.start) - 2 * RES
     again = sample_tasks(building, "II", 4, seed=0, graph=graph)
-    assert all(
-        np.array_equal(a.goal, b.goal)
-        for a, b in zip(again, sample_tasks(building, "II", 4, 0, graph=graph))
-    )
+    assert all(np.array_equal(a.goal, b.goal) for a, b in zip(again, sample_tasks(building, "II", 4, 0, graph=graph)))
     with pytest.raises(ValueError, match="kind"):
         sample_tasks(building, "OO", 1, 0)
 
@@ -282,9 +249,7 @@ def test_informed_sampler_beats_uniform_at_few_samples():
         r, c = (int(v) for v in np.asarray(inputs.center_cell))
         pad = np.pad(truth, CROP_SIZE, constant_values=1e-6)
         h = CROP_SIZE // 2
-        return pad[
-            r - h + CROP_SIZE : r + h + CROP_SIZE, c - h + CROP_SIZE : c + h + CROP_SIZE
-        ]
+        return pad[r - h + CROP_SIZE : r + h + CROP_SIZE, c - h + CROP_SIZE : c + h + CROP_SIZE]
 
     cfg = dataclasses.replace(CFG, n_samples=40, max_steps=300, max_growth=0)
     keys = [jax.random.PRNGKey(s) for s in range(4)]

@@ -86,9 +86,7 @@ def test_soft_cost_dijkstra_matches_python_reference(seed):
         steps = np.diff(p.cells, axis=0)
         assert np.all(np.abs(steps).max(1) == 1)
         lens = RES * np.linalg.norm(steps, axis=1)
-        c = np.sum(
-            lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)])
-        )
+        c = np.sum(lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)]))
         assert c == pytest.approx(ref[tuple(goal)], rel=1e-12)
         assert p.length == pytest.approx(lens.sum(), rel=1e-12)
 
@@ -136,15 +134,11 @@ def test_prm_finds_the_corridor_path():
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
     found = 0
     for seed in range(3):
-        rm = build_roadmap(
-            jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS
-        )
+        rm = build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS)
         p = roadmap_shortest_path(rm)
         found += p.found
         if p.found:
-            assert p.length <= 8.0 * 1.06, (
-                p.length
-            )  # the straight route through the gap is 8 m
+            assert p.length <= 8.0 * 1.06, p.length  # the straight route through the gap is 8 m
             assert np.allclose(p.points[0], start) and np.allclose(p.points[-1], goal)
             crossing = np.interp(5.0, p.points[:, 0], p.points[:, 1])
             assert 2.7 <= crossing <= 3.3
@@ -152,9 +146,7 @@ def test_prm_finds_the_corridor_path():
     # With the gap closed there is no route.
     closed = occ.copy()
     closed[:, 49:51] = True
-    rm = build_roadmap(
-        jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS
-    )
+    rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
     assert not roadmap_shortest_path(rm).found
 
 
@@ -193,9 +185,7 @@ def test_concentrated_distribution_places_vertices_there():
         radius=RADIUS,
     )
     pts = np.asarray(rm.points)[2:]
-    assert np.all(
-        (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
-    )
+    assert np.all((pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0))
     # Uniform inside the cells: the in-cell offsets fill the cells.
     frac = (pts / RES) % 1.0
     assert frac.std(0).min() > 0.25
@@ -214,9 +204,7 @@ def test_concentrated_distribution_places_vertices_there():
         radius=RADIUS,
     )
     pts = np.asarray(rm.points)[2:]
-    inside = (
-        (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
-    )
+    inside = (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
     assert abs(inside.mean() - 0.9) < 0.03
 
 
@@ -247,9 +235,7 @@ def test_edges_never_cross_known_obstacles(weight):
     for chunk in np.array_split(np.arange(len(ii)), 20):
         a, b = pts[ii[chunk]][:, None], pts[nbr[ii[chunk], jj[chunk]]][:, None]
         u = (a + t * (b - a) - ORIGIN) / RES  # (E, 801, 2) dense points along each edge
-        interior = np.all(
-            np.abs(u - np.round(u)) > 1e-7, axis=-1
-        )  # not on a cell boundary
+        interior = np.all(np.abs(u - np.round(u)) > 1e-7, axis=-1)  # not on a cell boundary
         rc = np.floor(u).astype(int)
         hit = occ[rc[..., 1], rc[..., 0]] & interior
         assert not hit.any(), chunk[np.any(hit, axis=1)]
@@ -305,14 +291,10 @@ def test_knn_matches_brute_force(kind):
     knn = jax.jit(knn_within_radius, static_argnums=(2, 3, 4, 5))
     ref = _brute_knn(pts, valid, 6, 0.9, self_idx=np.arange(700))
     for cap in (None, 8, 512):
-        nb, overflow = knn(
-            jnp.asarray(pts), jnp.asarray(valid), 6, 0.9, (12.0, 7.0), cap
-        )
+        nb, overflow = knn(jnp.asarray(pts), jnp.asarray(valid), 6, 0.9, (12.0, 7.0), cap)
         nb = np.asarray(nb)
         got = _sorted_dists(pts, pts, nb)[valid]
-        if (
-            cap == 8
-        ):  # 8 slots per bucket cannot hold these samples: flagged, never silent
+        if cap == 8:  # 8 slots per bucket cannot hold these samples: flagged, never silent
             assert bool(overflow)
             continue
         assert not bool(overflow)
@@ -359,12 +341,8 @@ def test_grown_roadmap_neighbours_are_exact(kind):
     for lo, hi in ((2, 402), (402, 802)):
         present = valid.copy()
         present[hi:] = False
-        ref = _brute_knn(
-            pts, present, 6, 0.9, queries=pts[lo:hi], self_idx=np.arange(lo, hi)
-        )
-        np.testing.assert_allclose(
-            _sorted_dists(pts, pts[lo:hi], nbr[lo:hi]), ref, rtol=1e-12
-        )
+        ref = _brute_knn(pts, present, 6, 0.9, queries=pts[lo:hi], self_idx=np.arange(lo, hi))
+        np.testing.assert_allclose(_sorted_dists(pts, pts[lo:hi], nbr[lo:hi]), ref, rtol=1e-12)
 
 
 def test_prm_reuse_grow_and_update():
@@ -439,9 +417,7 @@ def test_embed_local_distribution():
     np.testing.assert_allclose(full[outside], local.min() * scale, rtol=1e-12)
     # Near the border the window is clipped, not shifted.
     full = np.asarray(embed_local_distribution(local, (0, 0), (40, 50)))
-    np.testing.assert_allclose(
-        full[:8, :8] / full[:8, :8].sum(), local[8:, 8:] / local[8:, 8:].sum()
-    )
+    np.testing.assert_allclose(full[:8, :8] / full[:8, :8].sum(), local[8:, 8:] / local[8:, 8:].sum())
     # Jittable with a traced centre.
     f = jax.jit(embed_local_distribution, static_argnums=2)
     np.testing.assert_allclose(
@@ -458,9 +434,7 @@ def test_prm_bad_input():
     with pytest.raises(ValueError, match="goal"):
         build_roadmap(key, occ, [1.0, 3.0], [19.0, 3.0], 10, ORIGIN, RES)  # off the map
     with pytest.raises(ValueError, match="known_map"):
-        build_roadmap(
-            key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES
-        )
+        build_roadmap(key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
     with pytest.raises(ValueError, match="known_map"):
         build_roadmap(key, occ[None], [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
     with pytest.raises(ValueError, match="distribution"):
@@ -475,9 +449,7 @@ def test_prm_bad_input():
             distribution=np.ones((3, 3)),
         )
     with pytest.raises(ValueError, match="distribution"):
-        build_roadmap(
-            key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp"
-        )
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp")
     with pytest.raises(ValueError, match="n"):
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
     with pytest.raises(ValueError, match="weight"):
@@ -490,9 +462,7 @@ def test_roadmap_builder_vmaps_over_trials():
     from jaxsem.planning import make_roadmap_builder
 
     occ = _one_route_map()
-    build = make_roadmap_builder(
-        N, occ.shape, RES, radius=RADIUS, weight="neglogp", uniform=False
-    )
+    build = make_roadmap_builder(N, occ.shape, RES, radius=RADIUS, weight="neglogp", uniform=False)
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
     dist = np.random.default_rng(0).random((3,) + occ.shape) + 0.1
     starts = np.array([[1.0, 3.0], [1.5, 2.0], [2.0, 4.0]])
@@ -513,15 +483,9 @@ def test_roadmap_builder_vmaps_over_trials():
             weight="neglogp",
             radius=RADIUS,
         )
-        np.testing.assert_allclose(
-            np.asarray(batch.points[i]), np.asarray(one.points), rtol=1e-12
-        )
-        np.testing.assert_array_equal(
-            np.asarray(batch.edge_valid[i]), np.asarray(one.edge_valid)
-        )
-        np.testing.assert_allclose(
-            np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9
-        )
+        np.testing.assert_allclose(np.asarray(batch.points[i]), np.asarray(one.points), rtol=1e-12)
+        np.testing.assert_array_equal(np.asarray(batch.edge_valid[i]), np.asarray(one.edge_valid))
+        np.testing.assert_allclose(np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9)
 
 
 def test_found_paths_pass_the_navigation_check():
@@ -537,10 +501,7 @@ def test_found_paths_pass_the_navigation_check():
     rng = np.random.default_rng(0)
     found = 0
     for _ in range(25):
-        s, g = (
-            ORIGIN + (free[rng.integers(len(free))][::-1] + rng.random(2)) * RES
-            for _ in range(2)
-        )
+        s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + rng.random(2)) * RES for _ in range(2))
         p = prm.query(s, g)
         if p.found:
             found += 1

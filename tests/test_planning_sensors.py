@@ -7,8 +7,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem.planning import (DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WINDOW, SensorConfig,
-                             cast_rays, empty_map_state, sense)
+from jaxsem.planning import (
+    DOOR,
+    EXIT_SIGN,
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    WINDOW,
+    SensorConfig,
+    cast_rays,
+    empty_map_state,
+    sense,
+)
 
 RES = 0.1
 ORIGIN = np.array([-1.0, -2.0])
@@ -22,7 +32,7 @@ def _random_world(seed, shape=(90, 110)):
     occ[:, [0, -1]] = True
     for _ in range(14):
         r, c = rng.integers(2, shape[0] - 6), rng.integers(2, shape[1] - 6)
-        occ[r:r + rng.integers(1, 6), c:c + rng.integers(1, 6)] = True
+        occ[r : r + rng.integers(1, 6), c : c + rng.integers(1, 6)] = True
     sem = np.where(occ, 1, 0).astype(np.int8)
     walls = np.argwhere(occ)
     pick = walls[rng.choice(len(walls), 40, replace=False)]

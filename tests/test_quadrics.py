@@ -13,7 +13,6 @@ import pytest
 
 from jaxsem import quadrics as q
 
-
 pytestmark = [pytest.mark.usefixtures("strict_numpy"), pytest.mark.filterwarnings("error")]
 
 N_CASES = 200
@@ -169,7 +168,13 @@ def test_fused_path_agrees_with_composed_conic_path():
     assert np.all(np.isfinite(box))
     # Behind the camera the dual conic is that of the mirror image (conic_bbox cannot tell the
     # two apart, as documented); the fused path's depth test rejects it.
-    behind = (R[:20], -c[:20] + 2 * np.einsum("nji,nj->ni", pose[:20, :3, :3], -pose[:20, :3, 3]), r[:20], K[:20], pose[:20])
+    behind = (
+        R[:20],
+        -c[:20] + 2 * np.einsum("nji,nj->ni", pose[:20, :3, :3], -pose[:20, :3, 3]),
+        r[:20],
+        K[:20],
+        pose[:20],
+    )
     _, v_behind = q.project_bbox(*behind)
     _, ref_behind = _composed_bbox(*behind)
     assert not np.any(np.asarray(v_behind)) and np.all(np.asarray(ref_behind)[np.asarray(kind[:20] < 2)])
@@ -183,7 +188,7 @@ def test_fused_path_gradients_match_composed_conic_path():
     rng = np.random.default_rng(22)
     R, c, r, K, pose = random_case(rng, 200)
     weights = rng.normal(size=(200, 4))
-    loss = lambda fn: (lambda *args: jnp.sum(fn(*args)[0] * weights))
+    loss = lambda fn: lambda *args: jnp.sum(fn(*args)[0] * weights)
     grads = jax.grad(loss(q.project_bbox), argnums=(0, 1, 2, 3, 4))(R, c, r, K, pose)
     ref = jax.grad(loss(_composed_bbox), argnums=(0, 1, 2, 3, 4))(R, c, r, K, pose)
     grads, ref = [np.asarray(g) for g in grads], [np.asarray(g) for g in ref]
@@ -359,7 +364,9 @@ def test_degenerate_inputs_finite_values_and_gradients(name, dtype):
         return jnp.sum(box) + depth + 1e-3 * jnp.sum(cbox) + jnp.sum(alg) * 1e-6, (valid, dvalid, cvalid)
 
     args = (center.astype(dtype), radii.astype(dtype), pose, K)
-    (value, (valid, dvalid, cvalid)), grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3), has_aux=True))(*args)
+    (value, (valid, dvalid, cvalid)), grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3), has_aux=True))(
+        *args
+    )
     assert np.isfinite(value)
     for g in grads:
         assert np.all(np.isfinite(g)), name
@@ -478,8 +485,11 @@ def test_jaxlie_inputs_accepted(cases):
 )
 def test_bad_input_raises_value_error_naming_argument(kwargs, name):
     args = dict(
-        rotation=np.eye(3), center=np.array([0.0, 0, 5]), radii=np.ones(3),
-        K=np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), camera_T_world=np.eye(4),
+        rotation=np.eye(3),
+        center=np.array([0.0, 0, 5]),
+        radii=np.ones(3),
+        K=np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]),
+        camera_T_world=np.eye(4),
     )
     args.update(kwargs)
     with pytest.raises(ValueError, match=name):
@@ -499,8 +509,15 @@ def test_bad_input_other_functions():
 
 def test_rotation_quaternion_round_trip():
     R = q.random_rotation(jax.random.PRNGKey(5), (500,))
-    R = jnp.concatenate([R, jnp.eye(3)[None], jnp.diag(jnp.array([1.0, -1, -1]))[None],
-                         jnp.diag(jnp.array([-1.0, 1, -1]))[None], jnp.diag(jnp.array([-1.0, -1, 1]))[None]])
+    R = jnp.concatenate(
+        [
+            R,
+            jnp.eye(3)[None],
+            jnp.diag(jnp.array([1.0, -1, -1]))[None],
+            jnp.diag(jnp.array([-1.0, 1, -1]))[None],
+            jnp.diag(jnp.array([-1.0, -1, 1]))[None],
+        ]
+    )
     back = q.quaternion_to_rotation(q.rotation_to_quaternion(R))
     np.testing.assert_allclose(back, R, atol=1e-12)
     np.testing.assert_allclose(jnp.swapaxes(R, -1, -2) @ R, jnp.broadcast_to(jnp.eye(3), R.shape), atol=1e-12)

@@ -11,11 +11,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from jaxsem import quadrics as q
-
 
 pytestmark = [pytest.mark.usefixtures("strict_numpy"), pytest.mark.filterwarnings("error")]
 
@@ -94,7 +92,11 @@ def test_cuboid_corners_follow_the_ndds_order():
         ("Front" if p[2] > 0 else "Rear") + ("Top" if p[1] < 0 else "Bottom") + ("Right" if p[0] > 0 else "Left")
         for p in corners
     ]
-    expected = [f + v + h for f in ("Front", "Rear") for v, h in (("Top", "Right"), ("Top", "Left"), ("Bottom", "Left"), ("Bottom", "Right"))]
+    expected = [
+        f + v + h
+        for f in ("Front", "Rear")
+        for v, h in (("Top", "Right"), ("Top", "Left"), ("Bottom", "Left"), ("Bottom", "Right"))
+    ]
     assert names == expected
     np.testing.assert_allclose(np.abs(corners), np.broadcast_to(half, (8, 3)))
     # Oriented and moved: the corners are rigidly carried along (distances preserved).
@@ -241,7 +243,14 @@ def test_texture_plane_depth_with_nan_radii_is_not_a_valid_depth():
     assert not (bool(ok) and bool(jnp.isfinite(depth)))
 
 
-@pytest.mark.parametrize("K_bad, match", [(np.diag([0.0, 520.0, 1.0]), "focal"), (np.diag([-525.0, 520.0, 1.0]), "focal"), (np.full((3, 3), np.nan), "K: must be finite")])
+@pytest.mark.parametrize(
+    "K_bad, match",
+    [
+        (np.diag([0.0, 520.0, 1.0]), "focal"),
+        (np.diag([-525.0, 520.0, 1.0]), "focal"),
+        (np.full((3, 3), np.nan), "K: must be finite"),
+    ],
+)
 def test_bad_intrinsics_are_rejected(K_bad, match):
     with pytest.raises(ValueError, match=match):
         q.project_bbox(R0, C0, r0, K_bad, T0)

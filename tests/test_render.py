@@ -174,4 +174,6 @@ def test_general_intrinsics(fx, fy, cx, cy):
     np.testing.assert_allclose(_mask_box(out["seg"][0] == 0), np.asarray(ref), atol=1.0)
     p = box.corners() @ Kg.T
     p = p[:, :2] / p[:, 2:]
-    np.testing.assert_allclose(_mask_box(out["seg"][0] == 1), [p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()], atol=1.0)
+    np.testing.assert_allclose(
+        _mask_box(out["seg"][0] == 1), [p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()], atol=1.0
+    )

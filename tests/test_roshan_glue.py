@@ -61,27 +61,21 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
     for a, b in zip(seq.frames, back.frames):
         np.testing.assert_allclose(b.camera_T_world, a.camera_T_world)
         np.testing.assert_allclose(b.boxes, a.boxes)
-        np.testing.assert_array_equal(
-            np.isnan(b.texture_depth), np.isnan(a.texture_depth)
-        )
+        np.testing.assert_array_equal(np.isnan(b.texture_depth), np.isnan(a.texture_depth))
         np.testing.assert_allclose(
             b.texture_depth[~np.isnan(b.texture_depth)],
             a.texture_depth[~np.isnan(a.texture_depth)],
         )
         assert b.ids == a.ids and b.classes == a.classes
     assert back.object_ids == seq.object_ids
-    assert [o["id"] for o in back.truth["objects"]] == [
-        o["id"] for o in seq.truth["objects"]
-    ]
+    assert [o["id"] for o in back.truth["objects"]] == [o["id"] for o in seq.truth["objects"]]
     # Detections = the simulator's (ground-truth association, noisy odometry poses).
     mask = np.asarray(one.box_mask)
     assert sum(len(f.ids) for f in back.frames) == int(mask.sum())
     t, j = np.argwhere(mask)[0]
     k = back.frames[t].ids.index(int(j))
     np.testing.assert_allclose(back.frames[t].boxes[k], np.asarray(one.boxes[t, j]))
-    np.testing.assert_allclose(
-        back.frames[t].camera_T_world, np.asarray(one.pose_prior[t])
-    )
+    np.testing.assert_allclose(back.frames[t].camera_T_world, np.asarray(one.pose_prior[t]))
 
     frames_seen = []
     result = slam.run_sequence(
@@ -107,10 +101,7 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
     )
     assert [o["id"] for o in out["objects"]] == list(back.object_ids)
     truth = {o["id"]: o for o in back.truth["objects"]}
-    err = [
-        np.linalg.norm(np.array(o["center"]) - truth[o["id"]]["center"])
-        for o in out["objects"]
-    ]
+    err = [np.linalg.norm(np.array(o["center"]) - truth[o["id"]]["center"]) for o in out["objects"]]
     assert np.median(err) < 1.0 and max(err) < 2.5, err
     for o in out["objects"]:
         assert o["class"] == "car" and min(o["radii"]) > 0
@@ -271,12 +262,8 @@ def test_sequence_noise_model_loads_validates_and_round_trips(tmp_path):
     data["noise"] = {"box_sigma": 2.0, "pose_rotation_sigma_deg": 2.0}
     seq = slam.load_sequence(_write(tmp_path, data))
     noise = slam.noise_model(seq)
-    assert noise.box_sigma == 2.0 and math.isclose(
-        noise.pose_rotation_sigma, math.radians(2.0)
-    )
-    assert (
-        noise.texture_sigma == slam.NoiseModel().texture_sigma
-    )  # untouched fields keep defaults
+    assert noise.box_sigma == 2.0 and math.isclose(noise.pose_rotation_sigma, math.radians(2.0))
+    assert noise.texture_sigma == slam.NoiseModel().texture_sigma  # untouched fields keep defaults
     slam.save_sequence(seq, tmp_path / "rt")
     assert slam.load_sequence(tmp_path / "rt").noise == seq.noise
     for noise_field, pattern in (

@@ -11,12 +11,9 @@ import pytest
 from jaxsem import factors, quadrics, sim, slam
 
 # Small shared configs so the file compiles a handful of functions only.
-FWD = sim.quadricslam_config(
-    "forward", num_objects=4, num_frames=16, forward_step=2.5, yaw_range=math.pi
-)
+FWD = sim.quadricslam_config("forward", num_objects=4, num_frames=16, forward_step=2.5, yaw_range=math.pi)
 ORB = sim.thesis_config("orbit", num_objects=4, num_frames=16)
-CLEAN = FWD.replace(box_noise_px=0.0, texture_noise_m=0.0, texture_noise_rel=0.0,
-                    pose_noise_m=0.0, pose_noise_deg=0.0)
+CLEAN = FWD.replace(box_noise_px=0.0, texture_noise_m=0.0, texture_noise_rel=0.0, pose_noise_m=0.0, pose_noise_deg=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -109,9 +106,11 @@ def test_noise_free_detections_match_projected_surface_points(clean_maps):
     for b in range(6):
         for t in range(0, CLEAN.num_frames, 2):
             for j in np.flatnonzero(m.box_mask[b, t]):
-                pts = np.asarray(quadrics.surface_points(
-                    jax.random.key(t), m.object_rotation[b, j], m.object_center[b, j],
-                    m.object_radii[b, j], 20000))
+                pts = np.asarray(
+                    quadrics.surface_points(
+                        jax.random.key(t), m.object_rotation[b, j], m.object_center[b, j], m.object_radii[b, j], 20000
+                    )
+                )
                 cam = pts @ m.camera_T_world[b, t, :3, :3].T + m.camera_T_world[b, t, :3, 3]
                 uv = (cam @ K.T)[:, :2] / cam[:, 2:]
                 ref = np.concatenate([uv.min(0), uv.max(0)])
@@ -129,16 +128,15 @@ def test_edge_mask_and_truncation_rules(fwd_maps):
     m = _np(fwd_maps)
     W, H, margin = FWD.image_width, FWD.image_height, FWD.border_margin_px
     box, keep = m.boxes[m.box_mask], m.box_mask
-    expected = np.stack([box[:, 0] > margin, box[:, 1] > margin, box[:, 2] < W - margin,
-                         box[:, 3] < H - margin], -1)
+    expected = np.stack([box[:, 0] > margin, box[:, 1] > margin, box[:, 2] < W - margin, box[:, 3] < H - margin], -1)
     np.testing.assert_array_equal(m.edge_mask[keep], expected)
     assert (~expected).any()  # some detections are truncated at the border
     assert np.all(box[:, :2] >= 0) and np.all(box[:, 2] <= W) and np.all(box[:, 3] <= H)
     assert np.all(box[:, 2:] - box[:, :2] >= FWD.min_box_px)
     # A detection needs its ellipsoid fully in front of the camera.
     depth, valid = quadrics.texture_plane_depth(
-        m.object_rotation[:, None], m.object_center[:, None], m.object_radii[:, None],
-        m.camera_T_world[:, :, None])
+        m.object_rotation[:, None], m.object_center[:, None], m.object_radii[:, None], m.camera_T_world[:, :, None]
+    )
     assert not np.any(keep & ~np.asarray(valid))
     # Truncation rule: the visible fraction of the unclipped noisy box is at least the minimum.
     tb = m.true_boxes[keep]
@@ -160,9 +158,17 @@ def test_noise_statistics(orb_maps):
     angle = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1, 1)))
     # |omega| of a 3-D Gaussian with sigma per axis has RMS sqrt(3) sigma.
     np.testing.assert_allclose(np.sqrt(np.mean(angle**2)), math.sqrt(3) * ORB.pose_noise_deg, rtol=0.15)
-    tex = (m.texture_depth - np.asarray(quadrics.texture_plane_depth(
-        m.object_rotation[:, None], m.object_center[:, None], m.object_radii[:, None],
-        m.camera_T_world[:, :, None])[0]))[m.texture_mask]
+    tex = (
+        m.texture_depth
+        - np.asarray(
+            quadrics.texture_plane_depth(
+                m.object_rotation[:, None],
+                m.object_center[:, None],
+                m.object_radii[:, None],
+                m.camera_T_world[:, :, None],
+            )[0]
+        )
+    )[m.texture_mask]
     z = tex / m.texture_sigma[m.texture_mask]
     assert abs(z.mean()) < 0.1 and 0.9 < z.std() < 1.1
     # Thesis preset init: noisy truth.
@@ -196,16 +202,22 @@ def test_to_problem_is_a_valid_slam_problem(fwd_maps):
     np.testing.assert_array_equal(prob.box[k], m.boxes[t, j])
     # The validating constructor accepts exactly this data (boxes of unobserved objects are none).
     ref = slam.make_problem(
-        prob.K, prob.image_size, prob.pose_prior, prob.box, prob.box_pose, prob.box_object,
-        prob.object_class, np.where(prob.texture_mask, prob.texture_depth, np.nan),
-        box_mask=prob.box_mask, object_mask=prob.object_mask,
+        prob.K,
+        prob.image_size,
+        prob.pose_prior,
+        prob.box,
+        prob.box_pose,
+        prob.box_object,
+        prob.object_class,
+        np.where(prob.texture_mask, prob.texture_depth, np.nan),
+        box_mask=prob.box_mask,
+        object_mask=prob.object_mask,
     )
     for name in ("box_pose", "box_object", "box_mask", "texture_mask", "object_class"):
         np.testing.assert_array_equal(np.asarray(getattr(ref, name)), getattr(prob, name))
     keep = prob.box_mask
     np.testing.assert_array_equal(np.asarray(ref.box)[keep], prob.box[keep])
-    np.testing.assert_allclose(np.asarray(ref.texture_depth)[prob.texture_mask],
-                               prob.texture_depth[prob.texture_mask])
+    np.testing.assert_allclose(np.asarray(ref.texture_depth)[prob.texture_mask], prob.texture_depth[prob.texture_mask])
 
 
 def test_ground_truth_fits_the_solver_factors_exactly(clean_maps):
@@ -246,11 +258,11 @@ def test_views_study_maps():
 
 def test_vmappable_float32_and_under_jit():
     cfg = FWD.replace(num_objects=2, num_frames=4)
-    m = jax.jit(jax.vmap(lambda k: sim.simulate(k, cfg, jnp.float32)))(
-        jax.random.split(jax.random.key(0), 3))
+    m = jax.jit(jax.vmap(lambda k: sim.simulate(k, cfg, jnp.float32)))(jax.random.split(jax.random.key(0), 3))
     assert m.boxes.dtype == jnp.float32 and m.boxes.shape == (3, 4, 2, 4)
-    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(m)
-               if jnp.issubdtype(x.dtype, jnp.floating))
+    assert all(
+        bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(m) if jnp.issubdtype(x.dtype, jnp.floating)
+    )
 
 
 def test_bad_input_raises():

@@ -4,9 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsem import factors as F
-from jaxsem import quadrics as Q
-from jaxsem import slam
+from jaxsem import factors as F, quadrics as Q, slam
 
 K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -20,8 +18,9 @@ def _few_views():
     poses = np.asarray(Q.look_at(eyes, eyes + np.array([1.0, 0.0, 0.0])))
     box, _ = Q.project_bbox(R, c, r, K, poses)
     depth, _ = Q.texture_plane_depth(R, c, r, poses)
-    problem = slam.make_problem(K, [640, 480], poses, np.asarray(box), [0, 1, 2], [0, 0, 0], ["car"],
-                                texture_depth=np.asarray(depth))
+    problem = slam.make_problem(
+        K, [640, 480], poses, np.asarray(box), [0, 1, 2], [0, 0, 0], ["car"], texture_depth=np.asarray(depth)
+    )
     return problem, r
 
 
@@ -32,8 +31,7 @@ def test_gradient_of_solved_shape_wrt_prior_mean_matches_finite_differences():
 
     def objective(car_mean):
         mean = mean0.at[car].set(car_mean)
-        cfg = slam.SolverConfig(shape_prior_mean=mean, shape_prior_sigma=sigma,
-                                max_steps=200, rtol=1e-13, atol=1e-13)
+        cfg = slam.SolverConfig(shape_prior_mean=mean, shape_prior_sigma=sigma, max_steps=200, rtol=1e-13, atol=1e-13)
         est, info = slam.solve_batch(problem, slam.initialize(problem, cfg), cfg, method="optimistix")
         return jnp.sum(jnp.square(est.radii[0] - r_true)), info
 

@@ -8,17 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import factors as F
-from jaxsem import slam
+from jaxsem import factors as F, slam
 
 CFG = slam.SolverConfig(max_steps=30)
 SOLVE = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
 
 
 def _small(seed=0, capacity=None, num_frames=8):
-    return slam.toy_map(
-        seed, num_objects=2, num_frames=num_frames, path="orbit", capacity=capacity
-    )
+    return slam.toy_map(seed, num_objects=2, num_frames=num_frames, path="orbit", capacity=capacity)
 
 
 def test_clean_problem_succeeds_and_reports_steps():
@@ -42,13 +39,9 @@ def test_nonfinite_input_is_never_success(where):
             init.camera_T_world.at[1, 0, 3].set(jnp.nan),
         )
     elif where == "box":
-        problem = eqx.tree_at(
-            lambda p: p.box, problem, problem.box.at[0, 2].set(jnp.nan)
-        )
+        problem = eqx.tree_at(lambda p: p.box, problem, problem.box.at[0, 2].set(jnp.nan))
     else:
-        problem = eqx.tree_at(
-            lambda p: p.pose_prior, problem, problem.pose_prior.at[2, 1, 3].set(jnp.inf)
-        )
+        problem = eqx.tree_at(lambda p: p.pose_prior, problem, problem.pose_prior.at[2, 1, 3].set(jnp.inf))
     _, info = SOLVE(problem, init)
     assert not bool(info.success)
     assert bool(info.result == slam.RESULTS.nonfinite)
@@ -61,21 +54,15 @@ def test_step_budget_is_not_success_and_throw_raises():
     init = slam.initialize(problem, CFG)
     init = eqx.tree_at(lambda e: e.center, init, init.center + 3.0)
     _, info = slam.solve_schur(problem, init, CFG, max_steps=1)
-    assert bool(info.result == slam.RESULTS.max_steps_reached) and not bool(
-        info.success
-    )
+    assert bool(info.result == slam.RESULTS.max_steps_reached) and not bool(info.success)
     with pytest.raises(Exception, match="maximum number of steps"):
-        jax.block_until_ready(
-            slam.solve_schur(problem, init, CFG, max_steps=1, throw=True)
-        )
+        jax.block_until_ready(slam.solve_schur(problem, init, CFG, max_steps=1, throw=True))
 
 
 def test_float32_problem_under_x64():
     assert jax.config.jax_enable_x64
     problem, _ = _small()
-    f32 = jax.tree_util.tree_map(
-        lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, problem
-    )
+    f32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, problem)
     init = slam.initialize(f32, CFG)
     est, info = slam.solve_schur(f32, init, CFG)
     assert est.center.dtype == jnp.float32 and info.cost.dtype == jnp.float32
@@ -99,16 +86,12 @@ def test_online_update_returns_a_code_per_frame():
     problem, _ = _small(3)
     frames = slam.frames_from_problem(problem, max_detections=2)
     cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
-    state = slam.online_init(
-        CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=3
-    )
+    state = slam.online_init(CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=3)
     codes = []
     for frame in frames:
         state = slam.online_update(state, frame)
         codes.append(int(slam.result_code(state.result)))
-    assert set(codes) <= {0, 1}, (
-        codes
-    )  # successful or step budget; never a failure here
+    assert set(codes) <= {0, 1}, codes  # successful or step budget; never a failure here
     bad = eqx.tree_at(lambda f: f.box, frames[1], frames[1].box.at[0, 0].set(jnp.nan))
     state = slam.online_update(state, bad)
     assert bool(state.result == slam.RESULTS.nonfinite)
@@ -117,14 +100,10 @@ def test_online_update_returns_a_code_per_frame():
 def test_pose_priors_hold_under_plain_initialisation_forward():
     """QuadricSLAM's initial values (10 m along the first bearing, identity, radii 1 m) on a
     Forward path: cameras stay within 3 sigma of their priors; no object drags them."""
-    problem, _ = slam.toy_map(
-        4, num_objects=4, num_frames=24, path="forward", pose_noise=(0.05, 0.0175)
-    )
+    problem, _ = slam.toy_map(4, num_objects=4, num_frames=24, path="forward", pose_noise=(0.05, 0.0175))
     cfg = slam.baseline_config(baseline_shape_weight=0.0, max_steps=60)
     init = slam.initialize(problem, cfg)  # default depth 10 m, class-mean radii ...
-    init = slam.SlamEstimate(
-        init.camera_T_world, init.rotation, init.center, jnp.ones_like(init.radii)
-    )
+    init = slam.SlamEstimate(init.camera_T_world, init.rotation, init.center, jnp.ones_like(init.radii))
     est, info = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))(problem, init)
     assert bool(jnp.isfinite(info.cost))
     n = cfg.noise

@@ -8,16 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import quadrics as Q
-from jaxsem import slam
-from jaxsem.slam import _cost as C
+from jaxsem import quadrics as Q, slam, slam as C
 
 K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
-R_TRUE = np.asarray(
-    Q.quaternion_to_rotation(
-        jnp.array([0.9, 0.1, 0.2, 0.3]) / np.linalg.norm([0.9, 0.1, 0.2, 0.3])
-    )
-)
+R_TRUE = np.asarray(Q.quaternion_to_rotation(jnp.array([0.9, 0.1, 0.2, 0.3]) / np.linalg.norm([0.9, 0.1, 0.2, 0.3])))
 C_TRUE = np.array([0.5, -0.3, 0.8])
 R_RADII = np.array([2.2, 0.9, 0.7])
 
@@ -66,9 +60,7 @@ def test_planted_ellipsoid_recovered_from_noise_free_orbit():
     est, info = SOLVE_BASE(problem, init)
     assert bool(info.success) and float(info.cost) < 1e-10
     np.testing.assert_allclose(est.center[0], C_TRUE, atol=1e-5)
-    np.testing.assert_allclose(
-        np.sort(np.asarray(est.radii[0])), np.sort(R_RADII), atol=1e-5
-    )
+    np.testing.assert_allclose(np.sort(np.asarray(est.radii[0])), np.sort(R_RADII), atol=1e-5)
     _same_ellipsoid(est)
     np.testing.assert_allclose(est.camera_T_world, poses, atol=1e-6)
     assert float(jnp.min(est.radii)) > 0
@@ -83,9 +75,7 @@ def test_schur_step_equals_dense_normal_equations():
     def flat(x):
         o = x[T * 6 :].reshape(J, 9)
         d = C.Delta(x[: T * 6].reshape(T, 6), o[:, :3], o[:, 3:6], o[:, 6:])
-        return jnp.concatenate(
-            [b.reshape(-1) for b in C.residual_blocks(problem, C.retract(init, d), cfg)]
-        )
+        return jnp.concatenate([b.reshape(-1) for b in C.residual_blocks(problem, C.retract(init, d), cfg)])
 
     lam = 1e-2
 
@@ -142,22 +132,15 @@ def test_roshan_recovers_depth_and_shape_from_one_view_where_baseline_cannot():
 
 def test_vmap_over_maps_equals_a_loop_of_solves():
     # Two maps of different real sizes padded to one capacity; the loop reuses SOLVE_ROSHAN.
-    maps = [
-        slam.toy_map(s, num_objects=1, num_frames=7 + 3 * s, path="orbit", capacity=CAP)
-        for s in range(2)
-    ]
+    maps = [slam.toy_map(s, num_objects=1, num_frames=7 + 3 * s, path="orbit", capacity=CAP) for s in range(2)]
     problems = slam.stack_problems([m[0] for m in maps])
     inits = jax.vmap(lambda p: slam.initialize(p, CFG_ROSHAN))(problems)
-    est_v, info_v = jax.jit(
-        jax.vmap(lambda p, i: slam.solve_batch(p, i, CFG_ROSHAN, method="schur"))
-    )(problems, inits)
+    est_v, info_v = jax.jit(jax.vmap(lambda p, i: slam.solve_batch(p, i, CFG_ROSHAN, method="schur")))(problems, inits)
     for i, (p, _) in enumerate(maps):
         est, info = SOLVE_ROSHAN(p, slam.initialize(p, CFG_ROSHAN))
         np.testing.assert_allclose(est_v.center[i], est.center, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(est_v.radii[i], est.radii, rtol=1e-6, atol=1e-8)
-        np.testing.assert_allclose(
-            est_v.camera_T_world[i], est.camera_T_world, rtol=1e-6, atol=1e-8
-        )
+        np.testing.assert_allclose(est_v.camera_T_world[i], est.camera_T_world, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(info_v.cost[i], info.cost, rtol=1e-6)
         assert int(info.steps) > 0 and slam.result_code(info.result).shape == ()
         assert float(info.cost) < float(info.initial_cost)
@@ -173,9 +156,7 @@ def test_online_matches_batch_and_never_recompiles():
         max_boxes=int(problem.box.shape[0]) + 2,
         max_detections=4,
     )
-    state = slam.online_init(
-        cfg, cap, problem.K, problem.image_size, optimize_every=3, iterations=2
-    )
+    state = slam.online_init(cfg, cap, problem.K, problem.image_size, optimize_every=3, iterations=2)
     before = slam.online_update._cache_size()
     for frame in frames:
         state = slam.online_update(state, frame)
@@ -186,16 +167,11 @@ def test_online_matches_batch_and_never_recompiles():
     assert int(graph.box_mask.sum()) == int(problem.box_mask.sum())
     c_online = float(slam.total_cost(graph, online, cfg))
     # The batch reference: a full solve of the same factors from the single-view initialisation.
-    est, info = jax.jit(lambda p: slam.solve_schur(p, slam.initialize(p, cfg), cfg))(
-        graph
-    )
+    est, info = jax.jit(lambda p: slam.solve_schur(p, slam.initialize(p, cfg), cfg))(graph)
     c_batch = float(info.cost)
     assert np.isfinite(c_online) and c_online <= 1.01 * c_batch
     # Both land near the truth.
-    assert (
-        np.median(np.linalg.norm(np.asarray(online.center - truth.center), axis=-1))
-        < 1.0
-    )
+    assert np.median(np.linalg.norm(np.asarray(online.center - truth.center), axis=-1)) < 1.0
 
 
 def test_bad_input_is_rejected_or_masked():
@@ -210,13 +186,9 @@ def test_bad_input_is_rejected_or_masked():
     )
     slam.make_problem(**good)
     with pytest.raises(ValueError, match="non-finite box"):
-        slam.make_problem(
-            **{**good, "box": [[np.nan, 20.0, 50.0, 60.0], [15.0, 25.0, 55.0, 65.0]]}
-        )
+        slam.make_problem(**{**good, "box": [[np.nan, 20.0, 50.0, 60.0], [15.0, 25.0, 55.0, 65.0]]})
     with pytest.raises(ValueError, match="inverted"):
-        slam.make_problem(
-            **{**good, "box": [[50.0, 20.0, 10.0, 60.0], [15.0, 25.0, 55.0, 65.0]]}
-        )
+        slam.make_problem(**{**good, "box": [[50.0, 20.0, 10.0, 60.0], [15.0, 25.0, 55.0, 65.0]]})
     with pytest.raises(ValueError, match="known classes"):
         slam.make_problem(**{**good, "object_class": ["spaceship"]})
     with pytest.raises(ValueError, match="never posed"):
@@ -233,9 +205,7 @@ def test_bad_input_is_rejected_or_masked():
             [0, 1],
             max_detections=4,
         )
-    assert f.box_mask.tolist() == [True, False, False, False] and bool(
-        jnp.all(jnp.isfinite(f.box))
-    )
+    assert f.box_mask.tolist() == [True, False, False, False] and bool(jnp.all(jnp.isfinite(f.box)))
     with pytest.raises(ValueError, match="object_id"):
         slam.make_frame(np.eye(4), [[1.0, 2.0, 3.0, 4.0]], ["car"], [7], max_objects=4)
 
@@ -246,17 +216,8 @@ def test_camera_inside_an_object_stays_finite_and_moves_out():
     problem, poses = _orbit()
     init = slam.initialize(problem, CFG_BASE)
     cam = -poses[1, :3, :3].T @ poses[1, :3, 3]
-    init = slam.SlamEstimate(
-        init.camera_T_world, init.rotation, jnp.asarray(cam)[None] + 0.3, init.radii
-    )
-    assert (
-        float(
-            Q.algebraic_distance(
-                cam[None], init.rotation[0], init.center[0], init.radii[0]
-            )[0]
-        )
-        < 0
-    )
+    init = slam.SlamEstimate(init.camera_T_world, init.rotation, jnp.asarray(cam)[None] + 0.3, init.radii)
+    assert float(Q.algebraic_distance(cam[None], init.rotation[0], init.center[0], init.radii[0])[0]) < 0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         est, info = SOLVE_BASE(problem, init)

@@ -46,13 +46,9 @@ def batch():
 def test_device_batch_deterministic_per_key(batch):
     again = _batch(jax.random.PRNGKey(3))
     for k in batch:
-        np.testing.assert_array_equal(
-            np.asarray(batch[k]), np.asarray(again[k]), err_msg=k
-        )
+        np.testing.assert_array_equal(np.asarray(batch[k]), np.asarray(again[k]), err_msg=k)
     other = _batch(jax.random.PRNGKey(4))
-    assert not np.allclose(
-        np.asarray(other["gt_center"]), np.asarray(batch["gt_center"])
-    )
+    assert not np.allclose(np.asarray(other["gt_center"]), np.asarray(batch["gt_center"]))
     assert _batch._cache_size() == 1  # same shapes: one compilation for all keys
 
 
@@ -61,16 +57,9 @@ def test_device_batch_geometry(batch):
     assert set(b["gt_shape_id"].tolist()) <= {0, 1, 2}
     np.testing.assert_array_equal(b["class_shape"], b["gt_shape_id"])
     # rectified stereo: same rows, the right box shifted left by the disparity b f / z (+- the extent)
-    np.testing.assert_allclose(
-        b["box_left"][:, [1, 3]], b["box_right"][:, [1, 3]], atol=1e-3
-    )
+    np.testing.assert_allclose(b["box_left"][:, [1, 3]], b["box_right"][:, [1, 3]], atol=1e-3)
     disparity = 0.06 * 55.0 / b["gt_center"][:, 2]
-    shift = 0.5 * (
-        b["box_left"][:, 0]
-        + b["box_left"][:, 2]
-        - b["box_right"][:, 0]
-        - b["box_right"][:, 2]
-    )
+    shift = 0.5 * (b["box_left"][:, 0] + b["box_left"][:, 2] - b["box_right"][:, 0] - b["box_right"][:, 2])
     np.testing.assert_allclose(shift, disparity, rtol=0.35)
     # surface points project inside the left box and lie on the object's surface
     uv, _ = quadrics.project_points(b["points"], b["K"][:, None], np.eye(4)[None, None])
@@ -103,27 +92,19 @@ def test_shape_aware_losses_zero_at_truth(batch):
         LossConfig(),
         b["class_shape"],
     )
-    thesis = dual_loss_per_sample(
-        truth, b["box_left"], b["box_right"], b["K"], rtl, LossConfig()
-    )
+    thesis = dual_loss_per_sample(truth, b["box_left"], b["box_right"], b["K"], rtl, LossConfig())
     assert float(jnp.max(aware)) < 0.05  # pixels^2: the truth reproduces its own boxes
     boxes = np.asarray(b["gt_shape_id"]) != 1
     # an ellipsoid with the half extents of a box or can is too small for its boxes: the size bias
     assert float(jnp.min(thesis[boxes])) > 1.0
     cfg = LossConfig()
-    per, _ = primal_loss_per_sample(
-        truth, b["points"], b["point_mask"], cfg, b["class_shape"]
-    )
+    per, _ = primal_loss_per_sample(truth, b["points"], b["point_mask"], cfg, b["class_shape"])
     per_thesis, _ = primal_loss_per_sample(truth, b["points"], b["point_mask"], cfg)
     assert float(jnp.mean(per)) < 0.2 * float(jnp.mean(per_thesis[boxes]))
 
     def dual_sum(r):
         e = truth._replace(radii=r)
-        return jnp.sum(
-            dual_loss_per_sample(
-                e, b["box_left"], b["box_right"], b["K"], rtl, cfg, b["class_shape"]
-            )
-        )
+        return jnp.sum(dual_loss_per_sample(e, b["box_left"], b["box_right"], b["K"], rtl, cfg, b["class_shape"]))
 
     g = jax.grad(dual_sum)(b["gt_half_extents"])
     assert np.all(np.isfinite(np.asarray(g)))
@@ -139,21 +120,13 @@ def test_shape_distance_finite_at_centre_and_float32():
     )
     for shape in (0, 1, 2):
         d = shape_distance(pts, R, t, r, jnp.int32(shape))
-        g = jax.grad(
-            lambda p, s=shape: jnp.sum(shape_distance(p, R, t, r, jnp.int32(s)))
-        )(pts)
+        g = jax.grad(lambda p, s=shape: jnp.sum(shape_distance(p, R, t, r, jnp.int32(s))))(pts)
         assert d.dtype == jnp.float32
         assert np.all(np.isfinite(np.asarray(d))) and np.all(np.isfinite(np.asarray(g)))
         np.testing.assert_allclose(float(d[0]), -1.0, atol=1e-3)
-        np.testing.assert_allclose(
-            float(d[3]), 0.0, atol=1e-3
-        )  # on every shape (a pole / cap / face)
-    assert (
-        float(shape_distance(pts[2:3], R, t, r, jnp.int32(0))[0]) < 0.2
-    )  # corner: on the cuboid
-    assert (
-        float(shape_distance(pts[2:3], R, t, r, jnp.int32(1))[0]) > 1.5
-    )  # far outside the ellipsoid
+        np.testing.assert_allclose(float(d[3]), 0.0, atol=1e-3)  # on every shape (a pole / cap / face)
+    assert float(shape_distance(pts[2:3], R, t, r, jnp.int32(0))[0]) < 0.2  # corner: on the cuboid
+    assert float(shape_distance(pts[2:3], R, t, r, jnp.int32(1))[0]) > 1.5  # far outside the ellipsoid
 
 
 def test_size_errors_definition():
@@ -166,9 +139,7 @@ def test_size_errors_definition():
 
 
 def _device_cfg():
-    cfg = get_config("both", "tiny").replace(
-        data="device", num_steps=6, checkpoint_every=3, log_every=1
-    )
+    cfg = get_config("both", "tiny").replace(data="device", num_steps=6, checkpoint_every=3, log_every=1)
     return cfg.replace(
         scene=dataclasses.replace(cfg.scene, classes=(0, 1, 2, 3)),
         loss=dataclasses.replace(cfg.loss, shape_aware=True),
@@ -191,18 +162,13 @@ def test_resume_rules(tmp_path):
     cfg = _device_cfg()
     lines = []
     full = train_and_evaluate(cfg, tmp_path / "full", progress=False)
-    train_and_evaluate(
-        cfg, tmp_path / "run", stop_after=4, progress=False
-    )  # checkpoint at 3 and 4
+    train_and_evaluate(cfg, tmp_path / "run", stop_after=4, progress=False)  # checkpoint at 3 and 4
     # a crash after the step-4 checkpoint but with rows written past it: they are cut back
     with open(tmp_path / "run" / "metrics.jsonl", "a") as f:
         f.write(json.dumps({"step": 5, "total": 1.0}) + "\n")
     res = train_and_evaluate(cfg, tmp_path / "run", progress=False, log=lines.append)
     assert "resumed from step 4" in lines
-    steps = [
-        json.loads(x)["step"]
-        for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
-    ]
+    steps = [json.loads(x)["step"] for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert steps == sorted(set(steps)) == list(range(1, 7))  # no duplicate rows
     for a, b in zip(jax.tree.leaves(res["state"]), jax.tree.leaves(full["state"])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # still bit-exact
@@ -212,9 +178,7 @@ def test_resume_rules(tmp_path):
             tmp_path / "run",
             progress=False,
         )
-    longer = train_and_evaluate(
-        cfg.replace(num_steps=7), tmp_path / "run", progress=False
-    )  # length may change
+    longer = train_and_evaluate(cfg.replace(num_steps=7), tmp_path / "run", progress=False)  # length may change
     assert int(longer["state"]["step"]) == 7
     forced = train_and_evaluate(
         cfg.replace(learning_rate=0.5, num_steps=8),
@@ -228,9 +192,7 @@ def test_resume_rules(tmp_path):
 def test_held_out_set_is_deterministic_and_disjoint_from_training():
     a = held_out_set(5, 4, SCENE, 32, batch_size=4)
     b = held_out_set(5, 4, SCENE, 32, batch_size=4)
-    np.testing.assert_array_equal(
-        np.asarray(a["gt_center"]), np.asarray(b["gt_center"])
-    )
+    np.testing.assert_array_equal(np.asarray(a["gt_center"]), np.asarray(b["gt_center"]))
     c = held_out_set(6, 4, SCENE, 32, batch_size=4)
     assert not np.allclose(np.asarray(a["gt_center"]), np.asarray(c["gt_center"]))
     with pytest.raises(ValueError, match="num"):

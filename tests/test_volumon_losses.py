@@ -68,8 +68,11 @@ def test_dual_loss_on_rendered_data():
     objects), and the dual loss is ~0 at the true ellipsoid of those objects."""
     scene = SceneConfig(height=48, width=64, focal=55.0, classes=(1, 2), num_points=16)
     b = make_batch(3, np.arange(6), scene, input_size=32, keep_images=True)
-    ell = Ellipsoid(b["gt_rotation"].astype(jnp.float64), b["gt_center"].astype(jnp.float64),
-                    b["gt_half_extents"].astype(jnp.float64))
+    ell = Ellipsoid(
+        b["gt_rotation"].astype(jnp.float64),
+        b["gt_center"].astype(jnp.float64),
+        b["gt_half_extents"].astype(jnp.float64),
+    )
     # mask box (pixel centres) vs label box: within a pixel
     img = np.asarray(b["image"])
     for i in range(6):
@@ -80,8 +83,13 @@ def test_dual_loss_on_rendered_data():
         box = np.asarray(b["box_left"][i])
         assert np.all(uv >= box[:2] - 1e-3) and np.all(uv <= box[2:] + 1e-3)
     assert img.shape == (6, 48, 64, 3)
-    loss = dual_loss(ell, b["box_left"].astype(jnp.float64), b["box_right"].astype(jnp.float64),
-                     b["K"].astype(jnp.float64), stereo_right_T_left(b["baseline"].astype(jnp.float64)))
+    loss = dual_loss(
+        ell,
+        b["box_left"].astype(jnp.float64),
+        b["box_right"].astype(jnp.float64),
+        b["K"].astype(jnp.float64),
+        stereo_right_T_left(b["baseline"].astype(jnp.float64)),
+    )
     assert float(loss) < 1e-6
 
 
@@ -137,7 +145,9 @@ def test_primal_loss_masks_and_empty_masks():
     only2 = primal_loss(Ellipsoid(*(x[2:] for x in ell)), pts[2:, :5], jnp.ones((1, 5), bool))
     np.testing.assert_allclose(full, (only0 + only2) / 2, rtol=1e-10)
     # all empty: zero, finite gradient
-    g = jax.grad(lambda c: primal_loss(Ellipsoid(ell.rotation, c, ell.radii), pts, jnp.zeros((3, 10), bool)))(ell.center)
+    g = jax.grad(lambda c: primal_loss(Ellipsoid(ell.rotation, c, ell.radii), pts, jnp.zeros((3, 10), bool)))(
+        ell.center
+    )
     assert float(primal_loss(ell, pts, jnp.zeros((3, 10), bool))) == 0.0
     assert np.all(np.isfinite(g))
 
@@ -156,7 +166,9 @@ def test_size_variance_per_class():
     np.testing.assert_allclose(got, ref, rtol=1e-10)
     mask = np.ones(7, bool)
     mask[3] = False  # the lone class-2 sample is masked: nothing changes
-    np.testing.assert_allclose(size_variance_loss(jnp.asarray(sizes), jnp.asarray(cls), 3, jnp.asarray(mask), cfg), ref, rtol=1e-10)
+    np.testing.assert_allclose(
+        size_variance_loss(jnp.asarray(sizes), jnp.asarray(cls), 3, jnp.asarray(mask), cfg), ref, rtol=1e-10
+    )
 
 
 def test_degenerate_inputs_no_nan():
@@ -174,7 +186,9 @@ def test_degenerate_inputs_no_nan():
     assert np.isfinite(val) and np.all(np.isfinite(g))
     assert float(g[0, 2]) < 0  # increasing the depth of the object behind the camera lowers the loss
     pts = jnp.zeros((3, 4, 3))  # zero-depth points (at the camera centre)
-    val, g = jax.value_and_grad(lambda c: primal_loss(Ellipsoid(ell.rotation, c, ell.radii), pts, jnp.ones((3, 4), bool)))(ell.center)
+    val, g = jax.value_and_grad(
+        lambda c: primal_loss(Ellipsoid(ell.rotation, c, ell.radii), pts, jnp.ones((3, 4), bool))
+    )(ell.center)
     assert np.isfinite(val) and np.all(np.isfinite(g))
 
 
@@ -182,8 +196,15 @@ def test_volumon_loss_weights_and_float32():
     ell = _random_ellipsoids(6, 4)
     bl, br, _ = _stereo_boxes(ell)
     pts = quadrics.surface_points(jax.random.PRNGKey(2), *ell, 8) * 1.05
-    batch = {"box_left": bl, "box_right": br, "K": jnp.broadcast_to(K, (4, 3, 3)), "baseline": jnp.full(4, 0.06),
-             "points": pts, "point_mask": jnp.ones((4, 8), bool), "class_id": jnp.zeros(4, jnp.int32)}
+    batch = {
+        "box_left": bl,
+        "box_right": br,
+        "K": jnp.broadcast_to(K, (4, 3, 3)),
+        "baseline": jnp.full(4, 0.06),
+        "points": pts,
+        "point_mask": jnp.ones((4, 8), bool),
+        "class_id": jnp.zeros(4, jnp.int32),
+    }
     moved = Ellipsoid(ell.rotation, ell.center * 1.05, ell.radii)
     both = volumon_loss(moved, batch, LossConfig(alpha_S=0.0))
     dual_only = volumon_loss(moved, batch, LossConfig(alpha_P=0.0, alpha_S=0.0))

@@ -30,10 +30,7 @@ def test_shipped_model_files_and_size():
 
 def test_eval_command_beats_constant_size_predictor(tmp_path):
     out = tmp_path / "eval.json"
-    assert (
-        main(["volumon", "eval", "--seed", "424242", "--num", "48", "--json", str(out)])
-        == 0
-    )
+    assert main(["volumon", "eval", "--seed", "424242", "--num", "48", "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     for k in FIELDS:
         assert k in r and np.isfinite(r[k]), k

@@ -51,8 +51,9 @@ def test_postopt_stays_at_the_truth_of_ellipsoid_objects():
     ell = reconstruct(phi, b["box_input"], b["K"], cfg.recon)
     per, has = primal_loss_per_sample(ell, b["points"], b["point_mask"], cfg.loss)
     assert np.all(np.asarray(has)) and float(jnp.max(per)) < 1e-5
-    _, out, _ = postopt(phi, b["box_input"], b["K"], b["points"], b["point_mask"], cfg.recon, cfg.loss,
-                        num_steps=50, learning_rate=0.01)
+    _, out, _ = postopt(
+        phi, b["box_input"], b["K"], b["points"], b["point_mask"], cfg.recon, cfg.loss, num_steps=50, learning_rate=0.01
+    )
     err = np.linalg.norm(np.asarray(out.center - b["gt_center"]), axis=-1)
     assert np.max(err) < 0.005, err
 

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-
+from jaxsem import quadrics
+from jaxsem.models import allocentric_rotation, reconstruct
 from jaxsem.volumon import (
     SceneConfig,
     batch_indices,
@@ -19,8 +20,6 @@ from jaxsem.volumon import (
     primal_loss_per_sample,
     train_and_evaluate,
 )
-from jaxsem.models import allocentric_rotation, reconstruct
-from jaxsem import quadrics
 
 
 def _config():
@@ -68,8 +67,11 @@ def test_box_outside_image_and_invisible_object_are_skipped():
     scene = SceneConfig(height=48, width=64, focal=55.0, num_points=8, depth_range=(0.3, 0.32))
     b = make_batch(0, np.arange(8), scene, input_size=32)
     # depth 0.3 m with margins clamped: some boxes leave the image -> masked out, never NaN
-    inside = np.all(np.asarray(b["box_left"])[:, :2] >= -0.5, -1) & (np.asarray(b["box_left"])[:, 2] <= 63.5) & (
-        np.asarray(b["box_left"])[:, 3] <= 47.5)
+    inside = (
+        np.all(np.asarray(b["box_left"])[:, :2] >= -0.5, -1)
+        & (np.asarray(b["box_left"])[:, 2] <= 63.5)
+        & (np.asarray(b["box_left"])[:, 3] <= 47.5)
+    )
     np.testing.assert_array_equal(np.asarray(b["sample_mask"]), inside)
     for k in ("local", "global", "points", "box_left", "box_right"):
         assert np.all(np.isfinite(np.asarray(b[k]))), k
@@ -137,6 +139,3 @@ def test_optimise_from_scratch_reduces_primal_loss():
     assert np.all(np.isfinite(np.asarray(phi_e)))
     with pytest.raises(ValueError, match="points"):
         optimise_from_scratch(box, K, pts[:2], pm, recon)
-
-
-

@@ -15,9 +15,7 @@ import sys
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--workdir", type=pathlib.Path, required=True)
     p.add_argument("--step", type=int, default=None)
     p.add_argument(
@@ -53,9 +51,7 @@ def _curves(metrics, png):
     ev = [r for r in rows if "eval" in r]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for k in ("dual", "primal", "size", "cls"):
-        axes[0].semilogy(
-            [r["step"] for r in loss], [max(r[k], 1e-9) for r in loss], label=k
-        )
+        axes[0].semilogy([r["step"] for r in loss], [max(r[k], 1e-9) for r in loss], label=k)
     axes[0].set_title("training loss terms")
     axes[0].legend()
     st = [r["step"] for r in ev]
@@ -65,9 +61,7 @@ def _curves(metrics, png):
         marker="o",
         label="median size rel. error",
     )
-    axes[1].plot(
-        st, [r["eval"]["size_corr"] for r in ev], marker="o", label="size correlation"
-    )
+    axes[1].plot(st, [r["eval"]["size_corr"] for r in ev], marker="o", label="size correlation")
     axes[1].axhline(0.25, color="gray", ls=":", lw=1)
     axes[1].axhline(0.6, color="gray", ls=":", lw=1)
     axes[1].set_title("held-out sizes (eval stream of the training seed)")

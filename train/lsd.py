@@ -17,8 +17,7 @@ import dataclasses
 import pathlib
 import sys
 
-from jaxsem import config as jcfg
-from jaxsem import scripting as sc
+from jaxsem import config as jcfg, scripting as sc
 
 
 def main(argv=None) -> int:
@@ -78,9 +77,7 @@ def main(argv=None) -> int:
     if args.chunk_steps is not None:
         from jaxsem.checkpoint import latest_step
 
-        stop_at = (
-            latest_step(pathlib.Path(args.workdir) / "checkpoints") or 0
-        ) + args.chunk_steps
+        stop_at = (latest_step(pathlib.Path(args.workdir) / "checkpoints") or 0) + args.chunk_steps
     res = train_and_evaluate(cfg, args.workdir, data=args.data, stop_at=stop_at)
     for h in res.history:
         print(

@@ -16,8 +16,7 @@ import json
 import pathlib
 import sys
 
-from jaxsem.volumon import VARIANTS, get_config, train_and_evaluate
-from jaxsem.volumon._configs import SIZES
+from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
 
 
 def main():
@@ -37,8 +36,13 @@ def main():
     p.add_argument("--eval-every", type=int, default=None)
     p.add_argument("--num-eval", type=int, default=None)
     a = p.parse_args()
-    for flag, value in (("--steps", a.steps), ("--batch-size", a.batch_size), ("--num-train", a.num_train),
-                        ("--checkpoint-every", a.checkpoint_every), ("--stop-after", a.stop_after)):
+    for flag, value in (
+        ("--steps", a.steps),
+        ("--batch-size", a.batch_size),
+        ("--num-train", a.num_train),
+        ("--checkpoint-every", a.checkpoint_every),
+        ("--stop-after", a.stop_after),
+    ):
         if value is not None and value < 1:
             p.error(f"{flag}: expected a positive integer, got {value}")
     if a.lr is not None and not a.lr > 0:
@@ -46,13 +50,30 @@ def main():
     if a.workdir.exists() and not a.workdir.is_dir():
         p.error(f"--workdir: {a.workdir} exists and is not a folder")
     cfg = get_config(a.variant, a.size)
-    changes = {k: v for k, v in dict(num_steps=a.steps, batch_size=a.batch_size, learning_rate=a.lr,
-                                     num_train=a.num_train, seed=a.seed, checkpoint_every=a.checkpoint_every,
-                                     eval_every=a.eval_every, num_eval=a.num_eval).items() if v is not None}
+    changes = {
+        k: v
+        for k, v in dict(
+            num_steps=a.steps,
+            batch_size=a.batch_size,
+            learning_rate=a.lr,
+            num_train=a.num_train,
+            seed=a.seed,
+            checkpoint_every=a.checkpoint_every,
+            eval_every=a.eval_every,
+            num_eval=a.num_eval,
+        ).items()
+        if v is not None
+    }
     cfg = cfg.replace(**changes)
     try:
-        result = train_and_evaluate(cfg, a.workdir, log=lambda line: print(line, flush=True), force=a.force,
-                                    stop_after=a.stop_after, progress=False)
+        result = train_and_evaluate(
+            cfg,
+            a.workdir,
+            log=lambda line: print(line, flush=True),
+            force=a.force,
+            stop_after=a.stop_after,
+            progress=False,
+        )
     except ValueError as exc:
         if a.debug:
             raise

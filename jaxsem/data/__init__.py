@@ -15,13 +15,6 @@ from ._fat import (
     load_fat_scene as load_fat_scene,
     right_T_left as right_T_left,
 )
-from ._synthetic import (
-    DEFAULT_CLASSES as DEFAULT_CLASSES,
-    ObjectClass as ObjectClass,
-    object_box as object_box,
-    synthetic_intrinsics as synthetic_intrinsics,
-    write_synthetic_dataset as write_synthetic_dataset,
-)
 from ._pipeline import (
     SHAPE_IDS as SHAPE_IDS,
     PipelineConfig as PipelineConfig,
@@ -31,4 +24,11 @@ from ._pipeline import (
     find_scenes as find_scenes,
     mask_depth_points as mask_depth_points,
     thesis_config as thesis_config,
+)
+from ._synthetic import (
+    DEFAULT_CLASSES as DEFAULT_CLASSES,
+    ObjectClass as ObjectClass,
+    object_box as object_box,
+    synthetic_intrinsics as synthetic_intrinsics,
+    write_synthetic_dataset as write_synthetic_dataset,
 )

@@ -39,7 +39,7 @@ import json
 import os
 import pathlib
 import re
-from typing import Iterator, Sequence
+from collections.abc import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -64,8 +64,14 @@ FAT_LENGTH_SCALE = 0.01  # metres per JSON length unit (cm)
 # Corner signs of FAT's cuboid order in its (x right, y down, z out of the front) object frame.
 _CORNER_SIGNS = np.array(
     [
-        [1, -1, 1], [-1, -1, 1], [-1, 1, 1], [1, 1, 1],  # front: TopRight, TopLeft, BottomLeft, BottomRight
-        [1, -1, -1], [-1, -1, -1], [-1, 1, -1], [1, 1, -1],  # rear, same order
+        [1, -1, 1],
+        [-1, -1, 1],
+        [-1, 1, 1],
+        [1, 1, 1],  # front: TopRight, TopLeft, BottomLeft, BottomRight
+        [1, -1, -1],
+        [-1, -1, -1],
+        [-1, 1, -1],
+        [1, 1, -1],  # rear, same order
     ],
     dtype=np.float64,
 )
@@ -144,7 +150,7 @@ def _read_json(path: pathlib.Path) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"FAT file missing: {path}")
     try:
-        with open(path, "r") as f:
+        with open(path) as f:
             return json.load(f)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FatFormatError(f"{path}: not valid JSON ({exc})") from None
@@ -258,8 +264,12 @@ class FatSequence(Sequence):
             raise FileNotFoundError(f"FAT scene directory missing: {self.scene_dir}")
         self._axes = _check_options(bbox_order, rotation_from, quaternion_axes)
         self.options = dict(
-            bbox_order=bbox_order, depth_scale=float(depth_scale), length_scale=float(length_scale),
-            baseline=float(baseline), rotation_from=rotation_from, load_right_image=bool(load_right_image),
+            bbox_order=bbox_order,
+            depth_scale=float(depth_scale),
+            length_scale=float(length_scale),
+            baseline=float(baseline),
+            rotation_from=rotation_from,
+            load_right_image=bool(load_right_image),
         )
         cam_path = self.scene_dir / "_camera_settings.json"
         cams = _get(_read_json(cam_path), "camera_settings", cam_path)
@@ -345,7 +355,9 @@ class FatSequence(Sequence):
         for ob in objects:
             name = str(_get(ob, "class", left_json))
             if name not in self.object_settings:
-                raise FatFormatError(f"{left_json}: object class {name!r} not in {self.scene_dir / '_object_settings.json'}")
+                raise FatFormatError(
+                    f"{left_json}: object class {name!r} not in {self.scene_dir / '_object_settings.json'}"
+                )
             settings = self.object_settings[name]
             names.append(name)
             seg_ids.append(settings["segmentation_class_id"])
@@ -367,7 +379,9 @@ class FatSequence(Sequence):
                 center = _array(_get(ob, "location", left_json), (3,), left_json, f"{name} location") * L
             if o["rotation_from"] == "cuboid":
                 if corners is None:
-                    raise FatFormatError(f"{left_json}: object {name!r} has no 'cuboid' (use rotation_from='quaternion')")
+                    raise FatFormatError(
+                        f"{left_json}: object {name!r} has no 'cuboid' (use rotation_from='quaternion')"
+                    )
                 rot, dim = _pose_from_cuboid(corners, left_json)
             else:
                 q = _array(_get(ob, "quaternion_xyzw", left_json), (4,), left_json, f"{name} quaternion_xyzw")
@@ -376,7 +390,13 @@ class FatSequence(Sequence):
             cens.append(center)
             dims.append(dim)
             vis.append(float(ob.get("visibility", 1.0)))
-            extra.append({k: v for k, v in settings.items() if k not in ("class", "segmentation_class_id", "cuboid_dimensions", "fixed_model_transform")})
+            extra.append(
+                {
+                    k: v
+                    for k, v in settings.items()
+                    if k not in ("class", "segmentation_class_id", "cuboid_dimensions", "fixed_model_transform")
+                }
+            )
 
         seg = np.full(raw_seg.shape, -1, np.int32)
         for i, sid in enumerate(seg_ids):

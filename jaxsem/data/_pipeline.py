@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
-from typing import Iterator, Sequence
+from collections.abc import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -246,7 +246,9 @@ def _rescale(image, scale):
     S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
 
     def box_map(b):
-        return np.array([(b[0] + 0.5) * sx - 0.5, (b[1] + 0.5) * sy - 0.5, (b[2] + 0.5) * sx - 0.5, (b[3] + 0.5) * sy - 0.5])
+        return np.array(
+            [(b[0] + 0.5) * sx - 0.5, (b[1] + 0.5) * sy - 0.5, (b[2] + 0.5) * sx - 0.5, (b[3] + 0.5) * sy - 0.5]
+        )
 
     return out, S, box_map
 
@@ -377,10 +379,16 @@ class VolumonDataset:
                     pts = pts[np.sort(load_rng.choice(len(pts), config.max_points_per_object, replace=False))]
                 rows.append(
                     dict(
-                        frame=len(self._frames) - 1, class_id=ids[name], box=scale_box(box.copy()),
-                        box_right=scale_box(fr.boxes_right[i].copy()), has_right_box=right_ok,
-                        points=pts, rotation=fr.rotation[i].copy(), center=fr.center[i].copy(),
-                        dimensions=fr.dimensions[i].copy(), source=f"{fr.path}#{i}",
+                        frame=len(self._frames) - 1,
+                        class_id=ids[name],
+                        box=scale_box(box.copy()),
+                        box_right=scale_box(fr.boxes_right[i].copy()),
+                        has_right_box=right_ok,
+                        points=pts,
+                        rotation=fr.rotation[i].copy(),
+                        center=fr.center[i].copy(),
+                        dimensions=fr.dimensions[i].copy(),
+                        source=f"{fr.path}#{i}",
                         shape_id=SHAPE_IDS.get(str(extra_of(fr, i).get("shape", "box")), 0),
                     )
                 )
@@ -439,7 +447,7 @@ class VolumonDataset:
         for start in range(0, n, batch_size):
             idx = np.arange(start, min(start + batch_size, n))
             valid = np.ones(batch_size, bool)
-            valid[len(idx):] = False
+            valid[len(idx) :] = False
             idx = np.concatenate([idx, np.full(batch_size - len(idx), idx[-1])])
             rng = np.random.default_rng([self.seed, 2**32 - 1, start])  # not an epoch's stream
             out = self._make(idx, rng, False)
@@ -535,6 +543,10 @@ class VolumonDataset:
             out["box_right"][b], out["has_right_box"][b] = row["box_right"], row["has_right_box"]
             out["K"][b], out["baseline"][b], out["image_size"][b] = fr.K, fr.baseline, (w, h)
             out["class_id"][b] = row["class_id"]
-            out["rotation"][b], out["center"][b], out["dimensions"][b] = row["rotation"], row["center"], row["dimensions"]
+            out["rotation"][b], out["center"][b], out["dimensions"][b] = (
+                row["rotation"],
+                row["center"],
+                row["dimensions"],
+            )
             out["shape_id"][b] = row["shape_id"]
         return out

@@ -28,12 +28,12 @@ import dataclasses
 import json
 import math
 import pathlib
-from typing import Sequence
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
-from ..sim._render import SceneObject, SceneRenderer
+from ..sim import SceneObject, SceneRenderer
 from ._fat import FAT_BASELINE, cuboid_corners, right_T_left
 
 __all__ = ["ObjectClass", "DEFAULT_CLASSES", "write_synthetic_dataset", "object_box", "synthetic_intrinsics"]
@@ -309,14 +309,25 @@ def write_synthetic_dataset(
         scene_dirs.append(scene_dir)
         _write_settings(scene_dir, classes, K, width, height)
         objects = [
-            SceneObject(c.name, c.shape, np.asarray(c.extents), np.eye(3), np.array([0.0, 0.0, -1e4]),
-                        int(rng.integers(2**31)), np.asarray(c.rgb))
+            SceneObject(
+                c.name,
+                c.shape,
+                np.asarray(c.extents),
+                np.eye(3),
+                np.array([0.0, 0.0, -1e4]),
+                int(rng.integers(2**31)),
+                np.asarray(c.rgb),
+            )
             for c in classes
         ]
         n_here = min(frames_per_scene, num_frames - s * frames_per_scene)
         with SceneRenderer(
-            objects, width, height, background_seed=int(rng.integers(2**31)),
-            light_seed=int(rng.integers(2**31)), floor_z=0.0,
+            objects,
+            width,
+            height,
+            background_seed=int(rng.integers(2**31)),
+            light_seed=int(rng.integers(2**31)),
+            floor_z=0.0,
         ) as scene:
             for f in range(n_here):
                 T, placed = _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_range)
@@ -350,14 +361,23 @@ def write_synthetic_dataset(
 
 def _write_settings(scene_dir, classes, K, width, height):
     intr = {
-        "resX": width, "resY": height, "fx": float(K[0, 0]), "fy": float(K[1, 1]),
-        "cx": float(K[0, 2]), "cy": float(K[1, 2]), "s": 0.0,
+        "resX": width,
+        "resY": height,
+        "fx": float(K[0, 0]),
+        "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+        "s": 0.0,
     }
     hfov = math.degrees(2 * math.atan(0.5 * width / K[0, 0]))
     cams = {
         "camera_settings": [
-            {"name": name, "horizontal_fov": hfov, "intrinsic_settings": intr,
-             "captured_image_size": {"width": width, "height": height}}
+            {
+                "name": name,
+                "horizontal_fov": hfov,
+                "intrinsic_settings": intr,
+                "captured_image_size": {"width": width, "height": height},
+            }
             for name in ("left", "right")
         ]
     }

@@ -76,7 +76,10 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
-    rows = ["| # | centre depth (m) | texture depth (m) | box [u_min, v_min, u_max, v_max] (px) | valid |", "|---|---|---|---|---|"]
+    rows = [
+        "| # | centre depth (m) | texture depth (m) | box [u_min, v_min, u_max, v_max] (px) | valid |",
+        "|---|---|---|---|---|",
+    ]
     cam_depth = q.camera_depth(center, pose)
     for i in range(len(radii)):
         b = ", ".join(f"{x:7.1f}" for x in np.asarray(box[i]))

@@ -54,17 +54,13 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     else:
         b_train = generate_building(0, "train")
         n_samples = 8 if quick else 120
-        data = generate_expert_samples(
-            b_train, 0, ExpertConfig(samples_per_building=n_samples)
-        )
+        data = generate_expert_samples(b_train, 0, ExpertConfig(samples_per_building=n_samples))
         cfg = (
             tiny_config()
             if quick
             else dataclasses.replace(
                 tiny_config(),
-                model=dataclasses.replace(
-                    tiny_config().model, features=(8, 16, 32, 32), context_features=32
-                ),
+                model=dataclasses.replace(tiny_config().model, features=(8, 16, 32, 32), context_features=32),
                 stage1_steps=300,
                 stage2_steps=150,
                 batch_size=8,
@@ -72,9 +68,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
                 checkpoint_every=150,
             )
         )
-        res = train_and_evaluate(
-            cfg, out_dir / "lsd_demo_model", data=data, progress=not quick
-        )
+        res = train_and_evaluate(cfg, out_dir / "lsd_demo_model", data=data, progress=not quick)
         model, params = res.model, res.params
         how = (
             f"no checkpoint ($JAXSEM_LSD_CHECKPOINT unset): trained a small model on "

@@ -94,16 +94,32 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     one = lambda x: np.asarray(x[index])
     observed = one(maps.observed)
     fig, ax = plt.subplots(figsize=(11, 5.2))
-    slam.draw_top_down(ax, one(maps.object_rotation), one(maps.object_center), one(maps.object_radii),
-                       one(maps.object_mask) & ~observed, color="0.6", ls=":", lw=1.0,
-                       label="never detected")
-    slam.draw_top_down(ax, one(maps.object_rotation), one(maps.object_center), one(maps.object_radii),
-                       observed, color="k", lw=2.0, label="truth")
-    styles = {sim.BASELINE: dict(color="tab:red", ls="--", lw=1.3),
-              sim.ROSHAN: dict(color="tab:blue", lw=1.3)}
+    slam.draw_top_down(
+        ax,
+        one(maps.object_rotation),
+        one(maps.object_center),
+        one(maps.object_radii),
+        one(maps.object_mask) & ~observed,
+        color="0.6",
+        ls=":",
+        lw=1.0,
+        label="never detected",
+    )
+    slam.draw_top_down(
+        ax,
+        one(maps.object_rotation),
+        one(maps.object_center),
+        one(maps.object_radii),
+        observed,
+        color="k",
+        lw=2.0,
+        label="truth",
+    )
+    styles = {sim.BASELINE: dict(color="tab:red", ls="--", lw=1.3), sim.ROSHAN: dict(color="tab:blue", lw=1.3)}
     for system, est in estimates.items():
-        slam.draw_top_down(ax, one(est.rotation), one(est.center), one(est.radii), observed,
-                           label=system, **styles[system])
+        slam.draw_top_down(
+            ax, one(est.rotation), one(est.center), one(est.radii), observed, label=system, **styles[system]
+        )
         truth, guess = one(maps.object_center)[observed], one(est.center)[observed]
         for a, b in zip(guess, truth):  # each estimate joined to its true centre
             ax.plot([a[0], b[0]], [a[1], b[1]], ":", color=styles[system]["color"], lw=0.8)
@@ -127,8 +143,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if quick:
-        num_maps, cfg = 1, sim.quadricslam_config("forward", num_objects=4, num_frames=30,
-                                                  forward_step=0.75 * 59 / 29)
+        num_maps, cfg = 1, sim.quadricslam_config("forward", num_objects=4, num_frames=30, forward_step=0.75 * 59 / 29)
     else:
         num_maps, cfg = 16, sim.quadricslam_config("forward")
     t0 = time.perf_counter()
@@ -136,7 +151,10 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     path = out_dir / "roshan_forward.png"
     e = {s: {m: float(errors[s][m][0]) for m in METRICS} for s in errors}
     plot_map(
-        maps, estimates, 0, path,
+        maps,
+        estimates,
+        0,
+        path,
         f"Forward flight, map 0 of {num_maps}: position error baseline "
         f"{e['baseline']['position']:.2f} m, ROSHAN {e['roshan']['position']:.2f} m "
         f"(shape {e['baseline']['shape']:.2f} vs {e['roshan']['shape']:.2f} m)",

@@ -54,19 +54,29 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
     for i, ax in enumerate(axes.ravel()):
         e = [np.asarray(x[i]) for x in ell]
         truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
-        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i:i + 1]), truth)
-    fig.suptitle(f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)")
+        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
+    fig.suptitle(
+        f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)"
+    )
     fig.tight_layout()
     fig.savefig(out_dir / "volumon_predictions.png", dpi=100)
     plt.close(fig)
-    (out_dir / "volumon.json").write_text(json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1))
-    lines = [f"VoluMon shipped model (step {meta.get('step')}), {res['num']} held-out detections of 4 classes",
-             f"{'method':<22}{'size err':>9}{'size corr':>10}{'trans AUC':>10}{'ADI AUC':>9}{'centre (m)':>11}",
-             (f"{'network':<22}{res['median_size_rel_error']:>9.2f}{res['size_corr']:>10.2f}{res['trans_auc']:>10.2f}"
-              f"{res['adi_auc']:>9.2f}{res['median_center_error_m']:>11.3f}")]
+    (out_dir / "volumon.json").write_text(
+        json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1)
+    )
+    lines = [
+        f"VoluMon shipped model (step {meta.get('step')}), {res['num']} held-out detections of 4 classes",
+        f"{'method':<22}{'size err':>9}{'size corr':>10}{'trans AUC':>10}{'ADI AUC':>9}{'centre (m)':>11}",
+        (
+            f"{'network':<22}{res['median_size_rel_error']:>9.2f}{res['size_corr']:>10.2f}{res['trans_auc']:>10.2f}"
+            f"{res['adi_auc']:>9.2f}{res['median_center_error_m']:>11.3f}"
+        ),
+    ]
     if "postopt_trans_auc" in res:
-        lines.append(f"{'network + PostOpt(50)':<22}{res['postopt_median_size_rel_error']:>9.2f}{res['postopt_size_corr']:>10.2f}"
-                     f"{res['postopt_trans_auc']:>10.2f}{res['postopt_adi_auc']:>9.2f}{res['postopt_median_center_error_m']:>11.3f}")
+        lines.append(
+            f"{'network + PostOpt(50)':<22}{res['postopt_median_size_rel_error']:>9.2f}{res['postopt_size_corr']:>10.2f}"
+            f"{res['postopt_trans_auc']:>10.2f}{res['postopt_adi_auc']:>9.2f}{res['postopt_median_center_error_m']:>11.3f}"
+        )
     lines.append(f"constant mean-size baseline: size err {res['baseline_median_size_rel_error']:.2f}")
     return "\n".join(lines)
 
@@ -89,19 +99,30 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     if quick:
-        cfg = get_config("dual", "tiny").replace(num_train=64, batch_size=8, num_steps=40, learning_rate=3e-3,
-                                                 checkpoint_every=40, log_every=10)
+        cfg = get_config("dual", "tiny").replace(
+            num_train=64, batch_size=8, num_steps=40, learning_rate=3e-3, checkpoint_every=40, log_every=10
+        )
         num_test = 16
     else:
-        cfg = get_config("both", "cpu").replace(num_steps=300, batch_size=16, num_train=800, num_eval=0,
-                                                checkpoint_every=100, data="host")
+        cfg = get_config("both", "cpu").replace(
+            num_steps=300, batch_size=16, num_train=800, num_eval=0, checkpoint_every=100, data="host"
+        )
         num_test = 64
     res = train_and_evaluate(cfg, out_dir / "volumon_run", progress=False)
     st = res["state"]
     variables = {"params": st["params"], "batch_stats": st["batch_stats"]}
-    b = make_batch(cfg.seed, np.arange(num_test), cfg.scene, cfg.model.input_size, cfg.model.global_padding, "test",
-                   keep_images=True)
-    phi, ell, _ = make_predict_fn(res["model"], cfg)(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    b = make_batch(
+        cfg.seed,
+        np.arange(num_test),
+        cfg.scene,
+        cfg.model.input_size,
+        cfg.model.global_padding,
+        "test",
+        keep_images=True,
+    )
+    phi, ell, _ = make_predict_fn(res["model"], cfg)(
+        variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"]
+    )
     rows = {"network": evaluate_predictions(ell._asdict(), b)}
     if not quick:
         _, ell_po, _ = postopt(phi, b["box_input"], b["K"], b["points"], b["point_mask"], cfg.recon, cfg.loss, 50)
@@ -111,7 +132,7 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
     for i, ax in enumerate(axes.ravel()):
         e = [np.asarray(x[i]) for x in ell]
         truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
-        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i:i + 1]), truth)
+        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
     fig.suptitle(f"VoluMon {cfg.variant} on held-out images (blue conic / orange box: prediction; dashed: truth)")
     fig.tight_layout()
     fig.savefig(out_dir / "volumon_predictions.png", dpi=100)
@@ -127,9 +148,15 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
         fig.tight_layout()
         fig.savefig(out_dir / "volumon_loss.png", dpi=100)
         plt.close(fig)
-    (out_dir / "volumon.json").write_text(json.dumps({"variant": cfg.variant, "steps": cfg.num_steps, "rows": rows}, indent=1))
-    lines = [f"VoluMon {cfg.variant}, {cfg.num_steps} steps, {rows['network']['n']} held-out detections",
-             f"{'method':<24}{'trans AUC':>10}{'ADI AUC':>10}{'3D IoU':>9}{'trans med (m)':>15}"]
+    (out_dir / "volumon.json").write_text(
+        json.dumps({"variant": cfg.variant, "steps": cfg.num_steps, "rows": rows}, indent=1)
+    )
+    lines = [
+        f"VoluMon {cfg.variant}, {cfg.num_steps} steps, {rows['network']['n']} held-out detections",
+        f"{'method':<24}{'trans AUC':>10}{'ADI AUC':>10}{'3D IoU':>9}{'trans med (m)':>15}",
+    ]
     for name, r in rows.items():
-        lines.append(f"{name:<24}{r['trans_auc']:>10.2f}{r['adi_auc']:>10.2f}{r['iou']:>9.2f}{r['trans_median']:>15.3f}")
+        lines.append(
+            f"{name:<24}{r['trans_auc']:>10.2f}{r['adi_auc']:>10.2f}{r['iou']:>9.2f}{r['trans_median']:>15.3f}"
+        )
     return "\n".join(lines)

@@ -18,23 +18,6 @@ from ._data import (
     load_expert_data as load_expert_data,
     split_by_building as split_by_building,
 )
-from ._sampler import (
-    LSDSampler as LSDSampler,
-    full_map_distribution as full_map_distribution,
-)
-from ._train import (
-    TrainResult as TrainResult,
-    PRETRAINED as PRETRAINED,
-    PRETRAINED_CPU as PRETRAINED_CPU,
-    evaluate_nll as evaluate_nll,
-    export_model as export_model,
-    load_model as load_model,
-    load_model_file as load_model_file,
-    load_trained as load_trained,
-    make_train_step as make_train_step,
-    save_distribution_figure as save_distribution_figure,
-    train_and_evaluate as train_and_evaluate,
-)
 from ._experiment import (
     ExperimentSetup as ExperimentSetup,
     format_table as format_table,
@@ -43,4 +26,21 @@ from ._experiment import (
     prepare_model as prepare_model,
     run_trials as run_trials,
     summarise as summarise,
+)
+from ._sampler import (
+    LSDSampler as LSDSampler,
+    full_map_distribution as full_map_distribution,
+)
+from ._train import (
+    PRETRAINED as PRETRAINED,
+    PRETRAINED_CPU as PRETRAINED_CPU,
+    TrainResult as TrainResult,
+    evaluate_nll as evaluate_nll,
+    export_model as export_model,
+    load_model as load_model,
+    load_model_file as load_model_file,
+    load_trained as load_trained,
+    make_train_step as make_train_step,
+    save_distribution_figure as save_distribution_figure,
+    train_and_evaluate as train_and_evaluate,
 )

@@ -55,13 +55,9 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
         if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(
-                f"val_fraction: expected in [0, 1), got {self.val_fraction}"
-            )
+            raise ValueError(f"val_fraction: expected in [0, 1), got {self.val_fraction}")
         if self.dtype not in ("float32", "float64"):
-            raise ValueError(
-                f"dtype: expected 'float32' or 'float64', got {self.dtype!r}"
-            )
+            raise ValueError(f"dtype: expected 'float32' or 'float64', got {self.dtype!r}")
 
     @property
     def total_steps(self) -> int:

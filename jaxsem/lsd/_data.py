@@ -37,14 +37,10 @@ def check_expert_data(data: dict, map_size: int, context_dim: int) -> int:
     for k, shape in want.items():
         arr = np.asarray(data[k])
         if arr.shape != shape:
-            raise ValueError(
-                f"data['{k}']: expected shape {shape}, got shape {arr.shape}"
-            )
+            raise ValueError(f"data['{k}']: expected shape {shape}, got shape {arr.shape}")
     for k in ("occupancy", "semantic"):
         if not np.issubdtype(np.asarray(data[k]).dtype, np.integer):
-            raise ValueError(
-                f"data['{k}']: expected an integer dtype, got {np.asarray(data[k]).dtype}"
-            )
+            raise ValueError(f"data['{k}']: expected an integer dtype, got {np.asarray(data[k]).dtype}")
     return S
 
 
@@ -57,9 +53,7 @@ def load_expert_data(paths) -> dict:
     return load_expert_dataset(paths)
 
 
-def split_by_building(
-    data: dict, val_fraction: float, seed: int, every_nth: int = 0
-) -> tuple:
+def split_by_building(data: dict, val_fraction: float, seed: int, every_nth: int = 0) -> tuple:
     """``(train_idx, val_idx)`` int arrays. Whole buildings go to validation when there are
     several (``building_seed``); otherwise a random share of samples. Validation gets at least
     one sample when ``val_fraction > 0`` and there are at least two samples. ``every_nth > 0``:
@@ -86,9 +80,7 @@ def split_by_building(
     return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
-def batch_indices(
-    train_idx: np.ndarray, batch_size: int, step: int, seed: int
-) -> np.ndarray:
+def batch_indices(train_idx: np.ndarray, batch_size: int, step: int, seed: int) -> np.ndarray:
     """The batch of ``step``: a function of (seed, step) only, so a resumed run sees the same
     batches as an uninterrupted one. Epoch-wise shuffling without replacement."""
     n = len(train_idx)

@@ -65,11 +65,7 @@ def run_trials(
     for b, kind, t_i, task, n in jobs:
         # Same key for every planner; a function of the trial only (not of Python's hash seed).
         key = jax.random.PRNGKey(
-            int(
-                np.random.default_rng(
-                    [int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]
-                ).integers(2**31)
-            )
+            int(np.random.default_rng([int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]).integers(2**31))
         )
         rec = {
             "building": int(b.seed),
@@ -81,9 +77,7 @@ def run_trials(
             "goal": task.goal.tolist(),
         }
         for name, (smp, changes) in planners.items():
-            cfg = dataclasses.replace(
-                NavConfig(n_samples=n, max_steps=max_steps), **changes
-            )
+            cfg = dataclasses.replace(NavConfig(n_samples=n, max_steps=max_steps), **changes)
             t0 = time.perf_counter()
             res = navigate(
                 b,
@@ -157,21 +151,13 @@ def summarise(records: list) -> dict:
             "success_lsd_sem": _rate_sem(sl)[1],
             "lsd_only": int((sl & ~su).sum()),
             "uniform_only": int((su & ~sl).sum()),
-            "cl_over_cstar": mean_sem(cl / cs)
-            if both.any()
-            else (float("nan"), float("nan")),
-            "cb_over_cstar": mean_sem(cb / cs)
-            if both.any()
-            else (float("nan"), float("nan")),
+            "cl_over_cstar": mean_sem(cl / cs) if both.any() else (float("nan"), float("nan")),
+            "cb_over_cstar": mean_sem(cb / cs) if both.any() else (float("nan"), float("nan")),
             "slope_cb_on_cl": slope,
             "r2": r2,
         }
         for name in rs[0]:
-            if (
-                isinstance(rs[0][name], dict)
-                and name not in ("uniform", "lsd")
-                and "success" in rs[0][name]
-            ):
+            if isinstance(rs[0][name], dict) and name not in ("uniform", "lsd") and "success" in rs[0][name]:
                 x = np.array([r[name]["success"] for r in rs])
                 row[f"success_{name}"], row[f"success_{name}_sem"] = _rate_sem(x)
                 mut = x & su
@@ -225,11 +211,7 @@ def format_table(summary: dict) -> str:
                     f"c_{name}_over_cstar_vs_uniform",
                     v["cl_over_cstar"]
                     if name == "lsd"
-                    else (
-                        v["cb_over_cstar"]
-                        if name == "uniform"
-                        else (float("nan"), float("nan"))
-                    ),
+                    else (v["cb_over_cstar"] if name == "uniform" else (float("nan"), float("nan"))),
                 )
                 lines.append(
                     f"| {v['set']} | {v['n']} | {name} | {100 * v[f'success_{name}']:.0f} +- "
@@ -247,13 +229,9 @@ def plot_success(summary: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     sets = sorted({v["set"] for v in summary.values()})
-    fig, axes = plt.subplots(
-        1, len(sets), figsize=(4.5 * len(sets), 3.6), squeeze=False
-    )
+    fig, axes = plt.subplots(1, len(sets), figsize=(4.5 * len(sets), 3.6), squeeze=False)
     for ax, kind in zip(axes[0], sets):
-        rows = sorted(
-            (v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"]
-        )
+        rows = sorted((v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"])
         ns = [v["n"] for v in rows]
         ax.errorbar(
             ns,
@@ -372,9 +350,7 @@ def plot_navigation(
     ox, oy = np.asarray(world.origin, float)
     ext = [ox, ox + W * world.resolution, oy, oy + H * world.resolution]
     ncols = 2 if distribution is not None else 1
-    fig, axes = plt.subplots(
-        1, ncols, figsize=(6.5 * ncols, 6.5 * H / W + 0.8), squeeze=False
-    )
+    fig, axes = plt.subplots(1, ncols, figsize=(6.5 * ncols, 6.5 * H / W + 0.8), squeeze=False)
     img = np.ones((H, W, 3))
     img[occ] = 0.0
     for cls, col in ((2, (0.1, 0.7, 0.1)), (3, (0.2, 0.4, 1.0)), (4, (1.0, 0.1, 0.1))):
@@ -389,18 +365,14 @@ def plot_navigation(
             extent=ext,
             cmap="viridis",
         )
-        ax.contour(
-            occ, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower"
-        )
+        ax.contour(occ, levels=[0.5], colors="w", linewidths=0.3, extent=ext, origin="lower")
         panels.append((ax, "last LSD sampling distribution (log10 p)"))
     axes[0, 0].imshow(img, origin="lower", extent=ext, interpolation="nearest")
     for ax, t in panels:
         for name, res in results.items():
             p = np.asarray(res.path)
             label = f"{name}: {'ok' if res.success else res.reason}, {res.cost:.1f} m"
-            ax.plot(
-                p[:, 0], p[:, 1], "-", color=colors.get(name, None), lw=1.5, label=label
-            )
+            ax.plot(p[:, 0], p[:, 1], "-", color=colors.get(name, None), lw=1.5, label=label)
         if start is not None:
             ax.plot(*start, "rx", ms=9, mew=2)
         if goal is not None:

@@ -47,8 +47,9 @@ class LSDSampler:
         return self._fn(self.params, jnp.asarray(inputs.occupancy), jnp.asarray(inputs.semantic), ctx)
 
 
-def full_map_distribution(sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, origin,
-                          resolution: float, max_distance: float = 20.0) -> np.ndarray:
+def full_map_distribution(
+    sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, origin, resolution: float, max_distance: float = 20.0
+) -> np.ndarray:
     """The planner's full-map distribution (H, W) (sums to 1) at robot position ``xy``.
 
     state: :class:`jaxsem.planning.MapState`; xy, goal: (2,) world (x, y); goal_outdoors: the
@@ -56,7 +57,8 @@ def full_map_distribution(sampler: LSDSampler, state, xy, goal, goal_outdoors: b
     """
     from ..planning import embed_local_distribution, local_inputs
 
-    inputs = local_inputs(state, xy, goal, goal_outdoors, origin, resolution,
-                          sampler.model.config.map_size, max_distance)
+    inputs = local_inputs(
+        state, xy, goal, goal_outdoors, origin, resolution, sampler.model.config.map_size, max_distance
+    )
     local = sampler(inputs)
     return np.asarray(embed_local_distribution(local, inputs.center_cell, state.occupancy.shape))

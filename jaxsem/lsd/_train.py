@@ -107,9 +107,7 @@ def make_loss_fn(model: LSDNet, stage: int, augment: bool):
 
 
 @functools.lru_cache(maxsize=16)
-def make_train_step(
-    model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True
-):
+def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True):
     """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
     ``stage`` (cached per arguments, so a second run in the same process does not recompile)."""
     loss_fn = make_loss_fn(model, stage, augment)
@@ -164,9 +162,7 @@ def evaluate_nll(
     for i in range(0, len(idx), batch_size):
         sel = idx[i : i + batch_size]
         pad = batch_size - len(sel)
-        b = gather_batch(
-            data, np.concatenate([sel, np.repeat(sel[:1], pad)])
-        )  # one compile
+        b = gather_batch(data, np.concatenate([sel, np.repeat(sel[:1], pad)]))  # one compile
         nll, has, _ = fn(params, b)
         nll, has = np.asarray(nll)[: len(sel)], np.asarray(has)[: len(sel)]
         tot += float(nll[has].sum())
@@ -220,11 +216,7 @@ def config_from_dict(d: dict) -> TrainConfig:
     d.pop("data_dir", None)
     return TrainConfig(
         model=LSDConfig(**model),
-        **{
-            k: v
-            for k, v in d.items()
-            if k in {f.name for f in dataclasses.fields(TrainConfig)}
-        },
+        **{k: v for k, v in d.items() if k in {f.name for f in dataclasses.fields(TrainConfig)}},
     )
 
 
@@ -234,9 +226,7 @@ def load_trained(workdir, step: int | None = None):
     workdir = pathlib.Path(workdir)
     cfg_path = workdir / "config.json"
     if not cfg_path.exists():
-        raise ValueError(
-            f"workdir: no config.json in {str(workdir)!r} (not a training workdir)"
-        )
+        raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
     config = config_from_dict(json.loads(cfg_path.read_text()))
     dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
     model, params = init_lsd(jax.random.PRNGKey(config.seed), config.model, dtype)
@@ -244,12 +234,8 @@ def load_trained(workdir, step: int | None = None):
     try:
         step = ckpt.latest_step() if step is None else step
         if step is None:
-            raise ValueError(
-                f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}"
-            )
-        state = ckpt.restore(
-            step, _state_like(params, config, _stage_of(max(step - 1, 0), config))
-        )
+            raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
+        state = ckpt.restore(step, _state_like(params, config, _stage_of(max(step - 1, 0), config)))
     finally:
         ckpt.close()
     return model, state["params"], config
@@ -258,9 +244,7 @@ def load_trained(workdir, step: int | None = None):
 # ----------------------------------------------------------------------------- figures
 
 
-def save_distribution_figure(
-    path, batch: dict, log_prob: np.ndarray, title: str = ""
-) -> None:
+def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str = "") -> None:
     """PNG of predicted distributions over the partial maps (one column per sample).
 
     Row 1: the partial occupancy (white free, grey unknown, black occupied) with objects (door
@@ -272,9 +256,7 @@ def save_distribution_figure(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    occ, sem, ctx, mask = (
-        np.asarray(batch[k]) for k in ("occupancy", "semantic", "context", "path_mask")
-    )
+    occ, sem, ctx, mask = (np.asarray(batch[k]) for k in ("occupancy", "semantic", "context", "path_mask"))
     n = len(occ)
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 6.4), squeeze=False)
     for i in range(n):
@@ -292,13 +274,9 @@ def save_distribution_figure(
         ax.imshow(img, origin="lower", interpolation="nearest")
         pr, pc = np.nonzero(mask[i])
         ax.scatter(pc, pr, s=1, c="m")
-        ax.set_title(
-            f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7
-        )
+        ax.set_title(f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7)
         ax = axes[1, i]
-        im = ax.imshow(
-            np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis"
-        )
+        im = ax.imshow(np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis")
         ax.contour(occ[i] == 1, levels=[0.5], colors="w", linewidths=0.4)
         ax.scatter(pc, pr, s=1, c="m", alpha=0.5)
         c = k / 2
@@ -334,9 +312,7 @@ def train_and_evaluate(
     :class:`TrainResult`.
     """
     if not isinstance(config, TrainConfig):
-        raise ValueError(
-            f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}"
-        )
+        raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
     workdir = pathlib.Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     if data is None:
@@ -361,14 +337,8 @@ def train_and_evaluate(
     # Dropout / augmentation keys use the 'rbg' generator: threefry dropout masks made the
     # train step's compile 2-3x slower on this CPU (measured 42 s vs 19 s under load).
     drop_key = jax.random.key(config.seed, impl="rbg")
-    train_idx, val_idx = split_by_building(
-        data, config.val_fraction, config.seed, config.val_every_nth_building
-    )
-    fig_idx = (
-        val_idx[: config.num_figure_samples]
-        if len(val_idx)
-        else train_idx[: config.num_figure_samples]
-    )
+    train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed, config.val_every_nth_building)
+    fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
 
     ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
     metrics_path = workdir / "metrics.json"
@@ -390,9 +360,7 @@ def train_and_evaluate(
     if progress and config.total_steps > start:
         from tqdm import tqdm
 
-        bar = tqdm(
-            total=config.total_steps, initial=start, desc="lsd train", unit="step"
-        )
+        bar = tqdm(total=config.total_steps, initial=start, desc="lsd train", unit="step")
     uniform_nll = float(np.log(config.model.map_size**2))
     figures = workdir / "figures"
     figures.mkdir(exist_ok=True)
@@ -401,11 +369,7 @@ def train_and_evaluate(
     recent = []
 
     def evaluate(stage_now: int):
-        val_nll = (
-            evaluate_nll(model, params, data, val_idx, stage_now)
-            if len(val_idx)
-            else float("nan")
-        )
+        val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
         b = gather_batch(data, fig_idx)
         _, _, lp = make_eval_fn(model, stage_now)(params, b)
         fig = figures / f"eval_{step:06d}.png"
@@ -428,9 +392,7 @@ def train_and_evaluate(
         metrics_path.write_text(json.dumps(history, indent=1))
         return rec
 
-    last = (
-        config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
-    )
+    last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
     try:
         while step < last:
             stage = _stage_of(step, config)
@@ -439,9 +401,7 @@ def train_and_evaluate(
                 opt_state = tx.init(_trainable(params, stage)[0])
             if stage not in steps_fn:
                 steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
-            batch = gather_batch(
-                data, batch_indices(train_idx, config.batch_size, step, config.seed)
-            )
+            batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
             skey = jax.random.fold_in(drop_key, step)
             params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
             step += 1
@@ -491,9 +451,7 @@ def export_model(path, config: TrainConfig, params) -> pathlib.Path:
     for layer, leaves in params.items():
         for name, arr in leaves.items():
             flat[f"params/{layer}/{name}"] = np.asarray(arr)
-    np.savez_compressed(
-        path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat
-    )
+    np.savez_compressed(path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat)
     return path
 
 
@@ -504,9 +462,7 @@ def load_model_file(path):
         raise ValueError(f"path: no such model file {str(path)!r}")
     with np.load(path) as z:
         if "config_json" not in z:
-            raise ValueError(
-                f"path: {str(path)!r} is not an exported LSD model (no config_json)"
-            )
+            raise ValueError(f"path: {str(path)!r} is not an exported LSD model (no config_json)")
         config = config_from_dict(json.loads(str(z["config_json"])))
         params: dict = {}
         for key in z.files:
@@ -518,14 +474,10 @@ def load_model_file(path):
     occ = jnp.zeros((1, k, k), jnp.int8)
     # eval_shape: the parameter structure without compiling an initialisation.
     like = jax.eval_shape(
-        lambda: model.init(
-            jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim))
-        )
+        lambda: model.init(jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim)))
     )["params"]
     if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
-        raise ValueError(
-            f"path: parameters in {str(path)!r} do not match the model config"
-        )
+        raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")
     return model, params, config
 
 

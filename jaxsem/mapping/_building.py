@@ -58,9 +58,7 @@ class BuildingObjects:
         return box_ellipsoids(self.box_min, self.box_max, self.class_id, capacity)
 
 
-def building_objects(
-    building, heights: ObjectHeights = ObjectHeights()
-) -> BuildingObjects:
+def building_objects(building, heights: ObjectHeights = ObjectHeights()) -> BuildingObjects:
     """Doors, windows and exit signs of ``building`` (a :class:`jaxsem.planning.Building` or any
     object with ``semantic`` (H, W), ``origin`` (2,) and ``resolution``) as boxes."""
     from scipy import ndimage
@@ -69,9 +67,7 @@ def building_objects(
 
     sem = np.asarray(building.semantic)
     if sem.ndim != 2:
-        raise ValueError(
-            f"building.semantic: expected an (H, W) grid, got shape {sem.shape}"
-        )
+        raise ValueError(f"building.semantic: expected an (H, W) grid, got shape {sem.shape}")
     origin = np.asarray(building.origin, np.float64).reshape(2)
     res = float(building.resolution)
     zs = {DOOR: heights.door, WINDOW: heights.window, EXIT_SIGN: heights.exit_sign}
@@ -92,31 +88,21 @@ def building_objects(
     )
 
 
-def box_ellipsoids(
-    box_min, box_max, class_id, capacity: int | None = None
-) -> Ellipsoids:
+def box_ellipsoids(box_min, box_max, class_id, capacity: int | None = None) -> Ellipsoids:
     """Axis-aligned boxes (K, 3) corners -> their inscribed ellipsoids, padded to ``capacity``."""
     box_min = np.asarray(box_min, np.float64)
     box_max = np.asarray(box_max, np.float64)
     class_id = np.asarray(class_id)
     if box_min.ndim != 2 or box_min.shape[-1] != 3 or box_max.shape != box_min.shape:
-        raise ValueError(
-            f"box_min, box_max: expected two (K, 3) arrays, got {box_min.shape} and {box_max.shape}"
-        )
+        raise ValueError(f"box_min, box_max: expected two (K, 3) arrays, got {box_min.shape} and {box_max.shape}")
     if not np.all(box_max > box_min):
-        raise ValueError(
-            "box_max: expected box_max > box_min in every coordinate (no flat boxes)"
-        )
+        raise ValueError("box_max: expected box_max > box_min in every coordinate (no flat boxes)")
     if class_id.shape != box_min.shape[:1]:
-        raise ValueError(
-            f"class_id: expected shape {box_min.shape[:1]}, got {class_id.shape}"
-        )
+        raise ValueError(f"class_id: expected shape {box_min.shape[:1]}, got {class_id.shape}")
     k = box_min.shape[0]
     n = k if capacity is None else int(capacity)
     if n < k or n < 1:
-        raise ValueError(
-            f"capacity: expected at least {max(k, 1)} slots for {k} boxes, got {capacity}"
-        )
+        raise ValueError(f"capacity: expected at least {max(k, 1)} slots for {k} boxes, got {capacity}")
     pad = n - k
     dtype = jnp.result_type(float)
     center = np.pad(0.5 * (box_min + box_max), ((0, pad), (0, 0)))
@@ -130,9 +116,7 @@ def box_ellipsoids(
     )
 
 
-def ground_truth_map(
-    building, capacity: int | None = None, heights: ObjectHeights = ObjectHeights()
-) -> ObjectMap:
+def ground_truth_map(building, capacity: int | None = None, heights: ObjectHeights = ObjectHeights()) -> ObjectMap:
     """An :class:`ObjectMap` holding every object of ``building`` (one update from empty)."""
     objs = building_objects(building, heights)
     n = max(len(objs), 1) if capacity is None else int(capacity)

@@ -34,9 +34,7 @@ def object_map_sampler(sampler: Callable, semantic) -> Callable:
     """
     semantic = jnp.asarray(semantic, jnp.int8)
     if semantic.ndim != 2:
-        raise ValueError(
-            f"semantic: expected an (H, W) grid, got shape {tuple(semantic.shape)}"
-        )
+        raise ValueError(f"semantic: expected an (H, W) grid, got shape {tuple(semantic.shape)}")
 
     def wrapped(inputs):
         size = int(inputs.semantic.shape[-1])

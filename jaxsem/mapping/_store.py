@@ -90,9 +90,7 @@ class ObjectMap(eqx.Module):
 
     def objects(self) -> Ellipsoids:
         """The stored objects as :class:`Ellipsoids` (same slots, ``valid`` as the mask)."""
-        return Ellipsoids(
-            self.rotation, self.center, self.radii, self.class_id, self.valid
-        )
+        return Ellipsoids(self.rotation, self.center, self.radii, self.class_id, self.valid)
 
 
 class Association(eqx.Module):
@@ -118,34 +116,24 @@ def ellipsoids(rotation, center, radii, class_id, valid=None) -> Ellipsoids:
     """
     center = quadrics._as_float_array("center", center, (3,))
     if center.ndim < 2:
-        raise ValueError(
-            f"center: expected shape (..., M, 3), got {tuple(center.shape)}"
-        )
+        raise ValueError(f"center: expected shape (..., M, 3), got {tuple(center.shape)}")
     batch = tuple(center.shape[:-1])
     radii = quadrics._as_float_array("radii", radii, (3,))
     if tuple(radii.shape[:-1]) != batch:
-        raise ValueError(
-            f"radii: expected shape {batch + (3,)} like center, got {tuple(radii.shape)}"
-        )
+        raise ValueError(f"radii: expected shape {batch + (3,)} like center, got {tuple(radii.shape)}")
     if rotation is None:
         rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
     rotation = quadrics._as_float_array("rotation", rotation, (3, 3))
     if tuple(rotation.shape[:-2]) != batch:
-        raise ValueError(
-            f"rotation: expected shape {batch + (3, 3)}, got {tuple(rotation.shape)}"
-        )
+        raise ValueError(f"rotation: expected shape {batch + (3, 3)}, got {tuple(rotation.shape)}")
     class_arr = jnp.asarray(class_id)
     if not jnp.issubdtype(class_arr.dtype, jnp.integer):
         raise ValueError(f"class_id: expected integers, got dtype {class_arr.dtype}")
     if tuple(class_arr.shape) != batch:
-        raise ValueError(
-            f"class_id: expected shape {batch}, got {tuple(class_arr.shape)}"
-        )
+        raise ValueError(f"class_id: expected shape {batch}, got {tuple(class_arr.shape)}")
     valid_arr = jnp.ones(batch, bool) if valid is None else jnp.asarray(valid)
     if valid_arr.dtype != jnp.bool_ or tuple(valid_arr.shape) != batch:
-        raise ValueError(
-            f"valid: expected bool of shape {batch}, got {valid_arr.dtype} {tuple(valid_arr.shape)}"
-        )
+        raise ValueError(f"valid: expected bool of shape {batch}, got {valid_arr.dtype} {tuple(valid_arr.shape)}")
     dtype = jnp.result_type(center.dtype, radii.dtype, rotation.dtype)
     return Ellipsoids(
         rotation.astype(dtype),
@@ -176,16 +164,11 @@ def init(capacity: int, dtype=None) -> ObjectMap:
 
 
 def _check_pair(state: ObjectMap, detections: Ellipsoids):
-    if not isinstance(
-        state, ObjectMap
-    ):  # ValueError for all bad input (CONTRIBUTING.md)
-        raise ValueError(  # noqa: TRY004
-            f"state: expected an ObjectMap (from init), got {type(state).__name__}"
-        )
+    if not isinstance(state, ObjectMap):  # ValueError for all bad input (CONTRIBUTING.md)
+        raise ValueError(f"state: expected an ObjectMap (from init), got {type(state).__name__}")
     if not isinstance(detections, Ellipsoids):
-        raise ValueError(  # noqa: TRY004
-            f"detections: expected Ellipsoids (build with jaxsem.mapping.ellipsoids), got "
-            f"{type(detections).__name__}"
+        raise ValueError(
+            f"detections: expected Ellipsoids (build with jaxsem.mapping.ellipsoids), got {type(detections).__name__}"
         )
     if detections.center.ndim != 2 or state.center.ndim != 2:
         raise ValueError(
@@ -194,9 +177,7 @@ def _check_pair(state: ObjectMap, detections: Ellipsoids):
         )
 
 
-def _associate(
-    state: ObjectMap, det: Ellipsoids, gate, class_aware: bool
-) -> Association:
+def _associate(state: ObjectMap, det: Ellipsoids, gate, class_aware: bool) -> Association:
     M, N = det.valid.shape[0], state.valid.shape[0]
     diff = jax.lax.stop_gradient(det.center[:, None, :] - state.center[None, :, :])
     dist2 = jnp.sum(diff * diff, axis=-1)  # squared: no sqrt, no NaN gradient at 0
@@ -222,22 +203,14 @@ def _associate(
     unmatched = det.valid & ~matched
     rank = jnp.cumsum(unmatched, dtype=jnp.int32) - 1
     free = ~state.valid
-    free_rank = jnp.where(
-        free, jnp.cumsum(free, dtype=jnp.int32) - 1, M
-    )  # ranks >= M are never asked for
-    slot_of_rank = (
-        jnp.full((M,), N, jnp.int32)
-        .at[free_rank]
-        .set(jnp.arange(N, dtype=jnp.int32), mode="drop")
-    )
+    free_rank = jnp.where(free, jnp.cumsum(free, dtype=jnp.int32) - 1, M)  # ranks >= M are never asked for
+    slot_of_rank = jnp.full((M,), N, jnp.int32).at[free_rank].set(jnp.arange(N, dtype=jnp.int32), mode="drop")
     new_slot = jnp.where(unmatched, slot_of_rank[jnp.clip(rank, 0, M - 1)], N)
     slot = jnp.where(matched, slot, new_slot).astype(jnp.int32)
     return Association(slot=slot, matched=matched, created=unmatched & (new_slot < N))
 
 
-def associate(
-    state: ObjectMap, detections: Ellipsoids, *, gate=1.0, class_aware: bool = True
-):
+def associate(state: ObjectMap, detections: Ellipsoids, *, gate=1.0, class_aware: bool = True):
     """Greedy, class-aware association of one frame's detections with the stored objects.
 
     state: :class:`ObjectMap` (N slots); detections: :class:`Ellipsoids` (M); gate: metres between
@@ -259,15 +232,11 @@ def _shape_matrix(rotation, radii):
 def _from_shape_matrix(S):
     """(..., 3, 3) symmetric positive definite -> rotation (proper), radii (ascending)."""
     dtype = S.dtype
-    scale = jnp.maximum(jnp.trace(S, axis1=-2, axis2=-1), jnp.finfo(dtype).tiny)[
-        ..., None, None
-    ]
+    scale = jnp.maximum(jnp.trace(S, axis1=-2, axis2=-1), jnp.finfo(dtype).tiny)[..., None, None]
     # A tie-break far below any physical size (1e-7 of the trace in float64, 1e-5 in float32:
     # radii move by under 1e-3 relative) keeps eigh's derivative finite when two radii are
     # exactly equal (it divides by the eigenvalue gap).
-    tie = jnp.diag(jnp.array([0.0, 1.0, 2.0], dtype)) * (
-        1e-7 if dtype == jnp.float64 else 1e-5
-    )
+    tie = jnp.diag(jnp.array([0.0, 1.0, 2.0], dtype)) * (1e-7 if dtype == jnp.float64 else 1e-5)
     w, v = jnp.linalg.eigh(S + scale * tie)
     radii = quadrics.safe_sqrt(jnp.maximum(w, 0.0))
     det = jnp.linalg.det(v)
@@ -275,9 +244,7 @@ def _from_shape_matrix(S):
     return v, radii
 
 
-def _update(
-    state: ObjectMap, det: Ellipsoids, gate, class_aware: bool, fusion: str
-) -> ObjectMap:
+def _update(state: ObjectMap, det: Ellipsoids, gate, class_aware: bool, fusion: str) -> ObjectMap:
     assoc = _associate(state, det, gate, class_aware)
     N = state.valid.shape[0]
     slot = assoc.slot
@@ -342,9 +309,7 @@ def _update_jit(state, det, gate, class_aware, fusion):
     return _update(state, det, gate, class_aware, fusion)
 
 
-def semantic_grid(
-    objects, grid_shape, origin, resolution, window: int | None = 64
-) -> jax.Array:
+def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 64) -> jax.Array:
     """Rasterises the objects' ground footprints into an (H, W) int8 semantic grid.
 
     objects: an :class:`ObjectMap` or :class:`Ellipsoids` whose ``class_id`` are the planning
@@ -366,14 +331,10 @@ def semantic_grid(
     if isinstance(objects, ObjectMap):
         objects = objects.objects()
     if not isinstance(objects, Ellipsoids):
-        raise ValueError(  # noqa: TRY004
-            f"objects: expected an ObjectMap or Ellipsoids, got {type(objects).__name__}"
-        )
+        raise ValueError(f"objects: expected an ObjectMap or Ellipsoids, got {type(objects).__name__}")
     grid_shape = tuple(int(g) for g in grid_shape)
     if len(grid_shape) != 2 or min(grid_shape) < 1:
-        raise ValueError(
-            f"grid_shape: expected (H, W) of positive ints, got {grid_shape}"
-        )
+        raise ValueError(f"grid_shape: expected (H, W) of positive ints, got {grid_shape}")
     if window is None:
         grid = quadrics.rasterize_footprint(
             objects.rotation,
@@ -387,16 +348,12 @@ def semantic_grid(
         )
         return grid.astype(jnp.int8)
     if not isinstance(window, (int, np.integer)) or window < 2:
-        raise ValueError(
-            f"window: expected None or an int >= 2 (cells), got {window!r}"
-        )
+        raise ValueError(f"window: expected None or an int >= 2 (cells), got {window!r}")
     origin = quadrics._as_float_array("origin", origin, (2,))
     if origin.ndim != 1:
         raise ValueError(f"origin: expected shape (2,), got {tuple(origin.shape)}")
     if quadrics._is_concrete(objects.center) and quadrics._is_concrete(objects.radii):
-        bounds = np.asarray(
-            quadrics.ground_bounds(objects.rotation, objects.center, objects.radii)
-        )
+        bounds = np.asarray(quadrics.ground_bounds(objects.rotation, objects.center, objects.radii))
         half = 0.5 * (bounds[..., 2:] - bounds[..., :2]) / float(resolution)
         too_big = np.asarray(objects.valid) & np.any(half + 1.0 > window // 2, axis=-1)
         if np.any(too_big):
@@ -418,16 +375,12 @@ def _tiled(objects: Ellipsoids, grid_shape, origin, resolution, window):
     valid = objects.valid.reshape(-1)
     origin = origin.astype(ctr.dtype)
     # Tile corner: the centre cell minus half a tile (cells), so the centre sits mid-tile.
-    cell = jnp.floor((jax.lax.stop_gradient(ctr[:, :2]) - origin) / resolution).astype(
-        jnp.int32
-    )
+    cell = jnp.floor((jax.lax.stop_gradient(ctr[:, :2]) - origin) / resolution).astype(jnp.int32)
     corner = cell - window // 2  # (N, 2) as (col, row)
     tile_origin = origin + corner.astype(ctr.dtype) * resolution
 
     def one(R, c, r, k, m, o):
-        return quadrics.rasterize_footprint(
-            R, c, r, k, (window, window), o, resolution, mask=m
-        )
+        return quadrics.rasterize_footprint(R, c, r, k, (window, window), o, resolution, mask=m)
 
     tiles = jax.vmap(one)(rot, ctr, rad, cls, valid, tile_origin)  # (N, window, window)
     offs = jnp.arange(window, dtype=jnp.int32)

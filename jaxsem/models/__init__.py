@@ -1,5 +1,9 @@
 """Flax models: the LSD sampling-distribution network (and VoluMon)."""
 
+from ._convert import (
+    convert_torchvision_mobilenet_v2 as convert_torchvision_mobilenet_v2,
+    load_backbone_into_volumon as load_backbone_into_volumon,
+)
 from ._lsd import (
     LSDConfig as LSDConfig,
     LSDNet as LSDNet,
@@ -13,8 +17,13 @@ from ._lsd import (
     path_cells_to_mask as path_cells_to_mask,
     split_params as split_params,
 )
-
-from ._mobilenet import MobileNetV2 as MobileNetV2, feature_dim as feature_dim, make_divisible as make_divisible
+from ._mobilenet import (
+    MobileNetV2 as MobileNetV2,
+    block_layout as block_layout,
+    feature_dim as feature_dim,
+    last_channel as last_channel,
+    make_divisible as make_divisible,
+)
 from ._volumon import (
     Ellipsoid as Ellipsoid,
     ReconstructionConfig as ReconstructionConfig,
@@ -22,13 +31,10 @@ from ._volumon import (
     VoluMonNet as VoluMonNet,
     VoluMonOutput as VoluMonOutput,
     allocentric_rotation as allocentric_rotation,
+    box_features as box_features,
     expected_params as expected_params,
     init_volumon as init_volumon,
     ray_rotation as ray_rotation,
     reconstruct as reconstruct,
     select_class_params as select_class_params,
-)
-from ._convert import (
-    convert_torchvision_mobilenet_v2 as convert_torchvision_mobilenet_v2,
-    load_backbone_into_volumon as load_backbone_into_volumon,
 )

@@ -10,7 +10,7 @@ with ``numpy.load`` from an ``.npz`` the user exported. Convolution weights are 
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -33,7 +33,9 @@ def _bn(sd, key, used):
     return params, stats
 
 
-def convert_torchvision_mobilenet_v2(state_dict: Mapping[str, np.ndarray], width_multiplier: float = 1.0, dtype=np.float32):
+def convert_torchvision_mobilenet_v2(
+    state_dict: Mapping[str, np.ndarray], width_multiplier: float = 1.0, dtype=np.float32
+):
     """torchvision ``mobilenet_v2`` state dict -> flax ``{"params": ..., "batch_stats": ...}``.
 
     Args:
@@ -82,8 +84,9 @@ def convert_torchvision_mobilenet_v2(state_dict: Mapping[str, np.ndarray], width
         ) from None
 
     # check shapes against the architecture before anyone runs it
-    from ._mobilenet import MobileNetV2  # local import: flax only when converting
     import jax
+
+    from ._mobilenet import MobileNetV2  # local import: flax only when converting
 
     expected = jax.eval_shape(
         lambda: MobileNetV2(width_multiplier).init(jax.random.PRNGKey(0), np.zeros((1, 32, 32, 3), np.float32))

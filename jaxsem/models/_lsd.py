@@ -88,32 +88,21 @@ class LSDConfig:
         feats = tuple(int(f) for f in self.features)
         object.__setattr__(self, "features", feats)
         if not feats or min(feats) < 1:
-            raise ValueError(
-                f"features: expected a non-empty tuple of positive ints, got {feats}"
-            )
+            raise ValueError(f"features: expected a non-empty tuple of positive ints, got {feats}")
         if self.map_size < 1 or self.map_size % (2 ** len(feats)):
             raise ValueError(
-                f"map_size: expected a positive multiple of 2**len(features) = {2 ** len(feats)}, "
-                f"got {self.map_size}"
+                f"map_size: expected a positive multiple of 2**len(features) = {2 ** len(feats)}, got {self.map_size}"
             )
         if self.context_dim < 1:
             raise ValueError(f"context_dim: expected >= 1, got {self.context_dim}")
         if self.num_semantic_classes < 2:
-            raise ValueError(
-                f"num_semantic_classes: expected >= 2, got {self.num_semantic_classes}"
-            )
+            raise ValueError(f"num_semantic_classes: expected >= 2, got {self.num_semantic_classes}")
         if not 0.0 <= self.dropout_rate < 1.0:
-            raise ValueError(
-                f"dropout_rate: expected in [0, 1), got {self.dropout_rate}"
-            )
+            raise ValueError(f"dropout_rate: expected in [0, 1), got {self.dropout_rate}")
         if self.upsample not in ("transpose", "resize"):
-            raise ValueError(
-                f"upsample: expected 'transpose' or 'resize', got {self.upsample!r}"
-            )
+            raise ValueError(f"upsample: expected 'transpose' or 'resize', got {self.upsample!r}")
         if self.log_range is not None and not float(self.log_range) > 0:
-            raise ValueError(
-                f"log_range: expected None or > 0 nats, got {self.log_range}"
-            )
+            raise ValueError(f"log_range: expected None or > 0 nats, got {self.log_range}")
 
 
 class LSDOutput(NamedTuple):
@@ -139,28 +128,18 @@ def check_lsd_inputs(config: LSDConfig, occupancy, semantic, context) -> tuple:
     for name, m in (("occupancy", occupancy), ("semantic", semantic)):
         shape = tuple(np.shape(m))
         if len(shape) < 2 or shape[-2:] != (k, k):
-            raise ValueError(
-                f"{name}: expected shape (..., {k}, {k}), got shape {shape}"
-            )
+            raise ValueError(f"{name}: expected shape (..., {k}, {k}), got shape {shape}")
         dt = jnp.asarray(m).dtype if not hasattr(m, "dtype") else m.dtype
         if not (jnp.issubdtype(dt, jnp.integer)):
-            raise ValueError(
-                f"{name}: expected an integer dtype (int8 class codes), got dtype {dt}"
-            )
+            raise ValueError(f"{name}: expected an integer dtype (int8 class codes), got dtype {dt}")
     cshape = tuple(np.shape(context))
     if len(cshape) < 1 or cshape[-1] != config.context_dim:
-        raise ValueError(
-            f"context: expected shape (..., {config.context_dim}), got shape {cshape}"
-        )
+        raise ValueError(f"context: expected shape (..., {config.context_dim}), got shape {cshape}")
     cdt = context.dtype if hasattr(context, "dtype") else jnp.asarray(context).dtype
     if not jnp.issubdtype(cdt, jnp.floating):
         raise ValueError(f"context: expected a floating dtype, got dtype {cdt}")
     try:
-        return tuple(
-            np.broadcast_shapes(
-                np.shape(occupancy)[:-2], np.shape(semantic)[:-2], cshape[:-1]
-            )
-        )
+        return tuple(np.broadcast_shapes(np.shape(occupancy)[:-2], np.shape(semantic)[:-2], cshape[:-1]))
     except ValueError:
         raise ValueError(
             f"batch shapes do not broadcast: occupancy {tuple(np.shape(occupancy))}, semantic "
@@ -175,12 +154,8 @@ def encode_maps(occupancy, semantic, num_semantic_classes: int, dtype) -> jax.Ar
     """
     occupancy = jnp.asarray(occupancy)
     semantic = jnp.asarray(semantic)
-    occ = jnp.stack(
-        [occupancy == _UNKNOWN, occupancy == _FREE, occupancy == _OCCUPIED], -1
-    )
-    sem = semantic[..., None] == jnp.arange(
-        1, num_semantic_classes, dtype=semantic.dtype
-    )
+    occ = jnp.stack([occupancy == _UNKNOWN, occupancy == _FREE, occupancy == _OCCUPIED], -1)
+    sem = semantic[..., None] == jnp.arange(1, num_semantic_classes, dtype=semantic.dtype)
     return jnp.concatenate([occ, sem], -1).astype(dtype)
 
 
@@ -206,22 +181,15 @@ class LSDNet(nn.Module):
 
     def setup(self):
         c = self.config
-        self.enc = [
-            nn.Conv(f, (3, 3), strides=(2, 2), name=f"enc_{i}")
-            for i, f in enumerate(c.features)
-        ]
+        self.enc = [nn.Conv(f, (3, 3), strides=(2, 2), name=f"enc_{i}") for i, f in enumerate(c.features)]
         self.enc_mix = nn.Conv(c.features[-1], (3, 3), name="enc_mix")
         up = list(c.features[:-1][::-1]) + [max(4, c.features[0] // 2)]
         self.dec = [_up_layer(f, c.upsample, f"dec_{i}") for i, f in enumerate(up)]
         self.dec_out = nn.Conv(1, (3, 3), name="dec_out")
         self.ctx_in = nn.Dense(c.context_features, name="cs_context")
-        self.ctx_mix = [
-            nn.Conv(c.context_features, (3, 3), name=f"cs_mix_{i}") for i in range(2)
-        ]
+        self.ctx_mix = [nn.Conv(c.context_features, (3, 3), name=f"cs_mix_{i}") for i in range(2)]
         cs_up = [max(4, f // 2) for f in up]
-        self.ctx_up = [
-            _up_layer(f, c.upsample, f"cs_up_{i}") for i, f in enumerate(cs_up)
-        ]
+        self.ctx_up = [_up_layer(f, c.upsample, f"cs_up_{i}") for i, f in enumerate(cs_up)]
         self.ctx_out = nn.Conv(1, (3, 3), name="cs_out")
         self.drop = nn.Dropout(c.dropout_rate)
 
@@ -246,9 +214,7 @@ class LSDNet(nn.Module):
         k = c.map_size
         x = encode_maps(occupancy, semantic, c.num_semantic_classes, dtype)
         x = jnp.broadcast_to(x, batch + x.shape[-3:]).reshape((-1,) + x.shape[-3:])
-        ctx = jnp.broadcast_to(context, batch + context.shape[-1:]).reshape(
-            -1, context.shape[-1]
-        )
+        ctx = jnp.broadcast_to(context, batch + context.shape[-1:]).reshape(-1, context.shape[-1])
 
         skips = []
         for conv in self.enc:
@@ -286,9 +252,7 @@ class LSDNet(nn.Module):
         logits = logits.reshape(batch + (k, k))
         flat = logits.reshape(batch + (k * k,))
         log_prob = jax.nn.log_softmax(flat, axis=-1).reshape(batch + (k, k))
-        return LSDOutput(
-            log_prob, general.reshape(batch + (k, k)), modifier.reshape(batch + (k, k))
-        )
+        return LSDOutput(log_prob, general.reshape(batch + (k, k)), modifier.reshape(batch + (k, k)))
 
 
 def init_lsd(key, config: LSDConfig = LSDConfig(), dtype=jnp.float32):
@@ -322,14 +286,11 @@ def lsd_nll(log_prob, path_mask) -> jax.Array:
     """
     log_prob = jnp.asarray(log_prob)
     if log_prob.ndim < 2:
-        raise ValueError(
-            f"log_prob: expected shape (..., H, W), got shape {log_prob.shape}"
-        )
+        raise ValueError(f"log_prob: expected shape (..., H, W), got shape {log_prob.shape}")
     path_mask = jnp.asarray(path_mask)
     if path_mask.shape[-2:] != log_prob.shape[-2:]:
         raise ValueError(
-            f"path_mask: expected shape (..., {log_prob.shape[-2]}, {log_prob.shape[-1]}), got "
-            f"shape {path_mask.shape}"
+            f"path_mask: expected shape (..., {log_prob.shape[-2]}, {log_prob.shape[-1]}), got shape {path_mask.shape}"
         )
     w = path_mask.astype(log_prob.dtype)
     per_cell = -jnp.sum(w * log_prob, axis=(-2, -1))
@@ -338,9 +299,7 @@ def lsd_nll(log_prob, path_mask) -> jax.Array:
     # Safe division: empty samples divide by 1 and are masked out (finite gradients).
     per_sample = per_cell / jnp.where(has, count, 1.0)
     n = jnp.sum(has)
-    return jnp.sum(jnp.where(has, per_sample, 0.0)) / jnp.maximum(n, 1).astype(
-        log_prob.dtype
-    )
+    return jnp.sum(jnp.where(has, per_sample, 0.0)) / jnp.maximum(n, 1).astype(log_prob.dtype)
 
 
 def path_cells_to_mask(cells, map_size: int, dtype=jnp.float32) -> jax.Array:
@@ -362,9 +321,7 @@ def path_cells_to_mask(cells, map_size: int, dtype=jnp.float32) -> jax.Array:
     return out.reshape(batch + (map_size, map_size))
 
 
-def lsd_distribution(
-    model: LSDNet, params, occupancy, semantic, context, *, use_context: bool = True
-) -> jax.Array:
+def lsd_distribution(model: LSDNet, params, occupancy, semantic, context, *, use_context: bool = True) -> jax.Array:
     """Probabilities ``(..., H, W)`` (sum 1 per sample) from the trained network, dropout off."""
     out = model.apply(
         {"params": params},

@@ -12,7 +12,7 @@ is 64 x 64); output ``(..., last_channel)`` globally average-pooled features (to
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import flax.linen as nn
 import jax.numpy as jnp
@@ -128,7 +128,9 @@ class MobileNetV2(nn.Module):
 
     @nn.compact
     def __call__(self, x, train: bool = False):
-        x = ConvBN(make_divisible(32 * self.width_multiplier), kernel=3, stride=2, dtype=self.dtype, name="features_0")(x, train)
+        x = ConvBN(make_divisible(32 * self.width_multiplier), kernel=3, stride=2, dtype=self.dtype, name="features_0")(
+            x, train
+        )
         for i, (cin, cout, s, t) in enumerate(block_layout(self.width_multiplier)):
             x = InvertedResidual(cin, cout, s, t, dtype=self.dtype, name=f"features_{i + 1}")(x, train)
         n = len(block_layout(self.width_multiplier)) + 1

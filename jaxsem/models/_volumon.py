@@ -329,8 +329,12 @@ class VoluMonNet(nn.Module):
         h = fl
         for i, w in enumerate(cfg.hidden):
             h = nn.relu(nn.Dense(w, name=f"local_fc{i}")(h))
-        local = nn.Dense(9 * n, kernel_init=small, bias_init=_head_bias_init(n, "local", ROTATION_INITS[cfg.rotation_init]),
-                         name="local_out")(h)
+        local = nn.Dense(
+            9 * n,
+            kernel_init=small,
+            bias_init=_head_bias_init(n, "local", ROTATION_INITS[cfg.rotation_init]),
+            name="local_out",
+        )(h)
         g = fg
         for i, w in enumerate(cfg.hidden):
             g = nn.relu(nn.Dense(w, name=f"global_fc{i}")(g))

@@ -22,19 +22,28 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
 """
 
 from ._buildings import (
-    BuildingParams as BuildingParams,
-    Building as Building,
     TEST_PARAMS as TEST_PARAMS,
     TRAIN_PARAMS as TRAIN_PARAMS,
+    Building as Building,
+    BuildingParams as BuildingParams,
     building_family as building_family,
     generate_building as generate_building,
+)
+from ._expert import (
+    SCHEMA_KEYS as SCHEMA_KEYS,
+    ExpertConfig as ExpertConfig,
+    Task as Task,
+    __doc__ as EXPERT_SCHEMA,  # noqa: F401  (re-exported: the shard schema)
+    generate_expert_samples as generate_expert_samples,
+    load_expert_dataset as load_expert_dataset,
+    sample_tasks as sample_tasks,
+    write_expert_dataset as write_expert_dataset,
 )
 from ._grid import (
     DEFAULT_RESOLUTION as DEFAULT_RESOLUTION,
     DOOR as DOOR,
     EXIT_SIGN as EXIT_SIGN,
     FREE as FREE,
-    MapState as MapState,
     NONE as NONE,
     OBJECT_CLASSES as OBJECT_CLASSES,
     OCCUPIED as OCCUPIED,
@@ -42,21 +51,20 @@ from ._grid import (
     UNKNOWN as UNKNOWN,
     WALL as WALL,
     WINDOW as WINDOW,
+    MapState as MapState,
     cell_to_world as cell_to_world,
     empty_map_state as empty_map_state,
     world_to_cell as world_to_cell,
 )
-from ._sensors import (
-    SensorConfig as SensorConfig,
-    cast_rays as cast_rays,
-    sense as sense,
-)
-from ._shortest_path import (
-    GridPath as GridPath,
-    SearchTree as SearchTree,
-    SoftCostGraph as SoftCostGraph,
-    shortest_path as shortest_path,
-    soft_cost as soft_cost,
+from ._navigate import (
+    CONTEXT_SIZE as CONTEXT_SIZE,
+    CROP_SIZE as CROP_SIZE,
+    LocalInputs as LocalInputs,
+    NavConfig as NavConfig,
+    NavResult as NavResult,
+    Trial as Trial,
+    local_inputs as local_inputs,
+    navigate as navigate,
 )
 from ._prm import (
     PRM as PRM,
@@ -76,23 +84,15 @@ from ._prm import (
     roadmap_shortest_path as roadmap_shortest_path,
     sample_points as sample_points,
 )
-from ._navigate import (
-    CONTEXT_SIZE as CONTEXT_SIZE,
-    CROP_SIZE as CROP_SIZE,
-    LocalInputs as LocalInputs,
-    NavConfig as NavConfig,
-    NavResult as NavResult,
-    Trial as Trial,
-    local_inputs as local_inputs,
-    navigate as navigate,
+from ._sensors import (
+    SensorConfig as SensorConfig,
+    cast_rays as cast_rays,
+    sense as sense,
 )
-from ._expert import (
-    ExpertConfig as ExpertConfig,
-    SCHEMA_KEYS as SCHEMA_KEYS,
-    Task as Task,
-    generate_expert_samples as generate_expert_samples,
-    load_expert_dataset as load_expert_dataset,
-    sample_tasks as sample_tasks,
-    write_expert_dataset as write_expert_dataset,
+from ._shortest_path import (
+    GridPath as GridPath,
+    SearchTree as SearchTree,
+    SoftCostGraph as SoftCostGraph,
+    shortest_path as shortest_path,
+    soft_cost as soft_cost,
 )
-from ._expert import __doc__ as EXPERT_SCHEMA

@@ -102,13 +102,9 @@ def _split(rect, rng, max_side, min_side):
         return [rect]
     if h >= w:
         cut = int(rng.integers(r0 + min_side, r1 - min_side + 1))
-        return _split((r0, c0, cut, c1), rng, max_side, min_side) + _split(
-            (cut, c0, r1, c1), rng, max_side, min_side
-        )
+        return _split((r0, c0, cut, c1), rng, max_side, min_side) + _split((cut, c0, r1, c1), rng, max_side, min_side)
     cut = int(rng.integers(c0 + min_side, c1 - min_side + 1))
-    return _split((r0, c0, r1, cut), rng, max_side, min_side) + _split(
-        (r0, cut, r1, c1), rng, max_side, min_side
-    )
+    return _split((r0, c0, r1, cut), rng, max_side, min_side) + _split((r0, cut, r1, c1), rng, max_side, min_side)
 
 
 def _adjacency_runs(region):
@@ -158,8 +154,9 @@ def _opening(run, width, clearance, rng):
     return (start, fixed, start + width, fixed + 2)
 
 
-def generate_building(seed: int, family: str = "train", resolution: float = DEFAULT_RESOLUTION,
-                      params: BuildingParams | None = None) -> Building:
+def generate_building(
+    seed: int, family: str = "train", resolution: float = DEFAULT_RESOLUTION, params: BuildingParams | None = None
+) -> Building:
     """One procedural building of ``family`` ('train' or 'test'), deterministic in ``seed``.
 
     ``params`` overrides the family's :class:`BuildingParams`. See the module docstring for the
@@ -171,7 +168,7 @@ def generate_building(seed: int, family: str = "train", resolution: float = DEFA
         raise ValueError(f"resolution: expected metres per cell in [0.02, 0.5], got {resolution!r}")
     p = params if params is not None else FAMILIES[family]
     rng = np.random.default_rng([int(seed), p.seed_offset, 0x15D])
-    cells = lambda m: max(1, int(round(m / resolution)))  # noqa: E731
+    cells = lambda m: max(1, int(round(m / resolution)))
 
     width, depth = cells(rng.uniform(*p.width)), cells(rng.uniform(*p.depth))
     margin = cells(p.margin)
@@ -281,8 +278,7 @@ def generate_building(seed: int, family: str = "train", resolution: float = DEFA
                 parent[find(room)] = find(CORRIDOR_REGION)
 
     # Exterior doors at corridor ends, exit signs on the inside face beside them.
-    ext_runs = [r for r in runs.get((OUTSIDE_REGION, CORRIDOR_REGION), [])
-                if r[3] - r[2] >= door_w + 6]
+    ext_runs = [r for r in runs.get((OUTSIDE_REGION, CORRIDOR_REGION), []) if r[3] - r[2] >= door_w + 6]
     rng.shuffle(ext_runs)
     n_ext = int(rng.integers(p.n_exterior_doors[0], p.n_exterior_doors[1] + 1))
     ext_doors, entrance = [], None

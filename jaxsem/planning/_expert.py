@@ -54,9 +54,21 @@ from ._navigate import CROP_SIZE, NavConfig, Trial, local_inputs
 from ._shortest_path import SoftCostGraph
 
 SCHEMA_VERSION = 1
-SCHEMA_KEYS = ("occupancy", "semantic", "context", "path_mask", "path_cells", "path_offsets",
-               "robot_xy", "goal_xy", "goal_outdoors", "path_cost", "building_seed", "family",
-               "resolution")
+SCHEMA_KEYS = (
+    "occupancy",
+    "semantic",
+    "context",
+    "path_mask",
+    "path_cells",
+    "path_offsets",
+    "robot_xy",
+    "goal_xy",
+    "goal_outdoors",
+    "path_cost",
+    "building_seed",
+    "family",
+    "resolution",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,8 +107,15 @@ class Task(NamedTuple):
     c_star_cost: float
 
 
-def sample_tasks(building: Building, kind: str, count: int, seed: int, min_distance: float = 8.0,
-                 clearance: float = 0.3, graph: SoftCostGraph | None = None) -> list:
+def sample_tasks(
+    building: Building,
+    kind: str,
+    count: int,
+    seed: int,
+    min_distance: float = 8.0,
+    clearance: float = 0.3,
+    graph: SoftCostGraph | None = None,
+) -> list:
     """``count`` test tasks of ``kind`` 'II' (start and goal indoors) or 'IO' (start indoors,
     goal outdoors), at least ``min_distance`` apart, each with its resolution-optimal C*."""
     if kind not in ("II", "IO"):
@@ -129,8 +148,9 @@ def _crop_path(cells: np.ndarray, center: np.ndarray, size: int):
     return mask, np.unique(local, axis=0).astype(np.int16)
 
 
-def generate_expert_samples(building: Building, seed: int, config: ExpertConfig = ExpertConfig(),
-                            progress=None) -> dict:
+def generate_expert_samples(
+    building: Building, seed: int, config: ExpertConfig = ExpertConfig(), progress=None
+) -> dict:
     """Expert samples for one building as a dict of arrays (the shard schema of this module).
 
     ``progress``: optional callable ``progress(n_new)`` called as samples are made.
@@ -139,8 +159,20 @@ def generate_expert_samples(building: Building, seed: int, config: ExpertConfig 
     key = jax.random.PRNGKey(int(rng.integers(2**31)))
     graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
     inside, outside = _clear_cells(building, config.clearance)
-    out = {k: [] for k in ("occupancy", "semantic", "context", "path_mask", "path_cells",
-                           "robot_xy", "goal_xy", "goal_outdoors", "path_cost")}
+    out = {
+        k: []
+        for k in (
+            "occupancy",
+            "semantic",
+            "context",
+            "path_mask",
+            "path_cells",
+            "robot_xy",
+            "goal_xy",
+            "goal_outdoors",
+            "path_cost",
+        )
+    }
     n = 0
     start = _to_world(building, inside[rng.integers(len(inside))])
     state = None
@@ -150,8 +182,7 @@ def generate_expert_samples(building: Building, seed: int, config: ExpertConfig 
         pool = outside if rng.random() < config.outdoor_goal_prob else inside
         goal = _to_world(building, pool[rng.integers(len(pool))])
         key, sub = jax.random.split(key)
-        trial = Trial(building, start, goal, sub, config.nav, None, float(rng.uniform(-math.pi, math.pi)),
-                      state=state)
+        trial = Trial(building, start, goal, sub, config.nav, None, float(rng.uniform(-math.pi, math.pi)), state=state)
         while n < config.samples_per_building:
             if rng.random() < config.sample_prob:
                 tree = graph.search(trial.xy)
@@ -165,8 +196,16 @@ def generate_expert_samples(building: Building, seed: int, config: ExpertConfig 
                     p = tree.path_to(g)
                     if not p.found:
                         continue
-                    inp = local_inputs(trial.state, trial.xy, g, out_goal, building.origin,
-                                       building.resolution, CROP_SIZE, config.nav.max_context_distance)
+                    inp = local_inputs(
+                        trial.state,
+                        trial.xy,
+                        g,
+                        out_goal,
+                        building.origin,
+                        building.resolution,
+                        CROP_SIZE,
+                        config.nav.max_context_distance,
+                    )
                     mask, cells = _crop_path(p.cells, np.asarray(inp.center_cell), CROP_SIZE)
                     out["occupancy"].append(np.asarray(inp.occupancy))
                     out["semantic"].append(np.asarray(inp.semantic))
@@ -221,20 +260,41 @@ def _shard_job(args):
     return str(path), int(len(data["context"]))
 
 
-def write_expert_dataset(out_dir, family: str, seeds, config: ExpertConfig = ExpertConfig(),
-                         workers: int = 2, resolution: float = DEFAULT_RESOLUTION, progress: bool = True):
+def write_expert_dataset(
+    out_dir,
+    family: str,
+    seeds,
+    config: ExpertConfig = ExpertConfig(),
+    workers: int = 2,
+    resolution: float = DEFAULT_RESOLUTION,
+    progress: bool = True,
+):
     """Generates one shard per building seed into ``out_dir`` (``expert_<family>_<seed>.npz``),
     in parallel over buildings (``workers`` processes, spawned), with a tqdm bar; also writes
     ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths."""
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "schema.json").write_text(json.dumps(
-        {"version": SCHEMA_VERSION, "keys": list(SCHEMA_KEYS), "crop_size": CROP_SIZE,
-         "doc": "see jaxsem.planning._expert module docstring / jaxsem.planning.EXPERT_SCHEMA"}, indent=1))
-    jobs = [(family, int(s), config, str(out), resolution) for s in seeds
-            if not (out / f"expert_{family}_{int(s):05d}.npz").exists()]
-    done = [str(out / f"expert_{family}_{int(s):05d}.npz") for s in seeds
-            if (out / f"expert_{family}_{int(s):05d}.npz").exists()]
+    (out / "schema.json").write_text(
+        json.dumps(
+            {
+                "version": SCHEMA_VERSION,
+                "keys": list(SCHEMA_KEYS),
+                "crop_size": CROP_SIZE,
+                "doc": "see jaxsem.planning._expert module docstring / jaxsem.planning.EXPERT_SCHEMA",
+            },
+            indent=1,
+        )
+    )
+    jobs = [
+        (family, int(s), config, str(out), resolution)
+        for s in seeds
+        if not (out / f"expert_{family}_{int(s):05d}.npz").exists()
+    ]
+    done = [
+        str(out / f"expert_{family}_{int(s):05d}.npz")
+        for s in seeds
+        if (out / f"expert_{family}_{int(s):05d}.npz").exists()
+    ]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -271,8 +331,17 @@ def load_expert_dataset(paths) -> dict:
     for p in paths:
         with np.load(p) as z:
             S = len(z["context"])
-            for k in ("occupancy", "semantic", "context", "path_mask", "path_cells", "robot_xy",
-                      "goal_xy", "goal_outdoors", "path_cost"):
+            for k in (
+                "occupancy",
+                "semantic",
+                "context",
+                "path_mask",
+                "path_cells",
+                "robot_xy",
+                "goal_xy",
+                "goal_outdoors",
+                "path_cost",
+            ):
                 parts[k].append(z[k])
             parts["path_offsets"].append(z["path_offsets"][:-1] + base)
             base += int(z["path_offsets"][-1])

@@ -49,9 +49,7 @@ def empty_map_state(shape) -> MapState:
     shape = tuple(int(s) for s in shape)
     if len(shape) != 2 or min(shape) < 1:
         raise ValueError(f"shape: expected (H, W) with H, W >= 1, got {shape}")
-    return MapState(
-        occupancy=jnp.full(shape, UNKNOWN, jnp.int8), semantic=jnp.zeros(shape, jnp.int8)
-    )
+    return MapState(occupancy=jnp.full(shape, UNKNOWN, jnp.int8), semantic=jnp.zeros(shape, jnp.int8))
 
 
 def world_to_cell(xy, origin, resolution):

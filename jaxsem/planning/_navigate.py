@@ -75,9 +75,7 @@ class LocalInputs(NamedTuple):
 
 
 @functools.partial(jax.jit, static_argnames=("size", "max_distance", "resolution"))
-def _local_inputs(
-    occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance
-):
+def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance):
     H, W = occupancy.shape
     rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
     pad = size
@@ -135,19 +133,13 @@ class NavConfig:
 
     n_samples: int = 500
     k: int | None = None  # PRM neighbours per vertex; None: prm_star_k(n_samples)
-    radius: float | None = (
-        None  # PRM connection radius (m); None: default_radius(n_samples)
-    )
+    radius: float | None = None  # PRM connection radius (m); None: default_radius(n_samples)
     step_length: float = 0.25  # metres moved per timestep
     replan_every: int = 20  # planning timesteps a plan is followed before replanning
     max_steps: int = 10_000
     goal_tolerance: float = 0.2
-    edge_weight: str | None = (
-        None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
-    )
-    max_growth: int = (
-        2  # a roadmap without a path grows by n_samples up to this many times
-    )
+    edge_weight: str | None = None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
+    max_growth: int = 2  # a roadmap without a path grows by n_samples up to this many times
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
@@ -204,30 +196,18 @@ class Trial:
         self.start = check_point("start", start, occ, self.origin, self.resolution)
         self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
         if goal_outdoors is None:
-            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[
-                ::-1
-            ]
+            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[::-1]
             goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
         self.goal_outdoors = bool(goal_outdoors)
-        if (
-            config.n_samples < 1
-            or config.max_steps < 1
-            or not config.step_length > 0
-            or config.max_growth < 0
-        ):
+        if config.n_samples < 1 or config.max_steps < 1 or not config.step_length > 0 or config.max_growth < 0:
             raise ValueError(
-                f"config: n_samples, max_steps >= 1, step_length > 0 and max_growth >= 0 "
-                f"expected, got {config}"
+                f"config: n_samples, max_steps >= 1, step_length > 0 and max_growth >= 0 expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
         weight = config.edge_weight or ("euclidean" if sampler is None else "neglogp")
-        if weight not in ("euclidean", "neglogp") or (
-            weight == "neglogp" and sampler is None
-        ):
-            raise ValueError(
-                f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}"
-            )
+        if weight not in ("euclidean", "neglogp") or (weight == "neglogp" and sampler is None):
+            raise ValueError(f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}")
         self.weight = weight
         self._occ_j = jnp.asarray(occ)
         self._sem_j = jnp.asarray(sem, jnp.int8)
@@ -240,9 +220,7 @@ class Trial:
         self.cost = 0.0
         self.steps = 0
         self.plans = 0
-        self.plan: np.ndarray | None = (
-            None  # remaining waypoints, current position first
-        )
+        self.plan: np.ndarray | None = None  # remaining waypoints, current position first
         self.since_plan = 0
         self.done = False
         self.success = False
@@ -254,9 +232,7 @@ class Trial:
         self.distributions: list = []
         self.prm: PRM | None = None
         self.radius = (
-            config.radius
-            if config.radius is not None
-            else default_radius(config.n_samples, occ.shape, self.resolution)
+            config.radius if config.radius is not None else default_radius(config.n_samples, occ.shape, self.resolution)
         )
         self._sense()
 
@@ -286,9 +262,7 @@ class Trial:
 
     def _clear(self, points, blocked) -> bool:
         # The PRM's own edge check, so a plan it found clear is clear here on the same map.
-        return polyline_clear(
-            points, blocked, self.origin, self.resolution, self.radius
-        )
+        return polyline_clear(points, blocked, self.origin, self.resolution, self.radius)
 
     def _new_prm(self, known) -> PRM:
         cfg = self.config
@@ -317,10 +291,7 @@ class Trial:
             local = local.reshape(CROP_SIZE, CROP_SIZE)
             dist = embed_local_distribution(local, inputs.center_cell, known.shape)
             self.last_distribution = dist
-            if (
-                self.keep_distributions
-                and len(self.distributions) < self.keep_distributions
-            ):
+            if self.keep_distributions and len(self.distributions) < self.keep_distributions:
                 self.distributions.append(
                     (
                         self.steps,
@@ -332,12 +303,7 @@ class Trial:
         # Reuse only a roadmap of the nominal size: one grown for an earlier failure is not kept
         # (so both planners plan with n_samples until a search fails).
         prm = self.prm
-        reuse = (
-            prm is not None
-            and self.sampler is None
-            and cfg.reuse_roadmap
-            and prm.count == cfg.n_samples
-        )
+        reuse = prm is not None and self.sampler is None and cfg.reuse_roadmap and prm.count == cfg.n_samples
         if prm is not None and reuse:
             prm.update_map(known)
         else:
@@ -389,11 +355,7 @@ class Trial:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
             blocked = np.asarray(self.state.occupancy) == OCCUPIED
-        if (
-            self.plan is None
-            or self.since_plan >= cfg.replan_every
-            or not self._clear(self.plan, blocked)
-        ):
+        if self.plan is None or self.since_plan >= cfg.replan_every or not self._clear(self.plan, blocked):
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
@@ -432,11 +394,7 @@ class Trial:
         return True
 
     def result(self) -> NavResult:
-        dist = (
-            None
-            if self.last_distribution is None
-            else np.asarray(self.last_distribution)
-        )
+        dist = None if self.last_distribution is None else np.asarray(self.last_distribution)
         return NavResult(
             np.array(self.path),
             float(self.cost),

@@ -149,9 +149,7 @@ def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
             return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
 
         bx, by = bucket(db)
-        bid = jnp.where(
-            db_ok, by * gx + bx, gx * gy
-        )  # unusable points: a bucket never read
+        bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
         order = jnp.argsort(bid)
         sorted_bid = bid[order]
         ids = jnp.arange(gx * gy)
@@ -159,9 +157,7 @@ def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
         count = jnp.searchsorted(sorted_bid, ids, side="right") - start
         overflow = jnp.max(count) > cap
         qx, qy = bucket(queries)
-        off = jnp.array(
-            [(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], jnp.int32
-        )  # (9, 2)
+        off = jnp.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], jnp.int32)  # (9, 2)
         nx, ny = qx[:, None] + off[None, :, 0], qy[:, None] + off[None, :, 1]  # (Q, 9)
         inside = (nx >= 0) & (nx < gx) & (ny >= 0) & (ny < gy)
         nb = jnp.where(inside, ny * gx + nx, 0)
@@ -180,9 +176,7 @@ def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
     return idx.astype(jnp.int32), overflow
 
 
-def knn_within_radius(
-    points, valid, k: int, radius: float, extent, bucket_cap: int | None = None
-):
+def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None):
     """(M, k) indices of the k nearest valid points within ``radius`` of every valid point (``M``
     where fewer; invalid points get none) and the overflow flag (see :class:`Roadmap`).
 
@@ -190,9 +184,7 @@ def knn_within_radius(
     per bucket (None: brute force). Jittable with k, radius, extent, bucket_cap static.
     """
     M = points.shape[0]
-    idx, overflow = _knn(
-        points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap
-    )
+    idx, overflow = _knn(points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap)
     return jnp.where(valid[:, None], idx, M), overflow
 
 
@@ -223,9 +215,7 @@ def _segments_clear(blocked, a, b, origin, *, resolution, edge_samples):
     return jnp.all(clear)
 
 
-def polyline_clear(
-    points, blocked, origin, resolution: float, radius: float, dtype=None
-) -> bool:
+def polyline_clear(points, blocked, origin, resolution: float, radius: float, dtype=None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
     check on the bool grid ``blocked`` (same samples for segments up to ``radius``, same
     precision ``dtype``), so a plan the PRM found clear is never judged blocked on the same map
@@ -236,11 +226,7 @@ def polyline_clear(
     dtype = dtype or jnp.result_type(float)
     a, b = pts[:-1], pts[1:]
     longest = float(np.max(np.linalg.norm(b - a, axis=1)))
-    reach = (
-        radius
-        if longest <= radius * (1 + 1e-6)
-        else 2.0 ** math.ceil(math.log2(longest))
-    )
+    reach = radius if longest <= radius * (1 + 1e-6) else 2.0 ** math.ceil(math.log2(longest))
     m = 1 << max(0, (len(a) - 1).bit_length())  # pad to a power of two: few compiles
     a = np.concatenate([a, np.repeat(b[-1:], m - len(a), 0)])
     b = np.concatenate([b, np.repeat(b[-1:], m - len(b), 0)])
@@ -292,15 +278,11 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
     )
 
 
-def _grow_impl(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp
-):
+def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp):
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
-    new = sample_points(
-        key, _sampling_weights(blocked, distribution), n, origin, resolution
-    )
+    new = sample_points(key, _sampling_weights(blocked, distribution), n, origin, resolution)
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
@@ -335,9 +317,7 @@ def _grow_impl(
     )
 
 
-_grow_jit = functools.partial(
-    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp")
-)(_grow_impl)
+_grow_jit = functools.partial(jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp"))(_grow_impl)
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -355,19 +335,13 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
         _edge_samples(radius, resolution),
     )
     ev = rm.edge_valid & clear & valid[:, None] & valid[j]
-    return rm._replace(
-        valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf)
-    )
+    return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf))
 
 
-_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(
-    _recheck_impl
-)
+_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
 
 
-def _connect_impl(
-    rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp
-):
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     q = jnp.stack([start, goal]).astype(dtype)
@@ -406,9 +380,7 @@ def _connect_impl(
     )
 
 
-_connect_jit = functools.partial(
-    jax.jit, static_argnames=("radius", "resolution", "neglogp")
-)(_connect_impl)
+_connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp"))(_connect_impl)
 
 
 # ----------------------------------------------------------------------------- boundary checks
@@ -416,9 +388,7 @@ _connect_jit = functools.partial(
 
 def _blocked_from(name, known_map):
     if isinstance(known_map, jax.core.Tracer):
-        raise ValueError(
-            f"{name}: the roadmap entry points run at the Python boundary; pass a concrete map"
-        )
+        raise ValueError(f"{name}: the roadmap entry points run at the Python boundary; pass a concrete map")
     arr = np.asarray(known_map)
     if arr.ndim != 2:
         raise ValueError(f"{name}: expected a 2-D grid (H, W), got shape {arr.shape}")
@@ -427,8 +397,7 @@ def _blocked_from(name, known_map):
     if arr.dtype == np.int8:
         return arr == OCCUPIED
     raise ValueError(
-        f"{name}: expected a bool obstacle grid or an int8 partial map (UNKNOWN/FREE/OCCUPIED), "
-        f"got dtype {arr.dtype}"
+        f"{name}: expected a bool obstacle grid or an int8 partial map (UNKNOWN/FREE/OCCUPIED), got dtype {arr.dtype}"
     )
 
 
@@ -437,15 +406,11 @@ def _check_distribution(distribution, shape):
         return distribution
     d = np.asarray(distribution)
     if d.shape != tuple(shape):
-        raise ValueError(
-            f"distribution: expected shape {tuple(shape)} (the map's), got shape {d.shape}"
-        )
+        raise ValueError(f"distribution: expected shape {tuple(shape)} (the map's), got shape {d.shape}")
     if not np.issubdtype(d.dtype, np.floating):
         raise ValueError(f"distribution: expected a float grid, got dtype {d.dtype}")
     if not (np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0):
-        raise ValueError(
-            "distribution: expected finite, non-negative weights with a positive sum"
-        )
+        raise ValueError("distribution: expected finite, non-negative weights with a positive sum")
     return distribution
 
 
@@ -482,24 +447,15 @@ def roadmap_grow(
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
     if weight == "neglogp" and distribution is None:
-        raise ValueError(
-            "distribution: weight='neglogp' needs a distribution, got None"
-        )
+        raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     distribution = _check_distribution(distribution, blocked.shape)
     M = roadmap.points.shape[0]
     count = int(roadmap.num_samples)
     if count + int(n) > M - _QUERY:
-        raise ValueError(
-            f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, "
-            f"{count} used)"
-        )
+        raise ValueError(f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, {count} used)")
     origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
     cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, resolution, radius)
-    dist = (
-        None
-        if distribution is None
-        else jnp.asarray(distribution, roadmap.points.dtype)
-    )
+    dist = None if distribution is None else jnp.asarray(distribution, roadmap.points.dtype)
     return _grow_exact(
         roadmap,
         key,
@@ -514,9 +470,7 @@ def roadmap_grow(
     )[0]
 
 
-def _grow_exact(
-    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp
-):
+def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp):
     """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
     Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
@@ -539,9 +493,7 @@ def _grow_exact(
         cap *= 4  # a bucket held more than ``cap`` vertices: rerun, nothing dropped
 
 
-def roadmap_recheck(
-    roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float
-) -> Roadmap:
+def roadmap_recheck(roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float) -> Roadmap:
     """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` shows
     blocked. A partial map only gains obstacles (unknown -> occupied), so nothing is added back;
     when cells are freed, build a new roadmap. ``radius`` as when the roadmap was grown."""
@@ -575,9 +527,7 @@ def roadmap_connect(
     start = check_point("start", start, blocked, origin_np, resolution)
     goal = check_point("goal", goal, blocked, origin_np, resolution)
     if weight == "neglogp" and distribution is None:
-        raise ValueError(
-            "distribution: weight='neglogp' needs a distribution, got None"
-        )
+        raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     distribution = _check_distribution(distribution, blocked.shape)
     dtype = roadmap.points.dtype
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
@@ -628,11 +578,7 @@ def build_roadmap(
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
-    radius = (
-        float(radius)
-        if radius is not None
-        else default_radius(n, blocked.shape, resolution)
-    )
+    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, resolution)
     rm = roadmap_init(int(n), prm_star_k(n) if k is None else k)
     rm = roadmap_grow(
         rm,
@@ -682,13 +628,9 @@ def make_roadmap_builder(
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
     if weight == "neglogp" and uniform:
-        raise ValueError(
-            "uniform: weight='neglogp' needs a distribution (uniform=False)"
-        )
+        raise ValueError("uniform: weight='neglogp' needs a distribution (uniform=False)")
     H, W = (int(s) for s in shape)
-    radius = (
-        float(radius) if radius is not None else default_radius(n, (H, W), resolution)
-    )
+    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
     kk = prm_star_k(n) if k is None else int(k)
 
     def build(key, blocked, distribution, start, goal, origin):
@@ -735,9 +677,7 @@ class RoadmapPath(NamedTuple):
     found: bool
 
 
-_NOT_FOUND = RoadmapPath(
-    np.zeros(0, np.int64), np.zeros((0, 2)), float("inf"), float("inf"), False
-)
+_NOT_FOUND = RoadmapPath(np.zeros(0, np.int64), np.zeros((0, 2)), float("inf"), float("inf"), False)
 
 
 def _edge_list(nbr, ok, w, rows):
@@ -788,9 +728,7 @@ def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
         ),
         shape=(M, M),
     )
-    dist, pred = scipy.sparse.csgraph.dijkstra(
-        csr, directed=True, indices=START, return_predecessors=True
-    )
+    dist, pred = scipy.sparse.csgraph.dijkstra(csr, directed=True, indices=START, return_predecessors=True)
     best, via = dist[GOAL], -1
     if len(g_dst):
         through = dist[g_dst] + g_w
@@ -810,9 +748,7 @@ def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
     return RoadmapPath(path, pts, float(best), length, True)
 
 
-def roadmap_shortest_path(
-    roadmap: Roadmap, source: int = START, target: int = GOAL
-) -> RoadmapPath:
+def roadmap_shortest_path(roadmap: Roadmap, source: int = START, target: int = GOAL) -> RoadmapPath:
     """Shortest path on the roadmap by scipy Dijkstra (host). Default: start (0) to goal (1);
     other slots search the whole undirected edge list."""
     if (source, target) == (START, GOAL):
@@ -826,9 +762,7 @@ def roadmap_shortest_path(
         np.arange(M),
     )
     graph = scipy.sparse.csr_matrix((wt, (src, dst)), shape=(M, M))
-    dist, pred = scipy.sparse.csgraph.dijkstra(
-        graph, directed=False, indices=int(source), return_predecessors=True
-    )
+    dist, pred = scipy.sparse.csgraph.dijkstra(graph, directed=False, indices=int(source), return_predecessors=True)
     if not np.isfinite(dist[target]):
         return _NOT_FOUND
     path = [int(target)]
@@ -867,27 +801,17 @@ class PRM:
         blocked = _blocked_from("known_map", known_map)
         origin_np = np.asarray(origin, np.float64)
         if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
-            raise ValueError(
-                f"origin: expected a finite (2,) world point, got {origin_np.tolist()}"
-            )
+            raise ValueError(f"origin: expected a finite (2,) world point, got {origin_np.tolist()}")
         if not (isinstance(resolution, (int, float)) and resolution > 0):
-            raise ValueError(
-                f"resolution: expected metres per cell > 0, got {resolution!r}"
-            )
+            raise ValueError(f"resolution: expected metres per cell > 0, got {resolution!r}")
         if weight not in ("euclidean", "neglogp"):
-            raise ValueError(
-                f"weight: expected 'euclidean' or 'neglogp', got {weight!r}"
-            )
+            raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
         self.origin = origin_np
         self.resolution = float(resolution)
-        self.radius = (
-            float(radius)
-            if radius is not None
-            else default_radius(capacity, blocked.shape, resolution)
-        )
+        self.radius = float(radius) if radius is not None else default_radius(capacity, blocked.shape, resolution)
         self.weight = weight
         self.distribution = None
         self._cap: int | None = None
@@ -908,21 +832,15 @@ class PRM:
         if self.weight == "neglogp" and distribution is None:
             distribution = self.distribution
         if self.weight == "neglogp" and distribution is None:
-            raise ValueError(
-                "distribution: weight='neglogp' needs a distribution, got None"
-            )
+            raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
         if not (isinstance(n, (int, np.integer)) and n >= 1):
             raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
         if self.count + int(n) > self.capacity:
-            raise ValueError(
-                f"n: {n} more samples exceed the capacity ({self.capacity}, {self.count} used)"
-            )
+            raise ValueError(f"n: {n} more samples exceed the capacity ({self.capacity}, {self.count} used)")
         distribution = _check_distribution(distribution, self.blocked.shape)
         dtype = self.roadmap.points.dtype
         dist = None if distribution is None else jnp.asarray(distribution, dtype)
-        cap = self._cap or _initial_cap(
-            self.capacity, self.blocked.shape, self.resolution, self.radius
-        )
+        cap = self._cap or _initial_cap(self.capacity, self.blocked.shape, self.resolution, self.radius)
         self.roadmap, self._cap = _grow_exact(
             self.roadmap,
             key,
@@ -945,16 +863,12 @@ class PRM:
         changed: an unchanged map costs nothing). Returns True if the map changed."""
         blocked = _blocked_from("known_map", known_map)
         if blocked.shape != self.blocked.shape:
-            raise ValueError(
-                f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}"
-            )
+            raise ValueError(f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}")
         if np.array_equal(blocked, self.blocked):
             return False
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
-        self.roadmap = roadmap_recheck(
-            self.roadmap, blocked, self.origin, self.resolution, radius=self.radius
-        )
+        self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         self._graph = None
         return True
 

@@ -67,8 +67,9 @@ def _fan(yaw, fov_deg, n_rays, dtype):
     return yaw + jnp.linspace(-half, half, n_rays, dtype=dtype)
 
 
-def sense(true_occupancy, true_semantic, state: MapState, pose, origin, resolution,
-          config: SensorConfig = SensorConfig()) -> MapState:
+def sense(
+    true_occupancy, true_semantic, state: MapState, pose, origin, resolution, config: SensorConfig = SensorConfig()
+) -> MapState:
     """Updates the partial maps with what both sensors see from ``pose``.
 
     true_occupancy: (H, W) bool; true_semantic: (H, W) int8 (class constants of the world);
@@ -91,8 +92,10 @@ def sense(true_occupancy, true_semantic, state: MapState, pose, origin, resoluti
     occ_shape = tuple(np.shape(true_occupancy))
     for name, leaf in (("state.occupancy", state.occupancy), ("state.semantic", state.semantic)):
         if tuple(leaf.shape[-2:]) != occ_shape or leaf.dtype != jnp.int8:
-            raise ValueError(f"{name}: expected int8 (..., {occ_shape[0]}, {occ_shape[1]}) like "
-                             f"true_occupancy, got shape {tuple(leaf.shape)} dtype {leaf.dtype}")
+            raise ValueError(
+                f"{name}: expected int8 (..., {occ_shape[0]}, {occ_shape[1]}) like "
+                f"true_occupancy, got shape {tuple(leaf.shape)} dtype {leaf.dtype}"
+            )
     if not (isinstance(true_semantic, jax.Array) and true_semantic.dtype == jnp.int8):
         true_semantic = np.asarray(true_semantic, np.int8)
     return _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config)
@@ -121,9 +124,7 @@ def _check_true_maps(true_occupancy, true_semantic):
         return
     occ = np.asarray(true_occupancy) if not isinstance(true_occupancy, jax.Array) else true_occupancy
     if occ.ndim != 2 or occ.dtype != np.bool_:
-        raise ValueError(
-            f"true_occupancy: expected a (H, W) bool grid, got shape {tuple(occ.shape)} dtype {occ.dtype}"
-        )
+        raise ValueError(f"true_occupancy: expected a (H, W) bool grid, got shape {tuple(occ.shape)} dtype {occ.dtype}")
     sem = true_semantic
     if not isinstance(sem, jax.core.Tracer):
         sem = np.asarray(sem) if not isinstance(sem, jax.Array) else sem
@@ -137,7 +138,7 @@ def _check_true_maps(true_occupancy, true_semantic):
 @functools.partial(jax.jit, static_argnames=("resolution", "config"))
 def _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config):
     if pose.ndim > 1:  # a batch of robots, each with its own state
-        fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, origin, resolution, config)  # noqa: E731
+        fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, origin, resolution, config)
         return jax.vmap(fn)(state, pose)
     return _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, config)
 
@@ -153,7 +154,7 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     wh, ww = min(2 * half + 1, H), min(2 * half + 1, W)
     rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
     start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww]))
-    win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))  # noqa: E731
+    win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))
     occ_t, sem_t = win(true_occupancy), win(true_semantic)
     occ, sem = win(state.occupancy), win(state.semantic)
     w_origin = origin + start[::-1].astype(dtype) * resolution
@@ -195,8 +196,15 @@ def cast_rays(occupancy, origin, resolution, xy, angles, max_range):
     resolution = _check_resolution(resolution)
     origin = jnp.asarray(origin, jnp.result_type(float))
     n = _samples(float(max_range), resolution, 0.5)
-    return _cast_ranges(jnp.asarray(occupancy), origin, resolution, jnp.asarray(xy, origin.dtype),
-                        jnp.asarray(angles, origin.dtype), float(max_range), n)
+    return _cast_ranges(
+        jnp.asarray(occupancy),
+        origin,
+        resolution,
+        jnp.asarray(xy, origin.dtype),
+        jnp.asarray(angles, origin.dtype),
+        float(max_range),
+        n,
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("resolution", "max_range", "n"))

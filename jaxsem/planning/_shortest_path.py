@@ -45,7 +45,7 @@ def _grid_edges(occ: np.ndarray, cost: np.ndarray, resolution: float):
         b = (slice(r0 + dr, r1 + dr), slice(c0 + dc, c1 + dc))
         ok = ~occ[a] & ~occ[b]
         if dr and dc:  # no corner cutting: both side cells must be free too
-            ok &= ~occ[r0 + dr:r1 + dr, c0:c1] & ~occ[r0:r1, c0 + dc:c1 + dc]
+            ok &= ~occ[r0 + dr : r1 + dr, c0:c1] & ~occ[r0:r1, c0 + dc : c1 + dc]
         step = resolution * (np.sqrt(2.0) if (dr and dc) else 1.0)
         src.append(idx[a][ok])
         dst.append(idx[b][ok])
@@ -93,7 +93,7 @@ class SoftCostGraph:
         p = check_point(name, xy, self.occupancy, self.origin, self.resolution)
         return np.floor((p - self.origin) / self.resolution).astype(np.int64)[::-1]
 
-    def search(self, start) -> "SearchTree":
+    def search(self, start) -> SearchTree:
         """Single-source Dijkstra from the world point ``start`` (2,) (must be a free cell)."""
         rc = self.cell_of("start", start)
         W = self.shape[1]
@@ -139,8 +139,9 @@ class SearchTree:
         return GridPath(cells, points, float(self.dist.flat[node]), length, True)
 
 
-def shortest_path(occupancy, start, goal, origin, resolution: float, weight: float = 4.0,
-                  scale: float = 0.4) -> GridPath:
+def shortest_path(
+    occupancy, start, goal, origin, resolution: float, weight: float = 4.0, scale: float = 0.4
+) -> GridPath:
     """Soft-cost optimal path from ``start`` to ``goal`` (world (x, y), (2,)) on a bool grid.
 
     Builds the graph each call; keep a :class:`SoftCostGraph` for many queries on one map.

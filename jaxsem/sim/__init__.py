@@ -3,6 +3,15 @@
 Public names are re-exported from private modules; import them from here.
 """
 
+from ._building_scene import (
+    BuildingRenderer as BuildingRenderer,
+    SceneDetections as SceneDetections,
+    building_mjcf as building_mjcf,
+    detect_from_segmentation as detect_from_segmentation,
+    ellipsoids_from_depth as ellipsoids_from_depth,
+    robot_camera as robot_camera,
+    robot_intrinsics as robot_intrinsics,
+)
 from ._ellipsoid_maps import (
     SimConfig as SimConfig,
     SimulatedMap as SimulatedMap,
@@ -36,4 +45,3 @@ from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mu
     bounding_ellipsoid_radii as bounding_ellipsoid_radii,
     render_views as render_views,
 )
-from ._building_scene import BuildingRenderer as BuildingRenderer, SceneDetections as SceneDetections, building_mjcf as building_mjcf, detect_from_segmentation as detect_from_segmentation, ellipsoids_from_depth as ellipsoids_from_depth, robot_camera as robot_camera, robot_intrinsics as robot_intrinsics  # noqa: E501  (LSD buildings in MuJoCo)

@@ -69,9 +69,7 @@ def _rectangles(mask: np.ndarray) -> list:
         if r < H:
             row = np.concatenate([[False], mask[r], [False]]).astype(np.int8)
             d = np.diff(row)
-            runs = set(
-                zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist())
-            )
+            runs = set(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
         new = {run: open_runs.pop(run, r) for run in runs}
         rects += [(r0, c0, r, c1) for (c0, c1), r0 in open_runs.items()]
         open_runs = new
@@ -146,9 +144,7 @@ def building_mjcf(building, heights=None, *, width: int = 640, height: int = 480
             add(f"door{k}_head", h_lo, hi, "frame", k, DOOR)
         elif cls == WINDOW:
             z0, z1 = map(float, heights.window)
-            add(
-                f"window{k}_below", *cell_box(r0, c0, r1, c1, 0.0, z0), "wall", -1, WALL
-            )
+            add(f"window{k}_below", *cell_box(r0, c0, r1, c1, 0.0, z0), "wall", -1, WALL)
             add(
                 f"window{k}_above",
                 *cell_box(r0, c0, r1, c1, z1, wall_top),
@@ -160,9 +156,7 @@ def building_mjcf(building, heights=None, *, width: int = 640, height: int = 480
         elif cls == EXIT_SIGN:
             z0, z1 = map(float, heights.exit_sign)
             pad = (0.0, _PROUD) if along_x else (_PROUD, 0.0)
-            add(
-                f"sign{k}", *cell_box(r0, c0, r1, c1, z0, z1, pad), "sign", k, EXIT_SIGN
-            )
+            add(f"sign{k}", *cell_box(r0, c0, r1, c1, z0, z1, pad), "sign", k, EXIT_SIGN)
     centre = origin + 0.5 * res * np.array(sem.shape[::-1], float)
     xml = f"""<mujoco model="jaxsem_building_{building.family}_{building.seed}">
   <visual>
@@ -198,32 +192,22 @@ def robot_intrinsics(width: int, height: int, hfov_deg: float = 69.4) -> np.ndar
     """Square-pixel pinhole ``K`` (3, 3) with horizontal field of view ``hfov_deg`` (69.4 deg is
     the planning world's object camera) and the principal point at the image centre."""
     if not 1.0 <= float(hfov_deg) < 179.0:
-        raise ValueError(
-            f"hfov_deg: expected a field of view in [1, 179) degrees, got {hfov_deg}"
-        )
+        raise ValueError(f"hfov_deg: expected a field of view in [1, 179) degrees, got {hfov_deg}")
     f = 0.5 * int(width) / math.tan(math.radians(float(hfov_deg)) / 2)
-    return np.array(
-        [[f, 0.0, (int(width) - 1) / 2], [0.0, f, (int(height) - 1) / 2], [0, 0, 1.0]]
-    )
+    return np.array([[f, 0.0, (int(width) - 1) / 2], [0.0, f, (int(height) - 1) / 2], [0, 0, 1.0]])
 
 
-def robot_camera(
-    xy, yaw: float, height: float = 1.2, pitch_deg: float = 0.0
-) -> np.ndarray:
+def robot_camera(xy, yaw: float, height: float = 1.2, pitch_deg: float = 0.0) -> np.ndarray:
     """``camera_T_world`` (4, 4) of a camera ``height`` metres above the robot at world ``xy``
     looking along heading ``yaw`` (radians, from world x towards y), tilted down by ``pitch_deg``."""
     from .. import quadrics
 
     xy = np.asarray(xy, float)
     if xy.shape != (2,) or not np.all(np.isfinite(xy)):
-        raise ValueError(
-            f"xy: expected a finite world point (2,), got {np.asarray(xy).tolist()}"
-        )
+        raise ValueError(f"xy: expected a finite world point (2,), got {np.asarray(xy).tolist()}")
     eye = np.array([xy[0], xy[1], float(height)])
     p = math.radians(float(pitch_deg))
-    look = np.array(
-        [math.cos(yaw) * math.cos(p), math.sin(yaw) * math.cos(p), -math.sin(p)]
-    )
+    look = np.array([math.cos(yaw) * math.cos(p), math.sin(yaw) * math.cos(p), -math.sin(p)])
     return np.asarray(quadrics.look_at(eye, eye + look), np.float64)
 
 
@@ -245,9 +229,7 @@ class SceneDetections:
         return int(self.box.shape[0])
 
 
-def detect_from_segmentation(
-    seg, object_class, classes=None, *, min_area: int = 1, border: int = 0
-) -> SceneDetections:
+def detect_from_segmentation(seg, object_class, classes=None, *, min_area: int = 1, border: int = 0) -> SceneDetections:
     """The stand-in detector: one box per object visible in ``seg``.
 
     seg: (H, W) int object indices (-1 none); object_class: (K,) semantic id of each object;
@@ -266,9 +248,7 @@ def detect_from_segmentation(
     boxes, cls, idx, area = [], [], [], []
     for k in np.unique(seg[seg >= 0]):
         if k >= len(object_class):
-            raise ValueError(
-                f"seg: label {int(k)} but object_class has only {len(object_class)} entries"
-            )
+            raise ValueError(f"seg: label {int(k)} but object_class has only {len(object_class)} entries")
         if object_class[k] not in classes:
             continue
         rows, cols = np.nonzero(seg == k)
@@ -276,10 +256,7 @@ def detect_from_segmentation(
             continue
         box = [cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5]
         if border > 0 and (
-            cols.min() < border
-            or rows.min() < border
-            or cols.max() >= W - border
-            or rows.max() >= H - border
+            cols.min() < border or rows.min() < border or cols.max() >= W - border or rows.max() >= H - border
         ):
             continue
         boxes.append(box)
@@ -327,9 +304,7 @@ def ellipsoids_from_depth(
 
     seg, depth = np.asarray(seg), np.asarray(depth, np.float64)
     if seg.ndim != 2 or depth.shape != seg.shape:
-        raise ValueError(
-            f"seg, depth: expected two (H, W) images of one shape, got {seg.shape} and {depth.shape}"
-        )
+        raise ValueError(f"seg, depth: expected two (H, W) images of one shape, got {seg.shape} and {depth.shape}")
     object_class = np.asarray(object_class)
     classes = (DOOR, EXIT_SIGN) if classes is None else tuple(classes)
     lo, hi, cls, idx = [], [], [], []
@@ -340,9 +315,7 @@ def ellipsoids_from_depth(
         if len(rows) < min_pixels:
             continue
         uv = np.stack([cols, rows], -1).astype(np.float64)
-        pts = np.asarray(
-            quadrics.back_project(uv, depth[rows, cols], K, camera_T_world)
-        )
+        pts = np.asarray(quadrics.back_project(uv, depth[rows, cols], K, camera_T_world))
         lo.append(pts.min(0))
         hi.append(pts.max(0))
         cls.append(int(object_class[k]))
@@ -380,19 +353,13 @@ class BuildingRenderer:
 
         width, height = int(width), int(height)
         if width < 8 or height < 8:
-            raise ValueError(
-                f"width, height: expected at least 8 px each, got {width}x{height}"
-            )
+            raise ValueError(f"width, height: expected at least 8 px each, got {width}x{height}")
         self.width, self.height = width, height
-        self.xml, geom_object, geom_class, self.objects = building_mjcf(
-            building, heights, width=width, height=height
-        )
+        self.xml, geom_object, geom_class, self.objects = building_mjcf(building, heights, width=width, height=height)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         n = self.model.ngeom
-        self._label = np.full(
-            n + 1, -1, np.int32
-        )  # index -1 (no geom) hits the trailing -1
+        self._label = np.full(n + 1, -1, np.int32)  # index -1 (no geom) hits the trailing -1
         self._class = np.zeros(n + 1, np.int8)
         for name, k in geom_object.items():
             gid = self.model.geom(name).id
@@ -403,8 +370,7 @@ class BuildingRenderer:
             self._renderer = mujoco.Renderer(self.model, height, width)
         except mujoco.FatalError as exc:  # pragma: no cover - depends on the machine
             raise RuntimeError(
-                f"MuJoCo could not create an OpenGL context ({exc}); set MUJOCO_GL=egl before "
-                "mujoco is first imported"
+                f"MuJoCo could not create an OpenGL context ({exc}); set MUJOCO_GL=egl before mujoco is first imported"
             ) from None
 
     def render(self, K, camera_T_world, *, outputs: Sequence[str] = _OUTPUTS) -> dict:
@@ -422,32 +388,15 @@ class BuildingRenderer:
             raise ValueError("BuildingRenderer: render() called after close()")
         outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
         if not outputs or any(o not in _OUTPUTS for o in outputs):
-            raise ValueError(
-                f"outputs: expected a non-empty subset of {_OUTPUTS}, got {outputs}"
-            )
+            raise ValueError(f"outputs: expected a non-empty subset of {_OUTPUTS}, got {outputs}")
         K = np.asarray(K, np.float64)
-        if (
-            K.shape != (3, 3)
-            or not np.all(np.isfinite(K))
-            or K[0, 0] <= 0
-            or K[1, 1] <= 0
-        ):
-            raise ValueError(
-                f"K: expected finite [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}"
-            )
-        if (
-            abs(K[0, 1]) > 1e-9 * K[0, 0]
-            or K[1, 0] != 0
-            or not np.allclose(K[2], [0, 0, 1])
-        ):
-            raise ValueError(
-                f"K: MuJoCo cameras have no skew; expected K[0, 1] == 0, got {K.tolist()}"
-            )
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ValueError(f"K: expected finite [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+        if abs(K[0, 1]) > 1e-9 * K[0, 0] or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
+            raise ValueError(f"K: MuJoCo cameras have no skew; expected K[0, 1] == 0, got {K.tolist()}")
         T = np.asarray(camera_T_world, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValueError(
-                f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}"
-            )
+            raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
         world_R_cam = T[:3, :3].T
         if not np.allclose(world_R_cam @ world_R_cam.T, np.eye(3), atol=1e-5):
             raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
@@ -456,12 +405,9 @@ class BuildingRenderer:
         self.model.cam_pos[c] = -world_R_cam @ T[:3, 3]
         # MuJoCo's camera looks along its -z with y up: OpenCV's frame times diag(1, -1, -1).
         to_wxyz = (
-            getattr(quadrics, "rotation_to_quaternion_wxyz", None)
-            or quadrics.rotation_to_quaternion
+            getattr(quadrics, "rotation_to_quaternion_wxyz", None) or quadrics.rotation_to_quaternion
         )  # the core's [w, x, y, z] conversion (renamed with the xyzw variant's arrival)
-        self.model.cam_quat[c] = np.asarray(
-            to_wxyz(world_R_cam @ np.diag([1.0, -1.0, -1.0]))
-        )
+        self.model.cam_quat[c] = np.asarray(to_wxyz(world_R_cam @ np.diag([1.0, -1.0, -1.0])))
         # Pixel-unit sensor and MuJoCo's principal offset (signs as in jaxsem.sim.SceneRenderer).
         self.model.cam_sensorsize[c] = [W, H]
         self.model.cam_resolution[c] = [W, H]
@@ -484,9 +430,7 @@ class BuildingRenderer:
                 ids = r.render().copy()
             finally:
                 r.disable_segmentation_rendering()
-            geom = np.where(
-                ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1
-            )
+            geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
             if "seg" in outputs:
                 out["seg"] = self._label[geom].astype(np.int32)
                 out["seg_class"] = self._class[geom]
@@ -500,13 +444,9 @@ class BuildingRenderer:
             out["depth"] = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
         return out
 
-    def detect(
-        self, seg, classes=None, *, min_area: int = 1, border: int = 0
-    ) -> SceneDetections:
+    def detect(self, seg, classes=None, *, min_area: int = 1, border: int = 0) -> SceneDetections:
         """:func:`detect_from_segmentation` with this scene's object classes."""
-        return detect_from_segmentation(
-            seg, self.objects.class_id, classes, min_area=min_area, border=border
-        )
+        return detect_from_segmentation(seg, self.objects.class_id, classes, min_area=min_area, border=border)
 
     def close(self):
         if self._renderer is not None:

@@ -29,8 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import classes as _classes
-from .. import factors
+from .. import classes as _classes, factors
 from ..quadrics import (
     camera_frame,
     invert_pose,
@@ -62,6 +61,7 @@ __all__ = [
 
 PATHS = ("orbit", "forward", "views")
 INIT_MODES = ("single_view", "noisy_truth")
+
 
 def class_table(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Mean radii and per-axis standard deviations, (C, 3) each, of the classes ``names``.
@@ -167,32 +167,45 @@ class SimConfig:
                 raise ValueError(f"{name}: expected a positive int, got {value!r}")
         if self.min_objects is not None and not 1 <= self.min_objects <= self.num_objects:
             raise ValueError(
-                f"min_objects: expected an int in [1, num_objects={self.num_objects}], got "
-                f"{self.min_objects!r}"
+                f"min_objects: expected an int in [1, num_objects={self.num_objects}], got {self.min_objects!r}"
             )
         if not isinstance(self.classes, tuple) or not self.classes:
             raise ValueError(f"classes: expected a non-empty tuple of names, got {self.classes!r}")
         class_table(self.classes)  # unknown names raise here, at construction
         for name in (
-            "focal", "patch_size", "orbit_radius", "forward_step", "init_depth",
-            "view_distance_min", "view_distance_max", "max_depth",
+            "focal",
+            "patch_size",
+            "orbit_radius",
+            "forward_step",
+            "init_depth",
+            "view_distance_min",
+            "view_distance_max",
+            "max_depth",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a finite positive number, got {value!r}")
         for name in (
-            "box_noise_px", "border_margin_px", "min_box_px", "texture_noise_m",
-            "texture_noise_rel", "pose_noise_m", "pose_noise_deg", "size_sigma_scale",
-            "init_position_noise_m", "init_yaw_noise_deg", "init_radii_noise_m", "object_gap",
-            "corridor_half_width", "yaw_range",
+            "box_noise_px",
+            "border_margin_px",
+            "min_box_px",
+            "texture_noise_m",
+            "texture_noise_rel",
+            "pose_noise_m",
+            "pose_noise_deg",
+            "size_sigma_scale",
+            "init_position_noise_m",
+            "init_yaw_noise_deg",
+            "init_radii_noise_m",
+            "object_gap",
+            "corridor_half_width",
+            "yaw_range",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
         if not 0 <= self.min_visible_fraction <= 1:
-            raise ValueError(
-                f"min_visible_fraction: expected a value in [0, 1], got {self.min_visible_fraction!r}"
-            )
+            raise ValueError(f"min_visible_fraction: expected a value in [0, 1], got {self.min_visible_fraction!r}")
         if self.init_radii is not None and not self.init_radii > 0:
             raise ValueError(f"init_radii: expected None or a positive number, got {self.init_radii!r}")
         if self.view_distance_max < self.view_distance_min:
@@ -201,7 +214,7 @@ class SimConfig:
                 f"{self.view_distance_max}"
             )
 
-    def replace(self, **changes) -> "SimConfig":
+    def replace(self, **changes) -> SimConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -222,11 +235,26 @@ def quadricslam_config(path: str = "forward", **changes) -> SimConfig:
     depth (used by ROSHAN only) 0.1 m + 1 % of depth. Size spread is the class table's.
     """
     base = SimConfig(
-        path=path, num_objects=10, classes=("car",), patch_size=30.0, num_frames=60,
-        image_width=640, image_height=480, focal=525.0, camera_height=1.5, orbit_radius=25.0,
-        forward_step=0.75, box_noise_px=3.0, pose_noise_m=0.05, pose_noise_deg=1.0,
-        init_mode="single_view", init_depth=10.0, init_radii=1.0,
-        yaw_range=math.radians(15.0), texture_noise_m=0.1, texture_noise_rel=0.01,
+        path=path,
+        num_objects=10,
+        classes=("car",),
+        patch_size=30.0,
+        num_frames=60,
+        image_width=640,
+        image_height=480,
+        focal=525.0,
+        camera_height=1.5,
+        orbit_radius=25.0,
+        forward_step=0.75,
+        box_noise_px=3.0,
+        pose_noise_m=0.05,
+        pose_noise_deg=1.0,
+        init_mode="single_view",
+        init_depth=10.0,
+        init_radii=1.0,
+        yaw_range=math.radians(15.0),
+        texture_noise_m=0.1,
+        texture_noise_rel=0.01,
     )
     return base.replace(**changes) if changes else base
 
@@ -241,11 +269,27 @@ def thesis_config(path: str = "forward", **changes) -> SimConfig:
     truth + N(0, 1 m) per position axis, N(0, 20 deg) yaw, N(0, 0.3 m) per radius.
     """
     base = SimConfig(
-        path=path, num_objects=10, classes=("car",), patch_size=30.0, num_frames=60,
-        image_width=640, image_height=480, focal=525.0, camera_height=1.5, orbit_radius=25.0,
-        forward_step=0.75, box_noise_px=2.0, pose_noise_m=0.05, pose_noise_deg=1.0,
-        init_mode="noisy_truth", init_position_noise_m=1.0, init_yaw_noise_deg=20.0,
-        init_radii_noise_m=0.3, yaw_range=math.pi, texture_noise_m=0.1, texture_noise_rel=0.01,
+        path=path,
+        num_objects=10,
+        classes=("car",),
+        patch_size=30.0,
+        num_frames=60,
+        image_width=640,
+        image_height=480,
+        focal=525.0,
+        camera_height=1.5,
+        orbit_radius=25.0,
+        forward_step=0.75,
+        box_noise_px=2.0,
+        pose_noise_m=0.05,
+        pose_noise_deg=1.0,
+        init_mode="noisy_truth",
+        init_position_noise_m=1.0,
+        init_yaw_noise_deg=20.0,
+        init_radii_noise_m=0.3,
+        yaw_range=math.pi,
+        texture_noise_m=0.1,
+        texture_noise_rel=0.01,
     )
     return base.replace(**changes) if changes else base
 
@@ -326,7 +370,7 @@ class _Pool:
         n = int(np.prod(shape))
         if self.used + n > self.values.shape[0]:
             raise RuntimeError("jaxsem.sim internal error: noise pool too small")
-        out = self.values[self.used:self.used + n].reshape(shape)
+        out = self.values[self.used : self.used + n].reshape(shape)
         self.used += n
         return out
 
@@ -400,9 +444,7 @@ def _random_objects(pool: _Pool, config: SimConfig, dtype):
     (_, _, n_taken), slots = jax.lax.scan(accept, init, jnp.arange(m))
     # Gather the accepted candidates into their slots (slot k <- the candidate that took it).
     slot_of_candidate = jnp.where(slots >= 0, slots, n)
-    source = jnp.zeros((n,), jnp.int32).at[slot_of_candidate].set(
-        jnp.arange(m, dtype=jnp.int32), mode="drop"
-    )
+    source = jnp.zeros((n,), jnp.int32).at[slot_of_candidate].set(jnp.arange(m, dtype=jnp.int32), mode="drop")
     mask = jnp.arange(n) < n_taken
     r = radii[source]
     center = jnp.concatenate([xy[source], r[:, 2:3]], axis=-1)
@@ -516,15 +558,18 @@ def _detect(pool: _Pool, rotation, center, radii, object_mask, camera_T_world, K
         & (visible >= config.min_visible_fraction)
     )
     margin = config.border_margin_px
-    edge_mask = jnp.stack(
-        [
-            clipped[..., 0] > margin,
-            clipped[..., 1] > margin,
-            clipped[..., 2] < W - margin,
-            clipped[..., 3] < H - margin,
-        ],
-        -1,
-    ) & keep[..., None]
+    edge_mask = (
+        jnp.stack(
+            [
+                clipped[..., 0] > margin,
+                clipped[..., 1] > margin,
+                clipped[..., 2] < W - margin,
+                clipped[..., 3] < H - margin,
+            ],
+            -1,
+        )
+        & keep[..., None]
+    )
     tex_sigma = config.texture_noise_m + config.texture_noise_rel * jnp.abs(depth)
     tex = depth + tex_sigma * pool.normal(depth.shape)
     tex_mask = keep & depth_valid & (tex > 0)
@@ -581,7 +626,13 @@ def _measurements_pool_size(T, N):
 def _assemble(pool: _Pool, objects, poses, K, config: SimConfig) -> SimulatedMap:
     pose_prior = _perturb_poses(pool, poses, config.pose_noise_m, config.pose_noise_deg)
     det = _detect(
-        pool, objects["rotation"], objects["center"], objects["radii"], objects["mask"], poses, K,
+        pool,
+        objects["rotation"],
+        objects["center"],
+        objects["radii"],
+        objects["mask"],
+        poses,
+        K,
         config,
     )
     rot, ctr, rad, first, observed = _initial_landmarks(pool, objects, det, pose_prior, K, config)
@@ -662,7 +713,9 @@ def simulate_batch(seed: int, num_maps: int, config: SimConfig = SimConfig(), dt
     return _simulate_batch(keys, config, dtype or jnp.result_type(float))
 
 
-def simulate_views(key, num_views, yaw_range, config: SimConfig, max_views: int | None = None, dtype=None) -> SimulatedMap:
+def simulate_views(
+    key, num_views, yaw_range, config: SimConfig, max_views: int | None = None, dtype=None
+) -> SimulatedMap:
     """One ellipsoid seen from views drawn over a limited yaw range (thesis figure 4-5).
 
     The object (drawn like :func:`random_objects`, one slot) stands at the origin with a random
@@ -699,9 +752,7 @@ def simulate_views(key, num_views, yaw_range, config: SimConfig, max_views: int 
     base = pool.uniform((), -jnp.pi, jnp.pi)
     az = az + base + yaw0
     dist = pool.uniform((T,), cfg.view_distance_min, cfg.view_distance_max)
-    eye = jnp.stack(
-        [dist * jnp.cos(az), dist * jnp.sin(az), jnp.full_like(az, cfg.camera_height)], -1
-    )
+    eye = jnp.stack([dist * jnp.cos(az), dist * jnp.sin(az), jnp.full_like(az, cfg.camera_height)], -1)
     target = jnp.broadcast_to(objects["center"][0], eye.shape)
     poses = look_at(eye, target, _up(dtype)).astype(dtype)
     sim = _assemble(pool, objects, poses, intrinsics(cfg, dtype), cfg)
@@ -734,7 +785,7 @@ def to_problem(sim: SimulatedMap, config: SimConfig):
     every map of a config has the same padded size M = T * N. Objects never detected are masked
     out (``object_mask = observed``).
     """
-    from ..slam import SlamProblem  # noqa: PLC0415  (slam imports nothing of sim)
+    from ..slam import SlamProblem
 
     T, N = sim.box_mask.shape[-2:]
     batch = sim.box_mask.shape[:-2]
@@ -742,9 +793,7 @@ def to_problem(sim: SimulatedMap, config: SimConfig):
     flat = lambda x, tail=(): x.reshape(batch + (T * N,) + tail)
     box_pose = jnp.broadcast_to(jnp.repeat(jnp.arange(T, dtype=jnp.int32), N), batch + (T * N,))
     box_object = jnp.broadcast_to(jnp.tile(jnp.arange(N, dtype=jnp.int32), T), batch + (T * N,))
-    image_size = jnp.broadcast_to(
-        jnp.asarray([config.image_width, config.image_height], dtype), batch + (2,)
-    )
+    image_size = jnp.broadcast_to(jnp.asarray([config.image_width, config.image_height], dtype), batch + (2,))
     return SlamProblem(
         K=sim.K,
         image_size=image_size,
@@ -763,13 +812,13 @@ def to_problem(sim: SimulatedMap, config: SimConfig):
 
 def ground_truth(sim: SimulatedMap):
     """The true poses and ellipsoids as a :class:`jaxsem.slam.SlamEstimate`."""
-    from ..slam import SlamEstimate  # noqa: PLC0415
+    from ..slam import SlamEstimate
 
     return SlamEstimate(sim.camera_T_world, sim.object_rotation, sim.object_center, sim.object_radii)
 
 
 def initial_estimate(sim: SimulatedMap):
     """The config's initial estimate (pose priors + ``init_*`` landmarks) as a ``SlamEstimate``."""
-    from ..slam import SlamEstimate  # noqa: PLC0415
+    from ..slam import SlamEstimate
 
     return SlamEstimate(sim.pose_prior, sim.init_rotation, sim.init_center, sim.init_radii)

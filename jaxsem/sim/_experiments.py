@@ -38,7 +38,7 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
     (ten times the class sigma) in place of the semantic prior, as the thesis' baseline keeps
     "improvements on shape regularisation".
     """
-    from ..slam import NoiseModel, SolverConfig  # noqa: PLC0415
+    from ..slam import NoiseModel, SolverConfig
 
     if system not in (BASELINE, ROSHAN):
         raise ValueError(f"system: expected 'baseline' or 'roshan', got {system!r}")
@@ -51,7 +51,7 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
     kwargs = dict(noise=noise, max_steps=max_steps, default_depth=sim_config.init_depth)
     kwargs.update(changes)
     if system == BASELINE:
-        from ..slam import baseline_config  # noqa: PLC0415  (the one definition of the baseline)
+        from ..slam import baseline_config
 
         return baseline_config(**kwargs)
     return SolverConfig(**kwargs)
@@ -88,17 +88,21 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
     lost = has & (~valid | (box_iou(pred, box) < reinit_iou))  # IoU < 0 never holds
     tex_mask = problem.texture_mask[last] & config.use_texture
     R, c, r = factors.single_view_init(
-        pose, box, problem.K, init_radii, texture_depth=problem.texture_depth[last],
-        texture_mask=tex_mask, default_depth=config.default_depth,
+        pose,
+        box,
+        problem.K,
+        init_radii,
+        texture_depth=problem.texture_depth[last],
+        texture_mask=tex_mask,
+        default_depth=config.default_depth,
     )
     pick = lambda new, old: jnp.where(lost.reshape(lost.shape + (1,) * (old.ndim - 1)), new, old)
-    return _replace(
-        est, rotation=pick(R, est.rotation), center=pick(c, est.center), radii=pick(r, est.radii)
-    ), lost
+    return _replace(est, rotation=pick(R, est.rotation), center=pick(c, est.center), radii=pick(r, est.radii)), lost
 
 
-def solve_online(problem, init, config, *, every: int = 10, reinit: bool = True,
-                 reinit_iou: float = 0.0, init_radii=None):
+def solve_online(
+    problem, init, config, *, every: int = 10, reinit: bool = True, reinit_iou: float = 0.0, init_radii=None
+):
     """Online protocol: re-solve after every ``every`` frames with the frames seen so far.
 
     Args:
@@ -118,7 +122,7 @@ def solve_online(problem, init, config, *, every: int = 10, reinit: bool = True,
       (estimate, info) with ``info = {"steps": (rounds,), "reinitialised": (J,) int32 count,
       "cost": final cost of the full problem}``.
     """
-    from ..slam import solve_schur, total_cost  # noqa: PLC0415
+    from ..slam import solve_schur, total_cost
 
     T = problem.pose_prior.shape[0]
     init_radii = init.radii if init_radii is None else init_radii
@@ -129,7 +133,9 @@ def solve_online(problem, init, config, *, every: int = 10, reinit: bool = True,
         bm = problem.box_mask & (problem.box_pose < k)
         seen = jnp.zeros(problem.object_mask.shape, bool).at[problem.box_object].max(bm)
         sub = _replace(
-            problem, box_mask=bm, texture_mask=problem.texture_mask & bm,
+            problem,
+            box_mask=bm,
+            texture_mask=problem.texture_mask & bm,
             object_mask=problem.object_mask & seen,
             pose_mask=problem.pose_mask & (jnp.arange(T) < k),
         )
@@ -149,8 +155,12 @@ def map_errors(estimate, sim):
     errors (:func:`jaxsem.metrics.ellipsoid_errors`, symmetry-aware). Returns a dict of scalars
     (or (B,) under ``vmap``); ``count`` is the number of objects scored."""
     e = ellipsoid_errors(
-        estimate.rotation, estimate.center, estimate.radii,
-        sim.object_rotation, sim.object_center, sim.object_radii,
+        estimate.rotation,
+        estimate.center,
+        estimate.radii,
+        sim.object_rotation,
+        sim.object_center,
+        sim.object_radii,
     )
     w = sim.observed.astype(sim.object_center.dtype)
     n = jnp.sum(w, axis=-1)

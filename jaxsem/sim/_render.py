@@ -23,15 +23,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mujoco  # noqa: E402
+import mujoco
 
-from .. import quadrics  # noqa: E402
+from .. import quadrics
 
 __all__ = ["SceneObject", "SceneRenderer", "render_views", "SHAPES", "bounding_ellipsoid_radii"]
 
@@ -84,7 +84,9 @@ class SceneObject:
             raise ValueError(f"SceneObject.rotation: expected a (3, 3) rotation matrix, got {rot.tolist()}")
         cen = np.asarray(self.center, dtype=np.float64)
         if cen.shape != (3,) or not np.all(np.isfinite(cen)):
-            raise ValueError(f"SceneObject.center: expected a finite (3,) point, got {np.asarray(self.center).tolist()}")
+            raise ValueError(
+                f"SceneObject.center: expected a finite (3,) point, got {np.asarray(self.center).tolist()}"
+            )
         object.__setattr__(self, "extents", ext)
         object.__setattr__(self, "rotation", rot)
         object.__setattr__(self, "center", cen)
@@ -243,13 +245,20 @@ class SceneRenderer:
             floor_px = _block_texture(bg, 128, 1)
             _add_texture(spec, "floor_tex", mujoco.mjtTexture.mjTEXTURE_2D, floor_px)
             mat = spec.add_material(
-                name="floor_mat", texrepeat=[2, 2], texuniform=True, specular=0.1, shininess=0.1,
+                name="floor_mat",
+                texrepeat=[2, 2],
+                texuniform=True,
+                specular=0.1,
+                shininess=0.1,
                 rgba=[*bg.uniform(0.4, 0.8, 3), 1.0],
             )
             mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "floor_tex"
             spec.worldbody.add_geom(
-                name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
-                pos=[0, 0, float(floor_z)], material="floor_mat",
+                name="floor",
+                type=mujoco.mjtGeom.mjGEOM_PLANE,
+                size=[0, 0, 0.05],
+                pos=[0, 0, float(floor_z)],
+                material="floor_mat",
             )
 
         self._geom_names = []
@@ -272,8 +281,12 @@ class SceneRenderer:
             else:
                 gtype, size = mujoco.mjtGeom.mjGEOM_ELLIPSOID, ob.extents / 2
             spec.worldbody.add_geom(
-                name=f"object{i}", type=gtype, size=list(map(float, size)), pos=list(map(float, ob.center)),
-                quat=list(map(float, _mat_to_quat(ob.rotation))), **kwargs,
+                name=f"object{i}",
+                type=gtype,
+                size=list(map(float, size)),
+                pos=list(map(float, ob.center)),
+                quat=list(map(float, _mat_to_quat(ob.rotation))),
+                **kwargs,
             )
             self._geom_names.append(f"object{i}")
 
@@ -286,9 +299,12 @@ class SceneRenderer:
             direction[2] = -abs(direction[2]) - 0.5  # from above, so floors and tops are lit
             direction /= np.linalg.norm(direction)
             spec.worldbody.add_light(
-                name=f"light{j}", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-                pos=list(map(float, centre - 3 * direction)), dir=list(map(float, direction)),
-                diffuse=list(lr.uniform(0.25, 0.6, 3)), specular=[0.1, 0.1, 0.1],
+                name=f"light{j}",
+                type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                pos=list(map(float, centre - 3 * direction)),
+                dir=list(map(float, direction)),
+                diffuse=list(lr.uniform(0.25, 0.6, 3)),
+                specular=[0.1, 0.1, 0.1],
                 castshadow=bool(lr.random() < 0.5),
             )
         spec.worldbody.add_camera(name="view", pos=[0, 0, 0], quat=[1, 0, 0, 0], fovy=45.0)
@@ -317,8 +333,13 @@ class SceneRenderer:
         far below the scene so that one compiled model can render frames with fewer objects."""
         ob = self.objects[index]
         new = SceneObject(
-            ob.class_name, ob.shape, ob.extents if extents is None else extents, rotation, center,
-            ob.texture_seed, ob.rgb,
+            ob.class_name,
+            ob.shape,
+            ob.extents if extents is None else extents,
+            rotation,
+            center,
+            ob.texture_seed,
+            ob.rgb,
         )
         self.objects[index] = new
         gid = self.model.geom(self._geom_names[index]).id
@@ -442,13 +463,26 @@ def render_views(
     outputs = _check_outputs(outputs)
     out = {k: [] for k in outputs}
     with SceneRenderer(
-        objects, width, height, background_seed=background_seed, light_seed=light_seed,
-        textured=textured, floor_z=floor_z, antialias=antialias, tessellation=tessellation,
+        objects,
+        width,
+        height,
+        background_seed=background_seed,
+        light_seed=light_seed,
+        textured=textured,
+        floor_z=floor_z,
+        antialias=antialias,
+        tessellation=tessellation,
     ) as scene:
         for Ki, Ti in zip(Ks, poses):
             view = scene.render(Ki, Ti, outputs=outputs)
             for k in out:
                 out[k].append(view[k])
-    return {k: np.stack(v) if v else np.zeros((0, int(height), int(width)) + ((3,) if k == "rgb" else ()),
-                                               {"rgb": np.uint8, "depth": np.float32, "seg": np.int32}[k])
-            for k, v in out.items()}
+    return {
+        k: np.stack(v)
+        if v
+        else np.zeros(
+            (0, int(height), int(width)) + ((3,) if k == "rgb" else ()),
+            {"rgb": np.uint8, "depth": np.float32, "seg": np.int32}[k],
+        )
+        for k, v in out.items()
+    }

@@ -83,11 +83,7 @@ class SolveInfo(eqx.Module):
 
 
 def _all_finite(tree) -> jnp.ndarray:
-    leaves = [
-        x
-        for x in jax.tree_util.tree_leaves(tree)
-        if jnp.issubdtype(jnp.result_type(x), jnp.inexact)
-    ]
+    leaves = [x for x in jax.tree_util.tree_leaves(tree) if jnp.issubdtype(jnp.result_type(x), jnp.inexact)]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
@@ -159,12 +155,7 @@ def solve_batch(
     estimate = retract(init, sol.value)
     cost0 = total_cost(problem, init, config)
     cost = total_cost(problem, estimate, config)
-    finite = (
-        _all_finite(estimate)
-        & jnp.isfinite(cost)
-        & _all_finite(problem)
-        & jnp.isfinite(cost0)
-    )
+    finite = _all_finite(estimate) & jnp.isfinite(cost) & _all_finite(problem) & jnp.isfinite(cost0)
     max_steps = (sol.result == optx.RESULTS.max_steps_reached) | (
         sol.result == optx.RESULTS.nonlinear_max_steps_reached
     )
@@ -223,11 +214,7 @@ def damped_schur_step(n: Normal, lam, pose_free, obj_free):
     pose_used = pose_free > 0
     Hpp = damp(n.Hpp, eye6, pose_used)
     Hoo = damp(n.Hoo, eye9, obj_free)
-    Hpo = (
-        n.Hpo
-        * pose_free[:, None, None, None]
-        * obj_free[None, :, None, None].astype(dtype)
-    )
+    Hpo = n.Hpo * pose_free[:, None, None, None] * obj_free[None, :, None, None].astype(dtype)
     gp = n.gp * pose_free[:, None]
     go = n.go * obj_free[:, None].astype(dtype)
     Hpp_inv = jnp.linalg.inv(Hpp)
@@ -318,9 +305,7 @@ def levenberg_marquardt(
         )
         cost = jnp.where(c.relin, normal.cost, c.cost)
         lin_ok = _all_finite(normal)
-        at_zero = (
-            cost <= 0
-        )  # exactly at a zero-cost optimum: converged (GTSAM's errorTol)
+        at_zero = cost <= 0  # exactly at a zero-cost optimum: converged (GTSAM's errorTol)
         dp, do = damped_schur_step(normal, c.lam, pose_free, obj_free)
         step_finite = jnp.all(jnp.isfinite(dp)) & jnp.all(jnp.isfinite(do))
         dp = jnp.where(step_finite, dp, 0.0)
@@ -378,11 +363,7 @@ def _triangulate(problem: SlamProblem, est: SlamEstimate):
     P = jnp.eye(3, dtype=dtype) - d[:, :, None] * d[:, None, :]
     w = bm.astype(dtype)[:, None, None]
     A = jnp.zeros((J, 3, 3), dtype).at[bo].add(w * P)
-    b = (
-        jnp.zeros((J, 3), dtype)
-        .at[bo]
-        .add(w[..., 0] * jnp.einsum("mij,mj->mi", P, origin))
-    )
+    b = jnp.zeros((J, 3), dtype).at[bo].add(w[..., 0] * jnp.einsum("mij,mj->mi", P, origin))
     n = jnp.zeros(J, dtype).at[bo].add(bm.astype(dtype))
     eig_min = jnp.linalg.eigvalsh(A)[:, 0]
     well = eig_min >= 1e-3 * jnp.maximum(n, 1.0)
@@ -411,9 +392,7 @@ def _rescue(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
 
 def _mask_objects(problem: SlamProblem, keep) -> SlamProblem:
     bm = problem.box_mask & keep[problem.box_object]
-    return eqx.tree_at(
-        lambda p: (p.box_mask, p.texture_mask), problem, (bm, problem.texture_mask & bm)
-    )
+    return eqx.tree_at(lambda p: (p.box_mask, p.texture_mask), problem, (bm, problem.texture_mask & bm))
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps", "throw"))
@@ -477,9 +456,7 @@ def solve_schur(
             sub = _mask_objects(problem, keep)
             pf = jnp.where(k == 0, jnp.zeros_like(pose_free), pose_free)
             of = jnp.where(k == 0, stranded, obj_used & keep)
-            est, _, s, a, code = levenberg_marquardt(
-                sub, est, config, pf, of, max_steps
-            )
+            est, _, s, a, code = levenberg_marquardt(sub, est, config, pf, of, max_steps)
             invalid, rms = box_health(problem, est, config)
             found = stranded & (invalid | (rms > config.unfixable_rms))
             unfixable = jnp.where(k == 0, found, unfixable)
@@ -488,15 +465,11 @@ def solve_schur(
 
         zero = jnp.asarray(0, jnp.int32)
         carry0 = (est, jnp.zeros(J, bool), zero, zero, zero)
-        (est, unfixable, steps, accepted, code_a), codes = jax.lax.scan(
-            phase, carry0, jnp.arange(2)
-        )
+        (est, unfixable, steps, accepted, code_a), codes = jax.lax.scan(phase, carry0, jnp.arange(2))
         code = codes[1]
     else:
         rescued = unfixable = jnp.zeros(J, bool)
-        est, _, steps, accepted, code = levenberg_marquardt(
-            problem, init, config, pose_free, obj_used, max_steps
-        )
+        est, _, steps, accepted, code = levenberg_marquardt(problem, init, config, pose_free, obj_used, max_steps)
         code_a = jnp.asarray(_OK, jnp.int32)
     cost = total_cost(problem, est, config)
     finite = input_finite & _all_finite(est) & jnp.isfinite(cost) & jnp.isfinite(cost0)

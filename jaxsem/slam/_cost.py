@@ -148,9 +148,7 @@ def box_rows(
         robust_scale=config.robust_scale,
     )
     if config.use_texture:
-        t = F.texture_residual(
-            pose, rotation, center, radii, texture_depth, n.texture_sigma
-        )
+        t = F.texture_residual(pose, rotation, center, radii, texture_depth, n.texture_sigma)
         t = F.robust_residual(t, config.texture_loss, config.robust_scale)
         t = jnp.where(texture_mask, t, 0.0)
     else:
@@ -162,9 +160,7 @@ def box_rows(
 def pose_rows(pose, prior, mask, config: SolverConfig):
     """(6,) pose-prior residual of one pose."""
     n = config.noise
-    r = F.pose_prior_residual(
-        pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma
-    )
+    r = F.pose_prior_residual(pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma)
     r = F.robust_residual(r, config.pose_loss, config.robust_scale)
     return jnp.where(mask, r, 0.0)
 
@@ -180,9 +176,7 @@ def shape_weight(config: SolverConfig, dtype):
 def shape_rows(radii, object_class, mask, config: SolverConfig, mean, sigma):
     """(3,) shape-prior residual of one object (``mean``/``sigma`` are the (C, 3) table)."""
     r = F.shape_prior_residual(radii, mean[object_class], sigma[object_class])
-    r = F.robust_residual(
-        r * shape_weight(config, radii.dtype), config.shape_loss, config.robust_scale
-    )
+    r = F.robust_residual(r * shape_weight(config, radii.dtype), config.shape_loss, config.robust_scale)
     return jnp.where(mask, r, 0.0)
 
 
@@ -239,9 +233,7 @@ class Normal(NamedTuple):
     cost: jnp.ndarray
 
 
-def linearize(
-    problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pose_free
-) -> Normal:
+def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pose_free) -> Normal:
     """Block normal equations at ``est`` from per-factor ``jacfwd`` (15 columns per box factor).
 
     Every box residual touches one pose and one ellipsoid, every pose prior one pose and every
@@ -319,9 +311,7 @@ def linearize(
     go = go + jnp.einsum("jik,ji->jk", Js, rs)
     Hpo = jnp.zeros((T, J, 6, 9), dtype).at[bp, bo].add(JpT @ Jo)
     gp = gp * pose_free[:, None]
-    cost = 0.5 * (
-        jnp.sum(jnp.square(rb)) + jnp.sum(jnp.square(rp)) + jnp.sum(jnp.square(rs))
-    )
+    cost = 0.5 * (jnp.sum(jnp.square(rb)) + jnp.sum(jnp.square(rp)) + jnp.sum(jnp.square(rs)))
     return Normal(Hpp, Hoo, Hpo, gp, go, cost)
 
 
@@ -347,9 +337,7 @@ def box_health(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
     )
     bad = bm & ~valid
     invalid = jnp.zeros(J, bool).at[bo].max(bad)
-    emask = (
-        F.edge_mask(problem.box, problem.image_size, config.border_margin) & bm[:, None]
-    )
+    emask = F.edge_mask(problem.box, problem.image_size, config.border_margin) & bm[:, None]
     sigma = jnp.asarray(config.noise.box_sigma, dtype)
     e = jnp.where(emask & valid[:, None], (pred - problem.box) / sigma, 0.0)
     sq = jnp.zeros(J, dtype).at[bo].add(jnp.sum(jnp.square(e), -1))

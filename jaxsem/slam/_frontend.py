@@ -46,7 +46,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping, NamedTuple, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -171,8 +172,13 @@ class FrontEndConfig:
             if not (isinstance(value, (int, np.integer)) and value >= 3):
                 raise ValueError(f"FrontEndConfig.{name}: expected an integer >= 3, got {value!r}")
         positive = (
-            "max_forward_backward_error", "max_reprojection_error", "max_outlier_deviations",
-            "max_depth_variance", "max_relative_depth_std", "min_depth", "gate_pixels",
+            "max_forward_backward_error",
+            "max_reprojection_error",
+            "max_outlier_deviations",
+            "max_depth_variance",
+            "max_relative_depth_std",
+            "min_depth",
+            "gate_pixels",
         )
         for name in positive:
             value = getattr(self, name)
@@ -189,9 +195,7 @@ class FrontEndConfig:
                 f"FrontEndConfig.redetect_fraction: expected 0 <= value <= 1, got {self.redetect_fraction!r}"
             )
         if not (isinstance(self.min_correlation, (int, float)) and -1 <= self.min_correlation <= 1):
-            raise ValueError(
-                f"FrontEndConfig.min_correlation: expected -1 <= value <= 1, got {self.min_correlation!r}"
-            )
+            raise ValueError(f"FrontEndConfig.min_correlation: expected -1 <= value <= 1, got {self.min_correlation!r}")
         bins = tuple(self.hist_bins) if isinstance(self.hist_bins, (tuple, list)) else None
         if bins is None or len(bins) != 2 or not all(isinstance(b, (int, np.integer)) and b >= 1 for b in bins):
             raise ValueError(
@@ -260,7 +264,7 @@ class LandmarkEstimates(NamedTuple):
     radii: Any
 
     @classmethod
-    def from_mapping(cls, estimates: Mapping[int, Sequence[Any]]) -> "LandmarkEstimates":
+    def from_mapping(cls, estimates: Mapping[int, Sequence[Any]]) -> LandmarkEstimates:
         """``{landmark_id: (rotation (3, 3), center (3,), radii (3,))}`` -> padded arrays."""
         ids = np.array(sorted(int(k) for k in estimates), dtype=np.int64)
         rot = np.zeros((len(ids), 3, 3))
@@ -276,7 +280,7 @@ class LandmarkEstimates(NamedTuple):
         return cls(ids, rot, cen, rad)
 
     @classmethod
-    def from_estimate(cls, estimate, mask=None) -> "LandmarkEstimates":
+    def from_estimate(cls, estimate, mask=None) -> LandmarkEstimates:
         """From an estimate whose object slot ``j`` holds landmark id ``j``.
 
         Args:
@@ -430,9 +434,7 @@ def _check_K(K):
     if not np.all(np.isfinite(K)):
         raise ValueError(f"K: must be finite, got {K.tolist()}")
     if not (np.allclose(K[2], [0, 0, 1]) and K[1, 0] == 0 and K[0, 0] > 0 and K[1, 1] > 0):
-        raise ValueError(
-            f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}"
-        )
+        raise ValueError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}")
     return K
 
 
@@ -468,9 +470,7 @@ def _check_image(image, expected_shape):
     if image.ndim != 3 or image.shape[2] != 3 or image.shape[0] < 8 or image.shape[1] < 8:
         raise ValueError(f"image: expected shape (H, W, 3) with H, W >= 8, got {image.shape}")
     if expected_shape is not None and image.shape != expected_shape:
-        raise ValueError(
-            f"image: expected the same shape as the previous frames {expected_shape}, got {image.shape}"
-        )
+        raise ValueError(f"image: expected the same shape as the previous frames {expected_shape}, got {image.shape}")
     return np.ascontiguousarray(image)
 
 
@@ -549,8 +549,7 @@ def _check_estimates(estimates, known_ids):
         bad = keep & ~np.all(np.isfinite(value.reshape(n, int(np.prod(value.shape[1:])))), axis=-1)
         if bad.any():
             raise ValueError(
-                f"landmark_estimates.{name}: must be finite, got non-finite values for ids "
-                f"{ids[bad][:5].tolist()}"
+                f"landmark_estimates.{name}: must be finite, got non-finite values for ids {ids[bad][:5].tolist()}"
             )
     bad = keep & np.any(arrays["radii"] <= 0, axis=-1)
     if bad.any():
@@ -558,8 +557,9 @@ def _check_estimates(estimates, known_ids):
             f"landmark_estimates.radii: expected positive semi-axes, got {arrays['radii'][bad][0].tolist()} "
             f"for id {int(ids[bad][0])}"
         )
-    return LandmarkEstimates(ids[keep].astype(np.int64), arrays["rotation"][keep],
-                             arrays["center"][keep], arrays["radii"][keep])
+    return LandmarkEstimates(
+        ids[keep].astype(np.int64), arrays["rotation"][keep], arrays["center"][keep], arrays["radii"][keep]
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -733,7 +733,10 @@ class FrontEnd:
                 lid = self._next_id
                 self._next_id += 1
                 self._landmarks[lid] = _Landmark(
-                    id=lid, class_id=class_ids[i], histograms=[], last_box=box,
+                    id=lid,
+                    class_id=class_ids[i],
+                    histograms=[],
+                    last_box=box,
                     last_frame=self._frame,
                 )
                 lm = self._landmarks[lid]
@@ -745,7 +748,7 @@ class FrontEnd:
                 depth, variance, status, n, baseline = self._texture(lm, box, pose)
                 corr, dist = scores[i]
                 is_new = False
-            lm.histograms = (lm.histograms + [hists[i]])[-cfg.max_histograms:]
+            lm.histograms = (lm.histograms + [hists[i]])[-cfg.max_histograms :]
             lm.last_box = box
             lm.centre = 0.5 * (box[:2] + box[2:])
             lm.last_frame = self._frame
@@ -753,10 +756,18 @@ class FrontEnd:
             self._reseed(lm, gray, box, pose)
             results.append(
                 AssociatedDetection(
-                    index=i, box=box.copy(), class_id=class_ids[i], landmark_id=lid,
-                    is_new=is_new, texture_depth=depth, texture_variance=variance,
-                    texture_status=status, num_points=n, baseline=baseline,
-                    correlation=corr, centroid_distance=dist,
+                    index=i,
+                    box=box.copy(),
+                    class_id=class_ids[i],
+                    landmark_id=lid,
+                    is_new=is_new,
+                    texture_depth=depth,
+                    texture_variance=variance,
+                    texture_status=status,
+                    num_points=n,
+                    baseline=baseline,
+                    correlation=corr,
+                    centroid_distance=dist,
                 )
             )
 
@@ -781,13 +792,14 @@ class FrontEnd:
             return
         p0 = np.concatenate([lm.points for lm in owners]).astype(np.float32).reshape(-1, 1, 2)
         params = dict(
-            winSize=(cfg.lk_window, cfg.lk_window), maxLevel=cfg.lk_levels,
+            winSize=(cfg.lk_window, cfg.lk_window),
+            maxLevel=cfg.lk_levels,
             criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
         )
         # LK builds image pyramids of whatever it is given: crop both images to the corners'
         # bounding box plus the tracker's reach (window times the coarsest level's scale).
         h, w = gray.shape
-        reach = cfg.lk_window * 2 ** cfg.lk_levels + 8
+        reach = cfg.lk_window * 2**cfg.lk_levels + 8
         lo = np.floor(p0.reshape(-1, 2).min(axis=0)) - reach
         hi = np.ceil(p0.reshape(-1, 2).max(axis=0)) + reach + 1
         x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
@@ -802,9 +814,14 @@ class FrontEnd:
         p0, p1, p0r = p0.reshape(-1, 2), p1.reshape(-1, 2), p0r.reshape(-1, 2)
         fb = np.linalg.norm(p0 - p0r, axis=-1)
         keep = (
-            (st1.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb <= cfg.max_forward_backward_error)
+            (st1.reshape(-1) == 1)
+            & (st2.reshape(-1) == 1)
+            & (fb <= cfg.max_forward_backward_error)
             & np.all(np.isfinite(p1), axis=-1)
-            & (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+            & (p1[:, 0] >= 0)
+            & (p1[:, 0] <= w - 1)
+            & (p1[:, 1] >= 0)
+            & (p1[:, 1] <= h - 1)
         )
         start = 0
         for lm in owners:
@@ -839,9 +856,7 @@ class FrontEnd:
                 dist = float(np.linalg.norm(centre - predicted[lm.id]))
                 if dist > cfg.gate_pixels or not lm.histograms:
                     continue
-                corr = max(
-                    float(cv2.compareHist(hists[i], h, cv2.HISTCMP_CORREL)) for h in lm.histograms
-                )
+                corr = max(float(cv2.compareHist(hists[i], h, cv2.HISTCMP_CORREL)) for h in lm.histograms)
                 if not math.isfinite(corr):  # constant histograms have no defined correlation
                     corr = -1.0
                 if corr >= cfg.min_correlation:
@@ -860,8 +875,10 @@ class FrontEnd:
         """Texture-plane measurement of a re-detected landmark from its tracked corners."""
         cfg = self.config
         inside = (
-            (lm.points[:, 0] >= box[0]) & (lm.points[:, 0] <= box[2])
-            & (lm.points[:, 1] >= box[1]) & (lm.points[:, 1] <= box[3])
+            (lm.points[:, 0] >= box[0])
+            & (lm.points[:, 0] <= box[2])
+            & (lm.points[:, 1] >= box[1])
+            & (lm.points[:, 1] <= box[3])
         )
         # corners that left the box belong to something else now
         lm.points, lm.anchor_uv, lm.anchor_pose = lm.points[inside], lm.anchor_uv[inside], lm.anchor_pose[inside]
@@ -898,7 +915,7 @@ class FrontEnd:
         cx1, cy1 = min(x1 + margin, w), min(y1 + margin, h)
         crop = np.ascontiguousarray(gray[cy0:cy1, cx0:cx1])
         mask = np.zeros(crop.shape, dtype=np.uint8)
-        mask[y0 - cy0:y1 - cy0, x0 - cx0:x1 - cx0] = 255
+        mask[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0] = 255
         for u, v in lm.points:  # keep new corners away from surviving ones
             cv2.circle(mask, (int(round(float(u))) - cx0, int(round(float(v))) - cy0), 3, 0, -1)
         keypoints = self._orb.detect(crop, mask)
@@ -916,8 +933,7 @@ class FrontEnd:
         lm.anchor_pose = np.concatenate([lm.anchor_pose, np.broadcast_to(pose, (new.shape[0], 4, 4))])
 
 
-def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_objects: int | None = None,
-             dtype=None):
+def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_objects: int | None = None, dtype=None):
     """Converts one frame of :meth:`FrontEnd.process` output into the online smoother's ``Frame``.
 
     Args:
@@ -945,10 +961,14 @@ def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_object
     classes = [d.class_id for d in detections]
     box_class = np.array(classes) if n else np.zeros((0,), np.int64)
     object_id = np.array([d.landmark_id for d in detections], dtype=np.int64)
-    depth = np.array(
-        [d.texture_depth if d.texture_depth is not None else np.nan for d in detections], dtype=np.float64
-    )
+    depth = np.array([d.texture_depth if d.texture_depth is not None else np.nan for d in detections], dtype=np.float64)
     return make_frame(
-        _check_pose(camera_T_world), box, box_class, object_id, depth,
-        max_detections=max_detections, max_objects=max_objects, dtype=dtype,
+        _check_pose(camera_T_world),
+        box,
+        box_class,
+        object_id,
+        depth,
+        max_detections=max_detections,
+        max_objects=max_objects,
+        dtype=dtype,
     )

@@ -32,8 +32,12 @@ def initialize(problem: SlamProblem, config: SolverConfig = SolverConfig()) -> S
     tex_mask = problem.texture_mask[first] if config.use_texture else jnp.zeros(J, bool)
     radii_mean = mean[problem.object_class]
     R, c, r = F.single_view_init(
-        pose, problem.box[first], problem.K, radii_mean,
-        texture_depth=problem.texture_depth[first], texture_mask=tex_mask,
+        pose,
+        problem.box[first],
+        problem.K,
+        radii_mean,
+        texture_depth=problem.texture_depth[first],
+        texture_mask=tex_mask,
         default_depth=config.default_depth,
     )
     c = jnp.where(has_box[:, None], c, 0.0)

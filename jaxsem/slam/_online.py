@@ -85,9 +85,7 @@ def online_init(
     import numpy as np
 
     if optimize_every < 1 or iterations < 1:
-        raise ValueError(
-            f"optimize_every, iterations: expected >= 1, got {optimize_every}, {iterations}"
-        )
+        raise ValueError(f"optimize_every, iterations: expected >= 1, got {optimize_every}, {iterations}")
     P, J, B, D = capacity
     if min(P, J, B, D) < 1:
         raise ValueError(f"capacity: every size must be >= 1, got {capacity}")
@@ -97,17 +95,11 @@ def online_init(
         raise ValueError(f"K: expected finite (3, 3) intrinsics, got shape {K.shape}")
     image_size = np.asarray(image_size, float)
     if image_size.shape != (2,) or not np.all(image_size > 0):
-        raise ValueError(
-            f"image_size: expected [width, height] > 0, got {image_size.tolist()}"
-        )
+        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
     # Concrete, non-weak float leaves: the jitted update returns the same avals it was given,
     # so the second call hits the compilation cache.
     config = jax.tree_util.tree_map(
-        lambda x: (
-            jnp.asarray(x, dtype)
-            if isinstance(x, (float, int)) and not isinstance(x, bool)
-            else x
-        ),
+        lambda x: jnp.asarray(x, dtype) if isinstance(x, (float, int)) and not isinstance(x, bool) else x,
         config,
     )
     eye4 = jnp.broadcast_to(jnp.eye(4, dtype=dtype), (P, 4, 4))
@@ -138,9 +130,7 @@ def online_init(
         frame_count=jnp.asarray(0, jnp.int32),
         box_count=jnp.asarray(0, jnp.int32),
         # A jax int32 code, not the enum's numpy constant: the second update hits the jit cache.
-        result=RESULTS.where(
-            jnp.asarray(True), RESULTS.successful, RESULTS.max_steps_reached
-        ),
+        result=RESULTS.where(jnp.asarray(True), RESULTS.successful, RESULTS.max_steps_reached),
         config=config,
         optimize_every=int(optimize_every),
         iterations=int(iterations),
@@ -166,9 +156,7 @@ def _optimize(state: OnlineState, iterations: int, all_poses: bool) -> OnlineSta
         state.problem.object_mask,
         iterations,
     )
-    return eqx.tree_at(
-        lambda s: (s.estimate, s.result), state, (est, _to_results(code))
-    )
+    return eqx.tree_at(lambda s: (s.estimate, s.result), state, (est, _to_results(code)))
 
 
 def _insert(state: OnlineState, frame: Frame) -> OnlineState:
@@ -216,9 +204,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     box_pose = pb.box_pose.at[pos].set(slot, mode="drop")
     box_object = pb.box_object.at[pos].set(oid, mode="drop")
     box_mask = box_mask.at[pos].set(True, mode="drop")
-    tex_depth = pb.texture_depth.at[pos].set(
-        frame.texture_depth.astype(dtype), mode="drop"
-    )
+    tex_depth = pb.texture_depth.at[pos].set(frame.texture_depth.astype(dtype), mode="drop")
     tex_mask = pb.texture_mask.at[pos].set(frame.texture_mask & det, mode="drop")
     tex_mask = tex_mask & box_mask
 
@@ -260,13 +246,9 @@ def _update(state: OnlineState, frame: Frame) -> OnlineState:
         )
     state = _insert(state, frame)
     due = (state.frame_count % state.optimize_every) == 0
-    state = jax.lax.cond(
-        due, lambda s: _optimize(s, s.iterations, False), lambda s: s, state
-    )
+    state = jax.lax.cond(due, lambda s: _optimize(s, s.iterations, False), lambda s: s, state)
     # Never success on non-finite data: this frame, the held graph or the estimate.
-    finite = (
-        _all_finite(frame) & _all_finite(state.problem) & _all_finite(state.estimate)
-    )
+    finite = _all_finite(frame) & _all_finite(state.problem) & _all_finite(state.estimate)
     result = RESULTS.where(finite, state.result, RESULTS.nonfinite)
     return eqx.tree_at(lambda s: s.result, state, result)
 

@@ -256,15 +256,9 @@ def _np(name, x, shape_tail, dtype=float):
     try:
         arr = np.asarray(x, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"{name}: cannot be converted to a {np.dtype(dtype).name} array ({exc})"
-        ) from None
-    if shape_tail is not None and arr.shape[arr.ndim - len(shape_tail) :] != tuple(
-        shape_tail
-    ):
-        raise ValueError(
-            f"{name}: expected shape (..., {', '.join(map(str, shape_tail))}), got {arr.shape}"
-        )
+        raise ValueError(f"{name}: cannot be converted to a {np.dtype(dtype).name} array ({exc})") from None
+    if shape_tail is not None and arr.shape[arr.ndim - len(shape_tail) :] != tuple(shape_tail):
+        raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, shape_tail))}), got {arr.shape}")
     return arr
 
 
@@ -273,9 +267,7 @@ def _check_boxes(name, box, mask, image_size=None):
     bad_finite = mask & ~np.all(np.isfinite(box), axis=-1)
     if bad_finite.any():
         idx = np.flatnonzero(bad_finite)[:5].tolist()
-        raise ValueError(
-            f"{name}: non-finite box values at indices {idx} (first values {box[bad_finite][0].tolist()})"
-        )
+        raise ValueError(f"{name}: non-finite box values at indices {idx} (first values {box[bad_finite][0].tolist()})")
     inverted = mask & ((box[..., 2] <= box[..., 0]) | (box[..., 3] <= box[..., 1]))
     if inverted.any():
         idx = np.flatnonzero(inverted)[:5].tolist()
@@ -325,19 +317,13 @@ def make_problem(
     dtype = dtype or jnp.result_type(float)
     K = _np("K", K, (3, 3))
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(
-            f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}"
-        )
+        raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
     image_size = _np("image_size", image_size, (2,))
     if image_size.shape != (2,) or not np.all(image_size > 0):
-        raise ValueError(
-            f"image_size: expected [width, height] > 0, got {image_size.tolist()}"
-        )
+        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.ndim != 3:
-        raise ValueError(
-            f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}"
-        )
+        raise ValueError(f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}")
     if not np.all(np.isfinite(pose_prior)):
         raise ValueError("pose_prior: must be finite, got NaN or inf")
     T = pose_prior.shape[0]
@@ -349,14 +335,10 @@ def make_problem(
     box_object = _np("box_object", box_object, None, dtype=np.int64).reshape(-1)
     for name, arr in (("box_pose", box_pose), ("box_object", box_object)):
         if arr.shape != (M,):
-            raise ValueError(
-                f"{name}: expected shape ({M},) to match box, got {arr.shape}"
-            )
+            raise ValueError(f"{name}: expected shape ({M},) to match box, got {arr.shape}")
     object_class = np.asarray(object_class)
     if object_class.dtype.kind in "USO":
-        object_class = np.array(
-            [_factors.class_index(str(c)) for c in object_class.reshape(-1)]
-        )
+        object_class = np.array([_factors.class_index(str(c)) for c in object_class.reshape(-1)])
     object_class = object_class.astype(np.int64).reshape(-1)
     J = object_class.shape[0]
     n_classes = len(_factors.CLASS_NAMES)
@@ -365,21 +347,9 @@ def make_problem(
             f"object_class: indices must be in [0, {n_classes}) (classes {list(_factors.CLASS_NAMES)}), "
             f"got {object_class.tolist()}"
         )
-    pose_mask = (
-        np.ones(T, bool)
-        if pose_mask is None
-        else _np("pose_mask", pose_mask, None, bool).reshape(-1)
-    )
-    box_mask = (
-        np.ones(M, bool)
-        if box_mask is None
-        else _np("box_mask", box_mask, None, bool).reshape(-1)
-    )
-    object_mask = (
-        np.ones(J, bool)
-        if object_mask is None
-        else _np("object_mask", object_mask, None, bool).reshape(-1)
-    )
+    pose_mask = np.ones(T, bool) if pose_mask is None else _np("pose_mask", pose_mask, None, bool).reshape(-1)
+    box_mask = np.ones(M, bool) if box_mask is None else _np("box_mask", box_mask, None, bool).reshape(-1)
+    object_mask = np.ones(J, bool) if object_mask is None else _np("object_mask", object_mask, None, bool).reshape(-1)
     if pose_mask.shape != (T,) or box_mask.shape != (M,) or object_mask.shape != (J,):
         raise ValueError(
             f"masks: expected pose_mask ({T},), box_mask ({M},), object_mask ({J},), got "
@@ -388,9 +358,7 @@ def make_problem(
     _check_boxes("box", box, box_mask)
     bad_pose = box_mask & ((box_pose < 0) | (box_pose >= T))
     if bad_pose.any():
-        raise ValueError(
-            f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}"
-        )
+        raise ValueError(f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}")
     unposed = box_mask & ~pose_mask[np.clip(box_pose, 0, T - 1)]
     if unposed.any():
         raise ValueError(
@@ -399,23 +367,17 @@ def make_problem(
         )
     bad_obj = box_mask & ((box_object < 0) | (box_object >= J))
     if bad_obj.any():
-        raise ValueError(
-            f"box_object: indices must be in [0, {J}), got {box_object[bad_obj][:5].tolist()}"
-        )
+        raise ValueError(f"box_object: indices must be in [0, {J}), got {box_object[bad_obj][:5].tolist()}")
     unknown = box_mask & ~object_mask[np.clip(box_object, 0, J - 1)]
     if unknown.any():
-        raise ValueError(
-            f"box_object: boxes {np.flatnonzero(unknown)[:5].tolist()} refer to masked-out objects"
-        )
+        raise ValueError(f"box_object: boxes {np.flatnonzero(unknown)[:5].tolist()} refer to masked-out objects")
     if texture_depth is None:
         texture_depth = np.zeros(M)
         tex_default = np.zeros(M, bool)
     else:
         texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
         if texture_depth.shape != (M,):
-            raise ValueError(
-                f"texture_depth: expected shape ({M},), got {texture_depth.shape}"
-            )
+            raise ValueError(f"texture_depth: expected shape ({M},), got {texture_depth.shape}")
         tex_default = np.isfinite(texture_depth) & (texture_depth > 0)
     if texture_mask is None:
         texture_mask = tex_default
@@ -434,9 +396,7 @@ def make_problem(
     if capacity is not None:
         Tc, Mc, Jc = capacity
         if Tc < T or Mc < M or Jc < J:
-            raise ValueError(
-                f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}"
-            )
+            raise ValueError(f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}")
         eye = np.broadcast_to(np.eye(4), (Tc - T, 4, 4))
         pose_prior = np.concatenate([pose_prior, eye])
         pose_mask = np.concatenate([pose_mask, np.zeros(Tc - T, bool)])
@@ -496,40 +456,24 @@ def make_frame(
     dtype = dtype or jnp.result_type(float)
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.shape != (4, 4) or not np.all(np.isfinite(pose_prior)):
-        raise ValueError(
-            f"pose_prior: expected a finite (4, 4) camera_T_world, got shape {pose_prior.shape}"
-        )
+        raise ValueError(f"pose_prior: expected a finite (4, 4) camera_T_world, got shape {pose_prior.shape}")
     box = _np("box", box, (4,)).reshape(-1, 4)
     N = box.shape[0]
     if N > max_detections:
         raise ValueError(f"box: {N} detections exceed max_detections={max_detections}")
     box_class = np.asarray(box_class).reshape(-1)
     if box_class.dtype.kind in "USO":
-        box_class = np.array(
-            [_factors.class_index(str(c)) for c in box_class], np.int64
-        )
+        box_class = np.array([_factors.class_index(str(c)) for c in box_class], np.int64)
     box_class = box_class.astype(np.int64)
     object_id = _np("object_id", object_id, None, np.int64).reshape(-1)
     if box_class.shape != (N,) or object_id.shape != (N,):
-        raise ValueError(
-            f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}"
-        )
+        raise ValueError(f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}")
     n_classes = len(_factors.CLASS_NAMES)
     if np.any((box_class < 0) | (box_class >= n_classes)):
-        raise ValueError(
-            f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}"
-        )
-    if np.any(object_id < 0) or (
-        max_objects is not None and np.any(object_id >= max_objects)
-    ):
-        raise ValueError(
-            f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}"
-        )
-    ok = (
-        np.all(np.isfinite(box), axis=-1)
-        & (box[:, 2] > box[:, 0])
-        & (box[:, 3] > box[:, 1])
-    )
+        raise ValueError(f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}")
+    if np.any(object_id < 0) or (max_objects is not None and np.any(object_id >= max_objects)):
+        raise ValueError(f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}")
+    ok = np.all(np.isfinite(box), axis=-1) & (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
     if not ok.all():
         warnings.warn(
             f"box: dropped {int((~ok).sum())} NaN or inverted detections (indices {np.flatnonzero(~ok).tolist()})",
@@ -539,35 +483,25 @@ def make_frame(
         texture_depth = np.full(N, np.nan)
     texture_depth = _np("texture_depth", texture_depth, None).reshape(-1)
     if texture_depth.shape != (N,):
-        raise ValueError(
-            f"texture_depth: expected shape ({N},), got {texture_depth.shape}"
-        )
+        raise ValueError(f"texture_depth: expected shape ({N},), got {texture_depth.shape}")
     tex_mask = ok & np.isfinite(texture_depth) & (texture_depth > 0)
     pad = max_detections - N
     box = np.where(ok[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
     return Frame(
         pose_prior=jnp.asarray(pose_prior, dtype),
-        box=jnp.asarray(
-            np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype
-        ),
-        box_class=jnp.asarray(
-            np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32
-        ),
+        box=jnp.asarray(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype),
+        box_class=jnp.asarray(np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32),
         texture_depth=jnp.asarray(
             np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)]),
             dtype,
         ),
         texture_mask=jnp.asarray(np.concatenate([tex_mask, np.zeros(pad, bool)])),
-        object_id=jnp.asarray(
-            np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32
-        ),
+        object_id=jnp.asarray(np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32),
         box_mask=jnp.asarray(np.concatenate([ok, np.zeros(pad, bool)])),
     )
 
 
-def bucket_capacity(
-    num_poses: int, num_boxes: int, num_objects: int, *, minimum: int = 8
-):
+def bucket_capacity(num_poses: int, num_boxes: int, num_objects: int, *, minimum: int = 8):
     """Padded ``(T, M, J)`` capacity for a problem of these sizes: each rounded up to a power of
     two (at least ``minimum``). Problems in one bucket share one compilation of every solver
     (pass it as ``make_problem(..., capacity=...)``); a bucket wastes at most half its slots."""

@@ -58,7 +58,8 @@ import dataclasses
 import json
 import math
 import pathlib
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -204,11 +205,7 @@ def _vector(where, field, value, n, positive=False):
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         _fail(where, field, f"expected {n} numbers, got {value!r:.80}")
-    if (
-        arr.shape != (n,)
-        or not np.all(np.isfinite(arr))
-        or (positive and np.any(arr <= 0))
-    ):
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)):
         _fail(
             where,
             field,
@@ -233,13 +230,9 @@ def _class_name(where, field, value):
 
 def _assoc_id(where, field, value):
     if isinstance(value, bool) or not isinstance(value, (int, str)):
-        _fail(
-            where, field, f"expected an int >= 0 or a non-empty string, got {value!r}"
-        )
+        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
     if isinstance(value, int) and value < 0 or isinstance(value, str) and not value:
-        _fail(
-            where, field, f"expected an int >= 0 or a non-empty string, got {value!r}"
-        )
+        _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
     return value
 
 
@@ -248,13 +241,7 @@ def _box(where, field, value, image_size):
         b = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         b = None
-    ok = (
-        b is not None
-        and b.shape == (4,)
-        and np.all(np.isfinite(b))
-        and b[2] > b[0]
-        and b[3] > b[1]
-    )
+    ok = b is not None and b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]
     if not ok:
         _fail(
             where,
@@ -285,9 +272,7 @@ def _parse(data, where, root):
     if (
         not isinstance(size, (list, tuple))
         or len(size) != 2
-        or not all(
-            isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size
-        )
+        or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
     ):
         _fail(
             where,
@@ -314,9 +299,7 @@ def _parse(data, where, root):
                 _fail(where, f"{f}.image", f"image file {str(path)!r} does not exist")
         dets = fr.get("detections", [])
         if not isinstance(dets, list):
-            _fail(
-                where, f"{f}.detections", f"expected a list, got {type(dets).__name__}"
-            )
+            _fail(where, f"{f}.detections", f"expected a list, got {type(dets).__name__}")
         boxes, classes, ids, depth = [], [], [], []
         for n, d in enumerate(dets):
             g = f"{f}.detections[{n}]"
@@ -331,11 +314,7 @@ def _parse(data, where, root):
             tex = d.get("texture_depth")
             if tex is None:
                 depth.append(np.nan)
-            elif (
-                isinstance(tex, bool)
-                or not isinstance(tex, (int, float))
-                or not (math.isfinite(tex) and tex > 0)
-            ):
+            elif isinstance(tex, bool) or not isinstance(tex, (int, float)) or not (math.isfinite(tex) and tex > 0):
                 _fail(
                     where,
                     f"{g}.texture_depth",
@@ -408,11 +387,7 @@ def _parse_noise(where, noise):
                 f"noise.{key}",
                 f"unknown field; expected one of {sorted(NOISE_FIELDS)}",
             )
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not (math.isfinite(value) and value > 0)
-        ):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             _fail(
                 where,
                 f"noise.{key}",
@@ -422,7 +397,7 @@ def _parse_noise(where, noise):
     return out
 
 
-def noise_model(sequence: "Sequence", base=None):
+def noise_model(sequence: Sequence, base=None):
     """The :class:`jaxsem.slam.NoiseModel` of ``base`` (default ``NoiseModel()``) with the
     sequence's ``"noise"`` fields applied (degrees converted to radians)."""
     from ._problem import NoiseModel
@@ -449,9 +424,7 @@ def _parse_truth(where, tr, num_frames):
                 "truth.camera_T_world",
                 f"expected a list of {num_frames} 4x4 poses",
             )
-        out["camera_T_world"] = np.stack(
-            [_pose(where, f"truth.camera_T_world[{t}]", p) for t, p in enumerate(poses)]
-        )
+        out["camera_T_world"] = np.stack([_pose(where, f"truth.camera_T_world[{t}]", p) for t, p in enumerate(poses)])
     objects = tr.get("objects", [])
     if not isinstance(objects, list):
         _fail(where, "truth.objects", "expected a list")
@@ -499,15 +472,12 @@ def load_sequence(path) -> Sequence:
     file = path / SEQUENCE_FILE if path.is_dir() else path
     if not file.is_file():
         raise ValueError(
-            f"{file}: no such file (expected a sequence directory holding {SEQUENCE_FILE}, or the "
-            "JSON file itself)"
+            f"{file}: no such file (expected a sequence directory holding {SEQUENCE_FILE}, or the JSON file itself)"
         )
     try:
         data = json.loads(file.read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(
-            f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}"
-        ) from None
+        raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
     return _parse(data, str(file), file.parent)
@@ -610,9 +580,7 @@ def sequence_from_simulation(sim_map, image_size) -> Sequence:
     g = lambda name: np.asarray(getattr(sim_map, name))
     pose, boxes, mask = g("pose_prior"), g("boxes"), g("box_mask")
     if pose.ndim != 3 or boxes.ndim != 3:
-        raise ValueError(
-            f"sim_map: expected one map (pose_prior (T, 4, 4)), got pose_prior {pose.shape}"
-        )
+        raise ValueError(f"sim_map: expected one map (pose_prior (T, 4, 4)), got pose_prior {pose.shape}")
     tex, tex_mask, cls = g("texture_depth"), g("texture_mask"), g("object_class")
     names = [factors.CLASS_NAMES[int(c)] for c in cls]
     frames = []
@@ -624,9 +592,7 @@ def sequence_from_simulation(sim_map, image_size) -> Sequence:
                 boxes=boxes[t, js].astype(np.float64).reshape(-1, 4),
                 classes=tuple(names[j] for j in js),
                 ids=tuple(int(j) for j in js),
-                texture_depth=np.where(tex_mask[t, js], tex[t, js], np.nan).astype(
-                    np.float64
-                ),
+                texture_depth=np.where(tex_mask[t, js], tex[t, js], np.nan).astype(np.float64),
             )
         )
     objects = [
@@ -740,22 +706,16 @@ def run_sequence(
     from ._problem import SolverConfig, make_frame
 
     if not isinstance(sequence, Sequence):
-        raise ValueError(
-            f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}"
-        )
+        raise ValueError(f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}")
     config = SolverConfig() if config is None else config
     capacity = default_capacity(sequence) if capacity is None else capacity
     ids = sequence.object_ids
     slot = {i: j for j, i in enumerate(ids)}
     if len(ids) > capacity.max_objects:
-        raise ValueError(
-            f"capacity.max_objects: {capacity.max_objects} < {len(ids)} objects in the sequence"
-        )
+        raise ValueError(f"capacity.max_objects: {capacity.max_objects} < {len(ids)} objects in the sequence")
     D_max = max(len(f.ids) for f in sequence.frames)
     if D_max > capacity.max_detections:
-        raise ValueError(
-            f"capacity.max_detections: {capacity.max_detections} < {D_max} detections in one frame"
-        )
+        raise ValueError(f"capacity.max_detections: {capacity.max_detections} < {D_max} detections in one frame")
     state = online_init(
         config,
         capacity,
@@ -783,9 +743,7 @@ def run_sequence(
         start = time.perf_counter()
         state = jax.block_until_ready(online_update(state, frame))
         seconds[t] = time.perf_counter() - start
-        if (
-            t + 1 >= P and t + 1 < T
-        ):  # the next frame reuses the slot of frame t + 1 - P
+        if t + 1 >= P and t + 1 < T:  # the next frame reuses the slot of frame t + 1 - P
             poses[t + 1 - P] = np.asarray(state.estimate.camera_T_world[(t + 1) % P])
         if callback is not None:
             callback(t, state, seconds[t])
@@ -810,9 +768,7 @@ def run_sequence(
     )
 
 
-def map_to_json(
-    object_ids, object_classes, rotation, center, radii, camera_T_world=None
-) -> dict:
+def map_to_json(object_ids, object_classes, rotation, center, radii, camera_T_world=None) -> dict:
     """An estimated map as a JSON-ready dict.
 
     Args:
@@ -829,13 +785,7 @@ def map_to_json(
     center = np.asarray(center, np.float64).reshape(-1, 3)
     radii = np.asarray(radii, np.float64).reshape(-1, 3)
     J = len(object_ids)
-    if not (
-        len(object_classes)
-        == rotation.shape[0]
-        == center.shape[0]
-        == radii.shape[0]
-        == J
-    ):
+    if not (len(object_classes) == rotation.shape[0] == center.shape[0] == radii.shape[0] == J):
         raise ValueError(
             f"object_ids, object_classes, rotation, center, radii: expected {J} objects each, got "
             f"{len(object_classes)}, {rotation.shape[0]}, {center.shape[0]}, {radii.shape[0]}"
@@ -892,9 +842,7 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
     )
     for k, v in e.items():
         out[k] = np.asarray(v, np.float64)
-    out["mean"] = {
-        k: float(np.mean(out[k])) for k in ("shape", "position", "orientation")
-    }
+    out["mean"] = {k: float(np.mean(out[k])) for k in ("shape", "position", "orientation")}
     return out
 
 
@@ -906,15 +854,11 @@ def _ground_outline(rotation, center, radii, num_points: int = 72):
     """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y."""
     from .. import quadrics as Q
 
-    outline, _ = Q.conic_outline(
-        Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points
-    )
+    outline, _ = Q.conic_outline(Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points)
     return np.asarray(outline, np.float64)
 
 
-def draw_top_down(
-    ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style
-):
+def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style):
     """Draws ellipsoids seen from above (world x right, y up) on matplotlib axes ``ax``.
 
     Args:
@@ -929,11 +873,7 @@ def draw_top_down(
     """
     outline = _ground_outline(rotation, center, radii)
     center = np.asarray(center, np.float64).reshape(-1, 3)
-    mask = (
-        np.ones(len(outline), bool)
-        if mask is None
-        else np.asarray(mask, bool).reshape(-1)
-    )
+    mask = np.ones(len(outline), bool) if mask is None else np.asarray(mask, bool).reshape(-1)
     lines = []
     for j in np.flatnonzero(mask):
         (line,) = ax.plot(
@@ -1049,9 +989,7 @@ def draw_overlay(
         if keep.any():
             Kf = jnp.asarray(K, jnp.float32)
             pose = jnp.asarray(camera_T_world, jnp.float32)
-            R, c, r = (
-                jnp.asarray(x[keep], jnp.float32) for x in (rotation, center, radii)
-            )
+            R, c, r = (jnp.asarray(x[keep], jnp.float32) for x in (rotation, center, radii))
             conic = Q.project_dual_conic(Q.dual_quadric(R, c, r), Kf, pose)
             outline, ok_c = Q.conic_outline(conic, 96)
             pbox, ok_b = Q.project_bbox(R, c, r, Kf, pose)
@@ -1059,9 +997,7 @@ def draw_overlay(
                 if bool(ok_b[k]) and bool(ok_c[k]):
                     pts = np.asarray(outline[k])
                     ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.2)
-                    ax.add_patch(
-                        _rect(np.asarray(pbox[k]), color="tab:blue", lw=0.8, ls="--")
-                    )
+                    ax.add_patch(_rect(np.asarray(pbox[k]), color="tab:blue", lw=0.8, ls="--"))
     if title:
         ax.set_title(title, fontsize=9)
     ax.set_xticks([])
@@ -1071,6 +1007,4 @@ def draw_overlay(
 def _rect(b, **style):
     import matplotlib.patches as mpatches
 
-    return mpatches.Rectangle(
-        (b[0], b[1]), b[2] - b[0], b[3] - b[1], fill=False, **style
-    )
+    return mpatches.Rectangle((b[0], b[1]), b[2] - b[0], b[3] - b[1], fill=False, **style)

@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import factors as F
-from .. import quadrics as Q
+from .. import factors as F, quadrics as Q
 from ._problem import SlamEstimate, make_problem
 
 
@@ -88,8 +87,13 @@ def toy_map(
     box, valid, depth = np.asarray(box), np.asarray(valid), np.asarray(depth)
     box = box + box_noise * rng.normal(size=box.shape)
     clipped = np.stack(
-        [np.clip(box[..., 0], 0, W), np.clip(box[..., 1], 0, H),
-         np.clip(box[..., 2], 0, W), np.clip(box[..., 3], 0, H)], -1
+        [
+            np.clip(box[..., 0], 0, W),
+            np.clip(box[..., 1], 0, H),
+            np.clip(box[..., 2], 0, W),
+            np.clip(box[..., 3], 0, H),
+        ],
+        -1,
     )
     area = np.prod(np.maximum(clipped[..., 2:] - clipped[..., :2], 0), -1)
     full = np.prod(np.maximum(box[..., 2:] - box[..., :2], 1e-9), -1)
@@ -105,8 +109,15 @@ def toy_map(
         N[:3, :3], N[:3, 3] = dR, dt
         noisy.append(N @ P)
     problem = make_problem(
-        K, [W, H], np.stack(noisy), boxes, t_idx, j_idx, [class_name] * num_objects,
-        texture_depth=tex, capacity=capacity,
+        K,
+        [W, H],
+        np.stack(noisy),
+        boxes,
+        t_idx,
+        j_idx,
+        [class_name] * num_objects,
+        texture_depth=tex,
+        capacity=capacity,
     )
     truth = SlamEstimate(poses, rotation, center, radii)
     if capacity is not None:
@@ -121,8 +132,9 @@ def toy_map(
     import jax.numpy as jnp
 
     dtype = problem.K.dtype
-    truth = SlamEstimate(*(jnp.asarray(a, dtype) for a in (
-        truth.camera_T_world, truth.rotation, truth.center, truth.radii)))
+    truth = SlamEstimate(
+        *(jnp.asarray(a, dtype) for a in (truth.camera_T_world, truth.rotation, truth.center, truth.radii))
+    )
     return problem, truth
 
 
@@ -141,9 +153,15 @@ def frames_from_problem(problem, max_detections: int = 16):
     cls = np.asarray(problem.object_class)
     for t in np.flatnonzero(np.asarray(problem.pose_mask)):
         sel = bm & (bp == t)
-        out.append(make_frame(
-            np.asarray(problem.pose_prior[t]), box[sel], cls[bo[sel]], bo[sel],
-            np.where(tm[sel], td[sel], np.nan), max_detections=max_detections,
-            dtype=problem.K.dtype,
-        ))
+        out.append(
+            make_frame(
+                np.asarray(problem.pose_prior[t]),
+                box[sel],
+                cls[bo[sel]],
+                bo[sel],
+                np.where(tm[sel], td[sel], np.nan),
+                max_detections=max_detections,
+                dtype=problem.K.dtype,
+            )
+        )
     return out

@@ -1,5 +1,35 @@
 """VoluMon (thesis chapter 5): losses, inputs, synthetic data, training, refinement, evaluation."""
 
+from ._configs import (
+    SIZES as SIZES,
+    VARIANTS as VARIANTS,
+    TrainConfig as TrainConfig,
+    config_from_dict as config_from_dict,
+    default_config as default_config,
+    get_config as get_config,
+    thesis_config as thesis_config,
+    tiny_config as tiny_config,
+)
+from ._device_data import (
+    augmentation_numbers as augmentation_numbers,
+    device_batch as device_batch,
+    device_batch_jit as device_batch_jit,
+    eval_key as eval_key,
+    held_out_set as held_out_set,
+    sample_scene as sample_scene,
+    train_key as train_key,
+)
+from ._draw import (
+    box_corners_2d as box_corners_2d,
+    draw_predictions as draw_predictions,
+    ellipsoid_outline as ellipsoid_outline,
+)
+from ._eval import (
+    cuboid_surface_points as cuboid_surface_points,
+    detection_errors as detection_errors,
+    evaluate_predictions as evaluate_predictions,
+    size_errors as size_errors,
+)
 from ._inputs import (
     check_image_and_boxes as check_image_and_boxes,
     crop_and_resize as crop_and_resize,
@@ -13,11 +43,28 @@ from ._losses import (
     box_error as box_error,
     dual_loss as dual_loss,
     dual_loss_per_sample as dual_loss_per_sample,
+    oracle_loss_per_sample as oracle_loss_per_sample,
     primal_loss as primal_loss,
     primal_loss_per_sample as primal_loss_per_sample,
+    shape_box as shape_box,
+    shape_distance as shape_distance,
     size_variance_loss as size_variance_loss,
     stereo_right_T_left as stereo_right_T_left,
     volumon_loss as volumon_loss,
+)
+from ._pretrained import (
+    PRETRAINED_DIR as PRETRAINED_DIR,
+    evaluate_held_out as evaluate_held_out,
+    export_pretrained as export_pretrained,
+    load_pretrained as load_pretrained,
+    mean_size_radii as mean_size_radii,
+)
+from ._refine import (
+    init_from_points as init_from_points,
+    optimise_from_scratch as optimise_from_scratch,
+    phi_from_ellipsoid as phi_from_ellipsoid,
+    postopt as postopt,
+    refine as refine,
 )
 from ._synthetic import (
     CLASSES as CLASSES,
@@ -26,22 +73,11 @@ from ._synthetic import (
     SceneConfig as SceneConfig,
     make_batch as make_batch,
 )
-from ._configs import (
-    VARIANTS as VARIANTS,
-    config_from_dict as config_from_dict,
-    TrainConfig as TrainConfig,
-    default_config as default_config,
-    get_config as get_config,
-    thesis_config as thesis_config,
-    tiny_config as tiny_config,
-)
-from ._eval import (
-    cuboid_surface_points as cuboid_surface_points,
-    detection_errors as detection_errors,
-    evaluate_predictions as evaluate_predictions,
-)
 from ._train import (
+    TRAIN_KEYS as TRAIN_KEYS,
+    ConfigMismatchError as ConfigMismatchError,
     augment as augment,
+    augmentation_params as augmentation_params,
     batch_indices as batch_indices,
     evaluate as evaluate,
     init_state as init_state,
@@ -50,30 +86,4 @@ from ._train import (
     make_train_step as make_train_step,
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
-)
-from ._device_data import (
-    augmentation_numbers as augmentation_numbers,
-    device_batch as device_batch,
-    eval_key as eval_key,
-    held_out_set as held_out_set,
-    sample_scene as sample_scene,
-    train_key as train_key,
-)
-from ._losses import oracle_loss_per_sample as oracle_loss_per_sample, shape_box as shape_box, shape_distance as shape_distance
-from ._eval import size_errors as size_errors
-from ._pretrained import (
-    PRETRAINED_DIR as PRETRAINED_DIR,
-    evaluate_held_out as evaluate_held_out,
-    export_pretrained as export_pretrained,
-    load_pretrained as load_pretrained,
-    mean_size_radii as mean_size_radii,
-)
-from ._train import ConfigMismatchError as ConfigMismatchError
-from ._draw import box_corners_2d as box_corners_2d, conic_outline as conic_outline, draw_predictions as draw_predictions
-from ._refine import (
-    init_from_points as init_from_points,
-    optimise_from_scratch as optimise_from_scratch,
-    phi_from_ellipsoid as phi_from_ellipsoid,
-    postopt as postopt,
-    refine as refine,
 )

@@ -71,12 +71,12 @@ class TrainConfig:
         if self.class_mode not in ("true", "expectation"):
             raise ValueError(f"class_mode: expected 'true' or 'expectation', got {self.class_mode!r}")
         for name in ("num_train", "batch_size", "num_steps", "checkpoint_every", "keep_checkpoints", "log_every"):
-            if int(getattr(self, name)) < 1:  # noqa: E501
+            if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name}: expected a positive int, got {getattr(self, name)!r}")
         if not self.learning_rate > 0:
             raise ValueError(f"learning_rate: expected > 0, got {self.learning_rate}")
 
-    def replace(self, **changes) -> "TrainConfig":
+    def replace(self, **changes) -> TrainConfig:
         return dataclasses.replace(self, **changes)
 
 
@@ -140,8 +140,15 @@ def fast_config() -> TrainConfig:
     collapse, see the model card."""
     base = default_config()
     return base.replace(
-        model=VoluMonConfig(input_size=48, hidden=(128,), num_classes=4, backbone="small_cnn", cnn_width=24,
-                            box_input=True, rotation_init="short_axis_along_ray"),
+        model=VoluMonConfig(
+            input_size=48,
+            hidden=(128,),
+            num_classes=4,
+            backbone="small_cnn",
+            cnn_width=24,
+            box_input=True,
+            rotation_init="short_axis_along_ray",
+        ),
         scene=dataclasses.replace(base.scene, classes=(0, 1, 2, 3)),
         loss=dataclasses.replace(base.loss, shape_aware=True, primal_distance="radial"),
         num_steps=20000,
@@ -166,8 +173,13 @@ def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
     if variant not in VARIANTS:
         raise ValueError(f"variant: expected one of {VARIANTS}, got {variant!r}")
     cfg = bases[size]()
-    weights = {"dual": (1.0, 0.0), "primal": (0.0, 1.0), "both": (1.0, 1.0), "both_noisy": (1.0, 1.0),
-               "oracle": (0.0, 0.0)}[variant]
+    weights = {
+        "dual": (1.0, 0.0),
+        "primal": (0.0, 1.0),
+        "both": (1.0, 1.0),
+        "both_noisy": (1.0, 1.0),
+        "oracle": (0.0, 0.0),
+    }[variant]
     loss = dataclasses.replace(cfg.loss, alpha_D=weights[0], alpha_P=weights[1])
     if variant == "oracle":
         loss = dataclasses.replace(loss, alpha_S=0.0, alpha_O=1.0)

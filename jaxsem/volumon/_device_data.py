@@ -61,16 +61,10 @@ def sample_scene(key, scene: SceneConfig):
     H, W = scene.height, scene.width
     k = jax.random.split(key, 11)
     c = jax.random.randint(k[0], (), 0, len(ids))
-    half = (
-        0.5
-        * jnp.asarray(dims)[c]
-        * (1 + scene.size_jitter * jax.random.uniform(k[1], (3,), minval=-1, maxval=1))
-    )
+    half = 0.5 * jnp.asarray(dims)[c] * (1 + scene.size_jitter * jax.random.uniform(k[1], (3,), minval=-1, maxval=1))
     q = jax.random.normal(k[2], (4,))
     R = quaternion_wxyz_to_rotation(q)
-    z = jax.random.uniform(
-        k[3], (), minval=scene.depth_range[0], maxval=scene.depth_range[1]
-    )
+    z = jax.random.uniform(k[3], (), minval=scene.depth_range[0], maxval=scene.depth_range[1])
     rmax = jnp.linalg.norm(half)
     margin = scene.focal * rmax / jnp.maximum(z - rmax, 1e-3) + 2
     lo = margin
@@ -85,8 +79,7 @@ def sample_scene(key, scene: SceneConfig):
         "center": center,
         "half": half,
         "shape_id": jnp.asarray(shapes)[c],
-        "color": jnp.asarray(colors)[c]
-        * jax.random.uniform(k[5], (), minval=0.85, maxval=1.15),
+        "color": jnp.asarray(colors)[c] * jax.random.uniform(k[5], (), minval=0.85, maxval=1.15),
     }
     # one uniform draw per pixel and channel: unit-variance background noise (uniform, not
     # normal: threefry normals cost ~3x more on a CPU) and, from channel 0, the scores that pick
@@ -176,9 +169,7 @@ def device_batch(
     out["gt_center"] = poses["center"]
     out["gt_half_extents"] = poses["half"]
     out["gt_shape_id"] = poses["shape_id"]
-    out["class_shape"] = poses[
-        "shape_id"
-    ]  # the class's shape (class table), what shape-aware losses may use
+    out["class_shape"] = poses["shape_id"]  # the class's shape (class table), what shape-aware losses may use
     return out
 
 
@@ -198,11 +189,7 @@ device_batch_jit = jax.jit(
 
 @functools.lru_cache(maxsize=8)
 def _eval_batches_fn(batch_size, scene, input_size, padding, noisy, keep_images):
-    return jax.jit(
-        lambda key: device_batch(
-            key, batch_size, scene, input_size, padding, True, noisy, keep_images
-        )
-    )
+    return jax.jit(lambda key: device_batch(key, batch_size, scene, input_size, padding, True, noisy, keep_images))
 
 
 def held_out_set(
@@ -221,9 +208,7 @@ def held_out_set(
     compiled function.
     """
     if int(num) < 1:
-        raise ValueError(
-            f"num: expected a positive number of held-out samples, got {num}"
-        )
+        raise ValueError(f"num: expected a positive number of held-out samples, got {num}")
     fn = _eval_batches_fn(
         int(batch_size),
         scene,
@@ -233,7 +218,5 @@ def held_out_set(
         bool(keep_images),
     )
     key = eval_key(seed)
-    parts = [
-        fn(jax.random.fold_in(key, i)) for i in range(-(-int(num) // int(batch_size)))
-    ]
+    parts = [fn(jax.random.fold_in(key, i)) for i in range(-(-int(num) // int(batch_size)))]
     return {k: jnp.concatenate([p[k] for p in parts])[: int(num)] for k in parts[0]}

@@ -9,7 +9,7 @@ from ..quadrics import conic_outline as quadrics_conic_outline, dual_quadric, pr
 _EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (4, 5), (4, 6), (5, 7), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
 
 
-def conic_outline(rotation, center, radii, K, n: int = 100):
+def ellipsoid_outline(rotation, center, radii, K, n: int = 100):
     """(n, 2) pixel points of the ellipse outline (camera-frame ellipsoid), or None if not an ellipse."""
     conic = project_dual_conic(dual_quadric(rotation, center, radii), K, np.eye(4))
     outline, valid = quadrics_conic_outline(conic, n)
@@ -31,9 +31,11 @@ def draw_predictions(ax, image, ellipsoids, K, boxes=None, truth=None):
     H, W = np.asarray(image).shape[:2]
     if boxes is not None:
         for b in np.asarray(boxes):
-            ax.add_patch(__import__("matplotlib").patches.Rectangle(b[:2], *(b[2:] - b[:2]), fill=False, color="lime", lw=1))
+            ax.add_patch(
+                __import__("matplotlib").patches.Rectangle(b[:2], *(b[2:] - b[:2]), fill=False, color="lime", lw=1)
+            )
     for R, t, r in ellipsoids:
-        out = conic_outline(R, t, r, K)
+        out = ellipsoid_outline(R, t, r, K)
         if out is not None:
             ax.plot(out[:, 0], out[:, 1], color="deepskyblue", lw=1)
         c = box_corners_2d(R, t, r, K)

@@ -68,7 +68,9 @@ def _cylinder_unit_points(n: int, half) -> np.ndarray:
     theta = rng.uniform(0, 2 * np.pi, (half.shape[0], n))
     on_side = rng.uniform(size=(half.shape[0], n)) < p_side[:, None]
     rad = np.where(on_side, 1.0, np.sqrt(rng.uniform(size=(half.shape[0], n))))
-    z = np.where(on_side, rng.uniform(-1, 1, (half.shape[0], n)), np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0))
+    z = np.where(
+        on_side, rng.uniform(-1, 1, (half.shape[0], n)), np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0)
+    )
     return np.stack([rad * np.cos(theta), rad * np.sin(theta), z], -1) * half[:, None, :]
 
 
@@ -137,10 +139,19 @@ def detection_errors(pred, gt):
     gt_h = sel(gt["gt_half_extents"]).astype(np.float64)
     shape = sel(gt["gt_shape_id"])
     dirs = _sphere_directions(NUM_TRUE_POINTS)
-    local = np.where((shape == 0)[:, None, None], _cuboid_unit_points(NUM_TRUE_POINTS, gt_h), dirs[None] * gt_h[:, None, :])
+    local = np.where(
+        (shape == 0)[:, None, None], _cuboid_unit_points(NUM_TRUE_POINTS, gt_h), dirs[None] * gt_h[:, None, :]
+    )
     local = np.where((shape == 2)[:, None, None], _cylinder_unit_points(NUM_TRUE_POINTS, gt_h), local)
     f = lambda x: jnp.asarray(x, jnp.float32)
-    trans, adi, iou = _errors(f(sel(pred["rotation"])), f(sel(pred["center"])), f(sel(pred["radii"])),
-                              f(sel(gt["gt_rotation"])), f(sel(gt["gt_center"])), f(local),
-                              f(_sphere_directions(NUM_PRED_POINTS)), f(gt_h))
+    trans, adi, iou = _errors(
+        f(sel(pred["rotation"])),
+        f(sel(pred["center"])),
+        f(sel(pred["radii"])),
+        f(sel(gt["gt_rotation"])),
+        f(sel(gt["gt_center"])),
+        f(local),
+        f(_sphere_directions(NUM_PRED_POINTS)),
+        f(gt_h),
+    )
     return np.asarray(trans), np.asarray(adi), np.asarray(iou)

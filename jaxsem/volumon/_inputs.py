@@ -58,7 +58,9 @@ def masked_global_image(image, box, size: int, padding: float = 0.1):
     ph = padding * (box[3] - box[1])
     cols = jnp.arange(W, dtype=image.dtype)
     rows = jnp.arange(H, dtype=image.dtype)
-    inside = ((cols >= box[0] - pw) & (cols <= box[2] + pw))[None, :] & ((rows >= box[1] - ph) & (rows <= box[3] + ph))[:, None]
+    inside = ((cols >= box[0] - pw) & (cols <= box[2] + pw))[None, :] & ((rows >= box[1] - ph) & (rows <= box[3] + ph))[
+        :, None
+    ]
     masked = jnp.where(inside[..., None], image, 0.0)
     full = jnp.array([-0.5, -0.5, W - 0.5, H - 0.5], image.dtype)
     return crop_and_resize(masked, full, size)
@@ -76,7 +78,9 @@ def check_image_and_boxes(image, boxes, name_image="image", name_boxes="boxes"):
         pass
     elif np.issubdtype(img.dtype, np.floating):
         if img.size and (not np.all(np.isfinite(img)) or img.min() < 0 or img.max() > 1):
-            raise ValueError(f"{name_image}: float images must be finite and in [0, 1], got range [{img.min()}, {img.max()}]")
+            raise ValueError(
+                f"{name_image}: float images must be finite and in [0, 1], got range [{img.min()}, {img.max()}]"
+            )
     else:
         raise ValueError(f"{name_image}: expected dtype uint8 or float in [0, 1], got {img.dtype}")
     b = np.asarray(boxes, np.float64)

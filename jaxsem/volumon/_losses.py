@@ -107,8 +107,18 @@ class LossConfig:
     alpha_V: float = 0.0
 
     def __post_init__(self):
-        for name in ("alpha_P", "alpha_D", "alpha_S", "alpha_C", "eps_v", "invalid_penalty", "min_depth",
-                     "primal_size_power", "alpha_O", "alpha_V"):
+        for name in (
+            "alpha_P",
+            "alpha_D",
+            "alpha_S",
+            "alpha_C",
+            "eps_v",
+            "invalid_penalty",
+            "min_depth",
+            "primal_size_power",
+            "alpha_O",
+            "alpha_V",
+        ):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"{name}: expected a non-negative number, got {getattr(self, name)!r}")
         if self.primal_distance not in ("algebraic", "radial"):
@@ -187,8 +197,9 @@ def shape_distance(points, rotation, center, radii, shape):
     return jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, q_ell))
 
 
-def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig(),
-                         shape=None):
+def dual_loss_per_sample(
+    ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig(), shape=None
+):
     """Per-sample ``e_b(B_L, h(q, P_L)) + e_b(B_R, h(q, P_R))``, with the invalid-geometry penalty.
 
     Args:
@@ -216,8 +227,9 @@ def dual_loss_per_sample(ellipsoid: Ellipsoid, box_left, box_right, K, right_T_l
     return total
 
 
-def dual_loss(ellipsoid, box_left, box_right, K, right_T_left, sample_mask=None, config: LossConfig = LossConfig(),
-              shape=None):
+def dual_loss(
+    ellipsoid, box_left, box_right, K, right_T_left, sample_mask=None, config: LossConfig = LossConfig(), shape=None
+):
     """L_D (eq. 5.11): mean over samples of the stereo box error; scalar."""
     per = dual_loss_per_sample(ellipsoid, box_left, box_right, K, right_T_left, config, shape)
     mask = jnp.ones(per.shape, bool) if sample_mask is None else jnp.asarray(sample_mask, bool)
@@ -328,7 +340,9 @@ def volumon_loss(
     shape = batch["class_shape"] if config.shape_aware else None
     if config.alpha_D > 0:
         right_T_left = stereo_right_T_left(batch["baseline"], dtype)
-        dual = dual_loss(ellipsoid, batch["box_left"], batch["box_right"], batch["K"], right_T_left, mask, config, shape)
+        dual = dual_loss(
+            ellipsoid, batch["box_left"], batch["box_right"], batch["K"], right_T_left, mask, config, shape
+        )
     if config.alpha_P > 0:
         primal = primal_loss(ellipsoid, batch["points"], batch["point_mask"], mask, config, shape)
     if config.alpha_O > 0:
@@ -341,11 +355,16 @@ def volumon_loss(
 
         ce = optax.softmax_cross_entropy_with_integer_labels(class_logits, batch["class_id"])
         cls = _masked_mean(ce, jnp.ones(ce.shape, bool) if mask is None else jnp.asarray(mask, bool))
-    total = (config.alpha_D * dual + config.alpha_P * primal + config.alpha_S * size + config.alpha_C * cls
-             + config.alpha_O * oracle)
+    total = (
+        config.alpha_D * dual
+        + config.alpha_P * primal
+        + config.alpha_S * size
+        + config.alpha_C * cls
+        + config.alpha_O * oracle
+    )
     if config.alpha_V > 0:
         logvol = jnp.sum(jnp.log(ellipsoid.sizes / config.length_unit), -1)
-        total = total + config.alpha_V * _masked_mean(logvol, jnp.ones(logvol.shape, bool) if mask is None
-                                                      else jnp.asarray(mask, bool))
+        total = total + config.alpha_V * _masked_mean(
+            logvol, jnp.ones(logvol.shape, bool) if mask is None else jnp.asarray(mask, bool)
+        )
     return LossTerms(total, dual, primal, size, cls, oracle)
-

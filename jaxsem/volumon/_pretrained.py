@@ -124,9 +124,7 @@ def mean_size_radii(config: TrainConfig) -> np.ndarray:
     """Sorted semi-axes (3,) of the *constant* baseline: the mean over the training classes' sorted radii."""
     from ._synthetic import CLASSES
 
-    r = np.sort(
-        np.asarray([CLASSES[i][2] for i in config.scene.classes], np.float64) / 2, -1
-    )
+    r = np.sort(np.asarray([CLASSES[i][2] for i in config.scene.classes], np.float64) / 2, -1)
     return r.mean(0)
 
 
@@ -203,14 +201,7 @@ def evaluate_held_out(
         "center": gt["gt_center"],
         "radii": gt["gt_half_extents"],
     }
-    out.update(
-        {
-            f"ceiling_{k}": v
-            for k, v in _summary(
-                truth, gt, evaluate_predictions, detection_errors
-            ).items()
-        }
-    )
+    out.update({f"ceiling_{k}": v for k, v in _summary(truth, gt, evaluate_predictions, detection_errors).items()})
     if postopt_steps > 0:
         from ._refine import postopt
 
@@ -237,10 +228,19 @@ def evaluate_held_out(
         # PostOpt started at the exact ground truth: how far does the objective move it?
         from ._refine import phi_from_ellipsoid
 
-        phi_true = phi_from_ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["box_input"], b["K"],
-                                      config.recon)
-        _, ell_t, _ = postopt(phi_true, b["box_input"], b["K"], b["points"], b["point_mask"], config.recon, config.loss,
-                              int(postopt_steps))
+        phi_true = phi_from_ellipsoid(
+            b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["box_input"], b["K"], config.recon
+        )
+        _, ell_t, _ = postopt(
+            phi_true,
+            b["box_input"],
+            b["K"],
+            b["points"],
+            b["point_mask"],
+            config.recon,
+            config.loss,
+            int(postopt_steps),
+        )
         drift = np.linalg.norm(np.asarray(ell_t.center) - gt["gt_center"], axis=-1)[keep]
         out["postopt_from_truth_median_drift_m"] = float(np.median(drift))
         out["postopt_from_truth_p90_drift_m"] = float(np.percentile(drift, 90))

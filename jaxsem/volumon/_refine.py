@@ -135,8 +135,18 @@ def _refine(phi0, box, K, points, mask, free, recon, loss_cfg, num_steps, lr):
     return jax.vmap(fn)(phi0, box, K, points, mask)
 
 
-def refine(phi0, box, K, points, point_mask, free_mask=POSE_MASK, recon: ReconstructionConfig = ReconstructionConfig(),
-           loss_config: LossConfig = LossConfig(), num_steps: int = 50, learning_rate: float = 0.05):
+def refine(
+    phi0,
+    box,
+    K,
+    points,
+    point_mask,
+    free_mask=POSE_MASK,
+    recon: ReconstructionConfig = ReconstructionConfig(),
+    loss_config: LossConfig = LossConfig(),
+    num_steps: int = 50,
+    learning_rate: float = 0.05,
+):
     """Adam on the primal loss of each detection's ``phi`` (eq. 5.15), only entries in ``free_mask``.
 
     Args:
@@ -150,33 +160,68 @@ def refine(phi0, box, K, points, point_mask, free_mask=POSE_MASK, recon: Reconst
     if phi0.ndim != 2 or phi0.shape[-1] != 10:
         raise ValueError(f"phi0: expected shape (B, 10), got {tuple(phi0.shape)}")
     B = phi0.shape[0]
-    for name, x, tail in (("box", box, (4,)), ("K", K, (3, 3)), ("points", points, None), ("point_mask", point_mask, None)):
+    for name, x, tail in (
+        ("box", box, (4,)),
+        ("K", K, (3, 3)),
+        ("points", points, None),
+        ("point_mask", point_mask, None),
+    ):
         shape = tuple(jnp.shape(x))
         if shape[:1] != (B,) or (tail is not None and shape[1:] != tail):
-            raise ValueError(f"{name}: expected leading batch {B}{' and trailing ' + str(tail) if tail else ''}, got {shape}")
+            raise ValueError(
+                f"{name}: expected leading batch {B}{' and trailing ' + str(tail) if tail else ''}, got {shape}"
+            )
     if int(num_steps) < 1:
         raise ValueError(f"num_steps: expected >= 1, got {num_steps}")
     dtype = phi0.dtype
-    phi, losses = _refine(phi0, jnp.asarray(box, dtype), jnp.asarray(K, dtype), jnp.asarray(points, dtype),
-                          jnp.asarray(point_mask, bool), jnp.asarray(free_mask, bool), recon, loss_config,
-                          int(num_steps), jnp.asarray(learning_rate, dtype))
+    phi, losses = _refine(
+        phi0,
+        jnp.asarray(box, dtype),
+        jnp.asarray(K, dtype),
+        jnp.asarray(points, dtype),
+        jnp.asarray(point_mask, bool),
+        jnp.asarray(free_mask, bool),
+        recon,
+        loss_config,
+        int(num_steps),
+        jnp.asarray(learning_rate, dtype),
+    )
     return phi, reconstruct(phi, jnp.asarray(box, dtype), jnp.asarray(K, dtype), recon), losses
 
 
-def postopt(phi, box, K, points, point_mask, recon: ReconstructionConfig = ReconstructionConfig(),
-            loss_config: LossConfig = LossConfig(), num_steps: int = 50, learning_rate: float = 0.05):
+def postopt(
+    phi,
+    box,
+    K,
+    points,
+    point_mask,
+    recon: ReconstructionConfig = ReconstructionConfig(),
+    loss_config: LossConfig = LossConfig(),
+    num_steps: int = 50,
+    learning_rate: float = 0.05,
+):
     """VoluMon PostOpt: refine the pose parameters of network predictions, size fixed (50 steps)."""
     return refine(phi, box, K, points, point_mask, POSE_MASK, recon, loss_config, num_steps, learning_rate)
 
 
-def optimise_from_scratch(box, K, points, point_mask, recon: ReconstructionConfig = ReconstructionConfig(),
-                          loss_config: LossConfig = LossConfig(), num_steps: int = 500, learning_rate: float = 0.05):
+def optimise_from_scratch(
+    box,
+    K,
+    points,
+    point_mask,
+    recon: ReconstructionConfig = ReconstructionConfig(),
+    loss_config: LossConfig = LossConfig(),
+    num_steps: int = 500,
+    learning_rate: float = 0.05,
+):
     """The baseline: all ten parameters from the point-cloud initialisation (50 or 500 steps)."""
     points = jnp.asarray(points)
     B = jnp.shape(box)[0] if jnp.ndim(box) == 2 else None
     for name, x in (("points", points), ("point_mask", point_mask), ("K", K)):
         if B is None or jnp.shape(x)[:1] != (B,):
-            raise ValueError(f"{name}: expected the leading batch {B} of box {tuple(jnp.shape(box))}, got {tuple(jnp.shape(x))}")
+            raise ValueError(
+                f"{name}: expected the leading batch {B} of box {tuple(jnp.shape(box))}, got {tuple(jnp.shape(x))}"
+            )
     phi0 = init_from_points(jnp.asarray(box, points.dtype), jnp.asarray(K, points.dtype), points, point_mask, recon)
     return refine(phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate)
 

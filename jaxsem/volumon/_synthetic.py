@@ -60,7 +60,9 @@ class SceneConfig:
     box_noise: float = 0.05
 
     def K(self):
-        return np.array([[self.focal, 0, (self.width - 1) / 2], [0, self.focal, (self.height - 1) / 2], [0, 0, 1]], np.float32)
+        return np.array(
+            [[self.focal, 0, (self.width - 1) / 2], [0, self.focal, (self.height - 1) / 2], [0, 0, 1]], np.float32
+        )
 
 
 def _cuboid_hit(o, d, h):
@@ -184,11 +186,13 @@ def cylinder_box(rotation, center, half, K, camera_T):
 
 def _quat_to_rot_np(q):
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def sample_poses(seed: int, indices, scene: SceneConfig):
@@ -240,7 +244,9 @@ def _true_box(pose, K, camera_T):
     return jnp.where(sid == 0, cub, jnp.where(sid == 2, cyl, ell))
 
 
-def _render_batch(noise, poses, K, baseline, scene: SceneConfig, input_size: int, padding: float, split_test: bool, noisy_scale):
+def _render_batch(
+    noise, poses, K, baseline, scene: SceneConfig, input_size: int, padding: float, split_test: bool, noisy_scale
+):
     H, W, J = scene.height, scene.width, scene.num_points
 
     def one(noise, pose):
@@ -281,8 +287,16 @@ def _render_batch(noise, poses, K, baseline, scene: SceneConfig, input_size: int
 _render_batch_jit = jax.jit(_render_batch, static_argnames=("scene", "input_size", "padding", "split_test"))
 
 
-def make_batch(seed: int, indices, scene: SceneConfig = SceneConfig(), input_size: int = 64, padding: float = 0.1,
-               split: str = "train", noisy: bool = False, keep_images: bool = False):
+def make_batch(
+    seed: int,
+    indices,
+    scene: SceneConfig = SceneConfig(),
+    input_size: int = 64,
+    padding: float = 0.1,
+    split: str = "train",
+    noisy: bool = False,
+    keep_images: bool = False,
+):
     """A batch for the training loop / evaluation, as a dict of arrays with leading batch axis B.
 
     Keys: ``local``, ``global`` (B, S, S, 3) network inputs (from the noisy box when ``noisy``);
@@ -300,8 +314,17 @@ def make_batch(seed: int, indices, scene: SceneConfig = SceneConfig(), input_siz
     K = jnp.asarray(scene.K())
     noise = sample_noise(seed + (0 if split == "train" else 7919), indices, scene)
     jp = {k: jnp.asarray(v) for k, v in poses.items() if k != "class_id"}
-    out = _render_batch_jit(noise, jp, K, jnp.float32(scene.baseline), scene, int(input_size), float(padding),
-                            split == "test", jnp.float32(scene.box_noise if noisy else 0.0))
+    out = _render_batch_jit(
+        noise,
+        jp,
+        K,
+        jnp.float32(scene.baseline),
+        scene,
+        int(input_size),
+        float(padding),
+        split == "test",
+        jnp.float32(scene.box_noise if noisy else 0.0),
+    )
     out = dict(out)
     if not keep_images:
         out.pop("image")

@@ -20,7 +20,8 @@ import functools
 import json
 import pathlib
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -28,16 +29,30 @@ import numpy as np
 import optax
 
 from ..checkpoint import Checkpointer
-from ..models import VoluMonNet, expected_params, reconstruct, select_class_params
-from ..models._volumon import box_features
+from ..models import VoluMonNet, box_features, expected_params, reconstruct, select_class_params
 from ._configs import TrainConfig
 from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
 from ._losses import volumon_loss
 from ._synthetic import make_batch
 
-TRAIN_KEYS = ("local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points", "point_mask",
-              "class_id", "sample_mask", "class_shape", "gt_rotation", "gt_center", "gt_half_extents")
+TRAIN_KEYS = (
+    "local",
+    "global",
+    "box_input",
+    "box_left",
+    "box_right",
+    "K",
+    "baseline",
+    "points",
+    "point_mask",
+    "class_id",
+    "sample_mask",
+    "class_shape",
+    "gt_rotation",
+    "gt_center",
+    "gt_half_extents",
+)
 
 #: config fields that may change between the chunks of one run (length, logging, evaluation)
 RESUMABLE_FIELDS = ("num_steps", "checkpoint_every", "keep_checkpoints", "eval_every", "num_eval", "log_every")
@@ -100,8 +115,9 @@ def augment(aug, local, glob):
 # --------------------------------------------------------------------------------------------
 
 
-def predict_params(model: VoluMonNet, variables, local, glob, class_id=None, class_mode="true", train=False,
-                   box=None, K=None):
+def predict_params(
+    model: VoluMonNet, variables, local, glob, class_id=None, class_mode="true", train=False, box=None, K=None
+):
     """Network free parameters (B, 10) (class row or expectation) and class logits (B, N).
 
     ``box`` (B, 4) and ``K`` (B, 3, 3) are needed by networks with ``config.box_input``."""
@@ -168,13 +184,20 @@ def batch_indices(config: TrainConfig, step: int) -> np.ndarray:
     while len(out) < B:
         epoch, offset = divmod(start + len(out), N)
         perm = np.random.default_rng([config.seed, 104729, epoch]).permutation(N)
-        out.extend(perm[offset: offset + B - len(out)].tolist())
+        out.extend(perm[offset : offset + B - len(out)].tolist())
     return np.asarray(out)
 
 
 def get_train_batch(config: TrainConfig, step: int):
-    batch = make_batch(config.seed, batch_indices(config, step), config.scene, config.model.input_size,
-                       config.model.global_padding, "train", config.noisy)
+    batch = make_batch(
+        config.seed,
+        batch_indices(config, step),
+        config.scene,
+        config.model.input_size,
+        config.model.global_padding,
+        "train",
+        config.noisy,
+    )
     out = {k: batch[k] for k in TRAIN_KEYS}
     if config.augment:
         out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))
@@ -184,8 +207,9 @@ def get_train_batch(config: TrainConfig, step: int):
 def device_train_batch(config: TrainConfig, step):
     """The batch of ``step`` (traced or int) made on the device (augmentation numbers included)."""
     key = jax.random.fold_in(train_key(config.seed), step)
-    b = device_batch(key, config.batch_size, config.scene, config.model.input_size, config.model.global_padding,
-                     False, config.noisy)
+    b = device_batch(
+        key, config.batch_size, config.scene, config.model.input_size, config.model.global_padding, False, config.noisy
+    )
     out: dict[str, Any] = {k: b[k] for k in TRAIN_KEYS}
     if config.augment:
         out["aug"] = augmentation_numbers(jax.random.fold_in(key, 1), config.batch_size)
@@ -206,8 +230,15 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
         if config.augment:
             local, glob = augment(batch["aug"], local, glob)
         phi, logits, new_vars = predict_params(
-            model, {"params": params, "batch_stats": batch_stats}, local, glob, batch["class_id"], config.class_mode, train=True,
-            box=batch["box_input"], K=batch["K"],
+            model,
+            {"params": params, "batch_stats": batch_stats},
+            local,
+            glob,
+            batch["class_id"],
+            config.class_mode,
+            train=True,
+            box=batch["box_input"],
+            K=batch["K"],
         )
         ell = reconstruct(phi, batch["box_input"], batch["K"], config.recon)
         terms = volumon_loss(ell, batch, config.loss, n, logits)
@@ -219,7 +250,13 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
         )
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
-        new_state = {**state, "step": state["step"] + 1, "params": params, "batch_stats": new_bs, "opt_state": opt_state}
+        new_state = {
+            **state,
+            "step": state["step"] + 1,
+            "params": params,
+            "batch_stats": new_bs,
+            "opt_state": opt_state,
+        }
         return new_state, terms._asdict()
 
     if config.data == "device":
@@ -227,8 +264,15 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
     return jax.jit(step_fn)
 
 
-def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_size: int = 32, split: str = "test",
-             seed: int | None = None):
+def evaluate(
+    model,
+    state,
+    config: TrainConfig,
+    num: int | None = None,
+    batch_size: int = 32,
+    split: str = "test",
+    seed: int | None = None,
+):
     """Predict held-out samples and score them (translation / ADI AUC, 3D IoU, size errors, ...).
 
     ``config.data == "device"``: ``num`` samples of :func:`jaxsem.volumon.held_out_set` with seed
@@ -239,20 +283,31 @@ def evaluate(model, state, config: TrainConfig, num: int | None = None, batch_si
     predict = make_predict_fn(model, config)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
     if config.data == "device":
-        b = held_out_set(config.seed if seed is None else seed, num, config.scene, config.model.input_size,
-                         config.model.global_padding, config.noisy, batch_size=batch_size)
+        b = held_out_set(
+            config.seed if seed is None else seed,
+            num,
+            config.scene,
+            config.model.input_size,
+            config.model.global_padding,
+            config.noisy,
+            batch_size=batch_size,
+        )
         _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
-        gt = {k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")}
+        gt = {
+            k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
+        }
         return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), gt)
     preds, gts = [], []
     for start in range(0, num, batch_size):
         idx = np.arange(start, min(num, start + batch_size))
-        b = make_batch(config.seed, idx, config.scene, config.model.input_size, config.model.global_padding, split,
-                       config.noisy)
+        b = make_batch(
+            config.seed, idx, config.scene, config.model.input_size, config.model.global_padding, split, config.noisy
+        )
         _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
         preds.append(jax.tree.map(np.asarray, ell._asdict()))
-        gts.append({k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id",
-                                                   "sample_mask")})
+        gts.append(
+            {k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")}
+        )
     cat = lambda xs: {k: np.concatenate([x[k] for x in xs]) for k in xs[0]}
     return evaluate_predictions(cat(preds), cat(gts))
 
@@ -264,7 +319,9 @@ def _check_config(workdir: pathlib.Path, config: TrainConfig, force: bool) -> No
     try:
         old = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        raise ConfigMismatchError(f"{path}: cannot read the run's config ({exc}); pass force=True / --force to overwrite") from exc
+        raise ConfigMismatchError(
+            f"{path}: cannot read the run's config ({exc}); pass force=True / --force to overwrite"
+        ) from exc
     try:  # through the dataclasses: fields added since the run was written take their defaults
         from ._configs import config_from_dict
 
@@ -297,8 +354,15 @@ def _truncate_metrics(path: pathlib.Path, step: int) -> None:
     tmp.replace(path)
 
 
-def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None = None, progress: bool = True,
-                       log: Callable[[str], None] | None = None, force: bool = False) -> dict[str, Any]:
+def train_and_evaluate(
+    config: TrainConfig,
+    workdir,
+    *,
+    stop_after: int | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+    force: bool = False,
+) -> dict[str, Any]:
     """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
 
     Args:
@@ -367,7 +431,9 @@ def train_and_evaluate(config: TrainConfig, workdir, *, stop_after: int | None =
                 metrics_file.write(json.dumps(rec) + "\n")
                 metrics_file.flush()
                 if bar is not None:
-                    bar.set_postfix({k: f"{v:.3g}" for k, v in terms.items() if k != "cls" or model.config.num_classes > 1})
+                    bar.set_postfix(
+                        {k: f"{v:.3g}" for k, v in terms.items() if k != "cls" or model.config.num_classes > 1}
+                    )
                 if log is not None:
                     log(" ".join(f"{k}={v:.4g}" for k, v in rec.items()))
             if (step + 1) % config.checkpoint_every == 0 or step + 1 == end:

@@ -1,0 +1,131 @@
+"""Every command fails well on bad input: non-zero exit, one line naming the flag or file, no
+traceback, nothing half-written. Per script: a missing file, a corrupt file and an out-of-range
+number (the sweep of the core issue), run as a user would, in a subprocess."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad")
+    (d / "corrupt.npz").write_bytes(b"this is not a zip file")
+    (d / "corrupt.json").write_text("{ not json")
+    (d / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    seq = d / "seq_corrupt"
+    seq.mkdir()
+    (seq / "sequence.json").write_text('{"intrinsics": ')
+    empty = d / "empty_dir"
+    empty.mkdir()
+    (d / "a_file").write_text("x")
+    return d
+
+
+def _cases(d):
+    out = d / "out"  # each case writes (if at all) under out / <its id prefix>
+    return [
+        # (id, argv, words the one error line must contain)
+        ("roshan-missing", ["infer/roshan.py", "--sequence", str(d / "nope"), "--out", str(out / "r1")], ["nope"]),
+        (
+            "roshan-corrupt",
+            ["infer/roshan.py", "--sequence", str(d / "seq_corrupt"), "--out", str(out / "r2")],
+            ["sequence.json"],
+        ),
+        (
+            "roshan-range",
+            ["infer/roshan.py", "--simulate", "forward", "--frames", "0", "--out", str(out / "r3")],
+            ["--frames"],
+        ),
+        ("plan-missing", ["infer/plan.py", "--map", str(d / "nope.npz"), "--out", str(out / "p1.png")], ["nope.npz"]),
+        (
+            "plan-corrupt",
+            ["infer/plan.py", "--map", str(d / "corrupt.npz"), "--out", str(out / "p2.png")],
+            ["corrupt.npz"],
+        ),
+        ("plan-range", ["infer/plan.py", "--n", "0", "--out", str(out / "p3.png")], ["--n"]),
+        (
+            "expert-range",
+            ["infer/make_expert_data.py", "--sample-prob", "nan", "--out", str(out / "e1")],
+            ["--sample-prob"],
+        ),
+        ("expert-workers", ["infer/make_expert_data.py", "--workers", "0", "--out", str(out / "e2")], ["--workers"]),
+        ("expert-out-file", ["infer/make_expert_data.py", "--out", str(d / "a_file")], ["a_file"]),
+        (
+            "volumon-missing",
+            [
+                "infer/volumon.py",
+                "--image",
+                str(d / "nope.png"),
+                "--boxes",
+                str(d / "corrupt.json"),
+                "--out",
+                str(out / "v1"),
+            ],
+            ["nope.png"],
+        ),
+        (
+            "volumon-corrupt",
+            [
+                "infer/volumon.py",
+                "--image",
+                str(d / "corrupt.png"),
+                "--boxes",
+                str(d / "corrupt.json"),
+                "--out",
+                str(out / "v2"),
+            ],
+            ["corrupt"],
+        ),
+        ("volumon-range", ["infer/volumon.py", "--split", "test", "--num", "0", "--out", str(out / "v3")], ["--num"]),
+        ("train-volumon-range", ["train/volumon.py", "--workdir", str(out / "tv"), "--steps", "-5"], ["--steps"]),
+        (
+            "train-volumon-workdir-file",
+            ["train/volumon.py", "--workdir", str(d / "a_file"), "--steps", "1"],
+            ["a_file"],
+        ),
+        ("train-lsd-missing", ["train/lsd.py", "--data", str(d / "nope"), "--workdir", str(out / "tl1")], ["nope"]),
+        (
+            "train-lsd-empty",
+            ["train/lsd.py", "--data", str(d / "empty_dir"), "--workdir", str(out / "tl2")],
+            ["empty_dir"],
+        ),
+        (
+            "train-lsd-range",
+            ["train/lsd.py", "--data", str(d / "empty_dir"), "--workdir", str(out / "tl3"), "--batch-size", "0"],
+            ["--batch-size"],
+        ),
+        ("jaxsem-demo-parts", ["-m", "jaxsem.cli", "demo", "--parts", "bogus", "--out", str(out / "demo")], ["bogus"]),
+        ("jaxsem-eval-range", ["-m", "jaxsem.cli", "volumon", "eval", "--num", "0"], ["--num"]),
+        ("jaxsem-eval-workdir", ["-m", "jaxsem.cli", "volumon", "eval", "--workdir", str(d / "nope")], ["nope"]),
+    ]
+
+
+CASE_IDS = [c[0] for c in _cases(pathlib.Path("/x"))]
+
+
+@pytest.mark.parametrize("case_id", CASE_IDS)
+def test_bad_input_gives_one_line_naming_it(case_id, files):
+    _, argv, words = next(c for c in _cases(files) if c[0] == case_id)
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONWARNINGS": "ignore"}
+    cmd = [sys.executable, *(argv if argv[0] == "-m" else [str(ROOT / argv[0]), *argv[1:]])]
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    err_lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode != 0, f"exit 0 on bad input; stdout: {proc.stdout[-500:]}"
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    # argparse prints its usage line before the error; the error itself is the last line.
+    assert err_lines, "no error message"
+    last = err_lines[-1]
+    for word in words:
+        assert word in last, f"{word!r} not named in: {last}"
+    # Nothing half-written: the output paths named on the command line hold no files.
+    for arg in argv:
+        path = pathlib.Path(arg)
+        if str(path).startswith(str(files / "out")) and path.exists():
+            leftovers = [p for p in ([path] if path.is_file() else path.rglob("*")) if p.is_file()]
+            assert not leftovers, f"partial outputs left behind: {leftovers[:5]}"

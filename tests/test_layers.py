@@ -1,0 +1,95 @@
+"""The package's layers, checked on the import statements of every file (an import-linter contract).
+
+- geometry (``quadrics``, ``classes``, ``_checks``) imports nothing else of jaxsem;
+- methods (``metrics``, ``factors``, ``slam``, ``models``, ``volumon``, ``lsd``, ``planning``,
+  ``mapping``, ``parallel``) import geometry and each other, never the outer layer;
+- the outer layer (``sim``, ``data``, ``demos``, ``cli``, scripts, tests, benchmarks) may import
+  anything public;
+- nobody imports ``jaxsem.x._private`` from outside package ``x``.
+"""
+
+import ast
+import pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+GEOMETRY = {"quadrics", "classes", "_checks"}
+METHODS = {"metrics", "factors", "slam", "models", "volumon", "lsd", "planning", "mapping", "parallel", "checkpoint"}
+OUTER = {"sim", "data", "demos", "cli"}
+
+
+def _imports(path: pathlib.Path):
+    """Absolute dotted jaxsem module names imported by ``path`` (relative imports resolved)."""
+    rel = path.relative_to(ROOT)
+    package = list(rel.parts[:-1]) if rel.parts[0] == "jaxsem" else []
+    if rel.name == "__init__.py":
+        package = list(rel.parts[:-1])
+    text = path.read_text()
+    lines = text.splitlines()
+    tree = ast.parse(text, str(path))
+    for node in ast.walk(tree):
+        # A test may look inside a package when its import line says why ("# layers: white-box").
+        if (
+            rel.parts[0] == "tests" and "# layers: white-box" in lines[node.lineno - 1]
+            if hasattr(node, "lineno")
+            else False
+        ):
+            continue
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            if mod.startswith("jaxsem"):
+                yield node.lineno, mod
+                for alias in node.names:
+                    yield node.lineno, f"{mod}.{alias.name}"
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("jaxsem"):
+                    yield node.lineno, alias.name
+
+
+def _files():
+    for folder in ("jaxsem", "tests", "benchmarks", "train", "infer", "examples"):
+        yield from sorted((ROOT / folder).rglob("*.py"))
+
+
+def _owner(path: pathlib.Path) -> str:
+    rel = path.relative_to(ROOT)
+    if rel.parts[0] != "jaxsem":
+        return "<outside>"
+    return rel.parts[1].removesuffix(".py") if len(rel.parts) > 1 else ""
+
+
+def test_no_private_imports_across_packages():
+    bad = []
+    for path in _files():
+        owner = _owner(path)
+        for line, mod in _imports(path):
+            parts = mod.split(".")
+            for i, part in enumerate(parts[1:], start=1):
+                if part.startswith("_") and not part.startswith("__"):
+                    # jaxsem.x._y is private to package x; jaxsem._y (top level) to the jaxsem package.
+                    allowed = (i == 1 and owner != "<outside>") or (i >= 2 and parts[1] == owner)
+                    if not allowed:
+                        bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
+                    break
+    assert not bad, "private imports across packages:\n" + "\n".join(sorted(set(bad)))
+
+
+def test_layers_point_one_way():
+    bad = []
+    for path in _files():
+        owner = _owner(path)
+        if owner in GEOMETRY:
+            forbidden = METHODS | OUTER | {o for o in GEOMETRY if o != owner and o != "_checks"}
+        elif owner in METHODS:
+            forbidden = OUTER
+        else:
+            continue
+        for line, mod in _imports(path):
+            parts = mod.split(".")
+            if len(parts) > 1 and parts[1] in forbidden:
+                bad.append(f"{path.relative_to(ROOT)}:{line} ({owner}) imports {mod}")
+    assert not bad, "imports against the layers:\n" + "\n".join(sorted(set(bad)))
