@@ -1,7 +1,7 @@
 """Thesis Table 4.1: baseline vs ROSHAN on random ellipsoid maps, Orbit and Forward paths.
 
 For each preset (``thesis``: our stand-in for the thesis' simulation; ``quadricslam``: the
-setting in which QuadricSLAM was measured, FACTS.md) and each path, ``--maps`` random maps are
+setting in which QuadricSLAM was measured) and each path, ``--maps`` random maps are
 simulated (:func:`jaxsem.sim.simulate_batch`) and solved by both systems with the online protocol
 of :func:`jaxsem.sim.solve_online` (re-optimise every ``--every`` frames, ``--steps``
 Levenberg-Marquardt steps each, vmapped over maps). The reported numbers are, as in the thesis,
@@ -35,7 +35,7 @@ THESIS = {  # Table 4.1 (median over 50 maps of per-map mean errors)
     ("forward", "baseline"): (1.16, 1.66, 43.65),
     ("forward", "roshan"): (0.20, 0.47, 30.93),
 }
-QUADRICSLAM = {  # FACTS.md, gtsam_quadrics LM, box factors + pose priors, median over 50 maps
+QUADRICSLAM = {  # measured earlier (2026-11, 2-core CPU): gtsam_quadrics LM, box factors + pose priors, median over 50 maps
     "orbit": (0.27, 0.043, 27.0),
     "forward": (1.58, 18.8, 52.0),
 }
@@ -159,7 +159,7 @@ def main(argv=None) -> int:
                 if preset == "thesis":
                     ref, ref_name = THESIS[(path, system)], "thesis Table 4.1"
                 elif system == "baseline":
-                    ref, ref_name = QUADRICSLAM[path], "QuadricSLAM (FACTS.md)"
+                    ref, ref_name = QUADRICSLAM[path], "QuadricSLAM (gtsam_quadrics, earlier run)"
                 else:
                     ref, ref_name = None, ""
                 rows.append(
@@ -259,7 +259,7 @@ def main(argv=None) -> int:
         "Noise levels: `thesis` preset: 10 cars (random yaw) on 30 x 30 m, 60 frames 640x480, "
         "f = 525, box noise 2 px, pose prior 5 cm / 1 deg, texture depth 0.1 m + 1 % of depth, "
         "initial ellipsoids truth + N(0, 1 m) position, N(0, 20 deg) yaw, N(0, 0.3 m) radii. "
-        "`quadricslam` preset: FACTS.md's setting (box noise 3 px, cars within 15 deg of the "
+        "`quadricslam` preset: the setting QuadricSLAM was measured in (box noise 3 px, cars within 15 deg of the "
         "Forward direction, first-box init at 10 m depth, identity rotation, radii 1 m for the "
         "baseline; ROSHAN uses its texture-depth single-view init).",
         "",

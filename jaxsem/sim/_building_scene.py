@@ -19,7 +19,7 @@ Geometry (metres, world z up, the building grid's ``origin`` / ``resolution``):
 
 Object ``k`` of :func:`jaxsem.mapping.building_objects` is segmentation label ``k``; walls,
 floor and sky are -1 (``seg_class`` tells walls apart). Cameras are jaxsem's (OpenCV axes,
-``camera_T_world``; FACTS: an OpenCV camera rotation is MuJoCo's ``cam_xmat @ diag(1, -1, -1)``,
+``camera_T_world``; an OpenCV camera rotation is MuJoCo's ``cam_xmat @ diag(1, -1, -1)``,
 depth is z-depth); any pinhole ``K`` without skew is rendered exactly through MuJoCo's
 ``cam_intrinsic`` as in :class:`jaxsem.sim.SceneRenderer`.
 """
