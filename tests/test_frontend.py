@@ -16,11 +16,11 @@ import cv2
 import numpy as np
 import pytest
 
+import jaxsem.slam._frontend as fe_mod  # layers: white-box (the projection cache, one test)
 from jaxsem.slam import (
     FrontEnd,
     FrontEndConfig,
     LandmarkEstimates,
-    _frontend as fe_mod,  # layers: white-box (the projection cache, one test)
     to_frame,
     triangulate_points,
 )

@@ -44,7 +44,7 @@ def test_project_points_matches_opencv():
     np.testing.assert_allclose(depth, pts_cam[:, 2], rtol=1e-12)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=8, deadline=None)
 @given(shape=batch_shapes, dtype=dtypes, seed=st.integers(0, 2**31 - 1))
 def test_back_project_inverts_project_points_over_batch_shapes(shape, dtype, seed):
     rng = np.random.default_rng(seed)
@@ -59,7 +59,7 @@ def test_back_project_inverts_project_points_over_batch_shapes(shape, dtype, see
     np.testing.assert_allclose(z2, z, rtol=tol)
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=8, deadline=None)
 @given(shape=batch_shapes, seed=st.integers(0, 2**31 - 1))
 def test_invert_pose_and_transform_points_round_trip(shape, seed):
     rng = np.random.default_rng(seed)

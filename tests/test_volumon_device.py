@@ -151,11 +151,15 @@ def test_device_train_step_no_recompiles():
     cfg = _device_cfg()
     state, model, tx = init_state(cfg)
     step = make_train_step(model, tx, cfg)
-    for _ in range(3):
+    state, terms = step(state)
+    # jit caches are shared between wrappers of one function, so an absolute cache size depends
+    # on which tests ran before: count what further steps add (nothing).
+    compiled = step._cache_size()
+    for _ in range(2):
         state, terms = step(state)
     assert int(state["step"]) == 3
     assert all(np.isfinite(float(v)) for v in terms.values())
-    assert step._cache_size() == 1
+    assert step._cache_size() == compiled <= 1
 
 
 def test_resume_rules(tmp_path):
