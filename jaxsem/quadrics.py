@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 
 # Boundary checks live in the core's private helper module (re-exported for the package there).
@@ -943,8 +944,6 @@ def so3_exp(omega):
 
     ``jaxlie.SO3.exp`` handles the small-angle case with a Taylor branch whose untaken side has
     finite gradients, so this is NaN-free at zero."""
-    import jaxlie
-
     omega = _as_float_array("omega", omega, (3,), check_finite=True)
     return jaxlie.SO3.exp(omega).as_matrix()
 

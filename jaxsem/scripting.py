@@ -119,49 +119,28 @@ def _number(text: str, kind):
     return value
 
 
-def positive_int(text: str) -> int:
-    """An integer >= 1."""
-    value = _number(text, int)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _ranged(kind, name: str, what: str, low=None, high=None, low_open: bool = False):
+    """An argparse type reading ``kind`` (int or finite float) within ``[low, high]`` (``(low, ...``
+    when ``low_open``); the error says ``expected <what>``."""
+
+    def parse(text: str):
+        value = _number(text, kind)
+        below = low is not None and (value <= low if low_open else value < low)
+        if below or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+        return value
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"{what[0].upper()}{what[1:]}."
+    return parse
 
 
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0."""
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
-    return value
-
-
-def finite_float(text: str) -> float:
-    """Any finite float (NaN and inf are refused)."""
-    return _number(text, float)
-
-
-def positive_float(text: str) -> float:
-    """A finite float > 0."""
-    value = _number(text, float)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
-    return value
-
-
-def nonnegative_float(text: str) -> float:
-    """A finite float >= 0."""
-    value = _number(text, float)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative number, got {value}")
-    return value
-
-
-def probability(text: str) -> float:
-    """A float in [0, 1]."""
-    value = _number(text, float)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], got {value}")
-    return value
+positive_int: Callable[[str], int] = _ranged(int, "positive_int", "a positive integer", low=1)
+nonnegative_int: Callable[[str], int] = _ranged(int, "nonnegative_int", "a non-negative integer", low=0)
+finite_float: Callable[[str], float] = _ranged(float, "finite_float", "a finite number")
+positive_float: Callable[[str], float] = _ranged(float, "positive_float", "a positive number", low=0.0, low_open=True)
+nonnegative_float: Callable[[str], float] = _ranged(float, "nonnegative_float", "a non-negative number", low=0.0)
+probability: Callable[[str], float] = _ranged(float, "probability", "a probability in [0, 1]", low=0.0, high=1.0)
 
 
 def int_list(text: str) -> list[int]:

@@ -28,11 +28,8 @@ def _imports(path: pathlib.Path):
     tree = ast.parse(text, str(path))
     for node in ast.walk(tree):
         # A test may look inside a package when its import line says why ("# layers: white-box").
-        if (
-            rel.parts[0] == "tests" and "# layers: white-box" in lines[node.lineno - 1]
-            if hasattr(node, "lineno")
-            else False
-        ):
+        lineno = getattr(node, "lineno", None)
+        if rel.parts[0] == "tests" and lineno and "# layers: white-box" in lines[lineno - 1]:
             continue
         if isinstance(node, ast.ImportFrom):
             if node.level:

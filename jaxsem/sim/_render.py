@@ -31,8 +31,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco
 
-from .. import quadrics
-
 __all__ = ["SceneObject", "SceneRenderer", "render_views", "SHAPES", "bounding_ellipsoid_radii"]
 
 SHAPES = ("box", "cylinder", "ellipsoid")
@@ -167,8 +165,11 @@ def _check_outputs(outputs) -> tuple:
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
-    """MuJoCo's ``quat`` (w, x, y, z) of a rotation, from the geometry core."""
-    return np.asarray(quadrics.rotation_to_quaternion_wxyz(np.asarray(R, dtype=np.float64)), dtype=np.float64)
+    """MuJoCo's ``quat`` (w, x, y, z) of a rotation, by MuJoCo's own C routine: it runs per object
+    per frame, where a jax dispatch would cost more than the conversion."""
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=np.float64).reshape(9))
+    return q
 
 
 def _check_intrinsics(K, width: int, height: int) -> np.ndarray:
