@@ -224,17 +224,11 @@ class SimConfig:
         return (self.image_width, self.image_height)
 
 
-def quadricslam_config(path: str = "forward", **changes) -> SimConfig:
-    """The setting in which QuadricSLAM (gtsam_quadrics LM) was measured, so both compare on equal terms.
-
-    10 car-sized ellipsoids (semi-axes about 2.4 x 0.9 x 0.75 m) on a 30 x 30 m patch, 60 frames,
-    640x480, f = 525, camera 1.5 m high; Orbit radius 25 m looking at the centre; Forward a
-    straight line along the objects' long axis at 0.75 m per frame (objects' yaw within +-15 deg
-    of the flight direction); box noise 3 px; pose prior 5 cm / 1 deg (sigma per axis); each
-    ellipsoid initialised from its first box at 10 m depth, identity rotation, radii 1 m. Texture
-    depth (used by ROSHAN only) 0.1 m + 1 % of depth. Size spread is the class table's.
-    """
-    base = SimConfig(
+def _cars_on_a_patch(path: str) -> SimConfig:
+    """What both car presets share: 10 cars on a 30 x 30 m patch, 60 frames at 640x480, f = 525,
+    camera 1.5 m high (Orbit radius 25 m, Forward 0.75 m per frame), pose prior 5 cm / 1 deg,
+    texture depth noise 0.1 m + 1 % of depth."""
+    return SimConfig(
         path=path,
         num_objects=10,
         classes=("car",),
@@ -246,15 +240,29 @@ def quadricslam_config(path: str = "forward", **changes) -> SimConfig:
         camera_height=1.5,
         orbit_radius=25.0,
         forward_step=0.75,
-        box_noise_px=3.0,
         pose_noise_m=0.05,
         pose_noise_deg=1.0,
+        texture_noise_m=0.1,
+        texture_noise_rel=0.01,
+    )
+
+
+def quadricslam_config(path: str = "forward", **changes) -> SimConfig:
+    """The setting in which QuadricSLAM (gtsam_quadrics LM) was measured, so both compare on equal terms.
+
+    10 car-sized ellipsoids (semi-axes about 2.4 x 0.9 x 0.75 m) on a 30 x 30 m patch, 60 frames,
+    640x480, f = 525, camera 1.5 m high; Orbit radius 25 m looking at the centre; Forward a
+    straight line along the objects' long axis at 0.75 m per frame (objects' yaw within +-15 deg
+    of the flight direction); box noise 3 px; pose prior 5 cm / 1 deg (sigma per axis); each
+    ellipsoid initialised from its first box at 10 m depth, identity rotation, radii 1 m. Texture
+    depth (used by ROSHAN only) 0.1 m + 1 % of depth. Size spread is the class table's.
+    """
+    base = _cars_on_a_patch(path).replace(
+        box_noise_px=3.0,
         init_mode="single_view",
         init_depth=10.0,
         init_radii=1.0,
         yaw_range=math.radians(15.0),
-        texture_noise_m=0.1,
-        texture_noise_rel=0.01,
     )
     return base.replace(**changes) if changes else base
 
@@ -268,28 +276,13 @@ def thesis_config(path: str = "forward", **changes) -> SimConfig:
     prior 5 cm / 1 deg (sigma per axis), texture depth 0.1 m + 1 % of depth, initial ellipsoids =
     truth + N(0, 1 m) per position axis, N(0, 20 deg) yaw, N(0, 0.3 m) per radius.
     """
-    base = SimConfig(
-        path=path,
-        num_objects=10,
-        classes=("car",),
-        patch_size=30.0,
-        num_frames=60,
-        image_width=640,
-        image_height=480,
-        focal=525.0,
-        camera_height=1.5,
-        orbit_radius=25.0,
-        forward_step=0.75,
+    base = _cars_on_a_patch(path).replace(
         box_noise_px=2.0,
-        pose_noise_m=0.05,
-        pose_noise_deg=1.0,
         init_mode="noisy_truth",
         init_position_noise_m=1.0,
         init_yaw_noise_deg=20.0,
         init_radii_noise_m=0.3,
         yaw_range=math.pi,
-        texture_noise_m=0.1,
-        texture_noise_rel=0.01,
     )
     return base.replace(**changes) if changes else base
 
