@@ -16,6 +16,7 @@ import json
 import pathlib
 import sys
 
+from jaxsem.config import override
 from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
 
 
@@ -35,6 +36,13 @@ def main():
     p.add_argument("--checkpoint-every", type=int, default=None)
     p.add_argument("--eval-every", type=int, default=None)
     p.add_argument("--num-eval", type=int, default=None)
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any config field by its dotted name, e.g. --set loss.primal_distance=ray (repeatable)",
+    )
     a = p.parse_args()
     for flag, value in (
         ("--steps", a.steps),
@@ -65,6 +73,11 @@ def main():
         if v is not None
     }
     cfg = cfg.replace(**changes)
+    if a.set:
+        try:
+            cfg = override(cfg, a.set)
+        except ValueError as exc:
+            p.error(f"--set: {exc}")
     try:
         result = train_and_evaluate(
             cfg,
