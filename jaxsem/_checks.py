@@ -9,31 +9,31 @@ carried by masks and result codes instead. This module imports nothing else of t
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-
-# jax.core.Tracer is public at run time but missing from jax's type stubs.
-_TRACER = getattr(jax.core, "Tracer")
+from jax.core import Tracer
 
 __all__ = ["as_float_array", "batch_shape", "check_positive", "check_rotation", "is_concrete"]
 
 
 def is_concrete(x) -> bool:
-    return not isinstance(x, _TRACER)
+    return not isinstance(x, Tracer)
 
 
-def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False):
-    """``x`` as a floating jax array of shape ``(..., *trailing)``; ``ValueError`` naming ``name``.
+def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool = False, xp: Any = jnp):
+    """``x`` as a floating array of shape ``(..., *trailing)``; ``ValueError`` naming ``name``.
 
+    ``xp`` is the array namespace (``jax.numpy``, default, or ``numpy`` for host code: then the
+    result is a numpy array, float64 unless ``x`` is already floating).
     jaxlie ``SO3`` / ``SE3`` objects are accepted where a (3, 3) or (4, 4) matrix is expected.
     Finiteness is checked only for concrete values (under ``jit`` the masks carry validity).
     """
     if hasattr(x, "as_matrix") and callable(x.as_matrix):  # jaxlie SO3 / SE3 at the boundary
         x = x.as_matrix()
     try:
-        arr = jnp.asarray(x)
+        arr = xp.asarray(x)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: cannot be converted to an array ({exc})") from None
     trailing = tuple(trailing)
@@ -43,7 +43,10 @@ def as_float_array(name: str, x, trailing: Sequence[int], *, check_finite: bool 
     if jnp.issubdtype(arr.dtype, jnp.complexfloating):
         raise ValueError(f"{name}: expected a real floating array, got dtype {arr.dtype}")
     if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(jnp.result_type(float))
+        try:
+            arr = arr.astype(xp.result_type(float))
+        except (TypeError, ValueError) as exc:  # numpy strings or objects
+            raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
     if check_finite and is_concrete(arr):
         if not bool(np.all(np.isfinite(np.asarray(arr)))):
             raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")

@@ -21,10 +21,15 @@ Where the closed form has no real answer (camera inside or on the ellipsoid, ell
 straddling the image plane, a conic that is not an ellipse) a ``valid`` mask is returned next to
 a finite value. Wrong trailing shapes raise ``ValueError`` naming the argument; non-finite
 concrete inputs where they would poison everything (``K``, poses) raise too.
+
+Host code (dataset writers, the OpenCV front end) calls the same functions with ``xp=numpy``
+where the option exists: the same formulas, evaluated by numpy in float64 without a jax dispatch
+per call (which costs milliseconds in a per-object Python loop). The default is ``jax.numpy``.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -47,7 +52,9 @@ __all__ = [
     "dual_quadric",
     "primal_quadric",
     "project_dual_conic",
+    "camera_matrix",
     "conic_bbox",
+    "cylinder_bbox",
     "conic_outline",
     "project_bbox",
     "texture_plane_depth",
@@ -59,6 +66,7 @@ __all__ = [
     "camera_depth",
     "camera_frame",
     "look_at",
+    "rigid_transform",
     "transform_points",
     "invert_pose",
     "project_points",
@@ -82,27 +90,27 @@ __all__ = [
 # Boundary checks (re-exported for the rest of the package by jaxsem._checks).
 
 
-def _ellipsoid_args(rotation, center, radii):
+def _ellipsoid_args(rotation, center, radii, xp: Any = jnp):
     """Ellipsoid arguments as arrays of one dtype, and their broadcast batch shape.
 
     Concrete (not traced) values are checked: finite, ``rotation`` a proper rotation, ``radii``
     positive; each failure is a ``ValueError`` naming the argument. Traced values are not checked
     (the functions' ``valid`` masks and result codes carry validity under ``jit``).
     """
-    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True)
-    center = _as_float_array("center", center, (3,), check_finite=True)
-    radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    center = _as_float_array("center", center, (3,), check_finite=True, xp=xp)
+    radii = _as_float_array("radii", radii, (3,), check_finite=True, xp=xp)
     _check_rotation("rotation", rotation)
     _check_positive("radii", radii)
-    dtype = jnp.result_type(rotation.dtype, center.dtype, radii.dtype)
+    dtype = xp.result_type(rotation.dtype, center.dtype, radii.dtype)
     batch = _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], radii=radii.shape[:-1])
     return rotation.astype(dtype), center.astype(dtype), radii.astype(dtype), batch
 
 
-def _camera_args(K, camera_T_world, *, need_K=True):
+def _camera_args(K, camera_T_world, *, need_K=True, xp: Any = jnp):
     out = []
     if need_K:
-        K = _as_float_array("K", K, (3, 3), check_finite=True)
+        K = _as_float_array("K", K, (3, 3), check_finite=True, xp=xp)
         if _is_concrete(K):
             Kn = np.asarray(K)
             bottom = Kn[..., 2, :]
@@ -117,14 +125,23 @@ def _camera_args(K, camera_T_world, *, need_K=True):
                     f"fy min {float(np.min(Kn[..., 1, 1])):.3g}"
                 )
         out.append(K)
-    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True, xp=xp)
     _check_rotation("camera_T_world", pose[..., :3, :3])
     out.append(pose)
     return out
 
 
+def _namespace(xp):
+    """The array namespace of a public function's ``xp=`` option: ``jax.numpy`` or ``numpy``."""
+    if xp is jnp or xp is np:
+        return xp
+    raise ValueError(f"xp: expected jax.numpy or numpy, got {xp!r}")
+
+
+@functools.cache
 def _eps(dtype) -> float:
-    """Dtype-dependent tolerance: about 1e-6 in float32, 1e-15 in float64."""
+    """Dtype-dependent tolerance: about 1e-6 in float32, 1e-15 in float64 (cached: host code calls
+    it per object)."""
     return float(jnp.finfo(dtype).eps) * 8.0
 
 
@@ -178,9 +195,12 @@ class Camera(NamedTuple):
 def safe_sqrt(x):
     """``sqrt(max(x, 0))`` whose value and gradient are finite for finite ``x`` (gradient 0 for
     x <= 0). NaN stays NaN: a guard must not turn a poisoned input into a finite-looking 0."""
-    x = jnp.asarray(x)
-    positive = x > jnp.finfo(jnp.result_type(x, float)).tiny
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), jnp.where(jnp.isnan(x), x, 0.0))
+    return _safe_sqrt(jnp.asarray(x), jnp)
+
+
+def _safe_sqrt(x, xp):
+    positive = x > xp.finfo(xp.result_type(x, float)).tiny
+    return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), xp.where(xp.isnan(x), x, 0.0))
 
 
 def safe_div(numerator, denominator, eps=None):
@@ -195,20 +215,25 @@ def safe_div(numerator, denominator, eps=None):
 
 def safe_norm(x, axis=-1, keepdims: bool = False):
     """Euclidean norm along ``axis`` with a zero (not NaN) gradient at the origin."""
-    return safe_sqrt(jnp.sum(jnp.square(x), axis=axis, keepdims=keepdims))
+    return _safe_norm(jnp.asarray(x), jnp, axis, keepdims)
+
+
+def _safe_norm(x, xp, axis=-1, keepdims: bool = False):
+    return _safe_sqrt(xp.sum(xp.square(x), axis=axis, keepdims=keepdims), xp)
 
 
 def _matvec(m, v):
-    """(..., 3, 3) @ (..., 3) as a broadcasted product and sum: fuses into elementwise loops."""
-    return jnp.sum(m * v[..., None, :], axis=-1)
+    """(..., 3, 3) @ (..., 3) as a broadcasted product and sum: fuses into elementwise loops.
+    Written with array methods, so it serves numpy arrays as well as jax ones."""
+    return (m * v[..., None, :]).sum(axis=-1)
 
 
 def _matmul3(a, b):
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+    return (a[..., :, :, None] * b[..., None, :, :]).sum(axis=-2)
 
 
-def _cross(a, b):
-    return jnp.stack(
+def _cross(a, b, xp: Any = jnp):
+    return xp.stack(
         [
             a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
             a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
@@ -222,26 +247,33 @@ def _cross(a, b):
 # Quadric matrices.
 
 
-def dual_quadric(rotation, center, radii):
+def dual_quadric(rotation, center, radii, *, xp: Any = jnp):
     """Dual quadric ``Q*`` of an ellipsoid (eq. 4.3).
 
     Args:
       rotation: (..., 3, 3) object-to-world rotation ``R``.
       center: (..., 3) centre ``t`` in the world.
       radii: (..., 3) semi-axes ``r`` in metres.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code; see the module docstring).
 
     Returns:
       (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``.
     """
-    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
-    rotation = jnp.broadcast_to(rotation, batch + (3, 3))
-    center = jnp.broadcast_to(center, batch + (3,))
-    radii = jnp.broadcast_to(radii, batch + (3,))
-    shape = _matmul3(rotation * jnp.square(radii)[..., None, :], jnp.swapaxes(rotation, -1, -2))
+    xp = _namespace(xp)
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
+    return _dual_quadric(rotation, center, radii, batch, xp)
+
+
+def _dual_quadric(rotation, center, radii, batch, xp):
+    # Also the dual quadric of a flat ellipse (one radius 0): see cylinder_bbox.
+    rotation = xp.broadcast_to(rotation, batch + (3, 3))
+    center = xp.broadcast_to(center, batch + (3,))
+    radii = xp.broadcast_to(radii, batch + (3,))
+    shape = _matmul3(rotation * xp.square(radii)[..., None, :], xp.swapaxes(rotation, -1, -2))
     top_left = shape - center[..., :, None] * center[..., None, :]
-    top = jnp.concatenate([top_left, -center[..., :, None]], axis=-1)
-    bottom = jnp.concatenate([-center, -jnp.ones(batch + (1,), center.dtype)], axis=-1)
-    return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
+    top = xp.concatenate([top_left, -center[..., :, None]], axis=-1)
+    bottom = xp.concatenate([-center, -xp.ones(batch + (1,), center.dtype)], axis=-1)
+    return xp.concatenate([top, bottom[..., None, :]], axis=-2)
 
 
 def _inverse_square_radii(radii):
@@ -272,25 +304,44 @@ def primal_quadric(rotation, center, radii):
     return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
 
 
-def project_dual_conic(dual_quadric, K, camera_T_world):
+def camera_matrix(K, camera_T_world, *, xp: Any = jnp):
+    """Projection matrix ``P = K [I | 0] camera_T_world`` (..., 3, 4) (eq. 4.9): ``x ~ P X``.
+
+    Args:
+      K: (..., 3, 3) intrinsics; camera_T_world: (..., 4, 4) world-to-camera transform.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+    """
+    xp = _namespace(xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    return _camera_matrix(K, pose, xp)
+
+
+def _camera_matrix(K, pose, xp):
+    return xp.matmul(K, pose[..., :3, :])
+
+
+def project_dual_conic(dual_quadric, K, camera_T_world, *, xp: Any = jnp):
     """Dual conic ``C* = P Q* P^T`` with ``P = K [I | 0] camera_T_world`` (eq. 4.9, 5.9).
 
     Args:
       dual_quadric: (..., 4, 4) ``Q*``.
       K: (..., 3, 3) intrinsics.
       camera_T_world: (..., 4, 4) world-to-camera transform.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code).
 
     Returns:
       (..., 3, 3) dual conic in pixels.
     """
-    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True)
-    K, pose = _camera_args(K, camera_T_world)
+    xp = _namespace(xp)
+    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True, xp=xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(dual_quadric=Qs.shape[:-2], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    P = jnp.matmul(K, pose[..., :3, :])
-    return jnp.matmul(jnp.matmul(P, Qs), jnp.swapaxes(P, -1, -2))
+    P = _camera_matrix(K, pose, xp)
+    return xp.matmul(xp.matmul(P, Qs), xp.swapaxes(P, -1, -2))
 
 
-def conic_bbox(dual_conic):
+def conic_bbox(dual_conic, *, xp: Any = jnp):
     """Axis-aligned box of a dual conic (eq. 4.8, 4.10, 5.10): the lines ``u = const`` and ``v = const``
     tangent to it.
 
@@ -307,25 +358,70 @@ def conic_bbox(dual_conic):
         alone cannot tell an ellipsoid in front of the camera from its mirror image behind it;
         :func:`project_bbox` checks the depth as well.
     """
-    C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True)
-    C = 0.5 * (C + jnp.swapaxes(C, -1, -2))
+    xp = _namespace(xp)
+    C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
+    c13, c23, c33, disc_u, disc_v, det = _conic_terms(C, xp)
+    valid = (c33 < -_eps(C.dtype)) & (det < 0) & (disc_u > 0) & (disc_v > 0)
+    return _conic_box(c13, c23, c33, disc_u, disc_v, valid, xp), valid
+
+
+def _conic_terms(C, xp):
+    """Scaled entries of a dual conic for its bounds: ``C13, C23, C33``, the two discriminants, det."""
+    C = 0.5 * (C + xp.swapaxes(C, -1, -2))
     # Scale to O(1) by a positive factor: the box is scale-invariant and det() cannot overflow.
-    scale = jnp.max(jnp.abs(C), axis=(-2, -1), keepdims=True)
-    C = C / jnp.where(scale > 0, scale, 1.0)
+    scale = xp.max(xp.abs(C), axis=(-2, -1), keepdims=True)
+    C = C / xp.where(scale > 0, scale, 1.0)
     c11, c12, c13 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
     c22, c23, c33 = C[..., 1, 1], C[..., 1, 2], C[..., 2, 2]
     det = c11 * (c22 * c33 - c23 * c23) - c12 * (c12 * c33 - c23 * c13) + c13 * (c12 * c23 - c22 * c13)
     disc_u = c13 * c13 - c11 * c33
     disc_v = c23 * c23 - c22 * c33
-    eps = _eps(C.dtype)
-    valid = (c33 < -eps) & (det < 0) & (disc_u > 0) & (disc_v > 0)
-    c33_safe = jnp.where(valid, c33, -1.0)
-    su = safe_sqrt(jnp.where(valid, disc_u, 0.0))
-    sv = safe_sqrt(jnp.where(valid, disc_v, 0.0))
-    box = jnp.stack(
+    return c13, c23, c33, disc_u, disc_v, det
+
+
+def _conic_box(c13, c23, c33, disc_u, disc_v, ok, xp):
+    """``[(C13 + su) / C33, (C23 + sv) / C33, (C13 - su) / C33, (C23 - sv) / C33]`` where ``ok``."""
+    c33_safe = xp.where(ok, c33, -1.0)
+    su = _safe_sqrt(xp.where(ok, disc_u, 0.0), xp)
+    sv = _safe_sqrt(xp.where(ok, disc_v, 0.0), xp)
+    return xp.stack(
         [(c13 + su) / c33_safe, (c23 + sv) / c33_safe, (c13 - su) / c33_safe, (c23 - sv) / c33_safe],
         axis=-1,
     )
+
+
+def cylinder_bbox(rotation, center, radii, K, camera_T_world, *, xp: Any = jnp):
+    """Exact image box of an elliptic cylinder: the box of its two rim ellipses' outlines.
+
+    The cylinder's axis is the object z axis; ``radii[..., :2]`` are the semi-axes of its
+    cross-section and ``radii[..., 2]`` its half length. Each rim is the flat ellipse with radii
+    ``(r0, r1, 0)`` at ``center +- r2 R[:, 2]``, whose dual quadric is eq. 4.3's with a zero radius,
+    ``Q* = Z diag(r0^2, r1^2, 0, -1) Z^T``; its image ``P Q* P^T`` is bounded as in eq. 4.10
+    (a rim seen edge-on projects to a segment, still bounded by the same formula).
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3) positive; K: (..., 3, 3);
+      camera_T_world: (..., 4, 4). xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+
+    Returns:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite.
+      valid: (...) bool, False unless both rims lie entirely in front of the camera.
+    """
+    xp = _namespace(xp)
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(cylinder=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    flat = radii * xp.asarray([1.0, 1.0, 0.0], radii.dtype)
+    axis = rotation[..., :, 2] * radii[..., 2:]
+    boxes, valid = [], True
+    for rim_center in (center - axis, center + axis):
+        C = project_dual_conic(_dual_quadric(rotation, rim_center, flat, batch, xp), K, pose, xp=xp)
+        c13, c23, c33, disc_u, disc_v, _ = _conic_terms(C, xp)
+        front = c33 < -_eps(C.dtype)
+        boxes.append(_conic_box(c13, c23, c33, xp.maximum(disc_u, 0.0), xp.maximum(disc_v, 0.0), front, xp))
+        valid = valid & front
+    a, b = boxes
+    box = xp.concatenate([xp.minimum(a[..., :2], b[..., :2]), xp.maximum(a[..., 2:], b[..., 2:])], axis=-1)
     return box, valid
 
 
@@ -786,102 +882,105 @@ def surface_points(key, rotation, center, radii, n: int):
     return _matvec(rotation[..., None, :, :], local) + center[..., None, :]
 
 
-def quaternion_wxyz_to_rotation(quaternion_wxyz):
+def quaternion_wxyz_to_rotation(quaternion_wxyz, *, xp: Any = jnp):
     """(..., 4) quaternion ``[w, x, y, z]`` (scalar first, jaxlie's order) -> (..., 3, 3) rotation.
 
     The quaternion is normalised here; a zero quaternion maps to the identity (a documented
     convention, e.g. for a network head before training). A non-finite concrete quaternion raises
     ``ValueError``; under ``jit`` a NaN propagates to the result (never a finite-looking matrix).
     """
-    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True)
-    return _quaternion_wxyz_to_rotation(q)
+    xp = _namespace(xp)
+    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True, xp=xp)
+    return _quaternion_wxyz_to_rotation(q, xp)
 
 
-def quaternion_xyzw_to_rotation(quaternion_xyzw):
+def quaternion_xyzw_to_rotation(quaternion_xyzw, *, xp: Any = jnp):
     """(..., 4) quaternion ``[x, y, z, w]`` (scalar last: ROS, scipy, FAT's ``quaternion_xyzw``)
     -> (..., 3, 3) rotation. Same rules as :func:`quaternion_wxyz_to_rotation`."""
-    q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True)
-    return _quaternion_wxyz_to_rotation(jnp.roll(q, 1, axis=-1))
+    xp = _namespace(xp)
+    q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True, xp=xp)
+    return _quaternion_wxyz_to_rotation(xp.roll(q, 1, axis=-1), xp)
 
 
-def _quaternion_wxyz_to_rotation(q):
-    norm = safe_norm(q, axis=-1, keepdims=True)
-    identity = jnp.array([1.0, 0.0, 0.0, 0.0], q.dtype)
+def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
+    norm = _safe_norm(q, xp, axis=-1, keepdims=True)
+    identity = xp.array([1.0, 0.0, 0.0, 0.0], q.dtype)
     # `norm > 0` is False for NaN too: keep NaN (honest) instead of mapping it to the identity.
-    keep = (norm > 0) | jnp.isnan(norm)
-    q = jnp.where(keep, q / jnp.where(keep, norm, 1.0), identity)
+    keep = (norm > 0) | xp.isnan(norm)
+    q = xp.where(keep, q / xp.where(keep, norm, 1.0), identity)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return jnp.stack(
+    return xp.stack(
         [
-            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+            xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
         ],
         axis=-2,
     )
 
 
-def rotation_to_quaternion_wxyz(rotation):
+def rotation_to_quaternion_wxyz(rotation, *, xp: Any = jnp):
     """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` (scalar first) with ``w >= 0``.
 
     Shepperd's method: of the four algebraically equal formulas the one with the largest
     square-root argument is taken, so no branch divides by a small number.
     """
-    R = _as_float_array("rotation", rotation, (3, 3))
+    xp = _namespace(xp)
+    R = _as_float_array("rotation", rotation, (3, 3), xp=xp)
     r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
     trace = r00 + r11 + r22
     cands = []
-    s = 2 * safe_sqrt(1 + trace)
+    s = 2 * _safe_sqrt(1 + trace, xp)
     cands.append(
         (
             s,
-            jnp.stack(
+            xp.stack(
                 [s / 4, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
             ),
             1 + trace,
         )
     )
-    s = 2 * safe_sqrt(1 + r00 - r11 - r22)
+    s = 2 * _safe_sqrt(1 + r00 - r11 - r22, xp)
     cands.append(
         (
             s,
-            jnp.stack(
+            xp.stack(
                 [R[..., 2, 1] - R[..., 1, 2], s / 4, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1
             ),
             1 + r00 - r11 - r22,
         )
     )
-    s = 2 * safe_sqrt(1 - r00 + r11 - r22)
+    s = 2 * _safe_sqrt(1 - r00 + r11 - r22, xp)
     cands.append(
         (
             s,
-            jnp.stack(
+            xp.stack(
                 [R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], s / 4, R[..., 1, 2] + R[..., 2, 1]], -1
             ),
             1 - r00 + r11 - r22,
         )
     )
-    s = 2 * safe_sqrt(1 - r00 - r11 + r22)
+    s = 2 * _safe_sqrt(1 - r00 - r11 + r22, xp)
     cands.append(
         (
             s,
-            jnp.stack(
+            xp.stack(
                 [R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], s / 4], -1
             ),
             1 - r00 - r11 + r22,
         )
     )
-    args = jnp.stack([c[2] for c in cands], -1)
-    best = jnp.argmax(args, axis=-1)
+    args = xp.stack([c[2] for c in cands], -1)
+    best = xp.argmax(args, axis=-1)
     qs = []
     for i, (s_i, q_i, _) in enumerate(cands):
-        s_safe = jnp.where(best == i, s_i, 1.0)[..., None]
+        s_safe = xp.where(best == i, s_i, 1.0)[..., None]
         # The s/4 entry was written unscaled; the others are divided by s.
-        scale = jnp.ones(4, R.dtype).at[i].set(0.0)
+        scale = (xp.arange(4) != i).astype(R.dtype)
         qs.append(q_i * (scale / s_safe + (1 - scale)))
-    q = jnp.take_along_axis(jnp.stack(qs, -2), best[..., None, None], axis=-2)[..., 0, :]
-    q = q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
-    return q / jnp.maximum(safe_norm(q, axis=-1, keepdims=True), jnp.finfo(q.dtype).tiny)
+    q = xp.take_along_axis(xp.stack(qs, -2), best[..., None, None], axis=-2)[..., 0, :]
+    q = q * xp.where(q[..., :1] < 0, -1.0, 1.0)
+    return q / xp.maximum(_safe_norm(q, xp, axis=-1, keepdims=True), xp.finfo(q.dtype).tiny)
 
 
 def random_rotation(key, shape: tuple = (), dtype=None):
@@ -891,16 +990,17 @@ def random_rotation(key, shape: tuple = (), dtype=None):
     return _quaternion_wxyz_to_rotation(q)
 
 
-def look_at(eye, target, up=(0.0, 0.0, 1.0)):
+def look_at(eye, target, up=(0.0, 0.0, 1.0), *, xp: Any = jnp):
     """``camera_T_world`` (..., 4, 4) of an OpenCV camera at ``eye`` looking at ``target``.
 
     The camera's z axis points at the target, its y axis down (against ``up``). When the view
     direction is parallel to ``up`` another up vector is used, so the result is always a rotation.
     """
-    eye = _as_float_array("eye", eye, (3,))
-    target = _as_float_array("target", target, (3,))
-    up = _as_float_array("up", up, (3,))
-    dtype = jnp.result_type(eye.dtype, target.dtype, up.dtype)
+    xp = _namespace(xp)
+    eye = _as_float_array("eye", eye, (3,), xp=xp)
+    target = _as_float_array("target", target, (3,), xp=xp)
+    up = _as_float_array("up", up, (3,), xp=xp)
+    dtype = xp.result_type(eye.dtype, target.dtype, up.dtype)
     eye, target, up = eye.astype(dtype), target.astype(dtype), up.astype(dtype)
     batch = _batch_shape(eye=eye.shape[:-1], target=target.shape[:-1], up=up.shape[:-1])
     for name, x in (("eye", eye), ("target", target), ("up", up)):
@@ -913,25 +1013,28 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)):
     if _is_concrete(up) and np.any(np.linalg.norm(np.asarray(up, np.float64), axis=-1) <= 0):
         raise ValueError("up: must be a non-zero vector")
     forward = target - eye
-    forward = forward / jnp.maximum(safe_norm(forward, keepdims=True), _eps(dtype))
-    right = _cross(forward, up)
-    alt = _cross(forward, jnp.array([1.0, 0.0, 0.0], dtype))
-    alt = jnp.where(safe_norm(alt, keepdims=True) > 1e-3, alt, _cross(forward, jnp.array([0.0, 1.0, 0.0], dtype)))
-    right = jnp.where(safe_norm(right, keepdims=True) > 1e-6, right, alt)
-    right = right / jnp.maximum(safe_norm(right, keepdims=True), _eps(dtype))
-    down = _cross(forward, right)
-    world_R_cam = jnp.stack([right, down, forward], axis=-1)
-    cam_R_world = jnp.swapaxes(world_R_cam, -1, -2)
-    cam_R_world = jnp.broadcast_to(cam_R_world, batch + (3, 3))
-    t = -_matvec(cam_R_world, jnp.broadcast_to(eye, batch + (3,)))
-    top = jnp.concatenate([cam_R_world, t[..., None]], -1)
-    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
-    return jnp.concatenate([top, bottom[..., None, :]], -2)
+    forward = forward / xp.maximum(_safe_norm(forward, xp, keepdims=True), _eps(dtype))
+    right = _cross(forward, up, xp)
+    alt = _cross(forward, xp.array([1.0, 0.0, 0.0], dtype), xp)
+    alt = xp.where(
+        _safe_norm(alt, xp, keepdims=True) > 1e-3, alt, _cross(forward, xp.array([0.0, 1.0, 0.0], dtype), xp)
+    )
+    right = xp.where(_safe_norm(right, xp, keepdims=True) > 1e-6, right, alt)
+    right = right / xp.maximum(_safe_norm(right, xp, keepdims=True), _eps(dtype))
+    down = _cross(forward, right, xp)
+    world_R_cam = xp.stack([right, down, forward], axis=-1)
+    cam_R_world = xp.swapaxes(world_R_cam, -1, -2)
+    cam_R_world = xp.broadcast_to(cam_R_world, batch + (3, 3))
+    t = -_matvec(cam_R_world, xp.broadcast_to(eye, batch + (3,)))
+    top = xp.concatenate([cam_R_world, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
 
 
-def rotation_to_quaternion_xyzw(rotation):
+def rotation_to_quaternion_xyzw(rotation, *, xp: Any = jnp):
     """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``."""
-    return jnp.roll(rotation_to_quaternion_wxyz(rotation), -1, axis=-1)
+    xp = _namespace(xp)
+    return xp.roll(rotation_to_quaternion_wxyz(rotation, xp=xp), -1, axis=-1)
 
 
 # Old names (scalar-first convention), kept so that existing code keeps working.
@@ -952,30 +1055,50 @@ def so3_exp(omega):
 # Points, poses and pinhole projection.
 
 
-def transform_points(T, points):
+def rigid_transform(rotation, translation, *, xp: Any = jnp):
+    """The (..., 4, 4) transform ``[[R, t], [0, 1]]`` of rotations (..., 3, 3) and translations (..., 3).
+
+    E.g. an object's pose in the camera (``camera_T_object``) from its rotation and centre.
+    ``rotation`` must be a proper rotation (checked when concrete).
+    """
+    xp = _namespace(xp)
+    R = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    t = _as_float_array("translation", translation, (3,), check_finite=True, xp=xp)
+    _check_rotation("rotation", R)
+    batch = _batch_shape(rotation=R.shape[:-2], translation=t.shape[:-1])
+    dtype = xp.result_type(R.dtype, t.dtype)
+    R, t = xp.broadcast_to(R.astype(dtype), batch + (3, 3)), xp.broadcast_to(t.astype(dtype), batch + (3,))
+    top = xp.concatenate([R, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def transform_points(T, points, *, xp: Any = jnp):
     """Apply rigid transforms ``T`` (..., 4, 4) to points (..., 3): ``T[:3, :3] p + T[:3, 3]``."""
-    T = _as_float_array("T", T, (4, 4), check_finite=True)
-    points = _as_float_array("points", points, (3,), check_finite=True)
+    xp = _namespace(xp)
+    T = _as_float_array("T", T, (4, 4), check_finite=True, xp=xp)
+    points = _as_float_array("points", points, (3,), check_finite=True, xp=xp)
     _batch_shape(T=T.shape[:-2], points=points.shape[:-1])
-    dtype = jnp.result_type(T.dtype, points.dtype)
+    dtype = xp.result_type(T.dtype, points.dtype)
     T, points = T.astype(dtype), points.astype(dtype)
     return _matvec(T[..., :3, :3], points) + T[..., :3, 3]
 
 
-def invert_pose(T):
+def invert_pose(T, *, xp: Any = jnp):
     """Inverse (..., 4, 4) of rigid transforms ``T`` (..., 4, 4): ``[[R^T, -R^T t], [0, 1]]``.
 
     Exact for rigid transforms (the same as ``jaxlie.SE3.from_matrix(T).inverse().as_matrix()``
     without the round trip through a quaternion)."""
-    T = _as_float_array("T", T, (4, 4), check_finite=True)
-    Rt = jnp.swapaxes(T[..., :3, :3], -1, -2)
+    xp = _namespace(xp)
+    T = _as_float_array("T", T, (4, 4), check_finite=True, xp=xp)
+    Rt = xp.swapaxes(T[..., :3, :3], -1, -2)
     t = -_matvec(Rt, T[..., :3, 3])
-    top = jnp.concatenate([Rt, t[..., None]], -1)
-    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], T.dtype), T.shape[:-2] + (4,))
-    return jnp.concatenate([top, bottom[..., None, :]], -2)
+    top = xp.concatenate([Rt, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], T.dtype), T.shape[:-2] + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
 
 
-def project_points(points, K, camera_T_world):
+def project_points(points, K, camera_T_world, *, xp: Any = jnp):
     """Pinhole projection of world points: ``uv = (K p_cam)[:2] / z``, with ``p_cam = camera_T_world p``.
 
     Args:
@@ -987,18 +1110,19 @@ def project_points(points, K, camera_T_world):
         divided by a clamped depth, so its ``uv`` is meaningless: check ``depth``).
       depth: (...) camera z in metres; a point is in front of the camera iff ``depth > 0``.
     """
-    points = _as_float_array("points", points, (3,), check_finite=True)
-    K, pose = _camera_args(K, camera_T_world)
+    xp = _namespace(xp)
+    points = _as_float_array("points", points, (3,), check_finite=True, xp=xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(points=points.shape[:-1], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    dtype = jnp.result_type(points.dtype, K.dtype, pose.dtype)
+    dtype = xp.result_type(points.dtype, K.dtype, pose.dtype)
     p = _matvec(pose[..., :3, :3].astype(dtype), points.astype(dtype)) + pose[..., :3, 3].astype(dtype)
     pix = _matvec(K.astype(dtype), p)
     z = p[..., 2]
-    z_safe = jnp.where(jnp.abs(z) > _eps(dtype), z, _eps(dtype))
+    z_safe = xp.where(xp.abs(z) > _eps(dtype), z, _eps(dtype))
     return pix[..., :2] / z_safe[..., None], z
 
 
-def back_project(uv, depth, K, camera_T_world):
+def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
     """World points (..., 3) at camera depth ``depth`` (z, not range) on the rays through pixels ``uv``.
 
     The inverse of :func:`project_points`: ``project_points(back_project(uv, z, K, T), K, T)``
@@ -1008,22 +1132,23 @@ def back_project(uv, depth, K, camera_T_world):
       uv: (..., 2) pixels; depth: (...) metres along the optical axis.
       K: (..., 3, 3) intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; camera_T_world: (..., 4, 4).
     """
-    uv = _as_float_array("uv", uv, (2,), check_finite=True)
-    depth = jnp.asarray(depth)
+    xp = _namespace(xp)
+    uv = _as_float_array("uv", uv, (2,), check_finite=True, xp=xp)
+    depth = xp.asarray(depth)
     if _is_concrete(depth) and not bool(np.all(np.isfinite(np.asarray(depth)))):
         raise ValueError("depth: must be finite, got non-finite values (NaN or inf)")
-    K, pose = _camera_args(K, camera_T_world)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(uv=uv.shape[:-1], depth=depth.shape, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    dtype = jnp.result_type(uv.dtype, depth.dtype, K.dtype, pose.dtype, float)
+    dtype = xp.result_type(uv.dtype, depth.dtype, K.dtype, pose.dtype, float)
     uv, depth, K, pose = uv.astype(dtype), depth.astype(dtype), K.astype(dtype), pose.astype(dtype)
     fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     fy, cy = K[..., 1, 1], K[..., 1, 2]
     y = (uv[..., 1] - cy) / fy
     x = (uv[..., 0] - cx - s * y) / fx
-    p_cam = jnp.stack([x * depth, y * depth, jnp.broadcast_to(depth, x.shape)], -1)
+    p_cam = xp.stack([x * depth, y * depth, xp.broadcast_to(depth, x.shape)], -1)
     # world p = R^T (p_cam - t)
     R = pose[..., :3, :3]
-    return _matvec(jnp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
+    return _matvec(xp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
 
 
 def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
@@ -1069,7 +1194,7 @@ CUBOID_CORNER_SIGNS = np.array(
 )
 
 
-def cuboid_corners(rotation, center, half_extents):
+def cuboid_corners(rotation, center, half_extents, *, xp: Any = jnp):
     """The 8 corners (..., 8, 3) of an oriented box, in :data:`CUBOID_CORNER_SIGNS` order (NDDS / FAT).
 
     Corner ``k`` is ``center + rotation @ (CUBOID_CORNER_SIGNS[k] * half_extents)``: the box's own
@@ -1080,12 +1205,13 @@ def cuboid_corners(rotation, center, half_extents):
       rotation: (..., 3, 3); center: (..., 3); half_extents: (..., 3) (an ellipsoid's radii give
         its bounding box).
     """
-    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True)
-    center = _as_float_array("center", center, (3,), check_finite=True)
-    half = _as_float_array("half_extents", half_extents, (3,), check_finite=True)
+    xp = _namespace(xp)
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    center = _as_float_array("center", center, (3,), check_finite=True, xp=xp)
+    half = _as_float_array("half_extents", half_extents, (3,), check_finite=True, xp=xp)
     if _is_concrete(half) and bool(np.any(np.asarray(half) < 0)):
         raise ValueError("half_extents: expected non-negative values, got a negative one")
     _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], half_extents=half.shape[:-1])
-    dtype = jnp.result_type(rotation.dtype, center.dtype, half.dtype)
-    local = jnp.asarray(CUBOID_CORNER_SIGNS, dtype) * half.astype(dtype)[..., None, :]
+    dtype = xp.result_type(rotation.dtype, center.dtype, half.dtype)
+    local = xp.asarray(CUBOID_CORNER_SIGNS, dtype) * half.astype(dtype)[..., None, :]
     return _matvec(rotation.astype(dtype)[..., None, :, :], local) + center.astype(dtype)[..., None, :]

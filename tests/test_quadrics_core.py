@@ -333,3 +333,119 @@ def test_typed_pytrees_pass_through_transforms_and_check_their_input():
         q.Ellipsoid.create(np.eye(3), np.zeros(3), np.array([1.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match="focal"):
         q.Camera.create(np.diag([0.0, 1.0, 1.0]), np.eye(4))
+
+
+# --------------------------------------------------------------------------------------------
+# Host path (xp=numpy), camera_matrix, rigid_transform and cylinder_bbox.
+
+
+def _scene(rng, n):
+    R = np.asarray(q.random_rotation(jax.random.PRNGKey(int(rng.integers(1 << 30))), (n,)))
+    c = rng.uniform(-0.5, 0.5, (n, 3)) + np.array([0.0, 0.0, 6.0])
+    r = rng.uniform(0.2, 1.0, (n, 3))
+    return R, c, r
+
+
+_HOST_CALLS = {
+    "project_points": lambda R, c, r, T, xp: q.project_points(c, K, T, xp=xp),
+    "transform_points": lambda R, c, r, T, xp: q.transform_points(T, c, xp=xp),
+    "invert_pose": lambda R, c, r, T, xp: q.invert_pose(T, xp=xp),
+    "rigid_transform": lambda R, c, r, T, xp: q.rigid_transform(R, c, xp=xp),
+    "back_project": lambda R, c, r, T, xp: q.back_project(c[..., :2] * 50, c[..., 2], K, T, xp=xp),
+    "camera_matrix": lambda R, c, r, T, xp: q.camera_matrix(K, T, xp=xp),
+    "cuboid_corners": lambda R, c, r, T, xp: q.cuboid_corners(R, c, r, xp=xp),
+    "quaternion_wxyz_to_rotation": lambda R, c, r, T, xp: q.quaternion_wxyz_to_rotation(
+        np.concatenate([c, r[..., :1]], -1), xp=xp
+    ),
+    "quaternion_xyzw_to_rotation": lambda R, c, r, T, xp: q.quaternion_xyzw_to_rotation(
+        np.concatenate([c, r[..., :1]], -1), xp=xp
+    ),
+    "rotation_to_quaternion_wxyz": lambda R, c, r, T, xp: q.rotation_to_quaternion_wxyz(R, xp=xp),
+    "rotation_to_quaternion_xyzw": lambda R, c, r, T, xp: q.rotation_to_quaternion_xyzw(R, xp=xp),
+    "look_at": lambda R, c, r, T, xp: q.look_at(c + r, c, xp=xp),
+    "dual_conic_bbox": lambda R, c, r, T, xp: q.conic_bbox(
+        q.project_dual_conic(q.dual_quadric(R, c, r, xp=xp), K, T, xp=xp), xp=xp
+    ),
+    "cylinder_bbox": lambda R, c, r, T, xp: q.cylinder_bbox(R, c, r, K, T, xp=xp),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_HOST_CALLS))
+def test_numpy_path_is_the_same_function(name):
+    """``xp=np`` evaluates the same formulas on the host: numpy arrays out, jax's values."""
+    rng = np.random.default_rng(3)
+    R, c, r = _scene(rng, 4)
+    T = _random_pose(rng, (4,))
+    T[..., :3, 3] = [0.0, 0.0, 0.5]  # the objects stay in front of the camera
+    host, dev = _HOST_CALLS[name](R, c, r, T, np), _HOST_CALLS[name](R, c, r, T, jnp)
+    host, dev = (host, dev) if isinstance(host, tuple) else ((host,), (dev,))
+    for h, d in zip(host, dev):
+        assert isinstance(h, np.ndarray) and h.shape == d.shape
+        np.testing.assert_allclose(h, np.asarray(d), rtol=1e-10, atol=1e-9)
+
+
+def test_xp_must_be_numpy_or_jax_numpy():
+    with pytest.raises(ValueError, match="xp"):
+        q.project_points(np.zeros(3), K, np.eye(4), xp=list)
+
+
+def test_numpy_path_checks_its_arguments_too():
+    with pytest.raises(ValueError, match="points"):
+        q.project_points(np.full(3, np.nan), K, np.eye(4), xp=np)
+    with pytest.raises(ValueError, match="camera_T_world"):
+        q.project_points(np.zeros(3), K, 2 * np.eye(4), xp=np)
+
+
+def test_camera_matrix_projects_like_opencv():
+    rng = np.random.default_rng(4)
+    T = _random_pose(rng)
+    world = (np.concatenate([rng.uniform(-2, 2, (20, 2)), rng.uniform(1, 8, (20, 1))], -1) - T[:3, 3]) @ T[:3, :3]
+    x = np.concatenate([world, np.ones((20, 1))], -1) @ np.asarray(q.camera_matrix(K, T)).T
+    rvec, _ = cv2.Rodrigues(T[:3, :3])
+    ref, _ = cv2.projectPoints(world, rvec, T[:3, 3], K, None)
+    np.testing.assert_allclose(x[:, :2] / x[:, 2:], ref[:, 0, :], rtol=1e-10, atol=1e-8)
+
+
+def test_rigid_transform_builds_the_pose_and_checks_its_rotation():
+    rng = np.random.default_rng(5)
+    T = _random_pose(rng, (3,))
+    np.testing.assert_allclose(q.rigid_transform(T[..., :3, :3], T[..., :3, 3]), T, atol=1e-15)
+    with pytest.raises(ValueError, match="rotation"):
+        q.rigid_transform(2 * np.eye(3), np.zeros(3))
+    with pytest.raises(ValueError, match="translation"):
+        q.rigid_transform(np.eye(3), np.zeros(2))
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_cylinder_bbox_matches_densely_sampled_rims(seed):
+    """Reference: the box of 20,000 projected points on each rim circle (OpenCV's projection)."""
+    rng = np.random.default_rng(seed)
+    R, c, r = _scene(rng, 1)
+    T = _random_pose(rng)
+    T[:3, 3] = [0.0, 0.0, 0.5]
+    world = (c[0] - T[:3, 3]) @ T[:3, :3]  # the centre 6.5 m in front of the camera
+    a = np.linspace(0.0, 2 * np.pi, 20000)
+    rims = np.concatenate(
+        [np.stack([r[0, 0] * np.cos(a), r[0, 1] * np.sin(a), np.full_like(a, s * r[0, 2])], -1) for s in (-1, 1)]
+    )
+    pts = rims @ R[0].T + world
+    rvec, _ = cv2.Rodrigues(T[:3, :3])
+    uv, _ = cv2.projectPoints(pts, rvec, T[:3, 3], K, None)
+    ref = np.concatenate([uv[:, 0].min(0), uv[:, 0].max(0)])
+    for xp in (np, jnp):
+        box, valid = q.cylinder_bbox(R[0], world, r[0], K, T, xp=xp)
+        assert bool(valid)
+        np.testing.assert_allclose(np.asarray(box), ref, atol=1e-2)
+
+
+def test_cylinder_bbox_of_a_rim_seen_edge_on_is_still_its_segment():
+    # axis along the camera's y, one rim in the plane y = 0 through the camera: seen edge-on (a
+    # segment, a degenerate conic), the other rim at y = 2
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    box, valid = q.cylinder_bbox(R, np.array([0.0, 1.0, 4.0]), np.array([0.5, 0.5, 1.0]), K, np.eye(4), xp=np)
+    # both rims: x / z extremes on the tangents from the camera, sin = 0.5 / 4; v from y = 0 to 2 / 3.5
+    t = 0.125 / np.sqrt(1 - 0.125**2)
+    ref = [K[0, 2] - K[0, 0] * t, K[1, 2], K[0, 2] + K[0, 0] * t, K[1, 2] + K[1, 1] * 2 / 3.5]
+    assert bool(valid)
+    np.testing.assert_allclose(box, ref, atol=1e-6)

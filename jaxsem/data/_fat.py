@@ -40,9 +40,12 @@ import os
 import pathlib
 import re
 from collections.abc import Iterator, Sequence
+from typing import Any, overload
 
 import cv2
 import numpy as np
+
+from .. import quadrics as Q
 
 __all__ = [
     "FatFormatError",
@@ -61,21 +64,6 @@ FAT_BASELINE = 0.06  # metres between the left and right cameras
 FAT_DEPTH_SCALE = 1e-4  # metres per depth-PNG unit (0.1 mm)
 FAT_LENGTH_SCALE = 0.01  # metres per JSON length unit (cm)
 
-# Corner signs of FAT's cuboid order in its (x right, y down, z out of the front) object frame.
-_CORNER_SIGNS = np.array(
-    [
-        [1, -1, 1],
-        [-1, -1, 1],
-        [-1, 1, 1],
-        [1, 1, 1],  # front: TopRight, TopLeft, BottomLeft, BottomRight
-        [1, -1, -1],
-        [-1, -1, -1],
-        [-1, 1, -1],
-        [1, 1, -1],  # rear, same order
-    ],
-    dtype=np.float64,
-)
-
 _FRAME_RE = re.compile(r"^(\d+)\.left\.json$")
 
 
@@ -88,11 +76,11 @@ def cuboid_corners(rotation, center, dimensions) -> np.ndarray:
 
     ``rotation`` (..., 3, 3) maps the object frame to the camera; FAT's corner frame is
     left-handed (x right, y down, z out of the front), so its z axis is ``-rotation[..., :, 2]``.
+    The corners are :func:`jaxsem.quadrics.cuboid_corners` of that frame (evaluated by numpy).
     """
-    rotation = np.asarray(rotation, np.float64)
     flip = np.diag([1.0, 1.0, -1.0])
-    local = _CORNER_SIGNS * (np.asarray(dimensions, np.float64)[..., None, :] / 2)
-    return np.einsum("...ij,...nj->...ni", rotation @ flip, local) + np.asarray(center, np.float64)[..., None, :]
+    half = np.asarray(dimensions, np.float64) / 2
+    return Q.cuboid_corners(np.asarray(rotation, np.float64) @ flip, center, half, xp=np)
 
 
 def right_T_left(baseline: float = FAT_BASELINE) -> np.ndarray:
@@ -182,17 +170,6 @@ def _array(value, shape, path, name) -> np.ndarray:
     return arr
 
 
-def _quaternion_xyzw_to_matrix(q) -> np.ndarray:
-    x, y, z, w = np.asarray(q, np.float64) / max(np.linalg.norm(q), 1e-300)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def _pose_from_cuboid(corners: np.ndarray, path) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (proper, nearest by SVD) and full extents from 8 corners in FAT's order."""
     axes = np.stack(
@@ -238,7 +215,7 @@ def _check_options(bbox_order, rotation_from, quaternion_axes):
     return axes
 
 
-class FatSequence(Sequence):
+class FatSequence(Sequence[FatFrame]):
     """A FAT scene directory: its camera and object settings, and its frames in name order.
 
     ``len(seq)``, ``seq[i]`` (a :class:`FatFrame`, read on access), ``seq.stems`` (frame names
@@ -263,7 +240,7 @@ class FatSequence(Sequence):
         if not self.scene_dir.is_dir():
             raise FileNotFoundError(f"FAT scene directory missing: {self.scene_dir}")
         self._axes = _check_options(bbox_order, rotation_from, quaternion_axes)
-        self.options = dict(
+        self.options: dict[str, Any] = dict(
             bbox_order=bbox_order,
             depth_scale=float(depth_scale),
             length_scale=float(length_scale),
@@ -307,7 +284,13 @@ class FatSequence(Sequence):
     def __len__(self) -> int:
         return len(self.stems)
 
-    def __getitem__(self, index):
+    @overload
+    def __getitem__(self, index: int) -> FatFrame: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[FatFrame]: ...
+
+    def __getitem__(self, index: int | slice) -> FatFrame | list[FatFrame]:
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         if not -len(self) <= index < len(self):
@@ -385,7 +368,7 @@ class FatSequence(Sequence):
                 rot, dim = _pose_from_cuboid(corners, left_json)
             else:
                 q = _array(_get(ob, "quaternion_xyzw", left_json), (4,), left_json, f"{name} quaternion_xyzw")
-                rot, dim = _quaternion_xyzw_to_matrix(q) @ self._axes, settings["cuboid_dimensions"].copy()
+                rot, dim = Q.quaternion_xyzw_to_rotation(q, xp=np) @ self._axes, settings["cuboid_dimensions"].copy()
             rots.append(rot)
             cens.append(center)
             dims.append(dim)

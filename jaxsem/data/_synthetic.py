@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from .. import quadrics as Q
 from ..sim import SceneObject, SceneRenderer
 from ._fat import FAT_BASELINE, cuboid_corners, right_T_left
 
@@ -73,66 +74,39 @@ def synthetic_intrinsics(width: int, height: int, horizontal_fov_deg: float = 64
     return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
 
 
+# Host code in a per-object Python loop: the geometry core runs on numpy here (``xp=np``).
+_EYE4 = np.eye(4)
+
+
 def _project(K, pts):
-    p = pts @ K.T
-    return p[..., :2] / p[..., 2:]
+    return Q.project_points(pts, K, _EYE4, xp=np)[0]
 
 
 def object_box(shape: str, rotation, center, extents, K) -> np.ndarray:
     """Exact amodal image box ``[u_min, v_min, u_max, v_max]`` of a shape in the camera frame.
 
     Box: its 8 projected corners. Ellipsoid: the bounds of its dual conic (eq. 5.10). Cylinder:
-    each rim circle is a planar ellipse, whose dual conic ``C* = H diag(r^2, r^2, -1) H^T`` with
-    ``H = K [x_axis, y_axis, centre]`` has the same closed-form bounds.
+    the bounds of its two rim ellipses' dual conics (:func:`jaxsem.quadrics.cylinder_bbox`).
     Requires the object entirely in front of the camera.
     """
     R, c, e = (np.asarray(a, np.float64) for a in (rotation, center, extents))
     if shape == "box":
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-        uv = _project(K, (signs * e / 2) @ R.T + c)
-        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
-
-    def bounds(C):
-        su = math.sqrt(max(C[0, 2] ** 2 - C[0, 0] * C[2, 2], 0.0))
-        sv = math.sqrt(max(C[1, 2] ** 2 - C[1, 1] * C[2, 2], 0.0))
-        u = sorted([(C[0, 2] + su) / C[2, 2], (C[0, 2] - su) / C[2, 2]])
-        v = sorted([(C[1, 2] + sv) / C[2, 2], (C[1, 2] - sv) / C[2, 2]])
-        return np.array([u[0], v[0], u[1], v[1]])
-
+        uv = _project(K, Q.cuboid_corners(R, c, e / 2, xp=np))
+        return np.concatenate([uv.min(axis=0), uv.max(axis=0)])
     if shape == "ellipsoid":
-        Z = np.eye(4)
-        Z[:3, :3], Z[:3, 3] = R, c
-        Q = Z @ np.diag([*(e / 2) ** 2, -1.0]) @ Z.T
-        P = K @ np.eye(3, 4)
-        return bounds(P @ Q @ P.T)
+        conic = Q.project_dual_conic(Q.dual_quadric(R, c, e / 2, xp=np), K, _EYE4, xp=np)
+        return Q.conic_bbox(conic, xp=np)[0]
     if shape == "cylinder":
-        boxes = []
-        for s in (-1.0, 1.0):
-            H = K @ np.stack([R[:, 0], R[:, 1], c + s * e[2] / 2 * R[:, 2]], axis=1)
-            boxes.append(bounds(H @ np.diag([(e[0] / 2) ** 2, (e[0] / 2) ** 2, -1.0]) @ H.T))
-        b = np.stack(boxes)
-        return np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()])
+        return Q.cylinder_bbox(R, c, e / 2, K, _EYE4, xp=np)[0]
     raise ValueError(f"shape: expected 'box', 'cylinder' or 'ellipsoid', got {shape!r}")
 
 
 def _random_rotation(rng) -> np.ndarray:
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return Q.quaternion_wxyz_to_rotation(rng.normal(size=4), xp=np)
 
 
 def _quat_xyzw(R) -> list:
-    import mujoco
-
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, np.float64).reshape(9))
-    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+    return [float(x) for x in Q.rotation_to_quaternion_xyzw(R, xp=np)]
 
 
 def _camera_pose(rng) -> np.ndarray:
@@ -141,14 +115,8 @@ def _camera_pose(rng) -> np.ndarray:
     yaw = rng.uniform(-np.pi, np.pi)
     pitch = np.radians(rng.uniform(10, 35))
     fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    world_R_cam = np.stack([right, down, fwd], axis=1)
-    T = np.eye(4)
-    T[:3, :3] = world_R_cam.T
-    T[:3, 3] = -world_R_cam.T @ np.array([0.0, 0.0, h])
-    return T
+    eye = np.array([0.0, 0.0, h])
+    return Q.look_at(eye, eye + fwd, xp=np)
 
 
 def _boxes_overlap(a, b, margin=2.0) -> bool:
@@ -160,7 +128,7 @@ def _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_r
     T_rl = right_T_left(baseline)
     for _ in range(20):
         T = _camera_pose(rng)
-        world_R_cam, eye = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+        world_T_cam = Q.invert_pose(T, xp=np)
         k = int(rng.integers(1, max_objects + 1))
         chosen = rng.choice(len(classes), size=k, replace=False)
         placed = []
@@ -174,9 +142,9 @@ def _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_r
                 R = _random_rotation(rng)
                 z = rng.uniform(*depth_range)
                 u, v = rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height
-                c = z * np.linalg.solve(K, [u, v, 1.0])
+                c = Q.back_project(np.array([u, v]), z, K, _EYE4, xp=np)
                 half_diag = np.linalg.norm(ext) / 2
-                if (world_R_cam @ c + eye)[2] - half_diag < 0.01:  # keep above the floor
+                if Q.transform_points(world_T_cam, c, xp=np)[2] - half_diag < 0.01:  # keep above the floor
                     continue
                 bl = object_box(cls.shape, R, c, ext, K)
                 br = object_box(cls.shape, R, c + T_rl[:3, 3], ext, K)
@@ -201,8 +169,8 @@ def _bbox_json(box, bbox_order):
 
 def _frame_json(placed, classes, K, camera_T_world, offset, bbox_order):
     """FAT frame JSON for one camera; ``offset`` (3,) moves left-camera points into this camera."""
-    cam_R_world = camera_T_world[:3, :3]
-    eye = -cam_R_world.T @ camera_T_world[:3, 3]
+    world_T_cam = Q.invert_pose(camera_T_world, xp=np)
+    eye = world_T_cam[:3, 3]
     objs = []
     for ci, R, c, ext, bl, br in placed:
         cls = classes[ci]
@@ -228,7 +196,7 @@ def _frame_json(placed, classes, K, camera_T_world, offset, bbox_order):
     return {
         "camera_data": {
             "location_worldframe": (eye * 100).tolist(),
-            "quaternion_xyzw_worldframe": _quat_xyzw(cam_R_world.T),
+            "quaternion_xyzw_worldframe": _quat_xyzw(world_T_cam[:3, :3]),
         },
         "objects": objs,
     }
@@ -331,12 +299,13 @@ def write_synthetic_dataset(
         ) as scene:
             for f in range(n_here):
                 T, placed = _sample_frame(rng, classes, K, width, height, baseline, max_objects, depth_range)
-                world_R_cam, eye = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
+                world_T_cam = Q.invert_pose(T, xp=np)
+                world_R_cam = world_T_cam[:3, :3]
                 shown = {p[0]: p for p in placed}
                 for ci in range(len(classes)):
                     if ci in shown:
                         _, R, c, ext, _, _ = shown[ci]
-                        scene.move_object(ci, world_R_cam @ R, world_R_cam @ c + eye, ext)
+                        scene.move_object(ci, world_R_cam @ R, Q.transform_points(world_T_cam, c, xp=np), ext)
                     else:
                         scene.move_object(ci, np.eye(3), np.zeros(3), hidden=True)
                 stem = f"{f:06d}"

@@ -34,14 +34,14 @@ thesis' constants in centimetres (``alpha_y = 10``, ``eps_s = 3``) become 0.1 an
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..quadrics import quaternion_to_rotation, safe_div, safe_norm
+from ..quadrics import back_project, quaternion_to_rotation, safe_div, safe_norm
 from ._mobilenet import MobileNetV2
 
 NUM_FREE = 10  # phi_D (3), phi_R (4), phi_UV (2), phi_Z (1)
@@ -159,12 +159,8 @@ def reconstruct(phi, box, K, config: ReconstructionConfig = ReconstructionConfig
         tz = config.baseline_focal / disparity
     else:
         tz = config.min_depth + (config.max_depth - config.min_depth) * s
-    # back-project (u, v) with K^-1 (upper triangular): ray = [x, y, 1]
-    fx, skew, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
-    fy, cy = K[..., 1, 1], K[..., 1, 2]
-    y = safe_div(uv[..., 1] - cy, fy)
-    x = safe_div(uv[..., 0] - cx - skew * y, fx)
-    ray = jnp.stack([x, y, jnp.ones_like(x)], -1)
+    # back-project (u, v) with K^-1 (camera frame): ray = [x, y, 1], the centre at depth tz on it
+    ray = back_project(uv, jnp.ones_like(tz), K, jnp.eye(4, dtype=K.dtype))
     center = ray * tz[..., None]
     R_allo = quaternion_to_rotation(phi[..., SLICE_R])
     rotation = ray_rotation(ray) @ R_allo
@@ -306,6 +302,14 @@ class VoluMonNet(nn.Module):
     """
 
     config: VoluMonConfig = VoluMonConfig()
+
+    if TYPE_CHECKING:  # for type checkers only; flax supplies both at run time
+
+        def __hash__(self) -> int:  # flax's field-based hash (the cached step builders key on it)
+            ...
+
+        def apply(self, *args: Any, **kwargs: Any) -> Any:  # the output, or (output, variables) by `mutable`
+            ...
 
     @nn.compact
     def __call__(self, local_patch, global_image, train: bool = False, box_feats=None) -> VoluMonOutput:

@@ -397,17 +397,15 @@ class BuildingRenderer:
         T = np.asarray(camera_T_world, np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
-        world_R_cam = T[:3, :3].T
-        if not np.allclose(world_R_cam @ world_R_cam.T, np.eye(3), atol=1e-5):
+        if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-5):
             raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
+        world_T_cam = quadrics.invert_pose(T, xp=np)
         c = self._cam
         W, H = self.width, self.height
-        self.model.cam_pos[c] = -world_R_cam @ T[:3, 3]
+        self.model.cam_pos[c] = world_T_cam[:3, 3]
         # MuJoCo's camera looks along its -z with y up: OpenCV's frame times diag(1, -1, -1).
-        to_wxyz = (
-            getattr(quadrics, "rotation_to_quaternion_wxyz", None) or quadrics.rotation_to_quaternion
-        )  # the core's [w, x, y, z] conversion (renamed with the xyzw variant's arrival)
-        self.model.cam_quat[c] = np.asarray(to_wxyz(world_R_cam @ np.diag([1.0, -1.0, -1.0])))
+        cam_R = world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0])
+        self.model.cam_quat[c] = quadrics.rotation_to_quaternion_wxyz(cam_R, xp=np)
         # Pixel-unit sensor and MuJoCo's principal offset (signs as in jaxsem.sim.SceneRenderer).
         self.model.cam_sensorsize[c] = [W, H]
         self.model.cam_resolution[c] = [W, H]

@@ -27,6 +27,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..quadrics import invert_pose
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco
@@ -374,9 +376,9 @@ class SceneRenderer:
         R = T[:3, :3]
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
             raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
-        world_R_cam = R.T
-        self.model.cam_pos[0] = -world_R_cam @ T[:3, 3]
-        self.model.cam_quat[0] = _mat_to_quat(world_R_cam @ np.diag([1.0, -1.0, -1.0]))
+        world_T_cam = invert_pose(T, xp=np)
+        self.model.cam_pos[0] = world_T_cam[:3, 3]
+        self.model.cam_quat[0] = _mat_to_quat(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
         self.model.cam_sensorsize[0] = [self.width, self.height]
         self.model.cam_resolution[0] = [self.width, self.height]
         self.model.cam_intrinsic[0] = intrinsic

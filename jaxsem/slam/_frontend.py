@@ -52,6 +52,8 @@ from typing import Any, NamedTuple
 import cv2
 import numpy as np
 
+from .. import quadrics
+
 __all__ = [
     "FrontEndConfig",
     "FrontEnd",
@@ -326,8 +328,8 @@ def triangulate_points(K, pose_a, pose_b, uv_a, uv_b):
     uv_a = np.asarray(uv_a, dtype=np.float64).reshape(-1, 2)
     uv_b = np.asarray(uv_b, dtype=np.float64).reshape(-1, 2)
     n = uv_a.shape[0]
-    P_a = np.broadcast_to(K @ np.asarray(pose_a, dtype=np.float64)[..., :3, :], (n, 3, 4))
-    P_b = np.broadcast_to(K @ np.asarray(pose_b, dtype=np.float64)[..., :3, :], (n, 3, 4))
+    P_a = np.broadcast_to(quadrics.camera_matrix(K, pose_a, xp=np), (n, 3, 4))
+    P_b = np.broadcast_to(quadrics.camera_matrix(K, pose_b, xp=np), (n, 3, 4))
     rows = np.stack(
         [
             uv_a[:, :1] * P_a[:, 2] - P_a[:, 0],
@@ -368,6 +370,13 @@ def hs_histogram(hsv, box, bins=(30, 32), shrink: float = 0.0):
     return hist / total if total > 0 else hist
 
 
+def _pyramidal_lk(prev, image, points, window, levels):
+    """``cv2.calcOpticalFlowPyrLK`` of ``points`` (N, 1, 2) float32: (new points, status, error)."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    # nextPts=None lets OpenCV allocate the output (documented); its stub types it as a required array
+    return cv2.calcOpticalFlowPyrLK(prev, image, points, None, winSize=window, maxLevel=levels, criteria=criteria)  # pyright: ignore[reportCallIssue, reportArgumentType]
+
+
 def _box_pixels(box, shape, shrink):
     """Integer pixel slice bounds ``x0, y0, x1, y1`` (exclusive ends) of a box, at least 1 px."""
     h, w = shape
@@ -382,24 +391,14 @@ def _box_pixels(box, shape, shrink):
 
 def _camera_center(pose):
     """World position of the camera centre of ``camera_T_world`` (..., 4, 4)."""
-    R = pose[..., :3, :3]
-    t = pose[..., :3, 3]
-    return -np.einsum("...ji,...j->...i", R, t)
-
-
-def _project(K, pose, points):
-    """Pixels (N, 2) and depths (N,) of world points (N, 3) in camera(s) ``pose`` ((N,)4x4)."""
-    cam = np.einsum("...ij,...j->...i", pose[..., :3, :3], points) + pose[..., :3, 3]
-    z = cam[..., 2]
-    safe_z = np.where(np.abs(z) > 1e-12, z, 1e-12)
-    uv = (cam @ K.T)[..., :2] / safe_z[..., None]
-    return uv, z
+    return quadrics.invert_pose(pose, xp=np)[..., :3, 3]
 
 
 def _texture_from_points(points, K, pose_now, uv_now, pose_anchor, uv_anchor, config):
     """Texture-plane depth and variance of triangulated points; returns (depth, var, status, n)."""
-    uv_a, z_a = _project(K, pose_anchor, points)
-    uv_b, z_b = _project(K, pose_now, points)
+    # host code, once per landmark and frame: the geometry core runs on numpy here (xp=np)
+    uv_a, z_a = quadrics.project_points(points, K, pose_anchor, xp=np)
+    uv_b, z_b = quadrics.project_points(points, K, pose_now, xp=np)
     err = np.maximum(np.linalg.norm(uv_a - uv_anchor, axis=-1), np.linalg.norm(uv_b - uv_now, axis=-1))
     good = (z_a > config.min_depth) & (z_b > config.min_depth) & (err <= config.max_reprojection_error)
     depths = z_b[good]
@@ -572,8 +571,6 @@ def _predicted_centroids(K, pose, estimates):
     """Predicted box centres (L, 2) and validity (L,) of the estimated ellipsoids."""
     import jax
 
-    from .. import quadrics
-
     fn = _PROJECT_CACHE.get("fn")
     if fn is None:
         fn = jax.jit(quadrics.project_bbox)
@@ -645,7 +642,7 @@ class FrontEnd:
         if not isinstance(config, FrontEndConfig):
             raise ValueError(f"config: expected a FrontEndConfig, got {type(config).__name__}")
         self.config = config
-        self._orb = cv2.ORB_create(
+        self._orb = cv2.ORB.create(
             nfeatures=config.max_features,
             scaleFactor=1.2,
             nlevels=config.orb_levels,
@@ -791,11 +788,7 @@ class FrontEnd:
         if self._prev_gray is None or not owners:
             return
         p0 = np.concatenate([lm.points for lm in owners]).astype(np.float32).reshape(-1, 1, 2)
-        params = dict(
-            winSize=(cfg.lk_window, cfg.lk_window),
-            maxLevel=cfg.lk_levels,
-            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
-        )
+        win, levels = (cfg.lk_window, cfg.lk_window), cfg.lk_levels
         # LK builds image pyramids of whatever it is given: crop both images to the corners'
         # bounding box plus the tracker's reach (window times the coarsest level's scale).
         h, w = gray.shape
@@ -807,8 +800,8 @@ class FrontEnd:
         prev_crop = np.ascontiguousarray(self._prev_gray[y0:y1, x0:x1])
         crop = np.ascontiguousarray(gray[y0:y1, x0:x1])
         offset = np.array([x0, y0], dtype=np.float32)
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev_crop, crop, p0 - offset, None, **params)
-        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(crop, prev_crop, p1, None, **params)
+        p1, st1, _ = _pyramidal_lk(prev_crop, crop, p0 - offset, win, levels)
+        p0r, st2, _ = _pyramidal_lk(crop, prev_crop, p1, win, levels)
         p1 = p1 + offset
         p0r = p0r + offset
         p0, p1, p0r = p0.reshape(-1, 2), p1.reshape(-1, 2), p0r.reshape(-1, 2)

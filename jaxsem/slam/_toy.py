@@ -15,19 +15,11 @@ from .. import factors as F, quadrics as Q
 from ._problem import SlamEstimate, make_problem
 
 
-def _yaw(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _rot_small(rng, sigma):
-    w = rng.normal(0.0, sigma, 3)
-    th = np.linalg.norm(w)
-    if th < 1e-12:
-        return np.eye(3)
-    k = w / th
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+def _yaw(angles):
+    """Rotations (N, 3, 3) about the world z axis by ``angles`` (N,) radians."""
+    angles = np.asarray(angles, np.float64)
+    omega = np.stack([np.zeros_like(angles), np.zeros_like(angles), angles], -1)
+    return np.asarray(Q.so3_exp(omega), np.float64)
 
 
 def toy_map(
@@ -71,7 +63,7 @@ def toy_map(
         x = rng.uniform(-8, 8, num_objects) * scale
         y = rng.uniform(-8, 8, num_objects) * scale
     center = np.stack([x, y, radii[:, 2]], -1)
-    rotation = np.stack([_yaw(a) for a in rng.uniform(-np.pi, np.pi, num_objects)])
+    rotation = _yaw(rng.uniform(-np.pi, np.pi, num_objects))
     if path == "forward":
         xs = np.linspace(-10, 35, num_frames) * scale
         eyes = np.stack([xs, np.zeros_like(xs), np.full_like(xs, 1.5 * scale)], -1)
@@ -101,17 +93,16 @@ def toy_map(
     t_idx, j_idx = np.nonzero(seen)
     boxes = clipped[t_idx, j_idx]
     tex = depth[t_idx, j_idx] + texture_noise * rng.normal(size=len(t_idx))
-    noisy = []
-    for P in poses:
-        dR = _rot_small(rng, pose_noise[1])
-        dt = rng.normal(0, pose_noise[0], 3)
-        N = np.eye(4)
-        N[:3, :3], N[:3, 3] = dR, dt
-        noisy.append(N @ P)
+    omegas, shifts = [], []
+    for _ in poses:  # the draws interleave per pose: rotation noise, then translation noise
+        omegas.append(rng.normal(0.0, pose_noise[1], 3))
+        shifts.append(rng.normal(0, pose_noise[0], 3))
+    noise = np.asarray(Q.rigid_transform(Q.so3_exp(np.stack(omegas)), np.stack(shifts)), np.float64)
+    noisy = noise @ poses
     problem = make_problem(
         K,
         [W, H],
-        np.stack(noisy),
+        noisy,
         boxes,
         t_idx,
         j_idx,
@@ -119,22 +110,19 @@ def toy_map(
         texture_depth=tex,
         capacity=capacity,
     )
-    truth = SlamEstimate(poses, rotation, center, radii)
+    values = [poses, rotation, center, radii]
     if capacity is not None:
         Tc, _, Jc = capacity
-        eye = np.broadcast_to(np.eye(4), (Tc - num_frames, 4, 4))
-        truth = SlamEstimate(
-            np.concatenate([poses, eye]),
+        values = [
+            np.concatenate([poses, np.broadcast_to(np.eye(4), (Tc - num_frames, 4, 4))]),
             np.concatenate([rotation, np.broadcast_to(np.eye(3), (Jc - num_objects, 3, 3))]),
             np.concatenate([center, np.zeros((Jc - num_objects, 3))]),
             np.concatenate([radii, np.ones((Jc - num_objects, 3))]),
-        )
+        ]
     import jax.numpy as jnp
 
     dtype = problem.K.dtype
-    truth = SlamEstimate(
-        *(jnp.asarray(a, dtype) for a in (truth.camera_T_world, truth.rotation, truth.center, truth.radii))
-    )
+    truth = SlamEstimate(*(jnp.asarray(a, dtype) for a in values))
     return problem, truth
 
 

@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..quadrics import conic_outline as quadrics_conic_outline, dual_quadric, project_dual_conic
+from ..quadrics import (
+    conic_outline as quadrics_conic_outline,
+    cuboid_corners,
+    dual_quadric,
+    project_dual_conic,
+    project_points,
+)
 
-_EDGES = [(0, 1), (0, 2), (1, 3), (2, 3), (4, 5), (4, 6), (5, 7), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
+# edges of a cuboid in jaxsem.quadrics.CUBOID_CORNER_SIGNS order: front face, rear face, front to rear
+_EDGES = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
 
 
 def ellipsoid_outline(rotation, center, radii, K, n: int = 100):
@@ -17,11 +24,10 @@ def ellipsoid_outline(rotation, center, radii, K, n: int = 100):
 
 
 def box_corners_2d(rotation, center, radii, K):
-    """(8, 2) projected corners of the ellipsoid's bounding cuboid (camera frame)."""
-    s = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
-    P = (s * np.asarray(radii)) @ np.asarray(rotation, np.float64).T + np.asarray(center)
-    uv = P @ np.asarray(K, np.float64).T
-    return uv[:, :2] / np.maximum(uv[:, 2:], 1e-6)
+    """(8, 2) projected corners of the ellipsoid's bounding cuboid (camera frame), in
+    :data:`jaxsem.quadrics.CUBOID_CORNER_SIGNS` order; meaningless for corners behind the camera."""
+    corners = cuboid_corners(rotation, center, radii, xp=np)
+    return project_points(corners, K, np.eye(4), xp=np)[0]
 
 
 def draw_predictions(ax, image, ellipsoids, K, boxes=None, truth=None):

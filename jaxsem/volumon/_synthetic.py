@@ -23,7 +23,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
-from ..quadrics import cuboid_corners, project_bbox, project_points
+from ..quadrics import (
+    back_project,
+    cuboid_corners,
+    invert_pose,
+    project_bbox,
+    project_points,
+    quaternion_wxyz_to_rotation,
+    rigid_transform,
+)
 from ._inputs import crop_and_resize, masked_global_image
 
 #: VoluMon's tabletop classes, rows of :data:`jaxsem.classes.CLASSES` (the one class table):
@@ -134,8 +142,9 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
     """
     R, t, half, shape_id, color = pose["rotation"], pose["center"], pose["half"], pose["shape_id"], pose["color"]
     vs, us = jnp.meshgrid(jnp.arange(height, dtype=jnp.float32), jnp.arange(width, dtype=jnp.float32), indexing="ij")
-    rays = jnp.stack([(us - K[0, 2]) / K[0, 0], (vs - K[1, 2]) / K[1, 1], jnp.ones_like(us)], -1)
-    o = jnp.broadcast_to(-(R.T @ t), rays.shape)
+    rays = back_project(jnp.stack([us, vs], -1), 1.0, K, jnp.eye(4, dtype=K.dtype))  # camera frame, z = 1
+    object_T_camera = invert_pose(rigid_transform(R, t))
+    o = jnp.broadcast_to(object_T_camera[:3, 3], rays.shape)
     d = rays @ R  # R^T ray, row-vector form
     s_c, hit_c, n_c = _cuboid_hit(o, d, half)
     s_e, hit_e, n_e = _ellipsoid_hit(o, d, half)
@@ -184,34 +193,25 @@ def cylinder_box(rotation, center, half, K, camera_T):
     return jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
 
 
-def _quat_to_rot_np(q):
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def sample_poses(seed: int, indices, scene: SceneConfig):
     """Host-side scene parameters of samples ``indices`` (deterministic in (seed, index))."""
     out = {k: [] for k in ("rotation", "center", "half", "shape_id", "color", "class_id")}
-    K = scene.K()
+    K = np.asarray(scene.K(), np.float64)
+    eye = np.eye(4)
+    # host code in a per-sample loop: the geometry core runs on numpy here (xp=np)
     for i in np.asarray(indices).ravel():
         rng = np.random.default_rng([int(seed), int(i)])
         cls = scene.classes[rng.integers(len(scene.classes))]
         _, shape, dims, color = CLASSES[cls]
         half = 0.5 * np.asarray(dims) * (1 + scene.size_jitter * rng.uniform(-1, 1, 3))
         q = rng.normal(size=4)
-        R = _quat_to_rot_np(q / np.linalg.norm(q))
+        R = quaternion_wxyz_to_rotation(q, xp=np)
         z = rng.uniform(*scene.depth_range)
         rmax = np.linalg.norm(half)
         margin = scene.focal * rmax / max(z - rmax, 1e-3) + 2
         u = rng.uniform(margin, max(scene.width - 1 - margin, margin + 1e-3))
         v = rng.uniform(margin, max(scene.height - 1 - margin, margin + 1e-3))
-        center = z * np.linalg.solve(K.astype(np.float64), [u, v, 1.0])
+        center = back_project(np.array([u, v]), z, K, eye, xp=np)
         out["rotation"].append(R)
         out["center"].append(center)
         out["half"].append(half)
@@ -266,7 +266,7 @@ def _render_batch(
         _, idx = jax.lax.top_k(scores, J)
         r, c = idx // W, idx % W
         z = depth[r, c]
-        pts = jnp.stack([(c - K[0, 2]) / K[0, 0] * z, (r - K[1, 2]) / K[1, 1] * z, z], -1)
+        pts = back_project(jnp.stack([c, r], -1).astype(K.dtype), z, K, eye)
         pmask = mask[r, c] & any_hit
         inside = (box_l[0] >= -0.5) & (box_l[1] >= -0.5) & (box_l[2] <= W - 0.5) & (box_l[3] <= H - 0.5)
         return {
