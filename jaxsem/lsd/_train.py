@@ -21,7 +21,7 @@ import functools
 import json
 import pathlib
 import time
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -117,7 +117,7 @@ def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int,
         trainable, frozen = _trainable(params, stage)
         value, grads = jax.value_and_grad(loss_fn)(trainable, frozen, batch, key)
         updates, opt_state = tx.update(grads, opt_state, trainable)
-        trainable = optax.apply_updates(trainable, updates)
+        trainable = cast(dict, optax.apply_updates(trainable, updates))  # same tree as its input, a dict
         return {**frozen, **trainable}, opt_state, value
 
     return step

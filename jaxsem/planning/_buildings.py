@@ -241,7 +241,10 @@ def generate_building(
         if not cands:
             return False
         run = cands[int(rng.integers(len(cands)))]
-        r0, c0, r1, c1 = _opening(run, door_w, clear, rng)
+        box = _opening(run, door_w, clear, rng)
+        if box is None:  # not reached: the candidates are long enough
+            return False
+        r0, c0, r1, c1 = box
         wall[r0:r1, c0:c1] = False
         semantic[r0:r1, c0:c1] = DOOR
         parent[find(a)] = find(b)
@@ -285,6 +288,8 @@ def generate_building(
     for run in ext_runs[: max(1, n_ext)]:
         axis, fixed, lo, hi = run
         box = _opening((axis, fixed, lo, hi), door_w, 3, rng)
+        if box is None:  # not reached: ext_runs are long enough
+            continue
         r0, c0, r1, c1 = box
         wall[r0:r1, c0:c1] = False
         semantic[r0:r1, c0:c1] = DOOR

@@ -86,7 +86,7 @@ class ExpertConfig:
 
 
 def _clear_cells(b: Building, clearance: float):
-    d = scipy.ndimage.distance_transform_edt(~b.occupancy) * b.resolution
+    d = np.asarray(scipy.ndimage.distance_transform_edt(~b.occupancy)) * b.resolution
     ok = d >= clearance
     return np.argwhere(ok & b.indoor), np.argwhere(ok & ~b.indoor & (d >= clearance))
 
@@ -189,10 +189,11 @@ def generate_expert_samples(
                 for _ in range(config.goals_per_moment):
                     out_goal = rng.random() < config.outdoor_goal_prob
                     pool = outside if out_goal else inside
-                    for _try in range(20):
-                        g = _to_world(building, pool[rng.integers(len(pool))])
+                    g = _to_world(building, pool[rng.integers(len(pool))])
+                    for _try in range(19):  # at most 20 draws; the last one is kept
                         if np.linalg.norm(g - trial.xy) >= config.min_goal_distance:
                             break
+                        g = _to_world(building, pool[rng.integers(len(pool))])
                     p = tree.path_to(g)
                     if not p.found:
                         continue
@@ -307,7 +308,8 @@ def write_expert_dataset(
                 bar.update(1)
     else:
         ctx = multiprocessing.get_context("spawn")  # JAX is multithreaded: never fork it
-        cache = jax.config.jax_compilation_cache_dir  # workers share the parent's compile cache
+        # workers share the parent's compile cache (jax's options are dynamic attributes, not in its stubs)
+        cache = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
         with ctx.Pool(workers, initializer=_init_worker, initargs=(cache,)) as pool:
             for path, _ in pool.imap_unordered(_shard_job, jobs):
                 done.append(path)
@@ -323,6 +325,8 @@ def load_expert_dataset(paths) -> dict:
     plus ``building_seed`` (S,) and ``family`` (S,); ``path_offsets`` is re-based."""
     if isinstance(paths, (str, os.PathLike)) and pathlib.Path(paths).is_dir():
         paths = sorted(pathlib.Path(paths).glob("expert_*.npz"))
+    elif isinstance(paths, (str, os.PathLike)):  # one shard
+        paths = [paths]
     paths = [pathlib.Path(p) for p in paths]
     if not paths:
         raise ValueError("paths: no expert shards given (expected expert_*.npz files)")

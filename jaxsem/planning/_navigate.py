@@ -359,6 +359,7 @@ class Trial:
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
+            assert self.plan is not None  # set by a successful _replan()
             d = self.plan[1] - self.xy
             if np.hypot(*d) > 1e-9:
                 self.yaw = math.atan2(d[1], d[0])

@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
+from jax.core import Tracer
 
 from ._grid import OCCUPIED, check_point
 
@@ -387,7 +388,7 @@ _connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution
 
 
 def _blocked_from(name, known_map):
-    if isinstance(known_map, jax.core.Tracer):
+    if isinstance(known_map, Tracer):
         raise ValueError(f"{name}: the roadmap entry points run at the Python boundary; pass a concrete map")
     arr = np.asarray(known_map)
     if arr.ndim != 2:
@@ -402,7 +403,7 @@ def _blocked_from(name, known_map):
 
 
 def _check_distribution(distribution, shape):
-    if distribution is None or isinstance(distribution, jax.core.Tracer):
+    if distribution is None or isinstance(distribution, Tracer):
         return distribution
     d = np.asarray(distribution)
     if d.shape != tuple(shape):

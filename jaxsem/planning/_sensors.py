@@ -19,6 +19,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 
 from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState
 
@@ -120,13 +121,13 @@ def _check_resolution(resolution):
 
 
 def _check_true_maps(true_occupancy, true_semantic):
-    if isinstance(true_occupancy, jax.core.Tracer):
+    if isinstance(true_occupancy, Tracer):
         return
     occ = np.asarray(true_occupancy) if not isinstance(true_occupancy, jax.Array) else true_occupancy
     if occ.ndim != 2 or occ.dtype != np.bool_:
         raise ValueError(f"true_occupancy: expected a (H, W) bool grid, got shape {tuple(occ.shape)} dtype {occ.dtype}")
     sem = true_semantic
-    if not isinstance(sem, jax.core.Tracer):
+    if not isinstance(sem, Tracer):
         sem = np.asarray(sem) if not isinstance(sem, jax.Array) else sem
         if tuple(sem.shape) != tuple(occ.shape) or not np.issubdtype(sem.dtype, np.integer):
             raise ValueError(

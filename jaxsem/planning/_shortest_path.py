@@ -29,7 +29,7 @@ def soft_cost(occupancy, resolution: float, weight: float = 4.0, scale: float = 
     occupancy: (H, W) bool; d: metres from the cell centre to the nearest occupied cell centre.
     """
     occ = check_grid("occupancy", occupancy, "bool")
-    d = scipy.ndimage.distance_transform_edt(~occ) * float(resolution)
+    d = np.asarray(scipy.ndimage.distance_transform_edt(~occ)) * float(resolution)
     cost = 1.0 + float(weight) * np.exp(-d / float(scale))
     return np.where(occ, np.inf, cost)
 
