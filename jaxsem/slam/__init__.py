@@ -59,6 +59,7 @@ from ._problem import (
     SolverConfig as SolverConfig,
     baseline_config as baseline_config,
     bucket_capacity as bucket_capacity,
+    compact_boxes as compact_boxes,
     make_frame as make_frame,
     make_problem as make_problem,
     stack_problems as stack_problems,

@@ -245,20 +245,22 @@ def _apply(est: SlamEstimate, dp, do) -> SlamEstimate:
 
 class _Carry(eqx.Module):
     est: SlamEstimate
-    normal: Normal
     cost: jnp.ndarray
     lam: jnp.ndarray
-    relin: jnp.ndarray
     steps: jnp.ndarray
     accepted: jnp.ndarray
     code: jnp.ndarray
 
 
-def _zero_normal(est: SlamEstimate) -> Normal:
-    dtype = est.center.dtype
-    T, J = est.camera_T_world.shape[0], est.center.shape[0]
-    z = lambda *s: jnp.zeros(s, dtype)
-    return Normal(z(T, 6, 6), z(J, 9, 9), z(T, J, 6, 9), z(T, 6), z(J, 9), z())
+class _Trial(eqx.Module):
+    dp: jnp.ndarray
+    do: jnp.ndarray
+    new_cost: jnp.ndarray
+    lam: jnp.ndarray
+    steps: jnp.ndarray
+    accept: jnp.ndarray
+    step_finite: jnp.ndarray
+    done: jnp.ndarray
 
 
 def levenberg_marquardt(
@@ -271,8 +273,13 @@ def levenberg_marquardt(
 ):
     """The structured LM loop (descent :func:`damped_schur_step`, search :func:`damping_search`).
 
-    One linearisation site in the loop body (taken at the start and after every accepted step,
-    skipped otherwise), so the cost and its Jacobian are traced and compiled once.
+    GTSAM's layout: an outer ``while_loop`` linearises once per iteration (one call site, no
+    ``lax.cond``, so under ``vmap`` the Jacobian is never evaluated for a rejected trial); an
+    inner ``while_loop`` tries damped steps (one reduced solve and one cost evaluation each)
+    until one lowers the cost or the damping passes ``config.lambda_max``. Everything stays on
+    the device: no host round-trip per iteration. Under ``vmap`` every member keeps its own
+    damping, counters and stopping decision (a finished member's carry is frozen), so a
+    member's answer is its solo answer.
 
     Returns ``(estimate, cost, steps, accepted, code)`` with ``code`` an int32 twin of
     :data:`RESULTS` (0 successful, 1 max steps, 2 non-finite, 3 damping limit, 4 ill-conditioned).
@@ -284,54 +291,55 @@ def levenberg_marquardt(
     nothing_free = ~(jnp.any(pose_free > 0) | jnp.any(obj_free))
     carry = _Carry(
         init,
-        _zero_normal(init),
         jnp.asarray(jnp.inf, dtype),
         jnp.asarray(config.lambda_init, dtype),
-        jnp.asarray(True),
         jnp.asarray(0, jnp.int32),
         jnp.asarray(0, jnp.int32),
         jnp.asarray(jnp.where(nothing_free, _OK, _RUNNING), jnp.int32),
     )
+    T, J = init.camera_T_world.shape[0], init.center.shape[0]
 
     def cond(c: _Carry):
         return (c.steps < max_steps) & (c.code == _RUNNING)
 
     def body(c: _Carry):
-        normal = jax.lax.cond(
-            c.relin,
-            lambda e: linearize(problem, e, config, pose_free),
-            lambda e: c.normal,
-            c.est,
-        )
-        cost = jnp.where(c.relin, normal.cost, c.cost)
+        normal = linearize(problem, c.est, config, pose_free)
+        cost = normal.cost
         lin_ok = _all_finite(normal)
         at_zero = cost <= 0  # exactly at a zero-cost optimum: converged (GTSAM's errorTol)
-        dp, do = damped_schur_step(normal, c.lam, pose_free, obj_free)
-        step_finite = jnp.all(jnp.isfinite(dp)) & jnp.all(jnp.isfinite(do))
-        dp = jnp.where(step_finite, dp, 0.0)
-        do = jnp.where(step_finite, do, 0.0)
-        cand = _apply(c.est, dp, do)
-        new_cost = total_cost(problem, cand, config)
-        accept, lam = damping_search(cost, new_cost, c.lam, step_finite)
-        accept = accept & lin_ok & ~at_zero
-        lam = jnp.where(lin_ok & ~at_zero, lam, c.lam)
-        est = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), cand, c.est)
-        decrease = cost - new_cost
+
+        def trial(t: _Trial):
+            dp, do = damped_schur_step(normal, t.lam, pose_free, obj_free)
+            step_finite = jnp.all(jnp.isfinite(dp)) & jnp.all(jnp.isfinite(do))
+            dp = jnp.where(step_finite, dp, 0.0)
+            do = jnp.where(step_finite, do, 0.0)
+            new_cost = total_cost(problem, _apply(c.est, dp, do), config)
+            accept, lam = damping_search(cost, new_cost, t.lam, step_finite)
+            done = accept | (lam > lam_max) | (t.steps + 1 >= max_steps)
+            return _Trial(dp, do, new_cost, lam, t.steps + 1, accept, step_finite, done)
+
+        t0 = _Trial(
+            jnp.zeros((T, 6), dtype),
+            jnp.zeros((J, 9), dtype),
+            cost,
+            c.lam,
+            c.steps,
+            jnp.asarray(False),
+            jnp.asarray(True),
+            ~lin_ok | at_zero,
+        )
+        t = jax.lax.while_loop(lambda t: ~t.done, trial, t0)
+        accept = t.accept
+        est = _apply(c.est, jnp.where(accept, t.dp, 0.0), jnp.where(accept, t.do, 0.0))
+        est = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), est, c.est)
+        decrease = cost - t.new_cost
         converged = accept & ((decrease <= atol) | (decrease <= rtol * cost))
         code = jnp.where(converged, _OK, _RUNNING)
-        code = jnp.where(lam > lam_max, jnp.where(step_finite, _DAMPING, _ILL), code)
+        code = jnp.where(t.lam > lam_max, jnp.where(t.step_finite, _DAMPING, _ILL), code)
         code = jnp.where(at_zero, _OK, code)
         code = jnp.where(lin_ok, code, _NONFINITE)
-        return _Carry(
-            est,
-            normal,
-            jnp.where(accept, new_cost, cost),
-            lam,
-            accept,
-            c.steps + 1,
-            c.accepted + accept.astype(jnp.int32),
-            code.astype(jnp.int32),
-        )
+        new_cost = jnp.where(accept, t.new_cost, cost)
+        return _Carry(est, new_cost, t.lam, t.steps, c.accepted + accept.astype(jnp.int32), code.astype(jnp.int32))
 
     out = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(out.code == _RUNNING, _MAX, out.code)
