@@ -528,13 +528,13 @@ def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
       ValueError: ``max_boxes`` below 1, or (for concrete inputs) more real boxes than
         ``max_boxes`` in some problem.
     """
-    import jax
+    from jax.core import Tracer
 
     max_boxes = int(max_boxes)
     if max_boxes < 1:
         raise ValueError(f"max_boxes: expected an int >= 1, got {max_boxes}")
     mask = problem.box_mask
-    if not isinstance(mask, jax.core.Tracer):
+    if not isinstance(mask, Tracer):
         most = int(jnp.max(jnp.sum(mask, axis=-1))) if mask.size else 0
         if most > max_boxes:
             raise ValueError(f"max_boxes: {max_boxes} is below the {most} real boxes of a problem")
