@@ -34,9 +34,9 @@ def _quat_xyzw(R):
 
 
 def _object(center_cm, box_uv):
-    # The corner frame is left-handed: its z axis is the negated third column of R_TRUE.
-    frame = R_TRUE * np.array([1, 1, -1])
-    corners = center_cm + (SIGNS * DIMS_CM / 2) @ frame.T
+    # NVIDIA's Dataset_Utilities: corners = R(quaternion) @ (signs * dims / 2) + centroid, the
+    # object frame x right, y down, z forward (right-handed; see test_data_fat_published.py)
+    corners = center_cm + (SIGNS * DIMS_CM / 2) @ R_TRUE.T
     u0, v0, u1, v1 = box_uv
     return {
         "class": "003_cracker_box_16k",

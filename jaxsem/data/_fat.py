@@ -19,14 +19,19 @@ a documented option:
 - Object pose: ``center`` is the cuboid centroid (``cuboid_centroid``, else the mean of the 8
   ``cuboid`` corners), not ``location`` (the mesh origin, which for YCB models is not the box
   centre). ``rotation_from='cuboid'`` (default) reads the rotation and the three extents off the
-  8 exported cuboid corners, whose order is FrontTopRight, FrontTopLeft, FrontBottomLeft,
-  FrontBottomRight, then the same four on the rear face, in an object frame with x right, y down
-  and z out of the front: x = c0 - c1, y = c3 - c0, z = c0 - c4. This needs no convention about
-  the quaternion and is consistent with the extents by construction. That corner frame is
-  left-handed; a cuboid (and its ellipsoid) is symmetric under flipping an axis, so the z column
-  is negated to return a proper rotation. ``rotation_from='quaternion'`` instead returns
-  ``R(quaternion_xyzw) @ quaternion_axes`` (``quaternion_axes`` (3, 3), default identity) with the
-  extents of ``_object_settings.json`` in that frame; use it only for data without cuboids.
+  8 exported cuboid corners. Their order and frame are those of NVIDIA's Dataset_Utilities
+  (``nvdu/core/cuboid.py``, ``Cuboid3d.generate_vertexes``): FrontTopRight, FrontTopLeft,
+  FrontBottomLeft, FrontBottomRight, then the same four on the rear face, in the object frame
+  x right, y down, z forward (OpenCV axes, right-handed), so x = c0 - c1, y = c3 - c0, z = c0 - c4
+  and the corners are ``R(quaternion_xyzw) @ local + cuboid_centroid``. Checked on an object of a
+  published NDDS export (``tests/test_data_fat_published.py``): that frame is proper and equals
+  ``R(quaternion_xyzw)`` to 1e-4, the corners rebuilt from it are the file's within 0.1 mm, and
+  ``pose_transform`` (stored row-vector style) is ``(R @ [[0, 1, 0], [0, 0, -1], [1, 0, 0]])^T``,
+  the exporter's own axes; this loader does not use it. A mirrored corner list (left-handed
+  frame) is refused naming the file. ``rotation_from='quaternion'`` instead returns
+  ``R(quaternion_xyzw) @ quaternion_axes`` (``quaternion_axes`` (3, 3), default identity, which is
+  the exporter's convention) with the extents of ``_object_settings.json``.
+- :func:`load_fat_annotations` reads the labels of every frame without opening an image.
 
 Missing files raise ``FileNotFoundError`` and unreadable or malformed ones raise
 :class:`FatFormatError` (a ``ValueError``), both naming the file's path.
@@ -48,9 +53,11 @@ import numpy as np
 from .. import quadrics as Q
 
 __all__ = [
+    "FatAnnotation",
     "FatFormatError",
     "FatFrame",
     "FatSequence",
+    "load_fat_annotations",
     "load_fat_frame",
     "load_fat_scene",
     "FAT_BASELINE",
@@ -74,13 +81,11 @@ class FatFormatError(ValueError):
 def cuboid_corners(rotation, center, dimensions) -> np.ndarray:
     """(..., 8, 3) cuboid corners in FAT's order for a pose and full extents (x, y, z).
 
-    ``rotation`` (..., 3, 3) maps the object frame to the camera; FAT's corner frame is
-    left-handed (x right, y down, z out of the front), so its z axis is ``-rotation[..., :, 2]``.
-    The corners are :func:`jaxsem.quadrics.cuboid_corners` of that frame (evaluated by numpy).
+    ``rotation`` (..., 3, 3) maps the object frame (x right, y down, z forward) to the camera:
+    the corners are :func:`jaxsem.quadrics.cuboid_corners` (the exporter's order, evaluated by numpy).
     """
-    flip = np.diag([1.0, 1.0, -1.0])
     half = np.asarray(dimensions, np.float64) / 2
-    return Q.cuboid_corners(np.asarray(rotation, np.float64) @ flip, center, half, xp=np)
+    return Q.cuboid_corners(np.asarray(rotation, np.float64), center, half, xp=np)
 
 
 def right_T_left(baseline: float = FAT_BASELINE) -> np.ndarray:
@@ -88,6 +93,44 @@ def right_T_left(baseline: float = FAT_BASELINE) -> np.ndarray:
     T = np.eye(4)
     T[0, 3] = -float(baseline)
     return T
+
+
+@dataclasses.dataclass(frozen=True)
+class FatAnnotation:
+    """The labels of one stereo frame (no images). ``n`` objects, jaxsem conventions.
+
+    Attributes:
+      path: the left JSON file; K: (3, 3) intrinsics of both cameras; ``baseline`` metres;
+        ``right_T_left`` (4, 4).
+      class_names: n class names.
+      boxes_left, boxes_right: (n, 4) ``[u_min, v_min, u_max, v_max]`` pixels (``has_right_box``
+        False and zeros where the right JSON lacks the object).
+      rotation: (n, 3, 3) object-to-left-camera; center: (n, 3) cuboid centre (m) in the left
+        camera frame; dimensions: (n, 3) full extents along the rotation's axes (m).
+      has_right: (n,) bool, the right JSON annotates the object; then ``rotation_right`` (n, 3, 3)
+        and ``center_right`` (n, 3) are its pose in the right camera frame (identity / zeros else).
+      visibility: (n,) the exporter's visible fraction (1 where absent).
+    """
+
+    path: pathlib.Path
+    K: np.ndarray
+    baseline: float
+    right_T_left: np.ndarray
+    class_names: tuple
+    boxes_left: np.ndarray
+    boxes_right: np.ndarray
+    has_right_box: np.ndarray
+    rotation: np.ndarray
+    center: np.ndarray
+    dimensions: np.ndarray
+    has_right: np.ndarray
+    rotation_right: np.ndarray
+    center_right: np.ndarray
+    visibility: np.ndarray
+
+    @property
+    def num_objects(self) -> int:
+        return len(self.class_names)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,11 +227,14 @@ def _pose_from_cuboid(corners: np.ndarray, path) -> tuple[np.ndarray, np.ndarray
     if np.any(dims <= 0):
         raise FatFormatError(f"{path}: degenerate cuboid corners {corners.tolist()}")
     axes = axes / dims
-    axes[:, 2] = -axes[:, 2]  # left-handed corner frame -> proper rotation (cuboid symmetric)
+    if np.linalg.det(axes) < 0:
+        raise FatFormatError(
+            f"{path}: cuboid corners are not in FAT's corner order (FrontTopRight, FrontTopLeft, "
+            "FrontBottomLeft, FrontBottomRight, then the rear face, in a right-handed x right, y down, "
+            "z forward frame): their frame is mirrored"
+        )
     u, _, vt = np.linalg.svd(axes)
     rot = u @ vt
-    if np.linalg.det(rot) < 0:
-        raise FatFormatError(f"{path}: cuboid corners are not in FAT's corner order")
     return rot, dims
 
 
@@ -301,6 +347,90 @@ class FatSequence(Sequence[FatFrame]):
         for stem in self.stems:
             yield self.load(stem)
 
+    def _pose(self, ob: dict, path: pathlib.Path, name: str, settings: dict):
+        """(rotation (3, 3) object-to-camera, centre (3,) m, full extents (3,) m) of one JSON object."""
+        o = self.options
+        L = o["length_scale"]
+        corners = None
+        if "cuboid" in ob:
+            corners = _array(ob["cuboid"], (8, 3), path, f"{name} cuboid") * L
+        if "cuboid_centroid" in ob:
+            center = _array(ob["cuboid_centroid"], (3,), path, f"{name} cuboid_centroid") * L
+        elif corners is not None:
+            center = corners.mean(axis=0)
+        else:
+            center = _array(_get(ob, "location", path), (3,), path, f"{name} location") * L
+        if o["rotation_from"] == "cuboid":
+            if corners is None:
+                raise FatFormatError(f"{path}: object {name!r} has no 'cuboid' (use rotation_from='quaternion')")
+            rot, dim = _pose_from_cuboid(corners, path)
+        else:
+            q = _array(_get(ob, "quaternion_xyzw", path), (4,), path, f"{name} quaternion_xyzw")
+            rot, dim = Q.quaternion_xyzw_to_rotation(q, xp=np) @ self._axes, settings["cuboid_dimensions"].copy()
+        return rot, center, dim
+
+    def annotations(self, stem: str) -> FatAnnotation:
+        """The labels of frame ``stem`` (no image, depth or segmentation file is opened)."""
+        base = self.scene_dir / stem
+        left_json = pathlib.Path(f"{base}.left.json")
+        right_json = pathlib.Path(f"{base}.right.json")
+        left = _read_json(left_json)
+        right = _read_json(right_json) if right_json.exists() else {"objects": []}
+        right_by_class = {}
+        for ob in _get(right, "objects", right_json):
+            right_by_class.setdefault(str(_get(ob, "class", right_json)), ob)
+        bbox_order = self.options["bbox_order"]
+        rows = []
+        for ob in _get(left, "objects", left_json):
+            name = str(_get(ob, "class", left_json))
+            if name not in self.object_settings:
+                raise FatFormatError(
+                    f"{left_json}: object class {name!r} not in {self.scene_dir / '_object_settings.json'}"
+                )
+            settings = self.object_settings[name]
+            rot, center, dim = self._pose(ob, left_json, name, settings)
+            ob_r = right_by_class.get(name)
+            if ob_r is not None:
+                rot_r, center_r, _ = self._pose(ob_r, right_json, name, settings)
+                box_r = _box(ob_r, right_json, bbox_order)
+                has_box_r = "bounding_box" in ob_r
+            else:
+                rot_r, center_r, box_r, has_box_r = np.eye(3), np.zeros(3), np.zeros(4), False
+            rows.append(
+                (
+                    name,
+                    _box(ob, left_json, bbox_order),
+                    box_r,
+                    has_box_r,
+                    rot,
+                    center,
+                    dim,
+                    ob_r is not None,
+                    rot_r,
+                    center_r,
+                    float(ob.get("visibility", 1.0)),
+                )
+            )
+        n = len(rows)
+        col = list(zip(*rows)) if rows else [()] * 11
+        return FatAnnotation(
+            path=left_json,
+            K=self.K.copy(),
+            baseline=self.options["baseline"],
+            right_T_left=right_T_left(self.options["baseline"]),
+            class_names=tuple(col[0]),
+            boxes_left=np.asarray(col[1], np.float64).reshape(n, 4),
+            boxes_right=np.asarray(col[2], np.float64).reshape(n, 4),
+            has_right_box=np.asarray(col[3], bool).reshape(n),
+            rotation=np.asarray(col[4], np.float64).reshape(n, 3, 3),
+            center=np.asarray(col[5], np.float64).reshape(n, 3),
+            dimensions=np.asarray(col[6], np.float64).reshape(n, 3),
+            has_right=np.asarray(col[7], bool).reshape(n),
+            rotation_right=np.asarray(col[8], np.float64).reshape(n, 3, 3),
+            center_right=np.asarray(col[9], np.float64).reshape(n, 3),
+            visibility=np.asarray(col[10], np.float64).reshape(n),
+        )
+
     def load(self, stem: str) -> FatFrame:
         """Read frame ``stem`` (e.g. ``'000012'``)."""
         o = self.options
@@ -334,7 +464,6 @@ class FatSequence(Sequence[FatFrame]):
         for ob in _get(right, "objects", right_json):
             right_by_class.setdefault(str(_get(ob, "class", right_json)), ob)
         names, seg_ids, boxes_l, boxes_r, has_r, rots, cens, dims, vis, extra = ([] for _ in range(10))
-        L = o["length_scale"]
         for ob in objects:
             name = str(_get(ob, "class", left_json))
             if name not in self.object_settings:
@@ -351,24 +480,7 @@ class FatSequence(Sequence[FatFrame]):
             else:
                 boxes_r.append(np.zeros(4))
                 has_r.append(False)
-            corners = None
-            if "cuboid" in ob:
-                corners = _array(ob["cuboid"], (8, 3), left_json, f"{name} cuboid") * L
-            if "cuboid_centroid" in ob:
-                center = _array(ob["cuboid_centroid"], (3,), left_json, f"{name} cuboid_centroid") * L
-            elif corners is not None:
-                center = corners.mean(axis=0)
-            else:
-                center = _array(_get(ob, "location", left_json), (3,), left_json, f"{name} location") * L
-            if o["rotation_from"] == "cuboid":
-                if corners is None:
-                    raise FatFormatError(
-                        f"{left_json}: object {name!r} has no 'cuboid' (use rotation_from='quaternion')"
-                    )
-                rot, dim = _pose_from_cuboid(corners, left_json)
-            else:
-                q = _array(_get(ob, "quaternion_xyzw", left_json), (4,), left_json, f"{name} quaternion_xyzw")
-                rot, dim = Q.quaternion_xyzw_to_rotation(q, xp=np) @ self._axes, settings["cuboid_dimensions"].copy()
+            rot, center, dim = self._pose(ob, left_json, name, settings)
             rots.append(rot)
             cens.append(center)
             dims.append(dim)
@@ -419,6 +531,18 @@ def _first_existing(base: pathlib.Path, side: str) -> pathlib.Path:
 def load_fat_scene(scene_dir, **options) -> FatSequence:
     """Open a FAT scene directory (settings read now, frames on access). See :class:`FatSequence`."""
     return FatSequence(scene_dir, **options)
+
+
+def load_fat_annotations(scene_dir, **options) -> list[FatAnnotation]:
+    """The labels of every frame of a FAT scene directory, without reading any image.
+
+    Per frame (sorted by stem) a :class:`FatAnnotation`: per object the class name, rotation
+    (3, 3) object-to-camera, centre (3,) m, full dimensions (3,) m and box ``[u_min, v_min,
+    u_max, v_max]`` for the left camera and, where the right JSON has the object, the right one;
+    and K. Options as :func:`load_fat_frame`.
+    """
+    seq = FatSequence(scene_dir, **options)
+    return [seq.annotations(stem) for stem in seq.stems]
 
 
 def load_fat_frame(scene_dir, frame, **options) -> FatFrame:
