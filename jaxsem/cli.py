@@ -78,7 +78,7 @@ def _volumon_eval(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="jaxsem", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="jaxsem", description=(__doc__ or "jaxsem").splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run the demo on built-in synthetic data")
     demo.add_argument("--out", default="jaxsem_demo", help="folder for figures and JSON")

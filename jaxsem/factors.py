@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+from jax.typing import ArrayLike
 
 from . import classes as _classes
 from .quadrics import (
@@ -131,7 +132,7 @@ def param_from_radii(radii):
 ROBUST_LOSSES = ("l2", "huber", "cauchy")
 
 
-def robust_residual(r, loss: str = "l2", scale=1.0):
+def robust_residual(r, loss: str = "l2", scale: ArrayLike = 1.0):
     """Reweights a whitened residual so that ``r'**2 = rho(r)`` (per component).
 
     ``huber``: ``rho = r^2`` for ``|r| <= k``, ``2k|r| - k^2`` beyond; ``cauchy``:
@@ -227,13 +228,13 @@ def box_residual(
     K,
     image_size,
     *,
-    box_sigma=3.0,
-    border_margin=10.0,
-    barrier_weight=10.0,
-    min_depth=0.1,
-    degenerate_residual=1000.0,
+    box_sigma: ArrayLike = 3.0,
+    border_margin: ArrayLike = 10.0,
+    barrier_weight: ArrayLike = 10.0,
+    min_depth: ArrayLike = 0.1,
+    degenerate_residual: ArrayLike = 1000.0,
     loss: str = "l2",
-    robust_scale=2.0,
+    robust_scale: ArrayLike = 2.0,
 ):
     """ROSHAN box factor (section 4.3.2) with barriers for degenerate geometry.
 
@@ -274,7 +275,7 @@ def box_residual(
     return jnp.concatenate([edges, depth_barrier[..., None], inside_barrier[..., None]], axis=-1)
 
 
-def texture_residual(camera_T_world, rotation, center, radii, texture_depth, texture_sigma=0.3):
+def texture_residual(camera_T_world, rotation, center, radii, texture_depth, texture_sigma: ArrayLike = 0.3):
     """Texture-plane factor (section 4.3.3): ``(near-plane depth - measured depth) / sigma``.
 
     Args:
@@ -301,7 +302,7 @@ def single_view_init(
     mean_radii,
     texture_depth=None,
     texture_mask=None,
-    default_depth=10.0,
+    default_depth: ArrayLike = 10.0,
 ):
     """Single-image initialisation (section 4.3.5).
 

@@ -474,10 +474,10 @@ class VolumonDataset:
         for im in images:
             hsv = cv2.cvtColor(im, cv2.COLOR_RGB2HSV)  # float32: H in [0, 360), S, V in [0, 1]
             h, sat, v = cv2.split(hsv)
-            h = cv2.add(h, float(dh))
+            h = h + np.float32(dh)  # as cv2.add (a float32 sum)
             h[h >= 360.0] -= 360.0
             h[h < 0.0] += 360.0
-            sat = np.minimum(cv2.multiply(sat, float(ds)), 1.0)
+            sat = np.minimum((sat.astype(np.float64) * ds).astype(np.float32), np.float32(1.0))  # as cv2.multiply
             rgb = cv2.cvtColor(cv2.merge([h, sat, v]), cv2.COLOR_HSV2RGB)
             out.append(np.clip(rgb, 0.0, 1.0, out=rgb))
         return out

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -178,6 +178,14 @@ class LSDNet(nn.Module):
     follows the context's floating dtype (and the parameters': :func:`init_lsd` ``dtype``)."""
 
     config: LSDConfig = LSDConfig()
+
+    if TYPE_CHECKING:  # for type checkers only; flax supplies both at run time
+
+        def __hash__(self) -> int:  # flax's field-based hash (the cached step builders key on it)
+            ...
+
+        def apply(self, *args: Any, **kwargs: Any) -> Any:  # the output, or (output, variables) by `mutable`
+            ...
 
     def setup(self):
         c = self.config

@@ -18,6 +18,8 @@ Everything is jittable and vmappable over maps of one config.
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
@@ -49,7 +51,7 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
         box_sigma=max(sim_config.box_noise_px, 0.5),
         texture_sigma=max(sim_config.texture_noise_m + 20.0 * sim_config.texture_noise_rel, 0.05),
     )
-    kwargs = dict(noise=noise, max_steps=max_steps, default_depth=sim_config.init_depth)
+    kwargs: dict[str, Any] = dict(noise=noise, max_steps=max_steps, default_depth=sim_config.init_depth)
     kwargs.update(changes)
     if system == BASELINE:
         from ..slam import baseline_config

@@ -59,7 +59,7 @@ import json
 import math
 import pathlib
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -159,7 +159,7 @@ class Sequence:
         return (self.root or pathlib.Path(".")) / name
 
 
-def _fail(where, field, message):
+def _fail(where, field, message) -> NoReturn:
     raise ValueError(f"{where}: {field}: {message}")
 
 
@@ -241,8 +241,7 @@ def _box(where, field, value, image_size):
         b = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         b = None
-    ok = b is not None and b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]
-    if not ok:
+    if b is None or not (b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]):
         _fail(
             where,
             field,
