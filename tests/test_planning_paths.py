@@ -16,6 +16,7 @@ from jaxsem.planning import (
     build_roadmap,
     embed_local_distribution,
     knn_within_radius,
+    polyline_clear,
     prm_star_k,
     roadmap_grow,
     roadmap_init,
@@ -511,3 +512,100 @@ def test_found_paths_pass_the_navigation_check():
             q = prm.query(mid, g)
             assert q.found and polyline_clear(q.points, occ, ORIGIN, RES, RADIUS)
     assert found >= 15
+
+
+def _brute_sector_knn(pts, valid, k, radius, sectors, self_idx):
+    """Reference for the direction-first rule: the nearest ceil(k / 2S) of each of S sectors,
+    then the nearest of the rest, k in all (distances, sorted)."""
+    m = max(1, -(-k // (2 * sectors)))
+    out = []
+    for i, q in enumerate(pts):
+        d = np.linalg.norm(pts - q, axis=1)
+        ok = valid & (d <= radius)
+        ok[self_idx[i]] = False
+        ang = np.arctan2(pts[:, 1] - q[1], pts[:, 0] - q[0])
+        sec = np.clip(np.floor((ang + np.pi) * sectors / (2 * np.pi)).astype(int), 0, sectors - 1)
+        first = []
+        for s in range(sectors):
+            idx = np.flatnonzero(ok & (sec == s))
+            first += list(idx[np.argsort(d[idx])][:m])
+        first = sorted(first, key=lambda j: d[j])[:k]
+        rest = np.flatnonzero(ok)
+        rest = [j for j in rest[np.argsort(d[rest])] if j not in set(first)][: k - len(first)]
+        dd = np.sort(d[first + rest]) if first or rest else np.zeros(0)
+        out.append(np.concatenate([dd, np.full(k - len(dd), np.inf)]))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "concentrated"])
+def test_knn_sectors_match_brute_force(kind):
+    """The direction-first neighbour rule (issue 11), bucketed and brute force, against numpy."""
+    rng = np.random.default_rng(1)
+    pts = _samples(kind, rng, 400)
+    valid = rng.random(400) > 0.1
+    knn = jax.jit(knn_within_radius, static_argnums=(2, 3, 4, 5, 6))
+    ref = _brute_sector_knn(pts, valid, 10, 0.9, 4, np.arange(400))
+    for cap in (None, 512):
+        nb, overflow = knn(jnp.asarray(pts), jnp.asarray(valid), 10, 0.9, (12.0, 7.0), cap, 4)
+        assert not bool(overflow)
+        got = _sorted_dists(pts, pts, np.asarray(nb))[valid]
+        np.testing.assert_allclose(got, ref[valid], rtol=1e-9)
+
+
+def _cluster_behind_wall():
+    """10 x 6 m: a wall at x = 4 m with a 1 m door; a learned-like distribution, e^5 denser in a
+    3 x 3 m patch left of the wall than elsewhere (an LSD window and the world around it: the
+    patch draws 94 % of the samples, the rest of the map is as sparse as outside the window)."""
+    occ = np.zeros((60, 100), bool)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    occ[:, 40:42] = True
+    occ[25:35, 40:42] = False  # the door, y 2.5-3.5 m
+    dist = np.ones(occ.shape)
+    dist[15:45, 10:40] = math.exp(5.0)
+    return occ, dist
+
+
+def test_sparse_side_of_a_learned_distribution_is_linked():
+    """Regression (issue 11, Inside-Outside 'no plan'): with samples concentrated by a learned
+    distribution, the few samples beyond the dense patch lay further apart than the uniform
+    planner's radius, so they formed islands, and the plain k nearest of vertices near the wall
+    all lay in the patch; the goal beyond the door was cut off in most roadmaps. The online
+    planner's rule for a learned sampler (twice the radius, direction-first links, query edges
+    at any distance) links it."""
+    from jaxsem.planning import NavConfig, Trial
+
+    occ, dist = _cluster_behind_wall()
+    base = 1.2
+    learned = NavConfig(radius=None)
+    assert Trial.connection_radius(learned, (372, 520), RES, True) == 2 * Trial.connection_radius(
+        learned, (372, 520), RES, False
+    )
+    start, goal = np.array([2.5, 3.0]), np.array([9.0, 5.0])
+    found = {"old": 0, "new": 0}
+    for seed in range(8):
+        for name, sectors, radius in (("old", 0, base), ("new", learned.sectors, 2 * base)):
+            prm = PRM(occ, ORIGIN, RES, capacity=300, k=12, radius=radius, sectors=sectors)
+            prm.grow(jax.random.PRNGKey(seed), 300, dist)
+            p = prm.query(start, goal)
+            if p.found:
+                found[name] += 1
+                assert polyline_clear(p.points, occ, ORIGIN, RES, radius)
+                assert np.allclose(p.points[[0, -1]], [start, goal])
+    assert found["new"] >= 7 and found["old"] <= 2, found
+
+
+def test_query_links_to_samples_beyond_radius():
+    occ = np.zeros((60, 100), bool)
+    dist = np.zeros(occ.shape)
+    dist[:, :30] = 1.0  # samples only in x < 3 m
+    prm = PRM(occ, ORIGIN, RES, capacity=200, k=8, radius=1.0)
+    prm.grow(jax.random.PRNGKey(0), 200, dist)
+    goal = np.array([9.5, 3.0])  # > 6 m from every sample
+    p = prm.query(np.array([1.0, 3.0]), goal)
+    assert p.found and np.linalg.norm(p.points[-2] - goal) > 6.0
+    assert polyline_clear(p.points, occ, ORIGIN, RES, 1.0)
+    occ[:, 50:52] = True  # a wall across the map: no edge may cross it
+    prm2 = PRM(occ, ORIGIN, RES, capacity=200, k=8, radius=1.0)
+    prm2.grow(jax.random.PRNGKey(0), 200, dist)
+    assert not prm2.query(np.array([1.0, 3.0]), goal).found

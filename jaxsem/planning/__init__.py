@@ -77,6 +77,7 @@ from ._prm import (
     make_roadmap_builder as make_roadmap_builder,
     polyline_clear as polyline_clear,
     prm_star_k as prm_star_k,
+    query_reach as query_reach,
     roadmap_connect as roadmap_connect,
     roadmap_grow as roadmap_grow,
     roadmap_init as roadmap_init,

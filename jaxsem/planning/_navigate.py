@@ -133,13 +133,19 @@ class NavConfig:
 
     n_samples: int = 500
     k: int | None = None  # PRM neighbours per vertex; None: prm_star_k(n_samples)
-    radius: float | None = None  # PRM connection radius (m); None: default_radius(n_samples)
+    # PRM connection radius (m); None: default_radius(n_samples) for the uniform sampler and
+    # learned_radius_factor times that for a learned one (see Trial.radius).
+    radius: float | None = None
+    learned_radius_factor: float = 2.0
     step_length: float = 0.25  # metres moved per timestep
     replan_every: int = 20  # planning timesteps a plan is followed before replanning
     max_steps: int = 10_000
     goal_tolerance: float = 0.2
     edge_weight: str | None = None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
     max_growth: int = 2  # a roadmap without a path grows by n_samples up to this many times
+    # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
+    # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
+    sectors: int = 8
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
@@ -199,9 +205,16 @@ class Trial:
             gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[::-1]
             goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
         self.goal_outdoors = bool(goal_outdoors)
-        if config.n_samples < 1 or config.max_steps < 1 or not config.step_length > 0 or config.max_growth < 0:
+        if (
+            config.n_samples < 1
+            or config.max_steps < 1
+            or not config.step_length > 0
+            or config.max_growth < 0
+            or not config.learned_radius_factor >= 1.0
+        ):
             raise ValueError(
-                f"config: n_samples, max_steps >= 1, step_length > 0 and max_growth >= 0 expected, got {config}"
+                f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0 and "
+                f"learned_radius_factor >= 1 expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
@@ -231,10 +244,25 @@ class Trial:
         self.keep_distributions = int(keep_distributions)
         self.distributions: list = []
         self.prm: PRM | None = None
-        self.radius = (
-            config.radius if config.radius is not None else default_radius(config.n_samples, occ.shape, self.resolution)
-        )
+        self.radius = self.connection_radius(config, occ.shape, self.resolution, sampler is not None)
         self._sense()
+
+    @staticmethod
+    def connection_radius(config: NavConfig, shape, resolution: float, learned: bool) -> float:
+        """The roadmap's connection radius (m): ``config.radius`` when set, else
+        :func:`~jaxsem.planning.default_radius` of ``n_samples`` (3 x the mean spacing of uniform
+        samples, 6 m on the test buildings at N = 500), times ``learned_radius_factor`` for a
+        learned sampler, rounded up to 0.5 m. Why: the window keeps most of the samples and the
+        rest of the map (where an outdoor goal lies) only the window's minimum, 5-15 % of them at
+        a spacing of 5-8 m, which a 6 m radius leaves in islands; the goal's component was cut
+        off from the robot's in all 10 Inside-Outside 'no plan' failures examined
+        (``benchmarks/lsd_diagnose_finding.md``)."""
+        if config.radius is not None:
+            return float(config.radius)
+        r = default_radius(config.n_samples, shape, resolution)
+        if learned:
+            r = math.ceil(2.0 * r * float(config.learned_radius_factor)) / 2.0
+        return r
 
     def _sense(self):
         pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._origin_j.dtype)
@@ -274,6 +302,7 @@ class Trial:
             k=cfg.k if cfg.k is not None else prm_star_k(cfg.n_samples),
             radius=self.radius,
             weight=self.weight,
+            sectors=cfg.sectors,
         )
 
     def _replan(self) -> bool:

@@ -20,9 +20,18 @@ Connection policy (documented, tested against brute force). Every vertex added i
 to its ``k`` nearest vertices within ``radius`` among all vertices present once the batch is in
 (its own batch included); the graph is undirected, so a vertex's degree is its own ``k`` plus
 the links later vertices make to it. For one batch this is "k nearest of the final vertex set";
-OMPL's PRM is the same rule with batches of one milestone (k = 10, no radius). A query's start
-links to its ``k`` nearest samples and the goal (when within ``radius``), the goal to its ``k``
-nearest samples; samples never link to the query slots, so queries do not change the roadmap.
+OMPL's PRM is the same rule with batches of one milestone (k = 10, no radius). With
+``sectors=S > 0`` (the online planner uses 8: ``NavConfig.sectors``) the ``k`` links are chosen by
+direction first: the nearest ``ceil(k / 2S)`` in each of ``S`` equal angular sectors around the
+vertex (within ``radius``), then the nearest of the rest. Why: under a learned distribution the
+samples are dense in a few places and sparse elsewhere, and the plain k nearest of a vertex at the
+edge of a dense cluster all lie inside the cluster (or behind the wall beside it), so clusters a
+door or a gap apart, and the sparse samples beyond them, were never linked (see
+``benchmarks/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
+the goal, the goal to its ``k`` nearest samples, chosen by the same rule but at *any* distance
+(not bounded by ``radius``; such long edges are checked over :func:`query_reach`): a goal outside
+a sparse region still reaches the roadmap. Samples never link to the query slots, so queries do
+not change the roadmap.
 
 Neighbour search is exact. Vertices are bucketed on a grid of cell size ``radius`` and each
 query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``.
@@ -131,7 +140,58 @@ def _cells(points, origin, resolution, shape):
     return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
 
 
-def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
+def _per_sector(k: int, sectors: int) -> int:
+    """Neighbours reserved per direction sector: ceil(k / (2 * sectors)) (2 of 26 with 8 sectors)."""
+    return max(1, -(-int(k) // (2 * int(sectors))))
+
+
+def _select(d2, diff, k: int, sectors: int, keep: int | None = None, sparser=None):
+    """Positions (Q, k) of the chosen candidates of each query row and their finite flags.
+
+    d2: (Q, C) squared distances (inf: not a candidate); diff: (Q, C, 2) candidate - query.
+    ``sectors=0``: the k nearest. Otherwise the nearest ``_per_sector(k, sectors)`` candidates in
+    each of ``sectors`` equal angular sectors around the query come first, the other slots go to
+    the nearest of the rest (see the module docstring, "connection policy"). ``keep`` (>= k):
+    return the first ``keep`` candidates in that order instead of ``k``. ``sparser`` (Q, C) bool:
+    candidates sampled no more densely than the query; its nearest ``_per_sector(k, sectors)
+    * 2`` also come first (so sparse samples link to each other, not only to a dense cluster).
+    """
+    Q, C = d2.shape
+    kk = min(keep or k, C)
+    if sectors:
+        m = min(_per_sector(k, sectors), C)
+        ang = jnp.arctan2(diff[..., 1], diff[..., 0])
+        sec = jnp.clip(jnp.floor((ang + math.pi) * (sectors / (2 * math.pi))).astype(jnp.int32), 0, sectors - 1)
+        prio = jnp.zeros((Q, C), bool)
+        rows = jnp.arange(Q)[:, None]
+        for s_i in range(int(sectors)):
+            neg, pos = jax.lax.top_k(-jnp.where(sec == s_i, d2, jnp.inf), m)
+            prio = prio.at[rows, pos].max(jnp.isfinite(neg))
+        if sparser is not None:
+            neg, pos = jax.lax.top_k(-jnp.where(sparser, d2, jnp.inf), min(2 * m, C))
+            prio = prio.at[rows, pos].max(jnp.isfinite(neg))
+        # Reserved candidates rank before all others; within each group, by distance.
+        span = jnp.max(jnp.where(jnp.isfinite(d2), d2, 0.0), axis=1, keepdims=True) + 1.0
+        key = jnp.where(prio, d2, d2 + span)
+    else:
+        key = d2
+    neg, pos = jax.lax.top_k(-key, kk)
+    return pos, jnp.isfinite(neg)
+
+
+def _knn(
+    db,
+    db_ok,
+    queries,
+    q_self,
+    k: int,
+    radius: float,
+    extent,
+    cap,
+    sectors: int = 0,
+    keep: int | None = None,
+    density=None,
+):
     """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
     excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
     overflow). ``cap=None``: brute force. Local coordinates in [0, extent)."""
@@ -167,25 +227,32 @@ def _knn(db, db_ok, queries, q_self, k: int, radius: float, extent, cap):
         ok = (inside[..., None] & (j < count[nb][..., None])).reshape(Q, -1)
         cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
     ok = ok & (cand != q_self[:, None])
-    d2 = jnp.sum((db[cand] - queries[:, None, :]) ** 2, -1)
+    diff = db[cand] - queries[:, None, :]
+    d2 = jnp.sum(diff**2, -1)
     d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
-    kk = min(k, cand.shape[1])
-    neg, pos = jax.lax.top_k(-d2, kk)
-    idx = jnp.where(jnp.isfinite(neg), jnp.take_along_axis(cand, pos, axis=1), M)
-    if kk < k:
-        idx = jnp.concatenate([idx, jnp.full((Q, k - kk), M, idx.dtype)], 1)
+    want = keep or k
+    kk = min(want, cand.shape[1])
+    sparser = None
+    if density is not None:  # (M,) sampling density of db points; queries are db[q_self]
+        sparser = density[cand] <= density[jnp.maximum(q_self, 0)][:, None] * 1.001
+    pos, fin = _select(d2, diff, k, sectors, want, sparser)
+    idx = jnp.where(fin, jnp.take_along_axis(cand, pos, axis=1), M)
+    if kk < want:
+        idx = jnp.concatenate([idx, jnp.full((Q, want - kk), M, idx.dtype)], 1)
     return idx.astype(jnp.int32), overflow
 
 
-def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None):
+def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None, sectors: int = 0):
     """(M, k) indices of the k nearest valid points within ``radius`` of every valid point (``M``
     where fewer; invalid points get none) and the overflow flag (see :class:`Roadmap`).
 
     points: (M, 2) local coordinates in [0, extent); extent: (2,) Python floats; bucket_cap: slots
-    per bucket (None: brute force). Jittable with k, radius, extent, bucket_cap static.
+    per bucket (None: brute force); sectors: 0 (the k nearest) or the number of direction sectors
+    whose nearest points come first (module docstring). Jittable with k, radius, extent,
+    bucket_cap, sectors static.
     """
     M = points.shape[0]
-    idx, overflow = _knn(points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap)
+    idx, overflow = _knn(points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap, sectors)
     return jnp.where(valid[:, None], idx, M), overflow
 
 
@@ -218,29 +285,40 @@ def _segments_clear(blocked, a, b, origin, *, resolution, edge_samples):
 
 def polyline_clear(points, blocked, origin, resolution: float, radius: float, dtype=None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
-    check on the bool grid ``blocked`` (same samples for segments up to ``radius``, same
-    precision ``dtype``), so a plan the PRM found clear is never judged blocked on the same map
-    (a looser or stricter second test made robots stand still, replanning the same path)."""
+    check on the bool grid ``blocked``: the same samples as the PRM used for an edge of that
+    length (segments up to ``radius``: the roadmap's; longer ones, a query's start or goal
+    edges: :func:`query_reach`'s), same precision ``dtype``, so a plan the PRM found clear is
+    never judged blocked on the same map (a looser or stricter second test made robots stand
+    still, replanning the same path)."""
     pts = np.asarray(points, np.float64)
     if len(pts) < 2:
         return True
+    blocked = np.asarray(blocked)
     dtype = dtype or jnp.result_type(float)
     a, b = pts[:-1], pts[1:]
-    longest = float(np.max(np.linalg.norm(b - a, axis=1)))
-    reach = radius if longest <= radius * (1 + 1e-6) else 2.0 ** math.ceil(math.log2(longest))
-    m = 1 << max(0, (len(a) - 1).bit_length())  # pad to a power of two: few compiles
-    a = np.concatenate([a, np.repeat(b[-1:], m - len(a), 0)])
-    b = np.concatenate([b, np.repeat(b[-1:], m - len(b), 0)])
-    return bool(
-        _segments_clear(
-            jnp.asarray(blocked),
-            jnp.asarray(a, dtype),
-            jnp.asarray(b, dtype),
-            jnp.asarray(np.asarray(origin, np.float64), dtype),
+    length = np.linalg.norm(b - a, axis=1)
+    short = length <= radius * (1 + 1e-6)
+    reach = query_reach(blocked.shape, resolution)
+    blocked_j = jnp.asarray(blocked)
+    origin_j = jnp.asarray(np.asarray(origin, np.float64), dtype)
+    for sel, r in ((short, radius), (~short, max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9)))))):
+        if not sel.any():
+            continue
+        aa, bb = a[sel], b[sel]
+        m = 1 << max(0, (len(aa) - 1).bit_length())  # pad to a power of two: few compiles
+        aa = np.concatenate([aa, np.repeat(bb[-1:], m - len(aa), 0)])
+        bb = np.concatenate([bb, np.repeat(bb[-1:], m - len(bb), 0)])
+        ok = _segments_clear(
+            blocked_j,
+            jnp.asarray(aa, dtype),
+            jnp.asarray(bb, dtype),
+            origin_j,
             resolution=float(resolution),
-            edge_samples=_edge_samples(reach, resolution),
+            edge_samples=_edge_samples(r, resolution),
         )
-    )
+        if not bool(ok):
+            return False
+    return True
 
 
 def _cost_grid(distribution):
@@ -279,7 +357,7 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
     )
 
 
-def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp):
+def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0):
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
@@ -293,7 +371,13 @@ def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution,
     slots = s0 + jnp.arange(n, dtype=jnp.int32)
     db_ok = valid & (jnp.arange(M) >= _QUERY)
     extent = (W * resolution, H * resolution)
-    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap)
+    # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
+    keep = 2 * k if sectors else k
+    density = None
+    if sectors and distribution is not None:
+        pr, pc, _ = _cells(points, origin, resolution, (H, W))
+        density = distribution[pr, pc]
+    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
     clear, w = _edges(
@@ -307,6 +391,9 @@ def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution,
     )
     ev = (nbr < M) & clear & ok_new[:, None]
     w = jnp.where(ev, w, jnp.inf)
+    if keep > k:
+        nbr, ev, w = _clear_first(nbr, ev, w, k)
+        nbr = jnp.where(ev, nbr, M)
     return Roadmap(
         points,
         valid,
@@ -318,7 +405,9 @@ def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution,
     )
 
 
-_grow_jit = functools.partial(jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp"))(_grow_impl)
+_grow_jit = functools.partial(jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors"))(
+    _grow_impl
+)
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -342,36 +431,49 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
 _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
 
 
-def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp):
+def query_reach(shape, resolution: float) -> float:
+    """Longest query edge (m): the map's diagonal rounded up to a power of two. A query's start
+    and goal link to samples at any distance on the map; such edges are checked with samples at
+    most half a cell apart over this length (and so are long plan segments,
+    :func:`polyline_clear`)."""
+    diag = math.hypot(shape[0] * resolution, shape[1] * resolution)
+    return 2.0 ** math.ceil(math.log2(max(diag, resolution)))
+
+
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     q = jnp.stack([start, goal]).astype(dtype)
     points = rm.points.at[:_QUERY].set(q)
     valid = rm.valid.at[:_QUERY].set(True)
-    # Brute force over all slots (2 x M distances): the start may link to the goal, the goal not
-    # back to the start (one edge), neither to itself.
+    # Brute force over all slots (2 x M distances), at any distance (the query's edges are not
+    # bounded by ``radius``: a goal far from a sparse region still links to its nearest samples);
+    # the start may link to the goal, the goal not back to the start (one edge), neither to itself.
     ok = jnp.broadcast_to((valid & (jnp.arange(M) >= _QUERY))[None, :], (2, M))
     ok = ok.at[0, GOAL].set(True)
-    d2 = jnp.sum((points[None, :, :] - q[:, None, :]) ** 2, -1)
-    d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
-    kk = min(k, M)
-    neg, pos = jax.lax.top_k(-d2, kk)
-    nbr = jnp.where(jnp.isfinite(neg), pos, M).astype(jnp.int32)
-    if kk < k:
-        nbr = jnp.concatenate([nbr, jnp.full((2, k - kk), M, jnp.int32)], 1)
+    diff = points[None, :, :] - q[:, None, :]
+    d2 = jnp.sum(diff**2, -1)
+    d2 = jnp.where(ok, d2, jnp.inf)
+    keep = 2 * k if sectors else k
+    kk = min(keep, M)
+    pos, fin = _select(d2, diff, k, sectors, keep)
+    nbr = jnp.where(fin, pos, M).astype(jnp.int32)
+    if kk < keep:
+        nbr = jnp.concatenate([nbr, jnp.full((2, keep - kk), M, jnp.int32)], 1)
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
-    clear, w = _edges(
-        blocked,
-        cost,
-        q[:, None, :],
-        other,
-        origin,
-        resolution,
-        _edge_samples(radius, resolution),
-    )
+    # Each edge is checked with the samples polyline_clear uses for a segment of its length:
+    # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(radius, resolution))
+    reach = query_reach(blocked.shape, resolution)
+    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(reach, resolution))
+    short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
     w = jnp.where(ev, w, jnp.inf).astype(dtype)
+    if keep > k:
+        nbr, ev, w = _clear_first(nbr, ev, w, k)
+        nbr = jnp.where(ev, nbr, M)
     return rm._replace(
         points=points,
         valid=valid,
@@ -381,7 +483,7 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     )
 
 
-_connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp"))(_connect_impl)
+_connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp", "sectors"))(_connect_impl)
 
 
 # ----------------------------------------------------------------------------- boundary checks
@@ -415,6 +517,23 @@ def _check_distribution(distribution, shape):
     return distribution
 
 
+def _clear_first(nbr, ev, w, k: int):
+    """Of candidate links (Q, K) in preference order, the first ``k`` that are clear (then the
+    rest, marked invalid): a blocked near candidate does not take a slot from a clear farther
+    one."""
+    K = nbr.shape[1]
+    rank = jnp.where(ev, 0, K) + jnp.arange(K)[None, :]
+    _, pos = jax.lax.top_k(-rank, k)
+    take = functools.partial(jnp.take_along_axis, indices=pos, axis=1)
+    return take(nbr), take(ev), take(w)
+
+
+def _check_sectors(sectors) -> int:
+    if not (isinstance(sectors, (int, np.integer)) and not isinstance(sectors, bool) and 0 <= sectors <= 64):
+        raise ValueError(f"sectors: expected an int in [0, 64] (0: the k nearest), got {sectors!r}")
+    return int(sectors)
+
+
 def _initial_cap(n_total: int, shape, resolution, radius) -> int:
     """Bucket slots for uniform samples: 4 x the mean bucket load, a power of two, >= 16."""
     buckets = max(1.0, shape[0] * shape[1] * resolution**2 / radius**2)
@@ -433,6 +552,7 @@ def roadmap_grow(
     radius: float,
     weight: str = "euclidean",
     bucket_cap: int | None = None,
+    sectors: int = 0,
 ) -> Roadmap:
     """Adds ``n`` samples (valid vertices) to ``roadmap`` and links them (module docstring).
 
@@ -440,8 +560,10 @@ def roadmap_grow(
     (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
     it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
     bucket_cap: neighbour-search slots per bucket to start with (None: a size for uniform
-    samples); on overflow the search reruns with enough slots. Returns the grown roadmap.
+    samples); on overflow the search reruns with enough slots; sectors: 0 (the k nearest) or the
+    direction sectors whose nearest come first (module docstring). Returns the grown roadmap.
     """
+    sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
@@ -468,10 +590,11 @@ def roadmap_grow(
         float(resolution),
         cap,
         weight == "neglogp",
+        sectors,
     )[0]
 
 
-def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp):
+def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0):
     """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
     Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
@@ -488,6 +611,7 @@ def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap,
             resolution=resolution,
             cap=cap if 9 * cap < M else None,
             neglogp=neglogp,
+            sectors=sectors,
         )
         if 9 * cap >= M or before or not bool(out.overflow):
             return out, cap
@@ -520,9 +644,13 @@ def roadmap_connect(
     radius: float,
     distribution=None,
     weight: str = "euclidean",
+    sectors: int = 0,
 ) -> Roadmap:
     """Puts a query's ``start`` and ``goal`` (world (2,), not known occupied) into slots 0 and 1
-    and links them (module docstring); the samples' own links are unchanged."""
+    and links them to samples at any distance (module docstring); the samples' own links are
+    unchanged. ``radius``: the roadmap's (which of its edges count as short); ``sectors`` as in
+    :func:`roadmap_grow`."""
+    sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
     origin_np = np.asarray(origin, np.float64)
     start = check_point("start", start, blocked, origin_np, resolution)
@@ -542,6 +670,7 @@ def roadmap_connect(
         radius=float(radius),
         resolution=float(resolution),
         neglogp=weight == "neglogp",
+        sectors=sectors,
     )
 
 
@@ -559,6 +688,7 @@ def build_roadmap(
     radius: float | None = None,
     weight: str = "euclidean",
     bucket_cap: int | None = None,
+    sectors: int = 0,
 ) -> Roadmap:
     """One-shot PRM: ``n`` samples plus the start (slot 0) and goal (slot 1) on a partial map.
 
@@ -592,6 +722,7 @@ def build_roadmap(
         radius=radius,
         weight=weight,
         bucket_cap=bucket_cap,
+        sectors=sectors,
     )
     return roadmap_connect(
         rm,
@@ -603,6 +734,7 @@ def build_roadmap(
         radius=radius,
         distribution=distribution,
         weight=weight,
+        sectors=sectors,
     )
 
 
@@ -616,6 +748,7 @@ def make_roadmap_builder(
     weight: str = "euclidean",
     uniform: bool = True,
     bucket_cap: int | None = None,
+    sectors: int = 0,
 ):
     """A pure, jittable and vmappable one-shot builder for a fixed ``n`` and map ``shape``.
 
@@ -633,6 +766,7 @@ def make_roadmap_builder(
     H, W = (int(s) for s in shape)
     radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
     kk = prm_star_k(n) if k is None else int(k)
+    sectors = _check_sectors(sectors)
 
     def build(key, blocked, distribution, start, goal, origin):
         rm = roadmap_init(int(n), kk, origin.dtype)
@@ -648,6 +782,7 @@ def make_roadmap_builder(
             resolution=float(resolution),
             cap=bucket_cap,
             neglogp=weight == "neglogp",
+            sectors=sectors,
         )
         return _connect_impl(
             rm,
@@ -659,6 +794,7 @@ def make_roadmap_builder(
             radius=radius,
             resolution=float(resolution),
             neglogp=weight == "neglogp",
+            sectors=sectors,
         )
 
     return build
@@ -784,7 +920,8 @@ class PRM:
     ``capacity``); radius: connection radius in
     metres (None: :func:`default_radius` of ``capacity``); weight: 'euclidean' or 'neglogp'
     (edge weights from the distribution given to :meth:`grow`; the latest one also weights the
-    query's edges). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
+    query's edges); sectors: 0 (each vertex links to its k nearest) or the direction sectors
+    whose nearest come first (module docstring). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
     :attr:`roadmap`.
     """
 
@@ -798,8 +935,10 @@ class PRM:
         k: int | None = None,
         radius: float | None = None,
         weight: str = "euclidean",
+        sectors: int = 0,
     ):
         blocked = _blocked_from("known_map", known_map)
+        self.sectors = _check_sectors(sectors)
         origin_np = np.asarray(origin, np.float64)
         if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
             raise ValueError(f"origin: expected a finite (2,) world point, got {origin_np.tolist()}")
@@ -853,6 +992,7 @@ class PRM:
             self.resolution,
             cap,
             self.weight == "neglogp",
+            self.sectors,
         )
         if distribution is not None:
             self.distribution = distribution
@@ -885,6 +1025,7 @@ class PRM:
             radius=self.radius,
             distribution=self.distribution,
             weight=self.weight,
+            sectors=self.sectors,
         )
         if self._graph is None:
             self._graph = _SampleGraph(self.roadmap)
