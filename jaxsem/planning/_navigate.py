@@ -21,7 +21,11 @@ Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM +
 ``sampler(inputs: LocalInputs) -> (160, 160)`` probabilities over the robot-centred window
 (e.g. the LSD network's softmax); the window is embedded in the full map (outside: the window's
 minimum, renormalised, section 3.2.5), the PRM samples from it, and edges are weighted by the
-integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwise.
+integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwise. Both planners
+link vertices direction-first (``NavConfig.sectors``; see :mod:`jaxsem.planning._prm`), and a
+learned sampler's roadmap gets twice the uniform radius (``learned_radius_factor``): outside the
+window its few samples are too far apart for the uniform radius, which ended most Inside-Outside
+trials with 'no_plan' (``benchmarks/lsd_diagnose_finding.md``).
 
 Where the loop runs: sensing, crops, sampling, neighbour search and edge checks are jitted JAX
 (and vmappable: ``sense`` and the roadmap builder take batches); the graph search is scipy's

@@ -22,12 +22,13 @@ to its ``k`` nearest vertices within ``radius`` among all vertices present once 
 the links later vertices make to it. For one batch this is "k nearest of the final vertex set";
 OMPL's PRM is the same rule with batches of one milestone (k = 10, no radius). With
 ``sectors=S > 0`` (the online planner uses 8: ``NavConfig.sectors``) the ``k`` links are chosen by
-direction first: the nearest ``ceil(k / 2S)`` in each of ``S`` equal angular sectors around the
-vertex (within ``radius``), then the nearest of the rest. Why: under a learned distribution the
-samples are dense in a few places and sparse elsewhere, and the plain k nearest of a vertex at the
-edge of a dense cluster all lie inside the cluster (or behind the wall beside it), so clusters a
-door or a gap apart, and the sparse samples beyond them, were never linked (see
-``benchmarks/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
+direction first: the nearest ``m = ceil(k / 2S)`` in each of ``S`` equal angular sectors around
+the vertex (within ``radius``) and its nearest ``2m`` among samples drawn no more densely than
+itself come first, then the nearest of the rest; of the first ``2k`` candidates in that order the
+first ``k`` whose edge is clear are kept. Why: under a learned distribution the samples are dense
+in a few places and sparse elsewhere, and the plain k nearest of a vertex near a dense cluster
+all lie inside the cluster (or behind the wall beside it), so clusters a door or a gap apart, and
+the sparse samples beyond them, were never linked (see ``benchmarks/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
 the goal, the goal to its ``k`` nearest samples, chosen by the same rule but at *any* distance
 (not bounded by ``radius``; such long edges are checked over :func:`query_reach`): a goal outside
 a sparse region still reaches the roadmap. Samples never link to the query slots, so queries do
