@@ -339,7 +339,7 @@ def test_typed_pytrees_pass_through_transforms_and_check_their_input():
 # Host path (xp=numpy), camera_matrix, rigid_transform and cylinder_bbox.
 
 
-def _scene(rng, n):
+def _host_scene(rng, n):
     R = np.asarray(q.random_rotation(jax.random.PRNGKey(int(rng.integers(1 << 30))), (n,)))
     c = rng.uniform(-0.5, 0.5, (n, 3)) + np.array([0.0, 0.0, 6.0])
     r = rng.uniform(0.2, 1.0, (n, 3))
@@ -374,7 +374,7 @@ _HOST_CALLS = {
 def test_numpy_path_is_the_same_function(name):
     """``xp=np`` evaluates the same formulas on the host: numpy arrays out, jax's values."""
     rng = np.random.default_rng(3)
-    R, c, r = _scene(rng, 4)
+    R, c, r = _host_scene(rng, 4)
     T = _random_pose(rng, (4,))
     T[..., :3, 3] = [0.0, 0.0, 0.5]  # the objects stay in front of the camera
     host, dev = _HOST_CALLS[name](R, c, r, T, np), _HOST_CALLS[name](R, c, r, T, jnp)
@@ -421,7 +421,7 @@ def test_rigid_transform_builds_the_pose_and_checks_its_rotation():
 def test_cylinder_bbox_matches_densely_sampled_rims(seed):
     """Reference: the box of 20,000 projected points on each rim circle (OpenCV's projection)."""
     rng = np.random.default_rng(seed)
-    R, c, r = _scene(rng, 1)
+    R, c, r = _host_scene(rng, 1)
     T = _random_pose(rng)
     T[:3, 3] = [0.0, 0.0, 0.5]
     world = (c[0] - T[:3, 3]) @ T[:3, :3]  # the centre 6.5 m in front of the camera
