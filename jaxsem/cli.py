@@ -57,10 +57,25 @@ def _volumon_eval(args: argparse.Namespace) -> int:
         raise SystemExit(f"jaxsem volumon eval: --num must be a positive number of detections, got {args.num}")
     if args.workdir is not None and not pathlib.Path(args.workdir).exists():
         raise SystemExit(f"jaxsem volumon eval: --workdir {args.workdir} does not exist")
+    if args.data is not None and not pathlib.Path(args.data).is_dir():
+        raise SystemExit(f"jaxsem volumon eval: --data {args.data} is not a directory")
     enable_compilation_cache()
     try:
         model, variables, config, meta = load_pretrained(args.workdir)
-        result = evaluate_held_out(model, variables, config, args.seed, args.num, postopt_steps=args.postopt)
+        batch = None
+        if args.data is not None:
+            from jaxsem.data import volumon_eval_batch
+
+            batch = volumon_eval_batch(
+                args.data,
+                input_size=config.model.input_size,
+                global_padding=config.model.global_padding,
+                num_points=config.scene.num_points,
+                num=args.num,
+            )
+        result = evaluate_held_out(
+            model, variables, config, args.seed, args.num, postopt_steps=args.postopt, batch=batch
+        )
     except ValueError as exc:
         if args.debug:
             raise
@@ -93,6 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--json", default=None, help="write the figures here (atomically)")
     ev.add_argument("--workdir", default=None, help="a training run (config.json + checkpoints/) or a .npz model")
     ev.add_argument("--postopt", type=int, default=0, help="also refine with PostOpt for this many steps")
+    ev.add_argument(
+        "--data",
+        default=None,
+        help="score the objects of a FAT-layout or make_synthetic directory (the first --num) instead of "
+        "synthetic held-out detections",
+    )
     ev.add_argument("--debug", action="store_true", help="show tracebacks")
     ev.set_defaults(func=_volumon_eval)
     args = parser.parse_args(argv)

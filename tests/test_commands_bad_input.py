@@ -103,6 +103,16 @@ def _cases(d):
         ("jaxsem-demo-parts", ["-m", "jaxsem.cli", "demo", "--parts", "bogus", "--out", str(out / "demo")], ["bogus"]),
         ("jaxsem-eval-range", ["-m", "jaxsem.cli", "volumon", "eval", "--num", "0"], ["--num"]),
         ("jaxsem-eval-workdir", ["-m", "jaxsem.cli", "volumon", "eval", "--workdir", str(d / "nope")], ["nope"]),
+        (
+            "jaxsem-eval-data",
+            ["-m", "jaxsem.cli", "volumon", "eval", "--data", str(d / "nodata")],
+            ["--data", "nodata"],
+        ),
+        (
+            "train-volumon-data",
+            ["train/volumon.py", "--workdir", str(out / "td"), "--data", str(d / "nodata")],
+            ["--data", "nodata"],
+        ),
     ]
 
 

@@ -37,6 +37,19 @@ def main():
     p.add_argument("--eval-every", type=int, default=None)
     p.add_argument("--num-eval", type=int, default=None)
     p.add_argument(
+        "--data",
+        type=pathlib.Path,
+        default=None,
+        help="train on a FAT-layout or make_synthetic directory (read by jaxsem.data) instead of the on-device "
+        "generator (default: the generator)",
+    )
+    p.add_argument(
+        "--eval-data",
+        type=pathlib.Path,
+        default=None,
+        help="with --data: directory whose objects the periodic evaluation scores (default: --data itself, a fit check)",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -78,6 +91,28 @@ def main():
             cfg = override(cfg, a.set)
         except ValueError as exc:
             p.error(f"--set: {exc}")
+    batch_fn = eval_batch = None
+    if a.eval_data is not None and a.data is None:
+        p.error("--eval-data: needs --data")
+    if a.data is not None:
+        for flag, path in (("--data", a.data), ("--eval-data", a.eval_data)):
+            if path is not None and not path.is_dir():
+                p.error(f"{flag}: {path} is not a directory")
+        cfg = cfg.replace(data="directory", data_dir=str(a.data.resolve()))
+        from jaxsem.data import volumon_batch_source, volumon_eval_batch
+
+        sizes = dict(
+            input_size=cfg.model.input_size, global_padding=cfg.model.global_padding, num_points=cfg.scene.num_points
+        )
+        try:
+            batch_fn, n = volumon_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed, **sizes)
+            if cfg.num_eval > 0:
+                eval_batch = volumon_eval_batch(a.eval_data or a.data, num=cfg.num_eval, **sizes)
+        except (ValueError, OSError) as exc:
+            if a.debug:
+                raise
+            sys.exit(f"error: {exc}")
+        print(f"training on {n} objects of {a.data}", flush=True)
     try:
         result = train_and_evaluate(
             cfg,
@@ -86,6 +121,8 @@ def main():
             force=a.force,
             stop_after=a.stop_after,
             progress=False,
+            batch_fn=batch_fn,
+            eval_batch=eval_batch,
         )
     except ValueError as exc:
         if a.debug:

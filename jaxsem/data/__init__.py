@@ -34,3 +34,7 @@ from ._synthetic import (
     synthetic_intrinsics as synthetic_intrinsics,
     write_synthetic_dataset as write_synthetic_dataset,
 )
+from ._volumon_source import (
+    volumon_batch_source as volumon_batch_source,
+    volumon_eval_batch as volumon_eval_batch,
+)

@@ -40,8 +40,12 @@ class TrainConfig:
       eval_every, num_eval: periodic evaluation on the held-out split every ``eval_every`` steps
         (0: only at the end) on ``num_eval`` samples (0: no evaluation).
       log_every: steps between logged loss lines.
-      data: "device" (batches made inside the jitted step from a PRNG key, no host work) or
-        "host" (numpy generator indexed by (seed, index), ``num_train`` samples).
+      data: "device" (batches made inside the jitted step from a PRNG key, no host work),
+        "host" (numpy generator indexed by (seed, index), ``num_train`` samples) or "directory"
+        (a FAT-layout or ``make_synthetic`` directory, read by :mod:`jaxsem.data`; the command
+        passes its batches to :func:`train_and_evaluate` as ``batch_fn``).
+      data_dir: the directory of a ``data="directory"`` run (recorded with the config, so a
+        resume on other data is refused).
     """
 
     model: VoluMonConfig = VoluMonConfig()
@@ -64,10 +68,16 @@ class TrainConfig:
     num_eval: int = 128
     log_every: int = 10
     data: str = "device"
+    data_dir: str = ""
 
     def __post_init__(self):
-        if self.data not in ("device", "host"):
-            raise ValueError(f"data: expected 'device' or 'host', got {self.data!r}")
+        if self.data not in ("device", "host", "directory"):
+            raise ValueError(f"data: expected 'device', 'host' or 'directory', got {self.data!r}")
+        if (self.data == "directory") != bool(self.data_dir):
+            raise ValueError(
+                f"data_dir: expected a directory exactly when data == 'directory', got data={self.data!r}, "
+                f"data_dir={self.data_dir!r}"
+            )
         if self.class_mode not in ("true", "expectation"):
             raise ValueError(f"class_mode: expected 'true' or 'expectation', got {self.class_mode!r}")
         for name in ("num_train", "batch_size", "num_steps", "checkpoint_every", "keep_checkpoints", "log_every"):

@@ -137,6 +137,7 @@ def evaluate_held_out(
     batch_size: int = 32,
     postopt_steps: int = 0,
     repeats: int = 5,
+    batch: dict | None = None,
 ) -> dict:
     """The figures of ``jaxsem volumon eval`` on ``num`` held-out detections of seed ``seed``.
 
@@ -149,6 +150,10 @@ def evaluate_held_out(
     the PostOpt rows (``postopt_*``) and PostOpt started at the exact truth
     (``postopt_from_truth_*``: how far its objective moves the true centre).
 
+    ``batch``: score these detections instead (network inputs, ``points``, ``point_mask`` and
+    ground truth ``gt_*``, ``sample_mask``, e.g. :func:`jaxsem.data.volumon_eval_batch` of a FAT
+    directory); ``seed`` and ``num`` are then ignored (``num`` is the batch's size).
+
     ``iou_auc``: area under the curve "fraction of detections with 3D IoU >= tau" for tau in
     [0, 1], times 10 (so it is on the same 0-10 scale as the other AUCs; equal to 10 x mean IoU
     up to the trapezoid rule).
@@ -157,17 +162,21 @@ def evaluate_held_out(
     from ._eval import detection_errors, evaluate_predictions, size_errors
     from ._train import make_predict_fn
 
-    if int(num) < 1:
-        raise ValueError(f"num: expected a positive number of detections, got {num}")
-    b = held_out_set(
-        int(seed),
-        int(num),
-        config.scene,
-        config.model.input_size,
-        config.model.global_padding,
-        config.noisy,
-        batch_size=batch_size,
-    )
+    if batch is not None:
+        b = {k: jnp.asarray(v) for k, v in batch.items()}
+        num = int(b["local"].shape[0])
+    else:
+        if int(num) < 1:
+            raise ValueError(f"num: expected a positive number of detections, got {num}")
+        b = held_out_set(
+            int(seed),
+            int(num),
+            config.scene,
+            config.model.input_size,
+            config.model.global_padding,
+            config.noisy,
+            batch_size=batch_size,
+        )
     predict = make_predict_fn(model, config)
     args = (variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
     phi, ell, _ = jax.block_until_ready(predict(*args))
@@ -187,7 +196,7 @@ def evaluate_held_out(
         )
     }
     pred = jax.tree.map(np.asarray, ell._asdict())
-    out: dict[str, Any] = {"num": int(np.sum(gt["sample_mask"])), "seed": int(seed)}
+    out: dict[str, Any] = {"num": int(np.sum(gt["sample_mask"])), "seed": None if batch is not None else int(seed)}
     out.update(_summary(pred, gt, evaluate_predictions, detection_errors))
     out["network_ms_per_detection"] = 1000.0 * float(np.median(ts)) / int(num)
     keep = gt["sample_mask"].astype(bool)

@@ -204,6 +204,17 @@ def get_train_batch(config: TrainConfig, step: int):
     return out
 
 
+def _host_batch(config: TrainConfig, batch: dict, step: int) -> dict:
+    """A ``batch_fn`` batch as the host train step takes it (augmentation numbers of the step added)."""
+    missing = [k for k in TRAIN_KEYS if k not in batch]
+    if missing:
+        raise ValueError(f"batch_fn: the batch of step {step} lacks {missing} (expected the keys {list(TRAIN_KEYS)})")
+    out = {k: jnp.asarray(batch[k]) for k in TRAIN_KEYS}
+    if config.augment:
+        out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))
+    return out
+
+
 def device_train_batch(config: TrainConfig, step):
     """The batch of ``step`` (traced or int) made on the device (augmentation numbers included)."""
     key = jax.random.fold_in(train_key(config.seed), step)
@@ -272,8 +283,12 @@ def evaluate(
     batch_size: int = 32,
     split: str = "test",
     seed: int | None = None,
+    batch: dict | None = None,
 ):
     """Predict held-out samples and score them (translation / ADI AUC, 3D IoU, size errors, ...).
+
+    ``batch``: score this batch (network inputs and ground truth ``gt_*``, ``sample_mask``), e.g.
+    a directory's evaluation batch; else, by ``config.data``:
 
     ``config.data == "device"``: ``num`` samples of :func:`jaxsem.volumon.held_out_set` with seed
     ``seed`` (default ``config.seed``; the held-out stream never meets the training stream);
@@ -282,6 +297,13 @@ def evaluate(
     num = config.num_eval if num is None else num
     predict = make_predict_fn(model, config)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
+    gt_keys = ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
+    if batch is not None:
+        args = (batch[k] for k in ("local", "global", "box_input", "K", "class_id"))
+        _, ell, _ = predict(variables, *map(jnp.asarray, args))
+        return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), {k: np.asarray(batch[k]) for k in gt_keys})
+    if config.data == "directory":
+        raise ValueError("batch: a run on a directory is evaluated on a given batch (no held-out stream of its own)")
     if config.data == "device":
         b = held_out_set(
             config.seed if seed is None else seed,
@@ -362,6 +384,8 @@ def train_and_evaluate(
     progress: bool = True,
     log: Callable[[str], None] | None = None,
     force: bool = False,
+    batch_fn: Callable[[int], dict] | None = None,
+    eval_batch: dict | None = None,
 ) -> dict[str, Any]:
     """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
 
@@ -374,11 +398,21 @@ def train_and_evaluate(
       log: called with one line per logged step (and "resumed from step N").
       force: resume even if ``config`` differs from the run's ``config.json`` (else
         :class:`ConfigMismatchError`); the new config is written.
+      batch_fn: with ``config.data == "directory"``: ``step -> batch`` (numpy arrays with the keys
+        of :data:`TRAIN_KEYS`, a pure function of the step so that a resume sees the same data),
+        e.g. from :class:`jaxsem.data.VolumonDataset` and :func:`jaxsem.data.as_volumon_batch`.
+      eval_batch: with ``config.data == "directory"``: the batch (same keys plus ground truth
+        ``gt_*``) the periodic evaluation scores; None: no evaluation.
 
     Returns:
       dict with ``state`` (final train state), ``model``, ``history`` (per-step loss terms of this
       run, keyed by step), ``eval`` (metrics of the final evaluation, if the run completed).
     """
+    if (config.data == "directory") != (batch_fn is not None):
+        raise ValueError(
+            f"batch_fn: expected a batch source exactly when config.data == 'directory', got data={config.data!r} "
+            f"and batch_fn={'a function' if batch_fn is not None else None}"
+        )
     workdir = pathlib.Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     state, model, tx = init_state(config)
@@ -420,6 +454,8 @@ def train_and_evaluate(
                 state = {**state, "opt_state": tx.init(state["params"])}
             if config.data == "device":
                 state, terms = train_step(state)
+            elif batch_fn is not None:
+                state, terms = train_step(state, _host_batch(config, batch_fn(step), step))
             else:
                 state, terms = train_step(state, get_train_batch(config, step))
             if (step + 1) % config.log_every == 0 or step + 1 == end:
@@ -438,16 +474,17 @@ def train_and_evaluate(
                     log(" ".join(f"{k}={v:.4g}" for k, v in rec.items()))
             if (step + 1) % config.checkpoint_every == 0 or step + 1 == end:
                 ckpt.save(step + 1, state, force=True)
-            if config.eval_every and config.num_eval > 0 and (step + 1) % config.eval_every == 0:
-                ev = evaluate(model, state, config)
+            can_eval = config.num_eval > 0 and (config.data != "directory" or eval_batch is not None)
+            if config.eval_every and can_eval and (step + 1) % config.eval_every == 0:
+                ev = evaluate(model, state, config, batch=eval_batch)
                 if step + 1 == config.num_steps:
                     result_eval = ev
                 metrics_file.write(json.dumps({"step": step + 1, "eval": ev}) + "\n")
                 metrics_file.flush()
                 if log is not None:
                     log(f"eval step {step + 1}: " + " ".join(f"{k}={v:.4g}" for k, v in ev.items()))
-        if end == config.num_steps and config.num_eval > 0:
-            result_eval = result_eval or evaluate(model, state, config)
+        if end == config.num_steps and config.num_eval > 0 and (config.data != "directory" or eval_batch is not None):
+            result_eval = result_eval or evaluate(model, state, config, batch=eval_batch)
             (workdir / "eval.json").write_text(json.dumps(result_eval, indent=1))
     finally:
         metrics_file.close()
