@@ -234,7 +234,7 @@ class Normal(NamedTuple):
 
 
 def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pose_free) -> Normal:
-    """Block normal equations at ``est`` from per-factor ``jacfwd`` (15 columns per box factor).
+    """Block normal equations at ``est`` from per-factor ``jacfwd`` (9 columns per box factor).
 
     Every box residual touches one pose and one ellipsoid, every pose prior one pose and every
     shape prior one ellipsoid, so the Jacobian is recovered exactly by a fixed number of
@@ -246,12 +246,21 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     bp, bo = problem.box_pose, problem.box_object
     T, J = est.camera_T_world.shape[0], est.center.shape[0]
 
-    def box_fn(dp, dobj, pose, R, c, r, box, td, tm, bm):
-        R2, c2, r2 = first_order_object(R, c, r, dobj)
+    # A box factor sees only the object in the camera frame (camera_T_object = pose @ W, with
+    # W = [R, c] the object's pose), so its Jacobian is taken with respect to a 6-vector right
+    # perturbation ``xi = [v, omega]`` of camera_T_object plus the 3 radii parameters: 9
+    # forward-mode columns instead of 15. The chain rule gives the pose and object columns:
+    #   pose @ (I + dp^) @ W = camera_T_object @ (I + (Ad(W^-1) dp)^)       -> J_p = J_xi Ad(W^-1)
+    #   pose @ [R (I + dw^), c + dc] = camera_T_object @ (I + [R^T dc, dw]^) -> J_w, J_c below.
+    eye3 = jnp.eye(3, dtype=dtype)
+    zero3 = jnp.zeros(3, dtype)
+
+    def box_fn(xi, ds, rel, r, box, td, tm, bm):
+        r2 = F.radii_from_param(F.param_from_radii(r) + ds)
         out = box_rows(
-            first_order_pose(pose, dp),
-            R2,
-            c2,
+            first_order_pose(rel, xi),
+            eye3,
+            zero3,
             r2,
             box,
             td,
@@ -263,22 +272,36 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         )
         return out, out
 
-    z6, z9 = jnp.zeros(6, dtype), jnp.zeros(9, dtype)
-    (Jp, Jo), rb = jax.vmap(
+    R_o, c_o = est.rotation[bo], est.center[bo]
+    pose_b = est.camera_T_world[bp]
+    W = jnp.concatenate(
+        [
+            jnp.concatenate([R_o, c_o[:, :, None]], -1),
+            jnp.broadcast_to(jnp.eye(4, dtype=dtype)[3:], (R_o.shape[0], 1, 4)),
+        ],
+        -2,
+    )
+    rel = pose_b @ W
+    z6, z3 = jnp.zeros(6, dtype), jnp.zeros(3, dtype)
+    (Jxi, Jds), rb = jax.vmap(
         jax.jacfwd(box_fn, argnums=(0, 1), has_aux=True),
-        in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0, 0),
+        in_axes=(None, None, 0, 0, 0, 0, 0, 0),
     )(
         z6,
-        z9,
-        est.camera_T_world[bp],
-        est.rotation[bo],
-        est.center[bo],
+        z3,
+        rel,
         est.radii[bo],
         problem.box,
         problem.texture_depth,
         problem.texture_mask,
         problem.box_mask,
     )
+    # Ad(W^-1) for [v, omega] tangents: W^-1 = (R^T, -R^T c); Ad(R', t') = [[R', t'^ R'], [0, R']].
+    Rt = jnp.swapaxes(R_o, -1, -2)
+    t_inv = -jnp.einsum("mij,mj->mi", Rt, c_o)
+    Jv, Jw = Jxi[..., 0:3], Jxi[..., 3:6]
+    Jp = jnp.concatenate([Jv @ Rt, Jv @ (_hat3(t_inv) @ Rt) + Jw @ Rt], -1)
+    Jo = jnp.concatenate([Jw, Jv @ Rt, Jds], -1)
     Jp = Jp * pose_free[bp][:, None, None]
 
     def pose_fn(dp, pose, prior, mask):
