@@ -125,7 +125,17 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
     )
     rows = {"network": evaluate_predictions(ell._asdict(), b)}
     if not quick:
-        _, ell_po, _ = postopt(phi, b["box_input"], b["K"], b["points"], b["point_mask"], cfg.recon, cfg.loss, 50)
+        _, ell_po, _ = postopt(
+            phi,
+            b["box_input"],
+            b["K"],
+            b["points"],
+            b["point_mask"],
+            cfg.recon,
+            cfg.loss,
+            50,
+            shape=b.get("class_shape"),
+        )
         rows["network + PostOpt(50)"] = evaluate_predictions(ell_po._asdict(), b)
     K = np.asarray(b["K"][0])
     fig, axes = plt.subplots(2, 4, figsize=(12, 5))

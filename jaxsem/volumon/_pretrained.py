@@ -224,6 +224,7 @@ def evaluate_held_out(
             config.recon,
             config.loss,
             int(postopt_steps),
+            shape=b.get("class_shape"),
         )
         jax.block_until_ready(ell_po)
         po = _summary(
@@ -249,6 +250,7 @@ def evaluate_held_out(
             config.recon,
             config.loss,
             int(postopt_steps),
+            shape=b.get("class_shape"),
         )
         drift = np.linalg.norm(np.asarray(ell_t.center) - gt["gt_center"], axis=-1)[keep]
         out["postopt_from_truth_median_drift_m"] = float(np.median(drift))

@@ -38,7 +38,7 @@ import optax
 
 from ..models import Ellipsoid, ReconstructionConfig, allocentric_rotation, reconstruct
 from ..quadrics import rotation_to_quaternion_wxyz
-from ._losses import LossConfig, primal_loss_per_sample
+from ._losses import SHAPE_ELLIPSOID, LossConfig, primal_loss_per_sample
 
 POSE_MASK = jnp.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1], bool)
 ALL_MASK = jnp.ones(10, bool)
@@ -110,12 +110,15 @@ def phi_from_ellipsoid(rotation, center, radii, box, K, recon: ReconstructionCon
     return jnp.concatenate([phi_d, q, phi_uv, _logit(sdisp)[..., None]], -1)
 
 
-def _refine_one(phi0, box, K, points, mask, free, recon, loss_cfg, num_steps, lr):
-    opt = optax.adam(lr)
+def _refine_one(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr, schedule):
+    # Adam normalises its steps, so at a zero of the objective round-off gradients still move phi
+    # by ~lr per step: with a constant rate (the thesis' 0.05) PostOpt started at the truth wanders
+    # about it; "cosine" decays the rate to 0 over the steps and settles
+    opt = optax.adam(optax.cosine_decay_schedule(lr, num_steps) if schedule == "cosine" else lr)
 
     def loss(phi):
         ell = reconstruct(phi, box, K, recon)
-        per, _ = primal_loss_per_sample(ell, points, mask, loss_cfg)
+        per, _ = primal_loss_per_sample(ell, points, mask, loss_cfg, shape if loss_cfg.shape_aware else None)
         return per
 
     def step(carry, _):
@@ -129,10 +132,10 @@ def _refine_one(phi0, box, K, points, mask, free, recon, loss_cfg, num_steps, lr
     return phi, losses
 
 
-@functools.partial(jax.jit, static_argnames=("recon", "loss_cfg", "num_steps"))
-def _refine(phi0, box, K, points, mask, free, recon, loss_cfg, num_steps, lr):
-    fn = lambda p, b, k, x, m: _refine_one(p, b, k, x, m, free, recon, loss_cfg, num_steps, lr)
-    return jax.vmap(fn)(phi0, box, K, points, mask)
+@functools.partial(jax.jit, static_argnames=("recon", "loss_cfg", "num_steps", "schedule"))
+def _refine(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr, schedule):
+    fn = lambda p, b, k, x, m, s: _refine_one(p, b, k, x, m, s, free, recon, loss_cfg, num_steps, lr, schedule)
+    return jax.vmap(fn)(phi0, box, K, points, mask, shape)
 
 
 def refine(
@@ -146,12 +149,19 @@ def refine(
     loss_config: LossConfig = LossConfig(),
     num_steps: int = 50,
     learning_rate: float = 0.05,
+    shape=None,
+    schedule: str = "constant",
 ):
     """Adam on the primal loss of each detection's ``phi`` (eq. 5.15), only entries in ``free_mask``.
 
     Args:
       phi0: (B, 10) initial free parameters; box: (B, 4); K: (B, 3, 3); points: (B, J, 3) camera
         frame; point_mask: (B, J); free_mask: (10,) bool.
+      shape: optional (B,) class shapes (0 cuboid, 1 ellipsoid, 2 cylinder), used when
+        ``loss_config.shape_aware`` (the loss the network was trained with): the primal distance
+        to the class's own shape, so the true object is a zero of the objective. None: ellipsoids.
+      schedule: "constant" learning rate (the thesis: 0.05) or "cosine" (decays to 0 over the
+        steps, so the estimate settles at the objective's minimum instead of wandering ~lr about it).
 
     Returns:
       (phi (B, 10), Ellipsoid (batch B), loss history (B, num_steps)).
@@ -166,25 +176,32 @@ def refine(
         ("points", points, None),
         ("point_mask", point_mask, None),
     ):
-        shape = tuple(jnp.shape(x))
-        if shape[:1] != (B,) or (tail is not None and shape[1:] != tail):
+        got = tuple(jnp.shape(x))
+        if got[:1] != (B,) or (tail is not None and got[1:] != tail):
             raise ValueError(
-                f"{name}: expected leading batch {B}{' and trailing ' + str(tail) if tail else ''}, got {shape}"
+                f"{name}: expected leading batch {B}{' and trailing ' + str(tail) if tail else ''}, got {got}"
             )
     if int(num_steps) < 1:
         raise ValueError(f"num_steps: expected >= 1, got {num_steps}")
+    if schedule not in ("constant", "cosine"):
+        raise ValueError(f"schedule: expected 'constant' or 'cosine', got {schedule!r}")
     dtype = phi0.dtype
+    shape = jnp.full((B,), SHAPE_ELLIPSOID, jnp.int32) if shape is None else jnp.asarray(shape, jnp.int32)
+    if shape.shape != (B,):
+        raise ValueError(f"shape: expected shape ({B},), got {tuple(shape.shape)}")
     phi, losses = _refine(
         phi0,
         jnp.asarray(box, dtype),
         jnp.asarray(K, dtype),
         jnp.asarray(points, dtype),
         jnp.asarray(point_mask, bool),
+        shape,
         jnp.asarray(free_mask, bool),
         recon,
         loss_config,
         int(num_steps),
         jnp.asarray(learning_rate, dtype),
+        schedule,
     )
     return phi, reconstruct(phi, jnp.asarray(box, dtype), jnp.asarray(K, dtype), recon), losses
 
@@ -199,9 +216,15 @@ def postopt(
     loss_config: LossConfig = LossConfig(),
     num_steps: int = 50,
     learning_rate: float = 0.05,
+    shape=None,
+    schedule: str = "constant",
 ):
-    """VoluMon PostOpt: refine the pose parameters of network predictions, size fixed (50 steps)."""
-    return refine(phi, box, K, points, point_mask, POSE_MASK, recon, loss_config, num_steps, learning_rate)
+    """VoluMon PostOpt: refine the pose parameters of network predictions, size fixed (50 steps).
+
+    ``shape``, ``schedule``: see :func:`refine`."""
+    return refine(
+        phi, box, K, points, point_mask, POSE_MASK, recon, loss_config, num_steps, learning_rate, shape, schedule
+    )
 
 
 def optimise_from_scratch(
@@ -213,8 +236,12 @@ def optimise_from_scratch(
     loss_config: LossConfig = LossConfig(),
     num_steps: int = 500,
     learning_rate: float = 0.05,
+    shape=None,
+    schedule: str = "constant",
 ):
-    """The baseline: all ten parameters from the point-cloud initialisation (50 or 500 steps)."""
+    """The baseline: all ten parameters from the point-cloud initialisation (50 or 500 steps).
+
+    ``shape``, ``schedule``: see :func:`refine`."""
     points = jnp.asarray(points)
     B = jnp.shape(box)[0] if jnp.ndim(box) == 2 else None
     for name, x in (("points", points), ("point_mask", point_mask), ("K", K)):
@@ -223,7 +250,9 @@ def optimise_from_scratch(
                 f"{name}: expected the leading batch {B} of box {tuple(jnp.shape(box))}, got {tuple(jnp.shape(x))}"
             )
     phi0 = init_from_points(jnp.asarray(box, points.dtype), jnp.asarray(K, points.dtype), points, point_mask, recon)
-    return refine(phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate)
+    return refine(
+        phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate, shape, schedule
+    )
 
 
 __all__ = ["Ellipsoid", "init_from_points", "optimise_from_scratch", "phi_from_ellipsoid", "postopt", "refine"]
