@@ -1,10 +1,11 @@
 """The shipped VoluMon model on held-out seeds (issue 10 targets), with PostOpt, a constant-size
 baseline and the ground-truth-ellipsoid ceiling row.
 
-The seeds here were never used for training or tuning (training: seed 0's training stream;
-tuning looked at seed 0's held-out stream only).
+The seeds reported were never used for training or tuning (training: seed 0's training stream;
+the training run's periodic evaluation: seed 0's held-out stream; the diagnosis that led to the
+ray primal distance looked at seed 101, so the table uses 404, 505 and 606).
 
-    python benchmarks/volumon_heldout.py --seeds 101 202 303 --num 256
+    python benchmarks/volumon_heldout.py --seeds 404 505 606 --num 256
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ def main(argv=None) -> int:
     p.add_argument("--workdir", default=None, help="a training run instead of the shipped model")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
     p.add_argument("--tag", default="volumon_heldout")
+    p.add_argument(
+        "--scratch", type=int, nargs="*", default=[50, 500], help="also run Optimize from scratch for these steps"
+    )
     a = p.parse_args(argv)
 
     import jax
@@ -40,7 +44,10 @@ def main(argv=None) -> int:
     from jaxsem.volumon import evaluate_held_out, load_pretrained
 
     model, variables, cfg, meta = load_pretrained(a.workdir)
-    per_seed = {s: evaluate_held_out(model, variables, cfg, s, a.num, postopt_steps=a.postopt) for s in a.seeds}
+    per_seed = {
+        s: evaluate_held_out(model, variables, cfg, s, a.num, postopt_steps=a.postopt, scratch_steps=tuple(a.scratch))
+        for s in a.seeds
+    }
     keys = [k for k, v in per_seed[a.seeds[0]].items() if isinstance(v, float)]
     mean = {k: float(np.mean([per_seed[s][k] for s in a.seeds])) for k in keys}
     dev = jax.devices()[0]
@@ -82,6 +89,8 @@ def main(argv=None) -> int:
     ]
     if a.postopt:
         lines.append(row(f"network + PostOpt ({a.postopt})", "postopt_"))
+    for n in a.scratch:
+        lines.append(row(f"Optimize from scratch ({n}), no network", f"scratch{n}_"))
     lines.append(row("ground-truth ellipsoid (ceiling)", "ceiling_"))
     if a.postopt:
         lines.append(row(f"PostOpt ({a.postopt}) started at the truth", "postopt_from_truth_"))
@@ -111,6 +120,17 @@ def main(argv=None) -> int:
         lines.append(
             f"| {k} {op} {v} | {mean[k]:.3f} | {', '.join(f'{x:.3f}' for x in vals)} | {'yes' if ok else 'no'} |"
         )
+    if a.postopt:
+        for name, key, ref in [("PostOpt trans AUC >= 7", "postopt_trans_auc", 7.0)] + [
+            (f"PostOpt trans AUC > Scratch ({n})", "postopt_trans_auc", f"scratch{n}_trans_auc") for n in a.scratch
+        ]:
+            vals = [per_seed[s][key] for s in a.seeds]
+            refs = [ref if isinstance(ref, float) else per_seed[s][ref] for s in a.seeds]
+            ok = all(x > r if not isinstance(ref, float) else x >= r for x, r in zip(vals, refs))
+            lines.append(
+                f"| {name} | {mean[key]:.3f} vs {np.mean(refs):.3f} | "
+                f"{', '.join(f'{x:.2f}/{r:.2f}' for x, r in zip(vals, refs))} | {'yes' if ok else 'no'} |"
+            )
     tmp = a.out / f"{a.tag}.md.tmp"
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(a.out / f"{a.tag}.md")

@@ -138,6 +138,7 @@ def evaluate_held_out(
     postopt_steps: int = 0,
     repeats: int = 5,
     batch: dict | None = None,
+    scratch_steps: tuple = (),
 ) -> dict:
     """The figures of ``jaxsem volumon eval`` on ``num`` held-out detections of seed ``seed``.
 
@@ -153,6 +154,10 @@ def evaluate_held_out(
     ``batch``: score these detections instead (network inputs, ``points``, ``point_mask`` and
     ground truth ``gt_*``, ``sample_mask``, e.g. :func:`jaxsem.data.volumon_eval_batch` of a FAT
     directory); ``seed`` and ``num`` are then ignored (``num`` is the batch's size).
+
+    ``scratch_steps``: also run the optimisation-only baseline (thesis "Optimize from scratch",
+    :func:`jaxsem.volumon.optimise_from_scratch`) for each of these numbers of steps on the same
+    detections (``scratch{n}_*`` figures and ``scratch{n}_ms_per_detection``).
 
     ``iou_auc``: area under the curve "fraction of detections with 3D IoU >= tau" for tau in
     [0, 1], times 10 (so it is on the same 0-10 scale as the other AUCs; equal to 10 x mean IoU
@@ -258,6 +263,24 @@ def evaluate_held_out(
         out["postopt_from_truth_within_1cm"] = float(np.mean(drift < 0.01))
         tr = _summary(jax.tree.map(np.asarray, ell_t._asdict()), gt, evaluate_predictions, detection_errors)
         out.update({f"postopt_from_truth_{k}": v for k, v in tr.items()})
+    for n in scratch_steps:
+        from ._refine import optimise_from_scratch
+
+        t = time.perf_counter()
+        _, ell_s, _ = optimise_from_scratch(
+            b["box_input"],
+            b["K"],
+            b["points"],
+            b["point_mask"],
+            config.recon,
+            config.loss,
+            int(n),
+            shape=b.get("class_shape"),
+        )
+        jax.block_until_ready(ell_s)
+        sc = _summary(jax.tree.map(np.asarray, ell_s._asdict()), gt, evaluate_predictions, detection_errors)
+        out.update({f"scratch{int(n)}_{k}": v for k, v in sc.items()})
+        out[f"scratch{int(n)}_ms_per_detection"] = 1000.0 * (time.perf_counter() - t) / int(num)
     return out
 
 
