@@ -1,20 +1,67 @@
-"""The ``jaxsem`` command.
+"""The ``jaxsem`` command: one subcommand per job.
 
 ``jaxsem demo`` runs the main job on built-in synthetic data: each part of the library has a demo
 module in :mod:`jaxsem.demos` with ``run(out_dir, quick) -> str`` that writes figures into
-``out_dir`` and returns a printed table.
+``out_dir`` and returns a printed table. The other subcommands (``roshan``, ``volumon
+train|predict|eval|export``, ``lsd data|train|plan``, ``bench``) run the code of the scripts in
+``train/`` and ``infer/``, which are thin wrappers over the same private modules
+(``jaxsem._commands``); ``jaxsem <command> --help`` says what goes in and comes out.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import os
 import pathlib
 import sys
-import time
+from collections.abc import Callable, Sequence
 
 DEMO_PARTS = ("geometry", "roshan", "volumon", "lsd")
+
+# (words, module in jaxsem._commands, one line for `jaxsem --help`). The modules are imported only
+# when their command runs, so `jaxsem --help` stays fast.
+COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("demo",), "demo", "run the demo on built-in synthetic data -> figures and tables"),
+    (
+        ("roshan",),
+        "roshan",
+        "ROSHAN online object SLAM: a sequence directory or a simulated flight -> map.json and figures",
+    ),
+    (
+        ("volumon", "train"),
+        "volumon_train",
+        "train VoluMon (synthetic stereo or a --data directory) -> checkpoints, metrics, loss.png",
+    ),
+    (
+        ("volumon", "predict"),
+        "volumon_predict",
+        "an image + boxes (or a synthetic split) -> ellipsoids.json and overlays",
+    ),
+    (
+        ("volumon", "eval"),
+        "volumon_eval",
+        "held-out synthetic detections of several classes -> JSON figures",
+    ),
+    (
+        ("volumon", "export"),
+        "volumon_export",
+        "a training run -> the shipped model files (weights, config, curves)",
+    ),
+    (("lsd", "data"), "lsd_data", "generated buildings -> LSD expert dataset (npz shards, samples.png)"),
+    (("lsd", "train"), "lsd_train", "expert shards -> a trained LSD network (checkpoints, figures, metrics)"),
+    (
+        ("lsd", "plan"),
+        "lsd_plan",
+        "one map, start and goal -> LSD and/or uniform PRM navigation figures",
+    ),
+    (("bench",), "bench", "run benchmarks/NAME.py of a source checkout (--list: the names)"),
+)
+GROUPS = {
+    "volumon": "VoluMon: image + box -> 3D ellipsoid (train, predict, eval, export)",
+    "lsd": "LSD: learned sampling distributions for PRM planning (data, train, plan)",
+}
 
 
 def enable_compilation_cache(cache_dir: str | None = None) -> None:
@@ -29,95 +76,54 @@ def enable_compilation_cache(cache_dir: str | None = None) -> None:
         print(f"jaxsem: compilation cache disabled ({exc})", file=sys.stderr)
 
 
-def _demo(args: argparse.Namespace) -> int:
-    out_dir = pathlib.Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    parts = DEMO_PARTS if args.parts == "all" else tuple(p.strip() for p in args.parts.split(","))
-    unknown = [p for p in parts if p not in DEMO_PARTS]
-    if unknown:
-        raise SystemExit(f"jaxsem demo: unknown part(s) {unknown}; expected some of {DEMO_PARTS}")
-    enable_compilation_cache()
-    for part in parts:
-        start = time.perf_counter()
-        print(f"=== jaxsem demo: {part} ===", flush=True)
-        module = importlib.import_module(f"jaxsem.demos.{part}")
-        table = module.run(out_dir, quick=args.quick)
-        print(table)
-        print(f"--- {part} done in {time.perf_counter() - start:.1f} s; figures in {out_dir}", flush=True)
-    return 0
+def command(name: str, prog: str | None = None) -> Callable[..., int]:
+    """The ``main(argv=None) -> int`` of subcommand ``name`` (e.g. ``"volumon train"``).
+
+    The scripts in ``train/`` and ``infer/`` are this function: ``main = command("volumon train")``.
+    ``prog`` names the command in ``--help`` and errors (default: the script's file name).
+    """
+    words = tuple(name.split())
+    for key, module_name, _ in COMMANDS:
+        if key == words:
+            module = importlib.import_module(f"jaxsem._commands.{module_name}")
+            return functools.partial(module.main, prog=prog) if prog else module.main
+    raise ValueError(f"command: unknown jaxsem command {name!r}; expected one of {[' '.join(c[0]) for c in COMMANDS]}")
 
 
-def _volumon_eval(args: argparse.Namespace) -> int:
-    """``jaxsem volumon eval``: held-out figures of the shipped model (or ``--workdir``) as JSON."""
-    import json
-
-    from jaxsem.volumon import evaluate_held_out, load_pretrained
-
-    if args.num < 1:
-        raise SystemExit(f"jaxsem volumon eval: --num must be a positive number of detections, got {args.num}")
-    if args.workdir is not None and not pathlib.Path(args.workdir).exists():
-        raise SystemExit(f"jaxsem volumon eval: --workdir {args.workdir} does not exist")
-    if args.data is not None and not pathlib.Path(args.data).is_dir():
-        raise SystemExit(f"jaxsem volumon eval: --data {args.data} is not a directory")
-    enable_compilation_cache()
-    try:
-        model, variables, config, meta = load_pretrained(args.workdir)
-        batch = None
-        if args.data is not None:
-            from jaxsem.data import volumon_eval_batch
-
-            batch = volumon_eval_batch(
-                args.data,
-                input_size=config.model.input_size,
-                global_padding=config.model.global_padding,
-                num_points=config.scene.num_points,
-                num=args.num,
-            )
-        result = evaluate_held_out(
-            model, variables, config, args.seed, args.num, postopt_steps=args.postopt, batch=batch
-        )
-    except ValueError as exc:
-        if args.debug:
-            raise
-        raise SystemExit(f"jaxsem volumon eval: {exc}")
-    result = {"model": str(meta.get("name")), "model_step": meta.get("step"), **result}
-    text = json.dumps(result, indent=1)
-    if args.json:
-        out = pathlib.Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(text + "\n")
-        tmp.replace(out)
-    print(text)
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="jaxsem", description=(__doc__ or "jaxsem").splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="run the demo on built-in synthetic data")
-    demo.add_argument("--out", default="jaxsem_demo", help="folder for figures and JSON")
-    demo.add_argument("--parts", default="all", help=f"comma-separated subset of {','.join(DEMO_PARTS)}")
-    demo.add_argument("--quick", action="store_true", help="smallest sizes (used by the tests)")
-    demo.set_defaults(func=_demo)
-    volumon = sub.add_parser("volumon", help="VoluMon: evaluate the shipped (or a trained) model")
-    vsub = volumon.add_subparsers(dest="volumon_command", required=True)
-    ev = vsub.add_parser("eval", help="held-out synthetic detections of several classes -> JSON figures")
-    ev.add_argument("--seed", type=int, default=1, help="held-out seed (a stream no training seed uses)")
-    ev.add_argument("--num", type=int, default=256, help="number of detections")
-    ev.add_argument("--json", default=None, help="write the figures here (atomically)")
-    ev.add_argument("--workdir", default=None, help="a training run (config.json + checkpoints/) or a .npz model")
-    ev.add_argument("--postopt", type=int, default=0, help="also refine with PostOpt for this many steps")
-    ev.add_argument(
-        "--data",
-        default=None,
-        help="score the objects of a FAT-layout or make_synthetic directory (the first --num) instead of "
-        "synthetic held-out detections",
+def _parser() -> argparse.ArgumentParser:
+    """The top level and the groups, for ``--help`` and usage errors; leaves parse their own flags."""
+    parser = argparse.ArgumentParser(
+        prog="jaxsem",
+        description="jaxsem: semantic navigation with ellipsoid objects (ROSHAN, VoluMon, LSD), one subcommand "
+        "per job.\n`jaxsem COMMAND --help` says what goes in and comes out, with every default.",
+        epilog="examples:\n  jaxsem demo --quick\n  jaxsem roshan --simulate forward --out out/roshan\n"
+        "  jaxsem volumon predict --split test --num 8 --out out/volumon\n"
+        "  jaxsem lsd plan --building 3 --kind IO --out plan.png\n  jaxsem bench --list",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ev.add_argument("--debug", action="store_true", help="show tracebacks")
-    ev.set_defaults(func=_volumon_eval)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for words, _, text in COMMANDS:
+        if len(words) == 1:
+            sub.add_parser(words[0], help=text, add_help=False)
+            continue
+        if words[0] not in groups:
+            group = sub.add_parser(words[0], help=GROUPS[words[0]], description=GROUPS[words[0]])
+            groups[words[0]] = group.add_subparsers(dest=f"{words[0]}_command", required=True, metavar="COMMAND")
+        groups[words[0]].add_parser(words[1], help=text, add_help=False)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for words, _, _ in COMMANDS:
+        if tuple(argv[: len(words)]) == words:
+            from jaxsem.scripting import run_main
+
+            prog = "jaxsem " + " ".join(words)
+            return run_main(command(" ".join(words), prog=prog), argv[len(words) :], prog=prog)
+    _parser().parse_args(argv)  # prints help (exit 0) or a usage error naming the bad word (exit 2)
+    return 2
 
 
 if __name__ == "__main__":

@@ -56,7 +56,14 @@ class UsageError(Exception):
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """``--help`` that keeps the description's line breaks and shows every default."""
+    """``--help`` that keeps the description's line breaks and shows every default (except on a
+    required flag, which has none, and where the help text already says what the default is)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if action.required or "default" in text.lower():
+            return text
+        return super()._get_help_string(action)
 
 
 _EXPECTED = (UsageError, ValueError, OSError, json.JSONDecodeError, zipfile.BadZipFile, KeyError)

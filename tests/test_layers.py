@@ -3,7 +3,7 @@
 - geometry (``quadrics``, ``classes``, ``_checks``) imports nothing else of jaxsem;
 - methods (``metrics``, ``factors``, ``slam``, ``models``, ``volumon``, ``lsd``, ``planning``,
   ``mapping``, ``parallel``) import geometry and each other, never the outer layer;
-- the outer layer (``sim``, ``data``, ``demos``, ``cli``, scripts, tests, benchmarks) may import
+- the outer layer (``sim``, ``data``, ``demos``, ``cli``, ``_commands``, scripts, tests, benchmarks) may import
   anything public;
 - nobody imports ``jaxsem.x._private`` from outside package ``x``.
 """
@@ -14,7 +14,7 @@ import pathlib
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 GEOMETRY = {"quadrics", "classes", "_checks"}
 METHODS = {"metrics", "factors", "slam", "models", "volumon", "lsd", "planning", "mapping", "parallel", "checkpoint"}
-OUTER = {"sim", "data", "demos", "cli"}
+OUTER = {"sim", "data", "demos", "cli", "_commands"}
 
 
 def _imports(path: pathlib.Path):

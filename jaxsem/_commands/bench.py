@@ -1,0 +1,91 @@
+"""Runs one benchmark script, ``benchmarks/NAME.py`` of a source checkout, with the arguments that
+follow NAME (``jaxsem bench geometry --pairs 1000`` is ``python benchmarks/geometry.py --pairs 1000``).
+
+In: NAME and its own flags (``jaxsem bench NAME --help`` shows them). Out: what the benchmark
+writes, by convention ``benchmarks/results/NAME.json`` and ``.md``; the exit status is the
+benchmark's. ``--list`` prints the names with the first line of each script's docstring.
+
+The benchmarks ship with the source checkout (``git clone``, ``pip install -e .``), not with an
+installed wheel; there this command says so in one line. Each runs in a fresh Python process, so
+flags it sets before importing JAX (``XLA_FLAGS`` device counts) take effect.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import pathlib
+import subprocess
+import sys
+
+from jaxsem import scripting as sc
+
+
+def default_dir() -> pathlib.Path:
+    """``benchmarks/`` next to the ``jaxsem`` package folder (a source checkout)."""
+    return pathlib.Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p.add_argument("name", nargs="?", default=None, help="benchmark to run: benchmarks/NAME.py")
+    p.add_argument("args", nargs="*", default=[], help="arguments passed on to the benchmark (after NAME)")
+    p.add_argument("--list", action="store_true", help="list the benchmark names and exit")
+    p.add_argument(
+        "--dir",
+        type=pathlib.Path,
+        default=default_dir(),
+        help="benchmarks folder (default: the one of the source checkout this package runs from)",
+    )
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    return p
+
+
+def benchmarks(folder: pathlib.Path) -> dict[str, str]:
+    """Benchmark name -> the first line of its docstring (``_helpers.py`` are not benchmarks)."""
+    names = {}
+    for path in sorted(folder.glob("*.py")):
+        if path.stem.startswith("_"):
+            continue
+        try:
+            doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"), str(path))) or ""
+        except (SyntaxError, UnicodeDecodeError):
+            doc = ""
+        names[path.stem] = doc.strip().splitlines()[0] if doc.strip() else ""
+    return names
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # Everything after NAME (the first word that is not one of our flags) belongs to the benchmark.
+    split = len(argv)
+    i = 0
+    while i < len(argv):
+        if argv[i] == "--dir":
+            i += 2
+            continue
+        if not argv[i].startswith("-"):
+            split = i
+            break
+        i += 1
+    parser = build_parser(prog)
+    args = parser.parse_args(argv[:split] + argv[split : split + 1])
+    rest = argv[split + 1 :]
+    folder: pathlib.Path = args.dir
+    if not folder.is_dir():
+        raise sc.UsageError(
+            f"no benchmarks folder at {folder} (the benchmarks ship with the source checkout, not with an "
+            "installed package: git clone the repository and pip install -e . there, or pass --dir)"
+        )
+    names = benchmarks(folder)
+    if args.list:
+        width = max((len(n) for n in names), default=0)
+        for name, line in names.items():
+            print(f"{name:<{width}}  {line}".rstrip())
+        return 0
+    if args.name is None:
+        parser.error(f"give a benchmark NAME (one of: {', '.join(names)}) or --list")
+    name = args.name.removesuffix(".py")
+    if name not in names:
+        raise sc.UsageError(f"no benchmark {args.name!r} in {folder} (jaxsem bench --list names them)")
+    return subprocess.run([sys.executable, str(folder / f"{name}.py"), *rest], check=False).returncode

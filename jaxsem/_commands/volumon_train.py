@@ -1,0 +1,177 @@
+"""Train VoluMon (thesis chapter 5) on the synthetic stereo set: a thin wrapper over
+:func:`jaxsem.volumon.train_and_evaluate`.
+
+Examples::
+
+    python train/volumon.py --workdir runs/volumon_both                    # CPU config, Both
+    python train/volumon.py --variant primal --steps 800 --workdir runs/p  # Primal only
+    python train/volumon.py --size thesis --workdir runs/thesis            # 224x224, width 1.0 (GPU)
+
+Re-running with the same ``--workdir`` resumes from the latest checkpoint. Writes
+``metrics.jsonl``, ``eval.json``, ``config.json`` and ``loss.png`` into the workdir.
+
+The same command: ``jaxsem volumon train`` (``python train/volumon.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+from typing import Any
+
+from jaxsem import scripting as sc
+from jaxsem.config import override
+from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p.add_argument(
+        "--workdir",
+        type=pathlib.Path,
+        required=True,
+        help="run folder: checkpoints, metrics.jsonl, eval.json, config.json, loss.png (an existing one resumes)",
+    )
+    p.add_argument(
+        "--variant",
+        choices=VARIANTS,
+        default="both",
+        help="training variant (thesis 5.5.1: Dual only, Primal only, Both, Both Noisy; oracle)",
+    )
+    p.add_argument("--size", choices=SIZES, default="fast", help="config preset (fast: the shipped model's CPU preset)")
+    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+    p.add_argument("--stop-after", type=int, default=None, help="stop after this many steps of this call (a chunk)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--steps", type=int, default=None, help="number of training steps (default: the preset's)")
+    p.add_argument("--batch-size", type=int, default=None, help="batch size (default: the preset's)")
+    p.add_argument("--lr", type=float, default=None, help="learning rate (default: the preset's)")
+    p.add_argument("--num-train", type=int, default=None, help="training-set size (default: the preset's)")
+    p.add_argument("--seed", type=int, default=None, help="data and initialisation seed (default: the preset's)")
+    p.add_argument(
+        "--checkpoint-every", type=int, default=None, help="steps between checkpoints (default: the preset's)"
+    )
+    p.add_argument("--eval-every", type=int, default=None, help="steps between evaluations (default: the preset's)")
+    p.add_argument("--num-eval", type=int, default=None, help="detections per evaluation (default: the preset's)")
+    p.add_argument(
+        "--data",
+        type=pathlib.Path,
+        default=None,
+        help="train on a FAT-layout or make_synthetic directory (read by jaxsem.data) instead of the on-device "
+        "generator (default: the generator)",
+    )
+    p.add_argument(
+        "--eval-data",
+        type=pathlib.Path,
+        default=None,
+        help="with --data: directory whose objects the periodic evaluation scores (default: --data itself, a fit check)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any config field by its dotted name, e.g. --set loss.primal_distance=ray (repeatable)",
+    )
+    return p
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    p = build_parser(prog)
+    a = p.parse_args(argv)
+    for flag, value in (
+        ("--steps", a.steps),
+        ("--batch-size", a.batch_size),
+        ("--num-train", a.num_train),
+        ("--checkpoint-every", a.checkpoint_every),
+        ("--stop-after", a.stop_after),
+    ):
+        if value is not None and value < 1:
+            p.error(f"{flag}: expected a positive integer, got {value}")
+    if a.lr is not None and not a.lr > 0:
+        p.error(f"--lr: expected a positive learning rate, got {a.lr}")
+    if a.workdir.exists() and not a.workdir.is_dir():
+        p.error(f"--workdir: {a.workdir} exists and is not a folder")
+    cfg = get_config(a.variant, a.size)
+    changes = {
+        k: v
+        for k, v in dict(
+            num_steps=a.steps,
+            batch_size=a.batch_size,
+            learning_rate=a.lr,
+            num_train=a.num_train,
+            seed=a.seed,
+            checkpoint_every=a.checkpoint_every,
+            eval_every=a.eval_every,
+            num_eval=a.num_eval,
+        ).items()
+        if v is not None
+    }
+    cfg = cfg.replace(**changes)
+    if a.set:
+        try:
+            cfg = override(cfg, a.set)
+        except ValueError as exc:
+            p.error(f"--set: {exc}")
+    batch_fn = eval_batch = None
+    if a.eval_data is not None and a.data is None:
+        p.error("--eval-data: needs --data")
+    if a.data is not None:
+        for flag, path in (("--data", a.data), ("--eval-data", a.eval_data)):
+            if path is not None and not path.is_dir():
+                p.error(f"{flag}: {path} is not a directory")
+        cfg = cfg.replace(data="directory", data_dir=str(a.data.resolve()))
+        from jaxsem.data import volumon_batch_source, volumon_eval_batch
+
+        sizes: dict[str, Any] = dict(
+            input_size=cfg.model.input_size, global_padding=cfg.model.global_padding, num_points=cfg.scene.num_points
+        )
+        try:
+            batch_fn, n = volumon_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed, **sizes)
+            if cfg.num_eval > 0:
+                eval_batch = volumon_eval_batch(a.eval_data or a.data, num=cfg.num_eval, **sizes)
+        except (ValueError, OSError) as exc:
+            if a.debug:
+                raise
+            sys.exit(f"error: {exc}")
+        print(f"training on {n} objects of {a.data}", flush=True)
+    try:
+        result = train_and_evaluate(
+            cfg,
+            a.workdir,
+            log=lambda line: print(line, flush=True),
+            force=a.force,
+            stop_after=a.stop_after,
+            progress=False,
+            batch_fn=batch_fn,
+            eval_batch=eval_batch,
+        )
+    except ValueError as exc:
+        if a.debug:
+            raise
+        sys.exit(f"error: {exc}")
+    if result["eval"] is not None:
+        print(json.dumps(result["eval"], indent=1))
+    _plot(a.workdir)
+    return 0
+
+
+def _plot(workdir):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recs = [json.loads(line) for line in (workdir / "metrics.jsonl").read_text().splitlines()]
+    recs = [r for r in recs if "total" in r]
+    if not recs:
+        return
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k in ("total", "dual", "primal", "size"):
+        ax.semilogy([r["step"] for r in recs], [max(r[k], 1e-12) for r in recs], label=k)
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(workdir / "loss.png", dpi=100)
