@@ -343,11 +343,31 @@ def main(argv=None):
     res = HERE / "results"
     res.mkdir(exist_ok=True)
     (res / "roshan_speed.json").write_text(json.dumps(out, indent=2))
-    behind = (
-        "Target: online median under 33 ms/frame. Where we are behind: compile time (tens of "
-        "seconds on this CPU) and the p95 latency of optimisation frames; vmap over maps runs "
-        "until the slowest map stops, so it is not faster than the loop here."
-    )
+    behind = []
+    if "online" in out:
+        o = out["online"]
+        met = "met" if o["median_ms"] < 5 and o["p95_ms"] < 33 else "NOT met"
+        behind.append(
+            f"Online target (median under 5 ms, p95 under 33 ms per frame): {met} (median "
+            f"{o['median_ms']:.2f} ms, p95 {o['p95_ms']:.1f} ms; the p95 is set by the optimisation frames)."
+        )
+    if "batch" in out:
+        vl = out["batch"]["_vmap_vs_loop"]
+        behind.append(
+            f"vmap over maps vs the loop of jitted solves: the loop is {1 / vl['loop_over_vmap']:.1f}x faster per map "
+            "(target: vmap 2x faster than the loop: NOT met). Why, measured with this script's setting on this "
+            "CPU: the box-factor Jacobian dominates an iteration and costs the same per box batched or not "
+            "(about 3.2 ms per map single, 3.9 ms per map vmapped over 50), the damped Schur step amortises "
+            "little (about 1.4 vs 1.1 ms), and under vmap every phase runs until its slowest member stops and "
+            "every inner damping loop until its slowest member accepts, so the batch pays for more "
+            "linearisations and trials than the median member. The vmapped answers are not a leak between "
+            "members: a member's answer is identical (to 1e-12) whatever the other members of a batch of the "
+            "same size are, and equal to its solo solve to about 1e-13 on well-posed maps; these maps use "
+            "QuadricSLAM's factor set from the plain initialisation with a 20-step cap, where the reduced "
+            "systems are nearly singular (depth and size unobservable early), so rounding differences between "
+            "the batched and the unbatched compiled code grow to the deviations reported above."
+        )
+    behind = " ".join(behind)
     md = (
         f"## ROSHAN solver speed\n\nCommand: `{out['command']}`  \nDate: {out['date']}  \n"
         f"Machine: {out['machine']}\n\n{table}\n{behind}\n"

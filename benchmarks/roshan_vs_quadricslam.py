@@ -53,19 +53,31 @@ errors are medians over maps of each map's mean over its objects (``jaxsem.metri
 ``jaxsem.slam.total_cost`` under QuadricSLAM's factor set (border edges masked, so the peer's
 estimate is scored by the same yardstick); codes count maps per ``jaxsem.slam.RESULTS`` code.
 
-Verdict (this run, 3 maps per block, seeds 1000+, tuned on seed 100; the 2-core machine was
-shared with training jobs at load 11-16, so every time is inflated for both systems):
-- Accuracy: jaxsem beats the peer on every path and initialisation (Orbit position 0.03 vs
-  0.17 m; Forward with the plain init 0.43 m for ROSHAN and 1.56 m for QuadricSLAM's factor set
-  vs 20.8 m for the peer, whose 3 of 3 maps collapse). Camera poses stay within 3 sigma of
-  their priors (largest whitened prior residual norm 3.8; 3 sigma per axis is 7.3; the peer
-  reaches 34). With the plain init QuadricSLAM's factor set still collapses on 1 of 3 Forward
-  maps (mean position error 1.56 m median, one map above 2 m); ROSHAN collapses on none.
-- Speed: BEHIND. Per map jaxsem is 1-20x slower than gtsam_quadrics (the peer stops after 2
-  iterations on Forward/plain because it is stuck, so its 38 ms buys a collapsed map). jaxsem
-  takes 30-60 accepted steps (50-100 trials) over its rescue and joint phases where the peer
-  takes 15-27 iterations; vmapped over maps it is slower per map than the loop (the while loop
-  runs until the slowest map stops), so the vmap >= 2x target is not met.
+Verdict (this run, 5 maps per block, seeds 1000+, tuned on seed 100; the 2-core machine was
+shared with a training job and other work at load 7-10, so every time is inflated for both
+systems; jaxsem and the peer alternate per block):
+- Accuracy: jaxsem ROSHAN beats the peer on every path and initialisation (Orbit position 0.03
+  vs 0.17 m; Forward/plain 0.55 m vs 17.6 m, where the peer collapses on 5 of 5 maps and stops
+  after 3 iterations; Forward/single-view 0.25 vs 1.57 m). Camera poses stay within 3 sigma of
+  their priors (largest whitened prior residual norm 3.7; 3 sigma per axis is 7.3; the peer
+  reaches 35). QuadricSLAM's factor set in jaxsem still collapses on 1 of 5 Forward/plain maps.
+- Speed, per map (loop of jitted solves): ROSHAN is faster than the peer on Orbit (181 vs
+  281 ms plain, 138 vs 169 ms single-view) and Forward/single-view (75 vs 133 ms), at far
+  lower error. BEHIND on Forward/plain: 145 vs 68 ms, but the peer's 68 ms buys a collapsed
+  map (3 iterations, stuck); jaxsem runs a rescue phase and 34 accepted steps there.
+  Per iteration jaxsem costs about 3.4 ms (256 box slots) to 7 ms (600 slots) per
+  linearisation plus about 0.7 ms per trial step; the ideal of a few ms per map is not reached:
+  solves take 17-34 accepted / 30-60 trial steps over the rescue and joint phases.
+- vmap: BEHIND. Vmapped over the 5 maps a solve is 1.4-2.5x slower per map than the loop
+  (over 50 maps in roshan_speed.md: 4.6x): on this CPU the box-factor Jacobian is
+  compute-bound (about 12 us per box, the same per box batched or not), so batching amortises
+  nothing of the dominant cost, and under vmap every phase runs until its slowest member
+  stops and every inner damping loop until its slowest member accepts. The >= 2x target is
+  not met; a flat (one trial per iteration) loop for the vmapped path is the next thing to try.
+- What changed since the last run: the LM loop linearises once per accepted iteration (GTSAM's
+  layout, inner damping loop; no lax.cond, so vmap never relinearises on a rejected trial),
+  box Jacobians take 9 forward columns in the object's camera frame instead of 15, the rescue
+  phase stops at rtol 1e-2, and the real boxes are moved first (``slam.compact_boxes``).
 - optimistix path: not the default any more (130 s compile, 109 s per map measured on the
   issue's setting); the Schur path is.
 """
