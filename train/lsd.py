@@ -1,91 +1,15 @@
 """Trains the LSD network in two stages on expert shards (thin wrapper over jaxsem.lsd).
 
-Example:
-    python infer/make_expert_data.py ...            # expert shards (jaxsem.planning)
-    python train/lsd.py --data data/expert --workdir runs/lsd --config cpu
-    python train/lsd.py --data data/expert --workdir runs/lsd --config cpu --stage1-steps 3000
-
-Re-running with the same workdir resumes from its latest checkpoint; --chunk-steps K ends a run K
-steps past it (run it in a loop to train in chunks, e.g. on data that is still being generated). Figures of predicted
-distributions land in <workdir>/figures, metrics in <workdir>/metrics.json.
+A thin wrapper: the code is ``jaxsem lsd train``; ``--help`` lists the flags with their defaults, what
+goes in and what comes out.
 """
 
-from __future__ import annotations
-
-import argparse
-import dataclasses
-import pathlib
 import sys
 
-from jaxsem import config as jcfg, scripting as sc
+from jaxsem.cli import command
+from jaxsem.scripting import run_main
 
-
-def main(argv=None) -> int:
-    from jaxsem.lsd import get_config
-
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=sc.HelpFormatter)
-    p.add_argument("--data", type=pathlib.Path, required=True, help="folder of expert_*.npz shards (or one shard)")
-    p.add_argument("--workdir", type=sc.output_dir, required=True, help="checkpoints, figures, metrics")
-    p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
-    p.add_argument("--stage1-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-1 steps")
-    p.add_argument("--stage2-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-2 steps")
-    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="override the config's batch size")
-    p.add_argument("--learning-rate", type=sc.positive_float, default=None, help="override the learning rate")
-    p.add_argument("--eval-every", type=sc.positive_int, default=None, help="override the evaluation interval")
-    p.add_argument("--seed", type=sc.nonnegative_int, default=None, help="override the seed")
-    p.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override any TrainConfig field by name (repeatable)",
-    )
-    p.add_argument(
-        "--chunk-steps",
-        type=sc.positive_int,
-        default=None,
-        help="stop after this many steps past the latest checkpoint (a rerun resumes)",
-    )
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    args = p.parse_args(argv)
-    # Validate the inputs before any long work.
-    if not args.data.exists():
-        raise sc.UsageError(f"--data: {args.data}: no such file or directory")
-    if args.data.is_dir() and not any(args.data.glob("*.npz")):
-        raise sc.UsageError(f"--data: {args.data}: no expert *.npz shards in this folder")
-
-    from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import train_and_evaluate
-
-    enable_compilation_cache()
-    cfg = get_config(args.config)
-    changes = {
-        k: v
-        for k, v in {
-            "stage1_steps": args.stage1_steps,
-            "stage2_steps": args.stage2_steps,
-            "batch_size": args.batch_size,
-            "learning_rate": args.learning_rate,
-            "eval_every": args.eval_every,
-            "seed": args.seed,
-        }.items()
-        if v is not None
-    }
-    cfg = jcfg.override(dataclasses.replace(cfg, **changes), args.overrides)
-    stop_at = None
-    if args.chunk_steps is not None:
-        from jaxsem.checkpoint import latest_step
-
-        stop_at = (latest_step(pathlib.Path(args.workdir) / "checkpoints") or 0) + args.chunk_steps
-    res = train_and_evaluate(cfg, args.workdir, data=args.data, stop_at=stop_at)
-    for h in res.history:
-        print(
-            f"step {h['step']:6d} stage {h['stage']}: val NLL {h['val_nll']:.3f} "
-            f"(uniform {h['uniform_nll']:.3f})  {h['figure']}"
-        )
-    return 0
-
+main = command("lsd train")
 
 if __name__ == "__main__":
-    sys.exit(sc.run_main(main))
+    sys.exit(run_main(main))

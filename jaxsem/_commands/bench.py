@@ -3,7 +3,7 @@ follow NAME (``jaxsem bench geometry --pairs 1000`` is ``python benchmarks/geome
 
 In: NAME and its own flags (``jaxsem bench NAME --help`` shows them). Out: what the benchmark
 writes, by convention ``benchmarks/results/NAME.json`` and ``.md``; the exit status is the
-benchmark's. ``--list`` prints the names with the first line of each script's docstring.
+benchmark's. ``--list`` prints the names with the first sentence of each script's docstring.
 
 The benchmarks ship with the source checkout (``git clone``, ``pip install -e .``), not with an
 installed wheel; there this command says so in one line. Each runs in a fresh Python process, so
@@ -42,7 +42,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 
 def benchmarks(folder: pathlib.Path) -> dict[str, str]:
-    """Benchmark name -> the first line of its docstring (``_helpers.py`` are not benchmarks)."""
+    """Benchmark name -> the first sentence of its docstring, cut at 100 characters (``_helpers.py``
+    are not benchmarks)."""
     names = {}
     for path in sorted(folder.glob("*.py")):
         if path.stem.startswith("_"):
@@ -51,7 +52,9 @@ def benchmarks(folder: pathlib.Path) -> dict[str, str]:
             doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"), str(path))) or ""
         except (SyntaxError, UnicodeDecodeError):
             doc = ""
-        names[path.stem] = doc.strip().splitlines()[0] if doc.strip() else ""
+        paragraph = " ".join(doc.strip().split("\n\n")[0].split())
+        line = paragraph.split(". ")[0].rstrip(".")
+        names[path.stem] = line if len(line) <= 100 else line[:97].rstrip() + "..."
     return names
 
 
