@@ -30,10 +30,13 @@ def test_bad_flags_name_the_flag(tmp_path):
         mod.main(["--n", "0"])
     with pytest.raises(SystemExit, match="--uniform-mix"):
         mod.main(["--uniform-mix", "1.5"])
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(SystemExit, match="--out"):
+        mod.main(["--out", str(tmp_path / "a_file" / "plan.png")])
 
 
 def test_short_run_writes_the_map_and_the_strip(tmp_path):
-    out = tmp_path / "plan.png"
+    out = tmp_path / "new" / "plan.png"  # regression: the figure's folder is made (it failed after the run)
     rc = _module().main(
         [
             "--building",
@@ -52,4 +55,4 @@ def test_short_run_writes_the_map_and_the_strip(tmp_path):
         ]
     )
     assert rc == 0 and out.stat().st_size > 0
-    assert (tmp_path / "plan_over_time.png").stat().st_size > 0
+    assert (tmp_path / "new" / "plan_over_time.png").stat().st_size > 0

@@ -186,6 +186,10 @@ def main(argv=None, prog: str | None = None) -> int:
 
 
 def _run(args) -> int:
+    try:  # the figure's folder, made before the long work (a bad --out fails now, not after the trials)
+        pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out: cannot create the folder of {args.out} ({exc})") from None
     import jax
     import numpy as np
     from tqdm import tqdm
