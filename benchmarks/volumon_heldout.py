@@ -100,7 +100,8 @@ def main(argv=None) -> int:
     )
     lines += [
         "",
-        f"Network: {mean['network_ms_per_detection']:.2f} ms per detection (batched, CPU).",
+        f"Network: {mean['network_ms_per_detection']:.2f} ms per detection (batched, CPU). Learning curves of the "
+        "shipped run: `jaxsem/volumon/pretrained/volumon_fast_curves.png`.",
     ]
     if a.postopt:
         lines.append(
