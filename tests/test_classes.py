@@ -37,3 +37,12 @@ def test_simulator_reads_the_table():
     for i, name in enumerate(names):
         np.testing.assert_allclose(2 * mean[i], classes.get(name).dimensions)
         np.testing.assert_allclose(2 * sigma[i], classes.get(name).sigma)
+
+
+def test_synthetic_dataset_classes_read_the_table():
+    from jaxsem.data import DEFAULT_CLASSES
+
+    for c in DEFAULT_CLASSES:
+        ref = classes.get(c.name)
+        np.testing.assert_allclose(c.extents, ref.dimensions)
+        assert c.shape == {"cuboid": "box"}.get(ref.shape, ref.shape)

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from .. import quadrics as Q
+from .. import classes as _classes, quadrics as Q
 from ..sim import SceneObject, SceneRenderer
 from ._fat import FAT_BASELINE, cuboid_corners, right_T_left
 
@@ -56,13 +56,20 @@ class ObjectClass:
     size_variation: float = 0.03
 
 
-# Real sizes: the YCB cracker box of FAT (16.4036 x 21.3437 x 7.18 cm), the YCB tomato soup can
-# (6.77 cm x 10.18 cm) and a slightly squashed 7 cm ball (an ellipsoid with distinct axes, so its
+def _from_table(name: str, segmentation_class_id: int) -> ObjectClass:
+    """A class of :mod:`jaxsem.classes` (shape, full dimensions, colour) with its segmentation label."""
+    c = _classes.get(name)
+    shape = {"cuboid": "box"}.get(c.shape, c.shape)
+    return ObjectClass(c.name, shape, tuple(c.dimensions), tuple(c.color), segmentation_class_id)
+
+
+# From the one class table: the YCB cracker box of FAT (16.4036 x 21.3437 x 7.18 cm), the YCB
+# tomato soup can (6.77 cm x 10.18 cm) and a slightly squashed 7 cm ball (distinct axes, so its
 # orientation is defined).
 DEFAULT_CLASSES = (
-    ObjectClass("cracker_box", "box", (0.164036, 0.213437, 0.0718), (0.85, 0.2, 0.15), 40),
-    ObjectClass("soup_can", "cylinder", (0.0677, 0.0677, 0.1018), (0.8, 0.8, 0.75), 80),
-    ObjectClass("ball", "ellipsoid", (0.064, 0.07, 0.078), (0.2, 0.45, 0.85), 120),
+    _from_table("cracker_box", 40),
+    _from_table("soup_can", 80),
+    _from_table("ball", 120),
 )
 
 _SPLIT_STREAM = {"train": 0, "val": 1, "test": 2}
