@@ -116,7 +116,7 @@ def test_robot_camera_looks_along_its_heading():
     np.testing.assert_allclose(float(np.asarray(uv)[0]), -0.5, atol=1e-6)
 
 
-def test_detector_boxes_filters_and_errors():
+def test_detector_boxes_filters_and_bad_input():
     seg = -np.ones((20, 30), np.int32)
     seg[2:6, 3:9] = 0  # a door: rows 2..5, cols 3..8
     seg[10:12, 28:30] = 1  # a sign at the right border

@@ -130,7 +130,7 @@ def test_crop_is_exact_and_global_is_masked():
     assert patches[0, 0, 0].max() == 0 and patches[0, -1, -1].max() > 0
 
 
-def test_bad_input_errors_and_documented_skips(frames):
+def test_bad_input_is_named_and_skips_are_documented(frames):
     image = frames[0].image
     with pytest.raises(ValueError, match="image: expected dtype uint8"):
         crop_inputs(image.astype(np.float32), [0, 0, 10, 10])

@@ -100,7 +100,7 @@ def test_checkpoint_resume_equals_uninterrupted(run, tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
-def test_training_errors_name_the_argument(tmp_path):
+def test_training_bad_input_names_the_argument(tmp_path):
     bad = _data()
     bad["path_mask"] = bad["path_mask"][:, :, :5]
     with pytest.raises(ValueError, match=r"data\['path_mask'\]: expected shape"):

@@ -38,7 +38,7 @@ def test_run_main_debug_reraises():
         sc.run_main(_main_raising(ValueError("x")), argv=["--debug"])
 
 
-def test_run_main_passes_status_and_unexpected_errors():
+def test_run_main_passes_status_and_unexpected_failures():
     assert sc.run_main(lambda argv: 0, argv=[]) == 0
     assert sc.run_main(lambda argv: None, argv=[]) == 0
     with pytest.raises(ZeroDivisionError):  # a bug is not bad input: keep its traceback
