@@ -59,6 +59,7 @@ __all__ = [
     "project_bbox",
     "texture_plane_depth",
     "algebraic_distance",
+    "ray_entry_range",
     "ground_conic",
     "ground_bounds",
     "rasterize_footprint",
@@ -752,6 +753,69 @@ def camera_depth(center, camera_T_world):
     center = _as_float_array("center", center, (3,), check_finite=True)
     pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
     return jnp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]
+
+
+def ray_entry_range(points, rotation, center, radii, shape):
+    """Where each point's viewing ray first enters the object drawn with ``shape``.
+
+    The ray of point ``x`` (camera frame, camera at the origin) is ``s x / |x|``, ``s >= 0``.
+    ``shape``: 0 cuboid of half extents ``radii`` (slab test), 1 ellipsoid (the quadratic
+    ``|diag(1/r) R^T (s u - t)| = 1``), 2 cylinder along the object's z axis (elliptic section of
+    semi-axes ``radii[:2]``, slab ``|z| <= radii[2]``). A depth image's range minus ``s_entry`` is
+    the distance from the object along the pixel's own ray.
+
+    Args:
+      points: (..., J, 3) camera frame; rotation (..., 3, 3) object-to-camera; center, radii
+        (..., 3); shape (...) int.
+
+    Returns:
+      ``(s_entry (..., J), hit (..., J) bool)``: the range (m) at which the ray enters the object,
+      and whether it does in front of the camera. Where ``hit`` is False ``s_entry`` is finite and
+      meaningless; values and gradients are finite everywhere.
+    """
+    points = _as_float_array("points", points, (3,), check_finite=True)
+    if points.ndim < 2:
+        raise ValueError(f"points: expected shape (..., N, 3), got shape {tuple(points.shape)}")
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    _batch_shape(points=points.shape[:-2], ellipsoid=batch)
+    rng = safe_norm(points)
+    u = jnp.einsum("...ji,...nj->...ni", rotation, safe_div(points, rng[..., None]))  # ray, object frame
+    o = -jnp.einsum("...ji,...j->...i", rotation, center)[..., None, :]  # camera centre, object frame
+    r = radii[..., None, :]
+    big = jnp.asarray(1e6, points.dtype)
+
+    # ellipsoid: a s^2 + b s + c = 0 in coordinates scaled by the radii
+    us, os_ = u / r, o / r
+    a = jnp.sum(us * us, -1)
+    b = 2.0 * jnp.sum(us * os_, -1)
+    c = jnp.sum(os_ * os_, -1) - 1.0
+    disc = b * b - 4.0 * a * c
+    s_ell = safe_div(-b - safe_sqrt(disc), 2.0 * a)
+    hit_ell = (disc > 0) & (s_ell > 0)
+
+    # cuboid: slab test
+    t1 = safe_div(-r - o, u)
+    t2 = safe_div(r - o, u)
+    lo, hi = jnp.minimum(t1, t2), jnp.maximum(t1, t2)
+    s_cub = jnp.max(lo, -1)
+    hit_cub = (s_cub < jnp.min(hi, -1)) & (s_cub > 0)
+
+    # cylinder: the section's quadratic on (x, y), the slab on z
+    a2 = jnp.sum(us[..., :2] ** 2, -1)
+    b2 = 2.0 * jnp.sum(us[..., :2] * os_[..., :2], -1)
+    c2 = jnp.sum(os_[..., :2] ** 2, -1) - 1.0
+    disc2 = b2 * b2 - 4.0 * a2 * c2
+    parallel = a2 < 1e-12
+    root = safe_sqrt(disc2)
+    s_in = jnp.where(parallel, jnp.where(c2 < 0, -big, big), safe_div(-b2 - root, 2.0 * a2))
+    s_out = jnp.where(parallel, jnp.where(c2 < 0, big, -big), safe_div(-b2 + root, 2.0 * a2))
+    s_cyl = jnp.maximum(s_in, lo[..., 2])
+    hit_cyl = ((disc2 > 0) | parallel) & (s_cyl < jnp.minimum(s_out, hi[..., 2])) & (s_cyl > 0)
+
+    shape = jnp.asarray(shape)[..., None]
+    s = jnp.where(shape == 0, s_cub, jnp.where(shape == 2, s_cyl, s_ell))
+    hit = jnp.where(shape == 0, hit_cub, jnp.where(shape == 2, hit_cyl, hit_ell))
+    return jnp.where(hit, s, 0.0), hit
 
 
 def algebraic_distance(points, rotation, center, radii):

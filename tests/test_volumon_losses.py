@@ -237,14 +237,13 @@ def _inside(local, half, shape):
 
 
 @pytest.mark.parametrize("shape", [0, 1, 2])
-def test_ray_entry_depth_matches_ray_marching(shape):
-    from jaxsem.volumon import ray_entry_depth
+def test_ray_entry_range_matches_ray_marching(shape):
 
     ell = _random_ellipsoids(7 + shape, 6)
     rng = np.random.default_rng(shape)
     # rays towards points scattered around each object (some miss), at the range of each object
     targets = np.asarray(ell.center)[:, None, :] + rng.normal(scale=0.08, size=(6, 40, 3))
-    s, hit = ray_entry_depth(jnp.asarray(targets), ell.rotation, ell.center, ell.radii, jnp.full((6,), shape))
+    s, hit = quadrics.ray_entry_range(jnp.asarray(targets), ell.rotation, ell.center, ell.radii, jnp.full((6,), shape))
     s, hit = np.asarray(s), np.asarray(hit)
     steps = np.linspace(0.0, 2.5, 25001)  # 0.1 mm marching
     for i in range(6):
@@ -262,8 +261,7 @@ def test_ray_entry_depth_matches_ray_marching(shape):
                 assert not hit[i, j]
 
 
-def test_ray_entry_depth_finite_gradients_in_degenerate_rays():
-    from jaxsem.volumon import ray_entry_depth
+def test_ray_entry_range_finite_gradients_in_degenerate_rays():
 
     R = jnp.eye(3)[None]
     t = jnp.array([[0.0, 0.0, 1.0]])
@@ -273,14 +271,19 @@ def test_ray_entry_depth_finite_gradients_in_degenerate_rays():
     for shape in (0, 1, 2):
 
         def f(pts, t, r, shape=shape):
-            s, hit = ray_entry_depth(pts, R, t, r, jnp.array([shape]))
+            s, hit = quadrics.ray_entry_range(pts, R, t, r, jnp.array([shape]))
             return jnp.sum(jnp.where(hit, s, 0.0))
 
-        s, hit = ray_entry_depth(pts, R, t, r, jnp.array([shape]))
+        s, hit = quadrics.ray_entry_range(pts, R, t, r, jnp.array([shape]))
         assert bool(hit[0, 0]) and abs(float(s[0, 0]) - 0.9) < 1e-9
         assert not bool(hit[0, 2])
         for g in jax.grad(f, argnums=(0, 1, 2))(pts, t, r):
             assert np.all(np.isfinite(np.asarray(g)))
+    # the core's door: bad concrete input is named
+    with pytest.raises(ValueError, match="points"):
+        quadrics.ray_entry_range(pts.at[0, 0, 0].set(jnp.nan), R, t, r, jnp.array([1]))
+    with pytest.raises(ValueError, match="radii"):
+        quadrics.ray_entry_range(pts, R, t, -r, jnp.array([1]))
 
 
 def test_ray_primal_distance_sees_the_extent_along_the_view_ray():

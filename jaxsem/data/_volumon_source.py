@@ -27,6 +27,20 @@ def _keys(batch: dict) -> dict:
     return out
 
 
+def _names_and_config(class_names, input_size, global_padding, num_points) -> tuple[tuple, PipelineConfig]:
+    """The class list (default: VoluMon's) and the pipeline sized like the network's inputs."""
+    from ..volumon import VOLUMON_CLASS_NAMES
+
+    names = tuple(VOLUMON_CLASS_NAMES if class_names is None else class_names)
+    cfg = PipelineConfig(
+        patch_size=int(input_size),
+        global_size=int(input_size),
+        global_margin=float(global_padding),
+        n_points=int(num_points),
+    )
+    return names, cfg
+
+
 def _dataset(path, config: PipelineConfig, class_names, seed: int, loader_options) -> VolumonDataset:
     path = pathlib.Path(path)
     if not path.is_dir():
@@ -52,21 +66,11 @@ def volumon_eval_batch(
     :data:`jaxsem.volumon.VOLUMON_CLASS_NAMES` (objects of other classes are skipped). Raises
     ValueError naming the directory when it holds no usable object.
     """
-    from ..volumon import VOLUMON_CLASS_NAMES
-
-    names = tuple(VOLUMON_CLASS_NAMES if class_names is None else class_names)
-    cfg = PipelineConfig(
-        patch_size=int(input_size),
-        global_size=int(input_size),
-        global_margin=float(global_padding),
-        n_points=int(num_points),
-    )
+    names, cfg = _names_and_config(class_names, input_size, global_padding, num_points)
     ds = _dataset(path, cfg, names, 0, loader_options)
     if ds.num_samples == 0:
         raise ValueError(f"data: {path} holds no usable object of the classes {list(names)} (skipped: {ds.skipped})")
-    parts = []
-    for b in ds.eval_batches(min(64, ds.num_samples)):
-        parts.append(_keys(b))
+    parts = [_keys(b) for b in ds.eval_batches(min(64, ds.num_samples))]
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     keep = np.asarray(out["sample_mask"], bool)
     out = {k: v[keep] for k, v in out.items()}
@@ -93,15 +97,7 @@ def volumon_batch_source(
     applied by the train step). Raises ValueError naming the directory when it holds fewer usable
     objects than one batch.
     """
-    from ..volumon import VOLUMON_CLASS_NAMES
-
-    names = tuple(VOLUMON_CLASS_NAMES if class_names is None else class_names)
-    cfg = PipelineConfig(
-        patch_size=int(input_size),
-        global_size=int(input_size),
-        global_margin=float(global_padding),
-        n_points=int(num_points),
-    )
+    names, cfg = _names_and_config(class_names, input_size, global_padding, num_points)
     ds = _dataset(path, cfg, names, int(seed), loader_options)
     if ds.num_samples < int(batch_size):
         raise ValueError(

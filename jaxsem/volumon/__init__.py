@@ -46,7 +46,6 @@ from ._losses import (
     oracle_loss_per_sample as oracle_loss_per_sample,
     primal_loss as primal_loss,
     primal_loss_per_sample as primal_loss_per_sample,
-    ray_entry_depth as ray_entry_depth,
     shape_box as shape_box,
     shape_distance as shape_distance,
     size_variance_loss as size_variance_loss,

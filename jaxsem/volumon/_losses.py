@@ -46,9 +46,9 @@ from ..quadrics import (
     cuboid_corners,
     project_bbox,
     project_points,
+    ray_entry_range,
     safe_div,
     safe_norm,
-    safe_sqrt,
     texture_plane_depth,
 )
 from ._synthetic import CYLINDER_RIM
@@ -84,7 +84,7 @@ class LossConfig:
         misplaced one of the right size; the network then inflates the axis a silhouette cannot
         see, the one along the viewing ray (the size collapse). The radial distance is
         symmetric and in metres. "ray": along each point's own viewing ray, the observed range
-        minus the range where the ray enters the prediction (:func:`ray_entry_depth`; the radial
+        minus the range where the ray enters the prediction (:func:`jaxsem.quadrics.ray_entry_range`; the radial
         distance for rays that miss it): what a depth image measures. The radial distance barely
         sees the extent along the viewing ray (a point off the ray's axis measures the surface
         along ``x - t``, mostly across the ray), so a ball predicted 3x too deep along the ray
@@ -205,63 +205,6 @@ def shape_distance(points, rotation, center, radii, shape):
     return jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, q_ell))
 
 
-def ray_entry_depth(points, rotation, center, radii, shape):
-    """Where each point's viewing ray first enters the object drawn with ``shape``.
-
-    The ray of point ``x`` (camera frame, camera at the origin) is ``s x / |x|``, ``s >= 0``.
-    Shapes as :func:`shape_distance`: 0 cuboid of half extents ``radii`` (slab test), 1 ellipsoid
-    (the quadratic ``|(s u - t)|_Q = 1``), 2 cylinder along the object's z axis (elliptic
-    section, slab on z).
-
-    Args:
-      points: (..., J, 3) camera frame; rotation (..., 3, 3) object-to-camera; center, radii
-        (..., 3); shape (...) int.
-
-    Returns:
-      ``(s_entry (..., J), hit (..., J) bool)``: the range (m) at which the ray enters the object,
-      and whether it does in front of the camera. Where ``hit`` is False ``s_entry`` is finite and
-      meaningless; values and gradients are finite everywhere.
-    """
-    rng = safe_norm(points)
-    u = jnp.einsum("...ji,...nj->...ni", rotation, safe_div(points, rng[..., None]))  # ray, object frame
-    o = -jnp.einsum("...ji,...j->...i", rotation, center)[..., None, :]  # camera centre, object frame
-    r = radii[..., None, :]
-    big = jnp.asarray(1e6, points.dtype)
-
-    # ellipsoid: a s^2 + b s + c = 0 in coordinates scaled by the radii
-    us, os_ = u / r, o / r
-    a = jnp.sum(us * us, -1)
-    b = 2.0 * jnp.sum(us * os_, -1)
-    c = jnp.sum(os_ * os_, -1) - 1.0
-    disc = b * b - 4.0 * a * c
-    s_ell = safe_div(-b - safe_sqrt(disc), 2.0 * a)
-    hit_ell = (disc > 0) & (s_ell > 0)
-
-    # cuboid: slab test
-    t1 = safe_div(-r - o, u)
-    t2 = safe_div(r - o, u)
-    lo, hi = jnp.minimum(t1, t2), jnp.maximum(t1, t2)
-    s_cub = jnp.max(lo, -1)
-    hit_cub = (s_cub < jnp.min(hi, -1)) & (s_cub > 0)
-
-    # cylinder: the section's quadratic on (x, y), the slab on z
-    a2 = jnp.sum(us[..., :2] ** 2, -1)
-    b2 = 2.0 * jnp.sum(us[..., :2] * os_[..., :2], -1)
-    c2 = jnp.sum(os_[..., :2] ** 2, -1) - 1.0
-    disc2 = b2 * b2 - 4.0 * a2 * c2
-    parallel = a2 < 1e-12
-    root = safe_sqrt(disc2)
-    s_in = jnp.where(parallel, jnp.where(c2 < 0, -big, big), safe_div(-b2 - root, 2.0 * a2))
-    s_out = jnp.where(parallel, jnp.where(c2 < 0, big, -big), safe_div(-b2 + root, 2.0 * a2))
-    s_cyl = jnp.maximum(s_in, lo[..., 2])
-    hit_cyl = ((disc2 > 0) | parallel) & (s_cyl < jnp.minimum(s_out, hi[..., 2])) & (s_cyl > 0)
-
-    shape = jnp.asarray(shape)[..., None]
-    s = jnp.where(shape == SHAPE_CUBOID, s_cub, jnp.where(shape == SHAPE_CYLINDER, s_cyl, s_ell))
-    hit = jnp.where(shape == SHAPE_CUBOID, hit_cub, jnp.where(shape == SHAPE_CYLINDER, hit_cyl, hit_ell))
-    return jnp.where(hit, s, 0.0), hit
-
-
 def dual_loss_per_sample(
     ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig(), shape=None
 ):
@@ -327,7 +270,7 @@ def primal_loss_per_sample(ellipsoid: Ellipsoid, points, point_mask, config: Los
             # along the point's own viewing ray: the observed range minus where the ray enters
             # the prediction (the radial distance where it misses)
             sh = jnp.full(t.shape[:-1], SHAPE_ELLIPSOID, jnp.int32) if shape is None else shape
-            s_in, hit = ray_entry_depth(points, R, t, r, sh)
+            s_in, hit = ray_entry_range(points, R, t, r, sh)
             dist = jnp.where(hit, (safe_norm(points) - s_in) / config.length_unit, dist)
         per = safe_div(jnp.sum(jnp.where(m, jnp.square(dist), 0.0), -1), jnp.sum(m, -1).astype(q.dtype), 1.0)
         return per, jnp.any(m, -1)

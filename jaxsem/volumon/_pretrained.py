@@ -216,71 +216,39 @@ def evaluate_held_out(
         "radii": gt["gt_half_extents"],
     }
     out.update({f"ceiling_{k}": v for k, v in _summary(truth, gt, evaluate_predictions, detection_errors).items()})
-    if postopt_steps > 0:
-        from ._refine import postopt
+    from ._refine import optimise_from_scratch, phi_from_ellipsoid, postopt
 
+    data = (b["box_input"], b["K"], b["points"], b["point_mask"], config.recon, config.loss)
+    shape = b.get("class_shape")
+
+    def score(prefix, ell):
+        summary = _summary(jax.tree.map(np.asarray, ell._asdict()), gt, evaluate_predictions, detection_errors)
+        out.update({f"{prefix}_{k}": v for k, v in summary.items()})
+
+    def timed(prefix, fn):
+        """Run ``fn`` once to compile, then time a second call (ms per detection)."""
+        jax.block_until_ready(fn())
         t = time.perf_counter()
-        _, ell_po, _ = postopt(
-            phi,
-            b["box_input"],
-            b["K"],
-            b["points"],
-            b["point_mask"],
-            config.recon,
-            config.loss,
-            int(postopt_steps),
-            shape=b.get("class_shape"),
-        )
-        jax.block_until_ready(ell_po)
-        po = _summary(
-            jax.tree.map(np.asarray, ell_po._asdict()),
-            gt,
-            evaluate_predictions,
-            detection_errors,
-        )
-        out.update({f"postopt_{k}": v for k, v in po.items()})
-        out["postopt_ms_per_detection"] = 1000.0 * (time.perf_counter() - t) / int(num)
-        # PostOpt started at the exact ground truth: how far does the objective move it?
-        from ._refine import phi_from_ellipsoid
+        ell = jax.block_until_ready(fn())
+        out[f"{prefix}_ms_per_detection"] = 1000.0 * (time.perf_counter() - t) / int(num)
+        return ell
 
+    if postopt_steps > 0:
+        steps = int(postopt_steps)
+        score("postopt", timed("postopt", lambda: postopt(phi, *data, steps, shape=shape)[1]))
+        # PostOpt started at the exact ground truth: how far does the objective move it?
         phi_true = phi_from_ellipsoid(
             b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["box_input"], b["K"], config.recon
         )
-        _, ell_t, _ = postopt(
-            phi_true,
-            b["box_input"],
-            b["K"],
-            b["points"],
-            b["point_mask"],
-            config.recon,
-            config.loss,
-            int(postopt_steps),
-            shape=b.get("class_shape"),
-        )
+        _, ell_t, _ = postopt(phi_true, *data, steps, shape=shape)
         drift = np.linalg.norm(np.asarray(ell_t.center) - gt["gt_center"], axis=-1)[keep]
         out["postopt_from_truth_median_drift_m"] = float(np.median(drift))
         out["postopt_from_truth_p90_drift_m"] = float(np.percentile(drift, 90))
         out["postopt_from_truth_within_1cm"] = float(np.mean(drift < 0.01))
-        tr = _summary(jax.tree.map(np.asarray, ell_t._asdict()), gt, evaluate_predictions, detection_errors)
-        out.update({f"postopt_from_truth_{k}": v for k, v in tr.items()})
+        score("postopt_from_truth", ell_t)
     for n in scratch_steps:
-        from ._refine import optimise_from_scratch
-
-        t = time.perf_counter()
-        _, ell_s, _ = optimise_from_scratch(
-            b["box_input"],
-            b["K"],
-            b["points"],
-            b["point_mask"],
-            config.recon,
-            config.loss,
-            int(n),
-            shape=b.get("class_shape"),
-        )
-        jax.block_until_ready(ell_s)
-        sc = _summary(jax.tree.map(np.asarray, ell_s._asdict()), gt, evaluate_predictions, detection_errors)
-        out.update({f"scratch{int(n)}_{k}": v for k, v in sc.items()})
-        out[f"scratch{int(n)}_ms_per_detection"] = 1000.0 * (time.perf_counter() - t) / int(num)
+        prefix = f"scratch{int(n)}"
+        score(prefix, timed(prefix, lambda n=int(n): optimise_from_scratch(*data, n, shape=shape)[1]))
     return out
 
 
