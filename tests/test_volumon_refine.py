@@ -100,5 +100,5 @@ def test_postopt_from_the_truth_stays_there_with_the_class_shape():
     _, ell_e, _ = postopt(*args)  # every class drawn as an ellipsoid: the cuboids move
     drift_e = np.linalg.norm(np.asarray(ell_e.center) - np.asarray(b["gt_center"]), axis=-1)
     assert np.median(drift_e) > 4 * np.median(drift)
-    with pytest.raises(ValueError, match="schedule"):
-        postopt(*args, schedule="linear")
+    with pytest.raises(ValueError, match="shape"):
+        postopt(*args, shape=b["class_shape"][:3])

@@ -110,11 +110,8 @@ def phi_from_ellipsoid(rotation, center, radii, box, K, recon: ReconstructionCon
     return jnp.concatenate([phi_d, q, phi_uv, _logit(sdisp)[..., None]], -1)
 
 
-def _refine_one(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr, schedule):
-    # Adam normalises its steps, so at a zero of the objective round-off gradients still move phi
-    # by ~lr per step: with a constant rate (the thesis' 0.05) PostOpt started at the truth wanders
-    # about it; "cosine" decays the rate to 0 over the steps and settles
-    opt = optax.adam(optax.cosine_decay_schedule(lr, num_steps) if schedule == "cosine" else lr)
+def _refine_one(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr):
+    opt = optax.adam(lr)
 
     def loss(phi):
         ell = reconstruct(phi, box, K, recon)
@@ -132,9 +129,9 @@ def _refine_one(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_st
     return phi, losses
 
 
-@functools.partial(jax.jit, static_argnames=("recon", "loss_cfg", "num_steps", "schedule"))
-def _refine(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr, schedule):
-    fn = lambda p, b, k, x, m, s: _refine_one(p, b, k, x, m, s, free, recon, loss_cfg, num_steps, lr, schedule)
+@functools.partial(jax.jit, static_argnames=("recon", "loss_cfg", "num_steps"))
+def _refine(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_steps, lr):
+    fn = lambda p, b, k, x, m, s: _refine_one(p, b, k, x, m, s, free, recon, loss_cfg, num_steps, lr)
     return jax.vmap(fn)(phi0, box, K, points, mask, shape)
 
 
@@ -150,7 +147,6 @@ def refine(
     num_steps: int = 50,
     learning_rate: float = 0.05,
     shape=None,
-    schedule: str = "constant",
 ):
     """Adam on the primal loss of each detection's ``phi`` (eq. 5.15), only entries in ``free_mask``.
 
@@ -160,11 +156,6 @@ def refine(
       shape: optional (B,) class shapes (0 cuboid, 1 ellipsoid, 2 cylinder), used when
         ``loss_config.shape_aware`` (the loss the network was trained with): the primal distance
         to the class's own shape, so the true object is a zero of the objective. None: ellipsoids.
-      schedule: "constant" learning rate (the thesis: 0.05) or "cosine" (decays to 0 over the
-        steps, so the estimate settles at the objective's minimum instead of wandering ~lr about it).
-
-    Returns:
-      (phi (B, 10), Ellipsoid (batch B), loss history (B, num_steps)).
     """
     phi0 = jnp.asarray(phi0)
     if phi0.ndim != 2 or phi0.shape[-1] != 10:
@@ -183,8 +174,6 @@ def refine(
             )
     if int(num_steps) < 1:
         raise ValueError(f"num_steps: expected >= 1, got {num_steps}")
-    if schedule not in ("constant", "cosine"):
-        raise ValueError(f"schedule: expected 'constant' or 'cosine', got {schedule!r}")
     dtype = phi0.dtype
     shape = jnp.full((B,), SHAPE_ELLIPSOID, jnp.int32) if shape is None else jnp.asarray(shape, jnp.int32)
     if shape.shape != (B,):
@@ -201,7 +190,6 @@ def refine(
         loss_config,
         int(num_steps),
         jnp.asarray(learning_rate, dtype),
-        schedule,
     )
     return phi, reconstruct(phi, jnp.asarray(box, dtype), jnp.asarray(K, dtype), recon), losses
 
@@ -217,14 +205,11 @@ def postopt(
     num_steps: int = 50,
     learning_rate: float = 0.05,
     shape=None,
-    schedule: str = "constant",
 ):
     """VoluMon PostOpt: refine the pose parameters of network predictions, size fixed (50 steps).
 
-    ``shape``, ``schedule``: see :func:`refine`."""
-    return refine(
-        phi, box, K, points, point_mask, POSE_MASK, recon, loss_config, num_steps, learning_rate, shape, schedule
-    )
+    ``shape``: optional (B,) class shapes, see :func:`refine`."""
+    return refine(phi, box, K, points, point_mask, POSE_MASK, recon, loss_config, num_steps, learning_rate, shape)
 
 
 def optimise_from_scratch(
@@ -237,11 +222,10 @@ def optimise_from_scratch(
     num_steps: int = 500,
     learning_rate: float = 0.05,
     shape=None,
-    schedule: str = "constant",
 ):
     """The baseline: all ten parameters from the point-cloud initialisation (50 or 500 steps).
 
-    ``shape``, ``schedule``: see :func:`refine`."""
+    ``shape``: optional (B,) class shapes, see :func:`refine`."""
     points = jnp.asarray(points)
     B = jnp.shape(box)[0] if jnp.ndim(box) == 2 else None
     for name, x in (("points", points), ("point_mask", point_mask), ("K", K)):
@@ -250,9 +234,7 @@ def optimise_from_scratch(
                 f"{name}: expected the leading batch {B} of box {tuple(jnp.shape(box))}, got {tuple(jnp.shape(x))}"
             )
     phi0 = init_from_points(jnp.asarray(box, points.dtype), jnp.asarray(K, points.dtype), points, point_mask, recon)
-    return refine(
-        phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate, shape, schedule
-    )
+    return refine(phi0, box, K, points, point_mask, ALL_MASK, recon, loss_config, num_steps, learning_rate, shape)
 
 
 __all__ = ["Ellipsoid", "init_from_points", "optimise_from_scratch", "phi_from_ellipsoid", "postopt", "refine"]
