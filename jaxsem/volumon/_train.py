@@ -198,14 +198,12 @@ def get_train_batch(config: TrainConfig, step: int):
         "train",
         config.noisy,
     )
-    out = {k: batch[k] for k in TRAIN_KEYS}
-    if config.augment:
-        out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))
-    return out
+    return _host_batch(config, batch, step)
 
 
 def _host_batch(config: TrainConfig, batch: dict, step: int) -> dict:
-    """A ``batch_fn`` batch as the host train step takes it (augmentation numbers of the step added)."""
+    """A host-made batch (the generator's or a ``batch_fn``'s) as the host train step takes it:
+    the :data:`TRAIN_KEYS` and the augmentation numbers of the step."""
     missing = [k for k in TRAIN_KEYS if k not in batch]
     if missing:
         raise ValueError(f"batch_fn: the batch of step {step} lacks {missing} (expected the keys {list(TRAIN_KEYS)})")
