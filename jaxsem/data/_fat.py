@@ -369,13 +369,15 @@ class FatSequence(Sequence[FatFrame]):
             rot, dim = Q.quaternion_xyzw_to_rotation(q, xp=np) @ self._axes, settings["cuboid_dimensions"].copy()
         return rot, center, dim
 
-    def annotations(self, stem: str) -> FatAnnotation:
-        """The labels of frame ``stem`` (no image, depth or segmentation file is opened)."""
+    def annotations(self, stem: str, *, require_right: bool = False) -> FatAnnotation:
+        """The labels of frame ``stem`` (no image, depth or segmentation file is opened).
+
+        ``require_right``: a missing right JSON is an error (else its objects count as absent)."""
         base = self.scene_dir / stem
         left_json = pathlib.Path(f"{base}.left.json")
         right_json = pathlib.Path(f"{base}.right.json")
         left = _read_json(left_json)
-        right = _read_json(right_json) if right_json.exists() else {"objects": []}
+        right = _read_json(right_json) if require_right or right_json.exists() else {"objects": []}
         right_by_class = {}
         for ob in _get(right, "objects", right_json):
             right_by_class.setdefault(str(_get(ob, "class", right_json)), ob)
@@ -393,7 +395,7 @@ class FatSequence(Sequence[FatFrame]):
             if ob_r is not None:
                 rot_r, center_r, _ = self._pose(ob_r, right_json, name, settings)
                 box_r = _box(ob_r, right_json, bbox_order)
-                has_box_r = "bounding_box" in ob_r
+                has_box_r = True
             else:
                 rot_r, center_r, box_r, has_box_r = np.eye(3), np.zeros(3), np.zeros(4), False
             rows.append(
@@ -432,13 +434,10 @@ class FatSequence(Sequence[FatFrame]):
         )
 
     def load(self, stem: str) -> FatFrame:
-        """Read frame ``stem`` (e.g. ``'000012'``)."""
+        """Read frame ``stem`` (e.g. ``'000012'``): its labels (:meth:`annotations`) and images."""
         o = self.options
         base = self.scene_dir / stem
-        left_json = pathlib.Path(f"{base}.left.json")
-        right_json = pathlib.Path(f"{base}.right.json")
-        left = _read_json(left_json)
-        right = _read_json(right_json)
+        ann = self.annotations(stem, require_right=True)
         image = _read_image(_first_existing(base, "left"), cv2.IMREAD_COLOR)[..., ::-1].copy()
         right_image = None
         if o["load_right_image"]:
@@ -458,64 +457,32 @@ class FatSequence(Sequence[FatFrame]):
             raise FatFormatError(
                 f"{base}: image {image.shape[:2]}, depth {raw_depth.shape} and seg {raw_seg.shape} sizes differ"
             )
-
-        objects = _get(left, "objects", left_json)
-        right_by_class = {}
-        for ob in _get(right, "objects", right_json):
-            right_by_class.setdefault(str(_get(ob, "class", right_json)), ob)
-        names, seg_ids, boxes_l, boxes_r, has_r, rots, cens, dims, vis, extra = ([] for _ in range(10))
-        for ob in objects:
-            name = str(_get(ob, "class", left_json))
-            if name not in self.object_settings:
-                raise FatFormatError(
-                    f"{left_json}: object class {name!r} not in {self.scene_dir / '_object_settings.json'}"
-                )
-            settings = self.object_settings[name]
-            names.append(name)
-            seg_ids.append(settings["segmentation_class_id"])
-            boxes_l.append(_box(ob, left_json, o["bbox_order"]))
-            if name in right_by_class:
-                boxes_r.append(_box(right_by_class[name], right_json, o["bbox_order"]))
-                has_r.append(True)
-            else:
-                boxes_r.append(np.zeros(4))
-                has_r.append(False)
-            rot, center, dim = self._pose(ob, left_json, name, settings)
-            rots.append(rot)
-            cens.append(center)
-            dims.append(dim)
-            vis.append(float(ob.get("visibility", 1.0)))
-            extra.append(
-                {
-                    k: v
-                    for k, v in settings.items()
-                    if k not in ("class", "segmentation_class_id", "cuboid_dimensions", "fixed_model_transform")
-                }
-            )
-
+        settings = [self.object_settings[name] for name in ann.class_names]
+        seg_ids = [st["segmentation_class_id"] for st in settings]
+        skip = ("class", "segmentation_class_id", "cuboid_dimensions", "fixed_model_transform")
+        extra = tuple({k: v for k, v in st.items() if k not in skip} for st in settings)
         seg = np.full(raw_seg.shape, -1, np.int32)
         for i, sid in enumerate(seg_ids):
             seg[raw_seg == sid] = i
-        n = len(names)
         return FatFrame(
-            path=left_json,
+            path=ann.path,
             image=image,
             right_image=right_image,
             depth=(raw_depth.astype(np.float64) * o["depth_scale"]).astype(np.float32),
             seg=seg,
-            K=self.K.copy(),
-            baseline=o["baseline"],
-            right_T_left=right_T_left(o["baseline"]),
-            class_names=tuple(names),
-            segmentation_ids=np.asarray(seg_ids, np.int64).reshape(n),
-            boxes_left=np.asarray(boxes_l, np.float64).reshape(n, 4),
-            boxes_right=np.asarray(boxes_r, np.float64).reshape(n, 4),
-            has_right_box=np.asarray(has_r, bool).reshape(n),
-            rotation=np.asarray(rots, np.float64).reshape(n, 3, 3),
-            center=np.asarray(cens, np.float64).reshape(n, 3),
-            dimensions=np.asarray(dims, np.float64).reshape(n, 3),
-            visibility=np.asarray(vis, np.float64).reshape(n),
-            extra=tuple(extra),
+            K=ann.K,
+            baseline=ann.baseline,
+            right_T_left=ann.right_T_left,
+            class_names=ann.class_names,
+            segmentation_ids=np.asarray(seg_ids, np.int64).reshape(ann.num_objects),
+            boxes_left=ann.boxes_left,
+            boxes_right=ann.boxes_right,
+            has_right_box=ann.has_right_box,
+            rotation=ann.rotation,
+            center=ann.center,
+            dimensions=ann.dimensions,
+            visibility=ann.visibility,
+            extra=extra,
         )
 
 
