@@ -82,6 +82,16 @@ CLASSES: tuple[ObjectClass, ...] = (
     ObjectClass("soup_can", "cylinder", (0.0677, 0.0677, 0.1018), (0.004, 0.004, 0.006), (0.8, 0.8, 0.75)),
     ObjectClass("ball", "ellipsoid", (0.064, 0.070, 0.078), (0.005, 0.005, 0.005), (0.2, 0.45, 0.85)),
     ObjectClass("melon", "ellipsoid", (0.14, 0.14, 0.20), (0.015, 0.015, 0.02), (0.4, 0.8, 0.3)),
+    # The textured meshes of robosuite 1.5.2 (jaxsem.data.robosuite_assets): full extents of the
+    # compiled mesh's vertices after robosuite's mesh scale, in the mesh file's frame (z up);
+    # sigma 5 % of each extent (one instance per class). The bottle's cross-section measures
+    # 5.51 x 5.86 cm; the table keeps a cylinder round (their mean).
+    ObjectClass("bread", "ellipsoid", (0.048, 0.040, 0.048), (0.0024, 0.002, 0.0024), (0.8, 0.6, 0.3)),
+    ObjectClass("soda_can", "cylinder", (0.050, 0.050, 0.080), (0.0025, 0.0025, 0.004), (0.8, 0.1, 0.1)),
+    ObjectClass("cereal_box", "cuboid", (0.100, 0.030, 0.150), (0.005, 0.0015, 0.0075), (0.9, 0.75, 0.3)),
+    ObjectClass("milk_carton", "cuboid", (0.0397, 0.0397, 0.144), (0.002, 0.002, 0.0072), (0.95, 0.95, 0.95)),
+    ObjectClass("lemon", "ellipsoid", (0.0675, 0.040, 0.040), (0.0034, 0.002, 0.002), (0.95, 0.85, 0.2)),
+    ObjectClass("bottle", "cylinder", (0.0568, 0.0568, 0.160), (0.0028, 0.0028, 0.008), (0.6, 0.8, 0.7)),
 )
 
 CLASS_NAMES: tuple[str, ...] = tuple(c.name for c in CLASSES)

@@ -1,4 +1,5 @@
-"""Data: the Falling Things (FAT) layout loader, a synthetic FAT-layout writer, input pipelines.
+"""Data: the Falling Things (FAT) layout loader, synthetic FAT-layout writers (primitives; textured
+object meshes), input pipelines.
 
 Public names are re-exported from private modules; import them from here.
 """
@@ -16,6 +17,14 @@ from ._fat import (
     load_fat_frame as load_fat_frame,
     load_fat_scene as load_fat_scene,
     right_T_left as right_T_left,
+)
+from ._objects import (
+    ROBOSUITE_OBJECTS as ROBOSUITE_OBJECTS,
+    MeshAsset as MeshAsset,
+    ObjectAssets as ObjectAssets,
+    ObjectAssetsMissingError as ObjectAssetsMissingError,
+    robosuite_assets as robosuite_assets,
+    write_object_dataset as write_object_dataset,
 )
 from ._pipeline import (
     SHAPE_IDS as SHAPE_IDS,
