@@ -15,10 +15,12 @@ import functools
 import importlib
 import os
 import pathlib
+import shlex
 import sys
 from collections.abc import Callable, Sequence
 
 DEMO_PARTS = ("geometry", "roshan", "volumon", "lsd")
+NO_CACHE_ENV = "JAXSEM_NO_COMPILATION_CACHE"
 
 # (words, module in jaxsem._commands, one line for `jaxsem --help`). The modules are imported only
 # when their command runs, so `jaxsem --help` stays fast.
@@ -64,30 +66,101 @@ GROUPS = {
 }
 
 
-def enable_compilation_cache(cache_dir: str | None = None) -> None:
-    """Turns on JAX's persistent compilation cache (compile time is part of the user's wait)."""
+def enable_compilation_cache(cache_dir: str | None = None, enabled: bool | None = None) -> str | None:
+    """Turns on JAX's persistent compilation cache (compile time is part of the user's wait);
+    returns its folder, or None when it is off.
+
+    The folder is ``cache_dir``, else ``$JAXSEM_CACHE_DIR``, else ``~/.cache/jaxsem/jax``.
+    ``enabled=False`` (``--no-compilation-cache``) turns it off instead, as does
+    ``JAXSEM_NO_COMPILATION_CACHE=1`` when ``enabled`` is None.
+    """
     import jax
 
+    if enabled is None:
+        enabled = os.environ.get(NO_CACHE_ENV, "") not in ("1", "true", "yes")
+    if not enabled:
+        jax.config.update("jax_compilation_cache_dir", None)
+        return None
     cache_dir = cache_dir or os.environ.get("JAXSEM_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "jaxsem" / "jax"))
     try:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     except Exception as exc:  # an old jax without the option: run uncached
         print(f"jaxsem: compilation cache disabled ({exc})", file=sys.stderr)
+        return None
+    return cache_dir
 
 
 def command(name: str, prog: str | None = None) -> Callable[..., int]:
     """The ``main(argv=None) -> int`` of subcommand ``name`` (e.g. ``"volumon train"``).
 
     The scripts in ``train/`` and ``infer/`` are this function: ``main = command("volumon train")``.
-    ``prog`` names the command in ``--help`` and errors (default: the script's file name).
+    ``prog`` names the command in ``--help`` and errors (default: the script's file name). Every
+    command runs through :func:`_run_command`: its run directory and the compilation cache.
     """
     words = tuple(name.split())
     for key, module_name, _ in COMMANDS:
         if key == words:
-            module = importlib.import_module(f"jaxsem._commands.{module_name}")
-            return functools.partial(module.main, prog=prog) if prog else module.main
+            return _command(module_name, " ".join(words), prog)
     raise ValueError(f"command: unknown jaxsem command {name!r}; expected one of {[' '.join(c[0]) for c in COMMANDS]}")
+
+
+@functools.cache
+def _command(module_name: str, name: str, prog: str | None) -> Callable[..., int]:
+    module = importlib.import_module(f"jaxsem._commands.{module_name}")
+
+    @functools.wraps(module.main)
+    def main(argv: Sequence[str] | None = None) -> int:
+        return _run_command(module, name, argv, prog)
+
+    return main
+
+
+def _run_command(module, name: str, argv: Sequence[str] | None, prog: str | None) -> int:
+    """The one way every subcommand runs: parse (usage errors and ``--help`` end here, before any
+    run directory), start the run (:func:`jaxsem.scripting.start_run`), set the compilation cache,
+    run the command's ``main`` and write the summary.
+
+    A command module may define ``parse_args(argv, prog)`` (else ``build_parser(prog)`` parses),
+    ``RUN_DIR_FLAG`` (an argument whose folder is the default run directory, e.g. the demo's
+    ``--out``), ``QUERY_FLAGS`` (flags that make the call a query with no run, e.g. ``--list``)
+    and ``NOT_RUN_DIR`` (folder arguments the run directory must differ from: a training workdir
+    has its own ``config.json``).
+    """
+    from jaxsem import scripting as sc
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parse = getattr(module, "parse_args", None)
+    args = parse(argv, prog) if parse else module.build_parser(prog).parse_args(argv)
+    if any(getattr(args, flag, False) for flag in getattr(module, "QUERY_FLAGS", ())):
+        return module.main(argv, prog=prog)
+    flag = getattr(module, "RUN_DIR_FLAG", None)
+    run_dir = args.run_dir or (flag and getattr(args, flag, None)) or sc.default_run_dir(name)
+    for other in getattr(module, "NOT_RUN_DIR", ()):
+        value = getattr(args, other, None)
+        if value is not None and pathlib.Path(value).resolve() == pathlib.Path(run_dir).resolve():
+            raise sc.UsageError(
+                f"--run-dir: {run_dir} is the --{other.replace('_', '-')} folder, which has its own config.json; "
+                "choose another folder"
+            )
+    if args.run_dir is None and flag is None:
+        run_dir = _unique(pathlib.Path(run_dir))
+    command_line = f"{prog or f'jaxsem {name}'} {shlex.join(argv)}".rstrip()
+    with sc.start_run(run_dir, name, args, command_line) as run:
+        cache = enable_compilation_cache(enabled=False if args.no_compilation_cache else None)
+        run.add_config(compilation_cache=cache)
+        status = int(module.main(argv, prog=prog) or 0)
+        run.exit_status = status
+    return status
+
+
+def _unique(path: pathlib.Path) -> pathlib.Path:
+    """``path``, or ``path-2``, ``path-3`` ... when runs started in the same second."""
+    candidate, k = path, 1
+    while candidate.exists():
+        k += 1
+        candidate = path.with_name(f"{path.name}-{k}")
+    return candidate
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -7,18 +7,25 @@ benchmark's. ``--list`` prints the names with the first sentence of each script'
 
 The benchmarks ship with the source checkout (``git clone``, ``pip install -e .``), not with an
 installed wheel; there this command says so in one line. Each runs in a fresh Python process, so
-flags it sets before importing JAX (``XLA_FLAGS`` device counts) take effect.
+flags it sets before importing JAX (``XLA_FLAGS`` device counts) take effect; it inherits the
+compilation cache (``JAX_COMPILATION_CACHE_DIR``) unless ``--no-compilation-cache``. The run
+directory (``--run-dir``) gets config.json and summary.json (the benchmark's exit status and the
+``benchmarks/results/NAME.*`` files it wrote); ``--list`` is a query and makes no run directory.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import os
 import pathlib
 import subprocess
 import sys
+import time
 
 from jaxsem import scripting as sc
+
+QUERY_FLAGS = ("list",)  # `--list` prints the names: no run directory
 
 
 def default_dir() -> pathlib.Path:
@@ -27,7 +34,7 @@ def default_dir() -> pathlib.Path:
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p = sc.command_parser(prog, __doc__)
     p.add_argument("name", nargs="?", default=None, help="benchmark to run: benchmarks/NAME.py")
     p.add_argument("args", nargs="*", default=[], help="arguments passed on to the benchmark (after NAME)")
     p.add_argument("--list", action="store_true", help="list the benchmark names and exit")
@@ -37,7 +44,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=default_dir(),
         help="benchmarks folder (default: the one of the source checkout this package runs from)",
     )
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return p
 
 
@@ -58,22 +64,28 @@ def benchmarks(folder: pathlib.Path) -> dict[str, str]:
     return names
 
 
-def main(argv=None, prog: str | None = None) -> int:
+def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
+    """Our flags up to NAME; everything after NAME (the first word that is not one of our flags or
+    their values) belongs to the benchmark: ``args.args``."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    # Everything after NAME (the first word that is not one of our flags) belongs to the benchmark.
     split = len(argv)
     i = 0
     while i < len(argv):
-        if argv[i] == "--dir":
+        if argv[i] in ("--dir", "--run-dir"):
             i += 2
             continue
         if not argv[i].startswith("-"):
             split = i
             break
         i += 1
-    parser = build_parser(prog)
-    args = parser.parse_args(argv[:split] + argv[split : split + 1])
-    rest = argv[split + 1 :]
+    args = build_parser(prog).parse_args(argv[: split + 1])
+    args.args = argv[split + 1 :]
+    return args
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    args = parse_args(argv, prog)
+    rest = args.args
     folder: pathlib.Path = args.dir
     if not folder.is_dir():
         raise sc.UsageError(
@@ -87,8 +99,19 @@ def main(argv=None, prog: str | None = None) -> int:
             print(f"{name:<{width}}  {line}".rstrip())
         return 0
     if args.name is None:
-        parser.error(f"give a benchmark NAME (one of: {', '.join(names)}) or --list")
+        build_parser(prog).error(f"give a benchmark NAME (one of: {', '.join(names)}) or --list")
     name = args.name.removesuffix(".py")
     if name not in names:
         raise sc.UsageError(f"no benchmark {args.name!r} in {folder} (jaxsem bench --list names them)")
-    return subprocess.run([sys.executable, str(folder / f"{name}.py"), *rest], check=False).returncode
+    env = dict(os.environ)
+    run = sc.active_run()
+    cache = run.config.get("compilation_cache") if run else None
+    if cache:  # the benchmark's own JAX uses the run's compilation cache
+        env.setdefault("JAX_COMPILATION_CACHE_DIR", str(cache))
+        env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    start = time.time()
+    status = subprocess.run([sys.executable, str(folder / f"{name}.py"), *rest], check=False, env=env).returncode
+    results = folder / "results"
+    sc.record(benchmark=name, exit_status=status)
+    sc.record_output(*(p for p in sorted(results.glob(f"{name}*")) if p.stat().st_mtime >= start - 1))
+    return status

@@ -5,7 +5,9 @@
 
 The shard schema is documented in ``jaxsem.planning.EXPERT_SCHEMA`` (and ``schema.json`` in the
 output folder). Existing shards are kept, so an interrupted run resumes. A figure of a few
-samples (partial maps, expert path, goal direction) is saved as ``samples.png``.
+samples (partial maps, expert path, goal direction) is saved as ``samples.png``. The run
+directory (``--run-dir``) gets config.json and summary.json (shards, samples, samples per second,
+the share of goals outdoors, the figure).
 
 The same command: ``jaxsem lsd data`` (``python infer/make_expert_data.py``).
 """
@@ -20,30 +22,26 @@ from jaxsem import scripting as sc
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    ap = sc.command_parser(prog, __doc__)
     ap.add_argument("--out", type=sc.output_dir, default="out/lsd_expert", help="output folder for the shards")
     ap.add_argument("--family", choices=("train", "test"), default="train", help="building family")
     ap.add_argument("--buildings", type=sc.positive_int, default=20, help="number of buildings (seeds)")
     ap.add_argument("--first-seed", type=sc.nonnegative_int, default=0, help="seed of the first building")
     ap.add_argument("--samples-per-building", type=sc.positive_int, default=200, help="expert samples per building")
     ap.add_argument("--goals-per-moment", type=sc.positive_int, default=8, help="goals drawn at each sampling moment")
-    ap.add_argument("--sample-prob", type=sc.probability, default=0.1, help="chance per step of a sampling moment")
+    ap.add_argument(
+        "--sample-prob", type=sc.positive_probability, default=0.1, help="chance per step of a sampling moment"
+    )
     ap.add_argument("--nav-samples", type=sc.positive_int, default=1000, help="PRM samples of the navigating robot")
     ap.add_argument("--workers", type=sc.positive_int, default=2, help="processes (parallel over buildings)")
     ap.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
-    ap.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return ap
 
 
 def main(argv=None, prog: str | None = None) -> int:
     args = build_parser(prog).parse_args(argv)
-    if args.sample_prob == 0:
-        raise sc.UsageError("--sample-prob: must be above 0 (no sampling moment would ever happen)")
-
     from jaxsem import planning
-    from jaxsem.cli import enable_compilation_cache
 
-    enable_compilation_cache()
     cfg = planning.ExpertConfig(
         samples_per_building=args.samples_per_building,
         sample_prob=args.sample_prob,
@@ -60,6 +58,14 @@ def main(argv=None, prog: str | None = None) -> int:
         f"{len(paths)} shards, {n} samples in {args.out} ({dt:.1f} s, {n / max(dt, 1e-9):.1f} samples/s); "
         f"goals outdoors: {data['goal_outdoors'].mean():.0%}"
     )
+    sc.record(
+        shards=len(paths),
+        samples=n,
+        seconds=round(dt, 2),
+        samples_per_second=round(n / max(dt, 1e-9), 2),
+        goals_outdoors=float(data["goal_outdoors"].mean()) if n else None,
+    )
+    sc.record_output(*paths)
     if not args.no_figure and n:
         save_figure(data, pathlib.Path(args.out) / "samples.png")
     return 0

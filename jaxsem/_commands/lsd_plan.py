@@ -8,7 +8,9 @@ shipped one unless --checkpoint names another.
 
 Outputs: --out (the map, both trajectories and the last full-map LSD distribution) and, for the
 LSD trial, ``<out stem>_over_time.png``: a strip of the window distributions at evenly spaced
-replans along the path (the distribution over time).
+replans along the path (the distribution over time). The run directory (``--run-dir``) gets
+config.json and summary.json (per planner: success, reason, metres travelled, steps, roadmaps;
+the figures' paths).
 
     python infer/plan.py --building 3 --family test --kind IO --out plan.png
     python infer/plan.py --map my_map.npz --start 2 3 --goal 30 12 --sampler uniform
@@ -100,13 +102,21 @@ def plot_over_time(world, snapshots, path, goal, out, panels: int = 6, title: st
         fontsize=9,
     )
     fig.tight_layout()
-    fig.savefig(out, dpi=90)
+    sc.atomic_savefig(fig, out, dpi=90)
     plt.close(fig)
 
 
+def _share(text: str) -> float:
+    """A share in [0, 1) (an argparse type)."""
+    value = sc.finite_float(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a share in [0, 1), got {value}")
+    return value
+
+
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
-    p.add_argument("--map", default=None, help="npz map file (None: a generated building)")
+    p = sc.command_parser(prog, __doc__)
+    p.add_argument("--map", type=sc.existing_file, default=None, help="npz map file (None: a generated building)")
     p.add_argument("--family", default="test", choices=("train", "test"), help="building family")
     p.add_argument("--building", type=int, default=0, help="building seed")
     p.add_argument(
@@ -126,6 +136,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint",
+        type=sc.existing_path,
         default=None,
         help="LSD training workdir or exported .npz (None: the shipped model)",
     )
@@ -137,14 +148,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--uniform-mix",
-        type=float,
+        type=_share,
         default=0.0,
         help="share of uniform mixed into the LSD window (0 = the thesis' rule)",
     )
-    p.add_argument("--n", type=int, default=500, help="PRM samples per roadmap")
+    p.add_argument("--n", type=sc.positive_int, default=500, help="PRM samples per roadmap")
     p.add_argument(
         "--max-steps",
-        type=int,
+        type=sc.positive_int,
         default=2000,
         help="step limit of a trial (thesis: 10000)",
     )
@@ -157,26 +168,17 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="task and sampling seed")
     p.add_argument(
         "--panels",
-        type=int,
+        type=sc.positive_int,
         default=6,
         help="windows in the distribution-over-time strip",
     )
-    p.add_argument("--out", default="plan.png", help="figure path")
+    p.add_argument("--out", type=sc.output_file, default="plan.png", help="figure path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 
 
 def main(argv=None, prog: str | None = None) -> int:
     args = build_parser(prog).parse_args(argv)
-    if args.n < 1:
-        raise SystemExit(f"--n: expected >= 1, got {args.n}")
-    if args.max_steps < 1:
-        raise SystemExit(f"--max-steps: expected >= 1, got {args.max_steps}")
-    if not 0.0 <= args.uniform_mix < 1.0:
-        raise SystemExit(f"--uniform-mix: expected in [0, 1), got {args.uniform_mix}")
-    if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
-        raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
     try:
         return _run(args)
     except ValueError as exc:
@@ -194,7 +196,6 @@ def _run(args) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from jaxsem.cli import enable_compilation_cache
     from jaxsem.lsd import (
         LSDSampler,
         full_map_distribution,
@@ -203,7 +204,6 @@ def _run(args) -> int:
     )
     from jaxsem.planning import NavConfig, Trial, generate_building, sample_tasks
 
-    enable_compilation_cache()
     world: Any = _load_map(args.map) if args.map else generate_building(args.building, args.family)
     yaw = args.yaw
     if args.start is None or args.goal is None:
@@ -246,6 +246,9 @@ def _run(args) -> int:
             bar.set_postfix(result=trial.reason)
         res = trial.result()
         results[name] = res
+        sc.record(
+            **{name: dict(success=res.success, reason=res.reason, travelled_m=round(res.cost, 2), steps=res.steps)}
+        )
         print(
             f"{name}: success {res.success} ({res.reason}), travelled {res.cost:.1f} m, "
             f"{res.steps} steps, {res.plans} roadmaps, {res.searches} searches, {res.grown} growths"
@@ -273,6 +276,7 @@ def _run(args) -> int:
         title=f"N = {args.n}: " + ", ".join(names),
     )
     print(f"figure: {out}")
+    sc.record_output(out)
     if trial_lsd is not None and trial_lsd.distributions:
         strip = out.with_name(out.stem + "_over_time.png")
         plot_over_time(world, trial_lsd.distributions, trial_lsd.path, goal, strip, args.panels)

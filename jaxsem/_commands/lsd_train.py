@@ -20,10 +20,12 @@ import pathlib
 
 from jaxsem import config as jcfg, scripting as sc
 
+NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
+
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
-    p.add_argument("--data", type=pathlib.Path, required=True, help="folder of expert_*.npz shards (or one shard)")
+    p = sc.command_parser(prog, __doc__)
+    p.add_argument("--data", type=sc.existing_path, required=True, help="folder of expert_*.npz shards (or one shard)")
     p.add_argument("--workdir", type=sc.output_dir, required=True, help="checkpoints, figures, metrics")
     p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
     p.add_argument("--stage1-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-1 steps")
@@ -55,15 +57,11 @@ def main(argv=None, prog: str | None = None) -> int:
 
     args = build_parser(prog).parse_args(argv)
     # Validate the inputs before any long work.
-    if not args.data.exists():
-        raise sc.UsageError(f"--data: {args.data}: no such file or directory")
     if args.data.is_dir() and not any(args.data.glob("*.npz")):
         raise sc.UsageError(f"--data: {args.data}: no expert *.npz shards in this folder")
 
-    from jaxsem.cli import enable_compilation_cache
     from jaxsem.lsd import train_and_evaluate
 
-    enable_compilation_cache()
     cfg = get_config(args.config)
     changes = {
         k: v
@@ -78,6 +76,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if v is not None
     }
     cfg = jcfg.override(dataclasses.replace(cfg, **changes), args.overrides)
+    sc.record_config(train_config=cfg)
     stop_at = None
     if args.chunk_steps is not None:
         from jaxsem.checkpoint import latest_step
@@ -89,4 +88,8 @@ def main(argv=None, prog: str | None = None) -> int:
             f"step {h['step']:6d} stage {h['stage']}: val NLL {h['val_nll']:.3f} "
             f"(uniform {h['uniform_nll']:.3f})  {h['figure']}"
         )
+    if res.history:
+        last = res.history[-1]
+        sc.record(**{k: last[k] for k in ("step", "stage", "val_nll", "uniform_nll") if k in last})
+    sc.record_output(*(h["figure"] for h in res.history if h.get("figure")))
     return 0

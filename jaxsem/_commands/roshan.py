@@ -38,7 +38,7 @@ from jaxsem import scripting as sc
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p = sc.command_parser(prog, __doc__)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
         "--sequence",
@@ -145,9 +145,7 @@ def main(argv=None, prog: str | None = None) -> int:
     import numpy as np
 
     from jaxsem import sim, slam
-    from jaxsem.cli import enable_compilation_cache
 
-    enable_compilation_cache()
     sim_cfg = None
     if args.simulate:
         sim_cfg = sim.quadricslam_config(args.simulate, num_objects=args.objects, num_frames=args.frames)
@@ -202,7 +200,7 @@ def main(argv=None, prog: str | None = None) -> int:
         result.radii,
         result.camera_T_world,
     )
-    (args.out / "map.json").write_text(json.dumps(map_json, indent=1))
+    sc.atomic_write_text(args.out / "map.json", json.dumps(map_json, indent=1))
 
     truth = sequence.truth
     fig, ax = plt.subplots(figsize=(9, 6))
@@ -234,7 +232,7 @@ def main(argv=None, prog: str | None = None) -> int:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(args.out / "top_down.png", dpi=110)
+    sc.atomic_savefig(fig, args.out / "top_down.png", dpi=110)
     plt.close(fig)
 
     picks = np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int)) if args.overlays else []
@@ -255,7 +253,7 @@ def main(argv=None, prog: str | None = None) -> int:
             title=f"frame {t}: detections (green), estimates projected (blue)",
         )
         fig.tight_layout()
-        fig.savefig(args.out / f"overlay_{t:06d}.png", dpi=100)
+        sc.atomic_savefig(fig, args.out / f"overlay_{t:06d}.png", dpi=100)
         plt.close(fig)
 
     if truth and truth.get("objects"):
@@ -265,5 +263,7 @@ def main(argv=None, prog: str | None = None) -> int:
             print(f"| {i} | {err['shape'][k]:.2f} | {err['position'][k]:.2f} | {err['orientation'][k]:.1f} |")
         m = err["mean"]
         print(f"| mean | {m['shape']:.2f} | {m['position']:.2f} | {m['orientation']:.1f} |")
+        sc.record(mean_error=m)
+    sc.record(frames=n, objects=len(result.object_ids), median_frame_ms=1e3 * float(np.median(after_first)))
     print(f"wrote {args.out / 'map.json'}, top_down.png and {len(picks)} overlays")
     return 0

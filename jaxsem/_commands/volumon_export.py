@@ -5,7 +5,8 @@
 
 Writes ``volumon_fast.npz`` (flax variables, float32), ``volumon_fast.json`` (config, step) and
 ``volumon_fast_curves.png`` (loss terms and held-out size / centre errors against the step, from
-the run's ``metrics.jsonl``) atomically into ``--out``.
+the run's ``metrics.jsonl``) atomically into ``--out``; the run directory (``--run-dir``) gets
+config.json and summary.json (the exported files, the step, the size).
 
 The same command: ``jaxsem volumon export`` (``python train/export_volumon.py``).
 """
@@ -21,16 +22,17 @@ from jaxsem import scripting as sc
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
-    p.add_argument("--workdir", type=pathlib.Path, required=True, help="the training run (train/volumon.py --workdir)")
+    p = sc.command_parser(prog, __doc__)
+    p.add_argument(
+        "--workdir", type=sc.existing_dir, required=True, help="the training run (train/volumon.py --workdir)"
+    )
     p.add_argument("--step", type=int, default=None, help="checkpoint step to export (default: the latest)")
     p.add_argument(
         "--out",
-        type=pathlib.Path,
+        type=sc.output_dir,
         default=None,
-        help="default: the package's pretrained folder",
+        help="folder for the model files (default: the package's pretrained folder)",
     )
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 
 
@@ -39,7 +41,7 @@ def main(argv=None, prog: str | None = None) -> int:
     a = p.parse_args(argv)
     from jaxsem.volumon import PRETRAINED_DIR, export_pretrained
 
-    out = a.out or PRETRAINED_DIR
+    out = pathlib.Path(a.out or PRETRAINED_DIR)
     try:
         path = export_pretrained(a.workdir, out, step=a.step)
     except ValueError as exc:
@@ -48,6 +50,8 @@ def main(argv=None, prog: str | None = None) -> int:
         sys.exit(f"error: --workdir: {exc}")
     _curves(a.workdir / "metrics.jsonl", out / "volumon_fast_curves.png")
     print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
+    sc.record(model=str(path), megabytes=round(path.stat().st_size / 1e6, 3))
+    sc.record_output(path, path.with_suffix(".json"))
     return 0
 
 
@@ -94,7 +98,5 @@ def _curves(metrics, png):
     for ax in axes:
         ax.set_xlabel("step")
     fig.tight_layout()
-    tmp = png.with_name(png.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=80)
+    sc.atomic_savefig(fig, png, dpi=80)
     plt.close(fig)
-    tmp.replace(png)

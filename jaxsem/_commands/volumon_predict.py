@@ -16,7 +16,8 @@ Examples::
 
 Writes ``ellipsoids.json`` (per detection: rotation object-to-camera, center in the camera
 frame, radii, all in metres) and ``overlay_*.png`` (input box green, projected conic blue,
-3D box orange; dashed white: ground truth when known).
+3D box orange; dashed white: ground truth when known) into ``--out``; the run directory
+(``--run-dir``) gets config.json and summary.json (the number of ellipsoids, the overlays).
 
 The same command: ``jaxsem volumon predict`` (``python infer/volumon.py``).
 """
@@ -33,7 +34,7 @@ from jaxsem import scripting as sc
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p = sc.command_parser(prog, __doc__)
     p.add_argument(
         "--workdir",
         type=pathlib.Path,
@@ -42,34 +43,30 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--train-steps",
-        type=int,
+        type=sc.positive_int,
         default=None,
         help="train from scratch for this many steps into --workdir first (fast preset)",
     )
     p.add_argument("--seed", type=int, default=1, help="held-out seed of --split test")
     p.add_argument("--step", type=int, default=None, help="checkpoint step (default latest)")
-    p.add_argument("--image", type=pathlib.Path, help="image file (RGB)")
-    p.add_argument("--boxes", type=pathlib.Path, help="JSON file: list of [u_min, v_min, u_max, v_max]")
+    p.add_argument("--image", type=sc.existing_file, help="image file (RGB)")
+    p.add_argument("--boxes", type=sc.existing_file, help="JSON file: list of [u_min, v_min, u_max, v_max]")
     p.add_argument("--K", type=str, default=None, help="fx,fy,cx,cy (default: the training camera)")
     p.add_argument("--split", choices=("train", "test"), default=None, help="use the synthetic split instead")
-    p.add_argument("--num", type=int, default=8, help="detections from --split")
+    p.add_argument("--num", type=sc.positive_int, default=8, help="detections from --split")
     p.add_argument(
         "--class-id",
         type=int,
         default=0,
         help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)",
     )
-    p.add_argument("--out", type=pathlib.Path, required=True, help="output folder (ellipsoids.json, overlay_*.png)")
+    p.add_argument("--out", type=sc.output_dir, required=True, help="output folder (ellipsoids.json, overlay_*.png)")
     return p
 
 
 def main(argv=None, prog: str | None = None) -> int:
     p = build_parser(prog)
     a = p.parse_args(argv)
-    if a.num < 1:
-        p.error(f"--num: expected a positive number of detections, got {a.num}")
-    if a.train_steps is not None and a.train_steps < 1:
-        p.error(f"--train-steps: expected a positive number of steps, got {a.train_steps}")
 
     import jax.numpy as jnp
     import matplotlib
@@ -137,7 +134,7 @@ def main(argv=None, prog: str | None = None) -> int:
             )
             fig, ax = plt.subplots(figsize=(4, 3))
             draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
-            fig.savefig(a.out / f"overlay_{i:03d}.png", dpi=120, bbox_inches="tight")
+            sc.atomic_savefig(fig, a.out / f"overlay_{i:03d}.png", dpi=120, bbox_inches="tight")
             plt.close(fig)
     else:
         if a.image is None or a.boxes is None:
@@ -178,10 +175,12 @@ def main(argv=None, prog: str | None = None) -> int:
             )
         fig, ax = plt.subplots(figsize=(6, 4.5))
         draw_predictions(ax, img, es, K, boxes)
-        fig.savefig(a.out / "overlay_000.png", dpi=120, bbox_inches="tight")
+        sc.atomic_savefig(fig, a.out / "overlay_000.png", dpi=120, bbox_inches="tight")
         plt.close(fig)
-    (a.out / "ellipsoids.json").write_text(
-        json.dumps({"frame": "camera (OpenCV axes)", "units": "metres", "detections": records}, indent=1)
+    sc.atomic_write_text(
+        a.out / "ellipsoids.json",
+        json.dumps({"frame": "camera (OpenCV axes)", "units": "metres", "detections": records}, indent=1),
     )
+    sc.record(ellipsoids=len(records))
     print(f"wrote {len(records)} ellipsoids to {a.out / 'ellipsoids.json'} and overlays")
     return 0

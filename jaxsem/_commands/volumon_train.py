@@ -8,7 +8,9 @@ Examples::
     python train/volumon.py --size thesis --workdir runs/thesis            # 224x224, width 1.0 (GPU)
 
 Re-running with the same ``--workdir`` resumes from the latest checkpoint. Writes
-``metrics.jsonl``, ``eval.json``, ``config.json`` and ``loss.png`` into the workdir.
+``metrics.jsonl``, ``eval.json``, ``config.json`` and ``loss.png`` into the workdir; the run
+directory (``--run-dir``) gets this call's config.json (flags and the resolved training config)
+and summary.json (the final evaluation, the figures).
 
 The same command: ``jaxsem volumon train`` (``python train/volumon.py``).
 """
@@ -17,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pathlib
 import sys
 from typing import Any
 
@@ -25,12 +26,14 @@ from jaxsem import scripting as sc
 from jaxsem.config import override
 from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
 
+NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
+
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
+    p = sc.command_parser(prog, __doc__)
     p.add_argument(
         "--workdir",
-        type=pathlib.Path,
+        type=sc.output_dir,
         required=True,
         help="run folder: checkpoints, metrics.jsonl, eval.json, config.json, loss.png (an existing one resumes)",
     )
@@ -42,28 +45,34 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument("--size", choices=SIZES, default="fast", help="config preset (fast: the shipped model's CPU preset)")
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
-    p.add_argument("--stop-after", type=int, default=None, help="stop after this many steps of this call (a chunk)")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
-    p.add_argument("--steps", type=int, default=None, help="number of training steps (default: the preset's)")
-    p.add_argument("--batch-size", type=int, default=None, help="batch size (default: the preset's)")
-    p.add_argument("--lr", type=float, default=None, help="learning rate (default: the preset's)")
-    p.add_argument("--num-train", type=int, default=None, help="training-set size (default: the preset's)")
+    p.add_argument(
+        "--stop-after", type=sc.positive_int, default=None, help="stop after this many steps of this call (a chunk)"
+    )
+    p.add_argument(
+        "--steps", type=sc.positive_int, default=None, help="number of training steps (default: the preset's)"
+    )
+    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="batch size (default: the preset's)")
+    p.add_argument("--lr", type=sc.positive_float, default=None, help="learning rate (default: the preset's)")
+    p.add_argument("--num-train", type=sc.positive_int, default=None, help="training-set size (default: the preset's)")
     p.add_argument("--seed", type=int, default=None, help="data and initialisation seed (default: the preset's)")
     p.add_argument(
-        "--checkpoint-every", type=int, default=None, help="steps between checkpoints (default: the preset's)"
+        "--checkpoint-every",
+        type=sc.positive_int,
+        default=None,
+        help="steps between checkpoints (default: the preset's)",
     )
     p.add_argument("--eval-every", type=int, default=None, help="steps between evaluations (default: the preset's)")
     p.add_argument("--num-eval", type=int, default=None, help="detections per evaluation (default: the preset's)")
     p.add_argument(
         "--data",
-        type=pathlib.Path,
+        type=sc.existing_dir,
         default=None,
         help="train on a FAT-layout or make_synthetic directory (read by jaxsem.data) instead of the on-device "
         "generator (default: the generator)",
     )
     p.add_argument(
         "--eval-data",
-        type=pathlib.Path,
+        type=sc.existing_dir,
         default=None,
         help="with --data: directory whose objects the periodic evaluation scores (default: --data itself, a fit check)",
     )
@@ -80,19 +89,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 def main(argv=None, prog: str | None = None) -> int:
     p = build_parser(prog)
     a = p.parse_args(argv)
-    for flag, value in (
-        ("--steps", a.steps),
-        ("--batch-size", a.batch_size),
-        ("--num-train", a.num_train),
-        ("--checkpoint-every", a.checkpoint_every),
-        ("--stop-after", a.stop_after),
-    ):
-        if value is not None and value < 1:
-            p.error(f"{flag}: expected a positive integer, got {value}")
-    if a.lr is not None and not a.lr > 0:
-        p.error(f"--lr: expected a positive learning rate, got {a.lr}")
-    if a.workdir.exists() and not a.workdir.is_dir():
-        p.error(f"--workdir: {a.workdir} exists and is not a folder")
     cfg = get_config(a.variant, a.size)
     changes = {
         k: v
@@ -118,9 +114,6 @@ def main(argv=None, prog: str | None = None) -> int:
     if a.eval_data is not None and a.data is None:
         p.error("--eval-data: needs --data")
     if a.data is not None:
-        for flag, path in (("--data", a.data), ("--eval-data", a.eval_data)):
-            if path is not None and not path.is_dir():
-                p.error(f"{flag}: {path} is not a directory")
         cfg = cfg.replace(data="directory", data_dir=str(a.data.resolve()))
         from jaxsem.data import volumon_batch_source, volumon_eval_batch
 
@@ -136,6 +129,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise
             sys.exit(f"error: {exc}")
         print(f"training on {n} objects of {a.data}", flush=True)
+    sc.record_config(train_config=cfg)
     try:
         result = train_and_evaluate(
             cfg,
@@ -153,7 +147,9 @@ def main(argv=None, prog: str | None = None) -> int:
         sys.exit(f"error: {exc}")
     if result["eval"] is not None:
         print(json.dumps(result["eval"], indent=1))
+        sc.record(eval=result["eval"])
     _plot(a.workdir)
+    sc.record_output(a.workdir)
     return 0
 
 
@@ -174,4 +170,5 @@ def _plot(workdir):
     ax.set_ylabel("loss")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(workdir / "loss.png", dpi=100)
+    sc.atomic_savefig(fig, workdir / "loss.png", dpi=100)
+    plt.close(fig)

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as q
+from ..scripting import atomic_savefig
 
 CLASS_COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
@@ -73,7 +74,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
     ax_top.set_ylabel("y (m)")
     fig.tight_layout()
     path = out_dir / "geometry_boxes.png"
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 
     rows = [

@@ -18,6 +18,8 @@ import os
 import pathlib
 import time
 
+from ..scripting import atomic_write_text, record_output
+
 
 def run(out_dir: pathlib.Path, quick: bool) -> str:
     import jax
@@ -116,6 +118,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         dist,
         title=f"test building 0, Inside-Outside task, N = {cfg.n_samples}",
     )
+    record_output(fig)
     rows = {
         name: {
             "success": r.success,
@@ -127,7 +130,8 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         }
         for name, r in results.items()
     }
-    (out_dir / "lsd_demo.json").write_text(
+    atomic_write_text(
+        out_dir / "lsd_demo.json",
         json.dumps(
             {
                 "model": how,
@@ -136,7 +140,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
                 "seconds": time.perf_counter() - t0,
             },
             indent=1,
-        )
+        ),
     )
     lines = [
         f"LSD demo ({how}; {t_model:.0f} s; thesis rule, no uniform mixing)",

@@ -25,6 +25,8 @@ from __future__ import annotations
 import pathlib
 import time
 
+from ..scripting import atomic_savefig
+
 METRICS = ("shape", "position", "orientation")
 UNITS = {"shape": "m", "position": "m", "orientation": "deg"}
 
@@ -132,7 +134,7 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=8, ncol=5, frameon=False)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 
 

@@ -20,6 +20,8 @@ import pathlib
 
 import numpy as np
 
+from ..scripting import atomic_savefig, atomic_write_text
+
 
 def run(out_dir: pathlib.Path, quick: bool, train: bool = False) -> str:
     from jaxsem.volumon import PRETRAINED_DIR
@@ -59,10 +61,10 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
         f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)"
     )
     fig.tight_layout()
-    fig.savefig(out_dir / "volumon_predictions.png", dpi=100)
+    atomic_savefig(fig, out_dir / "volumon_predictions.png", dpi=100)
     plt.close(fig)
-    (out_dir / "volumon.json").write_text(
-        json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1)
+    atomic_write_text(
+        out_dir / "volumon.json", json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1)
     )
     lines = [
         f"VoluMon shipped model (step {meta.get('step')}), {res['num']} held-out detections of 4 classes",
@@ -145,7 +147,7 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
         draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
     fig.suptitle(f"VoluMon {cfg.variant} on held-out images (blue conic / orange box: prediction; dashed: truth)")
     fig.tight_layout()
-    fig.savefig(out_dir / "volumon_predictions.png", dpi=100)
+    atomic_savefig(fig, out_dir / "volumon_predictions.png", dpi=100)
     plt.close(fig)
     hist = res["history"]
     if hist:
@@ -156,10 +158,10 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
         ax.set_xlabel("step")
         ax.legend()
         fig.tight_layout()
-        fig.savefig(out_dir / "volumon_loss.png", dpi=100)
+        atomic_savefig(fig, out_dir / "volumon_loss.png", dpi=100)
         plt.close(fig)
-    (out_dir / "volumon.json").write_text(
-        json.dumps({"variant": cfg.variant, "steps": cfg.num_steps, "rows": rows}, indent=1)
+    atomic_write_text(
+        out_dir / "volumon.json", json.dumps({"variant": cfg.variant, "steps": cfg.num_steps, "rows": rows}, indent=1)
     )
     lines = [
         f"VoluMon {cfg.variant}, {cfg.num_steps} steps, {rows['network']['n']} held-out detections",
