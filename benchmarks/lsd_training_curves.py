@@ -1,5 +1,7 @@
 """Training curves of an LSD run: running train NLL (from the tqdm log of train/lsd.py) and the
-validation NLL (from <workdir>/metrics.json), against the uniform distribution's NLL.
+validation NLL (from <workdir>/metrics.jsonl, or the metrics.json of runs made before the shared
+training scaffold), against the uniform distribution's NLL. Without --log the train curve is the
+running mean each evaluation row records.
 
     python benchmarks/lsd_training_curves.py --log runs/lsd_big_train.log --workdir runs/lsd_big/train
 """
@@ -20,27 +22,32 @@ def main(argv=None) -> int:
         description=__doc__.splitlines()[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    ap.add_argument("--log", required=True, help="stdout/stderr of train/lsd.py (tqdm lines)")
-    ap.add_argument("--workdir", required=True, help="training workdir (metrics.json)")
+    ap.add_argument("--log", default=None, help="stdout/stderr of train/lsd.py (tqdm lines); optional")
+    ap.add_argument("--workdir", required=True, help="training workdir (metrics.jsonl)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--name", default="lsd_training")
     args = ap.parse_args(argv)
-    for flag, path in (
-        ("--log", args.log),
-        ("--workdir", pathlib.Path(args.workdir) / "metrics.json"),
-    ):
-        if not pathlib.Path(path).exists():
-            raise SystemExit(f"{flag}: no such file {str(path)!r}")
+    if args.log is not None and not pathlib.Path(args.log).exists():
+        raise SystemExit(f"--log: no such file {args.log!r}")
+    wd = pathlib.Path(args.workdir)
+    legacy = wd / "metrics.json"
+    if not (wd / "metrics.jsonl").exists() and not legacy.exists():
+        raise SystemExit(f"--workdir: no metrics.jsonl (or metrics.json) in {str(wd)!r}")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    text = pathlib.Path(args.log).read_text(errors="replace")
+    from jaxsem.training import read_metrics
+
+    metrics = read_metrics(wd) if (wd / "metrics.jsonl").exists() else json.loads(legacy.read_text())
     train = {}
-    for m in re.finditer(r"\|\s*(\d+)/\d+ \[[^\]]*nll=([\d.]+), stage=(\d)\]", text):
-        train[int(m.group(1))] = (float(m.group(2)), int(m.group(3)))
-    metrics = json.loads((pathlib.Path(args.workdir) / "metrics.json").read_text())
+    if args.log is not None:
+        text = pathlib.Path(args.log).read_text(errors="replace")
+        for m in re.finditer(r"\|\s*(\d+)/\d+ \[[^\]]*nll=([\d.]+), stage=(\d)\]", text):
+            train[int(m.group(1))] = (float(m.group(2)), int(m.group(3)))
+    else:
+        train = {h["step"]: (h["train_nll"], h["stage"]) for h in metrics if "train_nll" in h}
     steps = sorted(train)
     fig, ax = plt.subplots(figsize=(6, 3.6))
     ax.plot(

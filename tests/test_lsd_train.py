@@ -85,11 +85,23 @@ def test_stage_two_leaves_encoder_decoder_bit_identical(run):
     assert all((wd / "figures" / f"eval_{s:06d}.png").exists() for s in (2, 4))
 
 
+def test_resume_with_another_config_is_refused(run):
+    wd, _ = run
+    from jaxsem.lsd import ConfigMismatchError
+
+    with pytest.raises(ConfigMismatchError, match="learning_rate: checkpoint 0.01, now 0.02"):
+        train_and_evaluate(dataclasses.replace(CFG, learning_rate=2e-2), wd, data=_data(), progress=False)
+
+
 def test_checkpoint_resume_equals_uninterrupted(run, tmp_path):
     wd, res = run
+    rows_before = [h["step"] for h in res.history]
     longer = dataclasses.replace(CFG, stage2_steps=4)
-    resumed = train_and_evaluate(longer, wd, data=_data(), progress=False)
-    assert resumed.resumed_from == 4
+    lines = []
+    resumed = train_and_evaluate(longer, wd, data=_data(), progress=False, log=lines.append)
+    assert resumed.resumed_from == 4 and lines[0] == "resumed from step 4"
+    # The resumed run's history continues the first chunk's rows, once each.
+    assert [h["step"] for h in resumed.history] == rows_before + [6]
     fresh = train_and_evaluate(longer, tmp_path / "b", data=_data(), progress=False)
     assert fresh.resumed_from == 0
     for a, b in zip(jax.tree_util.tree_leaves(resumed.params), jax.tree_util.tree_leaves(fresh.params)):

@@ -7,7 +7,7 @@ Example:
 
 Re-running with the same workdir resumes from its latest checkpoint; --chunk-steps K ends a run K
 steps past it (run it in a loop to train in chunks, e.g. on data that is still being generated). Figures of predicted
-distributions land in <workdir>/figures, metrics in <workdir>/metrics.json.
+distributions land in <workdir>/figures, metrics in <workdir>/metrics.jsonl.
 
 The same command: ``jaxsem lsd train`` (``python train/lsd.py``).
 """
@@ -48,6 +48,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="stop after this many steps past the latest checkpoint (a rerun resumes)",
     )
+    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return p
 
@@ -82,7 +83,7 @@ def main(argv=None, prog: str | None = None) -> int:
         from jaxsem.checkpoint import latest_step
 
         stop_at = (latest_step(pathlib.Path(args.workdir) / "checkpoints") or 0) + args.chunk_steps
-    res = train_and_evaluate(cfg, args.workdir, data=args.data, stop_at=stop_at)
+    res = train_and_evaluate(cfg, args.workdir, data=args.data, stop_at=stop_at, force=args.force, log=print)
     for h in res.history:
         print(
             f"step {h['step']:6d} stage {h['stage']}: val NLL {h['val_nll']:.3f} "

@@ -93,7 +93,7 @@ def main(argv=None, prog: str | None = None) -> int:
         train_and_evaluate(get_config("both", "fast").replace(num_steps=a.train_steps), a.workdir, progress=False)
     if a.workdir is not None and a.step is not None:
         cfg = config_from_dict(json.loads((a.workdir / "config.json").read_text()))
-        model, variables = load_trained(a.workdir, cfg, a.step)
+        model, variables, _ = load_trained(a.workdir, cfg, step=a.step)
     else:
         try:
             model, variables, cfg, _ = load_pretrained(a.workdir)

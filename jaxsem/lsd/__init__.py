@@ -4,6 +4,7 @@ The network itself is :class:`jaxsem.models.LSDNet`; the planning world, the PRM
 loop are in :mod:`jaxsem.planning`.
 """
 
+from ..training import ConfigMismatchError as ConfigMismatchError
 from ._config import (
     TrainConfig as TrainConfig,
     cpu_config as cpu_config,
@@ -34,6 +35,7 @@ from ._sampler import (
 from ._train import (
     PRETRAINED as PRETRAINED,
     PRETRAINED_CPU as PRETRAINED_CPU,
+    RESUMABLE_FIELDS as RESUMABLE_FIELDS,
     TrainResult as TrainResult,
     evaluate_nll as evaluate_nll,
     export_model as export_model,

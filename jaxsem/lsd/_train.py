@@ -11,7 +11,9 @@ Checkpoints (:mod:`jaxsem.checkpoint`, orbax, ``workdir/checkpoints``) hold the 
 state and the step; a run restarted with the same config resumes from the latest one and, since
 batches and dropout keys are functions of (seed, step), continues exactly as an uninterrupted
 run would. Each evaluation writes ``workdir/figures/eval_<step>.png`` with the predicted
-distributions over a few validation maps and appends to ``workdir/metrics.json``.
+distributions over a few validation maps and appends a row to ``workdir/metrics.jsonl``. The
+workdir, resume and config rules are the ones VoluMon's training shares
+(:class:`jaxsem.training.TrainingRun`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import functools
 import json
 import pathlib
 import time
+from collections.abc import Callable
 from typing import NamedTuple, cast
 
 import jax
@@ -28,7 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ..checkpoint import Checkpointer
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
+from ..training import TrainingRun, config_json
 from ._config import TrainConfig
 from ._data import (
     batch_indices,
@@ -173,25 +178,8 @@ def evaluate_nll(
 # ----------------------------------------------------------------------------- checkpoints
 
 
-class _Checkpoints:
-    """Adapter over :class:`jaxsem.checkpoint.Checkpointer` (orbax, keep-latest-N, atomic)."""
-
-    def __init__(self, directory: pathlib.Path, keep: int):
-        from ..checkpoint import Checkpointer
-
-        self._ckpt = Checkpointer(directory, max_to_keep=keep)
-
-    def latest_step(self):
-        return self._ckpt.latest_step()
-
-    def save(self, step: int, state) -> None:
-        self._ckpt.save(step, state, force=True)
-
-    def restore(self, step: int, like):
-        return self._ckpt.restore(like, step=step)
-
-    def close(self) -> None:
-        self._ckpt.close()
+#: config fields that may change between the chunks of one run (length, logging, evaluation)
+RESUMABLE_FIELDS = ("stage2_steps", "eval_every", "checkpoint_every", "keep", "num_figure_samples")
 
 
 def _state_like(model_params, config: TrainConfig, stage: int):
@@ -220,22 +208,24 @@ def config_from_dict(d: dict) -> TrainConfig:
     )
 
 
-def load_trained(workdir, step: int | None = None):
-    """``(model, params, config)`` from a training ``workdir`` (its ``config.json`` and latest
-    checkpoint, or ``step``). ``ValueError`` if there is none."""
+def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None = None):
+    """``(model, params, config)`` of a training ``workdir``: its latest checkpoint (or ``step``),
+    with ``config`` or, when None, the run's ``config.json``. ``ValueError`` if there is none.
+    The same contract as :func:`jaxsem.volumon.load_trained`."""
     workdir = pathlib.Path(workdir)
-    cfg_path = workdir / "config.json"
-    if not cfg_path.exists():
-        raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
-    config = config_from_dict(json.loads(cfg_path.read_text()))
+    if config is None:
+        cfg_path = workdir / "config.json"
+        if not cfg_path.exists():
+            raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
+        config = config_from_dict(json.loads(cfg_path.read_text()))
     dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
     model, params = init_lsd(jax.random.PRNGKey(config.seed), config.model, dtype)
-    ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
+    ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=None)
     try:
         step = ckpt.latest_step() if step is None else step
         if step is None:
             raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
-        state = ckpt.restore(step, _state_like(params, config, _stage_of(max(step - 1, 0), config)))
+        state = ckpt.restore(_state_like(params, config, _stage_of(max(step - 1, 0), config)), step=step)
     finally:
         ckpt.close()
     return model, state["params"], config
@@ -302,14 +292,21 @@ def train_and_evaluate(
     data=None,
     progress: bool = True,
     stop_at: int | None = None,
+    *,
+    force: bool = False,
+    log: Callable[[str], None] | None = None,
 ) -> TrainResult:
     """Trains the LSD network in two stages; checkpoints, metrics and figures go to ``workdir``.
 
     config: :class:`TrainConfig`; workdir: folder (created); an existing checkpoint there is
-    resumed. data: a dict of arrays in the expert-shard schema, or shard paths / a folder of
-    ``expert_*.npz``; default: ``workdir / 'data'``. progress: tqdm bar. stop_at: end this run
-    (with a checkpoint) at that step, for chunked runs; a later call resumes. Returns a
-    :class:`TrainResult`.
+    resumed (the scaffold of :class:`jaxsem.training.TrainingRun`: a "resumed from step N" line,
+    ``metrics.jsonl`` cut back to the checkpoint, :class:`jaxsem.training.ConfigMismatchError`
+    when the config differs in more than :data:`RESUMABLE_FIELDS` unless ``force``). data: a
+    dict of arrays in the expert-shard schema, or shard paths / a folder of ``expert_*.npz``;
+    default: ``workdir / 'data'``. progress: tqdm bar. stop_at: end this run (with a
+    checkpoint) at that step, for chunked runs; a later call resumes. log: called with the
+    resume line and each evaluation's line. Returns a :class:`TrainResult` whose ``history`` is
+    the evaluation rows of ``metrics.jsonl`` (earlier chunks included).
     """
     if not isinstance(config, TrainConfig):
         raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
@@ -320,16 +317,6 @@ def train_and_evaluate(
     if not isinstance(data, dict):
         data = load_expert_data(data)
     check_expert_data(data, config.model.map_size, config.model.context_dim)
-    cfg_json = json.dumps(config_to_dict(config), indent=1)
-    cfg_path = workdir / "config.json"
-    if cfg_path.exists() and json.loads(cfg_path.read_text()) != json.loads(cfg_json):
-        old = config_from_dict(json.loads(cfg_path.read_text()))
-        if old.model != config.model:
-            raise ValueError(
-                f"config: model {config.model} differs from the one in {str(cfg_path)!r} "
-                f"({old.model}); use a new workdir"
-            )
-    cfg_path.write_text(cfg_json)
 
     dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
     key = jax.random.PRNGKey(config.seed)
@@ -340,61 +327,58 @@ def train_and_evaluate(
     train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed, config.val_every_nth_building)
     fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
 
-    ckpt = _Checkpoints(workdir / "checkpoints", config.keep)
-    metrics_path = workdir / "metrics.json"
-    history = json.loads(metrics_path.read_text()) if metrics_path.exists() else []
-    start = 0
-    latest = ckpt.latest_step()
-    stage = _stage_of(0, config)
-    opt_state = None
-    if latest is not None:
-        saved_stage = _stage_of(max(latest - 1, 0), config)
-        state = ckpt.restore(latest, _state_like(params, config, saved_stage))
-        params, start = state["params"], int(state["step"])
-        if _stage_of(start, config) == saved_stage:
-            opt_state = state["opt_state"]
-        history = [h for h in history if h["step"] <= start]
-    resumed_from = start
+    run = TrainingRun(
+        workdir,
+        config_json(config_to_dict(config)),
+        keep=config.keep,
+        resumable=RESUMABLE_FIELDS,
+        force=force,
+        normalise=lambda old: config_to_dict(config_from_dict(old)),
+        log=log,
+    )
+    with run:
+        opt_state = None
+        if run.latest_step is not None:
+            saved_stage = _stage_of(max(run.latest_step - 1, 0), config)
+            state = run.restore(_state_like(params, config, saved_stage))
+            params = state["params"]
+            if _stage_of(run.start, config) == saved_stage:
+                opt_state = state["opt_state"]
+        start = run.start
+        run.begin()
 
-    bar = None
-    if progress and config.total_steps > start:
-        from tqdm import tqdm
+        uniform_nll = float(np.log(config.model.map_size**2))
+        figures = workdir / "figures"
+        figures.mkdir(exist_ok=True)
+        step = start
+        steps_fn = {}
+        recent: list[float] = []
 
-        bar = tqdm(total=config.total_steps, initial=start, desc="lsd train", unit="step")
-    uniform_nll = float(np.log(config.model.map_size**2))
-    figures = workdir / "figures"
-    figures.mkdir(exist_ok=True)
-    step = start
-    steps_fn = {}
-    recent = []
+        def evaluate(stage_now: int) -> dict:
+            val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
+            b = gather_batch(data, fig_idx)
+            _, _, lp = make_eval_fn(model, stage_now)(params, b)
+            fig = figures / f"eval_{step:06d}.png"
+            save_distribution_figure(
+                fig,
+                b,
+                np.asarray(lp),
+                f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})",
+            )
+            rec = {
+                "step": step,
+                "stage": stage_now,
+                "train_nll": float(np.mean(recent)) if recent else float("nan"),
+                "val_nll": val_nll,
+                "uniform_nll": uniform_nll,
+                "figure": str(fig),
+                "time": time.time(),
+            }
+            run.log_metrics(rec)
+            return rec
 
-    def evaluate(stage_now: int):
-        val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
-        b = gather_batch(data, fig_idx)
-        _, _, lp = make_eval_fn(model, stage_now)(params, b)
-        fig = figures / f"eval_{step:06d}.png"
-        save_distribution_figure(
-            fig,
-            b,
-            np.asarray(lp),
-            f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})",
-        )
-        rec = {
-            "step": step,
-            "stage": stage_now,
-            "train_nll": float(np.mean(recent)) if recent else float("nan"),
-            "val_nll": val_nll,
-            "uniform_nll": uniform_nll,
-            "figure": str(fig),
-            "time": time.time(),
-        }
-        history.append(rec)
-        metrics_path.write_text(json.dumps(history, indent=1))
-        return rec
-
-    last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
-    try:
-        while step < last:
+        last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
+        for step in run.steps(start, last, total=config.total_steps, desc="lsd train", progress=progress):
             stage = _stage_of(step, config)
             tx = _optimizer(config, stage)
             if opt_state is None:
@@ -407,34 +391,21 @@ def train_and_evaluate(
             step += 1
             recent.append(float(loss))
             recent = recent[-50:]
-            if bar:
-                bar.update(1)
-                bar.set_postfix(stage=stage, nll=f"{np.mean(recent):.3f}")
+            run.postfix({"stage": stage, "nll": float(np.mean(recent))})
             end_of_stage = step == config.stage1_steps or step == config.total_steps
             if step % config.eval_every == 0 or end_of_stage:
                 rec = evaluate(stage)
-                if bar:
-                    bar.write(
-                        f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
-                        f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})"
-                    )
-            if step % config.checkpoint_every == 0 or end_of_stage or step == last:
-                ckpt.save(
-                    step,
-                    {
-                        "params": params,
-                        "opt_state": opt_state,
-                        "step": np.asarray(step, np.int64),
-                    },
+                run.write(
+                    f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
+                    f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})"
                 )
+            if step % config.checkpoint_every == 0 or end_of_stage or step == last:
+                run.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
             if step == config.stage1_steps:
                 opt_state = None  # stage two: a fresh optimiser over the context branch
                 recent = []
-    finally:
-        if bar:
-            bar.close()
-        ckpt.close()
-    return TrainResult(model, params, history, resumed_from, workdir)
+        history = run.metrics()
+    return TrainResult(model, params, history, start, workdir)
 
 
 # ----------------------------------------------------------------------------- single-file export

@@ -1,5 +1,6 @@
 """VoluMon (thesis chapter 5): losses, inputs, synthetic data, training, refinement, evaluation."""
 
+from ..training import ConfigMismatchError as ConfigMismatchError
 from ._configs import (
     SIZES as SIZES,
     VARIANTS as VARIANTS,
@@ -75,7 +76,6 @@ from ._synthetic import (
 )
 from ._train import (
     TRAIN_KEYS as TRAIN_KEYS,
-    ConfigMismatchError as ConfigMismatchError,
     augment as augment,
     augmentation_params as augmentation_params,
     batch_indices as batch_indices,

@@ -62,7 +62,7 @@ def export_pretrained(
     if not cfg_path.exists():
         raise ValueError(f"workdir: {workdir} has no config.json (not a training run)")
     config = config_from_dict(json.loads(cfg_path.read_text()))
-    _, variables = load_trained(workdir, config, step)
+    _, variables, _ = load_trained(workdir, config, step=step)
     from ..checkpoint import latest_step
 
     used = latest_step(workdir / "checkpoints") if step is None else int(step)
@@ -95,7 +95,7 @@ def load_pretrained(path=None):
     p = PRETRAINED_DIR / f"{DEFAULT_NAME}.npz" if path is None else pathlib.Path(path)
     if p.is_dir() and (p / "config.json").exists():
         config = config_from_dict(json.loads((p / "config.json").read_text()))
-        model, variables = load_trained(p, config)
+        model, variables, _ = load_trained(p, config)
         from ..checkpoint import latest_step
 
         return (

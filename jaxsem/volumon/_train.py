@@ -30,6 +30,7 @@ import optax
 
 from ..checkpoint import Checkpointer
 from ..models import VoluMonNet, box_features, expected_params, reconstruct, select_class_params
+from ..training import TrainingRun, config_json
 from ._configs import TrainConfig
 from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
@@ -56,10 +57,6 @@ TRAIN_KEYS = (
 
 #: config fields that may change between the chunks of one run (length, logging, evaluation)
 RESUMABLE_FIELDS = ("num_steps", "checkpoint_every", "keep_checkpoints", "eval_every", "num_eval", "log_every")
-
-
-class ConfigMismatchError(ValueError):
-    """The config of a resumed run differs from the one its checkpoints were trained with."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -332,48 +329,6 @@ def evaluate(
     return evaluate_predictions(cat(preds), cat(gts))
 
 
-def _check_config(workdir: pathlib.Path, config: TrainConfig, force: bool) -> None:
-    path = workdir / "config.json"
-    if not path.exists():
-        return
-    try:
-        old = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ConfigMismatchError(
-            f"{path}: cannot read the run's config ({exc}); pass force=True / --force to overwrite"
-        ) from exc
-    try:  # through the dataclasses: fields added since the run was written take their defaults
-        from ._configs import config_from_dict
-
-        old = json.loads(json.dumps(_config_dict(config_from_dict(old)), default=str))
-    except (TypeError, ValueError):
-        pass
-    new = json.loads(json.dumps(_config_dict(config), default=str))
-    diff = sorted(k for k in set(old) | set(new) if k not in RESUMABLE_FIELDS and old.get(k) != new.get(k))
-    if diff and not force:
-        detail = "; ".join(f"{k}: checkpoint {old.get(k)!r}, now {new.get(k)!r}" for k in diff)
-        raise ConfigMismatchError(
-            f"{path}: the config differs from the one the checkpoints in {workdir / 'checkpoints'} were trained "
-            f"with ({detail}); use another workdir, or force=True / --force to resume anyway"
-        )
-
-
-def _truncate_metrics(path: pathlib.Path, step: int) -> None:
-    """Keep the rows of ``metrics.jsonl`` up to ``step`` (rows after the checkpoint are redone)."""
-    if not path.exists():
-        return
-    keep = []
-    for line in path.read_text().splitlines():
-        try:
-            if int(json.loads(line).get("step", 0)) <= step:
-                keep.append(line)
-        except (ValueError, AttributeError):
-            continue
-    tmp = path.with_suffix(".jsonl.tmp")
-    tmp.write_text("".join(x + "\n" for x in keep))
-    tmp.replace(path)
-
-
 def train_and_evaluate(
     config: TrainConfig,
     workdir,
@@ -412,42 +367,37 @@ def train_and_evaluate(
             f"and batch_fn={'a function' if batch_fn is not None else None}"
         )
     workdir = pathlib.Path(workdir)
-    workdir.mkdir(parents=True, exist_ok=True)
     state, model, tx = init_state(config)
-    ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=config.keep_checkpoints)
-    start = 0
-    if ckpt.latest_step() is not None:
-        try:
-            _check_config(workdir, config, force)
-        except ConfigMismatchError:
-            ckpt.close()
-            raise
-        state = ckpt.restore(state)
-        start = int(state["step"])
-        _truncate_metrics(workdir / "metrics.jsonl", start)
-        if log is not None:
-            log(f"resumed from step {start}")
-    else:
-        _truncate_metrics(workdir / "metrics.jsonl", 0)
-    tmp = workdir / "config.json.tmp"
-    tmp.write_text(json.dumps(_config_dict(config), indent=1, default=str))
-    tmp.replace(workdir / "config.json")
-    # the step does not depend on the run-length / logging fields: one compiled step for every chunk
-    train_step = make_train_step(model, tx, config.replace(**{k: getattr(TrainConfig(), k) for k in RESUMABLE_FIELDS}))
-    history: dict[int, dict[str, float]] = {}
-    end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
-    it = range(start, end)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
 
-        bar = tqdm(it, initial=start, total=config.num_steps, desc=f"volumon[{config.variant}]", leave=False)
-        it = bar
-    metrics_file = open(workdir / "metrics.jsonl", "a")
-    t0 = time.perf_counter()
+    def normalise(old: dict) -> dict:  # through the dataclasses: fields added since take their defaults
+        from ._configs import config_from_dict
+
+        return config_json(config_from_dict(old))
+
+    run = TrainingRun(
+        workdir,
+        config_json(config),
+        keep=config.keep_checkpoints,
+        resumable=RESUMABLE_FIELDS,
+        force=force,
+        normalise=normalise,
+        log=log,
+    )
     result_eval = None
-    try:
-        for step in it:
+    history: dict[int, dict[str, float]] = {}
+    with run:
+        if run.latest_step is not None:
+            state = run.restore(state)
+        start = int(state["step"])
+        run.begin()
+        # the step does not depend on the run-length / logging fields: one compiled step for every chunk
+        train_step = make_train_step(
+            model, tx, config.replace(**{k: getattr(TrainConfig(), k) for k in RESUMABLE_FIELDS})
+        )
+        end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
+        can_eval = config.num_eval > 0 and (config.data != "directory" or eval_batch is not None)
+        t0 = time.perf_counter()
+        for step in run.steps(start, end, total=config.num_steps, desc=f"volumon[{config.variant}]", progress=progress):
             if config.reset_optimizer_at is not None and step == config.reset_optimizer_at:
                 state = {**state, "opt_state": tx.init(state["params"])}
             if config.data == "device":
@@ -462,48 +412,49 @@ def train_and_evaluate(
                     raise FloatingPointError(f"non-finite loss at step {step + 1}: {terms}")
                 history[step + 1] = terms
                 rec = {"step": step + 1, "time_s": time.perf_counter() - t0, **terms}
-                metrics_file.write(json.dumps(rec) + "\n")
-                metrics_file.flush()
-                if bar is not None:
-                    bar.set_postfix(
-                        {k: f"{v:.3g}" for k, v in terms.items() if k != "cls" or model.config.num_classes > 1}
-                    )
+                run.log_metrics(rec)
+                run.postfix({k: v for k, v in terms.items() if k != "cls" or model.config.num_classes > 1})
                 if log is not None:
                     log(" ".join(f"{k}={v:.4g}" for k, v in rec.items()))
             if (step + 1) % config.checkpoint_every == 0 or step + 1 == end:
-                ckpt.save(step + 1, state, force=True)
-            can_eval = config.num_eval > 0 and (config.data != "directory" or eval_batch is not None)
+                run.save(step + 1, state)
             if config.eval_every and can_eval and (step + 1) % config.eval_every == 0:
                 ev = evaluate(model, state, config, batch=eval_batch)
                 if step + 1 == config.num_steps:
                     result_eval = ev
-                metrics_file.write(json.dumps({"step": step + 1, "eval": ev}) + "\n")
-                metrics_file.flush()
+                run.log_metrics({"step": step + 1, "eval": ev})
                 if log is not None:
                     log(f"eval step {step + 1}: " + " ".join(f"{k}={v:.4g}" for k, v in ev.items()))
-        if end == config.num_steps and config.num_eval > 0 and (config.data != "directory" or eval_batch is not None):
+        if end == config.num_steps and can_eval:
             result_eval = result_eval or evaluate(model, state, config, batch=eval_batch)
-            (workdir / "eval.json").write_text(json.dumps(result_eval, indent=1))
-    finally:
-        metrics_file.close()
-        if bar is not None:
-            bar.close()
-        ckpt.close()
+            tmp = workdir / "eval.json.tmp"
+            tmp.write_text(json.dumps(result_eval, indent=1))
+            tmp.replace(workdir / "eval.json")
     return {"state": state, "model": model, "history": history, "eval": result_eval}
 
 
-def load_trained(workdir, config: TrainConfig, step: int | None = None):
-    """(model, variables) of a checkpoint in ``workdir/checkpoints`` (for inference)."""
+def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None = None):
+    """``(model, variables, config)`` of a training ``workdir``: its latest checkpoint (or ``step``),
+    with ``config`` or, when None, the run's ``config.json``. ``variables`` holds ``params`` and
+    ``batch_stats`` (what ``model.apply`` takes). The same contract as :func:`jaxsem.lsd.load_trained`.
+    """
+    workdir = pathlib.Path(workdir)
+    if config is None:
+        path = workdir / "config.json"
+        if not path.exists():
+            raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
+        from ._configs import config_from_dict
+
+        try:
+            config = config_from_dict(json.loads(path.read_text()))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"workdir: cannot read {str(path)!r} as a VoluMon TrainConfig ({exc})") from exc
     state, model, _ = init_state(config)
-    ckpt = Checkpointer(pathlib.Path(workdir) / "checkpoints", max_to_keep=None)
+    ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=None)
     try:
+        if ckpt.latest_step() is None:
+            raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
         state = ckpt.restore(state, step)
     finally:
         ckpt.close()
-    return model, {"params": state["params"], "batch_stats": state["batch_stats"]}
-
-
-def _config_dict(config):
-    import dataclasses
-
-    return dataclasses.asdict(config)
+    return model, {"params": state["params"], "batch_stats": state["batch_stats"]}, config

@@ -1,0 +1,106 @@
+"""The shared training scaffold (jaxsem.training): resume, config check, metrics, and that VoluMon
+and LSD both train through it (one contract: same error, same workdir layout)."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from jaxsem import lsd, volumon
+from jaxsem.training import ConfigMismatchError, TrainingRun, config_json, read_metrics
+
+
+@dataclasses.dataclass(frozen=True)
+class _Inner:
+    width: int = 4
+    sizes: tuple = (1, 2)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Cfg:
+    inner: _Inner = _Inner()
+    lr: float = 0.1
+    steps: int = 10
+
+
+def _toy_run(workdir, cfg, end, *, stop=None, force=False, lines=None):
+    """A toy 'training' (state = running sum of the step numbers) through the scaffold."""
+    state = {"x": np.zeros(3), "step": np.zeros((), np.int64)}
+    with TrainingRun(
+        workdir,
+        config_json(cfg),
+        keep=2,
+        resumable=("steps",),
+        force=force,
+        log=None if lines is None else lines.append,
+    ) as run:
+        if run.latest_step is not None:
+            state = run.restore(state)
+        run.begin()
+        last = end if stop is None else stop
+        for step in run.steps(run.start, last, total=end, desc="toy", progress=False):
+            state = {"x": state["x"] + step, "step": np.asarray(step + 1, np.int64)}
+            run.log_metrics({"step": step + 1, "x0": float(state["x"][0])})
+            if (step + 1) % 3 == 0 or step + 1 == last:
+                run.save(step + 1, state)
+    return state
+
+
+def test_resume_equals_uninterrupted_and_keeps_one_row_per_step(tmp_path):
+    cfg = _Cfg()
+    whole = _toy_run(tmp_path / "a", cfg, 10)
+    # Interrupted after step 5: the checkpoint is at 3 (every 3), rows 4 and 5 were written after it.
+    _toy_run(tmp_path / "b", cfg, 10, stop=5)
+    ckpt_rows = read_metrics(tmp_path / "b")
+    assert [r["step"] for r in ckpt_rows] == [1, 2, 3, 4, 5]
+    # Simulate a crash between the row and the checkpoint of step 5: keep only the checkpoint of 3.
+    import shutil
+
+    shutil.rmtree(tmp_path / "b" / "checkpoints" / "5")
+    lines = []
+    resumed = _toy_run(tmp_path / "b", dataclasses.replace(cfg, steps=20), 10, lines=lines)
+    assert lines == ["resumed from step 3"]
+    np.testing.assert_array_equal(resumed["x"], whole["x"])
+    steps = [r["step"] for r in read_metrics(tmp_path / "b")]
+    assert steps == list(range(1, 11))  # no duplicate rows for steps 4, 5
+
+
+def test_changed_config_is_refused_naming_the_nested_field(tmp_path):
+    _toy_run(tmp_path, _Cfg(), 3)
+    changed = _Cfg(inner=_Inner(width=8))
+    with pytest.raises(ConfigMismatchError, match=r"inner\.width: checkpoint 4, now 8"):
+        _toy_run(tmp_path, changed, 6)
+    # force resumes with the new config, which is written.
+    _toy_run(tmp_path, changed, 6, force=True)
+    assert json.loads((tmp_path / "config.json").read_text())["inner"]["width"] == 8
+    assert [r["step"] for r in read_metrics(tmp_path)] == list(range(1, 7))
+
+
+def test_fresh_run_drops_stale_metrics_and_bad_rows_need_a_step(tmp_path):
+    (tmp_path / "metrics.jsonl").write_text('{"step": 7, "x0": 1}\nnot json\n')
+    with TrainingRun(tmp_path, config_json(_Cfg())) as run:
+        run.begin()
+        assert run.metrics() == []
+        with pytest.raises(ValueError, match="row: expected a 'step' key"):
+            run.log_metrics({"x0": 1.0})
+    with pytest.raises(ValueError, match="config: expected a dataclass or a mapping"):
+        config_json(3)
+
+
+def test_unreadable_config_json_is_a_clear_error(tmp_path):
+    _toy_run(tmp_path, _Cfg(), 3)
+    (tmp_path / "config.json").write_text("{broken")
+    with pytest.raises(ConfigMismatchError, match="cannot read the run's config"):
+        _toy_run(tmp_path, _Cfg(), 6)
+
+
+def test_volumon_and_lsd_share_the_contract():
+    # One error type for a mismatched resume, one load_trained signature (workdir, config=None, *, step=None).
+    assert volumon.ConfigMismatchError is lsd.ConfigMismatchError is ConfigMismatchError
+    import inspect
+
+    for fn in (volumon.load_trained, lsd.load_trained):
+        params = inspect.signature(fn).parameters
+        assert list(params)[:2] == ["workdir", "config"]
+        assert params["step"].kind is inspect.Parameter.KEYWORD_ONLY
