@@ -1,5 +1,6 @@
 """``jaxsem`` has a subcommand for every job (issue 13 item 6): each one's ``--help`` names its main
-flags with defaults, a bad argument fails with one line naming it, the scripts in train/ and infer/
+flags with defaults and the run options every command shares, a bad argument fails with one line
+naming it (before any run directory is made), the scripts in train/ and infer/
 run the same code, and ``jaxsem bench`` finds (or clearly fails to find) the benchmarks. In-process
 and fast: nothing here trains, plans or solves."""
 
@@ -28,6 +29,9 @@ HELP = {
     ("bench",): ["--list", "--dir", "NAME", "benchmarks/results"],
 }
 
+# what every subcommand's --help names: the run directory, its files and the compilation cache
+RUN_OPTIONS = ["--run-dir", "config.json", "summary.json", "--no-compilation-cache", "--debug"]
+
 # The scripts that wrap a subcommand.
 WRAPPERS = {
     "train/volumon.py": "volumon train",
@@ -38,6 +42,12 @@ WRAPPERS = {
     "infer/plan.py": "lsd plan",
     "infer/make_expert_data.py": "lsd data",
 }
+
+
+@pytest.fixture(autouse=True)
+def _runs_in_tmp(tmp_path, monkeypatch):
+    """Run directories of the commands run here go under tmp_path, not the working directory."""
+    monkeypatch.setenv("JAXSEM_RUNS_DIR", str(tmp_path / "runs"))
 
 
 def _run(argv, capsys):
@@ -64,7 +74,7 @@ def test_help_names_the_main_flags_and_defaults(words, capsys):
     status, out, err = _run([*words, "--help"], capsys)
     assert status == 0, err
     assert out.startswith(f"usage: jaxsem {' '.join(words)} ")
-    for flag in HELP[words]:
+    for flag in HELP[words] + RUN_OPTIONS:
         assert flag in out, f"{flag} missing from jaxsem {' '.join(words)} --help"
     assert "(default: " in out
 
@@ -127,6 +137,7 @@ def test_bad_argument_gives_one_line_naming_it(case, tmp_path, capsys):
     for word in words:
         assert word in lines[-1], f"{word!r} not named in: {lines[-1]}"
     assert not any(tmp_path.rglob("*.png")) and not any(tmp_path.rglob("*.json"))
+    assert not (tmp_path / "runs").exists()  # a bad argument is not a run
 
 
 def test_scripts_run_the_subcommands_code():

@@ -66,7 +66,8 @@ def benchmarks(folder: pathlib.Path) -> dict[str, str]:
 
 def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
     """Our flags up to NAME; everything after NAME (the first word that is not one of our flags or
-    their values) belongs to the benchmark: ``args.args``."""
+    their values) belongs to the benchmark: ``args.args``. Checks the folder and the name (a
+    :class:`jaxsem.scripting.UsageError` naming them), so a bad one fails before a run starts."""
     argv = list(sys.argv[1:] if argv is None else argv)
     split = len(argv)
     i = 0
@@ -78,39 +79,44 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
             split = i
             break
         i += 1
-    args = build_parser(prog).parse_args(argv[: split + 1])
+    parser = build_parser(prog)
+    args = parser.parse_args(argv[: split + 1])
     args.args = argv[split + 1 :]
-    return args
-
-
-def main(argv=None, prog: str | None = None) -> int:
-    args = parse_args(argv, prog)
-    rest = args.args
     folder: pathlib.Path = args.dir
     if not folder.is_dir():
         raise sc.UsageError(
             f"no benchmarks folder at {folder} (the benchmarks ship with the source checkout, not with an "
             "installed package: git clone the repository and pip install -e . there, or pass --dir)"
         )
-    names = benchmarks(folder)
+    if not args.list:
+        names = benchmarks(folder)
+        if args.name is None:
+            parser.error(f"give a benchmark NAME (one of: {', '.join(names)}) or --list")
+        if args.name.removesuffix(".py") not in names:
+            raise sc.UsageError(f"no benchmark {args.name!r} in {folder} (jaxsem bench --list names them)")
+    return args
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    args = parse_args(argv, prog)
+    folder: pathlib.Path = args.dir
     if args.list:
+        names = benchmarks(folder)
         width = max((len(n) for n in names), default=0)
         for name, line in names.items():
             print(f"{name:<{width}}  {line}".rstrip())
         return 0
-    if args.name is None:
-        build_parser(prog).error(f"give a benchmark NAME (one of: {', '.join(names)}) or --list")
     name = args.name.removesuffix(".py")
-    if name not in names:
-        raise sc.UsageError(f"no benchmark {args.name!r} in {folder} (jaxsem bench --list names them)")
     env = dict(os.environ)
     run = sc.active_run()
     cache = run.config.get("compilation_cache") if run else None
-    if cache:  # the benchmark's own JAX uses the run's compilation cache
-        env.setdefault("JAX_COMPILATION_CACHE_DIR", str(cache))
+    if cache:  # the benchmark's own JAX uses the run's compilation cache (or none)
+        env["JAX_COMPILATION_CACHE_DIR"] = str(cache)
         env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    else:
+        env.pop("JAX_COMPILATION_CACHE_DIR", None)
     start = time.time()
-    status = subprocess.run([sys.executable, str(folder / f"{name}.py"), *rest], check=False, env=env).returncode
+    status = subprocess.run([sys.executable, str(folder / f"{name}.py"), *args.args], check=False, env=env).returncode
     results = folder / "results"
     sc.record(benchmark=name, exit_status=status)
     sc.record_output(*(p for p in sorted(results.glob(f"{name}*")) if p.stat().st_mtime >= start - 1))

@@ -19,15 +19,16 @@ DEMO_PARTS = ("geometry", "roshan", "volumon", "lsd")
 RUN_DIR_FLAG = "out"  # the demo's folder is its run directory
 
 
-def parts(text: str) -> tuple[str, ...]:
-    """``all`` or a comma-separated subset of :data:`DEMO_PARTS` (an argparse type)."""
-    if text.strip() == "all":
-        return DEMO_PARTS
-    names = tuple(p.strip() for p in text.split(",") if p.strip())
-    unknown = [p for p in names if p not in DEMO_PARTS]
-    if unknown or not names:
-        raise argparse.ArgumentTypeError(f"unknown part(s) {unknown or [text]}; expected some of {DEMO_PARTS}")
-    return names
+def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
+    """The flags, with ``--parts`` read into a tuple of :data:`DEMO_PARTS` (an unknown part exits
+    with one line naming it, before any run starts)."""
+    args = build_parser(prog).parse_args(argv)
+    text = args.parts.strip()
+    args.parts = DEMO_PARTS if text == "all" else tuple(p.strip() for p in text.split(",") if p.strip())
+    unknown = [p for p in args.parts if p not in DEMO_PARTS] or ([] if args.parts else [text])
+    if unknown:
+        raise SystemExit(f"{prog or 'jaxsem demo'}: unknown part(s) {unknown}; expected some of {DEMO_PARTS}")
+    return args
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -35,13 +36,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=sc.output_dir, default="jaxsem_demo", help="folder for figures and JSON: the run directory"
     )
-    p.add_argument("--parts", type=parts, default="all", help=f"comma-separated subset of {','.join(DEMO_PARTS)}")
+    p.add_argument("--parts", default="all", help=f"comma-separated subset of {','.join(DEMO_PARTS)}")
     p.add_argument("--quick", action="store_true", help="smallest sizes (a few minutes on a CPU; used by the tests)")
     return p
 
 
 def main(argv=None, prog: str | None = None) -> int:
-    args = build_parser(prog).parse_args(argv)
+    args = parse_args(argv, prog)
     out_dir = pathlib.Path(args.run_dir or args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     seconds = {}
