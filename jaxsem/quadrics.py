@@ -60,6 +60,13 @@ __all__ = [
     "texture_plane_depth",
     "algebraic_distance",
     "ray_entry_range",
+    "shape_bbox",
+    "shape_distance",
+    "stereo_right_T_left",
+    "SHAPE_CUBOID",
+    "SHAPE_ELLIPSOID",
+    "SHAPE_CYLINDER",
+    "SUPERQUADRIC_EPS",
     "ground_conic",
     "ground_bounds",
     "rasterize_footprint",
@@ -1279,3 +1286,63 @@ def cuboid_corners(rotation, center, half_extents, *, xp: Any = jnp):
     dtype = xp.result_type(rotation.dtype, center.dtype, half.dtype)
     local = xp.asarray(CUBOID_CORNER_SIGNS, dtype) * half.astype(dtype)[..., None, :]
     return _matvec(rotation.astype(dtype)[..., None, :, :], local) + center.astype(dtype)[..., None, :]
+
+
+# --------------------------------------------------------------------------------------------
+# Objects drawn as cuboids, ellipsoids or cylinders (VoluMon's shape-aware losses, thesis 5.4)
+
+#: shape ids of :func:`shape_bbox`, :func:`shape_distance` and :func:`ray_entry_range`
+SHAPE_CUBOID, SHAPE_ELLIPSOID, SHAPE_CYLINDER = 0, 1, 2
+#: Solina-Bajcsy exponent of a cuboid's faces / a cylinder's caps in :func:`shape_distance`
+SUPERQUADRIC_EPS = 0.1
+
+
+def shape_bbox(rotation, center, radii, shape, K, camera_T_world):
+    """Image box (..., 4) and validity (...) of the object of semi-axes ``radii`` drawn with ``shape``.
+
+    ``shape`` (...) int: :data:`SHAPE_CUBOID` (box of the 8 corners of half extents ``radii``,
+    :func:`cuboid_corners`), :data:`SHAPE_ELLIPSOID` (:func:`project_bbox`, eq. 4.10),
+    :data:`SHAPE_CYLINDER` along the object's z axis (:func:`cylinder_bbox`, exact). Valid where
+    the ellipsoid is projectable and all corners of the bounding cuboid lie in front of the camera
+    (then so does the object, whatever its shape). Traceable; finite values and gradients.
+    """
+    ell, valid = project_bbox(rotation, center, radii, K, camera_T_world)
+    corners = cuboid_corners(rotation, center, radii)
+    pose = camera_T_world[..., None, :, :]
+    uv, depth = project_points(corners, K[..., None, :, :], pose)
+    cub = jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
+    cyl, _ = cylinder_bbox(rotation, center, radii, K, camera_T_world)
+    shape = jnp.asarray(shape)[..., None]
+    box = jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, ell))
+    return box, valid & jnp.all(depth > 1e-3, -1)
+
+
+def shape_distance(points, rotation, center, radii, shape):
+    """Inside-outside function (..., J) of points (..., J, 3) for the object drawn with ``shape`` (...).
+
+    Ellipsoid: ``x^T Q x`` (:func:`algebraic_distance`, eq. 4.2's quadric). Cuboid and cylinder:
+    Solina and Bajcsy's superquadric ``F - 1`` with ``F = ((x/a)^(2/e2) + (y/b)^(2/e2))^(e2/e1) +
+    (z/c)^(2/e1)`` raised to ``e1`` (so it is ``~ 2 delta / r`` near the surface, as the
+    ellipsoid's), ``e1 = e2 =`` :data:`SUPERQUADRIC_EPS` for a cuboid, ``e1 = 0.1, e2 = 1`` for a
+    cylinder; evaluated as a log-sum-exp (finite values and gradients for any point, also at the
+    centre). Negative inside, zero on the surface, positive outside.
+    """
+    q_ell = algebraic_distance(points, rotation, center, radii)
+    x = jnp.einsum("...ji,...nj->...ni", rotation, points - center[..., None, :]) / radii[..., None, :]
+    tiny = jnp.finfo(x.dtype).tiny ** 0.5
+    e = SUPERQUADRIC_EPS
+    lx = jnp.log(jnp.square(x) + tiny)  # log x_i^2
+    cub = jnp.exp(e * jax.nn.logsumexp(lx / e, axis=-1)) - 1.0
+    lxy = jnp.log(jnp.square(x[..., 0]) + jnp.square(x[..., 1]) + tiny)
+    cyl = jnp.exp(e * jnp.logaddexp(lxy / e, lx[..., 2] / e)) - 1.0
+    shape = jnp.asarray(shape)[..., None]
+    return jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, q_ell))
+
+
+def stereo_right_T_left(baseline, dtype=jnp.float32):
+    """``right_T_left`` (..., 4, 4) of a rectified stereo pair of ``baseline`` (...) metres: the right
+    camera sits ``baseline`` along the left camera's +x, so a left-frame point ``p`` is
+    ``p - [b, 0, 0]`` in the right frame."""
+    b = jnp.asarray(baseline, dtype)
+    T = jnp.broadcast_to(jnp.eye(4, dtype=dtype), b.shape + (4, 4))
+    return T.at[..., 0, 3].set(-b)

@@ -449,3 +449,41 @@ def test_cylinder_bbox_of_a_rim_seen_edge_on_is_still_its_segment():
     ref = [K[0, 2] - K[0, 0] * t, K[1, 2], K[0, 2] + K[0, 0] * t, K[1, 2] + K[1, 1] * 2 / 3.5]
     assert bool(valid)
     np.testing.assert_allclose(box, ref, atol=1e-6)
+
+
+def test_shape_bbox_matches_dense_surface_sampling_for_every_shape():
+    """Each shape's box against the box of densely sampled surface points (independent reference)."""
+    from jaxsem.quadrics import SHAPE_CUBOID, SHAPE_CYLINDER, SHAPE_ELLIPSOID, shape_bbox
+
+    rng = np.random.default_rng(11)
+    K = np.array([[500.0, 0, 320], [0, 480.0, 240], [0, 0, 1]])
+    pose = np.eye(4)
+    u = np.linspace(-1.0, 1.0, 41)
+    a, b = np.meshgrid(u, u, indexing="ij")
+    face = np.stack([a.ravel(), b.ravel()], -1)
+    cube = np.concatenate(
+        [np.insert(face, i, s, axis=1) for i in range(3) for s in (-1.0, 1.0)]
+    )  # points on the unit cube's faces
+    th = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+    rim = np.stack([np.cos(th), np.sin(th)], -1)
+    cyl = np.concatenate([np.concatenate([rim, np.full((720, 1), z)], 1) for z in (-1.0, 1.0)])
+    ph = np.linspace(0, np.pi, 181)
+    sph = np.stack(
+        [
+            np.outer(np.sin(ph), np.cos(th)).ravel(),
+            np.outer(np.sin(ph), np.sin(th)).ravel(),
+            np.outer(np.cos(ph), np.ones_like(th)).ravel(),
+        ],
+        -1,
+    )
+    for _ in range(6):
+        R = np.asarray(q.random_rotation(jax.random.PRNGKey(int(rng.integers(1 << 30)))))
+        t = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(1.5, 3.0)])
+        r = rng.uniform(0.1, 0.4, 3)
+        for shape, unit in ((SHAPE_CUBOID, cube), (SHAPE_CYLINDER, cyl), (SHAPE_ELLIPSOID, sph)):
+            box, valid = shape_bbox(R, t, r, shape, K, pose)
+            pts = (unit * r) @ R.T + t
+            uv = pts[:, :2] / pts[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+            ref = np.concatenate([uv.min(0), uv.max(0)])
+            assert bool(valid)
+            np.testing.assert_allclose(np.asarray(box), ref, atol=0.05)

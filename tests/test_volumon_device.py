@@ -10,6 +10,7 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.models import Ellipsoid
+from jaxsem.quadrics import shape_distance, stereo_right_T_left
 from jaxsem.volumon import (
     ConfigMismatchError,
     LossConfig,
@@ -21,9 +22,7 @@ from jaxsem.volumon import (
     init_state,
     make_train_step,
     primal_loss_per_sample,
-    shape_distance,
     size_errors,
-    stereo_right_T_left,
     train_and_evaluate,
 )
 

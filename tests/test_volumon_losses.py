@@ -7,6 +7,7 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.models import Ellipsoid
+from jaxsem.quadrics import stereo_right_T_left
 from jaxsem.volumon import (
     LossConfig,
     SceneConfig,
@@ -15,7 +16,6 @@ from jaxsem.volumon import (
     make_batch,
     primal_loss,
     size_variance_loss,
-    stereo_right_T_left,
     volumon_loss,
 )
 

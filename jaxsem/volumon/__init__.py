@@ -47,10 +47,7 @@ from ._losses import (
     oracle_loss_per_sample as oracle_loss_per_sample,
     primal_loss as primal_loss,
     primal_loss_per_sample as primal_loss_per_sample,
-    shape_box as shape_box,
-    shape_distance as shape_distance,
     size_variance_loss as size_variance_loss,
-    stereo_right_T_left as stereo_right_T_left,
     volumon_loss as volumon_loss,
 )
 from ._pretrained import (

@@ -42,16 +42,19 @@ import jax.numpy as jnp
 
 from ..models import Ellipsoid
 from ..quadrics import (
+    SHAPE_CUBOID as SHAPE_CUBOID,
+    SHAPE_CYLINDER as SHAPE_CYLINDER,
+    SHAPE_ELLIPSOID as SHAPE_ELLIPSOID,
     algebraic_distance,
-    cuboid_corners,
     project_bbox,
-    project_points,
     ray_entry_range,
     safe_div,
     safe_norm,
+    shape_bbox,
+    shape_distance,
+    stereo_right_T_left,
     texture_plane_depth,
 )
-from ._synthetic import CYLINDER_RIM
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,7 +76,7 @@ class LossConfig:
         large ellipsoids (see the module docstring); 0: no weight.
       shape_aware: render the prediction with its class's shape in the dual and primal terms (a
         cuboid class: the box of the cuboid with half extents = radii, and a superquadric
-        inside-outside function; see :func:`shape_box`, :func:`shape_distance`); needs
+        inside-outside function; see :func:`jaxsem.quadrics.shape_bbox`, :func:`shape_distance`); needs
         ``class_shape`` (B,) in the batch. False: the thesis' ellipsoid for every class.
       primal_distance: "algebraic" (eq. 5.12: ``x^T Q x``, weighted by the size) or "radial" (the
         radial Euclidean distance ``|x - t| |1 - G(x)^(-1/2)|`` from the point to the surface
@@ -150,61 +153,6 @@ def box_error(box_true, box_pred, pixel_scale=1.0):
     return jnp.sum(jnp.square(ct - cp), -1) + jnp.sum(jnp.square(st - sp), -1)
 
 
-def stereo_right_T_left(baseline, dtype=jnp.float32):
-    """``right_T_left`` (..., 4, 4) (baseline (...)) of a rectified stereo pair: the right camera is ``baseline`` metres
-    along the left camera's +x, so a left-frame point ``p`` is ``p - [b, 0, 0]`` in the right frame."""
-    b = jnp.asarray(baseline, dtype)
-    T = jnp.broadcast_to(jnp.eye(4, dtype=dtype), b.shape + (4, 4))
-    return T.at[..., 0, 3].set(-b)
-
-
-SHAPE_CUBOID, SHAPE_ELLIPSOID, SHAPE_CYLINDER = 0, 1, 2
-SUPERQUADRIC_EPS = 0.1  # Solina-Bajcsy exponent of a cuboid's faces / a cylinder's caps
-
-
-def shape_box(rotation, center, radii, shape, K, camera_T_world):
-    """Image box (..., 4) and validity (...) of the object of semi-axes ``radii`` drawn with ``shape``.
-
-    ``shape`` (...) int: 0 cuboid (box of the 8 corners of half extents ``radii``,
-    :func:`jaxsem.quadrics.cuboid_corners`), 1 ellipsoid (:func:`jaxsem.quadrics.project_bbox`),
-    2 cylinder along the object's z axis (box of its two rims, sampled at 48 points: within 0.2 %
-    of the radius). Valid where the ellipsoid is projectable and all bounding-box corners lie in front of
-    the camera.
-    """
-    ell, valid = project_bbox(rotation, center, radii, K, camera_T_world)
-    corners = cuboid_corners(rotation, center, radii)
-    pose = camera_T_world[..., None, :, :]
-    uv, depth = project_points(corners, K[..., None, :, :], pose)
-    cub = jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
-    rim = jnp.einsum("...ij,...nj->...ni", rotation, jnp.asarray(CYLINDER_RIM, center.dtype) * radii[..., None, :])
-    uv_c, _ = project_points(rim + center[..., None, :], K[..., None, :, :], pose)
-    cyl = jnp.concatenate([uv_c.min(-2), uv_c.max(-2)], -1)
-    shape = jnp.asarray(shape)[..., None]
-    box = jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, ell))
-    return box, valid & jnp.all(depth > 1e-3, -1)
-
-
-def shape_distance(points, rotation, center, radii, shape):
-    """Inside-outside function (..., J) of points (..., J, 3) for the object drawn with ``shape`` (...).
-
-    Ellipsoid (1): ``x^T Q x`` (:func:`jaxsem.quadrics.algebraic_distance`). Cuboid (0) and
-    cylinder (2): Solina and Bajcsy's superquadric ``F - 1`` with ``F = ((x/a)^(2/e2) +
-    (y/b)^(2/e2))^(e2/e1) + (z/c)^(2/e1)`` raised to ``e1`` (so it is ``~ 2 delta / r`` near the
-    surface, as the ellipsoid's), ``e1 = e2 = 0.1`` for a cuboid, ``e1 = 0.1, e2 = 1`` for a
-    cylinder; evaluated as a log-sum-exp (finite for any point, also at the centre).
-    """
-    q_ell = algebraic_distance(points, rotation, center, radii)
-    x = jnp.einsum("...ji,...nj->...ni", rotation, points - center[..., None, :]) / radii[..., None, :]
-    tiny = jnp.finfo(x.dtype).tiny ** 0.5
-    e = SUPERQUADRIC_EPS
-    lx = jnp.log(jnp.square(x) + tiny)  # log x_i^2
-    cub = jnp.exp(e * jax.nn.logsumexp(lx / e, axis=-1)) - 1.0
-    lxy = jnp.log(jnp.square(x[..., 0]) + jnp.square(x[..., 1]) + tiny)
-    cyl = jnp.exp(e * jnp.logaddexp(lxy / e, lx[..., 2] / e)) - 1.0
-    shape = jnp.asarray(shape)[..., None]
-    return jnp.where(shape == SHAPE_CUBOID, cub, jnp.where(shape == SHAPE_CYLINDER, cyl, q_ell))
-
-
 def dual_loss_per_sample(
     ellipsoid: Ellipsoid, box_left, box_right, K, right_T_left, config: LossConfig = LossConfig(), shape=None
 ):
@@ -214,7 +162,7 @@ def dual_loss_per_sample(
       ellipsoid: in the left camera frame, batch (...).
       box_left, box_right: (..., 4) labelled boxes (pixels).
       K: (..., 3, 3) intrinsics (both cameras); right_T_left: (..., 4, 4).
-      shape: optional (...) class shapes (:func:`shape_box`); None: ellipsoids (the thesis).
+      shape: optional (...) class shapes (:func:`jaxsem.quadrics.shape_bbox`); None: ellipsoids (the thesis).
 
     Returns:
       (...) per-sample loss (finite, with finite gradients).
@@ -226,7 +174,7 @@ def dual_loss_per_sample(
         if shape is None:
             pred, valid = project_bbox(R, t, r, K, pose)
         else:
-            pred, valid = shape_box(R, t, r, shape, K, pose)
+            pred, valid = shape_bbox(R, t, r, shape, K, pose)
         err = box_error(box_true, pred, config.pixel_scale)
         near, _ = texture_plane_depth(R, t, r, pose)
         # the penalty grows as the ellipsoid crosses the image plane and leads back in front of it

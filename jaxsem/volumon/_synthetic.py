@@ -25,12 +25,10 @@ import numpy as np
 from .. import classes as _classes
 from ..quadrics import (
     back_project,
-    cuboid_corners,
     invert_pose,
-    project_bbox,
-    project_points,
     quaternion_wxyz_to_rotation,
     rigid_transform,
+    shape_bbox,
 )
 from ._inputs import crop_and_resize, masked_global_image
 
@@ -173,26 +171,6 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
     return image.astype(jnp.float32), depth.astype(jnp.float32), hit
 
 
-def cuboid_box(rotation, center, half, K, camera_T):
-    """Exact image box of a cuboid from its 8 projected corners (all in front of the camera)."""
-    uv, _ = project_points(cuboid_corners(rotation, center, half), K, camera_T)
-    return jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
-
-
-_RIM = np.linspace(0.0, 2 * np.pi, 48, endpoint=False)
-#: unit points on the two rims of a cylinder (axis z): its box is theirs to within
-#: ``1 - cos(pi / 48)`` (0.2 %) of the radius
-CYLINDER_RIM = np.concatenate([np.stack([np.cos(_RIM), np.sin(_RIM), np.full_like(_RIM, z)], -1) for z in (-1.0, 1.0)])
-
-
-def cylinder_box(rotation, center, half, K, camera_T):
-    """Image box of an elliptic cylinder (axis z) from its projected rims (in front of the camera)."""
-    local = jnp.asarray(CYLINDER_RIM, center.dtype) * half[..., None, :]
-    pts = jnp.einsum("...ij,...nj->...ni", rotation, local) + center[..., None, :]
-    uv, _ = project_points(pts, K, camera_T)
-    return jnp.concatenate([uv.min(-2), uv.max(-2)], -1)
-
-
 def sample_poses(seed: int, indices, scene: SceneConfig):
     """Host-side scene parameters of samples ``indices`` (deterministic in (seed, index))."""
     out = {k: [] for k in ("rotation", "center", "half", "shape_id", "color", "class_id")}
@@ -237,11 +215,8 @@ def sample_noise(seed: int, indices, scene: SceneConfig):
 
 
 def _true_box(pose, K, camera_T):
-    cub = cuboid_box(pose["rotation"], pose["center"], pose["half"], K, camera_T)
-    cyl = cylinder_box(pose["rotation"], pose["center"], pose["half"], K, camera_T)
-    ell, _ = project_bbox(pose["rotation"], pose["center"], pose["half"], K, camera_T)
-    sid = pose["shape_id"]
-    return jnp.where(sid == 0, cub, jnp.where(sid == 2, cyl, ell))
+    box, _ = shape_bbox(pose["rotation"], pose["center"], pose["half"], pose["shape_id"], K, camera_T)
+    return box
 
 
 def _render_batch(
