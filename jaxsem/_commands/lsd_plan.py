@@ -106,17 +106,9 @@ def plot_over_time(world, snapshots, path, goal, out, panels: int = 6, title: st
     plt.close(fig)
 
 
-def _share(text: str) -> float:
-    """A share in [0, 1) (an argparse type)."""
-    value = sc.finite_float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"expected a share in [0, 1), got {value}")
-    return value
-
-
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
-    p.add_argument("--map", type=sc.existing_file, default=None, help="npz map file (None: a generated building)")
+    p.add_argument("--map", default=None, help="npz map file (None: a generated building)")
     p.add_argument("--family", default="test", choices=("train", "test"), help="building family")
     p.add_argument("--building", type=int, default=0, help="building seed")
     p.add_argument(
@@ -136,7 +128,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint",
-        type=sc.existing_path,
         default=None,
         help="LSD training workdir or exported .npz (None: the shipped model)",
     )
@@ -148,14 +139,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--uniform-mix",
-        type=_share,
+        type=float,
         default=0.0,
         help="share of uniform mixed into the LSD window (0 = the thesis' rule)",
     )
-    p.add_argument("--n", type=sc.positive_int, default=500, help="PRM samples per roadmap")
+    p.add_argument("--n", type=int, default=500, help="PRM samples per roadmap")
     p.add_argument(
         "--max-steps",
-        type=sc.positive_int,
+        type=int,
         default=2000,
         help="step limit of a trial (thesis: 10000)",
     )
@@ -172,13 +163,29 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=6,
         help="windows in the distribution-over-time strip",
     )
-    p.add_argument("--out", type=sc.output_file, default="plan.png", help="figure path")
+    p.add_argument("--out", default="plan.png", help="figure path")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
-def main(argv=None, prog: str | None = None) -> int:
+def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
+    """The flags, checked (one line naming a bad one; before any run starts)."""
     args = build_parser(prog).parse_args(argv)
+    if args.n < 1:
+        raise SystemExit(f"--n: expected >= 1, got {args.n}")
+    if args.max_steps < 1:
+        raise SystemExit(f"--max-steps: expected >= 1, got {args.max_steps}")
+    if args.map and not pathlib.Path(args.map).exists():
+        raise SystemExit(f"--map: no such file {args.map!r}")
+    if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
+        raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
+    if not 0.0 <= args.uniform_mix < 1.0:
+        raise SystemExit(f"--uniform-mix: expected in [0, 1), got {args.uniform_mix}")
+    return args
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    args = parse_args(argv, prog)
     try:
         return _run(args)
     except ValueError as exc:
