@@ -7,7 +7,12 @@ carton, lemon and bottle of the robosuite 1.5.2 package (MIT licence; the option
 textures, under random lights, with textured distractor objects. Nothing is downloaded: the
 assets are read from the installed ``robosuite`` package (located with
 ``importlib.util.find_spec``, never imported) or from any :class:`ObjectAssets` the caller
-builds, e.g. a procedural mesh in a test.
+builds, e.g. a procedural mesh in a test. Licence: the wheel's only licence is robosuite's MIT
+licence (``robosuite-1.5.2.dist-info/licenses/LICENSE``); its asset folders carry no licence of
+their own, but ``textures/lemon.png`` has an EXIF artist / copyright tag of a third-party
+photographer (stephen gibson, photohome.co.uk) and ``textures/soda.png`` (the can) shows a
+branded soda can, so check those two before redistributing rendered images. jaxsem ships none
+of these files.
 
 Each scene directory (``<out_dir>/<split>/scene_NNN/``) is one compiled MuJoCo model: the room
 (floor at z = 0 and four walls 1.8-3 m from the origin, each with its own texture), 1-4 lights
