@@ -20,6 +20,7 @@ import datetime
 import json
 import os
 import pathlib
+import shlex
 import sys
 
 import numpy as np
@@ -94,7 +95,7 @@ def main(argv=None) -> int:
     mean = {k: float(np.mean([per_seed[s][k] for s in a.seeds])) for k in keys}
     dev = jax.devices()[0]
     record = {
-        "command": "python " + " ".join([os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))),
+        "command": "python " + shlex.join([os.path.relpath(__file__)] + (sys.argv[1:] if argv is None else list(argv))),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": f"{os.cpu_count()}-core CPU (shared)" if dev.platform == "cpu" else dev.device_kind,
         "model": meta.get("name"),
