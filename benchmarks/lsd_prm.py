@@ -116,6 +116,20 @@ class OmplPRM:
         )
 
 
+def _ompl_version() -> str:
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("ompl")
+    except importlib.metadata.PackageNotFoundError:
+        return "(version unknown)"
+
+
+def _len_cell(mean, sem) -> str:
+    """``mean +- sem`` of length / C*, or '-' where no query was solved by both planners."""
+    return "-" if mean is None else f"{mean:.3f} +- {sem or 0:.3f}"
+
+
 def jaxsem_build(b, n, key, k, radius):
     prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius)
     prm.grow(key, n)
@@ -241,8 +255,7 @@ def main(argv=None) -> int:
     for r in rows:
         qual.append(
             f"| {r['n']} | {r['queries']} | {r['found_ompl']} | {r['found_jaxsem']} | {r['both']} | "
-            f"{r['len_ompl']:.3f} +- {r['len_sem_ompl'] or 0:.3f} | "
-            f"{r['len_jaxsem']:.3f} +- {r['len_sem_jaxsem'] or 0:.3f} |"
+            f"{_len_cell(r['len_ompl'], r['len_sem_ompl'])} | {_len_cell(r['len_jaxsem'], r['len_sem_jaxsem'])} |"
         )
     speed = [
         "| N | OMPL PRM, Python checker: build + query (ms) | OMPL C++ core, trivial checker: build + "
@@ -303,7 +316,8 @@ def main(argv=None) -> int:
         f"Test-family buildings {args.first_map}..{args.first_map + args.maps - 1}, full map known, "
         f"{args.tasks} Inside-Inside queries per map, {args.repeats} roadmaps per (map, N) and planner. jaxsem: "
         f"k = {args.k or 'prm_star_k(N) (26 / 29 / 35 at N = 500 / 1000 / 5000)'}, radius {'planning.default_radius' if args.radius_scale is None else f'{args.radius_scale} x spacing'}, "
-        "valid-state sampling, exact neighbour search; OMPL: PRM, k = 10, growRoadmapPtc to N milestones. "
+        "valid-state sampling, exact neighbour search; "
+        f"OMPL {_ompl_version()}: PRM, k = 10, growRoadmapPtc to N milestones. "
         "Length / C*: mean +- s.e.m. of the raw roadmap path over the soft-cost optimal length, on queries "
         "both solved.",
         "",
