@@ -13,7 +13,19 @@ import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 GEOMETRY = {"quadrics", "classes", "_checks"}
-METHODS = {"metrics", "factors", "slam", "models", "volumon", "lsd", "planning", "mapping", "parallel", "checkpoint"}
+METHODS = {
+    "metrics",
+    "factors",
+    "slam",
+    "models",
+    "volumon",
+    "lsd",
+    "planning",
+    "mapping",
+    "parallel",
+    "checkpoint",
+    "training",
+}
 OUTER = {"sim", "data", "demos", "cli", "_commands"}
 
 

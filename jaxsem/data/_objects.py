@@ -423,9 +423,9 @@ class _ObjectScene:
         for b in self.objects + self.distractors:
             self.model.geom_sameframe[b.geom] = 0
         self._label = np.full(self.model.ngeom + 1, -1, np.int32)
-        from ..sim._render import _check_intrinsics, _mat_to_quat
+        from ..sim import mujoco_intrinsics, mujoco_quaternion
 
-        self._check_intrinsics, self._mat_to_quat = _check_intrinsics, _mat_to_quat
+        self._check_intrinsics, self._mat_to_quat = mujoco_intrinsics, mujoco_quaternion
         try:
             self._renderer = mj.Renderer(self.model, self.height, self.width)
         except mj.FatalError as exc:

@@ -43,5 +43,7 @@ from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mu
     SceneObject as SceneObject,
     SceneRenderer as SceneRenderer,
     bounding_ellipsoid_radii as bounding_ellipsoid_radii,
+    mujoco_intrinsics as mujoco_intrinsics,
+    mujoco_quaternion as mujoco_quaternion,
     render_views as render_views,
 )

@@ -166,7 +166,7 @@ def _check_outputs(outputs) -> tuple:
     return outputs
 
 
-def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+def mujoco_quaternion(R: np.ndarray) -> np.ndarray:
     """MuJoCo's ``quat`` (w, x, y, z) of a rotation, by MuJoCo's own C routine: it runs per object
     per frame, where a jax dispatch would cost more than the conversion."""
     q = np.zeros(4)
@@ -174,8 +174,9 @@ def _mat_to_quat(R: np.ndarray) -> np.ndarray:
     return q
 
 
-def _check_intrinsics(K, width: int, height: int) -> np.ndarray:
-    """Validate ``K`` for MuJoCo's pinhole model; returns MuJoCo's ``cam_intrinsic`` (4,)."""
+def mujoco_intrinsics(K, width: int, height: int) -> np.ndarray:
+    """Validate ``K`` (``ValueError`` naming it) for MuJoCo's pinhole model of a ``width`` x
+    ``height`` image; returns MuJoCo's ``cam_intrinsic`` (4,)."""
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)):
         raise ValueError(f"K: expected a finite (3, 3) intrinsics matrix, got shape {K.shape}")
@@ -288,7 +289,7 @@ class SceneRenderer:
                 type=gtype,
                 size=list(map(float, size)),
                 pos=list(map(float, ob.center)),
-                quat=list(map(float, _mat_to_quat(ob.rotation))),
+                quat=list(map(float, mujoco_quaternion(ob.rotation))),
                 **kwargs,
             )
             self._geom_names.append(f"object{i}")
@@ -348,7 +349,7 @@ class SceneRenderer:
         gid = self.model.geom(self._geom_names[index]).id
         pos = new.center if not hidden else np.array([0.0, 0.0, -1e4])
         self.model.geom_pos[gid] = pos
-        self.model.geom_quat[gid] = _mat_to_quat(new.rotation)
+        self.model.geom_quat[gid] = mujoco_quaternion(new.rotation)
         if new.shape == "cylinder":
             self.model.geom_size[gid] = [new.extents[0] / 2, new.extents[2] / 2, 0.0]
         else:
@@ -369,7 +370,7 @@ class SceneRenderer:
         if self._renderer is None:
             raise ValueError("SceneRenderer: render() called after close()")
         outputs = _check_outputs(outputs)
-        intrinsic = _check_intrinsics(K, self.width, self.height)
+        intrinsic = mujoco_intrinsics(K, self.width, self.height)
         T = np.asarray(camera_T_world, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
@@ -378,7 +379,7 @@ class SceneRenderer:
             raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
         world_T_cam = invert_pose(T, xp=np)
         self.model.cam_pos[0] = world_T_cam[:3, 3]
-        self.model.cam_quat[0] = _mat_to_quat(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
+        self.model.cam_quat[0] = mujoco_quaternion(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
         self.model.cam_sensorsize[0] = [self.width, self.height]
         self.model.cam_resolution[0] = [self.width, self.height]
         self.model.cam_intrinsic[0] = intrinsic
@@ -462,7 +463,7 @@ def render_views(
     if Ks.shape != (len(poses), 3, 3):
         raise ValueError(f"K: expected shape (3, 3) or ({len(poses)}, 3, 3), got {np.asarray(K).shape}")
     for i in range(len(poses)):
-        _check_intrinsics(Ks[i], int(width), int(height))
+        mujoco_intrinsics(Ks[i], int(width), int(height))
     outputs = _check_outputs(outputs)
     out = {k: [] for k in outputs}
     with SceneRenderer(
