@@ -6,6 +6,12 @@ module in :mod:`jaxsem.demos` with ``run(out_dir, quick) -> str`` that writes fi
 train|predict|eval|export``, ``lsd data|train|plan``, ``bench``) run the code of the scripts in
 ``train/`` and ``infer/``, which are thin wrappers over the same private modules
 (``jaxsem._commands``); ``jaxsem <command> --help`` says what goes in and comes out.
+
+Every subcommand runs through one function, :func:`_run_command`: it parses the flags (a bad one
+fails here, with no run), starts the run (:func:`jaxsem.scripting.start_run`: the run directory
+printed as the first line, ``config.json``, ``summary.json`` at the end), turns on the persistent
+compilation cache (:func:`enable_compilation_cache`; ``--no-compilation-cache`` or
+``JAXSEM_NO_COMPILATION_CACHE=1`` turns it off) and calls the command's ``main``.
 """
 
 from __future__ import annotations

@@ -303,8 +303,51 @@ RUN_DIR_ENV = "JAXSEM_RUNS_DIR"
 
 
 class CommandParser(argparse.ArgumentParser):
-    """The parser of a jaxsem command. A ``parser.error(...)`` raised while a run is active (a
-    check made after parsing) also goes into the run's ``summary.json``."""
+    """The parser of a jaxsem command (made by :func:`command_parser`). The shared run options come
+    after the command's own flags (added when the parser is first used), and a ``parser.error``
+    raised while a run is active (a check made after parsing) also goes into ``summary.json``."""
+
+    run_dir_default: str | None = None
+    _run_options_added = False
+
+    def _add_run_options(self) -> None:
+        if self._run_options_added:
+            return
+        self._run_options_added = True
+        group = self.add_argument_group(
+            "run options (every jaxsem command)",
+            "Each run writes config.json (every argument after defaults, jaxsem/jax versions, the\n"
+            "command line) at the start and summary.json (status ok/error with the one-line message,\n"
+            "wall time, headline numbers, the figures and files written) at the end into its run\n"
+            "directory, whose path is the first line of output.",
+        )
+        group.add_argument(
+            "--run-dir",
+            type=output_dir,
+            default=None,
+            help="run directory (default: "
+            + (self.run_dir_default or f"runs/<command>-<UTC time>, under ${RUN_DIR_ENV} when set")
+            + ")",
+        )
+        group.add_argument(
+            "--no-compilation-cache",
+            action="store_true",
+            help="do not use JAX's persistent compilation cache (default: on, in $JAXSEM_CACHE_DIR or "
+            "~/.cache/jaxsem/jax; JAXSEM_NO_COMPILATION_CACHE=1 also turns it off)",
+        )
+        group.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        self._add_run_options()
+        return super().parse_known_args(args, namespace)
+
+    def format_usage(self) -> str:
+        self._add_run_options()
+        return super().format_usage()
+
+    def format_help(self) -> str:
+        self._add_run_options()
+        return super().format_help()
 
     def error(self, message: str):  # type: ignore[override]
         if _ACTIVE is not None:
@@ -321,34 +364,14 @@ def default_run_dir(name: str, now: datetime.datetime | None = None) -> pathlib.
 
 
 def command_parser(prog: str | None, description: str | None, run_dir_default: str | None = None) -> CommandParser:
-    """An argparse parser for a jaxsem command: :class:`HelpFormatter` (every default shown) and
-    the options every command shares, under "run options": ``--run-dir``,
-    ``--no-compilation-cache`` and ``--debug`` (a command may re-declare ``--debug``)."""
+    """An argparse parser for a jaxsem command: :class:`HelpFormatter` (every default shown) and,
+    after the command's own flags, the options every command shares under "run options":
+    ``--run-dir`` (``run_dir_default`` says its default in ``--help``), ``--no-compilation-cache``
+    and ``--debug`` (a command's own ``--debug`` gives way to it)."""
     parser = CommandParser(
         prog=prog, description=description, formatter_class=HelpFormatter, conflict_handler="resolve"
     )
-    group = parser.add_argument_group(
-        "run options (every jaxsem command)",
-        "Each run writes config.json (every argument after defaults, jaxsem/jax versions, the\n"
-        "command line) at the start and summary.json (status ok/error with the one-line message,\n"
-        "wall time, headline numbers, the figures and files written) at the end into its run\n"
-        "directory, whose path is the first line of output.",
-    )
-    group.add_argument(
-        "--run-dir",
-        type=output_dir,
-        default=None,
-        help="run directory (default: "
-        + (run_dir_default or f"runs/<command>-<UTC time>, under ${RUN_DIR_ENV} when set")
-        + ")",
-    )
-    group.add_argument(
-        "--no-compilation-cache",
-        action="store_true",
-        help="do not use JAX's persistent compilation cache (default: on, in $JAXSEM_CACHE_DIR or "
-        "~/.cache/jaxsem/jax; JAXSEM_NO_COMPILATION_CACHE=1 also turns it off)",
-    )
-    group.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.run_dir_default = run_dir_default
     return parser
 
 

@@ -228,7 +228,7 @@ def test_bench_list_and_help_make_no_run_directory(tmp_path, capsys):
         for flag in ("--run-dir", "--no-compilation-cache", "--debug", "summary.json", "JAXSEM_NO_COMPILATION_CACHE"):
             assert flag in out, (words, flag)
     # a usage error is not a run either
-    assert _run(["lsd", "plan", "--n", "0"], capsys)[0] == 2
+    assert _run(["lsd", "plan", "--n", "0"], capsys)[0] != 0
     assert not (tmp_path / "runs").exists()
 
 

@@ -1,6 +1,6 @@
 """Generates the LSD expert dataset (thesis 3.3.2) as compressed npz shards, one per building.
 
-    python infer/make_expert_data.py --out out/lsd_expert --family train --buildings 20 \
+    python infer/make_expert_data.py --out out/lsd_expert --family train --buildings 20 \\
         --samples-per-building 200 --workers 2
 
 The shard schema is documented in ``jaxsem.planning.EXPERT_SCHEMA`` (and ``schema.json`` in the

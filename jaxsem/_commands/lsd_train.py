@@ -8,6 +8,9 @@ Example:
 Re-running with the same workdir resumes from its latest checkpoint; --chunk-steps K ends a run K
 steps past it (run it in a loop to train in chunks, e.g. on data that is still being generated). Figures of predicted
 distributions land in <workdir>/figures, metrics in <workdir>/metrics.jsonl.
+The run directory (``--run-dir``) gets this call's config.json (flags and the resolved
+TrainConfig) and summary.json (the last evaluation: step, stage, validation NLL against uniform;
+the figures).
 
 The same command: ``jaxsem lsd train`` (``python train/lsd.py``).
 """
