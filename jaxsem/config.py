@@ -266,7 +266,7 @@ class Presets(Generic[C]):
 
     def __getitem__(self, name: str) -> C:
         if name not in self._variants:
-            raise ValueError(f"--config {name!r}: unknown preset; presets are {list(self._variants)} (or a .json file)")
+            raise ValueError(f"config {name!r}: unknown preset; presets are {list(self._variants)} (or a .json file)")
         return self._variants[name](self._default())
 
     def resolve(self, name_or_file: str) -> C:

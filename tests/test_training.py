@@ -104,3 +104,27 @@ def test_volumon_and_lsd_share_the_contract():
         params = inspect.signature(fn).parameters
         assert list(params)[:2] == ["workdir", "config"]
         assert params["step"].kind is inspect.Parameter.KEYWORD_ONLY
+
+
+def test_both_models_take_named_presets_or_a_json_file(tmp_path):
+    # One way to configure: a preset by name, or a JSON file of fields over the default.
+    assert {"default", "cpu", "scale", "tiny"} <= set(lsd.PRESETS.names)
+    assert {"default", "cpu", "fast", "thesis", "tiny"} <= set(volumon.PRESETS.names)
+    assert lsd.get_config("tiny").stage1_steps < lsd.get_config("default").stage1_steps
+    f = tmp_path / "lsd.json"
+    f.write_text(json.dumps({"batch_size": 3, "model": {"log_range": 6.0}}))
+    got = lsd.get_config(str(f))
+    assert got.batch_size == 3 and got.model.log_range == 6.0
+    assert got.stage1_steps == lsd.get_config("default").stage1_steps
+    g = tmp_path / "vm.json"
+    g.write_text(json.dumps({"num_steps": 7, "loss": {"pixel_scale": 2.0}}))
+    vm = volumon.get_config("dual", str(g))
+    assert vm.num_steps == 7 and vm.loss.pixel_scale == 2.0 and vm.loss.alpha_P == 0.0
+    with pytest.raises(ValueError, match="config .nope.: unknown preset"):
+        lsd.get_config("nope")
+    with pytest.raises(ValueError, match="size: expected one of"):
+        volumon.get_config("both", "nope")
+    h = tmp_path / "bad.json"
+    h.write_text(json.dumps({"no_such_field": 1}))
+    with pytest.raises(ValueError, match="no_such_field"):
+        lsd.get_config(str(h))

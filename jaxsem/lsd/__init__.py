@@ -6,6 +6,7 @@ loop are in :mod:`jaxsem.planning`.
 
 from ..training import ConfigMismatchError as ConfigMismatchError
 from ._config import (
+    PRESETS as PRESETS,
     TrainConfig as TrainConfig,
     cpu_config as cpu_config,
     default_config as default_config,

@@ -1,12 +1,15 @@
 """Training configurations for the LSD network (defaults, then variants that change a few fields).
 
-A config is a frozen dataclass; ``dataclasses.replace(cfg, field=value)`` makes a variant.
+A config is a frozen dataclass; ``dataclasses.replace(cfg, field=value)`` or
+:func:`jaxsem.config.override` (dotted names, strings parsed) makes a variant; :data:`PRESETS`
+names the variants this package uses.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+from ..config import Presets
 from ..models import LSDConfig
 
 
@@ -64,29 +67,25 @@ class TrainConfig:
         return self.stage1_steps + self.stage2_steps
 
 
-def default_config() -> TrainConfig:
-    """The default (a few minutes of training on a 2-core CPU for a few thousand samples)."""
-    return TrainConfig()
+#: The named presets (:class:`jaxsem.config.Presets`): each a function of the default that changes a
+#: few fields; :func:`get_config` also takes a JSON file of fields over the default.
+PRESETS: Presets[TrainConfig] = Presets(TrainConfig)
 
 
-def cpu_config() -> TrainConfig:
+@PRESETS.register("cpu")
+def _cpu(c: TrainConfig) -> TrainConfig:
     """CPU-sized run used by ``benchmarks/lsd_table31.py`` when it trains its own model."""
-    return dataclasses.replace(
-        default_config(),
-        stage1_steps=1200,
-        stage2_steps=600,
-        eval_every=600,
-        checkpoint_every=600,
-    )
+    return dataclasses.replace(c, stage1_steps=1200, stage2_steps=600, eval_every=600, checkpoint_every=600)
 
 
-def scale_config() -> TrainConfig:
+@PRESETS.register("scale")
+def _scale(c: TrainConfig) -> TrainConfig:
     """The shipped model's run: expert data from 240 train buildings, bounded output range
     (``log_range=8``, see :class:`jaxsem.models.LSDConfig`), sized for what one niced CPU thread
     on a shared, oversubscribed 2-core machine did in about an hour (850 steps at batch 16;
     chunked: checkpoints every 250 steps, a restart resumes). More steps will help."""
     return dataclasses.replace(
-        default_config(),
+        c,
         model=LSDConfig(log_range=8.0),
         stage1_steps=600,
         stage2_steps=250,
@@ -98,10 +97,11 @@ def scale_config() -> TrainConfig:
     )
 
 
-def tiny_config() -> TrainConfig:
+@PRESETS.register("tiny")
+def _tiny(c: TrainConfig) -> TrainConfig:
     """Seconds-long run for tests and the quick demo (a smaller network, few steps)."""
     return dataclasses.replace(
-        default_config(),
+        c,
         model=LSDConfig(features=(4, 8, 8, 8), context_features=8),
         stage1_steps=30,
         stage2_steps=20,
@@ -114,16 +114,28 @@ def tiny_config() -> TrainConfig:
     )
 
 
-CONFIGS = {
-    "default": default_config,
-    "cpu": cpu_config,
-    "scale": scale_config,
-    "tiny": tiny_config,
-}
+def default_config() -> TrainConfig:
+    """The default (a few minutes of training on a 2-core CPU for a few thousand samples)."""
+    return PRESETS["default"]
 
 
-def get_config(name: str) -> TrainConfig:
-    """A named config: 'default', 'cpu', 'scale' or 'tiny'."""
-    if name not in CONFIGS:
-        raise ValueError(f"name: expected one of {sorted(CONFIGS)}, got {name!r}")
-    return CONFIGS[name]()
+def cpu_config() -> TrainConfig:
+    """The ``cpu`` preset."""
+    return PRESETS["cpu"]
+
+
+def scale_config() -> TrainConfig:
+    """The ``scale`` preset (the shipped model's run)."""
+    return PRESETS["scale"]
+
+
+def tiny_config() -> TrainConfig:
+    """The ``tiny`` preset."""
+    return PRESETS["tiny"]
+
+
+def get_config(name: str = "default") -> TrainConfig:
+    """A preset by name (``PRESETS.names``: default, cpu, scale, tiny) or a JSON file of
+    :class:`TrainConfig` fields over the default (:func:`jaxsem.config.load`).
+    ``ValueError`` naming it otherwise."""
+    return PRESETS.resolve(name)

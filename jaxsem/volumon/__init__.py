@@ -2,6 +2,7 @@
 
 from ..training import ConfigMismatchError as ConfigMismatchError
 from ._configs import (
+    PRESETS as PRESETS,
     SIZES as SIZES,
     VARIANTS as VARIANTS,
     TrainConfig as TrainConfig,

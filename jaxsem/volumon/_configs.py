@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from ..config import Presets
 from ..models import ReconstructionConfig, VoluMonConfig
 from ._losses import LossConfig
 from ._synthetic import SceneConfig
@@ -169,20 +170,30 @@ def fast_config() -> TrainConfig:
     )
 
 
+#: The sized presets (:class:`jaxsem.config.Presets`; "default" is "cpu"): :func:`get_config` puts a
+#: variant's loss weights on one of them, or on a JSON file of fields over the default.
+PRESETS: Presets[TrainConfig] = Presets(default_config)
+PRESETS.register("cpu")(lambda c: c)
+PRESETS.register("fast")(lambda c: fast_config())
+PRESETS.register("thesis")(lambda c: thesis_config())
+PRESETS.register("tiny")(lambda c: tiny_config())
+
+
 def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
-    """A variant (section 5.5.1) of a sized base config.
+    """A variant (section 5.5.1) of a sized preset.
 
     dual: alpha_D = 1, alpha_P = 0; primal: alpha_D = 0, alpha_P = 1; both: 1, 1; both_noisy:
     both with noisy input boxes. alpha_S = 100 in all (thesis). oracle: fully supervised on the
     3D labels (:func:`jaxsem.volumon.oracle_loss_per_sample`; a diagnostic, not a VoluMon variant).
-    Sizes: "cpu" (MobileNetV2 0.35, one class), "fast" (:func:`fast_config`), "thesis", "tiny".
+    Sizes: the presets of :data:`PRESETS` -- "cpu" (MobileNetV2 0.35, one class), "fast"
+    (:func:`fast_config`), "thesis", "tiny" -- or a JSON file of :class:`TrainConfig` fields over
+    the default (:func:`jaxsem.config.load`).
     """
-    bases = {"cpu": default_config, "fast": fast_config, "thesis": thesis_config, "tiny": tiny_config}
-    if size not in bases:
-        raise ValueError(f"size: expected one of {sorted(bases)}, got {size!r}")
+    if size not in PRESETS.names and not str(size).endswith(".json"):
+        raise ValueError(f"size: expected one of {sorted(SIZES)} or a .json file, got {size!r}")
     if variant not in VARIANTS:
         raise ValueError(f"variant: expected one of {VARIANTS}, got {variant!r}")
-    cfg = bases[size]()
+    cfg = PRESETS.resolve(size)
     weights = {
         "dual": (1.0, 0.0),
         "primal": (0.0, 1.0),
