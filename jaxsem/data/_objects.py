@@ -423,9 +423,9 @@ class _ObjectScene:
         for b in self.objects + self.distractors:
             self.model.geom_sameframe[b.geom] = 0
         self._label = np.full(self.model.ngeom + 1, -1, np.int32)
-        from ..sim import mujoco_intrinsics, mujoco_quaternion
+        from ..sim import mujoco_quaternion
 
-        self._check_intrinsics, self._mat_to_quat = mujoco_intrinsics, mujoco_quaternion
+        self._mat_to_quat = mujoco_quaternion
         try:
             self._renderer = mj.Renderer(self.model, self.height, self.width)
         except mj.FatalError as exc:
@@ -480,37 +480,16 @@ class _ObjectScene:
     def render(self, K, camera_T_world, labels: dict) -> dict:
         """RGB (H, W, 3) uint8, z-depth (H, W) float32 m (0: nothing), seg (H, W) uint8 (``labels``:
         geom id -> segmentation id; 0 elsewhere) of one view."""
-        mj = _mujoco()
-        m = self.model
-        world_T_cam = Q.invert_pose(np.asarray(camera_T_world, np.float64), xp=np)
-        m.cam_pos[0] = world_T_cam[:3, 3]
-        m.cam_quat[0] = self._mat_to_quat(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
-        m.cam_sensorsize[0] = [self.width, self.height]
-        m.cam_resolution[0] = [self.width, self.height]
-        m.cam_intrinsic[0] = self._check_intrinsics(K, self.width, self.height)
-        self.forward()
-        r = self._renderer
-        if r is None:
+        from ..sim import mujoco_view
+
+        if self._renderer is None:
             raise ValueError("_ObjectScene: render() called after close()")
-        r.update_scene(self.data, camera=0)
-        rgb = r.render().copy()
-        r.enable_segmentation_rendering()
-        try:
-            r.update_scene(self.data, camera=0)
-            ids = r.render().copy()
-        finally:
-            r.disable_segmentation_rendering()
-        r.enable_depth_rendering()
-        try:
-            r.update_scene(self.data, camera=0)
-            depth = r.render().astype(np.float32)
-        finally:
-            r.disable_depth_rendering()
-        geom = np.where(ids[..., 1] == int(mj.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
+        view = mujoco_view(self.model, self.data, self._renderer, 0, K, camera_T_world)
+        geom = view["geom"]
         seg = np.zeros(geom.shape, np.uint8)
         for gid, sid in labels.items():
             seg[geom == gid] = sid
-        return {"rgb": rgb, "depth": np.where(ids[..., 0] >= 0, depth, np.float32(0.0)), "seg": seg, "geom": geom}
+        return {"rgb": view["rgb"], "depth": view["depth"], "seg": seg, "geom": geom}
 
     def close(self):
         if self._renderer is not None:

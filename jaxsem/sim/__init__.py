@@ -45,5 +45,6 @@ from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mu
     bounding_ellipsoid_radii as bounding_ellipsoid_radii,
     mujoco_intrinsics as mujoco_intrinsics,
     mujoco_quaternion as mujoco_quaternion,
+    mujoco_view as mujoco_view,
     render_views as render_views,
 )

@@ -380,66 +380,18 @@ class BuildingRenderer:
         float32 z-depth in metres (0 on the sky); ``seg`` (H, W) int32 object index or -1, and
         ``seg_class`` (H, W) int8 semantic id (``WALL`` on walls, 0 on floor and sky).
         """
-        from .. import quadrics
-
-        mujoco = _mujoco()
+        from ._render import mujoco_view
 
         if self._renderer is None:
             raise ValueError("BuildingRenderer: render() called after close()")
         outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
         if not outputs or any(o not in _OUTPUTS for o in outputs):
             raise ValueError(f"outputs: expected a non-empty subset of {_OUTPUTS}, got {outputs}")
-        K = np.asarray(K, np.float64)
-        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise ValueError(f"K: expected finite [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
-        if abs(K[0, 1]) > 1e-9 * K[0, 0] or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
-            raise ValueError(f"K: MuJoCo cameras have no skew; expected K[0, 1] == 0, got {K.tolist()}")
-        T = np.asarray(camera_T_world, np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
-        if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-5):
-            raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
-        world_T_cam = quadrics.invert_pose(T, xp=np)
-        c = self._cam
-        W, H = self.width, self.height
-        self.model.cam_pos[c] = world_T_cam[:3, 3]
-        # MuJoCo's camera looks along its -z with y up: OpenCV's frame times diag(1, -1, -1).
-        cam_R = world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0])
-        self.model.cam_quat[c] = quadrics.rotation_to_quaternion_wxyz(cam_R, xp=np)
-        # Pixel-unit sensor and MuJoCo's principal offset (signs as in jaxsem.sim.SceneRenderer).
-        self.model.cam_sensorsize[c] = [W, H]
-        self.model.cam_resolution[c] = [W, H]
-        self.model.cam_intrinsic[c] = [
-            K[0, 0],
-            K[1, 1],
-            -(K[0, 2] - (W - 1) / 2),
-            -(K[1, 2] - (H - 1) / 2),
-        ]
-        mujoco.mj_forward(self.model, self.data)
-        r = self._renderer
-        out, ids = {}, None
-        if "rgb" in outputs:
-            r.update_scene(self.data, camera=c)
-            out["rgb"] = r.render().copy()
-        if "seg" in outputs or "depth" in outputs:
-            r.enable_segmentation_rendering()
-            try:
-                r.update_scene(self.data, camera=c)
-                ids = r.render().copy()
-            finally:
-                r.disable_segmentation_rendering()
-            geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
-            if "seg" in outputs:
-                out["seg"] = self._label[geom].astype(np.int32)
-                out["seg_class"] = self._class[geom]
-        if "depth" in outputs and ids is not None:
-            r.enable_depth_rendering()
-            try:
-                r.update_scene(self.data, camera=c)
-                depth = r.render().astype(np.float32)
-            finally:
-                r.disable_depth_rendering()
-            out["depth"] = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
+        view = mujoco_view(self.model, self.data, self._renderer, self._cam, K, camera_T_world, outputs)
+        out = {k: view[k] for k in ("rgb", "depth") if k in outputs}
+        if "seg" in outputs:
+            out["seg"] = self._label[view["geom"]].astype(np.int32)
+            out["seg_class"] = self._class[view["geom"]]
         return out
 
     def detect(self, seg, classes=None, *, min_area: int = 1, border: int = 0) -> SceneDetections:

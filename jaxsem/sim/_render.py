@@ -188,6 +188,60 @@ def mujoco_intrinsics(K, width: int, height: int) -> np.ndarray:
     return np.array([fx, fy, -(cx - (width - 1) / 2), -(cy - (height - 1) / 2)])
 
 
+def mujoco_view(model, data, renderer, cam: int, K, camera_T_world, outputs: Sequence[str] = _OUTPUTS) -> dict:
+    """Render MuJoCo camera ``cam`` placed at ``camera_T_world`` (4, 4; OpenCV axes: x right, y down,
+    z forward) with pinhole ``K`` (3, 3, no skew): the one camera setup and render-pass code of
+    jaxsem's MuJoCo scenes (:class:`SceneRenderer`, :class:`jaxsem.sim.BuildingRenderer`, the
+    textured-object writer of :mod:`jaxsem.data`).
+
+    Checks ``K`` and ``camera_T_world`` (``ValueError`` naming them), runs ``mj_forward`` and the
+    passes ``outputs`` asks for (each a render): ``'rgb'`` -> ``rgb`` (H, W, 3) uint8; ``'seg'``
+    or ``'depth'`` -> ``geom`` (H, W) int32 geom id per pixel, -1 where no geom (the sky);
+    ``'depth'`` -> ``depth`` (H, W) float32 z-depth in metres, 0 where no geom.
+    """
+    height, width = int(model.cam_resolution[cam][1]), int(model.cam_resolution[cam][0])
+    if renderer is not None:
+        height, width = int(renderer.height), int(renderer.width)
+    intrinsic = mujoco_intrinsics(K, width, height)
+    T = np.asarray(camera_T_world, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+        raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
+    if renderer is None:
+        raise ValueError("renderer: the scene's renderer is closed (render() called after close())")
+    world_T_cam = invert_pose(T, xp=np)
+    model.cam_pos[cam] = world_T_cam[:3, 3]
+    # MuJoCo's camera looks along its -z with y up: OpenCV's frame times diag(1, -1, -1).
+    model.cam_quat[cam] = mujoco_quaternion(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
+    model.cam_sensorsize[cam] = [width, height]
+    model.cam_resolution[cam] = [width, height]
+    model.cam_intrinsic[cam] = intrinsic
+    mujoco.mj_forward(model, data)
+    out: dict = {}
+    if "rgb" in outputs:
+        renderer.update_scene(data, camera=cam)
+        out["rgb"] = renderer.render().copy()
+    if "seg" in outputs or "depth" in outputs:
+        renderer.enable_segmentation_rendering()
+        try:
+            renderer.update_scene(data, camera=cam)
+            ids = renderer.render().copy()
+        finally:
+            renderer.disable_segmentation_rendering()
+        out["geom"] = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1).astype(np.int32)
+    if "depth" in outputs:
+        renderer.enable_depth_rendering()
+        try:
+            renderer.update_scene(data, camera=cam)
+            depth = renderer.render().astype(np.float32)
+        finally:
+            renderer.disable_depth_rendering()
+        out["depth"] = np.where(out["geom"] >= 0, depth, np.float32(0.0))
+    return out
+
+
 class SceneRenderer:
     """One compiled MuJoCo scene and its offscreen renderer; render many views, then ``close()``.
 
@@ -370,44 +424,10 @@ class SceneRenderer:
         if self._renderer is None:
             raise ValueError("SceneRenderer: render() called after close()")
         outputs = _check_outputs(outputs)
-        intrinsic = mujoco_intrinsics(K, self.width, self.height)
-        T = np.asarray(camera_T_world, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValueError(f"camera_T_world: expected a finite (4, 4) transform, got shape {T.shape}")
-        R = T[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
-            raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
-        world_T_cam = invert_pose(T, xp=np)
-        self.model.cam_pos[0] = world_T_cam[:3, 3]
-        self.model.cam_quat[0] = mujoco_quaternion(world_T_cam[:3, :3] @ np.diag([1.0, -1.0, -1.0]))
-        self.model.cam_sensorsize[0] = [self.width, self.height]
-        self.model.cam_resolution[0] = [self.width, self.height]
-        self.model.cam_intrinsic[0] = intrinsic
-        mujoco.mj_forward(self.model, self.data)
-        r = self._renderer
-        out = {}
-        ids = np.full((self.height, self.width, 2), -1, np.int32)  # (object id, object type) per pixel
-        if "rgb" in outputs:
-            r.update_scene(self.data, camera=0)
-            out["rgb"] = r.render().copy()
-        if "seg" in outputs or "depth" in outputs:
-            r.enable_segmentation_rendering()
-            try:
-                r.update_scene(self.data, camera=0)
-                ids = r.render().copy()
-            finally:
-                r.disable_segmentation_rendering()
-            if "seg" in outputs:
-                geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
-                out["seg"] = self._label[geom].astype(np.int32)  # index -1 hits the trailing -1
-        if "depth" in outputs:
-            r.enable_depth_rendering()
-            try:
-                r.update_scene(self.data, camera=0)
-                depth = r.render().astype(np.float32)
-            finally:
-                r.disable_depth_rendering()
-            out["depth"] = np.where(ids[..., 0] >= 0, depth, np.float32(0.0))
+        view = mujoco_view(self.model, self.data, self._renderer, 0, K, camera_T_world, outputs)
+        out = {k: view[k] for k in ("rgb", "depth") if k in outputs}
+        if "seg" in outputs:
+            out["seg"] = self._label[view["geom"]].astype(np.int32)  # index -1 hits the trailing -1
         return out
 
     def close(self):
