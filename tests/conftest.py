@@ -4,8 +4,12 @@ Tests that check float32 behaviour pass float32 arrays explicitly.
 """
 
 import os
+import tempfile
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Commands run by the tests write their run directories (config.json, summary.json) here, not in
+# the checkout's runs/.
+os.environ.setdefault("JAXSEM_RUNS_DIR", tempfile.mkdtemp(prefix="jaxsem_test_runs_"))
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 
 import jax
