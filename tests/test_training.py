@@ -128,3 +128,13 @@ def test_both_models_take_named_presets_or_a_json_file(tmp_path):
     h.write_text(json.dumps({"no_such_field": 1}))
     with pytest.raises(ValueError, match="no_such_field"):
         lsd.get_config(str(h))
+
+
+def test_train_commands_take_a_config_file_and_name_a_missing_one(tmp_path, capsys):
+    from jaxsem.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["volumon", "train", "--workdir", str(tmp_path / "w"), "--size", str(tmp_path / "none.json")])
+    assert exc.value.code != 0
+    assert "--size" in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()

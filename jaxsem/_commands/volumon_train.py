@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pathlib
 import sys
 from typing import Any
 
@@ -27,6 +28,17 @@ from jaxsem.config import override
 from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
+
+
+def _size(text: str) -> str:
+    """A preset name, or an existing .json file of config fields (checked before a run starts)."""
+    if text in SIZES:
+        return text
+    if text.endswith(".json"):
+        if not pathlib.Path(text).is_file():
+            raise argparse.ArgumentTypeError(f"{text}: no such file")
+        return text
+    raise argparse.ArgumentTypeError(f"expected one of {list(SIZES)} or a .json file, got {text!r}")
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -43,7 +55,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default="both",
         help="training variant (thesis 5.5.1: Dual only, Primal only, Both, Both Noisy; oracle)",
     )
-    p.add_argument("--size", choices=SIZES, default="fast", help="config preset (fast: the shipped model's CPU preset)")
+    p.add_argument(
+        "--size",
+        type=_size,
+        default="fast",
+        help=f"config preset ({', '.join(SIZES)}; fast: the shipped model's CPU preset) or a JSON file of "
+        "TrainConfig fields over the default",
+    )
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
     p.add_argument(
         "--stop-after", type=sc.positive_int, default=None, help="stop after this many steps of this call (a chunk)"
