@@ -10,6 +10,9 @@ A functional store with a fixed capacity (an equinox pytree; jit once, ``vmap`` 
   Use the planning world's ids (``jaxsem.planning.DOOR``, ``WINDOW``, ``EXIT_SIGN``).
 - Planning glue: :func:`with_object_map` (a ``MapState`` whose semantic channel is the raster),
   :func:`object_map_sampler` (an LSD sampler that reads the object map).
+- From detections (:mod:`jaxsem.sim` renders them): :func:`roshan_init` / :func:`roshan_frame` /
+  :func:`roshan_objects` (ROSHAN's online smoother on building classes, its current ellipsoids
+  as map objects); :func:`map_errors` (a map's position / size errors against ground truth).
 - Ground truth: :func:`building_objects` / :func:`ground_truth_map` turn a generated building's
   doors, windows and exit signs into boxes and inscribed ellipsoids.
 
@@ -28,6 +31,14 @@ from ._building import (
     box_ellipsoids,
     building_objects,
     ground_truth_map,
+)
+from ._detections import (
+    ROSHAN_CLASSES,
+    map_errors,
+    roshan_frame,
+    roshan_init,
+    roshan_objects,
+    roshan_priors,
 )
 from ._planning import object_map_sampler, with_object_map
 from ._store import (
@@ -49,13 +60,19 @@ __all__ = [
     "Ellipsoids",
     "ObjectHeights",
     "ObjectMap",
+    "ROSHAN_CLASSES",
     "associate",
     "box_ellipsoids",
     "building_objects",
     "ellipsoids",
     "ground_truth_map",
     "init",
+    "map_errors",
     "object_map_sampler",
+    "roshan_frame",
+    "roshan_init",
+    "roshan_objects",
+    "roshan_priors",
     "semantic_grid",
     "update",
     "with_object_map",
