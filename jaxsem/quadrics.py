@@ -433,7 +433,7 @@ def cylinder_bbox(rotation, center, radii, K, camera_T_world, *, xp: Any = jnp):
     return box, valid
 
 
-def conic_outline(dual_conic, num_points: int = 64):
+def conic_outline(dual_conic, num_points: int = 64, *, xp: Any = jnp):
     """Points on a dual conic's ellipse, for drawing: (..., num_points, 2) and a (...) valid mask.
 
     A real ellipse with centre ``x0`` and shape ``M`` (the points ``x`` with
@@ -444,13 +444,17 @@ def conic_outline(dual_conic, num_points: int = 64):
     adjugate, no determinant and no eigen-decomposition, so the gradients are finite in float32
     and correct for circles (where an eigenvector gradient is undefined). Where the conic is not
     a real ellipse the points collapse to a finite point and valid is False.
+
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code, e.g. figures: no jit, nothing
+    compiles).
     """
-    Cs = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True)
+    xp = _namespace(xp)
+    Cs = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
     if int(num_points) < 1:
         raise ValueError(f"num_points: expected a positive integer, got {num_points}")
-    _, valid = conic_bbox(Cs)
-    Cs = 0.5 * (Cs + jnp.swapaxes(Cs, -1, -2))
-    c33 = jnp.where(valid, Cs[..., 2, 2], -1.0)
+    _, valid = conic_bbox(Cs, xp=xp)
+    Cs = 0.5 * (Cs + xp.swapaxes(Cs, -1, -2))
+    c33 = xp.where(valid, Cs[..., 2, 2], -1.0)
     Cn = Cs / (-c33)[..., None, None]
     x0 = -Cn[..., :2, 2]
     m11 = Cn[..., 0, 0] + x0[..., 0] * x0[..., 0]
@@ -458,15 +462,16 @@ def conic_outline(dual_conic, num_points: int = 64):
     m22 = Cn[..., 1, 1] + x0[..., 1] * x0[..., 1]
     # M = L L^T, L = [[l11, 0], [l21, l22]]; on invalid conics the inputs are replaced by 1 so the
     # branch not taken has finite gradients.
-    l11 = safe_sqrt(jnp.where(valid, m11, 1.0))
-    l21 = safe_div(jnp.where(valid, m12, 0.0), l11)
-    l22 = safe_sqrt(jnp.where(valid, m22 - l21 * l21, 1.0))
-    t = jnp.linspace(0.0, 2 * jnp.pi, int(num_points), dtype=Cs.dtype)
-    cos_t, sin_t = jnp.cos(t), jnp.sin(t)
+    l11 = _safe_sqrt(xp.where(valid, m11, 1.0), xp)
+    m12 = xp.where(valid, m12, 0.0)
+    l21 = safe_div(m12, l11) if xp is jnp else m12 / np.where(l11 > 0, l11, 1.0)
+    l22 = _safe_sqrt(xp.where(valid, m22 - l21 * l21, 1.0), xp)
+    t = xp.linspace(0.0, 2 * np.pi, int(num_points), dtype=Cs.dtype)
+    cos_t, sin_t = xp.cos(t), xp.sin(t)
     u = x0[..., 0, None] + l11[..., None] * cos_t
     v = x0[..., 1, None] + l21[..., None] * cos_t + l22[..., None] * sin_t
-    pts = jnp.stack([u, v], -1)
-    return jnp.where(valid[..., None, None], pts, 0.0), valid
+    pts = xp.stack([u, v], -1)
+    return xp.where(valid[..., None, None], pts, 0.0), valid
 
 
 def _matvec2(m, v):
@@ -755,11 +760,13 @@ def texture_plane_depth(rotation, center, radii, camera_T_world):
     return depth, valid
 
 
-def camera_depth(center, camera_T_world):
-    """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4)."""
-    center = _as_float_array("center", center, (3,), check_finite=True)
-    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True)
-    return jnp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]
+def camera_depth(center, camera_T_world, *, xp: Any = jnp):
+    """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4).
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code)."""
+    xp = _namespace(xp)
+    center = _as_float_array("center", center, (3,), check_finite=True, xp=xp)
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True, xp=xp)
+    return xp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]
 
 
 def ray_entry_range(points, rotation, center, radii, shape):
@@ -859,17 +866,18 @@ def algebraic_distance(points, rotation, center, radii):
 _P_ORTHO = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
 
 
-def ground_conic(rotation, center, radii):
+def ground_conic(rotation, center, radii, *, xp: Any = jnp):
     """Dual conic of the ellipsoid's orthographic projection along z (``P_ortho Q* P_ortho^T``).
 
     ``P_ortho = [[1,0,0,0], [0,1,0,0], [0,0,0,1]]``, so the result is ``Q*`` restricted to the rows
     and columns (x, y, w). Its :func:`conic_bbox` is the footprint's extent in world x, y.
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code).
 
     Returns:
       (..., 3, 3) dual conic in world metres (x, y).
     """
-    Qs = dual_quadric(rotation, center, radii)
-    idx = jnp.array([0, 1, 3])
+    Qs = dual_quadric(rotation, center, radii, xp=xp)
+    idx = np.array([0, 1, 3])
     return Qs[..., idx[:, None], idx[None, :]]
 
 

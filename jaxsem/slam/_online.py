@@ -21,6 +21,8 @@ of the last ``window`` frames (older poses held fixed) and all objects.
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -97,40 +99,46 @@ def online_init(
     if image_size.shape != (2,) or not np.all(image_size > 0):
         raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
     # Concrete, non-weak float leaves: the jitted update returns the same avals it was given,
-    # so the second call hits the compilation cache.
+    # so the second call hits the compilation cache. Everything is built on the host and put on
+    # the device as is (eager jnp ops would each compile a small program: seconds in a CLI run).
+    dtype = np.dtype(dtype)
+
+    def put(x, dt: Any = dtype):
+        return jax.device_put(np.asarray(x, dt))
+
     config = jax.tree_util.tree_map(
-        lambda x: jnp.asarray(x, dtype) if isinstance(x, (float, int)) and not isinstance(x, bool) else x,
+        lambda x: put(x) if isinstance(x, (float, int)) and not isinstance(x, bool) else x,
         config,
     )
-    eye4 = jnp.broadcast_to(jnp.eye(4, dtype=dtype), (P, 4, 4))
+    eye4 = put(np.broadcast_to(np.eye(4), (P, 4, 4)))
     problem = SlamProblem(
-        K=jnp.asarray(K, dtype),
-        image_size=jnp.asarray(image_size, dtype),
+        K=put(K),
+        image_size=put(image_size),
         pose_prior=eye4,
-        pose_mask=jnp.zeros(P, bool),
-        box=jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0, 1.0], dtype), (B, 4)),
-        box_pose=jnp.zeros(B, jnp.int32),
-        box_object=jnp.zeros(B, jnp.int32),
-        box_mask=jnp.zeros(B, bool),
-        texture_depth=jnp.zeros(B, dtype),
-        texture_mask=jnp.zeros(B, bool),
-        object_class=jnp.zeros(J, jnp.int32),
-        object_mask=jnp.zeros(J, bool),
+        pose_mask=put(np.zeros(P), bool),
+        box=put(np.broadcast_to(np.asarray([0.0, 0.0, 1.0, 1.0]), (B, 4))),
+        box_pose=put(np.zeros(B), np.int32),
+        box_object=put(np.zeros(B), np.int32),
+        box_mask=put(np.zeros(B), bool),
+        texture_depth=put(np.zeros(B)),
+        texture_mask=put(np.zeros(B), bool),
+        object_class=put(np.zeros(J), np.int32),
+        object_mask=put(np.zeros(J), bool),
     )
     estimate = SlamEstimate(
         camera_T_world=eye4,
-        rotation=jnp.broadcast_to(jnp.eye(3, dtype=dtype), (J, 3, 3)),
-        center=jnp.zeros((J, 3), dtype),
-        radii=jnp.ones((J, 3), dtype),
+        rotation=put(np.broadcast_to(np.eye(3), (J, 3, 3))),
+        center=put(np.zeros((J, 3))),
+        radii=put(np.ones((J, 3))),
     )
     return OnlineState(
         problem=problem,
         estimate=estimate,
-        pose_frame=jnp.full(P, -1, jnp.int32),
-        frame_count=jnp.asarray(0, jnp.int32),
-        box_count=jnp.asarray(0, jnp.int32),
+        pose_frame=put(np.full(P, -1), np.int32),
+        frame_count=put(0, np.int32),
+        box_count=put(0, np.int32),
         # A jax int32 code, not the enum's numpy constant: the second update hits the jit cache.
-        result=RESULTS.where(jnp.asarray(True), RESULTS.successful, RESULTS.max_steps_reached),
+        result=jax.tree_util.tree_map(lambda v: put(v, np.int32), RESULTS.successful),
         config=config,
         optimize_every=int(optimize_every),
         iterations=int(iterations),
@@ -144,8 +152,8 @@ def _pose_free(state: OnlineState):
     return state.problem.pose_mask & recent
 
 
-def _optimize(state: OnlineState, iterations: int, all_poses: bool) -> OnlineState:
-    free = state.problem.pose_mask if all_poses else _pose_free(state)
+def _optimize(state: OnlineState, iterations, free) -> OnlineState:
+    """``iterations`` (an int, traced or not) LM steps over the poses where ``free`` and all objects."""
     dtype = state.problem.pose_prior.dtype
     # Plain LM (no rescue phases): online objects are initialised from one detection each.
     est, _, _, _, code = levenberg_marquardt(
@@ -238,19 +246,44 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     )
 
 
-def _update(state: OnlineState, frame: Frame) -> OnlineState:
+def _check_frame(state: OnlineState, frame: Frame):
     if frame.box.shape != (state.max_detections, 4):
         raise ValueError(
             f"frame.box: expected shape ({state.max_detections}, 4) (capacity.max_detections), "
             f"got {frame.box.shape}; build frames with make_frame(..., max_detections=...)"
         )
-    state = _insert(state, frame)
-    due = (state.frame_count % state.optimize_every) == 0
-    state = jax.lax.cond(due, lambda s: _optimize(s, s.iterations, False), lambda s: s, state)
+
+
+def _online_step(state: OnlineState, frame: Frame, final, final_iterations) -> OnlineState:
+    """One smoother step, the per-frame update and the final optimisation in one program.
+
+    ``final`` () bool False: insert ``frame`` and, every ``optimize_every`` frames, run
+    ``state.iterations`` LM steps over the window (:func:`online_update`). True: ``frame`` is
+    ignored and ``final_iterations`` () int LM steps run over every kept pose
+    (:func:`online_optimize`). Both modes share one LM call site, so a program that does both
+    (:func:`jaxsem.slam.run_sequence`) traces and compiles the solver once.
+    """
+    _check_frame(state, frame)
+    final = jnp.asarray(final, bool)
+    state = jax.lax.cond(final, lambda s: s, lambda s: _insert(s, frame), state)
+    due = final | ((state.frame_count % state.optimize_every) == 0)
+    free = jnp.where(final, state.problem.pose_mask, _pose_free(state))
+    iterations = jnp.where(final, jnp.asarray(final_iterations, jnp.int32), state.iterations)
+    state = jax.lax.cond(due, lambda s: _optimize(s, iterations, free), lambda s: s, state)
     # Never success on non-finite data: this frame, the held graph or the estimate.
-    finite = _all_finite(frame) & _all_finite(state.problem) & _all_finite(state.estimate)
+    finite = (final | _all_finite(frame)) & _all_finite(state.problem) & _all_finite(state.estimate)
     result = RESULTS.where(finite, state.result, RESULTS.nonfinite)
     return eqx.tree_at(lambda s: s.result, state, result)
+
+
+online_step = jax.jit(_online_step)
+"""Jitted :func:`_online_step` ``(state, frame, final, final_iterations)``: the one executable
+behind :func:`online_update` and :func:`online_optimize`."""
+
+
+def _update(state: OnlineState, frame: Frame) -> OnlineState:
+    _check_frame(state, frame)
+    return online_step(state, frame, jnp.asarray(False), jnp.asarray(0, jnp.int32))
 
 
 online_update = jax.jit(_update)
@@ -262,17 +295,35 @@ Args:
   state: :class:`OnlineState`; frame: :class:`Frame` with ``max_detections`` rows.
 
 Returns:
-  the new :class:`OnlineState`.
+  the new :class:`OnlineState`; ``state.result`` is this frame's :data:`RESULTS` code.
 """
+
+
+def empty_frame(state: OnlineState) -> Frame:
+    """A frame without detections of the state's size (host arrays only: nothing compiles)."""
+    import numpy as np
+
+    D = state.max_detections
+    dtype = state.problem.pose_prior.dtype
+    return Frame(
+        pose_prior=jax.device_put(np.eye(4, dtype=dtype)),
+        box=jax.device_put(np.tile(np.asarray([0.0, 0.0, 1.0, 1.0], dtype), (D, 1))),
+        box_class=jax.device_put(np.zeros(D, np.int32)),
+        texture_depth=jax.device_put(np.zeros(D, dtype)),
+        texture_mask=jax.device_put(np.zeros(D, bool)),
+        object_id=jax.device_put(np.zeros(D, np.int32)),
+        box_mask=jax.device_put(np.zeros(D, bool)),
+    )
 
 
 def online_optimize(state: OnlineState, iterations: int = 50) -> OnlineState:
     """Relinearises and runs up to ``iterations`` LM steps over all kept poses and objects
-    (the final optimisation after the last frame)."""
-    return _final(state, iterations)
+    (the final optimisation after the last frame). ``state.result`` is the LM's code."""
+    import numpy as np
 
-
-_final = jax.jit(lambda s, n: _optimize(s, n, True), static_argnums=1)
+    if int(iterations) < 0:
+        raise ValueError(f"iterations: expected >= 0, got {iterations}")
+    return online_step(state, empty_frame(state), np.asarray(True), np.asarray(iterations, np.int32))
 
 
 def online_estimate(state: OnlineState) -> SlamEstimate:

@@ -19,9 +19,10 @@ simulator and the front end may construct the modules directly when they know th
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -493,17 +494,21 @@ def make_frame(
     tex_mask = ok & np.isfinite(texture_depth) & (texture_depth > 0)
     pad = max_detections - N
     box = np.where(ok[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
+    # Host arrays in their final dtype, then put on the device as they are: a jnp conversion
+    # would run (and on the first frame compile) a small program per field.
+    fdt = np.dtype(dtype)
+
+    def put(x, dt: Any = fdt):
+        return jax.device_put(np.asarray(x, dt))
+
     return Frame(
-        pose_prior=jnp.asarray(pose_prior, dtype),
-        box=jnp.asarray(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))]), dtype),
-        box_class=jnp.asarray(np.concatenate([box_class, np.zeros(pad, np.int64)]), jnp.int32),
-        texture_depth=jnp.asarray(
-            np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)]),
-            dtype,
-        ),
-        texture_mask=jnp.asarray(np.concatenate([tex_mask, np.zeros(pad, bool)])),
-        object_id=jnp.asarray(np.concatenate([object_id, np.zeros(pad, np.int64)]), jnp.int32),
-        box_mask=jnp.asarray(np.concatenate([ok, np.zeros(pad, bool)])),
+        pose_prior=put(pose_prior),
+        box=put(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))])),
+        box_class=put(np.concatenate([box_class, np.zeros(pad, np.int64)]), np.int32),
+        texture_depth=put(np.concatenate([np.where(tex_mask, texture_depth, 0.0), np.zeros(pad)])),
+        texture_mask=put(np.concatenate([tex_mask, np.zeros(pad, bool)]), bool),
+        object_id=put(np.concatenate([object_id, np.zeros(pad, np.int64)]), np.int32),
+        box_mask=put(np.concatenate([ok, np.zeros(pad, bool)]), bool),
     )
 
 

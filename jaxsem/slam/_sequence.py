@@ -701,7 +701,8 @@ def run_sequence(
 
     import jax
 
-    from ._online import online_init, online_optimize, online_update
+    from ._aot import exported
+    from ._online import _online_step, empty_frame, online_init, online_step
     from ._problem import SolverConfig, make_frame
 
     if not isinstance(sequence, Sequence):
@@ -728,6 +729,13 @@ def run_sequence(
     T, P = len(sequence.frames), capacity.max_poses
     poses = np.zeros((T, 4, 4))
     seconds = np.zeros(T)
+    # Every frame and the final optimisation go through one program (_online_step: the
+    # per-frame update and online_optimize in one), traced once per code version when the
+    # compilation cache is on (_aot.exported keeps the traced program beside it), else once
+    # per run.
+    step = None
+    update, final = np.asarray(False), np.asarray(True)
+    no_steps = np.asarray(0, np.int32)
     for t, fr in enumerate(sequence.frames):
         frame = make_frame(
             fr.camera_T_world,
@@ -740,14 +748,17 @@ def run_sequence(
             dtype=state.problem.K.dtype,
         )
         start = time.perf_counter()
-        state = jax.block_until_ready(online_update(state, frame))
+        if step is None:  # counted in the first frame's time
+            step = exported("online_step", _online_step, (state, frame, update, no_steps), state)
+        state = jax.block_until_ready(step(state, frame, update, no_steps))
         seconds[t] = time.perf_counter() - start
         if t + 1 >= P and t + 1 < T:  # the next frame reuses the slot of frame t + 1 - P
-            poses[t + 1 - P] = np.asarray(state.estimate.camera_T_world[(t + 1) % P])
+            poses[t + 1 - P] = np.asarray(state.estimate.camera_T_world)[(t + 1) % P]
         if callback is not None:
             callback(t, state, seconds[t])
     if final_iterations > 0:
-        state = online_optimize(state, final_iterations)
+        step = online_step if step is None else step
+        state = step(state, empty_frame(state), final, np.asarray(final_iterations, np.int32))
     est = state.estimate
     pose_frame = np.asarray(state.pose_frame)
     cams = np.asarray(est.camera_T_world, np.float64)
@@ -758,9 +769,9 @@ def run_sequence(
     return SequenceResult(
         object_ids=ids,
         object_classes=sequence.object_classes,
-        rotation=np.asarray(est.rotation[:J], np.float64),
-        center=np.asarray(est.center[:J], np.float64),
-        radii=np.asarray(est.radii[:J], np.float64),
+        rotation=np.asarray(est.rotation, np.float64)[:J],
+        center=np.asarray(est.center, np.float64)[:J],
+        radii=np.asarray(est.radii, np.float64)[:J],
         camera_T_world=poses,
         frame_seconds=seconds,
         state=state,
@@ -817,6 +828,8 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
       float}}`` over the K estimated objects that have a true counterpart
       (:func:`jaxsem.metrics.ellipsoid_errors`, symmetry-aware).
     """
+    import jax
+
     from ..metrics import ellipsoid_errors
 
     by_id = {o["id"]: o for o in truth.get("objects", [])}
@@ -831,7 +844,8 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
             "mean": {},
         }
     tr = [by_id[result.object_ids[j]] for j in keep]
-    e = ellipsoid_errors(
+    # One jitted program (op by op, each jnp op would compile a program of its own).
+    e = jax.jit(ellipsoid_errors)(
         result.rotation[keep],
         result.center[keep],
         result.radii[keep],
@@ -853,7 +867,9 @@ def _ground_outline(rotation, center, radii, num_points: int = 72):
     """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y."""
     from .. import quadrics as Q
 
-    outline, _ = Q.conic_outline(Q.ground_conic(rotation, center, np.abs(np.asarray(radii))), num_points)
+    # numpy (xp=np): figures are host code, and eager jnp ops would each compile a program.
+    R, c, r = (np.asarray(x, np.float64) for x in (rotation, center, radii))
+    outline, _ = Q.conic_outline(Q.ground_conic(R, c, np.abs(r), xp=np), num_points, xp=np)
     return np.asarray(outline, np.float64)
 
 
@@ -958,8 +974,6 @@ def draw_overlay(
       object_ids: optional (J,) labels of the ellipsoids; only those in ``ids`` are drawn when
         both are given (the objects detected in this frame).
     """
-    import jax.numpy as jnp
-
     from .. import quadrics as Q
 
     W, H = int(image_size[0]), int(image_size[1])
@@ -986,12 +1000,15 @@ def draw_overlay(
             wanted = {str(i) for i in ids}
             keep = np.array([str(o) in wanted for o in object_ids], bool)
         if keep.any():
-            Kf = jnp.asarray(K, jnp.float32)
-            pose = jnp.asarray(camera_T_world, jnp.float32)
-            R, c, r = (jnp.asarray(x[keep], jnp.float32) for x in (rotation, center, radii))
-            conic = Q.project_dual_conic(Q.dual_quadric(R, c, r), Kf, pose)
-            outline, ok_c = Q.conic_outline(conic, 96)
-            pbox, ok_b = Q.project_bbox(R, c, r, Kf, pose)
+            # numpy (xp=np): host code, nothing compiles. The conic is a real ellipse and its
+            # centre in front of the camera exactly where project_bbox calls the box valid.
+            Kn = np.asarray(K, np.float64)
+            pose = np.asarray(camera_T_world, np.float64)
+            R, c, r = (x[keep] for x in (rotation, center, radii))
+            conic = Q.project_dual_conic(Q.dual_quadric(R, c, r, xp=np), Kn, pose, xp=np)
+            outline, ok_c = Q.conic_outline(conic, 96, xp=np)
+            pbox, ok_b = Q.conic_bbox(conic, xp=np)
+            ok_b = ok_b & (Q.camera_depth(c, pose, xp=np) > 0)
             for k in range(int(keep.sum())):
                 if bool(ok_b[k]) and bool(ok_c[k]):
                     pts = np.asarray(outline[k])

@@ -1,0 +1,153 @@
+"""Traced programs kept on disk next to JAX's persistent compilation cache (no re-tracing).
+
+JAX's persistent compilation cache saves the XLA compile, but every new process still traces
+the Python function and lowers it before it can look the executable up. For the online
+smoother's step (:func:`jaxsem.slam.run_sequence`) tracing alone is about 1.5 s on a 2-core
+CPU, a third of a 60-frame run. :func:`exported` keeps the traced and lowered program
+(``jax.export``: StableHLO plus its calling convention) in
+``<jax_compilation_cache_dir>/jaxsem-exports/`` and calls it from there: a later process only
+parses it (about 0.5 s) and finds the executable in JAX's cache.
+
+- On exactly when JAX's persistent compilation cache is (a directory set and
+  ``jax_enable_compilation_cache`` true; the command line turns both on, ``--no-compilation-cache``
+  off); otherwise, and whenever anything fails, the jitted function is called as usual.
+- The key covers the jax / jaxlib versions, the backend, the x64 flag, the argument tree (static
+  fields included), every argument's shape, dtype and weak type, and the source of the
+  ``jaxsem`` package, so any code change re-traces.
+- The file holds a pickled ``jax.export.Exported`` (this jax has no flatbuffers for its own
+  serialisation); as with JAX's cache, keep the cache directory private.
+- Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Measured
+  with jax 0.10 on the CPU: the online step loaded that way crashed the process (segmentation
+  fault) in its first optimisation, so only the portable program is kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import os
+import pathlib
+import pickle
+import tempfile
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+
+__all__ = ["cache_folder", "exported"]
+
+_FOLDER = "jaxsem-exports"
+
+
+def cache_folder() -> pathlib.Path | None:
+    """Where traced programs are kept, or None when JAX's persistent compilation cache is off."""
+    folder = getattr(jax.config, "jax_compilation_cache_dir")
+    if not folder or not getattr(jax.config, "jax_enable_compilation_cache"):
+        return None
+    return pathlib.Path(folder) / _FOLDER
+
+
+@functools.cache
+def _source_digest() -> str:
+    root = pathlib.Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _aval(x) -> str:
+    return f"{np.shape(x)}:{jax.numpy.result_type(x)}:{bool(getattr(x, 'weak_type', False))}"
+
+
+def _key(name: str, leaves, tree) -> str:
+    from importlib.metadata import version
+
+    device = jax.devices()[0]
+    h = hashlib.sha256()
+    for part in (
+        name,
+        jax.__version__,
+        version("jaxlib"),
+        device.client.platform,
+        device.client.platform_version,
+        str(device.device_kind),
+        str(getattr(jax.config, "jax_enable_x64")),
+        str(tree),
+        ";".join(_aval(x) for x in leaves),
+        _source_digest(),
+    ):
+        h.update(part.encode())
+        h.update(b"\0")
+    return h.hexdigest()[:32]
+
+
+def _save(path: pathlib.Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        pathlib.Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _export(fn: Callable, leaves, tree):
+    def flat(*flat_args):
+        return jax.tree_util.tree_leaves(fn(*jax.tree_util.tree_unflatten(tree, flat_args)))
+
+    exp = jax.export.export(jax.jit(flat))(*leaves)
+    # The VJP closure cannot be pickled (and is not needed: the step is never differentiated).
+    return dataclasses.replace(exp, _get_vjp=None)
+
+
+def exported(name: str, fn: Callable, args: tuple, out_like: Any, folder: pathlib.Path | None = None) -> Callable:
+    """A callable equal to ``jax.jit(fn)`` on arguments shaped like ``args``, traced at most once
+    per code version and machine.
+
+    Args:
+      name: a label for the file name.
+      fn: the Python function (not jitted; positional array / pytree arguments).
+      args: example arguments (their tree and avals fix the program).
+      out_like: a pytree with the tree structure of ``fn(*args)`` (e.g. the input state of a
+        step that returns the same state type).
+      folder: where to keep the program (default :func:`cache_folder`; None there: no file).
+
+    Returns:
+      ``call(*args) -> fn(*args)``: the program loaded from ``folder`` (or traced and saved
+      there), called through ``jax.jit``; plain ``jax.jit(fn)`` when there is no folder or
+      the file cannot be read or written.
+    """
+    folder = cache_folder() if folder is None else pathlib.Path(folder)
+    plain = jax.jit(fn)
+    if folder is None:
+        return plain
+    try:
+        leaves, tree = jax.tree_util.tree_flatten(tuple(args))
+        out_tree = jax.tree_util.tree_structure(out_like)
+        path = folder / f"{name}-{_key(name, leaves, tree)}.pkl"
+        exp = None
+        if path.exists():
+            try:
+                exp = pickle.loads(path.read_bytes())
+            except Exception:
+                path.unlink(missing_ok=True)
+        if exp is None:
+            exp = _export(fn, leaves, tree)
+            _save(path, pickle.dumps(exp))
+        call = jax.jit(exp.call)
+    except Exception:
+        return plain
+
+    def run(*a):
+        flat, t = jax.tree_util.tree_flatten(tuple(a))
+        if t != tree:  # another static configuration: the plain path
+            return plain(*a)
+        return jax.tree_util.tree_unflatten(out_tree, call(*flat))
+
+    return run

@@ -1,0 +1,146 @@
+"""Issue 12, online start-up: one program for every frame and the final optimisation, a traced
+program kept on disk (jaxsem.slam._aot), and host-side set-up and figures that compile nothing."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import matplotlib
+import numpy as np
+import pytest
+
+from jaxsem import quadrics as Q, slam
+from jaxsem.slam import _aot, _online
+
+matplotlib.use("Agg")
+
+CFG = slam.SolverConfig(max_steps=30)
+
+
+def _state_and_frames(seed=3):
+    problem, _ = slam.toy_map(seed, num_objects=2, num_frames=8, path="orbit")
+    frames = slam.frames_from_problem(problem, max_detections=2)
+    cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
+    state = slam.online_init(CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=2)
+    return state, frames
+
+
+class _Compiles:
+    """Counts XLA compilations (JAX's backend-compile event) inside a ``with`` block."""
+
+    def __enter__(self):
+        self.count = 0
+        jax.monitoring.register_event_duration_secs_listener(self._listen)
+        return self
+
+    def _listen(self, event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            self.count += 1
+
+    def __exit__(self, *exc):
+        jax.monitoring.unregister_event_duration_listener(self._listen)
+
+
+def _leaves_equal(a, b):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
+def test_update_and_final_optimize_share_one_compiled_step():
+    state, frames = _state_and_frames()
+    before = _online.online_step._cache_size()
+    for frame in frames:
+        state = slam.online_update(state, frame)
+    final = slam.online_optimize(state, 5)
+    # online_update's own executable wraps the shared step; online_optimize reuses that step's
+    # trace: one new entry for the step itself, whatever the mode or the number of iterations.
+    assert _online.online_step._cache_size() - before == 1
+    slam.online_optimize(state, 7)
+    assert _online.online_step._cache_size() - before == 1
+    assert int(final.frame_count) == len(frames)  # the final mode inserts nothing
+    assert bool(final.result == slam.RESULTS.successful) or bool(final.result == slam.RESULTS.max_steps_reached)
+    cost = lambda s: float(slam.total_cost(s.problem, s.estimate, s.config))
+    assert cost(final) <= cost(state)
+
+
+def test_exported_step_is_saved_reloaded_and_identical(tmp_path, monkeypatch):
+    state, frames = _state_and_frames()
+    flag, n = np.asarray(False), np.asarray(0, np.int32)
+    args = (state, frames[0], flag, n)
+    step = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
+    saved = list(tmp_path.iterdir())
+    assert len(saved) == 1 and saved[0].suffix == ".pkl"
+
+    # A second process (here: a second call) loads the program instead of tracing it.
+    def no_trace(*a, **k):
+        raise AssertionError("traced again although the program was on disk")
+
+    monkeypatch.setattr(_aot, "_export", no_trace)
+    again = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
+    plain = jax.jit(_online._online_step)
+    s_plain = s_saved = s_loaded = state
+    for frame in frames:
+        s_plain = plain(s_plain, frame, flag, n)
+        s_saved = step(s_saved, frame, flag, n)
+        s_loaded = again(s_loaded, frame, flag, n)
+    final = (_online.empty_frame(state), np.asarray(True), np.asarray(4, np.int32))
+    s_plain, s_saved, s_loaded = plain(s_plain, *final), step(s_saved, *final), again(s_loaded, *final)
+    assert _leaves_equal(s_plain, s_saved)
+    assert _leaves_equal(s_plain, s_loaded)
+
+
+def test_exported_falls_back_without_a_folder_or_on_a_bad_file(tmp_path):
+    state, frames = _state_and_frames()
+    args = (state, frames[0], np.asarray(False), np.asarray(0, np.int32))
+    assert _aot.cache_folder() is None or _aot.cache_folder().name == "jaxsem-exports"
+    step = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
+    (path,) = tmp_path.iterdir()
+    path.write_bytes(b"not a pickle")
+    again = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
+    assert _leaves_equal(step(*args), again(*args))
+    # Another static configuration (optimize_every) than the exported one: the plain jit path.
+    other = dataclasses.replace(state, optimize_every=3)
+    out = step(other, *args[1:])
+    assert int(out.frame_count) == 1 and out.optimize_every == 3
+
+
+def test_online_init_and_make_frame_compile_nothing():
+    problem, _ = slam.toy_map(0, num_objects=2, num_frames=4, path="orbit")
+    cap = slam.Capacity(max_poses=4, max_objects=2, max_boxes=8, max_detections=2)
+    with _Compiles() as c:
+        for dtype in (jnp.float32, None):
+            slam.online_init(CFG, cap, np.asarray(problem.K), np.asarray(problem.image_size), dtype=dtype)
+            slam.make_frame(np.eye(4), [[1.0, 2.0, 30.0, 40.0]], ["car"], [1], [5.0], max_detections=3, dtype=dtype)
+    assert c.count == 0
+
+
+def test_figures_compile_nothing_and_match_the_jax_geometry():
+    import matplotlib.pyplot as plt
+
+    problem, truth = slam.toy_map(1, num_objects=3, num_frames=4, path="orbit")
+    R, c, r = (np.asarray(x, np.float64) for x in (truth.rotation, truth.center, truth.radii))
+    K, pose = np.asarray(problem.K, np.float64), np.asarray(truth.camera_T_world[0], np.float64)
+    fig, ax = plt.subplots()
+    with _Compiles() as comp:
+        slam.draw_top_down(ax, R, c, r)
+        slam.draw_overlay(ax, None, K, pose, np.asarray(problem.image_size), None, None, (R, c, r))
+    plt.close(fig)
+    assert comp.count == 0
+    # The host (numpy) geometry the figures use is the library's jnp geometry.
+    conic_np = Q.project_dual_conic(Q.dual_quadric(R, c, r, xp=np), K, pose, xp=np)
+    conic_j = Q.project_dual_conic(Q.dual_quadric(R, c, r), K, pose)
+    for xp_out, j_out in zip(Q.conic_outline(conic_np, 16, xp=np), Q.conic_outline(conic_j, 16)):
+        np.testing.assert_allclose(xp_out, np.asarray(j_out), rtol=1e-6, atol=1e-6)
+    g_np = Q.conic_outline(Q.ground_conic(R, c, r, xp=np), 8, xp=np)[0]
+    np.testing.assert_allclose(g_np, np.asarray(Q.conic_outline(Q.ground_conic(R, c, r), 8)[0]), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(Q.camera_depth(c, pose, xp=np), np.asarray(Q.camera_depth(c, pose)), rtol=1e-6)
+    box_np, ok_np = Q.conic_bbox(conic_np, xp=np)
+    box_j, ok_j = Q.project_bbox(R, c, r, K, pose)
+    ok = ok_np & (Q.camera_depth(c, pose, xp=np) > 0)
+    assert np.array_equal(ok, np.asarray(ok_j))
+    np.testing.assert_allclose(box_np[ok], np.asarray(box_j)[ok], rtol=1e-5, atol=1e-3)
+
+
+def test_host_geometry_rejects_other_namespaces():
+    with pytest.raises(ValueError, match="xp"):
+        Q.conic_outline(np.eye(3), 4, xp=object())
