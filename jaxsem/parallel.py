@@ -16,8 +16,16 @@ a batch). This module spreads such a batch over every device in a one-axis :clas
   ``vmap(fn)`` once per device slice, so a ``while_loop`` inside ``fn`` (a Levenberg-Marquardt
   solve) stops on each device when that device's slowest item stops; ``method="jit"`` lets XLA's
   partitioner split ``jit(vmap(fn))`` by the input / output shardings (one global loop);
+- :func:`solve_maps`: batch SLAM evaluation, :func:`jaxsem.slam.solve_batch` over a batch of maps
+  split over the devices (what ``jax.vmap(slam.solve_batch)`` computes on one device);
 - :func:`initialize_distributed`: ``jax.distributed.initialize`` when there is more than one
   process, a no-op otherwise, so the same script runs on a laptop and on a cluster.
+
+Training runs data-parallel with the same mesh: ``jaxsem.volumon.train_and_evaluate(...,
+mesh=data_mesh())`` and ``jaxsem.lsd.train_and_evaluate(..., mesh=data_mesh())`` (commands:
+``--devices N|all``) keep parameters and optimiser state :func:`replicated` and split each batch
+along its leading axis (:func:`batch_sharding`), so one step equals the single-device step up to
+floating-point summation order.
 
 Multi-host launch (one process per host; every process runs the same script)::
 
@@ -41,8 +49,10 @@ single-device ones.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, overload
 
 import jax
 import jax.numpy as jnp
@@ -52,14 +62,21 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 __all__ = [
     "DATA_AXIS",
     "batch_sharding",
+    "check_batch_size",
     "data_mesh",
+    "devices_mesh",
     "initialize_distributed",
     "pad_batch",
+    "parse_devices",
     "replicated",
     "shard_batch",
     "sharded_vmap",
+    "solve_maps",
     "unpad_batch",
 ]
+
+if TYPE_CHECKING:
+    from .slam import SlamEstimate, SlamProblem, SolveInfo, SolverConfig
 
 DATA_AXIS = "data"
 
@@ -270,3 +287,104 @@ def _compile(fn, mesh, axis, axes, method):
         return unpad_batch(out, n)
 
     return jax.jit(run)
+
+
+def parse_devices(text: str) -> int | str:
+    """A ``--devices`` value: ``"all"`` or a positive count (``ValueError`` naming ``devices``)."""
+    if text == "all":
+        return text
+    try:
+        count = int(text)
+    except ValueError:
+        count = 0
+    if count < 1:
+        raise ValueError(f"devices: expected 'all' or a positive count, got {text!r}")
+    return count
+
+
+@overload
+def devices_mesh(devices: None = None) -> None: ...
+
+
+@overload
+def devices_mesh(devices: int | str | Sequence) -> Mesh: ...
+
+
+def devices_mesh(devices: int | str | Sequence | None = None) -> Mesh | None:
+    """The data mesh a ``devices`` option names: None (one device, no mesh), ``"all"`` (every
+    device of every process), a count ``N`` (the first ``N`` of ``jax.devices()``; ``"N"`` too) or
+    a sequence of devices. A count above the device count is a ValueError naming ``devices``."""
+    if devices is None:
+        return None
+    if isinstance(devices, str):
+        devices = parse_devices(devices)
+        if devices == "all":
+            return data_mesh()
+    if isinstance(devices, (int, np.integer)):
+        available = jax.devices()
+        if not 1 <= devices <= len(available):
+            raise ValueError(
+                f"devices: expected 'all' or a count from 1 to the {len(available)} device(s) JAX sees, got {devices}"
+            )
+        return data_mesh(available[: int(devices)])
+    return data_mesh(devices)
+
+
+def check_batch_size(batch_size: int, mesh: Mesh | None, name: str = "batch_size") -> None:
+    """ValueError naming ``name`` unless ``batch_size`` splits evenly over ``mesh``'s devices."""
+    if mesh is not None and batch_size % _mesh(mesh).size:
+        raise ValueError(
+            f"{name}: {batch_size} does not divide over the {mesh.size} devices of the mesh; pick a multiple "
+            f"of {mesh.size} (or fewer devices)"
+        )
+
+
+@functools.lru_cache(maxsize=32)
+def _solve_maps_fn(mesh: Mesh, method: str, shard_method: str) -> Callable:
+    from . import slam
+
+    def one(problem, init, config):
+        return slam.solve_batch(problem, init, config, method=method)
+
+    return sharded_vmap(one, mesh, in_axes=(0, 0, None), method=shard_method)
+
+
+def solve_maps(
+    problems: SlamProblem,
+    inits: SlamEstimate,
+    config: SolverConfig | None = None,
+    mesh: Mesh | None = None,
+    *,
+    method: str = "schur",
+    shard_method: str = "shard_map",
+) -> tuple[SlamEstimate, SolveInfo]:
+    """Batch SLAM evaluation over every device: solves each map of a batch with
+    :func:`jaxsem.slam.solve_batch`, the maps split over ``mesh`` (default :func:`data_mesh`).
+
+    Args:
+      problems, inits: a batch of maps (every leaf with the same leading axis ``B``, e.g.
+        ``jax.vmap(sim.to_problem)`` and ``jax.vmap(sim.initial_estimate)`` of
+        :func:`jaxsem.sim.simulate_batch`); ``B`` need not divide by the device count (padded by
+        repeating the last map, the copies dropped).
+      config: :class:`jaxsem.slam.SolverConfig` shared by every map (default ROSHAN's); passed
+        as a replicated pytree, so its traced fields do not recompile.
+      method: ``solve_batch``'s solver (``"schur"`` or ``"optimistix"``).
+      shard_method: :func:`sharded_vmap`'s method (``"shard_map"``: each device's solver loop stops
+        when that device's maps are done).
+
+    Returns:
+      ``(estimates, infos)`` batched along ``B``: what ``jax.vmap(lambda p, i: solve_batch(p, i,
+      config))(problems, inits)`` returns on one device. Per map the solve is the same program; a
+      vmapped solver loop runs each map with the others of its batch, so results agree with a
+      whole-batch vmap to the solver's own batch-dependence (see ``tests/test_parallel_training.py``)
+      and exactly with a vmap over each device's slice.
+    """
+    from . import slam
+
+    if method not in ("schur", "optimistix"):
+        raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
+    if shard_method not in ("shard_map", "jit"):
+        raise ValueError(f"shard_method: expected 'shard_map' or 'jit', got {shard_method!r}")
+    config = slam.SolverConfig() if config is None else config
+    fn: Any = _solve_maps_fn(_mesh(mesh), method, shard_method)
+    return fn(problems, inits, config)

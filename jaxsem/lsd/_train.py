@@ -14,6 +14,11 @@ run would. Each evaluation writes ``workdir/figures/eval_<step>.png`` with the p
 distributions over a few validation maps and appends a row to ``workdir/metrics.jsonl``. The
 workdir, resume and config rules are the ones VoluMon's training shares
 (:class:`jaxsem.training.TrainingRun`).
+
+Data parallel (``mesh=``, a one-axis :func:`jaxsem.parallel.data_mesh`): parameters and
+optimiser state are replicated on every device and each host batch is split along its leading
+axis (:func:`jaxsem.parallel.shard_batch`); the loss is still the global batch's mean, so a step
+equals the single-device step up to floating-point summation order.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .. import parallel
 from ..checkpoint import Checkpointer
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
 from ..training import TrainingRun, config_json
@@ -112,12 +118,19 @@ def make_loss_fn(model: LSDNet, stage: int, augment: bool):
 
 
 @functools.lru_cache(maxsize=16)
-def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int, augment: bool = True):
+def make_train_step(
+    model: LSDNet,
+    tx: optax.GradientTransformation,
+    stage: int,
+    augment: bool = True,
+    mesh: jax.sharding.Mesh | None = None,
+):
     """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
-    ``stage`` (cached per arguments, so a second run in the same process does not recompile)."""
+    ``stage`` (cached per arguments, so a second run in the same process does not recompile).
+    With ``mesh`` the batch comes split over its devices (:func:`jaxsem.parallel.shard_batch`)
+    and the parameters, optimiser state and loss come back replicated."""
     loss_fn = make_loss_fn(model, stage, augment)
 
-    @jax.jit
     def step(params, opt_state, batch, key):
         trainable, frozen = _trainable(params, stage)
         value, grads = jax.value_and_grad(loss_fn)(trainable, frozen, batch, key)
@@ -125,7 +138,9 @@ def make_train_step(model: LSDNet, tx: optax.GradientTransformation, stage: int,
         trainable = cast(dict, optax.apply_updates(trainable, updates))  # same tree as its input, a dict
         return {**frozen, **trainable}, opt_state, value
 
-    return step
+    if mesh is None:
+        return jax.jit(step)
+    return jax.jit(step, out_shardings=parallel.replicated(mesh))
 
 
 @functools.lru_cache(maxsize=16)
@@ -295,6 +310,7 @@ def train_and_evaluate(
     *,
     force: bool = False,
     log: Callable[[str], None] | None = None,
+    mesh: jax.sharding.Mesh | None = None,
 ) -> TrainResult:
     """Trains the LSD network in two stages; checkpoints, metrics and figures go to ``workdir``.
 
@@ -305,11 +321,16 @@ def train_and_evaluate(
     dict of arrays in the expert-shard schema, or shard paths / a folder of ``expert_*.npz``;
     default: ``workdir / 'data'``. progress: tqdm bar. stop_at: end this run (with a
     checkpoint) at that step, for chunked runs; a later call resumes. log: called with the
-    resume line and each evaluation's line. Returns a :class:`TrainResult` whose ``history`` is
+    resume line and each evaluation's line. mesh: train data-parallel over this one-axis mesh
+    (:func:`jaxsem.parallel.data_mesh` or :func:`jaxsem.parallel.devices_mesh`): parameters and
+    optimiser state replicated, each batch split over the devices; ``config.batch_size`` must be
+    a multiple of the device count (else ``ValueError`` naming ``batch_size``); None (default):
+    one device, as before. Returns a :class:`TrainResult` whose ``history`` is
     the evaluation rows of ``metrics.jsonl`` (earlier chunks included).
     """
     if not isinstance(config, TrainConfig):
         raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
+    parallel.check_batch_size(config.batch_size, mesh)
     workdir = pathlib.Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     if data is None:
@@ -346,6 +367,9 @@ def train_and_evaluate(
                 opt_state = state["opt_state"]
         start = run.start
         run.begin()
+        rep = None if mesh is None else parallel.replicated(mesh)
+        if rep is not None:
+            params, opt_state = jax.device_put((params, opt_state), rep)
 
         uniform_nll = float(np.log(config.model.map_size**2))
         figures = workdir / "figures"
@@ -383,9 +407,16 @@ def train_and_evaluate(
             tx = _optimizer(config, stage)
             if opt_state is None:
                 opt_state = tx.init(_trainable(params, stage)[0])
+                if rep is not None:
+                    opt_state = jax.device_put(opt_state, rep)
             if stage not in steps_fn:
-                steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
+                if mesh is None:
+                    steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
+                else:
+                    steps_fn[stage] = make_train_step(model, tx, stage, augment=True, mesh=mesh)
             batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
+            if mesh is not None:
+                batch = parallel.shard_batch(batch, mesh)
             skey = jax.random.fold_in(drop_key, step)
             params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
             step += 1

@@ -12,6 +12,12 @@ and workdir reproduces the uninterrupted run step for step. On resume ``metrics.
 back to the checkpoint's step (no duplicate rows), a "resumed from step N" line is logged, and a
 config that differs from the run's ``config.json`` in anything but its length and logging
 settings raises :class:`ConfigMismatchError` unless ``force=True``.
+
+Data parallel (``mesh=``, a one-axis :func:`jaxsem.parallel.data_mesh`): the train state is
+replicated on every device and each step's batch is split along its leading axis (the
+device-made batch by a sharding constraint inside the jitted step, a host batch by
+:func:`jaxsem.parallel.shard_batch`). The loss and the batch-norm statistics are still the
+global batch's, so a step equals the single-device step up to floating-point summation order.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .. import parallel
 from ..checkpoint import Checkpointer
 from ..models import VoluMonNet, box_features, expected_params, reconstruct, select_class_params
 from ..training import TrainingRun, config_json
@@ -223,11 +230,13 @@ def device_train_batch(config: TrainConfig, step):
 
 
 @functools.lru_cache(maxsize=16)
-def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
+def make_train_step(model: VoluMonNet, tx, config: TrainConfig, mesh: jax.sharding.Mesh | None = None):
     """Jitted train step (cached per config: no recompiles across runs).
 
     ``config.data == "device"``: ``(state) -> (state, loss terms)``, the batch made inside from
-    the state's step; ``"host"``: ``(state, batch) -> (state, loss terms)``.
+    the state's step; ``"host"``: ``(state, batch) -> (state, loss terms)``. With ``mesh`` the
+    state comes back replicated over its devices and the device-made batch is split over them
+    (a host batch arrives split: :func:`jaxsem.parallel.shard_batch`).
     """
     n = config.model.num_classes
 
@@ -265,9 +274,21 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig):
         }
         return new_state, terms._asdict()
 
+    if mesh is None:
+        if config.data == "device":
+            return jax.jit(lambda state: step_fn(state, device_train_batch(config, state["step"])))
+        return jax.jit(step_fn)
+    rep, split = parallel.replicated(mesh), parallel.batch_sharding(mesh)
+
+    def sharded_batch(batch):
+        return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, split), batch)
+
     if config.data == "device":
-        return jax.jit(lambda state: step_fn(state, device_train_batch(config, state["step"])))
-    return jax.jit(step_fn)
+        return jax.jit(
+            lambda state: step_fn(state, sharded_batch(device_train_batch(config, state["step"]))),
+            out_shardings=rep,
+        )
+    return jax.jit(lambda state, batch: step_fn(state, sharded_batch(batch)), out_shardings=rep)
 
 
 def evaluate(
@@ -339,6 +360,7 @@ def train_and_evaluate(
     force: bool = False,
     batch_fn: Callable[[int], dict] | None = None,
     eval_batch: dict | None = None,
+    mesh: jax.sharding.Mesh | None = None,
 ) -> dict[str, Any]:
     """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
 
@@ -356,6 +378,10 @@ def train_and_evaluate(
         e.g. from :class:`jaxsem.data.VolumonDataset` and :func:`jaxsem.data.as_volumon_batch`.
       eval_batch: with ``config.data == "directory"``: the batch (same keys plus ground truth
         ``gt_*``) the periodic evaluation scores; None: no evaluation.
+      mesh: train data-parallel over this one-axis mesh (:func:`jaxsem.parallel.data_mesh`, or
+        :func:`jaxsem.parallel.devices_mesh`): the state replicated, each batch split over the
+        devices; ``config.batch_size`` must be a multiple of the device count (else
+        ``ValueError`` naming ``batch_size``). None (default): one device, as before.
 
     Returns:
       dict with ``state`` (final train state), ``model``, ``history`` (per-step loss terms of this
@@ -366,6 +392,7 @@ def train_and_evaluate(
             f"batch_fn: expected a batch source exactly when config.data == 'directory', got data={config.data!r} "
             f"and batch_fn={'a function' if batch_fn is not None else None}"
         )
+    parallel.check_batch_size(config.batch_size, mesh)
     workdir = pathlib.Path(workdir)
     state, model, tx = init_state(config)
 
@@ -391,21 +418,28 @@ def train_and_evaluate(
         start = int(state["step"])
         run.begin()
         # the step does not depend on the run-length / logging fields: one compiled step for every chunk
-        train_step = make_train_step(
-            model, tx, config.replace(**{k: getattr(TrainConfig(), k) for k in RESUMABLE_FIELDS})
-        )
+        step_config = config.replace(**{k: getattr(TrainConfig(), k) for k in RESUMABLE_FIELDS})
+        if mesh is None:
+            train_step = make_train_step(model, tx, step_config)
+            host_batch = lambda batch: batch
+        else:
+            state = jax.device_put(state, parallel.replicated(mesh))
+            train_step = make_train_step(model, tx, step_config, mesh)
+            host_batch = lambda batch: parallel.shard_batch(batch, mesh)
         end = config.num_steps if stop_after is None else min(config.num_steps, start + int(stop_after))
         can_eval = config.num_eval > 0 and (config.data != "directory" or eval_batch is not None)
         t0 = time.perf_counter()
         for step in run.steps(start, end, total=config.num_steps, desc=f"volumon[{config.variant}]", progress=progress):
             if config.reset_optimizer_at is not None and step == config.reset_optimizer_at:
                 state = {**state, "opt_state": tx.init(state["params"])}
+                if mesh is not None:
+                    state = jax.device_put(state, parallel.replicated(mesh))
             if config.data == "device":
                 state, terms = train_step(state)
             elif batch_fn is not None:
-                state, terms = train_step(state, _host_batch(config, batch_fn(step), step))
+                state, terms = train_step(state, host_batch(_host_batch(config, batch_fn(step), step)))
             else:
-                state, terms = train_step(state, get_train_batch(config, step))
+                state, terms = train_step(state, host_batch(get_train_batch(config, step)))
             if (step + 1) % config.log_every == 0 or step + 1 == end:
                 terms = {k: float(v) for k, v in terms.items()}
                 if not all(np.isfinite(v) for v in terms.values()):
