@@ -1,8 +1,7 @@
 """Issue 12, online start-up: one program for every frame and the final optimisation, a traced
 program kept on disk (jaxsem.slam._aot), and host-side set-up and figures that compile nothing."""
 
-import dataclasses
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -63,45 +62,50 @@ def test_update_and_final_optimize_share_one_compiled_step():
     assert cost(final) <= cost(state)
 
 
-def test_exported_step_is_saved_reloaded_and_identical(tmp_path, monkeypatch):
-    state, frames = _state_and_frames()
-    flag, n = np.asarray(False), np.asarray(0, np.int32)
-    args = (state, frames[0], flag, n)
-    step = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
-    saved = list(tmp_path.iterdir())
-    assert len(saved) == 1 and saved[0].suffix == ".pkl"
+class _Toy(eqx.Module):
+    """A small state with a static field, like OnlineState (the program's tree includes it)."""
 
-    # A second process (here: a second call) loads the program instead of tracing it.
+    x: jnp.ndarray
+    n: jnp.ndarray
+    scale: int = eqx.field(static=True)
+
+
+def _toy_step(state, frame, final):
+    y = jnp.where(final, state.x, state.x * state.scale + jnp.sin(frame))
+    return _Toy(y, state.n + 1, state.scale)
+
+
+def test_exported_program_is_saved_reloaded_and_identical(tmp_path, monkeypatch):
+    state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
+    step = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+    (saved,) = tmp_path.iterdir()
+    assert saved.suffix == ".pkl"
+
+    # A later process (here: a second call) loads the program instead of tracing it again.
     def no_trace(*a, **k):
         raise AssertionError("traced again although the program was on disk")
 
     monkeypatch.setattr(_aot, "_export", no_trace)
-    again = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
-    plain = jax.jit(_online._online_step)
-    s_plain = s_saved = s_loaded = state
-    for frame in frames:
-        s_plain = plain(s_plain, frame, flag, n)
-        s_saved = step(s_saved, frame, flag, n)
-        s_loaded = again(s_loaded, frame, flag, n)
-    final = (_online.empty_frame(state), np.asarray(True), np.asarray(4, np.int32))
-    s_plain, s_saved, s_loaded = plain(s_plain, *final), step(s_saved, *final), again(s_loaded, *final)
-    assert _leaves_equal(s_plain, s_saved)
-    assert _leaves_equal(s_plain, s_loaded)
+    again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+    plain = jax.jit(_toy_step)
+    for final in (np.asarray(False), np.asarray(True)):
+        ref = plain(state, frame, final)
+        assert _leaves_equal(ref, step(state, frame, final))
+        assert _leaves_equal(ref, again(state, frame, final))
+        assert isinstance(again(state, frame, final), _Toy)
 
 
-def test_exported_falls_back_without_a_folder_or_on_a_bad_file(tmp_path):
-    state, frames = _state_and_frames()
-    args = (state, frames[0], np.asarray(False), np.asarray(0, np.int32))
-    assert _aot.cache_folder() is None or _aot.cache_folder().name == "jaxsem-exports"
-    step = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
+def test_exported_falls_back_on_a_bad_file_or_another_static_configuration(tmp_path):
+    state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
+    _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     (path,) = tmp_path.iterdir()
     path.write_bytes(b"not a pickle")
-    again = _aot.exported("online_step", _online._online_step, args, state, folder=tmp_path)
-    assert _leaves_equal(step(*args), again(*args))
-    # Another static configuration (optimize_every) than the exported one: the plain jit path.
-    other = dataclasses.replace(state, optimize_every=3)
-    out = step(other, *args[1:])
-    assert int(out.frame_count) == 1 and out.optimize_every == 3
+    again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+    assert _leaves_equal(jax.jit(_toy_step)(state, frame, flag), again(state, frame, flag))
+    other = _Toy(state.x, state.n, 3)  # another static field: another tree, the plain jit path
+    assert _leaves_equal(jax.jit(_toy_step)(other, frame, flag), again(other, frame, flag))
+    # Without a folder (JAX's persistent cache off) it is jax.jit itself.
+    assert _aot.cache_folder() is None or _aot.cache_folder().name == "jaxsem-exports"
 
 
 def test_online_init_and_make_frame_compile_nothing():
