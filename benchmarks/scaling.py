@@ -8,7 +8,9 @@ the same process, plain ``jax.jit(jax.vmap(...))`` on one device:
 - ``lsd_eval``: LSD per-sample NLL over a batch of crops (batch evaluation);
 - ``lsd_grad``: gradient of the batch's summed NLL w.r.t. the parameters (a training step's work);
 - ``objmap``: object-map updates of many robots (jaxsem.mapping, 8 frames);
-- ``slam`` (``--slam``): ROSHAN batch solve over simulated maps (compiles for minutes on 2 cores).
+- ``slam`` (``--slam``): ROSHAN batch solve over simulated maps (compiles for minutes on 2 cores);
+- ``volumon_step`` (``--train``): one VoluMon training step (tiny preset, batch made on the
+  device), ``make_train_step(..., mesh)`` with the state replicated against the one-device step.
 
 Timings are medians of repeats after a warm-up call, with ``block_until_ready``. Each process
 also checks that the sharded result equals the single-device one. On a 2-core CPU, forced
@@ -17,7 +19,7 @@ here measure the overhead of the sharded path rather than a speedup; the speedup
 devices (GPUs, or hosts). Writes benchmarks/results/scaling.{json,md}.
 
     python benchmarks/scaling.py                        # D = 1, 2, 4 forced CPU devices
-    python benchmarks/scaling.py --devices 1 2 --batch 64 --slam
+    python benchmarks/scaling.py --devices 1 2 --batch 64 --slam --train
 """
 
 from __future__ import annotations
@@ -135,6 +137,18 @@ def child(args) -> dict:
         R,
     )
 
+    if args.train:
+        from jaxsem import volumon
+
+        vcfg = volumon.get_config("both", "tiny").replace(data="device", batch_size=B, augment=True)
+        state, vmodel, tx = volumon.init_state(vcfg)
+        step1 = volumon.make_train_step(vmodel, tx, vcfg)
+        step_d = volumon.make_train_step(vmodel, tx, vcfg, mesh)
+        state_d = jax.device_put(state, parallel.replicated(mesh))
+        # inputs are closed over: the one-device step takes the state on one device, the sharded
+        # one the replicated state (the parameters after one step are compared)
+        record("volumon_step", lambda: step1(state)[0]["params"], lambda: step_d(state_d)[0]["params"], (), B)
+
     if args.slam:
         from jaxsem import sim, slam
 
@@ -150,7 +164,7 @@ def child(args) -> dict:
         record(
             "slam",
             jax.jit(jax.vmap(solve)),
-            parallel.sharded_vmap(solve, mesh),
+            lambda p, i: parallel.solve_maps(p, i, sc, mesh)[0].center,
             (problems, inits),
             B,
         )
@@ -164,6 +178,7 @@ def main(argv=None) -> int:
     p.add_argument("--crop", type=int, default=64, help="LSD crop side (cells)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--slam", action="store_true")
+    p.add_argument("--train", action="store_true", help="add a VoluMon training-step row")
     p.add_argument("--cpu", action="store_true", help="force CPU devices (default on CPU hosts)")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--name", default="scaling")
@@ -180,17 +195,21 @@ def main(argv=None) -> int:
         env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={d}".strip()
         if args.cpu:
             env["JAX_PLATFORMS"] = "cpu"
-        cmd = [
-            sys.executable,
-            __file__,
-            "--child",
-            "--batch",
-            str(args.batch),
-            "--crop",
-            str(args.crop),
-            "--repeats",
-            str(args.repeats),
-        ] + (["--slam"] if args.slam else [])
+        cmd = (
+            [
+                sys.executable,
+                __file__,
+                "--child",
+                "--batch",
+                str(args.batch),
+                "--crop",
+                str(args.crop),
+                "--repeats",
+                str(args.repeats),
+            ]
+            + (["--slam"] if args.slam else [])
+            + (["--train"] if args.train else [])
+        )
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
         sys.stdout.write("".join(ln + "\n" for ln in proc.stdout.splitlines() if not ln.startswith("RESULT ")))
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
