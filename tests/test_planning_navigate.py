@@ -259,3 +259,21 @@ def test_informed_sampler_beats_uniform_at_few_samples():
     for r in inf:
         if r.success:
             assert r.cost <= 1.3 * opt.length
+
+
+def test_robot_in_a_known_obstacle_ends_the_trial_as_a_collision():
+    # Regression: a robot that moved through unknown space into a wall used to crash the trial
+    # runner ("start: ... lies in an occupied cell" from the next roadmap query); it is a
+    # collision, a failed trial with its own reason.
+    from jaxsem.planning import Trial
+
+    w = _two_rooms()
+    trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), CFG, yaw0=0.0)
+    assert trial.step()  # plans and moves
+    occ = np.asarray(trial.state.occupancy).copy()
+    trial.xy = np.array([5.95, 2.05])  # inside the wall at x = 5.9-6.1 m
+    occ[20, 59] = OCCUPIED
+    trial.state = trial.state._replace(occupancy=jax.numpy.asarray(occ))
+    assert not trial.step()
+    res = trial.result()
+    assert not res.success and res.reason == "collision"

@@ -158,7 +158,7 @@ class NavConfig:
 @dataclasses.dataclass
 class NavResult:
     """Outcome of one trial. path: (T, 2) world polyline travelled (start first: the position after
-    each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan' or 'max_steps'; steps; plans (roadmaps built);
+    each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan', 'max_steps' or 'collision' (the robot ended up in a cell its map knows to be occupied); steps; plans (roadmaps built);
     final_state: the partial maps at the end; last_distribution: (H, W) or None; grown: roadmap
     growths after failed searches; searches: roadmap queries (replans);
     distributions: (step, xy, (160, 160) window distribution, (2,) window centre cell) at each
@@ -365,6 +365,12 @@ class Trial:
         self.since_plan = 0
         return True
 
+    def _in_known_obstacle(self) -> bool:
+        rc = np.floor((self.xy - self.origin) / self.resolution).astype(np.int64)[::-1]
+        occ = np.asarray(self.state.occupancy)
+        H, W = occ.shape
+        return bool(0 <= rc[0] < H and 0 <= rc[1] < W and occ[rc[0], rc[1]] == OCCUPIED)
+
     def _finish(self, success, reason):
         self.done, self.success, self.reason = True, success, reason
 
@@ -378,6 +384,12 @@ class Trial:
             return False
         if self.steps >= cfg.max_steps:
             self._finish(False, "max_steps")
+            return False
+        if self._in_known_obstacle():
+            # The robot stands in a cell its map now knows to be occupied (it moved through
+            # unknown space that was not free): a collision, which ends the trial (the thesis
+            # counts these apart, under 2 % of its trials).
+            self._finish(False, "collision")
             return False
         blocked = None
         if self.plan is not None:
@@ -414,6 +426,15 @@ class Trial:
                 plan = plan[1:]
                 if remaining > 1e-12 and len(plan) > 1:
                     self.path.append(plan[0].copy())  # a corner passed within the step
+                    # Face the next leg and look before moving along it (it was checked only
+                    # against the map of the last look); stop at the corner if it is blocked.
+                    d = plan[1] - plan[0]
+                    if np.hypot(*d) > 1e-9:
+                        self.xy = plan[0].copy()
+                        self.yaw = math.atan2(d[1], d[0])
+                        self._sense()
+                        if not self._clear(plan[:2], np.asarray(self.state.occupancy) == OCCUPIED):
+                            break
             else:
                 plan = plan.copy()
                 plan[0] = plan[0] + seg * (remaining / L)
