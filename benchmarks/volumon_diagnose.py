@@ -68,6 +68,12 @@ RUNS = {
     ),
 }
 LOSS_TERMS = ("dual", "primal", "oracle", "size")
+LOSS_TITLES = {
+    "dual": "dual (stereo box) loss",
+    "primal": "primal (depth point) loss",
+    "oracle": "oracle (3D label) loss",
+    "size": "intra-class size-variance loss",
+}
 METRICS = (
     ("median_size_rel_error", "median size rel. error"),
     ("size_corr", "size correlation"),
@@ -152,6 +158,47 @@ def held_out_losses(model, variables, config) -> dict:
     return {k: float(v) for k, v in out.items() if k != "total"}
 
 
+def axis_ratios(model, variables, config) -> dict:
+    """Median ratio predicted / true of the sorted radii (smallest, middle, largest) on the held-out
+    samples: which axis a size error sits on."""
+    import numpy as np
+
+    from jaxsem.volumon._train import make_predict_fn
+
+    b = _held_out(
+        config.seed, config.num_eval, config.scene, config.model.input_size, config.model.global_padding, config.noisy
+    )
+    _, ell, _ = make_predict_fn(model, config)(
+        variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"]
+    )
+    ratio = np.sort(np.asarray(ell.radii), -1) / np.sort(np.asarray(b["gt_half_extents"]), -1)
+    keep = np.asarray(b["sample_mask"], bool)
+    med = np.median(ratio[keep], 0)
+    return {"ratio_small": float(med[0]), "ratio_mid": float(med[1]), "ratio_large": float(med[2])}
+
+
+def final_ratios(names, curves, a) -> None:
+    """:func:`axis_ratios` of each run at its last evaluated step (from its checkpoint)."""
+    from jaxsem.checkpoint import Checkpointer
+    from jaxsem.volumon._train import load_trained
+
+    for name in names:
+        ev = curves[name]["eval"]
+        if not ev:
+            continue
+        wd = a.workdir / _slug(name)
+        ckpt = Checkpointer(wd / "checkpoints", max_to_keep=None)
+        try:
+            have = ckpt.all_steps()
+        finally:
+            ckpt.close()
+        if ev[-1]["step"] not in have:
+            continue
+        cfg = run_config(name, a)
+        model, variables, _ = load_trained(wd, cfg, step=ev[-1]["step"])
+        ev[-1].update(axis_ratios(model, variables, cfg))
+
+
 def _read_jsonl(path: pathlib.Path) -> list[dict]:
     if not path.exists():
         return []
@@ -214,7 +261,12 @@ def reference(a) -> dict | None:
     model, variables, config, meta = load_pretrained()
     config = config.replace(num_eval=a.num_eval, seed=a.seed, eval_every=0)
     ev = evaluate(model, variables, config)
-    return {"step": meta.get("step"), **ev, **held_out_losses(model, variables, config)}
+    return {
+        "step": meta.get("step"),
+        **ev,
+        **held_out_losses(model, variables, config),
+        **axis_ratios(model, variables, config),
+    }
 
 
 def collect(names, a) -> dict:
@@ -256,6 +308,7 @@ def main(argv=None) -> int:
     if not a.plot_only:
         train_round_robin(a.runs, a)
     curves = collect(a.runs, a)
+    final_ratios(a.runs, curves, a)
     ref = None if a.no_reference else reference(a)
     a.out.mkdir(parents=True, exist_ok=True)
     _figure(curves, ref, a.out / f"{a.tag}.png")
@@ -298,16 +351,22 @@ def _table(record, a) -> list[str]:
         ),
         "",
         "| run | step | median size rel. error | size corr | median centre error (m) | trans AUC | ADI AUC | 3D IoU "
-        "| dual loss | primal loss | oracle loss | size-variance loss | train s/step |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| radii pred / true (sorted: small, mid, large) | dual loss | primal loss | oracle loss "
+        "| size-variance loss | train s/step |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
 
     def row(n, e, sps):
+        ratios = (
+            " / ".join(f"{e[k]:.2f}" for k in ("ratio_small", "ratio_mid", "ratio_large"))
+            if "ratio_small" in e
+            else "-"
+        )
         losses = " | ".join(f"{e[k]:.4g}" if k in e else "-" for k in [f"loss_{t}" for t in LOSS_TERMS])
         return (
             f"| {n} | {e.get('step', '-')} | {e['median_size_rel_error']:.3f} | {e['size_corr']:.2f} | "
             f"{e['median_center_error_m']:.3f} | {e['trans_auc']:.2f} | {e['adi_auc']:.2f} | {e['iou']:.2f} | "
-            f"{losses} | {sps} |"
+            f"{ratios} | {losses} | {sps} |"
         )
 
     for n, e in record["final"].items():
@@ -330,7 +389,7 @@ def _figure(curves, ref, path):
 
     fig, axes = plt.subplots(2, 4, figsize=(18, 7.5))
     panels = [(k, f"{t} (held-out)", False) for k, t in METRICS] + [
-        (f"loss_{t}", f"{t} loss term (held-out)", True) for t in LOSS_TERMS
+        (f"loss_{t}", f"{LOSS_TITLES[t]} (held-out)", True) for t in LOSS_TERMS
     ]
     for ax, (key, title, log) in zip(axes.ravel(), panels):
         for name, c in curves.items():
