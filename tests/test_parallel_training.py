@@ -11,6 +11,7 @@ CPU, so it runs in its own subprocess, marked slow.
 
 import json
 import os
+import pathlib
 import subprocess
 import sys
 import textwrap
@@ -204,3 +205,26 @@ def test_one_device_options():
         parallel.devices_mesh("many")
     with pytest.raises(ValueError, match="method"):
         parallel.solve_maps(None, None, method="dense")  # type: ignore[arg-type]
+
+
+def _bad_devices(tmp: pathlib.Path):
+    return [
+        (["volumon", "train", "--workdir", str(tmp / "v"), "--devices", "0"], "0"),
+        (["lsd", "train", "--data", str(tmp), "--workdir", str(tmp / "l"), "--devices", "two"], "two"),
+        (["volumon", "train", "--workdir", str(tmp / "v"), "--size", "tiny", "--devices", "64"], "64"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_bad_devices_flag_gives_one_line_naming_it(case, tmp_path, capsys, monkeypatch):
+    from jaxsem import cli
+
+    monkeypatch.setenv("JAXSEM_RUNS_DIR", str(tmp_path / "runs"))
+    argv, value = _bad_devices(tmp_path)[case]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code not in (0, None)
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert "--devices" in lines[-1] and value in lines[-1], lines[-1]
+    assert "Traceback" not in "\n".join(lines)
+    assert not (tmp_path / "v").exists() and not (tmp_path / "l").exists()  # no training started
