@@ -209,6 +209,7 @@ def batch_benchmark(args):
         median_center_dev_m=float(np.median(dev)),
         members_same_steps=same_steps,
     )
+    rows["_components"] = component_times(problems, inits, cfg, args)
     if not args.skip_gtsam:
         g_costs, g_times, j_costs = [], [], []
         for k in range(min(args.gtsam_maps, args.maps)):
@@ -225,6 +226,46 @@ def batch_benchmark(args):
             jaxsem_median_cost_same_maps=float(np.median(j_costs)),
         )
     return rows
+
+
+def component_times(problems, inits, cfg, args):
+    """Why vmap does not beat the loop: the pieces of one LM iteration timed on one map and per
+    map vmapped over all of them (ms), and a fixed number of identical iterations (no control
+    flow that could diverge between members), single vs vmapped."""
+    from jaxsem.slam import _batch, _cost
+
+    n = args.maps
+    take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
+    p0, e0 = take(problems, 0), take(inits, 0)
+    free = lambda p: p.pose_mask.astype(p.pose_prior.dtype)
+    lin = lambda p, e: _cost.linearize(p, e, cfg, free(p))
+    step = lambda p, nrm: _batch.damped_schur_step(nrm, jnp.asarray(1e-3, nrm.Hpp.dtype), free(p), p.object_mask)
+    cost = lambda p, e: _cost.total_cost(p, e, cfg)
+
+    def fixed(p, e):
+        def body(_, est):
+            nrm = lin(p, est)
+            dp, do = step(p, nrm)
+            est = _batch._apply(est, 1e-3 * dp, 1e-3 * do)
+            return jax.tree_util.tree_map(lambda x: x + 0 * cost(p, est), est)
+
+        return jax.lax.fori_loop(0, args.fixed_iterations, body, e)
+
+    out = {}
+    n0, nv = jax.jit(lin)(p0, e0), jax.jit(jax.vmap(lin))(problems, inits)
+    for name, f, a1, av in (
+        ("linearize", lin, (p0, e0), (problems, inits)),
+        ("damped Schur step", step, (p0, n0), (problems, nv)),
+        ("cost", cost, (p0, e0), (problems, inits)),
+        (f"{args.fixed_iterations} fixed iterations", fixed, (p0, e0), (problems, inits)),
+    ):
+        one, many = jax.jit(f), jax.jit(jax.vmap(f))
+        reps = 3 if "fixed" in name else 20
+        out[name] = dict(
+            single_ms=1e3 * _median_time(lambda: one(*a1), reps),
+            vmap_ms_per_map=1e3 * _median_time(lambda: many(*av), max(reps // 4, 2)) / n,
+        )
+    return out
 
 
 def online_benchmark(args):
@@ -269,12 +310,45 @@ def online_benchmark(args):
     )
 
 
+def cli_benchmark(args):
+    """(c) ``python infer/roshan.py`` end to end on a 60-frame Forward map, run as a user runs
+    it: ``args.cli_runs`` separate processes in a row with the persistent compilation cache on
+    (the first may fill it; the rest are warm). Wall time from each run's summary.json."""
+    import os
+    import sys
+    import tempfile
+
+    root = HERE.parent
+    env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        seq = pathlib.Path(tmp) / "seq"
+        base = [sys.executable, str(root / "infer" / "roshan.py"), "--quiet", "--out", str(pathlib.Path(tmp) / "out")]
+        subprocess.run(
+            base + ["--simulate", "forward", "--seed", str(args.seed), "--write-sequence", str(seq)]
+            + ["--run-dir", str(pathlib.Path(tmp) / "run_sim")],
+            check=True, env=env, capture_output=True,
+        )  # fmt: skip
+        for k in range(args.cli_runs):
+            run_dir = pathlib.Path(tmp) / f"run{k}"
+            out = subprocess.run(
+                base + ["--sequence", str(seq), "--run-dir", str(run_dir)],
+                check=True, env=env, capture_output=True, text=True,
+            )  # fmt: skip
+            summary = json.loads((run_dir / "summary.json").read_text())
+            solved = next(line for line in out.stdout.splitlines() if line.startswith("solved in"))
+            rows.append(dict(wall_s=float(summary["wall_seconds"]), solved=solved))
+    load = os.getloadavg()
+    return dict(runs=rows, load_average=[round(x, 1) for x in load])
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--maps", type=int, default=50, help="number of Forward maps (batch part)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=20, help="LM iterations per batch solve")
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats (median)")
+    ap.add_argument("--fixed-iterations", type=int, default=20, help="iterations of the lockstep-free component test")
     ap.add_argument("--gtsam-maps", type=int, default=3, help="maps solved by the GTSAM peer")
     ap.add_argument("--skip-gtsam", action="store_true")
     ap.add_argument("--online-frames", type=int, default=300)
@@ -283,6 +357,12 @@ def main(argv=None):
     ap.add_argument("--optimize-every", type=int, default=5)
     ap.add_argument("--iterations", type=int, default=2, help="LM steps per online optimisation")
     ap.add_argument("--skip-batch", action="store_true")
+    ap.add_argument(
+        "--cli-runs",
+        type=int,
+        default=0,
+        help="(c) run infer/roshan.py this many times on a 60-frame map (writes results/roshan_cli.md)",
+    )
     ap.add_argument("--skip-online", action="store_true")
     args = ap.parse_args(argv)
 
@@ -292,6 +372,37 @@ def main(argv=None):
         "machine": "2-core CPU (shared, noisy)",
     }
     lines = []
+    if args.cli_runs:
+        c = cli_benchmark(args)
+        walls = [r["wall_s"] for r in c["runs"]]
+        warm = walls[1:] if len(walls) > 1 else walls
+        met = "met" if np.median(warm) < 5 else "NOT met"
+        md = [
+            "### Online: `python infer/roshan.py` end to end (issue 12, part 5)",
+            "",
+            f"Command: `{out['command']}`  ",
+            f"Date: {out['date']}  ",
+            f"Machine: {out['machine']}; load average at the end {c['load_average']}",
+            "",
+            "A simulated 60-frame Forward map (seed "
+            f"{args.seed}) saved as a sequence directory, then `infer/roshan.py --sequence ... --quiet` run "
+            f"{args.cli_runs} times in a row, each a new process with the persistent compilation cache on "
+            "(the first run may fill it). Wall time from each run's `summary.json` (imports, solve, figures "
+            "and map file included).",
+            "",
+            "| run | wall (s) | solver line |",
+            "|---|---|---|",
+            *[f"| {k + 1} | {r['wall_s']:.2f} | {r['solved']} |" for k, r in enumerate(c["runs"])],
+            "",
+            f"Warm runs (2nd on): median {np.median(warm):.2f} s (target under 5 s: {met}).",
+            "",
+        ]
+        out["cli"] = c
+        (HERE / "results" / "roshan_cli.json").write_text(json.dumps(c, indent=2))
+        (HERE / "results" / "roshan_cli.md").write_text("\n".join(md))
+        print("\n".join(md))
+        if args.skip_batch and args.skip_online:
+            return
     if not args.skip_batch:
         rows = batch_benchmark(args)
         out["batch"] = rows
@@ -322,7 +433,17 @@ def main(argv=None):
             f"(the vmapped loop runs until its slowest member stops). Vmapped vs solo answer per member: "
             f"centre deviation median {vl['median_center_dev_m']:.1e} m, max {vl['max_center_dev_m']:.1e} m; "
             f"{vl['members_same_steps']} of {args.maps} members took the same number of steps.",
+            "",
+            "Pieces of one LM iteration (ms; vmapped: per map, over all the maps):",
+            "",
+            "| piece | one map | vmapped, per map | single / vmapped |",
+            "|---|---|---|---|",
         ]
+        for name, r in rows["_components"].items():
+            lines.append(
+                f"| {name} | {r['single_ms']:.3f} | {r['vmap_ms_per_map']:.3f} | "
+                f"{r['single_ms'] / r['vmap_ms_per_map']:.2f} |"
+            )
         lines.append("")
     if not args.skip_online:
         o = online_benchmark(args)
@@ -353,21 +474,27 @@ def main(argv=None):
         )
     if "batch" in out:
         vl = out["batch"]["_vmap_vs_loop"]
+        comp = out["batch"]["_components"]
+        ratio = lambda name: comp[name]["single_ms"] / comp[name]["vmap_ms_per_map"]
+        fixed = next(k for k in comp if k.endswith("fixed iterations"))
+        met = "met" if vl["loop_over_vmap"] >= 2 else "NOT met"
         behind.append(
-            f"vmap over maps vs the loop of jitted solves: the loop is {1 / vl['loop_over_vmap']:.1f}x faster per map "
-            "(target: vmap 2x faster than the loop: NOT met). Why, measured with this script's setting on this "
-            "CPU: the box-factor Jacobian dominates an iteration and costs the same per box batched or not "
-            "(about 3.2 ms per map single, 3.9 ms per map vmapped over 50), the damped Schur step amortises "
-            "little (about 1.4 vs 1.1 ms), and under vmap every phase runs until its slowest member stops and "
-            "every inner damping loop until its slowest member accepts, so the batch pays for more "
-            "linearisations and trials than the median member. The vmapped answers are not a leak between "
-            "members: a member's answer is identical (to 1e-12) whatever the other members of a batch of the "
-            "same size are, and equal to its solo solve to about 1e-13 on well-posed maps; these maps use "
-            "QuadricSLAM's factor set from the plain initialisation with a 20-step cap, where the reduced "
-            "systems are nearly singular (depth and size unobservable early), so rounding differences between "
-            "the batched and the unbatched compiled code grow to the deviations reported above. The LM layout "
-            "is not the cause of the vmap gap: the earlier flat loop (one trial per iteration) measured the same "
-            "per map vmapped (212 vs 224 ms over 50 maps)."
+            f"vmap over maps vs the loop of jitted solves: loop time / vmap time {vl['loop_over_vmap']:.2f} "
+            f"(target >= 2: {met}). Why, measured in this run: batching 50 maps makes one LM iteration's "
+            f"pieces only {ratio('linearize'):.2f}x (linearisation), {ratio('damped Schur step'):.2f}x (damped "
+            f"Schur step) and {ratio('cost'):.2f}x (cost) cheaper per map, and {fixed} with no control flow "
+            f"that could diverge between members run {ratio(fixed):.2f}x faster per map vmapped than one by "
+            "one. On this 2-core CPU a single map's iteration is already compute-bound (elementwise loops "
+            "over its boxes, a (9J x 6T)(6T x 9J) product and a Cholesky of the reduced system), so there is "
+            "no per-call overhead for a batch to amortise; that ratio is the ceiling of what vmap can gain. "
+            "On top, under vmap every phase runs until its slowest member stops and every inner damping loop "
+            "until its slowest member accepts (XLA selects, it does not skip, the finished members' work), so "
+            "the batch pays for more linearisations and trials than its median member: hence the measured "
+            "ratio below 1. The vmapped answers are not a leak between members: a member's answer does not "
+            "depend on the other members; these maps use QuadricSLAM's factor set from the plain "
+            "initialisation with a 20-step cap, where the reduced systems are nearly singular early, so "
+            "rounding differences between the batched and the unbatched compiled code grow to the deviations "
+            "reported above."
         )
     behind = " ".join(behind)
     md = (
