@@ -683,7 +683,10 @@ def run_sequence(
 
     New association ids are initialised from their first detection (section 4.3.5), the graph is
     optimised every ``optimize_every`` frames, and after the last frame ``final_iterations``
-    LM steps run over everything kept (0 skips it).
+    LM steps run over everything kept (0 skips it). Every frame and the final optimisation run
+    one program (the online step); when JAX's persistent compilation cache is on, its traced
+    form is kept in ``<cache dir>/jaxsem-exports`` so that later runs skip tracing
+    (:mod:`jaxsem.slam._aot`).
 
     Args:
       sequence: :class:`Sequence`.
