@@ -108,6 +108,20 @@ def test_exported_falls_back_on_a_bad_file_or_another_static_configuration(tmp_p
     assert _aot.cache_folder() is None or _aot.cache_folder().name == "jaxsem-exports"
 
 
+def test_exported_keeps_only_the_newest_programs(tmp_path, monkeypatch):
+    import os
+
+    for k in range(5):
+        stale = tmp_path / f"toy-stale{k}.pkl"
+        stale.write_bytes(b"old")
+        os.utime(stale, (1000 + k, 1000 + k))
+    monkeypatch.setattr(_aot, "_KEEP", 3)
+    state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
+    _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+    kept = sorted(p.name for p in tmp_path.glob("toy-*.pkl"))
+    assert len(kept) == 3 and "toy-stale4.pkl" in kept and "toy-stale0.pkl" not in kept
+
+
 def test_online_init_and_make_frame_compile_nothing():
     problem, _ = slam.toy_map(0, num_objects=2, num_frames=4, path="orbit")
     cap = slam.Capacity(max_poses=4, max_objects=2, max_boxes=8, max_detections=2)

@@ -14,6 +14,7 @@ parses it (about 0.5 s) and finds the executable in JAX's cache.
 - The key covers the jax / jaxlib versions, the backend, the x64 flag, the argument tree (static
   fields included), every argument's shape, dtype and weak type, and the source of the
   ``jaxsem`` package, so any code change re-traces.
+- At most 16 programs per name are kept (the newest; about 150 kB each for the online step).
 - The file holds a pickled ``jax.export.Exported`` (this jax has no flatbuffers for its own
   serialisation); as with JAX's cache, keep the cache directory private.
 - Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Measured
@@ -39,6 +40,7 @@ import numpy as np
 __all__ = ["cache_folder", "exported"]
 
 _FOLDER = "jaxsem-exports"
+_KEEP = 16  # programs kept per name (each about 150 kB for the online step)
 
 
 def cache_folder() -> pathlib.Path | None:
@@ -97,6 +99,13 @@ def _save(path: pathlib.Path, data: bytes) -> None:
         raise
 
 
+def _evict(folder: pathlib.Path, name: str, keep: int) -> None:
+    """Keeps the ``keep`` newest programs of ``name`` (old code versions and shapes go)."""
+    files = sorted(folder.glob(f"{name}-*.pkl"), key=lambda p: p.stat().st_mtime, reverse=True)
+    for old in files[keep:]:
+        old.unlink(missing_ok=True)
+
+
 def _export(fn: Callable, leaves, tree):
     def flat(*flat_args):
         return jax.tree_util.tree_leaves(fn(*jax.tree_util.tree_unflatten(tree, flat_args)))
@@ -140,6 +149,7 @@ def exported(name: str, fn: Callable, args: tuple, out_like: Any, folder: pathli
         if exp is None:
             exp = _export(fn, leaves, tree)
             _save(path, pickle.dumps(exp))
+            _evict(folder, name, keep=_KEEP)
         call = jax.jit(exp.call)
     except Exception:
         return plain
