@@ -198,7 +198,10 @@ class ObjectMapSampler:
                 self.dets.valid & seen,
             )
             self.state = mapping.update(self.state, frame, gate=0.5)
-        grid = mapping.semantic_grid(self.state, b.shape, b.origin, b.resolution)
+        try:
+            grid = mapping.semantic_grid(self.state, b.shape, b.origin, b.resolution)
+        except ValueError:  # an estimate too large for the tiles (a diverged one): draw it whole
+            grid = mapping.semantic_grid(self.state, b.shape, b.origin, b.resolution, window=None)
         self.calls += 1
         return mapping.object_map_sampler(self.lsd, grid)(inputs)
 
@@ -299,7 +302,8 @@ def run(args) -> dict:
                         print(
                             f"building {b.seed} {kind} trial {t_i} N={n}: "
                             + ", ".join(
-                                f"{p} {'ok' if rec[p]['success'] else 'fail'} {rec[p]['cost']:.1f} m" for p in planners
+                                f"{p} {'ok' if rec[p]['success'] else 'fail'} {rec[p]['cost']:.1f} m ({rec[p]['seconds']:.0f} s)"
+                                for p in planners
                             ),
                             flush=True,
                         )
@@ -409,7 +413,7 @@ def main(argv=None) -> int:
     map_table = format_map_table(result["summary"])
     print(table)
     print(map_table)
-    cmd = "python benchmarks/pipeline.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = " ".join(["python benchmarks/pipeline.py", *(sys.argv[1:] if argv is None else argv)])
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     machine = f"{platform.machine()} CPU, {subprocess.run(['nproc'], capture_output=True, text=True, check=False).stdout.strip()} cores (shared, noisy)"
     out = pathlib.Path(args.out)
