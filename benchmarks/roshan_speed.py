@@ -232,21 +232,20 @@ def component_times(problems, inits, cfg, args):
     """Why vmap does not beat the loop: the pieces of one LM iteration timed on one map and per
     map vmapped over all of them (ms), and a fixed number of identical iterations (no control
     flow that could diverge between members), single vs vmapped."""
-    from jaxsem.slam import _batch, _cost
-
     n = args.maps
     take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
     p0, e0 = take(problems, 0), take(inits, 0)
     free = lambda p: p.pose_mask.astype(p.pose_prior.dtype)
-    lin = lambda p, e: _cost.linearize(p, e, cfg, free(p))
-    step = lambda p, nrm: _batch.damped_schur_step(nrm, jnp.asarray(1e-3, nrm.Hpp.dtype), free(p), p.object_mask)
-    cost = lambda p, e: _cost.total_cost(p, e, cfg)
+    lin = lambda p, e: slam.linearize(p, e, cfg, free(p))
+    step = lambda p, nrm: slam.damped_schur_step(nrm, jnp.asarray(1e-3, nrm.Hpp.dtype), free(p), p.object_mask)
+    cost = lambda p, e: slam.total_cost(p, e, cfg)
 
     def fixed(p, e):
         def body(_, est):
             nrm = lin(p, est)
             dp, do = step(p, nrm)
-            est = _batch._apply(est, 1e-3 * dp, 1e-3 * do)
+            R, c, r = slam.retract_object(est.rotation, est.center, est.radii, 1e-3 * do)
+            est = slam.SlamEstimate(slam.retract_pose(est.camera_T_world, 1e-3 * dp), R, c, r)
             return jax.tree_util.tree_map(lambda x: x + 0 * cost(p, est), est)
 
         return jax.lax.fori_loop(0, args.fixed_iterations, body, e)

@@ -90,7 +90,7 @@ def enable_compilation_cache(cache_dir: str | None = None, enabled: bool | None 
     cache_dir = cache_dir or os.environ.get("JAXSEM_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "jaxsem" / "jax"))
     try:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
     except Exception as exc:  # an old jax without the option: run uncached
         print(f"jaxsem: compilation cache disabled ({exc})", file=sys.stderr)
         return None
