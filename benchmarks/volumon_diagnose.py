@@ -119,8 +119,7 @@ def _loss_fn(model, config):
     import jax
 
     from jaxsem.models import reconstruct
-    from jaxsem.volumon._losses import volumon_loss
-    from jaxsem.volumon._train import predict_params
+    from jaxsem.volumon import predict_params, volumon_loss
 
     loss_cfg = dataclasses.replace(config.loss, alpha_D=1.0, alpha_P=1.0, alpha_S=1.0, alpha_O=1.0, alpha_V=0.0)
 
@@ -163,7 +162,7 @@ def axis_ratios(model, variables, config) -> dict:
     samples: which axis a size error sits on."""
     import numpy as np
 
-    from jaxsem.volumon._train import make_predict_fn
+    from jaxsem.volumon import make_predict_fn
 
     b = _held_out(
         config.seed, config.num_eval, config.scene, config.model.input_size, config.model.global_padding, config.noisy
@@ -180,7 +179,7 @@ def axis_ratios(model, variables, config) -> dict:
 def final_ratios(names, curves, a) -> None:
     """:func:`axis_ratios` of each run at its last evaluated step (from its checkpoint)."""
     from jaxsem.checkpoint import Checkpointer
-    from jaxsem.volumon._train import load_trained
+    from jaxsem.volumon import load_trained
 
     for name in names:
         ev = curves[name]["eval"]
