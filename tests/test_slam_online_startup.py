@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxsem import quadrics as Q, slam
-from jaxsem.slam import _aot, _online
+from jaxsem.slam import _aot, _online  # layers: white-box (the exported-program mechanics themselves)
 
 matplotlib.use("Agg")
 
