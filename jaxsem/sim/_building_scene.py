@@ -315,7 +315,7 @@ def ellipsoids_from_depth(
         if len(rows) < min_pixels:
             continue
         uv = np.stack([cols, rows], -1).astype(np.float64)
-        pts = np.asarray(quadrics.back_project(uv, depth[rows, cols], K, camera_T_world))
+        pts = np.asarray(quadrics.back_project(uv, depth[rows, cols], K, camera_T_world, xp=np))
         lo.append(pts.min(0))
         hi.append(pts.max(0))
         cls.append(int(object_class[k]))
