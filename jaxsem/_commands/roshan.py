@@ -12,7 +12,9 @@ Examples::
 
 ``sequence.json``: ``{"K": 3x3, "image_size": [w, h], "frames": [{"camera_T_world": 4x4,
 "image": optional file name, "detections": [{"box": [u_min, v_min, u_max, v_max], "class":
-"car", "id": association id, "texture_depth": optional metres}]}], "noise": optional {"box_sigma": px, "texture_sigma": m, "pose_translation_sigma": m,
+"car", "id": association id, "texture_depth": optional metres}]}], "initial": optional
+[{"id", "center", "radii", "rotation"}] (world-frame initial ellipsoids used instead of the
+single-view initialisation), "noise": optional {"box_sigma": px, "texture_sigma": m, "pose_translation_sigma": m,
 "pose_rotation_sigma_deg": deg} (any subset; --box-sigma etc. override it), "truth": optional}``.
 Bad input exits with one line naming the file and the JSON field.
 

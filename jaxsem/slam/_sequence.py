@@ -21,6 +21,9 @@ v_max]``)::
           ]
         }
       ],
+      "initial": [{"id": 3, "center": [x, y, z],        # optional initial ellipsoids (world):
+                   "radii": [a, b, c],               #   an object listed here starts from these
+                   "rotation": [[...], [...], [...]]}],  # values, not its first detection
       "noise": {"box_sigma": 3.0,                     # optional noise model (any subset):
                 "texture_sigma": 0.3,                 #   px per box edge, m texture depth,
                 "pose_translation_sigma": 0.05,       #   m per axis (pose prior),
@@ -124,6 +127,9 @@ class Sequence:
         "radii" (3,), "rotation" (3, 3)}]}`` (numpy arrays), for evaluation.
       noise: optional noise model ``{"box_sigma", "texture_sigma", "pose_translation_sigma",
         "pose_rotation_sigma_deg"}`` (any subset; :func:`noise_model` makes it a NoiseModel).
+      initial: optional ``{id: {"center" (3,), "radii" (3,), "rotation" (3, 3)}}`` (world frame,
+        numpy): the initial ellipsoid of each listed object, used by :func:`run_sequence` in
+        place of the single-view initialisation from its first detection.
     """
 
     K: np.ndarray
@@ -132,6 +138,7 @@ class Sequence:
     root: pathlib.Path | None = None
     truth: dict | None = None
     noise: dict | None = None
+    initial: dict | None = None
 
     @property
     def object_ids(self) -> tuple:
@@ -350,6 +357,7 @@ def _parse(data, where, root):
     if data.get("truth") is not None:
         truth = _parse_truth(where, data["truth"], len(frames))
     noise = _parse_noise(where, data.get("noise"))
+    initial = _parse_initial(where, data.get("initial"), first_class)
     return Sequence(
         K=K,
         image_size=image_size,
@@ -357,7 +365,35 @@ def _parse(data, where, root):
         root=root,
         truth=truth,
         noise=noise,
+        initial=initial,
     )
+
+
+def _parse_initial(where, initial, first_class):
+    """Optional ``"initial"`` list: per object id (one that is detected), its initial ellipsoid."""
+    if initial is None:
+        return None
+    if not isinstance(initial, list):
+        _fail(where, "initial", f"expected a list of objects, got {type(initial).__name__}")
+    out: dict = {}
+    for j, o in enumerate(initial):
+        g = f"initial[{j}]"
+        if not isinstance(o, dict):
+            _fail(where, g, f"expected an object, got {type(o).__name__}")
+        for key in ("id", "center", "radii", "rotation"):
+            if key not in o:
+                _fail(where, f"{g}.{key}", "missing")
+        i = _assoc_id(where, f"{g}.id", o["id"])
+        if i not in first_class:
+            _fail(where, f"{g}.id", f"id {i!r} is never detected (known ids: {list(first_class)[:20]})")
+        if i in out:
+            _fail(where, f"{g}.id", f"id {i!r} is listed twice")
+        out[i] = {
+            "center": _vector(where, f"{g}.center", o["center"], 3),
+            "radii": _vector(where, f"{g}.radii", o["radii"], 3, positive=True),
+            "rotation": _rotation(where, f"{g}.rotation", o["rotation"]),
+        }
+    return out or None
 
 
 NOISE_FIELDS = {
@@ -525,6 +561,11 @@ def sequence_to_json(sequence: Sequence) -> dict:
         out["truth"] = tr
     if sequence.noise:
         out["noise"] = dict(sequence.noise)
+    if sequence.initial:
+        out["initial"] = [
+            {"id": i, "center": _list(v["center"]), "radii": _list(v["radii"]), "rotation": _list(v["rotation"])}
+            for i, v in sequence.initial.items()
+        ]
     return out
 
 
@@ -739,7 +780,11 @@ def run_sequence(
     step = None
     update, final = np.asarray(False), np.asarray(True)
     no_steps = np.asarray(0, np.int32)
+    pending = dict(sequence.initial or {})
     for t, fr in enumerate(sequence.frames):
+        due = [i for i in fr.ids if i in pending]
+        if due:  # user-given initial ellipsoids go in just before the object's first detection
+            state = _seed_objects(state, [(slot[i], fr.classes[fr.ids.index(i)], pending.pop(i)) for i in due])
         frame = make_frame(
             fr.camera_T_world,
             fr.boxes,
@@ -778,6 +823,42 @@ def run_sequence(
         camera_T_world=poses,
         frame_seconds=seconds,
         state=state,
+    )
+
+
+def _seed_objects(state, objects):
+    """``state`` with objects ``(slot, class name, {"center", "radii", "rotation"})`` set as
+    initialised (host-side arrays: no compile); their first detection then adds boxes only."""
+    import equinox as eqx
+    import jax
+
+    from .. import factors
+
+    pb, est = state.problem, state.estimate
+    arrays = {
+        "object_mask": np.array(pb.object_mask),
+        "object_class": np.array(pb.object_class),
+        "rotation": np.array(est.rotation),
+        "center": np.array(est.center),
+        "radii": np.array(est.radii),
+    }
+    for j, cls, v in objects:
+        arrays["object_mask"][j] = True
+        arrays["object_class"][j] = factors.class_index(cls)
+        arrays["rotation"][j] = v["rotation"]
+        arrays["center"][j] = v["center"]
+        arrays["radii"][j] = v["radii"]
+    put = {k: jax.device_put(a) for k, a in arrays.items()}
+    return eqx.tree_at(
+        lambda st: (
+            st.problem.object_mask,
+            st.problem.object_class,
+            st.estimate.rotation,
+            st.estimate.center,
+            st.estimate.radii,
+        ),
+        state,
+        (put["object_mask"], put["object_class"], put["rotation"], put["center"], put["radii"]),
     )
 
 
