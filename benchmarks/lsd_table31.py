@@ -8,7 +8,7 @@ or --train trains a CPU-sized one first. LSD uses the thesis' rule by default (-
 the window distribution, the window's minimum outside it, -log p edge weights). --ablations adds
 planners on the same tasks: 'mix10' (10 % uniform mixed into the window), 'euclid' (LSD samples,
 Euclidean edge weights), 'nogrow' (both planners with the thesis' end-of-trial on the first failed
-roadmap). Writes <out>/<name>.{json,md,png}.
+roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavConfig.growth). Writes <out>/<name>.{json,md,png}.
 
     python benchmarks/lsd_table31.py --test-buildings 10 --trials 10 --n 500 --sets II IO \\
         --uniform-mix 0 --seed 1 --out benchmarks/results --name lsd_table31 --no-progress
@@ -25,7 +25,7 @@ import sys
 import time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-ABLATIONS = ("mix10", "euclid", "nogrow")
+ABLATIONS = ("mix10", "euclid", "nogrow", "growuni")
 
 
 def _write(path: pathlib.Path, text: str) -> None:
@@ -252,6 +252,8 @@ def _run(args, argv) -> int:
         variants["lsd_mix10"] = (LSDSampler(model, params, uniform_mix=0.1), {})
     if "euclid" in args.ablations:
         variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
+    if "growuni" in args.ablations:
+        variants["lsd_growuni"] = (sampler, {"growth": "uniform"})
     if "nogrow" in args.ablations:
         variants["uniform_nogrow"] = (None, {"max_growth": 0})
         variants["lsd_nogrow"] = (sampler, {"max_growth": 0})

@@ -609,3 +609,34 @@ def test_query_links_to_samples_beyond_radius():
     prm2 = PRM(occ, ORIGIN, RES, capacity=200, k=8, radius=1.0)
     prm2.grow(jax.random.PRNGKey(0), 200, dist)
     assert not prm2.query(np.array([1.0, 3.0]), goal).found
+
+
+def test_uniform_growth_spreads_samples_but_keeps_the_learned_weights():
+    # NavConfig.growth='uniform': a failed roadmap of a learned sampler grows with uniform
+    # samples; its edges keep the distribution's -log p weights.
+    from jaxsem.planning import NavConfig
+
+    occ = np.zeros((60, 100), bool)
+    dist = np.full(occ.shape, 1e-6)
+    dist[10:20, 70:80] = 1.0  # 1/60 of the map holds almost all the mass
+    prm = PRM(occ, ORIGIN, RES, capacity=600, k=10, radius=1.0, weight="neglogp")
+    prm.grow(jax.random.PRNGKey(0), 300, dist)
+    prm.grow(jax.random.PRNGKey(1), 300, uniform_samples=True)
+    pts = np.asarray(prm.roadmap.points)[2:]
+    inside = (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
+    assert inside[:300].mean() > 0.95  # the sampler's own samples
+    assert abs(inside[300:].mean() - 1 / 60) < 0.03  # the uniform growth's
+    assert prm.distribution is not None  # weights still -log p of the distribution
+    with pytest.raises(ValueError, match="growth"):
+        from jaxsem.planning import Trial
+
+        Trial(_two_rooms_world(), [1.0, 1.0], [2.0, 2.0], jax.random.PRNGKey(0), NavConfig(growth="bogus"))
+
+
+def _two_rooms_world():
+    import types
+
+    occ = np.zeros((30, 30), bool)
+    return types.SimpleNamespace(
+        occupancy=occ, semantic=np.zeros(occ.shape, np.int8), indoor=np.ones_like(occ), origin=ORIGIN, resolution=RES
+    )

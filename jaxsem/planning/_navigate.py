@@ -147,6 +147,9 @@ class NavConfig:
     goal_tolerance: float = 0.2
     edge_weight: str | None = None  # None: 'euclidean' (uniform) / 'neglogp' (learned sampler)
     max_growth: int = 2  # a roadmap without a path grows by n_samples up to this many times
+    # what a failed roadmap grows with: "sampler" (the planner's own distribution: the thesis'
+    # rule) or "uniform" (uniform samples, a variant for a learned sampler; edges keep its weights)
+    growth: str = "sampler"
     # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
     # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
     sectors: int = 8
@@ -214,11 +217,12 @@ class Trial:
             or config.max_steps < 1
             or not config.step_length > 0
             or config.max_growth < 0
+            or config.growth not in ("sampler", "uniform")
             or not config.learned_radius_factor >= 1.0
         ):
             raise ValueError(
-                f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0 and "
-                f"learned_radius_factor >= 1 expected, got {config}"
+                f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0, growth "
+                f"'sampler' or 'uniform' and learned_radius_factor >= 1 expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
@@ -355,7 +359,7 @@ class Trial:
                 prm = self.prm = self._new_prm(known)
                 self.plans += 1
             self.key, sub = jax.random.split(self.key)
-            prm.grow(sub, cfg.n_samples, dist)
+            prm.grow(sub, cfg.n_samples, dist, uniform_samples=cfg.growth == "uniform")
             self.grown += 1
             res = prm.query(self.xy, self.goal)
             self.searches += 1

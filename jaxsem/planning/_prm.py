@@ -358,11 +358,14 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
     )
 
 
-def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0):
+def _grow_impl(
+    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+):
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
-    new = sample_points(key, _sampling_weights(blocked, distribution), n, origin, resolution)
+    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
+    new = sample_points(key, weights, n, origin, resolution)
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
@@ -406,9 +409,9 @@ def _grow_impl(rm, key, blocked, distribution, origin, *, n, radius, resolution,
     )
 
 
-_grow_jit = functools.partial(jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors"))(
-    _grow_impl
-)
+_grow_jit = functools.partial(
+    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors", "uniform_samples")
+)(_grow_impl)
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -595,7 +598,9 @@ def roadmap_grow(
     )[0]
 
 
-def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0):
+def _grow_exact(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+):
     """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
     Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
@@ -613,6 +618,7 @@ def _grow_exact(roadmap, key, blocked, dist, origin, n, radius, resolution, cap,
             cap=cap if 9 * cap < M else None,
             neglogp=neglogp,
             sectors=sectors,
+            uniform_samples=uniform_samples,
         )
         if 9 * cap >= M or before or not bool(out.overflow):
             return out, cap
@@ -967,9 +973,11 @@ class PRM:
     def capacity(self) -> int:
         return int(self.roadmap.points.shape[0]) - _QUERY
 
-    def grow(self, key, n: int, distribution=None) -> int:
+    def grow(self, key, n: int, distribution=None, *, uniform_samples: bool = False) -> int:
         """Adds ``n`` samples from ``distribution`` ((H, W) cell weights; None: uniform over the
-        cells not known occupied). Returns the sample count."""
+        cells not known occupied). ``uniform_samples``: draw the samples uniformly even so (the
+        distribution still weights the edges under ``weight='neglogp'``). Returns the sample
+        count."""
         if self.weight == "neglogp" and distribution is None:
             distribution = self.distribution
         if self.weight == "neglogp" and distribution is None:
@@ -994,6 +1002,7 @@ class PRM:
             cap,
             self.weight == "neglogp",
             self.sectors,
+            bool(uniform_samples),
         )
         if distribution is not None:
             self.distribution = distribution
