@@ -49,7 +49,7 @@ def test_iou_against_monte_carlo_and_symmetric():
     assert np.all((iou >= 0) & (iou <= 1)) and iou.max() > 0.1
 
 
-def test_ellipsoid_error_metric_symmetries():
+def test_ellipsoid_metric_symmetries():
     R = np.asarray(q.random_rotation(jax.random.PRNGKey(2)))
     c = np.array([1.0, 2.0, 3.0])
     r = np.array([0.5, 1.0, 2.0])
@@ -75,7 +75,7 @@ def test_ellipsoid_error_metric_symmetries():
     assert float(m.ellipsoid_errors(R, c, np.ones(3), np.eye(3), c, np.ones(3))["orientation"]) == 0.0
 
 
-def test_ellipsoid_error_metric_batched_with_finite_gradients():
+def test_ellipsoid_metric_batched_with_finite_gradients():
     R = q.random_rotation(jax.random.PRNGKey(3), (4, 5))
     c = jnp.zeros((4, 5, 3))
     r = jnp.ones((4, 5, 3)) * jnp.array([1.0, 2.0, 3.0])

@@ -87,7 +87,7 @@ def test_roshan_map_from_rendered_boxes_lands_on_the_door(building, scene):
     assert np.isnan(err["position"][~seen]).all()
 
 
-def test_map_errors_exact_shifted_and_missing(building):
+def test_map_scores_exact_shifted_and_missing(building):
     objs = mapping.building_objects(building)
     truth = objs.ellipsoids()
     exact = mapping.map_errors(mapping.ground_truth_map(building), truth)

@@ -483,7 +483,7 @@ def test_jaxlie_inputs_accepted(cases):
         (dict(center=np.zeros((4, 3)), radii=np.ones((5, 3))), "center"),
     ],
 )
-def test_bad_input_raises_value_error_naming_argument(kwargs, name):
+def test_bad_input_is_refused_naming_argument(kwargs, name):
     args = dict(
         rotation=np.eye(3),
         center=np.array([0.0, 0, 5]),

@@ -121,7 +121,7 @@ def _failing(d: pathlib.Path, out: pathlib.Path):
 
 
 @pytest.mark.parametrize("name", list(_failing(pathlib.Path("/x"), pathlib.Path("/y"))))
-def test_a_failed_run_records_the_error(name, bad, tmp_path, capsys):
+def test_a_failed_run_records_its_failure(name, bad, tmp_path, capsys):
     argv, words = _failing(bad, tmp_path / "out")[name]
     run_dir, config, _ = _check_error(argv, capsys, words)
     assert run_dir.parent == tmp_path / "runs" and run_dir.name.startswith(name.replace(" ", "-") + "-")

@@ -88,7 +88,7 @@ def test_fresh_run_drops_stale_metrics_and_bad_rows_need_a_step(tmp_path):
         config_json(3)
 
 
-def test_unreadable_config_json_is_a_clear_error(tmp_path):
+def test_unreadable_config_json_is_refused_clearly(tmp_path):
     _toy_run(tmp_path, _Cfg(), 3)
     (tmp_path / "config.json").write_text("{broken")
     with pytest.raises(ConfigMismatchError, match="cannot read the run's config"):

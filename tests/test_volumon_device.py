@@ -128,7 +128,7 @@ def test_shape_distance_finite_at_centre_and_float32():
     assert float(shape_distance(pts[2:3], R, t, r, jnp.int32(1))[0]) > 1.5  # far outside the ellipsoid
 
 
-def test_size_error_definition():
+def test_size_metric_definition():
     true = np.array([[0.1, 0.2, 0.3], [0.05, 0.05, 0.05]])
     pred = np.array([[0.3, 0.1, 0.2], [0.1, 0.1, 0.1]])  # sorting: first object exact
     rel, _ = size_errors(pred, true)

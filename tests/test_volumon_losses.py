@@ -50,7 +50,7 @@ def test_dual_loss_zero_with_zero_gradient_at_truth():
     assert float(dual_loss(moved, bl, br, K, T_r)) > 1e-3
 
 
-def test_box_error_matches_definition():
+def test_box_term_matches_definition():
     rng = np.random.default_rng(1)
     a = rng.uniform(0, 50, (5, 4))
     a[:, 2:] += a[:, :2]
