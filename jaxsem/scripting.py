@@ -194,6 +194,49 @@ def existing_file(text: str) -> pathlib.Path:
     return path
 
 
+def devices(text: str) -> int | str:
+    """``--devices``: ``all`` or a positive count (checked against the devices JAX sees later)."""
+    from .parallel import parse_devices
+
+    try:
+        return parse_devices(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("devices: ")) from None
+
+
+def add_devices_argument(parser: argparse.ArgumentParser) -> None:
+    """The training commands' ``--devices N|all`` (data-parallel over a Mesh; default one device)."""
+    parser.add_argument(
+        "--devices",
+        type=devices,
+        default=None,
+        metavar="N|all",
+        help="train data-parallel over N devices or 'all' (a Mesh over jax.devices() with a data axis: the "
+        "state replicated, each batch split over the devices, so the batch size must divide by N; on "
+        "several hosts 'all' spans every host's devices once JAX_COORDINATOR_ADDRESS etc. are set, see "
+        "the README's Scaling) (default: one device)",
+    )
+
+
+def devices_mesh(devices, batch_size: int):
+    """The data mesh of a parsed ``--devices`` (None without it), after joining a multi-host run;
+    :class:`UsageError` naming ``--devices`` or ``--batch-size`` when it cannot be used."""
+    if devices is None:
+        return None
+    from . import parallel
+
+    parallel.initialize_distributed()  # a no-op on one machine
+    try:
+        mesh = parallel.devices_mesh(devices)
+    except ValueError as exc:
+        raise UsageError(f"--devices: {str(exc).removeprefix('devices: ')}") from None
+    if batch_size % mesh.size:
+        raise UsageError(
+            f"--batch-size: {batch_size} does not divide over the {mesh.size} devices of --devices {devices}"
+        )
+    return mesh
+
+
 def existing_path(text: str) -> pathlib.Path:
     """A path to an existing file or directory."""
     path = pathlib.Path(text)

@@ -4,6 +4,7 @@ Tests that check float32 behaviour pass float32 arrays explicitly.
 """
 
 import os
+import sys
 import tempfile
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -38,3 +39,24 @@ def pytest_collection_modifyitems(config, items):
     bad = [item.nodeid for item in items if "error" in item.nodeid]
     if bad:
         raise pytest.UsageError("test ids containing 'error' (rename them): " + ", ".join(bad[:10]))
+
+
+@pytest.fixture
+def run_cli(capsys):
+    """``run_cli(argv)``: ``jaxsem *argv`` in-process, as a shell would see it: (exit status,
+    stdout, stderr)."""
+    from jaxsem import cli
+
+    def run(argv):
+        try:
+            status = cli.main(argv)
+        except SystemExit as exc:
+            if isinstance(exc.code, str):  # Python prints the message and exits 1
+                print(exc.code, file=sys.stderr)
+                status = 1
+            else:
+                status = exc.code or 0
+        out, err = capsys.readouterr()
+        return status, out, err
+
+    return run

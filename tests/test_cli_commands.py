@@ -50,28 +50,14 @@ def _runs_in_tmp(tmp_path, monkeypatch):
     monkeypatch.setenv("JAXSEM_RUNS_DIR", str(tmp_path / "runs"))
 
 
-def _run(argv, capsys):
-    """``jaxsem *argv`` in-process: (exit status, stdout, stderr) as a shell would see them."""
-    try:
-        status = cli.main(argv)
-    except SystemExit as exc:
-        if isinstance(exc.code, str):  # Python prints the message and exits 1
-            print(exc.code, file=sys.stderr)
-            status = 1
-        else:
-            status = exc.code or 0
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
 def test_every_job_has_a_subcommand():
     assert {" ".join(words) for words, _, _ in cli.COMMANDS} == {" ".join(w) for w in HELP}
     assert set(WRAPPERS.values()) <= {" ".join(w) for w in HELP}
 
 
 @pytest.mark.parametrize("words", list(HELP), ids=[" ".join(w) for w in HELP])
-def test_help_names_the_main_flags_and_defaults(words, capsys):
-    status, out, err = _run([*words, "--help"], capsys)
+def test_help_names_the_main_flags_and_defaults(words, run_cli):
+    status, out, err = run_cli([*words, "--help"])
     assert status == 0, err
     assert out.startswith(f"usage: jaxsem {' '.join(words)} ")
     for flag in HELP[words] + RUN_OPTIONS:
@@ -79,13 +65,13 @@ def test_help_names_the_main_flags_and_defaults(words, capsys):
     assert "(default: " in out
 
 
-def test_top_level_and_group_help_list_the_subcommands(capsys):
-    status, out, _ = _run(["--help"], capsys)
+def test_top_level_and_group_help_list_the_subcommands(run_cli):
+    status, out, _ = run_cli(["--help"])
     assert status == 0
     for name in ("demo", "roshan", "volumon", "lsd", "bench"):
         assert f"    {name} " in out
     for group, leaves in (("volumon", ("train", "predict", "eval", "export")), ("lsd", ("data", "train", "plan"))):
-        status, out, _ = _run([group, "--help"], capsys)
+        status, out, _ = run_cli([group, "--help"])
         assert status == 0 and all(f"    {leaf} " in out for leaf in leaves)
 
 
@@ -125,9 +111,9 @@ CASES = [" ".join(argv[:3]) + f" [{i}]" for i, (argv, _) in enumerate(_bad_cases
 
 
 @pytest.mark.parametrize("case", CASES)
-def test_bad_argument_gives_one_line_naming_it(case, tmp_path, capsys):
+def test_bad_argument_gives_one_line_naming_it(case, tmp_path, run_cli):
     argv, words = _bad_cases(tmp_path)[CASES.index(case)]
-    status, out, err = _run(argv, capsys)
+    status, out, err = run_cli(argv)
     assert status != 0, out[-500:]
     assert "Traceback" not in err, err[-2000:]
     lines = [line for line in err.splitlines() if line.strip()]
@@ -149,8 +135,8 @@ def test_scripts_run_the_subcommands_code():
         assert module.main is cli.command(name), script
 
 
-def test_bench_lists_the_benchmarks(capsys):
-    status, out, _ = _run(["bench", "--list"], capsys)
+def test_bench_lists_the_benchmarks(run_cli):
+    status, out, _ = run_cli(["bench", "--list"])
     assert status == 0
     names = [line.split()[0] for line in out.splitlines() if line.strip()]
     expected = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.stem.startswith("_"))
@@ -166,11 +152,11 @@ def test_bench_runs_a_script_with_its_arguments(tmp_path, capfd):
     assert "hello ['--flag', '1', '--list']" in capfd.readouterr().out
 
 
-def test_bench_without_a_source_checkout_says_so(tmp_path, monkeypatch, capsys):
+def test_bench_without_a_source_checkout_says_so(tmp_path, monkeypatch, run_cli):
     from jaxsem._commands import bench  # layers: white-box
 
     monkeypatch.setattr(bench, "default_dir", lambda: tmp_path / "site-packages" / "benchmarks")
-    status, _, err = _run(["bench", "--list"], capsys)
+    status, _, err = run_cli(["bench", "--list"])
     lines = err.strip().splitlines()
     assert status == 2 and len(lines) == 1
     assert "site-packages/benchmarks" in lines[0] and "source checkout" in lines[0]

@@ -9,7 +9,6 @@ subcommand to the end on tiny settings."""
 
 import json
 import pathlib
-import sys
 
 import jax
 import pytest
@@ -27,20 +26,6 @@ def _isolated(tmp_path, monkeypatch):
     jax.config.update("jax_compilation_cache_dir", before)
 
 
-def _run(argv, capsys):
-    """``jaxsem *argv`` in-process, as a shell would see it: (exit status, stdout, stderr)."""
-    try:
-        status = cli.main(argv)
-    except SystemExit as exc:
-        if isinstance(exc.code, str):  # Python prints the message and exits 1
-            print(exc.code, file=sys.stderr)
-            status = 1
-        else:
-            status = exc.code or 0
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
 def _run_dir(out: str) -> pathlib.Path:
     first = out.splitlines()[0]
     assert first.startswith("run directory: "), out[:500]
@@ -54,8 +39,8 @@ def _read(run_dir: pathlib.Path):
     return config, summary
 
 
-def _check_ok(argv, capsys, expect_args):
-    status, out, err = _run(argv, capsys)
+def _check_ok(argv, run_cli, expect_args):
+    status, out, err = run_cli(argv)
     assert status == 0, err[-2000:]
     run_dir = _run_dir(out)
     config, summary = _read(run_dir)
@@ -69,8 +54,8 @@ def _check_ok(argv, capsys, expect_args):
     return run_dir, config, summary, out
 
 
-def _check_error(argv, capsys, words):
-    status, out, err = _run(argv, capsys)
+def _check_error(argv, run_cli, words):
+    status, out, err = run_cli(argv)
     assert status != 0
     assert "Traceback" not in err, err[-2000:]
     lines = [line for line in err.splitlines() if line.strip()]
@@ -121,15 +106,15 @@ def _failing(d: pathlib.Path, out: pathlib.Path):
 
 
 @pytest.mark.parametrize("name", list(_failing(pathlib.Path("/x"), pathlib.Path("/y"))))
-def test_a_failed_run_records_its_failure(name, bad, tmp_path, capsys):
+def test_a_failed_run_records_its_failure(name, bad, tmp_path, run_cli):
     argv, words = _failing(bad, tmp_path / "out")[name]
-    run_dir, config, _ = _check_error(argv, capsys, words)
+    run_dir, config, _ = _check_error(argv, run_cli, words)
     assert run_dir.parent == tmp_path / "runs" and run_dir.name.startswith(name.replace(" ", "-") + "-")
     assert config["command"] == name
     assert not (tmp_path / "out").exists() or not any(p.is_file() for p in (tmp_path / "out").rglob("*"))
 
 
-def test_demo_records_its_run_and_says_where_the_figures_are(tmp_path, monkeypatch, capsys):
+def test_demo_records_its_run_and_says_where_the_figures_are(tmp_path, monkeypatch, run_cli):
     from jaxsem.demos import geometry
 
     def fake(out_dir, quick):  # the part's figure, without the part's compile time
@@ -148,7 +133,7 @@ def test_demo_records_its_run_and_says_where_the_figures_are(tmp_path, monkeypat
     out_dir = tmp_path / "demo"
     run_dir, config, summary, out = _check_ok(
         ["demo", "--parts", "geometry", "--quick", "--out", str(out_dir)],
-        capsys,
+        run_cli,
         {"parts": ["geometry"], "quick": True, "out": str(out_dir), "run_dir": None},
     )
     assert run_dir == out_dir  # the demo's folder is its run directory
@@ -161,12 +146,12 @@ def test_demo_records_its_run_and_says_where_the_figures_are(tmp_path, monkeypat
 
     monkeypatch.setattr(geometry, "run", broken)
     run_dir, _, summary = _check_error(
-        ["demo", "--parts", "geometry", "--run-dir", str(tmp_path / "chosen")], capsys, ["something went wrong"]
+        ["demo", "--parts", "geometry", "--run-dir", str(tmp_path / "chosen")], run_cli, ["something went wrong"]
     )
     assert run_dir == tmp_path / "chosen" and summary["figures"] == []
 
 
-def test_lsd_data_records_a_failure_while_writing(tmp_path, monkeypatch, capsys):
+def test_lsd_data_records_a_failure_while_writing(tmp_path, monkeypatch, run_cli):
     from jaxsem import planning
 
     def full(*args, **kwargs):
@@ -174,7 +159,7 @@ def test_lsd_data_records_a_failure_while_writing(tmp_path, monkeypatch, capsys)
 
     monkeypatch.setattr(planning, "write_expert_dataset", full)
     argv = ["lsd", "data", "--out", str(tmp_path / "shards"), "--buildings", "2", "--workers", "1"]
-    _, config, _ = _check_error(argv, capsys, ["expert_0.npz", "No space left"])
+    _, config, _ = _check_error(argv, run_cli, ["expert_0.npz", "No space left"])
     assert config["args"]["buildings"] == 2 and config["args"]["samples_per_building"] == 200
 
 
@@ -190,13 +175,13 @@ def _bench_dir(tmp_path):
     return folder
 
 
-def test_bench_records_its_run_and_the_cache_flag_is_honoured(tmp_path, monkeypatch, capsys):
+def test_bench_records_its_run_and_the_cache_flag_is_honoured(tmp_path, monkeypatch, run_cli):
     folder = _bench_dir(tmp_path)
     cache = tmp_path / "cache"
     monkeypatch.setenv("JAXSEM_CACHE_DIR", str(cache))
     monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
     run_dir, config, summary, _ = _check_ok(
-        ["bench", "--dir", str(folder), "probe", "0"], capsys, {"name": "probe", "args": ["0"]}
+        ["bench", "--dir", str(folder), "probe", "0"], run_cli, {"name": "probe", "args": ["0"]}
     )
     result = folder / "results" / "probe.json"
     assert config["compilation_cache"] == str(cache) and jax.config.jax_compilation_cache_dir == str(cache)
@@ -205,41 +190,41 @@ def test_bench_records_its_run_and_the_cache_flag_is_honoured(tmp_path, monkeypa
 
     # --no-compilation-cache: off here and in the benchmark's process
     _, config, _, _ = _check_ok(
-        ["bench", "--no-compilation-cache", "--dir", str(folder), "probe"], capsys, {"no_compilation_cache": True}
+        ["bench", "--no-compilation-cache", "--dir", str(folder), "probe"], run_cli, {"no_compilation_cache": True}
     )
     assert config["compilation_cache"] is None and jax.config.jax_compilation_cache_dir is None
     assert json.loads(result.read_text())["cache"] is None
     # ... and the environment variable does the same
     monkeypatch.setenv(cli.NO_CACHE_ENV, "1")
-    _, config, _, _ = _check_ok(["bench", "--dir", str(folder), "probe"], capsys, {"no_compilation_cache": False})
+    _, config, _, _ = _check_ok(["bench", "--dir", str(folder), "probe"], run_cli, {"no_compilation_cache": False})
     assert config["compilation_cache"] is None and jax.config.jax_compilation_cache_dir is None
 
     # a failing benchmark: exit status passed on, summary status error
-    _, _, summary = _check_error(["bench", "--dir", str(folder), "probe", "3"], capsys, [])
+    _, _, summary = _check_error(["bench", "--dir", str(folder), "probe", "3"], run_cli, [])
     assert summary["exit_status"] == 3 and summary["error"] == "exit status 3"
 
 
-def test_bench_list_and_help_make_no_run_directory(tmp_path, capsys):
+def test_bench_list_and_help_make_no_run_directory(tmp_path, run_cli):
     folder = _bench_dir(tmp_path)
-    assert _run(["bench", "--dir", str(folder), "--list"], capsys)[0] == 0
+    assert run_cli(["bench", "--dir", str(folder), "--list"])[0] == 0
     for words in (["bench"], ["roshan"], ["volumon", "train"], ["lsd", "plan"]):
-        status, out, _ = _run([*words, "--help"], capsys)
+        status, out, _ = run_cli([*words, "--help"])
         assert status == 0
         for flag in ("--run-dir", "--no-compilation-cache", "--debug", "summary.json", "JAXSEM_NO_COMPILATION_CACHE"):
             assert flag in out, (words, flag)
     # a usage error is not a run either
-    assert _run(["lsd", "plan", "--n", "0"], capsys)[0] != 0
+    assert run_cli(["lsd", "plan", "--n", "0"])[0] != 0
     assert not (tmp_path / "runs").exists()
 
 
-def test_runs_in_the_same_second_get_their_own_directories(tmp_path, capsys):
+def test_runs_in_the_same_second_get_their_own_directories(tmp_path, run_cli):
     folder = _bench_dir(tmp_path)
-    dirs = {_run_dir(_run(["bench", "--dir", str(folder), "probe"], capsys)[1]) for _ in range(3)}
+    dirs = {_run_dir(run_cli(["bench", "--dir", str(folder), "probe"])[1]) for _ in range(3)}
     assert len(dirs) == 3 and all((d / "summary.json").exists() for d in dirs)
 
 
-def test_run_dir_may_not_be_a_training_workdir(tmp_path, capsys):
-    status, _, err = _run(["volumon", "train", "--workdir", str(tmp_path), "--run-dir", str(tmp_path)], capsys)
+def test_run_dir_may_not_be_a_training_workdir(tmp_path, run_cli):
+    status, _, err = run_cli(["volumon", "train", "--workdir", str(tmp_path), "--run-dir", str(tmp_path)])
     assert status == 2 and "--run-dir" in err.strip().splitlines()[-1]
     assert not any(tmp_path.iterdir())
 
@@ -257,55 +242,55 @@ def test_record_outside_a_run_is_a_no_op(tmp_path):
 
 
 @pytest.mark.slow
-def test_every_subcommand_runs_to_the_end_and_records_it(tmp_path, capsys):
+def test_every_subcommand_runs_to_the_end_and_records_it(tmp_path, run_cli):
     o = tmp_path
     _, _, summary, _ = _check_ok(
         ["roshan", "--simulate", "forward", "--frames", "4", "--objects", "2", "--final-iterations", "1"]
         + ["--overlays", "1", "--quiet", "--out", str(o / "roshan")],
-        capsys,
+        run_cli,
         {"simulate": "forward", "frames": 4, "objects": 2, "final_iterations": 1, "out": str(o / "roshan")},
     )
     assert str(o / "roshan" / "map.json") in summary["outputs"] and len(summary["figures"]) == 2
     assert summary["results"]["frames"] == 4 and "mean_error" in summary["results"]
 
     _, _, summary, _ = _check_ok(
-        ["volumon", "predict", "--split", "test", "--num", "2", "--out", str(o / "vp")], capsys, {"num": 2}
+        ["volumon", "predict", "--split", "test", "--num", "2", "--out", str(o / "vp")], run_cli, {"num": 2}
     )
     assert summary["results"]["ellipsoids"] == 2 and len(summary["figures"]) == 2
 
-    _, _, summary, _ = _check_ok(["volumon", "eval", "--num", "4", "--json", str(o / "ve.json")], capsys, {"num": 4})
+    _, _, summary, _ = _check_ok(["volumon", "eval", "--num", "4", "--json", str(o / "ve.json")], run_cli, {"num": 4})
     assert summary["results"]["num"] == 4 and summary["outputs"] == [str(o / "ve.json")]
 
     work = o / "vt"
     _, config, summary, _ = _check_ok(
         ["volumon", "train", "--workdir", str(work), "--size", "tiny", "--steps", "2", "--num-eval", "4"]
         + ["--eval-every", "2", "--checkpoint-every", "2"],
-        capsys,
+        run_cli,
         {"steps": 2, "size": "tiny", "workdir": str(work)},
     )
     assert config["train_config"]["num_steps"] == 2 and (work / "config.json").exists()
-    _, _, summary, _ = _check_ok(["volumon", "export", "--workdir", str(work), "--out", str(o / "ve")], capsys, {})
+    _, _, summary, _ = _check_ok(["volumon", "export", "--workdir", str(work), "--out", str(o / "ve")], run_cli, {})
     assert summary["results"]["megabytes"] > 0 and summary["figures"]
 
     shards = o / "shards"
     _, _, summary, _ = _check_ok(
         ["lsd", "data", "--out", str(shards), "--buildings", "1", "--samples-per-building", "4"]
         + ["--nav-samples", "200", "--workers", "1", "--sample-prob", "0.5"],
-        capsys,
+        run_cli,
         {"buildings": 1, "samples_per_building": 4, "workers": 1},
     )
     assert summary["results"]["shards"] == 1 and summary["results"]["samples"] > 0
     _, config, summary, _ = _check_ok(
         ["lsd", "train", "--data", str(shards), "--workdir", str(o / "lt"), "--config", "tiny"]
         + ["--stage1-steps", "2", "--stage2-steps", "2", "--eval-every", "2"],
-        capsys,
+        run_cli,
         {"config": "tiny", "stage1_steps": 2},
     )
     assert config["train_config"]["stage1_steps"] == 2
     _, _, summary, _ = _check_ok(
         ["lsd", "plan", "--sampler", "uniform", "--n", "100", "--max-steps", "20", "--no-progress"]
         + ["--out", str(o / "plan.png")],
-        capsys,
+        run_cli,
         {"sampler": "uniform", "n": 100, "max_steps": 20},
     )
     assert summary["results"]["uniform"]["steps"] <= 20 and summary["figures"] == [str(o / "plan.png")]

@@ -26,16 +26,6 @@ from jaxsem import config as jcfg, scripting as sc
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
 
 
-def _devices(text: str) -> int | str:
-    """``--devices``: ``all`` or a positive count (checked against the devices JAX sees later)."""
-    from jaxsem.parallel import parse_devices
-
-    try:
-        return parse_devices(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc).removeprefix("devices: ")) from None
-
-
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     p.add_argument("--data", type=sc.existing_path, required=True, help="folder of expert_*.npz shards (or one shard)")
@@ -63,13 +53,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    p.add_argument(
-        "--devices",
-        type=_devices,
-        default=None,
-        metavar="N|all",
-        help="train data-parallel over N devices or 'all' (a Mesh over jax.devices() with a data axis: the state replicated, each batch split over the devices, so the batch size must divide by N; on several hosts 'all' spans every host's devices once JAX_COORDINATOR_ADDRESS etc. are set, see the README's Scaling) (default: one device)",
-    )
+    sc.add_devices_argument(p)
     return p
 
 
@@ -97,19 +81,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if v is not None
     }
     cfg = jcfg.override(dataclasses.replace(cfg, **changes), args.overrides)
-    mesh = None
-    if args.devices is not None:
-        from jaxsem import parallel
-
-        parallel.initialize_distributed()  # joins a multi-host run (a no-op on one machine)
-        try:
-            mesh = parallel.devices_mesh(args.devices)
-        except ValueError as exc:
-            raise sc.UsageError(f"--devices: {str(exc).removeprefix('devices: ')}") from None
-        if cfg.batch_size % mesh.size:
-            raise sc.UsageError(
-                f"--batch-size: {cfg.batch_size} does not divide over the {mesh.size} devices of --devices {args.devices}"
-            )
+    mesh = sc.devices_mesh(args.devices, cfg.batch_size)
     sc.record_config(train_config=cfg)
     stop_at = None
     if args.chunk_steps is not None:

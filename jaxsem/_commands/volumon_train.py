@@ -41,16 +41,6 @@ def _size(text: str) -> str:
     raise argparse.ArgumentTypeError(f"expected one of {list(SIZES)} or a .json file, got {text!r}")
 
 
-def _devices(text: str) -> int | str:
-    """``--devices``: ``all`` or a positive count (checked against the devices JAX sees later)."""
-    from jaxsem.parallel import parse_devices
-
-    try:
-        return parse_devices(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc).removeprefix("devices: ")) from None
-
-
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     p.add_argument(
@@ -111,13 +101,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override any config field by its dotted name, e.g. --set loss.primal_distance=ray (repeatable)",
     )
-    p.add_argument(
-        "--devices",
-        type=_devices,
-        default=None,
-        metavar="N|all",
-        help="train data-parallel over N devices or 'all' (a Mesh over jax.devices() with a data axis: the state replicated, each batch split over the devices, so the batch size must divide by N; on several hosts 'all' spans every host's devices once JAX_COORDINATOR_ADDRESS etc. are set, see the README's Scaling) (default: one device)",
-    )
+    sc.add_devices_argument(p)
     return p
 
 
@@ -164,7 +148,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise
             sys.exit(f"error: {exc}")
         print(f"training on {n} objects of {a.data}", flush=True)
-    mesh = _mesh(p, a.devices, cfg.batch_size)
+    mesh = sc.devices_mesh(a.devices, cfg.batch_size)
     sc.record_config(train_config=cfg)
     try:
         result = train_and_evaluate(
@@ -188,22 +172,6 @@ def main(argv=None, prog: str | None = None) -> int:
     _plot(a.workdir)
     sc.record_output(a.workdir)
     return 0
-
-
-def _mesh(p: argparse.ArgumentParser, devices, batch_size: int):
-    """The data mesh of ``--devices`` (None without it); joins a multi-host run first."""
-    if devices is None:
-        return None
-    from jaxsem import parallel
-
-    parallel.initialize_distributed()
-    try:
-        mesh = parallel.devices_mesh(devices)
-    except ValueError as exc:
-        p.error(f"--devices: {str(exc).removeprefix('devices: ')}")
-    if batch_size % mesh.size:
-        p.error(f"--batch-size: {batch_size} does not divide over the {mesh.size} devices of --devices {devices}")
-    return mesh
 
 
 def _plot(workdir):

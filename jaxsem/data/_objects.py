@@ -423,9 +423,6 @@ class _ObjectScene:
         for b in self.objects + self.distractors:
             self.model.geom_sameframe[b.geom] = 0
         self._label = np.full(self.model.ngeom + 1, -1, np.int32)
-        from ..sim import mujoco_quaternion
-
-        self._mat_to_quat = mujoco_quaternion
         try:
             self._renderer = mj.Renderer(self.model, self.height, self.width)
         except mj.FatalError as exc:
@@ -458,12 +455,14 @@ class _ObjectScene:
 
     def place(self, b: _Body, world_R_obj, world_centre):
         """Pose body ``b`` so that its box centre is at ``world_centre``; ``None`` parks it."""
+        from ..sim import mujoco_quaternion
+
         if world_R_obj is None:
             self.model.body_pos[b.body] = _PARK
             self.model.body_quat[b.body] = [1.0, 0.0, 0.0, 0.0]
             return
         self.model.body_pos[b.body] = world_centre - world_R_obj @ b.offset
-        self.model.body_quat[b.body] = self._mat_to_quat(world_R_obj)
+        self.model.body_quat[b.body] = mujoco_quaternion(world_R_obj)
 
     def scale_lights(self, factor: float):
         for j, d in enumerate(self._light_diffuse):

@@ -199,9 +199,9 @@ def mujoco_view(model, data, renderer, cam: int, K, camera_T_world, outputs: Seq
     or ``'depth'`` -> ``geom`` (H, W) int32 geom id per pixel, -1 where no geom (the sky);
     ``'depth'`` -> ``depth`` (H, W) float32 z-depth in metres, 0 where no geom.
     """
-    height, width = int(model.cam_resolution[cam][1]), int(model.cam_resolution[cam][0])
-    if renderer is not None:
-        height, width = int(renderer.height), int(renderer.width)
+    if renderer is None:
+        raise ValueError("renderer: the scene's renderer is closed (render() called after close())")
+    height, width = int(renderer.height), int(renderer.width)
     intrinsic = mujoco_intrinsics(K, width, height)
     T = np.asarray(camera_T_world, dtype=np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -209,8 +209,6 @@ def mujoco_view(model, data, renderer, cam: int, K, camera_T_world, outputs: Seq
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
         raise ValueError("camera_T_world: its (3, 3) block is not a rotation")
-    if renderer is None:
-        raise ValueError("renderer: the scene's renderer is closed (render() called after close())")
     world_T_cam = invert_pose(T, xp=np)
     model.cam_pos[cam] = world_T_cam[:3, 3]
     # MuJoCo's camera looks along its -z with y up: OpenCV's frame times diag(1, -1, -1).
