@@ -79,7 +79,7 @@ def test_exported_program_is_saved_reloaded_and_identical(tmp_path, monkeypatch)
     state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
     step = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     (saved,) = tmp_path.iterdir()
-    assert saved.suffix == ".pkl"
+    assert saved.suffix == ".jaxexport"
 
     # A later process (here: a second call) loads the program instead of tracing it again.
     def no_trace(*a, **k):
@@ -99,7 +99,7 @@ def test_exported_falls_back_on_a_bad_file_or_another_static_configuration(tmp_p
     state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
     _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     (path,) = tmp_path.iterdir()
-    path.write_bytes(b"not a pickle")
+    path.write_bytes(b"not a serialised program")
     again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     assert _leaves_equal(jax.jit(_toy_step)(state, frame, flag), again(state, frame, flag))
     other = _Toy(state.x, state.n, 3)  # another static field: another tree, the plain jit path
@@ -112,14 +112,14 @@ def test_exported_keeps_only_the_newest_programs(tmp_path, monkeypatch):
     import os
 
     for k in range(5):
-        stale = tmp_path / f"toy-stale{k}.pkl"
+        stale = tmp_path / f"toy-stale{k}.jaxexport"
         stale.write_bytes(b"old")
         os.utime(stale, (1000 + k, 1000 + k))
     monkeypatch.setattr(_aot, "_KEEP", 3)
     state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
     _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
-    kept = sorted(p.name for p in tmp_path.glob("toy-*.pkl"))
-    assert len(kept) == 3 and "toy-stale4.pkl" in kept and "toy-stale0.pkl" not in kept
+    kept = sorted(p.name for p in tmp_path.glob("toy-*.jaxexport"))
+    assert len(kept) == 3 and "toy-stale4.jaxexport" in kept and "toy-stale0.jaxexport" not in kept
 
 
 def test_online_init_and_make_frame_compile_nothing():

@@ -15,8 +15,8 @@ parses it (about 0.5 s) and finds the executable in JAX's cache.
   fields included), every argument's shape, dtype and weak type, and the source of the
   ``jaxsem`` package, so any code change re-traces.
 - At most 16 programs per name are kept (the newest; about 150 kB each for the online step).
-- The file holds a pickled ``jax.export.Exported`` (this jax has no flatbuffers for its own
-  serialisation); as with JAX's cache, keep the cache directory private.
+- The file holds the ``jax.export.Exported`` in JAX's own serialisation (``Exported.serialize``,
+  flatbuffers: loading it runs no Python code).
 - Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Measured
   with jax 0.10 on the CPU: the online step loaded that way crashed the process (segmentation
   fault) in its first optimisation, so only the portable program is kept.
@@ -24,12 +24,10 @@ parses it (about 0.5 s) and finds the executable in JAX's cache.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import hashlib
 import os
 import pathlib
-import pickle
 import tempfile
 from collections.abc import Callable
 from typing import Any
@@ -101,7 +99,7 @@ def _save(path: pathlib.Path, data: bytes) -> None:
 
 def _evict(folder: pathlib.Path, name: str, keep: int) -> None:
     """Keeps the ``keep`` newest programs of ``name`` (old code versions and shapes go)."""
-    files = sorted(folder.glob(f"{name}-*.pkl"), key=lambda p: p.stat().st_mtime, reverse=True)
+    files = sorted(folder.glob(f"{name}-*.jaxexport"), key=lambda p: p.stat().st_mtime, reverse=True)
     for old in files[keep:]:
         old.unlink(missing_ok=True)
 
@@ -110,9 +108,7 @@ def _export(fn: Callable, leaves, tree):
     def flat(*flat_args):
         return jax.tree_util.tree_leaves(fn(*jax.tree_util.tree_unflatten(tree, flat_args)))
 
-    exp = jax.export.export(jax.jit(flat))(*leaves)
-    # The VJP closure cannot be pickled (and is not needed: the step is never differentiated).
-    return dataclasses.replace(exp, _get_vjp=None)
+    return jax.export.export(jax.jit(flat))(*leaves)
 
 
 def exported(name: str, fn: Callable, args: tuple, out_like: Any, folder: pathlib.Path | None = None) -> Callable:
@@ -139,16 +135,16 @@ def exported(name: str, fn: Callable, args: tuple, out_like: Any, folder: pathli
     try:
         leaves, tree = jax.tree_util.tree_flatten(tuple(args))
         out_tree = jax.tree_util.tree_structure(out_like)
-        path = folder / f"{name}-{_key(name, leaves, tree)}.pkl"
+        path = folder / f"{name}-{_key(name, leaves, tree)}.jaxexport"
         exp = None
         if path.exists():
-            try:
-                exp = pickle.loads(path.read_bytes())
+            try:  # JAX's own format (flatbuffers): loading runs no code, unlike a pickle
+                exp = jax.export.deserialize(bytearray(path.read_bytes()))
             except Exception:
                 path.unlink(missing_ok=True)
         if exp is None:
             exp = _export(fn, leaves, tree)
-            _save(path, pickle.dumps(exp))
+            _save(path, bytes(exp.serialize()))
             _evict(folder, name, keep=_KEEP)
         call = jax.jit(exp.call)
     except Exception:
