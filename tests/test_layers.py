@@ -1,6 +1,7 @@
 """The package's layers, checked on the import statements of every file (an import-linter contract).
 
-- geometry (``quadrics``, ``classes``, ``_checks``) imports nothing else of jaxsem;
+- geometry (``quadrics`` with its private implementation package ``_geometry``, ``classes``,
+  ``_checks``) imports nothing else of jaxsem (``quadrics`` and ``_geometry`` are one unit);
 - methods (``metrics``, ``factors``, ``slam``, ``models``, ``volumon``, ``lsd``, ``planning``,
   ``mapping``, ``parallel``) import geometry and each other, never the outer layer;
 - the outer layer (``sim``, ``data``, ``demos``, ``cli``, ``_commands``, scripts, tests, benchmarks) may import
@@ -12,7 +13,9 @@ import ast
 import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-GEOMETRY = {"quadrics", "classes", "_checks"}
+GEOMETRY = {"quadrics", "_geometry", "classes", "_checks"}
+# The geometry core: the public facade and the private package behind it, one unit of the layer.
+GEOMETRY_CORE = {"quadrics", "_geometry"}
 METHODS = {
     "metrics",
     "factors",
@@ -92,7 +95,8 @@ def test_layers_point_one_way():
     for path in _files():
         owner = _owner(path)
         if owner in GEOMETRY:
-            forbidden = METHODS | OUTER | {o for o in GEOMETRY if o != owner and o != "_checks"}
+            same_unit = GEOMETRY_CORE if owner in GEOMETRY_CORE else {owner}
+            forbidden = METHODS | OUTER | (GEOMETRY - same_unit - {"_checks"})
         elif owner in METHODS:
             forbidden = OUTER
         else:
@@ -102,3 +106,15 @@ def test_layers_point_one_way():
             if len(parts) > 1 and parts[1] in forbidden:
                 bad.append(f"{path.relative_to(ROOT)}:{line} ({owner}) imports {mod}")
     assert not bad, "imports against the layers:\n" + "\n".join(sorted(set(bad)))
+
+
+def test_geometry_package_only_behind_its_facade():
+    # jaxsem._geometry is the implementation of jaxsem.quadrics: everyone else imports the facade.
+    bad = []
+    for path in _files():
+        if _owner(path) in GEOMETRY_CORE:
+            continue
+        for line, mod in _imports(path):
+            if mod == "jaxsem._geometry" or mod.startswith("jaxsem._geometry."):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {mod}")
+    assert not bad, "import jaxsem.quadrics instead of its private package:\n" + "\n".join(sorted(set(bad)))

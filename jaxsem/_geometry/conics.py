@@ -1,0 +1,296 @@
+"""Quadric matrices and their projection by a pinhole camera (thesis eq. 4.1-4.3, 4.9-4.12, 5.5).
+
+The dual and primal quadric of an ellipsoid, the camera matrix, the projected dual conic, the
+box and outline of a conic, the exact box of a cylinder, and the depth of an ellipsoid's
+texture plane. Re-exported by :mod:`jaxsem.quadrics`, which documents the conventions.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import (
+    as_float_array as _as_float_array,
+    batch_shape as _batch_shape,
+)
+from ._common import (
+    _camera_args,
+    _ellipsoid_args,
+    _eps,
+    _matmul3,
+    _matvec,
+    _namespace,
+    _safe_sqrt,
+    safe_div,
+    safe_norm,
+)
+
+# --------------------------------------------------------------------------------------------
+# Quadric matrices.
+
+
+def dual_quadric(rotation, center, radii, *, xp: Any = jnp):
+    """Dual quadric ``Q*`` of an ellipsoid (eq. 4.3).
+
+    Args:
+      rotation: (..., 3, 3) object-to-world rotation ``R``.
+      center: (..., 3) centre ``t`` in the world.
+      radii: (..., 3) semi-axes ``r`` in metres.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code; see the module docstring).
+
+    Returns:
+      (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``.
+    """
+    xp = _namespace(xp)
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
+    return _dual_quadric(rotation, center, radii, batch, xp)
+
+
+def _dual_quadric(rotation, center, radii, batch, xp):
+    # Also the dual quadric of a flat ellipse (one radius 0): see cylinder_bbox.
+    rotation = xp.broadcast_to(rotation, batch + (3, 3))
+    center = xp.broadcast_to(center, batch + (3,))
+    radii = xp.broadcast_to(radii, batch + (3,))
+    shape = _matmul3(rotation * xp.square(radii)[..., None, :], xp.swapaxes(rotation, -1, -2))
+    top_left = shape - center[..., :, None] * center[..., None, :]
+    top = xp.concatenate([top_left, -center[..., :, None]], axis=-1)
+    bottom = xp.concatenate([-center, -xp.ones(batch + (1,), center.dtype)], axis=-1)
+    return xp.concatenate([top, bottom[..., None, :]], axis=-2)
+
+
+def _inverse_square_radii(radii):
+    # Radii below eps(dtype) are clamped so that 1/r^2 stays finite (and far from overflow).
+    floor = jnp.finfo(radii.dtype).eps
+    return 1.0 / jnp.square(jnp.maximum(jnp.abs(radii), floor))
+
+
+def primal_quadric(rotation, center, radii):
+    """Primal (point) quadric ``Q`` of an ellipsoid (eq. 5.2-5.5): ``x^T Q x = 0`` on the surface.
+
+    Args:
+      rotation: (..., 3, 3) object-to-world; center: (..., 3); radii: (..., 3) semi-axes.
+
+    Returns:
+      (..., 4, 4) ``[[A, -A t], [-t^T A, t^T A t - 1]]`` with ``A = R diag(1/r^2) R^T``; radii are
+      clamped below at ``eps(dtype)`` so the matrix stays finite.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    rotation = jnp.broadcast_to(rotation, batch + (3, 3))
+    center = jnp.broadcast_to(center, batch + (3,))
+    inv_sq = jnp.broadcast_to(_inverse_square_radii(radii), batch + (3,))
+    A = _matmul3(rotation * inv_sq[..., None, :], jnp.swapaxes(rotation, -1, -2))
+    At = _matvec(A, center)
+    corner = jnp.sum(center * At, axis=-1, keepdims=True) - 1.0
+    top = jnp.concatenate([A, -At[..., :, None]], axis=-1)
+    bottom = jnp.concatenate([-At, corner], axis=-1)
+    return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
+
+
+def camera_matrix(K, camera_T_world, *, xp: Any = jnp):
+    """Projection matrix ``P = K [I | 0] camera_T_world`` (..., 3, 4) (eq. 4.9): ``x ~ P X``.
+
+    Args:
+      K: (..., 3, 3) intrinsics; camera_T_world: (..., 4, 4) world-to-camera transform.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+    """
+    xp = _namespace(xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    return _camera_matrix(K, pose, xp)
+
+
+def _camera_matrix(K, pose, xp):
+    return xp.matmul(K, pose[..., :3, :])
+
+
+def project_dual_conic(dual_quadric, K, camera_T_world, *, xp: Any = jnp):
+    """Dual conic ``C* = P Q* P^T`` with ``P = K [I | 0] camera_T_world`` (eq. 4.9, 5.9).
+
+    Args:
+      dual_quadric: (..., 4, 4) ``Q*``.
+      K: (..., 3, 3) intrinsics.
+      camera_T_world: (..., 4, 4) world-to-camera transform.
+      xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+
+    Returns:
+      (..., 3, 3) dual conic in pixels.
+    """
+    xp = _namespace(xp)
+    Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True, xp=xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(dual_quadric=Qs.shape[:-2], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    P = _camera_matrix(K, pose, xp)
+    return xp.matmul(xp.matmul(P, Qs), xp.swapaxes(P, -1, -2))
+
+
+def conic_bbox(dual_conic, *, xp: Any = jnp):
+    """Axis-aligned box of a dual conic (eq. 4.8, 4.10, 5.10): the lines ``u = const`` and ``v = const``
+    tangent to it.
+
+    ``u_min, u_max = (C13 -+ sqrt(C13^2 - C11 C33)) / C33`` and likewise for ``v``.
+
+    Args:
+      dual_conic: (..., 3, 3) ``C*``, in jaxsem's normalisation (``P Q* P^T`` with ``Q*[3,3] = -1``,
+        or any positive multiple of it; the sign tells a real ellipse from an imaginary one).
+
+    Returns:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite everywhere.
+      valid: (...) bool, False where the conic is not a real ellipse (``C33 >= 0`` or
+        ``det C* >= 0``: camera inside the ellipsoid, or the image plane cutting it). A dual conic
+        alone cannot tell an ellipsoid in front of the camera from its mirror image behind it;
+        :func:`project_bbox` checks the depth as well.
+    """
+    xp = _namespace(xp)
+    C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
+    c13, c23, c33, disc_u, disc_v, det = _conic_terms(C, xp)
+    valid = (c33 < -_eps(C.dtype)) & (det < 0) & (disc_u > 0) & (disc_v > 0)
+    return _conic_box(c13, c23, c33, disc_u, disc_v, valid, xp), valid
+
+
+def _conic_terms(C, xp):
+    """Scaled entries of a dual conic for its bounds: ``C13, C23, C33``, the two discriminants, det."""
+    C = 0.5 * (C + xp.swapaxes(C, -1, -2))
+    # Scale to O(1) by a positive factor: the box is scale-invariant and det() cannot overflow.
+    scale = xp.max(xp.abs(C), axis=(-2, -1), keepdims=True)
+    C = C / xp.where(scale > 0, scale, 1.0)
+    c11, c12, c13 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
+    c22, c23, c33 = C[..., 1, 1], C[..., 1, 2], C[..., 2, 2]
+    det = c11 * (c22 * c33 - c23 * c23) - c12 * (c12 * c33 - c23 * c13) + c13 * (c12 * c23 - c22 * c13)
+    disc_u = c13 * c13 - c11 * c33
+    disc_v = c23 * c23 - c22 * c33
+    return c13, c23, c33, disc_u, disc_v, det
+
+
+def _conic_box(c13, c23, c33, disc_u, disc_v, ok, xp):
+    """``[(C13 + su) / C33, (C23 + sv) / C33, (C13 - su) / C33, (C23 - sv) / C33]`` where ``ok``."""
+    c33_safe = xp.where(ok, c33, -1.0)
+    su = _safe_sqrt(xp.where(ok, disc_u, 0.0), xp)
+    sv = _safe_sqrt(xp.where(ok, disc_v, 0.0), xp)
+    return xp.stack(
+        [(c13 + su) / c33_safe, (c23 + sv) / c33_safe, (c13 - su) / c33_safe, (c23 - sv) / c33_safe],
+        axis=-1,
+    )
+
+
+def cylinder_bbox(rotation, center, radii, K, camera_T_world, *, xp: Any = jnp):
+    """Exact image box of an elliptic cylinder: the box of its two rim ellipses' outlines.
+
+    The cylinder's axis is the object z axis; ``radii[..., :2]`` are the semi-axes of its
+    cross-section and ``radii[..., 2]`` its half length. Each rim is the flat ellipse with radii
+    ``(r0, r1, 0)`` at ``center +- r2 R[:, 2]``, whose dual quadric is eq. 4.3's with a zero radius,
+    ``Q* = Z diag(r0^2, r1^2, 0, -1) Z^T``; its image ``P Q* P^T`` is bounded as in eq. 4.10
+    (a rim seen edge-on projects to a segment, still bounded by the same formula).
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3) positive; K: (..., 3, 3);
+      camera_T_world: (..., 4, 4). xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+
+    Returns:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite.
+      valid: (...) bool, False unless both rims lie entirely in front of the camera.
+    """
+    xp = _namespace(xp)
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(cylinder=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    flat = radii * xp.asarray([1.0, 1.0, 0.0], radii.dtype)
+    axis = rotation[..., :, 2] * radii[..., 2:]
+    boxes, valid = [], True
+    for rim_center in (center - axis, center + axis):
+        C = project_dual_conic(_dual_quadric(rotation, rim_center, flat, batch, xp), K, pose, xp=xp)
+        c13, c23, c33, disc_u, disc_v, _ = _conic_terms(C, xp)
+        front = c33 < -_eps(C.dtype)
+        boxes.append(_conic_box(c13, c23, c33, xp.maximum(disc_u, 0.0), xp.maximum(disc_v, 0.0), front, xp))
+        valid = valid & front
+    a, b = boxes
+    box = xp.concatenate([xp.minimum(a[..., :2], b[..., :2]), xp.maximum(a[..., 2:], b[..., 2:])], axis=-1)
+    return box, valid
+
+
+def conic_outline(dual_conic, num_points: int = 64, *, xp: Any = jnp):
+    """Points on a dual conic's ellipse, for drawing: (..., num_points, 2) and a (...) valid mask.
+
+    A real ellipse with centre ``x0`` and shape ``M`` (the points ``x`` with
+    ``(x - x0)^T M^-1 (x - x0) = 1``) has the dual conic ``C* ~ [[M - x0 x0^T, -x0], [-x0^T, -1]]``
+    (the 2D analogue of eq. 4.3), so after scaling ``C*`` to ``C*33 = -1`` both are read off
+    directly: ``x0 = -C*[:2, 2]`` and ``M = C*[:2, :2] + x0 x0^T``. The points are
+    ``x0 + L [cos t, sin t]`` with ``L`` the closed-form 2x2 Cholesky factor of ``M``: no
+    adjugate, no determinant and no eigen-decomposition, so the gradients are finite in float32
+    and correct for circles (where an eigenvector gradient is undefined). Where the conic is not
+    a real ellipse the points collapse to a finite point and valid is False.
+
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code, e.g. figures: no jit, nothing
+    compiles).
+    """
+    xp = _namespace(xp)
+    Cs = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
+    if int(num_points) < 1:
+        raise ValueError(f"num_points: expected a positive integer, got {num_points}")
+    _, valid = conic_bbox(Cs, xp=xp)
+    Cs = 0.5 * (Cs + xp.swapaxes(Cs, -1, -2))
+    c33 = xp.where(valid, Cs[..., 2, 2], -1.0)
+    Cn = Cs / (-c33)[..., None, None]
+    x0 = -Cn[..., :2, 2]
+    m11 = Cn[..., 0, 0] + x0[..., 0] * x0[..., 0]
+    m12 = Cn[..., 0, 1] + x0[..., 0] * x0[..., 1]
+    m22 = Cn[..., 1, 1] + x0[..., 1] * x0[..., 1]
+    # M = L L^T, L = [[l11, 0], [l21, l22]]; on invalid conics the inputs are replaced by 1 so the
+    # branch not taken has finite gradients.
+    l11 = _safe_sqrt(xp.where(valid, m11, 1.0), xp)
+    m12 = xp.where(valid, m12, 0.0)
+    l21 = safe_div(m12, l11) if xp is jnp else m12 / np.where(l11 > 0, l11, 1.0)
+    l22 = _safe_sqrt(xp.where(valid, m22 - l21 * l21, 1.0), xp)
+    t = xp.linspace(0.0, 2 * np.pi, int(num_points), dtype=Cs.dtype)
+    cos_t, sin_t = xp.cos(t), xp.sin(t)
+    u = x0[..., 0, None] + l11[..., None] * cos_t
+    v = x0[..., 1, None] + l21[..., None] * cos_t + l22[..., None] * sin_t
+    pts = xp.stack([u, v], -1)
+    return xp.where(valid[..., None, None], pts, 0.0), valid
+
+
+def _matvec2(m, v):
+    return jnp.sum(m * v[..., None, :], axis=-1)
+
+
+def camera_frame(rotation, center, camera_T_world):
+    """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame."""
+    R_cw = camera_T_world[..., :3, :3]
+    return _matmul3(R_cw, rotation), _matvec(R_cw, center) + camera_T_world[..., :3, 3]
+
+
+def texture_plane_depth(rotation, center, radii, camera_T_world):
+    """Depth of the camera-facing tangent plane parallel to the image plane (eq. 4.11-4.12).
+
+    Solving ``[0, 0, 1, -z] Q*_cam [0, 0, 1, -z]^T = 0`` gives ``z = t_z -+ sqrt(S33)``; the
+    texture plane is the smaller root, ``t_z - sqrt(e3^T R_c diag(r^2) R_c^T e3)``.
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); radii: (..., 3); camera_T_world: (..., 4, 4).
+
+    Returns:
+      depth: (...) metres along the optical axis (finite everywhere).
+      valid: (...) bool, False where the plane is not in front of the camera (camera inside the
+        ellipsoid, or the ellipsoid behind or straddling the image plane).
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    (pose,) = _camera_args(None, camera_T_world, need_K=False)
+    _batch_shape(ellipsoid=batch, camera_T_world=pose.shape[:-2])
+    dtype = jnp.result_type(rotation.dtype, pose.dtype)
+    pose = pose.astype(dtype)
+    Rc, tc = camera_frame(rotation.astype(dtype), center.astype(dtype), pose)
+    half_depth = safe_norm(radii.astype(dtype) * Rc[..., 2, :], axis=-1)
+    depth = tc[..., 2] - half_depth
+    valid = depth > _eps(dtype) * (jnp.abs(tc[..., 2]) + half_depth)
+    return depth, valid
+
+
+def camera_depth(center, camera_T_world, *, xp: Any = jnp):
+    """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4).
+    ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code)."""
+    xp = _namespace(xp)
+    center = _as_float_array("center", center, (3,), check_finite=True, xp=xp)
+    pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True, xp=xp)
+    return xp.sum(pose[..., 2, :3] * center, axis=-1) + pose[..., 2, 3]

@@ -1,0 +1,199 @@
+"""Points and poses: rigid transforms, pinhole projection and back-projection (eq. 4.9), single-view
+initialisation (section 4.3.5), cuboid corners and stereo rigs.
+
+Re-exported by :mod:`jaxsem.quadrics`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import (
+    as_float_array as _as_float_array,
+    batch_shape as _batch_shape,
+    check_rotation as _check_rotation,
+    is_concrete as _is_concrete,
+)
+from ._common import (
+    _camera_args,
+    _eps,
+    _matvec,
+    _namespace,
+)
+
+# --------------------------------------------------------------------------------------------
+# Points, poses and pinhole projection.
+
+
+def rigid_transform(rotation, translation, *, xp: Any = jnp):
+    """The (..., 4, 4) transform ``[[R, t], [0, 1]]`` of rotations (..., 3, 3) and translations (..., 3).
+
+    E.g. an object's pose in the camera (``camera_T_object``) from its rotation and centre.
+    ``rotation`` must be a proper rotation (checked when concrete).
+    """
+    xp = _namespace(xp)
+    R = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    t = _as_float_array("translation", translation, (3,), check_finite=True, xp=xp)
+    _check_rotation("rotation", R)
+    batch = _batch_shape(rotation=R.shape[:-2], translation=t.shape[:-1])
+    dtype = xp.result_type(R.dtype, t.dtype)
+    R, t = xp.broadcast_to(R.astype(dtype), batch + (3, 3)), xp.broadcast_to(t.astype(dtype), batch + (3,))
+    top = xp.concatenate([R, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def transform_points(T, points, *, xp: Any = jnp):
+    """Apply rigid transforms ``T`` (..., 4, 4) to points (..., 3): ``T[:3, :3] p + T[:3, 3]``."""
+    xp = _namespace(xp)
+    T = _as_float_array("T", T, (4, 4), check_finite=True, xp=xp)
+    points = _as_float_array("points", points, (3,), check_finite=True, xp=xp)
+    _batch_shape(T=T.shape[:-2], points=points.shape[:-1])
+    dtype = xp.result_type(T.dtype, points.dtype)
+    T, points = T.astype(dtype), points.astype(dtype)
+    return _matvec(T[..., :3, :3], points) + T[..., :3, 3]
+
+
+def invert_pose(T, *, xp: Any = jnp):
+    """Inverse (..., 4, 4) of rigid transforms ``T`` (..., 4, 4): ``[[R^T, -R^T t], [0, 1]]``.
+
+    Exact for rigid transforms (the same as ``jaxlie.SE3.from_matrix(T).inverse().as_matrix()``
+    without the round trip through a quaternion)."""
+    xp = _namespace(xp)
+    T = _as_float_array("T", T, (4, 4), check_finite=True, xp=xp)
+    Rt = xp.swapaxes(T[..., :3, :3], -1, -2)
+    t = -_matvec(Rt, T[..., :3, 3])
+    top = xp.concatenate([Rt, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], T.dtype), T.shape[:-2] + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def project_points(points, K, camera_T_world, *, xp: Any = jnp):
+    """Pinhole projection of world points: ``uv = (K p_cam)[:2] / z``, with ``p_cam = camera_T_world p``.
+
+    Args:
+      points: (..., 3) world points.
+      K: (..., 3, 3) intrinsics; camera_T_world: (..., 4, 4) (OpenCV axes).
+
+    Returns:
+      uv: (..., 2) pixels, finite everywhere (a point at or behind the principal plane is
+        divided by a clamped depth, so its ``uv`` is meaningless: check ``depth``).
+      depth: (...) camera z in metres; a point is in front of the camera iff ``depth > 0``.
+    """
+    xp = _namespace(xp)
+    points = _as_float_array("points", points, (3,), check_finite=True, xp=xp)
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(points=points.shape[:-1], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    dtype = xp.result_type(points.dtype, K.dtype, pose.dtype)
+    p = _matvec(pose[..., :3, :3].astype(dtype), points.astype(dtype)) + pose[..., :3, 3].astype(dtype)
+    pix = _matvec(K.astype(dtype), p)
+    z = p[..., 2]
+    z_safe = xp.where(xp.abs(z) > _eps(dtype), z, _eps(dtype))
+    return pix[..., :2] / z_safe[..., None], z
+
+
+def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
+    """World points (..., 3) at camera depth ``depth`` (z, not range) on the rays through pixels ``uv``.
+
+    The inverse of :func:`project_points`: ``project_points(back_project(uv, z, K, T), K, T)``
+    gives back ``(uv, z)``.
+
+    Args:
+      uv: (..., 2) pixels; depth: (...) metres along the optical axis.
+      K: (..., 3, 3) intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; camera_T_world: (..., 4, 4).
+    """
+    xp = _namespace(xp)
+    uv = _as_float_array("uv", uv, (2,), check_finite=True, xp=xp)
+    depth = xp.asarray(depth)
+    if _is_concrete(depth) and not bool(np.all(np.isfinite(np.asarray(depth)))):
+        raise ValueError("depth: must be finite, got non-finite values (NaN or inf)")
+    K, pose = _camera_args(K, camera_T_world, xp=xp)
+    _batch_shape(uv=uv.shape[:-1], depth=depth.shape, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    dtype = xp.result_type(uv.dtype, depth.dtype, K.dtype, pose.dtype, float)
+    uv, depth, K, pose = uv.astype(dtype), depth.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    fy, cy = K[..., 1, 1], K[..., 1, 2]
+    y = (uv[..., 1] - cy) / fy
+    x = (uv[..., 0] - cx - s * y) / fx
+    p_cam = xp.stack([x * depth, y * depth, xp.broadcast_to(depth, x.shape)], -1)
+    # world p = R^T (p_cam - t)
+    R = pose[..., :3, :3]
+    return _matvec(xp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
+
+
+def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
+    """Single-view initialisation of an ellipsoid from one box (thesis section 4.3.5).
+
+    The centre lies on the ray through the box centre at camera depth ``depth`` (z, not range),
+    the rotation is the identity (object axes = world axes) and the radii are ``radii``.
+    ROSHAN's :func:`jaxsem.factors.single_view_init` chooses the depth (texture plane or default)
+    and calls this.
+
+    Args:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``; K: (..., 3, 3); camera_T_world: (..., 4, 4);
+      depth: (...) metres; radii: (..., 3) semi-axes.
+
+    Returns:
+      rotation (..., 3, 3), center (..., 3), radii (..., 3), broadcast to one batch shape.
+    """
+    box = _as_float_array("box", box, (4,), check_finite=True)
+    radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    uv = 0.5 * (box[..., :2] + box[..., 2:])
+    center = back_project(uv, depth, K, camera_T_world)
+    batch = _batch_shape(center=center.shape[:-1], radii=radii.shape[:-1])
+    center = jnp.broadcast_to(center, batch + (3,))
+    rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
+    return rotation, center, jnp.broadcast_to(radii.astype(center.dtype), batch + (3,))
+
+
+# Corner order of NVIDIA's NDDS exporter, used by the Falling Things dataset (FAT) and DOPE:
+# FrontTopRight, FrontTopLeft, FrontBottomLeft, FrontBottomRight, then the same four at the rear,
+# in the cuboid frame x right, y down, z out of the front. Rows are the signs of (x, y, z).
+CUBOID_CORNER_SIGNS = np.array(
+    [
+        [1, -1, 1],
+        [-1, -1, 1],
+        [-1, 1, 1],
+        [1, 1, 1],
+        [1, -1, -1],
+        [-1, -1, -1],
+        [-1, 1, -1],
+        [1, 1, -1],
+    ],
+    dtype=np.float64,
+)
+
+
+def cuboid_corners(rotation, center, half_extents, *, xp: Any = jnp):
+    """The 8 corners (..., 8, 3) of an oriented box, in :data:`CUBOID_CORNER_SIGNS` order (NDDS / FAT).
+
+    Corner ``k`` is ``center + rotation @ (CUBOID_CORNER_SIGNS[k] * half_extents)``: the box's own
+    axes are the columns of ``rotation`` (any right- or left-handed frame the caller chooses, e.g.
+    FAT's x right, y down, z out of the front).
+
+    Args:
+      rotation: (..., 3, 3); center: (..., 3); half_extents: (..., 3) (an ellipsoid's radii give
+        its bounding box).
+    """
+    xp = _namespace(xp)
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    center = _as_float_array("center", center, (3,), check_finite=True, xp=xp)
+    half = _as_float_array("half_extents", half_extents, (3,), check_finite=True, xp=xp)
+    if _is_concrete(half) and bool(np.any(np.asarray(half) < 0)):
+        raise ValueError("half_extents: expected non-negative values, got a negative one")
+    _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], half_extents=half.shape[:-1])
+    dtype = xp.result_type(rotation.dtype, center.dtype, half.dtype)
+    local = xp.asarray(CUBOID_CORNER_SIGNS, dtype) * half.astype(dtype)[..., None, :]
+    return _matvec(rotation.astype(dtype)[..., None, :, :], local) + center.astype(dtype)[..., None, :]
+
+
+def stereo_right_T_left(baseline, dtype=jnp.float32):
+    """``right_T_left`` (..., 4, 4) of a rectified stereo pair of ``baseline`` (...) metres: the right
+    camera sits ``baseline`` along the left camera's +x, so a left-frame point ``p`` is
+    ``p - [b, 0, 0]`` in the right frame."""
+    b = jnp.asarray(baseline, dtype)
+    T = jnp.broadcast_to(jnp.eye(4, dtype=dtype), b.shape + (4, 4))
+    return T.at[..., 0, 3].set(-b)

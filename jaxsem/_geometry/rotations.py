@@ -1,0 +1,200 @@
+"""Rotations: quaternion conversions (the convention is in the name), random rotations,
+:func:`look_at` and :func:`so3_exp`.
+
+Re-exported by :mod:`jaxsem.quadrics`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from .._checks import (
+    as_float_array as _as_float_array,
+    batch_shape as _batch_shape,
+    is_concrete as _is_concrete,
+)
+from ._common import (
+    _cross,
+    _eps,
+    _matvec,
+    _namespace,
+    _safe_norm,
+    _safe_sqrt,
+)
+
+# --------------------------------------------------------------------------------------------
+# Rotations.
+
+
+def quaternion_wxyz_to_rotation(quaternion_wxyz, *, xp: Any = jnp):
+    """(..., 4) quaternion ``[w, x, y, z]`` (scalar first, jaxlie's order) -> (..., 3, 3) rotation.
+
+    The quaternion is normalised here; a zero quaternion maps to the identity (a documented
+    convention, e.g. for a network head before training). A non-finite concrete quaternion raises
+    ``ValueError``; under ``jit`` a NaN propagates to the result (never a finite-looking matrix).
+    """
+    xp = _namespace(xp)
+    q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True, xp=xp)
+    return _quaternion_wxyz_to_rotation(q, xp)
+
+
+def quaternion_xyzw_to_rotation(quaternion_xyzw, *, xp: Any = jnp):
+    """(..., 4) quaternion ``[x, y, z, w]`` (scalar last: ROS, scipy, FAT's ``quaternion_xyzw``)
+    -> (..., 3, 3) rotation. Same rules as :func:`quaternion_wxyz_to_rotation`."""
+    xp = _namespace(xp)
+    q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True, xp=xp)
+    return _quaternion_wxyz_to_rotation(xp.roll(q, 1, axis=-1), xp)
+
+
+def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
+    norm = _safe_norm(q, xp, axis=-1, keepdims=True)
+    identity = xp.array([1.0, 0.0, 0.0, 0.0], q.dtype)
+    # `norm > 0` is False for NaN too: keep NaN (honest) instead of mapping it to the identity.
+    keep = (norm > 0) | xp.isnan(norm)
+    q = xp.where(keep, q / xp.where(keep, norm, 1.0), identity)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return xp.stack(
+        [
+            xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def rotation_to_quaternion_wxyz(rotation, *, xp: Any = jnp):
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` (scalar first) with ``w >= 0``.
+
+    Shepperd's method: of the four algebraically equal formulas the one with the largest
+    square-root argument is taken, so no branch divides by a small number.
+    """
+    xp = _namespace(xp)
+    R = _as_float_array("rotation", rotation, (3, 3), xp=xp)
+    r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    trace = r00 + r11 + r22
+    cands = []
+    s = 2 * _safe_sqrt(1 + trace, xp)
+    cands.append(
+        (
+            s,
+            xp.stack(
+                [s / 4, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1
+            ),
+            1 + trace,
+        )
+    )
+    s = 2 * _safe_sqrt(1 + r00 - r11 - r22, xp)
+    cands.append(
+        (
+            s,
+            xp.stack(
+                [R[..., 2, 1] - R[..., 1, 2], s / 4, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1
+            ),
+            1 + r00 - r11 - r22,
+        )
+    )
+    s = 2 * _safe_sqrt(1 - r00 + r11 - r22, xp)
+    cands.append(
+        (
+            s,
+            xp.stack(
+                [R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], s / 4, R[..., 1, 2] + R[..., 2, 1]], -1
+            ),
+            1 - r00 + r11 - r22,
+        )
+    )
+    s = 2 * _safe_sqrt(1 - r00 - r11 + r22, xp)
+    cands.append(
+        (
+            s,
+            xp.stack(
+                [R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], s / 4], -1
+            ),
+            1 - r00 - r11 + r22,
+        )
+    )
+    args = xp.stack([c[2] for c in cands], -1)
+    best = xp.argmax(args, axis=-1)
+    qs = []
+    for i, (s_i, q_i, _) in enumerate(cands):
+        s_safe = xp.where(best == i, s_i, 1.0)[..., None]
+        # The s/4 entry was written unscaled; the others are divided by s.
+        scale = (xp.arange(4) != i).astype(R.dtype)
+        qs.append(q_i * (scale / s_safe + (1 - scale)))
+    q = xp.take_along_axis(xp.stack(qs, -2), best[..., None, None], axis=-2)[..., 0, :]
+    q = q * xp.where(q[..., :1] < 0, -1.0, 1.0)
+    return q / xp.maximum(_safe_norm(q, xp, axis=-1, keepdims=True), xp.finfo(q.dtype).tiny)
+
+
+def random_rotation(key, shape: tuple = (), dtype=None):
+    """Uniformly random rotations (..., 3, 3) from normalised Gaussian quaternions."""
+    dtype = dtype or jnp.result_type(float)
+    q = jax.random.normal(key, tuple(shape) + (4,), dtype=dtype)
+    return _quaternion_wxyz_to_rotation(q)
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0), *, xp: Any = jnp):
+    """``camera_T_world`` (..., 4, 4) of an OpenCV camera at ``eye`` looking at ``target``.
+
+    The camera's z axis points at the target, its y axis down (against ``up``). When the view
+    direction is parallel to ``up`` another up vector is used, so the result is always a rotation.
+    """
+    xp = _namespace(xp)
+    eye = _as_float_array("eye", eye, (3,), xp=xp)
+    target = _as_float_array("target", target, (3,), xp=xp)
+    up = _as_float_array("up", up, (3,), xp=xp)
+    dtype = xp.result_type(eye.dtype, target.dtype, up.dtype)
+    eye, target, up = eye.astype(dtype), target.astype(dtype), up.astype(dtype)
+    batch = _batch_shape(eye=eye.shape[:-1], target=target.shape[:-1], up=up.shape[:-1])
+    for name, x in (("eye", eye), ("target", target), ("up", up)):
+        if _is_concrete(x) and not bool(np.all(np.isfinite(np.asarray(x)))):
+            raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
+    if _is_concrete(eye) and _is_concrete(target):
+        gap = np.linalg.norm(np.asarray(target, np.float64) - np.asarray(eye, np.float64), axis=-1)
+        if np.any(gap <= 0):
+            raise ValueError("target: must differ from eye (the view direction is undefined)")
+    if _is_concrete(up) and np.any(np.linalg.norm(np.asarray(up, np.float64), axis=-1) <= 0):
+        raise ValueError("up: must be a non-zero vector")
+    forward = target - eye
+    forward = forward / xp.maximum(_safe_norm(forward, xp, keepdims=True), _eps(dtype))
+    right = _cross(forward, up, xp)
+    alt = _cross(forward, xp.array([1.0, 0.0, 0.0], dtype), xp)
+    alt = xp.where(
+        _safe_norm(alt, xp, keepdims=True) > 1e-3, alt, _cross(forward, xp.array([0.0, 1.0, 0.0], dtype), xp)
+    )
+    right = xp.where(_safe_norm(right, xp, keepdims=True) > 1e-6, right, alt)
+    right = right / xp.maximum(_safe_norm(right, xp, keepdims=True), _eps(dtype))
+    down = _cross(forward, right, xp)
+    world_R_cam = xp.stack([right, down, forward], axis=-1)
+    cam_R_world = xp.swapaxes(world_R_cam, -1, -2)
+    cam_R_world = xp.broadcast_to(cam_R_world, batch + (3, 3))
+    t = -_matvec(cam_R_world, xp.broadcast_to(eye, batch + (3,)))
+    top = xp.concatenate([cam_R_world, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
+
+
+def rotation_to_quaternion_xyzw(rotation, *, xp: Any = jnp):
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``."""
+    xp = _namespace(xp)
+    return xp.roll(rotation_to_quaternion_wxyz(rotation, xp=xp), -1, axis=-1)
+
+
+# Old names (scalar-first convention), kept so that existing code keeps working.
+quaternion_to_rotation = quaternion_wxyz_to_rotation
+rotation_to_quaternion = rotation_to_quaternion_wxyz
+
+
+def so3_exp(omega):
+    """Rotation (..., 3, 3) of the axis-angle vector ``omega`` (..., 3) (radians), through jaxlie.
+
+    ``jaxlie.SO3.exp`` handles the small-angle case with a Taylor branch whose untaken side has
+    finite gradients, so this is NaN-free at zero."""
+    omega = _as_float_array("omega", omega, (3,), check_finite=True)
+    return jaxlie.SO3.exp(omega).as_matrix()
