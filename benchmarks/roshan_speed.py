@@ -462,7 +462,9 @@ def main(argv=None):
     print(table)
     res = HERE / "results"
     res.mkdir(exist_ok=True)
-    (res / "roshan_speed.json").write_text(json.dumps(out, indent=2))
+    # A run without the batch part writes beside the full run's files instead of over them.
+    stem = "roshan_speed" if "batch" in out else "roshan_speed_online"
+    _write_atomic(res / f"{stem}.json", json.dumps(out, indent=2))
     behind = []
     if "online" in out:
         o = out["online"]
@@ -500,7 +502,13 @@ def main(argv=None):
         f"## ROSHAN solver speed\n\nCommand: `{out['command']}`  \nDate: {out['date']}  \n"
         f"Machine: {out['machine']}\n\n{table}\n{behind}\n"
     )
-    (res / "roshan_speed.md").write_text(md)
+    _write_atomic(res / f"{stem}.md", md)
+
+
+def _write_atomic(path, text):
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
 
 
 if __name__ == "__main__":

@@ -42,45 +42,24 @@ from jaxsem import (  # noqa: E402
     slam,
 )
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _jaxls_anchor as jaxls_anchor  # noqa: E402
+
 HERE = pathlib.Path(__file__).resolve().parent
 
 
 NOTES = """How to read it: ms/map (loop) is the median over maps of one jitted solve each (after a
 warm-up); ms/map (vmap) is one vmapped solve of all maps divided by their number; steps are the
-median accepted / trial LM steps over all phases of a solve (the peer's are its iterations);
-errors are medians over maps of each map's mean over its objects (``jaxsem.metrics`` via
-``jaxsem.sim.map_errors``; the peer's radii scored as |r|); "final cost" is
-``jaxsem.slam.total_cost`` under QuadricSLAM's factor set (border edges masked, so the peer's
-estimate is scored by the same yardstick); codes count maps per ``jaxsem.slam.RESULTS`` code.
-
-Verdict (this run, 5 maps per block, seeds 1000+, tuned on seed 100; the 2-core machine was
-shared with a training job and other work at load 7-10, so every time is inflated for both
-systems; jaxsem and the peer alternate per block):
-- Accuracy: jaxsem ROSHAN beats the peer on every path and initialisation (Orbit position 0.03
-  vs 0.17 m; Forward/plain 0.55 m vs 17.6 m, where the peer collapses on 5 of 5 maps and stops
-  after 3 iterations; Forward/single-view 0.25 vs 1.57 m). Camera poses stay within 3 sigma of
-  their priors (largest whitened prior residual norm 3.7; 3 sigma per axis is 7.3; the peer
-  reaches 35). QuadricSLAM's factor set in jaxsem still collapses on 1 of 5 Forward/plain maps.
-- Speed, per map (loop of jitted solves): ROSHAN is faster than the peer on Orbit (181 vs
-  281 ms plain, 138 vs 169 ms single-view) and Forward/single-view (75 vs 133 ms), at far
-  lower error. BEHIND on Forward/plain: 145 vs 68 ms, but the peer's 68 ms buys a collapsed
-  map (3 iterations, stuck); jaxsem runs a rescue phase and 34 accepted steps there.
-  Per iteration jaxsem costs about 3.4 ms (256 box slots) to 7 ms (600 slots) per
-  linearisation plus about 0.7 ms per trial step; the ideal of a few ms per map is not reached:
-  solves take 17-34 accepted / 30-60 trial steps over the rescue and joint phases.
-- vmap: BEHIND. Vmapped over the 5 maps a solve is 1.4-2.5x slower per map than the loop
-  (over 50 maps in roshan_speed.md: 4.6x): on this CPU the box-factor Jacobian is
-  compute-bound (about 12 us per box, the same per box batched or not), so batching amortises
-  nothing of the dominant cost, and under vmap every phase runs until its slowest member
-  stops and every inner damping loop until its slowest member accepts. The >= 2x target is
-  not met. The LM layout is not the cause: the earlier flat loop (one trial per iteration)
-  measured the same vmapped (212 vs 224 ms per map over 50 Forward maps).
-- What changed since the last run: the LM loop linearises once per accepted iteration (GTSAM's
-  layout, inner damping loop; no lax.cond, so vmap never relinearises on a rejected trial),
-  box Jacobians take 9 forward columns in the object's camera frame instead of 15, the rescue
-  phase stops at rtol 1e-2, and the real boxes are moved first (``slam.compact_boxes``).
-- optimistix path: not the default any more (130 s compile, 109 s per map measured on the
-  issue's setting); the Schur path is.
+median accepted / trial LM steps over all phases of a solve (the peer's and jaxls' are their
+iterations); errors are medians over maps of each map's mean over its objects (``jaxsem.metrics``
+via ``jaxsem.sim.map_errors``; the peer's radii scored as |r|); "final cost" is
+``jaxsem.slam.total_cost`` under QuadricSLAM's factor set (border edges masked, so every
+system's estimate is scored by the same yardstick); codes count maps per ``jaxsem.slam.RESULTS``
+code. "jaxls LM (QS factors)" is brentyi/jaxls with its defaults (LM, conjugate gradients on its
+automatic Schur reduction, relative cost tolerance 1e-5, 100 iterations) minimising exactly the
+QS-factor cost of the row "jaxsem QS factors" (``benchmarks/_jaxls_anchor.py``, costs built from
+``jaxsem.slam.box_rows`` / ``pose_rows``); it recompiles for every map (its problem analysis is
+static), so its compile column is the first map's. The verdict is in ``benchmarks/RESULTS.md``.
 """
 
 
@@ -147,6 +126,8 @@ def run_block(path, init_name, args, peer_python):
         compile_s = time.perf_counter() - t
         singles = [(take(problems, k), take(inits, k)) for k in range(args.maps)]
         per_map = [_time(lambda p=p, i=i, one=one: one(p, i), args.repeats) for p, i in singles]
+        if cfg is qs:
+            qs_per_map = [1e3 * t for t in per_map]
         jax.block_until_ready(vm(problems, inits))
         t_vmap = _time(lambda vm=vm: vm(problems, inits), args.repeats) / args.maps
         est, info = vm(problems, inits)
@@ -170,6 +151,31 @@ def run_block(path, init_name, args, peer_python):
                     "codes_ok_max_nonfinite_damping_ill": codes,
                     "unfixable_per_map": float(np.mean(np.asarray(info.unfixable.sum(-1)))),
                     "rescued_per_map": float(np.mean(np.asarray(info.rescued.sum(-1)))),
+                },
+            )
+        )
+    if args.jaxls_maps and jaxls_anchor.available():
+        m = min(args.jaxls_maps, args.maps)
+        sub = lambda tree: jax.tree_util.tree_map(lambda x: x[:m], tree)
+        est, ms, iters, compile_s = jaxls_anchor.solve_maps(sub(problems), sub(inits), qs, args.repeats)
+        sub_maps = sub(maps)
+        rows.append(
+            _summary(
+                "jaxls LM (QS factors)",
+                est,
+                sub_maps,
+                sub(problems),
+                qs,
+                float(np.median(ms)),
+                {
+                    "vmap_ms_per_map": None,
+                    "compile_s": compile_s,
+                    "accepted_steps": float(np.median(iters)),
+                    "trial_steps": None,
+                    "final_cost_qs": float(
+                        np.median(np.asarray(jax.vmap(lambda p, e: slam.total_cost(p, e, qs))(sub(problems), est)))
+                    ),
+                    "jaxsem_qs_ms_same_maps": float(np.median(qs_per_map[:m])),
                 },
             )
         )
@@ -239,6 +245,12 @@ def main(argv=None):
         default="/tmp/gq/bin/python",
         help="Python 3.10 with gtsam-quadrics and numpy<2 ('' to skip the peer)",
     )
+    ap.add_argument(
+        "--jaxls-maps",
+        type=int,
+        default=5,
+        help="maps per block solved by jaxls (the JAX anchor, if installed; it compiles once per map; 0 to skip)",
+    )
     ap.add_argument("--paths", default="orbit,forward")
     ap.add_argument("--inits", default="plain,single-view")
     ap.add_argument(
@@ -255,7 +267,7 @@ def main(argv=None):
     for path in args.paths.split(","):
         for init in args.inits.split(","):
             rows += run_block(path, init, args, peer)
-            print(json.dumps(rows[-3:], default=float), flush=True)
+            print(json.dumps(rows[-4:], default=float), flush=True)
     out = {
         "command": "python benchmarks/roshan_vs_quadricslam.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "date": subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip(),

@@ -129,7 +129,11 @@ def box_rows(
     image_size,
     config: SolverConfig,
 ):
-    """(7,) residual of one box (unbatched; vmap over boxes)."""
+    """(7,) whitened residual rows of one box factor as every jaxsem solver sees them (unbatched;
+    vmap over boxes): the six box rows of :func:`jaxsem.factors.box_residual` with the config's
+    noise, barriers and robust loss, then the texture-plane row (zero when the config or
+    ``texture_mask`` leaves it out); all zero where ``box_mask`` is False. Public so that other
+    solvers (the jaxls anchor in ``benchmarks/``) minimise exactly jaxsem's cost."""
     n = config.noise
     r = F.box_residual(
         pose,
@@ -158,7 +162,8 @@ def box_rows(
 
 
 def pose_rows(pose, prior, mask, config: SolverConfig):
-    """(6,) pose-prior residual of one pose."""
+    """(6,) whitened pose-prior rows of one pose (:func:`jaxsem.factors.pose_prior_residual` with
+    the config's sigmas and robust loss; zero where ``mask`` is False)."""
     n = config.noise
     r = F.pose_prior_residual(pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma)
     r = F.robust_residual(r, config.pose_loss, config.robust_scale)
