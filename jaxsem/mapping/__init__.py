@@ -52,6 +52,7 @@ from ._store import (
     semantic_grid,
     update,
 )
+from ._volumon_init import volumon_initial_ellipsoids
 
 __all__ = [
     "FUSIONS",
@@ -75,5 +76,6 @@ __all__ = [
     "roshan_priors",
     "semantic_grid",
     "update",
+    "volumon_initial_ellipsoids",
     "with_object_map",
 ]

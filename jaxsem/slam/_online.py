@@ -198,6 +198,11 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         texture_mask=tex_ok,
         default_depth=cfg.default_depth,
     )
+    # A detection that carries an initial ellipsoid (Frame.init_*) starts its new object there.
+    given = frame.init_mask & is_new
+    R0 = jnp.where(given[:, None, None], frame.init_rotation.astype(dtype), R0)
+    c0 = jnp.where(given[:, None], frame.init_center.astype(dtype), c0)
+    r0 = jnp.where(given[:, None], frame.init_radii.astype(dtype), r0)
     tgt = jnp.where(is_new, oid, J)  # J = out of range -> dropped
     rotation = est.rotation.at[tgt].set(R0, mode="drop")
     center = est.center.at[tgt].set(c0, mode="drop")
@@ -252,6 +257,15 @@ def _check_frame(state: OnlineState, frame: Frame):
             f"frame.box: expected shape ({state.max_detections}, 4) (capacity.max_detections), "
             f"got {frame.box.shape}; build frames with make_frame(..., max_detections=...)"
         )
+    D = state.max_detections
+    for name, shape in (
+        ("init_rotation", (D, 3, 3)),
+        ("init_center", (D, 3)),
+        ("init_radii", (D, 3)),
+        ("init_mask", (D,)),
+    ):
+        if getattr(frame, name).shape != shape:
+            raise ValueError(f"frame.{name}: expected shape {shape}, got {getattr(frame, name).shape}")
 
 
 def _online_step(state: OnlineState, frame: Frame, final, final_iterations) -> OnlineState:

@@ -113,6 +113,15 @@ class Frame(eqx.Module):
       object_id: (D,) int32 association id of each detection, in ``[0, capacity.max_objects)``;
         an id seen for the first time creates (initialises) a new object.
       box_mask: (D,) bool, True for real detections.
+      init_rotation: (D, 3, 3) object-to-world rotation of an initial ellipsoid per detection.
+      init_center: (D, 3) its centre in the world; init_radii: (D, 3) its semi-axes (m, > 0).
+      init_mask: (D,) bool: where True and the detection creates a new object, the object starts
+        at this ellipsoid (e.g. a single-view network's estimate,
+        :func:`jaxsem.mapping.volumon_initial_ellipsoids`) instead of ROSHAN's single-view
+        initialisation (:func:`jaxsem.factors.single_view_init`). Ignored for objects that
+        already exist. All four are optional: left out, they are identity / zeros / ones and a
+        False mask (the behaviour without them), of the box's float dtype, so frames with and
+        without initial ellipsoids share one compiled program. Every value must be finite.
     """
 
     pose_prior: jnp.ndarray
@@ -122,6 +131,51 @@ class Frame(eqx.Module):
     texture_mask: jnp.ndarray
     object_id: jnp.ndarray
     box_mask: jnp.ndarray
+    init_rotation: Any = None
+    init_center: Any = None
+    init_radii: Any = None
+    init_mask: Any = None
+
+    def __post_init__(self):
+        # Fill the optional initial ellipsoids (host arrays: nothing compiles) and check concrete
+        # values at this boundary; traced frames (inside jit / vmap) are only shape-checked.
+        from jax.core import Tracer
+
+        lead = tuple(np.shape(self.box)[:-1])
+        traced = isinstance(self.box, Tracer)
+        zeros = jnp.zeros if traced else np.zeros
+        box_dtype = getattr(self.box, "dtype", None)
+        floating = box_dtype is not None and jnp.issubdtype(box_dtype, jnp.floating)
+        dtype = box_dtype if floating else jnp.result_type(float)
+        if self.init_rotation is None:
+            eye = jnp.eye(3, dtype=dtype) if traced else np.eye(3, dtype=dtype)
+            self.init_rotation = (jnp if traced else np).broadcast_to(eye, lead + (3, 3))
+        if self.init_center is None:
+            self.init_center = zeros(lead + (3,), dtype)
+        if self.init_radii is None:
+            self.init_radii = (jnp if traced else np).ones(lead + (3,), dtype)
+        if self.init_mask is None:
+            self.init_mask = zeros(lead, bool)
+        for name, trailing in (
+            ("init_rotation", (3, 3)),
+            ("init_center", (3,)),
+            ("init_radii", (3,)),
+            ("init_mask", ()),
+        ):
+            value = getattr(self, name)
+            if tuple(np.shape(value)) != lead + trailing:
+                raise ValueError(
+                    f"{name}: expected shape {lead + trailing} (box has {lead[-1:]} rows), got {np.shape(value)}"
+                )
+            if isinstance(value, Tracer) or name == "init_mask":
+                continue
+            if not np.all(np.isfinite(np.asarray(value))):
+                raise ValueError(f"{name}: must be finite (rows without an initial ellipsoid too), got NaN or inf")
+        if not isinstance(self.init_radii, Tracer):
+            radii = np.asarray(self.init_radii)
+            mask = True if isinstance(self.init_mask, Tracer) else np.asarray(self.init_mask)
+            if np.any(mask & np.any(radii <= 0, axis=-1)):
+                raise ValueError("init_radii: expected semi-axes > 0 where init_mask is True")
 
 
 class Capacity(NamedTuple):
@@ -447,6 +501,10 @@ def make_frame(
     max_detections: int = 16,
     max_objects: int | None = None,
     dtype=None,
+    init_rotation=None,
+    init_center=None,
+    init_radii=None,
+    init_mask=None,
 ) -> Frame:
     """Validated :class:`Frame` padded to ``max_detections`` from numpy-like inputs.
 
@@ -454,6 +512,11 @@ def make_frame(
       pose_prior: (4, 4) ``camera_T_world``. box: (N, 4). box_class: (N,) indices or class names.
       object_id: (N,) association ids (``>= 0``, ``< max_objects`` when given).
       texture_depth: optional (N,); NaN / non-positive entries mean "no texture plane".
+      init_rotation, init_center, init_radii: optional (N, 3, 3), (N, 3), (N, 3) initial
+        ellipsoids in the WORLD frame (object-to-world rotation, centre, semi-axes), all three
+        or none; a new object detected here starts from its row (see :class:`Frame`).
+      init_mask: optional (N,) bool, which rows hold an initial ellipsoid (default: all rows,
+        when the ellipsoids are given). Rows left out may hold NaN; they are replaced.
 
     NaN or inverted boxes are dropped with a ``warnings.warn`` (a detector glitch should not
     stop an online system); wrong shapes, unknown class names and out-of-range ids raise.
@@ -501,6 +564,8 @@ def make_frame(
     def put(x, dt: Any = fdt):
         return jax.device_put(np.asarray(x, dt))
 
+    init = _frame_inits(N, init_rotation, init_center, init_radii, init_mask)
+    init_mask = np.concatenate([init[3] & ok, np.zeros(pad, bool)])
     return Frame(
         pose_prior=put(pose_prior),
         box=put(np.concatenate([box, np.tile([0.0, 0.0, 1.0, 1.0], (pad, 1))])),
@@ -509,7 +574,46 @@ def make_frame(
         texture_mask=put(np.concatenate([tex_mask, np.zeros(pad, bool)]), bool),
         object_id=put(np.concatenate([object_id, np.zeros(pad, np.int64)]), np.int32),
         box_mask=put(np.concatenate([ok, np.zeros(pad, bool)]), bool),
+        init_rotation=put(np.concatenate([init[0], np.broadcast_to(np.eye(3), (pad, 3, 3))])),
+        init_center=put(np.concatenate([init[1], np.zeros((pad, 3))])),
+        init_radii=put(np.concatenate([init[2], np.ones((pad, 3))])),
+        init_mask=put(init_mask, bool),
     )
+
+
+def _frame_inits(N: int, rotation, center, radii, mask):
+    """Host (rotation (N,3,3), center (N,3), radii (N,3), mask (N,)) of :func:`make_frame`'s
+    optional initial ellipsoids: validated where ``mask``, identity / zeros / ones elsewhere."""
+    given = [x is not None for x in (rotation, center, radii)]
+    if not any(given):
+        if mask is not None:
+            raise ValueError("init_mask: given without init_rotation, init_center, init_radii")
+        return np.broadcast_to(np.eye(3), (N, 3, 3)), np.zeros((N, 3)), np.ones((N, 3)), np.zeros(N, bool)
+    if not all(given):
+        raise ValueError("init_rotation, init_center, init_radii: give all three or none")
+    rotation = _np("init_rotation", rotation, (3, 3)).reshape(-1, 3, 3)
+    center = _np("init_center", center, (3,)).reshape(-1, 3)
+    radii = _np("init_radii", radii, (3,)).reshape(-1, 3)
+    for name, arr in (("init_rotation", rotation), ("init_center", center), ("init_radii", radii)):
+        if arr.shape[0] != N:
+            raise ValueError(f"{name}: expected {N} rows to match box, got shape {arr.shape}")
+    mask = np.ones(N, bool) if mask is None else _np("init_mask", mask, None, bool).reshape(-1)
+    if mask.shape != (N,):
+        raise ValueError(f"init_mask: expected shape ({N},) to match box, got {mask.shape}")
+    m = mask[:, None]
+    for name, arr in (("init_rotation", rotation.reshape(N, 9)), ("init_center", center), ("init_radii", radii)):
+        if np.any(m & ~np.isfinite(arr)):
+            raise ValueError(
+                f"{name}: non-finite values in rows {np.flatnonzero(mask & ~np.all(np.isfinite(arr), -1)).tolist()}"
+            )
+    if np.any(mask & np.any(radii <= 0, axis=-1)):
+        raise ValueError(
+            f"init_radii: expected semi-axes > 0, rows {np.flatnonzero(mask & np.any(radii <= 0, -1)).tolist()}"
+        )
+    rotation = np.where(m[..., None], rotation, np.eye(3))
+    center = np.where(m, center, 0.0)
+    radii = np.where(m, radii, 1.0)
+    return rotation, center, radii, mask
 
 
 def bucket_capacity(num_poses: int, num_boxes: int, num_objects: int, *, minimum: int = 8):

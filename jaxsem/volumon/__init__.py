@@ -85,3 +85,7 @@ from ._train import (
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
 )
+from ._views import (
+    StereoView as StereoView,
+    render_object_stereo as render_object_stereo,
+)
