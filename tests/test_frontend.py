@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
-import jaxsem.slam._frontend as fe_mod  # layers: white-box (the projection cache, one test)
+import jaxsem.slam._frontend_vision as fe_mod  # layers: white-box (the projection cache, one test)
 from jaxsem.slam import (
     FrontEnd,
     FrontEndConfig,

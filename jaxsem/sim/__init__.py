@@ -12,22 +12,12 @@ from ._building_scene import (
     robot_camera as robot_camera,
     robot_intrinsics as robot_intrinsics,
 )
-from ._ellipsoid_maps import (
-    SimConfig as SimConfig,
-    SimulatedMap as SimulatedMap,
-    camera_path as camera_path,
-    class_table as class_table,
-    detect as detect,
+from ._ellipsoid_maps import (  # simulated maps, and into the solver's structures
     ground_truth as ground_truth,
     initial_estimate as initial_estimate,
-    intrinsics as intrinsics,
-    perturb_poses as perturb_poses,
-    quadricslam_config as quadricslam_config,
-    random_objects as random_objects,
     simulate as simulate,
     simulate_batch as simulate_batch,
     simulate_views as simulate_views,
-    thesis_config as thesis_config,
     to_problem as to_problem,
 )
 from ._experiments import (
@@ -47,4 +37,18 @@ from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mu
     mujoco_quaternion as mujoco_quaternion,
     mujoco_view as mujoco_view,
     render_views as render_views,
+)
+from ._sim_config import (  # the simulator's config, presets and map type
+    SimConfig as SimConfig,
+    SimulatedMap as SimulatedMap,
+    class_table as class_table,
+    intrinsics as intrinsics,
+    quadricslam_config as quadricslam_config,
+    thesis_config as thesis_config,
+)
+from ._sim_draws import (  # the random draws of a map
+    camera_path as camera_path,
+    detect as detect,
+    perturb_poses as perturb_poses,
+    random_objects as random_objects,
 )

@@ -32,16 +32,20 @@ from ._cost import (
     retract_pose as retract_pose,
     total_cost as total_cost,
 )
-from ._frontend import (  # OpenCV front end for image sequences (thesis 4.5.1)
+from ._draw import (  # figures of sequences and maps
+    draw_camera_path as draw_camera_path,
+    draw_overlay as draw_overlay,
+    draw_top_down as draw_top_down,
+)
+from ._frontend import FrontEnd as FrontEnd, to_frame as to_frame  # OpenCV front end (thesis 4.5.1)
+from ._frontend_types import (
     AssociatedDetection as AssociatedDetection,
-    FrontEnd as FrontEnd,
     FrontEndConfig as FrontEndConfig,
     LandmarkEstimates as LandmarkEstimates,
-    hs_histogram as hs_histogram,
-    to_frame as to_frame,
-    triangulate_points as triangulate_points,
 )
+from ._frontend_vision import hs_histogram as hs_histogram, triangulate_points as triangulate_points
 from ._init import initialize as initialize
+from ._map_json import map_to_json as map_to_json, truth_errors as truth_errors
 from ._online import (
     OnlineState as OnlineState,
     online_estimate as online_estimate,
@@ -65,22 +69,18 @@ from ._problem import (
     stack_problems as stack_problems,
 )
 from ._results import RESULTS as RESULTS, result_code as result_code, result_message as result_message
-from ._sequence import (  # sequence directories (JSON layout), online runs over them, figures
-    Sequence as Sequence,
-    SequenceFrame as SequenceFrame,
+from ._run_sequence import (  # the online smoother over a sequence
     SequenceResult as SequenceResult,
     default_capacity as default_capacity,
-    draw_camera_path as draw_camera_path,
-    draw_overlay as draw_overlay,
-    draw_top_down as draw_top_down,
+    run_sequence as run_sequence,
+)
+from ._sequence import (  # sequence directories (JSON layout)
     load_image as load_image,
     load_sequence as load_sequence,
-    map_to_json as map_to_json,
     noise_model as noise_model,
-    run_sequence as run_sequence,
     save_sequence as save_sequence,
     sequence_from_simulation as sequence_from_simulation,
     sequence_to_json as sequence_to_json,
-    truth_errors as truth_errors,
 )
+from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
