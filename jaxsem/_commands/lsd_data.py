@@ -19,6 +19,15 @@ import pathlib
 import time
 
 from jaxsem import scripting as sc
+from jaxsem.planning import ExpertConfig
+
+# Convenience flags for ExpertConfig fields (help from the dataclass where it documents the field).
+CONFIG_FLAGS = (
+    sc.ConfigFlag("samples_per_building", type=sc.positive_int, help="expert samples per building"),
+    sc.ConfigFlag("goals_per_moment", type=sc.positive_int, help="goals drawn at each sampling moment"),
+    sc.ConfigFlag("sample_prob", type=sc.positive_probability, help="chance per step of a sampling moment"),
+    sc.ConfigFlag("nav.n_samples", "--nav-samples", sc.positive_int, help="PRM samples of the navigating robot"),
+)
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -27,12 +36,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ap.add_argument("--family", choices=("train", "test"), default="train", help="building family")
     ap.add_argument("--buildings", type=sc.positive_int, default=20, help="number of buildings (seeds)")
     ap.add_argument("--first-seed", type=sc.nonnegative_int, default=0, help="seed of the first building")
-    ap.add_argument("--samples-per-building", type=sc.positive_int, default=200, help="expert samples per building")
-    ap.add_argument("--goals-per-moment", type=sc.positive_int, default=8, help="goals drawn at each sampling moment")
-    ap.add_argument(
-        "--sample-prob", type=sc.positive_probability, default=0.1, help="chance per step of a sampling moment"
-    )
-    ap.add_argument("--nav-samples", type=sc.positive_int, default=1000, help="PRM samples of the navigating robot")
+    sc.add_config_flags(ap, ExpertConfig, CONFIG_FLAGS, base=ExpertConfig())
     ap.add_argument("--workers", type=sc.positive_int, default=2, help="processes (parallel over buildings)")
     ap.add_argument("--no-figure", action="store_true", help="do not draw samples.png")
     return ap
@@ -42,12 +46,7 @@ def main(argv=None, prog: str | None = None) -> int:
     args = build_parser(prog).parse_args(argv)
     from jaxsem import planning
 
-    cfg = planning.ExpertConfig(
-        samples_per_building=args.samples_per_building,
-        sample_prob=args.sample_prob,
-        goals_per_moment=args.goals_per_moment,
-        nav=planning.NavConfig(n_samples=args.nav_samples, max_steps=600),
-    )
+    cfg = sc.apply_config_flags(planning.ExpertConfig(), args, CONFIG_FLAGS)
     seeds = range(args.first_seed, args.first_seed + args.buildings)
     t0 = time.perf_counter()
     paths = planning.write_expert_dataset(args.out, args.family, seeds, cfg, workers=args.workers)

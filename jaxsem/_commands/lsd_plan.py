@@ -26,6 +26,15 @@ import types
 from typing import Any
 
 from jaxsem import scripting as sc
+from jaxsem.planning import NavConfig
+
+# The planner's settings: NavConfig's defaults with a shorter step limit (the thesis uses 10000),
+# and convenience flags for two of its fields (--n, --max-steps).
+NAV_BASE = NavConfig(max_steps=2000)
+CONFIG_FLAGS = (
+    sc.ConfigFlag("n_samples", "--n", help="PRM samples per roadmap"),
+    sc.ConfigFlag("max_steps", help="step limit of a trial (thesis: 10000)"),
+)
 
 
 def _load_map(path):
@@ -143,13 +152,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=0.0,
         help="share of uniform mixed into the LSD window (0 = the thesis' rule)",
     )
-    p.add_argument("--n", type=int, default=500, help="PRM samples per roadmap")
-    p.add_argument(
-        "--max-steps",
-        type=int,
-        default=2000,
-        help="step limit of a trial (thesis: 10000)",
-    )
+    sc.add_config_flags(p, NavConfig, CONFIG_FLAGS, base=NAV_BASE)
     p.add_argument(
         "--yaw",
         type=float,
@@ -209,7 +212,7 @@ def _run(args) -> int:
         load_model,
         plot_navigation,
     )
-    from jaxsem.planning import NavConfig, Trial, generate_building, sample_tasks
+    from jaxsem.planning import Trial, generate_building, sample_tasks
 
     world: Any = _load_map(args.map) if args.map else generate_building(args.building, args.family)
     yaw = args.yaw
@@ -227,7 +230,7 @@ def _run(args) -> int:
         sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix)
     names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)
-    cfg = NavConfig(n_samples=args.n, max_steps=args.max_steps)
+    cfg = sc.apply_config_flags(NAV_BASE, args, CONFIG_FLAGS)
     results, dist, trial_lsd = {}, None, None
     for name in names:
         trial = Trial(

@@ -18,12 +18,22 @@ The same command: ``jaxsem lsd train`` (``python train/lsd.py``).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import pathlib
 
 from jaxsem import config as jcfg, scripting as sc
+from jaxsem.lsd import TrainConfig
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
+
+# Convenience flags for TrainConfig fields (help from the dataclass; --set reaches every field).
+CONFIG_FLAGS = (
+    sc.ConfigFlag("stage1_steps", type=sc.nonnegative_int),
+    sc.ConfigFlag("stage2_steps", type=sc.nonnegative_int),
+    sc.ConfigFlag("batch_size", type=sc.positive_int),
+    sc.ConfigFlag("learning_rate", type=sc.positive_float),
+    sc.ConfigFlag("eval_every", type=sc.positive_int),
+    sc.ConfigFlag("seed", type=sc.nonnegative_int),
+)
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -31,12 +41,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--data", type=sc.existing_path, required=True, help="folder of expert_*.npz shards (or one shard)")
     p.add_argument("--workdir", type=sc.output_dir, required=True, help="checkpoints, figures, metrics")
     p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
-    p.add_argument("--stage1-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-1 steps")
-    p.add_argument("--stage2-steps", type=sc.nonnegative_int, default=None, help="override the config's stage-2 steps")
-    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="override the config's batch size")
-    p.add_argument("--learning-rate", type=sc.positive_float, default=None, help="override the learning rate")
-    p.add_argument("--eval-every", type=sc.positive_int, default=None, help="override the evaluation interval")
-    p.add_argument("--seed", type=sc.nonnegative_int, default=None, help="override the seed")
+    sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
         "--set",
         dest="overrides",
@@ -68,19 +73,7 @@ def main(argv=None, prog: str | None = None) -> int:
     from jaxsem.lsd import train_and_evaluate
 
     cfg = get_config(args.config)
-    changes = {
-        k: v
-        for k, v in {
-            "stage1_steps": args.stage1_steps,
-            "stage2_steps": args.stage2_steps,
-            "batch_size": args.batch_size,
-            "learning_rate": args.learning_rate,
-            "eval_every": args.eval_every,
-            "seed": args.seed,
-        }.items()
-        if v is not None
-    }
-    cfg = jcfg.override(dataclasses.replace(cfg, **changes), args.overrides)
+    cfg = jcfg.override(sc.apply_config_flags(cfg, args, CONFIG_FLAGS), args.overrides)
     mesh = sc.devices_mesh(args.devices, cfg.batch_size)
     sc.record_config(train_config=cfg)
     stop_at = None

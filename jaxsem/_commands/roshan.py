@@ -37,6 +37,15 @@ import pathlib
 import time
 
 from jaxsem import scripting as sc
+from jaxsem.slam import SolverConfig
+
+# Convenience flags for SolverConfig fields (help from the dataclass; the sequence's "noise" and
+# the simulator's noise come first, these flags override them).
+CONFIG_FLAGS = (
+    sc.ConfigFlag("noise.box_sigma", type=sc.positive_float),
+    sc.ConfigFlag("noise.texture_sigma", type=sc.positive_float),
+    sc.ConfigFlag("default_depth", type=sc.positive_float),
+)
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -66,20 +75,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--optimize-every", type=sc.positive_int, default=5, help="frames between optimisations")
     p.add_argument("--iterations", type=sc.positive_int, default=3, help="LM steps per online optimisation")
     p.add_argument("--final-iterations", type=sc.nonnegative_int, default=20, help="LM steps after the last frame")
-    p.add_argument("--box-sigma", type=sc.positive_float, default=None, help="box edge sigma (px)")
-    p.add_argument("--texture-sigma", type=sc.positive_float, default=None, help="texture depth sigma (m)")
+    sc.add_config_flags(p, SolverConfig, CONFIG_FLAGS[:2])
     p.add_argument(
         "--pose-sigma",
         type=str,
         default=None,
         help="pose prior sigmas 'metres,degrees'",
     )
-    p.add_argument(
-        "--default-depth",
-        type=sc.positive_float,
-        default=None,
-        help="init depth without a texture plane (m)",
-    )
+    sc.add_config_flags(p, SolverConfig, CONFIG_FLAGS[2:])
     p.add_argument("--overlays", type=sc.nonnegative_int, default=4, help="number of frames to draw overlays for")
     p.add_argument("--float64", action="store_true", help="solve in float64")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress")
@@ -107,12 +110,9 @@ def solver_config(args, sim_cfg=None, sequence=None):
         cfg = slam.SolverConfig()
     if sequence is not None and sequence.noise:
         cfg = _replace(cfg, noise=slam.noise_model(sequence, cfg.noise))
+    cfg = sc.apply_config_flags(cfg, args, CONFIG_FLAGS)
     noise = {}
-    if args.box_sigma is not None:
-        noise["box_sigma"] = args.box_sigma
-    if args.texture_sigma is not None:
-        noise["texture_sigma"] = args.texture_sigma
-    if args.pose_sigma is not None:
+    if args.pose_sigma is not None:  # two fields in one flag, set here
         try:
             m, deg = (float(x) for x in args.pose_sigma.split(","))
         except ValueError:
@@ -124,8 +124,6 @@ def solver_config(args, sim_cfg=None, sequence=None):
     if noise:
         values = {k: getattr(cfg.noise, k) for k in cfg.noise.__dataclass_fields__}
         cfg = _replace(cfg, noise=type(cfg.noise)(**{**values, **noise}))
-    if args.default_depth is not None:
-        cfg = _replace(cfg, default_depth=args.default_depth)
     return cfg
 
 

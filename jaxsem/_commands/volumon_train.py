@@ -25,9 +25,21 @@ from typing import Any
 
 from jaxsem import scripting as sc
 from jaxsem.config import override
-from jaxsem.volumon import SIZES, VARIANTS, get_config, train_and_evaluate
+from jaxsem.volumon import SIZES, VARIANTS, TrainConfig, get_config, train_and_evaluate
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
+
+# Convenience flags for TrainConfig fields (help from the dataclass; --set reaches every field).
+CONFIG_FLAGS = (
+    sc.ConfigFlag("num_steps", "--steps", sc.positive_int),
+    sc.ConfigFlag("batch_size", type=sc.positive_int),
+    sc.ConfigFlag("learning_rate", "--lr", sc.positive_float),
+    sc.ConfigFlag("num_train", type=sc.positive_int),
+    sc.ConfigFlag("seed"),
+    sc.ConfigFlag("checkpoint_every", type=sc.positive_int),
+    sc.ConfigFlag("eval_every"),
+    sc.ConfigFlag("num_eval"),
+)
 
 
 def _size(text: str) -> str:
@@ -66,21 +78,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--stop-after", type=sc.positive_int, default=None, help="stop after this many steps of this call (a chunk)"
     )
-    p.add_argument(
-        "--steps", type=sc.positive_int, default=None, help="number of training steps (default: the preset's)"
-    )
-    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="batch size (default: the preset's)")
-    p.add_argument("--lr", type=sc.positive_float, default=None, help="learning rate (default: the preset's)")
-    p.add_argument("--num-train", type=sc.positive_int, default=None, help="training-set size (default: the preset's)")
-    p.add_argument("--seed", type=int, default=None, help="data and initialisation seed (default: the preset's)")
-    p.add_argument(
-        "--checkpoint-every",
-        type=sc.positive_int,
-        default=None,
-        help="steps between checkpoints (default: the preset's)",
-    )
-    p.add_argument("--eval-every", type=int, default=None, help="steps between evaluations (default: the preset's)")
-    p.add_argument("--num-eval", type=int, default=None, help="detections per evaluation (default: the preset's)")
+    sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
         "--data",
         type=sc.existing_dir,
@@ -109,21 +107,7 @@ def main(argv=None, prog: str | None = None) -> int:
     p = build_parser(prog)
     a = p.parse_args(argv)
     cfg = get_config(a.variant, a.size)
-    changes = {
-        k: v
-        for k, v in dict(
-            num_steps=a.steps,
-            batch_size=a.batch_size,
-            learning_rate=a.lr,
-            num_train=a.num_train,
-            seed=a.seed,
-            checkpoint_every=a.checkpoint_every,
-            eval_every=a.eval_every,
-            num_eval=a.num_eval,
-        ).items()
-        if v is not None
-    }
-    cfg = cfg.replace(**changes)
+    cfg = sc.apply_config_flags(cfg, a, CONFIG_FLAGS)
     if a.set:
         try:
             cfg = override(cfg, a.set)
