@@ -261,6 +261,10 @@ def camera_frame(rotation, center, camera_T_world):
     return _matmul3(R_cw, rotation), _matvec(R_cw, center) + camera_T_world[..., :3, 3]
 
 
+# --------------------------------------------------------------------------------------------
+# Depths seen by a camera: the texture plane (eq. 4.11-4.12) and the depth of a point.
+
+
 def texture_plane_depth(rotation, center, radii, camera_T_world):
     """Depth of the camera-facing tangent plane parallel to the image plane (eq. 4.11-4.12).
 

@@ -190,6 +190,10 @@ def cuboid_corners(rotation, center, half_extents, *, xp: Any = jnp):
     return _matvec(rotation.astype(dtype)[..., None, :, :], local) + center.astype(dtype)[..., None, :]
 
 
+# --------------------------------------------------------------------------------------------
+# Stereo rigs (VoluMon's rectified pairs).
+
+
 def stereo_right_T_left(baseline, dtype=jnp.float32):
     """``right_T_left`` (..., 4, 4) of a rectified stereo pair of ``baseline`` (...) metres: the right
     camera sits ``baseline`` along the left camera's +x, so a left-frame point ``p`` is
