@@ -1,9 +1,17 @@
 """Data: the Falling Things (FAT) layout loader, synthetic FAT-layout writers (primitives; textured
-object meshes), input pipelines.
+object meshes; doors of generated buildings), input pipelines.
 
 Public names are re-exported from private modules; import them from here.
 """
 
+from ._doors import (
+    DOOR_BASELINE as DOOR_BASELINE,
+    door_building as door_building,
+    door_data_baseline as door_data_baseline,
+    door_eval_batch as door_eval_batch,
+    train_door_model as train_door_model,
+    write_door_dataset as write_door_dataset,
+)
 from ._fat import (
     FAT_BASELINE as FAT_BASELINE,
     FAT_DEPTH_SCALE as FAT_DEPTH_SCALE,

@@ -208,7 +208,7 @@ def robot_camera(xy, yaw: float, height: float = 1.2, pitch_deg: float = 0.0) ->
     eye = np.array([xy[0], xy[1], float(height)])
     p = math.radians(float(pitch_deg))
     look = np.array([math.cos(yaw) * math.cos(p), math.sin(yaw) * math.cos(p), -math.sin(p)])
-    return np.asarray(quadrics.look_at(eye, eye + look), np.float64)
+    return np.asarray(quadrics.look_at(eye, eye + look, xp=np), np.float64)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,6 +8,7 @@ from ._configs import (
     TrainConfig as TrainConfig,
     config_from_dict as config_from_dict,
     default_config as default_config,
+    door_config as door_config,
     get_config as get_config,
     thesis_config as thesis_config,
     tiny_config as tiny_config,
@@ -20,6 +21,11 @@ from ._device_data import (
     held_out_set as held_out_set,
     sample_scene as sample_scene,
     train_key as train_key,
+)
+from ._door import (
+    SingleViewEstimator as SingleViewEstimator,
+    door_errors as door_errors,
+    evaluate_doors as evaluate_doors,
 )
 from ._draw import (
     box_corners_2d as box_corners_2d,
@@ -53,6 +59,7 @@ from ._losses import (
 )
 from ._pretrained import (
     PRETRAINED_DIR as PRETRAINED_DIR,
+    SHIPPED as SHIPPED,
     evaluate_held_out as evaluate_held_out,
     export_pretrained as export_pretrained,
     load_pretrained as load_pretrained,

@@ -20,6 +20,8 @@ from ._configs import TrainConfig, config_from_dict
 
 PRETRAINED_DIR = pathlib.Path(__file__).resolve().parent / "pretrained"
 DEFAULT_NAME = "volumon_fast"
+#: The shipped models by kind: the tabletop object model and the door model (thesis 5.8.1).
+SHIPPED = {"object": DEFAULT_NAME, "door": "volumon_door"}
 
 
 def _flatten(tree, prefix=""):
@@ -84,15 +86,19 @@ def export_pretrained(
     return out_dir / f"{name}.npz"
 
 
-def load_pretrained(path=None):
-    """``(model, variables, config, meta)`` of a shipped model (default: the one in the package) or of
-    a training run's workdir (a folder with ``config.json`` and ``checkpoints/``).
+def load_pretrained(path=None, *, kind: str = "object"):
+    """``(model, variables, config, meta)`` of a shipped model or of a training run's workdir (a
+    folder with ``config.json`` and ``checkpoints/``).
 
-    Raises ValueError naming the path when it is neither.
+    ``path`` None: the package's model of ``kind`` -- ``"object"`` (the four tabletop classes,
+    ``volumon_fast``) or ``"door"`` (the door model of thesis 5.8.1, ``volumon_door``; see
+    ``MODEL_CARD.md``). Raises ValueError naming the path when it is neither, or naming ``kind``.
     """
-    from ._train import init_state, load_trained
+    from ._train import _model_and_init, load_trained
 
-    p = PRETRAINED_DIR / f"{DEFAULT_NAME}.npz" if path is None else pathlib.Path(path)
+    if kind not in SHIPPED:
+        raise ValueError(f"kind: expected one of {sorted(SHIPPED)}, got {kind!r}")
+    p = PRETRAINED_DIR / f"{SHIPPED[kind]}.npz" if path is None else pathlib.Path(path)
     if p.is_dir() and (p / "config.json").exists():
         config = config_from_dict(json.loads((p / "config.json").read_text()))
         model, variables, _ = load_trained(p, config)
@@ -116,7 +122,7 @@ def load_pretrained(path=None):
     config = config_from_dict(meta["config"])
     with np.load(p) as z:
         variables = _unflatten({k: z[k] for k in z.files})
-    _, model, _ = init_state(config)
+    model = _model_and_init(config.model, config.learning_rate)[0]  # the module only: nothing compiles
     return model, variables, config, meta
 
 
