@@ -198,8 +198,8 @@ def notes(r):
         "inputs alone (160 bytes per pair: R, c, r, K and the 4x4 pose in float32) bounds the forward "
         "from below at roughly 15 ms per million here.",
         "",
-        'How: `project_bbox` runs a fused private path (`jaxsem/quadrics.py`, comment "project_bbox: a '
-        'fused private path") that agrees with `conic_bbox(project_dual_conic(dual_quadric(...)))` to '
+        "How: `project_bbox` runs a fused private path (`jaxsem/_geometry/bbox.py`, behind the jaxsem.quadrics facade) "
+        "that agrees with `conic_bbox(project_dual_conic(dual_quadric(...)))` to "
         "~1e-12 relative in float64, masks and gradients included (`tests/test_quadrics.py`). The "
         "forward is two elementwise XLA loops over the inputs: the validity mask, and the four edges "
         "computed in a (..., 4) lane space (one lane per edge, so the loop vectorises across lanes "
