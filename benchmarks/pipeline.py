@@ -15,8 +15,12 @@ yaw and PRNG key, with:
   steps the robot's camera view is rendered (jaxsem.sim.BuildingRenderer at the robot's pose),
   door / window / exit-sign boxes are read off the segmentation (the stand-in detector), and
   each detected object's segmented depth pixels give a per-frame ellipsoid
-  (``jaxsem.sim.ellipsoids_from_depth``: a stand-in for VoluMon, which has no door model
-  trained yet), associated (greedy by centroid) and fused into a jaxsem.mapping store;
+  (``jaxsem.sim.ellipsoids_from_depth``: a depth stand-in for VoluMon), associated (greedy by
+  centroid) and fused into a jaxsem.mapping store;
+- ``lsd_volumon``: the same rendered views and detections as ``lsd_depthmap``, but each door's
+  ellipsoid is the shipped VoluMon door model's single-view estimate from the RGB image and its
+  box (``jaxsem.volumon.load_pretrained(kind="door")``, thesis 5.8.1-5.8.2; monocular, no depth);
+  windows and exit signs, which the door model does not cover, keep the depth stand-in;
 - ``lsd_roshan``: LSD fed ROSHAN's object map: the same boxes, with the known camera poses, the
   renderer's object index as association id and the object's nearest depth as texture plane,
   go into ROSHAN's online smoother (jaxsem.slam, via jaxsem.mapping.roshan_init / roshan_frame);
@@ -47,33 +51,52 @@ import subprocess
 import sys
 import time
 
+import jax.numpy as jnp
 import numpy as np
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-PLANNERS = ("uniform", "lsd", "lsd_objmap", "lsd_prior", "lsd_depthmap", "lsd_roshan")
-ESTIMATED = ("lsd_depthmap", "lsd_roshan")
+PLANNERS = ("uniform", "lsd", "lsd_objmap", "lsd_prior", "lsd_depthmap", "lsd_volumon", "lsd_roshan")
+ESTIMATED = ("lsd_depthmap", "lsd_volumon", "lsd_roshan")
+KINDS = {"lsd_depthmap": "depth", "lsd_volumon": "volumon", "lsd_roshan": "roshan"}
 WIDTH, HEIGHT = 320, 240  # robot camera image (69.4 deg horizontal field of view, 1.2 m up)
 
 
 class DetectionMapper:
-    """An object map built online from rendered detections (rows ``lsd_depthmap`` and
-    ``lsd_roshan``).
+    """An object map built online from rendered detections (rows ``lsd_depthmap``,
+    ``lsd_volumon`` and ``lsd_roshan``).
 
     ``observe(xy, yaw)`` renders the robot camera's view, detects doors, windows and exit signs
     (segmentation boxes of at least ``min_area`` pixels) and feeds them to the estimator:
     ``"depth"``: per-frame ellipsoids from depth (boxes touching the image border are left out:
-    their depth extent is cut), ``mapping.update`` with centroid gate ``gate``; ``"roshan"``:
+    their depth extent is cut), ``mapping.update`` with centroid gate ``gate``; ``"volumon"``:
+    the same, but doors from ``estimator`` (a ``jaxsem.volumon.SingleViewEstimator``: RGB + box
+    -> world ellipsoid), windows and exit signs from depth; ``"roshan"``:
     one ROSHAN frame. ``objects()`` is the current map; ``errors()`` its error against the
     ground-truth ellipsoids of the objects detected so far.
     """
 
-    def __init__(self, renderer, objects, capacity, kind, *, min_area=100, gate=0.75, fusion="latest", texture=True):
+    def __init__(
+        self,
+        renderer,
+        objects,
+        capacity,
+        kind,
+        *,
+        min_area=100,
+        gate=0.75,
+        fusion="latest",
+        texture=True,
+        estimator=None,
+    ):
         from jaxsem import mapping, slam
         from jaxsem.planning import DOOR, EXIT_SIGN, WINDOW
         from jaxsem.sim import robot_intrinsics
 
-        if kind not in ("depth", "roshan"):
-            raise ValueError(f"kind: expected 'depth' or 'roshan', got {kind!r}")
+        if kind not in ("depth", "volumon", "roshan"):
+            raise ValueError(f"kind: expected 'depth', 'volumon' or 'roshan', got {kind!r}")
+        if kind == "volumon" and estimator is None:
+            raise ValueError("estimator: kind 'volumon' needs a jaxsem.volumon.SingleViewEstimator")
+        self.estimator = estimator
         self.renderer, self.kind, self.min_area = renderer, kind, int(min_area)
         self.gate, self.fusion, self.texture = float(gate), fusion, bool(texture)
         self.classes = (DOOR, WINDOW, EXIT_SIGN)
@@ -82,8 +105,9 @@ class DetectionMapper:
         self.K = robot_intrinsics(WIDTH, HEIGHT)
         self.seen = np.zeros(capacity, bool)
         self.frames = 0
+        self.door_estimates = 0
         self.max_det = 16
-        if kind == "depth":
+        if kind in ("depth", "volumon"):
             self.store = mapping.init(capacity)
         else:
             cap = slam.Capacity(max_poses=64, max_objects=capacity, max_boxes=512, max_detections=self.max_det)
@@ -95,7 +119,8 @@ class DetectionMapper:
         from jaxsem.sim import ellipsoids_from_depth, robot_camera
 
         T = robot_camera(np.asarray(xy, float), float(yaw))
-        out = self.renderer.render(self.K, T, outputs=("depth", "seg"))
+        passes = ("rgb", "depth", "seg") if self.kind == "volumon" else ("depth", "seg")
+        out = self.renderer.render(self.K, T, outputs=passes)
         seg, depth = out["seg"], out["depth"]
         det = self.renderer.detect(seg, self.classes, min_area=self.min_area)
         if len(det) == 0:
@@ -106,7 +131,7 @@ class DetectionMapper:
         self.seen[det.object_index] = True
         self.frames += 1
         self._objects = None
-        if self.kind == "depth":
+        if self.kind in ("depth", "volumon"):
             inside = (
                 (det.box[:, 0] > 0) & (det.box[:, 1] > 0) & (det.box[:, 2] < WIDTH - 1) & (det.box[:, 3] < HEIGHT - 1)
             )
@@ -118,6 +143,8 @@ class DetectionMapper:
             ell, idx = ellipsoids_from_depth(seg, depth, self.K, T, self.object_class, self.classes, capacity=slots)
             valid = np.zeros(ell.valid.shape[0], bool)
             valid[: len(idx)] = np.isin(idx, wanted)
+            if self.kind == "volumon":
+                ell, valid = self._doors_from_volumon(out["rgb"], det, inside, T, ell, idx, valid)
             ell = mapping.Ellipsoids(ell.rotation, ell.center, ell.radii, ell.class_id, ell.valid & valid)
             self.store = mapping.update(self.store, ell, gate=self.gate, fusion=self.fusion)
         else:
@@ -130,11 +157,31 @@ class DetectionMapper:
             frame = mapping.roshan_frame(T, det.box, det.class_id, det.object_index, tex, max_detections=self.max_det)
             self.state = slam.online_update(self.state, frame)
 
+    def _doors_from_volumon(self, rgb, det, inside, T, ell, idx, valid):
+        """Replace the depth estimates of the detected doors by the door model's (RGB + box)."""
+        from jaxsem import mapping
+        from jaxsem.planning import DOOR
+
+        doors = inside & (det.class_id == DOOR)
+        R, c, r = self.estimator(rgb, det.box[doors], self.K, T)
+        rot, cen, rad = (np.array(a, np.float64) for a in (ell.rotation, ell.center, ell.radii))
+        cls, valid = np.array(ell.class_id), valid.copy()
+        valid[: len(idx)] &= ~np.isin(idx, det.object_index[doors])  # doors: not from depth
+        free = np.flatnonzero(~valid)[: len(c)]  # slots for the door estimates
+        rot[free], cen[free], rad[free], cls[free] = R[: len(free)], c[: len(free)], r[: len(free)], DOOR
+        valid[free] = True
+        self.door_estimates += len(free)
+        dt = ell.center.dtype
+        ell = mapping.Ellipsoids(
+            jnp.asarray(rot, dt), jnp.asarray(cen, dt), jnp.asarray(rad, dt), jnp.asarray(cls), jnp.asarray(valid)
+        )
+        return ell, valid
+
     def objects(self):
         from jaxsem import mapping
 
         if self._objects is None:
-            self._objects = self.store if self.kind == "depth" else mapping.roshan_objects(self.state)
+            self._objects = self.store if self.kind in ("depth", "volumon") else mapping.roshan_objects(self.state)
         return self._objects
 
     def errors(self) -> dict:
@@ -149,6 +196,7 @@ class DetectionMapper:
             "seen": int(seen.sum()),
             "matched": int(e["matched"][seen].sum()),
             "frames": self.frames,
+            "door_estimates": self.door_estimates,
             "position": [float(v) for v in pos],
             "shape": [float(v) for v in shape],
         }
@@ -219,6 +267,12 @@ def run(args) -> dict:
     model, params, _ = load_model(args.checkpoint)
     lsd = LSDSampler(model, params, uniform_mix=args.uniform_mix)
     buildings = building_family("test", args.test_buildings, start=args.test_start)
+    estimator = None
+    if "lsd_volumon" in planners:
+        from jaxsem.volumon import SingleViewEstimator, load_pretrained
+
+        door_model, door_vars, door_cfg, _ = load_pretrained(args.door_model, kind="door")
+        estimator = SingleViewEstimator(door_model, door_vars, door_cfg)
     records = []
     for b in buildings:
         objects = mapping.building_objects(b)
@@ -259,10 +313,11 @@ def run(args) -> dict:
                                 renderer,
                                 objects,
                                 capacity,
-                                "depth" if name == "lsd_depthmap" else "roshan",
+                                KINDS[name],
                                 min_area=args.min_area,
                                 fusion=args.fusion,
                                 texture=not args.no_texture,
+                                estimator=estimator,
                             )
                             sampler = ObjectMapSampler(lsd, b, objects, capacity, False, mapper)
                         cfg = NavConfig(n_samples=int(n), max_steps=args.max_steps)
@@ -397,6 +452,11 @@ def main(argv=None) -> int:
     p.add_argument("--min-area", type=int, default=100, help="fewest segmented pixels of a detection box")
     p.add_argument("--fusion", default="latest", choices=("latest", "mean"), help="lsd_depthmap store fusion")
     p.add_argument("--no-texture", action="store_true", help="lsd_roshan without depth texture planes")
+    p.add_argument(
+        "--door-model",
+        default=None,
+        help="lsd_volumon's door model: a training workdir or .npz (default: the shipped volumon_door)",
+    )
     args = p.parse_args(argv)
     if args.observe_every < 1:
         p.error(f"--observe-every: expected >= 1, got {args.observe_every}")
@@ -452,9 +512,12 @@ def main(argv=None) -> int:
             f"camera's rendered views ({WIDTH} x {HEIGHT} px, every {args.observe_every} steps; "
             f"door / window / exit-sign boxes of at least {args.min_area} px from the segmentation): "
             "`lsd_depthmap` per-frame ellipsoids from the segmented depth "
-            "(`jaxsem.sim.ellipsoids_from_depth`, a stand-in for VoluMon, which has no door model "
-            f"trained yet; boxes touching the border left out), greedy centroid association, fusion "
-            f"`{args.fusion}`; `lsd_roshan` ROSHAN's online smoother fed the same boxes with the known "
+            "(`jaxsem.sim.ellipsoids_from_depth`, a depth stand-in for VoluMon; boxes touching the "
+            f"border left out), greedy centroid association, fusion `{args.fusion}`; `lsd_volumon` "
+            "the same, but every door's ellipsoid from the shipped VoluMon door model (RGB image + "
+            "box, monocular; `jaxsem.volumon.load_pretrained(kind='door')`), windows and exit signs "
+            "(not covered by the door model) still from depth; `lsd_roshan` ROSHAN's online smoother "
+            "fed the same boxes with the known "
             "camera poses and the renderer's association"
             + ("" if args.no_texture else ", texture plane at the 5th percentile of the object's depth")
             + ". C/C* on trials where every planner succeeded."

@@ -37,6 +37,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=sc.positive_int, default=None, help="batch size (default: the preset's)")
     p.add_argument("--seed", type=int, default=None, help="initialisation and data-order seed")
     p.add_argument("--num-eval", type=int, default=None, help="doors per periodic evaluation (0: none)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any config field by its dotted name, e.g. --set loss.alpha_S=0 (repeatable)",
+    )
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
     p.add_argument("--score", type=sc.existing_dir, default=None, help="score the latest checkpoint on this directory")
     p.add_argument("--export", action="store_true", help="export the latest checkpoint as the shipped door model")
@@ -68,6 +75,13 @@ def main(argv=None) -> int:
     cfg = get_config(a.variant, "door")
     changes = dict(num_steps=a.steps, learning_rate=a.lr, batch_size=a.batch_size, seed=a.seed, num_eval=a.num_eval)
     cfg = cfg.replace(**{k: v for k, v in changes.items() if v is not None})
+    if a.set:
+        from ..config import override
+
+        try:
+            cfg = override(cfg, a.set)
+        except ValueError as exc:
+            p.error(f"--set: {exc}")
     result = train_door_model(cfg, a.data, a.workdir, eval_data=a.eval_data, stop_after=a.stop_after, force=a.force)
     if result.get("eval") is not None:
         print(json.dumps(result["eval"], indent=1))
