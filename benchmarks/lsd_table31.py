@@ -8,7 +8,11 @@ or --train trains a CPU-sized one first. LSD uses the thesis' rule by default (-
 the window distribution, the window's minimum outside it, -log p edge weights). --ablations adds
 planners on the same tasks: 'mix10' (10 % uniform mixed into the window), 'euclid' (LSD samples,
 Euclidean edge weights), 'nogrow' (both planners with the thesis' end-of-trial on the first failed
-roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavConfig.growth). Writes <out>/<name>.{json,md,png}.
+roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavConfig.growth),
+'outmass' (LSD with a calibrated mass outside the window, NavConfig.outside_mass).
+--only-ablations runs just the ablation planners (merge with a run of the same tasks:
+--merge A.json B.json joins records of the same task planner-wise). --devices N|all deals the
+trials over devices (jaxsem.lsd.run_trials(mesh=...)). Writes <out>/<name>.{json,md,png}.
 
     python benchmarks/lsd_table31.py --test-buildings 10 --trials 10 --n 500 --sets II IO \\
         --uniform-mix 0 --seed 1 --out benchmarks/results --name lsd_table31 --no-progress
@@ -25,7 +29,12 @@ import sys
 import time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-ABLATIONS = ("mix10", "euclid", "nogrow", "growuni")
+ABLATIONS = ("mix10", "euclid", "nogrow", "growuni", "outmass")
+# 'outmass': the cells outside the LSD window share a calibrated mass instead of the window's
+# minimum: the mean share of the expert's optimal path that lies outside the 16 m window, on
+# train-family buildings 0-19 (benchmarks/lsd_outside_share.py, 2472 samples): 0.511 for an
+# indoor goal, 0.642 for an outdoor one (NavConfig.outside_mass).
+OUTSIDE_MASS = (0.511, 0.642)
 
 
 def _write(path: pathlib.Path, text: str) -> None:
@@ -45,11 +54,28 @@ def _check(args) -> None:
         raise SystemExit(f"--n: expected positive sample budgets, got {args.n}")
     if not 0.0 <= args.uniform_mix < 1.0:
         raise SystemExit(f"--uniform-mix: expected in [0, 1), got {args.uniform_mix}")
+    if args.family not in ("test", "train"):
+        raise SystemExit(f"--family: expected test or train, got {args.family!r}")
+    if args.only_ablations and not args.ablations:
+        raise SystemExit("--only-ablations: needs --ablations")
     for a in args.ablations:
         if a not in ABLATIONS:
             raise SystemExit(f"--ablations: expected some of {', '.join(ABLATIONS)}, got {a!r}")
     if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
         raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
+
+
+def _mesh(devices):
+    """The device mesh of --devices (None without it); SystemExit naming --devices if unusable."""
+    if devices is None:
+        return None
+    from jaxsem import parallel
+
+    parallel.initialize_distributed()  # a no-op on one machine
+    try:
+        return parallel.devices_mesh(devices)
+    except ValueError as exc:
+        raise SystemExit(f"--devices: {str(exc).removeprefix('devices: ')}") from None
 
 
 def main(argv=None) -> int:
@@ -107,6 +133,22 @@ def main(argv=None) -> int:
         help=f"extra planners: {' '.join(ABLATIONS)}",
     )
     p.add_argument("--seed", type=int, default=0, help="task and sampling seed")
+    p.add_argument(
+        "--only-ablations",
+        action="store_true",
+        help="run only the --ablations planners (records to --merge with a full run of the same tasks)",
+    )
+    p.add_argument(
+        "--family",
+        default="test",
+        help="building family of the trials: test (held out) or train (for pilots that must not touch test seeds)",
+    )
+    p.add_argument(
+        "--devices",
+        default=None,
+        help="run the trials over N devices or 'all' (jaxsem.lsd.run_trials(mesh=...): trial "
+        "groups, one host thread per device; same records as one device); default: one device",
+    )
     p.add_argument("--out", default=str(RESULTS), help="results folder")
     p.add_argument("--name", default="lsd_table31", help="result file stem")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -132,9 +174,9 @@ def main(argv=None) -> int:
 
 
 def _merge(args, argv) -> int:
-    from jaxsem.lsd import format_table, plot_success, summarise
+    from jaxsem.lsd import format_table, merge_records, plot_success, summarise
 
-    records, parts = [], []
+    runs, parts = [], []
     for f in args.merge:
         try:
             d = json.loads(pathlib.Path(f).read_text())
@@ -142,7 +184,7 @@ def _merge(args, argv) -> int:
             raise SystemExit(f"--merge: cannot read {f!r} ({type(exc).__name__})") from None
         if "records" not in d:
             raise SystemExit(f"--merge: {f!r} has no 'records' (not a lsd_table31 result)")
-        records += d["records"]
+        runs.append(d["records"])
         parts.append(
             {
                 "file": str(f),
@@ -151,6 +193,11 @@ def _merge(args, argv) -> int:
                 "seconds": d.get("seconds"),
                 "model": d.get("model"),
             }
+        )
+    records = merge_records(*runs)
+    if any("uniform" not in r or "lsd" not in r for r in records):
+        raise SystemExit(
+            "--merge: some tasks have no 'uniform' / 'lsd' result (an --only-ablations run needs its full run)"
         )
     summary = summarise(records)
     table = format_table(summary)
@@ -193,7 +240,8 @@ def _merge(args, argv) -> int:
         "",
         f"Model: {json.dumps(parts[0]['model'] if parts else None)}",
         "",
-        "Parts (each a run of this script; buildings and tasks as in its command):",
+        "Parts (each a run of this script; buildings and tasks as in its command; records of the "
+        "same task joined planner-wise):",
         "",
         *[f"- `{q['command']}` ({q['date']}, {(q['seconds'] or 0) / 60:.1f} min)" for q in parts],
         "",
@@ -209,6 +257,37 @@ def _merge(args, argv) -> int:
     ]
     _write(out / f"{args.name}.md", "\n".join(md))
     print(f"wrote {out / (args.name + '.json')}, .md, .png")
+    return 0
+
+
+def _write_partial(args, argv, records, info, total) -> int:
+    """An --only-ablations run: records only (no summary without 'uniform' and 'lsd')."""
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = "python benchmarks/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
+    _write(
+        out / f"{args.name}.json",
+        json.dumps(
+            {
+                "command": cmd,
+                "date": date,
+                "machine": "2-core CPU (shared, noisy)",
+                "args": vars(args),
+                "model": info,
+                "summary": {},
+                "records": records,
+                "seconds": total,
+            },
+            indent=1,
+        ),
+    )
+    names = sorted({k for r in records for k, v in r.items() if isinstance(v, dict)})
+    for name in names:
+        for kind in args.sets:
+            x = [r[name]["success"] for r in records if r["set"] == kind]
+            print(f"{name} {kind}: {sum(x)} / {len(x)} successes")
+    print(f"wrote {out / (args.name + '.json')} (records only: --merge it with a full run) in {total / 60:.1f} min")
     return 0
 
 
@@ -230,6 +309,7 @@ def _run(args, argv) -> int:
     from jaxsem.planning import building_family
 
     enable_compilation_cache()
+    mesh = _mesh(args.devices)
     t0 = time.perf_counter()
     if args.train:
         cfg = dataclasses.replace(
@@ -254,10 +334,12 @@ def _run(args, argv) -> int:
         variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
     if "growuni" in args.ablations:
         variants["lsd_growuni"] = (sampler, {"growth": "uniform"})
+    if "outmass" in args.ablations:
+        variants["lsd_outmass"] = (sampler, {"outside_mass": OUTSIDE_MASS})
     if "nogrow" in args.ablations:
         variants["uniform_nogrow"] = (None, {"max_growth": 0})
         variants["lsd_nogrow"] = (sampler, {"max_growth": 0})
-    buildings = building_family("test", args.test_buildings, start=args.test_start)
+    buildings = building_family(args.family, args.test_buildings, start=args.test_start)
     records = run_trials(
         buildings,
         sampler,
@@ -268,10 +350,15 @@ def _run(args, argv) -> int:
         args.max_steps,
         progress=not args.no_progress,
         variants=variants,
+        mesh=mesh,
+        base=not args.only_ablations,
     )
+    if args.only_ablations:
+        return _write_partial(args, argv, records, info, time.perf_counter() - t0)
     summary = summarise(records)
     table = format_table(summary)
     total = time.perf_counter() - t0
+    devices = "1 (default device)" if mesh is None else f"{mesh.size} ({mesh.devices.flat[0].platform})"
     print(table)
 
     out = pathlib.Path(args.out)
@@ -318,10 +405,10 @@ def _run(args, argv) -> int:
         "",
         f"Model: {json.dumps(info)}",
         "",
-        f"Test buildings: {args.test_buildings} (test family, seeds {args.test_start}.."
+        f"Test buildings: {args.test_buildings} ({args.family} family, seeds {args.test_start}.."
         f"{args.test_start + args.test_buildings - 1}), {args.trials} tasks per building and set, step limit "
         f"{args.max_steps}, seed {args.seed}, LSD uniform mix {args.uniform_mix}; a failed roadmap is grown "
-        f"up to twice (NavConfig.max_growth); total {total / 60:.1f} min.",
+        f"up to twice (NavConfig.max_growth); devices {devices}; total {total / 60:.1f} min.",
         "",
         table,
         "",

@@ -23,6 +23,7 @@ from ._data import (
 from ._experiment import (
     ExperimentSetup as ExperimentSetup,
     format_table as format_table,
+    merge_records as merge_records,
     plot_navigation as plot_navigation,
     plot_success as plot_success,
     prepare_model as prepare_model,

@@ -13,12 +13,70 @@ zero-intercept regression slope of ``C_b`` on ``C_l`` and its R^2.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 
 import jax
 import numpy as np
 
 from ..metrics import mean_sem, zero_intercept_slope
+
+
+def _trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
+    # Same key for every planner; a function of the trial only (not of Python's hash seed).
+    return jax.random.PRNGKey(
+        int(np.random.default_rng([int(seed), int(building_seed), ("II", "IO").index(kind), t_i, n]).integers(2**31))
+    )
+
+
+def _run_job(job, planners: dict, seed: int, max_steps: int) -> dict:
+    """One (building, set, trial, N): every planner from the same start, yaw and key."""
+    from ..planning import NavConfig, navigate
+
+    b, kind, t_i, task, n = job
+    key = _trial_key(seed, b.seed, kind, t_i, n)
+    rec = {
+        "building": int(b.seed),
+        "set": kind,
+        "trial": t_i,
+        "n": n,
+        "c_star": float(task.c_star),
+        "start": task.start.tolist(),
+        "goal": task.goal.tolist(),
+    }
+    for name, (smp, changes) in planners.items():
+        cfg = dataclasses.replace(NavConfig(n_samples=n, max_steps=max_steps), **changes)
+        t0 = time.perf_counter()
+        res = navigate(
+            b,
+            task.start,
+            task.goal,
+            key,
+            cfg,
+            smp,
+            yaw0=task.yaw0,
+            goal_outdoors=task.goal_outdoors,
+        )
+        rec[name] = {
+            "success": bool(res.success),
+            "cost": float(res.cost),
+            "reason": res.reason,
+            "steps": int(res.steps),
+            "plans": int(res.plans),
+            "grown": int(res.grown),
+            "seconds": time.perf_counter() - t0,
+        }
+    return rec
+
+
+def _on_device(planners: dict, device) -> dict:
+    """The planners with each sampler's parameters placed on ``device`` (samplers with an
+    ``on_device`` method, e.g. :class:`LSDSampler`; other callables as they are)."""
+    out = {}
+    for name, (smp, changes) in planners.items():
+        move = getattr(smp, "on_device", None)
+        out[name] = (move(device) if callable(move) else smp, changes)
+    return out
 
 
 def run_trials(
@@ -32,6 +90,8 @@ def run_trials(
     progress: bool = True,
     log=print,
     variants: dict | None = None,
+    mesh=None,
+    base: bool = True,
 ) -> list:
     """Runs the planners on every (building, set, N, trial); returns a list of dict records.
 
@@ -39,17 +99,43 @@ def run_trials(
     ``sampler(LocalInputs) -> (k, k)`` probabilities); trials: tasks per building and set (the
     same tasks for every N); max_steps: the loop's step limit (thesis: 10,000). variants: extra
     planners (ablation rows) run on the same tasks with the same key, ``{name: (sampler or
-    None, dict of NavConfig changes)}``; 'uniform' and 'lsd' always run.
+    None, dict of NavConfig changes)}``; 'uniform' and 'lsd' run too unless ``base`` is False
+    (then only the variants run: records to merge with a run of the same tasks,
+    :func:`merge_records`; :func:`summarise` needs 'uniform' and 'lsd').
+
+    mesh: None (every trial on the default device, one after another) or a one-axis
+    :class:`jax.sharding.Mesh` (:func:`jaxsem.parallel.devices_mesh`, ``--devices N|all``): the
+    trials are dealt round-robin over the mesh's devices and each device's group runs in its own
+    host thread with its arrays (maps, roadmaps, the sampler's parameters via ``on_device``) on
+    that device. The navigation loop is host-driven (scipy's Dijkstra and the trial's control
+    flow run in Python), so this is task parallelism over devices, not one sharded ``jit``: it
+    overlaps one device's jitted sensing, network and roadmap work with the others' and the
+    host's, and speeds up only as far as the host's Python (one interpreter lock) keeps up.
+    The records are the same, in the same order, as with ``mesh=None`` (each trial's key is a
+    function of the trial only). Every device of the mesh must belong to this process.
     """
-    from ..planning import NavConfig, navigate, sample_tasks
+    from ..planning import sample_tasks
 
     for kind in sets:
         if kind not in ("II", "IO"):
             raise ValueError(f"sets: expected 'II' and/or 'IO', got {kind!r}")
     if trials < 1:
         raise ValueError(f"trials: expected >= 1, got {trials}")
-    planners = {"uniform": (None, {}), "lsd": (sampler, {})}
+    devices = None
+    if mesh is not None:
+        if not isinstance(mesh, jax.sharding.Mesh) or len(mesh.axis_names) != 1:
+            raise ValueError(f"mesh: expected a one-axis jax.sharding.Mesh (jaxsem.parallel.data_mesh()), got {mesh!r}")
+        devices = list(mesh.devices.flat)
+        foreign = [d for d in devices if d.process_index != jax.process_index()]
+        if foreign:
+            raise ValueError(
+                f"mesh: {len(foreign)} of its devices belong to other processes; trials run on this "
+                "process's devices only (give each process a mesh of its local devices and merge the records)"
+            )
+    planners = {"uniform": (None, {}), "lsd": (sampler, {})} if base else {}
     planners.update(variants or {})
+    if not planners:
+        raise ValueError("variants: base=False needs at least one variant planner")
     jobs = []
     for b in buildings:
         for kind in sets:
@@ -61,55 +147,63 @@ def run_trials(
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), desc="table 3.1 trials", unit="task")
-    records = []
-    for b, kind, t_i, task, n in jobs:
-        # Same key for every planner; a function of the trial only (not of Python's hash seed).
-        key = jax.random.PRNGKey(
-            int(np.random.default_rng([int(seed), int(b.seed), ("II", "IO").index(kind), t_i, n]).integers(2**31))
-        )
-        rec = {
-            "building": int(b.seed),
-            "set": kind,
-            "trial": t_i,
-            "n": n,
-            "c_star": float(task.c_star),
-            "start": task.start.tolist(),
-            "goal": task.goal.tolist(),
-        }
-        for name, (smp, changes) in planners.items():
-            cfg = dataclasses.replace(NavConfig(n_samples=n, max_steps=max_steps), **changes)
-            t0 = time.perf_counter()
-            res = navigate(
-                b,
-                task.start,
-                task.goal,
-                key,
-                cfg,
-                smp,
-                yaw0=task.yaw0,
-                goal_outdoors=task.goal_outdoors,
-            )
-            rec[name] = {
-                "success": bool(res.success),
-                "cost": float(res.cost),
-                "reason": res.reason,
-                "steps": int(res.steps),
-                "plans": int(res.plans),
-                "grown": int(res.grown),
-                "seconds": time.perf_counter() - t0,
-            }
-        records.append(rec)
+    lock = threading.Lock()
+
+    def done(rec):
         if bar:
-            bar.update(1)
-            bar.set_postfix(
-                set=kind,
-                n=n,
-                unf=int(rec["uniform"]["success"]),
-                lsd=int(rec["lsd"]["success"]),
-            )
+            with lock:
+                bar.update(1)
+                ok = " ".join(f"{name}={int(rec[name]['success'])}" for name in planners)
+                bar.set_postfix_str(f"set={rec['set']} n={rec['n']} {ok}")
+
+    records: list = [None] * len(jobs)
+    if devices is None or len(devices) == 1:
+        group = planners if devices is None else _on_device(planners, devices[0])
+        for i, job in enumerate(jobs):
+            if devices is None:
+                records[i] = _run_job(job, group, seed, max_steps)
+            else:
+                with jax.default_device(devices[0]):
+                    records[i] = _run_job(job, group, seed, max_steps)
+            done(records[i])
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        def run_group(d_i):
+            device = devices[d_i]
+            group = _on_device(planners, device)
+            with jax.default_device(device):
+                for i in range(d_i, len(jobs), len(devices)):
+                    records[i] = _run_job(jobs[i], group, seed, max_steps)
+                    done(records[i])
+
+        with ThreadPoolExecutor(max_workers=len(devices)) as pool:
+            for fut in [pool.submit(run_group, d_i) for d_i in range(len(devices))]:
+                fut.result()
     if bar:
         bar.close()
     return records
+
+
+def _record_key(r: dict) -> tuple:
+    return (r["building"], r["set"], r["trial"], r["n"], tuple(r["start"]), tuple(r["goal"]))
+
+
+def merge_records(*runs: list) -> list:
+    """Joins runs of the same tasks planner-wise: records of the same (building, set, trial, N,
+    start, goal) become one record holding every run's planners (the first run's order; a
+    planner in two runs keeps the first run's result). Records of tasks only one run has are
+    kept as they are."""
+    out: dict = {}
+    for recs in runs:
+        for r in recs:
+            k = _record_key(r)
+            if k in out:
+                for name, v in r.items():
+                    out[k].setdefault(name, v)
+            else:
+                out[k] = dict(r)
+    return list(out.values())
 
 
 def _rate_sem(x):

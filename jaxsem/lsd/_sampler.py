@@ -11,6 +11,8 @@ by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -41,6 +43,16 @@ class LSDSampler:
             return (1.0 - mix) * prob + mix / n
 
         self._fn = jax.jit(fn)
+
+    def on_device(self, device) -> LSDSampler:
+        """The same sampler with its parameters placed on ``device`` (a :class:`jax.Device`), so
+        its forward pass runs there (:func:`jaxsem.lsd.run_trials` with a mesh); the jitted
+        forward function is shared."""
+        if not isinstance(device, jax.Device):
+            raise ValueError(f"device: expected a jax.Device, got {device!r}")
+        out = copy.copy(self)
+        out.params = jax.device_put(self.params, device)
+        return out
 
     def __call__(self, inputs) -> jax.Array:
         ctx = jnp.asarray(inputs.context, self._dtype)

@@ -30,8 +30,9 @@ trials with 'no_plan' (``benchmarks/lsd_diagnose_finding.md``).
 Where the loop runs: sensing, crops, sampling, neighbour search and edge checks are jitted JAX
 (and vmappable: ``sense`` and the roadmap builder take batches); the graph search is scipy's
 Dijkstra on the host, and so is the control flow of a trial, which is why trials run one after
-another (:func:`navigate`) rather than under ``vmap``. Per step the host work is a few
-milliseconds; see ``benchmarks/lsd_speed.py``.
+another (:func:`navigate`) rather than under ``vmap``; :func:`jaxsem.lsd.run_trials` with a
+``mesh`` deals whole trials over devices instead (one host thread per device). Per step the host
+work is a few milliseconds; see ``benchmarks/lsd_speed.py``.
 """
 
 from __future__ import annotations
@@ -150,6 +151,10 @@ class NavConfig:
     # what a failed roadmap grows with: "sampler" (the planner's own distribution: the thesis'
     # rule) or "uniform" (uniform samples, a variant for a learned sampler; edges keep its weights)
     growth: str = "sampler"
+    # what the cells outside a learned sampler's window get: None (the window's minimum, the
+    # thesis' rule) or (q indoors, q outdoors): the share of the mass spread evenly outside the
+    # window when the goal is indoors / outdoors (a variant; embed_local_distribution)
+    outside_mass: tuple[float, float] | None = None
     # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
     # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
     sectors: int = 8
@@ -219,10 +224,15 @@ class Trial:
             or config.max_growth < 0
             or config.growth not in ("sampler", "uniform")
             or not config.learned_radius_factor >= 1.0
+            or not (
+                config.outside_mass is None
+                or (len(config.outside_mass) == 2 and all(0.0 <= float(q) < 1.0 for q in config.outside_mass))
+            )
         ):
             raise ValueError(
                 f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0, growth "
-                f"'sampler' or 'uniform' and learned_radius_factor >= 1 expected, got {config}"
+                f"'sampler' or 'uniform', learned_radius_factor >= 1 and outside_mass None or two "
+                f"shares in [0, 1) expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
@@ -326,7 +336,8 @@ class Trial:
                     f"axis of 1 is fine), got shape {tuple(local.shape)}"
                 )
             local = local.reshape(CROP_SIZE, CROP_SIZE)
-            dist = embed_local_distribution(local, inputs.center_cell, known.shape)
+            q = None if cfg.outside_mass is None else float(cfg.outside_mass[int(self.goal_outdoors)])
+            dist = embed_local_distribution(local, inputs.center_cell, known.shape, q)
             self.last_distribution = dist
             if self.keep_distributions and len(self.distributions) < self.keep_distributions:
                 self.distributions.append(

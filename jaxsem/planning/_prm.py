@@ -1042,18 +1042,25 @@ class PRM:
         return _search(self._graph, self.roadmap)
 
 
-def embed_local_distribution(local, center_cell, full_shape):
+def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
     """Embeds a robot-centred local distribution into the full map (thesis section 3.2.5).
 
     local: (h, w) probabilities (e.g. the network's 160 x 160 softmax), centred on the robot's
     cell ``center_cell`` (row, col) of the full map (the local cell [h // 2, w // 2] is the
     robot's); full_shape: (H, W). Cells outside the window get the window's minimum; the result
     (H, W) is renormalised to sum to 1. Jittable (``center_cell`` may be traced).
+
+    outside_mass: None (the thesis' rule above) or a share ``q`` in [0, 1) (a variant): the
+    cells outside the window share ``q`` equally and the window's on-map cells keep the rest in
+    their own proportions (when the window covers the whole map, the window alone, renormalised).
     """
     local = jnp.asarray(local)
     h, w = local.shape
     H, W = full_shape
     pad_r, pad_c = h, w
+    if outside_mass is not None and not isinstance(outside_mass, jax.Array):
+        if not 0.0 <= float(outside_mass) < 1.0:
+            raise ValueError(f"outside_mass: expected None or a share in [0, 1), got {outside_mass}")
     fill = jnp.min(local)
     big = jnp.full((H + 2 * pad_r, W + 2 * pad_c), fill, local.dtype)
     r0 = jnp.asarray(center_cell[0], jnp.int32) - h // 2 + pad_r
@@ -1063,4 +1070,15 @@ def embed_local_distribution(local, center_cell, full_shape):
     c0 = jnp.clip(c0, 0, W + 2 * pad_c - w)
     big = jax.lax.dynamic_update_slice(big, local, (r0, c0))
     full = big[pad_r : pad_r + H, pad_c : pad_c + W]
-    return full / jnp.sum(full)
+    if outside_mass is None:
+        return full / jnp.sum(full)
+    window = jnp.zeros((H + 2 * pad_r, W + 2 * pad_c), bool)
+    window = jax.lax.dynamic_update_slice(window, jnp.ones((h, w), bool), (r0, c0))[
+        pad_r : pad_r + H, pad_c : pad_c + W
+    ]
+    q = jnp.asarray(outside_mass, local.dtype)
+    n_out = jnp.sum(~window)
+    q = jnp.where(n_out > 0, q, 0.0)
+    inner = jnp.where(window, full, 0.0)
+    inner = inner / jnp.maximum(jnp.sum(inner), jnp.finfo(local.dtype).tiny)
+    return jnp.where(window, (1.0 - q) * inner, q / jnp.maximum(n_out, 1).astype(local.dtype))
