@@ -122,7 +122,8 @@ def test_load_pretrained_names_a_bad_kind():
     reason="the door model is not shipped in this checkout",
 )
 def test_shipped_door_model_finds_held_out_doors(tmp_path):
-    """Doors of a test-family building (never trained on): the shipped model's centres within 0.5 m."""
+    """Doors of a test-family building (never trained on), 2.5-8 m away: the shipped model's
+    median centre within 0.3 m (its card: 0.14 m on 200 such doors), height within 0.3 m."""
     from jaxsem.volumon import evaluate_doors, load_pretrained
 
     data.write_door_dataset(tmp_path, 1, seed=7, split="test", frames_per_scene=6, progress=False)
@@ -130,5 +131,5 @@ def test_shipped_door_model_finds_held_out_doors(tmp_path):
     assert meta["name"] == "volumon_door" and config.recon.depth_mode == "absolute"
     res = evaluate_doors(model, variables, config, data.door_eval_batch(tmp_path / "test", config))
     assert res["num"] == 6
-    assert res["median_center"] < 0.5 < res["baseline_median_center"]
-    assert res["median_height"] < 0.3
+    assert res["median_center"] < 0.3
+    assert res["median_height"] < 0.3 and res["median_yaw"] < 30

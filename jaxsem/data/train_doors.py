@@ -48,6 +48,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--score", type=sc.existing_dir, default=None, help="score the latest checkpoint on this directory")
     p.add_argument("--export", action="store_true", help="export the latest checkpoint as the shipped door model")
     p.add_argument("--out", type=sc.output_dir, default=None, help="--export folder (default: the package's)")
+    p.add_argument(
+        "--compare",
+        type=sc.existing_dir,
+        action="append",
+        default=[],
+        metavar="WORKDIR",
+        help="--export: also draw this run's evaluation curve in the figure (repeatable)",
+    )
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p
 
@@ -69,7 +77,7 @@ def main(argv=None) -> int:
         if a.export:
             out = pathlib.Path(a.out or PRETRAINED_DIR)
             path = export_pretrained(a.workdir, out, name="volumon_door", extra={"data": str(a.data)})
-            _curves(a.workdir / "metrics.jsonl", out / "volumon_door_curves.png")
+            _curves(a.workdir / "metrics.jsonl", out / "volumon_door_curves.png", a.compare)
             print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
         return 0
     cfg = get_config(a.variant, "door")
@@ -89,8 +97,14 @@ def main(argv=None) -> int:
     return 0
 
 
-def _curves(metrics, png):
-    """Dual loss and held-out centre / size errors against the step."""
+def _eval_rows(metrics) -> list:
+    rows = [json.loads(x) for x in pathlib.Path(metrics).read_text().splitlines() if x.strip()]
+    return [r for r in rows if "eval" in r]
+
+
+def _curves(metrics, png, compare=()):
+    """Dual loss and held-out centre / size errors against the step (and the centre error of the
+    ``compare`` workdirs' evaluations)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -101,13 +115,23 @@ def _curves(metrics, png):
     ev = [r for r in rows if "eval" in r]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     for k in ("total", "dual", "size"):
-        if loss and k in loss[0]:
+        if loss and k in loss[0] and any(r[k] > 0 for r in loss):  # a term switched off is left out
             axes[0].semilogy([r["step"] for r in loss], [max(r[k], 1e-9) for r in loss], label=k)
     axes[0].set_title("training loss")
     axes[0].legend()
     st = [r["step"] for r in ev]
     axes[1].plot(st, [r["eval"]["median_center_error_m"] for r in ev], marker="o", label="median centre error (m)")
     axes[1].plot(st, [r["eval"]["median_size_rel_error"] for r in ev], marker="o", label="median size rel. error")
+    for other in compare:
+        rows = _eval_rows(pathlib.Path(other) / "metrics.jsonl")
+        name = pathlib.Path(other).name
+        axes[1].plot(
+            [r["step"] for r in rows],
+            [r["eval"]["median_center_error_m"] for r in rows],
+            ls="--",
+            marker=".",
+            label=f"{name}: median centre error (m)",
+        )
     axes[1].set_title("periodic evaluation (val doors)")
     axes[1].legend()
     for ax in axes:
