@@ -133,3 +133,22 @@ def test_shipped_door_model_finds_held_out_doors(tmp_path):
     assert res["num"] == 6
     assert res["median_center"] < 0.3
     assert res["median_height"] < 0.3 and res["median_yaw"] < 30
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not (pathlib.Path(__file__).parents[1] / "jaxsem/volumon/pretrained/volumon_door.npz").exists(),
+    reason="the door model is not shipped in this checkout",
+)
+def test_demo_door_step_plans_through_the_found_door(tmp_path):
+    from jaxsem.demos.lsd_door import run_door_plan
+    from jaxsem.lsd import LSDSampler, load_model
+    from jaxsem.planning import generate_building, sample_tasks
+
+    model, params, _ = load_model()
+    building = generate_building(0, "test")
+    task = sample_tasks(building, "IO", 1, seed=0)[0]
+    lines, rec = run_door_plan(tmp_path, building, task, LSDSampler(model, params, uniform_mix=0.0), quick=True)
+    assert "skipped" not in rec, lines
+    assert rec["centre_error_m"] < 1.0 and rec["success"] and rec["passes_the_door"]
+    assert (tmp_path / "lsd_door_demo.png").stat().st_size > 10_000
