@@ -149,5 +149,8 @@ def solve_maps(problems, inits, config, repeats: int = 2):
         ms.append(1e3 * float(np.median(ts)))
         iters.append(int(summary.iterations))
         ests.append(estimate(out, T, J))
+        # Each map is a new compilation (jaxls' problem analysis is static); drop the old ones so a
+        # long run does not run out of memory (an earlier 20-map run did).
+        _solve.clear_cache()
     est = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *ests)
     return est, ms, iters, compile_s
