@@ -30,18 +30,11 @@ from ..quadrics import (
 )
 
 # The configuration and the map type live in _sim_config.py, the random draws in _sim_draws.py;
-# this module assembles and simulates maps and turns them into the solver's structures. The
-# "X as X" names are transitional re-exports (this session): code that imported them from
-# jaxsem.sim._ellipsoid_maps keeps working; jaxsem.sim imports them from their own modules.
+# this module assembles and simulates maps and turns them into the solver's structures.
 from ._sim_config import (
-    INIT_MODES as INIT_MODES,
-    PATHS as PATHS,
-    SimConfig as SimConfig,
-    SimulatedMap as SimulatedMap,
-    class_table as class_table,
-    intrinsics as intrinsics,
-    quadricslam_config as quadricslam_config,
-    thesis_config as thesis_config,
+    SimConfig,
+    SimulatedMap,
+    intrinsics,
 )
 from ._sim_draws import (
     _detect,
@@ -52,25 +45,13 @@ from ._sim_draws import (
     _Pool,
     _random_objects,
     _up,
-    camera_path as camera_path,
-    detect as detect,
-    perturb_poses as perturb_poses,
-    random_objects as random_objects,
+    camera_path,
 )
 
 __all__ = [
-    "SimConfig",
-    "SimulatedMap",
-    "thesis_config",
-    "quadricslam_config",
     "simulate",
     "simulate_batch",
     "simulate_views",
-    "camera_path",
-    "random_objects",
-    "detect",
-    "intrinsics",
-    "class_table",
     "to_problem",
     "ground_truth",
     "initial_estimate",

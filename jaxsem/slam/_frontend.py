@@ -52,9 +52,7 @@ import cv2
 import numpy as np
 
 # The configuration and output types, the stateless pieces and the input checks live in their own
-# modules (_frontend_types.py, _frontend_vision.py, _frontend_checks.py). The "X as X" names are
-# transitional re-exports (this session): code that imported them from jaxsem.slam._frontend keeps
-# working; jaxsem.slam imports them from their own modules.
+# modules (_frontend_types.py, _frontend_vision.py, _frontend_checks.py).
 from ._frontend_checks import (
     _check_boxes,
     _check_class_ids,
@@ -64,15 +62,11 @@ from ._frontend_checks import (
     _check_pose,
 )
 from ._frontend_types import (
-    TEXTURE_HIGH_VARIANCE as TEXTURE_HIGH_VARIANCE,
-    TEXTURE_NEW_LANDMARK as TEXTURE_NEW_LANDMARK,
-    TEXTURE_NO_TRACKS as TEXTURE_NO_TRACKS,
-    TEXTURE_OK as TEXTURE_OK,
-    TEXTURE_SHORT_BASELINE as TEXTURE_SHORT_BASELINE,
-    TEXTURE_TOO_FEW_POINTS as TEXTURE_TOO_FEW_POINTS,
-    AssociatedDetection as AssociatedDetection,
-    FrontEndConfig as FrontEndConfig,
-    LandmarkEstimates as LandmarkEstimates,
+    TEXTURE_NEW_LANDMARK,
+    TEXTURE_NO_TRACKS,
+    TEXTURE_SHORT_BASELINE,
+    AssociatedDetection,
+    FrontEndConfig,
 )
 from ._frontend_vision import (
     _box_pixels,
@@ -80,24 +74,13 @@ from ._frontend_vision import (
     _predicted_centroids,
     _pyramidal_lk,
     _texture_from_points,
-    hs_histogram as hs_histogram,
-    triangulate_points as triangulate_points,
+    hs_histogram,
+    triangulate_points,
 )
 
 __all__ = [
-    "FrontEndConfig",
     "FrontEnd",
-    "AssociatedDetection",
-    "LandmarkEstimates",
-    "triangulate_points",
-    "hs_histogram",
     "to_frame",
-    "TEXTURE_OK",
-    "TEXTURE_NEW_LANDMARK",
-    "TEXTURE_NO_TRACKS",
-    "TEXTURE_SHORT_BASELINE",
-    "TEXTURE_TOO_FEW_POINTS",
-    "TEXTURE_HIGH_VARIANCE",
 ]
 
 

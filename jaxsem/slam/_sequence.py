@@ -67,27 +67,15 @@ import pathlib
 
 import numpy as np
 
-# Transitional re-exports (this session): code that imported these from jaxsem.slam._sequence keeps
-# working; jaxsem.slam itself imports them from their own modules. Remove once nothing does.
-from ._draw import draw_camera_path as draw_camera_path, draw_overlay as draw_overlay, draw_top_down as draw_top_down
-from ._map_json import map_to_json as map_to_json, truth_errors as truth_errors
-from ._run_sequence import (
-    SequenceResult as SequenceResult,
-    default_capacity as default_capacity,
-    run_sequence as run_sequence,
-)
 from ._sequence_checks import _parse
 from ._sequence_types import (
-    FORMAT_TAG as FORMAT_TAG,
-    SEQUENCE_FILE as SEQUENCE_FILE,
-    Sequence as Sequence,
-    SequenceFrame as SequenceFrame,
+    FORMAT_TAG,
+    SEQUENCE_FILE,
+    Sequence,
+    SequenceFrame,
 )
 
 __all__ = [
-    "SEQUENCE_FILE",
-    "SequenceFrame",
-    "Sequence",
     "load_sequence",
     "save_sequence",
     "load_image",
