@@ -199,6 +199,7 @@ class DetectionMapper:
             "door_estimates": self.door_estimates,
             "position": [float(v) for v in pos],
             "shape": [float(v) for v in shape],
+            "class_id": [int(v) for v in np.asarray(truth.class_id)[seen]],
         }
 
 
@@ -260,7 +261,7 @@ def run(args) -> dict:
     from jaxsem import mapping
     from jaxsem.lsd import LSDSampler, load_model
     from jaxsem.metrics import mean_sem
-    from jaxsem.planning import NavConfig, Trial, building_family, sample_tasks
+    from jaxsem.planning import DOOR, NavConfig, Trial, building_family, sample_tasks
     from jaxsem.sim import BuildingRenderer
 
     planners = tuple(args.planners)
@@ -377,11 +378,20 @@ def run(args) -> dict:
                     errs = [r[p]["map_error"] for r in rs]
                     pos = [v for e in errs for v in e["position"] if np.isfinite(v)]
                     shp = [v for e in errs for v in e["shape"] if np.isfinite(v)]
+                    door = [  # (position, size) of the doors alone (the class the door model covers)
+                        (pv, sv)
+                        for e in errs
+                        for pv, sv, c in zip(e["position"], e["shape"], e.get("class_id", []))
+                        if c == DOOR and np.isfinite(pv)
+                    ]
                     row[f"map_{p}"] = {
                         "seen": int(sum(e["seen"] for e in errs)),
                         "matched": int(sum(e["matched"] for e in errs)),
                         "position_median": float(np.median(pos)) if pos else float("nan"),
                         "shape_median": float(np.median(shp)) if shp else float("nan"),
+                        "doors_matched": len(door),
+                        "door_position_median": float(np.median([d[0] for d in door])) if door else float("nan"),
+                        "door_shape_median": float(np.median([d[1] for d in door])) if door else float("nan"),
                     }
             summary[f"{kind}-{n}"] = row
     return {"summary": summary, "records": records}
@@ -421,6 +431,9 @@ def format_map_table(summary: dict) -> str:
         "matched (2 m gate)",
         "position error (m, median)",
         "size error (m, median)",
+        "doors matched",
+        "door position error (m, median)",
+        "door size error (m, median)",
     ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in summary.values():
@@ -429,6 +442,8 @@ def format_map_table(summary: dict) -> str:
             f = lambda v: "-" if not np.isfinite(v) else f"{v:.2f}"
             cells = [row["set"], str(row["n"]), p, str(m["seen"]), str(m["matched"])]
             cells += [f(m["position_median"]), f(m["shape_median"])]
+            cells += [str(m.get("doors_matched", "-")), f(m.get("door_position_median", np.nan))]
+            cells += [f(m.get("door_shape_median", np.nan))]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
