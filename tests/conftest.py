@@ -12,6 +12,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # the checkout's runs/.
 os.environ.setdefault("JAXSEM_RUNS_DIR", tempfile.mkdtemp(prefix="jaxsem_test_runs_"))
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+# Commands run in-process turn JAX's persistent compilation cache on: give the session its own
+# folder (never the user's ~/.cache/jaxsem, which other processes may be writing), and
+# _restore_compilation_cache below turns it off again after each test.
+os.environ.setdefault("JAXSEM_CACHE_DIR", tempfile.mkdtemp(prefix="jaxsem_test_cache_"))
 
 import jax
 
@@ -30,6 +34,22 @@ def strict_numpy():
     (N, 3) points) is part of the API by design."""
     with jax.numpy_dtype_promotion("strict"):
         yield
+
+
+@pytest.fixture(autouse=True)
+def _restore_compilation_cache():
+    """A test that runs a command in-process (which enables JAX's persistent compilation cache
+    for the rest of the process) leaves the cache setting as it found it: later tests compile
+    in memory only, as they would run alone. (A full run once aborted inside the cache write of
+    a later, unrelated test.)"""
+    before = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
+    yield
+    if jax.config.jax_compilation_cache_dir != before:  # pyright: ignore[reportAttributeAccessIssue]
+        jax.config.update("jax_compilation_cache_dir", before)
+        # JAX opens the cache folder once per process: forget it so the setting takes effect.
+        from jax._src import compilation_cache
+
+        compilation_cache.reset_cache()
 
 
 def pytest_collection_modifyitems(config, items):
