@@ -63,6 +63,20 @@ def test_door_dataset_loads_for_training(doors):
     assert np.all(b["baseline"] == data.DOOR_BASELINE) and np.all(b["has_right_box"])
 
 
+def test_volumon_train_command_reads_a_door_directory(doors, tmp_path, run_cli):
+    """`jaxsem volumon train --size door --data DIR` trains on the doors (the door class and the
+    writer's stereo baseline come from the preset and the directory), as make_doors' own
+    training entry point does."""
+    status, out, err = run_cli(
+        ["volumon", "train", "--variant", "dual", "--size", "door", "--data", str(doors), "--steps", "2",
+         "--batch-size", "2", "--num-eval", "3", "--eval-every", "2", "--checkpoint-every", "2",
+         "--workdir", str(tmp_path / "run"), "--no-compilation-cache"]
+    )  # fmt: skip
+    assert status == 0, err
+    assert "training on 3 objects" in out
+    assert (tmp_path / "run" / "metrics.jsonl").exists()
+
+
 @pytest.mark.parametrize(
     "kwargs, name",
     [

@@ -103,6 +103,16 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     return p
 
 
+def _loader_options(path) -> dict | None:
+    """A door dataset (``python -m jaxsem.data.make_doors``) records its own stereo baseline;
+    other directories use the reader's default."""
+    if not any(pathlib.Path(path).rglob("_doors.json")):
+        return None
+    from jaxsem.data import door_data_baseline
+
+    return {"baseline": door_data_baseline(path)}
+
+
 def main(argv=None, prog: str | None = None) -> int:
     p = build_parser(prog)
     a = p.parse_args(argv)
@@ -121,12 +131,20 @@ def main(argv=None, prog: str | None = None) -> int:
         from jaxsem.data import volumon_batch_source, volumon_eval_batch
 
         sizes: dict[str, Any] = dict(
-            input_size=cfg.model.input_size, global_padding=cfg.model.global_padding, num_points=cfg.scene.num_points
+            input_size=cfg.model.input_size,
+            global_padding=cfg.model.global_padding,
+            num_points=cfg.scene.num_points,
+            class_names=cfg.class_names or None,  # e.g. the door preset's ("door",)
         )
         try:
-            batch_fn, n = volumon_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed, **sizes)
+            batch_fn, n = volumon_batch_source(
+                a.data, batch_size=cfg.batch_size, seed=cfg.seed, loader_options=_loader_options(a.data), **sizes
+            )
             if cfg.num_eval > 0:
-                eval_batch = volumon_eval_batch(a.eval_data or a.data, num=cfg.num_eval, **sizes)
+                eval_dir = a.eval_data or a.data
+                eval_batch = volumon_eval_batch(
+                    eval_dir, num=cfg.num_eval, loader_options=_loader_options(eval_dir), **sizes
+                )
         except (ValueError, OSError) as exc:
             if a.debug:
                 raise

@@ -24,6 +24,15 @@ import sys
 
 from .. import scripting as sc
 
+# Convenience flags for TrainConfig fields (type and help from the dataclass; --set reaches every field).
+CONFIG_FLAGS = (
+    sc.ConfigFlag("num_steps", "--steps", sc.positive_int),
+    sc.ConfigFlag("learning_rate", "--lr", sc.positive_float),
+    sc.ConfigFlag("batch_size", type=sc.positive_int),
+    sc.ConfigFlag("seed"),
+    sc.ConfigFlag("num_eval"),
+)
+
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
@@ -31,12 +40,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--workdir", type=sc.output_dir, required=True, help="run folder (an existing one resumes)")
     p.add_argument("--eval-data", type=sc.existing_dir, default=None, help="doors the periodic evaluation scores")
     p.add_argument("--variant", choices=("dual", "oracle"), default="dual", help="Dual-Only (thesis) or oracle")
-    p.add_argument("--steps", type=sc.positive_int, default=None, help="training steps (default: the preset's)")
     p.add_argument("--stop-after", type=sc.positive_int, default=None, help="steps of this call (a chunk)")
-    p.add_argument("--lr", type=sc.positive_float, default=None, help="learning rate (default: the preset's)")
-    p.add_argument("--batch-size", type=sc.positive_int, default=None, help="batch size (default: the preset's)")
-    p.add_argument("--seed", type=int, default=None, help="initialisation and data-order seed")
-    p.add_argument("--num-eval", type=int, default=None, help="doors per periodic evaluation (0: none)")
+    from ..volumon import TrainConfig
+
+    sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
         "--set",
         action="append",
@@ -80,16 +87,7 @@ def main(argv=None) -> int:
             _curves(a.workdir / "metrics.jsonl", out / "volumon_door_curves.png", a.compare)
             print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
         return 0
-    cfg = get_config(a.variant, "door")
-    changes = dict(num_steps=a.steps, learning_rate=a.lr, batch_size=a.batch_size, seed=a.seed, num_eval=a.num_eval)
-    cfg = cfg.replace(**{k: v for k, v in changes.items() if v is not None})
-    if a.set:
-        from ..config import override
-
-        try:
-            cfg = override(cfg, a.set)
-        except ValueError as exc:
-            p.error(f"--set: {exc}")
+    cfg = sc.apply_config_flags(get_config(a.variant, "door"), a, CONFIG_FLAGS, a.set)
     result = train_door_model(cfg, a.data, a.workdir, eval_data=a.eval_data, stop_after=a.stop_after, force=a.force)
     if result.get("eval") is not None:
         print(json.dumps(result["eval"], indent=1))
