@@ -16,10 +16,14 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 # folder (never the user's ~/.cache/jaxsem, which other processes may be writing), and
 # _restore_compilation_cache below turns it off again after each test.
 os.environ.setdefault("JAXSEM_CACHE_DIR", tempfile.mkdtemp(prefix="jaxsem_test_cache_"))
+# ... and commands run by the tests (in-process or as subprocesses) leave it off unless a test asks
+# for it (tests/test_run_dir.py deletes this variable to test the default).
+os.environ["JAXSEM_NO_COMPILATION_CACHE"] = "1"
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", None)
 
 
 import pytest  # noqa: E402
@@ -42,10 +46,9 @@ def _restore_compilation_cache():
     for the rest of the process) leaves the cache setting as it found it: later tests compile
     in memory only, as they would run alone. (A full run once aborted inside the cache write of
     a later, unrelated test.)"""
-    before = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
     yield
-    if jax.config.jax_compilation_cache_dir != before:  # pyright: ignore[reportAttributeAccessIssue]
-        jax.config.update("jax_compilation_cache_dir", before)
+    if jax.config.jax_compilation_cache_dir is not None:  # pyright: ignore[reportAttributeAccessIssue]
+        jax.config.update("jax_compilation_cache_dir", None)
         # JAX opens the cache folder once per process: forget it so the setting takes effect.
         from jax._src import compilation_cache
 
