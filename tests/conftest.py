@@ -49,9 +49,11 @@ def _restore_compilation_cache():
     yield
     if jax.config.jax_compilation_cache_dir is not None:  # pyright: ignore[reportAttributeAccessIssue]
         jax.config.update("jax_compilation_cache_dir", None)
-        # JAX opens the cache folder once per process: forget it so the setting takes effect.
-        from jax._src import compilation_cache
+    # JAX opens the cache folder once per process and keeps writing to it even after the setting
+    # is unset (a test's own fixture may already have unset it): forget it.
+    from jax._src import compilation_cache
 
+    if getattr(compilation_cache, "_cache", None) is not None:
         compilation_cache.reset_cache()
 
 
