@@ -16,8 +16,8 @@ the conjugate-gradient linear solver with its automatic Schur elimination (it el
 poses: a 90-dimensional reduced system for 10 objects), ``TerminationConfig()`` (relative cost
 change 1e-5, at most 100 iterations).
 
-jaxls is not a jaxsem dependency: install it from its public source
-(``pip install git+https://github.com/brentyi/jaxls``; measured at commit 50a58be).
+jaxls is not a jaxsem dependency: install it from its public source (the brentyi/jaxls
+repository's ``src/`` tree with ``pip install --no-deps``; measured at commit 50a58be).
 """
 
 from __future__ import annotations

@@ -202,10 +202,7 @@ def _merge(args, argv) -> int:
     summary = summarise(records)
     table = format_table(summary)
     print(table)
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    cmd = "python benchmarks/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
+    out, cmd, date = _run_header(args, argv)
     _write(
         out / f"{args.name}.json",
         json.dumps(
@@ -260,12 +257,18 @@ def _merge(args, argv) -> int:
     return 0
 
 
-def _write_partial(args, argv, records, info, total) -> int:
-    """An --only-ablations run: records only (no summary without 'uniform' and 'lsd')."""
+def _run_header(args, argv):
+    """``(output folder (created), the command line, the date)`` of this run's files."""
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cmd = "python benchmarks/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
     date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
+    return out, cmd, date
+
+
+def _write_partial(args, argv, records, info, total) -> int:
+    """An --only-ablations run: records only (no summary without 'uniform' and 'lsd')."""
+    out, cmd, date = _run_header(args, argv)
     _write(
         out / f"{args.name}.json",
         json.dumps(
