@@ -9,7 +9,8 @@ the window distribution, the window's minimum outside it, -log p edge weights). 
 planners on the same tasks: 'mix10' (10 % uniform mixed into the window), 'euclid' (LSD samples,
 Euclidean edge weights), 'nogrow' (both planners with the thesis' end-of-trial on the first failed
 roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavConfig.growth),
-'outmass' (LSD with a calibrated mass outside the window, NavConfig.outside_mass).
+'outmass' (LSD with a calibrated mass outside the window, NavConfig.outside_mass); 'nogrow'
+with 'outmass' adds the two together.
 --only-ablations runs just the ablation planners (merge with a run of the same tasks:
 --merge A.json B.json joins records of the same task planner-wise). --devices N|all deals the
 trials over devices (jaxsem.lsd.run_trials(mesh=...)). Writes <out>/<name>.{json,md,png}.
@@ -342,6 +343,8 @@ def _run(args, argv) -> int:
     if "nogrow" in args.ablations:
         variants["uniform_nogrow"] = (None, {"max_growth": 0})
         variants["lsd_nogrow"] = (sampler, {"max_growth": 0})
+        if "outmass" in args.ablations:  # both variants at once: the calibrated fill, thesis' end-of-trial
+            variants["lsd_outmass_nogrow"] = (sampler, {"outside_mass": OUTSIDE_MASS, "max_growth": 0})
     buildings = building_family(args.family, args.test_buildings, start=args.test_start)
     records = run_trials(
         buildings,

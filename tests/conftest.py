@@ -3,6 +3,7 @@
 Tests that check float32 behaviour pass float32 arrays explicitly.
 """
 
+import gc
 import os
 import sys
 import tempfile
@@ -55,6 +56,17 @@ def _restore_compilation_cache():
 
     if getattr(compilation_cache, "_cache", None) is not None:
         compilation_cache.reset_cache()
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_programs():
+    """After each test module, JAX's compiled programs are dropped. Every compiled CPU program
+    keeps its own memory mappings, and a full run in one process compiles thousands of them:
+    the process then ran into the kernel's limit on mappings (vm.max_map_count, 65530) and XLA
+    aborted inside a later compile (twice in CI, in test_volumon_device.py)."""
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 def pytest_collection_modifyitems(config, items):
