@@ -277,3 +277,30 @@ def test_robot_in_a_known_obstacle_ends_the_trial_as_a_collision():
     assert not trial.step()
     res = trial.result()
     assert not res.success and res.reason == "collision"
+
+
+def test_a_look_that_finds_the_robot_in_a_wall_ends_the_trial_as_a_collision():
+    # Regression (a benchmark run on test building 444, uniform planner, IO task 1, step 952):
+    # the look a step takes before it replans revealed the robot's own cell as occupied, and the
+    # roadmap query then refused the start ("start: ... lies in an occupied cell"), which ended
+    # the whole run. The look's finding is the same collision as the start-of-step check.
+    from jaxsem.planning import Trial
+
+    w = _two_rooms()
+    trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), CFG, yaw0=0.0)
+    assert trial.step()
+    trial.since_plan = CFG.replan_every  # this step looks, then replans
+    real_sense = trial._sense
+
+    def sense_and_find_the_wall():  # the look marks the robot's own cell occupied
+        real_sense()
+        occ = np.asarray(trial.state.occupancy).copy()
+        col, row = np.floor((trial.xy - np.asarray(w.origin)) / w.resolution).astype(int)
+        occ[row, col] = OCCUPIED
+        trial.state = trial.state._replace(occupancy=jax.numpy.asarray(occ))
+
+    trial._sense = sense_and_find_the_wall
+    assert not trial._in_known_obstacle()  # the start-of-step check passes
+    assert not trial.step()
+    res = trial.result()
+    assert not res.success and res.reason == "collision"

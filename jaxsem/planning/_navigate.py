@@ -416,6 +416,13 @@ class Trial:
                 self._sense()
             blocked = np.asarray(self.state.occupancy) == OCCUPIED
         if self.plan is None or self.since_plan >= cfg.replan_every or not self._clear(self.plan, blocked):
+            if self._in_known_obstacle():
+                # The look just taken shows the robot's own cell occupied (it had moved into
+                # unknown space that was not free): the same collision as above, found by this
+                # step's look. (A roadmap cannot start there: the query refused it, and the
+                # error ended the whole benchmark run.)
+                self._finish(False, "collision")
+                return False
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
