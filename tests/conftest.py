@@ -45,8 +45,7 @@ def strict_numpy():
 def _restore_compilation_cache():
     """A test that runs a command in-process (which enables JAX's persistent compilation cache
     for the rest of the process) leaves the cache setting as it found it: later tests compile
-    in memory only, as they would run alone. (A full run once aborted inside the cache write of
-    a later, unrelated test.)"""
+    in memory only, as they would run alone."""
     yield
     if jax.config.jax_compilation_cache_dir is not None:  # pyright: ignore[reportAttributeAccessIssue]
         jax.config.update("jax_compilation_cache_dir", None)
@@ -62,8 +61,9 @@ def _restore_compilation_cache():
 def _free_compiled_programs():
     """After each test module, JAX's compiled programs are dropped. Every compiled CPU program
     keeps its own memory mappings, and a full run in one process compiles thousands of them:
-    the process then ran into the kernel's limit on mappings (vm.max_map_count, 65530) and XLA
-    aborted inside a later compile (twice in CI, in test_volumon_device.py)."""
+    without this, XLA aborted inside a later compile (twice in CI and once here, in
+    test_volumon_device.py, at 7 GB resident), most likely at the kernel's limit on mappings
+    per process (vm.max_map_count, 65530); with it the count stays in the low thousands."""
     yield
     jax.clear_caches()
     gc.collect()
