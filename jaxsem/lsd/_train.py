@@ -68,14 +68,24 @@ class TrainResult(NamedTuple):
 
 def _optimizer(config: TrainConfig, stage: int) -> optax.GradientTransformation:
     lr = config.learning_rate if stage == 1 else config.stage2_learning_rate
-    return _optimizer_for(float(lr), float(config.weight_decay))
+    steps = config.stage1_steps if stage == 1 else config.stage2_steps
+    return _optimizer_for(float(lr), float(config.weight_decay), config.lr_schedule, int(steps))
+
+
+#: lr_schedule='cosine' ends each stage at this fraction of its learning rate
+COSINE_FLOOR = 0.1
 
 
 @functools.lru_cache(maxsize=16)
-def _optimizer_for(lr: float, weight_decay: float) -> optax.GradientTransformation:
+def _optimizer_for(
+    lr: float, weight_decay: float, schedule: str = "constant", steps: int = 0
+) -> optax.GradientTransformation:
+    rate: float | optax.Schedule = lr
+    if schedule == "cosine":
+        rate = optax.cosine_decay_schedule(lr, decay_steps=max(steps, 1), alpha=COSINE_FLOOR)
     if weight_decay > 0:
-        return optax.adamw(lr, weight_decay=weight_decay)
-    return optax.adam(lr)
+        return optax.adamw(rate, weight_decay=weight_decay)
+    return optax.adam(rate)
 
 
 def _stage_of(step: int, config: TrainConfig) -> int:
