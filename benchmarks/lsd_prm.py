@@ -130,8 +130,8 @@ def _len_cell(mean, sem) -> str:
     return "-" if mean is None else f"{mean:.3f} +- {sem or 0:.3f}"
 
 
-def jaxsem_build(b, n, key, k, radius):
-    prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius)
+def jaxsem_build(b, n, key, k, radius, sectors=planning.DEFAULT_SECTORS):
+    prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius, sectors=sectors)
     prm.grow(key, n)
     jax.block_until_ready(prm.roadmap)
     return prm
@@ -159,6 +159,12 @@ def main(argv=None) -> int:
         default=None,
         help="jaxsem radius = this x mean spacing (default: planning.default_radius)",
     )
+    ap.add_argument(
+        "--sectors",
+        type=int,
+        default=planning.DEFAULT_SECTORS,
+        help="jaxsem connection policy: direction sectors (0: the plain k nearest)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--name", default="lsd_prm")
@@ -178,13 +184,15 @@ def main(argv=None) -> int:
             else:
                 area = b.shape[0] * b.shape[1] * b.resolution**2
                 radius = float(np.ceil(2 * args.radius_scale * np.sqrt(area / n)) / 2)
-            jaxsem_build(b, n, jax.random.PRNGKey(10_000), args.k, radius).query(tasks[0].start, tasks[0].goal)
+            jaxsem_build(b, n, jax.random.PRNGKey(10_000), args.k, radius, args.sectors).query(
+                tasks[0].start, tasks[0].goal
+            )
             for rep in range(args.repeats):
                 seed = args.seed * 1000 + rep
                 om = OmplPRM(b, n, seed=seed)
                 oc = OmplPRM(b, n, trivial=True, seed=seed)
                 t0 = time.perf_counter()
-                prm = jaxsem_build(b, n, jax.random.PRNGKey(seed), args.k, radius)
+                prm = jaxsem_build(b, n, jax.random.PRNGKey(seed), args.k, radius, args.sectors)
                 t_build = time.perf_counter() - t0
                 for ti, task in enumerate(tasks):
                     t_oq, o_found, o_len = om.query(task.start, task.goal)
@@ -316,6 +324,7 @@ def main(argv=None) -> int:
         f"Test-family buildings {args.first_map}..{args.first_map + args.maps - 1}, full map known, "
         f"{args.tasks} Inside-Inside queries per map, {args.repeats} roadmaps per (map, N) and planner. jaxsem: "
         f"k = {args.k or 'prm_star_k(N) (26 / 29 / 35 at N = 500 / 1000 / 5000)'}, radius {'planning.default_radius' if args.radius_scale is None else f'{args.radius_scale} x spacing'}, "
+        f"{'direction-first links over ' + str(args.sectors) + ' sectors (the default policy)' if args.sectors else 'the plain k nearest (sectors 0)'}, "
         "valid-state sampling, exact neighbour search; "
         f"OMPL {_ompl_version()}: PRM, k = 10, growRoadmapPtc to N milestones. "
         "Length / C*: mean +- s.e.m. of the raw roadmap path over the soft-cost optimal length, on queries "

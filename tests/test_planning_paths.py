@@ -322,6 +322,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
         distribution=dist,
         radius=0.9,
         bucket_cap=2,
+        sectors=0,  # the plain k nearest, checked against brute force
     )
     rm = roadmap_grow(
         rm,
@@ -333,6 +334,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
         distribution=dist,
         radius=0.9,
         bucket_cap=2,
+        sectors=0,  # the plain k nearest, checked against brute force
     )
     assert not bool(rm.overflow) and int(rm.num_samples) == 800
     pts = np.asarray(rm.points)

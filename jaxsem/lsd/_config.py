@@ -88,14 +88,14 @@ def _cpu(c: TrainConfig) -> TrainConfig:
 def _scale(c: TrainConfig) -> TrainConfig:
     """The shipped model's run: expert data from 240 train buildings (``infer/make_expert_data.py
     --buildings 240``), bounded output range (``log_range=8``, see
-    :class:`jaxsem.models.LSDConfig`), 10,000 + 3,000 steps at batch 16 with a cosine rate decay
+    :class:`jaxsem.models.LSDConfig`), 8,000 + 2,500 steps at batch 16 with a cosine rate decay
     per stage, checkpoints every 1,000 steps (chunked: a restart resumes); about an hour on a
     2-core CPU. Validation: the buildings whose seed is a multiple of 20."""
     return dataclasses.replace(
         c,
         model=LSDConfig(log_range=8.0),
-        stage1_steps=10000,
-        stage2_steps=3000,
+        stage1_steps=8000,
+        stage2_steps=2500,
         batch_size=16,
         lr_schedule="cosine",
         eval_every=1000,

@@ -67,6 +67,7 @@ from ._navigate import (
     navigate as navigate,
 )
 from ._prm import (
+    DEFAULT_SECTORS as DEFAULT_SECTORS,
     PRM as PRM,
     Roadmap as Roadmap,
     RoadmapPath as RoadmapPath,

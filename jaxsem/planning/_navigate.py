@@ -49,6 +49,7 @@ import numpy as np
 
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
 from ._prm import (
+    DEFAULT_SECTORS,
     PRM,
     default_radius,
     embed_local_distribution,
@@ -157,7 +158,7 @@ class NavConfig:
     outside_mass: tuple[float, float] | None = None
     # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
     # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
-    sectors: int = 8
+    sectors: int = DEFAULT_SECTORS
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
