@@ -65,6 +65,9 @@ def main(argv=None) -> int:
     if metrics:
         ax.axhline(metrics[0]["uniform_nll"], color="k", ls="--", lw=0.8, label="uniform")
     stage2 = [s for s in steps if train[s][1] == 2]
+    cfg = pathlib.Path(args.workdir) / "config.json"
+    if cfg.exists():  # the stage boundary itself, not the first stage-two evaluation
+        stage2 = [int(json.loads(cfg.read_text())["stage1_steps"])] if stage2 else []
     if stage2:
         ax.axvline(stage2[0], color="grey", lw=0.8)
         ax.text(stage2[0], ax.get_ylim()[1], " stage 2", va="top", fontsize=8)
