@@ -304,3 +304,27 @@ def test_a_look_that_finds_the_robot_in_a_wall_ends_the_trial_as_a_collision():
     assert not trial.step()
     res = trial.result()
     assert not res.success and res.reason == "collision"
+
+
+def _job_that_dies_on_seed_1(job):
+    """A per-building job for write_expert_dataset: the worker process dies (no exception) on
+    seed 1, as an XLA abort or the OOM killer ends it; other seeds write a small shard."""
+    import os
+    import pathlib
+
+    _, seed, _, out_dir, _ = job
+    if seed == 1:
+        os._exit(3)
+    path = pathlib.Path(out_dir) / f"expert_train_{seed:05d}.npz"
+    np.savez(path, building_seed=np.int64(seed))
+    return str(path), 1
+
+
+def test_a_dead_expert_worker_raises_naming_the_seed_instead_of_hanging(tmp_path):
+    """Regression: under multiprocessing.Pool a worker that died left its building unfinished and
+    the command waiting forever (240 buildings: 2 missing, no error, at 0 % CPU)."""
+    from jaxsem.planning import write_expert_dataset
+
+    with pytest.raises(ChildProcessError, match=r"workers: a worker process died .*seeds \[.*1.*\].*rerun"):
+        write_expert_dataset(tmp_path, "train", [0, 1, 2], workers=2, progress=False, job_fn=_job_that_dies_on_seed_1)
+    assert not (tmp_path / "expert_train_00001.npz").exists()

@@ -42,6 +42,8 @@ import math
 import multiprocessing
 import os
 import pathlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
 
 import jax
@@ -244,6 +246,10 @@ def generate_expert_samples(
     }
 
 
+#: buildings a worker process generates before it is replaced by a fresh one
+WORKER_TASKS = 16
+
+
 def _init_worker(cache_dir):
     if cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
@@ -269,10 +275,14 @@ def write_expert_dataset(
     workers: int = 2,
     resolution: float = DEFAULT_RESOLUTION,
     progress: bool = True,
+    job_fn=None,
 ):
     """Generates one shard per building seed into ``out_dir`` (``expert_<family>_<seed>.npz``),
     in parallel over buildings (``workers`` processes, spawned), with a tqdm bar; also writes
-    ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths."""
+    ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths.
+    ``ChildProcessError`` (naming the unfinished seeds) when a worker process dies; the shards
+    already written stay. ``job_fn``: the per-building job (tests), default the shard writer."""
+    job_fn = _shard_job if job_fn is None else job_fn
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "schema.json").write_text(
@@ -303,18 +313,39 @@ def write_expert_dataset(
         bar = tqdm(total=len(jobs), desc=f"expert {family}", unit="building")
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
-            done.append(_shard_job(job)[0])
+            done.append(job_fn(job)[0])
             if bar:
                 bar.update(1)
     else:
         ctx = multiprocessing.get_context("spawn")  # JAX is multithreaded: never fork it
         # workers share the parent's compile cache (jax's options are dynamic attributes, not in its stubs)
         cache = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(cache,)) as pool:
-            for path, _ in pool.imap_unordered(_shard_job, jobs):
-                done.append(path)
+        # An executor, not multiprocessing.Pool: a worker that dies (killed, or aborted inside
+        # XLA) hung Pool.imap forever with its building lost (240 buildings, 2 missing, no error);
+        # here it raises BrokenProcessPool. Workers are also replaced every WORKER_TASKS
+        # buildings, so one process does not pile up compiled programs and memory over hundreds.
+        with ProcessPoolExecutor(
+            workers,
+            mp_context=ctx,
+            initializer=_init_worker,
+            initargs=(cache,),
+            max_tasks_per_child=WORKER_TASKS,
+        ) as pool:
+            futures = {pool.submit(job_fn, job): job[1] for job in jobs}
+            try:
+                for fut in as_completed(futures):
+                    done.append(fut.result()[0])
+                    if bar:
+                        bar.update(1)
+            except BrokenProcessPool as exc:
                 if bar:
-                    bar.update(1)
+                    bar.close()
+                lost = sorted(seed for f, seed in futures.items() if not f.done() or f.exception() is not None)
+                raise ChildProcessError(
+                    f"workers: a worker process died (killed or crashed) with building seeds {lost[:8]}"
+                    f"{' ...' if len(lost) > 8 else ''} unfinished; the {len(done)} shards written in "
+                    f"{str(out)!r} are kept: rerun the same command to resume"
+                ) from exc
     if bar:
         bar.close()
     return sorted(done)
