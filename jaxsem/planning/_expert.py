@@ -42,6 +42,7 @@ import math
 import multiprocessing
 import os
 import pathlib
+import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
@@ -324,12 +325,14 @@ def write_expert_dataset(
         # XLA) hung Pool.imap forever with its building lost (240 buildings, 2 missing, no error);
         # here it raises BrokenProcessPool. Workers are also replaced every WORKER_TASKS
         # buildings, so one process does not pile up compiled programs and memory over hundreds.
+        # max_tasks_per_child exists from Python 3.11 (3.10 keeps its workers for the whole run)
+        _recycle = {"max_tasks_per_child": WORKER_TASKS} if sys.version_info >= (3, 11) else {}
         with ProcessPoolExecutor(
             workers,
             mp_context=ctx,
             initializer=_init_worker,
             initargs=(cache,),
-            max_tasks_per_child=WORKER_TASKS,
+            **_recycle,
         ) as pool:
             futures = {pool.submit(job_fn, job): job[1] for job in jobs}
             try:
