@@ -211,13 +211,13 @@ def test_shipped_model_is_the_default():
 
 
 def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
-    from jaxsem.lsd._train import _optimizer
+    from jaxsem.lsd import stage_optimizer
 
     cfg = dataclasses.replace(CFG, lr_schedule="cosine", stage1_steps=20, stage2_steps=10)
     # Adam's step for a constant gradient is the rate itself: the first step of each stage moves
     # by its learning rate, the last by a little over a tenth of it.
     for stage, n in ((1, 20), (2, 10)):
-        tx = _optimizer(cfg, stage)
+        tx = stage_optimizer(cfg, stage)
         x = jnp.zeros(())
         state = tx.init(x)
         moves = []
@@ -238,3 +238,5 @@ def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
     with pytest.raises(ValueError, match="lr_schedule"):
         TrainConfig(lr_schedule="linear")
+    with pytest.raises(ValueError, match="stage"):
+        stage_optimizer(cfg, 3)

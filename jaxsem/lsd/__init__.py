@@ -46,5 +46,6 @@ from ._train import (
     load_trained as load_trained,
     make_train_step as make_train_step,
     save_distribution_figure as save_distribution_figure,
+    stage_optimizer as stage_optimizer,
     train_and_evaluate as train_and_evaluate,
 )

@@ -66,7 +66,14 @@ class TrainResult(NamedTuple):
     workdir: pathlib.Path
 
 
-def _optimizer(config: TrainConfig, stage: int) -> optax.GradientTransformation:
+def stage_optimizer(config: TrainConfig, stage: int) -> optax.GradientTransformation:
+    """The optax optimiser training uses in ``stage`` (1: generator, 2: context head).
+
+    Its learning rate follows ``config.lr_schedule`` over the stage's own steps; for users who
+    write their own loop around :func:`make_train_step`.
+    """
+    if stage not in (1, 2):
+        raise ValueError(f"stage: expected 1 or 2, got {stage!r}")
     lr = config.learning_rate if stage == 1 else config.stage2_learning_rate
     steps = config.stage1_steps if stage == 1 else config.stage2_steps
     return _optimizer_for(float(lr), float(config.weight_decay), config.lr_schedule, int(steps))
@@ -211,7 +218,7 @@ def _state_like(model_params, config: TrainConfig, stage: int):
     trainable, _ = _trainable(model_params, stage)
     return {
         "params": model_params,
-        "opt_state": _optimizer(config, stage).init(trainable),
+        "opt_state": stage_optimizer(config, stage).init(trainable),
         "step": np.zeros((), np.int64),
     }
 
@@ -414,7 +421,7 @@ def train_and_evaluate(
         last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
         for step in run.steps(start, last, total=config.total_steps, desc="lsd train", progress=progress):
             stage = _stage_of(step, config)
-            tx = _optimizer(config, stage)
+            tx = stage_optimizer(config, stage)
             if opt_state is None:
                 opt_state = tx.init(_trainable(params, stage)[0])
                 if rep is not None:
