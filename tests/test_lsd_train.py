@@ -13,6 +13,7 @@ from jaxsem.lsd import (
     dihedral_augment,
     full_map_distribution,
     load_trained,
+    save_distribution_figure,
     split_by_building,
     train_and_evaluate,
 )
@@ -240,3 +241,35 @@ def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
         TrainConfig(lr_schedule="linear")
     with pytest.raises(ValueError, match="stage"):
         stage_optimizer(cfg, 3)
+
+
+def test_distribution_figure_titles_print_the_context_rounded(tmp_path, monkeypatch):
+    # regression: float32 context through tolist() printed 0.47999998927..., and the titles of
+    # neighbouring panels ran into each other
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    titles = []
+    original = matplotlib.axes.Axes.set_title
+
+    def record(self, label, *args, **kwargs):
+        titles.append(label)
+        return original(self, label, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", record)
+    k = 16
+    batch = {
+        "occupancy": np.zeros((2, k, k), np.int8),
+        "semantic": np.zeros((2, k, k), np.int8),
+        "context": np.array([[0.48, -0.88, 1.0, 0.0], [0.15, 0.76, 0.0, 1.0]], np.float32),
+        "path_mask": np.eye(k, dtype=bool)[None].repeat(2, 0),
+    }
+    path = tmp_path / "dist.png"
+    save_distribution_figure(path, batch, np.full((2, k, k), -np.log(k * k)), title="t")
+    assert path.stat().st_size > 0
+    ctx_titles = [t for t in titles if "ctx" in t]
+    assert len(ctx_titles) == 2
+    assert "0.48" in ctx_titles[0] and "-0.88" in ctx_titles[0]
+    assert all(len(t.split("\n")[-1]) <= 32 for t in ctx_titles), ctx_titles

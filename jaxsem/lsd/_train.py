@@ -296,7 +296,10 @@ def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str
         ax.imshow(img, origin="lower", interpolation="nearest")
         pr, pc = np.nonzero(mask[i])
         ax.scatter(pc, pr, s=1, c="m")
-        ax.set_title(f"map + expert path\nctx {np.round(ctx[i], 2).tolist()}", fontsize=7)
+        # float32 context printed through tolist() reads 0.47999998927 and overlaps its
+        # neighbours' titles: two decimals, as text
+        ctx_text = ", ".join(f"{float(v):.2f}" for v in ctx[i])
+        ax.set_title(f"map + expert path\nctx [{ctx_text}]", fontsize=7)
         ax = axes[1, i]
         im = ax.imshow(np.asarray(log_prob[i]) / np.log(10.0), origin="lower", cmap="viridis")
         ax.contour(occ[i] == 1, levels=[0.5], colors="w", linewidths=0.4)
