@@ -350,7 +350,9 @@ def plot_success(summary: dict, path) -> None:
         ax.set_ylim(-5, 105)
         ax.set_xlabel("N (samples per roadmap)")
         ax.set_ylabel("success rate (%)")
-        ax.set_title(f"{kind}: {rows[0]['trials'] if rows else 0} trials per N")
+        counts = sorted({v["trials"] for v in rows}) or [0]
+        per_n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+        ax.set_title(f"{kind}: {per_n} trials per N")
         ax.legend()
         ax.grid(alpha=0.3)
     fig.tight_layout()
