@@ -273,3 +273,49 @@ def test_distribution_figure_titles_print_the_context_rounded(tmp_path, monkeypa
     assert len(ctx_titles) == 2
     assert "0.48" in ctx_titles[0] and "-0.88" in ctx_titles[0]
     assert all(len(t.split("\n")[-1]) <= 32 for t in ctx_titles), ctx_titles
+
+
+def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
+    # Reference: flax's own layers. A 2 x 2 stride-2 transposed convolution averaged over each
+    # 2 x 2 output block equals the warm-started 3 x 3 convolution on the nearest-doubled input.
+    import flax.linen as nn
+
+    from jaxsem.lsd import warm_start_params
+
+    x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3))
+    tconv, conv = nn.ConvTranspose(4, (2, 2), strides=(2, 2)), nn.Conv(4, (3, 3))
+    pt = tconv.init(jax.random.PRNGKey(2), x)["params"]
+    up = jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)
+    pc = conv.init(jax.random.PRNGKey(3), up)["params"]
+    warm = warm_start_params({"dec_0": pc}, {"dec_0": pt})["dec_0"]
+    yt = tconv.apply({"params": pt}, x)
+    block_mean = yt.reshape(2, 5, 2, 7, 2, 4).mean(axis=(2, 4))
+    yc = conv.apply({"params": warm}, up)
+    np.testing.assert_allclose(yc, jnp.repeat(jnp.repeat(block_mean, 2, axis=1), 2, axis=2), atol=1e-5)
+    # the same network: a plain copy
+    same = warm_start_params({"dec_0": pt}, {"dec_0": pt})
+    np.testing.assert_array_equal(same["dec_0"]["kernel"], pt["kernel"])
+    with pytest.raises(ValueError, match="src: has no parameter 'dec_1/"):
+        warm_start_params({"dec_1": pt}, {"dec_0": pt}, "src")
+    with pytest.raises(ValueError, match="src: parameter 'dec_0/kernel' has shape"):
+        warm_start_params({"dec_0": {"kernel": jnp.zeros((3, 3, 3, 5)), "bias": pt["bias"]}}, {"dec_0": pt}, "src")
+
+
+def test_init_from_fine_tunes_a_resize_network_from_an_exported_model(run, tmp_path):
+    from jaxsem.lsd import export_model, warm_start_params
+
+    wd, _ = run
+    _, params, cfg = load_trained(wd)
+    src = export_model(tmp_path / "src.npz", cfg, params)
+    resize = dataclasses.replace(MODEL, upsample="resize")
+    still = dataclasses.replace(
+        CFG, model=resize, init_from=str(src), learning_rate=0.0, stage1_steps=1, stage2_steps=0
+    )
+    res = train_and_evaluate(still, tmp_path / "ft", data=_data(), progress=False)
+    _, fresh = init_lsd(jax.random.PRNGKey(still.seed), resize)
+    expected = warm_start_params(fresh, params)
+    for a, b in zip(jax.tree_util.tree_leaves(expected), jax.tree_util.tree_leaves(res.params)):
+        np.testing.assert_allclose(a, b, atol=1e-7)
+    wrong = dataclasses.replace(still, model=dataclasses.replace(MODEL, features=(4, 8, 16)))
+    with pytest.raises(ValueError, match="init_from: parameter"):
+        train_and_evaluate(wrong, tmp_path / "ft2", data=_data(), progress=False)

@@ -48,4 +48,5 @@ from ._train import (
     save_distribution_figure as save_distribution_figure,
     stage_optimizer as stage_optimizer,
     train_and_evaluate as train_and_evaluate,
+    warm_start_params as warm_start_params,
 )

@@ -35,6 +35,12 @@ class TrainConfig:
     num_figure_samples: validation samples drawn in each evaluation figure.
     seed: parameter init, batch order, dropout.
     dtype: parameter / compute dtype name ('float32' or 'float64').
+    init_from: '' (default: a fresh initialisation) or an exported model (``.npz``,
+        :func:`jaxsem.lsd.export_model`) whose parameters start a new run (fine-tuning; a
+        resumed run ignores it). Every parameter is copied by name; the one change of shape
+        allowed is ``model.upsample`` 'transpose' to 'resize': each 2 x 2 transposed kernel
+        becomes the centre tap of the 3 x 3 convolution, averaged over its four parities, so the
+        new network starts as the old one without the parity-dependent weights (the stripes).
     """
 
     model: LSDConfig = LSDConfig()
@@ -53,6 +59,7 @@ class TrainConfig:
     num_figure_samples: int = 4
     seed: int = 0
     dtype: str = "float32"
+    init_from: str = ""
 
     def __post_init__(self):
         for name in ("stage1_steps", "stage2_steps"):

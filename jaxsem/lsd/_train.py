@@ -385,6 +385,8 @@ def train_and_evaluate(
             params = state["params"]
             if _stage_of(run.start, config) == saved_stage:
                 opt_state = state["opt_state"]
+        elif config.init_from:
+            params = warm_start_params(params, load_model_file(config.init_from)[1], "init_from")
         start = run.start
         run.begin()
         rep = None if mesh is None else parallel.replicated(mesh)
@@ -457,6 +459,39 @@ def train_and_evaluate(
                 recent = []
         history = run.metrics()
     return TrainResult(model, params, history, start, workdir)
+
+
+# ----------------------------------------------------------------------------- warm start
+
+
+def warm_start_params(params, source, name: str = "source"):
+    """``params`` with every leaf taken from ``source`` (same layer / parameter names).
+
+    The one change of shape allowed: a 2 x 2 transposed-convolution kernel ``(2, 2, in, out)``
+    into the 3 x 3 convolution of a resize upsampling ``(3, 3, in, out)`` (``LSDConfig.upsample``
+    'transpose' to 'resize'): the centre tap gets the mean of the four parity kernels, the other
+    taps zero, so on a nearest-neighbour doubled input the new layer is the old one with its
+    parity dependence averaged out. ``ValueError`` naming ``name`` and the parameter for a missing
+    parameter or any other shape change.
+    """
+    flat = {
+        "/".join(str(getattr(k, "key", k)) for k in path): v for path, v in jax.tree_util.tree_leaves_with_path(source)
+    }
+
+    def take(path, leaf):
+        key = "/".join(str(getattr(k, "key", k)) for k in path)
+        if key not in flat:
+            raise ValueError(f"{name}: has no parameter {key!r} (a different network)")
+        src = np.asarray(flat[key])
+        if src.shape == leaf.shape:
+            return jnp.asarray(src, leaf.dtype)
+        if src.ndim == 4 and src.shape[:2] == (2, 2) and leaf.shape[:2] == (3, 3) and src.shape[2:] == leaf.shape[2:]:
+            out = np.zeros(leaf.shape, src.dtype)
+            out[1, 1] = src.mean(axis=(0, 1))
+            return jnp.asarray(out, leaf.dtype)
+        raise ValueError(f"{name}: parameter {key!r} has shape {src.shape}, the network expects {tuple(leaf.shape)}")
+
+    return jax.tree_util.tree_map_with_path(take, params)
 
 
 # ----------------------------------------------------------------------------- single-file export
