@@ -316,6 +316,19 @@ def test_init_from_fine_tunes_a_resize_network_from_an_exported_model(run, tmp_p
     expected = warm_start_params(fresh, params)
     for a, b in zip(jax.tree_util.tree_leaves(expected), jax.tree_util.tree_leaves(res.params)):
         np.testing.assert_allclose(a, b, atol=1e-7)
+    # a training workdir serves as well as its export
+    res_wd = train_and_evaluate(
+        dataclasses.replace(still, init_from=str(wd)), tmp_path / "ft3", data=_data(), progress=False
+    )
+    for a, b in zip(jax.tree_util.tree_leaves(res.params), jax.tree_util.tree_leaves(res_wd.params)):
+        np.testing.assert_array_equal(a, b)
     wrong = dataclasses.replace(still, model=dataclasses.replace(MODEL, features=(4, 8, 16)))
     with pytest.raises(ValueError, match="init_from: parameter"):
         train_and_evaluate(wrong, tmp_path / "ft2", data=_data(), progress=False)
+    with pytest.raises(ValueError, match="init_from: no such model file or training workdir"):
+        train_and_evaluate(
+            dataclasses.replace(still, init_from=str(tmp_path / "nope.npz")),
+            tmp_path / "ft4",
+            data=_data(),
+            progress=False,
+        )

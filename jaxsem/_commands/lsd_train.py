@@ -21,7 +21,7 @@ import argparse
 import pathlib
 
 from jaxsem import config as jcfg, scripting as sc
-from jaxsem.lsd import TrainConfig
+from jaxsem.lsd import PRESETS, TrainConfig
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
 
@@ -40,7 +40,11 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     p.add_argument("--data", type=sc.existing_path, required=True, help="folder of expert_*.npz shards (or one shard)")
     p.add_argument("--workdir", type=sc.output_dir, required=True, help="checkpoints, figures, metrics")
-    p.add_argument("--config", default="default", help="default | cpu | scale | tiny")
+    p.add_argument(
+        "--config",
+        default="default",
+        help=f"a preset ({' | '.join(PRESETS.names)}) or a JSON file of TrainConfig fields",
+    )
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
         "--set",

@@ -211,7 +211,7 @@ def evaluate_nll(
 
 
 #: config fields that may change between the chunks of one run (length, logging, evaluation)
-RESUMABLE_FIELDS = ("stage2_steps", "eval_every", "checkpoint_every", "keep", "num_figure_samples")
+RESUMABLE_FIELDS = ("stage2_steps", "eval_every", "checkpoint_every", "keep", "num_figure_samples", "init_from")
 
 
 def _state_like(model_params, config: TrainConfig, stage: int):
@@ -386,7 +386,9 @@ def train_and_evaluate(
             if _stage_of(run.start, config) == saved_stage:
                 opt_state = state["opt_state"]
         elif config.init_from:
-            params = warm_start_params(params, load_model_file(config.init_from)[1], "init_from")
+            if not pathlib.Path(config.init_from).exists():
+                raise ValueError(f"init_from: no such model file or training workdir {config.init_from!r}")
+            params = warm_start_params(params, load_model(config.init_from)[1], "init_from")
         start = run.start
         run.begin()
         rep = None if mesh is None else parallel.replicated(mesh)
