@@ -20,7 +20,8 @@ from jaxsem.lsd import (
 from jaxsem.models import LSDConfig, init_lsd, split_params
 
 K = 32
-MODEL = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8)
+# Transposed upsampling: the fine-tune tests start a resize network from these runs.
+MODEL = LSDConfig(map_size=K, features=(4, 8, 8), context_features=8, upsample="transpose")
 
 
 def _data(n=8, seed=0):
@@ -209,6 +210,23 @@ def test_shipped_model_is_the_default():
     model, params, cfg = load_model()
     _, _, cfg_file = load_model_file(PRETRAINED)
     assert cfg == cfg_file and cfg.model.log_range == 8.0 and model.config.map_size == 160
+
+
+def test_new_networks_resize_and_old_configs_load_as_transposed(tmp_path):
+    """A new LSDConfig upsamples without stripes; a config saved before the field existed (the
+    first bundled model's) still describes, and loads, its transposed network."""
+    import json
+
+    from jaxsem.lsd import PRETRAINED_CPU, load_model
+    from jaxsem.lsd._train import config_from_dict
+
+    assert LSDConfig().upsample == "resize" and TrainConfig().model.upsample == "resize"
+    with np.load(PRETRAINED_CPU) as z:
+        saved = json.loads(str(z["config_json"]))
+    assert "upsample" not in saved["model"]
+    assert config_from_dict(saved).model.upsample == "transpose"
+    model, params, _ = load_model(PRETRAINED_CPU)
+    assert params["dec_0"]["kernel"].shape[:2] == (2, 2) and model.config.upsample == "transpose"
 
 
 def test_shipped_model_distribution_has_no_upsampling_stripes():

@@ -93,14 +93,17 @@ def _cpu(c: TrainConfig) -> TrainConfig:
 
 @PRESETS.register("scale")
 def _scale(c: TrainConfig) -> TrainConfig:
-    """The shipped model's run: expert data from 240 train buildings (``infer/make_expert_data.py
-    --buildings 240``), bounded output range (``log_range=8``, see
-    :class:`jaxsem.models.LSDConfig`), 8,000 + 2,500 steps at batch 16 with a cosine rate decay
-    per stage, checkpoints every 1,000 steps (chunked: a restart resumes); about an hour on a
-    2-core CPU. Validation: the buildings whose seed is a multiple of 20."""
+    """The first run of the shipped model (then fine-tuned by ``scale_resize``): expert data
+    from 240 train buildings (``infer/make_expert_data.py --buildings 240``), bounded output
+    range (``log_range=8``, see :class:`jaxsem.models.LSDConfig`), transposed-convolution
+    upsampling as that run had it (``train/checkpoints/lsd_scale`` resumes with this preset),
+    8,000 + 2,500 steps at batch 16 with a cosine rate decay per stage, checkpoints every 1,000
+    steps (chunked: a restart resumes); about an hour on a 2-core CPU. Validation: the buildings
+    whose seed is a multiple of 20. A new run without stripes from the start: ``--set
+    model.upsample=resize``, or the ``scale_resize`` fine-tune from it."""
     return dataclasses.replace(
         c,
-        model=LSDConfig(log_range=8.0),
+        model=LSDConfig(log_range=8.0, upsample="transpose"),
         stage1_steps=8000,
         stage2_steps=2500,
         batch_size=16,

@@ -233,6 +233,9 @@ def config_from_dict(d: dict) -> TrainConfig:
     d = dict(d)
     model = dict(d.pop("model"))
     model["features"] = tuple(model["features"])
+    # Configs saved before LSDConfig.upsample existed describe transposed-convolution networks
+    # (the default then; 'resize' since the stripe-free shipped model).
+    model.setdefault("upsample", "transpose")
     d.pop("data_dir", None)
     return TrainConfig(
         model=LSDConfig(**model),

@@ -64,8 +64,10 @@ class LSDConfig:
         the 6-building model on 16 first steps of held-out tasks: outside share of the samples
         0.000-0.58, 0.000-0.007 in 4 of them. With R = 8 the outside keeps about a quarter of
         the samples even when the network is fully confident (see the LSD model card).
-    upsample: 'transpose' (2 x 2 transposed convolutions, stride 2: the networks trained so far)
-        or 'resize' (nearest-neighbour doubling, then a 3 x 3 convolution). The transposed
+    upsample: 'resize' (the default and the shipped model's: nearest-neighbour doubling, then a
+        3 x 3 convolution) or 'transpose' (2 x 2 transposed convolutions, stride 2: the networks
+        trained before the shipped one; saved configs without this field load as 'transpose',
+        :func:`jaxsem.lsd.load_model`). The transposed
         convolutions are where the stripes of the distribution images come from: each output
         cell takes one of four kernel weights by its position parity, so every upsampling stage
         stamps a period-2 pattern and the context branch, four stages from the 10 x 10 latent
@@ -82,7 +84,7 @@ class LSDConfig:
     skip: bool = True
     dropout_rate: float = 0.1
     log_range: float | None = None
-    upsample: str = "transpose"
+    upsample: str = "resize"
 
     def __post_init__(self):
         feats = tuple(int(f) for f in self.features)
