@@ -12,7 +12,7 @@ samples per model.
 
     jaxsem lsd data --out runs/stripes_data --family test --buildings 4 --first-seed 600 \\
         --samples-per-building 24 --workers 1 --no-figure
-    python benchmarks/lsd_stripes.py --data runs/stripes_data --models shipped runs/lsd240r_model.npz
+    python benchmarks/lsd_stripes.py --data runs/stripes_data --models train/checkpoints/lsd_scale shipped
 """
 
 from __future__ import annotations
