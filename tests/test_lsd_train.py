@@ -218,15 +218,14 @@ def test_new_networks_resize_and_old_configs_load_as_transposed(tmp_path):
     import json
 
     from jaxsem.lsd import PRETRAINED_CPU, load_model
-    from jaxsem.lsd._train import config_from_dict
 
     assert LSDConfig().upsample == "resize" and TrainConfig().model.upsample == "resize"
     with np.load(PRETRAINED_CPU) as z:
         saved = json.loads(str(z["config_json"]))
     assert "upsample" not in saved["model"]
-    assert config_from_dict(saved).model.upsample == "transpose"
-    model, params, _ = load_model(PRETRAINED_CPU)
-    assert params["dec_0"]["kernel"].shape[:2] == (2, 2) and model.config.upsample == "transpose"
+    model, params, cfg = load_model(PRETRAINED_CPU)
+    assert cfg.model.upsample == "transpose" and model.config.upsample == "transpose"
+    assert params["dec_0"]["kernel"].shape[:2] == (2, 2)
 
 
 def test_shipped_model_distribution_has_no_upsampling_stripes():
