@@ -34,9 +34,11 @@ from ._expert import (
     ExpertConfig as ExpertConfig,
     Task as Task,
     __doc__ as EXPERT_SCHEMA,  # noqa: F401  (re-exported: the shard schema)
+    full_map_state as full_map_state,
     generate_expert_samples as generate_expert_samples,
     load_expert_dataset as load_expert_dataset,
     sample_tasks as sample_tasks,
+    with_full_map as with_full_map,
     write_expert_dataset as write_expert_dataset,
 )
 from ._grid import (

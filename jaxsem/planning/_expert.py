@@ -48,12 +48,13 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import scipy.ndimage
 
 from ._buildings import Building, generate_building
-from ._grid import DEFAULT_RESOLUTION
-from ._navigate import CROP_SIZE, NavConfig, Trial, local_inputs
+from ._grid import DEFAULT_RESOLUTION, FREE, NONE, OBJECT_CLASSES, OCCUPIED, MapState
+from ._navigate import CROP_SIZE, NavConfig, Trial, _local_inputs, local_inputs
 from ._shortest_path import SoftCostGraph
 
 SCHEMA_VERSION = 1
@@ -246,6 +247,59 @@ def generate_expert_samples(
         "resolution": np.float32(building.resolution),
     }
 
+
+
+def full_map_state(building: Building) -> MapState:
+    """The partial-map encoding of a building seen completely: what a fully informed robot knows.
+
+    occupancy OCCUPIED / FREE everywhere (no UNKNOWN), semantic the building's object classes
+    (door, window, exit sign; walls are NONE there, as the sensors write them). The input of the
+    *oracle* LSD network (:func:`with_full_map`), a diagnostic of how much the partial map costs.
+    """
+    occ = np.where(np.asarray(building.occupancy, bool), OCCUPIED, FREE).astype(np.int8)
+    sem = np.asarray(building.semantic, np.int8)
+    sem = np.where(np.isin(sem, OBJECT_CLASSES), sem, NONE).astype(np.int8)
+    return MapState(jnp.asarray(occ), jnp.asarray(sem))
+
+
+def with_full_map(shard: dict, building: Building | None = None) -> dict:
+    """A copy of one expert shard (:func:`generate_expert_samples`' dict, or an ``np.load`` of a
+    shard file) whose ``occupancy`` / ``semantic`` crops are cut from the *true* map of its
+    building at each sample's ``robot_xy``; every other key is unchanged (same goals, paths and
+    context). The training data of the fully supervised oracle. ``building``: the shard's
+    building, default regenerated from its ``family`` and ``building_seed``. ``ValueError`` for a
+    shard without those keys or whose building does not match."""
+    missing = [k for k in ("occupancy", "semantic", "robot_xy", "building_seed", "family") if k not in shard]
+    if missing:
+        raise ValueError(f"shard: missing keys {missing}; expected an expert shard (see EXPERT_SCHEMA)")
+    seed, family = int(np.asarray(shard["building_seed"])), str(np.asarray(shard["family"]))
+    if building is None:
+        res = float(np.asarray(shard.get("resolution", DEFAULT_RESOLUTION)))
+        building = generate_building(seed, family, res)
+    elif (building.seed, building.family) != (seed, family):
+        raise ValueError(
+            f"building: expected the shard's building ({family!r}, {seed}), got ({building.family!r}, {building.seed})"
+        )
+    state = full_map_state(building)
+    xy = jnp.asarray(np.asarray(shard["robot_xy"], np.float64).reshape(-1, 2))
+    size = int(np.asarray(shard["occupancy"]).shape[-1])
+    crops = jax.vmap(
+        lambda p: _local_inputs(
+            state.occupancy,
+            state.semantic,
+            p,
+            p,
+            jnp.asarray(False),
+            jnp.asarray(building.origin, xy.dtype),
+            float(building.resolution),
+            size,
+            20.0,
+        )
+    )(xy)
+    out = {k: np.asarray(v) for k, v in shard.items()}
+    out["occupancy"] = np.asarray(crops.occupancy, np.int8).reshape(np.shape(shard["occupancy"]))
+    out["semantic"] = np.asarray(crops.semantic, np.int8).reshape(np.shape(shard["semantic"]))
+    return out
 
 #: buildings a worker process generates before it is replaced by a fresh one
 WORKER_TASKS = 16
