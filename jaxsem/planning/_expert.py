@@ -42,7 +42,6 @@ import math
 import multiprocessing
 import os
 import pathlib
-import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
@@ -248,7 +247,6 @@ def generate_expert_samples(
     }
 
 
-
 def full_map_state(building: Building) -> MapState:
     """The partial-map encoding of a building seen completely: what a fully informed robot knows.
 
@@ -301,6 +299,7 @@ def with_full_map(shard: dict, building: Building | None = None) -> dict:
     out["semantic"] = np.asarray(crops.semantic, np.int8).reshape(np.shape(shard["semantic"]))
     return out
 
+
 #: buildings a worker process generates before it is replaced by a fresh one
 WORKER_TASKS = 16
 
@@ -331,12 +330,16 @@ def write_expert_dataset(
     resolution: float = DEFAULT_RESOLUTION,
     progress: bool = True,
     job_fn=None,
+    worker_tasks: int = WORKER_TASKS,
 ):
     """Generates one shard per building seed into ``out_dir`` (``expert_<family>_<seed>.npz``),
     in parallel over buildings (``workers`` processes, spawned), with a tqdm bar; also writes
     ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths.
     ``ChildProcessError`` (naming the unfinished seeds) when a worker process dies; the shards
-    already written stay. ``job_fn``: the per-building job (tests), default the shard writer."""
+    already written stay. ``job_fn``: the per-building job (tests), default the shard writer.
+    ``worker_tasks``: buildings a worker process generates before a fresh one replaces it."""
+    if not (isinstance(worker_tasks, int) and worker_tasks >= 1):
+        raise ValueError(f"worker_tasks: expected an int >= 1, got {worker_tasks!r}")
     job_fn = _shard_job if job_fn is None else job_fn
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -377,32 +380,30 @@ def write_expert_dataset(
         cache = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
         # An executor, not multiprocessing.Pool: a worker that dies (killed, or aborted inside
         # XLA) hung Pool.imap forever with its building lost (240 buildings, 2 missing, no error);
-        # here it raises BrokenProcessPool. Workers are also replaced every WORKER_TASKS
-        # buildings, so one process does not pile up compiled programs and memory over hundreds.
-        # max_tasks_per_child exists from Python 3.11 (3.10 keeps its workers for the whole run)
-        _recycle = {"max_tasks_per_child": WORKER_TASKS} if sys.version_info >= (3, 11) else {}
-        with ProcessPoolExecutor(
-            workers,
-            mp_context=ctx,
-            initializer=_init_worker,
-            initargs=(cache,),
-            **_recycle,
-        ) as pool:
-            futures = {pool.submit(job_fn, job): job[1] for job in jobs}
-            try:
-                for fut in as_completed(futures):
-                    done.append(fut.result()[0])
+        # here it raises BrokenProcessPool. Workers are replaced every WORKER_TASKS buildings, so
+        # one process does not pile up compiled programs and memory over hundreds: by a fresh
+        # executor per batch, not max_tasks_per_child, which on Python 3.11 hung for good once
+        # every worker had retired (32 of 240 buildings written, no live worker, no error).
+        batch = workers * worker_tasks
+        for b0 in range(0, len(jobs), batch):
+            part = jobs[b0 : b0 + batch]
+            with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cache,)) as pool:
+                futures = {pool.submit(job_fn, job): job[1] for job in part}
+                try:
+                    for fut in as_completed(futures):
+                        done.append(fut.result()[0])
+                        if bar:
+                            bar.update(1)
+                except BrokenProcessPool as exc:
                     if bar:
-                        bar.update(1)
-            except BrokenProcessPool as exc:
-                if bar:
-                    bar.close()
-                lost = sorted(seed for f, seed in futures.items() if not f.done() or f.exception() is not None)
-                raise ChildProcessError(
-                    f"workers: a worker process died (killed or crashed) with building seeds {lost[:8]}"
-                    f"{' ...' if len(lost) > 8 else ''} unfinished; the {len(done)} shards written in "
-                    f"{str(out)!r} are kept: rerun the same command to resume"
-                ) from exc
+                        bar.close()
+                    lost = sorted(seed for f, seed in futures.items() if not f.done() or f.exception() is not None)
+                    lost += [job[1] for job in jobs[b0 + batch :]]
+                    raise ChildProcessError(
+                        f"workers: a worker process died (killed or crashed) with building seeds {lost[:8]}"
+                        f"{' ...' if len(lost) > 8 else ''} unfinished; the {len(done)} shards written in "
+                        f"{str(out)!r} are kept: rerun the same command to resume"
+                    ) from exc
     if bar:
         bar.close()
     return sorted(done)
