@@ -10,7 +10,9 @@ planners on the same tasks: 'mix10' (10 % uniform mixed into the window), 'eucli
 Euclidean edge weights), 'nogrow' (both planners with the thesis' end-of-trial on the first failed
 roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavConfig.growth),
 'outmass' (LSD with a calibrated mass outside the window, NavConfig.outside_mass); 'nogrow'
-with 'outmass' adds the two together.
+with 'outmass' adds the two together; 'thesis' (both planners under the thesis' protocol of
+section 3.3.3 as written: a fresh roadmap of N samples at every replan, the uniform one too, and
+the first roadmap without a path ends the trial: NavConfig.reuse_roadmap=False, max_growth=0).
 --only-ablations runs just the ablation planners (merge with a run of the same tasks:
 --merge A.json B.json joins records of the same task planner-wise). --devices N|all deals the
 trials over devices (jaxsem.lsd.run_trials(mesh=...)). Writes <out>/<name>.{json,md,png}.
@@ -30,7 +32,7 @@ import sys
 import time
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-ABLATIONS = ("mix10", "euclid", "nogrow", "growuni", "outmass")
+ABLATIONS = ("mix10", "euclid", "nogrow", "growuni", "outmass", "thesis")
 # 'outmass': the cells outside the LSD window share a calibrated mass instead of the window's
 # minimum: the mean share of the expert's optimal path that lies outside the 16 m window, on
 # train-family buildings 0-19 (benchmarks/lsd_outside_share.py, 2472 samples): 0.511 for an
@@ -345,6 +347,9 @@ def _run(args, argv) -> int:
         variants["lsd_nogrow"] = (sampler, {"max_growth": 0})
         if "outmass" in args.ablations:  # both variants at once: the calibrated fill, thesis' end-of-trial
             variants["lsd_outmass_nogrow"] = (sampler, {"outside_mass": OUTSIDE_MASS, "max_growth": 0})
+    if "thesis" in args.ablations:  # LSD never reuses a roadmap: its thesis row is nogrow
+        variants["uniform_thesis"] = (None, {"max_growth": 0, "reuse_roadmap": False})
+        variants["lsd_thesis"] = (sampler, {"max_growth": 0})
     buildings = building_family(args.family, args.test_buildings, start=args.test_start)
     records = run_trials(
         buildings,

@@ -81,6 +81,16 @@ def test_navigate_reaches_goal_through_the_door():
     assert res.searches >= 2 and res.plans == 1
 
 
+def test_without_reuse_the_uniform_planner_samples_a_fresh_roadmap_at_every_replan():
+    # The thesis' protocol as written (3.3.3): every planning timestep draws its own roadmap.
+    w = _two_rooms()
+    start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
+    fresh = dataclasses.replace(CFG, reuse_roadmap=False)
+    res = navigate(w, start, goal, jax.random.PRNGKey(0), fresh, yaw0=0.0)
+    assert res.success, res.reason
+    assert res.searches >= 2 and res.plans == res.searches - res.grown
+
+
 def test_failed_roadmap_is_grown_not_the_end():
     w = _two_rooms()
     start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
