@@ -122,3 +122,23 @@ def test_success_figure_names_the_trial_counts_of_every_n(tmp_path, monkeypatch)
     plot_success(summary, tmp_path / "s.png")
     assert (tmp_path / "s.png").stat().st_size > 0
     assert titles == ["II: 30-100 trials per N"]
+
+
+def test_a_variant_both_planners_ran_is_paired_like_the_defaults():
+    def rec(sl, su, cl=12.0, cb=15.0):
+        r = _rec("II", 500, 10.0, 11.0, 11.0)
+        r["lsd_thesis"] = {"success": sl, "cost": cl}
+        r["uniform_thesis"] = {"success": su, "cost": cb}
+        return r
+
+    s = summarise([rec(True, True), rec(True, False), rec(True, False), rec(False, True), rec(False, False)])
+    pv = s["II-500"]["paired_thesis"]
+    assert (pv["lsd_only"], pv["uniform_only"], pv["mutual"]) == (2, 1, 1)
+    assert pv["cl_over_cstar"][0] == pytest.approx(1.2) and pv["cb_over_cstar"][0] == pytest.approx(1.5)
+    assert s["II-500"]["success_lsd_thesis"] == pytest.approx(0.6)
+    assert s["II-500"]["success_uniform_thesis"] == pytest.approx(0.4)
+    assert "| II | 500 | thesis | 40 +- 22 % | 60 +- 22 % | 2 / 1 | 1 |" in format_table(s)
+    # A planner without a partner is not paired.
+    for r in (recs := [rec(True, True)]):
+        del r["uniform_thesis"]
+    assert not any(k.startswith("paired_") for k in summarise(recs)["II-500"])

@@ -260,6 +260,27 @@ def summarise(records: list) -> dict:
                 row[f"c_{name}_over_cstar_vs_uniform"] = (
                     mean_sem(cx / csx) if mut.any() else (float("nan"), float("nan"))
                 )
+        # A variant run by both planners ('lsd_X' and 'uniform_X', e.g. the thesis' protocol) is
+        # compared pairwise like the defaults: X-only successes and costs on mutual successes.
+        for name in rs[0]:
+            other = "uniform_" + name[len("lsd_") :]
+            if name.startswith("lsd_") and isinstance(rs[0][name], dict) and isinstance(rs[0].get(other), dict):
+                xl = np.array([r[name]["success"] for r in rs])
+                xu = np.array([r[other]["success"] for r in rs])
+                mut = xl & xu
+                csx = np.array([r["c_star"] for r in rs])[mut]
+                nan2 = (float("nan"), float("nan"))
+                row[f"paired_{name[len('lsd_') :]}"] = {
+                    "lsd_only": int((xl & ~xu).sum()),
+                    "uniform_only": int((xu & ~xl).sum()),
+                    "mutual": int(mut.sum()),
+                    "cl_over_cstar": mean_sem(np.array([r[name]["cost"] for r in rs])[mut] / csx)
+                    if mut.any()
+                    else nan2,
+                    "cb_over_cstar": mean_sem(np.array([r[other]["cost"] for r in rs])[mut] / csx)
+                    if mut.any()
+                    else nan2,
+                }
         out[f"{kind}-{n}"] = row
     return out
 
@@ -310,6 +331,25 @@ def format_table(summary: dict) -> str:
                 lines.append(
                     f"| {v['set']} | {v['n']} | {name} | {100 * v[f'success_{name}']:.0f} +- "
                     f"{100 * v[f'success_{name}_sem']:.0f} % | {_pm(c)} |"
+                )
+    pairs = sorted({k[len("paired_") :] for v in summary.values() for k in v if k.startswith("paired_")})
+    if pairs:
+        lines += [
+            "",
+            "| set | N | variant (both planners) | success Unf | success LSD | LSD-only / Unf-only | mutual "
+            "| C_l/C* | C_b/C* |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for v in summary.values():
+            for x in pairs:
+                if f"paired_{x}" not in v:
+                    continue
+                pv = v[f"paired_{x}"]
+                lines.append(
+                    f"| {v['set']} | {v['n']} | {x} | {100 * v[f'success_uniform_{x}']:.0f} +- "
+                    f"{100 * v[f'success_uniform_{x}_sem']:.0f} % | {100 * v[f'success_lsd_{x}']:.0f} +- "
+                    f"{100 * v[f'success_lsd_{x}_sem']:.0f} % | {pv['lsd_only']} / {pv['uniform_only']} | "
+                    f"{pv['mutual']} | {_pm(pv['cl_over_cstar'])} | {_pm(pv['cb_over_cstar'])} |"
                 )
     return "\n".join(lines)
 
