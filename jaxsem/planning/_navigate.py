@@ -15,7 +15,11 @@ sampler's window moves with the robot, so each replan samples a new roadmap from
 distribution (thesis 3.2.5). When a roadmap has no path, it is grown by ``n_samples`` more
 samples from the current distribution, up to ``max_growth`` times; a trial fails with
 'no_plan' only when the largest roadmap still has none (``max_growth=0`` is the thesis' rule:
-the first failed roadmap ends the trial). ``NavResult.grown`` counts the growths.
+the first failed roadmap ends the trial). ``NavResult.grown`` counts the growths. Reuse and
+growth are this library's defaults, not the thesis': its protocol as written (3.3.3) draws a
+fresh roadmap at every replan for both planners and ends a trial at the first roadmap without a
+path, ``NavConfig(reuse_roadmap=False, max_growth=0)`` (``benchmarks/lsd_table31.py --ablations
+thesis`` runs both planners so, beside the defaults).
 
 Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM + Unf). Otherwise
 ``sampler(inputs: LocalInputs) -> (160, 160)`` probabilities over the robot-centred window
