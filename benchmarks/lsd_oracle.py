@@ -13,7 +13,7 @@ Three steps (the second is the ordinary training command, twice, with the ``pair
     jaxsem lsd train --data runs/exp240 --workdir runs/pair_partial --config pair
     jaxsem lsd train --data runs/exp240_full --workdir runs/pair_full --config pair
     python benchmarks/lsd_oracle.py report --partial runs/pair_partial --oracle runs/pair_full \\
-        --data runs/exp240 --full-data runs/exp240_full --name lsd_oracle
+        --data runs/exp240 --full-data runs/exp240_full --name lsd_oracle [--reference ""]
 
 ``report`` writes ``<out>/<name>.{md,json,png}``: the validation NLL curves of both runs and, for
 the final models on the validation buildings, the NLL per expert-path cell, the probability mass
@@ -59,8 +59,9 @@ def convert(data_dir: pathlib.Path, out_dir: pathlib.Path, progress: bool = True
     return len(shards)
 
 
-def _val_metrics(workdir, data_dir, batch: int = 32) -> dict:
-    """NLL per path cell and path mass of a run's final model on its validation buildings."""
+def _val_metrics(workdir, data_dir, batch: int = 32, model_from=None) -> dict:
+    """NLL per path cell and path mass of a run's final model on its validation buildings
+    (``model_from``: another model to score on that run's validation samples; "" the shipped one)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -68,6 +69,8 @@ def _val_metrics(workdir, data_dir, batch: int = 32) -> dict:
     from jaxsem.lsd import load_expert_data, load_model, split_by_building
 
     model, params, cfg = load_model(str(workdir))
+    if model_from is not None:  # the split stays the run's, so the samples are the same
+        model, params, _ = load_model(model_from or None)
     data = load_expert_data(data_dir)
     _, val = split_by_building(data, cfg.val_fraction, cfg.seed, cfg.val_every_nth_building)
 
@@ -124,6 +127,10 @@ def report(args) -> int:
         "partial map (LSD)": _val_metrics(args.partial, args.data),
         "full map (oracle)": _val_metrics(args.oracle, args.full_data),
     }
+    if args.reference is not None:
+        name = f"reference: {args.reference or 'the shipped model'}, partial map"
+        final[name] = _val_metrics(args.partial, args.data, model_from=args.reference)
+        final[name].pop("per_sample_nll")
     a = final["partial map (LSD)"].pop("per_sample_nll")
     b = final["full map (oracle)"].pop("per_sample_nll")
     if len(a) != len(b):
@@ -202,6 +209,11 @@ def main(argv=None) -> int:
     r.add_argument("--oracle", required=True, help="workdir of the full-map run")
     r.add_argument("--data", required=True, help="the partial-map shards")
     r.add_argument("--full-data", required=True, help="the full-map shards")
+    r.add_argument(
+        "--reference",
+        default=None,
+        help="also score this model ('' the shipped one; a workdir or .npz) on the partial run's validation samples",
+    )
     r.add_argument("--out", default=str(RESULTS))
     r.add_argument("--name", default="lsd_oracle")
     args = ap.parse_args(argv)
