@@ -142,3 +142,20 @@ def test_a_variant_both_planners_ran_is_paired_like_the_defaults():
     for r in (recs := [rec(True, True)]):
         del r["uniform_thesis"]
     assert not any(k.startswith("paired_") for k in summarise(recs)["II-500"])
+
+
+def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path):
+    spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    args = ["--checkpoint", str(PRETRAINED_CPU), "--out", str(tmp_path), "--test-buildings", "1", "--trials", "1"]
+    args += ["--n", "100", "--sets", "II", "--max-steps", "60", "--no-progress", "--ablations", "thesis"]
+    assert mod.main([*args, "--name", "th"]) == 0
+    out = json.loads((tmp_path / "th.json").read_text())
+    (r,) = out["records"]
+    for name in ("uniform_thesis", "lsd_thesis"):
+        assert r[name]["grown"] == 0 and r[name]["reason"] in ("goal", "no_plan", "max_steps")
+    # Reuse would keep one uniform roadmap over the 60 steps (replanning every 20 at most).
+    assert r["uniform_thesis"]["plans"] >= min(3, r["uniform_thesis"]["steps"] // 20 + 1)
+    assert "paired_thesis" in out["summary"]["II-100"]
+    assert "| II | 100 | thesis |" in (tmp_path / "th.md").read_text()
