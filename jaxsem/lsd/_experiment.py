@@ -356,7 +356,8 @@ def format_table(summary: dict) -> str:
 
 def plot_success(summary: dict, path) -> None:
     """Success rate against N for both planners and each set (figure 3-8), with binomial
-    standard errors as error bars, saved as PNG."""
+    standard errors as error bars, saved as PNG; a variant both planners ran (``paired_X`` in
+    the summary, e.g. the thesis' protocol) gets its own pair of dotted lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -385,6 +386,20 @@ def plot_success(summary: dict, path) -> None:
             capsize=3,
             label="PRM + Unf",
         )
+        # Each variant both planners ran (paired_X): its own pair of lines, hollow markers.
+        pairs = sorted({k[len("paired_") :] for v in rows for k in v if k.startswith("paired_")})
+        for x, (cl, cu) in zip(pairs, [("tab:orange", "tab:gray"), ("tab:purple", "tab:olive")] * 4):
+            for who, fmt, color, label in (("lsd", "o:", cl, "PRM + LSD"), ("uniform", "s:", cu, "PRM + Unf")):
+                ax.errorbar(
+                    ns,
+                    [100 * v.get(f"success_{who}_{x}", float("nan")) for v in rows],
+                    yerr=[100 * v.get(f"success_{who}_{x}_sem", 0.0) for v in rows],
+                    fmt=fmt,
+                    color=color,
+                    mfc="none",
+                    capsize=3,
+                    label=f"{label}, {x}",
+                )
         if len(set(ns)) > 1:
             ax.set_xscale("log")
         ax.set_ylim(-5, 105)
@@ -393,7 +408,7 @@ def plot_success(summary: dict, path) -> None:
         counts = sorted({v["trials"] for v in rows}) or [0]
         per_n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
         ax.set_title(f"{kind}: {per_n} trials per N")
-        ax.legend()
+        ax.legend(fontsize=7 if pairs else None)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
