@@ -155,7 +155,8 @@ def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path):
     (r,) = out["records"]
     for name in ("uniform_thesis", "lsd_thesis"):
         assert r[name]["grown"] == 0 and r[name]["reason"] in ("goal", "no_plan", "max_steps")
-    # Reuse would keep one uniform roadmap over the 60 steps (replanning every 20 at most).
-    assert r["uniform_thesis"]["plans"] >= min(3, r["uniform_thesis"]["steps"] // 20 + 1)
+    # Replans at steps 0, 20 and 40 at least; reuse (without growth) draws at most two roadmaps:
+    # the kept one and one fresh one when it fails.
+    assert r["uniform_thesis"]["steps"] >= 40 and r["uniform_thesis"]["plans"] >= 3
     assert "paired_thesis" in out["summary"]["II-100"]
     assert "| II | 100 | thesis |" in (tmp_path / "th.md").read_text()
