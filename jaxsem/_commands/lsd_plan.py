@@ -198,6 +198,8 @@ def main(argv=None, prog: str | None = None) -> int:
 
 
 def _run(args) -> int:
+    if pathlib.Path(args.out).is_dir():  # savefig would write "<dir>.png" beside it, not into it
+        raise ValueError(f"--out: {args.out} is a folder; give the figure's file path, e.g. {args.out}/plan.png")
     try:  # the figure's folder, made before the long work (a bad --out fails now, not after the trials)
         pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

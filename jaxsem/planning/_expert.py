@@ -42,6 +42,7 @@ import math
 import multiprocessing
 import os
 import pathlib
+import zipfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import NamedTuple
@@ -422,25 +423,46 @@ def load_expert_dataset(paths) -> dict:
     parts = {k: [] for k in SCHEMA_KEYS}
     base = 0
     for p in paths:
-        with np.load(p) as z:
-            S = len(z["context"])
-            for k in (
-                "occupancy",
-                "semantic",
-                "context",
-                "path_mask",
-                "path_cells",
-                "robot_xy",
-                "goal_xy",
-                "goal_outdoors",
-                "path_cost",
-            ):
-                parts[k].append(z[k])
-            parts["path_offsets"].append(z["path_offsets"][:-1] + base)
-            base += int(z["path_offsets"][-1])
-            parts["building_seed"].append(np.full(S, int(z["building_seed"])))
-            parts["family"].append(np.full(S, str(z["family"])))
-            parts["resolution"].append(np.full(S, float(z["resolution"]), np.float32))
+        shard = _read_shard(p)
+        S = len(shard["context"])
+        for k in _SHARD_ARRAYS:
+            parts[k].append(shard[k])
+        parts["path_offsets"].append(shard["path_offsets"][:-1] + base)
+        base += int(shard["path_offsets"][-1])
+        parts["building_seed"].append(np.full(S, int(shard["building_seed"])))
+        parts["family"].append(np.full(S, str(shard["family"])))
+        parts["resolution"].append(np.full(S, float(shard["resolution"]), np.float32))
     out = {k: np.concatenate(v) for k, v in parts.items()}
     out["path_offsets"] = np.append(out["path_offsets"], base)
     return out
+
+
+_SHARD_ARRAYS = (
+    "occupancy",
+    "semantic",
+    "context",
+    "path_mask",
+    "path_cells",
+    "robot_xy",
+    "goal_xy",
+    "goal_outdoors",
+    "path_cost",
+)
+
+
+def _read_shard(p: pathlib.Path) -> dict:
+    """One shard's arrays, read whole; a damaged or foreign file is a ``ValueError`` naming it
+    (``np.load`` alone says "pickled (object) data" or "bad zip" and names no file)."""
+    keys = (*_SHARD_ARRAYS, "path_offsets", "building_seed", "family", "resolution")
+    try:
+        with np.load(p) as z:
+            missing = [k for k in keys if k not in z.files]
+            if missing:
+                raise ValueError(f"{p}: not an expert shard (missing {', '.join(missing)})")
+            return {k: z[k] for k in keys}
+    except ValueError as exc:
+        if str(exc).startswith(f"{p}:"):
+            raise
+        raise ValueError(f"{p}: not a readable expert shard ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{p}: not a readable expert shard ({type(exc).__name__}: {exc})") from None
