@@ -1,0 +1,24 @@
+"""The scripts in ``examples/`` run as a user runs them, and reach their known answers."""
+
+import importlib.util
+import pathlib
+
+import pytest
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_fit_ellipsoid_to_boxes_recovers_the_truth():
+    result = _load("fit_ellipsoid_to_boxes").main()
+    assert result["last_loss"] < 1e-3 * result["first_loss"]
+    assert result["box_rms_px"] < 0.5
+    assert result["center_m"] < 0.01
+    assert result["volume_ratio"] == pytest.approx(1.0, abs=0.02)
