@@ -17,6 +17,8 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
   :func:`roadmap_shortest_path` (scipy, host), :func:`embed_local_distribution` (section 3.2.5).
 - Online loop: :func:`navigate` / :class:`Trial` with ``sampler=None`` (uniform) or a function
   of :class:`LocalInputs` (160 x 160 crops + context) returning a 160 x 160 distribution.
+- Real maps: :func:`load_map` (ROS map_server YAML + image, MRPT ``.gridmap(.gz)``, a plain
+  image) into a :class:`Building`; :func:`load_occupancy` for the raw three-state grid.
 - Data: :func:`generate_expert_samples`, :func:`write_expert_dataset`,
   :func:`load_expert_dataset` (schema: ``EXPERT_SCHEMA``), :func:`sample_tasks` ('II' / 'IO').
 """
@@ -57,6 +59,12 @@ from ._grid import (
     cell_to_world as cell_to_world,
     empty_map_state as empty_map_state,
     world_to_cell as world_to_cell,
+)
+from ._maps import (
+    OccupancyGrid as OccupancyGrid,
+    grid_to_building as grid_to_building,
+    load_map as load_map,
+    load_occupancy as load_occupancy,
 )
 from ._navigate import (
     CONTEXT_SIZE as CONTEXT_SIZE,
