@@ -22,3 +22,11 @@ def test_fit_ellipsoid_to_boxes_recovers_the_truth():
     assert result["box_rms_px"] < 0.5
     assert result["center_m"] < 0.01
     assert result["volume_ratio"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_lsd_on_my_grid_goes_through_the_door():
+    result = _load("lsd_on_my_grid").main()
+    assert result["success"] and result["reason"] == "goal"
+    # Through the door at (8, 8.5): at least the two legs' length, and not a long detour.
+    legs = ((8 - 3) ** 2 + (8.5 - 3) ** 2) ** 0.5 + ((13 - 8) ** 2 + (8.5 - 7) ** 2) ** 0.5
+    assert legs - 0.3 <= result["travelled_m"] <= 1.5 * legs
