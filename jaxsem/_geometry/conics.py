@@ -303,7 +303,7 @@ def _matvec2(m, v):
     return jnp.sum(m * v[..., None, :], axis=-1)
 
 
-def camera_frame(rotation, center, camera_T_world, *, with_valid: bool = False):
+def camera_frame(rotation, center, camera_T_world, *, with_valid: bool = False) -> Any:  # a tuple with with_valid=True
     """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame.
 
     Concrete arguments are checked like the other functions' (``ValueError`` naming the

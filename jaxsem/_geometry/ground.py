@@ -56,7 +56,7 @@ def ground_bounds(rotation, center, radii):
 
 def rasterize_footprint(
     rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None, *, with_valid: bool = False
-):
+) -> Any:  # (grid, valid) with with_valid=True
     """Rasterises ellipsoid footprints (top-down, along z) into a class-id grid.
 
     A cell ``[row, col]`` has its centre at world ``(origin[0] + (col + 0.5) * resolution,

@@ -75,7 +75,9 @@ def invert_pose(T, *, xp: Any = jnp):
     return xp.concatenate([top, bottom[..., None, :]], -2)
 
 
-def project_points(points, K, camera_T_world, *, with_valid: bool = False, xp: Any = jnp):
+def project_points(
+    points, K, camera_T_world, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """Pinhole projection of world points: ``uv = (K p_cam)[:2] / z``, with ``p_cam = camera_T_world p``.
 
     Args:
@@ -97,6 +99,7 @@ def project_points(points, K, camera_T_world, *, with_valid: bool = False, xp: A
     _batch_shape(points=points.shape[:-1], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
     dtype = xp.result_type(points.dtype, K.dtype, pose.dtype)
     points, K, pose = points.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    ok = None
     if with_valid:
         ok = _finite(points, 1, xp) & _intrinsics_ok(K, xp) & _pose_ok(pose, xp)
         points, K, pose = (_finite_or_zero(x, xp) for x in (points, K, pose))
@@ -105,7 +108,7 @@ def project_points(points, K, camera_T_world, *, with_valid: bool = False, xp: A
     z = p[..., 2]
     z_safe = xp.where(xp.abs(z) > _eps(dtype), z, _eps(dtype))
     uv = pix[..., :2] / z_safe[..., None]
-    if with_valid:
+    if ok is not None:
         return uv, z, ok & (z > _eps(dtype))
     return uv, z
 

@@ -72,7 +72,9 @@ def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
     )
 
 
-def rotation_to_quaternion_wxyz(rotation, *, with_valid: bool = False, xp: Any = jnp):
+def rotation_to_quaternion_wxyz(
+    rotation, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` (scalar first) with ``w >= 0``.
 
     Shepperd's method: of the four algebraically equal formulas the one with the largest
@@ -154,7 +156,9 @@ def random_rotation(key, shape: tuple = (), dtype=None):
     return _quaternion_wxyz_to_rotation(q)
 
 
-def look_at(eye, target, up=(0.0, 0.0, 1.0), *, with_valid: bool = False, xp: Any = jnp):
+def look_at(
+    eye, target, up=(0.0, 0.0, 1.0), *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """``camera_T_world`` (..., 4, 4) of an OpenCV camera at ``eye`` looking at ``target``.
 
     The camera's z axis points at the target, its y axis down (against ``up``). When the view
@@ -211,7 +215,9 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0), *, with_valid: bool = False, xp: An
     return (pose, xp.broadcast_to(valid, batch)) if with_valid else pose
 
 
-def rotation_to_quaternion_xyzw(rotation, *, with_valid: bool = False, xp: Any = jnp):
+def rotation_to_quaternion_xyzw(
+    rotation, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``.
     Same checks and ``with_valid`` as :func:`rotation_to_quaternion_wxyz`."""
     xp = _namespace(xp)
