@@ -15,7 +15,20 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-__all__ = ["as_float_array", "batch_shape", "check_positive", "check_rotation", "is_concrete"]
+__all__ = [
+    "ROTATION_TOL",
+    "as_float_array",
+    "batch_shape",
+    "check_positive",
+    "check_rigid",
+    "check_rotation",
+    "is_concrete",
+]
+
+#: Tolerance of the rotation checks: ``|R^T R - I| <= ROTATION_TOL`` entrywise (and det R > 0).
+#: Under ``jit`` the geometry core's masks use the same tolerance (widened for dtypes coarser than
+#: float32), so an input accepted eagerly is also valid when traced.
+ROTATION_TOL = 1e-3
 
 
 def is_concrete(x) -> bool:
@@ -63,7 +76,8 @@ def batch_shape(**named: tuple) -> tuple:
 
 
 def check_rotation(name: str, rotation) -> None:
-    """Concrete ``rotation`` (..., 3, 3) must be a proper rotation: ``R^T R = I`` to 1e-3, det > 0."""
+    """Concrete ``rotation`` (..., 3, 3) must be a proper rotation: ``R^T R = I`` to
+    :data:`ROTATION_TOL`, det > 0."""
     if not is_concrete(rotation):
         return
     R = np.asarray(rotation, np.float64)
@@ -71,7 +85,7 @@ def check_rotation(name: str, rotation) -> None:
         return
     err = np.abs(np.einsum("...ji,...jk->...ik", R, R) - np.eye(3)).max(axis=(-2, -1))
     det = np.linalg.det(R)
-    bad = (err > 1e-3) | (det <= 0)
+    bad = ~((err <= ROTATION_TOL) & (det > 0))  # NaN counts as bad
     if np.any(bad):
         i = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
         raise ValueError(
@@ -79,6 +93,21 @@ def check_rotation(name: str, rotation) -> None:
             f"|R^T R - I| = {float(np.asarray(err)[i]):.3g} and det = {float(np.asarray(det)[i]):.3g}"
             + (f" at batch index {tuple(int(k) for k in i)}" if i else "")
         )
+
+
+def check_rigid(name: str, transform) -> None:
+    """Concrete ``transform`` (..., 4, 4) must be rigid: a proper rotation block (see
+    :func:`check_rotation`) and the last row ``[0, 0, 0, 1]`` (to :data:`ROTATION_TOL`)."""
+    if not is_concrete(transform):
+        return
+    check_rotation(name, transform[..., :3, :3])
+    T = np.asarray(transform, np.float64)
+    if T.size == 0:
+        return
+    gap = np.abs(T[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
+    if not bool(np.all(gap <= ROTATION_TOL)):
+        row = T.reshape(-1, 4, 4)[int(np.argmax(~(gap.reshape(-1) <= ROTATION_TOL))), 3]
+        raise ValueError(f"{name}: expected a rigid transform with last row [0, 0, 0, 1], got {row.tolist()}")
 
 
 def check_positive(name: str, x) -> None:

@@ -15,9 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checks import (
+    ROTATION_TOL as _ROTATION_TOL,
     as_float_array as _as_float_array,
     batch_shape as _batch_shape,
     check_positive as _check_positive,
+    check_rigid as _check_rigid,
     check_rotation as _check_rotation,
     is_concrete as _is_concrete,
 )
@@ -62,7 +64,7 @@ def _camera_args(K, camera_T_world, *, need_K=True, xp: Any = jnp):
                 )
         out.append(K)
     pose = _as_float_array("camera_T_world", camera_T_world, (4, 4), check_finite=True, xp=xp)
-    _check_rotation("camera_T_world", pose[..., :3, :3])
+    _check_rigid("camera_T_world", pose)
     out.append(pose)
     return out
 
@@ -79,6 +81,87 @@ def _eps(dtype) -> float:
     """Dtype-dependent tolerance: about 1e-6 in float32, 1e-15 in float64 (cached: host code calls
     it per object)."""
     return float(jnp.finfo(dtype).eps) * 8.0
+
+
+# --------------------------------------------------------------------------------------------
+# The same checks as masks, for traced values (issue 26): each is a few elementwise operations on
+# the trailing components, cheap next to the geometry it guards. Every public function with a
+# ``valid`` output folds them in, so that under ``jit`` a bad input reads ``valid=False`` where an
+# eager call raises ``ValueError``. They are False for NaN and inf (every comparison is).
+
+
+def _check_tol(dtype) -> float:
+    """Tolerance of the traced rotation and rigidity checks: the eager checks' ``ROTATION_TOL``
+    (1e-3), widened to ``100 eps`` for dtypes coarser than float32 (float16: about 0.1)."""
+    return max(_ROTATION_TOL, 100.0 * float(jnp.finfo(dtype).eps))
+
+
+# Written on (...,) components, not with reductions over trailing (3, 3) axes: XLA:CPU then
+# emits one elementwise loop (a reduction over small trailing axes made project_bbox 17 times
+# slower in benchmarks/geometry.py's layout).
+
+
+def _all(terms):
+    out = terms[0]
+    for t in terms[1:]:
+        out = out & t
+    return out
+
+
+def _finite(x, ndim: int, xp: Any = jnp):
+    """(...) bool: every entry of the trailing ``ndim`` (1 or 2) axes of ``x`` is finite."""
+    if ndim == 1:
+        return _all([xp.isfinite(x[..., i]) for i in range(x.shape[-1])])
+    return _all([xp.isfinite(x[..., i, j]) for i in range(x.shape[-2]) for j in range(x.shape[-1])])
+
+
+def _rotation_ok(R, xp: Any = jnp):
+    """(...) bool for ``R`` (..., 3, 3): ``|R^T R - I| <= tol`` entrywise and ``det R > 0``
+    (False for non-finite entries: every comparison with NaN is)."""
+    tol = _check_tol(R.dtype)
+    col = [[R[..., i, k] for i in range(3)] for k in range(3)]  # col[k][i] = R[i, k]
+    terms = []
+    for a in range(3):
+        for b in range(a, 3):
+            gram = col[a][0] * col[b][0] + col[a][1] * col[b][1] + col[a][2] * col[b][2]
+            terms.append(xp.abs(gram - (1.0 if a == b else 0.0)) <= tol)
+    c0, c1, c2 = col
+    det = (
+        c0[0] * (c1[1] * c2[2] - c1[2] * c2[1])
+        - c1[0] * (c0[1] * c2[2] - c0[2] * c2[1])
+        + c2[0] * (c0[1] * c1[2] - c0[2] * c1[1])
+    )
+    return _all(terms + [det > 0])
+
+
+def _radii_ok(radii, xp: Any = jnp):
+    """(...) bool for ``radii`` (..., 3): every semi-axis positive and finite."""
+    return _all([(radii[..., i] > 0) & (radii[..., i] < xp.inf) for i in range(3)])
+
+
+def _ellipsoid_ok(rotation, center, radii, xp: Any = jnp):
+    """(batch) bool: a proper rotation, a finite centre, positive finite radii."""
+    return _rotation_ok(rotation, xp) & _finite(center, 1, xp) & _radii_ok(radii, xp)
+
+
+def _intrinsics_ok(K, xp: Any = jnp):
+    """(...) bool for ``K`` (..., 3, 3): finite, with positive focal lengths ``fx``, ``fy``."""
+    return _finite(K, 2, xp) & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)
+
+
+def _pose_ok(T, xp: Any = jnp):
+    """(...) bool for ``T`` (..., 4, 4): finite and rigid (a proper rotation block, last row
+    ``[0, 0, 0, 1]``)."""
+    tol = _check_tol(T.dtype)
+    last = [xp.abs(T[..., 3, j] - (1.0 if j == 3 else 0.0)) <= tol for j in range(4)]
+    return _all([_finite(T, 2, xp), _rotation_ok(T[..., :3, :3], xp)] + last)
+
+
+def _finite_or_zero(x, xp: Any = jnp):
+    """``x`` with its non-finite entries replaced by 0: a function whose ``valid`` mask already
+    says False for them (computed from the original) then returns finite values and gradients.
+    The identity, value and gradient, on finite entries."""
+    return xp.where(xp.isfinite(x), x, xp.zeros((), x.dtype))
 
 
 # --------------------------------------------------------------------------------------------

@@ -18,7 +18,11 @@ from .._checks import (
 from ._common import (
     _camera_args,
     _ellipsoid_args,
+    _ellipsoid_ok,
     _eps,
+    _finite_or_zero,
+    _intrinsics_ok,
+    _pose_ok,
     safe_sqrt,
 )
 
@@ -89,7 +93,8 @@ def _bbox_valid(R, c, r, K, T):
     disc_u = _dot3(wa, wa) - _dot3(cu, cu)
     disc_v = _dot3(wb, wb) - _dot3(cv, cv)
     eps = _eps(near.dtype)
-    return (near > eps * (jnp.abs(tz) + half_depth)) & (disc_u >= 0) & (disc_v >= 0)
+    ok = _ellipsoid_ok(R, c, r) & _intrinsics_ok(K) & _pose_ok(T)  # the inputs (issue 26)
+    return (near > eps * (jnp.abs(tz) + half_depth)) & (disc_u >= 0) & (disc_v >= 0) & ok
 
 
 def _bbox_axis(R, c, r, K, T, valid, lift, is_u):
@@ -130,7 +135,9 @@ def _bbox_edges(R, c, r, K, T, valid):
     sign = jnp.asarray(_BOX_COL_SIGN, R.dtype)
     # (sign num + sq) / (sign den) is (num + sign sq) / den exactly (sign flips are exact); the
     # divisor differs per lane, which keeps XLA from hoisting 1 / den into a loop of its own.
-    return q["c0"] + (sign * q["num"] + q["sq"]) / (sign * q["den"])
+    edges = q["c0"] + (sign * q["num"] + q["sq"]) / (sign * q["den"])
+    # Non-finite only for a non-finite input (then ``valid`` is False): read as 0.
+    return _finite_or_zero(edges)
 
 
 def _bbox_sensitivities(R, c, r, K, T, valid):
@@ -235,9 +242,20 @@ def _project_bbox_jvp(primals, tangents):
     # Dividing the tangent (not the sensitivities) by den puts the division at the end of the
     # reverse pass, which makes XLA keep that (..., 2, 9) cotangent in memory instead of
     # recomputing it in every consumer.
+    # Items with a non-finite input (valid is False there) get a zero tangent, in both modes: the
+    # input tangents are selected away (what the reverse mode's transpose applies last) and so
+    # is the output tangent (what the forward mode returns). Selects, not products: 0 * NaN = NaN.
+    # One sum of every entry that enters is finite iff they all are (barring an overflow of
+    # values near the dtype's maximum): cheaper than a test per entry.
+    entries = [R[..., i, j] for i in range(3) for j in range(3)] + [T[..., i, j] for i in range(3) for j in range(4)]
+    entries += [c[..., i] for i in range(3)] + [r[..., i] for i in range(3)]
+    entries += [K[..., 0, 0], K[..., 0, 1], K[..., 0, 2], K[..., 1, 1], K[..., 1, 2]]
+    finite = jnp.isfinite(sum(entries[1:], entries[0]))
+    keep = lambda dx, trailing: jnp.where(finite[(...,) + (None,) * trailing], dx, jnp.zeros((), dx.dtype))
+    tangents = tuple(keep(t, t.ndim - finite.ndim) for t in tangents)
     dx = _bbox_primitive_tangents(*primals, *tangents) / den
     dbox = jnp.concatenate([jnp.sum(lower * dx, -1), jnp.sum(upper * dx, -1)], -1)
-    return (box, valid), (dbox, np.zeros(valid.shape, jax.dtypes.float0))
+    return (box, valid), (keep(dbox, 1), np.zeros(valid.shape, jax.dtypes.float0))
 
 
 def project_bbox(rotation, center, radii, K, camera_T_world):
@@ -252,9 +270,12 @@ def project_bbox(rotation, center, radii, K, camera_T_world):
       box: (..., 4) ``[u_min, v_min, u_max, v_max]`` in pixels, finite everywhere, with finite
         gradients. It is not truncated to any image size.
       valid: (...) bool, True iff the whole ellipsoid lies strictly in front of the camera's
-        principal plane (so the camera is outside it and the outline is a real ellipse). Where
-        False (camera inside or on the ellipsoid, ellipsoid behind or straddling the image plane)
-        the box is an arbitrary finite value.
+        principal plane (so the camera is outside it and the outline is a real ellipse) and the
+        inputs are what the eager checks accept: a proper rotation, a finite centre, positive
+        finite radii, finite ``K`` with ``fx, fy > 0``, a rigid ``camera_T_world``. Where False
+        (camera inside or on the ellipsoid, ellipsoid behind or straddling the image plane, or a
+        bad input under ``jit``) the box is an arbitrary finite value, with finite gradients
+        (non-finite input entries are read as 0).
 
     Only ``fx, s, cx, fy, cy`` of ``K`` and the first three rows of ``camera_T_world`` enter (the
     gradient with respect to the other entries is zero). The computation is a fused form of
@@ -267,6 +288,5 @@ def project_bbox(rotation, center, radii, K, camera_T_world):
     batch = _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
     dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
     cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
-    return _project_bbox(
-        cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
-    )
+    args = cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
+    return _project_bbox(*args)

@@ -9,20 +9,28 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._checks import (
     as_float_array as _as_float_array,
     batch_shape as _batch_shape,
+    check_rotation as _check_rotation,
 )
 from ._common import (
     _camera_args,
     _ellipsoid_args,
+    _ellipsoid_ok,
     _eps,
+    _finite,
+    _finite_or_zero,
+    _intrinsics_ok,
     _matmul3,
     _matvec,
     _namespace,
+    _pose_ok,
+    _rotation_ok,
     _safe_sqrt,
     safe_div,
     safe_norm,
@@ -145,23 +153,53 @@ def conic_bbox(dual_conic, *, xp: Any = jnp):
     """
     xp = _namespace(xp)
     C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
-    c13, c23, c33, disc_u, disc_v, det = _conic_terms(C, xp)
-    valid = (c33 < -_eps(C.dtype)) & (det < 0) & (disc_u > 0) & (disc_v > 0)
+    finite = _finite(C, 2, xp)
+    C = _finite_or_zero(C, xp)  # a non-finite conic (valid False) gives a finite box too
+    c13, c23, c33, disc_u, disc_v, det, det_scale = _conic_terms(C, xp)
+    valid = _is_ellipse(c13, c23, c33, disc_u, disc_v, det, det_scale) & finite
     return _conic_box(c13, c23, c33, disc_u, disc_v, valid, xp), valid
 
 
+def _is_ellipse(c13, c23, c33, disc_u, disc_v, det, det_scale):
+    """The ``valid`` test of :func:`conic_bbox` on the scaled terms of :func:`_conic_terms`.
+
+    Scale-aware (issue 26): each sign test is made against the rounding level of its own terms,
+    not against a fixed fraction of the largest entry. A small object seen far off-centre has a
+    pixel conic whose ``C33`` is 1e-7 of its largest entry and whose determinant is 1e-15 of it,
+    below float32 resolution; fixed thresholds there marked ordinary valid views invalid in
+    float32 (and only there). ``det < 0`` is tested to within ``8 eps`` of the sum of its terms'
+    magnitudes (inside that band its sign is rounding noise, and ``C33 < 0`` with both
+    discriminants positive already make the conic an ellipse or a degenerate one); ``C33 < 0``
+    against ``eps`` times the entries it scales with (``C13 ~ C33 u0``, ``C23 ~ C33 v0``), which
+    still rejects a principal plane tangent to the ellipsoid (``C33 -> 0`` while ``C13`` stays).
+    """
+    eps = _eps(c33.dtype)
+    front = c33 < -eps * (abs(c13) + abs(c23))
+    front = front & (c33 < -(float(np.finfo(c33.dtype).tiny) ** 0.5))  # a safe divisor
+    return front & (det < eps * det_scale) & (disc_u > 0) & (disc_v > 0)
+
+
 def _conic_terms(C, xp):
-    """Scaled entries of a dual conic for its bounds: ``C13, C23, C33``, the two discriminants, det."""
+    """Scaled entries of a dual conic for its bounds: ``C13, C23, C33``, the two discriminants,
+    det and the sum of the magnitudes of det's terms (its rounding scale)."""
     C = 0.5 * (C + xp.swapaxes(C, -1, -2))
     # Scale to O(1) by a positive factor: the box is scale-invariant and det() cannot overflow.
+    # The box being scale-invariant, the factor is held constant for differentiation (exact, and
+    # no 1 / scale^2 term to overflow in forward mode).
     scale = xp.max(xp.abs(C), axis=(-2, -1), keepdims=True)
+    if xp is jnp:
+        scale = jax.lax.stop_gradient(scale)
     C = C / xp.where(scale > 0, scale, 1.0)
     c11, c12, c13 = C[..., 0, 0], C[..., 0, 1], C[..., 0, 2]
     c22, c23, c33 = C[..., 1, 1], C[..., 1, 2], C[..., 2, 2]
     det = c11 * (c22 * c33 - c23 * c23) - c12 * (c12 * c33 - c23 * c13) + c13 * (c12 * c23 - c22 * c13)
+    a = abs
+    det_scale = (
+        a(c11 * c22 * c33) + a(c11 * c23 * c23) + a(c12 * c12 * c33) + 2 * a(c12 * c23 * c13) + a(c22 * c13 * c13)
+    )
     disc_u = c13 * c13 - c11 * c33
     disc_v = c23 * c23 - c22 * c33
-    return c13, c23, c33, disc_u, disc_v, det
+    return c13, c23, c33, disc_u, disc_v, det, det_scale
 
 
 def _conic_box(c13, c23, c33, disc_u, disc_v, ok, xp):
@@ -190,18 +228,21 @@ def cylinder_bbox(rotation, center, radii, K, camera_T_world, *, xp: Any = jnp):
 
     Returns:
       box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite.
-      valid: (...) bool, False unless both rims lie entirely in front of the camera.
+      valid: (...) bool, False unless both rims lie entirely in front of the camera (and, under
+        ``jit``, where an input is one the eager checks refuse).
     """
     xp = _namespace(xp)
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
     K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(cylinder=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    ok = _ellipsoid_ok(rotation, center, radii, xp) & _intrinsics_ok(K, xp) & _pose_ok(pose, xp)  # issue 26
+    rotation, center, radii, K, pose = (_finite_or_zero(x, xp) for x in (rotation, center, radii, K, pose))
     flat = radii * xp.asarray([1.0, 1.0, 0.0], radii.dtype)
     axis = rotation[..., :, 2] * radii[..., 2:]
-    boxes, valid = [], True
+    boxes, valid = [], ok
     for rim_center in (center - axis, center + axis):
         C = project_dual_conic(_dual_quadric(rotation, rim_center, flat, batch, xp), K, pose, xp=xp)
-        c13, c23, c33, disc_u, disc_v, _ = _conic_terms(C, xp)
+        c13, c23, c33, disc_u, disc_v, _, _ = _conic_terms(C, xp)
         front = c33 < -_eps(C.dtype)
         boxes.append(_conic_box(c13, c23, c33, xp.maximum(disc_u, 0.0), xp.maximum(disc_v, 0.0), front, xp))
         valid = valid & front
@@ -230,7 +271,14 @@ def conic_outline(dual_conic, num_points: int = 64, *, xp: Any = jnp):
     if int(num_points) < 1:
         raise ValueError(f"num_points: expected a positive integer, got {num_points}")
     _, valid = conic_bbox(Cs, xp=xp)
-    Cs = 0.5 * (Cs + xp.swapaxes(Cs, -1, -2))
+    Cs = _finite_or_zero(0.5 * (Cs + xp.swapaxes(Cs, -1, -2)), xp)
+    # Scaled to O(1) first, by a factor held constant for differentiation (the points do not
+    # depend on it): then -C33 is not tiny where valid, and forward mode has no 1 / C33^2 to
+    # overflow in float32.
+    scale = xp.max(xp.abs(Cs), axis=(-2, -1), keepdims=True)
+    if xp is jnp:
+        scale = jax.lax.stop_gradient(scale)
+    Cs = Cs / xp.where(scale > 0, scale, 1.0)
     c33 = xp.where(valid, Cs[..., 2, 2], -1.0)
     Cn = Cs / (-c33)[..., None, None]
     x0 = -Cn[..., :2, 2]
@@ -255,8 +303,29 @@ def _matvec2(m, v):
     return jnp.sum(m * v[..., None, :], axis=-1)
 
 
-def camera_frame(rotation, center, camera_T_world):
-    """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame."""
+def camera_frame(rotation, center, camera_T_world, *, with_valid: bool = False) -> Any:  # a tuple with with_valid=True
+    """The ellipsoid's rotation (..., 3, 3) and centre (..., 3) in the camera frame.
+
+    Concrete arguments are checked like the other functions' (``ValueError`` naming the
+    argument: a finite proper ``rotation``, a finite ``center``, a finite rigid
+    ``camera_T_world``). ``with_valid=True`` adds a third output, a (...) bool mask that says the
+    same under ``jit`` (then the outputs are finite for non-finite inputs too).
+    """
+    rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True)
+    center = _as_float_array("center", center, (3,), check_finite=True)
+    _check_rotation("rotation", rotation)
+    (pose,) = _camera_args(None, camera_T_world, need_K=False)
+    dtype = jnp.result_type(rotation.dtype, center.dtype, pose.dtype)
+    rotation, center, pose = rotation.astype(dtype), center.astype(dtype), pose.astype(dtype)
+    _batch_shape(rotation=rotation.shape[:-2], center=center.shape[:-1], camera_T_world=pose.shape[:-2])
+    if not with_valid:
+        return _camera_frame(rotation, center, pose)
+    valid = _rotation_ok(rotation) & _finite(center, 1) & _pose_ok(pose)
+    R_c, t_c = _camera_frame(_finite_or_zero(rotation), _finite_or_zero(center), _finite_or_zero(pose))
+    return R_c, t_c, valid
+
+
+def _camera_frame(rotation, center, camera_T_world):
     R_cw = camera_T_world[..., :3, :3]
     return _matmul3(R_cw, rotation), _matvec(R_cw, center) + camera_T_world[..., :3, 3]
 
@@ -277,17 +346,20 @@ def texture_plane_depth(rotation, center, radii, camera_T_world):
     Returns:
       depth: (...) metres along the optical axis (finite everywhere).
       valid: (...) bool, False where the plane is not in front of the camera (camera inside the
-        ellipsoid, or the ellipsoid behind or straddling the image plane).
+        ellipsoid, or the ellipsoid behind or straddling the image plane), and under ``jit``
+        where an input is one the eager checks refuse (then the depth is finite all the same).
     """
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     (pose,) = _camera_args(None, camera_T_world, need_K=False)
     _batch_shape(ellipsoid=batch, camera_T_world=pose.shape[:-2])
     dtype = jnp.result_type(rotation.dtype, pose.dtype)
-    pose = pose.astype(dtype)
-    Rc, tc = camera_frame(rotation.astype(dtype), center.astype(dtype), pose)
-    half_depth = safe_norm(radii.astype(dtype) * Rc[..., 2, :], axis=-1)
+    rotation, center, radii, pose = (x.astype(dtype) for x in (rotation, center, radii, pose))
+    ok = _ellipsoid_ok(rotation, center, radii) & _pose_ok(pose)  # the inputs, under jit (issue 26)
+    rotation, center, radii, pose = (_finite_or_zero(x) for x in (rotation, center, radii, pose))
+    Rc, tc = _camera_frame(rotation, center, pose)
+    half_depth = safe_norm(radii * Rc[..., 2, :], axis=-1)
     depth = tc[..., 2] - half_depth
-    valid = depth > _eps(dtype) * (jnp.abs(tc[..., 2]) + half_depth)
+    valid = (depth > _eps(dtype) * (jnp.abs(tc[..., 2]) + half_depth)) & ok
     return depth, valid
 
 

@@ -16,6 +16,8 @@ from .._checks import (
 )
 from ._common import (
     _ellipsoid_args,
+    _ellipsoid_ok,
+    _finite_or_zero,
     _matmul3,
     safe_sqrt,
 )
@@ -52,7 +54,9 @@ def ground_bounds(rotation, center, radii):
     return jnp.broadcast_to(jnp.stack([cx - hx, cy - hy, cx + hx, cy + hy], -1), batch + (4,))
 
 
-def rasterize_footprint(rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None):
+def rasterize_footprint(
+    rotation, center, radii, class_id, grid_shape, origin, resolution, mask=None, *, with_valid: bool = False
+) -> Any:  # (grid, valid) with with_valid=True
     """Rasterises ellipsoid footprints (top-down, along z) into a class-id grid.
 
     A cell ``[row, col]`` has its centre at world ``(origin[0] + (col + 0.5) * resolution,
@@ -68,9 +72,17 @@ def rasterize_footprint(rotation, center, radii, class_id, grid_shape, origin, r
       origin: (2,) world ``(x, y)`` of the grid corner at cell ``[0, 0]``.
       resolution: metres per cell.
       mask: optional (...) bool; False ellipsoids are not drawn.
+      with_valid: also return the per-object validity (below).
 
     Returns:
-      (H, W) int32 grid.
+      (H, W) int32 grid; with ``with_valid=True`` also ``valid`` (...) bool, False for an
+      ellipsoid that is not a proper one (a non-finite centre or radius, a radius <= 0, a
+      rotation that is not one; whatever ``mask`` says). Such an ellipsoid is never drawn.
+
+    A bad ellipsoid is not dropped silently: eagerly it raises ``ValueError`` naming the
+    argument (as everywhere in the core); under ``jit`` it is left out of the grid and
+    ``with_valid=True`` says which ones were (``mask & ~valid``: objects meant to be drawn that
+    were not).
     """
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     if len(grid_shape) != 2 or any(int(g) <= 0 for g in grid_shape):
@@ -85,9 +97,13 @@ def rasterize_footprint(rotation, center, radii, class_id, grid_shape, origin, r
         raise ValueError(f"resolution: expected a positive, finite number of metres per cell, got {float(res)}")
     class_id = jnp.broadcast_to(jnp.asarray(class_id, jnp.int32), batch)
     mask = jnp.ones(batch, bool) if mask is None else jnp.broadcast_to(jnp.asarray(mask, bool), batch)
-    rot = jnp.broadcast_to(rotation, batch + (3, 3)).reshape(-1, 3, 3)
-    ctr = jnp.broadcast_to(center, batch + (3,)).reshape(-1, 3)
-    rad = jnp.broadcast_to(radii, batch + (3,)).reshape(-1, 3)
+    rotation = jnp.broadcast_to(rotation, batch + (3, 3))
+    center = jnp.broadcast_to(center, batch + (3,))
+    radii = jnp.broadcast_to(radii, batch + (3,))
+    valid = _ellipsoid_ok(rotation, center, radii)  # under jit (issue 26); eagerly checked above
+    rot = _finite_or_zero(rotation).reshape(-1, 3, 3)
+    ctr = _finite_or_zero(center).reshape(-1, 3)
+    rad = _finite_or_zero(radii).reshape(-1, 3)
     shape = _matmul3(rot * jnp.square(rad)[..., None, :], jnp.swapaxes(rot, -1, -2))
     a, b, c = shape[:, 0, 0], shape[:, 0, 1], shape[:, 1, 1]
     det = a * c - b * b
@@ -98,6 +114,8 @@ def rasterize_footprint(rotation, center, radii, class_id, grid_shape, origin, r
     dy = ys[None, :, None] - ctr[:, 1, None, None]
     # (d^T S_xy^{-1} d <= 1) multiplied through by det(S_xy) > 0: no division by a tiny det.
     quad = c[:, None, None] * dx * dx - 2 * b[:, None, None] * dx * dy + a[:, None, None] * dy * dy
-    inside = (quad <= det[:, None, None]) & (det[:, None, None] > 0) & mask.reshape(-1)[:, None, None]
+    drawn = (mask & valid).reshape(-1)[:, None, None]
+    inside = (quad <= det[:, None, None]) & (det[:, None, None] > 0) & drawn
     values = jnp.where(inside, class_id.reshape(-1)[:, None, None], 0)
-    return jnp.max(values, axis=0, initial=0).astype(jnp.int32)
+    grid = jnp.max(values, axis=0, initial=0).astype(jnp.int32)
+    return (grid, valid) if with_valid else grid

@@ -20,8 +20,12 @@ from .._checks import (
 from ._common import (
     _camera_args,
     _eps,
+    _finite,
+    _finite_or_zero,
+    _intrinsics_ok,
     _matvec,
     _namespace,
+    _pose_ok,
 )
 
 # --------------------------------------------------------------------------------------------
@@ -71,7 +75,9 @@ def invert_pose(T, *, xp: Any = jnp):
     return xp.concatenate([top, bottom[..., None, :]], -2)
 
 
-def project_points(points, K, camera_T_world, *, xp: Any = jnp):
+def project_points(
+    points, K, camera_T_world, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """Pinhole projection of world points: ``uv = (K p_cam)[:2] / z``, with ``p_cam = camera_T_world p``.
 
     Args:
@@ -82,17 +88,29 @@ def project_points(points, K, camera_T_world, *, xp: Any = jnp):
       uv: (..., 2) pixels, finite everywhere (a point at or behind the principal plane is
         divided by a clamped depth, so its ``uv`` is meaningless: check ``depth``).
       depth: (...) camera z in metres; a point is in front of the camera iff ``depth > 0``.
+      valid: (...) bool, only with ``with_valid=True``: the point is finite and in front of the
+        camera (``depth`` above the clamp, ``8 eps``), ``K`` finite with ``fx, fy > 0`` and ``camera_T_world`` rigid;
+        what the eager checks refuse reads False under ``jit`` (then ``uv`` and ``depth`` are
+        finite too: non-finite entries are read as 0).
     """
     xp = _namespace(xp)
     points = _as_float_array("points", points, (3,), check_finite=True, xp=xp)
     K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(points=points.shape[:-1], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
     dtype = xp.result_type(points.dtype, K.dtype, pose.dtype)
-    p = _matvec(pose[..., :3, :3].astype(dtype), points.astype(dtype)) + pose[..., :3, 3].astype(dtype)
-    pix = _matvec(K.astype(dtype), p)
+    points, K, pose = points.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    ok = None
+    if with_valid:
+        ok = _finite(points, 1, xp) & _intrinsics_ok(K, xp) & _pose_ok(pose, xp)
+        points, K, pose = (_finite_or_zero(x, xp) for x in (points, K, pose))
+    p = _matvec(pose[..., :3, :3], points) + pose[..., :3, 3]
+    pix = _matvec(K, p)
     z = p[..., 2]
     z_safe = xp.where(xp.abs(z) > _eps(dtype), z, _eps(dtype))
-    return pix[..., :2] / z_safe[..., None], z
+    uv = pix[..., :2] / z_safe[..., None]
+    if ok is not None:
+        return uv, z, ok & (z > _eps(dtype))
+    return uv, z
 
 
 def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):

@@ -16,13 +16,17 @@ import numpy as np
 from .._checks import (
     as_float_array as _as_float_array,
     batch_shape as _batch_shape,
+    check_rotation as _check_rotation,
     is_concrete as _is_concrete,
 )
 from ._common import (
     _cross,
     _eps,
+    _finite,
+    _finite_or_zero,
     _matvec,
     _namespace,
+    _rotation_ok,
     _safe_norm,
     _safe_sqrt,
 )
@@ -68,14 +72,27 @@ def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
     )
 
 
-def rotation_to_quaternion_wxyz(rotation, *, xp: Any = jnp):
+def rotation_to_quaternion_wxyz(
+    rotation, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[w, x, y, z]`` (scalar first) with ``w >= 0``.
 
     Shepperd's method: of the four algebraically equal formulas the one with the largest
     square-root argument is taken, so no branch divides by a small number.
+
+    A concrete ``rotation`` that is not a finite proper rotation (``R^T R = I`` to 1e-3,
+    ``det R > 0``) raises ``ValueError``. ``with_valid=True`` adds a (...) bool mask that says
+    the same under ``jit``, where the quaternion of a non-rotation is a finite unit quaternion
+    that means nothing.
     """
     xp = _namespace(xp)
-    R = _as_float_array("rotation", rotation, (3, 3), xp=xp)
+    R = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
+    _check_rotation("rotation", R)
+    q = _rotation_to_quaternion_wxyz(_finite_or_zero(R, xp) if with_valid else R, xp)
+    return (q, _rotation_ok(R, xp)) if with_valid else q
+
+
+def _rotation_to_quaternion_wxyz(R, xp):
     r00, r11, r22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
     trace = r00 + r11 + r22
     cands = []
@@ -139,11 +156,20 @@ def random_rotation(key, shape: tuple = (), dtype=None):
     return _quaternion_wxyz_to_rotation(q)
 
 
-def look_at(eye, target, up=(0.0, 0.0, 1.0), *, xp: Any = jnp):
+def look_at(
+    eye, target, up=(0.0, 0.0, 1.0), *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
     """``camera_T_world`` (..., 4, 4) of an OpenCV camera at ``eye`` looking at ``target``.
 
     The camera's z axis points at the target, its y axis down (against ``up``). When the view
     direction is parallel to ``up`` another up vector is used, so the result is always a rotation.
+
+    Concrete arguments are checked: finite, ``target`` distinct from ``eye`` (a view direction
+    whose squared length is above the dtype's smallest normal number), ``up`` non-zero; each
+    failure is a ``ValueError`` naming the argument. ``with_valid=True`` returns
+    ``(camera_T_world, valid)``, with ``valid`` (...) bool saying the same under ``jit``; where
+    it is False the pose is the camera at the origin (``eye`` where finite) looking along the
+    world +x axis, a finite rigid transform that means nothing.
     """
     xp = _namespace(xp)
     eye = _as_float_array("eye", eye, (3,), xp=xp)
@@ -155,14 +181,22 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0), *, xp: Any = jnp):
     for name, x in (("eye", eye), ("target", target), ("up", up)):
         if _is_concrete(x) and not bool(np.all(np.isfinite(np.asarray(x)))):
             raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
-    if _is_concrete(eye) and _is_concrete(target):
-        gap = np.linalg.norm(np.asarray(target, np.float64) - np.asarray(eye, np.float64), axis=-1)
-        if np.any(gap <= 0):
-            raise ValueError("target: must differ from eye (the view direction is undefined)")
-    if _is_concrete(up) and np.any(np.linalg.norm(np.asarray(up, np.float64), axis=-1) <= 0):
-        raise ValueError("up: must be a non-zero vector")
     forward = target - eye
-    forward = forward / xp.maximum(_safe_norm(forward, xp, keepdims=True), _eps(dtype))
+    tiny = float(np.finfo(dtype).tiny)
+    # The view direction must be normalisable: a squared length above the smallest normal number.
+    distinct = xp.sum(xp.square(forward), axis=-1) > tiny
+    if _is_concrete(eye) and _is_concrete(target) and not bool(np.all(np.asarray(distinct))):
+        raise ValueError("target: must differ from eye (the view direction is undefined)")
+    up_ok = xp.sum(xp.square(up), axis=-1) > 0
+    if _is_concrete(up) and not bool(np.all(np.asarray(up_ok))):
+        raise ValueError("up: must be a non-zero vector")
+    valid = distinct & up_ok & _finite(eye, 1, xp) & _finite(target, 1, xp) & _finite(up, 1, xp)
+    if with_valid:  # a finite stand-in where not valid: at the eye (or origin), along +x
+        eye = _finite_or_zero(eye, xp)
+        forward = xp.where(valid[..., None], _finite_or_zero(forward, xp), xp.asarray([1.0, 0.0, 0.0], dtype))
+        up = xp.where(valid[..., None], up, xp.asarray([0.0, 0.0, 1.0], dtype))
+    norm = _safe_norm(forward, xp, keepdims=True)
+    forward = forward / xp.where(norm > 0, norm, 1.0)
     right = _cross(forward, up, xp)
     alt = _cross(forward, xp.array([1.0, 0.0, 0.0], dtype), xp)
     alt = xp.where(
@@ -177,12 +211,19 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0), *, xp: Any = jnp):
     t = -_matvec(cam_R_world, xp.broadcast_to(eye, batch + (3,)))
     top = xp.concatenate([cam_R_world, t[..., None]], -1)
     bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
-    return xp.concatenate([top, bottom[..., None, :]], -2)
+    pose = xp.concatenate([top, bottom[..., None, :]], -2)
+    return (pose, xp.broadcast_to(valid, batch)) if with_valid else pose
 
 
-def rotation_to_quaternion_xyzw(rotation, *, xp: Any = jnp):
-    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``."""
+def rotation_to_quaternion_xyzw(
+    rotation, *, with_valid: bool = False, xp: Any = jnp
+) -> Any:  # a tuple with with_valid=True
+    """(..., 3, 3) rotation -> (..., 4) unit quaternion ``[x, y, z, w]`` (scalar last), ``w >= 0``.
+    Same checks and ``with_valid`` as :func:`rotation_to_quaternion_wxyz`."""
     xp = _namespace(xp)
+    if with_valid:
+        q, valid = rotation_to_quaternion_wxyz(rotation, with_valid=True, xp=xp)
+        return xp.roll(q, -1, axis=-1), valid
     return xp.roll(rotation_to_quaternion_wxyz(rotation, xp=xp), -1, axis=-1)
 
 

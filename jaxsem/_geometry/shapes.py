@@ -15,6 +15,7 @@ from .._checks import (
 )
 from ._common import (
     _ellipsoid_args,
+    _finite_or_zero,
     _matvec,
     safe_div,
     safe_norm,
@@ -152,7 +153,12 @@ def shape_bbox(rotation, center, radii, shape, K, camera_T_world):
     the ellipsoid is projectable and all corners of the bounding cuboid lie in front of the camera
     (then so does the object, whatever its shape). Traceable; finite values and gradients.
     """
-    ell, valid = project_bbox(rotation, center, radii, K, camera_T_world)
+    ell, valid = project_bbox(rotation, center, radii, K, camera_T_world)  # valid folds the input checks
+    # Non-finite entries read as 0 (valid is already False there): finite values and gradients
+    # for the cuboid and cylinder branches too, which a select would not keep from a NaN.
+    rotation, center, radii, K, camera_T_world = (
+        _finite_or_zero(jnp.asarray(x)) for x in (rotation, center, radii, K, camera_T_world)
+    )
     corners = cuboid_corners(rotation, center, radii)
     pose = camera_T_world[..., None, :, :]
     uv, depth = project_points(corners, K[..., None, :, :], pose)
