@@ -34,6 +34,23 @@ def files(tmp_path_factory):
     (d / "box_5.json").write_text("[[10, 10, 60, 50], [1, 2, 3, 4, 5]]")
     (d / "box_nan.json").write_text("[[10, 10, NaN, 50]]")
     (d / "box_huge.json").write_text("[[0, 0, 1e9, 1e9]]")
+    # roshan's sequences (issue 26 item 6): no detections anywhere (a misspelt key), a huge box, a
+    # frame image that cannot be read
+    import json
+
+    def sequence(name, frame, image=None):
+        (d / name).mkdir()
+        frame = {"camera_T_world": np.eye(4).tolist(), **frame}
+        if image is not None:
+            (d / name / "frame0.png").write_bytes(image)
+            frame["image"] = "frame0.png"
+        data = {"K": [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], "image_size": [640, 480], "frames": [frame]}
+        (d / name / "sequence.json").write_text(json.dumps(data))
+
+    det = {"box": [10, 20, 50, 60], "class": "car", "id": 0}
+    sequence("seq_misspelt", {"detection": [det]})
+    sequence("seq_huge_box", {"detections": [{**det, "box": [0, 0, 1e9, 1e9]}]})
+    sequence("seq_bad_image", {"detections": [det]}, image=b"\x89PNG\r\n\x1a\n garbage")
     return d
 
 
@@ -51,6 +68,21 @@ def _cases(d):
             "roshan-range",
             ["infer/roshan.py", "--simulate", "forward", "--frames", "0", "--out", str(out / "r3")],
             ["--frames"],
+        ),
+        (
+            "roshan-no-detections",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_misspelt"), "--out", str(out / "r4")],
+            ["seq_misspelt/sequence.json", "detections", "'detection'"],
+        ),
+        (
+            "roshan-huge-box",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_huge_box"), "--out", str(out / "r5")],
+            ["seq_huge_box/sequence.json", "frames[0].detections[0].box", "10 times"],
+        ),
+        (
+            "roshan-unreadable-image",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_bad_image"), "--out", str(out / "r6")],
+            ["frames[0].image", "frame0.png"],
         ),
         ("plan-missing", ["infer/plan.py", "--map", str(d / "nope.npz"), "--out", str(out / "p1.png")], ["nope.npz"]),
         (

@@ -53,8 +53,9 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
     """The ``--boxes`` file: a JSON list of ``[u_min, v_min, u_max, v_max]`` (or of objects with a
     ``"box"``, as ``ellipsoids.json`` writes them; one box alone is taken as a list of one), each
     4 finite numbers with u_max > u_min, v_max > v_min, overlapping the ``image_size`` (w, h)
-    image and not larger than 10 times it. Raises :class:`jaxsem.scripting.UsageError` naming
-    ``--boxes``, the file and the entry."""
+    image and not larger than 10 times it (the rule of ``sequence.json``'s boxes). Raises
+    :class:`jaxsem.scripting.UsageError` (or the box rule's ``ValueError``) naming ``--boxes``, the
+    file and the entry."""
     where = f"--boxes {path}"
     try:
         data = json.loads(path.read_text())
@@ -68,7 +69,8 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
         raise sc.UsageError(
             f"{where}: expected a non-empty JSON list of [u_min, v_min, u_max, v_max], got {data!r:.80}"
         )
-    W, H = image_size
+    from jaxsem.slam._sequence_checks import _box  # the one box rule (sequence.json's too)
+
     boxes = []
     for i, entry in enumerate(data):
         field = f"[{i}]"
@@ -76,20 +78,7 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
             if "box" not in entry:
                 raise sc.UsageError(f"{where}: {field}.box: missing (entries are boxes or objects with a 'box')")
             entry, field = entry["box"], f"{field}.box"
-        try:
-            b = np.asarray(entry, np.float64)
-        except (TypeError, ValueError):
-            b = None
-        if b is None or b.shape != (4,) or not np.all(np.isfinite(b)) or not (b[2] > b[0] and b[3] > b[1]):
-            raise sc.UsageError(
-                f"{where}: {field}: expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, "
-                f"v_max > v_min), got {entry!r:.80}"
-            )
-        if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
-            raise sc.UsageError(f"{where}: {field}: box {b.tolist()} lies outside the {W}x{H} image")
-        if b[2] - b[0] > 10 * W or b[3] - b[1] > 10 * H:
-            raise sc.UsageError(f"{where}: {field}: box {b.tolist()} is over 10 times the {W}x{H} image")
-        boxes.append(b)
+        boxes.append(_box(where, field, entry, image_size))
     return np.stack(boxes)
 
 
