@@ -156,6 +156,11 @@ class Checkpointer:
             self._manager.reload()
             return self._manager.latest_step()
 
+    def reload(self) -> None:
+        """Re-reads the steps on disk (after checkpoints were moved or deleted by hand)."""
+        with quiet_orbax():
+            self._manager.reload()
+
     def all_steps(self) -> list[int]:
         """All complete steps on disk, ascending."""
         with quiet_orbax():
@@ -173,8 +178,9 @@ class Checkpointer:
             raise ValueError(f"step: expected a non-negative int, got {step}")
         if not force and step % self.save_interval_steps != 0:
             return False
-        saved = self._manager.save(step, args=ocp.args.StandardSave(state), force=True)
-        self._manager.wait_until_finished()
+        with quiet_orbax():  # e.g. its warning on removing the unfinished save of a killed run
+            saved = self._manager.save(step, args=ocp.args.StandardSave(state), force=True)
+            self._manager.wait_until_finished()
         return bool(saved)
 
     def restore(self, target: Any, step: int | None = None) -> Any:

@@ -399,6 +399,8 @@ class TrainingRun:
             raise failures[0][1]
         for bad, exc in failures:
             self._notice(f"{self._set_aside(bad)}; resuming from step {s} ({_short(exc)})")
+        if failures:
+            self._ckpt.reload()  # the steps moved aside can be saved again
         self.start = self.latest_step = s
         self._truncate_metrics(s)
         if self.log is not None:

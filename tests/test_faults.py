@@ -5,6 +5,7 @@ bit-exact, with one line naming the checkpoint skipped and none of orbax's noise
 import json
 import os
 import pathlib
+import shutil
 import socket
 import subprocess
 import sys
@@ -146,6 +147,10 @@ def test_resume_falls_back_past_a_corrupt_newest_checkpoint_bit_exact(tmp_path, 
     state = {"x": np.zeros(3), "step": np.zeros((), np.int64)}
     with TrainingRun(work, CONFIG, keep=3, resumable=("steps",), log=lines.append) as run:
         restored = run.restore(state)
+        run.save(6, restored)  # the step moved aside can be written again by the same run
+        assert run._ckpt.all_steps() == [3, 6]
+        shutil.rmtree(ckpts / "6")
+        run._ckpt.reload()
     out, err = capfd.readouterr()
     # the state is the older checkpoint's, bit for bit
     np.testing.assert_array_equal(restored["x"], np.full(3, 0.0 + 1 + 2))
