@@ -21,7 +21,8 @@ A training run lives in a *workdir*::
   ``O_CREAT | O_EXCL``, holding the process id, host and start time) and :meth:`TrainingRun.close`
   releases it, also when the run raised; a second run on the same workdir raises
   :class:`WorkdirLockedError` naming the folder and the holder (pid, host), and a lock left by a
-  process that is gone (same host, ``kill -9``, a crash) is taken over with a one-line notice;
+  process that is gone (same host, ``kill -9``, a crash) is taken over with a one-line notice (in
+  a multi-host job, whose processes share the workdir, process 0 holds it);
 - **corrupt checkpoints**: when the newest checkpoint cannot be read, :meth:`TrainingRun.restore`
   falls back to the newest readable one, saying so in one line that names the skipped checkpoint
   (moved aside to ``workdir/corrupt_checkpoints/``, so the run can save that step again);
@@ -296,7 +297,9 @@ class TrainingRun:
         self.workdir = pathlib.Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.log = log
-        self._lock = WorkdirLock(self.workdir, notice=self._notice).acquire()
+        self._lock = WorkdirLock(self.workdir, notice=self._notice)
+        if _process_index() == 0:  # a multi-host job shares one workdir: its process 0 holds the lock
+            self._lock.acquire()
         try:
             self._open(config, keep, resumable, force, normalise)
         except BaseException:
@@ -504,6 +507,12 @@ class TrainingRun:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _process_index() -> int:
+    import jax
+
+    return jax.process_index()
 
 
 def _short(exc: BaseException, limit: int = 160) -> str:
