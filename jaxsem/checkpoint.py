@@ -11,7 +11,9 @@ A thin wrapper over :class:`orbax.checkpoint.CheckpointManager` with ``StandardS
   write to finish before returning, so a script can exit or kill itself right after a save;
 - restoring needs a *target* pytree of the same structure (e.g. the freshly initialised state):
   its shapes and dtypes are used, its values are ignored. Missing or corrupt checkpoints raise
-  :class:`CheckpointError` (a ``ValueError``) naming the path.
+  :class:`CheckpointError` (a ``ValueError``) naming the path; orbax's own reports of a corrupt
+  checkpoint (absl log lines, the TensorStore spec dumps and "Event loop is closed" tracebacks of
+  its abandoned reads) are kept off the terminal (:func:`quiet_orbax`).
 
 PRNG keys must be stored as raw ``uint32`` arrays (``jax.random.PRNGKey`` / ``key_data``), not
 typed key arrays. Example::
@@ -30,19 +32,82 @@ typed key arrays. Example::
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import logging
 import os
 import pathlib
+import sys
+import time
+from collections.abc import Iterator
 from typing import Any
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-__all__ = ["CheckpointError", "Checkpointer", "latest_step", "restore_checkpoint", "save_checkpoint"]
+__all__ = [
+    "CheckpointError",
+    "Checkpointer",
+    "latest_step",
+    "quiet_orbax",
+    "restore_checkpoint",
+    "save_checkpoint",
+]
 
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, unreadable, or does not match the restore target."""
+
+
+def _orbax_noise(unraisable: Any) -> bool:
+    """Whether an unraisable exception is orbax's leftover of a failed read: a read coroutine of
+    orbax/TensorStore collected with its exception, or TensorStore calling back into the closed
+    event loop of a restore that already failed ("Event loop is closed")."""
+    exc, obj = unraisable.exc_value, unraisable.object
+    code = getattr(obj, "cr_code", None)
+    if code is not None and ("orbax" in code.co_filename or "tensorstore" in code.co_filename):
+        return True
+    if isinstance(exc, RuntimeError) and "Event loop is closed" in str(exc):
+        return True
+    return "TensorStore" in str(exc)
+
+
+_PREVIOUS_HOOK: Any = None
+
+
+def _unraisable_hook(unraisable: Any) -> None:
+    if _orbax_noise(unraisable):
+        return
+    (_PREVIOUS_HOOK or sys.__unraisablehook__)(unraisable)
+
+
+@contextlib.contextmanager
+def quiet_orbax() -> Iterator[None]:
+    """Keeps orbax's reports of an unreadable checkpoint off the terminal while it runs: absl /
+    orbax log records below CRITICAL are dropped, and from then on the unraisable exceptions its
+    abandoned reads leave behind (printed whenever they are collected, even at exit) are filtered
+    out of ``sys.unraisablehook`` (all other unraisable exceptions still reach the previous hook).
+    The failure itself still raises; :class:`Checkpointer` turns it into one :class:`CheckpointError`."""
+    global _PREVIOUS_HOOK
+    if sys.unraisablehook is not _unraisable_hook:
+        _PREVIOUS_HOOK = sys.unraisablehook
+        sys.unraisablehook = _unraisable_hook
+    loggers = [logging.getLogger(name) for name in ("absl", "orbax", "orbax.checkpoint", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    except BaseException:
+        # the failed read's other reads finish in TensorStore's threads: let them, then collect
+        # their coroutines and futures now (filtered), not at exit
+        time.sleep(0.2)
+        gc.collect()
+        raise
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
 
 
 def _abstract(target: Any) -> Any:
@@ -81,18 +146,26 @@ class Checkpointer:
         )
         # The interval is applied here, not by orbax (which always saves the first step).
         self.save_interval_steps = int(save_interval_steps)
-        self._manager = ocp.CheckpointManager(self.directory, options=options)
+        with quiet_orbax():
+            self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     # -- queries ---------------------------------------------------------------------------
     def latest_step(self) -> int | None:
         """The newest complete step, or None when there is no checkpoint."""
-        self._manager.reload()
-        return self._manager.latest_step()
+        with quiet_orbax():
+            self._manager.reload()
+            return self._manager.latest_step()
+
+    def reload(self) -> None:
+        """Re-reads the steps on disk (after checkpoints were moved or deleted by hand)."""
+        with quiet_orbax():
+            self._manager.reload()
 
     def all_steps(self) -> list[int]:
         """All complete steps on disk, ascending."""
-        self._manager.reload()
-        return sorted(int(s) for s in self._manager.all_steps())
+        with quiet_orbax():
+            self._manager.reload()
+            return sorted(int(s) for s in self._manager.all_steps())
 
     # -- save / restore ---------------------------------------------------------------------
     def save(self, step: int, state: Any, *, force: bool = False) -> bool:
@@ -105,8 +178,9 @@ class Checkpointer:
             raise ValueError(f"step: expected a non-negative int, got {step}")
         if not force and step % self.save_interval_steps != 0:
             return False
-        saved = self._manager.save(step, args=ocp.args.StandardSave(state), force=True)
-        self._manager.wait_until_finished()
+        with quiet_orbax():  # e.g. its warning on removing the unfinished save of a killed run
+            saved = self._manager.save(step, args=ocp.args.StandardSave(state), force=True)
+            self._manager.wait_until_finished()
         return bool(saved)
 
     def restore(self, target: Any, step: int | None = None) -> Any:
@@ -117,8 +191,7 @@ class Checkpointer:
             checkpoint is unreadable / does not match ``target``'s tree structure; the message names
             the path.
         """
-        self._manager.reload()
-        steps = [int(s) for s in self._manager.all_steps()]
+        steps = self.all_steps()
         if step is None:
             if not steps:
                 raise CheckpointError(f"no checkpoint found in {str(self.directory)!r}")
@@ -130,7 +203,8 @@ class Checkpointer:
                 f"checkpoint step {step} not found at {str(path)!r} (available steps: {sorted(steps)})"
             )
         try:
-            return self._manager.restore(step, args=ocp.args.StandardRestore(_abstract(target)))
+            with quiet_orbax():
+                return self._manager.restore(step, args=ocp.args.StandardRestore(_abstract(target)))
         except Exception as exc:  # orbax raises many types (ValueError, KeyError, OSError, ...)
             raise CheckpointError(
                 f"could not restore checkpoint {str(path)!r} (corrupt, or its tree does not match the "

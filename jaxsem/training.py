@@ -17,6 +17,15 @@ A training run lives in a *workdir*::
   :class:`ConfigMismatchError` naming the fields, unless ``force=True``;
 - **atomic writes**: ``config.json`` and the metrics truncation go through a temporary file and
   a rename; checkpoints are atomic in orbax;
+- **one writer**: opening the run takes ``workdir/train.lock`` (:class:`WorkdirLock`: created with
+  ``O_CREAT | O_EXCL``, holding the process id, host and start time) and :meth:`TrainingRun.close`
+  releases it, also when the run raised; a second run on the same workdir raises
+  :class:`WorkdirLockedError` naming the folder and the holder (pid, host), and a lock left by a
+  process that is gone (same host, ``kill -9``, a crash) is taken over with a one-line notice (in
+  a multi-host job, whose processes share the workdir, process 0 holds it);
+- **corrupt checkpoints**: when the newest checkpoint cannot be read, :meth:`TrainingRun.restore`
+  falls back to the newest readable one, saying so in one line that names the skipped checkpoint
+  (moved aside to ``workdir/corrupt_checkpoints/``, so the run can save that step again);
 - **progress**: :meth:`TrainingRun.steps` is the step iterator, with a tqdm bar over the run's
   total when asked.
 
@@ -37,21 +46,177 @@ this shape::
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 import os
 import pathlib
+import shutil
+import socket
+import sys
+import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from .checkpoint import Checkpointer
+from .checkpoint import Checkpointer, CheckpointError
 
-__all__ = ["ConfigMismatchError", "TrainingRun", "config_json", "read_metrics"]
+__all__ = [
+    "ConfigMismatchError",
+    "TrainingRun",
+    "WorkdirLock",
+    "WorkdirLockedError",
+    "config_json",
+    "read_metrics",
+]
 
 
 class ConfigMismatchError(ValueError):
     """A resumed run's config differs from the one its checkpoints were trained with."""
+
+
+class WorkdirLockedError(ValueError):
+    """Another live training run holds the workdir's lock (the message names it: pid, host)."""
+
+
+LOCK_NAME = "train.lock"
+
+
+def _proc_start(pid: int) -> int | None:
+    """The start time of process ``pid`` in clock ticks since boot (Linux ``/proc``), else None."""
+    try:
+        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
+        return int(stat.rsplit(")", 1)[1].split()[19])  # field 22; the name in (...) may hold spaces
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _alive(pid: int, proc_start: Any = None) -> bool:
+    """Whether process ``pid`` of this host is running (and is the one that wrote the lock, when
+    its start time was recorded: a reused pid is not the holder)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # it exists, owned by another user
+    try:  # a zombie (exited, not yet reaped) holds nothing
+        if pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+            return False
+    except (OSError, IndexError):
+        pass
+    now = _proc_start(pid)
+    return not (isinstance(proc_start, int) and now is not None and now != proc_start)
+
+
+class WorkdirLock:
+    """The lock of one training workdir: ``workdir/train.lock``, made with ``O_CREAT | O_EXCL``
+    (atomic: of two runs starting at once exactly one creates it) and holding JSON with the
+    holder's ``pid``, ``host``, ``started`` (UTC) and command line.
+
+    :meth:`acquire` raises :class:`WorkdirLockedError` naming the folder and the holder while
+    that process runs (or runs on another host, where it cannot be checked); a lock whose process
+    is gone (same host) is stale and is taken over, with a one-line notice to ``notice``.
+    :meth:`release` removes the file if it is still this process's lock.
+    """
+
+    def __init__(self, workdir: str | os.PathLike, notice: Callable[[str], None] | None = None):
+        self.workdir = pathlib.Path(workdir)
+        self.path = self.workdir / LOCK_NAME
+        self.notice = notice
+        self.held = False
+        self._text = ""
+
+    def _read(self) -> tuple[dict[str, Any], str] | None:
+        """The holder's record and the file's text; None when the file vanished. Retries briefly
+        while the file is empty (created, not written yet); garbage gives ``{"unreadable": ...}``."""
+        text = ""
+        for _ in range(10):
+            try:
+                text = self.path.read_text()
+            except FileNotFoundError:
+                return None
+            try:
+                info = json.loads(text)
+                if isinstance(info, dict) and isinstance(info.get("pid"), int):
+                    return info, text
+            except ValueError:
+                pass
+            time.sleep(0.05)
+        return {"unreadable": text[:80]}, text
+
+    def acquire(self) -> WorkdirLock:
+        """Takes the lock (see the class); returns self."""
+        host = socket.gethostname()
+        record = {
+            "pid": os.getpid(),
+            "host": host,
+            "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "proc_start": _proc_start(os.getpid()),
+            "command": " ".join(sys.argv)[:300],
+        }
+        self._text = json.dumps(record)
+        stale = ""
+        for _ in range(5):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                got = self._read()
+                if got is None:
+                    continue  # released meanwhile: try again
+                info, text = got
+                if "unreadable" in info:
+                    holder, why = f"unreadable content {info['unreadable']!r}", "unreadable"
+                else:
+                    holder = f"pid {info['pid']} on host {info.get('host')}"
+                    if info.get("started"):
+                        holder += f", started {info['started']}"
+                    if info.get("host") != host:
+                        raise WorkdirLockedError(
+                            f"workdir {str(self.workdir)!r}: another training run holds it ({holder}; lock file "
+                            f"{str(self.path)!r}); use another --workdir, or delete the lock file if that run is gone"
+                        )
+                    if _alive(info["pid"], info.get("proc_start")):
+                        raise WorkdirLockedError(
+                            f"workdir {str(self.workdir)!r}: another training run is writing here ({holder}); wait "
+                            f"for it to finish or use another --workdir (lock file {str(self.path)!r})"
+                        )
+                    why = "that process is gone"
+                try:  # stale: remove it, unless it changed meanwhile (then judge again)
+                    if self.path.read_text() != text:
+                        continue
+                    self.path.unlink()
+                except FileNotFoundError:
+                    pass
+                stale = f"workdir {str(self.workdir)!r}: took over the stale lock of {holder} ({why})"
+                continue
+            with os.fdopen(fd, "w") as f:
+                f.write(self._text)
+            self.held = True
+            if stale and self.notice is not None:
+                self.notice(stale)
+            return self
+        raise WorkdirLockedError(
+            f"workdir {str(self.workdir)!r}: could not take the lock {str(self.path)!r} (other runs keep taking it)"
+        )
+
+    def release(self) -> None:
+        if not self.held:
+            return
+        self.held = False
+        try:
+            if self.path.read_text() == self._text:  # still ours (not taken over as stale)
+                self.path.unlink()
+        except FileNotFoundError:
+            pass
+
+    def __enter__(self) -> WorkdirLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
 
 def config_json(config: Any) -> dict[str, Any]:
@@ -110,7 +275,12 @@ class TrainingRun:
       normalise: maps a ``config.json`` read from disk to the current config schema (e.g. through
         the dataclass, so that fields added since the run was written take their defaults)
         before it is compared; exceptions in it are ignored (the raw file is compared).
-      log: called with one line on resume (and by the model's loop for its rows).
+      log: called with one line on resume (and by the model's loop for its rows); the notices of a
+        stale lock taken over or a corrupt checkpoint skipped go to it too (without it: stderr).
+
+    Raises:
+      WorkdirLockedError: another live run holds ``workdir`` (:class:`WorkdirLock`).
+      ConfigMismatchError: see :meth:`check_config`.
     """
 
     def __init__(
@@ -126,11 +296,21 @@ class TrainingRun:
     ):
         self.workdir = pathlib.Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
+        self.log = log
+        self._lock = WorkdirLock(self.workdir, notice=self._notice)
+        if _process_index() == 0:  # a multi-host job shares one workdir: its process 0 holds the lock
+            self._lock.acquire()
+        try:
+            self._open(config, keep, resumable, force, normalise)
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def _open(self, config, keep, resumable, force, normalise) -> None:
         self.config = dict(config)
         self.resumable = tuple(resumable)
         self.force = bool(force)
         self.normalise = normalise
-        self.log = log
         self.metrics_path = self.workdir / "metrics.jsonl"
         self._ckpt = Checkpointer(self.workdir / "checkpoints", max_to_keep=keep)
         self.latest_step: int | None = self._ckpt.latest_step()
@@ -143,6 +323,12 @@ class TrainingRun:
             except ConfigMismatchError:
                 self._ckpt.close()
                 raise
+
+    def _notice(self, line: str) -> None:
+        if self.log is not None:
+            self.log(line)
+        else:
+            print(line, file=sys.stderr, flush=True)
 
     # ------------------------------------------------------------------ config
 
@@ -187,17 +373,57 @@ class TrainingRun:
     # ------------------------------------------------------------------ state
 
     def restore(self, like: Any, step: int | None = None) -> Any:
-        """The checkpoint of ``step`` (default: the latest) restored into the structure of ``like``;
-        sets :attr:`start`, cuts ``metrics.jsonl`` back to it and logs "resumed from step N"."""
-        step = self.latest_step if step is None else int(step)
-        if step is None:
-            raise ValueError(f"workdir: no checkpoint under {str(self.workdir / 'checkpoints')!r}")
-        state = self._ckpt.restore(like, step=step)
-        self.start = step
-        self._truncate_metrics(step)
+        """The checkpoint of ``step`` (default: the latest readable one) restored into the structure
+        of ``like`` (a pytree, or a function of the step giving one); sets :attr:`start` and
+        :attr:`latest_step`, cuts ``metrics.jsonl`` back to it and logs "resumed from step N".
+
+        Without ``step``, a checkpoint that cannot be read (corrupt, truncated) is skipped for the
+        next older one, with one line naming it; skipped checkpoints newer than the one restored
+        are moved to ``workdir/corrupt_checkpoints/`` (so the run can write those steps again).
+        When none can be read, the newest one's :class:`jaxsem.checkpoint.CheckpointError` is
+        raised and nothing is moved."""
+        if step is not None:
+            steps = [int(step)]
+        else:
+            steps = sorted(self._ckpt.all_steps(), reverse=True)
+            if not steps:
+                raise ValueError(f"workdir: no checkpoint under {str(self.workdir / 'checkpoints')!r}")
+        failures: list[tuple[int, CheckpointError]] = []
+        for s in steps:
+            try:
+                state = self._ckpt.restore(like(s) if callable(like) else like, step=s)
+            except CheckpointError as exc:
+                if step is not None:
+                    raise
+                failures.append((s, exc))
+                continue
+            break
+        else:
+            raise failures[0][1]
+        for bad, exc in failures:
+            self._notice(f"{self._set_aside(bad)}; resuming from step {s} ({_short(exc)})")
+        if failures:
+            self._ckpt.reload()  # the steps moved aside can be saved again
+        self.start = self.latest_step = s
+        self._truncate_metrics(s)
         if self.log is not None:
-            self.log(f"resumed from step {step}")
+            self.log(f"resumed from step {s}")
         return state
+
+    def _set_aside(self, step: int) -> str:
+        """Moves the unreadable checkpoint of ``step`` to ``corrupt_checkpoints/``; says so."""
+        src = self._ckpt.directory / str(step)
+        dst = self.workdir / "corrupt_checkpoints" / str(step)
+        n = 1
+        while dst.exists():
+            dst = dst.with_name(f"{step}.{n}")
+            n += 1
+        try:
+            dst.parent.mkdir(exist_ok=True)
+            shutil.move(str(src), str(dst))
+        except OSError as exc:
+            return f"checkpoint {str(src)!r} is unreadable, skipped (could not move it aside: {exc})"
+        return f"checkpoint {str(src)!r} is unreadable, skipped and moved to {str(dst)!r}"
 
     def begin(self) -> None:
         """Start writing: a fresh run drops any stale ``metrics.jsonl``; ``config.json`` is written."""
@@ -263,19 +489,37 @@ class TrainingRun:
             self._bar.write(line)
 
     def close(self) -> None:
-        if self._metrics_file is not None:
-            self._metrics_file.close()
-            self._metrics_file = None
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-        self._ckpt.close()
+        """Closes the metrics file and the progress bar, waits for checkpoint writes and releases
+        the workdir's lock (also when one of these fails)."""
+        try:
+            if self._metrics_file is not None:
+                self._metrics_file.close()
+                self._metrics_file = None
+            if self._bar is not None:
+                self._bar.close()
+                self._bar = None
+            self._ckpt.close()
+        finally:
+            self._lock.release()
 
     def __enter__(self) -> TrainingRun:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _process_index() -> int:
+    import jax
+
+    return jax.process_index()
+
+
+def _short(exc: BaseException, limit: int = 160) -> str:
+    """The first words of an exception's message, on one line (orbax's can run to pages)."""
+    text = " ".join(str(exc).split())
+    text = text.split(": ", 1)[-1] if text.startswith("could not restore checkpoint") else text
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _json_number(x: Any) -> Any:

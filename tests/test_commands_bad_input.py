@@ -24,6 +24,33 @@ def files(tmp_path_factory):
     empty = d / "empty_dir"
     empty.mkdir()
     (d / "a_file").write_text("x")
+    # volumon predict's own inputs: a readable image, good boxes and bad ones (issue 26 item 5)
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(d / "image.png"), np.full((96, 128, 3), 127, np.uint8))
+    (d / "boxes.json").write_text("[[10, 10, 60, 50]]")
+    (d / "box_str.json").write_text('{"box": "a"}')
+    (d / "box_5.json").write_text("[[10, 10, 60, 50], [1, 2, 3, 4, 5]]")
+    (d / "box_nan.json").write_text("[[10, 10, NaN, 50]]")
+    (d / "box_huge.json").write_text("[[0, 0, 1e9, 1e9]]")
+    # roshan's sequences (issue 26 item 6): no detections anywhere (a misspelt key), a huge box, a
+    # frame image that cannot be read
+    import json
+
+    def sequence(name, frame, image=None):
+        (d / name).mkdir()
+        frame = {"camera_T_world": np.eye(4).tolist(), **frame}
+        if image is not None:
+            (d / name / "frame0.png").write_bytes(image)
+            frame["image"] = "frame0.png"
+        data = {"K": [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], "image_size": [640, 480], "frames": [frame]}
+        (d / name / "sequence.json").write_text(json.dumps(data))
+
+    det = {"box": [10, 20, 50, 60], "class": "car", "id": 0}
+    sequence("seq_misspelt", {"detection": [det]})
+    sequence("seq_huge_box", {"detections": [{**det, "box": [0, 0, 1e9, 1e9]}]})
+    sequence("seq_bad_image", {"detections": [det]}, image=b"\x89PNG\r\n\x1a\n garbage")
     return d
 
 
@@ -41,6 +68,21 @@ def _cases(d):
             "roshan-range",
             ["infer/roshan.py", "--simulate", "forward", "--frames", "0", "--out", str(out / "r3")],
             ["--frames"],
+        ),
+        (
+            "roshan-no-detections",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_misspelt"), "--out", str(out / "r4")],
+            ["seq_misspelt/sequence.json", "detections", "'detection'"],
+        ),
+        (
+            "roshan-huge-box",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_huge_box"), "--out", str(out / "r5")],
+            ["seq_huge_box/sequence.json", "frames[0].detections[0].box", "10 times"],
+        ),
+        (
+            "roshan-unreadable-image",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_bad_image"), "--out", str(out / "r6")],
+            ["frames[0].image", "frame0.png"],
         ),
         ("plan-missing", ["infer/plan.py", "--map", str(d / "nope.npz"), "--out", str(out / "p1.png")], ["nope.npz"]),
         (
@@ -83,6 +125,28 @@ def _cases(d):
             ["corrupt"],
         ),
         ("volumon-range", ["infer/volumon.py", "--split", "test", "--num", "0", "--out", str(out / "v3")], ["--num"]),
+        # issue 26 item 5: every input of volumon predict checked before any work, naming the flag / file
+        *[
+            (
+                f"volumon-{name}",
+                ["-m", "jaxsem.cli", "volumon", "predict", "--image", str(d / "image.png"), "--boxes", str(d / boxes)]
+                + extra
+                + ["--out", str(out / f"v-{name}")],
+                words,
+            )
+            for name, boxes, extra, words in [
+                ("class-id", "boxes.json", ["--class-id", "99"], ["--class-id", "99", "0 to 3", "soup_can"]),
+                ("class-id-negative", "boxes.json", ["--class-id", "-1"], ["--class-id", "-1"]),
+                ("box-string", "box_str.json", [], ["--boxes", "box_str.json", "[0].box", "'a'"]),
+                ("box-5-numbers", "box_5.json", [], ["--boxes", "box_5.json", "[1]", "[1, 2, 3, 4, 5]"]),
+                ("box-nan", "box_nan.json", [], ["--boxes", "box_nan.json", "[0]", "finite"]),
+                ("box-huge", "box_huge.json", [], ["--boxes", "box_huge.json", "[0]", "10 times"]),
+                ("boxes-corrupt", "corrupt.json", [], ["--boxes", "corrupt.json", "JSON"]),
+                ("K-text", "boxes.json", ["--K", "abc"], ["--K", "abc"]),
+                ("K-nan", "boxes.json", ["--K", "nan,110,63.5,47.5"], ["--K", "nan"]),
+                ("K-focal", "boxes.json", ["--K", "0,110,63.5,47.5"], ["--K", "fx, fy > 0"]),
+            ]
+        ],
         ("train-volumon-range", ["train/volumon.py", "--workdir", str(out / "tv"), "--steps", "-5"], ["--steps"]),
         (
             "train-volumon-workdir-file",

@@ -251,6 +251,13 @@ def test_sequence_bad_input_names_file_and_field(tmp_path):
         r"frames\[0\]\.image: .*missing\.png.*does not exist",
     )
     bad(lambda d: d.update({"frames": []}), r"frames: expected a non-empty list")
+    # issue 26 item 6: no detection at all (a misspelt key), a box far larger than the image
+    bad(
+        lambda d: d["frames"][0].update({"detection": d["frames"][0].pop("detections")}),
+        r"sequence\.json: frames\[\*\]\.detections: no frame has any detection.*keys seen: \['camera_T_world', 'detection'\]",
+    )
+    bad(lambda d: d["frames"][0].update({"detections": []}), r"no frame has any detection")
+    bad(lambda d: det(d)[0].update({"box": [0, 0, 1e9, 1e9]}), r"detections\[0\]\.box: .*over 10 times the 640x480")
 
 
 def test_sequence_noise_model_loads_validates_and_round_trips(tmp_path):

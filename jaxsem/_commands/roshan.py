@@ -16,7 +16,9 @@ Examples::
 [{"id", "center", "radii", "rotation"}] (world-frame initial ellipsoids used instead of the
 single-view initialisation), "noise": optional {"box_sigma": px, "texture_sigma": m, "pose_translation_sigma": m,
 "pose_rotation_sigma_deg": deg} (any subset; --box-sigma etc. override it), "truth": optional}``.
-Bad input exits with one line naming the file and the JSON field.
+Bad input exits with one line naming the file and the JSON field, before the solve: a sequence
+with no detection at all, a box outside the image or over 10 times its size, an unreadable image
+of an overlay frame.
 
 Frames are fed one at a time to the online smoother (``jaxsem.slam.online_init`` /
 ``online_update``: new ids initialised from one detection, re-optimised every
@@ -166,6 +168,17 @@ def main(argv=None, prog: str | None = None) -> int:
         flush=True,
     )
 
+    # images are checked now, before the solve: an unreadable one fails the run at once (every
+    # frame's by its header, the overlays' by reading them)
+    import cv2
+
+    for t in range(n):
+        path = sequence.image_path(t)
+        if path is not None and not cv2.haveImageReader(str(path)):
+            raise ValueError(f"frames[{t}].image: cannot read image file {str(path)!r} (not an image format)")
+    picks = np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int)) if args.overlays else []
+    images = {int(t): slam.load_image(sequence, int(t)) for t in picks}
+
     def progress(t, state, seconds):
         if not args.quiet:
             objects = int(np.sum(np.asarray(state.problem.object_mask)))
@@ -200,7 +213,6 @@ def main(argv=None, prog: str | None = None) -> int:
         result.radii,
         result.camera_T_world,
     )
-    sc.atomic_write_text(args.out / "map.json", json.dumps(map_json, indent=1))
 
     truth = sequence.truth
     fig, ax = plt.subplots(figsize=(9, 6))
@@ -235,14 +247,13 @@ def main(argv=None, prog: str | None = None) -> int:
     sc.atomic_savefig(fig, args.out / "top_down.png", dpi=110)
     plt.close(fig)
 
-    picks = np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int)) if args.overlays else []
     for t in picks:
         fr = sequence.frames[t]
         W, H = sequence.image_size
         fig, ax = plt.subplots(figsize=(6, 6 * H / W))
         slam.draw_overlay(
             ax,
-            slam.load_image(sequence, int(t)),
+            images[int(t)],
             sequence.K,
             result.camera_T_world[t],
             sequence.image_size,
@@ -256,6 +267,8 @@ def main(argv=None, prog: str | None = None) -> int:
         sc.atomic_savefig(fig, args.out / f"overlay_{t:06d}.png", dpi=100)
         plt.close(fig)
 
+    # map.json last: a run that failed on the way leaves none behind
+    sc.atomic_write_text(args.out / "map.json", json.dumps(map_json, indent=1))
     if truth and truth.get("objects"):
         err = slam.truth_errors(result, truth)
         print("| id | shape (m) | position (m) | orientation (deg) |\n|---|---|---|---|")

@@ -26,11 +26,75 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import pathlib
 
 import numpy as np
 
 from jaxsem import scripting as sc
+
+
+def intrinsics(text: str) -> tuple[float, float, float, float]:
+    """``--K``: ``fx,fy,cx,cy``, four finite numbers with fx, fy > 0."""
+    parts = [x for x in text.replace(",", " ").split() if x]
+    try:
+        values = [float(x) for x in parts]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected fx,fy,cx,cy (4 finite numbers), got {text!r}")
+    if values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"expected focal lengths fx, fy > 0, got {text!r}")
+    fx, fy, cx, cy = values
+    return fx, fy, cx, cy
+
+
+def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
+    """The ``--boxes`` file: a JSON list of ``[u_min, v_min, u_max, v_max]`` (or of objects with a
+    ``"box"``, as ``ellipsoids.json`` writes them; one box alone is taken as a list of one), each
+    4 finite numbers with u_max > u_min, v_max > v_min, overlapping the ``image_size`` (w, h)
+    image and not larger than 10 times it (the rule of ``sequence.json``'s boxes). Raises
+    :class:`jaxsem.scripting.UsageError` (or the box rule's ``ValueError``) naming ``--boxes``, the
+    file and the entry."""
+    where = f"--boxes {path}"
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as exc:
+        raise sc.UsageError(f"{where}: not valid JSON ({exc})") from None
+    except OSError as exc:
+        raise sc.UsageError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    if isinstance(data, dict) or (isinstance(data, list) and data and not isinstance(data[0], (list, dict))):
+        data = [data]  # one box
+    if not isinstance(data, list) or not data:
+        raise sc.UsageError(
+            f"{where}: expected a non-empty JSON list of [u_min, v_min, u_max, v_max], got {data!r:.80}"
+        )
+    from jaxsem.slam._sequence_checks import _box  # the one box rule (sequence.json's too)
+
+    boxes = []
+    for i, entry in enumerate(data):
+        field = f"[{i}]"
+        if isinstance(entry, dict):
+            if "box" not in entry:
+                raise sc.UsageError(f"{where}: {field}.box: missing (entries are boxes or objects with a 'box')")
+            entry, field = entry["box"], f"{field}.box"
+        boxes.append(_box(where, field, entry, image_size))
+    return np.stack(boxes)
+
+
+def check_class_id(class_id: int, cfg) -> None:
+    """``--class-id`` against the model's classes (:class:`jaxsem.scripting.UsageError` naming it)."""
+    from jaxsem.volumon._synthetic import VOLUMON_CLASS_NAMES
+
+    n = int(cfg.model.num_classes)
+    names = tuple(cfg.class_names) or (VOLUMON_CLASS_NAMES if n == len(VOLUMON_CLASS_NAMES) else ())
+    if not 0 <= class_id < n:
+        listed = ", ".join(f"{i} {name}" for i, name in enumerate(names)) if names else ""
+        raise sc.UsageError(
+            f"--class-id: {class_id} is not a class of the model: expected 0"
+            + (f" to {n - 1}" if n > 1 else "")
+            + (f" ({listed})" if listed else "")
+        )
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -51,14 +115,15 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--step", type=int, default=None, help="checkpoint step (default latest)")
     p.add_argument("--image", type=sc.existing_file, help="image file (RGB)")
     p.add_argument("--boxes", type=sc.existing_file, help="JSON file: list of [u_min, v_min, u_max, v_max]")
-    p.add_argument("--K", type=str, default=None, help="fx,fy,cx,cy (default: the training camera)")
+    p.add_argument("--K", type=intrinsics, default=None, help="fx,fy,cx,cy (default: the training camera)")
     p.add_argument("--split", choices=("train", "test"), default=None, help="use the synthetic split instead")
     p.add_argument("--num", type=sc.positive_int, default=8, help="detections from --split")
     p.add_argument(
         "--class-id",
         type=int,
         default=0,
-        help="class of the --boxes (shipped model: 0 cracker_box, 1 ball, 2 melon, 3 soup_can)",
+        help="class of the --boxes, one of the model's classes (shipped model: 0 cracker_box, 1 ball, 2 melon, "
+        "3 soup_can)",
     )
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder (ellipsoids.json, overlay_*.png)")
     return p
@@ -87,6 +152,17 @@ def main(argv=None, prog: str | None = None) -> int:
         train_and_evaluate,
     )
 
+    img = boxes = None
+    if a.split is None:  # the inputs are checked before any work
+        if a.image is None or a.boxes is None:
+            p.error("give --image and --boxes, or --split")
+        import cv2
+
+        img = cv2.imread(str(a.image), cv2.IMREAD_COLOR)
+        if img is None:
+            raise sc.UsageError(f"--image: cannot read {a.image} as an image")
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        boxes = read_boxes(a.boxes, (img.shape[1], img.shape[0]))
     if a.train_steps is not None:
         if a.workdir is None:
             p.error("--train-steps needs --workdir (where the new model is trained)")
@@ -99,6 +175,7 @@ def main(argv=None, prog: str | None = None) -> int:
             model, variables, cfg, _ = load_pretrained(a.workdir)
         except ValueError as exc:
             raise SystemExit(f"--workdir: {exc}")
+    check_class_id(a.class_id, cfg)
     predict = make_predict_fn(model, cfg)
     a.out.mkdir(parents=True, exist_ok=True)
     records = []
@@ -137,17 +214,9 @@ def main(argv=None, prog: str | None = None) -> int:
             sc.atomic_savefig(fig, a.out / f"overlay_{i:03d}.png", dpi=120, bbox_inches="tight")
             plt.close(fig)
     else:
-        if a.image is None or a.boxes is None:
-            p.error("give --image and --boxes, or --split")
-        import cv2
-
-        img = cv2.imread(str(a.image), cv2.IMREAD_COLOR)
-        if img is None:
-            raise SystemExit(f"could not read image {a.image}")
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        boxes = np.asarray(json.loads(a.boxes.read_text()), np.float64).reshape(-1, 4)
+        assert img is not None and boxes is not None
         if a.K:
-            fx, fy, cx, cy = (float(x) for x in a.K.split(","))
+            fx, fy, cx, cy = a.K
             K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
         else:
             K = cfg.scene.K().astype(np.float64)

@@ -355,7 +355,21 @@ def train_and_evaluate(
         raise ValueError(f"config: expected a jaxsem.lsd.TrainConfig, got {type(config).__name__}")
     parallel.check_batch_size(config.batch_size, mesh)
     workdir = pathlib.Path(workdir)
-    workdir.mkdir(parents=True, exist_ok=True)
+    # first: a second run on the same workdir is refused before any work (the workdir's lock)
+    run = TrainingRun(
+        workdir,
+        config_json(config_to_dict(config)),
+        keep=config.keep,
+        resumable=RESUMABLE_FIELDS,
+        force=force,
+        normalise=lambda old: config_to_dict(config_from_dict(old)),
+        log=log,
+    )
+    with run:
+        return _train(config, workdir, run, data, progress, stop_at, log, mesh)
+
+
+def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainResult:
     if data is None:
         data = workdir / "data"
     if not isinstance(data, dict):
@@ -371,98 +385,90 @@ def train_and_evaluate(
     train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed, config.val_every_nth_building)
     fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
 
-    run = TrainingRun(
-        workdir,
-        config_json(config_to_dict(config)),
-        keep=config.keep,
-        resumable=RESUMABLE_FIELDS,
-        force=force,
-        normalise=lambda old: config_to_dict(config_from_dict(old)),
-        log=log,
-    )
-    with run:
-        opt_state = None
-        if run.latest_step is not None:
-            saved_stage = _stage_of(max(run.latest_step - 1, 0), config)
-            state = run.restore(_state_like(params, config, saved_stage))
-            params = state["params"]
-            if _stage_of(run.start, config) == saved_stage:
-                opt_state = state["opt_state"]
-        elif config.init_from:
-            if not pathlib.Path(config.init_from).exists():
-                raise ValueError(f"init_from: no such model file or training workdir {config.init_from!r}")
-            params = warm_start_params(params, load_model(config.init_from)[1], "init_from")
-        start = run.start
-        run.begin()
-        rep = None if mesh is None else parallel.replicated(mesh)
-        if rep is not None:
-            params, opt_state = jax.device_put((params, opt_state), rep)
+    opt_state = None
+    if run.latest_step is not None:
+        # the state's shape depends on the stage of the checkpoint restored (an older one when
+        # the newest is unreadable)
+        state = run.restore(lambda step: _state_like(params, config, _stage_of(max(step - 1, 0), config)))
+        saved_stage = _stage_of(max(run.start - 1, 0), config)
+        params = state["params"]
+        if _stage_of(run.start, config) == saved_stage:
+            opt_state = state["opt_state"]
+    elif config.init_from:
+        if not pathlib.Path(config.init_from).exists():
+            raise ValueError(f"init_from: no such model file or training workdir {config.init_from!r}")
+        params = warm_start_params(params, load_model(config.init_from)[1], "init_from")
+    start = run.start
+    run.begin()
+    rep = None if mesh is None else parallel.replicated(mesh)
+    if rep is not None:
+        params, opt_state = jax.device_put((params, opt_state), rep)
 
-        uniform_nll = float(np.log(config.model.map_size**2))
-        figures = workdir / "figures"
-        figures.mkdir(exist_ok=True)
-        step = start
-        steps_fn = {}
-        recent: list[float] = []
+    uniform_nll = float(np.log(config.model.map_size**2))
+    figures = workdir / "figures"
+    figures.mkdir(exist_ok=True)
+    step = start
+    steps_fn = {}
+    recent: list[float] = []
 
-        def evaluate(stage_now: int) -> dict:
-            val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
-            b = gather_batch(data, fig_idx)
-            _, _, lp = make_eval_fn(model, stage_now)(params, b)
-            fig = figures / f"eval_{step:06d}.png"
-            save_distribution_figure(
-                fig,
-                b,
-                np.asarray(lp),
-                f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})",
+    def evaluate(stage_now: int) -> dict:
+        val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
+        b = gather_batch(data, fig_idx)
+        _, _, lp = make_eval_fn(model, stage_now)(params, b)
+        fig = figures / f"eval_{step:06d}.png"
+        save_distribution_figure(
+            fig,
+            b,
+            np.asarray(lp),
+            f"step {step} (stage {stage_now}): val NLL {val_nll:.3f} (uniform {uniform_nll:.3f})",
+        )
+        rec = {
+            "step": step,
+            "stage": stage_now,
+            "train_nll": float(np.mean(recent)) if recent else float("nan"),
+            "val_nll": val_nll,
+            "uniform_nll": uniform_nll,
+            "figure": str(fig),
+            "time": time.time(),
+        }
+        run.log_metrics(rec)
+        return rec
+
+    last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
+    for step in run.steps(start, last, total=config.total_steps, desc="lsd train", progress=progress):
+        stage = _stage_of(step, config)
+        tx = stage_optimizer(config, stage)
+        if opt_state is None:
+            opt_state = tx.init(_trainable(params, stage)[0])
+            if rep is not None:
+                opt_state = jax.device_put(opt_state, rep)
+        if stage not in steps_fn:
+            if mesh is None:
+                steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
+            else:
+                steps_fn[stage] = make_train_step(model, tx, stage, augment=True, mesh=mesh)
+        batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
+        if mesh is not None:
+            batch = parallel.shard_batch(batch, mesh)
+        skey = jax.random.fold_in(drop_key, step)
+        params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
+        step += 1
+        recent.append(float(loss))
+        recent = recent[-50:]
+        run.postfix({"stage": stage, "nll": float(np.mean(recent))})
+        end_of_stage = step == config.stage1_steps or step == config.total_steps
+        if step % config.eval_every == 0 or end_of_stage:
+            rec = evaluate(stage)
+            run.write(
+                f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
+                f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})"
             )
-            rec = {
-                "step": step,
-                "stage": stage_now,
-                "train_nll": float(np.mean(recent)) if recent else float("nan"),
-                "val_nll": val_nll,
-                "uniform_nll": uniform_nll,
-                "figure": str(fig),
-                "time": time.time(),
-            }
-            run.log_metrics(rec)
-            return rec
-
-        last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
-        for step in run.steps(start, last, total=config.total_steps, desc="lsd train", progress=progress):
-            stage = _stage_of(step, config)
-            tx = stage_optimizer(config, stage)
-            if opt_state is None:
-                opt_state = tx.init(_trainable(params, stage)[0])
-                if rep is not None:
-                    opt_state = jax.device_put(opt_state, rep)
-            if stage not in steps_fn:
-                if mesh is None:
-                    steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
-                else:
-                    steps_fn[stage] = make_train_step(model, tx, stage, augment=True, mesh=mesh)
-            batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
-            if mesh is not None:
-                batch = parallel.shard_batch(batch, mesh)
-            skey = jax.random.fold_in(drop_key, step)
-            params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
-            step += 1
-            recent.append(float(loss))
-            recent = recent[-50:]
-            run.postfix({"stage": stage, "nll": float(np.mean(recent))})
-            end_of_stage = step == config.stage1_steps or step == config.total_steps
-            if step % config.eval_every == 0 or end_of_stage:
-                rec = evaluate(stage)
-                run.write(
-                    f"step {step} stage {stage}: train NLL {rec['train_nll']:.3f}, "
-                    f"val NLL {rec['val_nll']:.3f} (uniform {uniform_nll:.3f})"
-                )
-            if step % config.checkpoint_every == 0 or end_of_stage or step == last:
-                run.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
-            if step == config.stage1_steps:
-                opt_state = None  # stage two: a fresh optimiser over the context branch
-                recent = []
-        history = run.metrics()
+        if step % config.checkpoint_every == 0 or end_of_stage or step == last:
+            run.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
+        if step == config.stage1_steps:
+            opt_state = None  # stage two: a fresh optimiser over the context branch
+            recent = []
+    history = run.metrics()
     return TrainResult(model, params, history, start, workdir)
 
 

@@ -90,7 +90,13 @@ def _assoc_id(where, field, value):
     return value
 
 
+MAX_BOX_SCALE = 10
+"""A box wider or taller than this many times the image is refused (e.g. ``[0, 0, 1e9, 1e9]``)."""
+
+
 def _box(where, field, value, image_size):
+    """``value`` as a box ``[u_min, v_min, u_max, v_max]`` that overlaps the ``(W, H)`` image and is
+    at most :data:`MAX_BOX_SCALE` times its size; else ``ValueError`` naming ``where`` and ``field``."""
     try:
         b = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -105,6 +111,13 @@ def _box(where, field, value, image_size):
     W, H = image_size
     if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
         _fail(where, field, f"box {b.tolist()} lies outside the {W}x{H} image")
+    if b[2] - b[0] > MAX_BOX_SCALE * W or b[3] - b[1] > MAX_BOX_SCALE * H:
+        _fail(
+            where,
+            field,
+            f"box {b.tolist()} is over {MAX_BOX_SCALE} times the {W}x{H} image (a detection's box lies "
+            "mostly in the image)",
+        )
     return b
 
 
@@ -190,6 +203,14 @@ def _parse(data, where, root):
                 texture_depth=np.asarray(depth, np.float64),
                 image=image,
             )
+        )
+    if not any(len(fr.ids) for fr in frames):
+        lacking = sum("detections" not in fr for fr in data["frames"])
+        _fail(
+            where,
+            "frames[*].detections",
+            f"no frame has any detection (nothing to map); {lacking} of {len(frames)} frames have no "
+            "'detections' key" + (f", keys seen: {sorted(data['frames'][0])}" if lacking else ""),
         )
     first_class: dict = {}
     for t, fr in enumerate(frames):

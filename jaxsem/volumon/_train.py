@@ -394,13 +394,13 @@ def train_and_evaluate(
         )
     parallel.check_batch_size(config.batch_size, mesh)
     workdir = pathlib.Path(workdir)
-    state, model, tx = init_state(config)
 
     def normalise(old: dict) -> dict:  # through the dataclasses: fields added since take their defaults
         from ._configs import config_from_dict
 
         return config_json(config_from_dict(old))
 
+    # first: a second run on the same workdir is refused before any work (the workdir's lock)
     run = TrainingRun(
         workdir,
         config_json(config),
@@ -413,6 +413,7 @@ def train_and_evaluate(
     result_eval = None
     history: dict[int, dict[str, float]] = {}
     with run:
+        state, model, tx = init_state(config)
         if run.latest_step is not None:
             state = run.restore(state)
         start = int(state["step"])
