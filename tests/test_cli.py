@@ -5,6 +5,7 @@ import pytest
 from jaxsem import cli
 
 
+@pytest.mark.slow
 def test_demo_geometry_writes_figure(tmp_path: pathlib.Path, capsys):
     assert cli.main(["demo", "--parts", "geometry", "--quick", "--out", str(tmp_path)]) == 0
     png = tmp_path / "geometry_boxes.png"

@@ -183,6 +183,7 @@ def _cases(d):
 CASE_IDS = [c[0] for c in _cases(pathlib.Path("/x"))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case_id", CASE_IDS)
 def test_bad_input_gives_one_line_naming_it(case_id, files):
     _, argv, words = next(c for c in _cases(files) if c[0] == case_id)

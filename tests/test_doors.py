@@ -63,6 +63,7 @@ def test_door_dataset_loads_for_training(doors):
     assert np.all(b["baseline"] == data.DOOR_BASELINE) and np.all(b["has_right_box"])
 
 
+@pytest.mark.slow
 def test_volumon_train_command_reads_a_door_directory(doors, tmp_path, run_cli):
     """`jaxsem volumon train --size door --data DIR` trains on the doors (the door class and the
     writer's stereo baseline come from the preset and the directory), as make_doors' own

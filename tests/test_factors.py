@@ -46,6 +46,7 @@ def _pose_obj_fn(factor, pose, R, c, r):
     return f
 
 
+@pytest.mark.slow
 def test_box_residual_jacobian_matches_finite_differences():
     pose, R, c, r = _scene(0)
     box_true, valid = Q.project_bbox(R, c, r, K, pose)
@@ -124,6 +125,7 @@ def test_border_edges_are_dropped_exactly():
     np.testing.assert_array_equal(np.asarray(m2), [False, True, True, False])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["inside", "behind", "straddling"])
 def test_degenerate_geometry_is_finite_and_points_back_to_validity(case):
     pose = Q.look_at(jnp.array([0.0, 0.0, 1.5]), jnp.array([10.0, 0.0, 1.5]))

@@ -47,6 +47,7 @@ def test_summarise_against_hand_computed_statistics():
     assert "| II | 500 | 4 | 75 % | 75 % | 1 / 1 | 2 |" in table and "| IO | 100 |" in table
 
 
+@pytest.mark.slow
 def test_table_script_end_to_end_tiny(tmp_path):
     spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
     mod = importlib.util.module_from_spec(spec)
@@ -144,6 +145,7 @@ def test_a_variant_both_planners_ran_is_paired_like_the_defaults():
     assert not any(k.startswith("paired_") for k in summarise(recs)["II-500"])
 
 
+@pytest.mark.slow
 def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path):
     spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
     mod = importlib.util.module_from_spec(spec)

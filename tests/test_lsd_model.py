@@ -28,6 +28,7 @@ def net():
     return init_lsd(jax.random.PRNGKey(0), CFG, jnp.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype,batch", [(jnp.float32, ()), (jnp.float64, (3,)), (jnp.float32, (2, 1))])
 def test_distribution_sums_to_one(net, dtype, batch):
     model, params = net

@@ -35,6 +35,7 @@ def test_bad_flags_name_the_flag(tmp_path):
         mod.main(["--out", str(tmp_path / "a_file" / "plan.png")])
 
 
+@pytest.mark.slow
 def test_short_run_writes_the_map_and_the_strip(tmp_path):
     out = tmp_path / "new" / "plan.png"  # regression: the figure's folder is made (it failed after the run)
     rc = _module().main(

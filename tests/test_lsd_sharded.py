@@ -12,6 +12,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 CHILD = textwrap.dedent(
     r"""
     import json
@@ -70,6 +72,7 @@ CHILD = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_sharded_trials_equal_single_device_records():
     env = dict(os.environ)
     # Optimisation level 0 only makes XLA compile faster (every run of the child uses it).

@@ -65,6 +65,7 @@ def run(tmp_path_factory):
     return wd, res
 
 
+@pytest.mark.slow
 def test_stage_two_leaves_encoder_decoder_bit_identical(run):
     wd, res = run
     _, after_stage1, _ = load_trained(wd, step=CFG.stage1_steps)
@@ -95,6 +96,7 @@ def test_resume_with_another_config_is_refused(run):
         train_and_evaluate(dataclasses.replace(CFG, learning_rate=2e-2), wd, data=_data(), progress=False)
 
 
+@pytest.mark.slow
 def test_checkpoint_resume_equals_uninterrupted(run, tmp_path):
     wd, res = run
     rows_before = [h["step"] for h in res.history]
@@ -261,6 +263,7 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
         assert spectrum[f] < 2.0 * neighbours, f"period {period}: peak {spectrum[f] / neighbours:.1f}x"
 
 
+@pytest.mark.slow
 def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
     from jaxsem.lsd import stage_optimizer
 
@@ -351,6 +354,7 @@ def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
         warm_start_params({"dec_0": {"kernel": jnp.zeros((3, 3, 3, 5)), "bias": pt["bias"]}}, {"dec_0": pt}, "src")
 
 
+@pytest.mark.slow
 def test_init_from_fine_tunes_a_resize_network_from_an_exported_model(run, tmp_path):
     from jaxsem.lsd import export_model, warm_start_params
 

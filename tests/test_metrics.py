@@ -17,6 +17,7 @@ def _monte_carlo_iou(Ra, ca, ha, Rb, cb, hb, n=400_000, seed=0):
     return (ina & inb).sum() / union if union else 0.0
 
 
+@pytest.mark.slow
 def test_iou_exact_cases():
     I = np.eye(3)
     one = np.ones(3)
@@ -32,6 +33,7 @@ def test_iou_exact_cases():
     assert np.isclose(m.iou_3d_boxes(I, np.zeros(3), [1.0, 2, 3], Rz, np.zeros(3), [2.0, 1, 3]), 1.0)
 
 
+@pytest.mark.slow
 def test_iou_against_monte_carlo_and_symmetric():
     rng = np.random.default_rng(0)
     Ra = np.asarray(q.random_rotation(jax.random.PRNGKey(0), (8,)))
@@ -75,6 +77,7 @@ def test_ellipsoid_metric_symmetries():
     assert float(m.ellipsoid_errors(R, c, np.ones(3), np.eye(3), c, np.ones(3))["orientation"]) == 0.0
 
 
+@pytest.mark.slow
 def test_ellipsoid_metric_batched_with_finite_gradients():
     R = q.random_rotation(jax.random.PRNGKey(3), (4, 5))
     c = jnp.zeros((4, 5, 3))

@@ -118,6 +118,7 @@ def test_multiclass_selection_and_expectation():
     np.testing.assert_allclose(expected_params(phi, sharp), select_class_params(phi, cls), atol=1e-10)
 
 
+@pytest.mark.slow
 def test_network_shapes_multiclass_and_inputs():
     cfg = VoluMonConfig(input_size=32, hidden=(16,), num_classes=3, backbone="small_cnn")
     model, variables = init_volumon(jax.random.PRNGKey(0), cfg)
@@ -235,6 +236,7 @@ def _np_forward(sd, x, width):
     return y.mean(axis=(2, 3))
 
 
+@pytest.mark.slow
 def test_converter_matches_numpy_reference():
     width = 0.35
     rng = np.random.default_rng(8)

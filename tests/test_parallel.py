@@ -148,6 +148,7 @@ def four_devices_slow():
     return _run_child("slow")
 
 
+@pytest.mark.slow
 def test_four_devices_seen(four_devices):
     assert four_devices["devices"] == 4
     assert four_devices["shards"] == 4 and four_devices["shard_rows"] == [2, 2, 2, 2]

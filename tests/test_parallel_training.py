@@ -162,6 +162,7 @@ def training():
     return _run_child(TRAINING)
 
 
+@pytest.mark.slow
 def test_volumon_sharded_steps_equal_one_device(training):
     assert training["devices"] == 4
     assert training["volumon_state_replicated"]

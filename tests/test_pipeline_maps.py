@@ -122,6 +122,7 @@ def _pipeline():
     return mod
 
 
+@pytest.mark.slow
 def test_pipeline_depth_mapper_one_step(building):
     """benchmarks/pipeline.py's DetectionMapper: one rendered view in front of the entrance door
     maps it (depth estimator), and its error against the seen door is small."""

@@ -56,6 +56,7 @@ def _two_rooms():
 CFG = NavConfig(n_samples=400, radius=1.5, max_steps=600)
 
 
+@pytest.mark.slow
 def test_navigate_reaches_goal_through_the_door():
     w = _two_rooms()
     start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
@@ -91,6 +92,7 @@ def test_without_reuse_the_uniform_planner_samples_a_fresh_roadmap_at_every_repl
     assert res.searches >= 2 and res.plans == res.searches - res.grown
 
 
+@pytest.mark.slow
 def test_failed_roadmap_is_grown_not_the_end():
     w = _two_rooms()
     start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
@@ -114,6 +116,7 @@ def test_navigate_fails_when_goal_is_sealed_off():
     assert res.steps <= 300
 
 
+@pytest.mark.slow
 def test_learned_sampler_hook_gets_local_inputs():
     w = _two_rooms()
     seen = []
@@ -186,6 +189,7 @@ def building():
     return generate_building(5, "train")
 
 
+@pytest.mark.slow
 def test_expert_samples_schema_and_paths(building, tmp_path):
     cfg = ExpertConfig(
         samples_per_building=6,
@@ -247,6 +251,7 @@ def test_sample_tasks(building):
         sample_tasks(building, "OO", 1, 0)
 
 
+@pytest.mark.slow
 def test_informed_sampler_beats_uniform_at_few_samples():
     # Known answer: the mass on the true soft-cost path through the door finds plans that 40
     # uniform samples in a 12 x 6 m map mostly do not.
@@ -355,6 +360,7 @@ def _job_small_shard(job):
     return str(path), 1
 
 
+@pytest.mark.slow
 def test_expert_workers_are_replaced_without_hanging(tmp_path):
     """Regression: workers retired through ProcessPoolExecutor(max_tasks_per_child=16) on Python
     3.11 left the command waiting forever once both had retired (32 of 240 buildings written, no

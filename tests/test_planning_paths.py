@@ -130,6 +130,7 @@ def _one_route_map():
     return occ
 
 
+@pytest.mark.slow
 def test_prm_finds_the_corridor_path():
     occ = _one_route_map()
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
@@ -170,6 +171,7 @@ def test_unknown_counts_as_free():
     assert roadmap_shortest_path(rm).found
 
 
+@pytest.mark.slow
 def test_concentrated_distribution_places_vertices_there():
     occ = np.zeros((60, 100), bool)
     dist = np.zeros(occ.shape)
@@ -209,6 +211,7 @@ def test_concentrated_distribution_places_vertices_there():
     assert abs(inside.mean() - 0.9) < 0.03
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("weight", ["euclidean", "neglogp"])
 def test_edges_never_cross_known_obstacles(weight):
     occ = _blocks(4, shape=(60, 100), n=50)
@@ -303,6 +306,7 @@ def test_knn_matches_brute_force(kind):
         assert np.all(nb[~valid] == 700)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["uniform", "concentrated"])
 def test_grown_roadmap_neighbours_are_exact(kind):
     """Two batches, a tiny starting bucket cap (forces the rerun): every vertex holds the k
@@ -348,6 +352,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
         np.testing.assert_allclose(_sorted_dists(pts, pts[lo:hi], nbr[lo:hi]), ref, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_prm_reuse_grow_and_update():
     occ = _one_route_map()
     prm = PRM(occ, ORIGIN, RES, capacity=2 * N, radius=RADIUS)
@@ -461,6 +466,7 @@ def test_prm_bad_input():
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, k=0)
 
 
+@pytest.mark.slow
 def test_roadmap_builder_vmaps_over_trials():
     from jaxsem.planning import make_roadmap_builder
 
@@ -568,6 +574,7 @@ def _cluster_behind_wall():
     return occ, dist
 
 
+@pytest.mark.slow
 def test_sparse_side_of_a_learned_distribution_is_linked():
     """Regression (issue 11, Inside-Outside 'no plan'): with samples concentrated by a learned
     distribution, the few samples beyond the dense patch lay further apart than the uniform
@@ -597,6 +604,7 @@ def test_sparse_side_of_a_learned_distribution_is_linked():
     assert found["new"] >= 7 and found["old"] <= 2, found
 
 
+@pytest.mark.slow
 def test_query_links_to_samples_beyond_radius():
     occ = np.zeros((60, 100), bool)
     dist = np.zeros(occ.shape)
@@ -613,6 +621,7 @@ def test_query_links_to_samples_beyond_radius():
     assert not prm2.query(np.array([1.0, 3.0]), goal).found
 
 
+@pytest.mark.slow
 def test_uniform_growth_spreads_samples_but_keeps_the_learned_weights():
     # NavConfig.growth='uniform': a failed roadmap of a learned sampler grows with uniform
     # samples; its edges keep the distribution's -log p weights.

@@ -106,6 +106,7 @@ def test_quadricslam_reference_box():
     assert bool(valid2)
 
 
+@pytest.mark.slow
 def test_project_bbox_matches_surface_extremes(cases):
     R, c, r, K, pose = cases
     box, valid = q.project_bbox(R, c, r, K, pose)
@@ -156,6 +157,7 @@ def _cases_with_invalid(rng, n):
     return (R, c, r, K, pose), kind
 
 
+@pytest.mark.slow
 def test_fused_path_agrees_with_composed_conic_path():
     rng = np.random.default_rng(21)
     (R, c, r, K, pose), kind = _cases_with_invalid(rng, 400)
@@ -184,6 +186,7 @@ _K_USED = np.zeros((3, 3), bool)
 _K_USED[0, 0] = _K_USED[0, 1] = _K_USED[0, 2] = _K_USED[1, 1] = _K_USED[1, 2] = True
 
 
+@pytest.mark.slow
 def test_fused_path_gradients_match_composed_conic_path():
     rng = np.random.default_rng(22)
     R, c, r, K, pose = random_case(rng, 200)
@@ -200,6 +203,7 @@ def test_fused_path_gradients_match_composed_conic_path():
         np.testing.assert_allclose(g, g_ref, rtol=1e-7, atol=1e-10 * np.abs(g_ref).max(), err_msg=name)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_fused_path_custom_jvp_matches_plain_autodiff(dtype):
     """The hand-written JVP rule (and so its transpose, the gradient) against autodiff of the same
@@ -326,6 +330,7 @@ def _jacobians(params, K, pose):
     return jax.jacfwd(fn)(params), jax.jacrev(fn)(params), fd
 
 
+@pytest.mark.slow
 def test_jacobians_three_ways(cases):
     R, c, r, K, pose = cases
     for i in range(20):
@@ -347,6 +352,7 @@ DEGENERATE = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(DEGENERATE))
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_degenerate_inputs_finite_values_and_gradients(name, dtype):
@@ -390,6 +396,7 @@ def test_conic_bbox_of_degenerate_conics_is_finite():
 # Shapes, dtypes, compilation.
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch", [(), (5,), (2, 3)])
 def test_batch_shapes(batch):
     rng = np.random.default_rng(4)
@@ -507,6 +514,7 @@ def test_bad_input_other_functions():
         q.project_dual_conic(np.eye(3), np.eye(3), np.eye(4))
 
 
+@pytest.mark.slow
 def test_rotation_quaternion_round_trip():
     R = q.random_rotation(jax.random.PRNGKey(5), (500,))
     R = jnp.concatenate(
@@ -540,6 +548,7 @@ def test_look_at_points_camera_at_target():
     assert (pose[0, :3, :3] @ np.array([0, 0, 1.0]))[1] < 0
 
 
+@pytest.mark.slow
 def test_conic_outline_touches_the_box(cases):
     R, c, r, K, pose = cases
     conic = q.project_dual_conic(q.dual_quadric(R[:30], c[:30], r[:30]), K[:30], pose[:30])

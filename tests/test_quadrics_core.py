@@ -44,6 +44,7 @@ def test_project_points_matches_opencv():
     np.testing.assert_allclose(depth, pts_cam[:, 2], rtol=1e-12)
 
 
+@pytest.mark.slow
 @settings(max_examples=8, deadline=None)
 @given(shape=batch_shapes, dtype=dtypes, seed=st.integers(0, 2**31 - 1))
 def test_back_project_inverts_project_points_over_batch_shapes(shape, dtype, seed):
@@ -59,6 +60,7 @@ def test_back_project_inverts_project_points_over_batch_shapes(shape, dtype, see
     np.testing.assert_allclose(z2, z, rtol=tol)
 
 
+@pytest.mark.slow
 @settings(max_examples=8, deadline=None)
 @given(shape=batch_shapes, seed=st.integers(0, 2**31 - 1))
 def test_invert_pose_and_transform_points_round_trip(shape, seed):
@@ -143,6 +145,7 @@ def _scene(key, n, dtype):
     return R, c, r
 
 
+@pytest.mark.slow
 def test_conic_outline_extremes_match_the_closed_form_box():
     R, c, r = _scene(jax.random.PRNGKey(0), 50, jnp.float64)
     C = q.project_dual_conic(q.dual_quadric(R, c, r), K, np.eye(4))
@@ -167,6 +170,7 @@ def test_conic_outline_gradients_finite_in_float32_and_match_float64():
     assert float(jnp.max(jnp.abs(g32.astype(jnp.float64) - g64) / scale)) < 2e-2
 
 
+@pytest.mark.slow
 def test_conic_outline_of_a_sphere_seen_head_on_has_a_radius_gradient():
     def mean_radius(rad, dtype):
         C = q.project_dual_conic(

@@ -16,6 +16,7 @@ def _table_rows(table: str) -> dict:
     return rows
 
 
+@pytest.mark.slow
 def test_quick_demo_writes_figure_and_table(tmp_path: pathlib.Path):
     from jaxsem.demos import roshan
 
@@ -48,6 +49,7 @@ def simulated():
     return cfg, one, slam.sequence_from_simulation(one, cfg.image_size)
 
 
+@pytest.mark.slow
 def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
     import json
 
@@ -283,6 +285,7 @@ def test_sequence_noise_model_loads_validates_and_round_trips(tmp_path):
             slam.load_sequence(_write(tmp_path, data))
 
 
+@pytest.mark.slow
 def test_sequence_initial_ellipsoids_load_validate_and_are_used(tmp_path):
     from jaxsem import slam
 

@@ -97,6 +97,7 @@ def test_camera_paths():
     np.testing.assert_allclose(np.linalg.inv(fwd)[:, :3, 2], [[1.0, 0, 0]] * FWD.num_frames, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_noise_free_detections_match_projected_surface_points(clean_maps):
     """Independent reference: boxes = extent of densely projected surface points; texture
     depth = smallest camera z of the surface points."""
@@ -220,6 +221,7 @@ def test_to_problem_is_a_valid_slam_problem(fwd_maps):
     np.testing.assert_allclose(np.asarray(ref.texture_depth)[prob.texture_mask], prob.texture_depth[prob.texture_mask])
 
 
+@pytest.mark.slow
 def test_ground_truth_fits_the_solver_factors_exactly(clean_maps):
     """Noise-free measurements: the solver's box and texture residuals vanish at the truth
     (sim and factors agree on every convention), and the initial estimate is far worse."""
@@ -234,6 +236,7 @@ def test_ground_truth_fits_the_solver_factors_exactly(clean_maps):
     assert gt_cost < 1e-3 * init_cost
 
 
+@pytest.mark.slow
 def test_views_study_maps():
     cfg = sim.thesis_config(box_noise_px=0.0)
     f = jax.jit(jax.vmap(lambda k, n, yr: sim.simulate_views(k, n, yr, cfg, max_views=8)))

@@ -27,6 +27,7 @@ def _stack(items):
     )
 
 
+@pytest.mark.slow
 def test_vmapped_member_equals_its_solo_solve_and_ignores_the_other_members():
     # Members of different real sizes and step counts; the default (GTSAM-like) stopping rule.
     a, b, c = _map(0, 8), _map(1, 12), _map(2, 16)
@@ -57,6 +58,7 @@ def _with_holes(problem):
     return eqx.tree_at(lambda p: (p.box_mask, p.texture_mask), problem, (jnp.asarray(m), jnp.asarray(tm)))
 
 
+@pytest.mark.slow
 def test_compact_boxes_keeps_the_answer_and_shares_a_bucket():
     cfg = CFG.tight(max_steps=60)
     solve = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))

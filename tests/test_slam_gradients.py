@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxsem import factors as F, quadrics as Q, slam
 
@@ -24,6 +25,7 @@ def _few_views():
     return problem, r
 
 
+@pytest.mark.slow
 def test_gradient_of_solved_shape_wrt_prior_mean_matches_finite_differences():
     problem, r_true = _few_views()
     mean0, sigma = F.shape_prior_table()

@@ -45,6 +45,7 @@ def _leaves_equal(a, b):
     return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
 
 
+@pytest.mark.slow
 def test_update_and_final_optimize_share_one_compiled_step():
     state, frames = _state_and_frames()
     before = _online.online_step._cache_size()
@@ -122,6 +123,7 @@ def test_exported_keeps_only_the_newest_programs(tmp_path, monkeypatch):
     assert len(kept) == 3 and "toy-stale4.jaxexport" in kept and "toy-stale0.jaxexport" not in kept
 
 
+@pytest.mark.slow
 def test_online_init_and_make_frame_compile_nothing():
     problem, _ = slam.toy_map(0, num_objects=2, num_frames=4, path="orbit")
     cap = slam.Capacity(max_poses=4, max_objects=2, max_boxes=8, max_detections=2)
@@ -132,6 +134,7 @@ def test_online_init_and_make_frame_compile_nothing():
     assert c.count == 0
 
 
+@pytest.mark.slow
 def test_figures_compile_nothing_and_match_the_jax_geometry():
     import matplotlib.pyplot as plt
 

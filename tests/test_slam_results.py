@@ -18,6 +18,7 @@ def _small(seed=0, capacity=None, num_frames=8):
     return slam.toy_map(seed, num_objects=2, num_frames=num_frames, path="orbit", capacity=capacity)
 
 
+@pytest.mark.slow
 def test_clean_problem_succeeds_and_reports_steps():
     problem, _ = _small()
     _, info = SOLVE(problem, slam.initialize(problem, CFG))
@@ -26,6 +27,7 @@ def test_clean_problem_succeeds_and_reports_steps():
     assert float(info.cost) < float(info.initial_cost)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["init_center", "init_pose", "box", "prior_inf"])
 def test_nonfinite_input_is_never_success(where):
     problem, _ = _small()
@@ -49,6 +51,7 @@ def test_nonfinite_input_is_never_success(where):
         jax.block_until_ready(slam.solve_schur(problem, init, CFG, throw=True))
 
 
+@pytest.mark.slow
 def test_step_budget_is_not_success_and_throw_raises():
     problem, _ = _small()
     init = slam.initialize(problem, CFG)
@@ -59,6 +62,7 @@ def test_step_budget_is_not_success_and_throw_raises():
         jax.block_until_ready(slam.solve_schur(problem, init, CFG, max_steps=1, throw=True))
 
 
+@pytest.mark.slow
 def test_float32_problem_under_x64():
     assert jax.config.jax_enable_x64
     problem, _ = _small()
@@ -69,6 +73,7 @@ def test_float32_problem_under_x64():
     assert bool(info.success), slam.result_message(info.result)
 
 
+@pytest.mark.slow
 def test_no_recompile_for_another_size_in_the_same_bucket():
     cap = slam.bucket_capacity(9, 18, 2)
     assert cap == slam.bucket_capacity(12, 20, 2)
@@ -82,6 +87,7 @@ def test_no_recompile_for_another_size_in_the_same_bucket():
     assert bool(jnp.isfinite(info.cost))
 
 
+@pytest.mark.slow
 def test_online_update_returns_a_code_per_frame():
     problem, _ = _small(3)
     frames = slam.frames_from_problem(problem, max_detections=2)
@@ -97,6 +103,7 @@ def test_online_update_returns_a_code_per_frame():
     assert bool(state.result == slam.RESULTS.nonfinite)
 
 
+@pytest.mark.slow
 def test_pose_priors_hold_under_plain_initialisation_forward():
     """QuadricSLAM's initial values (10 m along the first bearing, identity, radii 1 m) on a
     Forward path: cameras stay within 3 sigma of their priors; no object drags them."""

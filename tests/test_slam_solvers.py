@@ -54,6 +54,7 @@ def _same_ellipsoid(est, j=0, atol=1e-4):
     np.testing.assert_allclose(q_est, q_true, atol=atol)
 
 
+@pytest.mark.slow
 def test_planted_ellipsoid_recovered_from_noise_free_orbit():
     problem, poses = _orbit()
     init = slam.initialize(problem, CFG_BASE)
@@ -66,6 +67,7 @@ def test_planted_ellipsoid_recovered_from_noise_free_orbit():
     assert float(jnp.min(est.radii)) > 0
 
 
+@pytest.mark.slow
 def test_schur_step_equals_dense_normal_equations():
     problem, truth = slam.toy_map(3, num_objects=2, num_frames=5, path="forward")
     cfg = slam.SolverConfig()
@@ -96,6 +98,7 @@ def test_schur_step_equals_dense_normal_equations():
     np.testing.assert_allclose(schur, dense, rtol=1e-8, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_roshan_recovers_depth_and_shape_from_one_view_where_baseline_cannot():
     # One camera, one car 20 m away; the initial guess sits at the default 10 m depth.
     R = np.eye(3)
@@ -130,6 +133,7 @@ def test_roshan_recovers_depth_and_shape_from_one_view_where_baseline_cannot():
     assert results["roshan"][0] < 0.05 * results["baseline"][0]
 
 
+@pytest.mark.slow
 def test_vmap_over_maps_equals_a_loop_of_solves():
     # Two maps of different real sizes padded to one capacity; the loop reuses SOLVE_ROSHAN.
     maps = [slam.toy_map(s, num_objects=1, num_frames=7 + 3 * s, path="orbit", capacity=CAP) for s in range(2)]
@@ -146,6 +150,7 @@ def test_vmap_over_maps_equals_a_loop_of_solves():
         assert float(info.cost) < float(info.initial_cost)
 
 
+@pytest.mark.slow
 def test_online_matches_batch_and_never_recompiles():
     problem, truth = slam.toy_map(1, num_objects=3, num_frames=12, path="forward")
     cfg = slam.SolverConfig(max_steps=100)

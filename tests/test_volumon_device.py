@@ -78,6 +78,7 @@ def test_device_batch_geometry(batch):
     assert np.median(np.abs(d[m])) < 0.02
 
 
+@pytest.mark.slow
 def test_shape_aware_losses_zero_at_truth(batch):
     b = batch
     truth = Ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"])
@@ -146,6 +147,7 @@ def _device_cfg():
     )
 
 
+@pytest.mark.slow
 def test_device_train_step_no_recompiles():
     cfg = _device_cfg()
     state, model, tx = init_state(cfg)
@@ -161,6 +163,7 @@ def test_device_train_step_no_recompiles():
     assert step._cache_size() == compiled <= 1
 
 
+@pytest.mark.slow
 def test_resume_rules(tmp_path):
     cfg = _device_cfg()
     lines = []
@@ -192,6 +195,7 @@ def test_resume_rules(tmp_path):
     assert int(forced["state"]["step"]) == 8
 
 
+@pytest.mark.slow
 def test_held_out_set_is_deterministic_and_disjoint_from_training():
     a = held_out_set(5, 4, SCENE, 32, batch_size=4)
     b = held_out_set(5, 4, SCENE, 32, batch_size=4)

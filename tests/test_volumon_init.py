@@ -43,6 +43,7 @@ def _first_with_detections(problem):
     return int(np.min(np.asarray(problem.box_pose)[np.asarray(problem.box_mask)]))
 
 
+@pytest.mark.slow
 def test_new_object_starts_at_its_given_ellipsoid_and_others_as_before(toy):
     problem, truth, _, cap = toy
     t = _first_with_detections(problem)

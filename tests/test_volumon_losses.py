@@ -192,6 +192,7 @@ def test_degenerate_inputs_no_nan():
     assert np.isfinite(val) and np.all(np.isfinite(g))
 
 
+@pytest.mark.slow
 def test_volumon_loss_weights_and_float32():
     ell = _random_ellipsoids(6, 4)
     bl, br, _ = _stereo_boxes(ell)

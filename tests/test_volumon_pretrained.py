@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from jaxsem.cli import main
 from jaxsem.volumon import PRETRAINED_DIR, load_pretrained
@@ -28,6 +29,7 @@ def test_shipped_model_files_and_size():
     assert meta["step"] > 0 and cfg.model.num_classes == 4
 
 
+@pytest.mark.slow
 def test_eval_command_beats_constant_size_predictor(tmp_path):
     out = tmp_path / "eval.json"
     assert main(["volumon", "eval", "--seed", "424242", "--num", "48", "--json", str(out)]) == 0

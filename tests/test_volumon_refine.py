@@ -41,6 +41,7 @@ def _true_phi(b, recon):
     return phi
 
 
+@pytest.mark.slow
 def test_postopt_stays_at_the_truth_of_ellipsoid_objects():
     """Exact points of ellipsoid-shaped objects: the truth is the loss's zero, and PostOpt started
     there stays there (same frame for points, ellipsoid and metric). A small step size: Adam's
@@ -59,6 +60,7 @@ def test_postopt_stays_at_the_truth_of_ellipsoid_objects():
     assert np.max(err) < 0.005, err
 
 
+@pytest.mark.slow
 def test_scratch_on_box_points_does_not_grow_and_recede():
     """Regression (Table 5.1: Scratch(500) translation AUC 0.48, below Scratch(50)'s 3.95): the
     visible faces of a box fit a large, distant ellipsoid better unless the size weight grows with
@@ -81,6 +83,7 @@ def test_scratch_on_box_points_does_not_grow_and_recede():
     assert err > 0.15 and long > 3.0 * true_long, results  # ~35 cm, 4.4x: the literal reading recedes
 
 
+@pytest.mark.slow
 def test_postopt_from_the_truth_stays_there_with_the_class_shape():
     """Regression (issue 10): PostOpt drew every class as an ellipsoid, so a true cuboid or cylinder
     was not a zero of its objective and PostOpt moved it (median 0.9 cm, p90 3.5 cm on held-out

@@ -32,6 +32,7 @@ def uninterrupted(tmp_path_factory):
     return workdir, train_and_evaluate(_config(), workdir, progress=False)
 
 
+@pytest.mark.slow
 def test_overfits_a_handful_of_samples(uninterrupted):
     workdir, result = uninterrupted
     h = result["history"]
@@ -86,6 +87,7 @@ def _ellipsoid_batch(n=6):
     return b, f64, recon, cfg
 
 
+@pytest.mark.slow
 def test_postopt_improves_perturbed_truth():
     b, f64, recon, cfg = _ellipsoid_batch()
     # true free parameters of the (ellipsoid-shaped) objects, then a pose perturbation
@@ -141,6 +143,7 @@ def test_optimise_from_scratch_reduces_primal_loss():
         optimise_from_scratch(box, K, pts[:2], pm, recon)
 
 
+@pytest.mark.slow
 def test_train_from_a_directory_end_to_end_with_exact_resume(tmp_path):
     """``config.data == "directory"``: batches from jaxsem.data's pipeline over a written dataset."""
     import jax
