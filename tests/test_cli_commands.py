@@ -17,6 +17,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 # words -> flags its --help must name
 HELP = {
+    ("data", "fetch"): ["--out", "--from", "lmo", "maps"],
     ("demo",): ["--out", "--parts", "--quick"],
     ("roshan",): ["--sequence", "--simulate", "--out", "--optimize-every", "map.json"],
     ("volumon", "train"): ["--workdir", "--variant", "--size", "--steps", "--data", "--set"],
@@ -68,7 +69,7 @@ def test_help_names_the_main_flags_and_defaults(words, run_cli):
 def test_top_level_and_group_help_list_the_subcommands(run_cli):
     status, out, _ = run_cli(["--help"])
     assert status == 0
-    for name in ("demo", "roshan", "volumon", "lsd", "bench"):
+    for name in ("demo", "roshan", "volumon", "lsd", "data", "bench"):
         assert f"    {name} " in out
     for group, leaves in (("volumon", ("train", "predict", "eval", "export")), ("lsd", ("data", "train", "plan"))):
         status, out, _ = run_cli([group, "--help"])
@@ -100,6 +101,8 @@ def _bad_cases(tmp):
         (["lsd", "train", "--data", str(tmp / "nope"), "--workdir", str(tmp / "w")], ["--data", "nope"]),
         (["lsd", "plan", "--n", "0"], ["--n"]),
         (["lsd", "plan", "--sampler", "magic"], ["--sampler", "magic"]),
+        (["data", "fetch", "everything", "--out", str(tmp / "d")], ["everything"]),
+        (["data", "fetch", "lmo", "--out", str(tmp / "d"), "--from", str(tmp / "nope.whl")], ["nope.whl"]),
         (["bench", "nonexistent"], ["nonexistent", "benchmarks"]),
         (["bench", "--dir", str(tmp / "no_benchmarks"), "geometry"], ["no_benchmarks"]),
         (["volumon", "bogus"], ["bogus"]),

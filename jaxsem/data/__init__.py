@@ -26,7 +26,7 @@ from ._fat import (
     load_fat_scene as load_fat_scene,
     right_T_left as right_T_left,
 )
-from ._fetch import DATASETS as DATASETS, FetchError as FetchError, fetch as fetch
+from ._fetch import DATASETS as DATASETS, FetchError as FetchError, Source as Source, fetch as fetch
 from ._objects import (
     ROBOSUITE_OBJECTS as ROBOSUITE_OBJECTS,
     MeshAsset as MeshAsset,

@@ -94,7 +94,7 @@ MAX_BOX_SCALE = 10
 """A box wider or taller than this many times the image is refused (e.g. ``[0, 0, 1e9, 1e9]``)."""
 
 
-def _box(where, field, value, image_size):
+def check_box(where, field, value, image_size):
     """``value`` as a box ``[u_min, v_min, u_max, v_max]`` that overlaps the ``(W, H)`` image and is
     at most :data:`MAX_BOX_SCALE` times its size; else ``ValueError`` naming ``where`` and ``field``."""
     try:
@@ -174,7 +174,7 @@ def _parse(data, where, root):
             for key in ("box", "class", "id"):
                 if key not in d:
                     _fail(where, f"{g}.{key}", "missing")
-            boxes.append(_box(where, f"{g}.box", d["box"], image_size))
+            boxes.append(check_box(where, f"{g}.box", d["box"], image_size))
             classes.append(_class_name(where, f"{g}.class", d["class"]))
             ids.append(_assoc_id(where, f"{g}.id", d["id"]))
             tex = d.get("texture_depth")
