@@ -24,6 +24,7 @@ def test_fit_ellipsoid_to_boxes_recovers_the_truth():
     assert result["volume_ratio"] == pytest.approx(1.0, abs=0.02)
 
 
+@pytest.mark.slow
 def test_lsd_on_my_grid_goes_through_the_door():
     result = _load("lsd_on_my_grid").main()
     assert result["success"] and result["reason"] == "goal"

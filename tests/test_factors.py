@@ -65,6 +65,7 @@ def test_box_residual_jacobian_matches_finite_differences():
     np.testing.assert_allclose(jax.jit(jax.jacfwd(g))(jnp.zeros(15)), jac, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_texture_pose_shape_jacobians_match_finite_differences():
     pose, R, c, r = _scene(2)
     depth, _ = Q.texture_plane_depth(R, c, r, pose)

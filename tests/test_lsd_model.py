@@ -44,6 +44,7 @@ def test_distribution_sums_to_one(net, dtype, batch):
         assert np.all(np.asarray(p) > 0)
 
 
+@pytest.mark.slow
 def test_product_is_sum_in_log_space(net):
     model, params = net
     rng = np.random.default_rng(2)

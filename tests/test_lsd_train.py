@@ -88,6 +88,7 @@ def test_stage_two_leaves_encoder_decoder_bit_identical(run):
     assert all((wd / "figures" / f"eval_{s:06d}.png").exists() for s in (2, 4))
 
 
+@pytest.mark.slow
 def test_resume_with_another_config_is_refused(run):
     wd, _ = run
     from jaxsem.lsd import ConfigMismatchError

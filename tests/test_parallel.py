@@ -154,6 +154,7 @@ def test_four_devices_seen(four_devices):
     assert four_devices["shards"] == 4 and four_devices["shard_rows"] == [2, 2, 2, 2]
 
 
+@pytest.mark.slow
 def test_sharded_loop_equals_vmap(four_devices):
     assert four_devices["newton_shape"] == [7]
     assert four_devices["newton_shard_map"] == 0.0

@@ -172,6 +172,7 @@ def test_volumon_sharded_steps_equal_one_device(training):
     assert training["volumon_batch_stats"] <= 1e-5
 
 
+@pytest.mark.slow
 def test_lsd_sharded_steps_equal_one_device(training):
     assert training["lsd_rows"][0] == training["lsd_rows"][1] >= 2  # end of stage 1 and of stage 2
     assert training["lsd_train_nll"] <= 1e-5

@@ -114,6 +114,7 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
     np.testing.assert_allclose(np.sort(e["position"]), np.sort(err), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_infer_script_writes_map_and_figures(tmp_path, simulated):
     import importlib.util
     import json

@@ -215,6 +215,7 @@ def test_bad_input_is_rejected_or_masked():
         slam.make_frame(np.eye(4), [[1.0, 2.0, 3.0, 4.0]], ["car"], [7], max_objects=4)
 
 
+@pytest.mark.slow
 def test_camera_inside_an_object_stays_finite_and_moves_out():
     # The initial ellipsoid swallows the camera of the second frame: the solve stays finite,
     # and the barrier pushes the object out (all projections valid at the end).

@@ -81,6 +81,7 @@ def test_new_object_starts_at_its_given_ellipsoid_and_others_as_before(toy):
         np.testing.assert_array_equal(np.asarray(st2.estimate.center)[j0], np.asarray(st.estimate.center)[j0])
 
 
+@pytest.mark.slow
 def test_true_ellipsoid_as_init_stays_near_truth(toy):
     problem, truth, _, cap = toy
     R, c, r = (np.asarray(x) for x in (truth.rotation, truth.center, truth.radii))
@@ -138,6 +139,7 @@ def shipped():
     return model, variables, config
 
 
+@pytest.mark.slow
 def test_volumon_world_ellipsoids_reproject_to_the_camera_frame_prediction(shipped):
     model, variables, config = shipped
     scene = config.scene

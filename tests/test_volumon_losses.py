@@ -38,6 +38,7 @@ def _stereo_boxes(ell, baseline=0.06):
     return bl, br, T_r
 
 
+@pytest.mark.slow
 def test_dual_loss_zero_with_zero_gradient_at_truth():
     ell = _random_ellipsoids(0, 6)
     bl, br, T_r = _stereo_boxes(ell)
@@ -171,6 +172,7 @@ def test_size_variance_per_class():
     )
 
 
+@pytest.mark.slow
 def test_degenerate_inputs_no_nan():
     """Ellipsoid behind / around the camera, zero-size label box, zero depth points: finite
     loss and gradients, and the invalid case has a gradient leading back in front."""
@@ -262,6 +264,7 @@ def test_ray_entry_range_matches_ray_marching(shape):
                 assert not hit[i, j]
 
 
+@pytest.mark.slow
 def test_ray_entry_range_finite_gradients_in_degenerate_rays():
 
     R = jnp.eye(3)[None]

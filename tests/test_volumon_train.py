@@ -43,6 +43,7 @@ def test_overfits_a_handful_of_samples(uninterrupted):
     assert json.loads(lines[-1])["step"] == 30
 
 
+@pytest.mark.slow
 def test_resume_equals_uninterrupted(uninterrupted, tmp_path):
     _, full = uninterrupted
     cfg = _config()
@@ -122,6 +123,7 @@ def test_postopt_improves_perturbed_truth():
     assert np.median(err1) < np.median(err0)
 
 
+@pytest.mark.slow
 def test_optimise_from_scratch_reduces_primal_loss():
     b, f64, recon, cfg = _ellipsoid_batch()
     pts, pm, box, K = f64("points"), jnp.asarray(b["point_mask"]), f64("box_left"), f64("K")
