@@ -16,6 +16,7 @@ from ._batch import (
     damped_schur_step as damped_schur_step,
     damping_search as damping_search,
     levenberg_marquardt as levenberg_marquardt,
+    roshan_solver as roshan_solver,
     solve_batch as solve_batch,
     solve_schur as solve_schur,
 )
@@ -75,6 +76,13 @@ from ._run_sequence import (  # the online smoother over a sequence
     SequenceResult as SequenceResult,
     default_capacity as default_capacity,
     run_sequence as run_sequence,
+)
+from ._schur import (
+    DampedSchurDescent as DampedSchurDescent,
+    DampingSearch as DampingSearch,
+    SchurLevenbergMarquardt as SchurLevenbergMarquardt,
+    SchurStructure as SchurStructure,
+    schur_normal as schur_normal,
 )
 from ._sequence import (  # sequence directories (JSON layout)
     load_image as load_image,
