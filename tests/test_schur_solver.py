@@ -7,7 +7,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-import pytest
 
 from jaxsem import slam
 
@@ -165,13 +164,14 @@ def test_vmapped_members_stop_at_their_own_iteration_with_their_solo_answer():
             np.testing.assert_allclose(v[k], u, rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("seeds", [(901, 902, 904)])
-def test_vmapped_roshan_maps_equal_their_solo_solves(seeds):
-    # Forward toy maps that converge at different step counts (the 900..905 set, less
-    # the two that run out of steps: there, any rounding difference of batched kernels moves
-    # the point where the budget cuts a slowly converging solve).
-    cfg = slam.SolverConfig(max_steps=150)
-    maps = [slam.toy_map(s, num_objects=3, num_frames=12, capacity=(12, 48, 3))[0] for s in seeds]
+def test_vmapped_roshan_maps_equal_their_solo_solves():
+    # Two Forward toy maps that stop at different step counts (45 and 86 trials): each vmapped
+    # member stops at its own step with its solo answer. (A batched kernel rounds differently
+    # from its unbatched twin, 1e-16 relative; on maps whose solve is sensitive, chiefly through
+    # the rescue phase's thresholds and its loose 1e-2 tolerance, or that run out of steps,
+    # that rounding moves the answer: the 900..905 pair were both step-budget stops.)
+    cfg = slam.SolverConfig(max_steps=200)
+    maps = [slam.toy_map(s, num_objects=3, num_frames=12, capacity=(12, 48, 3))[0] for s in (1, 5)]
     inits = [slam.initialize(p, cfg) for p in maps]
     problems = slam.stack_problems(maps)
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
@@ -181,11 +181,11 @@ def test_vmapped_roshan_maps_equal_their_solo_solves(seeds):
     for k, (p, i) in enumerate(zip(maps, inits)):
         est, info = solve(p, i)
         steps.append(int(info.steps))
-        assert bool(info.success), slam.result_message(info.result)
+        assert bool(info.success) and bool(info_v.success[k]), slam.result_message(info.result)
         assert int(info_v.steps[k]) == int(info.steps) and int(info_v.accepted[k]) == int(info.accepted)
         np.testing.assert_allclose(info_v.cost[k], info.cost, rtol=1e-8)
-        np.testing.assert_allclose(est_v.center[k], est.center, rtol=1e-6, atol=1e-7)
-    assert len(set(steps)) > 1, steps
+        np.testing.assert_allclose(est_v.center[k], est.center, rtol=0, atol=1e-6)
+    assert steps[0] != steps[1], steps
 
 
 def test_no_recompile_on_a_second_call_or_another_tolerance():
@@ -201,3 +201,14 @@ def test_no_recompile_on_a_second_call_or_another_tolerance():
     sol = solve(y1, args1, jnp.asarray(1e-4))
     assert solve._cache_size() == before == 1
     assert bool(sol.stats["result"] == slam.RESULTS.successful)
+
+
+def test_solver_config_splits_into_cost_model_initialisation_and_stopping_rule():
+    cfg = slam.SolverConfig(rtol=1e-3, use_texture=False, rescue_rtol=0.05)
+    assert cfg.stopping == slam.StoppingRule(rtol=1e-3)
+    assert cfg.initialisation == slam.InitConfig(rescue_rtol=0.05)
+    assert cfg.cost_model == slam.CostModel(use_texture=False)
+    assert slam.SolverConfig.from_parts(cfg.cost_model, cfg.initialisation, cfg.stopping) == cfg
+    parts = [f for p in (slam.CostModel, slam.InitConfig, slam.StoppingRule) for f in p.__dataclass_fields__]
+    assert sorted(parts) == sorted(slam.SolverConfig.__dataclass_fields__)  # each field in one part
+    assert slam.roshan_solver(cfg).rtol == 1e-3

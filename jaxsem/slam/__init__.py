@@ -59,11 +59,14 @@ from ._online import (
 )
 from ._problem import (
     Capacity as Capacity,
+    CostModel as CostModel,
     Frame as Frame,
+    InitConfig as InitConfig,
     NoiseModel as NoiseModel,
     SlamEstimate as SlamEstimate,
     SlamProblem as SlamProblem,
     SolverConfig as SolverConfig,
+    StoppingRule as StoppingRule,
     baseline_config as baseline_config,
     bucket_capacity as bucket_capacity,
     compact_boxes as compact_boxes,

@@ -206,16 +206,17 @@ def roshan_solver(config: SolverConfig) -> SchurLevenbergMarquardt:
     :class:`SlamEstimate`, residuals :func:`residual_blocks` with ``args = (problem, config,
     pose_free (T,) float, obj_free (J,) bool)``, ROSHAN's 9-column linearisation and the
     manifold retraction, ``config``'s stopping rule and damping."""
+    stop = config.stopping
     return SchurLevenbergMarquardt(
-        config.rtol,
-        config.atol,
+        stop.rtol,
+        stop.atol,
         _roshan_structure,
         linearise=_roshan_linearise,
         retract=_roshan_retract,
         pose_dim=6,
         landmark_dim=9,
-        lambda_init=config.lambda_init,
-        lambda_max=config.lambda_max,
+        lambda_init=stop.lambda_init,
+        lambda_max=stop.lambda_max,
     )
 
 

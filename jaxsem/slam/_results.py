@@ -50,6 +50,6 @@ def result_message(result) -> str | list:
     (under ``vmap``, leading axes) a nested list of messages of the same shape."""
     value = np.asarray(jax.device_get(result._value))
     if value.ndim:
-        return [result_message(jax.tree_util.tree_map(lambda _: v, result)) for v in value]
+        return [result_message(jax.tree_util.tree_map(lambda _: np.asarray(v), result)) for v in value]
     msg = RESULTS[result]
     return msg or "successful"
