@@ -5,7 +5,8 @@ Data structures (padded to capacity with masks, equinox pytrees): :class:`SlamPr
 :class:`SolverConfig`. The residual functions and the class shape table are in
 :mod:`jaxsem.factors`.
 
-Solvers: :func:`solve_batch` (structured Schur LM by default; ``method="optimistix"`` for the
+Solvers: :class:`SchurLevenbergMarquardt` (the structured LM as an optimistix solver, usable on
+any residual function with pose and landmark blocks), :func:`solve_batch` (it, by default; ``method="optimistix"`` for the
 dense, differentiable one), :func:`solve_schur`, and the online smoother :func:`online_init` /
 :func:`online_update` / :func:`online_estimate`. Every solver reports a :data:`RESULTS` code
 (``throw=`` to raise instead); :func:`baseline_config` is the thesis' baseline.

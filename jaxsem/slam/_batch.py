@@ -1,20 +1,19 @@
 """Batch solvers of eq. 4.13: a structured Levenberg-Marquardt (Schur complement, the default) and
 optimistix's dense Levenberg-Marquardt (differentiable by the implicit adjoint).
 
-The structured LM is built the optimistix way, as two pieces over one cost-and-linearisation
-module (``_cost.py``: :func:`~jaxsem.slam._cost.linearize` gives the block normal equations and
-the cost at a point, :func:`~jaxsem.slam.total_cost` the cost of a candidate):
+The structured LM is :class:`~jaxsem.slam.SchurLevenbergMarquardt` (``_schur.py``), an
+optimistix least-squares solver made of a descent (the damped Schur step,
+:func:`damped_schur_step`) and a search (the damping rule, :func:`damping_search`), called
+through ``optx.least_squares`` by :func:`levenberg_marquardt` with ROSHAN's residuals
+(:func:`~jaxsem.slam.residual_blocks`), its 9-column linearisation
+(:func:`~jaxsem.slam.linearize`) and the manifold retraction (:func:`roshan_solver`).
 
-- the *descent* :func:`damped_schur_step`: the Marquardt-damped Gauss-Newton step
-  ``(H + lambda (diag(H) + 1e-9)) x = -g``, solved by eliminating the block-diagonal pose
-  blocks (Schur complement) and a dense Cholesky of the (9J x 9J) object system;
-- the *search* :func:`damping_search`: accept the step when the cost is finite and lower, then
-  shrink the damping (x 0.3), else grow it (x 10).
-
-Each iteration costs one linearisation (only after an accepted step), one reduced solve and one
-cost evaluation. The stopping rule is GTSAM's (relative or absolute cost decrease of an accepted
+Each trial costs one reduced solve and one cost evaluation; a relinearisation follows each
+accepted trial. The stopping rule is GTSAM's (relative or absolute cost decrease of an accepted
 step at most ``rtol`` / ``atol``, 1e-5 by default). Every solve returns a :data:`RESULTS` code
 that never lies: success needs the stopping rule met *and* a finite state and cost.
+:func:`solve_schur` wraps the solver with the rescue of stranded objects and the unfixable-object
+logic.
 
 Why the Schur path is the default (and not ``method="optimistix"``): optimistix materialises the
 dense Jacobian (one JVP per unknown) and solves it densely; on the QuadricSLAM setting (60

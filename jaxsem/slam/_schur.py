@@ -39,12 +39,13 @@ Stopping rule (GTSAM's ``LevenbergMarquardtParams``): an accepted step whose cos
 most ``atol`` or at most ``rtol`` times the cost before it ends the solve successfully; ``norm``
 is kept for the optimistix interface and unused. The damping search fails once the damping
 passes ``lambda_max`` (``RESULTS.damping_limit``, or ``ill_conditioned`` when the last step
-was not finite). One optimistix step is one *trial* (one reduced solve and one cost
-evaluation); the relinearisation runs only after an accepted trial (a ``lax.cond``; under
-``vmap`` that becomes a select, so a batch relinearises every trial). ``sol.stats`` holds
+was not finite). One optimistix step is one GTSAM iteration: a relinearisation (only after an
+accepted trial) and then trials (one reduced solve and one cost evaluation each) until the
+search accepts one or fails; the trials are an inner ``while_loop``, so under ``vmap`` the
+Jacobian is never taken for a rejected trial. ``sol.stats`` holds
 ``result`` (the precise :data:`~jaxsem.slam.RESULTS` item), ``trials`` and ``accepted``.
 ``options={"max_trials": n}`` caps the trials (``n`` may be traced; ``max_steps`` of
-``optx.least_squares`` counts the first step, the linearisation at ``y0``, too).
+``optx.least_squares`` caps the iterations).
 
 Differentiating through the solution: with the additive iterate, optimistix's implicit adjoint
 applies (the gradient of the cost vanishes at the optimum). With ``retract`` (a manifold
@@ -297,9 +298,7 @@ class DampingSearch(optx.AbstractSearch):
 
 
 class _State(eqx.Module):
-    first_step: jnp.ndarray
-    y_eval: Any
-    step_finite: jnp.ndarray
+    needs_linearisation: jnp.ndarray
     search_state: _SearchState
     f_info: SchurInfo
     descent_state: _DescentState
@@ -308,6 +307,17 @@ class _State(eqx.Module):
     code: RESULTS
     trials: jnp.ndarray
     accepted: jnp.ndarray
+
+
+class _Trial(eqx.Module):
+    search_state: _SearchState
+    trials: jnp.ndarray
+    accept: jnp.ndarray
+    step_finite: jnp.ndarray
+    exhausted: jnp.ndarray
+    y_eval: Any
+    cost_eval: jnp.ndarray
+    done: jnp.ndarray
 
 
 class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
@@ -384,9 +394,7 @@ class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         if s.pose_free is not None and s.landmark_free is not None:
             some_free = jnp.any(jnp.asarray(s.pose_free) > 0) | jnp.any(jnp.asarray(s.landmark_free))
         return _State(
-            first_step=jnp.asarray(True),
-            y_eval=y,
-            step_finite=jnp.asarray(True),
+            needs_linearisation=jnp.asarray(True),
             search_state=self.search.init(y, info_struct),
             f_info=info,
             descent_state=self.descent.init(y, info_struct),
@@ -398,67 +406,75 @@ class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         )
 
     def step(self, fn, y, args, options, state: _State, tags):
+        """One iteration (GTSAM's layout): relinearise (after an accepted trial; one call
+        site, so under ``vmap`` the Jacobian is never taken for a rejected trial), then
+        trials of the descent at the search's damping until one is accepted, the damping
+        passes its limit or the trial budget is spent."""
         del tags
-        first = state.first_step
-        dtype = state.f_info.normal.cost.dtype
-        # 1. the trial's cost (skipped at y0: the linearisation below carries it).
-        cost_eval = jax.lax.cond(
-            first,
-            lambda: jnp.zeros((), dtype),
-            lambda: _sum_squares(fn(state.y_eval, args)[0]).astype(dtype),
+        f_info = jax.lax.cond(state.needs_linearisation, lambda: self._info(fn, y, args), lambda: state.f_info)
+        cost = f_info.normal.cost
+        dtype = cost.dtype
+        lin_ok = _all_finite(f_info.normal)
+        at_zero = cost <= 0  # GTSAM's errorTol: an exact optimum
+        descent_state = self.descent.query(y, f_info, state.descent_state)
+        budget = options.get("max_trials")
+
+        def trial(t: _Trial) -> _Trial:
+            diff, _ = self.descent.step(t.search_state.lam, descent_state)
+            finite = _all_finite(diff)
+            diff = jax.tree_util.tree_map(lambda d: jnp.where(finite, d, 0.0), diff)
+            y_eval = self._apply(y, diff)
+            cost_eval = _sum_squares(fn(y_eval, args)[0]).astype(dtype)
+            seen = optx.FunctionInfo.Eval(jnp.where(finite, cost_eval, jnp.inf))
+            _, accept, search_result, search_state = self.search.step(
+                jnp.asarray(False), y, y_eval, f_info, seen, t.search_state
+            )
+            trials = t.trials + 1
+            exhausted = search_result != optx.RESULTS.successful
+            done = accept | exhausted
+            if budget is not None:
+                done = done | (trials >= budget)
+            return _Trial(search_state, trials, accept, finite, exhausted, y_eval, cost_eval, done)
+
+        t0 = _Trial(
+            state.search_state,
+            state.trials,
+            jnp.asarray(False),
+            jnp.asarray(True),
+            jnp.asarray(False),
+            y,
+            cost,
+            ~lin_ok | at_zero,
         )
-        cost_eval = jnp.where(state.step_finite, cost_eval, jnp.inf)
-        # 2. the search.
-        step_size, accept, search_result, search_state = self.search.step(
-            first, y, state.y_eval, state.f_info, optx.FunctionInfo.Eval(cost_eval), state.search_state
-        )
-        cost = state.f_info.normal.cost
-        decrease = cost - cost_eval
+        t = jax.lax.while_loop(lambda t: ~t.done, trial, t0)
+        accept = t.accept
+        y_new = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), t.y_eval, y)
+        decrease = cost - t.cost_eval
         rtol = jnp.asarray(self.rtol, dtype)
         atol = jnp.asarray(self.atol, dtype)
-        converged = accept & ~first & ((decrease <= atol) | (decrease <= rtol * cost))
-        y_new = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), state.y_eval, y)
-        trials = state.trials + jnp.where(first, 0, 1).astype(jnp.int32)
-        accepted = state.accepted + (accept & ~first).astype(jnp.int32)
-        budget = options.get("max_trials")
-        out_of_trials = jnp.asarray(False) if budget is None else trials >= budget
-        # 3. relinearise after an accepted, unconverged trial (while trials remain).
-        fresh = accept & ~converged & ~out_of_trials
-        f_info = jax.lax.cond(fresh, lambda: self._info(fn, y_new, args), lambda: state.f_info)
-        lin_ok = _all_finite(f_info.normal)
-        at_zero = fresh & lin_ok & (f_info.normal.cost <= 0)  # GTSAM's errorTol: an exact optimum
-        bad_lin = fresh & ~lin_ok
-        descent_state = self.descent.query(y_new, f_info, state.descent_state)
-        exhausted = search_result != optx.RESULTS.successful
-        done = converged | at_zero
-        terminate = done | bad_lin | exhausted | out_of_trials
+        converged = accept & ((decrease <= atol) | (decrease <= rtol * cost))
+        out_of_trials = jnp.asarray(False) if budget is None else t.trials >= budget
+        done = converged | (at_zero & lin_ok)
+        terminate = done | ~lin_ok | t.exhausted | out_of_trials
         # The precise code (jaxsem RESULTS) and its optimistix twin; later lines take precedence.
-        code = RESULTS.where(state.step_finite, RESULTS.damping_limit, RESULTS.ill_conditioned)
-        code = RESULTS.where(exhausted, code, RESULTS.max_steps_reached)
+        code = RESULTS.where(t.step_finite, RESULTS.damping_limit, RESULTS.ill_conditioned)
+        code = RESULTS.where(t.exhausted, code, RESULTS.max_steps_reached)
         code = RESULTS.where(done, RESULTS.successful, code)
-        code = RESULTS.where(bad_lin, RESULTS.nonfinite, code)
-        ill = optx.RESULTS.where(state.step_finite, search_result, optx.RESULTS.singular)
-        result = optx.RESULTS.where(exhausted, ill, optx.RESULTS.nonlinear_max_steps_reached)
+        code = RESULTS.where(lin_ok, code, RESULTS.nonfinite)
+        ill = optx.RESULTS.where(t.step_finite, optx.RESULTS.nonlinear_divergence, optx.RESULTS.singular)
+        result = optx.RESULTS.where(t.exhausted, ill, optx.RESULTS.nonlinear_max_steps_reached)
         result = optx.RESULTS.where(done, optx.RESULTS.successful, result)
-        result = optx.RESULTS.where(bad_lin, optx.RESULTS.nonfinite, result)
-        # 4. the next trial (skipped when done).
-        zeros = (jnp.zeros_like(f_info.normal.gp), jnp.zeros_like(f_info.normal.go))
-        diff = jax.lax.cond(terminate, lambda: zeros, lambda: self.descent.step(step_size, descent_state)[0])
-        step_finite = _all_finite(diff)
-        diff = jax.tree_util.tree_map(lambda d: jnp.where(step_finite, d, 0.0), diff)
-        y_eval = self._apply(y_new, diff)
+        result = optx.RESULTS.where(lin_ok, result, optx.RESULTS.nonfinite)
         state = _State(
-            first_step=jnp.asarray(False),
-            y_eval=y_eval,
-            step_finite=step_finite,
-            search_state=search_state,
+            needs_linearisation=accept & ~terminate,
+            search_state=t.search_state,
             f_info=f_info,
             descent_state=descent_state,
             terminate=terminate,
-            result=optx.RESULTS.where(terminate, result, optx.RESULTS.successful),
+            result=optx.RESULTS.where(terminate & ~done, result, optx.RESULTS.successful),
             code=RESULTS.where(terminate, code, RESULTS.successful),
-            trials=trials,
-            accepted=accepted,
+            trials=t.trials,
+            accepted=state.accepted + accept.astype(jnp.int32),
         )
         return y_new, state, None
 
