@@ -47,7 +47,7 @@ def test_nonfinite_input_is_never_success(where):
     _, info = SOLVE(problem, init)
     assert not bool(info.success)
     assert bool(info.result == slam.RESULTS.nonfinite)
-    with pytest.raises(Exception, match="Non-finite"):
+    with pytest.raises(Exception, match="(?i)non-?finite"):
         jax.block_until_ready(slam.solve_schur(problem, init, CFG, throw=True))
 
 
@@ -58,7 +58,7 @@ def test_step_budget_is_not_success_and_throw_raises():
     init = eqx.tree_at(lambda e: e.center, init, init.center + 3.0)
     _, info = slam.solve_schur(problem, init, CFG, max_steps=1)
     assert bool(info.result == slam.RESULTS.max_steps_reached) and not bool(info.success)
-    with pytest.raises(Exception, match="maximum number of steps"):
+    with pytest.raises(Exception, match="maximum number of"):
         jax.block_until_ready(slam.solve_schur(problem, init, CFG, max_steps=1, throw=True))
 
 

@@ -5,7 +5,8 @@ Data structures (padded to capacity with masks, equinox pytrees): :class:`SlamPr
 :class:`SolverConfig`. The residual functions and the class shape table are in
 :mod:`jaxsem.factors`.
 
-Solvers: :func:`solve_batch` (structured Schur LM by default; ``method="optimistix"`` for the
+Solvers: :class:`SchurLevenbergMarquardt` (the structured LM as an optimistix solver, usable on
+any residual function with pose and landmark blocks), :func:`solve_batch` (it, by default; ``method="optimistix"`` for the
 dense, differentiable one), :func:`solve_schur`, and the online smoother :func:`online_init` /
 :func:`online_update` / :func:`online_estimate`. Every solver reports a :data:`RESULTS` code
 (``throw=`` to raise instead); :func:`baseline_config` is the thesis' baseline.
@@ -16,6 +17,7 @@ from ._batch import (
     damped_schur_step as damped_schur_step,
     damping_search as damping_search,
     levenberg_marquardt as levenberg_marquardt,
+    roshan_solver as roshan_solver,
     solve_batch as solve_batch,
     solve_schur as solve_schur,
 )
@@ -58,11 +60,14 @@ from ._online import (
 )
 from ._problem import (
     Capacity as Capacity,
+    CostModel as CostModel,
     Frame as Frame,
+    InitConfig as InitConfig,
     NoiseModel as NoiseModel,
     SlamEstimate as SlamEstimate,
     SlamProblem as SlamProblem,
     SolverConfig as SolverConfig,
+    StoppingRule as StoppingRule,
     baseline_config as baseline_config,
     bucket_capacity as bucket_capacity,
     compact_boxes as compact_boxes,
@@ -75,6 +80,13 @@ from ._run_sequence import (  # the online smoother over a sequence
     SequenceResult as SequenceResult,
     default_capacity as default_capacity,
     run_sequence as run_sequence,
+)
+from ._schur import (
+    DampedSchurDescent as DampedSchurDescent,
+    DampingSearch as DampingSearch,
+    SchurLevenbergMarquardt as SchurLevenbergMarquardt,
+    SchurStructure as SchurStructure,
+    schur_normal as schur_normal,
 )
 from ._sequence import (  # sequence directories (JSON layout)
     load_image as load_image,

@@ -1,20 +1,19 @@
 """Batch solvers of eq. 4.13: a structured Levenberg-Marquardt (Schur complement, the default) and
 optimistix's dense Levenberg-Marquardt (differentiable by the implicit adjoint).
 
-The structured LM is built the optimistix way, as two pieces over one cost-and-linearisation
-module (``_cost.py``: :func:`~jaxsem.slam._cost.linearize` gives the block normal equations and
-the cost at a point, :func:`~jaxsem.slam.total_cost` the cost of a candidate):
+The structured LM is :class:`~jaxsem.slam.SchurLevenbergMarquardt` (``_schur.py``), an
+optimistix least-squares solver made of a descent (the damped Schur step,
+:func:`damped_schur_step`) and a search (the damping rule, :func:`damping_search`), called
+through ``optx.least_squares`` by :func:`levenberg_marquardt` with ROSHAN's residuals
+(:func:`~jaxsem.slam.residual_blocks`), its 9-column linearisation
+(:func:`~jaxsem.slam.linearize`) and the manifold retraction (:func:`roshan_solver`).
 
-- the *descent* :func:`damped_schur_step`: the Marquardt-damped Gauss-Newton step
-  ``(H + lambda (diag(H) + 1e-9)) x = -g``, solved by eliminating the block-diagonal pose
-  blocks (Schur complement) and a dense Cholesky of the (9J x 9J) object system;
-- the *search* :func:`damping_search`: accept the step when the cost is finite and lower, then
-  shrink the damping (x 0.3), else grow it (x 10).
-
-Each iteration costs one linearisation (only after an accepted step), one reduced solve and one
-cost evaluation. The stopping rule is GTSAM's (relative or absolute cost decrease of an accepted
+Each trial costs one reduced solve and one cost evaluation; a relinearisation follows each
+accepted trial. The stopping rule is GTSAM's (relative or absolute cost decrease of an accepted
 step at most ``rtol`` / ``atol``, 1e-5 by default). Every solve returns a :data:`RESULTS` code
 that never lies: success needs the stopping rule met *and* a finite state and cost.
+:func:`solve_schur` wraps the solver with the rescue of stranded objects and the unfixable-object
+logic.
 
 Why the Schur path is the default (and not ``method="optimistix"``): optimistix materialises the
 dense Jacobian (one JVP per unknown) and solves it densely; on the QuadricSLAM setting (60
@@ -36,6 +35,7 @@ from ._cost import (
     Normal,
     box_health,
     linearize,
+    residual_blocks,
     retract,
     retract_object,
     retract_pose,
@@ -44,16 +44,13 @@ from ._cost import (
 )
 from ._problem import SlamEstimate, SlamProblem, SolverConfig
 from ._results import RESULTS
-
-# Integer twins of RESULTS used inside the loops (RESULTS items are built once at the end).
-_RUNNING, _OK, _MAX, _NONFINITE, _DAMPING, _ILL = -1, 0, 1, 2, 3, 4
-
-
-def _to_results(code):
-    r = RESULTS.where(code == _ILL, RESULTS.ill_conditioned, RESULTS.damping_limit)
-    r = RESULTS.where(code == _NONFINITE, RESULTS.nonfinite, r)
-    r = RESULTS.where((code == _MAX) | (code == _RUNNING), RESULTS.max_steps_reached, r)
-    return RESULTS.where(code == _OK, RESULTS.successful, r)
+from ._schur import (
+    SchurLevenbergMarquardt,
+    SchurStructure,
+    _all_finite,
+    damped_schur_step as damped_schur_step,
+    damping_search as damping_search,
+)
 
 
 class SolveInfo(eqx.Module):
@@ -82,16 +79,16 @@ class SolveInfo(eqx.Module):
     rescued: jnp.ndarray
 
 
-def _all_finite(tree) -> jnp.ndarray:
-    leaves = [x for x in jax.tree_util.tree_leaves(tree) if jnp.issubdtype(jnp.result_type(x), jnp.inexact)]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
-
-
 def _cast(problem: SlamProblem, init: SlamEstimate):
     """Float leaves of the estimate in the problem's dtype (float32 problems stay float32 under
     x64; the loop carries keep one dtype)."""
     dtype = problem.pose_prior.dtype
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), init)
+
+
+def _code(item):
+    """A :data:`RESULTS` item with a jax int32 value (a scan / loop carry of fixed type)."""
+    return jax.tree_util.tree_map(lambda v: jnp.asarray(v, jnp.int32), item)
 
 
 def _throw(result, tree, throw: bool):
@@ -156,25 +153,15 @@ def solve_batch(
     cost0 = total_cost(problem, init, config)
     cost = total_cost(problem, estimate, config)
     finite = _all_finite(estimate) & jnp.isfinite(cost) & _all_finite(problem) & jnp.isfinite(cost0)
-    max_steps = (sol.result == optx.RESULTS.max_steps_reached) | (
-        sol.result == optx.RESULTS.nonlinear_max_steps_reached
-    )
-    code = jnp.where(
-        sol.result == optx.RESULTS.successful,
-        _OK,
-        jnp.where(
-            max_steps,
-            _MAX,
-            jnp.where(sol.result == optx.RESULTS.nonfinite, _NONFINITE, _ILL),
-        ),
-    )
-    code = jnp.where(finite, code, _NONFINITE)
-    result = _to_results(code)
+    result = RESULTS.promote(sol.result)
+    budget = (sol.result == optx.RESULTS.max_steps_reached) | (sol.result == optx.RESULTS.nonlinear_max_steps_reached)
+    result = RESULTS.where(budget, RESULTS.max_steps_reached, result)
+    result = RESULTS.where(finite, result, RESULTS.nonfinite)
     steps = jnp.asarray(sol.stats["num_steps"], jnp.int32)
     J = init.center.shape[0]
     info = SolveInfo(
         result=result,
-        success=code == _OK,
+        success=result == RESULTS.successful,
         steps=steps,
         accepted=steps,
         initial_cost=cost0.astype(dtype),
@@ -189,78 +176,47 @@ def solve_batch(
 # Structured Levenberg-Marquardt: descent + search over _cost.linearize.
 
 
-def damped_schur_step(n: Normal, lam, pose_free, obj_free):
-    """Descent: solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by eliminating the pose blocks.
-
-    Args:
-      n: :class:`~jaxsem.slam._cost.Normal` at the current estimate.
-      lam: () Marquardt damping. pose_free: (T,) float, 0 for held poses. obj_free: (J,) bool.
-
-    Returns:
-      ``(dp (T, 6), do (J, 9))``; zero for held variables. Non-finite when the reduced system
-      is not positive definite (the search then rejects the step).
-    """
-    dtype = n.Hpp.dtype
-    J = n.Hpo.shape[1]
-    eye6, eye9 = jnp.eye(6, dtype=dtype), jnp.eye(9, dtype=dtype)
-    small = jnp.asarray(1e-9, dtype)
-
-    def damp(H, eye, used):
-        d = jnp.diagonal(H, axis1=-2, axis2=-1)
-        H = H + lam * (d[..., None] * eye + small * eye)
-        # Unused / held variables: identity rows keep the system regular; their rhs is zero.
-        return jnp.where(used[:, None, None], H, eye)
-
-    pose_used = pose_free > 0
-    Hpp = damp(n.Hpp, eye6, pose_used)
-    Hoo = damp(n.Hoo, eye9, obj_free)
-    Hpo = n.Hpo * pose_free[:, None, None, None] * obj_free[None, :, None, None].astype(dtype)
-    gp = n.gp * pose_free[:, None]
-    go = n.go * obj_free[:, None].astype(dtype)
-    Hpp_inv = jnp.linalg.inv(Hpp)
-    A = jnp.einsum("tab,tkbc->tkac", Hpp_inv, Hpo)  # Hpp^-1 Hpo
-    S = -jnp.einsum("tjab,tkac->jbkc", Hpo, A)
-    S = S + jnp.einsum("jab,jk->jakb", Hoo, jnp.eye(J, dtype=dtype))
-    S = S.reshape(J * 9, J * 9)
-    y = jnp.einsum("tab,tb->ta", Hpp_inv, gp)
-    rhs = -go + jnp.einsum("tjab,ta->jb", Hpo, y)
-    chol = jax.scipy.linalg.cho_factor(S, lower=True)
-    do = jax.scipy.linalg.cho_solve(chol, rhs.reshape(-1)).reshape(J, 9)
-    dp = jnp.einsum("tab,tb->ta", Hpp_inv, -gp - jnp.einsum("tjab,jb->ta", Hpo, do))
-    return dp * pose_free[:, None], do * obj_free[:, None].astype(dtype)
-
-
-def damping_search(cost, new_cost, lam, step_finite):
-    """Search: accept a finite step that lowers the cost; shrink (x 0.3) or grow (x 10) the
-    damping. Returns ``(accept, new_lam)``."""
-    accept = step_finite & jnp.isfinite(new_cost) & (new_cost < cost)
-    lam = jnp.where(accept, jnp.maximum(lam * 0.3, 1e-12), lam * 10.0)
-    return accept, lam
-
-
 def _apply(est: SlamEstimate, dp, do) -> SlamEstimate:
     R, c, r = retract_object(est.rotation, est.center, est.radii, do)
     return SlamEstimate(retract_pose(est.camera_T_world, dp), R, c, r)
 
 
-class _Carry(eqx.Module):
-    est: SlamEstimate
-    cost: jnp.ndarray
-    lam: jnp.ndarray
-    steps: jnp.ndarray
-    accepted: jnp.ndarray
-    code: jnp.ndarray
+def _roshan_residuals(est: SlamEstimate, args):
+    problem, config, _, _ = args
+    return residual_blocks(problem, est, config)
 
 
-class _Trial(eqx.Module):
-    dp: jnp.ndarray
-    do: jnp.ndarray
-    new_cost: jnp.ndarray
-    lam: jnp.ndarray
-    steps: jnp.ndarray
-    accept: jnp.ndarray
-    step_finite: jnp.ndarray
-    done: jnp.ndarray
+def _roshan_structure(args) -> SchurStructure:
+    problem, _, pose_free, obj_free = args
+    return SchurStructure(problem.box_pose, problem.box_object, pose_free, obj_free)
+
+
+def _roshan_linearise(est: SlamEstimate, args) -> Normal:
+    problem, config, pose_free, _ = args
+    return linearize(problem, est, config, pose_free)
+
+
+def _roshan_retract(est: SlamEstimate, step) -> SlamEstimate:
+    return _apply(est, *step)
+
+
+def roshan_solver(config: SolverConfig) -> SchurLevenbergMarquardt:
+    """The :class:`SchurLevenbergMarquardt` of a ROSHAN problem: iterate a
+    :class:`SlamEstimate`, residuals :func:`residual_blocks` with ``args = (problem, config,
+    pose_free (T,) float, obj_free (J,) bool)``, ROSHAN's 9-column linearisation and the
+    manifold retraction, ``config``'s stopping rule and damping."""
+    stop = config.stopping
+    return SchurLevenbergMarquardt(
+        stop.rtol,
+        stop.atol,
+        _roshan_structure,
+        linearise=_roshan_linearise,
+        retract=_roshan_retract,
+        pose_dim=6,
+        landmark_dim=9,
+        lambda_init=stop.lambda_init,
+        lambda_max=stop.lambda_max,
+    )
 
 
 def levenberg_marquardt(
@@ -269,81 +225,32 @@ def levenberg_marquardt(
     config: SolverConfig,
     pose_free,
     obj_free,
-    max_steps: int,
+    max_steps,
 ):
-    """The structured LM loop (descent :func:`damped_schur_step`, search :func:`damping_search`).
+    """The structured LM on one ROSHAN problem: ``optx.least_squares`` with
+    :func:`roshan_solver` (descent :func:`damped_schur_step`, search :func:`damping_search`).
 
-    GTSAM's layout: an outer ``while_loop`` linearises once per iteration (one call site, no
-    ``lax.cond``, so under ``vmap`` the Jacobian is never evaluated for a rejected trial); an
-    inner ``while_loop`` tries damped steps (one reduced solve and one cost evaluation each)
-    until one lowers the cost or the damping passes ``config.lambda_max``. Everything stays on
-    the device: no host round-trip per iteration. Under ``vmap`` every member keeps its own
-    damping, counters and stopping decision (a finished member's carry is frozen), so a
-    member's answer is its solo answer.
+    ``max_steps`` caps the trial steps (reduced solves; an int, traced or not). Everything
+    stays on the device. Under ``vmap`` every member keeps its own damping, counters and
+    stopping decision (a finished member's carry is frozen by the batched while loop).
 
-    Returns ``(estimate, cost, steps, accepted, code)`` with ``code`` an int32 twin of
-    :data:`RESULTS` (0 successful, 1 max steps, 2 non-finite, 3 damping limit, 4 ill-conditioned).
+    Returns ``(estimate, cost, steps, accepted, result)``: ``cost`` at the returned estimate,
+    ``steps`` trials, ``accepted`` accepted trials, ``result`` a :data:`RESULTS` item.
     """
     dtype = init.center.dtype
-    rtol = jnp.asarray(config.rtol, dtype)
-    atol = jnp.asarray(config.atol, dtype)
-    lam_max = jnp.asarray(config.lambda_max, dtype)
-    nothing_free = ~(jnp.any(pose_free > 0) | jnp.any(obj_free))
-    carry = _Carry(
+    args = (problem, config, jnp.asarray(pose_free, dtype), jnp.asarray(obj_free, bool))
+    sol = optx.least_squares(
+        _roshan_residuals,
+        roshan_solver(config),
         init,
-        jnp.asarray(jnp.inf, dtype),
-        jnp.asarray(config.lambda_init, dtype),
-        jnp.asarray(0, jnp.int32),
-        jnp.asarray(0, jnp.int32),
-        jnp.asarray(jnp.where(nothing_free, _OK, _RUNNING), jnp.int32),
+        args,
+        options={"max_trials": max_steps},
+        max_steps=None,
+        throw=False,
     )
-    T, J = init.camera_T_world.shape[0], init.center.shape[0]
-
-    def cond(c: _Carry):
-        return (c.steps < max_steps) & (c.code == _RUNNING)
-
-    def body(c: _Carry):
-        normal = linearize(problem, c.est, config, pose_free)
-        cost = normal.cost
-        lin_ok = _all_finite(normal)
-        at_zero = cost <= 0  # exactly at a zero-cost optimum: converged (GTSAM's errorTol)
-
-        def trial(t: _Trial):
-            dp, do = damped_schur_step(normal, t.lam, pose_free, obj_free)
-            step_finite = jnp.all(jnp.isfinite(dp)) & jnp.all(jnp.isfinite(do))
-            dp = jnp.where(step_finite, dp, 0.0)
-            do = jnp.where(step_finite, do, 0.0)
-            new_cost = total_cost(problem, _apply(c.est, dp, do), config)
-            accept, lam = damping_search(cost, new_cost, t.lam, step_finite)
-            done = accept | (lam > lam_max) | (t.steps + 1 >= max_steps)
-            return _Trial(dp, do, new_cost, lam, t.steps + 1, accept, step_finite, done)
-
-        t0 = _Trial(
-            jnp.zeros((T, 6), dtype),
-            jnp.zeros((J, 9), dtype),
-            cost,
-            c.lam,
-            c.steps,
-            jnp.asarray(False),
-            jnp.asarray(True),
-            ~lin_ok | at_zero,
-        )
-        t = jax.lax.while_loop(lambda t: ~t.done, trial, t0)
-        accept = t.accept
-        est = _apply(c.est, jnp.where(accept, t.dp, 0.0), jnp.where(accept, t.do, 0.0))
-        est = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), est, c.est)
-        decrease = cost - t.new_cost
-        converged = accept & ((decrease <= atol) | (decrease <= rtol * cost))
-        code = jnp.where(converged, _OK, _RUNNING)
-        code = jnp.where(t.lam > lam_max, jnp.where(t.step_finite, _DAMPING, _ILL), code)
-        code = jnp.where(at_zero, _OK, code)
-        code = jnp.where(lin_ok, code, _NONFINITE)
-        new_cost = jnp.where(accept, t.new_cost, cost)
-        return _Carry(est, new_cost, t.lam, t.steps, c.accepted + accept.astype(jnp.int32), code.astype(jnp.int32))
-
-    out = jax.lax.while_loop(cond, body, carry)
-    code = jnp.where(out.code == _RUNNING, _MAX, out.code)
-    return out.est, out.cost, out.steps, out.accepted, code
+    est = sol.value
+    cost = sol.state.f_info.normal.cost
+    return est, cost, sol.stats["trials"], sol.stats["accepted"], sol.stats["result"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -470,25 +377,24 @@ def solve_schur(
             invalid, rms = box_health(problem, est, config)
             found = stranded & (invalid | (rms > config.unfixable_rms))
             unfixable = jnp.where(k == 0, found, unfixable)
-            code_a = jnp.where(k == 0, code, code_a)
+            code_a = RESULTS.where(k == 0, code, code_a)
             return (est, unfixable, steps + s, accepted + a, code_a), code
 
         zero = jnp.asarray(0, jnp.int32)
-        carry0 = (est, jnp.zeros(J, bool), zero, zero, zero)
+        carry0 = (est, jnp.zeros(J, bool), zero, zero, _code(RESULTS.successful))
         (est, unfixable, steps, accepted, code_a), codes = jax.lax.scan(phase, carry0, jnp.arange(2))
-        code = codes[1]
+        code = jax.tree_util.tree_map(lambda v: v[1], codes)
     else:
         rescued = unfixable = jnp.zeros(J, bool)
         est, _, steps, accepted, code = levenberg_marquardt(problem, init, config, pose_free, obj_used, max_steps)
-        code_a = jnp.asarray(_OK, jnp.int32)
+        code_a = RESULTS.successful
     cost = total_cost(problem, est, config)
     finite = input_finite & _all_finite(est) & jnp.isfinite(cost) & jnp.isfinite(cost0)
-    code = jnp.where(code_a == _NONFINITE, _NONFINITE, code)
-    code = jnp.where(finite, code, _NONFINITE)
-    result = _to_results(code)
+    result = RESULTS.where(code_a == RESULTS.nonfinite, RESULTS.nonfinite, code)
+    result = RESULTS.where(finite, result, RESULTS.nonfinite)
     info = SolveInfo(
         result=result,
-        success=code == _OK,
+        success=result == RESULTS.successful,
         steps=steps,
         accepted=accepted,
         initial_cost=cost0,

@@ -28,10 +28,11 @@ import jax
 import jax.numpy as jnp
 
 from .. import factors as F
-from ._batch import _all_finite, _to_results, levenberg_marquardt
+from ._batch import levenberg_marquardt
 from ._cost import class_table
 from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, SolverConfig
 from ._results import RESULTS
+from ._schur import _all_finite
 
 
 class OnlineState(eqx.Module):
@@ -156,7 +157,7 @@ def _optimize(state: OnlineState, iterations, free) -> OnlineState:
     """``iterations`` (an int, traced or not) LM steps over the poses where ``free`` and all objects."""
     dtype = state.problem.pose_prior.dtype
     # Plain LM (no rescue phases): online objects are initialised from one detection each.
-    est, _, _, _, code = levenberg_marquardt(
+    est, _, _, _, result = levenberg_marquardt(
         state.problem,
         state.estimate,
         state.config,
@@ -164,7 +165,7 @@ def _optimize(state: OnlineState, iterations, free) -> OnlineState:
         state.problem.object_mask,
         iterations,
     )
-    return eqx.tree_at(lambda s: (s.estimate, s.result), state, (est, _to_results(code)))
+    return eqx.tree_at(lambda s: (s.estimate, s.result), state, (est, result))
 
 
 def _insert(state: OnlineState, frame: Frame) -> OnlineState:
@@ -242,7 +243,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         pose_frame=pose_frame,
         frame_count=state.frame_count + 1,
         box_count=(state.box_count + jnp.sum(det)).astype(jnp.int32),
-        result=RESULTS.successful,
+        result=RESULTS.successful,  # pyright: ignore[reportArgumentType]
         config=cfg,
         optimize_every=state.optimize_every,
         iterations=state.iterations,

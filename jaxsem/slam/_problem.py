@@ -33,6 +33,9 @@ __all__ = [
     "SlamEstimate",
     "SlamProblem",
     "SolverConfig",
+    "CostModel",
+    "InitConfig",
+    "StoppingRule",
     "baseline_config",
     "compact_boxes",
     "make_frame",
@@ -211,8 +214,59 @@ class NoiseModel(eqx.Module):
     shape_prior_scale: float | jnp.ndarray = 1.0
 
 
+class CostModel(eqx.Module):
+    """Which factors of eq. 4.13 are used and how they are weighted: the cost every solver
+    minimises. Fields as the same-named ones of :class:`SolverConfig`."""
+
+    noise: NoiseModel = NoiseModel()
+    use_texture: bool = eqx.field(static=True, default=True)
+    use_shape_prior: bool = eqx.field(static=True, default=True)
+    baseline_shape_weight: float | jnp.ndarray = 10.0
+    border_margin: float | jnp.ndarray = 10.0
+    box_loss: str = eqx.field(static=True, default="l2")
+    texture_loss: str = eqx.field(static=True, default="l2")
+    shape_loss: str = eqx.field(static=True, default="l2")
+    pose_loss: str = eqx.field(static=True, default="l2")
+    robust_scale: float | jnp.ndarray = 2.0
+    barrier_weight: float | jnp.ndarray = 10.0
+    min_depth: float | jnp.ndarray = 0.1
+    degenerate_residual: float | jnp.ndarray = 1000.0
+    shape_prior_mean: jnp.ndarray | None = None
+    shape_prior_sigma: jnp.ndarray | None = None
+
+
+class InitConfig(eqx.Module):
+    """How a solve starts: the single-view depth and the batch solver's rescue of stranded
+    objects. Fields as the same-named ones of :class:`SolverConfig`."""
+
+    default_depth: float | jnp.ndarray = 10.0
+    robust_init: bool = eqx.field(static=True, default=True)
+    unfixable_rms: float | jnp.ndarray = 5.0
+    rescue_rtol: float | jnp.ndarray = 1e-2
+
+
+class StoppingRule(eqx.Module):
+    """When the Levenberg-Marquardt stops (GTSAM's rule) and its damping. Fields as the
+    same-named ones of :class:`SolverConfig`."""
+
+    max_steps: int = eqx.field(static=True, default=100)
+    rtol: float | jnp.ndarray = 1e-5
+    atol: float | jnp.ndarray = 1e-5
+    lambda_init: float | jnp.ndarray = 1e-3
+    lambda_max: float | jnp.ndarray = 1e10
+
+
+_PARTS = {"cost_model": CostModel, "initialisation": InitConfig, "stopping": StoppingRule}
+
+
 class SolverConfig(eqx.Module):
     """Which factors are used, how they are weighted, and how the solvers iterate.
+
+    Three parts, each its own module: :class:`CostModel` (the cost), :class:`InitConfig` (how a
+    solve starts) and :class:`StoppingRule` (when the LM stops); ``config.cost_model`` /
+    ``config.initialisation`` / ``config.stopping`` read them and
+    :meth:`SolverConfig.from_parts` builds a config from them. The flat constructor below is
+    the same config (kept for every existing caller).
 
     ROSHAN is the default; the thesis' baseline is :func:`baseline_config` (equivalently
     ``SolverConfig(use_texture=False, use_shape_prior=False)``): the same system with only the
@@ -296,6 +350,37 @@ class SolverConfig(eqx.Module):
             raise ValueError(f"SolverConfig: unknown fields {sorted(unknown)}")
         values.update(changes)
         return SolverConfig(**values)
+
+    @classmethod
+    def from_parts(
+        cls,
+        cost_model: CostModel = CostModel(),
+        initialisation: InitConfig = InitConfig(),
+        stopping: StoppingRule = StoppingRule(),
+    ) -> SolverConfig:
+        """A config from its three parts (the flat constructor stays equivalent)."""
+        values = {}
+        for part in (cost_model, initialisation, stopping):
+            values.update({name: getattr(part, name) for name in part.__dataclass_fields__})
+        return cls(**values)
+
+    def _part(self, kind):
+        return kind(**{name: getattr(self, name) for name in kind.__dataclass_fields__})
+
+    @property
+    def cost_model(self) -> CostModel:
+        """The :class:`CostModel` part (factors, noise, losses, barriers, class table)."""
+        return self._part(CostModel)
+
+    @property
+    def initialisation(self) -> InitConfig:
+        """The :class:`InitConfig` part (single-view depth, rescue of stranded objects)."""
+        return self._part(InitConfig)
+
+    @property
+    def stopping(self) -> StoppingRule:
+        """The :class:`StoppingRule` part (step budget, tolerances, damping)."""
+        return self._part(StoppingRule)
 
     def tight(self, max_steps: int = 500) -> SolverConfig:
         """Tight stopping (``rtol = atol = 1e-10``, ``max_steps`` 500): reference solutions."""

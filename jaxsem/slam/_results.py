@@ -11,28 +11,25 @@ limit) is not reported as converged: that is :attr:`RESULTS.damping_limit`.
 
 from __future__ import annotations
 
-import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
 
 __all__ = ["RESULTS", "result_code", "result_message"]
 
 
-class RESULTS(eqx.Enumeration):
-    """Outcome of a solve (``RESULTS.successful`` or one of the failure codes).
+class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
+    """Outcome of a solve: ``optx.RESULTS`` (so ``successful``, ``max_steps_reached``,
+    ``nonfinite``, ... and their messages) extended with the damping search's two failures.
 
     Compare with ``info.result == RESULTS.successful`` (works under ``vmap``); the message of a
-    code is ``RESULTS[item]``; the integer is :func:`result_code`.
+    code is ``RESULTS[item]``; the integer is :func:`result_code`. An ``optx.RESULTS`` item
+    becomes one of these with ``RESULTS.promote(item)``. The ROSHAN solvers report
+    ``successful``, ``max_steps_reached`` (the step budget: ``SolverConfig.max_steps`` for a
+    batch solve, ``iterations`` online), ``nonfinite`` and the two codes below.
     """
 
-    successful = ""
-    max_steps_reached = (
-        "The solver took its maximum number of steps before meeting the stopping rule; raise "
-        "`max_steps` (SolverConfig) or loosen `rtol` / `atol`."
-    )
-    nonfinite = (
-        "Non-finite (NaN or inf) values in the input, the cost, the linearisation or the final "
-        "state: check the problem and the initial estimate."
-    )
     damping_limit = (
         "No step lowered the cost although the damping reached its limit (`lambda_max`): the "
         "problem diverged or sits on a plateau (e.g. degenerate geometry)."
@@ -48,7 +45,11 @@ def result_code(result) -> jnp.ndarray:
     return jnp.asarray(result._value, jnp.int32)
 
 
-def result_message(result) -> str:
-    """The message of a concrete (unbatched) :data:`RESULTS` item; ``"successful"`` for success."""
+def result_message(result) -> str | list:
+    """The message of a :data:`RESULTS` item, ``"successful"`` for success; for a batched item
+    (under ``vmap``, leading axes) a nested list of messages of the same shape."""
+    value = np.asarray(jax.device_get(result._value))
+    if value.ndim:
+        return [result_message(jax.tree_util.tree_map(lambda _: np.asarray(v), result)) for v in value]
     msg = RESULTS[result]
     return msg or "successful"
