@@ -16,9 +16,11 @@ from ._batch import (
     SolveInfo as SolveInfo,
     damped_schur_step as damped_schur_step,
     damping_search as damping_search,
+    default_strategy as default_strategy,
     levenberg_marquardt as levenberg_marquardt,
     roshan_solver as roshan_solver,
     solve_batch as solve_batch,
+    solve_many as solve_many,
     solve_schur as solve_schur,
 )
 from ._cost import (

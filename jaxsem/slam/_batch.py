@@ -403,3 +403,66 @@ def solve_schur(
         rescued=rescued,
     )
     return _throw(result, (est, info), throw)
+
+
+# --------------------------------------------------------------------------------------------
+# Many maps at once.
+
+STRATEGIES = ("auto", "map", "vmap")
+
+
+def default_strategy(backend: str | None = None) -> str:
+    """``"map"`` on a CPU, ``"vmap"`` on an accelerator: what :func:`solve_many` picks for
+    ``strategy="auto"``.
+
+    Why: a vmapped Levenberg-Marquardt loop runs until its slowest member stops and pays for the
+    batched linear algebra of every member at every step; on a CPU that is slower than solving
+    the maps one after another (``benchmarks/RESULTS.md``, ROSHAN solver speed: the loop of
+    jitted solves beat the vmap 3 to 1 on 50 Forward maps), while an accelerator has the lanes
+    to spare."""
+    return "map" if (backend or jax.default_backend()) == "cpu" else "vmap"
+
+
+@functools.partial(jax.jit, static_argnames=("strategy", "method"))
+def _solve_many(problems, inits, config, strategy: str, method: str):
+    def one(pi):
+        return solve_batch(pi[0], pi[1], config, method=method)
+
+    if strategy == "vmap":
+        return jax.vmap(one)((problems, inits))
+    return jax.lax.map(one, (problems, inits))
+
+
+def solve_many(
+    problems: SlamProblem,
+    inits: SlamEstimate,
+    config: SolverConfig = SolverConfig(),
+    *,
+    strategy: str = "auto",
+    method: str = "schur",
+) -> tuple[SlamEstimate, SolveInfo]:
+    """Solves a batch of maps (every leaf with the same leading axis ``B``; see
+    :func:`jaxsem.slam.stack_problems`) in one compiled program.
+
+    strategy: ``"map"`` solves the maps one after another inside the program (``lax.map``): each
+      map gets exactly the answer it gets solved alone, and a CPU runs no slower than a Python
+      loop of jitted solves; ``"vmap"`` solves them side by side (``jax.vmap``; the loop runs
+      until the slowest map stops, batched kernels round differently in the last bits, so a
+      map that stops on its step budget may end elsewhere than alone); ``"auto"``
+      (:func:`default_strategy`): ``"map"`` on a CPU, ``"vmap"`` on an accelerator.
+    method: :func:`solve_batch`'s solver.
+
+    Returns ``(estimates, infos)`` batched along ``B``.
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
+    if method not in ("schur", "optimistix"):
+        raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
+    leaves = jax.tree_util.tree_leaves(problems) + jax.tree_util.tree_leaves(inits)
+    sizes = {jnp.shape(leaf)[0] if jnp.ndim(leaf) else None for leaf in leaves}
+    if len(sizes) != 1 or None in sizes:
+        raise ValueError(
+            f"problems, inits: expected every leaf batched along one leading axis, got leading sizes {sorted(map(str, sizes))}"
+        )
+    chosen = default_strategy() if strategy == "auto" else strategy
+    return _solve_many(problems, inits, config, chosen, method)

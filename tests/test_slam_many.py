@@ -1,0 +1,48 @@
+"""``slam.solve_many``: a batch of maps in one program; with ``strategy="map"`` every map gets
+exactly the answer it gets solved alone, including maps cut by the step budget (where a vmapped
+loop's batched kernels may move the answer)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem import slam
+
+CFG = slam.SolverConfig(max_steps=12)  # small budget: some maps stop on it, some converge
+
+
+@pytest.fixture(scope="module")
+def batch():
+    maps = [slam.toy_map(s, num_objects=3, num_frames=10, capacity=(10, 40, 3))[0] for s in (900, 901, 902)]
+    inits = [slam.initialize(p, CFG) for p in maps]
+    return maps, inits, slam.stack_problems(maps), jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
+
+
+@pytest.mark.slow
+def test_map_strategy_equals_solo_solves_exactly(batch):
+    maps, inits, problems, stacked = batch
+    est_m, info_m = slam.solve_many(problems, stacked, CFG, strategy="map")
+    solo = jax.jit(lambda p, i: slam.solve_batch(p, i, CFG))
+    for k, (p, i) in enumerate(zip(maps, inits)):
+        est, info = solo(p, i)
+        assert int(info_m.steps[k]) == int(info.steps)
+        assert int(info_m.result._value[k]) == int(info.result._value)  # pyright: ignore[reportAttributeAccessIssue]
+        np.testing.assert_allclose(info_m.cost[k], info.cost, rtol=1e-12)
+        np.testing.assert_allclose(est_m.center[k], est.center, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(est_m.radii[k], est.radii, rtol=0, atol=1e-10)
+    # Called from a user's jit with a traced tolerance: a second call compiles nothing.
+    user = jax.jit(lambda p, i, rtol: slam.solve_many(p, i, CFG.replace(rtol=rtol), strategy="map"))
+    user(problems, stacked, jnp.asarray(1e-5))
+    size = user._cache_size()
+    user(problems, stacked, jnp.asarray(1e-4))
+    assert user._cache_size() == size == 1
+
+
+def test_strategy_by_backend_and_bad_arguments(batch):
+    assert slam.default_strategy("cpu") == "map" and slam.default_strategy("gpu") == "vmap"
+    _, inits, problems, stacked = batch
+    with pytest.raises(ValueError, match="strategy"):
+        slam.solve_many(problems, stacked, CFG, strategy="pmap")
+    with pytest.raises(ValueError, match="problems, inits"):
+        slam.solve_many(problems, inits[0], CFG)
