@@ -179,17 +179,28 @@ def batch_benchmark(args):
     t = time.perf_counter()
     jax.block_until_ready(one(take(problems, 0), take(inits, 0)))
     compile_one = time.perf_counter() - t
-    t_vmap = _median_time(lambda: vm(problems, inits), args.repeats)
+    many = jax.jit(lambda p, i: slam.solve_many(p, i, cfg, strategy="map"))
+    t = time.perf_counter()
+    jax.block_until_ready(many(problems, inits))
+    compile_many = time.perf_counter() - t
     singles = [(take(problems, k), take(inits, k)) for k in range(args.maps)]
-    t_loop = _median_time(lambda: [one(p, i) for p, i in singles], args.repeats)
+    # Interleaved: vmap, loop, solve_many in turn, medians of each.
+    t_vmap, t_loop, t_many = [], [], []
+    for _ in range(args.repeats):
+        t_vmap.append(_median_time(lambda: vm(problems, inits), 1))
+        t_loop.append(_median_time(lambda: [one(p, i) for p, i in singles], 1))
+        t_many.append(_median_time(lambda: many(problems, inits), 1))
+    t_vmap, t_loop, t_many = (float(np.median(v)) for v in (t_vmap, t_loop, t_many))
+    est_m, info_m = many(problems, inits)
     est_v, info_v = vm(problems, inits)
     cost_jax = np.asarray(info_v.cost)
     # Each member's vmapped answer against its solo solve (rounding of batched arithmetic only;
     # a member's carry is frozen once it stops).
-    dev, same_steps = [], 0
+    dev, same_steps, dev_many = [], 0, []
     for k, (p, i) in enumerate(singles):
         e, inf = one(p, i)
         dev.append(float(jnp.max(jnp.abs(e.center - est_v.center[k]))))
+        dev_many.append(float(jnp.max(jnp.abs(e.center - est_m.center[k]))))
         same_steps += int(int(inf.steps) == int(info_v.steps[k]))
     steps = np.asarray(info_v.steps)
     rows = {
@@ -198,6 +209,11 @@ def batch_benchmark(args):
         ),
         "jaxsem loop of jitted solves": dict(
             ms_per_map=1e3 * t_loop / args.maps, median_final_cost=float(np.median(cost_jax)), compile_s=compile_one
+        ),
+        "jaxsem solve_many (strategy 'map', the CPU default)": dict(
+            ms_per_map=1e3 * t_many / args.maps,
+            median_final_cost=float(np.median(np.asarray(info_m.cost))),
+            compile_s=compile_many,
         ),
     }
     rows["_vmap_vs_loop"] = dict(
@@ -208,6 +224,8 @@ def batch_benchmark(args):
         max_center_dev_m=float(np.max(dev)),
         median_center_dev_m=float(np.median(dev)),
         members_same_steps=same_steps,
+        many_over_loop=t_many / t_loop,
+        many_max_center_dev_m=float(np.max(dev_many)),
     )
     rows["_components"] = component_times(problems, inits, cfg, args)
     if not args.skip_gtsam:
@@ -431,7 +449,9 @@ def main(argv=None):
             f"(real boxes first). Trial steps median {vl['median_trial_steps']:.0f}, max {vl['max_trial_steps']} "
             f"(the vmapped loop runs until its slowest member stops). Vmapped vs solo answer per member: "
             f"centre deviation median {vl['median_center_dev_m']:.1e} m, max {vl['max_center_dev_m']:.1e} m; "
-            f"{vl['members_same_steps']} of {args.maps} members took the same number of steps.",
+            f"{vl['members_same_steps']} of {args.maps} members took the same number of steps. "
+            f"`solve_many` (lax.map) time / loop time {vl['many_over_loop']:.2f} (target <= 1 on a CPU); its "
+            f"answer against the solo solves: max centre deviation {vl['many_max_center_dev_m']:.1e} m.",
             "",
             "Pieces of one LM iteration (ms; vmapped: per map, over all the maps):",
             "",
