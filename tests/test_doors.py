@@ -132,6 +132,7 @@ def test_load_pretrained_names_a_bad_kind():
         load_pretrained(kind="window")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     not (pathlib.Path(__file__).parents[1] / "jaxsem/volumon/pretrained/volumon_door.npz").exists(),
     reason="the door model is not shipped in this checkout",

@@ -80,6 +80,7 @@ def test_path_cells_to_mask_counts_and_padding():
     assert m.shape == (1, 8, 8) and m[0, 1, 2] == 2 and m[0, 0, 0] == 1 and m.sum() == 3
 
 
+@pytest.mark.slow
 def test_nll_falls_when_overfitting_a_handful(net):
     model, params = net
     rng = np.random.default_rng(4)

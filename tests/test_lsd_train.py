@@ -151,6 +151,7 @@ def test_dihedral_augment_keeps_goal_direction_consistent():
         assert int((np.asarray(occ[i]) == 1).sum()) == int((d["occupancy"][i] == 1).sum())
 
 
+@pytest.mark.slow
 def test_sampler_adapter_embedding_rule():
     from jaxsem.planning import FREE, MapState, embed_local_distribution, local_inputs
 
@@ -189,6 +190,7 @@ def test_sampler_adapter_embedding_rule():
     del FREE, embed_local_distribution
 
 
+@pytest.mark.slow
 def test_export_and_load_model_file_round_trip(run, tmp_path):
     from jaxsem.lsd import PRETRAINED_CPU, export_model, load_model
 

@@ -161,6 +161,7 @@ def test_sharded_loop_equals_vmap(four_devices):
     assert four_devices["newton_jit"] == 0.0
 
 
+@pytest.mark.slow
 def test_sharded_lsd_loss_equals_vmap(four_devices):
     assert four_devices["lsd_nll"] <= 1e-10
 

@@ -180,12 +180,14 @@ def test_lsd_sharded_steps_equal_one_device(training):
     assert training["lsd_log_prob"] <= 1e-5
 
 
+@pytest.mark.slow
 def test_batch_size_not_dividing_the_devices_names_batch_size(training):
     for key in ("volumon_error", "lsd_error"):
         assert training[key] is not None and training[key].startswith("batch_size:"), training[key]
     assert not training["volumon_error_wrote"]  # checked before the workdir is touched
 
 
+@pytest.mark.slow
 def test_devices_option_names_a_mesh(training):
     assert training["mesh_sizes"] == [4, 2, 1]
     assert training["mesh_error"] is not None and training["mesh_error"].startswith("devices:")

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+import pytest
 
 from jaxsem import slam
 
@@ -100,6 +101,7 @@ def test_generic_normal_equations_equal_the_dense_ones():
         np.testing.assert_allclose(n.Hoo[j], H[c : c + 2, c : c + 2], rtol=1e-10, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_generic_linearisation_equals_roshans_on_a_map():
     problem, _ = slam.toy_map(3, num_objects=2, num_frames=5, path="forward")
     cfg = slam.SolverConfig()
@@ -164,6 +166,7 @@ def test_vmapped_members_stop_at_their_own_iteration_with_their_solo_answer():
             np.testing.assert_allclose(v[k], u, rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_vmapped_roshan_maps_equal_their_solo_solves():
     # Two Forward toy maps that stop at different step counts (45 and 86 trials): each vmapped
     # member stops at its own step with its solo answer. (A batched kernel rounds differently

@@ -64,6 +64,7 @@ def test_box_term_matches_definition():
     np.testing.assert_allclose(box_error(jnp.asarray(a), jnp.asarray(b), 10.0), np.asarray(ref) / 100, rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_dual_loss_on_rendered_data():
     """Boxes of the ray-cast renderer's masks agree with the projected dual quadric (ellipsoid
     objects), and the dual loss is ~0 at the true ellipsoid of those objects."""
