@@ -39,10 +39,11 @@ def test_map_strategy_equals_solo_solves_exactly(batch):
     assert user._cache_size() == size == 1
 
 
-def test_strategy_by_backend_and_bad_arguments(batch):
+def test_strategy_by_backend_and_bad_arguments():
     assert slam.default_strategy("cpu") == "map" and slam.default_strategy("gpu") == "vmap"
-    _, inits, problems, stacked = batch
+    maps = [slam.toy_map(s, num_objects=2, num_frames=4, capacity=(4, 8, 2))[0] for s in (0, 1)]
+    problems = slam.stack_problems(maps)
     with pytest.raises(ValueError, match="strategy"):
-        slam.solve_many(problems, stacked, CFG, strategy="pmap")
+        slam.solve_many(problems, problems, CFG, strategy="pmap")  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="problems, inits"):
-        slam.solve_many(problems, inits[0], CFG)
+        slam.solve_many(problems, maps[0], CFG)  # pyright: ignore[reportArgumentType]
