@@ -89,6 +89,20 @@ class ExpertConfig:
     max_tasks: int = 200  # safety bound on navigation tasks per building
 
 
+# The per-sample arrays of a shard (beside path_offsets and the per-shard scalars).
+_SHARD_ARRAYS = (
+    "occupancy",
+    "semantic",
+    "context",
+    "path_mask",
+    "path_cells",
+    "robot_xy",
+    "goal_xy",
+    "goal_outdoors",
+    "path_cost",
+)
+
+
 def _clear_cells(b: Building, clearance: float):
     d = np.asarray(scipy.ndimage.distance_transform_edt(~b.occupancy)) * b.resolution
     ok = d >= clearance
@@ -163,20 +177,7 @@ def generate_expert_samples(
     key = jax.random.PRNGKey(int(rng.integers(2**31)))
     graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
     inside, outside = _clear_cells(building, config.clearance)
-    out = {
-        k: []
-        for k in (
-            "occupancy",
-            "semantic",
-            "context",
-            "path_mask",
-            "path_cells",
-            "robot_xy",
-            "goal_xy",
-            "goal_outdoors",
-            "path_cost",
-        )
-    }
+    out = {k: [] for k in _SHARD_ARRAYS}
     n = 0
     start = _to_world(building, inside[rng.integers(len(inside))])
     state = None
@@ -435,19 +436,6 @@ def load_expert_dataset(paths) -> dict:
     out = {k: np.concatenate(v) for k, v in parts.items()}
     out["path_offsets"] = np.append(out["path_offsets"], base)
     return out
-
-
-_SHARD_ARRAYS = (
-    "occupancy",
-    "semantic",
-    "context",
-    "path_mask",
-    "path_cells",
-    "robot_xy",
-    "goal_xy",
-    "goal_outdoors",
-    "path_cost",
-)
 
 
 def _read_shard(p: pathlib.Path) -> dict:
