@@ -4,6 +4,16 @@ object meshes; doors of generated buildings), input pipelines.
 Public names are re-exported from private modules; import them from here.
 """
 
+from ._bop import (
+    LINEMOD_NAMES as LINEMOD_NAMES,
+    BopFrame as BopFrame,
+    BopObject as BopObject,
+    BopScene as BopScene,
+    Mesh as Mesh,
+    load_bop_scene as load_bop_scene,
+    load_ply as load_ply,
+    visible_boxes as visible_boxes,
+)
 from ._doors import (
     DOOR_BASELINE as DOOR_BASELINE,
     door_building as door_building,

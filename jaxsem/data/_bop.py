@@ -1,0 +1,432 @@
+"""BOP scenes, the standard layout of 6D object pose data sets (LM-O, YCB-V, T-LESS, ...), and PLY meshes.
+
+A BOP scene folder holds ``scene_gt.json`` (per frame id, a list of ``{"obj_id", "cam_R_m2c"
+(row-major 3x3), "cam_t_m2c" (mm)}``), the intrinsics as ``scene_camera.json`` (per frame
+``cam_K``, row-major) or a data-set level ``camera.json`` (``fx, fy, cx, cy, width, height``),
+optionally ``scene_gt_info.json`` (per object ``bbox_visib`` ``[x, y, w, h]`` and
+``visib_fract``), and the images in ``rgb/`` or ``gray/`` (``depth/`` and ``mask_visib/`` are
+optional and not read here). Object meshes are ``models/obj_XXXXXX.ply`` in millimetres, inside
+the scene folder or two levels up (the data set's ``models/``).
+
+:func:`load_bop_scene` reads the labels only (no image is opened): per frame and object, the
+object id and class name, its rotation object-to-camera, its ellipsoid in the camera frame
+(centre and semi-axes of the mesh's axis-aligned extent, metres: jaxsem's convention, radii =
+half the full dimensions), the visible box and the visible fraction. When
+``scene_gt_info.json`` is absent they are computed from the meshes: every object of the frame is
+projected as points (its vertices, splatted to 3 x 3 pixels) into one depth buffer, so objects
+hide each other; the visible fraction is the share of an object's own pixels it keeps in the
+shared buffer, the box that of the kept pixels. A point splat, not a triangle rasteriser: boxes
+agree with a rasteriser to about the splat size on meshes with ~1 px vertex spacing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import numpy as np
+
+#: Linemod's object names (LM and LM-O share the ids).
+LINEMOD_NAMES = {
+    1: "ape",
+    2: "benchvise",
+    3: "bowl",
+    4: "camera",
+    5: "can",
+    6: "cat",
+    7: "cup",
+    8: "driller",
+    9: "duck",
+    10: "eggbox",
+    11: "glue",
+    12: "holepuncher",
+    13: "iron",
+    14: "lamp",
+    15: "phone",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh: vertices (N, 3) metres, colors (N, 3) uint8 or None, faces (F, 3) int or None."""
+
+    vertices: np.ndarray
+    colors: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+    @property
+    def center(self) -> np.ndarray:
+        """Centre of the axis-aligned extent (model frame)."""
+        return 0.5 * (self.vertices.min(0) + self.vertices.max(0))
+
+    @property
+    def radii(self) -> np.ndarray:
+        """Half the axis-aligned extent (model frame): the semi-axes of the object's ellipsoid."""
+        return 0.5 * (self.vertices.max(0) - self.vertices.min(0))
+
+
+@dataclasses.dataclass(frozen=True)
+class BopObject:
+    """One object in one frame (camera frame, metres).
+
+    rotation: (3, 3) object-to-camera; translation: (3,) the model origin in the camera frame;
+    center, radii: the ellipsoid (centre of the mesh's extent, half extents along the object's
+    axes); visible_box: (4,) ``[u_min, v_min, u_max, v_max]`` of the visible pixels (NaN when
+    nothing is visible); visible_fraction: in [0, 1].
+    """
+
+    obj_id: int
+    class_name: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    center: np.ndarray
+    radii: np.ndarray
+    visible_box: np.ndarray
+    visible_fraction: float
+
+
+@dataclasses.dataclass(frozen=True)
+class BopFrame:
+    """One frame: id, K (3, 3), image size (W, H), image path (may not exist), objects."""
+
+    frame_id: int
+    K: np.ndarray
+    image_size: tuple[int, int]
+    image_path: pathlib.Path
+    objects: tuple[BopObject, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class BopScene:
+    """A scene's frames (sorted by id) and the meshes by object id."""
+
+    path: pathlib.Path
+    frames: tuple[BopFrame, ...]
+    meshes: dict
+
+    def split(self, below: int) -> tuple[tuple[BopFrame, ...], tuple[BopFrame, ...]]:
+        """Frames with id below ``below`` and the rest (e.g. the LM-O tuning / test split at 600)."""
+        return (
+            tuple(f for f in self.frames if f.frame_id < below),
+            tuple(f for f in self.frames if f.frame_id >= below),
+        )
+
+
+# ----------------------------------------------------------------------------------------------
+# PLY
+
+
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+
+
+def load_ply(path, scale: float = 1e-3) -> Mesh:
+    """A PLY mesh (ASCII or binary little-endian; vertices with optional ``red, green, blue``
+    colours, triangle faces), coordinates multiplied by ``scale`` (BOP models are in mm: 1e-3).
+
+    Raises:
+      ValueError: naming the file and what is wrong (missing file, bad header, truncated data,
+        non-triangle faces).
+    """
+    path = pathlib.Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the PLY file ({exc.strerror or exc})") from None
+    end = raw.find(b"end_header")
+    if not raw.startswith(b"ply") or end < 0:
+        raise ValueError(f"{path}: not a PLY file (no 'ply' magic or 'end_header')")
+    header = raw[:end].decode("ascii", "replace").splitlines()
+    body = raw[raw.index(b"\n", end) + 1 :]
+    fmt, elements = None, []
+    for line in header:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format":
+            fmt = words[1]
+        elif words[0] == "element":
+            elements.append([words[1], int(words[2]), []])
+        elif words[0] == "property" and elements:
+            elements[-1][2].append(words[1:])
+    if fmt not in ("ascii", "binary_little_endian"):
+        raise ValueError(f"{path}: PLY format {fmt!r} not supported (ascii or binary_little_endian)")
+    data: dict = {}
+    try:
+        if fmt == "ascii":
+            tokens = body.split()
+            pos = 0
+            for name, count, props in elements:
+                if props and props[0][0] == "list":
+                    rows = []
+                    for _ in range(count):
+                        n = int(tokens[pos])
+                        rows.append([int(t) for t in tokens[pos + 1 : pos + 1 + n]])
+                        pos += 1 + n
+                    data[name] = rows
+                else:
+                    k = len(props)
+                    arr = np.array(tokens[pos : pos + count * k], dtype=np.float64).reshape(count, k)
+                    pos += count * k
+                    data[name] = {p[-1]: arr[:, i] for i, p in enumerate(props)}
+        else:
+            offset = 0
+            for name, count, props in elements:
+                if props and props[0][0] == "list":
+                    count_t, index_t = _PLY_TYPES[props[0][1]], _PLY_TYPES[props[0][2]]
+                    dt = np.dtype([("n", count_t), ("idx", index_t, (3,))])
+                    rows = np.frombuffer(body, dt, count, offset)
+                    if count and np.any(rows["n"] != 3):
+                        raise ValueError(f"{path}: only triangle faces are supported")
+                    offset += count * dt.itemsize
+                    data[name] = rows["idx"]
+                else:
+                    dt = np.dtype([(p[-1], "<" + _PLY_TYPES[p[0]]) for p in props])
+                    rows = np.frombuffer(body, dt, count, offset)
+                    offset += count * dt.itemsize
+                    data[name] = {p[-1]: rows[p[-1]].astype(np.float64) for p in props}
+    except (ValueError, KeyError, IndexError) as exc:
+        if str(exc).startswith(f"{path}:"):
+            raise
+        raise ValueError(f"{path}: truncated or malformed PLY data ({exc})") from None
+    vertex = data.get("vertex")
+    if not isinstance(vertex, dict) or not all(k in vertex for k in "xyz"):
+        raise ValueError(f"{path}: no vertex element with x, y, z")
+    vertices = np.stack([vertex["x"], vertex["y"], vertex["z"]], -1) * float(scale)
+    if not np.all(np.isfinite(vertices)) or len(vertices) == 0:
+        raise ValueError(f"{path}: vertices must be finite and at least one")
+    colors = None
+    if all(k in vertex for k in ("red", "green", "blue")):
+        colors = np.stack([vertex["red"], vertex["green"], vertex["blue"]], -1).astype(np.uint8)
+    faces = data.get("face")
+    if faces is not None:
+        if isinstance(faces, list):
+            if any(len(f) != 3 for f in faces):
+                raise ValueError(f"{path}: only triangle faces are supported")
+            faces = np.asarray(faces, np.int64).reshape(-1, 3)
+        faces = np.asarray(faces, np.int64)
+    return Mesh(vertices, colors, faces)
+
+
+# ----------------------------------------------------------------------------------------------
+# Scenes
+
+
+def _read_json(path: pathlib.Path):
+    try:
+        return json.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+
+
+def _matrix(where: str, value, shape) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(shape)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: expected {int(np.prod(shape))} numbers, got {value!r:.80}") from None
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{where}: must be finite, got {value!r:.80}")
+    return arr
+
+
+def _models_dir(scene: pathlib.Path, models_dir) -> pathlib.Path:
+    if models_dir is not None:
+        return pathlib.Path(models_dir)
+    for cand in (scene / "models", scene.parent.parent / "models", scene.parent / "models"):
+        if cand.is_dir():
+            return cand
+    raise ValueError(f"{scene}: no models/ folder found beside or above the scene (give models_dir=)")
+
+
+def _cameras(scene: pathlib.Path, frame_ids) -> dict:
+    """frame id -> (K, (W, H))."""
+    per_frame = scene / "scene_camera.json"
+    shared = [scene / "camera.json", scene.parent.parent / "camera.json", scene.parent.parent / "camera_uw.json"]
+    default = None
+    for path in shared:
+        if path.is_file():
+            cam = _read_json(path)
+            try:
+                K = np.array([[cam["fx"], 0.0, cam["cx"]], [0.0, cam["fy"], cam["cy"]], [0.0, 0.0, 1.0]], float)
+                size = (int(cam["width"]), int(cam["height"]))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"{path}: expected fx, fy, cx, cy, width, height ({exc})") from None
+            default = (K, size)
+            break
+    out = {}
+    if per_frame.is_file():
+        cams = _read_json(per_frame)
+        for fid in frame_ids:
+            entry = cams.get(str(fid))
+            if entry is None:
+                if default is None:
+                    raise ValueError(f"{per_frame}: no entry for frame {fid}")
+                out[fid] = default
+                continue
+            K = _matrix(f"{per_frame}: {fid}.cam_K", entry.get("cam_K"), (3, 3))
+            size = default[1] if default else (int(round(2 * K[0, 2])), int(round(2 * K[1, 2])))
+            out[fid] = (K, size)
+        return out
+    if default is None:
+        raise ValueError(f"{scene}: no scene_camera.json nor camera.json")
+    return {fid: default for fid in frame_ids}
+
+
+def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = None) -> BopScene:
+    """Reads a BOP scene's labels (see the module docstring); no image is opened.
+
+    class_names: object id -> name (default: Linemod's names for ids 1-15 when the path names
+    ``lm`` / ``lmo`` / ``linemod``, else ``obj_XXXXXX``).
+
+    Raises:
+      ValueError: naming the file and the field (missing files, bad JSON, wrong matrix sizes,
+        objects without a mesh).
+    """
+    scene = pathlib.Path(scene_dir)
+    if not scene.is_dir():
+        raise ValueError(f"scene_dir: no such folder {str(scene)!r}")
+    gt_path = scene / "scene_gt.json"
+    if not gt_path.is_file():
+        raise ValueError(f"{scene}: no scene_gt.json (not a BOP scene folder)")
+    gt = _read_json(gt_path)
+    if not isinstance(gt, dict):
+        raise ValueError(f"{gt_path}: expected an object keyed by frame id")
+    try:
+        frame_ids = sorted(int(k) for k in gt)
+    except ValueError:
+        raise ValueError(f"{gt_path}: frame ids must be integers, got {list(gt)[:5]}") from None
+    info_path = scene / "scene_gt_info.json"
+    info = _read_json(info_path) if info_path.is_file() else None
+    if class_names is None:
+        parts = {p.lower() for p in scene.resolve().parts}
+        linemod = any(p in ("lm", "lmo") or "linemod" in p for p in parts) or any(
+            p.startswith("lmo_") or p.startswith("lm_") for p in parts
+        )
+        class_names = LINEMOD_NAMES if linemod else {}
+    models = _models_dir(scene, models_dir)
+    obj_ids = sorted({int(o.get("obj_id", -1)) for v in gt.values() for o in v if isinstance(o, dict)})
+    meshes = {}
+    for oid in obj_ids:
+        path = models / f"obj_{oid:06d}.ply"
+        if not path.is_file():
+            raise ValueError(f"{gt_path}: object {oid} has no mesh {path}")
+        meshes[oid] = load_ply(path)
+    cameras = _cameras(scene, frame_ids)
+    image_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), scene / "rgb")
+    frames = []
+    for fid in frame_ids:
+        entries = gt[str(fid)]
+        if not isinstance(entries, list):
+            raise ValueError(f"{gt_path}: {fid}: expected a list of objects")
+        K, size = cameras[fid]
+        poses = []
+        for i, e in enumerate(entries):
+            where = f"{gt_path}: {fid}[{i}]"
+            if not isinstance(e, dict) or "obj_id" not in e:
+                raise ValueError(f"{where}.obj_id: missing")
+            R = _matrix(f"{where}.cam_R_m2c", e.get("cam_R_m2c"), (3, 3))
+            t = _matrix(f"{where}.cam_t_m2c", e.get("cam_t_m2c"), (3,)) * 1e-3
+            poses.append((int(e["obj_id"]), R, t))
+        if info is not None:
+            rows = info.get(str(fid))
+            if not isinstance(rows, list) or len(rows) != len(entries):
+                raise ValueError(f"{info_path}: {fid}: expected {len(entries)} entries like scene_gt.json")
+            boxes, fracs = [], []
+            for i, row in enumerate(rows):
+                x, y, w, h = _matrix(f"{info_path}: {fid}[{i}].bbox_visib", row.get("bbox_visib"), (4,))
+                boxes.append(np.array([x, y, x + w, y + h]) if w > 0 and h > 0 else np.full(4, np.nan))
+                fracs.append(float(row.get("visib_fract", 1.0)))
+        else:
+            boxes, fracs = visible_boxes([(meshes[o], R, t) for o, R, t in poses], K, size)
+        objects = []
+        for (oid, R, t), box, frac in zip(poses, boxes, fracs):
+            mesh = meshes[oid]
+            objects.append(
+                BopObject(
+                    obj_id=oid,
+                    class_name=class_names.get(oid, f"obj_{oid:06d}"),
+                    rotation=R,
+                    translation=t,
+                    center=R @ mesh.center + t,
+                    radii=mesh.radii,
+                    visible_box=np.asarray(box, float),
+                    visible_fraction=float(frac),
+                )
+            )
+        image = next(
+            (
+                image_dir / f"{fid:06d}{ext}"
+                for ext in (".png", ".jpg", ".tif")
+                if (image_dir / f"{fid:06d}{ext}").is_file()
+            ),
+            image_dir / f"{fid:06d}.png",
+        )
+        frames.append(BopFrame(fid, K, size, image, tuple(objects)))
+    return BopScene(scene, tuple(frames), meshes)
+
+
+def visible_boxes(objects, K, image_size, splat: int = 1):
+    """``(boxes, fractions)`` of posed meshes ``[(mesh, R, t), ...]`` seen together through ``K``
+    on a ``(W, H)`` image: a shared depth buffer of their vertices splatted to ``2 splat + 1``
+    pixels, so nearer objects hide farther ones. A box is ``[u_min, v_min, u_max + 1, v_max + 1]``
+    of the pixels an object keeps (NaN if none); its fraction is kept pixels over the pixels it
+    covers alone (inside the image)."""
+    W, H = int(image_size[0]), int(image_size[1])
+    depth = np.full(H * W, np.inf)
+    owner = np.full(H * W, -1)
+    own = []
+    offsets = [(du, dv) for du in range(-splat, splat + 1) for dv in range(-splat, splat + 1)]
+    for k, (mesh, R, t) in enumerate(objects):
+        p = mesh.vertices @ np.asarray(R).T + np.asarray(t)
+        z = p[:, 2]
+        front = z > 1e-6
+        p, z = p[front], z[front]
+        u = np.floor(K[0, 0] * p[:, 0] / z + K[0, 2]).astype(np.int64)
+        v = np.floor(K[1, 1] * p[:, 1] / z + K[1, 2]).astype(np.int64)
+        idx, zz = [], []
+        for du, dv in offsets:
+            uu, vv = u + du, v + dv
+            ok = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+            idx.append(vv[ok] * W + uu[ok])
+            zz.append(z[ok])
+        idx, zz = np.concatenate(idx), np.concatenate(zz)
+        # nearest depth per pixel of this object, then into the shared buffer
+        order = np.lexsort((zz, idx))
+        idx, zz = idx[order], zz[order]
+        first = np.ones(len(idx), bool)
+        first[1:] = idx[1:] != idx[:-1]
+        idx, zz = idx[first], zz[first]
+        own.append(idx)
+        closer = zz < depth[idx]
+        depth[idx[closer]] = zz[closer]
+        owner[idx[closer]] = k
+    boxes, fractions = [], []
+    for k, idx in enumerate(own):
+        kept = idx[owner[idx] == k]
+        if len(kept) == 0:
+            boxes.append(np.full(4, np.nan))
+            fractions.append(0.0)
+            continue
+        vv, uu = np.divmod(kept, W)
+        boxes.append(np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float))
+        fractions.append(len(kept) / max(len(idx), 1))
+    return boxes, fractions

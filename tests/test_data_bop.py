@@ -1,0 +1,172 @@
+"""BOP scene reader and PLY meshes on small scenes the tests write: poses in mm to metres, the
+ellipsoid of the mesh extent, visible boxes against the core's projection of the mesh points,
+occlusion, ``scene_gt_info.json`` when present, bad files named; the real LM-O scene when
+``JAXSEM_DATA_DIR`` points at ``jaxsem data fetch lmo``'s folder (else skipped)."""
+
+import json
+import os
+import pathlib
+
+import numpy as np
+import pytest
+
+from jaxsem import data, quadrics as q
+
+K = [[500.0, 0.0, 160.0], [0.0, 500.0, 120.0], [0.0, 0.0, 1.0]]
+
+
+def _box_points(half_mm, step_mm=2.0):
+    """Dense points on the surface of a box with half extents ``half_mm`` (a point-only mesh)."""
+    axes = [np.arange(-h, h + 1e-9, step_mm) for h in half_mm]
+    pts = []
+    for a in range(3):
+        b, c = [i for i in range(3) if i != a]
+        B, C = np.meshgrid(axes[b], axes[c], indexing="ij")
+        for sign in (-1, 1):
+            p = np.zeros((B.size, 3))
+            p[:, a], p[:, b], p[:, c] = sign * half_mm[a], B.ravel(), C.ravel()
+            pts.append(p)
+    return np.concatenate(pts)
+
+
+def _write_ply(path, pts, binary=False, colors=True):
+    n = len(pts)
+    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", f"element vertex {n}"]
+    head += [f"property float {a}" for a in "xyz"]
+    if colors:
+        head += [f"property uchar {c}" for c in ("red", "green", "blue")]
+    head += ["end_header"]
+    text = "\n".join(head) + "\n"
+    if binary:
+        dt = np.dtype(
+            [("x", "<f4"), ("y", "<f4"), ("z", "<f4")] + ([("r", "u1"), ("g", "u1"), ("b", "u1")] if colors else [])
+        )
+        rows = np.zeros(n, dt)
+        rows["x"], rows["y"], rows["z"] = pts.T
+        if colors:
+            rows["r"] = 200
+        path.write_bytes(text.encode() + rows.tobytes())
+    else:
+        lines = [" ".join(f"{v:.4f}" for v in p) + (" 200 10 10" if colors else "") for p in pts]
+        path.write_text(text + "\n".join(lines) + "\n")
+
+
+def _scene(tmp_path, gt, info=None):
+    scene = tmp_path / "lmo" / "test" / "000002"
+    (scene / "models").mkdir(parents=True)
+    _write_ply(scene / "models" / "obj_000001.ply", _box_points([30.0, 20.0, 10.0]))
+    _write_ply(scene / "models" / "obj_000005.ply", _box_points([15.0, 15.0, 15.0]), binary=True)
+    cam = {"fx": 500.0, "fy": 500.0, "cx": 160.0, "cy": 120.0, "width": 320, "height": 240, "depth_scale": 1.0}
+    (scene / "camera.json").write_text(json.dumps(cam))
+    (scene / "scene_gt.json").write_text(json.dumps(gt))
+    if info is not None:
+        (scene / "scene_gt_info.json").write_text(json.dumps(info))
+    return scene
+
+
+EYE = np.eye(3).ravel().tolist()
+GT = {
+    "3": [
+        {"obj_id": 1, "cam_R_m2c": EYE, "cam_t_m2c": [0.0, 0.0, 500.0]},
+        {"obj_id": 5, "cam_R_m2c": EYE, "cam_t_m2c": [100.0, 0.0, 600.0]},
+    ],
+    "7": [
+        {"obj_id": 1, "cam_R_m2c": EYE, "cam_t_m2c": [0.0, 0.0, 400.0]},
+        {"obj_id": 5, "cam_R_m2c": EYE, "cam_t_m2c": [0.0, 0.0, 800.0]},  # behind object 1
+    ],
+}
+
+
+def test_poses_ellipsoids_and_names(tmp_path):
+    scene = data.load_bop_scene(_scene(tmp_path, GT))
+    assert [f.frame_id for f in scene.frames] == [3, 7]
+    a, b = scene.frames[0].objects
+    assert (a.class_name, b.class_name) == ("ape", "can")  # Linemod names for an lmo path
+    np.testing.assert_allclose(a.translation, [0, 0, 0.5])
+    np.testing.assert_allclose(a.center, [0, 0, 0.5], atol=1e-6)
+    np.testing.assert_allclose(a.radii, [0.03, 0.02, 0.01], atol=1e-6)
+    np.testing.assert_allclose(b.center, [0.1, 0, 0.6], atol=1e-6)
+    np.testing.assert_allclose(scene.frames[0].K, K)
+    assert scene.frames[0].image_size == (320, 240)
+    tune, test = scene.split(5)
+    assert [f.frame_id for f in tune] == [3] and [f.frame_id for f in test] == [7]
+
+
+def test_visible_box_matches_the_projection_of_the_mesh_points(tmp_path):
+    scene = data.load_bop_scene(_scene(tmp_path, GT))
+    frame = scene.frames[0]
+    for obj in frame.objects:
+        pts = scene.meshes[obj.obj_id].vertices @ obj.rotation.T + obj.translation
+        uv, _ = q.project_points(pts, np.asarray(K), np.eye(4))
+        uv = np.asarray(uv)
+        expected = np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+        # A point splat of 3 x 3 pixels: within two pixels of the projected extremes.
+        np.testing.assert_allclose(obj.visible_box, expected, atol=2.5)
+        assert obj.visible_fraction == pytest.approx(1.0)
+
+
+def test_an_object_behind_another_is_hidden(tmp_path):
+    frame = data.load_bop_scene(_scene(tmp_path, GT)).frames[1]
+    front, back = frame.objects
+    assert front.visible_fraction == pytest.approx(1.0)
+    assert back.visible_fraction == 0.0 and np.all(np.isnan(back.visible_box))
+
+
+def test_scene_gt_info_is_used_when_present(tmp_path):
+    info = {
+        "3": [{"bbox_visib": [10, 20, 30, 40], "visib_fract": 0.5}, {"bbox_visib": [-1, -1, 0, 0], "visib_fract": 0.0}],
+        "7": [{"bbox_visib": [1, 2, 3, 4], "visib_fract": 1.0}, {"bbox_visib": [5, 6, 7, 8], "visib_fract": 0.25}],
+    }
+    frame = data.load_bop_scene(_scene(tmp_path, GT, info)).frames[0]
+    np.testing.assert_allclose(frame.objects[0].visible_box, [10, 20, 40, 60])
+    assert frame.objects[0].visible_fraction == 0.5
+    assert np.all(np.isnan(frame.objects[1].visible_box))
+
+
+def test_binary_and_ascii_ply_agree(tmp_path):
+    pts = _box_points([5.0, 6.0, 7.0], 1.0)
+    _write_ply(tmp_path / "a.ply", pts)
+    _write_ply(tmp_path / "b.ply", pts, binary=True)
+    a, b = data.load_ply(tmp_path / "a.ply"), data.load_ply(tmp_path / "b.ply")
+    np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-6)
+    np.testing.assert_allclose(a.radii, [0.005, 0.006, 0.007], atol=1e-9)
+    assert a.colors is not None and int(a.colors[0, 0]) == 200
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        (lambda s: (s / "scene_gt.json").unlink(), ["scene_gt.json"]),
+        (lambda s: (s / "scene_gt.json").write_text("{ nope"), ["scene_gt.json", "JSON"]),
+        (
+            lambda s: (s / "scene_gt.json").write_text(
+                json.dumps({"3": [{"obj_id": 1, "cam_R_m2c": [1, 0, 0], "cam_t_m2c": [0, 0, 1]}]})
+            ),
+            ["scene_gt.json", "3[0].cam_R_m2c"],
+        ),
+        (lambda s: (s / "models" / "obj_000005.ply").unlink(), ["object 5", "obj_000005.ply"]),
+        (lambda s: (s / "models" / "obj_000001.ply").write_bytes(b"ply\nformat ascii 1.0\n"), ["obj_000001.ply"]),
+        (lambda s: (s / "camera.json").unlink(), ["camera.json"]),
+    ],
+    ids=["no-gt", "bad-json", "bad-rotation", "no-mesh", "bad-ply", "no-camera"],
+)
+def test_bad_files_are_named(tmp_path, damage, words):
+    scene = _scene(tmp_path, GT)
+    damage(scene)
+    with pytest.raises(ValueError) as info:
+        data.load_bop_scene(scene)
+    for word in words:
+        assert word in str(info.value)
+
+
+def test_real_lmo_scene_when_present():
+    root = pathlib.Path(os.environ.get("JAXSEM_DATA_DIR", "/nonexistent")) / "lmo" / "test" / "000002"
+    if not (root / "scene_gt.json").is_file():
+        pytest.skip("LM-O absent (set JAXSEM_DATA_DIR to the folder of `jaxsem data fetch lmo`)")
+    scene = data.load_bop_scene(root)
+    tune, test = scene.split(600)
+    # The issue's fixed split: 97 frames / 756 poses to tune on, 103 / 761 held out.
+    assert (len(tune), sum(len(f.objects) for f in tune)) == (97, 756)
+    assert (len(test), sum(len(f.objects) for f in test)) == (103, 761)
+    names = {o.class_name for f in scene.frames for o in f.objects}
+    assert names == {"ape", "can", "cat", "driller", "duck", "eggbox", "glue", "holepuncher"}
