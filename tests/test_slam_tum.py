@@ -93,3 +93,29 @@ def test_bad_ground_truth_and_camera(tmp_path):
     other.mkdir()
     with pytest.raises(ValueError, match="K: my_scan"):
         slam.load_tum_sequence(other, tmp_path / "dets.jsonl")
+
+
+def test_roshan_command_needs_detections_with_tum(tmp_path, run_cli):
+    root = _folder(tmp_path)
+    status, _, err = run_cli(["roshan", "--tum", str(root), "--out", str(tmp_path / "o")])
+    assert status != 0 and "Traceback" not in err
+    assert "--detections" in [line for line in err.splitlines() if line.strip()][-1]
+
+
+@pytest.mark.slow
+def test_roshan_command_on_a_tum_folder(tmp_path, run_cli):
+    cv2 = pytest.importorskip("cv2")
+    root = _folder(tmp_path)
+    (root / "rgb").mkdir()
+    for name in ("10.000", "10.033"):
+        cv2.imwrite(str(root / "rgb" / f"{name}.png"), np.full((480, 640, 3), 128, np.uint8))
+    dets = _detections(
+        tmp_path,
+        [{"frame": f"rgb/{n}.png", "detections": [DET]} for n in ("10.000", "10.033")],
+    )
+    status, out, err = run_cli(
+        ["roshan", "--tum", str(root), "--detections", str(dets), "--out", str(tmp_path / "o"), "--quiet"]
+    )
+    assert status == 0, err[-2000:]
+    result = json.loads((tmp_path / "o" / "map.json").read_text())
+    assert [o["class"] for o in result["objects"]] == ["cereal_box"]

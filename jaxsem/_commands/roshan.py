@@ -9,6 +9,8 @@ Examples::
     python infer/roshan.py --simulate forward --seed 0 --write-sequence out/sim_seq --out out/roshan
     # the baseline (boxes + pose priors only) on the same input
     python infer/roshan.py --simulate orbit --seed 1 --baseline --out out/baseline
+    # a TUM RGB-D folder with any 2D detector's tracked boxes (layout: jaxsem.slam.load_tum_sequence)
+    python infer/roshan.py --tum data/rgbd_dataset_freiburg1_desk --detections dets.jsonl --out out/tum
 
 ``sequence.json``: ``{"K": 3x3, "image_size": [w, h], "frames": [{"camera_T_world": 4x4,
 "image": optional file name, "detections": [{"box": [u_min, v_min, u_max, v_max], "class":
@@ -58,7 +60,18 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         type=pathlib.Path,
         help="sequence directory (or its sequence.json)",
     )
+    src.add_argument(
+        "--tum",
+        type=sc.existing_dir,
+        help="a TUM RGB-D folder (rgb.txt, groundtruth.txt); needs --detections",
+    )
     src.add_argument("--simulate", choices=("forward", "orbit"), help="simulate a sequence instead")
+    p.add_argument(
+        "--detections",
+        type=sc.existing_file,
+        help="with --tum: a JSON-lines file, one line per image: "
+        '{"frame": "rgb/<t>.png", "detections": [{"box": [...], "class": ..., "id": track id, "score": ...}]}',
+    )
     p.add_argument("--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate)")
     p.add_argument("--objects", type=sc.positive_int, default=10, help="cars in the simulated map")
     p.add_argument("--frames", type=sc.positive_int, default=60, help="frames of the simulated flight")
@@ -93,7 +106,11 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 
 def parse_args(argv=None, prog: str | None = None):
-    return build_parser(prog).parse_args(argv)
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    if (args.tum is None) != (args.detections is None):
+        parser.error("--detections: goes with --tum (a TUM folder and its detections file, both or neither)")
+    return args
 
 
 def solver_config(args, sim_cfg=None, sequence=None):
@@ -157,6 +174,8 @@ def main(argv=None, prog: str | None = None) -> int:
         sequence = slam.sequence_from_simulation(one, sim_cfg.image_size)
         if args.write_sequence:
             print(f"wrote {slam.save_sequence(sequence, args.write_sequence)}")
+    elif args.tum:
+        sequence = slam.load_tum_sequence(args.tum, args.detections)
     else:
         sequence = slam.load_sequence(args.sequence)
     config = solver_config(args, sim_cfg, sequence)
