@@ -31,3 +31,14 @@ def test_lsd_on_my_grid_goes_through_the_door():
     # Through the door at (8, 8.5): at least the two legs' length, and not a long detour.
     legs = ((8 - 3) ** 2 + (8.5 - 3) ** 2) ** 0.5 + ((13 - 8) ** 2 + (8.5 - 7) ** 2) ** 0.5
     assert legs - 0.3 <= result["travelled_m"] <= 1.5 * legs
+
+
+@pytest.mark.slow
+def test_slam_from_my_detections_solves_one_and_many():
+    result = _load("slam_from_my_detections").main()
+    assert result["success"]
+    # The direct optimistix call on the same cost, from solve_batch's answer, never goes up.
+    assert result["optx_cost"] <= result["cost"] * (1 + 1e-6)
+    # A batch solved one map after another gives each map exactly its solo answer (CPU default).
+    assert result["many_equals_solo_m"] == 0.0
+    assert sorted(result["many_position_m"])[1] < 0.5  # median over the three maps
