@@ -254,3 +254,19 @@ def test_converter_matches_numpy_reference():
         convert_torchvision_mobilenet_v2(bad, width)
     with pytest.raises(ValueError, match="shape"):
         convert_torchvision_mobilenet_v2(sd, 0.5)
+
+
+def test_prepare_inputs_takes_the_trained_size_by_default():
+    # Regression (architecture issue, friction 3): the default size was 64 while the shipped model
+    # was trained at 48, so a user's crops silently had the wrong scale.
+    from jaxsem.volumon import load_pretrained
+
+    image = np.zeros((60, 80, 3), np.uint8)
+    boxes = np.array([[10.0, 10, 40, 50]])
+    _, _, config, _ = load_pretrained()
+    local, glob = prepare_inputs(image, boxes)
+    assert local.shape[1] == glob.shape[1] == config.model.input_size
+    assert prepare_inputs(image, boxes, config=config)[0].shape[1] == config.model.input_size
+    assert prepare_inputs(image, boxes, size=32)[0].shape[1] == 32
+    with pytest.raises(ValueError, match="config"):
+        prepare_inputs(image, boxes, config="volumon")
