@@ -7,6 +7,7 @@ texture plane. Re-exported by :mod:`jaxsem.quadrics`, which documents the conven
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -40,7 +41,21 @@ from ._common import (
 # Quadric matrices.
 
 
-def dual_quadric(rotation, center, radii, *, xp: Any = jnp):
+def ellipsoid_valid(rotation, center, radii):
+    """(...) bool mask under ``jit``: a finite proper rotation (orthonormal, det +1, to a
+    dtype-aware tolerance), a finite centre and positive finite radii. The check every masked
+    core function folds in; use it beside the unmasked algebra (:func:`dual_quadric`, ...)."""
+    rotation, center, radii = jnp.asarray(rotation), jnp.asarray(center), jnp.asarray(radii)
+    return _ellipsoid_ok(rotation, center, radii)
+
+
+def camera_valid(K, camera_T_world):
+    """(...) bool mask under ``jit``: finite intrinsics with ``fx, fy > 0`` and a finite rigid
+    ``camera_T_world`` (proper rotation block, last row ``[0, 0, 0, 1]``)."""
+    return _intrinsics_ok(jnp.asarray(K)) & _pose_ok(jnp.asarray(camera_T_world))
+
+
+def dual_quadric(rotation, center, radii, *, xp: Any = jnp, with_valid: bool = False) -> Any:
     """Dual quadric ``Q*`` of an ellipsoid (eq. 4.3).
 
     Args:
@@ -50,11 +65,17 @@ def dual_quadric(rotation, center, radii, *, xp: Any = jnp):
       xp: ``jax.numpy`` (default) or ``numpy`` (host code; see the module docstring).
 
     Returns:
-      (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``.
+      (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``; with ``with_valid=True``
+      also the (...) mask of :func:`ellipsoid_valid` (a negated radius gives the same matrix as
+      the positive one: only the mask tells), the matrix finite for non-finite inputs.
     """
     xp = _namespace(xp)
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
-    return _dual_quadric(rotation, center, radii, batch, xp)
+    if not with_valid:
+        return _dual_quadric(rotation, center, radii, batch, xp)
+    valid = xp.broadcast_to(_ellipsoid_ok(rotation, center, radii, xp), batch)
+    z = functools.partial(_finite_or_zero, xp=xp)
+    return _dual_quadric(z(rotation), z(center), z(radii), batch, xp), valid
 
 
 def _dual_quadric(rotation, center, radii, batch, xp):
@@ -97,17 +118,21 @@ def primal_quadric(rotation, center, radii):
     return jnp.concatenate([top, bottom[..., None, :]], axis=-2)
 
 
-def camera_matrix(K, camera_T_world, *, xp: Any = jnp):
+def camera_matrix(K, camera_T_world, *, xp: Any = jnp, with_valid: bool = False) -> Any:
     """Projection matrix ``P = K [I | 0] camera_T_world`` (..., 3, 4) (eq. 4.9): ``x ~ P X``.
 
     Args:
       K: (..., 3, 3) intrinsics; camera_T_world: (..., 4, 4) world-to-camera transform.
       xp: ``jax.numpy`` (default) or ``numpy`` (host code).
+      with_valid: also return the (...) mask of :func:`camera_valid`.
     """
     xp = _namespace(xp)
     K, pose = _camera_args(K, camera_T_world, xp=xp)
-    _batch_shape(K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    return _camera_matrix(K, pose, xp)
+    batch = _batch_shape(K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    if not with_valid:
+        return _camera_matrix(K, pose, xp)
+    valid = xp.broadcast_to(_intrinsics_ok(K, xp) & _pose_ok(pose, xp), batch)
+    return _camera_matrix(_finite_or_zero(K, xp), _finite_or_zero(pose, xp), xp), valid
 
 
 def _camera_matrix(K, pose, xp):
