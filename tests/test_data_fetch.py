@@ -86,7 +86,7 @@ def test_corrupt_archive_is_named(tmp_path, tiny_sets):
 def test_unreachable_registry_is_one_line(tmp_path, monkeypatch, run_cli):
     # pip with no index, no find-links and no cache: what a machine without a registry sees.
     monkeypatch.setenv("PIP_CONFIG_FILE", "/dev/null")
-    monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
+    monkeypatch.setenv("PIP_INDEX_URL", "file:///nonexistent/jaxsem-test-index")  # no registry
     monkeypatch.setenv("PIP_RETRIES", "0")
     monkeypatch.setenv("PIP_TIMEOUT", "2")
     monkeypatch.setenv("PIP_FIND_LINKS", "")

@@ -73,8 +73,9 @@ def test_frames_pair_with_the_nearest_pose_and_poses_invert(tmp_path):
         ),
         ({"frame": "rgb/10.000.png", "detections": [{**DET, "box": [0, 0, 1e9, 1e9]}]}, ["detections[0].box"]),
         ({"frame": "rgb/11.000.png", "detections": [DET]}, ["no frame with both a pose"]),
+        ({"frame": "rgb/10.000.png", "detections": [{**DET, "score": "high"}]}, ["detections[0].score"]),
     ],
-    ids=["json", "frame", "class", "class-unknown", "no-id", "huge-box", "no-pose"],
+    ids=["json", "frame", "class", "class-unknown", "no-id", "huge-box", "no-pose", "score"],
 )
 def test_bad_detection_lines_are_named(tmp_path, line, words):
     root = _folder(tmp_path)

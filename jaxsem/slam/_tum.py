@@ -156,7 +156,10 @@ def load_tum_sequence(
             field = f"detections[{i}]"
             if not isinstance(d, dict):
                 raise ValueError(f"{where}: {field}: expected an object with box, class, id")
-            if float(d.get("score", 1.0)) < min_score:
+            score = d.get("score", 1.0)
+            if isinstance(score, bool) or not isinstance(score, (int, float)) or not math.isfinite(score):
+                raise ValueError(f"{where}: {field}.score: expected a finite number, got {score!r}")
+            if score < min_score:
                 continue
             for key in ("box", "class", "id"):
                 if key not in d:
