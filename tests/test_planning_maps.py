@@ -61,13 +61,13 @@ def test_ros_negate_swaps_free_and_occupied(tmp_path):
 
 
 def test_building_from_map_blocks_unknown_and_marks_walls(tmp_path):
-    world = planning.load_map(_ros_map(tmp_path))
+    world = planning.load_map(_ros_map(tmp_path), cell_size=None)
     assert world.occupancy.dtype == bool
     # Free cells: the three white pixels only (unknown ones are blocked by default).
     assert int((~world.occupancy).sum()) == 3
     assert int((world.semantic == WALL).sum()) == 15
     assert world.family == "scanned" and world.rooms.shape == (0, 4)
-    open_world = planning.load_map(_ros_map(tmp_path), unknown_is_obstacle=False)
+    open_world = planning.load_map(_ros_map(tmp_path), unknown_is_obstacle=False, cell_size=None)
     assert int((~open_world.occupancy).sum()) == 5
 
 

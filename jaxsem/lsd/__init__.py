@@ -27,6 +27,7 @@ from ._experiment import (
     plot_navigation as plot_navigation,
     plot_success as plot_success,
     prepare_model as prepare_model,
+    read_records as read_records,
     run_trials as run_trials,
     summarise as summarise,
 )

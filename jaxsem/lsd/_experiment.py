@@ -25,15 +25,20 @@ from ..metrics import mean_sem, zero_intercept_slope
 def _trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
     # Same key for every planner; a function of the trial only (not of Python's hash seed).
     return jax.random.PRNGKey(
-        int(np.random.default_rng([int(seed), int(building_seed), ("II", "IO").index(kind), t_i, n]).integers(2**31))
+        int(
+            np.random.default_rng(
+                [int(seed), int(building_seed) & 0xFFFFFFFF, ("II", "IO").index(kind), t_i, n]
+            ).integers(2**31)
+        )
     )
 
 
-def _run_job(job, planners: dict, seed: int, max_steps: int) -> dict:
+def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = False, base=None) -> dict:
     """One (building, set, trial, N): every planner from the same start, yaw and key."""
     from ..planning import NavConfig, navigate
 
     b, kind, t_i, task, n = job
+    base = base or NavConfig()
     key = _trial_key(seed, b.seed, kind, t_i, n)
     rec = {
         "building": int(b.seed),
@@ -45,7 +50,7 @@ def _run_job(job, planners: dict, seed: int, max_steps: int) -> dict:
         "goal": task.goal.tolist(),
     }
     for name, (smp, changes) in planners.items():
-        cfg = dataclasses.replace(NavConfig(n_samples=n, max_steps=max_steps), **changes)
+        cfg = dataclasses.replace(base, n_samples=n, max_steps=max_steps, **changes)
         t0 = time.perf_counter()
         res = navigate(
             b,
@@ -66,6 +71,8 @@ def _run_job(job, planners: dict, seed: int, max_steps: int) -> dict:
             "grown": int(res.grown),
             "seconds": time.perf_counter() - t0,
         }
+        if keep_paths:
+            rec[name]["path"] = np.round(np.asarray(res.path, np.float64), 3).tolist()
     return rec
 
 
@@ -92,6 +99,10 @@ def run_trials(
     variants: dict | None = None,
     mesh=None,
     base: bool = True,
+    tasks: dict | None = None,
+    records_path=None,
+    keep_paths: bool = False,
+    nav_config=None,
 ) -> list:
     """Runs the planners on every (building, set, N, trial); returns a list of dict records.
 
@@ -113,6 +124,15 @@ def run_trials(
     host's, and speeds up only as far as the host's Python (one interpreter lock) keeps up.
     The records are the same, in the same order, as with ``mesh=None`` (each trial's key is a
     function of the trial only). Every device of the mesh must belong to this process.
+
+    tasks: ``{(building index, set): [Task, ...]}`` to run instead of ``sample_tasks(b, set,
+    trials, seed)`` (e.g. tasks drawn with distance and clearance bounds on a scanned map).
+    records_path: a JSON-lines file the records are appended to as each trial ends (flushed and
+    synced: a killed run keeps every finished trial); when it exists, its records of the same
+    tasks are read back and those trials are not run again (the run resumes). keep_paths: each
+    planner's travelled path ((T, 2) world metres, mm-rounded) goes into its record.
+    nav_config: the :class:`~jaxsem.planning.NavConfig` the planners start from (``n_samples``
+    and ``max_steps`` are set per job; default: ``NavConfig()``).
     """
     from ..planning import sample_tasks
 
@@ -137,11 +157,13 @@ def run_trials(
     if not planners:
         raise ValueError("variants: base=False needs at least one variant planner")
     jobs = []
-    for b in buildings:
+    for b_i, b in enumerate(buildings):
         for kind in sets:
-            for t_i, task in enumerate(sample_tasks(b, kind, trials, seed)):
+            chosen = tasks[(b_i, kind)] if tasks is not None else sample_tasks(b, kind, trials, seed)
+            for t_i, task in enumerate(chosen):
                 for n in ns:
                     jobs.append((b, kind, t_i, task, int(n)))
+    stream = _RecordStream(records_path, list(planners)) if records_path is not None else None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -157,15 +179,24 @@ def run_trials(
                 bar.set_postfix_str(f"set={rec['set']} n={rec['n']} {ok}")
 
     records: list = [None] * len(jobs)
+
+    def run_one(i, group):
+        rec = stream.get(jobs[i]) if stream is not None else None
+        if rec is None:
+            rec = _run_job(jobs[i], group, seed, max_steps, keep_paths, nav_config)
+            if stream is not None:
+                stream.append(rec)
+        records[i] = rec
+        done(rec)
+
     if devices is None or len(devices) == 1:
         group = planners if devices is None else _on_device(planners, devices[0])
-        for i, job in enumerate(jobs):
+        for i in range(len(jobs)):
             if devices is None:
-                records[i] = _run_job(job, group, seed, max_steps)
+                run_one(i, group)
             else:
                 with jax.default_device(devices[0]):
-                    records[i] = _run_job(job, group, seed, max_steps)
-            done(records[i])
+                    run_one(i, group)
     else:
         from concurrent.futures import ThreadPoolExecutor
 
@@ -174,8 +205,7 @@ def run_trials(
             group = _on_device(planners, device)
             with jax.default_device(device):
                 for i in range(d_i, len(jobs), len(devices)):
-                    records[i] = _run_job(jobs[i], group, seed, max_steps)
-                    done(records[i])
+                    run_one(i, group)
 
         with ThreadPoolExecutor(max_workers=len(devices)) as pool:
             for fut in [pool.submit(run_group, d_i) for d_i in range(len(devices))]:
@@ -183,6 +213,69 @@ def run_trials(
     if bar:
         bar.close()
     return records
+
+
+class _RecordStream:
+    """The JSON-lines record file of :func:`run_trials`: finished records read back by task,
+    new ones appended one line each (flushed and fsynced under a lock). A torn last line (a run
+    killed while writing) is ignored and rewritten by the resumed run."""
+
+    def __init__(self, path, planners: list):
+        import json
+        import pathlib
+
+        self.path = pathlib.Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.done: dict = {}
+        self.lock = threading.Lock()
+        if self.path.exists():
+            lines = self.path.read_text().splitlines()
+            good = []
+            for i, line in enumerate(lines):
+                try:
+                    r = json.loads(line)
+                except json.JSONDecodeError:
+                    if i == len(lines) - 1:
+                        break  # the torn tail of a killed run
+                    raise ValueError(f"records_path: {self.path} line {i + 1} is not a JSON record") from None
+                good.append(line)
+                if all(name in r for name in planners):
+                    self.done[_record_key(r)] = r
+            if len(good) != len(lines):
+                self.path.write_text("".join(g + "\n" for g in good))
+
+    @staticmethod
+    def _job_key(job) -> tuple:
+        b, kind, t_i, task, n = job
+        return (int(b.seed), kind, t_i, int(n), tuple(np.asarray(task.start).tolist()), tuple(np.asarray(task.goal).tolist()))
+
+    def get(self, job):
+        return self.done.get(self._job_key(job))
+
+    def append(self, rec: dict) -> None:
+        import json
+        import os
+
+        with self.lock, self.path.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def read_records(path) -> list:
+    """The records of a :func:`run_trials` ``records_path`` file (a torn last line skipped)."""
+    import json
+    import pathlib
+
+    out = []
+    lines = pathlib.Path(path).read_text().splitlines()
+    for i, line in enumerate(lines):
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            if i != len(lines) - 1:
+                raise ValueError(f"path: {path} line {i + 1} is not a JSON record") from None
+    return out
 
 
 def _record_key(r: dict) -> tuple:

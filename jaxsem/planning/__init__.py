@@ -18,7 +18,12 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
 - Online loop: :func:`navigate` / :class:`Trial` with ``sampler=None`` (uniform) or a function
   of :class:`LocalInputs` (160 x 160 crops + context) returning a 160 x 160 distribution.
 - Real maps: :func:`load_map` (ROS map_server YAML + image, MRPT ``.gridmap(.gz)``, a plain
-  image) into a :class:`Building`; :func:`load_occupancy` for the raw three-state grid.
+  image) into a :class:`Building` on the planner's 0.1 m cells (:func:`resample_occupancy`),
+  with doors found from the occupancy (:func:`find_doors`), the footprint
+  (:func:`building_footprint`; the largest open area stands in for a missing outside,
+  :func:`largest_open_region`), hand annotations (:func:`read_annotations`,
+  :func:`apply_annotations`) and a figure (:func:`plot_semantics`); :func:`load_occupancy` for
+  the raw three-state grid.
 - Data: :func:`generate_expert_samples`, :func:`write_expert_dataset`,
   :func:`load_expert_dataset` (schema: ``EXPERT_SCHEMA``), :func:`sample_tasks` ('II' / 'IO').
 """
@@ -61,10 +66,12 @@ from ._grid import (
     world_to_cell as world_to_cell,
 )
 from ._maps import (
+    MIN_OUTSIDE_AREA as MIN_OUTSIDE_AREA,
     OccupancyGrid as OccupancyGrid,
     grid_to_building as grid_to_building,
     load_map as load_map,
     load_occupancy as load_occupancy,
+    resample_occupancy as resample_occupancy,
 )
 from ._navigate import (
     CONTEXT_SIZE as CONTEXT_SIZE,
@@ -95,6 +102,16 @@ from ._prm import (
     roadmap_recheck as roadmap_recheck,
     roadmap_shortest_path as roadmap_shortest_path,
     sample_points as sample_points,
+)
+from ._semantics import (
+    DOOR_WIDTH as DOOR_WIDTH,
+    apply_annotations as apply_annotations,
+    building_footprint as building_footprint,
+    find_doors as find_doors,
+    largest_open_region as largest_open_region,
+    plot_semantics as plot_semantics,
+    read_annotations as read_annotations,
+    semantic_grid as semantic_grid,
 )
 from ._sensors import (
     SensorConfig as SensorConfig,

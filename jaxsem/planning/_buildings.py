@@ -64,10 +64,16 @@ class Building:
     semantic:  (H, W) int8 class grid: 0 none, 1 wall, 2 door (free), 3 window, 4 exit sign.
     indoor:    (H, W) bool, True inside the building footprint (walls included).
     origin:    (2,) world (x, y) of the corner of cell [0, 0]; resolution: metres per cell.
-    entrance:  (2,) world (x, y) of a free outdoor point just outside the first exterior door.
+    entrance:  (2,) world (x, y) of a free outdoor point just outside the first exterior door
+               (NaN when unknown, e.g. a scanned map).
     exterior_doors: (D, 4) int cell boxes [r0, c0, r1, c1) of the exterior door openings.
     rooms: (R, 4) int cell rectangles [r0, c0, r1, c1) of the rooms (corridors excluded).
-    family, seed: how it was made.
+    family, seed: how it was made ('scanned' and -1 for a map read from a file,
+    :func:`~jaxsem.planning.load_map`; a generated building's seed seeds its trials' streams).
+    known: (H, W) bool or None: the cells a scan observed (None: all of them). A scanned map's
+        unknown cells are blocked in ``occupancy`` and marked here.
+
+    Only the first five fields are needed; the rest describe how a generated building was made.
     """
 
     occupancy: np.ndarray
@@ -75,11 +81,12 @@ class Building:
     indoor: np.ndarray
     origin: np.ndarray
     resolution: float
-    entrance: np.ndarray
-    exterior_doors: np.ndarray
-    rooms: np.ndarray
-    family: str
-    seed: int
+    entrance: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    exterior_doors: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    rooms: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    family: str = "scanned"
+    seed: int = -1
+    known: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:

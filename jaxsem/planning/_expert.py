@@ -133,22 +133,43 @@ def sample_tasks(
     min_distance: float = 8.0,
     clearance: float = 0.3,
     graph: SoftCostGraph | None = None,
+    max_distance: float | None = None,
+    max_tries: int | None = None,
 ) -> list:
     """``count`` test tasks of ``kind`` 'II' (start and goal indoors) or 'IO' (start indoors,
-    goal outdoors), at least ``min_distance`` apart, each with its resolution-optimal C*."""
+    goal outdoors), each with its resolution-optimal C*.
+
+    min_distance, max_distance: bounds (metres) on the straight-line start-goal distance (None:
+    no upper bound; on a campus-sized map a bound keeps tasks the size of the thesis' buildings);
+    clearance: metres from the nearest obstacle for start and goal (keeps them out of a laser
+    map's thin slivers); graph: the map's :class:`SoftCostGraph` when one is already built;
+    max_tries: candidate pairs drawn before giving up (default ``50 * count``). Fewer than
+    ``count`` tasks come back when the pools cannot give them (check ``len``).
+    """
     if kind not in ("II", "IO"):
         raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
-    rng = np.random.default_rng([int(seed), building.seed, 0x7A5C])
+    if not (min_distance >= 0 and (max_distance is None or max_distance > min_distance)):
+        raise ValueError(
+            f"max_distance: expected None or more than min_distance ({min_distance}), got {max_distance}"
+        )
+    if not clearance >= 0:
+        raise ValueError(f"clearance: expected >= 0 metres, got {clearance}")
+    # A scanned map has seed -1: the stream takes the seed's low 32 bits (a generated building's
+    # seeds are small and non-negative, so their tasks are unchanged).
+    rng = np.random.default_rng([int(seed), int(building.seed) & 0xFFFFFFFF, 0x7A5C])
     inside, outside = _clear_cells(building, clearance)
+    pool = inside if kind == "II" else outside
+    if len(inside) == 0 or len(pool) == 0:
+        return []
     graph = graph or SoftCostGraph(building.occupancy, building.origin, building.resolution)
     tasks = []
-    for _ in range(50 * count):
+    for _ in range(50 * count if max_tries is None else int(max_tries)):
         if len(tasks) == count:
             break
         s = _to_world(building, inside[rng.integers(len(inside))])
-        pool = inside if kind == "II" else outside
         g = _to_world(building, pool[rng.integers(len(pool))])
-        if np.linalg.norm(g - s) < min_distance:
+        d = np.linalg.norm(g - s)
+        if d < min_distance or (max_distance is not None and d > max_distance):
             continue
         p = graph.path(s, g)
         if not p.found:

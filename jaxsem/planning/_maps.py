@@ -37,10 +37,22 @@ import pathlib
 import struct
 
 import numpy as np
+import scipy.ndimage
 
 from ._buildings import Building
-from ._grid import FREE, OCCUPIED, UNKNOWN, WALL
+from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN
+from ._semantics import (
+    apply_annotations,
+    building_footprint,
+    find_doors,
+    largest_open_region,
+    read_annotations,
+    semantic_grid,
+)
 
+#: Square metres of free space with half a metre of clearance a map's outside needs to hold
+#: Inside-Outside goals; with less, its largest open area (a hall) stands in for the outside.
+MIN_OUTSIDE_AREA = 50.0
 _IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
@@ -106,32 +118,109 @@ def load_occupancy(path, *, resolution: float | None = None, origin=None) -> Occ
     return grid
 
 
-def load_map(path, *, resolution: float | None = None, origin=None, unknown_is_obstacle: bool = True) -> Building:
+def load_map(
+    path,
+    *,
+    resolution: float | None = None,
+    origin=None,
+    unknown_is_obstacle: bool = True,
+    cell_size: float | None = DEFAULT_RESOLUTION,
+    doors: bool = True,
+    annotations=None,
+    footprint_gap: float = 2.0,
+) -> Building:
     """A :class:`Building` from a map file (see the module docstring for formats and rules).
 
+    resolution, origin: override the file's (a plain image needs ``resolution``).
     unknown_is_obstacle: unknown cells block the robot (default) or count as free space.
+    cell_size: metres per cell of the planner's grid; the map is resampled to it (default
+        0.1 m, the grid the LSD network was trained on: its 160-cell window must cover 16 m);
+        None keeps the file's cells.
+    doors: find doors from the occupancy (:func:`find_doors`); annotations: a JSON file (or its
+        dict) of hand-drawn boxes (:func:`read_annotations`); footprint_gap: widest wall opening
+        (m) closed when the building's footprint is separated from the outside.
     """
     grid = load_occupancy(path, resolution=resolution, origin=origin)
-    return grid_to_building(grid, unknown_is_obstacle=unknown_is_obstacle)
+    if cell_size is not None:
+        grid = resample_occupancy(grid, cell_size)
+    return grid_to_building(
+        grid,
+        unknown_is_obstacle=unknown_is_obstacle,
+        doors=doors,
+        annotations=annotations,
+        footprint_gap=footprint_gap,
+    )
 
 
-def grid_to_building(grid: OccupancyGrid, *, unknown_is_obstacle: bool = True) -> Building:
-    """The planner's world of an :class:`OccupancyGrid` (occupied cells are walls; the observed
-    area is indoor)."""
+def resample_occupancy(grid: OccupancyGrid, cell_size: float) -> OccupancyGrid:
+    """``grid`` on cells of ``cell_size`` metres over the same extent (the last row / column may
+    reach past it; what lies past it is unknown). A new cell is occupied when any cell it overlaps
+    is, else unknown when any is, else free: walls stay closed and nothing unseen becomes free."""
+    if not (math.isfinite(cell_size) and cell_size > 0):
+        raise ValueError(f"cell_size: expected a positive number of metres per cell, got {cell_size}")
+    if abs(cell_size - grid.resolution) <= 1e-9 * cell_size:
+        return grid
     occ = np.asarray(grid.occupancy)
+    rank = np.array([1, 0, 2], np.int8)[occ + 1]  # unknown 1, free 0, occupied 2
+    ratio = cell_size / grid.resolution
+
+    def pool(a, axis):
+        n_src = a.shape[axis]
+        n_out = max(int(math.ceil(n_src / ratio - 1e-9)), 1)
+        lo = np.floor(np.arange(n_out) * ratio + 1e-9).astype(np.int64)
+        hi = np.ceil((np.arange(n_out) + 1) * ratio - 1e-9).astype(np.int64) - 1
+        width = int((hi - lo).max()) + 1
+        padded = np.concatenate([a, np.ones_like(np.take(a, [0], axis=axis)).repeat(width + 1, axis=axis)], axis=axis)
+        out = np.take(padded, lo, axis=axis)
+        for k in range(1, width):
+            idx = np.minimum(lo + k, hi)
+            out = np.maximum(out, np.take(padded, idx, axis=axis))
+        return out
+
+    pooled = pool(pool(rank, 0), 1)
+    occ_out = np.array([FREE, UNKNOWN, OCCUPIED], np.int8)[pooled]
+    return OccupancyGrid(occ_out, np.asarray(grid.origin, float), float(cell_size), grid.source)
+
+
+def grid_to_building(
+    grid: OccupancyGrid,
+    *,
+    unknown_is_obstacle: bool = True,
+    doors: bool = True,
+    annotations=None,
+    footprint_gap: float = 2.0,
+) -> Building:
+    """The planner's world of an :class:`OccupancyGrid`: occupied cells are walls, doors found
+    from the occupancy (``doors``) are DOOR, the footprint (:func:`building_footprint`) is
+    indoor; where no free cell with half a metre of clearance lies outside it, the largest open
+    region is taken as the outside (:func:`largest_open_region`). ``annotations`` (a JSON path or
+    its parsed dict) are applied last."""
+    occ = np.asarray(grid.occupancy)
+    res = float(grid.resolution)
+    if annotations is not None and not isinstance(annotations, dict):
+        annotations = read_annotations(annotations)
+    door_mask = find_doors(occ, res) if doors else np.zeros(occ.shape, bool)
+    semantic = semantic_grid(occ, door_mask)
+    indoor = building_footprint(occ, res, gap=footprint_gap)
+    free = occ == FREE
+    roomy = scipy.ndimage.distance_transform_edt(free) * res >= 0.5
+    if (roomy & ~indoor).sum() * res**2 < MIN_OUTSIDE_AREA:
+        indoor = indoor & ~largest_open_region(occ, res)
+    if annotations:
+        occ, semantic, indoor, unused = apply_annotations(occ, semantic, indoor, annotations, grid.origin, res)
+        if unused:
+            raise ValueError(
+                f"annotations: {', '.join(unused)} mark no cell of the map (outside it, or a window / "
+                "exit sign box with no occupied cell)"
+            )
     blocked = (occ == OCCUPIED) | ((occ == UNKNOWN) if unknown_is_obstacle else False)
-    semantic = np.where(occ == OCCUPIED, WALL, 0).astype(np.int8)
     return Building(
         occupancy=np.asarray(blocked, bool),
         semantic=semantic,
-        indoor=occ != UNKNOWN,
+        indoor=np.asarray(indoor, bool),
         origin=np.asarray(grid.origin, float),
-        resolution=float(grid.resolution),
-        entrance=np.full(2, np.nan),
-        exterior_doors=np.zeros((0, 4), np.int64),
-        rooms=np.zeros((0, 4), np.int64),
-        family="scanned",
-        seed=-1,
+        resolution=res,
+        known=occ != UNKNOWN,
     )
 
 

@@ -1,0 +1,207 @@
+"""Benchmark: Table 3.1 on a real map: PRM + LSD against PRM + Unf on a scanned or drawn building.
+
+Reads a map in any format of ``jaxsem.planning.load_map`` (ROS map_server YAML, MRPT
+``.gridmap(.gz)``, a plain image with ``--resolution``), resamples it to the planner's 0.1 m
+cells, finds its doors and its footprint (``--annotations`` adds hand-drawn ones), writes a figure
+of what it found, samples Inside-Inside and Inside-Outside tasks with distance and clearance
+bounds, and runs both planners from the same start, yaw and key on every task and every N:
+
+- ``--protocol thesis``: a fresh roadmap at every replan, the first roadmap without a path ends
+  the trial (thesis 3.3.3; ``NavConfig(reuse_roadmap=False, max_growth=0)`` for both planners);
+- ``--protocol defaults``: the library's defaults (roadmap reuse for the uniform planner, growth
+  after a failed search).
+
+LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (no uniform mix).
+``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?).
+Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
+same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<N>``
+(``success_uniform``, ``success_lsd``, ``lsd_only``, ``uniform_only``, ``cl_over_cstar``,
+``cb_over_cstar``, ...), the map's facts and the command, to ``--json``.
+
+Seeds: tasks come from ``--seed``; seeds below 1000 are for tuning, report on others.
+
+    python benchmarks/lsd_real.py --map DATA/mrpt/2006-MalagaCampus.gridmap.gz --trials 20 \\
+        --n 500 --sets II IO --protocol thesis --seed 1000 --json benchmarks/results/lsd_real_campus.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import pathlib
+import subprocess
+import sys
+import time
+
+
+def _parse(argv):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--map", required=True, help="map file: .yaml (ROS), .gridmap[.gz] (MRPT) or an image")
+    p.add_argument("--resolution", type=float, default=None, help="metres per pixel (plain images)")
+    p.add_argument("--annotations", default=None, help="JSON of hand-drawn doors / windows / exit signs")
+    p.add_argument("--trials", type=int, default=10, help="tasks per set")
+    p.add_argument("--n", type=int, nargs="+", default=[500], help="sample budgets N")
+    p.add_argument("--sets", nargs="+", default=["II", "IO"], choices=["II", "IO"])
+    p.add_argument("--protocol", choices=["thesis", "defaults"], default="thesis")
+    p.add_argument("--seed", type=int, default=1000, help="task seed (< 1000: tuning seeds)")
+    p.add_argument("--min-distance", type=float, default=8.0, help="metres between start and goal, at least")
+    p.add_argument(
+        "--max-distance",
+        type=float,
+        default=40.0,
+        help="metres between start and goal, at most (the thesis' buildings are about 40 m across)",
+    )
+    p.add_argument("--clearance", type=float, default=0.3, help="metres from obstacles for start and goal")
+    p.add_argument("--max-steps", type=int, default=10_000, help="step limit per trial (thesis: 10000)")
+    p.add_argument("--checkpoint", default=None, help="LSD workdir or exported .npz (None: the shipped model)")
+    p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
+    p.add_argument("--json", required=True, help="output JSON (records stream beside it)")
+    p.add_argument("--figure", default=None, help="map semantics figure (default: <json stem>_map.png)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    return p.parse_args(argv)
+
+
+def _check(args):
+    if not pathlib.Path(args.map).is_file():
+        raise SystemExit(f"lsd_real: --map: no such file {args.map!r}")
+    if args.annotations and not pathlib.Path(args.annotations).is_file():
+        raise SystemExit(f"lsd_real: --annotations: no such file {args.annotations!r}")
+    if args.trials < 1:
+        raise SystemExit(f"lsd_real: --trials: expected >= 1, got {args.trials}")
+    if any(n < 1 for n in args.n):
+        raise SystemExit(f"lsd_real: --n: expected sample budgets >= 1, got {args.n}")
+    if not (0 <= args.min_distance < args.max_distance):
+        raise SystemExit("lsd_real: --max-distance: must exceed --min-distance")
+    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise SystemExit(f"lsd_real: --resolution: expected metres per pixel > 0, got {args.resolution}")
+    out = pathlib.Path(args.json)
+    if out.exists() and out.is_dir():
+        raise SystemExit(f"lsd_real: --json: {args.json!r} is a folder")
+
+
+def _git():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return ""
+
+
+def main(argv=None) -> int:
+    args = _parse(argv)
+    _check(args)
+    try:
+        return _run(args, sys.argv[1:] if argv is None else argv)
+    except (ValueError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"lsd_real: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _zeroed_semantics(sampler):
+    import jax.numpy as jnp
+
+    def fn(inputs):
+        return sampler(inputs._replace(semantic=jnp.zeros_like(inputs.semantic)))
+
+    return fn
+
+
+def _run(args, argv) -> int:
+    import dataclasses
+
+    import numpy as np
+    import scipy.ndimage as ndi
+
+    from jaxsem.cli import enable_compilation_cache
+    from jaxsem.lsd import LSDSampler, format_table, load_model, run_trials, summarise
+    from jaxsem.planning import DOOR, NavConfig, SoftCostGraph, load_map, plot_semantics, sample_tasks
+
+    enable_compilation_cache()
+    out = pathlib.Path(args.json)
+    records_path = out.with_name(out.stem + ".records.jsonl")
+    figure = pathlib.Path(args.figure) if args.figure else out.with_name(out.stem + "_map.png")
+    t0 = time.perf_counter()
+    b = load_map(args.map, resolution=args.resolution, annotations=args.annotations)
+    plot_semantics(b, figure, title=f"{pathlib.Path(args.map).name}: doors red, outside light blue, unknown grey")
+    free = ~b.occupancy
+    facts = {
+        "map": str(args.map),
+        "cells": list(b.shape),
+        "resolution_m": b.resolution,
+        "extent_m": [b.shape[1] * b.resolution, b.shape[0] * b.resolution],
+        "free_m2": float(free.sum() * b.resolution**2),
+        "indoor_free_m2": float((free & b.indoor).sum() * b.resolution**2),
+        "outdoor_free_m2": float((free & ~b.indoor).sum() * b.resolution**2),
+        "doors_found": int(ndi.label(b.semantic == DOOR, np.ones((3, 3)))[1]),
+        "figure": str(figure),
+        "load_seconds": time.perf_counter() - t0,
+    }
+    print(f"map: {facts}")
+    graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
+    tasks = {}
+    for kind in args.sets:
+        tasks[(0, kind)] = sample_tasks(
+            b,
+            kind,
+            args.trials,
+            args.seed,
+            min_distance=args.min_distance,
+            clearance=args.clearance,
+            graph=graph,
+            max_distance=args.max_distance,
+        )
+        print(f"{kind}: {len(tasks[(0, kind)])} tasks (asked {args.trials})")
+    model, params, _ = load_model(args.checkpoint)
+    sampler = LSDSampler(model, params)
+    base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
+    variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else None
+    t1 = time.perf_counter()
+    records = run_trials(
+        [b],
+        sampler,
+        sets=tuple(args.sets),
+        ns=tuple(args.n),
+        seed=args.seed,
+        max_steps=args.max_steps,
+        progress=not args.no_progress,
+        variants=variants,
+        tasks=tasks,
+        records_path=records_path,
+        keep_paths=True,
+        nav_config=base,
+    )
+    summary = summarise(records)
+    table = format_table(summary)
+    print(table)
+    result = {
+        "benchmark": "lsd_real",
+        "command": "python benchmarks/lsd_real.py " + " ".join(argv),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "git": _git(),
+        "protocol": args.protocol,
+        "nav_config": {k: v for k, v in dataclasses.asdict(base).items() if k != "sensor"},
+        "map_facts": facts,
+        "task_bounds": {
+            "min_distance": args.min_distance,
+            "max_distance": args.max_distance,
+            "clearance": args.clearance,
+        },
+        "seconds": time.perf_counter() - t1,
+        "summary": summary,
+        "table": table,
+        "records": str(records_path),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(json.dumps(result, indent=1, default=float))
+    tmp.replace(out)
+    print(f"wrote {out} ({result['seconds'] / 60:.1f} min)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

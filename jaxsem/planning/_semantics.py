@@ -1,0 +1,313 @@
+"""Semantics for a scanned map: doors found from the occupancy, the building's footprint, hand
+annotations, and a figure of what was found.
+
+A scanned occupancy grid has walls but no objects. The LSD network reads doors, windows and exit
+signs (thesis 3.2), so a real map needs them from somewhere:
+
+- **Doors** (:func:`find_doors`): narrow passages of door width between two open regions. The
+  free space is opened with a disk of half the widest door (``width[1] / 2``): what the disk
+  cannot reach is narrow (doorways, gaps beside columns, corners). A connected narrow part is a
+  door when it touches two different open regions of at least ``min_region`` square metres, its
+  widest point is a door's width (``width``) and it is short (a doorway through a wall, not a
+  long narrow corridor: its extent along the passage at most ``max_depth``). Gaps beside a
+  column or furniture join one region to itself and are not doors; rooms a scan never entered
+  give no doors (nothing free on the far side).
+- **Footprint** (:func:`building_footprint`): the walls are closed over gaps up to ``gap`` metres
+  (doors, laser gaps), and what the outside (the map's border, through unknown and free cells)
+  cannot reach is the building. Free cells outside it are outdoors (laser fans through doors and
+  windows, courtyards open to the outside); where there are none (a map of one building's
+  inside), the largest open region (a hall) stands in for the outside, as issue 25 asks: the
+  Inside-Outside tasks then end there.
+- **Annotations** (:func:`apply_annotations`): a JSON file of world-frame boxes
+  ``{"doors": [[x0, y0, x1, y1], ...], "windows": [...], "exit_signs": [...], "outdoor": [...],
+  "indoor": [...]}`` (the thesis annotated windows and exit signs by hand). Doors make their
+  cells free and DOOR; windows and exit signs make the occupied cells of their box WINDOW /
+  EXIT_SIGN (a box with no occupied cell is reported); ``outdoor`` / ``indoor`` boxes override
+  the footprint.
+
+All of it is numpy / scipy on the host (once per map, seconds for a campus).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+
+import numpy as np
+import scipy.ndimage as ndi
+
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WALL, WINDOW
+
+DOOR_WIDTH = (0.6, 1.4)  # metres: the narrowest door a robot passes, the widest double door
+_EIGHT = np.ones((3, 3), bool)
+
+
+def _disk_reach(mask: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Opening of ``mask`` by a disk of ``radius_cells``: the cells a disk inside ``mask`` covers."""
+    inside = ndi.distance_transform_edt(mask)
+    centres = inside > radius_cells
+    if not centres.any():
+        return np.zeros_like(mask)
+    to_centre = ndi.distance_transform_edt(~centres)
+    return mask & (to_centre <= radius_cells + 0.5)
+
+
+def find_doors(
+    occupancy,
+    resolution: float,
+    *,
+    width: tuple = DOOR_WIDTH,
+    min_region: float = 2.0,
+    max_depth: float = 1.5,
+) -> np.ndarray:
+    """(H, W) bool door cells of a three-state grid (``FREE`` cells are free; see the module
+    docstring for the rule).
+
+    occupancy: (H, W) int in {UNKNOWN, FREE, OCCUPIED} (or bool, True blocked); resolution:
+    metres per cell; width: (narrowest, widest) door in metres; min_region: square metres an open
+    region needs to count as a room; max_depth: longest doorway passage in metres.
+    """
+    occ = np.asarray(occupancy)
+    if occ.ndim != 2:
+        raise ValueError(f"occupancy: expected an (H, W) grid, got shape {occ.shape}")
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution: expected a positive number of metres per cell, got {resolution}")
+    lo, hi = (float(w) for w in width)
+    if not 0 < lo < hi:
+        raise ValueError(f"width: expected (narrowest, widest) door in metres with 0 < narrowest < widest, got {width}")
+    free = ~occ if occ.dtype == bool else occ == FREE
+    inside = ndi.distance_transform_edt(free) * resolution  # to the nearest blocked cell centre
+    wide = _disk_reach(free, 0.5 * hi / resolution)
+    narrow = free & ~wide
+    regions, n_regions = ndi.label(wide, _EIGHT)
+    if n_regions < 2:
+        return np.zeros_like(free)
+    area = np.bincount(regions.ravel(), minlength=n_regions + 1) * resolution**2
+    big = area >= min_region
+    big[0] = False
+    parts, n_parts = ndi.label(narrow, _EIGHT)
+    doors = np.zeros_like(free)
+    slices = ndi.find_objects(parts)
+    for j, sl in enumerate(slices, start=1):
+        if sl is None:
+            continue
+        # One cell of margin to see the regions the part touches.
+        grown = tuple(slice(max(s.start - 1, 0), s.stop + 1) for s in sl)
+        part = parts[grown] == j
+        touching = ndi.binary_dilation(part, _EIGHT) & ~part
+        labels = np.unique(regions[grown][touching])
+        labels = labels[(labels > 0) & big[labels]]
+        if labels.size < 2:
+            continue
+        # The passage's width: twice the largest clearance on its cells (+ one cell: clearance is
+        # measured between cell centres).
+        passage = 2.0 * float(inside[grown][part].max()) - resolution
+        if not lo <= passage <= hi + resolution:
+            continue
+        # Its length along the passage: the part's extent across its widest direction is the
+        # door's width; the other is its depth.
+        rc = np.argwhere(part) * resolution
+        if rc.shape[0] >= 2:
+            centred = rc - rc.mean(0)
+            sv = np.linalg.svd(centred, compute_uv=False)
+            spread = 4.0 * sv / math.sqrt(rc.shape[0])  # ~ full extent of a uniform bar
+            depth = float(spread[-1])
+        else:
+            depth = 0.0
+        if depth > max_depth:
+            continue
+        doors[grown] |= part
+    return doors
+
+
+def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method: str = "auto") -> np.ndarray:
+    """(H, W) bool: inside the building. occupancy: three-state grid; gap: the widest wall opening
+    (metres) closed when separating inside from outside.
+
+    method 'walls': the walls are closed over gaps up to ``gap`` and what the map's border
+    cannot reach (through free and unknown cells) is inside: right for a drawn plan or a clean
+    map whose walls are closed. 'density': a laser scan's walls are broken and its outside is
+    seen only as fans of rays through doors and windows, so the inside is the largest connected
+    part of the densely observed free space (at least 60 % free over ``gap`` x ``gap`` metres;
+    walls included), closed over ``gap`` and with its holes filled: the fans' sparse tips are
+    outside. 'auto': 'density' when the grid has unknown cells (a scan), else 'walls'.
+    """
+    occ = np.asarray(occupancy)
+    if occ.ndim != 2:
+        raise ValueError(f"occupancy: expected an (H, W) grid, got shape {occ.shape}")
+    if method not in ("auto", "walls", "density"):
+        raise ValueError(f"method: expected 'auto', 'walls' or 'density', got {method!r}")
+    walls = occ == OCCUPIED
+    if method == "auto":
+        method = "density" if (occ == UNKNOWN).any() else "walls"
+    if method == "density":
+        free = occ == FREE
+        k = max(int(round(gap / resolution)) | 1, 3)
+        dense = free & (ndi.uniform_filter(free.astype(np.float32), k) >= 0.6)
+        near_dense = ndi.distance_transform_edt(~dense) * resolution <= 0.5 * gap
+        solid = dense | (walls & near_dense)
+        labels, n = ndi.label(solid, _EIGHT)
+        if n == 0:
+            return np.zeros(occ.shape, bool)
+        area = np.bincount(labels.ravel(), minlength=n + 1)
+        area[0] = 0
+        main = labels == int(np.argmax(area))
+        radius = max(int(round(0.5 * gap / resolution)), 1)
+        padded = np.pad(main, radius + 1)
+        closed = ndi.binary_closing(padded, ndi.generate_binary_structure(2, 1), iterations=radius)
+        return ndi.binary_fill_holes(closed)[radius + 1 : -radius - 1, radius + 1 : -radius - 1]
+    closed = ndi.distance_transform_edt(~walls) * resolution <= 0.5 * gap
+    passable = np.pad(~closed, 1, constant_values=True)
+    outside, _ = ndi.label(passable)
+    reached = (outside == outside[0, 0])[1:-1, 1:-1]
+    # The closing's band is given back to the outside: a cell within ``gap / 2`` of a reached cell
+    # is outside too (walls excepted). A thin wall's inner face is farther than that from any
+    # reached cell, so the band never crosses a wall; it enters a closed doorway by under a metre.
+    near = ndi.distance_transform_edt(~reached) * resolution <= 0.5 * gap
+    return ~((reached | near) & ~walls)
+
+
+def largest_open_region(occupancy, resolution: float, *, across: float = 5.0) -> np.ndarray:
+    """(H, W) bool: the largest open area of the free space, a hall: the connected part of the
+    cells at least ``across / 2`` metres from any obstacle, grown back by that much (within the
+    free space). The stand-in for the outside of a map that has none; corridors narrower than
+    ``across`` are not part of it."""
+    occ = np.asarray(occupancy)
+    free = ~occ if occ.dtype == bool else occ == FREE
+    r = 0.5 * across / resolution
+    centres = ndi.distance_transform_edt(free) >= r
+    labels, n = ndi.label(centres, _EIGHT)
+    if n == 0:
+        return np.zeros_like(free)
+    area = np.bincount(labels.ravel(), minlength=n + 1)
+    area[0] = 0
+    hall = labels == int(np.argmax(area))
+    return free & (ndi.distance_transform_edt(~hall) <= r)
+
+
+_ANNOTATION_KEYS = ("doors", "windows", "exit_signs", "outdoor", "indoor")
+
+
+def read_annotations(path) -> dict:
+    """The boxes of an annotation JSON file (see the module docstring), validated: a dict of
+    ``(K, 4)`` float arrays ``[x0, y0, x1, y1]`` (world metres) per key present."""
+    path = pathlib.Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable JSON annotation file ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected an object with keys {', '.join(_ANNOTATION_KEYS)}")
+    unknown = sorted(set(data) - set(_ANNOTATION_KEYS))
+    if unknown:
+        raise ValueError(f"{path}: unknown field(s) {unknown}; expected {', '.join(_ANNOTATION_KEYS)}")
+    out = {}
+    for key, boxes in data.items():
+        try:
+            arr = np.asarray(boxes, float).reshape(-1, 4) if len(boxes) else np.zeros((0, 4))
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: field {key!r} must be a list of [x0, y0, x1, y1] boxes in metres") from None
+        if not np.all(np.isfinite(arr)) or np.any(arr[:, 2] < arr[:, 0]) or np.any(arr[:, 3] < arr[:, 1]):
+            raise ValueError(f"{path}: field {key!r}: boxes must be finite with x0 <= x1 and y0 <= y1")
+        out[key] = arr
+    return out
+
+
+def _box_cells(box, origin, resolution, shape):
+    x0, y0, x1, y1 = box
+    c0 = max(int(math.floor((x0 - origin[0]) / resolution)), 0)
+    r0 = max(int(math.floor((y0 - origin[1]) / resolution)), 0)
+    c1 = min(int(math.ceil((x1 - origin[0]) / resolution)), shape[1])
+    r1 = min(int(math.ceil((y1 - origin[1]) / resolution)), shape[0])
+    return slice(r0, max(r1, r0)), slice(c0, max(c1, c0))
+
+
+def apply_annotations(occupancy, semantic, indoor, annotations: dict, origin, resolution: float):
+    """Copies of (occupancy three-state, semantic, indoor) with the annotation boxes applied.
+    Returns (occupancy, semantic, indoor, unused) where ``unused`` lists the boxes that touched
+    no cell they could mark (``"windows[2]"``)."""
+    occ, sem, ind = np.array(occupancy), np.array(semantic), np.array(indoor)
+    origin = np.asarray(origin, float)
+    unused = []
+    for key, cls in (("doors", DOOR), ("windows", WINDOW), ("exit_signs", EXIT_SIGN)):
+        for i, box in enumerate(annotations.get(key, ())):
+            sl = _box_cells(box, origin, resolution, occ.shape)
+            if cls == DOOR:
+                if occ[sl].size == 0:
+                    unused.append(f"{key}[{i}]")
+                occ[sl] = FREE
+                sem[sl] = DOOR
+            else:
+                hit = occ[sl] == OCCUPIED
+                if not hit.any():
+                    unused.append(f"{key}[{i}]")
+                sem[sl] = np.where(hit, cls, sem[sl])
+    for key, value in (("outdoor", False), ("indoor", True)):
+        for i, box in enumerate(annotations.get(key, ())):
+            sl = _box_cells(box, origin, resolution, occ.shape)
+            if ind[sl].size == 0:
+                unused.append(f"{key}[{i}]")
+            ind[sl] = value
+    return occ, sem, ind, unused
+
+
+def semantic_grid(occupancy, doors) -> np.ndarray:
+    """(H, W) int8 semantic grid of a three-state grid: WALL on occupied cells, DOOR on doors."""
+    occ = np.asarray(occupancy)
+    sem = np.where(occ == OCCUPIED, WALL, 0).astype(np.int8)
+    sem[np.asarray(doors, bool)] = DOOR
+    return sem
+
+
+def plot_semantics(building, path, title: str = "") -> None:
+    """A figure of a map's occupancy, footprint, doors, windows and exit signs (PNG at ``path``,
+    written atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    occ = np.asarray(building.occupancy, bool)
+    sem = np.asarray(building.semantic)
+    rgb = np.ones(occ.shape + (3,))
+    rgb[~building.indoor & ~occ] = (0.80, 0.90, 1.0)  # outdoors
+    rgb[occ] = (0.55, 0.55, 0.55)
+    rgb[sem == WALL] = (0.0, 0.0, 0.0)
+    for cls, colour in ((DOOR, (0.9, 0.1, 0.1)), (WINDOW, (0.1, 0.4, 0.9)), (EXIT_SIGN, (0.1, 0.7, 0.1))):
+        m = ndi.binary_dilation(sem == cls, iterations=2)
+        rgb[m] = colour
+    h, w = occ.shape
+    res = building.resolution
+    x0, y0 = building.origin
+    fig, ax = plt.subplots(figsize=(8, 8 * h / max(w, 1) + 0.6), dpi=110)
+    ax.imshow(rgb, origin="lower", extent=(x0, x0 + w * res, y0, y0 + h * res), interpolation="nearest")
+    n_doors = ndi.label(sem == DOOR, _EIGHT)[1]
+    ax.set_title(
+        title or f"{n_doors} doors (red), windows (blue), exit signs (green); outdoors light blue; unknown grey",
+        fontsize=9,
+    )
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    fig.tight_layout()
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        fig.savefig(tmp, format="png")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        plt.close(fig)
+
+
+__all__ = [
+    "DOOR_WIDTH",
+    "apply_annotations",
+    "building_footprint",
+    "find_doors",
+    "largest_open_region",
+    "plot_semantics",
+    "read_annotations",
+    "semantic_grid",
+]
