@@ -37,7 +37,9 @@ import time
 
 
 def _parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     p.add_argument("--map", required=True, help="map file: .yaml (ROS), .gridmap[.gz] (MRPT) or an image")
     p.add_argument("--resolution", type=float, default=None, help="metres per pixel (plain images)")
     p.add_argument("--annotations", default=None, help="JSON of hand-drawn doors / windows / exit signs")

@@ -247,7 +247,14 @@ class _RecordStream:
     @staticmethod
     def _job_key(job) -> tuple:
         b, kind, t_i, task, n = job
-        return (int(b.seed), kind, t_i, int(n), tuple(np.asarray(task.start).tolist()), tuple(np.asarray(task.goal).tolist()))
+        return (
+            int(b.seed),
+            kind,
+            t_i,
+            int(n),
+            tuple(np.asarray(task.start).tolist()),
+            tuple(np.asarray(task.goal).tolist()),
+        )
 
     def get(self, job):
         return self.done.get(self._job_key(job))

@@ -149,9 +149,7 @@ def sample_tasks(
     if kind not in ("II", "IO"):
         raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
     if not (min_distance >= 0 and (max_distance is None or max_distance > min_distance)):
-        raise ValueError(
-            f"max_distance: expected None or more than min_distance ({min_distance}), got {max_distance}"
-        )
+        raise ValueError(f"max_distance: expected None or more than min_distance ({min_distance}), got {max_distance}")
     if not clearance >= 0:
         raise ValueError(f"clearance: expected >= 0 metres, got {clearance}")
     # A scanned map has seed -1: the stream takes the seed's low 32 bits (a generated building's

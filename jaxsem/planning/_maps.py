@@ -203,7 +203,7 @@ def grid_to_building(
     semantic = semantic_grid(occ, door_mask)
     indoor = building_footprint(occ, res, gap=footprint_gap)
     free = occ == FREE
-    roomy = scipy.ndimage.distance_transform_edt(free) * res >= 0.5
+    roomy = np.asarray(scipy.ndimage.distance_transform_edt(free), float) * res >= 0.5
     if (roomy & ~indoor).sum() * res**2 < MIN_OUTSIDE_AREA:
         indoor = indoor & ~largest_open_region(occ, res)
     if annotations:

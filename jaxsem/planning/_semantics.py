@@ -43,13 +43,24 @@ DOOR_WIDTH = (0.6, 1.4)  # metres: the narrowest door a robot passes, the widest
 _EIGHT = np.ones((3, 3), bool)
 
 
+def _edt(mask) -> np.ndarray:
+    """Distance (cells) from each True cell to the nearest False cell (scipy's EDT, typed)."""
+    return np.asarray(ndi.distance_transform_edt(mask), np.float64)
+
+
+def _label(mask) -> tuple[np.ndarray, int]:
+    """8-connected components of ``mask`` (scipy's label, typed)."""
+    out = ndi.label(mask, _EIGHT)
+    return np.asarray(out[0]), int(out[1])  # type: ignore[index]
+
+
 def _disk_reach(mask: np.ndarray, radius_cells: float) -> np.ndarray:
     """Opening of ``mask`` by a disk of ``radius_cells``: the cells a disk inside ``mask`` covers."""
-    inside = ndi.distance_transform_edt(mask)
+    inside = _edt(mask)
     centres = inside > radius_cells
     if not centres.any():
         return np.zeros_like(mask)
-    to_centre = ndi.distance_transform_edt(~centres)
+    to_centre = _edt(~centres)
     return mask & (to_centre <= radius_cells + 0.5)
 
 
@@ -61,12 +72,23 @@ def find_doors(
     min_region: float = 2.0,
     max_depth: float = 1.5,
 ) -> np.ndarray:
-    """(H, W) bool door cells of a three-state grid (``FREE`` cells are free; see the module
-    docstring for the rule).
+    """(H, W) bool door cells of a three-state grid (``FREE`` cells are free).
+
+    The cells farther than half the widest door from any obstacle fall into connected open
+    regions (rooms, halls, corridor stretches wider than a door) that a door's narrowness
+    separates. Every free cell takes the region of its nearest such cell; where two free
+    neighbours take different regions (both of at least ``min_region`` m^2), there is a passage
+    between them: its seam runs across it. A seam is a door when its length (the passage's
+    width) is within ``width`` and the passage is short: the free cells no region covers (a
+    region covers the cells within half the widest door of it) around the seam reach at most
+    ``max_depth`` metres along it (a doorway through a wall, not a long narrow corridor).
+    The door's cells are the passage's cells within half its width of the seam. Gaps beside
+    a column join one region to itself and give no seam; rooms a scan never entered give no
+    door (nothing free on the far side).
 
     occupancy: (H, W) int in {UNKNOWN, FREE, OCCUPIED} (or bool, True blocked); resolution:
     metres per cell; width: (narrowest, widest) door in metres; min_region: square metres an open
-    region needs to count as a room; max_depth: longest doorway passage in metres.
+    region needs to count; max_depth: longest doorway passage in metres.
     """
     occ = np.asarray(occupancy)
     if occ.ndim != 2:
@@ -77,47 +99,56 @@ def find_doors(
     if not 0 < lo < hi:
         raise ValueError(f"width: expected (narrowest, widest) door in metres with 0 < narrowest < widest, got {width}")
     free = ~occ if occ.dtype == bool else occ == FREE
-    inside = ndi.distance_transform_edt(free) * resolution  # to the nearest blocked cell centre
-    wide = _disk_reach(free, 0.5 * hi / resolution)
-    narrow = free & ~wide
-    regions, n_regions = ndi.label(wide, _EIGHT)
-    if n_regions < 2:
-        return np.zeros_like(free)
-    area = np.bincount(regions.ravel(), minlength=n_regions + 1) * resolution**2
-    big = area >= min_region
-    big[0] = False
-    parts, n_parts = ndi.label(narrow, _EIGHT)
-    doors = np.zeros_like(free)
-    slices = ndi.find_objects(parts)
-    for j, sl in enumerate(slices, start=1):
+    doors = np.zeros(free.shape, bool)
+    clearance = _edt(free)  # cells to the nearest blocked cell
+    r = 0.5 * hi / resolution
+    centres = clearance > r
+    regions, n = _label(centres)
+    if n < 2:
+        return doors
+    area = np.bincount(regions.ravel(), minlength=n + 1) * resolution**2
+    dist_idx = ndi.distance_transform_edt(~centres, return_indices=True)
+    dist, (ir, ic) = np.asarray(dist_idx[0]), np.asarray(dist_idx[1])  # type: ignore[index]
+    owner = np.where(free, regions[ir, ic], 0)
+    owner = np.where(area[owner] >= min_region, owner, 0)
+    uncovered = free & (dist > r + 0.5)
+    seam = np.zeros(free.shape, bool)
+    for axis in (0, 1):
+        a = owner[:-1, :] if axis == 0 else owner[:, :-1]
+        b = owner[1:, :] if axis == 0 else owner[:, 1:]
+        cut = (a > 0) & (b > 0) & (a != b)
+        if axis == 0:
+            seam[:-1, :] |= cut
+            seam[1:, :] |= cut
+        else:
+            seam[:, :-1] |= cut
+            seam[:, 1:] |= cut
+    seams, n_seams = _label(seam)
+    lanes, _ = _label(uncovered)
+    for j, sl in enumerate(ndi.find_objects(seams), start=1):
         if sl is None:
             continue
-        # One cell of margin to see the regions the part touches.
-        grown = tuple(slice(max(s.start - 1, 0), s.stop + 1) for s in sl)
-        part = parts[grown] == j
-        touching = ndi.binary_dilation(part, _EIGHT) & ~part
-        labels = np.unique(regions[grown][touching])
-        labels = labels[(labels > 0) & big[labels]]
-        if labels.size < 2:
+        pad = int(math.ceil(r)) + 2
+        box = tuple(slice(max(s.start - pad, 0), s.stop + pad) for s in sl)
+        part = seams[box] == j
+        rc = np.argwhere(part)
+        # The passage's width: the seam's length (two cells thick, so its longest extent).
+        extent = (rc.max(0) - rc.min(0) + 1) * resolution
+        passage = float(np.hypot(*extent)) if min(extent) > 2 * resolution else float(max(extent))
+        if not lo <= passage <= hi + 2 * resolution:
             continue
-        # The passage's width: twice the largest clearance on its cells (+ one cell: clearance is
-        # measured between cell centres).
-        passage = 2.0 * float(inside[grown][part].max()) - resolution
-        if not lo <= passage <= hi + resolution:
-            continue
-        # Its length along the passage: the part's extent across its widest direction is the
-        # door's width; the other is its depth.
-        rc = np.argwhere(part) * resolution
-        if rc.shape[0] >= 2:
-            centred = rc - rc.mean(0)
-            sv = np.linalg.svd(centred, compute_uv=False)
-            spread = 4.0 * sv / math.sqrt(rc.shape[0])  # ~ full extent of a uniform bar
-            depth = float(spread[-1])
-        else:
-            depth = 0.0
-        if depth > max_depth:
-            continue
-        doors[grown] |= part
+        # Depth: the uncovered free cells of the passage touching the seam.
+        touching = np.unique(lanes[box][np.asarray(ndi.binary_dilation(part, _EIGHT), bool)])
+        touching = touching[touching > 0]
+        if touching.size:
+            lane = np.isin(lanes[box], touching)
+            ext = (np.argwhere(lane).max(0) - np.argwhere(lane).min(0) + 1) * resolution
+            if float(ext.max()) > max_depth + passage:
+                continue
+            if float(ext.max()) > passage + resolution and float(ext.min()) > max_depth:
+                continue
+        near_seam = _edt(~part) * resolution <= 0.5 * passage + resolution
+        doors[box] |= near_seam & free[box] & (clearance[box] * resolution <= 0.5 * passage + resolution)
     return doors
 
 
@@ -145,45 +176,52 @@ def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method
         free = occ == FREE
         k = max(int(round(gap / resolution)) | 1, 3)
         dense = free & (ndi.uniform_filter(free.astype(np.float32), k) >= 0.6)
-        near_dense = ndi.distance_transform_edt(~dense) * resolution <= 0.5 * gap
+        near_dense = _edt(~dense) * resolution <= 0.5 * gap
         solid = dense | (walls & near_dense)
-        labels, n = ndi.label(solid, _EIGHT)
+        labels, n = _label(solid)
         if n == 0:
             return np.zeros(occ.shape, bool)
         area = np.bincount(labels.ravel(), minlength=n + 1)
         area[0] = 0
-        main = labels == int(np.argmax(area))
+        # The density window rounds the building's corners off: they are given back (cells
+        # within half a window of the dense part), then gaps are closed and holes filled.
+        main = _edt(labels != int(np.argmax(area))) <= k // 2
         radius = max(int(round(0.5 * gap / resolution)), 1)
         padded = np.pad(main, radius + 1)
         closed = ndi.binary_closing(padded, ndi.generate_binary_structure(2, 1), iterations=radius)
-        return ndi.binary_fill_holes(closed)[radius + 1 : -radius - 1, radius + 1 : -radius - 1]
-    closed = ndi.distance_transform_edt(~walls) * resolution <= 0.5 * gap
+        return np.asarray(ndi.binary_fill_holes(closed), bool)[radius + 1 : -radius - 1, radius + 1 : -radius - 1]
+    barrier = walls.copy()
+    ring = np.concatenate([walls[0], walls[-1], walls[:, 0], walls[:, -1]])
+    if ring.all():  # a fence around the whole map (the generator's) bounds no building
+        barrier[[0, -1], :] = False
+        barrier[:, [0, -1]] = False
+    closed = _edt(~barrier) * resolution <= 0.5 * gap
     passable = np.pad(~closed, 1, constant_values=True)
-    outside, _ = ndi.label(passable)
+    outside = np.asarray(ndi.label(passable)[0])  # type: ignore[index]
     reached = (outside == outside[0, 0])[1:-1, 1:-1]
     # The closing's band is given back to the outside: a cell within ``gap / 2`` of a reached cell
     # is outside too (walls excepted). A thin wall's inner face is farther than that from any
     # reached cell, so the band never crosses a wall; it enters a closed doorway by under a metre.
-    near = ndi.distance_transform_edt(~reached) * resolution <= 0.5 * gap
+    near = _edt(~reached) * resolution <= 0.5 * gap
     return ~((reached | near) & ~walls)
 
 
 def largest_open_region(occupancy, resolution: float, *, across: float = 5.0) -> np.ndarray:
     """(H, W) bool: the largest open area of the free space, a hall: the connected part of the
     cells at least ``across / 2`` metres from any obstacle, grown back by that much (within the
-    free space). The stand-in for the outside of a map that has none; corridors narrower than
-    ``across`` are not part of it."""
+    free space: a disk of ``across / 2`` sweeps it, so its corners are cut). The stand-in for the
+    outside of a map that has none; corridors narrower than ``across`` are not part of it."""
     occ = np.asarray(occupancy)
     free = ~occ if occ.dtype == bool else occ == FREE
     r = 0.5 * across / resolution
-    centres = ndi.distance_transform_edt(free) >= r
-    labels, n = ndi.label(centres, _EIGHT)
+    centres = _edt(free) >= r
+    labels, n = _label(centres)
     if n == 0:
         return np.zeros_like(free)
     area = np.bincount(labels.ravel(), minlength=n + 1)
     area[0] = 0
     hall = labels == int(np.argmax(area))
-    return free & (ndi.distance_transform_edt(~hall) <= r)
+    return free & (_edt(~hall) <= r)
 
 
 _ANNOTATION_KEYS = ("doors", "windows", "exit_signs", "outdoor", "indoor")
@@ -275,14 +313,14 @@ def plot_semantics(building, path, title: str = "") -> None:
     rgb[occ] = (0.55, 0.55, 0.55)
     rgb[sem == WALL] = (0.0, 0.0, 0.0)
     for cls, colour in ((DOOR, (0.9, 0.1, 0.1)), (WINDOW, (0.1, 0.4, 0.9)), (EXIT_SIGN, (0.1, 0.7, 0.1))):
-        m = ndi.binary_dilation(sem == cls, iterations=2)
+        m = np.asarray(ndi.binary_dilation(sem == cls, iterations=2), bool)
         rgb[m] = colour
     h, w = occ.shape
     res = building.resolution
     x0, y0 = building.origin
     fig, ax = plt.subplots(figsize=(8, 8 * h / max(w, 1) + 0.6), dpi=110)
     ax.imshow(rgb, origin="lower", extent=(x0, x0 + w * res, y0, y0 + h * res), interpolation="nearest")
-    n_doors = ndi.label(sem == DOOR, _EIGHT)[1]
+    n_doors = _label(sem == DOOR)[1]
     ax.set_title(
         title or f"{n_doors} doors (red), windows (blue), exit signs (green); outdoors light blue; unknown grey",
         fontsize=9,
