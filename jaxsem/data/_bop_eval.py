@@ -65,6 +65,13 @@ def read_rgb(path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def _nearest_rotation(R) -> np.ndarray:
+    """The rotation nearest to ``R`` (3, 3) (BOP files round ``cam_R_m2c``: |R^T R - I| ~ 1e-3)."""
+    U, _, Vt = np.linalg.svd(np.asarray(R, np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
 def _mesh_points(vertices: np.ndarray, n: int) -> np.ndarray:
     idx = np.linspace(0, len(vertices) - 1, min(n, len(vertices))).round().astype(np.int64)
     pts = vertices[idx]
@@ -88,7 +95,8 @@ def bop_eval_batch(
 
     Keys (numpy, B rows): ``local``, ``global`` (B, S, S, 3) float32 (:func:`jaxsem.volumon.prepare_inputs`
     of the frame's image and the visible box, clipped to the image); ``box_input`` (B, 4);
-    ``K`` (B, 3, 3); ``gt_rotation`` (B, 3, 3) object-to-camera; ``gt_center``, ``gt_half_extents``
+    ``K`` (B, 3, 3); ``gt_rotation`` (B, 3, 3) object-to-camera (the nearest exact rotation to the
+    file's rounded one); ``gt_center``, ``gt_half_extents``
     (B, 3): the mesh extent's box (scored as a cuboid: ``gt_shape_id`` 0); ``gt_points`` (B, N, 3)
     the mesh's points in the camera frame (ADI = ADD-S); ``sample_mask`` (all True);
     ``class_name`` (B,) str; ``visible_fraction``, ``frame_id``, ``obj_id`` (B,).
@@ -132,7 +140,7 @@ def bop_eval_batch(
             mesh = scene.meshes[o.obj_id]
             rows["box_input"].append(b)
             rows["K"].append(np.asarray(frame.K, np.float64))
-            rows["gt_rotation"].append(np.asarray(o.rotation, np.float64))
+            rows["gt_rotation"].append(_nearest_rotation(o.rotation))
             rows["gt_center"].append(np.asarray(o.center, np.float64))
             rows["gt_half_extents"].append(np.asarray(o.radii, np.float64))
             pts = _mesh_points(mesh.vertices, int(num_mesh_points))
