@@ -143,8 +143,11 @@ def _bop_figures(args, model, variables, config) -> dict:
     rows, mapping = class_rows(batch["class_name"], config, args.class_mapping, extents)
     net = evaluate_scene_batch(model, variables, config, batch, rows)
     net.pop("pred")
+
     def baseline(match_aspect):
-        R, c, r = known_size_ellipsoid(batch["box_input"], batch["K"], batch["gt_half_extents"], match_aspect=match_aspect)
+        R, c, r = known_size_ellipsoid(
+            batch["box_input"], batch["K"], batch["gt_half_extents"], match_aspect=match_aspect
+        )
         return summarise_detections({"rotation": np.asarray(R), "center": np.asarray(c), "radii": np.asarray(r)}, batch)
 
     out = {

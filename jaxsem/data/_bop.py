@@ -291,9 +291,7 @@ def _cameras(scene: pathlib.Path, frame_ids) -> dict:
     return {fid: default for fid in frame_ids}
 
 
-def load_bop_scene(
-    scene_dir, *, models_dir=None, class_names: dict | None = None, frame_filter=None
-) -> BopScene:
+def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = None, frame_filter=None) -> BopScene:
     """Reads a BOP scene's labels (see the module docstring); no image is opened.
 
     class_names: object id -> name (default: Linemod's names for ids 1-15 when the path names

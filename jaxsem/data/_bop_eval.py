@@ -112,7 +112,9 @@ def bop_eval_batch(
         raise ValueError(f"min_visible: expected a fraction in [0, 1], got {min_visible}")
     frames = scene.frames if frames is None else tuple(frames)
     rows: dict[str, list] = {k: [] for k in ("local", "global", "box_input", "K", "gt_rotation", "gt_center")}
-    rows.update({k: [] for k in ("gt_half_extents", "gt_points", "class_name", "visible_fraction", "frame_id", "obj_id")})
+    rows.update(
+        {k: [] for k in ("gt_half_extents", "gt_points", "class_name", "visible_fraction", "frame_id", "obj_id")}
+    )
     total = 0
     for frame in frames:
         total += len(frame.objects)
@@ -153,7 +155,7 @@ def bop_eval_batch(
         raise ValueError(
             f"min_visible: none of the {total} objects of the {len(frames)} frames is at least {min_visible:g} visible"
         )
-    out = {k: np.concatenate(rows[k]).astype(np.float32) for k in ("local", "global")}
+    out: dict[str, np.ndarray] = {k: np.concatenate(rows[k]).astype(np.float32) for k in ("local", "global")}
     out.update({k: np.stack(rows[k]) for k in ("box_input", "K", "gt_rotation", "gt_center", "gt_half_extents")})
     out["gt_points"] = np.stack(rows["gt_points"])
     out["gt_shape_id"] = np.zeros(len(out["box_input"]), np.int32)

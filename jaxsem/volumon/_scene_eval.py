@@ -117,14 +117,16 @@ def _aspect_matched(box, radii):
 
 def _figures(pred: Mapping, gt: Mapping, keep: np.ndarray) -> dict:
     """The figures of ``jaxsem volumon eval`` (``num`` and the summary keys) over the rows ``keep``."""
-    from ._pretrained import _summary
     from ._eval import detection_errors, evaluate_predictions
+    from ._pretrained import _summary
 
     mask = np.asarray(gt.get("sample_mask", np.ones(len(keep), bool)), bool) & keep
     n = int(mask.sum())
     if n == 0:
         return {"num": 0}
-    g = {k: v for k, v in gt.items() if k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "gt_points")}
+    g = {
+        k: v for k, v in gt.items() if k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "gt_points")
+    }
     g["sample_mask"] = mask
     return {"num": n, **_summary(pred, g, evaluate_predictions, detection_errors)}
 
