@@ -24,6 +24,9 @@ def files(tmp_path_factory):
     empty = d / "empty_dir"
     empty.mkdir()
     (d / "a_file").write_text("x")
+    # a BOP scene folder (issue 24 item 5): only scene_gt.json, enough for the checks before any work
+    (d / "bop").mkdir()
+    (d / "bop" / "scene_gt.json").write_text("{}")
     # volumon predict's own inputs: a readable image, good boxes and bad ones (issue 26 item 5)
     import cv2
     import numpy as np
@@ -176,6 +179,49 @@ def _cases(d):
             "train-volumon-data",
             ["train/volumon.py", "--workdir", str(out / "td"), "--data", str(d / "nodata")],
             ["--data", "nodata"],
+        ),
+        # issue 24 item 5: volumon eval on a BOP scene
+        *[
+            (f"jaxsem-eval-bop-{name}", ["-m", "jaxsem.cli", "volumon", "eval"] + argv, words)
+            for name, argv, words in [
+                ("missing-scene", ["--data", str(d / "no_scene"), "--split", "tune"], ["--data", "no_scene"]),
+                ("split-unknown", ["--data", str(d / "bop"), "--split", "val"], ["--split", "val"]),
+                ("split-missing", ["--data", str(d / "bop")], ["--split"]),
+                (
+                    "visible-range",
+                    ["--data", str(d / "bop"), "--split", "tune", "--min-visible", "1.5"],
+                    ["--min-visible"],
+                ),
+                ("model-lmo", ["--model", "lmo", "--data", str(d / "bop"), "--split", "tune"], ["--model", "lmo"]),
+                (
+                    "model-path",
+                    ["--model", str(d / "nope.npz"), "--data", str(d / "bop"), "--split", "tune"],
+                    ["--model"],
+                ),
+                ("split-not-bop", ["--split", "tune"], ["--split"]),
+            ]
+        ],
+        # issue 24 item 6: volumon predict on a BOP frame
+        (
+            "volumon-bop-frame-missing",
+            ["-m", "jaxsem.cli", "volumon", "predict", "--data", str(d / "bop"), "--out", str(out / "vb")],
+            ["--frame"],
+        ),
+        (
+            "volumon-bop-not-a-scene",
+            [
+                "-m",
+                "jaxsem.cli",
+                "volumon",
+                "predict",
+                "--data",
+                str(d / "empty_dir"),
+                "--frame",
+                "3",
+                "--out",
+                str(out / "vb2"),
+            ],
+            ["--data"],
         ),
     ]
 

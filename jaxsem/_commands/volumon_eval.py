@@ -1,17 +1,35 @@
-"""Scores the shipped VoluMon model (or a training run, --workdir) on held-out detections.
+"""Scores the shipped VoluMon model (or a training run, --workdir / --model) on held-out detections.
 
 In: synthetic held-out detections of several classes drawn from --seed (a stream no training seed
-uses), or the objects of a FAT-layout / make_synthetic directory (--data). Out: JSON figures
-(median size and centre errors, size correlation, AUCs, per class) printed, written atomically
-with --json, and kept as the results of the run directory's summary.json.
+uses), the objects of a FAT-layout / make_synthetic directory (--data), or the real photographs of
+a BOP scene (--data SCENE_DIR with scene_gt.json, e.g. LM-O test scene 000002; --split
+tune|test|all, --min-visible). Out: JSON figures (median size and centre errors, size
+correlation, AUCs) printed, written atomically with --json, and kept as the results of the run
+directory's summary.json.
+
+On a BOP scene the boxes are the objects' visible boxes (from scene_gt_info.json or rendered from
+the meshes), ADI is ADD-S over the mesh's points, and the JSON adds ``per_class``,
+``by_visibility``, ``class_mapping`` (which row of the model's class head scored each class: a
+class the model lacks is scored with the class head's expectation, or with --class-mapping
+nearest the model class nearest in size), ``baseline`` (the known-size geometric baseline: each
+class's true mesh extent, axis-aligned to the camera, depth from the box's size, centre on the
+box's ray; ``baseline_mesh_axes``: the same with the mesh's own axis order instead of the pair
+of axes that matches the box's aspect) and, with --oracle DIR, ``oracle`` (that model scored the same way).
+
+Example (the tuning split of LM-O; the test split, ids >= 600, is held out)::
+
+    jaxsem volumon eval --model object --data DATA/lmo/test/000002 --split tune --json tune.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import pathlib
 
 from jaxsem import scripting as sc
+
+SPLITS = ("tune", "test", "all")
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -25,38 +43,186 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="a training run (config.json + checkpoints/) or a .npz model (default: the shipped model)",
     )
+    p.add_argument(
+        "--model",
+        default=None,
+        help="a shipped model by name ('object': the default tabletop model, 'door') or a path (a training run "
+        "or a .npz); the same as --workdir for a path (default: 'object')",
+    )
     p.add_argument("--postopt", type=sc.nonnegative_int, default=0, help="also refine with PostOpt for this many steps")
     p.add_argument(
         "--data",
         type=sc.existing_dir,
         default=None,
-        help="score the objects of a FAT-layout or make_synthetic directory (the first --num) instead of "
+        help="score the objects of a FAT-layout or make_synthetic directory (the first --num), or of a BOP scene "
+        "folder (with scene_gt.json: every object of --split at least --min-visible visible) instead of "
         "synthetic held-out detections",
     )
+    p.add_argument(
+        "--split",
+        choices=SPLITS,
+        default=None,
+        help="BOP scene only, required there: 'tune' (frame ids below 600: LM-O's tuning split), 'test' (ids 600 "
+        "and above, held out) or 'all'",
+    )
+    p.add_argument(
+        "--min-visible",
+        type=sc.probability,
+        default=0.5,
+        help="BOP scene only: score objects at least this fraction visible",
+    )
+    p.add_argument(
+        "--oracle",
+        type=sc.existing_path,
+        default=None,
+        help="BOP scene only: also score this model (a training run or .npz: the fully supervised oracle) as 'oracle'",
+    )
+    p.add_argument(
+        "--class-mapping",
+        choices=("generic", "nearest"),
+        default="generic",
+        help="BOP scene only: how a class the model lacks is scored: 'generic' (the class head's expectation over "
+        "the model's classes) or 'nearest' (the model class nearest in size to the object's true extents)",
+    )
     return p
+
+
+def resolve_model(text: str | None, workdir):
+    """``(path or None, kind)`` for :func:`jaxsem.volumon.load_pretrained` from ``--model`` / ``--workdir``;
+    :class:`jaxsem.scripting.UsageError` naming ``--model`` when it is neither a shipped name nor a path."""
+    from jaxsem.volumon import SHIPPED
+
+    if text is not None and workdir is not None:
+        raise sc.UsageError("--model: give --model or --workdir, not both")
+    if text is None:
+        return workdir, "object"
+    if text in SHIPPED:
+        return None, text
+    path = pathlib.Path(text)
+    if path.exists():
+        return path, "object"
+    if "/" not in text and "\\" not in text and not text.endswith(".npz"):
+        planned = " (the LM-O model of issue 24 does not ship yet)" if text.lower() in ("lmo", "lm-o") else ""
+        raise sc.UsageError(
+            f"--model: no shipped model named {text!r}{planned}; shipped: {', '.join(sorted(SHIPPED))}, or give a "
+            "path to a training run or .npz"
+        )
+    raise sc.UsageError(f"--model: {text}: no such file or directory")
+
+
+def _is_bop(path) -> bool:
+    return path is not None and (pathlib.Path(path) / "scene_gt.json").is_file()
+
+
+def _bop_figures(args, model, variables, config) -> dict:
+    """The BOP-scene figures (see the module docstring)."""
+    import numpy as np
+
+    from jaxsem import data
+    from jaxsem.volumon import (
+        class_rows,
+        evaluate_scene_batch,
+        known_size_ellipsoid,
+        load_pretrained,
+        summarise_detections,
+    )
+
+    oracle = None
+    if args.oracle is not None:  # load before the long work: a bad oracle fails first
+        oracle = load_pretrained(args.oracle)
+    scene = data.load_bop_split(args.data, args.split)
+    if not scene.frames:
+        raise sc.UsageError(f"--split: {args.data} has no frame in the {args.split!r} split")
+    batch = data.bop_eval_batch(
+        scene,
+        input_size=config.model.input_size,
+        global_padding=config.model.global_padding,
+        min_visible=args.min_visible,
+    )
+    extents = data.bop_class_extents(scene)
+    rows, mapping = class_rows(batch["class_name"], config, args.class_mapping, extents)
+    net = evaluate_scene_batch(model, variables, config, batch, rows)
+    net.pop("pred")
+
+    def baseline(match_aspect):
+        R, c, r = known_size_ellipsoid(
+            batch["box_input"], batch["K"], batch["gt_half_extents"], match_aspect=match_aspect
+        )
+        return summarise_detections({"rotation": np.asarray(R), "center": np.asarray(c), "radii": np.asarray(r)}, batch)
+
+    out = {
+        "data": str(args.data),
+        "split": args.split,
+        "min_visible": args.min_visible,
+        "frames": len(scene.frames),
+        "frame_ids": [int(scene.frames[0].frame_id), int(scene.frames[-1].frame_id)],
+        **net,
+        "class_mapping": mapping,
+        "baseline": {
+            "name": "known-size geometric baseline: true mesh extent, axis-aligned to the camera (the pair of axes "
+            "matching the box's aspect across the image, the third along the ray), depth from the box's size, "
+            "centre on the box's ray",
+            **baseline(True),
+        },
+        "baseline_mesh_axes": {
+            "name": "the same with the mesh's own axis order (mesh x, y, z along camera x, y, z)",
+            **baseline(False),
+        },
+    }
+    if oracle is not None:
+        o_model, o_vars, o_config, o_meta = oracle
+        o_batch = batch
+        if (o_config.model.input_size, o_config.model.global_padding) != (
+            config.model.input_size,
+            config.model.global_padding,
+        ):
+            o_batch = data.bop_eval_batch(
+                scene,
+                input_size=o_config.model.input_size,
+                global_padding=o_config.model.global_padding,
+                min_visible=args.min_visible,
+            )
+        o_rows, o_mapping = class_rows(o_batch["class_name"], o_config, args.class_mapping, extents)
+        o_fig = evaluate_scene_batch(o_model, o_vars, o_config, o_batch, o_rows)
+        o_fig.pop("pred")
+        out["oracle"] = {"model": str(o_meta.get("name")), **o_fig, "class_mapping": o_mapping}
+    return out
 
 
 def main(argv=None, prog: str | None = None) -> int:
     """``jaxsem volumon eval``: held-out figures of the shipped model (or ``--workdir``) as JSON."""
     args = build_parser(prog).parse_args(argv)
+    bop = _is_bop(args.data)
+    if bop and args.split is None:
+        raise sc.UsageError("--split: required with a BOP scene (--data with scene_gt.json): tune, test or all")
+    if bop and args.postopt:
+        raise sc.UsageError("--postopt: not available on a BOP scene (no depth points to refine on)")
+    if not bop:
+        for flag, value in (("--split", args.split), ("--oracle", args.oracle)):
+            if value is not None:
+                raise sc.UsageError(f"{flag}: only with --data SCENE_DIR, a BOP scene folder with scene_gt.json")
+    path, kind = resolve_model(args.model, args.workdir)
     from jaxsem.volumon import evaluate_held_out, load_pretrained
 
     try:
-        model, variables, config, meta = load_pretrained(args.workdir)
-        batch = None
-        if args.data is not None:
-            from jaxsem.data import volumon_eval_batch
+        model, variables, config, meta = load_pretrained(path, kind=kind)
+        if bop:
+            result = _bop_figures(args, model, variables, config)
+        else:
+            batch = None
+            if args.data is not None:
+                from jaxsem.data import volumon_eval_batch
 
-            batch = volumon_eval_batch(
-                args.data,
-                input_size=config.model.input_size,
-                global_padding=config.model.global_padding,
-                num_points=config.scene.num_points,
-                num=args.num,
+                batch = volumon_eval_batch(
+                    args.data,
+                    input_size=config.model.input_size,
+                    global_padding=config.model.global_padding,
+                    num_points=config.scene.num_points,
+                    num=args.num,
+                )
+            result = evaluate_held_out(
+                model, variables, config, args.seed, args.num, postopt_steps=args.postopt, batch=batch
             )
-        result = evaluate_held_out(
-            model, variables, config, args.seed, args.num, postopt_steps=args.postopt, batch=batch
-        )
     except ValueError as exc:
         if args.debug:
             raise

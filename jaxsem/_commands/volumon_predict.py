@@ -10,13 +10,17 @@ Examples::
     python infer/volumon.py --split test --num 8 --out out/volumon
     # a trained run on its synthetic held-out split
     python infer/volumon.py --workdir runs/both --split test --num 8 --out out/volumon
+    # a real frame of a BOP scene (e.g. LM-O): its visible boxes, predictions beside the truth
+    jaxsem volumon predict --data DATA/lmo/test/000002 --frame 3 --out out/volumon
     # your own image and boxes (JSON list of [u_min, v_min, u_max, v_max]) and intrinsics
     python infer/volumon.py --workdir runs/both --image img.png --boxes boxes.json \
         --K 110,110,63.5,47.5 --out out/volumon
 
 Writes ``ellipsoids.json`` (per detection: rotation object-to-camera, center in the camera
 frame, radii, all in metres) and ``overlay_*.png`` (input box green, projected conic blue,
-3D box orange; dashed white: ground truth when known) into ``--out``; the run directory
+3D box orange; dashed white: ground truth when known) into ``--out``; on a BOP frame
+(``--data``, ``--frame``) one figure, ``overlay_frame<ID>.png``: the predictions (left, with the
+true cuboids dashed) beside the true ellipsoids drawn the same way (right); the run directory
 (``--run-dir``) gets config.json and summary.json (the number of ellipsoids, the overlays).
 
 The same command: ``jaxsem volumon predict`` (``python infer/volumon.py``).
@@ -125,6 +129,26 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="class of the --boxes, one of the model's classes (shipped model: 0 cracker_box, 1 ball, 2 melon, "
         "3 soup_can)",
     )
+    p.add_argument(
+        "--data",
+        type=sc.existing_dir,
+        default=None,
+        help="a BOP scene folder (scene_gt.json, rgb/, models): predict on the visible boxes of --frame",
+    )
+    p.add_argument("--frame", type=sc.nonnegative_int, default=None, help="frame id of the --data BOP scene")
+    p.add_argument(
+        "--min-visible",
+        type=sc.probability,
+        default=0.5,
+        help="--data: objects at least this fraction visible",
+    )
+    p.add_argument(
+        "--class-mapping",
+        choices=("generic", "nearest"),
+        default="generic",
+        help="--data: a class the model lacks uses the class head's expectation ('generic') or the model class "
+        "nearest in size ('nearest')",
+    )
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder (ellipsoids.json, overlay_*.png)")
     return p
 
@@ -153,6 +177,14 @@ def main(argv=None, prog: str | None = None) -> int:
     )
 
     img = boxes = None
+    if a.data is not None or a.frame is not None:  # a real BOP frame: checked before any work
+        if a.data is None or a.frame is None:
+            raise sc.UsageError(f"{'--frame' if a.data is None else '--data'}: --data and --frame go together")
+        if a.split is not None or a.image is not None or a.boxes is not None:
+            raise sc.UsageError("--data: give --data/--frame, or --image/--boxes, or --split")
+        if not (a.data / "scene_gt.json").is_file():
+            raise sc.UsageError(f"--data: {a.data} is not a BOP scene folder (no scene_gt.json)")
+        return _predict_bop_frame(a)
     if a.split is None:  # the inputs are checked before any work
         if a.image is None or a.boxes is None:
             p.error("give --image and --boxes, or --split")
@@ -252,4 +284,77 @@ def main(argv=None, prog: str | None = None) -> int:
     )
     sc.record(ellipsoids=len(records))
     print(f"wrote {len(records)} ellipsoids to {a.out / 'ellipsoids.json'} and overlays")
+    return 0
+
+
+def _predict_bop_frame(a) -> int:
+    """``--data SCENE --frame ID``: the model on the frame's visible boxes, drawn beside the truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxsem import data
+    from jaxsem.volumon import class_rows, draw_predictions, evaluate_scene_batch, load_pretrained
+
+    try:
+        model, variables, cfg, meta = load_pretrained(a.workdir)
+    except ValueError as exc:
+        raise SystemExit(f"--workdir: {exc}")
+    scene = data.load_bop_scene(a.data, frame_filter=lambda i: i == a.frame)
+    if not scene.frames:
+        raise sc.UsageError(f"--frame: {a.frame} is not a frame of {a.data}/scene_gt.json")
+    frame = scene.frames[0]
+    try:
+        batch = data.bop_eval_batch(
+            scene,
+            input_size=cfg.model.input_size,
+            global_padding=cfg.model.global_padding,
+            min_visible=a.min_visible,
+        )
+    except ValueError as exc:
+        raise sc.UsageError(f"--min-visible: {str(exc).removeprefix('min_visible: ')}") from None
+    rows, mapping = class_rows(batch["class_name"], cfg, a.class_mapping, data.bop_class_extents(scene))
+    pred = evaluate_scene_batch(model, variables, cfg, batch, rows, repeats=1)["pred"]
+    image = data.read_rgb(frame.image_path)
+    K = np.asarray(frame.K)
+    n = len(batch["box_input"])
+    predicted = [(pred["rotation"][i], pred["center"][i], pred["radii"][i]) for i in range(n)]
+    truth = [(batch["gt_rotation"][i], batch["gt_center"][i], batch["gt_half_extents"][i]) for i in range(n)]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.9))
+    draw_predictions(axes[0], image, predicted, K, batch["box_input"], truth)
+    draw_predictions(axes[1], image, truth, K, batch["box_input"])
+    axes[0].set_title(f"VoluMon {meta.get('name')} (class mapping: {mapping['mode']})", fontsize=9)
+    axes[1].set_title(f"truth: ellipsoids of the mesh extents (frame {frame.frame_id})", fontsize=9)
+    for i in range(n):
+        u, v = batch["box_input"][i][:2]
+        axes[1].text(u, v - 3, str(batch["class_name"][i]), color="yellow", fontsize=6)
+    fig.tight_layout()
+    name = f"overlay_frame{frame.frame_id:06d}.png"
+    sc.atomic_savefig(fig, a.out / name, dpi=90)
+    plt.close(fig)
+    records = [
+        {
+            "index": i,
+            "frame": int(frame.frame_id),
+            "class": str(batch["class_name"][i]),
+            "visible_fraction": float(batch["visible_fraction"][i]),
+            "box": batch["box_input"][i].tolist(),
+            "rotation": pred["rotation"][i].tolist(),
+            "center": pred["center"][i].tolist(),
+            "radii": pred["radii"][i].tolist(),
+            "true_center": batch["gt_center"][i].tolist(),
+            "center_error_m": float(np.linalg.norm(pred["center"][i] - batch["gt_center"][i])),
+        }
+        for i in range(n)
+    ]
+    sc.atomic_write_text(
+        a.out / "ellipsoids.json",
+        json.dumps(
+            {"frame": "camera (OpenCV axes)", "units": "metres", "class_mapping": mapping, "detections": records},
+            indent=1,
+        ),
+    )
+    sc.record(ellipsoids=n)
+    print(f"wrote {n} ellipsoids to {a.out / 'ellipsoids.json'} and {a.out / name}")
     return 0

@@ -291,11 +291,13 @@ def _cameras(scene: pathlib.Path, frame_ids) -> dict:
     return {fid: default for fid in frame_ids}
 
 
-def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = None) -> BopScene:
+def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = None, frame_filter=None) -> BopScene:
     """Reads a BOP scene's labels (see the module docstring); no image is opened.
 
     class_names: object id -> name (default: Linemod's names for ids 1-15 when the path names
     ``lm`` / ``lmo`` / ``linemod``, else ``obj_XXXXXX``).
+    frame_filter: optional ``frame id -> bool``; only the frames it accepts are read (their visible
+    boxes rendered), e.g. ``lambda i: i < 600`` for LM-O's tuning split alone.
 
     Raises:
       ValueError: naming the file and the field (missing files, bad JSON, wrong matrix sizes,
@@ -314,6 +316,8 @@ def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = Non
         frame_ids = sorted(int(k) for k in gt)
     except ValueError:
         raise ValueError(f"{gt_path}: frame ids must be integers, got {list(gt)[:5]}") from None
+    if frame_filter is not None:
+        frame_ids = [fid for fid in frame_ids if frame_filter(fid)]
     info_path = scene / "scene_gt_info.json"
     info = _read_json(info_path) if info_path.is_file() else None
     if class_names is None:

@@ -72,6 +72,15 @@ from ._refine import (
     postopt as postopt,
     refine as refine,
 )
+from ._scene_eval import (
+    CLASS_MAPPINGS as CLASS_MAPPINGS,
+    VISIBILITY_BINS as VISIBILITY_BINS,
+    class_rows as class_rows,
+    evaluate_scene_batch as evaluate_scene_batch,
+    known_size_ellipsoid as known_size_ellipsoid,
+    model_class_names as model_class_names,
+    summarise_detections as summarise_detections,
+)
 from ._synthetic import (
     CLASSES as CLASSES,
     SHAPE_IDS as SHAPE_IDS,

@@ -91,10 +91,9 @@ def size_errors(pred_radii, gt_half_extents):
 
 
 @jax.jit
-def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, gt_local, pred_dirs, gt_h):
+def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, true_pts, pred_dirs, gt_h):
     # deterministic sample sets (no threefry: its compile costs seconds on this CPU)
     trans = jnp.linalg.norm(pred_t - gt_t, axis=-1)
-    true_pts = jnp.einsum("bij,bnj->bni", gt_R, gt_local) + gt_t[:, None, :]
     pred_pts = jnp.einsum("bij,bnj->bni", pred_R, pred_dirs[None] * pred_r[:, None, :]) + pred_t[:, None, :]
     adi = metrics.adi(true_pts, pred_pts)
     iou = metrics.iou_3d_boxes(gt_R, gt_t, gt_h, pred_R, pred_t, pred_r)
@@ -107,7 +106,9 @@ def evaluate_predictions(pred, gt, max_threshold: float = 0.1) -> dict:
     Args:
       pred: dict with ``rotation`` (B, 3, 3), ``center`` (B, 3), ``radii`` (B, 3) (camera frame).
       gt: dict with ``gt_rotation``, ``gt_center``, ``gt_half_extents``, ``gt_shape_id`` (0 cuboid,
-        1 ellipsoid, 2 cylinder along z) and optionally ``sample_mask`` (skipped samples are left out).
+        1 ellipsoid, 2 cylinder along z) and optionally ``sample_mask`` (skipped samples are left out)
+        and ``gt_points`` (B, N, 3): the object's model points in the camera frame, which ADI then
+        uses instead of points sampled on the shape of ``gt_shape_id`` (ADD-S of the real mesh).
 
     Returns:
       dict of floats: ``trans_auc``, ``adi_auc`` (0-10, thresholds up to ``max_threshold`` m),
@@ -143,6 +144,10 @@ def detection_errors(pred, gt):
         (shape == 0)[:, None, None], _cuboid_unit_points(NUM_TRUE_POINTS, gt_h), dirs[None] * gt_h[:, None, :]
     )
     local = np.where((shape == 2)[:, None, None], _cylinder_unit_points(NUM_TRUE_POINTS, gt_h), local)
+    if "gt_points" in gt:  # the object's own model points (camera frame): ADI is then ADD-S
+        true_pts = sel(gt["gt_points"]).astype(np.float64)
+    else:
+        true_pts = np.einsum("bij,bnj->bni", sel(gt["gt_rotation"]), local) + sel(gt["gt_center"])[:, None, :]
     f = lambda x: jnp.asarray(x, jnp.float32)
     trans, adi, iou = _errors(
         f(sel(pred["rotation"])),
@@ -150,7 +155,7 @@ def detection_errors(pred, gt):
         f(sel(pred["radii"])),
         f(sel(gt["gt_rotation"])),
         f(sel(gt["gt_center"])),
-        f(local),
+        f(true_pts),
         f(_sphere_directions(NUM_PRED_POINTS)),
         f(gt_h),
     )
