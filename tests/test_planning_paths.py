@@ -14,7 +14,9 @@ from jaxsem.planning import (
     UNKNOWN,
     SoftCostGraph,
     build_roadmap,
+    default_radius,
     embed_local_distribution,
+    generate_building,
     knn_within_radius,
     polyline_clear,
     prm_star_k,
@@ -651,3 +653,86 @@ def _two_rooms_world():
     return types.SimpleNamespace(
         occupancy=occ, semantic=np.zeros(occ.shape, np.int8), indoor=np.ones_like(occ), origin=ORIGIN, resolution=RES
     )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [1000, 5000])
+def test_one_shot_neighbours_exact_on_concentrated_samples(n):
+    """Issue 25 item 5: building 7307 of the test family made obstacle-free, 80 % of the mass on
+    a 3 x 3-cell patch (hundreds of samples within centimetres), ``sectors=0``: every sample's
+    neighbour list holds exactly its k nearest of all samples within the radius."""
+    b = generate_building(7307, "test")
+    free = np.zeros(b.occupancy.shape, bool)
+    dist = np.ones(free.shape)
+    r0, c0 = free.shape[0] // 2, free.shape[1] // 2
+    dist[r0 : r0 + 3, c0 : c0 + 3] = 0.8 * free.size / 9 / 0.2
+    start = b.origin + np.array([0.05, 0.05])
+    goal = b.origin + np.array([1.05, 1.05])
+    k, radius = prm_star_k(n), default_radius(n, free.shape, b.resolution)
+    rm = build_roadmap(
+        jax.random.PRNGKey(7307),
+        free,
+        start,
+        goal,
+        n,
+        b.origin,
+        b.resolution,
+        distribution=dist,
+        sectors=0,  # the plain k nearest, checked against brute force
+    )
+    pts = np.asarray(rm.points)
+    valid = np.asarray(rm.valid).copy()
+    valid[:2] = False  # query slots: samples never link to them
+    assert valid[2:].all()
+    ref = _brute_knn(pts, valid, k, radius, queries=pts[2:], self_idx=np.arange(2, n + 2))
+    got = _sorted_dists(pts, pts[2:], np.asarray(rm.neighbors)[2:])
+    hot = np.sum(ref[:, -1] < 0.05)
+    assert hot > n // 2  # the case of the issue: most k-th neighbours within centimetres
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
+
+
+def _thin_wall_map(rng):
+    occ = np.zeros((60, 80), bool)
+    for _ in range(6):  # one-cell walls at random angles: easy to skip between samples
+        r, c = rng.integers(5, 55), rng.integers(5, 75)
+        d = rng.normal(size=2)
+        d /= np.linalg.norm(d)
+        for s in np.linspace(0, 25, 200):
+            rr, cc = int(r + s * d[0]), int(c + s * d[1])
+            if 0 <= rr < 60 and 0 <= cc < 80:
+                occ[rr, cc] = True
+    occ[20:40, 30:50] = False
+    occ[25:35, 35:45] = True  # a block with open space around it
+    return occ
+
+
+def test_segment_check_never_crosses_walls_and_accepts_open_space():
+    """The edge rule on many segments of thin-wall maps (most decided without reading every
+    sample): an accepted segment touches no occupied cell (dense sampling); a segment that has
+    a point deep inside an occupied cell is rejected; one far from every wall is accepted."""
+    rng = np.random.default_rng(25)
+    accepted = rejected = 0
+    for m in range(3):
+        occ = _thin_wall_map(rng)
+        free_cells = np.argwhere(~occ)
+        t = np.linspace(0.0, 1.0, 2001)[:, None]
+        for _ in range(60):
+            a = (free_cells[rng.integers(len(free_cells))][::-1] + rng.random(2)) * RES
+            b = a + rng.normal(size=2) * 1.5
+            b = np.clip(b, 1e-3, np.array([80, 60]) * RES - 1e-3)
+            ok = polyline_clear(np.stack([a, b]), occ, ORIGIN, RES, RADIUS)
+            u = (a + t * (b - a)) / RES
+            rc = np.floor(u).astype(int)
+            inside = occ[rc[:, 1], rc[:, 0]]
+            deep = inside & np.all(np.abs(u - np.floor(u) - 0.5) < 0.3, axis=1)
+            if ok:
+                interior = np.all(np.abs(u - np.round(u)) > 1e-7, axis=1)
+                assert not np.any(inside & interior), (m, a, b)
+                accepted += 1
+            else:
+                rejected += 1
+            if deep.any():
+                assert not ok, (m, a, b)
+    assert accepted > 20 and rejected > 20
+    open_map = np.zeros((60, 80), bool)
+    assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, ORIGIN, RES, RADIUS)

@@ -1,0 +1,223 @@
+"""Benchmark: jaxsem's PRM against OMPL's PRM (C++ core, compiled grid checker) on the campus map.
+
+Issue 25 item 5. The map: MRPT's ``2006-MalagaCampus.gridmap.gz`` (151 x 219 m, read with
+:func:`jaxsem.planning.load_map`; unknown cells are obstacles). At each N the planners take
+turns, repeat after repeat, in one run:
+
+- ``ompl_grid``: OMPL's ``PRM`` (libompl-dev, k = 10) in C++ with a compiled validity checker
+  that reads the grid (``benchmarks/ompl_grid_prm.cpp``, built here with g++): ``growRoadmap``
+  to exactly N milestones, then per query the start and goal linked to their 10 nearest
+  milestones with ``checkMotion`` (half a cell) and Dijkstra. OMPL's Python bindings have no
+  compiled grid checker; this is the strongest OMPL configuration a user can run on a grid. Its
+  clock runs inside the process (map parsing and process start excluded).
+- ``jaxsem``: :class:`jaxsem.planning.PRM` under its defaults (k = prm_star_k(N), 8 direction
+  sectors, default radius), constructed + ``grow(N)`` + first ``query``; ``jaxsem_reuse``: each
+  later query on that roadmap.
+
+Queries: start and goal in free cells with at least 0.3 m clearance, at least 20 m apart and
+connected; C* the 8-connected grid shortest path (metres). Timings: medians after a warm-up
+(``block_until_ready``).
+
+    python benchmarks/lsd_prm_campus.py --n 5000 20000 --repeats 3 --tasks 6 --seed 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import platform
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import scipy.ndimage
+import scipy.sparse
+import scipy.sparse.csgraph
+
+from jaxsem import planning
+
+HERE = pathlib.Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+MAP = "/tmp/realdata/mrpt/2006-MalagaCampus.gridmap.gz"
+
+
+def build_ompl(out: pathlib.Path) -> pathlib.Path:
+    exe = out / "ompl_grid_prm"
+    src = HERE / "ompl_grid_prm.cpp"
+    if not exe.exists() or exe.stat().st_mtime < src.stat().st_mtime:
+        inc = sorted(pathlib.Path("/usr/include").glob("ompl-*"))
+        if not inc:
+            raise SystemExit("OMPL headers not found: apt-get install libompl-dev")
+        cmd = ["g++", "-O2", "-std=c++17", f"-I{inc[-1]}", "-I/usr/include/eigen3", str(src), "-o", str(exe), "-lompl"]
+        subprocess.run(cmd, check=True)
+    return exe
+
+
+def grid_graph(occ, res):
+    H, W = occ.shape
+    idx = np.arange(H * W).reshape(H, W)
+    src, dst, w = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = occ[: H - dr, max(0, -dc) : W - max(0, dc)]
+        b = occ[dr:, max(0, dc) : W + min(0, dc) if dc < 0 else W][:, : a.shape[1]]
+        ok = ~a & ~b
+        ia = idx[: H - dr, max(0, -dc) : W - max(0, dc)][ok]
+        ib = idx[dr:, max(0, dc) :][:, : a.shape[1]][ok] if dc >= 0 else idx[dr:, : W + dc][ok]
+        src.append(ia)
+        dst.append(ib)
+        w.append(np.full(len(ia), res * (np.sqrt(2) if dr and dc else 1.0)))
+    src, dst, w = map(np.concatenate, (src, dst, w))
+    return scipy.sparse.csr_matrix((w, (src, dst)), shape=(H * W, H * W))
+
+
+def sample_queries(b, count, seed, clearance=0.3, min_dist=20.0):
+    occ, res = b.occupancy, b.resolution
+    H, W = occ.shape
+    ok = scipy.ndimage.distance_transform_edt(~np.pad(occ, 1, constant_values=True))[1:-1, 1:-1] * res >= clearance
+    cells = np.argwhere(ok)
+    rng = np.random.default_rng(seed)
+    g = grid_graph(occ, res)
+    out = []
+    while len(out) < count:
+        s, t = cells[rng.integers(len(cells))], cells[rng.integers(len(cells))]
+        ps, pt = b.origin + (s[::-1] + 0.5) * res, b.origin + (t[::-1] + 0.5) * res
+        if np.linalg.norm(ps - pt) < min_dist:
+            continue
+        d = scipy.sparse.csgraph.dijkstra(g, directed=False, indices=int(s[0] * W + s[1]), limit=np.inf)
+        c = d[t[0] * W + t[1]]
+        if np.isfinite(c):
+            out.append((ps, pt, float(c)))
+    return out
+
+
+def run_ompl(exe, b, n, seed, queries, k=10):
+    occ = b.occupancy
+    H, W = occ.shape
+    head = (
+        f"{H} {W} {float(b.resolution)!r} {float(b.origin[0])!r} {float(b.origin[1])!r} {n} {k} {seed} {len(queries)}\n"
+    )
+    body = "\n".join("".join(r) for r in np.where(occ, "1", "0"))
+    qs = "\n".join(" ".join(repr(float(v)) for v in (*s, *t)) for s, t, _ in queries)
+    out = subprocess.run([str(exe)], input=head + body + "\n" + qs + "\n", capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--map", default=MAP)
+    ap.add_argument("--n", type=int, nargs="+", default=[5000, 20000])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--tasks", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=1000, help="query and roadmap seed (tuning: < 1000)")
+    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--name", default="lsd_prm_campus")
+    args = ap.parse_args(argv)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    exe = build_ompl(pathlib.Path("/tmp"))
+    b = planning.load_map(args.map)
+    tasks = sample_queries(b, args.tasks, args.seed)
+    rows, recs = [], []
+    for n in args.n:
+        t = {"ompl_grid": [], "jaxsem": [], "jaxsem_reuse": []}
+        found = {"ompl_grid": [], "jaxsem": []}
+        ratio = {"ompl_grid": [], "jaxsem": []}
+
+        def jaxsem_run(seed):
+            t0 = time.perf_counter()
+            prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n)
+            prm.grow(jax.random.PRNGKey(seed), n)
+            p0 = prm.query(tasks[0][0], tasks[0][1])
+            return time.perf_counter() - t0, prm, p0
+
+        jaxsem_run(args.seed + 999)  # warm-up (compilation)
+        for rep in range(args.repeats):
+            seed = args.seed + rep
+            o = run_ompl(exe, b, n, seed, tasks)
+            dt, prm, p0 = jaxsem_run(seed)
+            t["ompl_grid"].append(o["build_s"] + o["queries"][0]["query_s"])
+            t["jaxsem"].append(dt)
+            for ti, (s, g, cstar) in enumerate(tasks):
+                if ti == 0:
+                    p = p0
+                else:
+                    t0 = time.perf_counter()
+                    p = prm.query(s, g)
+                    t["jaxsem_reuse"].append(time.perf_counter() - t0)
+                oq = o["queries"][ti]
+                found["ompl_grid"].append(oq["found"])
+                found["jaxsem"].append(bool(p.found))
+                ratio["ompl_grid"].append(oq["length"] / cstar if oq["found"] else np.nan)
+                ratio["jaxsem"].append(p.length / cstar if p.found else np.nan)
+                recs.append(
+                    {
+                        "n": n,
+                        "rep": rep,
+                        "task": ti,
+                        "c_star": cstar,
+                        "ompl": oq["found"] and oq["length"],
+                        "jaxsem": bool(p.found) and p.length,
+                    }
+                )
+            print(
+                f"N {n} rep {rep}: OMPL C++ grid {t['ompl_grid'][-1] * 1e3:.0f} ms, jaxsem {dt * 1e3:.0f} ms",
+                flush=True,
+            )
+        both = np.array(found["ompl_grid"]) & np.array(found["jaxsem"])
+        med = {c: float(np.median(v)) * 1e3 for c, v in t.items()}
+        rows.append(
+            {
+                "n": n,
+                "queries": len(found["jaxsem"]),
+                "found_ompl": int(np.sum(found["ompl_grid"])),
+                "found_jaxsem": int(np.sum(found["jaxsem"])),
+                "both": int(both.sum()),
+                "len_ompl": float(np.mean(np.array(ratio["ompl_grid"])[both])) if both.any() else None,
+                "len_jaxsem": float(np.mean(np.array(ratio["jaxsem"])[both])) if both.any() else None,
+                "ms": med,
+            }
+        )
+    table = [
+        "| N | queries | found OMPL | found jaxsem | length / C* OMPL (both found) | jaxsem | OMPL C++ grid checker: "
+        "build + query (ms) | jaxsem build + query (ms) | jaxsem / OMPL time | jaxsem per query, reused (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        m = r["ms"]
+        table.append(
+            f"| {r['n']} | {r['queries']} | {r['found_ompl']} | {r['found_jaxsem']} | {r['len_ompl']:.3f} | "
+            f"{r['len_jaxsem']:.3f} | {m['ompl_grid']:.0f} | {m['jaxsem']:.0f} | {m['jaxsem'] / m['ompl_grid']:.2f} | "
+            f"{m['jaxsem_reuse']:.1f} |"
+        )
+    print("\n".join(table))
+    date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
+    cmd = "python benchmarks/lsd_prm_campus.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    payload = {
+        "command": cmd,
+        "date": date,
+        "platform": platform.platform(),
+        "jax": jax.__version__,
+        "args": vars(args),
+        "rows": rows,
+        "records": recs,
+    }
+    (out / f"{args.name}.json").write_text(json.dumps(payload, indent=1))
+    md = [
+        f"## PRM on the campus map against OMPL's C++ PRM with a grid checker (`{args.name}`)",
+        "",
+        f"Command: `{cmd}`  ",
+        f"Date: {date}  ",
+        "Machine: 2-core CPU, shared with other jobs (noisy)",
+        "",
+        *table,
+        "",
+    ]
+    (out / f"{args.name}.md").write_text("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
