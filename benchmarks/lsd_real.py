@@ -40,10 +40,27 @@ def _parse(argv):
     p = argparse.ArgumentParser(
         description=__doc__.splitlines()[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
     )
-    p.add_argument("--map", required=True, help="map file: .yaml (ROS), .gridmap[.gz] (MRPT) or an image")
+    p.add_argument(
+        "--map",
+        required=True,
+        nargs="+",
+        help="map file(s): .yaml (ROS), .gridmap[.gz] (MRPT) or an image; several are pooled",
+    )
     p.add_argument("--resolution", type=float, default=None, help="metres per pixel (plain images)")
     p.add_argument("--annotations", default=None, help="JSON of hand-drawn doors / windows / exit signs")
-    p.add_argument("--trials", type=int, default=10, help="tasks per set")
+    p.add_argument(
+        "--hatch-px",
+        type=float,
+        default=None,
+        help="plain images drawn with hatched obstacles: light gaps up to twice this wide are obstacle",
+    )
+    p.add_argument(
+        "--footprint",
+        choices=["auto", "walls", "density", "none"],
+        default="auto",
+        help="how inside is told from outside ('none': the whole map is the building)",
+    )
+    p.add_argument("--trials", type=int, default=10, help="tasks per map and set")
     p.add_argument("--n", type=int, nargs="+", default=[500], help="sample budgets N")
     p.add_argument("--sets", nargs="+", default=["II", "IO"], choices=["II", "IO"])
     p.add_argument("--protocol", choices=["thesis", "defaults"], default="thesis")
@@ -67,8 +84,9 @@ def _parse(argv):
 
 
 def _check(args):
-    if not pathlib.Path(args.map).is_file():
-        raise SystemExit(f"lsd_real: --map: no such file {args.map!r}")
+    for path in args.map:
+        if not pathlib.Path(path).is_file():
+            raise SystemExit(f"lsd_real: --map: no such file {path!r}")
     if args.annotations and not pathlib.Path(args.annotations).is_file():
         raise SystemExit(f"lsd_real: --annotations: no such file {args.annotations!r}")
     if args.trials < 1:
@@ -77,6 +95,8 @@ def _check(args):
         raise SystemExit(f"lsd_real: --n: expected sample budgets >= 1, got {args.n}")
     if not (0 <= args.min_distance < args.max_distance):
         raise SystemExit("lsd_real: --max-distance: must exceed --min-distance")
+    if args.hatch_px is not None and not (math.isfinite(args.hatch_px) and args.hatch_px > 0):
+        raise SystemExit(f"lsd_real: --hatch-px: expected pixels > 0, got {args.hatch_px}")
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
         raise SystemExit(f"lsd_real: --resolution: expected metres per pixel > 0, got {args.resolution}")
     out = pathlib.Path(args.json)
@@ -126,44 +146,58 @@ def _run(args, argv) -> int:
     out = pathlib.Path(args.json)
     records_path = out.with_name(out.stem + ".records.jsonl")
     figure = pathlib.Path(args.figure) if args.figure else out.with_name(out.stem + "_map.png")
-    t0 = time.perf_counter()
-    b = load_map(args.map, resolution=args.resolution, annotations=args.annotations)
-    plot_semantics(b, figure, title=f"{pathlib.Path(args.map).name}: doors red, outside light blue, unknown grey")
-    free = ~b.occupancy
-    facts = {
-        "map": str(args.map),
-        "cells": list(b.shape),
-        "resolution_m": b.resolution,
-        "extent_m": [b.shape[1] * b.resolution, b.shape[0] * b.resolution],
-        "free_m2": float(free.sum() * b.resolution**2),
-        "indoor_free_m2": float((free & b.indoor).sum() * b.resolution**2),
-        "outdoor_free_m2": float((free & ~b.indoor).sum() * b.resolution**2),
-        "doors_found": int(ndi.label(b.semantic == DOOR, np.ones((3, 3)))[1]),
-        "figure": str(figure),
-        "load_seconds": time.perf_counter() - t0,
-    }
-    print(f"map: {facts}")
-    graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
-    tasks = {}
-    for kind in args.sets:
-        tasks[(0, kind)] = sample_tasks(
-            b,
-            kind,
-            args.trials,
-            args.seed,
-            min_distance=args.min_distance,
-            clearance=args.clearance,
-            graph=graph,
-            max_distance=args.max_distance,
+    buildings, facts, tasks = [], [], {}
+    for i, path in enumerate(args.map):
+        t0 = time.perf_counter()
+        b = load_map(
+            path,
+            resolution=args.resolution,
+            annotations=args.annotations,
+            hatch_px=args.hatch_px,
+            footprint=args.footprint,
         )
-        print(f"{kind}: {len(tasks[(0, kind)])} tasks (asked {args.trials})")
+        if len(args.map) > 1:  # records name the map by its index
+            b = dataclasses.replace(b, seed=i)
+        fig_i = figure if len(args.map) == 1 else figure.with_name(f"{figure.stem}_{i}{figure.suffix}")
+        plot_semantics(b, fig_i, title=f"{pathlib.Path(path).name}: doors red, outside light blue, unknown grey")
+        free = ~b.occupancy
+        fact = {
+            "map": str(path),
+            "index": i,
+            "cells": list(b.shape),
+            "resolution_m": b.resolution,
+            "extent_m": [b.shape[1] * b.resolution, b.shape[0] * b.resolution],
+            "free_m2": float(free.sum() * b.resolution**2),
+            "indoor_free_m2": float((free & b.indoor).sum() * b.resolution**2),
+            "outdoor_free_m2": float((free & ~b.indoor).sum() * b.resolution**2),
+            "doors_found": int(ndi.label(b.semantic == DOOR, np.ones((3, 3)))[1]),
+            "figure": str(fig_i),
+            "load_seconds": time.perf_counter() - t0,
+        }
+        print(f"map: {fact}")
+        graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
+        for kind in args.sets:
+            tasks[(i, kind)] = sample_tasks(
+                b,
+                kind,
+                args.trials,
+                args.seed,
+                min_distance=args.min_distance,
+                clearance=args.clearance,
+                graph=graph,
+                max_distance=args.max_distance,
+            )
+            fact[f"tasks_{kind}"] = len(tasks[(i, kind)])
+            print(f"{kind}: {len(tasks[(i, kind)])} tasks (asked {args.trials})")
+        buildings.append(b)
+        facts.append(fact)
     model, params, _ = load_model(args.checkpoint)
     sampler = LSDSampler(model, params)
     base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
     variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else None
     t1 = time.perf_counter()
     records = run_trials(
-        [b],
+        buildings,
         sampler,
         sets=tuple(args.sets),
         ns=tuple(args.n),
@@ -186,7 +220,7 @@ def _run(args, argv) -> int:
         "git": _git(),
         "protocol": args.protocol,
         "nav_config": {k: v for k, v in dataclasses.asdict(base).items() if k != "sensor"},
-        "map_facts": facts,
+        "map_facts": facts[0] if len(facts) == 1 else facts,
         "task_bounds": {
             "min_distance": args.min_distance,
             "max_distance": args.max_distance,

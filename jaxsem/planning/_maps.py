@@ -53,6 +53,8 @@ from ._semantics import (
 #: Square metres of free space with half a metre of clearance a map's outside needs to hold
 #: Inside-Outside goals; with less, its largest open area (a hall) stands in for the outside.
 MIN_OUTSIDE_AREA = 50.0
+#: Square metres the largest open area needs to stand in for a missing outside.
+MIN_HALL_AREA = 5.0
 _IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
@@ -81,8 +83,15 @@ class OccupancyGrid:
         return (w * self.resolution, h * self.resolution)
 
 
-def load_occupancy(path, *, resolution: float | None = None, origin=None) -> OccupancyGrid:
+def load_occupancy(
+    path, *, resolution: float | None = None, origin=None, hatch_px: float | None = None
+) -> OccupancyGrid:
     """Reads a ROS map_server YAML, an MRPT gridmap or a plain image (``resolution`` needed).
+
+    hatch_px: for a plain image whose obstacles are drawn as hatched outlines (e.g. ir-sim's
+    HM3D house drawings): light regions no wider than ``2 * hatch_px`` pixels anywhere (their
+    largest inscribed circle has a radius of at most ``hatch_px``) lie between hatch lines and
+    are occupied.
 
     Raises:
       ValueError: naming the file and the field for a missing file, an unknown format, a bad or
@@ -100,7 +109,25 @@ def load_occupancy(path, *, resolution: float | None = None, origin=None) -> Occ
         if resolution is None:
             raise ValueError(f"{path}: a plain image map needs resolution= (metres per pixel)")
         occ = _read_image(path)
-        binary = np.where(occ < 128, OCCUPIED, FREE).astype(np.int8)[::-1]
+        dark = occ < 128
+        if hatch_px is not None:
+            if not (math.isfinite(hatch_px) and hatch_px > 0):
+                raise ValueError(f"hatch_px: expected a positive number of pixels, got {hatch_px}")
+            labels, n = scipy.ndimage.label(~dark)  # type: ignore[misc]
+            if n:
+                widest = np.asarray(
+                    scipy.ndimage.maximum(scipy.ndimage.distance_transform_edt(~dark), labels, np.arange(1, n + 1))
+                )
+                dark = dark | np.isin(labels, 1 + np.nonzero(widest <= hatch_px)[0])
+                # A plotted figure's padding: light bands across the image's whole width (or
+                # height) at its top / bottom (left / right) edge are not part of the map.
+                for band in (dark[:, ::1], dark.T):
+                    for rows in (range(band.shape[0]), range(band.shape[0] - 1, -1, -1)):
+                        for r in rows:
+                            if band[r].mean() > 0.02:  # the frame line (a 1-2 % edge line is not)
+                                break
+                            band[r] = True
+        binary = np.where(dark, OCCUPIED, FREE).astype(np.int8)[::-1]
         grid = OccupancyGrid(binary, np.zeros(2), 1.0, str(path))
     else:
         raise ValueError(
@@ -128,6 +155,8 @@ def load_map(
     doors: bool = True,
     annotations=None,
     footprint_gap: float = 2.0,
+    hatch_px: float | None = None,
+    footprint: str = "auto",
 ) -> Building:
     """A :class:`Building` from a map file (see the module docstring for formats and rules).
 
@@ -138,9 +167,12 @@ def load_map(
         None keeps the file's cells.
     doors: find doors from the occupancy (:func:`find_doors`); annotations: a JSON file (or its
         dict) of hand-drawn boxes (:func:`read_annotations`); footprint_gap: widest wall opening
-        (m) closed when the building's footprint is separated from the outside.
+        (m) closed when the building's footprint is separated from the outside; hatch_px: see
+        :func:`load_occupancy`; footprint: how the inside is told from the outside,
+        :func:`building_footprint`'s ``method`` or ``"none"`` (the whole map is the building, e.g.
+        a drawing of a house's floor).
     """
-    grid = load_occupancy(path, resolution=resolution, origin=origin)
+    grid = load_occupancy(path, resolution=resolution, origin=origin, hatch_px=hatch_px)
     if cell_size is not None:
         grid = resample_occupancy(grid, cell_size)
     return grid_to_building(
@@ -149,6 +181,7 @@ def load_map(
         doors=doors,
         annotations=annotations,
         footprint_gap=footprint_gap,
+        footprint=footprint,
     )
 
 
@@ -189,11 +222,13 @@ def grid_to_building(
     doors: bool = True,
     annotations=None,
     footprint_gap: float = 2.0,
+    footprint: str = "auto",
 ) -> Building:
     """The planner's world of an :class:`OccupancyGrid`: occupied cells are walls, doors found
     from the occupancy (``doors``) are DOOR, the footprint (:func:`building_footprint`) is
-    indoor; where no free cell with half a metre of clearance lies outside it, the largest open
-    region is taken as the outside (:func:`largest_open_region`). ``annotations`` (a JSON path or
+    indoor; where less than ``MIN_OUTSIDE_AREA`` m^2 with half a metre of clearance lies outside
+    it, the largest open region (:func:`largest_open_region`, 5 m across, else 4, 3, 2 or 1.5 m) is
+    taken as the outside. ``annotations`` (a JSON path or
     its parsed dict) are applied last."""
     occ = np.asarray(grid.occupancy)
     res = float(grid.resolution)
@@ -201,11 +236,26 @@ def grid_to_building(
         annotations = read_annotations(annotations)
     door_mask = find_doors(occ, res) if doors else np.zeros(occ.shape, bool)
     semantic = semantic_grid(occ, door_mask)
-    indoor = building_footprint(occ, res, gap=footprint_gap)
+    if footprint not in ("auto", "walls", "density", "none"):
+        raise ValueError(f"footprint: expected 'auto', 'walls', 'density' or 'none', got {footprint!r}")
     free = occ == FREE
+    if footprint == "none":
+        indoor = np.ones(occ.shape, bool)
+    else:
+        indoor = building_footprint(occ, res, gap=footprint_gap, method=footprint)
+    if (free & indoor).sum() < 0.1 * max(int(free.sum()), 1):
+        # No enclosing wall was found (a drawing of one floor's inside, open at the image's
+        # edges): the whole map is the building.
+        indoor = np.ones_like(indoor)
     roomy = np.asarray(scipy.ndimage.distance_transform_edt(free), float) * res >= 0.5
     if (roomy & ~indoor).sum() * res**2 < MIN_OUTSIDE_AREA:
-        indoor = indoor & ~largest_open_region(occ, res)
+        # The widest open area that is a room's size (5 m across, else 4, 3, 2, 1.5 m: a house's
+        # largest room) stands in for the outside.
+        for across in (5.0, 4.0, 3.0, 2.0, 1.5):
+            hall = largest_open_region(occ, res, across=across)
+            if hall.sum() * res**2 >= MIN_HALL_AREA:
+                indoor = indoor & ~hall
+                break
     if annotations:
         occ, semantic, indoor, unused = apply_annotations(occ, semantic, indoor, annotations, grid.origin, res)
         if unused:
