@@ -264,3 +264,37 @@ def test_real_lab_map_semantics_when_present(tmp_path):
     assert len(tasks) == 2
     planning.plot_semantics(b, tmp_path / "lab.png")
     assert (tmp_path / "lab.png").stat().st_size > 0
+
+
+def test_hatched_drawing_fills_obstacles_and_drops_the_plot_padding(tmp_path):
+    import cv2
+
+    img = np.full((120, 100), 255, np.uint8)
+    img[10:12, :] = 0  # the drawing's frame lines; rows 0-9 and 108-119 are the plot's padding
+    img[108:110, :] = 0
+    img[30:70, 20:60] = 255
+    cv2.rectangle(img, (20, 30), (59, 69), 0, 1)  # an obstacle drawn as a hatched outline
+    for k in range(-40, 40, 8):
+        cv2.line(img, (20 + max(k, 0), 30 + max(-k, 0)), (59 + min(k, 0), 69 - max(k, 0)), 0, 1)
+    path = tmp_path / "house.png"
+    cv2.imwrite(str(path), img)
+    plain = planning.load_occupancy(path, resolution=0.05)
+    filled = planning.load_occupancy(path, resolution=0.05, hatch_px=4)
+    inside = filled.occupancy[::-1][32:68, 22:58]  # back to image rows
+    assert (inside == OCCUPIED).all()
+    assert (plain.occupancy[::-1][32:68, 22:58] == FREE).any()  # the gaps between hatch lines
+    assert (filled.occupancy[::-1][80:100, 70:95] == FREE).all()  # the open floor stays free
+    assert (filled.occupancy[::-1][:10] == OCCUPIED).all() and (filled.occupancy[::-1][110:] == OCCUPIED).all()
+    with pytest.raises(ValueError, match="hatch_px"):
+        planning.load_occupancy(path, resolution=0.05, hatch_px=-1)
+
+
+def test_a_floor_drawing_is_all_inside_but_its_largest_room_stands_in_for_outside():
+    occ = np.full((60, 160), OCCUPIED, np.int8)
+    occ[5:55, 5:55] = FREE  # a 5 x 5 m living room
+    occ[25:35, 55:155] = FREE  # a 1 m hallway
+    b = planning.grid_to_building(planning.OccupancyGrid(occ, np.zeros(2), RES), footprint="none")
+    assert not b.indoor[30, 30]  # the room is the stand-in outside
+    assert b.indoor[30, 150]
+    with pytest.raises(ValueError, match="footprint"):
+        planning.grid_to_building(planning.OccupancyGrid(occ, np.zeros(2), RES), footprint="yard")
