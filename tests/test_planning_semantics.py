@@ -203,6 +203,7 @@ def test_task_bounds_and_a_scanned_maps_seed():
         planning.sample_tasks(b, "II", 1, seed=0, min_distance=5.0, max_distance=4.0)
 
 
+@pytest.mark.slow
 def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path):
     """The benchmark on a written gridmap at 0.05 m (resampled to 0.1 m): records stream as
     trials end, a rerun resumes without running them again, a torn last line is redone."""
@@ -237,6 +238,17 @@ def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path):
     assert len(again) == 2 and again[0] == first[0]
     assert again[1]["uniform"]["success"] == first[1]["uniform"]["success"]
     assert again[1]["uniform"]["path"] == first[1]["uniform"]["path"]  # same key: same trial
+
+
+def test_streamed_records_read_back_past_a_torn_tail(tmp_path):
+    from jaxsem.lsd import read_records
+
+    f = tmp_path / "r.jsonl"
+    f.write_text('{"a": 1}\n{"a": 2}\n{"a": ')
+    assert read_records(f) == [{"a": 1}, {"a": 2}]
+    f.write_text('{"a": 1}\n{"a": \n{"a": 3}\n')
+    with pytest.raises(ValueError, match="line 2"):
+        read_records(f)
 
 
 def test_real_map_command_names_bad_flags(tmp_path, capsys):
