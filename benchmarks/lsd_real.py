@@ -76,6 +76,11 @@ def _parse(argv):
     p.add_argument("--max-steps", type=int, default=10_000, help="step limit per trial (thesis: 10000)")
     p.add_argument("--checkpoint", default=None, help="LSD workdir or exported .npz (None: the shipped model)")
     p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
+    p.add_argument(
+        "--uniform-only",
+        action="store_true",
+        help="run the uniform planner alone (e.g. its large-N point of the figure 3-8 curve)",
+    )
     p.add_argument("--json", required=True, help="output JSON (records stream beside it)")
     p.add_argument("--figure", default=None, help="map semantics figure (default: <json stem>_map.png)")
     p.add_argument("--no-progress", action="store_true")
@@ -195,6 +200,8 @@ def _run(args, argv) -> int:
     sampler = LSDSampler(model, params)
     base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
     variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else None
+    if args.uniform_only:
+        variants = {"uniform": (None, {})}
     t1 = time.perf_counter()
     records = run_trials(
         buildings,
@@ -209,9 +216,19 @@ def _run(args, argv) -> int:
         records_path=records_path,
         keep_paths=True,
         nav_config=base,
+        base=not args.uniform_only,
     )
-    summary = summarise(records)
-    table = format_table(summary)
+    if args.uniform_only:
+        summary = {}
+        for kind in args.sets:
+            for n in args.n:
+                rs = [r for r in records if r["set"] == kind and r["n"] == n]
+                ok = np.array([r["uniform"]["success"] for r in rs], bool)
+                summary[f"{kind}-{n}"] = {"set": kind, "n": n, "trials": len(rs), "success_uniform": float(ok.mean())}
+        table = "\n".join(f"{k}: uniform {v['success_uniform']:.0%} of {v['trials']}" for k, v in summary.items())
+    else:
+        summary = summarise(records)
+        table = format_table(summary)
     print(table)
     result = {
         "benchmark": "lsd_real",
