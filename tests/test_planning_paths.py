@@ -736,3 +736,17 @@ def test_segment_check_never_crosses_walls_and_accepts_open_space():
     assert accepted > 20 and rejected > 20
     open_map = np.zeros((60, 80), bool)
     assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, ORIGIN, RES, RADIUS)
+
+
+def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
+    """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
+    a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the
+    navigation loop's learned radius lived only in ``NavConfig``."""
+    from jaxsem.planning import NavConfig, Trial
+
+    occ = np.zeros((200, 300), bool)
+    uniform = PRM(occ, ORIGIN, RES, capacity=500, weight="euclidean")
+    learned = PRM(occ, ORIGIN, RES, capacity=500, weight="neglogp")
+    loop = Trial.connection_radius(NavConfig(n_samples=500, max_growth=0), occ.shape, RES, learned=True)
+    assert learned.radius == loop
+    assert learned.radius >= 1.9 * uniform.radius

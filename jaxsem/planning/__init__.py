@@ -85,6 +85,7 @@ from ._navigate import (
 )
 from ._prm import (
     DEFAULT_SECTORS as DEFAULT_SECTORS,
+    LEARNED_RADIUS_FACTOR as LEARNED_RADIUS_FACTOR,
     PRM as PRM,
     Roadmap as Roadmap,
     RoadmapPath as RoadmapPath,

@@ -54,6 +54,7 @@ import numpy as np
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
 from ._prm import (
     DEFAULT_SECTORS,
+    LEARNED_RADIUS_FACTOR,
     PRM,
     default_radius,
     embed_local_distribution,
@@ -146,7 +147,7 @@ class NavConfig:
     # PRM connection radius (m); None: default_radius(n_samples) for the uniform sampler and
     # learned_radius_factor times that for a learned one (see Trial.radius).
     radius: float | None = None
-    learned_radius_factor: float = 2.0
+    learned_radius_factor: float = LEARNED_RADIUS_FACTOR
     step_length: float = 0.25  # metres moved per timestep
     replan_every: int = 20  # planning timesteps a plan is followed before replanning
     max_steps: int = 10_000

@@ -104,14 +104,25 @@ class Roadmap(NamedTuple):
     overflow: jax.Array
 
 
-def default_radius(n: int, shape, resolution: float) -> float:
+#: A learned sampler's roadmap links over this many times the uniform radius (see
+#: :class:`~jaxsem.planning.NavConfig`'s ``learned_radius_factor``, whose default it is).
+LEARNED_RADIUS_FACTOR = 2.0
+
+
+def default_radius(n: int, shape, resolution: float, weight: str = "euclidean") -> float:
     """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 3 x the mean sample
     spacing, within [1, 8] m, rounded up to 0.5 m so that few distinct values (each a compile)
     occur. It only bounds the search; the ``k`` nearest are usually closer (see
-    ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL)."""
+    ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
+    learned sampler's roadmap) gives ``LEARNED_RADIUS_FACTOR`` times that, rounded up to 0.5 m:
+    the navigation loop's rule (:meth:`~jaxsem.planning.Trial.connection_radius`), so that a
+    one-shot LSD roadmap links like the loop's (a concentrated distribution leaves the few samples
+    outside its window farther apart than the uniform radius)."""
     area = shape[0] * shape[1] * resolution**2
-    r = min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1))))
-    return math.ceil(r * 2.0) / 2.0
+    r = math.ceil(min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1)))) * 2.0) / 2.0
+    if weight == "neglogp":
+        r = math.ceil(2.0 * r * LEARNED_RADIUS_FACTOR) / 2.0
+    return r
 
 
 def prm_star_k(n: int) -> int:
@@ -815,7 +826,7 @@ def build_roadmap(
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
-    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, resolution)
+    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, resolution, weight)
     rm = roadmap_init(int(n), prm_star_k(n) if k is None else k)
     rm = roadmap_grow(
         rm,
@@ -870,7 +881,7 @@ def make_roadmap_builder(
     if weight == "neglogp" and uniform:
         raise ValueError("uniform: weight='neglogp' needs a distribution (uniform=False)")
     H, W = (int(s) for s in shape)
-    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution)
+    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution, weight)
     kk = prm_star_k(n) if k is None else int(k)
     sectors = _check_sectors(sectors)
 
@@ -1057,7 +1068,9 @@ class PRM:
         self._blocked_j = jnp.asarray(blocked)
         self.origin = origin_np
         self.resolution = float(resolution)
-        self.radius = float(radius) if radius is not None else default_radius(capacity, blocked.shape, resolution)
+        self.radius = (
+            float(radius) if radius is not None else default_radius(capacity, blocked.shape, resolution, weight)
+        )
         self.weight = weight
         self.distribution = None
         self._cap: int | None = None
