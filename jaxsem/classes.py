@@ -210,10 +210,11 @@ class ClassTable:
         (checked to lie in ``[0, len(self))``). ``ValueError`` names ``where`` and the bad entry."""
         arr = np.asarray(classes)
         if arr.dtype.kind in "USO":
-            try:
-                return np.array([self.index(str(c)) for c in arr.reshape(-1)], np.int64)
-            except ValueError as exc:
-                raise ValueError(f"{where}: {exc}") from None
+            names = self.names
+            unknown = [str(c) for c in arr.reshape(-1) if str(c) not in names]
+            if unknown:
+                raise ValueError(f"{where}: unknown class {unknown[0]!r}; known classes are {list(names)}")
+            return np.array([names.index(str(c)) for c in arr.reshape(-1)], np.int64)
         if arr.size and arr.dtype.kind not in "iu":
             if arr.dtype.kind != "f" or not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
                 raise ValueError(
