@@ -130,10 +130,7 @@ def _parse(data, where, root, table=None):
         _fail(where, "top level", f"expected a JSON object, got {type(data).__name__}")
     if data.get("classes") is not None:
         # The sequence's own classes, added to the given table (or the built-in one).
-        try:
-            table = _classes.ClassTable.from_dict(data["classes"], base=_classes.as_table(table), where=f"{where}: classes")
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
+        table = _classes.ClassTable.from_dict(data["classes"], base=_classes.as_table(table), where=f"{where}: classes")
     for key in ("K", "image_size", "frames"):
         if key not in data:
             _fail(where, key, "missing")

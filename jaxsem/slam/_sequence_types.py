@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 import pathlib
+from typing import Any
 
 import numpy as np
 
