@@ -80,7 +80,7 @@ class SolveInfo(eqx.Module):
     rescued: jnp.ndarray
 
 
-def _cast(problem: SlamProblem, init: SlamEstimate):
+def _cast(problem: SlamProblem, init: SlamEstimate) -> SlamEstimate:
     """Float leaves of the estimate in the problem's dtype (float32 problems stay float32 under
     x64; the loop carries keep one dtype)."""
     dtype = problem.pose_prior.dtype
@@ -139,9 +139,7 @@ def solve_batch(
         return solve_schur(problem, init, config, throw=throw)
     if method != "optimistix":
         raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
-    if init is None:
-        init = initialize(problem, config)
-    init = _cast(problem, init)
+    init = _cast(problem, initialize(problem, config) if init is None else init)
     dtype = init.center.dtype
     solver = optx.LevenbergMarquardt(rtol=config.rtol, atol=config.atol)  # pyright: ignore[reportArgumentType]
     args = (problem, init, config)
@@ -357,9 +355,7 @@ def solve_schur(
       unfixable reports ``RESULTS.unfixable_objects``, never ``successful``.
     """
     max_steps = config.max_steps if max_steps is None else int(max_steps)
-    if init is None:
-        init = initialize(problem, config)
-    init = _cast(problem, init)
+    init = _cast(problem, initialize(problem, config) if init is None else init)
     dtype = init.center.dtype
     J = init.center.shape[0]
     if pose_free is None:

@@ -605,7 +605,7 @@ def make_problem(
         texture_mask = np.concatenate([texture_mask, np.zeros(Mc - M, bool)])
         object_class = np.concatenate([object_class, np.zeros(Jc - J, np.int64)])
         object_mask = np.concatenate([object_mask, np.zeros(Jc - J, bool)])
-        if odometry is not None:
+        if odometry is not None and odometry_mask is not None:
             odometry = np.concatenate([odometry, np.broadcast_to(np.eye(4), (Tc - T, 4, 4))])
             odometry_mask = np.concatenate([odometry_mask, np.zeros(Tc - T, bool)])
     # Padded / masked boxes get a harmless finite value so nothing downstream sees NaN.
