@@ -106,3 +106,30 @@ def test_no_success_with_unfixable_objects():
     assert bool(info.unfixable[2]) and not bool(info.unfixable[:2].any())
     assert not bool(info.success)
     assert bool(info.result == slam.RESULTS.unfixable_objects), slam.result_message(info.result)
+
+
+@pytest.mark.slow
+def test_rescue_reaches_a_tabletop_with_the_configs_min_depth():
+    """Objects started at a fixed 10 m (QuadricSLAM's start) on a desk seen from 0.8 m: the rescue
+    triangulates them where they are, closer than 1 m, because its depth threshold is
+    ``config.min_depth`` (0.1 m); with ``min_depth=1.0`` (the old hard-coded value) it refuses."""
+    objects = [("cracker_box", (0.0, 0.0, 0.036)), ("soup_can", (0.12, 0.05, 0.051)), ("ball", (-0.12, 0.0, 0.039))]
+    poses, boxes, box_pose, box_object = [], [], [], []
+    for t, a in enumerate(np.deg2rad(np.linspace(-30.0, 30.0, 6))):
+        eye = np.array([0.57 * np.sin(a), -0.57 * np.cos(a), 0.57])
+        pose = np.asarray(Q.look_at(eye, np.zeros(3)))
+        poses.append(pose)
+        for j, (name, centre) in enumerate(objects):
+            box, _ = Q.project_bbox(np.eye(3), np.asarray(centre), np.asarray(classes.get(name).radii), K, pose)
+            boxes.append(np.asarray(box))
+            box_pose.append(t)
+            box_object.append(j)
+    problem = slam.make_problem(K, SIZE, np.stack(poses), boxes, box_pose, box_object, [o[0] for o in objects])
+    truth = np.array([o[1] for o in objects])
+    cfg = slam.SolverConfig(depth_from_box=False, max_steps=60)
+    solve = jax.jit(lambda p, c: slam.solve_schur(p, None, c))
+    est, info = solve(problem, cfg)
+    assert bool(info.rescued.all()) and bool(info.success), slam.result_message(info.result)
+    assert float(np.abs(np.asarray(est.center) - truth).max()) < 0.01
+    _, old = solve(problem, cfg.replace(min_depth=1.0))
+    assert not bool(old.rescued.any())

@@ -127,7 +127,8 @@ class Frame(eqx.Module):
     Attributes:
       pose_prior: (4, 4) ``camera_T_world`` from odometry / VIO.
       box: (D, 4) detected boxes ``[u_min, v_min, u_max, v_max]`` in pixels.
-      box_class: (D,) int32 class index into :data:`jaxsem.factors.CLASS_NAMES`.
+      box_class: (D,) int32 class index into the smoother's class table (``online_init(..., classes=)``;
+        the built-in one, :data:`jaxsem.factors.CLASS_NAMES`, by default).
       texture_depth: (D,) metres (ignored where ``texture_mask`` is False).
       texture_mask: (D,) bool.
       object_id: (D,) int32 association id of each detection, in ``[0, capacity.max_objects)``;
