@@ -5,9 +5,11 @@ deviation), so that the cost is ``0.5 * sum(r**2)`` and Levenberg-Marquardt can 
 directly. All functions broadcast over leading batch axes and work under ``jit``, ``vmap`` and
 ``grad``; none returns NaN values or NaN gradients for finite inputs.
 
-The four factors of eq. 4.13:
+The four factors of eq. 4.13, and odometry:
 
-1. :func:`pose_prior_residual`: ``log(prior^-1 * pose)`` on SE(3) (jaxlie), ``[v, omega]``.
+1. :func:`pose_prior_residual`: ``log(prior^-1 * pose)`` on SE(3) (jaxlie), ``[v, omega]``;
+   :func:`between_residual`: the relative motion between two poses against an odometry step
+   (GTSAM's ``BetweenFactor<Pose3>``), for sequences whose poses come from odometry.
 2. :func:`box_residual`: the four box edges (eq. 4.10) of the projected ellipsoid against the
    measured box; an edge of the *measured* box within ``border_margin`` pixels of the image
    border is non-constraining and dropped by a mask (section 4.3.2), not truncated. Degenerate
@@ -23,7 +25,9 @@ Radii are kept positive by the parameterisation ``radii = softplus(s)``
 (:func:`radii_from_param` / :func:`param_from_radii`): linear for large radii (no overflow),
 log-like for small ones, and never negative, unlike QuadricSLAM where only ``r**2`` enters.
 
-The class table :data:`SHAPE_PRIORS` gives semi-axis *radii* in metres (half the full
+The built-in class table :data:`SHAPE_PRIORS` (the rows of :data:`jaxsem.classes.DEFAULT_TABLE`;
+a user's own table is a :class:`jaxsem.classes.ClassTable`, read by :func:`shape_prior_table`)
+gives semi-axis *radii* in metres (half the full
 dimensions) in the object frame ``x = length, y = width, z = height`` (z up for vehicles,
 furniture and people), except the VoluMon (FAT) objects which keep the FAT object frame of
 their ``cuboid_dimensions`` (x, y, z in that order).
@@ -42,6 +46,7 @@ from jax.typing import ArrayLike
 from . import classes as _classes
 from .quadrics import (
     algebraic_distance,
+    depth_from_box_size,
     invert_pose,
     project_bbox,
     safe_div,
@@ -55,6 +60,7 @@ __all__ = [
     "ROBUST_LOSSES",
     "SHAPE_PRIORS",
     "ShapePrior",
+    "between_residual",
     "box_residual",
     "class_index",
     "edge_mask",
@@ -101,11 +107,16 @@ def shape_prior(name: str) -> ShapePrior:
     return SHAPE_PRIORS[CLASS_NAMES[class_index(name)]]
 
 
-def shape_prior_table(dtype=None):
-    """Class table as arrays ``(mean (C, 3), sigma (C, 3))`` in :data:`CLASS_NAMES` order."""
+def shape_prior_table(dtype=None, classes: _classes.ClassTable | None = None):
+    """Class table as arrays ``(mean (C, 3), sigma (C, 3))`` of semi-axis radii, in the order of
+    ``classes`` (a :class:`jaxsem.classes.ClassTable`; default the built-in table, whose order
+    is :data:`CLASS_NAMES`)."""
     dtype = dtype or jnp.result_type(float)
-    mean = np.array([SHAPE_PRIORS[c].mean for c in CLASS_NAMES])
-    sigma = np.array([SHAPE_PRIORS[c].sigma for c in CLASS_NAMES])
+    if classes is None:
+        mean = np.array([SHAPE_PRIORS[c].mean for c in CLASS_NAMES])
+        sigma = np.array([SHAPE_PRIORS[c].sigma for c in CLASS_NAMES])
+    else:
+        mean, sigma = _classes.as_table(classes).radii_table()
     return jnp.asarray(mean, dtype), jnp.asarray(sigma, dtype)
 
 
@@ -185,6 +196,37 @@ def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma
     # Matrix product, then log, cast back: jaxlie's SE3 inverse / compose / log promote float32
     # to float64 under x64.
     rel = jnp.asarray(prior, dtype) @ invert_pose(camera_T_world.astype(dtype))
+    err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
+    ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
+    rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
+    return err / jnp.concatenate([ts, rs], axis=-1)
+
+
+def between_residual(camera_T_world_a, camera_T_world_b, measured, rotation_sigma, translation_sigma):
+    """Odometry (between) factor: the motion from pose ``a`` to pose ``b`` against a measured one.
+
+    ``measured`` is camera ``b``'s pose in camera ``a``'s frame, ``a_T_b``
+    (:func:`jaxsem.quadrics.relative_pose` of the true poses for a perfect odometry). The error
+    is ``log(measured^-1 a_T_b)``: GTSAM's ``BetweenFactor<Pose3>`` on ``world_T_camera``,
+    expressed in camera ``b``'s frame, so a step's noise is a rotation about the camera plus a
+    shift of it whatever the distance from the world origin (the same convention as
+    :func:`pose_prior_residual`, which is this factor with pose ``a`` the world origin).
+
+    Args:
+      camera_T_world_a, camera_T_world_b: (..., 4, 4) pose estimates; measured: (..., 4, 4).
+      rotation_sigma: radians (scalar or (..., 3)); translation_sigma: metres.
+
+    Returns:
+      (..., 6) whitened ``[translation part v (3), rotation part omega (3)]`` of jaxlie's log;
+      zero when the estimated relative motion equals ``measured``.
+    """
+    a = jnp.asarray(camera_T_world_a)
+    dtype = jnp.result_type(a, camera_T_world_b, measured)
+    a = a.astype(dtype)
+    b = jnp.asarray(camera_T_world_b, dtype)
+    # measured^-1 a_T_b = (b_T_a measured)^-1: one product chain, then log, cast back (jaxlie's
+    # SE3 promotes float32 to float64 under x64).
+    rel = invert_pose(jnp.asarray(measured, dtype)) @ a @ invert_pose(b)
     err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
     ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
@@ -303,18 +345,28 @@ def single_view_init(
     texture_depth=None,
     texture_mask=None,
     default_depth: ArrayLike = 10.0,
+    *,
+    depth_from_box: bool = True,
+    image_size=None,
+    border_margin: ArrayLike = 10.0,
 ):
     """Single-image initialisation (section 4.3.5).
 
-    The centre lies on the ray through the box centre, at ``default_depth`` (metres, camera z)
-    or, where ``texture_mask`` is True, at the depth that makes the predicted texture plane
-    equal the measured one: ``texture_depth + half-extent of the class-mean ellipsoid along the
-    optical axis``. Orientation is the identity (object axes = world axes); radii are the class
-    mean.
+    The centre lies on the ray through the box centre. Where ``texture_mask`` is True, at the
+    depth that makes the predicted texture plane equal the measured one: ``texture_depth +
+    half-extent of the class-mean ellipsoid along the optical axis``. Elsewhere, with
+    ``depth_from_box`` (the default), at the depth where the class-mean ellipsoid appears as
+    large as the box (:func:`jaxsem.quadrics.depth_from_box_size`; box sides cut by the image
+    border, within ``border_margin`` pixels of ``image_size``, are left out), so the start
+    follows the scene's scale; at ``default_depth`` (metres, camera z) where no side constrains
+    or ``depth_from_box`` is False (QuadricSLAM's fixed-depth start). Orientation is the
+    identity (object axes = world axes); radii are the class mean.
 
     Args:
       camera_T_world: (..., 4, 4); box: (..., 4); K: (..., 3, 3); mean_radii: (..., 3).
       texture_depth: optional (...) metres; texture_mask: optional (...) bool.
+      default_depth: metres. depth_from_box: static bool.
+      image_size: optional (..., 2) ``[width, height]`` (without it every edge constrains).
 
     Returns:
       rotation (..., 3, 3), center (..., 3), radii (..., 3).
@@ -327,6 +379,10 @@ def single_view_init(
     R_cw = pose[..., :3, :3]
     half_depth = safe_sqrt(jnp.sum(jnp.square(mean_radii * R_cw[..., 2, :]), axis=-1))
     depth = jnp.broadcast_to(jnp.asarray(default_depth, dtype), box.shape[:-1])
+    if depth_from_box:
+        edges = None if image_size is None else edge_mask(box, image_size, border_margin)
+        size_depth, ok = depth_from_box_size(box.astype(dtype), K, pose, mean_radii, edge_mask=edges)
+        depth = jnp.where(ok, size_depth, depth)
     if texture_depth is not None:
         tex = jnp.asarray(texture_depth, dtype)
         mask = jnp.ones(tex.shape, bool) if texture_mask is None else jnp.asarray(texture_mask)

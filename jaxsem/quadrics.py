@@ -17,7 +17,8 @@ Where the code lives (``jaxsem/_geometry/``):
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
   ``look_at``, ``so3_exp``.
 - ``poses.py``: ``rigid_transform``, ``transform_points``, ``invert_pose``, ``project_points``,
-  ``back_project``, ``single_view_ellipsoid``, ``cuboid_corners``, ``stereo_right_T_left``.
+  ``back_project``, ``single_view_ellipsoid``, ``depth_from_box_size``, ``relative_pose``,
+  ``cuboid_corners``, ``stereo_right_T_left``.
 - ``shapes.py``: ``algebraic_distance``, ``ray_entry_range``, ``surface_points``, ``shape_bbox``,
   ``shape_distance`` and the ``SHAPE_*`` ids.
 
@@ -83,8 +84,10 @@ from ._geometry.poses import (
     CUBOID_CORNER_SIGNS as CUBOID_CORNER_SIGNS,
     back_project as back_project,
     cuboid_corners as cuboid_corners,
+    depth_from_box_size as depth_from_box_size,
     invert_pose as invert_pose,
     project_points as project_points,
+    relative_pose as relative_pose,
     rigid_transform as rigid_transform,
     single_view_ellipsoid as single_view_ellipsoid,
     stereo_right_T_left as stereo_right_T_left,
@@ -155,6 +158,8 @@ __all__ = [
     "project_points",
     "back_project",
     "single_view_ellipsoid",
+    "depth_from_box_size",
+    "relative_pose",
     "cuboid_corners",
     "CUBOID_CORNER_SIGNS",
     "so3_exp",

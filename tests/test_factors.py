@@ -208,6 +208,9 @@ def test_single_view_init_on_ray_and_matches_texture_plane():
     p = K @ (pose[:3, :3] @ c0 + pose[:3, 3])
     np.testing.assert_allclose(p[:2] / p[2], [(box[0] + box[2]) / 2, (box[1] + box[3]) / 2], atol=1e-8)
     np.testing.assert_allclose(Q.texture_plane_depth(R0, c0, r0, pose)[0], depth, atol=1e-9)
-    # Without a texture plane: the default depth along the optical axis.
-    _, c1, _ = F.single_view_init(pose, box, K, mean, texture_depth=depth, texture_mask=False, default_depth=7.0)
+    # Without a texture plane and with the depth from the box size switched off: the default
+    # depth along the optical axis.
+    _, c1, _ = F.single_view_init(
+        pose, box, K, mean, texture_depth=depth, texture_mask=False, default_depth=7.0, depth_from_box=False
+    )
     np.testing.assert_allclose(Q.camera_depth(c1, pose), 7.0, atol=1e-9)

@@ -625,7 +625,9 @@ def test_texture_depth_places_single_view_initialisation():
     )
     truth = np.array([o[2] for o in CHAIRS])
     assert np.all(np.linalg.norm(np.asarray(center) - truth, axis=-1) < 0.05), center
-    _, far, _ = factors.single_view_init(seq["poses"][3], boxes, seq["K"], mean, default_depth=10.0)
+    _, far, _ = factors.single_view_init(
+        seq["poses"][3], boxes, seq["K"], mean, default_depth=10.0, depth_from_box=False
+    )
     assert np.all(np.linalg.norm(np.asarray(far) - truth, axis=-1) > 5.0)
 
 

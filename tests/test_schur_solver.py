@@ -119,6 +119,9 @@ def test_generic_linearisation_equals_roshans_on_a_map():
 
     generic, roshan = both(est)
     for a, b in zip(generic, roshan):
+        if b is None:  # Hpp_next: only with odometry
+            assert a is None
+            continue
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
 
 

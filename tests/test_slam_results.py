@@ -108,8 +108,8 @@ def test_pose_priors_hold_under_plain_initialisation_forward():
     """QuadricSLAM's initial values (10 m along the first bearing, identity, radii 1 m) on a
     Forward path: cameras stay within 3 sigma of their priors; no object drags them."""
     problem, _ = slam.toy_map(4, num_objects=4, num_frames=24, path="forward", pose_noise=(0.05, 0.0175))
-    cfg = slam.baseline_config(baseline_shape_weight=0.0, max_steps=60)
-    init = slam.initialize(problem, cfg)  # default depth 10 m, class-mean radii ...
+    cfg = slam.baseline_config(baseline_shape_weight=0.0, max_steps=60, depth_from_box=False)
+    init = slam.initialize(problem, cfg)  # fixed default depth 10 m, class-mean radii ...
     init = slam.SlamEstimate(init.camera_T_world, init.rotation, init.center, jnp.ones_like(init.radii))
     est, info = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))(problem, init)
     assert bool(jnp.isfinite(info.cost))

@@ -52,6 +52,15 @@ CONFIG_FLAGS = (
 )
 
 
+def _class_table(args):
+    """The built-in class table plus the rows of ``--classes`` (None without it)."""
+    from jaxsem import classes
+
+    if args.classes is None:
+        return None
+    return classes.ClassTable.from_json(args.classes, base=classes.DEFAULT_TABLE)
+
+
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     src = p.add_mutually_exclusive_group(required=True)
@@ -82,6 +91,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="also save the simulated sequence as a sequence directory here",
     )
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder")
+    p.add_argument(
+        "--classes",
+        type=sc.existing_file,
+        help="JSON file of your own object classes, added to the built-in ones: "
+        '{"classes": [{"name": "mug", "dimensions": [x, y, z] (full extents, m), '
+        '"sigma": [x, y, z] (m), "shape": "cylinder"}]} (jaxsem.classes.ClassTable.from_json)',
+    )
     p.add_argument(
         "--baseline",
         action="store_true",
@@ -175,9 +191,9 @@ def main(argv=None, prog: str | None = None) -> int:
         if args.write_sequence:
             print(f"wrote {slam.save_sequence(sequence, args.write_sequence)}")
     elif args.tum:
-        sequence = slam.load_tum_sequence(args.tum, args.detections)
+        sequence = slam.load_tum_sequence(args.tum, args.detections, classes=_class_table(args))
     else:
-        sequence = slam.load_sequence(args.sequence)
+        sequence = slam.load_sequence(args.sequence, classes=_class_table(args))
     config = solver_config(args, sim_cfg, sequence)
     n = len(sequence.frames)
     print(

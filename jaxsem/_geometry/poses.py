@@ -26,6 +26,7 @@ from ._common import (
     _matvec,
     _namespace,
     _pose_ok,
+    _safe_norm,
 )
 
 # --------------------------------------------------------------------------------------------
@@ -165,6 +166,77 @@ def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
     center = jnp.broadcast_to(center, batch + (3,))
     rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
     return rotation, center, jnp.broadcast_to(radii.astype(center.dtype), batch + (3,))
+
+
+def relative_pose(camera_T_world_a, camera_T_world_b, *, xp: Any = jnp):
+    """The pose of camera ``b`` in camera ``a``'s frame, ``a_T_b = camera_T_world_a @ world_T_camera_b``
+    (..., 4, 4): what an odometry measures between two frames, and the mean of
+    :func:`jaxsem.factors.between_residual`. ``camera_T_world_b = invert_pose(a_T_b) @ camera_T_world_a``."""
+    xp = _namespace(xp)
+    a = _as_float_array("camera_T_world_a", camera_T_world_a, (4, 4), check_finite=True, xp=xp)
+    b = _as_float_array("camera_T_world_b", camera_T_world_b, (4, 4), check_finite=True, xp=xp)
+    dtype = xp.result_type(a.dtype, b.dtype)
+    return a.astype(dtype) @ invert_pose(b.astype(dtype), xp=xp)
+
+
+def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=None):
+    """Camera depth (z) at which an ellipsoid of known size appears as large as a measured box.
+
+    An object of size ``2 h`` whose box spans the angle ``a`` is at range ``h / sin(a / 2)``
+    (about ``f * 2 h / box size`` in pixels): the depth a single-view initialisation needs when
+    there is no depth measurement, so that a tabletop object starts near 0.8 m and a car in a
+    street near 15 m. ``h`` is the half-extent of the ellipsoid (oriented by ``rotation``,
+    default the identity: object axes = world axes, as :func:`single_view_ellipsoid` places
+    it) along the camera's x (for the box width) and y (for its height); the two are combined
+    by least squares in inverse range over the box sides whose two edges both constrain
+    (``edge_mask``: a side cut by the image border only gives an upper bound and is left out).
+    The range along the ray through the box centre is returned as camera z.
+
+    Args:
+      box: (..., 4) ``[u_min, v_min, u_max, v_max]``; K: (..., 3, 3); camera_T_world: (..., 4, 4).
+      radii: (..., 3) semi-axes; rotation: optional (..., 3, 3) object-to-world.
+      edge_mask: optional (..., 4) bool, which edges constrain (default all).
+
+    Returns:
+      ``(depth (...), ok (...))``: depth in metres, at least 1.01 times the largest semi-axis
+      beyond the camera (the camera outside the object); ``ok`` False where no side of the box
+      constrains (then ``depth`` is a finite placeholder: use a default). Jittable, finite
+      gradients.
+    """
+    box = _as_float_array("box", box, (4,))
+    radii = _as_float_array("radii", radii, (3,))
+    K, pose = _camera_args(K, camera_T_world)
+    dtype = jnp.result_type(box.dtype, radii.dtype, K.dtype, pose.dtype, float)
+    box, radii, K, pose = box.astype(dtype), radii.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    R = pose[..., :3, :3]
+    if rotation is not None:
+        R = R @ jnp.asarray(rotation, dtype)
+    # Half-extent of the ellipsoid along camera axis i: sqrt(sum_k (R_co[i, k] r_k)^2).
+    half = _safe_norm(R * radii[..., None, :], jnp, axis=-1)  # (..., 3)
+    fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    fy, cy = K[..., 1, 1], K[..., 1, 2]
+    y0, y1 = (box[..., 1] - cy) / fy, (box[..., 3] - cy) / fy
+    yc = 0.5 * (y0 + y1)
+    x0, x1 = (box[..., 0] - cx - s * yc) / fx, (box[..., 2] - cx - s * yc) / fx
+    sin_u = jnp.sin(0.5 * jnp.clip(jnp.arctan(x1) - jnp.arctan(x0), 0.0, jnp.pi))
+    sin_v = jnp.sin(0.5 * jnp.clip(jnp.arctan(y1) - jnp.arctan(y0), 0.0, jnp.pi))
+    if edge_mask is None:
+        wu = wv = jnp.ones(box.shape[:-1], dtype)
+    else:
+        edge_mask = jnp.asarray(edge_mask, bool)
+        wu = (edge_mask[..., 0] & edge_mask[..., 2]).astype(dtype)
+        wv = (edge_mask[..., 1] & edge_mask[..., 3]).astype(dtype)
+    hx, hy = half[..., 0], half[..., 1]
+    # Least squares of sin(a / 2) = h / range over the constraining sides, in 1 / range.
+    num = wu * sin_u * hx + wv * sin_v * hy
+    den = wu * hx * hx + wv * hy * hy
+    ok = (den > 0) & (num > 0)
+    inv_range = jnp.where(ok, num / jnp.where(ok, den, 1.0), 1.0)
+    rng = 1.0 / inv_range
+    rng = jnp.maximum(rng, 1.01 * jnp.max(radii, axis=-1))
+    # Camera z of the point at that range on the ray through the box centre.
+    ray_z = 1.0 / _safe_norm(jnp.stack([0.5 * (x0 + x1), yc, jnp.ones_like(yc)], -1), jnp, axis=-1)
+    return rng * ray_z, ok
 
 
 # Corner order of NVIDIA's NDDS exporter, used by the Falling Things dataset (FAT) and DOPE:

@@ -98,6 +98,9 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
         texture_depth=problem.texture_depth[last],
         texture_mask=tex_mask,
         default_depth=config.default_depth,
+        depth_from_box=config.depth_from_box,
+        image_size=problem.image_size,
+        border_margin=config.border_margin,
     )
     pick = lambda new, old: jnp.where(lost.reshape(lost.shape + (1,) * (old.ndim - 1)), new, old)
     return _replace(est, rotation=pick(R, est.rotation), center=pick(c, est.center), radii=pick(r, est.radii)), lost

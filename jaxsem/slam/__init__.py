@@ -10,6 +10,12 @@ any residual function with pose and landmark blocks), :func:`solve_batch` (it, b
 dense, differentiable one), :func:`solve_schur`, and the online smoother :func:`online_init` /
 :func:`online_update` / :func:`online_estimate`. Every solver reports a :data:`RESULTS` code
 (``throw=`` to raise instead); :func:`baseline_config` is the thesis' baseline.
+
+A problem keeps the class table it was built with (``make_problem(..., classes=ClassTable)``,
+:class:`jaxsem.classes.ClassTable`); odometry between consecutive poses is
+``make_problem(..., odometry=...)`` (between factors, :func:`jaxsem.factors.between_residual`;
+the batch solvers handle it, the online smoother does not yet). Objects without a depth
+measurement start where their class size matches their box (``SolverConfig.depth_from_box``).
 """
 
 from ._batch import (

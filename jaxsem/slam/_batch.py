@@ -42,6 +42,7 @@ from ._cost import (
     total_cost,
     zero_delta,
 )
+from ._init import initialize
 from ._problem import SlamEstimate, SlamProblem, SolverConfig
 from ._results import RESULTS
 from ._schur import (
@@ -79,7 +80,7 @@ class SolveInfo(eqx.Module):
     rescued: jnp.ndarray
 
 
-def _cast(problem: SlamProblem, init: SlamEstimate):
+def _cast(problem: SlamProblem, init: SlamEstimate) -> SlamEstimate:
     """Float leaves of the estimate in the problem's dtype (float32 problems stay float32 under
     x64; the loop carries keep one dtype)."""
     dtype = problem.pose_prior.dtype
@@ -112,7 +113,7 @@ def _residual_fn(delta, args):
 
 def solve_batch(
     problem: SlamProblem,
-    init: SlamEstimate,
+    init: SlamEstimate | None = None,
     config: SolverConfig = SolverConfig(),
     *,
     method: str = "schur",
@@ -122,7 +123,8 @@ def solve_batch(
 
     Args:
       problem: :class:`SlamProblem` (T poses, M boxes, J objects, padded with masks).
-      init: :class:`SlamEstimate` to start from (e.g. :func:`jaxsem.slam.initialize`).
+      init: :class:`SlamEstimate` to start from; None: :func:`jaxsem.slam.initialize` with this
+        ``config`` (the solver's own class table, depth rule and texture use).
       config: :class:`SolverConfig`; :func:`jaxsem.slam.baseline_config` is the thesis' baseline.
       method: ``"schur"`` (:func:`solve_schur`, the default: structured, fast) or
         ``"optimistix"`` (dense LM, differentiable by the implicit adjoint, but slow to
@@ -137,7 +139,7 @@ def solve_batch(
         return solve_schur(problem, init, config, throw=throw)
     if method != "optimistix":
         raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
-    init = _cast(problem, init)
+    init = _cast(problem, initialize(problem, config) if init is None else init)
     dtype = init.center.dtype
     solver = optx.LevenbergMarquardt(rtol=config.rtol, atol=config.atol)  # pyright: ignore[reportArgumentType]
     args = (problem, init, config)
@@ -257,12 +259,13 @@ def levenberg_marquardt(
 # Rescue of stranded objects (robust to a plain initialisation).
 
 
-def _triangulate(problem: SlamProblem, est: SlamEstimate):
+def _triangulate(problem: SlamProblem, est: SlamEstimate, min_depth):
     """Least-squares intersection of the rays through the box centres of each object.
 
     Returns ``(point (J, 3), ok (J,))``; ``ok`` when the rays are well spread (smallest
     eigenvalue of ``sum(I - d d^T)`` over the object's boxes at least 1e-3 per ray, i.e. about
-    2 deg of parallax) and the point is at least 1 m in front of every camera that saw it.
+    2 deg of parallax) and the point is at least ``min_depth`` (``SolverConfig.min_depth``) in
+    front of every camera that saw it.
     """
     from ..quadrics import back_project, invert_pose
 
@@ -285,7 +288,7 @@ def _triangulate(problem: SlamProblem, est: SlamEstimate):
     A_safe = jnp.where(well[:, None, None], A, jnp.eye(3, dtype=dtype))
     point = jnp.linalg.solve(A_safe, b[..., None])[..., 0]
     z = jnp.einsum("mj,mj->m", poses[:, 2, :3], point[bo]) + poses[:, 2, 3]
-    behind = jnp.zeros(J, bool).at[bo].max(bm & (z < 1.0))
+    behind = jnp.zeros(J, bool).at[bo].max(bm & (z < jnp.asarray(min_depth, dtype)))
     return point, well & ~behind & jnp.all(jnp.isfinite(point), -1)
 
 
@@ -295,7 +298,7 @@ def _rescue(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
     re-placed there (rotation and radii kept)."""
     invalid, rms = box_health(problem, est, config)
     suspect = (invalid | (rms > config.unfixable_rms)) & problem.object_mask
-    point, ok = _triangulate(problem, est)
+    point, ok = _triangulate(problem, est, config.min_depth)
     move = suspect & ok
     center = jnp.where(move[:, None], point, est.center)
     return (
@@ -313,7 +316,7 @@ def _mask_objects(problem: SlamProblem, keep) -> SlamProblem:
 @functools.partial(jax.jit, static_argnames=("max_steps", "throw"))
 def solve_schur(
     problem: SlamProblem,
-    init: SlamEstimate,
+    init: SlamEstimate | None = None,
     config: SolverConfig = SolverConfig(),
     *,
     max_steps: int | None = None,
@@ -337,7 +340,8 @@ def solve_schur(
     Without stranded objects phases 1-2 cost one health check and one linearisation.
 
     Args:
-      problem, init, config: as :func:`solve_batch`.
+      problem, init, config: as :func:`solve_batch` (``init`` None: :func:`jaxsem.slam.initialize`
+        with ``config``).
       max_steps: static step cap per phase (default ``config.max_steps``).
       pose_free: optional (T,) bool/float, poses held fixed where False (a sliding window).
       throw: raise at run time when the result is not successful.
@@ -347,10 +351,11 @@ def solve_schur(
     Returns:
       (estimate, :class:`SolveInfo`). ``info.result`` follows phase 3 (or phase 2 when it
       failed non-finitely), and is ``nonfinite`` whenever the input, the final state or the
-      final cost is not finite.
+      final cost is not finite; a phase 3 that met the stopping rule while some real object is
+      unfixable reports ``RESULTS.unfixable_objects``, never ``successful``.
     """
     max_steps = config.max_steps if max_steps is None else int(max_steps)
-    init = _cast(problem, init)
+    init = _cast(problem, initialize(problem, config) if init is None else init)
     dtype = init.center.dtype
     J = init.center.shape[0]
     if pose_free is None:
@@ -391,6 +396,8 @@ def solve_schur(
     cost = total_cost(problem, est, config)
     finite = input_finite & _all_finite(est) & jnp.isfinite(cost) & jnp.isfinite(cost0)
     result = RESULTS.where(code_a == RESULTS.nonfinite, RESULTS.nonfinite, code)
+    some_unfixable = jnp.any(unfixable & obj_used)
+    result = RESULTS.where((result == RESULTS.successful) & some_unfixable, RESULTS.unfixable_objects, result)
     result = RESULTS.where(finite, result, RESULTS.nonfinite)
     info = SolveInfo(
         result=result,

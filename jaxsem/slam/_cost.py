@@ -7,9 +7,12 @@ Variables are updated as tangent deltas around an anchor estimate (:class:`Delta
 Residual blocks (whitened, masked entries exactly zero):
 
 - boxes: (M, 7) = 4 edges, near-depth barrier, camera-inside barrier, texture plane;
-- pose priors: (T, 6); shape priors: (J, 3).
+- pose priors: (T, 6); shape priors: (J, 3);
+- odometry (only when the problem has it): (T, 6), row ``t`` between poses ``t`` and ``t + 1``.
 
-Each box row touches exactly one pose and one ellipsoid, which the structured solver exploits.
+Each box row touches exactly one pose and one ellipsoid, which the structured solver exploits;
+an odometry row touches two consecutive poses (the pose blocks become block-tridiagonal,
+:class:`Normal`'s ``Hpp_next``).
 """
 
 from __future__ import annotations
@@ -107,8 +110,11 @@ def retract(estimate: SlamEstimate, delta: Delta) -> SlamEstimate:
     return SlamEstimate(retract_pose(estimate.camera_T_world, delta.pose), R, c, r)
 
 
-def class_table(config: SolverConfig, dtype):
-    mean, sigma = F.shape_prior_table(dtype)
+def class_table(config: SolverConfig, dtype, problem: SlamProblem | None = None):
+    """``(mean (C, 3), sigma (C, 3))`` semi-axis shape priors a solve uses: the problem's class
+    table (``problem.classes``, the built-in one when None), each array overridden by the
+    config's ``shape_prior_mean`` / ``shape_prior_sigma`` when set."""
+    mean, sigma = F.shape_prior_table(dtype, None if problem is None else problem.classes)
     if config.shape_prior_mean is not None:
         mean = jnp.asarray(config.shape_prior_mean, dtype)
     if config.shape_prior_sigma is not None:
@@ -170,6 +176,22 @@ def pose_rows(pose, prior, mask, config: SolverConfig):
     return jnp.where(mask, r, 0.0)
 
 
+def odometry_rows(pose_a, pose_b, measured, mask, config: SolverConfig):
+    """(6,) whitened odometry rows between two poses (:func:`jaxsem.factors.between_residual`
+    with the config's odometry sigmas and the pose loss; zero where ``mask`` is False)."""
+    n = config.noise
+    r = F.between_residual(pose_a, pose_b, measured, n.odometry_rotation_sigma, n.odometry_translation_sigma)
+    r = F.robust_residual(r, config.pose_loss, config.robust_scale)
+    return jnp.where(mask, r, 0.0)
+
+
+def _odometry_block(problem: SlamProblem, poses, config: SolverConfig):
+    nxt = jnp.roll(poses, -1, axis=0)
+    return jax.vmap(odometry_rows, in_axes=(0, 0, 0, 0, None))(
+        poses, nxt, problem.odometry, problem.odometry_mask, config
+    )
+
+
 def shape_weight(config: SolverConfig, dtype):
     """Multiplier of the whitened shape residual: ROSHAN's prior, or the baseline's weak one."""
     if config.use_shape_prior:
@@ -186,9 +208,10 @@ def shape_rows(radii, object_class, mask, config: SolverConfig, mean, sigma):
 
 
 def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
-    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3))``."""
+    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3))``, and ``odometry (T, 6)``
+    as a fourth block when the problem has odometry (``problem.odometry`` not None)."""
     dtype = estimate.center.dtype
-    mean, sigma = class_table(config, dtype)
+    mean, sigma = class_table(config, dtype, problem)
     bp, bo = problem.box_pose, problem.box_object
     boxes = jax.vmap(box_rows, in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, None, None))(
         estimate.camera_T_world[bp],
@@ -209,6 +232,8 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     shapes = jax.vmap(shape_rows, in_axes=(0, 0, 0, None, None, None))(
         estimate.radii, problem.object_class, problem.object_mask, config, mean, sigma
     )
+    if problem.odometry is not None:
+        return boxes, poses, shapes, _odometry_block(problem, estimate.camera_T_world, config)
     return boxes, poses, shapes
 
 
@@ -227,7 +252,9 @@ class Normal(NamedTuple):
 
     ``Hpp`` (T, 6, 6) pose blocks, ``Hoo`` (J, 9, 9) object blocks, ``Hpo`` (T, J, 6, 9) the
     pose-object coupling, ``gp`` (T, 6) and ``go`` (J, 9) the gradient. ``cost`` () is
-    ``0.5 * sum(r**2)`` at the linearisation point (:func:`total_cost`).
+    ``0.5 * sum(r**2)`` at the linearisation point (:func:`total_cost`). ``Hpp_next`` (T, 6, 6)
+    (only with odometry, else None) couples consecutive poses: block ``(t, t + 1)`` of the
+    pose-pose matrix, which is then block-tridiagonal (its transpose is block ``(t + 1, t)``).
     """
 
     Hpp: jnp.ndarray
@@ -236,6 +263,7 @@ class Normal(NamedTuple):
     gp: jnp.ndarray
     go: jnp.ndarray
     cost: jnp.ndarray
+    Hpp_next: jnp.ndarray | None = None
 
 
 def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pose_free) -> Normal:
@@ -247,7 +275,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     ``pose_free`` (T,) is 0 are held: their columns vanish.
     """
     dtype = est.center.dtype
-    mean, sigma = class_table(config, dtype)
+    mean, sigma = class_table(config, dtype, problem)
     bp, bo = problem.box_pose, problem.box_object
     T, J = est.camera_T_world.shape[0], est.center.shape[0]
 
@@ -338,9 +366,27 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     go = jnp.zeros((J, 9), dtype).at[bo].add(jnp.einsum("mij,mi->mj", Jo, rb))
     go = go + jnp.einsum("jik,ji->jk", Js, rs)
     Hpo = jnp.zeros((T, J, 6, 9), dtype).at[bp, bo].add(JpT @ Jo)
-    gp = gp * pose_free[:, None]
     cost = 0.5 * (jnp.sum(jnp.square(rb)) + jnp.sum(jnp.square(rp)) + jnp.sum(jnp.square(rs)))
-    return Normal(Hpp, Hoo, Hpo, gp, go, cost)
+    Hnext = None
+    if problem.odometry is not None:
+        # Row t ties pose t (columns a) to pose t + 1 (columns b); the last row is masked out.
+        def odo_fn(da, db, pa, pb, meas, mask):
+            out = odometry_rows(first_order_pose(pa, da), first_order_pose(pb, db), meas, mask, config)
+            return out, out
+
+        nxt = jnp.roll(est.camera_T_world, -1, axis=0)
+        (Ja, Jb), ro = jax.vmap(jax.jacfwd(odo_fn, argnums=(0, 1), has_aux=True), in_axes=(None, None, 0, 0, 0, 0))(
+            z6, z6, est.camera_T_world, nxt, problem.odometry, problem.odometry_mask
+        )
+        Ja = Ja * pose_free[:, None, None]
+        Jb = Jb * jnp.roll(pose_free, -1)[:, None, None]
+        JaT, JbT = jnp.swapaxes(Ja, -1, -2), jnp.swapaxes(Jb, -1, -2)
+        Hpp = Hpp + JaT @ Ja + jnp.roll(JbT @ Jb, 1, axis=0)
+        gp = gp + jnp.einsum("tij,ti->tj", Ja, ro) + jnp.roll(jnp.einsum("tij,ti->tj", Jb, ro), 1, axis=0)
+        Hnext = JaT @ Jb
+        cost = cost + 0.5 * jnp.sum(jnp.square(ro))
+    gp = gp * pose_free[:, None]
+    return Normal(Hpp, Hoo, Hpo, gp, go, cost, Hnext)
 
 
 def box_health(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):

@@ -9,18 +9,20 @@ from ._cost import class_table
 from ._problem import SlamEstimate, SlamProblem, SolverConfig
 
 
-def initialize(problem: SlamProblem, config: SolverConfig = SolverConfig()) -> SlamEstimate:
+def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     """Initial estimate: poses = pose priors; each object from its first (lowest-index) box.
 
-    The centre is on the ray through that box's centre, at the texture-plane depth plus the
-    class-mean half-extent when ``config.use_texture`` and the box has a texture measurement,
-    else at ``config.default_depth``; identity rotation; class-mean radii
-    (:func:`jaxsem.factors.single_view_init`). Objects without any box (or masked) get a finite
-    placeholder (class-mean radii at the world origin) and have no effect on the cost.
-    Jittable and vmappable over problems.
+    ``config`` is required: it is the solver's (pass the config you solve with). The centre is
+    on the ray through that box's centre, at the texture-plane depth plus the class-mean
+    half-extent when ``config.use_texture`` and the box has a texture measurement, else where
+    the class-mean ellipsoid appears as large as the box (``config.depth_from_box``, the
+    default) or at ``config.default_depth``; identity rotation; class-mean radii of the
+    problem's class table (or the config's override) (:func:`jaxsem.factors.single_view_init`).
+    Objects without any box (or masked) get a finite placeholder (class-mean radii at the world
+    origin) and have no effect on the cost. Jittable and vmappable over problems.
     """
     dtype = problem.pose_prior.dtype
-    mean, _ = class_table(config, dtype)
+    mean, _ = class_table(config, dtype, problem)
     M = problem.box.shape[0]
     J = problem.object_class.shape[0]
     idx = jnp.arange(M)
@@ -39,6 +41,9 @@ def initialize(problem: SlamProblem, config: SolverConfig = SolverConfig()) -> S
         texture_depth=problem.texture_depth[first],
         texture_mask=tex_mask,
         default_depth=config.default_depth,
+        depth_from_box=config.depth_from_box,
+        image_size=problem.image_size,
+        border_margin=config.border_margin,
     )
     c = jnp.where(has_box[:, None], c, 0.0)
     return SlamEstimate(problem.pose_prior, R, c, r)

@@ -27,7 +27,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .. import factors as F
+from .. import classes as _classes, factors as F
 from ._batch import levenberg_marquardt
 from ._cost import class_table
 from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, SolverConfig
@@ -74,6 +74,7 @@ def online_init(
     iterations: int = 3,
     window: int | None = None,
     dtype=None,
+    classes=None,
 ) -> OnlineState:
     """Empty smoother.
 
@@ -84,6 +85,8 @@ def online_init(
       optimize_every: relinearise and optimise every this many frames (>= 1).
       iterations: LM iterations per optimisation.
       window: number of most recent frames whose poses are optimised (default: all kept).
+      classes: the :class:`jaxsem.classes.ClassTable` of the frames' ``box_class`` (default: the
+        built-in table; build frames with ``make_frame(..., classes=...)`` of the same table).
     """
     import numpy as np
 
@@ -125,6 +128,7 @@ def online_init(
         texture_mask=put(np.zeros(B), bool),
         object_class=put(np.zeros(J), np.int32),
         object_mask=put(np.zeros(J), bool),
+        classes=None if classes is None else _classes.as_table(classes),
     )
     estimate = SlamEstimate(
         camera_T_world=eye4,
@@ -188,7 +192,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     det = frame.box_mask & (frame.object_id >= 0) & (frame.object_id < J)
     oid = jnp.clip(frame.object_id, 0, J - 1)
     is_new = det & ~pb.object_mask[oid]
-    mean, _ = class_table(cfg, dtype)
+    mean, _ = class_table(cfg, dtype, pb)
     tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
     R0, c0, r0 = F.single_view_init(
         prior,
@@ -198,6 +202,9 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         texture_depth=frame.texture_depth.astype(dtype),
         texture_mask=tex_ok,
         default_depth=cfg.default_depth,
+        depth_from_box=cfg.depth_from_box,
+        image_size=pb.image_size,
+        border_margin=cfg.border_margin,
     )
     # A detection that carries an initial ellipsoid (Frame.init_*) starts its new object there.
     given = frame.init_mask & is_new
@@ -235,6 +242,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         texture_mask=tex_mask,
         object_class=object_class,
         object_mask=object_mask,
+        classes=pb.classes,
     )
     estimate = SlamEstimate(cam, rotation, center, radii)
     return OnlineState(

@@ -8,8 +8,10 @@ Index conventions:
 
 - poses ``t`` in ``[0, T)``, boxes ``m`` in ``[0, M)``, objects ``j`` in ``[0, J)``;
 - ``box_pose[m]`` / ``box_object[m]`` say which pose saw box ``m`` and which object it is;
-- ``object_class[j]`` indexes the class table :data:`jaxsem.factors.CLASS_NAMES`
-  (``jaxsem.factors.class_index("car")``);
+- ``object_class[j]`` indexes the problem's class table ``problem.classes`` (a
+  :class:`jaxsem.classes.ClassTable`; ``None`` is the built-in :data:`jaxsem.classes.DEFAULT_TABLE`,
+  whose names are :data:`jaxsem.factors.CLASS_NAMES`);
+- ``odometry[t]`` (optional) is the measured motion from pose ``t`` to pose ``t + 1``;
 - padded entries have ``mask == False``; their index fields must still be in range (use 0).
 
 Build problems from numpy with :func:`make_problem` (validates and raises ``ValueError``); the
@@ -25,6 +27,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from .. import classes as _classes
 
 __all__ = [
     "Capacity",
@@ -58,8 +62,18 @@ class SlamProblem(eqx.Module):
       box_mask: (M,) bool, True for real boxes.
       texture_depth: (M,) metres, texture-plane depth measured with box ``m`` (eq. 4.11).
       texture_mask: (M,) bool, True where a texture-plane measurement exists.
-      object_class: (J,) int32 index into :data:`jaxsem.factors.CLASS_NAMES`.
+      object_class: (J,) int32 index into the class table ``classes``.
       object_mask: (J,) bool, True for real objects.
+      classes: static :class:`jaxsem.classes.ClassTable` the problem was built with (``None``:
+        the built-in :data:`jaxsem.classes.DEFAULT_TABLE`). The solvers take each object's shape
+        prior from it (unless ``SolverConfig.shape_prior_mean`` / ``shape_prior_sigma`` override
+        the arrays), so a problem keeps the table it was built with.
+      odometry: optional (T, 4, 4) relative motions: ``odometry[t]`` is the measured pose of
+        camera ``t + 1`` in the frame of camera ``t`` (``camera_t_T_camera_t+1``, as
+        :func:`jaxsem.quadrics.relative_pose`), the mean of the between factor
+        :func:`jaxsem.factors.between_residual`; ``None`` (the default): no odometry factors.
+      odometry_mask: (T,) bool, True where ``odometry[t]`` is measured (never for the last
+        pose, nor where pose ``t`` or ``t + 1`` is masked out); given with ``odometry``.
     """
 
     K: jnp.ndarray
@@ -74,6 +88,9 @@ class SlamProblem(eqx.Module):
     texture_mask: jnp.ndarray
     object_class: jnp.ndarray
     object_mask: jnp.ndarray
+    classes: _classes.ClassTable | None = eqx.field(static=True, default=None)
+    odometry: jnp.ndarray | None = None
+    odometry_mask: jnp.ndarray | None = None
 
     @property
     def num_poses(self) -> int:
@@ -110,7 +127,8 @@ class Frame(eqx.Module):
     Attributes:
       pose_prior: (4, 4) ``camera_T_world`` from odometry / VIO.
       box: (D, 4) detected boxes ``[u_min, v_min, u_max, v_max]`` in pixels.
-      box_class: (D,) int32 class index into :data:`jaxsem.factors.CLASS_NAMES`.
+      box_class: (D,) int32 class index into the smoother's class table (``online_init(..., classes=)``;
+        the built-in one, :data:`jaxsem.factors.CLASS_NAMES`, by default).
       texture_depth: (D,) metres (ignored where ``texture_mask`` is False).
       texture_mask: (D,) bool.
       object_id: (D,) int32 association id of each detection, in ``[0, capacity.max_objects)``;
@@ -202,6 +220,8 @@ class NoiseModel(eqx.Module):
     Attributes:
       pose_rotation_sigma: radians, pose-prior rotation noise (per tangent axis).
       pose_translation_sigma: metres, pose-prior translation noise (per axis).
+      odometry_rotation_sigma: radians, noise of one odometry step's rotation (per tangent axis).
+      odometry_translation_sigma: metres, noise of one odometry step's translation (per axis).
       box_sigma: pixels, per box edge.
       texture_sigma: metres, texture-plane depth.
       shape_prior_scale: multiplies the class table's per-axis sigmas (1.0 = the table).
@@ -209,6 +229,8 @@ class NoiseModel(eqx.Module):
 
     pose_rotation_sigma: float | jnp.ndarray = 0.0175
     pose_translation_sigma: float | jnp.ndarray = 0.05
+    odometry_rotation_sigma: float | jnp.ndarray = 0.0087
+    odometry_translation_sigma: float | jnp.ndarray = 0.02
     box_sigma: float | jnp.ndarray = 3.0
     texture_sigma: float | jnp.ndarray = 0.3
     shape_prior_scale: float | jnp.ndarray = 1.0
@@ -240,6 +262,7 @@ class InitConfig(eqx.Module):
     objects. Fields as the same-named ones of :class:`SolverConfig`."""
 
     default_depth: float | jnp.ndarray = 10.0
+    depth_from_box: bool = eqx.field(static=True, default=True)
     robust_init: bool = eqx.field(static=True, default=True)
     unfixable_rms: float | jnp.ndarray = 5.0
     rescue_rtol: float | jnp.ndarray = 1e-2
@@ -275,7 +298,8 @@ class SolverConfig(eqx.Module):
     the benchmarks. QuadricSLAM's own factor set (no shape term at all) is
     ``baseline_config(baseline_shape_weight=0.0)``. The class table (``shape_prior_mean``,
     ``shape_prior_sigma``, both (C, 3) semi-axis radii in metres) is a traced field so one can
-    differentiate through it; ``None`` means the table of :data:`jaxsem.factors.SHAPE_PRIORS`.
+    differentiate through it; ``None`` means the problem's own table (``problem.classes``, the
+    table :func:`make_problem` was given; the built-in one by default).
 
     Stopping rule (as GTSAM's ``LevenbergMarquardtParams`` defaults): an accepted step whose
     cost decrease is at most ``atol`` (absolute, in units of ``0.5 * sum(r**2)``) or at most
@@ -294,7 +318,13 @@ class SolverConfig(eqx.Module):
       box_loss, texture_loss, shape_loss, pose_loss: static robust loss names per factor type,
         ``"l2"``, ``"huber"`` or ``"cauchy"``.
       robust_scale: threshold of the robust losses in whitened units (sigmas).
-      default_depth: metres, single-view initialisation depth without a texture plane.
+      default_depth: metres, single-view initialisation depth without a texture plane when
+        ``depth_from_box`` is False, or when the box cannot give one (every edge at the border).
+      depth_from_box: static; without a texture plane, a single-view initialisation places the
+        object at the depth where the class-mean ellipsoid would project to the size of its box
+        (:func:`jaxsem.quadrics.depth_from_box_size`): the solver follows the scene's scale (a
+        tabletop at 0.8 m, a street at 15 m). False: the fixed ``default_depth`` (the behaviour
+        before stop 23, QuadricSLAM's initialisation).
       max_steps: static, Levenberg-Marquardt step cap (trial steps, rejected ones included) per
         phase of a solve.
       rtol, atol: the stopping rule above (traced floats: vmappable, no recompile).
@@ -328,6 +358,7 @@ class SolverConfig(eqx.Module):
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = 2.0
     default_depth: float | jnp.ndarray = 10.0
+    depth_from_box: bool = eqx.field(static=True, default=True)
     max_steps: int = eqx.field(static=True, default=100)
     rtol: float | jnp.ndarray = 1e-5
     atol: float | jnp.ndarray = 1e-5
@@ -439,27 +470,37 @@ def make_problem(
     object_mask=None,
     capacity: tuple[int, int, int] | None = None,
     dtype=None,
+    classes: _classes.ClassTable | None = None,
+    odometry=None,
+    odometry_mask=None,
 ) -> SlamProblem:
     """Validated :class:`SlamProblem` from numpy-like inputs, optionally padded to capacity.
 
     Args:
       K: (3, 3) intrinsics. image_size: (2,) ``[width, height]``.
       pose_prior: (T, 4, 4) ``camera_T_world``; box: (M, 4); box_pose, box_object: (M,) ints.
-      object_class: (J,) class indices, or class names (``"car"``) resolved with
-        :func:`jaxsem.factors.class_index`.
+      object_class: (J,) class indices, or class names (``"car"``) resolved in ``classes``.
       texture_depth: optional (M,) metres; entries that are NaN are treated as missing.
       texture_mask: optional (M,) bool (default: where ``texture_depth`` is finite and positive).
       pose_mask, box_mask, object_mask: optional masks (default all True).
       capacity: optional ``(T_cap, M_cap, J_cap)`` to pad to (>= the data sizes).
       dtype: float dtype of the arrays (default: jax's default float).
+      classes: the :class:`jaxsem.classes.ClassTable` of ``object_class`` (default: the built-in
+        :data:`jaxsem.classes.DEFAULT_TABLE`); the problem keeps it (``problem.classes``) and
+        the solvers read each object's shape prior from it.
+      odometry: optional (T - 1, 4, 4) relative motions between consecutive poses:
+        ``odometry[t]`` is the measured pose of camera ``t + 1`` in camera ``t``'s frame
+        (:func:`jaxsem.quadrics.relative_pose` of the two ``camera_T_world``), each a between
+        factor with ``NoiseModel.odometry_*_sigma``. Default: none (pose priors only).
+      odometry_mask: optional (T - 1,) bool, which steps are measured (default: all; a step
+        touching a masked-out pose is dropped).
 
     Raises:
       ValueError: wrong shapes, non-finite K or poses, NaN or inverted boxes, class names not
         in the table, box indices that refer to poses or objects that do not exist (or are
         masked out: "detections for frames never posed"), non-positive image size.
     """
-    from .. import factors as _factors
-
+    table = _classes.as_table(classes)
     dtype = dtype or jnp.result_type(float)
     K = _np("K", K, (3, 3))
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
@@ -482,17 +523,8 @@ def make_problem(
     for name, arr in (("box_pose", box_pose), ("box_object", box_object)):
         if arr.shape != (M,):
             raise ValueError(f"{name}: expected shape ({M},) to match box, got {arr.shape}")
-    object_class = np.asarray(object_class)
-    if object_class.dtype.kind in "USO":
-        object_class = np.array([_factors.class_index(str(c)) for c in object_class.reshape(-1)])
-    object_class = object_class.astype(np.int64).reshape(-1)
+    object_class = table.indices(object_class, "object_class")
     J = object_class.shape[0]
-    n_classes = len(_factors.CLASS_NAMES)
-    if np.any((object_class < 0) | (object_class >= n_classes)):
-        raise ValueError(
-            f"object_class: indices must be in [0, {n_classes}) (classes {list(_factors.CLASS_NAMES)}), "
-            f"got {object_class.tolist()}"
-        )
     pose_mask = np.ones(T, bool) if pose_mask is None else _np("pose_mask", pose_mask, None, bool).reshape(-1)
     box_mask = np.ones(M, bool) if box_mask is None else _np("box_mask", box_mask, None, bool).reshape(-1)
     object_mask = np.ones(J, bool) if object_mask is None else _np("object_mask", object_mask, None, bool).reshape(-1)
@@ -538,6 +570,24 @@ def make_problem(
             texture_mask = texture_mask & tex_default
     texture_mask = texture_mask & box_mask
     texture_depth = np.where(texture_mask, texture_depth, 0.0)
+    if odometry is not None:
+        odometry = _np("odometry", odometry, (4, 4))
+        if odometry.shape != (max(T - 1, 0), 4, 4):
+            raise ValueError(
+                f"odometry: expected shape ({T - 1}, 4, 4) (one step between consecutive poses), got {odometry.shape}"
+            )
+        if not np.all(np.isfinite(odometry)):
+            raise ValueError("odometry: must be finite, got NaN or inf")
+        if odometry_mask is None:
+            odometry_mask = np.ones(T - 1, bool)
+        odometry_mask = _np("odometry_mask", odometry_mask, None, bool).reshape(-1)
+        if odometry_mask.shape != (T - 1,):
+            raise ValueError(f"odometry_mask: expected shape ({T - 1},), got {odometry_mask.shape}")
+        odometry_mask = odometry_mask & pose_mask[:-1] & pose_mask[1:]
+        odometry = np.concatenate([odometry, np.eye(4)[None]])
+        odometry_mask = np.concatenate([odometry_mask, np.zeros(1, bool)])
+    elif odometry_mask is not None:
+        raise ValueError("odometry_mask: given without odometry")
 
     if capacity is not None:
         Tc, Mc, Jc = capacity
@@ -556,6 +606,9 @@ def make_problem(
         texture_mask = np.concatenate([texture_mask, np.zeros(Mc - M, bool)])
         object_class = np.concatenate([object_class, np.zeros(Jc - J, np.int64)])
         object_mask = np.concatenate([object_mask, np.zeros(Jc - J, bool)])
+        if odometry is not None and odometry_mask is not None:
+            odometry = np.concatenate([odometry, np.broadcast_to(np.eye(4), (Tc - T, 4, 4))])
+            odometry_mask = np.concatenate([odometry_mask, np.zeros(Tc - T, bool)])
     # Padded / masked boxes get a harmless finite value so nothing downstream sees NaN.
     box = np.where(box_mask[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
     f = lambda a: jnp.asarray(a, dtype)
@@ -573,6 +626,9 @@ def make_problem(
         texture_mask=jnp.asarray(texture_mask),
         object_class=i(object_class),
         object_mask=jnp.asarray(object_mask),
+        classes=None if classes is None else table,
+        odometry=None if odometry is None else f(odometry),
+        odometry_mask=None if odometry_mask is None else jnp.asarray(odometry_mask),
     )
 
 
@@ -590,6 +646,7 @@ def make_frame(
     init_center=None,
     init_radii=None,
     init_mask=None,
+    classes: _classes.ClassTable | None = None,
 ) -> Frame:
     """Validated :class:`Frame` padded to ``max_detections`` from numpy-like inputs.
 
@@ -602,12 +659,13 @@ def make_frame(
         or none; a new object detected here starts from its row (see :class:`Frame`).
       init_mask: optional (N,) bool, which rows hold an initial ellipsoid (default: all rows,
         when the ellipsoids are given). Rows left out may hold NaN; they are replaced.
+      classes: the :class:`jaxsem.classes.ClassTable` of ``box_class`` (default: the built-in
+        table); use the same table as the smoother's (:func:`jaxsem.slam.online_init`).
 
     NaN or inverted boxes are dropped with a ``warnings.warn`` (a detector glitch should not
     stop an online system); wrong shapes, unknown class names and out-of-range ids raise.
     """
-    from .. import factors as _factors
-
+    table = _classes.as_table(classes)
     dtype = dtype or jnp.result_type(float)
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.shape != (4, 4) or not np.all(np.isfinite(pose_prior)):
@@ -616,16 +674,10 @@ def make_frame(
     N = box.shape[0]
     if N > max_detections:
         raise ValueError(f"box: {N} detections exceed max_detections={max_detections}")
-    box_class = np.asarray(box_class).reshape(-1)
-    if box_class.dtype.kind in "USO":
-        box_class = np.array([_factors.class_index(str(c)) for c in box_class], np.int64)
-    box_class = box_class.astype(np.int64)
+    box_class = table.indices(np.asarray(box_class).reshape(-1), "box_class")
     object_id = _np("object_id", object_id, None, np.int64).reshape(-1)
     if box_class.shape != (N,) or object_id.shape != (N,):
         raise ValueError(f"box_class, object_id: expected shape ({N},), got {box_class.shape}, {object_id.shape}")
-    n_classes = len(_factors.CLASS_NAMES)
-    if np.any((box_class < 0) | (box_class >= n_classes)):
-        raise ValueError(f"box_class: indices must be in [0, {n_classes}), got {box_class.tolist()}")
     if np.any(object_id < 0) or (max_objects is not None and np.any(object_id >= max_objects)):
         raise ValueError(f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}")
     ok = np.all(np.isfinite(box), axis=-1) & (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])

@@ -6,7 +6,9 @@ code into a runtime error (``eqx.error_if``) carrying the code's message.
 
 Success is strict: the stopping rule was met on an accepted step *and* the final state and cost
 are finite. A solve that stops because no step lowers the cost any more (damping above its
-limit) is not reported as converged: that is :attr:`RESULTS.damping_limit`.
+limit) is not reported as converged: that is :attr:`RESULTS.damping_limit`. Nor is a batch
+solve that converged with objects the data could not fix (``SolveInfo.unfixable``): that is
+:attr:`RESULTS.unfixable_objects`, so "successful" always means every real object counts.
 """
 
 from __future__ import annotations
@@ -27,7 +29,10 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     code is ``RESULTS[item]``; the integer is :func:`result_code`. An ``optx.RESULTS`` item
     becomes one of these with ``RESULTS.promote(item)``. The ROSHAN solvers report
     ``successful``, ``max_steps_reached`` (the step budget: ``SolverConfig.max_steps`` for a
-    batch solve, ``iterations`` online), ``nonfinite`` and the two codes below.
+    batch solve, ``iterations`` online), ``nonfinite`` and the three codes below
+    (``unfixable_objects`` from the batch Schur solver only: it replaces ``successful`` when any
+    real object is flagged unfixable; the estimate of the other objects and the poses is the
+    converged one).
     """
 
     damping_limit = (
@@ -37,6 +42,12 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     ill_conditioned = (
         "The damped normal equations could not be solved (non-finite step) up to the damping "
         "limit: the problem is ill-conditioned."
+    )
+    unfixable_objects = (
+        "The solve converged, but some objects could not be fixed by the data (no valid "
+        "projection in one of their frames, or box edges far off after the rescue; "
+        "`SolveInfo.unfixable`): they were left out of the joint solve and their estimates are "
+        "not to be trusted."
     )
 
 

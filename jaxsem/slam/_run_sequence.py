@@ -124,6 +124,7 @@ def run_sequence(
         iterations=iterations,
         window=window,
         dtype=dtype,
+        classes=sequence.classes,
     )
     T, P = len(sequence.frames), capacity.max_poses
     poses = np.zeros((T, 4, 4))
@@ -149,6 +150,7 @@ def run_sequence(
             max_detections=capacity.max_detections,
             max_objects=capacity.max_objects,
             dtype=state.problem.K.dtype,
+            classes=sequence.classes,
         )
         start = time.perf_counter()
         if step is None:  # counted in the first frame's time
@@ -187,9 +189,10 @@ def _seed_objects(state, objects):
     import equinox as eqx
     import jax
 
-    from .. import factors
+    from .. import classes as _classes
 
     pb, est = state.problem, state.estimate
+    table = _classes.as_table(pb.classes)
     arrays = {
         "object_mask": np.array(pb.object_mask),
         "object_class": np.array(pb.object_class),
@@ -199,7 +202,7 @@ def _seed_objects(state, objects):
     }
     for j, cls, v in objects:
         arrays["object_mask"][j] = True
-        arrays["object_class"][j] = factors.class_index(cls)
+        arrays["object_class"][j] = table.index(cls)
         arrays["rotation"][j] = v["rotation"]
         arrays["center"][j] = v["center"]
         arrays["radii"][j] = v["radii"]

@@ -30,7 +30,9 @@ tangent axis, then each landmark: the declared sparsity keeps the columns apart)
 ``linearise(y, args) -> Normal`` when the caller has a faster one (ROSHAN's box factors use
 9 columns via the chain rule of ``camera_T_object``, :func:`jaxsem.slam.linearize`).
 
-Cost model: the pose blocks are block-diagonal and eliminated; the reduced landmark system is
+Cost model: the pose blocks are block-diagonal (block-tridiagonal with odometry between
+consecutive poses, ``Normal.Hpp_next``: then eliminated by a block-tridiagonal solve, a scan
+over the poses) and eliminated; the reduced landmark system is
 dense, ``(L dl) x (L dl)``, solved by Cholesky, and the coupling is stored densely (T, L, dp,
 dl). That is right for object SLAM (tens of objects, hundreds of poses), wrong for bundle
 adjustment with thousands of landmarks.
@@ -96,8 +98,41 @@ class SchurStructure(eqx.Module):
 # The descent's and the search's arithmetic (free functions: also used on their own).
 
 
+def _tridiagonal_solve(D, C, B):
+    """``X`` with ``H X = B`` for the symmetric block-tridiagonal ``H``: diagonal blocks ``D``
+    (T, n, n), block ``(t, t + 1)`` = ``C[t]`` (T, n, n; the last unused), right-hand sides
+    ``B`` (T, n, k). Block Thomas elimination (block LDL^T without pivoting, stable for the
+    positive-definite damped systems it sees), two scans over ``t``."""
+    C_prev = jnp.concatenate([jnp.zeros_like(C[:1]), C[:-1]])  # block (t - 1, t)
+
+    def forward(carry, x):
+        G_prev, Y_prev = carry
+        D_t, C_t, Cp_t, B_t = x
+        CpT = jnp.swapaxes(Cp_t, -1, -2)
+        M = D_t - CpT @ G_prev
+        rhs = jnp.concatenate([C_t, B_t - CpT @ Y_prev], -1)
+        sol = jnp.linalg.solve(M, rhs)
+        G, Y = sol[:, : C_t.shape[-1]], sol[:, C_t.shape[-1] :]
+        return (G, Y), (G, Y)
+
+    init = (jnp.zeros_like(D[0]), jnp.zeros_like(B[0]))
+    _, (G, Y) = jax.lax.scan(forward, init, (D, C, C_prev, B))
+
+    def backward(X_next, x):
+        G_t, Y_t = x
+        X = Y_t - G_t @ X_next
+        return X, X
+
+    _, X = jax.lax.scan(backward, jnp.zeros_like(B[0]), (G, Y), reverse=True)
+    return X
+
+
 def damped_schur_step(n: Normal, lam, pose_free, obj_free):
     """Solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by eliminating the pose blocks.
+
+    The pose-pose part is block-diagonal, or block-tridiagonal when ``n.Hpp_next`` is given
+    (odometry between consecutive poses): then ``Hpp^-1`` is applied by a block-tridiagonal
+    solve (:func:`_tridiagonal_solve`) instead of per-pose inverses.
 
     Args:
       n: :class:`~jaxsem.slam.Normal` at the current estimate.
@@ -127,6 +162,25 @@ def damped_schur_step(n: Normal, lam, pose_free, obj_free):
     Hpo = n.Hpo * pose_free[:, None, None, None] * obj_free[None, :, None, None].astype(dtype)
     gp = n.gp * pose_free[:, None]
     go = n.go * obj_free[:, None].astype(dtype)
+    if n.Hpp_next is not None:
+        # Odometry: block-tridiagonal pose part. One solve gives A = Hpp^-1 Hpo and y = Hpp^-1 gp;
+        # then dp = Hpp^-1 (-gp - Hpo do) = -y - A do.
+        T = Hpp.shape[0]
+        used = pose_used.astype(dtype)
+        C = n.Hpp_next * (used * jnp.roll(used, -1))[:, None, None]
+        C = C.at[-1].set(0.0)
+        rhs_p = jnp.concatenate([jnp.moveaxis(Hpo, 1, 2).reshape(T, dpn, J * dln), gp[:, :, None]], -1)
+        X = _tridiagonal_solve(Hpp, C, rhs_p)
+        A = jnp.moveaxis(X[:, :, : J * dln].reshape(T, dpn, J, dln), 2, 1)  # (T, J, dp, dl)
+        y = X[:, :, -1]
+        S = -jnp.einsum("tjab,tkac->jbkc", Hpo, A)
+        S = S + jnp.einsum("jab,jk->jakb", Hoo, jnp.eye(J, dtype=dtype))
+        S = S.reshape(J * dln, J * dln)
+        rhs = -go + jnp.einsum("tjab,ta->jb", Hpo, y)
+        chol = jax.scipy.linalg.cho_factor(S, lower=True)
+        do = jax.scipy.linalg.cho_solve(chol, rhs.reshape(-1)).reshape(J, dln)
+        dp = -y - jnp.einsum("tkac,kc->ta", A, do)
+        return dp * pose_free[:, None], do * obj_free[:, None].astype(dtype)
     Hpp_inv = jnp.linalg.inv(Hpp)
     A = jnp.einsum("tab,tkbc->tkac", Hpp_inv, Hpo)  # Hpp^-1 Hpo
     S = -jnp.einsum("tjab,tkac->jbkc", Hpo, A)

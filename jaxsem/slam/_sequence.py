@@ -100,18 +100,22 @@ def noise_model(sequence: Sequence, base=None):
     return NoiseModel(**values)
 
 
-def load_sequence(path) -> Sequence:
+def load_sequence(path, *, classes=None) -> Sequence:
     """Reads a sequence directory (or its ``sequence.json``), validating every field.
 
     Layout: ``{"K": 3x3, "image_size": [width, height], "frames": [{"camera_T_world": 4x4,
     "image": optional file name relative to the directory, "detections": [{"box": [u_min,
     v_min, u_max, v_max], "class": name, "id": int >= 0 or string, "texture_depth": optional
     metres}]}], "truth": optional {"camera_T_world": [4x4 per frame], "objects": [{"id", "class",
-    "center", "radii", "rotation"}]}}``.
+    "center", "radii", "rotation"}]}, "classes": optional [{"name", "dimensions", "sigma",
+    "shape"}]}`` (the user's own classes, :meth:`jaxsem.classes.ClassTable.to_dict` rows, added
+    after the table's).
 
     Args:
       path: the directory holding ``sequence.json``, or the JSON file itself. Image names are
         relative to the JSON file's directory.
+      classes: the :class:`jaxsem.classes.ClassTable` the class names are read in (default: the
+        built-in table), extended by the file's ``"classes"``; kept as ``sequence.classes``.
 
     Returns:
       :class:`Sequence`.
@@ -133,7 +137,7 @@ def load_sequence(path) -> Sequence:
         raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
-    return _parse(data, str(file), file.parent)
+    return _parse(data, str(file), file.parent, classes)
 
 
 def _list(x):
@@ -177,6 +181,12 @@ def sequence_to_json(sequence: Sequence) -> dict:
         if "camera_T_world" in sequence.truth:
             tr["camera_T_world"] = _list(sequence.truth["camera_T_world"])
         out["truth"] = tr
+    if sequence.classes is not None:
+        from .. import classes as _classes
+
+        extra = [r for r in sequence.classes.rows if r not in _classes.DEFAULT_TABLE.rows]
+        if extra:
+            out["classes"] = _classes.ClassTable(tuple(extra)).to_dict()["classes"]
     if sequence.noise:
         out["noise"] = dict(sequence.noise)
     if sequence.initial:

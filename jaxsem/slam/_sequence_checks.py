@@ -68,16 +68,18 @@ def _vector(where, field, value, n, positive=False):
     return arr
 
 
-def _class_name(where, field, value):
-    from .. import factors
+def _class_name(where, field, value, table=None):
+    """``value`` checked against the class table (``None``: the built-in one)."""
+    from .. import classes
 
+    names = classes.as_table(table).names
     if not isinstance(value, str):
         _fail(where, field, f"expected a class name string, got {value!r}")
-    if value not in factors.CLASS_NAMES:
+    if value not in names:
         _fail(
             where,
             field,
-            f"unknown class {value!r}; known classes are {list(factors.CLASS_NAMES)}",
+            f"unknown class {value!r}; known classes are {list(names)}",
         )
     return value
 
@@ -121,9 +123,14 @@ def check_box(where, field, value, image_size):
     return b
 
 
-def _parse(data, where, root):
+def _parse(data, where, root, table=None):
+    from .. import classes as _classes
+
     if not isinstance(data, dict):
         _fail(where, "top level", f"expected a JSON object, got {type(data).__name__}")
+    if data.get("classes") is not None:
+        # The sequence's own classes, added to the given table (or the built-in one).
+        table = _classes.ClassTable.from_dict(data["classes"], base=_classes.as_table(table), where=f"{where}: classes")
     for key in ("K", "image_size", "frames"):
         if key not in data:
             _fail(where, key, "missing")
@@ -175,7 +182,7 @@ def _parse(data, where, root):
                 if key not in d:
                     _fail(where, f"{g}.{key}", "missing")
             boxes.append(check_box(where, f"{g}.box", d["box"], image_size))
-            classes.append(_class_name(where, f"{g}.class", d["class"]))
+            classes.append(_class_name(where, f"{g}.class", d["class"], table))
             ids.append(_assoc_id(where, f"{g}.id", d["id"]))
             tex = d.get("texture_depth")
             if tex is None:
@@ -223,7 +230,7 @@ def _parse(data, where, root):
                 )
     truth = None
     if data.get("truth") is not None:
-        truth = _parse_truth(where, data["truth"], len(frames))
+        truth = _parse_truth(where, data["truth"], len(frames), table)
     noise = _parse_noise(where, data.get("noise"))
     initial = _parse_initial(where, data.get("initial"), first_class)
     return Sequence(
@@ -234,6 +241,7 @@ def _parse(data, where, root):
         truth=truth,
         noise=noise,
         initial=initial,
+        classes=table,
     )
 
 
@@ -300,7 +308,7 @@ def _parse_noise(where, noise):
     return out
 
 
-def _parse_truth(where, tr, num_frames):
+def _parse_truth(where, tr, num_frames, table=None):
     if not isinstance(tr, dict):
         _fail(where, "truth", f"expected an object, got {type(tr).__name__}")
     out: dict = {"objects": []}
@@ -326,7 +334,7 @@ def _parse_truth(where, tr, num_frames):
         out["objects"].append(
             {
                 "id": _assoc_id(where, f"{g}.id", o["id"]),
-                "class": _class_name(where, f"{g}.class", o["class"]),
+                "class": _class_name(where, f"{g}.class", o["class"], table),
                 "center": _vector(where, f"{g}.center", o["center"], 3),
                 "radii": _vector(where, f"{g}.radii", o["radii"], 3, positive=True),
                 "rotation": _rotation(where, f"{g}.rotation", o["rotation"]),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ class SequenceFrame:
     Attributes:
       camera_T_world: (4, 4) odometry / VIO pose (the pose prior).
       boxes: (N, 4) ``[u_min, v_min, u_max, v_max]`` pixels.
-      classes: (N,) class names of :data:`jaxsem.factors.CLASS_NAMES`.
+      classes: (N,) class names of the sequence's class table (:attr:`Sequence.classes`).
       ids: (N,) association ids as written in the file (int or str).
       texture_depth: (N,) metres, NaN where the detection has none.
       image: image file name relative to the sequence directory, or None.
@@ -51,6 +52,8 @@ class Sequence:
       initial: optional ``{id: {"center" (3,), "radii" (3,), "rotation" (3, 3)}}`` (world frame,
         numpy): the initial ellipsoid of each listed object, used by :func:`run_sequence` in
         place of the single-view initialisation from its first detection.
+      classes: the :class:`jaxsem.classes.ClassTable` of the detections' class names (None: the
+        built-in table); the JSON layout's optional ``"classes"`` rows are added to it.
     """
 
     K: np.ndarray
@@ -60,6 +63,7 @@ class Sequence:
     truth: dict | None = None
     noise: dict | None = None
     initial: dict | None = None
+    classes: Any = None
 
     @property
     def object_ids(self) -> tuple:

@@ -80,18 +80,21 @@ def load_tum_sequence(
     image_size=(640, 480),
     max_dt: float = 0.02,
     min_score: float = 0.0,
+    classes=None,
 ) -> Sequence:
     """A ROSHAN :class:`Sequence` from a TUM RGB-D folder and a detections file (module docstring).
 
     K: (3, 3) intrinsics (default: :data:`TUM_INTRINSICS` when the folder's name says freiburg1,
     2 or 3). max_dt: seconds between an image and its pose. min_score: detections below it are
-    dropped.
+    dropped. classes: the :class:`jaxsem.classes.ClassTable` of the detections' class names
+    (default: the built-in table).
 
     Raises:
       ValueError: naming the file, the line and the field (bad lines, unknown classes, boxes
         outside the image, a detection without an id, no frame with a pose and a detection).
     """
     root = pathlib.Path(root)
+    table = classes  # the name is reused for a frame's class list below
     detections = pathlib.Path(detections)
     if not root.is_dir():
         raise ValueError(f"root: no such folder {str(root)!r}")
@@ -165,7 +168,7 @@ def load_tum_sequence(
                 if key not in d:
                     raise ValueError(f"{where}: {field}.{key}: missing")
             boxes.append(check_box(where, f"{field}.box", d["box"], size))
-            classes.append(_class_name(where, f"{field}.class", d["class"]))
+            classes.append(_class_name(where, f"{field}.class", d["class"], table))
             ids.append(_assoc_id(where, f"{field}.id", d["id"]))
         frames.append(
             (
@@ -185,4 +188,4 @@ def load_tum_sequence(
             f"{detections}: no frame with both a pose (within {max_dt} s) and a detection ({skipped} skipped)"
         )
     frames.sort(key=lambda x: x[0])
-    return Sequence(K=K, image_size=size, frames=tuple(f for _, f in frames), root=root)
+    return Sequence(K=K, image_size=size, frames=tuple(f for _, f in frames), root=root, classes=table)
