@@ -208,3 +208,50 @@ def test_lmo_preset_is_the_fast_network_with_eight_classes():
     assert cfg.model.num_classes == 8 and cfg.class_names == volumon.LMO_CLASS_NAMES == data.LMO_CLASS_NAMES
     assert dataclasses.replace(cfg.model, num_classes=4) == fast.model  # so the shipped object model warm-starts it
     assert volumon.get_config("oracle", "lmo").loss.alpha_O == 1.0
+
+
+def test_shipped_lmo_model_loads_under_25_mb_with_its_oracle():
+    model, variables, cfg, meta = volumon.load_pretrained(kind="lmo")
+    assert cfg.model.num_classes == 8 and tuple(cfg.class_names) == data.LMO_CLASS_NAMES
+    assert cfg.variant == "both" and meta["name"] == "volumon_lmo"
+    d = volumon.PRETRAINED_DIR
+    files = [d / f"volumon_lmo{s}" for s in (".npz", ".json", "_oracle.npz", "_oracle.json", "_curves.png")]
+    assert sum(f.stat().st_size for f in files) < 25e6
+    _, _, o_cfg, o_meta = volumon.load_pretrained(d / f"{volumon.ORACLES['lmo']}.npz")
+    assert o_cfg.variant == "oracle" and o_meta["step"] == meta["step"]
+    assert o_cfg.data_dir == cfg.data_dir  # the same renders
+
+
+def test_eval_command_scores_desk_renders_with_the_shipped_oracle(desk_dir, run_cli, tmp_path):
+    out = tmp_path / "held.json"
+    status, _, err = run_cli(["volumon", "eval", "--model", "lmo", "--data", str(desk_dir), "--json", str(out)])
+    assert status == 0, err
+    import json
+
+    r = json.loads(out.read_text())
+    assert r["model"] == "volumon_lmo" and r["num"] >= 1
+    for part in (r, r["baseline"], r["oracle"]):
+        assert np.isfinite(part["median_center_error_m"]) and "trans_auc" in part
+    assert r["baseline"]["median_size_rel_error"] < 1e-6  # given the true extents
+    status, _, err = run_cli(["volumon", "eval", "--model", "lmo", "--data", str(desk_dir), "--postopt", "5"])
+    assert status != 0 and "--postopt" in err
+
+
+@pytest.mark.slow
+def test_shipped_lmo_model_beats_the_known_size_baseline_on_tuning_frames_when_present():
+    import os
+
+    root = pathlib.Path(os.environ.get("JAXSEM_DATA_DIR", "/nonexistent")) / "lmo" / "test" / "000002"
+    if not (root / "scene_gt.json").is_file():
+        pytest.skip("LM-O absent (set JAXSEM_DATA_DIR to the folder of `jaxsem data fetch lmo`)")
+    scene = data.load_bop_scene(root, frame_filter=lambda i: i < 120)  # a handful of tuning frames only
+    assert scene.frames and all(f.frame_id < data.LMO_TUNE_BELOW for f in scene.frames)
+    model, variables, cfg, _ = volumon.load_pretrained(kind="lmo")
+    b = data.bop_eval_batch(scene, input_size=cfg.model.input_size, global_padding=cfg.model.global_padding)
+    rows, _ = volumon.class_rows(b["class_name"], cfg)
+    assert np.all(rows >= 0)  # every LM-O class has its own row
+    net = volumon.evaluate_scene_batch(model, variables, cfg, b, rows)
+    R, c, r = volumon.known_size_ellipsoid(b["box_input"], b["K"], b["gt_half_extents"])
+    base = volumon.summarise_detections({"rotation": R, "center": c, "radii": r}, b)
+    assert net["num"] == base["num"] > 50
+    assert net["trans_auc"] > base["trans_auc"] and net["iou_auc"] > base["iou_auc"]
