@@ -192,7 +192,11 @@ def _cases(d):
                     ["--data", str(d / "bop"), "--split", "tune", "--min-visible", "1.5"],
                     ["--min-visible"],
                 ),
-                ("model-lmo", ["--model", "lmo", "--data", str(d / "bop"), "--split", "tune"], ["--model", "lmo"]),
+                (
+                    "model-unknown",
+                    ["--model", "lmo2", "--data", str(d / "bop"), "--split", "tune"],
+                    ["--model", "lmo2", "lmo"],  # the message lists the shipped names, the LM-O model among them
+                ),
                 (
                     "model-path",
                     ["--model", str(d / "nope.npz"), "--data", str(d / "bop"), "--split", "tune"],
