@@ -180,6 +180,21 @@ def _cases(d):
             ["train/volumon.py", "--workdir", str(out / "td"), "--data", str(d / "nodata")],
             ["--data", "nodata"],
         ),
+        # issue 24 item 3: the LM-O desk renders
+        (
+            "make-lmo-renders-models",
+            [
+                "-m",
+                "jaxsem.data.make_lmo_renders",
+                "--models",
+                str(d / "nomodels"),
+                "--out",
+                str(out / "r"),
+                "--frames",
+                "1",
+            ],
+            ["--models", "nomodels"],
+        ),
         # issue 24 item 5: volumon eval on a BOP scene
         *[
             (f"jaxsem-eval-bop-{name}", ["-m", "jaxsem.cli", "volumon", "eval"] + argv, words)
@@ -192,7 +207,11 @@ def _cases(d):
                     ["--data", str(d / "bop"), "--split", "tune", "--min-visible", "1.5"],
                     ["--min-visible"],
                 ),
-                ("model-lmo", ["--model", "lmo", "--data", str(d / "bop"), "--split", "tune"], ["--model", "lmo"]),
+                (
+                    "model-unknown",
+                    ["--model", "lmo2", "--data", str(d / "bop"), "--split", "tune"],
+                    ["--model", "lmo2", "lmo"],  # the message lists the shipped names, the LM-O model among them
+                ),
                 (
                     "model-path",
                     ["--model", str(d / "nope.npz"), "--data", str(d / "bop"), "--split", "tune"],

@@ -14,11 +14,14 @@ class the model lacks is scored with the class head's expectation, or with --cla
 nearest the model class nearest in size), ``baseline`` (the known-size geometric baseline: each
 class's true mesh extent, axis-aligned to the camera, depth from the box's size, centre on the
 box's ray; ``baseline_mesh_axes``: the same with the mesh's own axis order instead of the pair
-of axes that matches the box's aspect) and, with --oracle DIR, ``oracle`` (that model scored the same way).
+of axes that matches the box's aspect) and, with --oracle DIR, ``oracle`` (that model scored the
+same way; with --model lmo the fully supervised oracle shipped beside the LM-O model is scored by
+default). On a folder of rendered desk detections (``python -m jaxsem.data.make_lmo_renders``)
+the same keys (ADI there against the mesh extent's cuboid): the sim-to-real gap of the LM-O model.
 
 Example (the tuning split of LM-O; the test split, ids >= 600, is held out)::
 
-    jaxsem volumon eval --model object --data DATA/lmo/test/000002 --split tune --json tune.json
+    jaxsem volumon eval --model lmo --data DATA/lmo/test/000002 --split tune --json tune.json
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default=None,
-        help="a shipped model by name ('object': the default tabletop model, 'door') or a path (a training run "
+        help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model) or a path (a training run "
         "or a .npz); the same as --workdir for a path (default: 'object')",
     )
     p.add_argument("--postopt", type=sc.nonnegative_int, default=0, help="also refine with PostOpt for this many steps")
@@ -69,13 +72,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "--min-visible",
         type=sc.probability,
         default=0.5,
-        help="BOP scene only: score objects at least this fraction visible",
+        help="BOP scene or desk renders only: score objects at least this fraction visible",
     )
     p.add_argument(
         "--oracle",
         type=sc.existing_path,
         default=None,
-        help="BOP scene only: also score this model (a training run or .npz: the fully supervised oracle) as 'oracle'",
+        help="BOP scene or desk renders only: also score this model (a training run or .npz: the fully supervised "
+        "oracle) as 'oracle' (default with --model lmo: the oracle shipped beside it)",
     )
     p.add_argument(
         "--class-mapping",
@@ -102,9 +106,8 @@ def resolve_model(text: str | None, workdir):
     if path.exists():
         return path, "object"
     if "/" not in text and "\\" not in text and not text.endswith(".npz"):
-        planned = " (the LM-O model of issue 24 does not ship yet)" if text.lower() in ("lmo", "lm-o") else ""
         raise sc.UsageError(
-            f"--model: no shipped model named {text!r}{planned}; shipped: {', '.join(sorted(SHIPPED))}, or give a "
+            f"--model: no shipped model named {text!r}; shipped: {', '.join(sorted(SHIPPED))}, or give a "
             "path to a training run or .npz"
         )
     raise sc.UsageError(f"--model: {text}: no such file or directory")
@@ -123,13 +126,10 @@ def _bop_figures(args, model, variables, config) -> dict:
         class_rows,
         evaluate_scene_batch,
         known_size_ellipsoid,
-        load_pretrained,
         summarise_detections,
     )
 
-    oracle = None
-    if args.oracle is not None:  # load before the long work: a bad oracle fails first
-        oracle = load_pretrained(args.oracle)
+    oracle = _load_oracle(args)
     scene = data.load_bop_split(args.data, args.split)
     if not scene.frames:
         raise sc.UsageError(f"--split: {args.data} has no frame in the {args.split!r} split")
@@ -189,16 +189,72 @@ def _bop_figures(args, model, variables, config) -> dict:
     return out
 
 
+def _load_oracle(args):
+    """The ``--oracle`` model, or with ``--model lmo`` the oracle shipped beside it; None otherwise."""
+    from jaxsem.volumon import ORACLES, PRETRAINED_DIR, load_pretrained
+
+    if args.oracle is not None:  # load before the long work: a bad oracle fails first
+        return load_pretrained(args.oracle)
+    name = ORACLES.get(args.model or "")
+    if name is not None and (PRETRAINED_DIR / f"{name}.npz").exists():
+        return load_pretrained(PRETRAINED_DIR / f"{name}.npz")
+    return None
+
+
+def _desk_figures(args, model, variables, config) -> dict:
+    """Figures on held-out rendered desk detections (``python -m jaxsem.data.make_lmo_renders``):
+    the same keys as on a BOP scene (network, known-size baseline, oracle), the objects at least
+    ``--min-visible`` visible. ADI here scores against the mesh extent's cuboid (the detections
+    keep no mesh points), not ADD-S."""
+    import numpy as np
+
+    from jaxsem import data
+    from jaxsem.volumon import class_rows, evaluate_scene_batch, known_size_ellipsoid, summarise_detections
+
+    oracle = _load_oracle(args)
+    batch = data.desk_eval_batch(args.data, num=args.num, min_visible=args.min_visible)
+    batch["class_name"] = np.asarray(data.LMO_CLASS_NAMES)[batch["class_id"]]
+    extents = {n: None for n in data.LMO_CLASS_NAMES}
+
+    def figures(m, v, c):
+        rows, mapping = class_rows(batch["class_name"], c, "generic", extents)
+        fig = evaluate_scene_batch(m, v, c, batch, rows)
+        fig.pop("pred")
+        return {**fig, "class_mapping": mapping}
+
+    R, ctr, r = known_size_ellipsoid(batch["box_input"], batch["K"], batch["gt_half_extents"])
+    out = {
+        "data": str(args.data),
+        "min_visible": args.min_visible,
+        **figures(model, variables, config),
+        "baseline": {
+            "name": "known-size geometric baseline (as on a BOP scene)",
+            **summarise_detections(
+                {"rotation": np.asarray(R), "center": np.asarray(ctr), "radii": np.asarray(r)}, batch
+            ),
+        },
+    }
+    if oracle is not None:
+        o_model, o_vars, o_config, o_meta = oracle
+        out["oracle"] = {"model": str(o_meta.get("name")), **figures(o_model, o_vars, o_config)}
+    return out
+
+
 def main(argv=None, prog: str | None = None) -> int:
     """``jaxsem volumon eval``: held-out figures of the shipped model (or ``--workdir``) as JSON."""
     args = build_parser(prog).parse_args(argv)
     bop = _is_bop(args.data)
+    from jaxsem.data import is_desk_detections
+
+    desk = args.data is not None and is_desk_detections(args.data)
     if bop and args.split is None:
         raise sc.UsageError("--split: required with a BOP scene (--data with scene_gt.json): tune, test or all")
     if bop and args.postopt:
         raise sc.UsageError("--postopt: not available on a BOP scene (no depth points to refine on)")
+    if desk and args.postopt:
+        raise sc.UsageError("--postopt: not available on rendered desk detections")
     if not bop:
-        for flag, value in (("--split", args.split), ("--oracle", args.oracle)):
+        for flag, value in (("--split", args.split), ("--oracle", None if desk else args.oracle)):
             if value is not None:
                 raise sc.UsageError(f"{flag}: only with --data SCENE_DIR, a BOP scene folder with scene_gt.json")
     path, kind = resolve_model(args.model, args.workdir)
@@ -208,6 +264,8 @@ def main(argv=None, prog: str | None = None) -> int:
         model, variables, config, meta = load_pretrained(path, kind=kind)
         if bop:
             result = _bop_figures(args, model, variables, config)
+        elif desk:
+            result = _desk_figures(args, model, variables, config)
         else:
             batch = None
             if args.data is not None:

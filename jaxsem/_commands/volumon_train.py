@@ -99,8 +99,38 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override any config field by its dotted name, e.g. --set loss.primal_distance=ray (repeatable)",
     )
+    p.add_argument(
+        "--init-from",
+        default=None,
+        metavar="MODEL",
+        help="warm start a fresh run from a trained model of the same network ('object': the shipped object "
+        "model, or a model path): every layer copied, each new class row from the source class of its shape "
+        "(the shipped LM-O model started from 'object')",
+    )
     sc.add_devices_argument(p)
     return p
+
+
+def _warm_start(source: str, cfg):
+    """Variables for ``--init-from``: the source model's, its class rows mapped by shape."""
+    import numpy as np
+
+    from jaxsem.data import LMO_CLASS_SHAPES
+    from jaxsem.volumon import SHAPE_IDS, load_pretrained, model_class_names, warm_start_variables
+
+    path = None if source in ("object", "door") else source
+    _, variables, src_cfg, _ = load_pretrained(path, kind=source if path is None else "object")
+    src_names = model_class_names(src_cfg)
+    from jaxsem import classes
+
+    src_shapes = [SHAPE_IDS[classes.get(n).shape] if n in classes.CLASS_NAMES else -1 for n in src_names]
+    rows = []
+    for name in cfg.class_names or ():
+        want = LMO_CLASS_SHAPES.get(name, -2)
+        rows.append(src_shapes.index(want) if want in src_shapes else 0)
+    if not rows:
+        rows = list(range(cfg.model.num_classes))
+    return warm_start_variables(variables, cfg, np.asarray(rows) % int(src_cfg.model.num_classes))
 
 
 def _loader_options(path) -> dict | None:
@@ -128,7 +158,13 @@ def main(argv=None, prog: str | None = None) -> int:
         p.error("--eval-data: needs --data")
     if a.data is not None:
         cfg = cfg.replace(data="directory", data_dir=str(a.data.resolve()))
-        from jaxsem.data import volumon_batch_source, volumon_eval_batch
+        from jaxsem.data import (
+            desk_batch_source,
+            desk_eval_batch,
+            is_desk_detections,
+            volumon_batch_source,
+            volumon_eval_batch,
+        )
 
         sizes: dict[str, Any] = dict(
             input_size=cfg.model.input_size,
@@ -137,19 +173,32 @@ def main(argv=None, prog: str | None = None) -> int:
             class_names=cfg.class_names or None,  # e.g. the door preset's ("door",)
         )
         try:
-            batch_fn, n = volumon_batch_source(
-                a.data, batch_size=cfg.batch_size, seed=cfg.seed, loader_options=_loader_options(a.data), **sizes
-            )
-            if cfg.num_eval > 0:
-                eval_dir = a.eval_data or a.data
-                eval_batch = volumon_eval_batch(
-                    eval_dir, num=cfg.num_eval, loader_options=_loader_options(eval_dir), **sizes
+            if is_desk_detections(a.data):  # rendered desk detections (python -m jaxsem.data.make_lmo_renders)
+                batch_fn, n = desk_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed)
+                if cfg.num_eval > 0:
+                    eval_batch = desk_eval_batch(a.eval_data or a.data, num=cfg.num_eval)
+            else:
+                batch_fn, n = volumon_batch_source(
+                    a.data, batch_size=cfg.batch_size, seed=cfg.seed, loader_options=_loader_options(a.data), **sizes
                 )
+                if cfg.num_eval > 0:
+                    eval_dir = a.eval_data or a.data
+                    eval_batch = volumon_eval_batch(
+                        eval_dir, num=cfg.num_eval, loader_options=_loader_options(eval_dir), **sizes
+                    )
         except (ValueError, OSError) as exc:
             if a.debug:
                 raise
             sys.exit(f"error: {exc}")
         print(f"training on {n} objects of {a.data}", flush=True)
+    init_variables = None
+    if a.init_from is not None:
+        try:
+            init_variables = _warm_start(a.init_from, cfg)
+        except ValueError as exc:
+            if a.debug:
+                raise
+            sys.exit(f"error: --init-from: {exc}")
     mesh = sc.devices_mesh(a.devices, cfg.batch_size)
     sc.record_config(train_config=cfg)
     try:
@@ -163,6 +212,7 @@ def main(argv=None, prog: str | None = None) -> int:
             batch_fn=batch_fn,
             eval_batch=eval_batch,
             mesh=mesh,
+            init_variables=init_variables,
         )
     except ValueError as exc:
         if a.debug:

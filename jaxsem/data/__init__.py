@@ -46,6 +46,24 @@ from ._fat import (
     right_T_left as right_T_left,
 )
 from ._fetch import DATASETS as DATASETS, FetchError as FetchError, Source as Source, fetch as fetch
+from ._lmo_renders import (
+    LMO_CLASS_NAMES as LMO_CLASS_NAMES,
+    LMO_CLASS_SHAPES as LMO_CLASS_SHAPES,
+    LMO_IMAGE_SIZE as LMO_IMAGE_SIZE,
+    LMO_K as LMO_K,
+    LMO_OBJECT_IDS as LMO_OBJECT_IDS,
+    DeskConfig as DeskConfig,
+    desk_batch_source as desk_batch_source,
+    desk_eval_batch as desk_eval_batch,
+    detections_from_frames as detections_from_frames,
+    face_color_atlas as face_color_atlas,
+    is_desk_detections as is_desk_detections,
+    load_desk_detections as load_desk_detections,
+    load_distractor_meshes as load_distractor_meshes,
+    load_lmo_meshes as load_lmo_meshes,
+    render_desk_frames as render_desk_frames,
+    write_desk_detections as write_desk_detections,
+)
 from ._objects import (
     ROBOSUITE_OBJECTS as ROBOSUITE_OBJECTS,
     MeshAsset as MeshAsset,

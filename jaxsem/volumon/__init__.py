@@ -2,6 +2,7 @@
 
 from ..training import ConfigMismatchError as ConfigMismatchError
 from ._configs import (
+    LMO_CLASS_NAMES as LMO_CLASS_NAMES,
     PRESETS as PRESETS,
     SIZES as SIZES,
     VARIANTS as VARIANTS,
@@ -10,6 +11,7 @@ from ._configs import (
     default_config as default_config,
     door_config as door_config,
     get_config as get_config,
+    lmo_config as lmo_config,
     thesis_config as thesis_config,
     tiny_config as tiny_config,
 )
@@ -58,6 +60,7 @@ from ._losses import (
     volumon_loss as volumon_loss,
 )
 from ._pretrained import (
+    ORACLES as ORACLES,
     PRETRAINED_DIR as PRETRAINED_DIR,
     SHIPPED as SHIPPED,
     evaluate_held_out as evaluate_held_out,
@@ -100,6 +103,7 @@ from ._train import (
     make_train_step as make_train_step,
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
+    warm_start_variables as warm_start_variables,
 )
 from ._views import (
     StereoView as StereoView,

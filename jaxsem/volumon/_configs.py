@@ -21,7 +21,7 @@ from ._losses import LossConfig
 from ._synthetic import SceneConfig
 
 VARIANTS = ("dual", "primal", "both", "both_noisy", "oracle")
-SIZES = ("cpu", "door", "fast", "thesis", "tiny")
+SIZES = ("cpu", "door", "fast", "lmo", "thesis", "tiny")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,6 +201,31 @@ def door_config() -> TrainConfig:
     )
 
 
+#: The eight LM-O classes in class-row order (Linemod ids 1, 5, 6, 8, 9, 10, 11, 12), the class
+#: list of :func:`lmo_config` (kept here so the config layer does not import the data layer; the
+#: data layer's ``LMO_CLASS_NAMES`` is the same tuple).
+LMO_CLASS_NAMES = ("ape", "can", "cat", "driller", "duck", "eggbox", "glue", "holepuncher")
+
+
+def lmo_config() -> TrainConfig:
+    """The LM-O model: :func:`fast_config` 's network (so it warm-starts from the shipped object
+    model) with an eight-class head (:data:`LMO_CLASS_NAMES`), trained on rendered desk
+    detections (``python -m jaxsem.data.make_lmo_renders``; ``data="directory"``, the folder of
+    ``chunk_NNNN.npz``). Learning rate 1e-4 (a warm start), checkpoints every 250 steps, the
+    evaluation every 250 steps on held-out renders."""
+    base = fast_config()
+    return base.replace(
+        model=dataclasses.replace(base.model, num_classes=len(LMO_CLASS_NAMES)),
+        class_names=LMO_CLASS_NAMES,
+        learning_rate=1e-4,
+        num_steps=3000,
+        checkpoint_every=250,
+        eval_every=250,
+        num_eval=256,
+        log_every=25,
+    )
+
+
 #: The sized presets (:class:`jaxsem.config.Presets`; "default" is "cpu"): :func:`get_config` puts a
 #: variant's loss weights on one of them, or on a JSON file of fields over the default.
 PRESETS: Presets[TrainConfig] = Presets(default_config)
@@ -209,6 +234,7 @@ PRESETS.register("fast")(lambda c: fast_config())
 PRESETS.register("thesis")(lambda c: thesis_config())
 PRESETS.register("tiny")(lambda c: tiny_config())
 PRESETS.register("door")(lambda c: door_config())
+PRESETS.register("lmo")(lambda c: lmo_config())
 
 
 def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
@@ -218,7 +244,7 @@ def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
     both with noisy input boxes. alpha_S = 100 in all (thesis). oracle: fully supervised on the
     3D labels (:func:`jaxsem.volumon.oracle_loss_per_sample`; a diagnostic, not a VoluMon variant).
     Sizes: the presets of :data:`PRESETS` -- "cpu" (MobileNetV2 0.35, one class), "fast"
-    (:func:`fast_config`), "door" (:func:`door_config`), "thesis", "tiny" -- or a JSON file of :class:`TrainConfig` fields over
+    (:func:`fast_config`), "door" (:func:`door_config`), "lmo" (:func:`lmo_config`), "thesis", "tiny" -- or a JSON file of :class:`TrainConfig` fields over
     the default (:func:`jaxsem.config.load`).
     """
     if size not in PRESETS.names and not str(size).endswith(".json"):

@@ -20,8 +20,11 @@ from ._configs import TrainConfig, config_from_dict
 
 PRETRAINED_DIR = pathlib.Path(__file__).resolve().parent / "pretrained"
 DEFAULT_NAME = "volumon_fast"
-#: The shipped models by kind: the tabletop object model and the door model (thesis 5.8.1).
-SHIPPED = {"object": DEFAULT_NAME, "door": "volumon_door"}
+#: The shipped models by kind: the tabletop object model, the door model (thesis 5.8.1) and the
+#: LM-O model (the eight LM-O classes, trained weakly on rendered desks; issue 24).
+SHIPPED = {"object": DEFAULT_NAME, "door": "volumon_door", "lmo": "volumon_lmo"}
+#: The fully supervised oracle shipped beside a model (same data, same steps; a diagnostic).
+ORACLES = {"lmo": "volumon_lmo_oracle"}
 
 
 def _flatten(tree, prefix=""):
@@ -91,8 +94,9 @@ def load_pretrained(path=None, *, kind: str = "object"):
     folder with ``config.json`` and ``checkpoints/``).
 
     ``path`` None: the package's model of ``kind`` -- ``"object"`` (the four tabletop classes,
-    ``volumon_fast``) or ``"door"`` (the door model of thesis 5.8.1, ``volumon_door``; see
-    ``MODEL_CARD.md``). Raises ValueError naming the path when it is neither, or naming ``kind``.
+    ``volumon_fast``), ``"door"`` (the door model of thesis 5.8.1, ``volumon_door``) or ``"lmo"``
+    (the eight LM-O classes, ``volumon_lmo``; its fully supervised oracle ``volumon_lmo_oracle``
+    ships beside it, load it by path); see ``MODEL_CARD.md``. Raises ValueError naming the path when it is neither, or naming ``kind``.
     """
     from ._train import _model_and_init, load_trained
 

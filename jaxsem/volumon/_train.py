@@ -361,6 +361,7 @@ def train_and_evaluate(
     batch_fn: Callable[[int], dict] | None = None,
     eval_batch: dict | None = None,
     mesh: jax.sharding.Mesh | None = None,
+    init_variables: dict | None = None,
 ) -> dict[str, Any]:
     """Train VoluMon with ``config``, checkpointing into ``workdir/checkpoints``; resume if present.
 
@@ -382,6 +383,9 @@ def train_and_evaluate(
         :func:`jaxsem.parallel.devices_mesh`): the state replicated, each batch split over the
         devices; ``config.batch_size`` must be a multiple of the device count (else
         ``ValueError`` naming ``batch_size``). None (default): one device, as before.
+      init_variables: a warm start: ``params`` and ``batch_stats`` of the same network (e.g.
+        :func:`warm_start_variables` of a shipped model) that a *fresh* run starts from instead
+        of the random initialisation (a resumed run restores its checkpoint and ignores them).
 
     Returns:
       dict with ``state`` (final train state), ``model``, ``history`` (per-step loss terms of this
@@ -416,6 +420,8 @@ def train_and_evaluate(
         state, model, tx = init_state(config)
         if run.latest_step is not None:
             state = run.restore(state)
+        elif init_variables is not None:
+            state = _warm_state(state, init_variables, tx)
         start = int(state["step"])
         run.begin()
         # the step does not depend on the run-length / logging fields: one compiled step for every chunk
@@ -466,6 +472,55 @@ def train_and_evaluate(
             tmp.write_text(json.dumps(result_eval, indent=1))
             tmp.replace(workdir / "eval.json")
     return {"state": state, "model": model, "history": history, "eval": result_eval}
+
+
+def _warm_state(state: dict, variables: dict, tx) -> dict:
+    """``state`` with the params and batch statistics of ``variables`` (same tree and shapes) and a fresh optimiser."""
+    for part in ("params", "batch_stats"):
+        ref, new = jax.tree.structure(state[part]), jax.tree.structure(variables[part])
+        if ref != new:
+            raise ValueError(f"init_variables: its {part} tree differs from the network's ({new} vs {ref})")
+        for a, b in zip(jax.tree.leaves(state[part]), jax.tree.leaves(variables[part])):
+            if a.shape != b.shape:
+                raise ValueError(f"init_variables: a {part} leaf has shape {b.shape}, the network's {a.shape}")
+    params = jax.tree.map(lambda a, b: jnp.asarray(b, a.dtype), state["params"], variables["params"])
+    stats = jax.tree.map(lambda a, b: jnp.asarray(b, a.dtype), state["batch_stats"], variables["batch_stats"])
+    return {**state, "params": params, "batch_stats": stats, "opt_state": tx.init(params)}
+
+
+def warm_start_variables(variables: dict, config: TrainConfig, class_map) -> dict:
+    """Variables of ``config`` 's network taken from another trained network of the same
+    architecture whose class head may differ (e.g. the shipped 4-class object model for the
+    8-class LM-O model): every leaf is copied, except the class-head layers (``local_out``,
+    ``global_out``, ``class_out``) whose class rows are copied from the source row
+    ``class_map[k]`` for each new class ``k``.
+
+    Args:
+      variables: ``params`` and ``batch_stats`` of the source network (:func:`jaxsem.volumon.load_pretrained`).
+      config: the new network's config; class_map: (num_classes,) source row per new class row.
+    """
+    class_map = np.asarray(class_map, np.int64)
+    n = int(config.model.num_classes)
+    if class_map.shape != (n,):
+        raise ValueError(f"class_map: expected ({n},) source rows, got shape {class_map.shape}")
+    target, _, _ = init_state(config)
+    src = jax.tree.map(np.asarray, dict(variables["params"]))
+    out = jax.tree.map(np.asarray, dict(target["params"]))
+    for name in out:
+        if name not in src:
+            raise ValueError(f"variables: no layer {name!r} in the source network")
+        if name in ("local_out", "global_out", "class_out"):
+            width = 9 if name == "local_out" else 1
+            for leaf in ("kernel", "bias"):
+                a = np.asarray(src[name][leaf])
+                m = int(a.shape[-1]) // width
+                if np.any(class_map >= m) or np.any(class_map < 0):
+                    raise ValueError(f"class_map: rows must be in 0..{m - 1}, got {class_map.tolist()}")
+                rows = a.reshape(a.shape[:-1] + (m, width))[..., class_map, :]
+                out[name][leaf] = rows.reshape(a.shape[:-1] + (n * width,))
+        else:
+            out[name] = src[name]
+    return {"params": out, "batch_stats": jax.tree.map(np.asarray, dict(variables["batch_stats"]))}
 
 
 def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None = None):
