@@ -92,6 +92,7 @@ def test_class_json_mistakes_name_file_row_and_field(tmp_path):
         classes.ClassTable.from_json(path)
 
 
+@pytest.mark.slow
 def test_problem_keeps_its_table_and_solver_uses_its_prior():
     from jaxsem import slam
 

@@ -222,6 +222,7 @@ def test_shipped_lmo_model_loads_under_25_mb_with_its_oracle():
     assert o_cfg.data_dir == cfg.data_dir  # the same renders
 
 
+@pytest.mark.slow
 def test_eval_command_scores_desk_renders_with_the_shipped_oracle(desk_dir, run_cli, tmp_path):
     out = tmp_path / "held.json"
     status, _, err = run_cli(["volumon", "eval", "--model", "lmo", "--data", str(desk_dir), "--json", str(out)])

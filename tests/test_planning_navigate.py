@@ -82,6 +82,7 @@ def test_navigate_reaches_goal_through_the_door():
     assert res.searches >= 2 and res.plans == 1
 
 
+@pytest.mark.slow
 def test_without_reuse_the_uniform_planner_samples_a_fresh_roadmap_at_every_replan():
     # The thesis' protocol as written (3.3.3): every planning timestep draws its own roadmap.
     w = _two_rooms()
