@@ -242,6 +242,24 @@ def _cases(d):
             ],
             ["--data"],
         ),
+        (
+            "volumon-predict-model-unknown",
+            [
+                "-m",
+                "jaxsem.cli",
+                "volumon",
+                "predict",
+                "--model",
+                "lmo2",
+                "--data",
+                str(d / "bop"),
+                "--frame",
+                "3",
+                "--out",
+                str(out / "vb3"),
+            ],
+            ["--model", "lmo2", "lmo"],
+        ),
     ]
 
 

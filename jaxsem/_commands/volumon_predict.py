@@ -36,6 +36,7 @@ import pathlib
 import numpy as np
 
 from jaxsem import scripting as sc
+from jaxsem._commands.volumon_eval import resolve_model
 
 
 def intrinsics(text: str) -> tuple[float, float, float, float]:
@@ -108,6 +109,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         type=pathlib.Path,
         default=None,
         help="training run (config.json + checkpoints/); default: the shipped model",
+    )
+    p.add_argument(
+        "--model",
+        default=None,
+        help="a shipped model by name ('object': the default, 'door', 'lmo': the LM-O model) or a path "
+        "(a training run or a .npz); the same as --workdir for a path",
     )
     p.add_argument(
         "--train-steps",
@@ -203,10 +210,11 @@ def main(argv=None, prog: str | None = None) -> int:
         cfg = config_from_dict(json.loads((a.workdir / "config.json").read_text()))
         model, variables, _ = load_trained(a.workdir, cfg, step=a.step)
     else:
+        path, kind = resolve_model(a.model, a.workdir)
         try:
-            model, variables, cfg, _ = load_pretrained(a.workdir)
+            model, variables, cfg, _ = load_pretrained(path, kind=kind)
         except ValueError as exc:
-            raise SystemExit(f"--workdir: {exc}")
+            raise SystemExit(f"{'--model' if a.model else '--workdir'}: {exc}")
     check_class_id(a.class_id, cfg)
     predict = make_predict_fn(model, cfg)
     a.out.mkdir(parents=True, exist_ok=True)
@@ -297,10 +305,11 @@ def _predict_bop_frame(a) -> int:
     from jaxsem import data
     from jaxsem.volumon import class_rows, draw_predictions, evaluate_scene_batch, load_pretrained
 
+    path, kind = resolve_model(a.model, a.workdir)
     try:
-        model, variables, cfg, meta = load_pretrained(a.workdir)
+        model, variables, cfg, meta = load_pretrained(path, kind=kind)
     except ValueError as exc:
-        raise SystemExit(f"--workdir: {exc}")
+        raise SystemExit(f"{'--model' if a.model else '--workdir'}: {exc}")
     scene = data.load_bop_scene(a.data, frame_filter=lambda i: i == a.frame)
     if not scene.frames:
         raise sc.UsageError(f"--frame: {a.frame} is not a frame of {a.data}/scene_gt.json")
