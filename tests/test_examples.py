@@ -16,6 +16,7 @@ def _load(name):
     return module
 
 
+@pytest.mark.slow
 def test_fit_ellipsoid_to_boxes_recovers_the_truth():
     result = _load("fit_ellipsoid_to_boxes").main()
     assert result["last_loss"] < 1e-3 * result["first_loss"]

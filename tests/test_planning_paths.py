@@ -499,6 +499,7 @@ def test_roadmap_builder_vmaps_over_trials():
         np.testing.assert_allclose(np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_found_paths_pass_the_navigation_check():
     """Regression (issue 11): the loop re-checked plans with a second, stricter segment test, so a
     path grazing a wall corner was 'blocked' right after the PRM found it clear and a robot on a

@@ -39,6 +39,7 @@ def test_map_strategy_equals_solo_solves_exactly(batch):
     assert user._cache_size() == size == 1
 
 
+@pytest.mark.slow
 def test_strategy_by_backend_and_bad_arguments():
     assert slam.default_strategy("cpu") == "map" and slam.default_strategy("gpu") == "vmap"
     maps = [slam.toy_map(s, num_objects=2, num_frames=4, capacity=(4, 8, 2))[0] for s in (0, 1)]

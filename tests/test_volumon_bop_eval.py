@@ -33,6 +33,7 @@ def test_known_size_baseline_gives_back_an_axis_aligned_ellipsoid_from_its_exact
     np.testing.assert_allclose(np.asarray(c_jit), center, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_known_size_baseline_matches_the_aspect_and_stays_finite():
     # an object long across the image, short along the ray: the aspect picks that axis order
     radii_true = np.array([0.06, 0.02, 0.01])
