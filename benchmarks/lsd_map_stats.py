@@ -83,12 +83,13 @@ def main(argv=None) -> int:
     ax.set_title("Passage widths: the LSD generator against real maps")
     ax.legend(fontsize=7)
     fig.tight_layout()
+    from jaxsem.scripting import atomic_savefig, atomic_write_text
+
     out = pathlib.Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    png = out.with_suffix(".png")
-    fig.savefig(png)
+    png = atomic_savefig(fig, out.with_suffix(".png"))
     plt.close(fig)
-    out.write_text(
+    atomic_write_text(
+        out,
         json.dumps(
             {
                 "command": "python benchmarks/lsd_map_stats.py " + " ".join(argv or sys.argv[1:]),
@@ -96,7 +97,7 @@ def main(argv=None) -> int:
                 "figure": str(png),
             },
             indent=1,
-        )
+        ),
     )
     print(f"wrote {out} and {png}")
     return 0

@@ -146,6 +146,7 @@ def _run(args, argv) -> int:
     from jaxsem.cli import enable_compilation_cache
     from jaxsem.lsd import LSDSampler, format_table, load_model, run_trials, summarise
     from jaxsem.planning import DOOR, NavConfig, SoftCostGraph, load_map, plot_semantics, sample_tasks
+    from jaxsem.scripting import atomic_write_text
 
     enable_compilation_cache()
     out = pathlib.Path(args.json)
@@ -248,10 +249,7 @@ def _run(args, argv) -> int:
         "table": table,
         "records": str(records_path),
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(json.dumps(result, indent=1, default=float))
-    tmp.replace(out)
+    atomic_write_text(out, json.dumps(result, indent=1, default=float))
     print(f"wrote {out} ({result['seconds'] / 60:.1f} min)")
     return 0
 

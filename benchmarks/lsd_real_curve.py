@@ -54,12 +54,10 @@ def main(argv=None) -> int:
         ax.set_title(f"{kind} {args.title}".strip(), fontsize=9)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, format="png")
+    from jaxsem.scripting import atomic_savefig
+
+    out = atomic_savefig(fig, args.out)
     plt.close(fig)
-    tmp.replace(out)
     print(f"wrote {out}")
     return 0
 

@@ -46,12 +46,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="a training run (config.json + checkpoints/) or a .npz model (default: the shipped model)",
     )
-    p.add_argument(
-        "--model",
-        default=None,
-        help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model) or a path (a training run "
-        "or a .npz); the same as --workdir for a path (default: 'object')",
-    )
+    add_model_argument(p)
     p.add_argument("--postopt", type=sc.nonnegative_int, default=0, help="also refine with PostOpt for this many steps")
     p.add_argument(
         "--data",
@@ -89,6 +84,16 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "the model's classes) or 'nearest' (the model class nearest in size to the object's true extents)",
     )
     return p
+
+
+def add_model_argument(p) -> None:
+    """The ``--model`` flag of the VoluMon commands (read back with :func:`resolve_model`)."""
+    p.add_argument(
+        "--model",
+        default=None,
+        help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model) or a path (a training run "
+        "or a .npz); the same as --workdir for a path (default: 'object')",
+    )
 
 
 def resolve_model(text: str | None, workdir):

@@ -36,7 +36,7 @@ import pathlib
 import numpy as np
 
 from jaxsem import scripting as sc
-from jaxsem._commands.volumon_eval import resolve_model
+from jaxsem._commands.volumon_eval import add_model_argument, resolve_model
 
 
 def intrinsics(text: str) -> tuple[float, float, float, float]:
@@ -110,12 +110,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="training run (config.json + checkpoints/); default: the shipped model",
     )
-    p.add_argument(
-        "--model",
-        default=None,
-        help="a shipped model by name ('object': the default, 'door', 'lmo': the LM-O model) or a path "
-        "(a training run or a .npz); the same as --workdir for a path",
-    )
+    add_model_argument(p)
     p.add_argument(
         "--train-steps",
         type=sc.positive_int,

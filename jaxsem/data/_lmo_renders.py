@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import quadrics as Q
 from ._bop import LINEMOD_NAMES, Mesh
+from ._objects import _material, _mujoco
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -187,12 +188,6 @@ def face_color_atlas(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return uv, np.repeat(idx[:, None], 3, 1), tex.reshape(S, S, 3)
 
 
-def _mj():
-    import mujoco
-
-    return mujoco
-
-
 def _noise_texture(rng, size=128) -> np.ndarray:
     """A cluttered procedural texture (S, S, 3) uint8: random rectangles, stripes and blobs."""
     img = np.empty((size, size, 3), np.float64)
@@ -221,17 +216,10 @@ def _noise_texture(rng, size=128) -> np.ndarray:
 
 
 def _add_texture(spec, name, data: np.ndarray):
-    mj = _mj()
+    mj = _mujoco()
     h, w = data.shape[:2]
     tex = spec.add_texture(name=name, type=mj.mjtTexture.mjTEXTURE_2D, width=w, height=h, nchannel=3)
     tex.data = np.ascontiguousarray(data, np.uint8).tobytes()
-    return name
-
-
-def _add_material(spec, name, tex, texrepeat=(1.0, 1.0), specular=0.3, rgba=(1.0, 1.0, 1.0, 1.0)):
-    mj = _mj()
-    mat = spec.add_material(name=name, texrepeat=list(texrepeat), texuniform=True, rgba=list(rgba), specular=specular)
-    mat.textures[mj.mjtTextureRole.mjTEXROLE_RGB] = tex
     return name
 
 
@@ -248,7 +236,7 @@ class _DeskScene:
     """One compiled MuJoCo model: desk, walls, the LM-O meshes, distractor meshes and primitives, lights."""
 
     def __init__(self, meshes: dict, distractors: list, rng, width, height, max_primitives=4):
-        mj = _mj()
+        mj = _mujoco()
         spec = mj.MjSpec()
         spec.visual.global_.offwidth = width
         spec.visual.global_.offheight = height
@@ -258,7 +246,7 @@ class _DeskScene:
         spec.stat.extent = 5.0
         _add_texture(spec, "desk_tex", _noise_texture(rng))
         rep = float(rng.uniform(0.5, 3.0))
-        _add_material(spec, "desk_mat", "desk_tex", (rep, rep), float(rng.uniform(0.0, 0.4)))
+        _material(spec, "desk_mat", "desk_tex", (rep, rep), specular=float(rng.uniform(0.0, 0.4)))
         desk = spec.worldbody.add_geom(name="desk", type=mj.mjtGeom.mjGEOM_BOX, size=[1.2, 0.8, 0.02])
         desk.pos = [0.0, 0.0, -0.02]
         desk.material = "desk_mat"
@@ -268,7 +256,7 @@ class _DeskScene:
         for k in range(4):
             _add_texture(spec, f"wall_tex{k}", _noise_texture(rng))
             rep = float(rng.uniform(1.0, 4.0))
-            _add_material(spec, f"wall_mat{k}", f"wall_tex{k}", (rep, rep), float(rng.uniform(0.0, 0.2)))
+            _material(spec, f"wall_mat{k}", f"wall_tex{k}", (rep, rep), specular=float(rng.uniform(0.0, 0.2)))
             a = k * np.pi / 2
             d = float(rng.uniform(1.5, 3.0))
             spec.worldbody.add_geom(
@@ -302,7 +290,7 @@ class _DeskScene:
             _add_texture(spec, f"dis_tex{j}", _noise_texture(rng, 64))
             # STL meshes have no texture coordinates: a random colour over the (cube-mapped) texture
             rgba = (*rng.uniform(0.15, 1.0, 3), 1.0)
-            _add_material(spec, f"dis_mat{j}", f"dis_tex{j}", (float(rng.uniform(1, 6)),) * 2, 0.3, rgba)
+            _material(spec, f"dis_mat{j}", f"dis_tex{j}", (float(rng.uniform(1, 6)),) * 2, rgba=rgba, specular=0.3)
             body = spec.worldbody.add_body(name=f"dis{j}", pos=[0, 0, -50])
             body.add_geom(name=f"dis{j}", type=mj.mjtGeom.mjGEOM_MESH, meshname=f"dis{j}", material=f"dis_mat{j}")
             self._distractor_specs.append(("mesh", f"dis{j}"))
@@ -310,7 +298,7 @@ class _DeskScene:
         self._primitive_half = []
         for j in range(max_primitives):
             _add_texture(spec, f"prim_tex{j}", _noise_texture(rng, 64))
-            _add_material(spec, f"prim_mat{j}", f"prim_tex{j}", (float(rng.uniform(1, 4)),) * 2, 0.3)
+            _material(spec, f"prim_mat{j}", f"prim_tex{j}", (float(rng.uniform(1, 4)),) * 2, specular=0.3)
             kind = int(rng.integers(3))
             half = rng.uniform(0.02, 0.1, 3)
             if kind == 1:
@@ -351,7 +339,7 @@ class _DeskScene:
         self.renderer = mj.Renderer(self.model, self.height, self.width)
 
     def _item(self, name) -> _Item:
-        mj = _mj()
+        mj = _mujoco()
         m = self.model
         gid = m.geom(name).id
         if m.geom_type[gid] == mj.mjtGeom.mjGEOM_MESH:
@@ -398,18 +386,11 @@ def _tilt(rng, max_deg):
 
 
 def _look_at(eye, target, roll) -> np.ndarray:
-    """camera_T_world (4, 4), OpenCV axes, camera at ``eye`` looking at ``target``, rolled."""
-    z = target - eye
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z], 1)  # world_R_cam
+    """camera_T_world (4, 4), OpenCV axes, camera at ``eye`` looking at ``target`` (the core's
+    :func:`~jaxsem.quadrics.look_at`, z up), then rolled by ``roll`` about its optical axis."""
+    T = np.array(Q.look_at(np.asarray(eye, float), np.asarray(target, float), xp=np))
     c, s = np.cos(roll), np.sin(roll)
-    R = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    T = np.eye(4)
-    T[:3, :3] = R.T
-    T[:3, 3] = -R.T @ eye
+    T[:3] = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ T[:3]
     return T
 
 
