@@ -92,7 +92,8 @@ def add_model_argument(p) -> None:
         "--model",
         default=None,
         help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model) or a path (a training run "
-        "or a .npz); the same as --workdir for a path (default: 'object')",
+        "or a .npz); the same as --workdir for a path (default: 'object'; on a BOP scene, --data with "
+        "scene_gt.json: 'lmo')",
     )
 
 
@@ -262,6 +263,8 @@ def main(argv=None, prog: str | None = None) -> int:
         for flag, value in (("--split", args.split), ("--oracle", None if desk else args.oracle)):
             if value is not None:
                 raise sc.UsageError(f"{flag}: only with --data SCENE_DIR, a BOP scene folder with scene_gt.json")
+    if bop and args.model is None and args.workdir is None:
+        args.model = "lmo"  # a BOP scene's default: the model trained for real objects (and its oracle)
     path, kind = resolve_model(args.model, args.workdir)
     from jaxsem.volumon import evaluate_held_out, load_pretrained
 

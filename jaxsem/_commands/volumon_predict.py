@@ -19,7 +19,7 @@ Examples::
 Writes ``ellipsoids.json`` (per detection: rotation object-to-camera, center in the camera
 frame, radii, all in metres) and ``overlay_*.png`` (input box green, projected conic blue,
 3D box orange; dashed white: ground truth when known) into ``--out``; on a BOP frame
-(``--data``, ``--frame``) one figure, ``overlay_frame<ID>.png``: the predictions (left, with the
+(``--data``, ``--frame``; the LM-O model unless --model or --workdir says otherwise) one figure, ``overlay_frame<ID>.png``: the predictions (left, with the
 true cuboids dashed) beside the true ellipsoids drawn the same way (right); the run directory
 (``--run-dir``) gets config.json and summary.json (the number of ellipsoids, the overlays).
 
@@ -300,7 +300,8 @@ def _predict_bop_frame(a) -> int:
     from jaxsem import data
     from jaxsem.volumon import class_rows, draw_predictions, evaluate_scene_batch, load_pretrained
 
-    path, kind = resolve_model(a.model, a.workdir)
+    # A BOP scene's default is the model trained for real objects (LM-O's classes).
+    path, kind = resolve_model(a.model if (a.model or a.workdir) else "lmo", a.workdir)
     try:
         model, variables, cfg, meta = load_pretrained(path, kind=kind)
     except ValueError as exc:
