@@ -100,10 +100,10 @@ def check_rigid(name: str, transform) -> None:
     :func:`check_rotation`) and the last row ``[0, 0, 0, 1]`` (to :data:`ROTATION_TOL`)."""
     if not is_concrete(transform):
         return
-    check_rotation(name, transform[..., :3, :3])
-    T = np.asarray(transform, np.float64)
+    T = np.asarray(transform, np.float64)  # numpy first: slicing a jax array eagerly dispatches ops
     if T.size == 0:
         return
+    check_rotation(name, T[..., :3, :3])
     gap = np.abs(T[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
     if not bool(np.all(gap <= ROTATION_TOL)):
         row = T.reshape(-1, 4, 4)[int(np.argmax(~(gap.reshape(-1) <= ROTATION_TOL))), 3]

@@ -17,6 +17,7 @@ from .._checks import (
 )
 from ._common import (
     _camera_args,
+    _eager_compiled,
     _ellipsoid_args,
     _ellipsoid_ok,
     _eps,
@@ -286,7 +287,14 @@ def project_bbox(rotation, center, radii, K, camera_T_world):
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     K, pose = _camera_args(K, camera_T_world)
     batch = _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    return _project_bbox_compiled(rotation, center, radii, K, pose, batch)
+
+
+def _project_bbox_cast(rotation, center, radii, K, pose, batch):
     dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
     cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
     args = cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
     return _project_bbox(*args)
+
+
+_project_bbox_compiled = _eager_compiled(_project_bbox_cast, static_argnums=(5,))

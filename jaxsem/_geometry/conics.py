@@ -21,6 +21,7 @@ from .._checks import (
 )
 from ._common import (
     _camera_args,
+    _eager_compiled,
     _ellipsoid_args,
     _ellipsoid_ok,
     _eps,
@@ -46,7 +47,10 @@ def ellipsoid_valid(rotation, center, radii):
     dtype-aware tolerance), a finite centre and positive finite radii. The check every masked
     core function folds in; use it beside the unmasked algebra (:func:`dual_quadric`, ...)."""
     rotation, center, radii = jnp.asarray(rotation), jnp.asarray(center), jnp.asarray(radii)
-    return _ellipsoid_ok(rotation, center, radii)
+    return _ellipsoid_ok_compiled(rotation, center, radii)
+
+
+_ellipsoid_ok_compiled = _eager_compiled(_ellipsoid_ok)
 
 
 def camera_valid(K, camera_T_world):
@@ -72,7 +76,7 @@ def dual_quadric(rotation, center, radii, *, xp: Any = jnp, with_valid: bool = F
     xp = _namespace(xp)
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
     if not with_valid:
-        return _dual_quadric(rotation, center, radii, batch, xp)
+        return _dual_quadric_compiled(rotation, center, radii, batch, xp)
     valid = xp.broadcast_to(_ellipsoid_ok(rotation, center, radii, xp), batch)
     z = functools.partial(_finite_or_zero, xp=xp)
     return _dual_quadric(z(rotation), z(center), z(radii), batch, xp), valid
@@ -88,6 +92,9 @@ def _dual_quadric(rotation, center, radii, batch, xp):
     top = xp.concatenate([top_left, -center[..., :, None]], axis=-1)
     bottom = xp.concatenate([-center, -xp.ones(batch + (1,), center.dtype)], axis=-1)
     return xp.concatenate([top, bottom[..., None, :]], axis=-2)
+
+
+_dual_quadric_compiled = _eager_compiled(_dual_quadric, static_argnums=(3, 4))
 
 
 def _inverse_square_radii(radii):
@@ -178,11 +185,18 @@ def conic_bbox(dual_conic, *, xp: Any = jnp):
     """
     xp = _namespace(xp)
     C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)
+    return _conic_bbox_compiled(C, xp)
+
+
+def _conic_bbox(C, xp):
     finite = _finite(C, 2, xp)
     C = _finite_or_zero(C, xp)  # a non-finite conic (valid False) gives a finite box too
     c13, c23, c33, disc_u, disc_v, det, det_scale = _conic_terms(C, xp)
     valid = _is_ellipse(c13, c23, c33, disc_u, disc_v, det, det_scale) & finite
     return _conic_box(c13, c23, c33, disc_u, disc_v, valid, xp), valid
+
+
+_conic_bbox_compiled = _eager_compiled(_conic_bbox, static_argnums=(1,))
 
 
 def _is_ellipse(c13, c23, c33, disc_u, disc_v, det, det_scale):

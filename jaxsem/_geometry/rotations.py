@@ -21,6 +21,7 @@ from .._checks import (
 )
 from ._common import (
     _cross,
+    _eager_compiled,
     _eps,
     _finite,
     _finite_or_zero,
@@ -44,7 +45,7 @@ def quaternion_wxyz_to_rotation(quaternion_wxyz, *, xp: Any = jnp):
     """
     xp = _namespace(xp)
     q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True, xp=xp)
-    return _quaternion_wxyz_to_rotation(q, xp)
+    return _quaternion_wxyz_to_rotation_compiled(q, xp)
 
 
 def quaternion_xyzw_to_rotation(quaternion_xyzw, *, xp: Any = jnp):
@@ -52,7 +53,7 @@ def quaternion_xyzw_to_rotation(quaternion_xyzw, *, xp: Any = jnp):
     -> (..., 3, 3) rotation. Same rules as :func:`quaternion_wxyz_to_rotation`."""
     xp = _namespace(xp)
     q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True, xp=xp)
-    return _quaternion_wxyz_to_rotation(xp.roll(q, 1, axis=-1), xp)
+    return _quaternion_xyzw_to_rotation_compiled(q, xp)
 
 
 def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
@@ -72,6 +73,12 @@ def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
     )
 
 
+_quaternion_wxyz_to_rotation_compiled = _eager_compiled(_quaternion_wxyz_to_rotation, static_argnums=(1,))
+_quaternion_xyzw_to_rotation_compiled = _eager_compiled(
+    lambda q, xp: _quaternion_wxyz_to_rotation(xp.roll(q, 1, axis=-1), xp), static_argnums=(1,)
+)
+
+
 def rotation_to_quaternion_wxyz(
     rotation, *, with_valid: bool = False, xp: Any = jnp
 ) -> Any:  # a tuple with with_valid=True
@@ -88,8 +95,13 @@ def rotation_to_quaternion_wxyz(
     xp = _namespace(xp)
     R = _as_float_array("rotation", rotation, (3, 3), check_finite=True, xp=xp)
     _check_rotation("rotation", R)
-    q = _rotation_to_quaternion_wxyz(_finite_or_zero(R, xp) if with_valid else R, xp)
-    return (q, _rotation_ok(R, xp)) if with_valid else q
+    if not with_valid:
+        return _rotation_to_quaternion_compiled(R, xp)
+    return _rotation_to_quaternion_masked(R, xp)
+
+
+def _rotation_to_quaternion_masked_plain(R, xp):
+    return _rotation_to_quaternion_wxyz(_finite_or_zero(R, xp), xp), _rotation_ok(R, xp)
 
 
 def _rotation_to_quaternion_wxyz(R, xp):
@@ -149,6 +161,10 @@ def _rotation_to_quaternion_wxyz(R, xp):
     return q / xp.maximum(_safe_norm(q, xp, axis=-1, keepdims=True), xp.finfo(q.dtype).tiny)
 
 
+_rotation_to_quaternion_compiled = _eager_compiled(_rotation_to_quaternion_wxyz, static_argnums=(1,))
+_rotation_to_quaternion_masked = _eager_compiled(_rotation_to_quaternion_masked_plain, static_argnums=(1,))
+
+
 def random_rotation(key, shape: tuple = (), dtype=None):
     """Uniformly random rotations (..., 3, 3) from normalised Gaussian quaternions."""
     dtype = dtype or jnp.result_type(float)
@@ -181,15 +197,23 @@ def look_at(
     for name, x in (("eye", eye), ("target", target), ("up", up)):
         if _is_concrete(x) and not bool(np.all(np.isfinite(np.asarray(x)))):
             raise ValueError(f"{name}: must be finite, got non-finite values (NaN or inf)")
-    forward = target - eye
-    tiny = float(np.finfo(dtype).tiny)
-    # The view direction must be normalisable: a squared length above the smallest normal number.
-    distinct = xp.sum(xp.square(forward), axis=-1) > tiny
-    if _is_concrete(eye) and _is_concrete(target) and not bool(np.all(np.asarray(distinct))):
-        raise ValueError("target: must differ from eye (the view direction is undefined)")
-    up_ok = xp.sum(xp.square(up), axis=-1) > 0
-    if _is_concrete(up) and not bool(np.all(np.asarray(up_ok))):
+    # The view direction must be normalisable: a squared length above the smallest normal number
+    # (the same tests as the kernel's mask, made here in numpy on concrete values).
+    if _is_concrete(eye) and _is_concrete(target):
+        forward = np.asarray(target) - np.asarray(eye)
+        if not bool(np.all(np.sum(np.square(forward), axis=-1) > float(np.finfo(dtype).tiny))):
+            raise ValueError("target: must differ from eye (the view direction is undefined)")
+    if _is_concrete(up) and not bool(np.all(np.sum(np.square(np.asarray(up)), axis=-1) > 0)):
         raise ValueError("up: must be a non-zero vector")
+    return _look_at_compiled(eye, target, up, batch, with_valid, xp)
+
+
+def _look_at(eye, target, up, batch, with_valid, xp):
+    """The arithmetic of :func:`look_at` on checked arguments of one dtype."""
+    dtype = eye.dtype
+    forward = target - eye
+    distinct = xp.sum(xp.square(forward), axis=-1) > float(np.finfo(dtype).tiny)
+    up_ok = xp.sum(xp.square(up), axis=-1) > 0
     valid = distinct & up_ok & _finite(eye, 1, xp) & _finite(target, 1, xp) & _finite(up, 1, xp)
     if with_valid:  # a finite stand-in where not valid: at the eye (or origin), along +x
         eye = _finite_or_zero(eye, xp)
@@ -213,6 +237,9 @@ def look_at(
     bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), batch + (4,))
     pose = xp.concatenate([top, bottom[..., None, :]], -2)
     return (pose, xp.broadcast_to(valid, batch)) if with_valid else pose
+
+
+_look_at_compiled = _eager_compiled(_look_at, static_argnums=(3, 4, 5))
 
 
 def rotation_to_quaternion_xyzw(
