@@ -29,6 +29,7 @@ def _run(argv):
     return proc.returncode, lines, proc.stderr
 
 
+@pytest.mark.filterwarnings("error")  # regression: a truncated zip's file was left open (ResourceWarning)
 @pytest.mark.parametrize("content", [b"not a zip file at all", b"PK\x03\x04 truncated zip"])
 def test_corrupt_shard_is_named(tmp_path, content):
     shard = tmp_path / "expert_000.npz"

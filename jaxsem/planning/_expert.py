@@ -462,11 +462,16 @@ def _read_shard(p: pathlib.Path) -> dict:
     (``np.load`` alone says "pickled (object) data" or "bad zip" and names no file)."""
     keys = (*_SHARD_ARRAYS, "path_offsets", "building_seed", "family", "resolution")
     try:
-        with np.load(p) as z:
-            missing = [k for k in keys if k not in z.files]
-            if missing:
-                raise ValueError(f"{p}: not an expert shard (missing {', '.join(missing)})")
-            return {k: z[k] for k in keys}
+        # The file is opened here, not by np.load: np.load left a truncated zip's file open.
+        with open(p, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":
+                raise ValueError(f"{p}: not a readable expert shard (not an .npz archive)")
+            f.seek(0)
+            with np.load(f) as z:
+                missing = [k for k in keys if k not in z.files]
+                if missing:
+                    raise ValueError(f"{p}: not an expert shard (missing {', '.join(missing)})")
+                return {k: z[k] for k in keys}
     except ValueError as exc:
         if str(exc).startswith(f"{p}:"):
             raise
