@@ -560,3 +560,11 @@ def test_eager_checks_still_name_the_argument_before_the_compiled_program():
         q.rotation_to_quaternion(2.0 * jnp.eye(3), with_valid=True)
     with pytest.raises(ValueError, match="radii: expected positive"):
         q.project_bbox(jnp.eye(3), jnp.array([0.0, 0.0, 5.0]), jnp.array([1.0, -1.0, 1.0]), K, T0)
+
+
+def test_look_at_default_up_follows_float32_eye_and_target_under_strict_promotion():
+    # Regression: the default up (a Python tuple) became float64 under x64 and strict dtype
+    # promotion refused float32 eye and target.
+    T = q.look_at(np.array([1.0, 2.0, 3.0], np.float32), np.zeros(3, np.float32))
+    assert T.dtype == np.float32
+    np.testing.assert_allclose(np.asarray(T)[:3, 3], -np.asarray(T)[:3, :3] @ [1.0, 2.0, 3.0], atol=1e-5)

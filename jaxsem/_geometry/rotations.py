@@ -190,6 +190,8 @@ def look_at(
     xp = _namespace(xp)
     eye = _as_float_array("eye", eye, (3,), xp=xp)
     target = _as_float_array("target", target, (3,), xp=xp)
+    if not hasattr(up, "dtype"):  # a Python sequence (the default): the dtype of eye and target
+        up = xp.asarray(up, xp.result_type(eye.dtype, target.dtype))
     up = _as_float_array("up", up, (3,), xp=xp)
     dtype = xp.result_type(eye.dtype, target.dtype, up.dtype)
     eye, target, up = eye.astype(dtype), target.astype(dtype), up.astype(dtype)
