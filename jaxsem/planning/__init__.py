@@ -36,6 +36,10 @@ from ._buildings import (
     building_family as building_family,
     generate_building as generate_building,
 )
+from ._edges import (
+    polyline_clear as polyline_clear,
+    query_reach as query_reach,
+)
 from ._expert import (
     SCHEMA_KEYS as SCHEMA_KEYS,
     ExpertConfig as ExpertConfig,
@@ -83,25 +87,31 @@ from ._navigate import (
     local_inputs as local_inputs,
     navigate as navigate,
 )
+from ._neighbours import (
+    knn_within_radius as knn_within_radius,
+)
 from ._prm import (
+    PRM as PRM,
+)
+from ._roadmap import (
     DEFAULT_SECTORS as DEFAULT_SECTORS,
     LEARNED_RADIUS_FACTOR as LEARNED_RADIUS_FACTOR,
-    PRM as PRM,
     Roadmap as Roadmap,
-    RoadmapPath as RoadmapPath,
     build_roadmap as build_roadmap,
     default_radius as default_radius,
-    embed_local_distribution as embed_local_distribution,
-    knn_within_radius as knn_within_radius,
     make_roadmap_builder as make_roadmap_builder,
-    polyline_clear as polyline_clear,
     prm_star_k as prm_star_k,
-    query_reach as query_reach,
     roadmap_connect as roadmap_connect,
     roadmap_grow as roadmap_grow,
     roadmap_init as roadmap_init,
     roadmap_recheck as roadmap_recheck,
+)
+from ._roadmap_search import (
+    RoadmapPath as RoadmapPath,
     roadmap_shortest_path as roadmap_shortest_path,
+)
+from ._sampling import (
+    embed_local_distribution as embed_local_distribution,
     sample_points as sample_points,
 )
 from ._semantics import (

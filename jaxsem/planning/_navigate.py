@@ -26,7 +26,7 @@ Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM +
 (e.g. the LSD network's softmax); the window is embedded in the full map (outside: the window's
 minimum, renormalised, section 3.2.5), the PRM samples from it, and edges are weighted by the
 integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwise. Both planners
-link vertices direction-first (``NavConfig.sectors``; see :mod:`jaxsem.planning._prm`), and a
+link vertices direction-first (``NavConfig.sectors``; see :mod:`jaxsem.planning._roadmap`), and a
 learned sampler's roadmap gets twice the uniform radius (``learned_radius_factor``): outside the
 window its few samples are too far apart for the uniform radius, which ended most Inside-Outside
 trials with 'no_plan' (``benchmarks/lsd_diagnose_finding.md``).
@@ -51,16 +51,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._edges import polyline_clear
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
-from ._prm import (
-    DEFAULT_SECTORS,
-    LEARNED_RADIUS_FACTOR,
-    PRM,
-    default_radius,
-    embed_local_distribution,
-    polyline_clear,
-    prm_star_k,
-)
+from ._prm import PRM
+from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
+from ._sampling import embed_local_distribution
 from ._sensors import SensorConfig, _check_resolution, _sense_jit
 
 CROP_SIZE = 160

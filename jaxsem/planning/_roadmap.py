@@ -1,0 +1,595 @@
+"""Probabilistic roadmap on a partial grid map: built once, grown, rechecked, queried many times.
+
+A :class:`Roadmap` is a pytree of fixed capacity (so growing it never recompiles): slots 0 and 1
+hold the current query's start and goal, slots ``2 .. 2 + count`` the samples. The pieces are
+pure jitted functions (:func:`roadmap_init`, :func:`roadmap_grow`, :func:`roadmap_recheck`,
+:func:`roadmap_connect`) and :class:`PRM` is the host-side object most users want::
+
+    prm = PRM(known_map, origin, resolution, capacity=2000)
+    prm.grow(key, 1000)                    # uniform over cells not known occupied
+    path = prm.query(start, goal)          # many queries on one roadmap
+    prm.update_map(newer_map)              # a partial map only gains obstacles: drop what they hit
+    prm.grow(key2, 1000, distribution=p)   # densify (e.g. from a learned distribution)
+
+Sampling. A vertex is drawn from the distribution over cells *restricted to cells that are not
+known occupied* (inverse CDF over the flattened grid), then placed uniformly inside its cell.
+That is rejection sampling done exactly: ``N`` counts valid vertices, as OMPL's PRM counts
+milestones (its valid-state sampler retries until a state is valid). Unknown cells are free.
+
+Connection policy (documented, tested against brute force). With ``sectors=0`` every vertex added in a batch links
+to its ``k`` nearest vertices within ``radius`` among all vertices present once the batch is in
+(its own batch included); the graph is undirected, so a vertex's degree is its own ``k`` plus
+the links later vertices make to it. For one batch this is "k nearest of the final vertex set";
+OMPL's PRM is the same rule with batches of one milestone (k = 10, no radius). With
+``sectors=S > 0`` (the default, :data:`DEFAULT_SECTORS` = 8, also the navigation planner's) the ``k`` links are chosen by
+direction first: the nearest ``m = ceil(k / 2S)`` in each of ``S`` equal angular sectors around
+the vertex (within ``radius``) and its nearest ``2m`` among samples drawn no more densely than
+itself come first, then the nearest of the rest; of the first ``2k`` candidates in that order the
+first ``k`` whose edge is clear are kept. Why: under a learned distribution the samples are dense
+in a few places and sparse elsewhere, and the plain k nearest of a vertex near a dense cluster
+all lie inside the cluster (or behind the wall beside it), so clusters a door or a gap apart, and
+the sparse samples beyond them, were never linked (see ``benchmarks/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
+the goal, the goal to its ``k`` nearest samples, chosen by the same rule but at *any* distance
+(not bounded by ``radius``; such long edges are checked over :func:`query_reach`): a goal outside
+a sparse region still reaches the roadmap. Samples never link to the query slots, so queries do
+not change the roadmap.
+
+Neighbour search is exact. Vertices are bucketed on a grid of cell size ``radius`` and each
+query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``.
+A bucket is read through ``bucket_cap`` slots; the search reports ``overflow`` (a result code
+in :attr:`Roadmap.overflow`) when any bucket holds more, and the Python entry points then rerun
+with enough slots, so nothing is dropped silently (samples concentrated by a learned
+distribution put hundreds of vertices in one bucket). When ``9 * bucket_cap`` would reach the
+vertex count, the search is brute force over all vertices (same result, no cap at all).
+
+Edge check: ``edge_samples`` points along each edge, at most half a cell apart, must lie in
+cells that are not known occupied, and so must both side cells of any diagonal step between
+consecutive samples, so a valid edge touches no known-occupied cell. Edge weight: Euclidean
+length, or the integral of ``-log p`` along the edge (mean over the samples times the length,
+thesis eq. 3.3) with ``weight='neglogp'``.
+
+Search (:func:`roadmap_shortest_path`, :meth:`PRM.query`) is scipy's Dijkstra on the host; the
+PRM keeps the roadmap's edge list in CSR form, so a query only adds its start's and goal's
+edges (a few milliseconds at 5000 vertices).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.core import Tracer
+
+from ._edges import _cells, _edge_samples, _edges, query_reach
+from ._grid import OCCUPIED, check_point
+from ._neighbours import _knn, _select
+from ._sampling import _cost_grid, _sampling_weights, sample_points
+
+#: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
+#: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
+#: navigation planner (``NavConfig.sectors``): direction first over 8 sectors. Measured against
+#: OMPL's PRM (k = 10) on test buildings 300-307 (tuning seeds), 6 queries x 3 roadmaps each at
+#: N = 500: the plain k nearest (``sectors=0``) found 66 of 144 paths (OMPL 35) with length / C*
+#: 1.26 against OMPL's 1.13 on the 23 both found; 8 sectors found 71 with 1.23 against 1.24 on
+#: the 25 both found (``benchmarks/lsd_prm.py`` reports held-out buildings).
+DEFAULT_SECTORS = 8
+
+#: Query slots: the start and goal of the current query.
+START, GOAL = 0, 1
+_QUERY = 2
+
+
+class Roadmap(NamedTuple):
+    """A roadmap (pytree) of capacity ``M - 2`` samples; ``M`` slots in all.
+
+    points: (M, 2) world (x, y); slot 0 the query start, slot 1 the goal, then the samples.
+    valid: (M,) bool, the slot holds a vertex whose cell is not known occupied.
+    neighbors: (M, k) int32 slot indices (``M`` where there is none).
+    edge_valid: (M, k) bool; edge_weight: (M, k) float (inf where invalid).
+    num_samples: () int32, samples so far (slots ``2 .. 2 + num_samples``).
+    overflow: () bool result code: a neighbour search had fewer candidate slots than a bucket
+        held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
+        :func:`roadmap_grow` rerun with more slots and never return it set.
+    """
+
+    points: jax.Array
+    valid: jax.Array
+    neighbors: jax.Array
+    edge_valid: jax.Array
+    edge_weight: jax.Array
+    num_samples: jax.Array
+    overflow: jax.Array
+
+
+#: A learned sampler's roadmap links over this many times the uniform radius (see
+#: :class:`~jaxsem.planning.NavConfig`'s ``learned_radius_factor``, whose default it is).
+LEARNED_RADIUS_FACTOR = 2.0
+
+
+def default_radius(n: int, shape, resolution: float, weight: str = "euclidean") -> float:
+    """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 3 x the mean sample
+    spacing, within [1, 8] m, rounded up to 0.5 m so that few distinct values (each a compile)
+    occur. It only bounds the search; the ``k`` nearest are usually closer (see
+    ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
+    learned sampler's roadmap) gives ``LEARNED_RADIUS_FACTOR`` times that, rounded up to 0.5 m:
+    the navigation loop's rule (:meth:`~jaxsem.planning.Trial.connection_radius`), so that a
+    one-shot LSD roadmap links like the loop's (a concentrated distribution leaves the few samples
+    outside its window farther apart than the uniform radius)."""
+    area = shape[0] * shape[1] * resolution**2
+    r = math.ceil(min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1)))) * 2.0) / 2.0
+    if weight == "neglogp":
+        r = math.ceil(2.0 * r * LEARNED_RADIUS_FACTOR) / 2.0
+    return r
+
+
+def prm_star_k(n: int) -> int:
+    """Neighbours per vertex for ``n`` samples: PRM*'s ``ceil(e (1 + 1/d) ln n)`` with d = 2
+    (Karaman and Frazzoli 2011; OMPL's ``PRMstar`` uses the same rule): 26 at n = 500, 29 at
+    1000, 35 at 5000. Measured on 4 held-out test buildings x 6 Inside-Inside queries x 3
+    roadmaps (tuning seeds 50-53): at n = 500 k = 15 solved 32 of 72 queries (length / C* 1.27),
+    k = 25 solved 43 (1.16); at n = 1000, 56 vs 63. Growing in OMPL-like batches of increasing
+    size (early vertices linking far) solved fewer (19 at n = 500)."""
+    return max(1, int(math.ceil(math.e * 1.5 * math.log(max(int(n), 2)))))
+
+
+def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
+    """An empty roadmap with room for ``capacity`` samples and ``k`` neighbours per vertex."""
+    if not (isinstance(capacity, (int, np.integer)) and capacity >= 1):
+        raise ValueError(f"capacity: expected a positive int, got {capacity!r}")
+    if not (isinstance(k, (int, np.integer)) and k >= 1):
+        raise ValueError(f"k: expected a positive int number of neighbours, got {k!r}")
+    dtype = dtype or jnp.result_type(float)
+    M = int(capacity) + _QUERY
+    return Roadmap(
+        points=jnp.zeros((M, 2), dtype),
+        valid=jnp.zeros(M, bool),
+        neighbors=jnp.full((M, int(k)), M, jnp.int32),
+        edge_valid=jnp.zeros((M, int(k)), bool),
+        edge_weight=jnp.full((M, int(k)), jnp.inf, dtype),
+        num_samples=jnp.zeros((), jnp.int32),
+        overflow=jnp.zeros((), bool),
+    )
+
+
+def _grow_impl(
+    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+):
+    M, k = rm.neighbors.shape
+    H, W = blocked.shape
+    dtype = rm.points.dtype
+    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
+    new = sample_points(key, weights, n, origin, resolution)
+    r, c, on = _cells(new, origin, resolution, (H, W))
+    ok_new = on & ~blocked[r, c]
+    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
+    z = jnp.zeros((), jnp.int32)
+    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
+    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    slots = s0 + jnp.arange(n, dtype=jnp.int32)
+    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    extent = (W * resolution, H * resolution)
+    # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
+    keep = 2 * k if sectors else k
+    density = None
+    if sectors and distribution is not None:
+        pr, pc, _ = _cells(points, origin, resolution, (H, W))
+        density = distribution[pr, pc]
+    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
+    other = points[jnp.minimum(nbr, M - 1)]
+    cost = _cost_grid(distribution) if neglogp else None
+    clear, w = _edges(
+        blocked,
+        cost,
+        new[:, None, :],
+        other,
+        origin,
+        resolution,
+        _edge_samples(radius, resolution),
+    )
+    ev = (nbr < M) & clear & ok_new[:, None]
+    w = jnp.where(ev, w, jnp.inf)
+    if keep > k:
+        nbr, ev, w = _clear_first(nbr, ev, w, k)
+        nbr = jnp.where(ev, nbr, M)
+    return Roadmap(
+        points,
+        valid,
+        jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
+        jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
+        jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), (s0, z)),
+        rm.num_samples + n,
+        rm.overflow | ovf,
+    )
+
+
+_grow_jit = functools.partial(
+    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors", "uniform_samples")
+)(_grow_impl)
+
+
+def _recheck_impl(rm, blocked, origin, *, radius, resolution):
+    M, _ = rm.neighbors.shape
+    r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
+    valid = rm.valid & on & ~blocked[r, c]
+    j = jnp.minimum(rm.neighbors, M - 1)
+    clear, _ = _edges(
+        blocked,
+        None,
+        rm.points[:, None, :],
+        rm.points[j],
+        origin,
+        resolution,
+        _edge_samples(radius, resolution),
+    )
+    ev = rm.edge_valid & clear & valid[:, None] & valid[j]
+    return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf))
+
+
+_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
+
+
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0):
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    q = jnp.stack([start, goal]).astype(dtype)
+    points = rm.points.at[:_QUERY].set(q)
+    valid = rm.valid.at[:_QUERY].set(True)
+    # Brute force over all slots (2 x M distances), at any distance (the query's edges are not
+    # bounded by ``radius``: a goal far from a sparse region still links to its nearest samples);
+    # the start may link to the goal, the goal not back to the start (one edge), neither to itself.
+    ok = jnp.broadcast_to((valid & (jnp.arange(M) >= _QUERY))[None, :], (2, M))
+    ok = ok.at[0, GOAL].set(True)
+    diff = points[None, :, :] - q[:, None, :]
+    d2 = jnp.sum(diff**2, -1)
+    d2 = jnp.where(ok, d2, jnp.inf)
+    keep = 2 * k if sectors else k
+    kk = min(keep, M)
+    pos, fin = _select(d2, diff, k, sectors, keep)
+    nbr = jnp.where(fin, pos, M).astype(jnp.int32)
+    if kk < keep:
+        nbr = jnp.concatenate([nbr, jnp.full((2, keep - kk), M, jnp.int32)], 1)
+    other = points[jnp.minimum(nbr, M - 1)]
+    cost = _cost_grid(distribution) if neglogp else None
+    # Each edge is checked with the samples polyline_clear uses for a segment of its length:
+    # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(radius, resolution))
+    reach = query_reach(blocked.shape, resolution)
+    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(reach, resolution))
+    short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
+    ev = (nbr < M) & clear
+    w = jnp.where(ev, w, jnp.inf).astype(dtype)
+    if keep > k:
+        nbr, ev, w = _clear_first(nbr, ev, w, k)
+        nbr = jnp.where(ev, nbr, M)
+    return rm._replace(
+        points=points,
+        valid=valid,
+        neighbors=rm.neighbors.at[:_QUERY].set(nbr),
+        edge_valid=rm.edge_valid.at[:_QUERY].set(ev),
+        edge_weight=rm.edge_weight.at[:_QUERY].set(w),
+    )
+
+
+_connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp", "sectors"))(_connect_impl)
+
+
+# ----------------------------------------------------------------------------- boundary checks
+
+
+def _blocked_from(name, known_map):
+    if isinstance(known_map, Tracer):
+        raise ValueError(f"{name}: the roadmap entry points run at the Python boundary; pass a concrete map")
+    arr = np.asarray(known_map)
+    if arr.ndim != 2:
+        raise ValueError(f"{name}: expected a 2-D grid (H, W), got shape {arr.shape}")
+    if arr.dtype == np.bool_:
+        return arr
+    if arr.dtype == np.int8:
+        return arr == OCCUPIED
+    raise ValueError(
+        f"{name}: expected a bool obstacle grid or an int8 partial map (UNKNOWN/FREE/OCCUPIED), got dtype {arr.dtype}"
+    )
+
+
+def _check_distribution(distribution, shape):
+    if distribution is None or isinstance(distribution, Tracer):
+        return distribution
+    d = np.asarray(distribution)
+    if d.shape != tuple(shape):
+        raise ValueError(f"distribution: expected shape {tuple(shape)} (the map's), got shape {d.shape}")
+    if not np.issubdtype(d.dtype, np.floating):
+        raise ValueError(f"distribution: expected a float grid, got dtype {d.dtype}")
+    if not (np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0):
+        raise ValueError("distribution: expected finite, non-negative weights with a positive sum")
+    return distribution
+
+
+def _clear_first(nbr, ev, w, k: int):
+    """Of candidate links (Q, K) in preference order, the first ``k`` that are clear (then the
+    rest, marked invalid): a blocked near candidate does not take a slot from a clear farther
+    one."""
+    K = nbr.shape[1]
+    rank = jnp.where(ev, 0, K) + jnp.arange(K)[None, :]
+    _, pos = jax.lax.top_k(-rank, k)
+    take = functools.partial(jnp.take_along_axis, indices=pos, axis=1)
+    return take(nbr), take(ev), take(w)
+
+
+def _check_sectors(sectors) -> int:
+    if not (isinstance(sectors, (int, np.integer)) and not isinstance(sectors, bool) and 0 <= sectors <= 64):
+        raise ValueError(f"sectors: expected an int in [0, 64] (0: the k nearest), got {sectors!r}")
+    return int(sectors)
+
+
+def _initial_cap(n_total: int, shape, resolution, radius) -> int:
+    """Bucket slots for uniform samples: 4 x the mean bucket load, a power of two, >= 16."""
+    buckets = max(1.0, shape[0] * shape[1] * resolution**2 / radius**2)
+    return max(16, 1 << int(math.ceil(math.log2(max(1.0, 4.0 * n_total / buckets)))))
+
+
+def roadmap_grow(
+    roadmap: Roadmap,
+    key,
+    known_map,
+    n: int,
+    origin,
+    resolution: float,
+    *,
+    distribution=None,
+    radius: float,
+    weight: str = "euclidean",
+    bucket_cap: int | None = None,
+    sectors: int = DEFAULT_SECTORS,
+) -> Roadmap:
+    """Adds ``n`` samples (valid vertices) to ``roadmap`` and links them (module docstring).
+
+    known_map: (H, W) int8 partial map or bool obstacle grid; distribution: (H, W) cell weights
+    (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
+    it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
+    bucket_cap: neighbour-search slots per bucket to start with (None: a size for uniform
+    samples); on overflow the search reruns with enough slots; sectors: 0 (the k nearest) or the
+    direction sectors whose nearest come first (module docstring). Returns the grown roadmap.
+    """
+    sectors = _check_sectors(sectors)
+    blocked = _blocked_from("known_map", known_map)
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
+    if weight not in ("euclidean", "neglogp"):
+        raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+    if weight == "neglogp" and distribution is None:
+        raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
+    distribution = _check_distribution(distribution, blocked.shape)
+    M = roadmap.points.shape[0]
+    count = int(roadmap.num_samples)
+    if count + int(n) > M - _QUERY:
+        raise ValueError(f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, {count} used)")
+    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
+    cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, resolution, radius)
+    dist = None if distribution is None else jnp.asarray(distribution, roadmap.points.dtype)
+    return _grow_exact(
+        roadmap,
+        key,
+        jnp.asarray(blocked),
+        dist,
+        origin_j,
+        int(n),
+        float(radius),
+        float(resolution),
+        cap,
+        weight == "neglogp",
+        sectors,
+    )[0]
+
+
+def _grow_exact(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+):
+    """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
+    Returns (roadmap, the cap that sufficed)."""
+    M = roadmap.points.shape[0]
+    before = bool(roadmap.overflow)
+    while True:
+        out = _grow_jit(
+            roadmap,
+            key,
+            blocked,
+            dist,
+            origin,
+            n=n,
+            radius=radius,
+            resolution=resolution,
+            cap=cap if 9 * cap < M else None,
+            neglogp=neglogp,
+            sectors=sectors,
+            uniform_samples=uniform_samples,
+        )
+        if 9 * cap >= M or before or not bool(out.overflow):
+            return out, cap
+        cap *= 4  # a bucket held more than ``cap`` vertices: rerun, nothing dropped
+
+
+def roadmap_recheck(roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float) -> Roadmap:
+    """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` shows
+    blocked. A partial map only gains obstacles (unknown -> occupied), so nothing is added back;
+    when cells are freed, build a new roadmap. ``radius`` as when the roadmap was grown."""
+    blocked = _blocked_from("known_map", known_map)
+    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
+    return _recheck_jit(
+        roadmap,
+        jnp.asarray(blocked),
+        origin_j,
+        radius=float(radius),
+        resolution=float(resolution),
+    )
+
+
+def roadmap_connect(
+    roadmap: Roadmap,
+    start,
+    goal,
+    known_map,
+    origin,
+    resolution: float,
+    *,
+    radius: float,
+    distribution=None,
+    weight: str = "euclidean",
+    sectors: int = DEFAULT_SECTORS,
+) -> Roadmap:
+    """Puts a query's ``start`` and ``goal`` (world (2,), not known occupied) into slots 0 and 1
+    and links them to samples at any distance (module docstring); the samples' own links are
+    unchanged. ``radius``: the roadmap's (which of its edges count as short); ``sectors`` as in
+    :func:`roadmap_grow`."""
+    sectors = _check_sectors(sectors)
+    blocked = _blocked_from("known_map", known_map)
+    origin_np = np.asarray(origin, np.float64)
+    start = check_point("start", start, blocked, origin_np, resolution)
+    goal = check_point("goal", goal, blocked, origin_np, resolution)
+    if weight == "neglogp" and distribution is None:
+        raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
+    distribution = _check_distribution(distribution, blocked.shape)
+    dtype = roadmap.points.dtype
+    dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    return _connect_jit(
+        roadmap,
+        jnp.asarray(start, dtype),
+        jnp.asarray(goal, dtype),
+        jnp.asarray(blocked),
+        dist,
+        jnp.asarray(origin_np, dtype),
+        radius=float(radius),
+        resolution=float(resolution),
+        neglogp=weight == "neglogp",
+        sectors=sectors,
+    )
+
+
+def build_roadmap(
+    key,
+    known_map,
+    start,
+    goal,
+    n: int,
+    origin,
+    resolution: float,
+    *,
+    distribution=None,
+    k: int | None = None,
+    radius: float | None = None,
+    weight: str = "euclidean",
+    bucket_cap: int | None = None,
+    sectors: int = DEFAULT_SECTORS,
+) -> Roadmap:
+    """One-shot PRM: ``n`` samples plus the start (slot 0) and goal (slot 1) on a partial map.
+
+    known_map: (H, W) int8 partial map (OCCUPIED blocks; UNKNOWN and FREE are free) or a bool
+    obstacle grid; start, goal: (2,) world (x, y), on the map, not known occupied; distribution:
+    (H, W) non-negative cell weights (None: uniform); k: neighbours per vertex (None: :func:`prm_star_k` of n);
+    radius: connection radius in metres (None: :func:`default_radius`); weight: 'euclidean' or
+    'neglogp' (needs ``distribution``). Search it with :func:`roadmap_shortest_path`; to reuse
+    one roadmap for many queries use :class:`PRM`.
+    """
+    blocked = _blocked_from("known_map", known_map)
+    origin_np = np.asarray(origin, np.float64)
+    if origin_np.shape != (2,):
+        raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
+    check_point("start", start, blocked, origin_np, resolution)
+    check_point("goal", goal, blocked, origin_np, resolution)
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
+    if weight not in ("euclidean", "neglogp"):
+        raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, resolution, weight)
+    rm = roadmap_init(int(n), prm_star_k(n) if k is None else k)
+    rm = roadmap_grow(
+        rm,
+        key,
+        blocked,
+        int(n),
+        origin_np,
+        resolution,
+        distribution=distribution,
+        radius=radius,
+        weight=weight,
+        bucket_cap=bucket_cap,
+        sectors=sectors,
+    )
+    return roadmap_connect(
+        rm,
+        start,
+        goal,
+        blocked,
+        origin_np,
+        resolution,
+        radius=radius,
+        distribution=distribution,
+        weight=weight,
+        sectors=sectors,
+    )
+
+
+def make_roadmap_builder(
+    n: int,
+    shape,
+    resolution: float,
+    *,
+    k: int | None = None,
+    radius: float | None = None,
+    weight: str = "euclidean",
+    uniform: bool = True,
+    bucket_cap: int | None = None,
+    sectors: int = DEFAULT_SECTORS,
+):
+    """A pure, jittable and vmappable one-shot builder for a fixed ``n`` and map ``shape``.
+
+    Returns ``build(key, blocked, distribution, start, goal, origin) -> Roadmap`` with
+    blocked: (H, W) bool known obstacles; distribution: (H, W) cell weights (ignored when
+    ``uniform``); start, goal: (2,); origin: (2,) float. No input checks (use
+    :func:`build_roadmap` at the Python boundary). ``bucket_cap=None`` searches neighbours by
+    brute force (exact, O(n^2)); with a cap, read :attr:`Roadmap.overflow` (a result code: when
+    set, rerun with a larger cap). E.g. ``jax.vmap(build)(keys, maps, dists, starts, goals, origins)``.
+    """
+    if weight not in ("euclidean", "neglogp"):
+        raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+    if weight == "neglogp" and uniform:
+        raise ValueError("uniform: weight='neglogp' needs a distribution (uniform=False)")
+    H, W = (int(s) for s in shape)
+    radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution, weight)
+    kk = prm_star_k(n) if k is None else int(k)
+    sectors = _check_sectors(sectors)
+
+    def build(key, blocked, distribution, start, goal, origin):
+        rm = roadmap_init(int(n), kk, origin.dtype)
+        dist = None if uniform else distribution
+        rm = _grow_impl(
+            rm,
+            key,
+            blocked,
+            dist,
+            origin,
+            n=int(n),
+            radius=radius,
+            resolution=float(resolution),
+            cap=bucket_cap,
+            neglogp=weight == "neglogp",
+            sectors=sectors,
+        )
+        return _connect_impl(
+            rm,
+            start,
+            goal,
+            blocked,
+            dist,
+            origin,
+            radius=radius,
+            resolution=float(resolution),
+            neglogp=weight == "neglogp",
+            sectors=sectors,
+        )
+
+    return build

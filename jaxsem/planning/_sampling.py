@@ -1,0 +1,83 @@
+"""Where a roadmap's vertices come from: inverse-CDF sampling of a cell distribution restricted to
+cells not known occupied, the ``-log p`` cost grid, and a robot-centred (LSD) window embedded
+in the full map (thesis 3.2.5). Part of the PRM (:mod:`jaxsem.planning._roadmap` has the design).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def sample_points(key, distribution, n: int, origin, resolution: float):
+    """``n`` world points (n, 2): a cell drawn with probability ``distribution`` (H, W) (need
+    not be normalised, must be >= 0), then a uniform point inside the cell. Jittable."""
+    H, W = distribution.shape
+    k_cell, k_in = jax.random.split(key)
+    p = distribution.reshape(-1).astype(origin.dtype)
+    # associative_scan, not cumsum: XLA's CPU cumsum is a quadratic reduce-window.
+    cdf = jax.lax.associative_scan(jnp.add, p)
+    u = jax.random.uniform(k_cell, (n,), origin.dtype) * cdf[-1]
+    flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
+    rc = jnp.stack([flat // W, flat % W], -1)
+    jitter = jax.random.uniform(k_in, (n, 2), origin.dtype)
+    return origin + (rc[:, ::-1].astype(origin.dtype) + jitter) * resolution
+
+
+def _cost_grid(distribution):
+    p = distribution / jnp.sum(distribution)
+    return -jnp.log(jnp.maximum(p, 1e-30))
+
+
+def _sampling_weights(blocked, distribution):
+    """Cell weights restricted to cells not known occupied (falls back to all free cells when
+    the distribution has no mass there, and to the whole map when nothing is free)."""
+    free = (~blocked).astype(jnp.result_type(float))
+    if distribution is None:
+        w = free
+    else:
+        w = distribution * free
+        w = jnp.where(jnp.sum(w) > 0, w, free)
+    return jnp.where(jnp.sum(w) > 0, w, jnp.ones_like(w))
+
+
+def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
+    """Embeds a robot-centred local distribution into the full map (thesis section 3.2.5).
+
+    local: (h, w) probabilities (e.g. the network's 160 x 160 softmax), centred on the robot's
+    cell ``center_cell`` (row, col) of the full map (the local cell [h // 2, w // 2] is the
+    robot's); full_shape: (H, W). Cells outside the window get the window's minimum; the result
+    (H, W) is renormalised to sum to 1. Jittable (``center_cell`` may be traced).
+
+    outside_mass: None (the thesis' rule above) or a share ``q`` in [0, 1) (a variant): the
+    cells outside the window share ``q`` equally and the window's on-map cells keep the rest in
+    their own proportions (when the window covers the whole map, the window alone, renormalised).
+    """
+    local = jnp.asarray(local)
+    h, w = local.shape
+    H, W = full_shape
+    pad_r, pad_c = h, w
+    if outside_mass is not None and not isinstance(outside_mass, jax.Array):
+        if not 0.0 <= float(outside_mass) < 1.0:
+            raise ValueError(f"outside_mass: expected None or a share in [0, 1), got {outside_mass}")
+    fill = jnp.min(local)
+    big = jnp.full((H + 2 * pad_r, W + 2 * pad_c), fill, local.dtype)
+    r0 = jnp.asarray(center_cell[0], jnp.int32) - h // 2 + pad_r
+    c0 = jnp.asarray(center_cell[1], jnp.int32) - w // 2 + pad_c
+    # Clamp only so that dynamic_update_slice never shifts the window (the pad covers +-h, w).
+    r0 = jnp.clip(r0, 0, H + 2 * pad_r - h)
+    c0 = jnp.clip(c0, 0, W + 2 * pad_c - w)
+    big = jax.lax.dynamic_update_slice(big, local, (r0, c0))
+    full = big[pad_r : pad_r + H, pad_c : pad_c + W]
+    if outside_mass is None:
+        return full / jnp.sum(full)
+    window = jnp.zeros((H + 2 * pad_r, W + 2 * pad_c), bool)
+    window = jax.lax.dynamic_update_slice(window, jnp.ones((h, w), bool), (r0, c0))[
+        pad_r : pad_r + H, pad_c : pad_c + W
+    ]
+    q = jnp.asarray(outside_mass, local.dtype)
+    n_out = jnp.sum(~window)
+    q = jnp.where(n_out > 0, q, 0.0)
+    inner = jnp.where(window, full, 0.0)
+    inner = inner / jnp.maximum(jnp.sum(inner), jnp.finfo(local.dtype).tiny)
+    return jnp.where(window, (1.0 - q) * inner, q / jnp.maximum(n_out, 1).astype(local.dtype))
