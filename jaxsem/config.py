@@ -27,6 +27,8 @@ import typing
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Generic, TypeVar
 
+from ._atomic import atomic_write_text
+
 __all__ = [
     "Presets",
     "fields",
@@ -217,8 +219,6 @@ def from_dict(cls: type[C], data: Mapping[str, Any], *, base: C | None = None) -
 
 def save(config, path: str | pathlib.Path) -> pathlib.Path:
     """Writes ``config`` as JSON to ``path`` atomically."""
-    from .scripting import atomic_write_text
-
     return atomic_write_text(path, json.dumps(to_dict(config), indent=1, sort_keys=True) + "\n")
 
 

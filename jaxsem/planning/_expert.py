@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.ndimage
 
+from .._atomic import atomic_save_npz
 from ._buildings import Building, generate_building
 from ._grid import DEFAULT_RESOLUTION, FREE, NONE, OBJECT_CLASSES, OCCUPIED, MapState
 from ._navigate import CROP_SIZE, NavConfig, Trial, _local_inputs, local_inputs
@@ -336,9 +337,7 @@ def _shard_job(args):
     b = generate_building(seed, family, resolution)
     data = generate_expert_samples(b, seed, config)
     path = pathlib.Path(out_dir) / f"expert_{family}_{seed:05d}.npz"
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **data)
-    os.replace(tmp, path)
+    atomic_save_npz(path, record=False, **data)  # one shard of many: not listed in the run's summary
     return str(path), int(len(data["context"]))
 
 

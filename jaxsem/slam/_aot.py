@@ -26,14 +26,14 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 import pathlib
-import tempfile
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import numpy as np
+
+from .._atomic import atomic_write_bytes
 
 __all__ = ["cache_folder", "exported"]
 
@@ -86,15 +86,7 @@ def _key(name: str, leaves, tree) -> str:
 
 
 def _save(path: pathlib.Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        pathlib.Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, data, record=False)  # a cache entry, not a run's output
 
 
 def _evict(folder: pathlib.Path, name: str, keep: int) -> None:

@@ -1,0 +1,121 @@
+"""What every jaxsem command shares: one-line errors, checked flags, atomic outputs.
+
+A command (``jaxsem ...``, ``train/*.py``, ``infer/*.py``, ``benchmarks/*.py``) follows these rules:
+
+1. **Bad input fails well.** It exits non-zero with one line naming the flag or file and what
+   was wrong; no traceback unless ``--debug`` is given. :func:`run_main` does this for a
+   ``main(argv) -> int`` function: :class:`UsageError`, ``ValueError``, ``OSError`` (missing or
+   unreadable files), ``json.JSONDecodeError``, ``zipfile.BadZipFile`` and ``KeyError`` become
+   ``<prog>: error: <message>`` and exit status 2.
+2. **Validate before long work.** The ``argparse`` types below (:func:`positive_int`,
+   :func:`probability`, :func:`existing_file`, ...) reject a bad flag while parsing, naming it.
+3. **Outputs are atomic.** :func:`atomic_write_text`, :func:`atomic_write_bytes`,
+   :func:`atomic_savefig` and :func:`atomic_save_npz` write to a temporary name next to the
+   target and rename it into place, so a failed run leaves nothing half-written.
+4. **Every run is recorded.** A command's parser comes from :func:`command_parser` (the shared
+   ``--run-dir``, ``--no-compilation-cache`` and ``--debug`` flags); ``jaxsem.cli`` starts a
+   :class:`Run` around it (:func:`start_run`): a run directory named at the start and printed as
+   the first line, holding ``config.json`` (every argument after defaults, versions, the command
+   line) and, at the end, ``summary.json`` (status, wall time, headline numbers, figures and
+   outputs; status ``"error"`` and the one-line message when the run failed). The command reports
+   its headline numbers with :func:`record`; what it writes through the atomic helpers is listed
+   in the summary by itself (figures under ``figures``, other files under ``outputs``).
+5. **No flag copied by hand.** Any config field is settable with ``--set KEY=VALUE``; the few
+   convenience flags a command offers for config fields (``--steps``, ``--batch-size``, ...)
+   are made by :func:`add_config_flags` from the config dataclass (type, help text, default) and
+   applied by :func:`apply_config_flags` through :func:`jaxsem.config.override`, the path of
+   ``--set``, so the config's own checks and the one-line errors naming the flag are shared.
+"""
+
+from __future__ import annotations
+
+from .._atomic import (
+    atomic_path as atomic_path,
+    atomic_save_npz as atomic_save_npz,
+    atomic_savefig as atomic_savefig,
+    atomic_write_bytes as atomic_write_bytes,
+    atomic_write_text as atomic_write_text,
+)
+from ._arguments import (
+    add_devices_argument as add_devices_argument,
+    devices as devices,
+    devices_mesh as devices_mesh,
+    existing_dir as existing_dir,
+    existing_file as existing_file,
+    existing_path as existing_path,
+    finite_float as finite_float,
+    int_list as int_list,
+    nonnegative_float as nonnegative_float,
+    nonnegative_int as nonnegative_int,
+    output_dir as output_dir,
+    output_file as output_file,
+    positive_float as positive_float,
+    positive_int as positive_int,
+    positive_probability as positive_probability,
+    probability as probability,
+)
+from ._config_flags import (
+    ConfigFlag as ConfigFlag,
+    add_config_flags as add_config_flags,
+    apply_config_flags as apply_config_flags,
+    config_field_help as config_field_help,
+    config_flags as config_flags,
+)
+from ._errors import (
+    HelpFormatter as HelpFormatter,
+    UsageError as UsageError,
+    run_main as run_main,
+    wants_debug as wants_debug,
+)
+from ._runs import (
+    FIGURE_SUFFIXES as FIGURE_SUFFIXES,
+    RUN_DIR_ENV as RUN_DIR_ENV,
+    CommandParser as CommandParser,
+    Run as Run,
+    active_run as active_run,
+    command_parser as command_parser,
+    default_run_dir as default_run_dir,
+    record as record,
+    record_config as record_config,
+    record_output as record_output,
+    start_run as start_run,
+)
+
+__all__ = [
+    "UsageError",
+    "run_main",
+    "wants_debug",
+    "HelpFormatter",
+    "positive_int",
+    "nonnegative_int",
+    "positive_float",
+    "nonnegative_float",
+    "finite_float",
+    "probability",
+    "positive_probability",
+    "existing_file",
+    "existing_dir",
+    "existing_path",
+    "output_dir",
+    "output_file",
+    "int_list",
+    "ConfigFlag",
+    "add_config_flags",
+    "apply_config_flags",
+    "config_flags",
+    "config_field_help",
+    "atomic_write_text",
+    "atomic_write_bytes",
+    "atomic_savefig",
+    "atomic_save_npz",
+    "atomic_path",
+    "CommandParser",
+    "command_parser",
+    "Run",
+    "start_run",
+    "active_run",
+    "record",
+    "record_config",
+    "record_output",
+    "default_run_dir",
+]
