@@ -164,7 +164,7 @@ def child(args) -> dict:
         record(
             "slam",
             jax.jit(jax.vmap(solve)),
-            lambda p, i: parallel.solve_maps(p, i, sc, mesh)[0].center,
+            lambda p, i: slam.solve_maps(p, i, sc, mesh)[0].center,
             (problems, inits),
             B,
         )

@@ -16,8 +16,8 @@ a batch). This module spreads such a batch over every device in a one-axis :clas
   ``vmap(fn)`` once per device slice, so a ``while_loop`` inside ``fn`` (a Levenberg-Marquardt
   solve) stops on each device when that device's slowest item stops; ``method="jit"`` lets XLA's
   partitioner split ``jit(vmap(fn))`` by the input / output shardings (one global loop);
-- :func:`solve_maps`: batch SLAM evaluation, :func:`jaxsem.slam.solve_batch` over a batch of maps
-  split over the devices (what ``jax.vmap(slam.solve_batch)`` computes on one device);
+- (batch SLAM evaluation over the devices is :func:`jaxsem.slam.solve_maps`, built on
+  :func:`sharded_vmap`: this module imports no method);
 - :func:`initialize_distributed`: ``jax.distributed.initialize`` when there is more than one
   process, a no-op otherwise, so the same script runs on a laptop and on a cluster.
 
@@ -49,10 +49,9 @@ single-device ones.
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any, overload
+from typing import overload
 
 import jax
 import jax.numpy as jnp
@@ -71,12 +70,8 @@ __all__ = [
     "replicated",
     "shard_batch",
     "sharded_vmap",
-    "solve_maps",
     "unpad_batch",
 ]
-
-if TYPE_CHECKING:
-    from .slam import SlamEstimate, SlamProblem, SolveInfo, SolverConfig
 
 DATA_AXIS = "data"
 
@@ -339,52 +334,10 @@ def check_batch_size(batch_size: int, mesh: Mesh | None, name: str = "batch_size
         )
 
 
-@functools.lru_cache(maxsize=32)
-def _solve_maps_fn(mesh: Mesh, method: str, shard_method: str) -> Callable:
-    from . import slam
-
-    def one(problem, init, config):
-        return slam.solve_batch(problem, init, config, method=method)
-
-    return sharded_vmap(one, mesh, in_axes=(0, 0, None), method=shard_method)
-
-
-def solve_maps(
-    problems: SlamProblem,
-    inits: SlamEstimate,
-    config: SolverConfig | None = None,
-    mesh: Mesh | None = None,
-    *,
-    method: str = "schur",
-    shard_method: str = "shard_map",
-) -> tuple[SlamEstimate, SolveInfo]:
-    """Batch SLAM evaluation over every device: solves each map of a batch with
-    :func:`jaxsem.slam.solve_batch`, the maps split over ``mesh`` (default :func:`data_mesh`).
-
-    Args:
-      problems, inits: a batch of maps (every leaf with the same leading axis ``B``, e.g.
-        ``jax.vmap(sim.to_problem)`` and ``jax.vmap(sim.initial_estimate)`` of
-        :func:`jaxsem.sim.simulate_batch`); ``B`` need not divide by the device count (padded by
-        repeating the last map, the copies dropped).
-      config: :class:`jaxsem.slam.SolverConfig` shared by every map (default ROSHAN's); passed
-        as a replicated pytree, so its traced fields do not recompile.
-      method: ``solve_batch``'s solver (``"schur"`` or ``"optimistix"``).
-      shard_method: :func:`sharded_vmap`'s method (``"shard_map"``: each device's solver loop stops
-        when that device's maps are done).
-
-    Returns:
-      ``(estimates, infos)`` batched along ``B``: what ``jax.vmap(lambda p, i: solve_batch(p, i,
-      config))(problems, inits)`` returns on one device. Per map the solve is the same program; a
-      vmapped solver loop runs each map with the others of its batch, so results agree with a
-      whole-batch vmap to the solver's own batch-dependence (see ``tests/test_parallel_training.py``)
-      and exactly with a vmap over each device's slice.
-    """
-    from . import slam
-
-    if method not in ("schur", "optimistix"):
-        raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
-    if shard_method not in ("shard_map", "jit"):
-        raise ValueError(f"shard_method: expected 'shard_map' or 'jit', got {shard_method!r}")
-    config = slam.SolverConfig() if config is None else config
-    fn: Any = _solve_maps_fn(_mesh(mesh), method, shard_method)
-    return fn(problems, inits, config)
+def __getattr__(name: str):
+    if name == "solve_maps":  # moved: this module is generic and imports no method
+        raise AttributeError(
+            "jaxsem.parallel.solve_maps moved to jaxsem.slam.solve_maps (same arguments): jaxsem.parallel "
+            "is the generic data-parallel layer and imports no method"
+        )
+    raise AttributeError(f"module 'jaxsem.parallel' has no attribute {name!r}")

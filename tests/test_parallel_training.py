@@ -5,7 +5,7 @@ The checks run in one subprocess started with ``XLA_FLAGS=--xla_force_host_platf
 preset, device-made batches) and LSD (tiny network, synthetic expert samples) train a few steps
 with ``mesh=None`` (one device, today's path) and with ``mesh=parallel.data_mesh()`` (4 devices),
 and the child reports the largest differences of the losses and parameters as JSON. The batch
-SLAM evaluation (:func:`jaxsem.parallel.solve_maps`) compiles ROSHAN's solver for minutes on this
+SLAM evaluation (:func:`jaxsem.slam.solve_maps`) compiles ROSHAN's solver for minutes on this
 CPU, so it runs in its own subprocess, marked slow.
 """
 
@@ -18,7 +18,7 @@ import textwrap
 
 import pytest
 
-from jaxsem import parallel
+from jaxsem import parallel, slam
 
 COMMON = textwrap.dedent(
     r"""
@@ -132,7 +132,7 @@ SLAM = COMMON + textwrap.dedent(
     problems = jax.vmap(lambda m: sim.to_problem(m, scfg))(maps)
     inits = jax.vmap(sim.initial_estimate)(maps)
     sc = sim.solver_config("roshan", scfg, max_steps=3)
-    est, info = parallel.solve_maps(problems, inits, sc, mesh)
+    est, info = slam.solve_maps(problems, inits, sc, mesh)
     # The reference: the vmapped single-device solve of each device's slice (one map each).
     vsolve = jax.jit(jax.vmap(lambda p, i: slam.solve_batch(p, i, sc)))
     parts = [vsolve(*jax.tree_util.tree_map(lambda x: x[d : d + 1], (problems, inits))) for d in range(4)]
@@ -208,7 +208,7 @@ def test_one_device_options():
     with pytest.raises(ValueError, match="devices"):
         parallel.devices_mesh("many")
     with pytest.raises(ValueError, match="method"):
-        parallel.solve_maps(None, None, method="dense")  # type: ignore[arg-type]
+        slam.solve_maps(None, None, method="dense")  # type: ignore[arg-type]
 
 
 def _bad_devices(tmp: pathlib.Path):
@@ -234,3 +234,9 @@ def test_bad_devices_flag_gives_one_line_naming_it(case, tmp_path, capsys, monke
     assert "--devices" in lines[-1] and value in lines[-1], lines[-1]
     assert "Traceback" not in "\n".join(lines)
     assert not (tmp_path / "v").exists() and not (tmp_path / "l").exists()  # no training started
+
+
+def test_solve_maps_moved_to_slam_with_a_message():
+    # parallel is the generic layer: it imports no method (issue 23), and says where it went.
+    with pytest.raises(AttributeError, match="jaxsem.slam.solve_maps"):
+        parallel.solve_maps

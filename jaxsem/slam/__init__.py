@@ -106,5 +106,6 @@ from ._sequence import (  # sequence directories (JSON layout)
 )
 from ._sequence_checks import check_box as check_box  # a detection box against its image
 from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
+from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every device
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
 from ._tum import TUM_INTRINSICS as TUM_INTRINSICS, load_tum_sequence as load_tum_sequence
