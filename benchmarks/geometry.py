@@ -30,6 +30,9 @@ import numpy as np
 
 from jaxsem import quadrics as q
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
+
 RESULTS = pathlib.Path(__file__).parent / "results"
 
 
@@ -74,20 +77,6 @@ def box_loss(project):
     return loss
 
 
-def interleaved_medians(fns, rounds):
-    """Median seconds of each zero-argument function, timed round-robin (so that a change in the
-    machine's load hits all of them alike); None in ``rounds`` of a name caps its repeats."""
-    times = {name: [] for name in fns}
-    for i in range(max(rounds.values())):
-        for name, fn in fns.items():
-            if i >= rounds[name]:
-                continue
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            times[name].append(time.perf_counter() - t0)
-    return {name: float(np.median(t)) for name, t in times.items()}
-
-
 def measure(n, repeats, with_numpy=True, layout="batch-leading"):
     host = make_pairs(n)
     dev = [jnp.asarray(a) for a in host]
@@ -123,7 +112,7 @@ def measure(n, repeats, with_numpy=True, layout="batch-leading"):
         fns["grad_plain"], rounds["grad_plain"] = (lambda: plain(*dev, target)), max(1, min(5, repeats))
     if with_numpy:
         fns["numpy"], rounds["numpy"] = (lambda: numpy_project_bbox(*host)), max(1, min(3, repeats))
-    med = interleaved_medians(fns, rounds)
+    med = _harness.interleaved_medians(fns, rounds)
     out = {
         "pairs": n,
         "jax_project_bbox_ms_per_million": 1e3 * med["fwd"] * scale,

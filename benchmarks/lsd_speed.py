@@ -24,6 +24,7 @@ import json
 import pathlib
 import platform
 import subprocess
+import sys
 import time
 
 import jax
@@ -34,17 +35,10 @@ import scipy.sparse.csgraph
 
 from jaxsem import planning
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
+
 RESULTS = pathlib.Path(__file__).parent / "results"
-
-
-def median_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        jax.block_until_ready(out)
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
 
 
 def ours_prm(b, task, n, seed, k):
@@ -166,8 +160,12 @@ def main(argv=None):
             om_deg.append(om.degree)
         for ti, task in enumerate(tasks):
             n_tasks += 1
-            t_build, rm = median_time(lambda: ours_prm(b, task, args.n, args.seed + ti, args.k), args.repeats)
-            t_query, path = median_time(lambda: planning.roadmap_shortest_path(rm), args.repeats)
+            t_build, rm = _harness.timed(
+                lambda: ours_prm(b, task, args.n, args.seed + ti, args.k), repeats=args.repeats, warmup=False
+            )
+            t_query, path = _harness.timed(
+                lambda: planning.roadmap_shortest_path(rm), repeats=args.repeats, warmup=False
+            )
             ours_b.append(t_build)
             ours_q.append(t_query)
             ours_deg.append(ours_degree(rm))
@@ -235,7 +233,9 @@ def main(argv=None):
     occ, sem = jnp.asarray(b.occupancy), jnp.asarray(b.semantic)
     pose = jnp.asarray([b.entrance[0], b.entrance[1], np.pi])
     planning.sense(occ, sem, st, pose, b.origin, b.resolution)
-    t_sense, _ = median_time(lambda: planning.sense(occ, sem, st, pose, b.origin, b.resolution), 200)
+    t_sense, _ = _harness.timed(
+        lambda: planning.sense(occ, sem, st, pose, b.origin, b.resolution), repeats=200, warmup=False
+    )
     rows.append(("sense one pose (depth + objects)", t_sense, None))
 
     # Expert data throughput (one process; the script runs two workers over buildings).
@@ -258,7 +258,7 @@ def main(argv=None):
         o = jnp.zeros((1, 160, 160), jnp.int8)
         c = jnp.zeros((1, 4), jnp.float32)
         jax.block_until_ready(fwd(params, o, o, c))
-        t_net, _ = median_time(lambda: fwd(params, o, o, c), 50)
+        t_net, _ = _harness.timed(lambda: fwd(params, o, o, c), repeats=50, warmup=False)
         rows.append(("LSD network forward 160x160x2", t_net, None))
     except Exception as exc:  # C2's module absent or changed: skip the row, say why
         net_note = f"network row skipped: {type(exc).__name__}: {exc}"

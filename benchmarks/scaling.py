@@ -35,20 +35,10 @@ import sys
 import time
 from typing import Any
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
+
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
-
-
-def _median_time(fn, *args, repeats: int):
-    import jax
-
-    jax.block_until_ready(fn(*args))  # warm-up: compile
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    times.sort()
-    return times[len(times) // 2]
 
 
 def child(args) -> dict:
@@ -73,8 +63,8 @@ def child(args) -> dict:
         return max(float(jnp.max(jnp.abs(jnp.asarray(x, float) - jnp.asarray(y, float)))) for x, y in zip(la, lb))
 
     def record(name, vfn, sfn, inputs, batch):
-        t_single = _median_time(vfn, *inputs, repeats=args.repeats)
-        t_sharded = _median_time(sfn, *inputs, repeats=args.repeats)
+        t_single = _harness.median_time(vfn, *inputs, repeats=args.repeats)
+        t_sharded = _harness.median_time(sfn, *inputs, repeats=args.repeats)
         diff = maxdiff(sfn(*inputs), vfn(*inputs))
         out["jobs"][name] = {
             "batch": batch,

@@ -18,20 +18,18 @@ import json
 import os
 import pathlib
 import sys
-import time
 
 import jax
 import numpy as np
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
 
-def _median(fn, repeats):
-    jax.block_until_ready(fn(0))  # warm-up (compile)
-    ts = []
-    for i in range(1, repeats + 1):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(i))
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+
+def _stepped_median(fn, repeats):
+    """Median seconds of ``fn(step)`` over steps 1..repeats, after step 0 (the compile)."""
+    steps = iter(range(repeats + 1))
+    return _harness.median_time(lambda: fn(next(steps)), repeats=repeats)
 
 
 def main(argv=None) -> int:
@@ -71,8 +69,8 @@ def main(argv=None) -> int:
         return device_batch_jit(jax.random.fold_in(train_key(base.seed), i), B, sc, S, pad)
 
     rows = {
-        "data only: host (numpy draws + jitted render)": _median(host_data, a.repeats),
-        "data only: device (jax.random + render, one jit)": _median(dev_data, a.repeats),
+        "data only: host (numpy draws + jitted render)": _stepped_median(host_data, a.repeats),
+        "data only: device (jax.random + render, one jit)": _stepped_median(dev_data, a.repeats),
     }
 
     state, model, tx = init_state(host_cfg)
@@ -87,7 +85,7 @@ def main(argv=None) -> int:
         holder["s"], terms = step_h(holder["s"], batch)
         return terms
 
-    rows["train step: old (host data)"] = _median(host_step, a.repeats)
+    rows["train step: old (host data)"] = _stepped_median(host_step, a.repeats)
     state, model, tx = init_state(dev_cfg)
     step_d = make_train_step(model, tx, dev_cfg)
     holder = {"s": state}
@@ -96,7 +94,7 @@ def main(argv=None) -> int:
         holder["s"], terms = step_d(holder["s"])
         return terms
 
-    rows["train step: new (device data)"] = _median(dev_step, a.repeats)
+    rows["train step: new (device data)"] = _stepped_median(dev_step, a.repeats)
     assert step_d._cache_size() == 1, "the device train step recompiled"
     old, new = (
         rows["train step: old (host data)"],

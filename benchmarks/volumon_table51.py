@@ -19,12 +19,16 @@ import argparse
 import json
 import pathlib
 import subprocess
+import sys
 import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
 
 THESIS = {
     "PostOpt (50)": (8.49, 8.65, 0.52, "15 ms net + 341 ms opt"),
@@ -36,26 +40,6 @@ THESIS = {
     "Scratch (50)": (6.55, 8.03, 0.29, "341 ms"),
 }
 NAMES = {"dual": "Dual only", "primal": "Primal only", "both": "Both", "both_noisy": "Both Noisy"}
-
-
-def _median_time(fn, repeats):
-    jax.block_until_ready(fn())  # warm-up: compile
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
-
-
-def _machine() -> str:
-    """Where the run happened, for the results table (timings are only comparable on one machine)."""
-    import os
-
-    dev = jax.devices()[0]
-    if dev.platform == "cpu":
-        return f"{os.cpu_count()}-core CPU (shared, noisy)"
-    return f"{dev.device_kind} ({dev.platform}), jax {jax.__version__}"
 
 
 def _test_set(cfg, num, batch=32, noisy=False):
@@ -92,7 +76,7 @@ def main():
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).parent / "results")
     p.add_argument("--tag", default="volumon_table51", help="name of the result files (<tag>.json, <tag>.md)")
     a = p.parse_args()
-    machine = _machine()
+    machine = _harness.machine()
     print(f"machine: {machine}", flush=True)
 
     from jaxsem.models import VoluMonConfig, init_volumon
@@ -149,14 +133,16 @@ def main():
         test0["K"][:B],
         test0["class_id"][:B],
     )
-    timing["network_cpu_config_ms"] = 1e3 * _median_time(lambda: predict0(*args)[1], a.repeats) / B
+    timing["network_cpu_config_ms"] = 1e3 * _harness.median_time(lambda: predict0(*args)[1], repeats=a.repeats) / B
     if not a.skip_thesis_net:
         tcfg = VoluMonConfig(width_multiplier=1.0, input_size=224)
         tmodel, tvars = init_volumon(jax.random.PRNGKey(0), tcfg)
         Bt = 8
         x = jnp.asarray(np.random.default_rng(0).uniform(size=(Bt, 224, 224, 3)), jnp.float32)
         f = jax.jit(lambda v, l, g: tmodel.apply(v, l, g))
-        timing["network_thesis_224_ms"] = 1e3 * _median_time(lambda: f(tvars, x, x), max(2, a.repeats // 2)) / Bt
+        timing["network_thesis_224_ms"] = (
+            1e3 * _harness.median_time(lambda: f(tvars, x, x), repeats=max(2, a.repeats // 2)) / Bt
+        )
 
     # refinement on the Primal-only predictions (or the first trained variant)
     base = "primal" if "primal" in models else a.variants[0]
@@ -166,14 +152,18 @@ def main():
     out = postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, num_steps=50)
     rows["PostOpt (50)"] = evaluate_predictions(out[1]._asdict(), test)
     timing["postopt50_ms_per_det"] = (
-        1e3 * _median_time(lambda: postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, 50)[0], a.repeats) / n
+        1e3
+        * _harness.median_time(lambda: postopt(phi, box, K, pts, pm, cfg.recon, cfg.loss, 50)[0], repeats=a.repeats)
+        / n
     )
     for steps in (50, 500):
         out = optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, num_steps=steps)
         rows[f"Scratch ({steps})"] = evaluate_predictions(out[1]._asdict(), test)
         timing[f"scratch{steps}_ms_per_det"] = (
             1e3
-            * _median_time(lambda: optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, steps)[0], a.repeats)
+            * _harness.median_time(
+                lambda: optimise_from_scratch(box, K, pts, pm, cfg.recon, cfg.loss, steps)[0], repeats=a.repeats
+            )
             / n
         )
 

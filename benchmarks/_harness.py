@@ -1,0 +1,64 @@
+"""What every benchmark here shares: one timer, round-robin timing of rivals, the machine line.
+
+The rules (``CONTRIBUTING.md``, "How we measure"): warm up (compile) before timing, wait for the
+result with ``jax.block_until_ready``, report medians, and time a baseline or peer in the same
+run, interleaved, so that the shared machine's load hits both alike. Import it from a benchmark
+script as the other private helpers of this folder are imported::
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+    import _harness  # noqa: E402
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import numpy as np
+
+
+def timed(fn: Callable[..., Any], *args, repeats: int, warmup: bool = True) -> tuple[float, Any]:
+    """``(median seconds, last output)`` of ``repeats`` calls of ``fn(*args)``, each waited for
+    with ``jax.block_until_ready``; ``warmup`` calls it once first, untimed (the compile)."""
+    if repeats < 1:
+        raise ValueError(f"repeats: expected a positive count, got {repeats}")
+    if warmup:
+        jax.block_until_ready(fn(*args))
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def median_time(fn: Callable[..., Any], *args, repeats: int, warmup: bool = True) -> float:
+    """Median seconds of ``repeats`` calls of ``fn(*args)`` (see :func:`timed`)."""
+    return timed(fn, *args, repeats=repeats, warmup=warmup)[0]
+
+
+def interleaved_medians(fns: Mapping[str, Callable[[], Any]], rounds: Mapping[str, int]) -> dict[str, float]:
+    """Median seconds of each zero-argument function, timed round-robin (so that a change in the
+    machine's load hits all of them alike); ``rounds[name]`` caps that function's repeats."""
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for i in range(max(rounds.values())):
+        for name, fn in fns.items():
+            if i >= rounds[name]:
+                continue
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(t)) for name, t in times.items()}
+
+
+def machine() -> str:
+    """Where the run happened, for the results table (timings compare only on one machine)."""
+    dev = jax.devices()[0]
+    if dev.platform == "cpu":
+        cpu = platform.processor() or platform.machine()
+        return f"{cpu}, {os.cpu_count()}-core CPU (shared, noisy)"
+    return f"{dev.device_kind} ({dev.platform}), jax {jax.__version__}"
