@@ -60,10 +60,8 @@ class LSDConfig:
         ``None``: unbounded (networks trained before the bound existed). Why: the planner sets
         every cell outside the window to the window's *minimum* (thesis 3.2.5), an extreme-value
         statistic; an unbounded network trained on path likelihood pushes single cells (walls,
-        the off-map padding) to 1e-11 and the outside then gets no samples at all. Measured with
-        the 6-building model on 16 first steps of held-out tasks: outside share of the samples
-        0.000-0.58, 0.000-0.007 in 4 of them. With R = 8 the outside keeps about a quarter of
-        the samples even when the network is fully confident (see the LSD model card).
+        the off-map padding) to 1e-11 and the outside then gets almost no samples (``benchmarks/RESULTS.md``, "Design measurements";
+        the LSD model card).
     upsample: 'resize' (the default and the shipped model's: nearest-neighbour doubling, then a
         3 x 3 convolution) or 'transpose' (2 x 2 transposed convolutions, stride 2: the networks
         trained before the shipped one; saved configs without this field load as 'transpose',

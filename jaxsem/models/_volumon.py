@@ -202,9 +202,8 @@ class VoluMonConfig:
       num_classes: N; the heads output N x 10 free parameters (and N class logits if N > 1).
       global_padding: fraction of the box size kept around the box in the masked global image.
       backbone: "mobilenet_v2" (the thesis) or "small_cnn" (four strided 3x3 convolutions with
-        batch norm: compiles in seconds; the CPU preset -- XLA's CPU depthwise convolutions make a
-        width-0.35 MobileNetV2 at 64 x 64 about 40x slower to train on a 2-core CPU, 2.4 s against
-        0.055 s per step of 32).
+        batch norm: compiles in seconds; the CPU preset -- XLA's CPU depthwise convolutions make
+        MobileNetV2 far slower to train on a CPU, ``benchmarks/RESULTS.md``, "Design measurements").
       cnn_width: channels of the first ``small_cnn`` layer (then 2x, 4x, 4x).
       rotation_init: starting allocentric rotation of the head's bias. "identity" (object axes =
         camera axes: the longest axis d2 along the viewing ray) or "short_axis_along_ray" (object

@@ -71,11 +71,9 @@ from ._sampling import _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
-#: navigation planner (``NavConfig.sectors``): direction first over 8 sectors. Measured against
-#: OMPL's PRM (k = 10) on test buildings 300-307 (tuning seeds), 6 queries x 3 roadmaps each at
-#: N = 500: the plain k nearest (``sectors=0``) found 66 of 144 paths (OMPL 35) with length / C*
-#: 1.26 against OMPL's 1.13 on the 23 both found; 8 sectors found 71 with 1.23 against 1.24 on
-#: the 25 both found (``benchmarks/lsd_prm.py`` reports held-out buildings).
+#: navigation planner (``NavConfig.sectors``): direction first over 8 sectors, which found more
+#: paths than the plain k nearest, no longer (``benchmarks/RESULTS.md``, "Design measurements";
+#: ``benchmarks/lsd_prm.py`` reports held-out buildings).
 DEFAULT_SECTORS = 8
 
 #: Query slots: the start and goal of the current query.
@@ -129,10 +127,8 @@ def default_radius(n: int, shape, resolution: float, weight: str = "euclidean") 
 def prm_star_k(n: int) -> int:
     """Neighbours per vertex for ``n`` samples: PRM*'s ``ceil(e (1 + 1/d) ln n)`` with d = 2
     (Karaman and Frazzoli 2011; OMPL's ``PRMstar`` uses the same rule): 26 at n = 500, 29 at
-    1000, 35 at 5000. Measured on 4 held-out test buildings x 6 Inside-Inside queries x 3
-    roadmaps (tuning seeds 50-53): at n = 500 k = 15 solved 32 of 72 queries (length / C* 1.27),
-    k = 25 solved 43 (1.16); at n = 1000, 56 vs 63. Growing in OMPL-like batches of increasing
-    size (early vertices linking far) solved fewer (19 at n = 500)."""
+    1000, 35 at 5000. Fewer neighbours, or OMPL-like growing batches, solved fewer queries
+    (``benchmarks/RESULTS.md``, "Design measurements")."""
     return max(1, int(math.ceil(math.e * 1.5 * math.log(max(int(n), 2)))))
 
 

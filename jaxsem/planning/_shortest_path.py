@@ -5,8 +5,8 @@ walls (``1 + weight * exp(-d / scale)`` per metre, ``d`` the distance to the nea
 cell from a Euclidean distance transform), edges between 8-neighbours weighted by their length
 times the mean cost of their two cells, and no diagonal step that cuts an occupied corner. It
 runs on the host (numpy/scipy): one single-source search gives the optimal paths to every goal,
-which is what the expert data generator needs. Measured on a 2-core CPU: scipy Dijkstra 3.4 ms per
-160x160 search, against 48 ms for a jittable JAX min-plus sweep.
+which is what the expert data generator needs. scipy's Dijkstra is many times faster here than a
+jittable JAX min-plus sweep (``benchmarks/RESULTS.md``, "Design measurements").
 """
 
 from __future__ import annotations

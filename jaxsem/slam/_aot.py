@@ -17,9 +17,9 @@ parses it (about 0.5 s) and finds the executable in JAX's cache.
 - At most 16 programs per name are kept (the newest; about 150 kB each for the online step).
 - The file holds the ``jax.export.Exported`` in JAX's own serialisation (``Exported.serialize``,
   flatbuffers: loading it runs no Python code).
-- Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Measured
-  with jax 0.10 on the CPU: the online step loaded that way crashed the process (segmentation
-  fault) in its first optimisation, so only the portable program is kept.
+- Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Loaded
+  that way the online step crashed the process on the CPU (``benchmarks/RESULTS.md``, "Design measurements"), so only the portable
+  program is kept.
 """
 
 from __future__ import annotations
