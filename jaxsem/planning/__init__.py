@@ -29,12 +29,15 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
 """
 
 from ._buildings import (
+    HOUSE_PARAMS as HOUSE_PARAMS,
     TEST_PARAMS as TEST_PARAMS,
     TRAIN_PARAMS as TRAIN_PARAMS,
     Building as Building,
     BuildingParams as BuildingParams,
+    HouseParams as HouseParams,
     building_family as building_family,
     generate_building as generate_building,
+    generate_house as generate_house,
 )
 from ._edges import (
     polyline_clear as polyline_clear,

@@ -12,6 +12,14 @@ sit on the exterior walls of rooms. The outermost ring of the map is a fence (oc
 rays and paths never leave the grid.
 
 Train and test families use disjoint seed streams and different size / room parameter ranges.
+
+The ``house`` family (:class:`HouseParams`, :func:`generate_house`) draws homes the size of the
+HM3D houses instead (80-280 m^2 footprints, an optional L-shape, a short hall 0.9-1.3 m wide,
+rooms 2.2-5.5 m, some pairs of rooms opened into one, 0.8-1.0 m doors, furniture against the walls,
+free-standing tables and columns), then takes a navmesh-like margin off the free space (obstacles
+grown by one cell, the agent's radius) and adds scan-like noise (ragged obstacle edges, speckles);
+free islands cut off by clutter and the inside of furniture are unknown (``Building.known``).
+Its seed stream is its own; the train and test families are unchanged by it.
 """
 
 from __future__ import annotations
@@ -53,7 +61,37 @@ TEST_PARAMS = BuildingParams(
     room_size=(4.0, 9.5),
     seed_offset=1_000_003,
 )
-FAMILIES = {"train": TRAIN_PARAMS, "test": TEST_PARAMS}
+
+
+@dataclasses.dataclass(frozen=True)
+class HouseParams:
+    """Ranges (metres) of the ``house`` family (:func:`generate_house`); ``(lo, hi)`` uniform."""
+
+    width: tuple = (10.0, 20.0)
+    depth: tuple = (8.0, 14.0)
+    l_shape_prob: float = 0.5  # chance that a corner rectangle is cut off the footprint
+    l_cut: tuple = (0.25, 0.45)  # share of each side the cut corner takes
+    margin: float = 4.0  # outdoor yard around the house
+    hall_width: tuple = (0.9, 1.3)
+    hall_length: tuple = (0.35, 0.7)  # share of the long side
+    room_size: tuple = (3.0, 6.5)
+    open_plan_prob: float = 0.4  # chance per pair of neighbour rooms of a wide opening instead of a door
+    open_width: tuple = (1.6, 3.2)
+    door_width: tuple = (0.8, 1.0)
+    furniture_per_m2: tuple = (0.15, 0.4)
+    furniture_size: tuple = (0.4, 2.0)  # long side; the short side is 0.4-1.0 m
+    column_prob: float = 0.15  # share of pieces that are 0.3-0.5 m columns / plants / chairs
+    yard_clutter: tuple = (0, 6)  # inclusive range of obstacles (cars, trees) in the yard
+    erode: int = 1  # cells taken off the free space (navmesh: the agent's radius)
+    ragged_prob: float = 0.12  # chance per obstacle-edge cell of growing one more cell
+    speckle_prob: float = 0.002  # chance per free cell of a one-cell obstacle (scan noise)
+    window_prob: float = 0.7
+    n_exterior_doors: tuple = (1, 2)
+    seed_offset: int = 2_000_029
+
+
+HOUSE_PARAMS = HouseParams()
+FAMILIES = {"train": TRAIN_PARAMS, "test": TEST_PARAMS, "house": HOUSE_PARAMS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,9 +202,9 @@ def _opening(run, width, clearance, rng):
 def generate_building(
     seed: int, family: str = "train", resolution: float = DEFAULT_RESOLUTION, params: BuildingParams | None = None
 ) -> Building:
-    """One procedural building of ``family`` ('train' or 'test'), deterministic in ``seed``.
+    """One procedural building of ``family`` ('train', 'test' or 'house'), deterministic in ``seed``.
 
-    ``params`` overrides the family's :class:`BuildingParams`. See the module docstring for the
+    ``params`` overrides the family's :class:`BuildingParams` (:class:`HouseParams`: a house). See the module docstring for the
     layout rules and :class:`Building` for the arrays returned.
     """
     if family not in FAMILIES:
@@ -174,6 +212,10 @@ def generate_building(
     if not (isinstance(resolution, (int, float)) and 0.02 <= resolution <= 0.5):
         raise ValueError(f"resolution: expected metres per cell in [0.02, 0.5], got {resolution!r}")
     p = params if params is not None else FAMILIES[family]
+    if isinstance(p, HouseParams):
+        return generate_house(seed, resolution, p, family)
+    if not isinstance(p, BuildingParams):
+        raise ValueError(f"params: expected BuildingParams or HouseParams, got {type(p).__name__}")
     rng = np.random.default_rng([int(seed), p.seed_offset, 0x15D])
     cells = lambda m: max(1, int(round(m / resolution)))
 
@@ -357,6 +399,284 @@ def generate_building(
         rooms=np.array([r for i, r in enumerate(rooms) if find(i + 1) == find(0)], np.int64).reshape(-1, 4),
         family=family,
         seed=int(seed),
+    )
+
+
+def _outer_cell(region, box, axis, rng, semantic=None):
+    """The free outdoor cell two cells beyond an exterior opening ``box`` (see generate_building)."""
+    r0, c0, r1, c1 = box
+    if axis == 0:
+        inner = r0 if region[r0, c0] != OUTSIDE_REGION else r0 + 1
+        outer = r0 + 1 if inner == r0 else r0
+        return (outer + 2 * (1 if outer > inner else -1), (c0 + c1) // 2)
+    inner = c0 if region[r0, c0] != OUTSIDE_REGION else c0 + 1
+    outer = c0 + 1 if inner == c0 else c0
+    return ((r0 + r1) // 2, outer + 2 * (1 if outer > inner else -1))
+
+
+def generate_house(
+    seed: int, resolution: float = DEFAULT_RESOLUTION, params: HouseParams | None = None, family: str = "house"
+) -> Building:
+    """One house of the ``house`` family (module docstring), deterministic in ``seed``.
+
+    Laid out with the building generator's region rules (two-cell walls owned by both sides,
+    doors cut through shared wall runs, a repair pass until every room is reached), then
+    furnished (a piece is kept only if the eroded free space stays connected and it keeps 0.7 m
+    off every door), eroded by ``params.erode`` cells and roughened. ``Building.known`` is False
+    on furniture interiors and on free islands cut off by the noise (both blocked).
+    """
+    import scipy.ndimage as ndi
+
+    p = params if params is not None else HOUSE_PARAMS
+    if not isinstance(p, HouseParams):
+        raise ValueError(f"params: expected HouseParams, got {type(p).__name__}")
+    if not (isinstance(resolution, (int, float)) and 0.02 <= resolution <= 0.5):
+        raise ValueError(f"resolution: expected metres per cell in [0.02, 0.5], got {resolution!r}")
+    rng = np.random.default_rng([int(seed), p.seed_offset, 0x4053])
+    cells = lambda m: max(1, int(round(m / resolution)))
+
+    width, depth = cells(rng.uniform(*p.width)), cells(rng.uniform(*p.depth))
+    margin = cells(p.margin)
+    H, W = depth + 2 * margin, width + 2 * margin
+    region = np.full((H, W), OUTSIDE_REGION, np.int32)
+    b0r, b0c, b1r, b1c = margin, margin, margin + depth, margin + width
+    region[b0r:b1r, b0c:b1c] = CORRIDOR_REGION
+    if rng.random() < p.l_shape_prob:  # cut a corner off: an L-shaped footprint
+        ch, cw = int(depth * rng.uniform(*p.l_cut)), int(width * rng.uniform(*p.l_cut))
+        corner = int(rng.integers(4))
+        rs = slice(b0r, b0r + ch) if corner < 2 else slice(b1r - ch, b1r)
+        cs = slice(b0c, b0c + cw) if corner % 2 == 0 else slice(b1c - cw, b1c)
+        region[rs, cs] = OUTSIDE_REGION
+    footprint = region != OUTSIDE_REGION
+
+    # A short hall along the long axis from one end; the rest is divided into rooms.
+    horizontal = width >= depth
+    L, D = (width, depth) if horizontal else (depth, width)
+    hw, hl = cells(rng.uniform(*p.hall_width)), int(L * rng.uniform(*p.hall_length))
+    h0 = (D - hw) // 2 + int(rng.integers(-D // 6, D // 6 + 1))
+    from_start = rng.random() < 0.5
+    a0, a1 = (0, hl) if from_start else (L - hl, L)
+    local_blocks = [(0, a0, h0, a1), (h0 + hw, a0, D, a1)]
+    local_blocks.append((0, a1, D, L) if from_start else (0, 0, D, a0))
+
+    def to_global(rect):
+        r0, c0, r1, c1 = rect
+        if not horizontal:
+            r0, c0, r1, c1 = c0, r0, c1, r1
+        return (r0 + b0r, c0 + b0c, r1 + b0r, c1 + b0c)
+
+    min_room = cells(p.room_size[0] * 0.6)
+    max_side = (cells(p.room_size[0]), cells(p.room_size[1]))
+    rects = []
+    for blk in local_blocks:
+        g = to_global(blk)
+        if g[2] > g[0] and g[3] > g[1]:
+            rects += _split(g, rng, max_side, min_room)
+    rooms = []
+    for r0, c0, r1, c1 in rects:
+        sub = footprint[r0:r1, c0:c1]
+        if not sub.any():  # all cut off by the L-shape
+            continue
+        rooms.append((r0, c0, r1, c1))
+        region[r0:r1, c0:c1] = np.where(sub, len(rooms), region[r0:r1, c0:c1])
+
+    wall = np.zeros((H, W), bool)
+    d0 = region[1:, :] != region[:-1, :]
+    d1 = region[:, 1:] != region[:, :-1]
+    wall[1:, :] |= d0
+    wall[:-1, :] |= d0
+    wall[:, 1:] |= d1
+    wall[:, :-1] |= d1
+    semantic = np.where(wall, WALL, NONE).astype(np.int8)
+    door = np.zeros((H, W), bool)
+
+    runs = _adjacency_runs(region)
+    clear = max(2, cells(0.3))
+    n_regions = len(rooms) + 1
+    parent = list(range(n_regions))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def cut(a, b, width_m, label=True):
+        w = cells(width_m)
+        cands = [r for r in runs.get((min(a, b), max(a, b)), []) if r[3] - r[2] >= w + 2 * clear]
+        if not cands:
+            return False
+        box = _opening(cands[int(rng.integers(len(cands)))], w, clear, rng)
+        if box is None:  # not reached: the candidates are long enough
+            return False
+        r0, c0, r1, c1 = box
+        wall[r0:r1, c0:c1] = False
+        semantic[r0:r1, c0:c1] = DOOR if label else NONE
+        door[r0:r1, c0:c1] = True
+        parent[find(a)] = find(b)
+        return True
+
+    neighbours = {i: set() for i in range(n_regions)}
+    for (a, b), rl in runs.items():
+        if a >= 0 and any(r[3] - r[2] >= cells(p.door_width[0]) + 2 * clear for r in rl):
+            neighbours[a].add(b)
+            neighbours[b].add(a)
+    for a in range(1, n_regions):  # open plan: wide openings between some neighbour rooms
+        for b in sorted(n for n in neighbours[a] if n > a):
+            if rng.random() < p.open_plan_prob:
+                cut(a, b, rng.uniform(*p.open_width), label=False)
+    for room in rng.permutation(np.arange(1, n_regions)):
+        room = int(room)
+        if find(room) == find(CORRIDOR_REGION) and rng.random() < 0.5:
+            continue
+        if CORRIDOR_REGION in neighbours[room]:
+            cut(room, CORRIDOR_REGION, rng.uniform(*p.door_width))
+        elif neighbours[room]:
+            cut(room, int(rng.choice(sorted(neighbours[room]))), rng.uniform(*p.door_width))
+    for _ in range(2 * n_regions):
+        lost = [i for i in range(1, n_regions) if find(i) != find(CORRIDOR_REGION)]
+        if not lost:
+            break
+        progress = False
+        for room in lost:
+            reached = [n for n in sorted(neighbours[room]) if find(n) == find(CORRIDOR_REGION)]
+            if reached and cut(room, reached[0], p.door_width[0]):
+                progress = True
+        if not progress:
+            room = lost[0]
+            others = [n for n in sorted(neighbours[room]) if find(n) != find(room)]
+            if not others or not cut(room, others[0], p.door_width[0]):
+                parent[find(room)] = find(CORRIDOR_REGION)  # sealed: its floor becomes unknown below
+
+    # Exterior doors on any exterior wall run (hall or room), windows on rooms' exterior walls.
+    ext_runs = [
+        (k, r) for k in runs if k[0] == OUTSIDE_REGION for r in runs[k] if r[3] - r[2] >= cells(1.1) + 6
+    ]
+    order = rng.permutation(len(ext_runs))
+    n_ext = int(rng.integers(p.n_exterior_doors[0], p.n_exterior_doors[1] + 1))
+    ext_doors, entrance = [], None
+    for i in order[: max(1, n_ext)]:
+        run = ext_runs[int(i)][1]
+        box = _opening(run, cells(rng.uniform(0.9, 1.1)), 3, rng)
+        if box is None:  # not reached: the runs are long enough
+            continue
+        r0, c0, r1, c1 = box
+        wall[r0:r1, c0:c1] = False
+        semantic[r0:r1, c0:c1] = DOOR
+        door[r0:r1, c0:c1] = True
+        ext_doors.append(box)
+        if entrance is None:
+            entrance = _outer_cell(region, box, run[0], rng)
+    if entrance is None:  # pragma: no cover - every footprint has a long exterior run
+        raise RuntimeError(f"house seed {seed}: no exterior wall long enough for a door")
+    win_lo, win_hi = cells(0.8), cells(1.8)
+    for (a, b), rl in runs.items():
+        if a != OUTSIDE_REGION or b == CORRIDOR_REGION:
+            continue
+        for run in rl:
+            if rng.random() > p.window_prob:
+                continue
+            box = _opening(run, int(rng.integers(win_lo, win_hi + 1)), clear + 1, rng)
+            if box is None:
+                continue
+            r0, c0, r1, c1 = box
+            keep = semantic[r0:r1, c0:c1] == WALL
+            semantic[r0:r1, c0:c1] = np.where(keep, WINDOW, semantic[r0:r1, c0:c1])
+
+    # Furniture and columns; a piece stays only if the eroded free space stays one piece.
+    cross = ndi.generate_binary_structure(2, 1)
+    occ = wall.copy()
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    furniture = np.zeros((H, W), bool)
+    keep_out = ndi.binary_dilation(door, cross, iterations=cells(0.7))
+
+    def n_free_parts(o):
+        free = ~ndi.binary_dilation(o, cross, iterations=p.erode) if p.erode else ~o
+        return int(ndi.label(free, cross)[1])
+
+    parts = n_free_parts(occ)
+    for rid, (r0, c0, r1, c1) in enumerate(rooms, start=1):
+        inner = (region == rid) & ~wall
+        area = float(inner.sum()) * resolution**2
+        for _ in range(int(round(area * rng.uniform(*p.furniture_per_m2)))):
+            if rng.random() < p.column_prob:
+                h = w = cells(rng.uniform(0.3, 0.5))
+                rr, cc = int(rng.integers(r0, r1)), int(rng.integers(c0, c1))
+            else:
+                long, short = cells(rng.uniform(*p.furniture_size)), cells(rng.uniform(0.4, 1.0))
+                h, w = (long, short) if rng.random() < 0.5 else (short, long)
+                side = int(rng.integers(5))  # 0-3: against a wall of the room, 4: free-standing
+                rr, cc = int(rng.integers(r0, max(r0 + 1, r1 - h))), int(rng.integers(c0, max(c0 + 1, c1 - w)))
+                if side == 0:
+                    rr = r0 + 1
+                elif side == 1:
+                    rr = r1 - 1 - h
+                elif side == 2:
+                    cc = c0 + 1
+                elif side == 3:
+                    cc = c1 - 1 - w
+            if rr < 0 or cc < 0 or rr + h > H or cc + w > W:
+                continue
+            box = (slice(rr, rr + h), slice(cc, cc + w))
+            if not inner[box].all() or keep_out[box].any():
+                continue
+            trial = occ.copy()
+            trial[box] = True
+            if n_free_parts(trial) > parts:
+                continue
+            occ, furniture[box] = trial, True
+    indoor_near = ndi.binary_dilation(footprint, cross, iterations=cells(1.2))
+    for _ in range(int(rng.integers(p.yard_clutter[0], p.yard_clutter[1] + 1))):
+        h, w = cells(rng.uniform(0.5, 2.5)), cells(rng.uniform(0.5, 2.5))
+        rr, cc = int(rng.integers(1, max(2, H - h - 1))), int(rng.integers(1, max(2, W - w - 1)))
+        box = (slice(rr, rr + h), slice(cc, cc + w))
+        if indoor_near[box].any():
+            continue
+        trial = occ.copy()
+        trial[box] = True
+        if n_free_parts(trial) <= parts:
+            occ, furniture[box] = trial, True
+
+    # The navmesh margin, then scan-like noise; free islands cut off by it become unknown.
+    if p.erode:
+        occ = ndi.binary_dilation(occ, cross, iterations=p.erode)
+    edge = ndi.binary_dilation(occ, cross) & ~occ
+    occ |= edge & (rng.random((H, W)) < p.ragged_prob)
+    occ |= ~occ & (rng.random((H, W)) < p.speckle_prob)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    labels, n_labels = ndi.label(~occ, cross)
+    # The free part that reaches the yard and holds the most floor (an exterior door can open
+    # into a sealed closet; the noise can close a door).
+    floor = np.bincount(labels[footprint], minlength=n_labels + 1)
+    yard = np.bincount(labels[~footprint], minlength=n_labels + 1)
+    floor[0] = -1
+    main = int(np.argmax(np.where(yard > 0, floor, -1)))
+    if labels[entrance] != main:
+        entrance = tuple(int(v) for v in np.argwhere((labels == main) & ~footprint)[0])
+    island = ~occ & (labels != main)
+    occ |= island
+    known = ~(island | ndi.binary_erosion(furniture, cross))
+    semantic = np.where(occ & (semantic == NONE), WALL, semantic).astype(np.int8)
+    semantic = np.where(occ & (semantic == DOOR), WALL, semantic).astype(np.int8)
+    semantic = np.where(~occ & (semantic == WALL), NONE, semantic).astype(np.int8)
+
+    origin = np.array([-margin * resolution, -margin * resolution])
+    entrance_xy = origin + (np.array(entrance[::-1], np.float64) + 0.5) * resolution
+    kept = [r for i, r in enumerate(rooms) if find(i + 1) == find(0)]
+    return Building(
+        occupancy=occ,
+        semantic=semantic,
+        indoor=footprint,
+        origin=origin,
+        resolution=float(resolution),
+        entrance=entrance_xy,
+        exterior_doors=np.array(ext_doors, np.int64).reshape(-1, 4),
+        rooms=np.array(kept, np.int64).reshape(-1, 4),
+        family=family,
+        seed=int(seed),
+        known=known,
     )
 
 
