@@ -78,9 +78,7 @@ def main(argv=None) -> int:
     p.add_argument("--houses", nargs="*", default=[], help="hatched house drawings (ir-sim HM3D)")
     p.add_argument("--house-resolution", type=float, default=0.03, help="metres per house pixel (assumed)")
     p.add_argument("--generated", type=int, default=12, help="generated buildings per family")
-    p.add_argument(
-        "--families", nargs="*", default=["train", "test", "house"], help="generated families to measure"
-    )
+    p.add_argument("--families", nargs="*", default=["train", "test", "house"], help="generated families to measure")
     p.add_argument("--json", required=True)
     args = p.parse_args(argv)
     for f in args.maps + args.houses:

@@ -130,6 +130,25 @@ def _scale_resize(c: TrainConfig) -> TrainConfig:
     )
 
 
+@PRESETS.register("house")
+def _house(c: TrainConfig) -> TrainConfig:
+    """The shipped network fine-tuned on expert data from the ``house`` building family mixed
+    with the train family (``train/lsd_house_gpu.py``; pass the shipped model as ``init_from``):
+    8,000 + 3,000 steps at batch 32, Adam 5e-4 with a cosine decay per stage, validation the
+    buildings whose seed is a multiple of 20 (of either family); minutes on one GPU."""
+    base = _scale_resize(c)
+    return dataclasses.replace(
+        base,
+        stage1_steps=8000,
+        stage2_steps=3000,
+        batch_size=32,
+        learning_rate=5e-4,
+        stage2_learning_rate=5e-4,
+        eval_every=1000,
+        checkpoint_every=1000,
+    )
+
+
 @PRESETS.register("pair")
 def _pair(c: TrainConfig) -> TrainConfig:
     """A 2,000 + 1,000-step run of the shipped network (``scale`` with resize upsampling) from a

@@ -549,9 +549,7 @@ def generate_house(
                 parent[find(room)] = find(CORRIDOR_REGION)  # sealed: its floor becomes unknown below
 
     # Exterior doors on any exterior wall run (hall or room), windows on rooms' exterior walls.
-    ext_runs = [
-        (k, r) for k in runs if k[0] == OUTSIDE_REGION for r in runs[k] if r[3] - r[2] >= cells(1.1) + 6
-    ]
+    ext_runs = [(k, r) for k in runs if k[0] == OUTSIDE_REGION for r in runs[k] if r[3] - r[2] >= cells(1.1) + 6]
     order = rng.permutation(len(ext_runs))
     n_ext = int(rng.integers(p.n_exterior_doors[0], p.n_exterior_doors[1] + 1))
     ext_doors, entrance = [], None
