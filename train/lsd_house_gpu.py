@@ -91,7 +91,10 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
                 break
             except mp.TimeoutError:
                 continue
-    shards = sorted(str(p) for p in data_dir.glob("expert_*.npz") if ".tmp" not in p.name)
+    for d in (data_dir, full_dir):  # half-written shards of workers stopped at the deadline
+        for p in d.glob("*.tmp.npz") if d is not None else ():
+            p.unlink()
+    shards = sorted(str(p) for p in data_dir.glob("expert_*.npz"))
     fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in ("house", "train")}
     info = {"shards": len(shards), "by_family": fam, "seconds": round(time.time() - t, 1), "jobs": len(jobs)}
     print("data:", info, flush=True)
@@ -132,7 +135,8 @@ def main(argv=None) -> int:
         for s in args.set:
             cmd += ["--set", s]
         print(f"train {name}:", " ".join(cmd), flush=True)
-        procs[name] = subprocess.Popen(cmd, env=env)
+        # cwd: `python -m` puts the working directory first on sys.path, ahead of PYTHONPATH
+        procs[name] = subprocess.Popen(cmd, env=env, cwd=str(root))
     rcs = {}
     for name, proc in procs.items():
         try:
@@ -144,7 +148,8 @@ def main(argv=None) -> int:
     train_s = time.time() - t
     print(f"train: rc {rcs}, {train_s:.0f} s", flush=True)
 
-    os.environ["JAX_PLATFORMS"] = "cpu"
+    # Exported on the platform that trained: orbax refuses to restore a GPU checkpoint on the CPU
+    # ("Topology mismatch").
     from jaxsem import lsd
 
     info = {"train_rc": rcs, "train_seconds": round(train_s, 1), "data": data_info}

@@ -37,7 +37,9 @@ from ._sampler import (
 )
 from ._train import (
     PRETRAINED as PRETRAINED,
+    MODELS as MODELS,
     PRETRAINED_CPU as PRETRAINED_CPU,
+    PRETRAINED_HOUSE as PRETRAINED_HOUSE,
     RESUMABLE_FIELDS as RESUMABLE_FIELDS,
     TrainResult as TrainResult,
     evaluate_nll as evaluate_nll,

@@ -559,11 +559,22 @@ PRETRAINED_CPU = pathlib.Path(__file__).resolve().parent / "pretrained_cpu.npz"
 PRETRAINED = pathlib.Path(__file__).resolve().parent / "pretrained.npz"
 
 
+#: The house model: the shipped model fine-tuned on the ``house`` building family mixed with the
+#: train family (``train/lsd_house_gpu.py``; ``MODEL_CARD.md``, "The house model").
+PRETRAINED_HOUSE = pathlib.Path(__file__).resolve().parent / "pretrained_house.npz"
+
+#: Shipped models by name (:func:`load_model`).
+MODELS = {"default": PRETRAINED, "house": PRETRAINED_HOUSE, "cpu": PRETRAINED_CPU}
+
+
 def load_model(source=None):
-    """``(model, params, config)`` from a training workdir, an exported ``.npz`` file, or (None)
-    the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent)."""
+    """``(model, params, config)`` from a training workdir, an exported ``.npz`` file, a shipped
+    model's name (:data:`MODELS`: 'default', 'house', 'cpu'), or (None) the shipped model
+    :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent)."""
     if source is None:
         source = PRETRAINED if PRETRAINED.exists() else PRETRAINED_CPU
+    if isinstance(source, str) and source in MODELS:
+        source = MODELS[source]
     source = pathlib.Path(source)
     if source.suffix == ".npz":
         return load_model_file(source)
