@@ -36,8 +36,8 @@ from ._sampler import (
     full_map_distribution as full_map_distribution,
 )
 from ._train import (
-    PRETRAINED as PRETRAINED,
     MODELS as MODELS,
+    PRETRAINED as PRETRAINED,
     PRETRAINED_CPU as PRETRAINED_CPU,
     PRETRAINED_HOUSE as PRETRAINED_HOUSE,
     RESUMABLE_FIELDS as RESUMABLE_FIELDS,
