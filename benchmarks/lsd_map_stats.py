@@ -11,7 +11,12 @@ width distributions in one figure. Two more statistics, measured the same way on
 4-connected components of at least 0.5 m^2: a room or hall without its narrow margins and
 doorways), and *door spacing*, the distance from each chokepoint (a cluster of ridge cells
 0.5-1.0 m wide: a doorway or a gap between furniture) to the nearest other one. ``--families``
-picks the generated families (``house``: the house-like family, issue 25 item 4).
+picks the generated families (``house``: the house-like family, issue 25 item 4);
+``--examples K`` also draws K house-family buildings.
+
+    python benchmarks/lsd_map_stats.py --maps DATA/mrpt/2006-MalagaCampus.gridmap.gz \\
+        DATA/mrpt/uwb_ro-localization_demo_map.gridmap.gz --houses DATA/hm3d/hm3d_{1..9}.png \\
+        --house-resolution 0.03 --examples 8 --json benchmarks/results/lsd_map_stats_house.json
 
     python benchmarks/lsd_map_stats.py --maps DATA/mrpt/2006-MalagaCampus.gridmap.gz \\
         --houses DATA/hm3d/hm3d_*.png --house-resolution 0.03 --json benchmarks/results/lsd_map_stats.json
@@ -79,6 +84,9 @@ def main(argv=None) -> int:
     p.add_argument("--house-resolution", type=float, default=0.03, help="metres per house pixel (assumed)")
     p.add_argument("--generated", type=int, default=12, help="generated buildings per family")
     p.add_argument("--families", nargs="*", default=["train", "test", "house"], help="generated families to measure")
+    p.add_argument(
+        "--examples", type=int, default=0, help="draw this many house-family buildings (<json stem>_examples.png)"
+    )
     p.add_argument("--json", required=True)
     args = p.parse_args(argv)
     for f in args.maps + args.houses:
@@ -160,8 +168,33 @@ def main(argv=None) -> int:
             indent=1,
         ),
     )
+    if args.examples:
+        atomic_savefig(_examples_figure(args.examples, plt, np, planning), out.with_name(out.stem + "_examples.png"))
     print(f"wrote {out} and {png}")
     return 0
+
+
+def _examples_figure(count: int, plt, np, planning):
+    """Generated ``house`` buildings: free white, obstacles black, unknown grey, doors green,
+    windows blue (ours, drawn by the generator: free to publish, unlike the HM3D drawings)."""
+    cols = min(count, 4)
+    rows = (count + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 4 * rows), dpi=90, squeeze=False)
+    for seed, ax in zip(range(count), axes.ravel()):
+        b = planning.generate_building(seed, family="house")
+        img = np.ones(b.shape + (3,))
+        img[b.occupancy] = 0.0
+        if b.known is not None:
+            img[~b.known] = 0.6
+        img[b.semantic == planning.DOOR] = (0.1, 0.75, 0.1)
+        img[b.semantic == planning.WINDOW] = (0.2, 0.5, 1.0)
+        free = (~b.occupancy & b.indoor).sum() * b.resolution**2
+        ax.imshow(img, origin="lower", extent=(0, b.shape[1] * b.resolution, 0, b.shape[0] * b.resolution))
+        ax.set_title(f"house {seed}: {free:.0f} m^2 of free floor", fontsize=9)
+    for ax in axes.ravel()[count:]:
+        ax.axis("off")
+    fig.tight_layout()
+    return fig
 
 
 if __name__ == "__main__":
