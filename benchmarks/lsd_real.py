@@ -74,7 +74,11 @@ def _parse(argv):
     )
     p.add_argument("--clearance", type=float, default=0.3, help="metres from obstacles for start and goal")
     p.add_argument("--max-steps", type=int, default=10_000, help="step limit per trial (thesis: 10000)")
-    p.add_argument("--checkpoint", default=None, help="LSD workdir or exported .npz (None: the shipped model)")
+    p.add_argument(
+        "--checkpoint",
+        default=None,
+        help="LSD workdir, exported .npz or a shipped model by name (default, house; None: the default)",
+    )
     p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
     p.add_argument(
         "--uniform-only",
