@@ -414,6 +414,14 @@ def _outer_cell(region, box, axis, rng, semantic=None):
     return ((r0 + r1) // 2, outer + 2 * (1 if outer > inner else -1))
 
 
+def _label(mask, structure) -> tuple:
+    """``(labels, count)`` of scipy's connected components, typed."""
+    import scipy.ndimage as ndi
+
+    out = ndi.label(mask, structure)
+    return np.asarray(out[0]), int(out[1])  # type: ignore[index]
+
+
 def generate_house(
     seed: int, resolution: float = DEFAULT_RESOLUTION, params: HouseParams | None = None, family: str = "house"
 ) -> Building:
@@ -590,8 +598,8 @@ def generate_house(
     keep_out = ndi.binary_dilation(door, cross, iterations=cells(0.7))
 
     def n_free_parts(o):
-        free = ~ndi.binary_dilation(o, cross, iterations=p.erode) if p.erode else ~o
-        return int(ndi.label(free, cross)[1])
+        free = ~np.asarray(ndi.binary_dilation(o, cross, iterations=p.erode), bool) if p.erode else ~o
+        return _label(free, cross)[1]
 
     parts = n_free_parts(occ)
     for rid, (r0, c0, r1, c1) in enumerate(rooms, start=1):
@@ -638,13 +646,13 @@ def generate_house(
 
     # The navmesh margin, then scan-like noise; free islands cut off by it become unknown.
     if p.erode:
-        occ = ndi.binary_dilation(occ, cross, iterations=p.erode)
-    edge = ndi.binary_dilation(occ, cross) & ~occ
+        occ = np.asarray(ndi.binary_dilation(occ, cross, iterations=p.erode), bool)
+    edge = np.asarray(ndi.binary_dilation(occ, cross), bool) & ~occ
     occ |= edge & (rng.random((H, W)) < p.ragged_prob)
     occ |= ~occ & (rng.random((H, W)) < p.speckle_prob)
     occ[[0, -1], :] = True
     occ[:, [0, -1]] = True
-    labels, n_labels = ndi.label(~occ, cross)
+    labels, n_labels = _label(~occ, cross)
     # The free part that reaches the yard and holds the most floor (an exterior door can open
     # into a sealed closet; the noise can close a door).
     floor = np.bincount(labels[footprint], minlength=n_labels + 1)
