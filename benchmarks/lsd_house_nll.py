@@ -16,23 +16,16 @@ import pathlib
 import sys
 
 
-def per_sample_nll(model, params, data, batch_size: int = 32):
-    """(S,) NLL per path cell of each sample (NaN-free: samples without path cells dropped by mask)."""
+def per_sample_nll(model, params, data):
+    """``(nll (S,), has_path (S,))``: each sample's NLL per path cell (``lsd.evaluate_nll`` on
+    that sample alone; 0 where a sample's path leaves the window at once, masked by has_path)."""
     import numpy as np
 
-    from jaxsem.lsd._data import gather_batch
-    from jaxsem.lsd._train import make_eval_fn
+    from jaxsem import lsd
 
-    fn = make_eval_fn(model, 2)
-    idx = np.arange(len(data["context"]))
-    out, has_all = [], []
-    for i in range(0, len(idx), batch_size):
-        sel = idx[i : i + batch_size]
-        b = gather_batch(data, np.concatenate([sel, np.repeat(sel[:1], batch_size - len(sel))]))
-        nll, has, _ = fn(params, b)
-        out.append(np.asarray(nll)[: len(sel)])
-        has_all.append(np.asarray(has)[: len(sel)])
-    return np.concatenate(out), np.concatenate(has_all)
+    has = np.asarray(data["path_mask"]).reshape(len(data["context"]), -1).any(axis=1)
+    nll = np.array([lsd.evaluate_nll(model, params, data, np.array([i]), 2, batch_size=1) for i in range(len(has))])
+    return nll, has
 
 
 def main(argv=None) -> int:
