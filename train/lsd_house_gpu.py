@@ -40,11 +40,9 @@ def _worker_env() -> None:
 
 
 def _save(path: pathlib.Path, data: dict) -> None:
-    import numpy as np
+    from jaxsem.scripting import atomic_save_npz
 
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **data)
-    os.replace(tmp, path)  # atomic: a killed run leaves no half shard
+    atomic_save_npz(path, record=False, **data)  # a killed worker leaves no half shard
 
 
 def _job(args):
@@ -91,8 +89,8 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
                 break
             except mp.TimeoutError:
                 continue
-    for d in (data_dir, full_dir):  # half-written shards of workers stopped at the deadline
-        for p in d.glob("*.tmp.npz") if d is not None else ():
+    for d in (data_dir, full_dir):  # temporary files of workers stopped at the deadline
+        for p in d.glob(".expert_*.tmp") if d is not None else ():
             p.unlink()
     shards = sorted(str(p) for p in data_dir.glob("expert_*.npz"))
     fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in ("house", "train")}
@@ -126,6 +124,10 @@ def main(argv=None) -> int:
     if args.oracle:  # the fully supervised oracle: same init, config and samples, true-map crops
         runs["oracle"] = (root / "data_full", root / "work_full")
     env = {k: v for k, v in os.environ.items() if k not in ("JAX_PLATFORMS", "XLA_FLAGS", "OMP_NUM_THREADS")}
+    # the trainers run in `root` (below): this checkout first, the rest of PYTHONPATH made absolute
+    paths = [str(pathlib.Path(__file__).resolve().parents[1])]
+    paths += [str(pathlib.Path(x).resolve()) for x in env.get("PYTHONPATH", "").split(os.pathsep) if x]
+    env["PYTHONPATH"] = os.pathsep.join(paths)
     if len(runs) > 1:
         env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = "0.4"
     procs, t = {}, time.time()
@@ -169,7 +171,8 @@ def main(argv=None) -> int:
         (out / f"curve{suffix}.csv").write_text("\n".join(lines) + "\n")
         info[f"last_step_{name}"] = max((r["step"] for r in rows), default=0)
         if name == "house":
-            tar = ["tar", "czf", str(out / "checkpoint.tar.gz"), "-C", str(workdir), "checkpoints"]
+            extra = ["config.json"] if (workdir / "config.json").exists() else []
+            tar = ["tar", "czf", str(out / "checkpoint.tar.gz"), "-C", str(workdir), "checkpoints", *extra]
             subprocess.run(tar, check=False)
     info["total_seconds"] = round(time.time() - T0, 1)
     (out / "run.json").write_text(json.dumps(info, indent=1))

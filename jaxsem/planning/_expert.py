@@ -433,7 +433,7 @@ def load_expert_dataset(paths) -> dict:
     """Concatenates shards (paths or a folder) into one dict with the schema's per-sample keys
     plus ``building_seed`` (S,) and ``family`` (S,); ``path_offsets`` is re-based."""
     if isinstance(paths, (str, os.PathLike)) and pathlib.Path(paths).is_dir():
-        # a worker killed mid-write leaves ``expert_*.npz.tmp.npz``: not a shard
+        # ``expert_*.npz.tmp.npz``: half a shard of an earlier writer killed mid-write
         paths = sorted(p for p in pathlib.Path(paths).glob("expert_*.npz") if not p.name.endswith(".tmp.npz"))
     elif isinstance(paths, (str, os.PathLike)):  # one shard
         paths = [paths]
