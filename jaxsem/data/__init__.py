@@ -14,6 +14,17 @@ from ._bop import (
     load_ply as load_ply,
     visible_boxes as visible_boxes,
 )
+from ._bop_slam import (
+    STRETCH_SETTINGS as STRETCH_SETTINGS,
+    OdometryModel as OdometryModel,
+    Spell as Spell,
+    Stretch as Stretch,
+    camera_from_anchors as camera_from_anchors,
+    find_stretches as find_stretches,
+    odometry_poses as odometry_poses,
+    stretch_sequence as stretch_sequence,
+    user_class_table as user_class_table,
+)
 from ._bop_eval import (
     BOP_SPLITS as BOP_SPLITS,
     LMO_TUNE_BELOW as LMO_TUNE_BELOW,
