@@ -30,9 +30,7 @@ Run: ``python benchmarks/roshan_real.py --scene /tmp/realdata/lmo/test/000002 --
 
 from __future__ import annotations
 
-import argparse
 import json
-import math
 import os
 import pathlib
 import platform
@@ -216,7 +214,9 @@ class VolumonInit:
             img = slam.load_image(seq, t)
             W, H = seq.image_size
             boxes = np.clip(fr.boxes[new], -0.5, [W - 0.5, H - 0.5, W - 0.5, H - 0.5])
-            local, glob = self.prepare(img, boxes, int(self.config.model.input_size), float(self.config.model.global_padding))
+            local, glob = self.prepare(
+                img, boxes, int(self.config.model.input_size), float(self.config.model.global_padding)
+            )
             rows = np.array([self.names.index(fr.classes[k]) if fr.classes[k] in self.names else 0 for k in new])
             K = np.broadcast_to(seq.K, (len(new), 3, 3))
             _, ell, _ = self.predict(
@@ -261,7 +261,9 @@ def texture_truth(seq, stretch, records, scene):
         s = by_spell[rec["id"]]
         cTw = stretch.camera_T_world[rec["frame"]]
         plane = float(
-            quadrics.texture_plane_depth(jnp.asarray(s.rotation), jnp.asarray(s.center), jnp.asarray(s.radii), jnp.asarray(cTw))[0]
+            quadrics.texture_plane_depth(
+                jnp.asarray(s.rotation), jnp.asarray(s.center), jnp.asarray(s.radii), jnp.asarray(cTw)
+            )[0]
         )
         mesh = scene.meshes[s.obj_id]
         # the spell's mean pose: model -> world is (R_w, origin) with the extent centre at s.center
@@ -270,7 +272,15 @@ def texture_truth(seq, stretch, records, scene):
         pts = (mesh.vertices @ Rw.T + origin) @ cTw[:3, :3].T + cTw[:3, 3]
         zc = (cTw[:3, :3] @ s.center + cTw[:3, 3])[2]
         z = pts[:, 2]
-        rows.append({**rec, "class": s.class_name, "true_plane": plane, "mesh_near": float(z.min()), "mesh_front": float(z[z < zc].mean())})
+        rows.append(
+            {
+                **rec,
+                "class": s.class_name,
+                "true_plane": plane,
+                "mesh_near": float(z.min()),
+                "mesh_front": float(z[z < zc].mean()),
+            }
+        )
     return rows
 
 
@@ -317,8 +327,12 @@ def parse_args(argv=None):
     p.add_argument("--scene", type=sc.existing_dir, required=True, help="BOP scene folder (LM-O test/000002)")
     p.add_argument("--split", choices=("tune", "test"), required=True, help="frame ids below 600 (tune) or the rest")
     p.add_argument("--json", type=sc.output_file, required=True, help="where the results go")
-    p.add_argument("--setting", choices=data.STRETCH_SETTINGS, default="clean", help="detections: clean, or missed and cut")
-    p.add_argument("--seed", type=sc.nonnegative_int, default=0, help="odometry and box noise seed (stretch i uses seed + i)")
+    p.add_argument(
+        "--setting", choices=data.STRETCH_SETTINGS, default="clean", help="detections: clean, or missed and cut"
+    )
+    p.add_argument(
+        "--seed", type=sc.nonnegative_int, default=0, help="odometry and box noise seed (stretch i uses seed + i)"
+    )
     p.add_argument("--prior-seed", type=sc.nonnegative_int, default=27, help="seed of the class-size factors")
     p.add_argument(
         "--peer-python",
@@ -354,7 +368,9 @@ def main(argv=None):
         seq, odo = data.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n)
         cfgs = configs(seq)
         seq_t, records = front_end(seq)
-        tex_rows += [dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)]
+        tex_rows += [
+            dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
+        ]
         feat = [r["points"] for r in records]
         pb = problem_of(seq, odo, table)
         pr = problem_of(seq_t, odo, table)
@@ -401,7 +417,9 @@ def main(argv=None):
         figs.append((st, seq, ests))
         print(
             f"stretch {n} ({st.frame_ids[0]}-{st.frame_ids[-1]}, {len(seq.object_ids)} objects): "
-            + ", ".join(f"{k} {per[k][-1]['position_m'] * 100:.1f} cm / {per[k][-1]['iou_3d']:.2f}" for k in per if per[k]),
+            + ", ".join(
+                f"{k} {per[k][-1]['position_m'] * 100:.1f} cm / {per[k][-1]['iou_3d']:.2f}" for k in per if per[k]
+            ),
             flush=True,
         )
     if args.peer_python:
@@ -411,7 +429,10 @@ def main(argv=None):
             errs["gtsam_quadrics"].append(e)
             per["gtsam_quadrics"].append(stretch_row(e, 1e3 * float(out["time"][n])))
             figs[n][2]["gtsam_quadrics"] = slam.SlamEstimate(
-                jnp.asarray(out["poses"][n]), jnp.asarray(out["rotation"][n]), jnp.asarray(out["center"][n]), jnp.asarray(out["radii"][n])
+                jnp.asarray(out["poses"][n]),
+                jnp.asarray(out["rotation"][n]),
+                jnp.asarray(out["center"][n]),
+                jnp.asarray(out["radii"][n]),
             )
     systems = {}
     for k in SYSTEMS:
@@ -441,7 +462,9 @@ def main(argv=None):
     if args.figures is not None:
         figures(args.figures, figs, scene)
     print(json.dumps({k: {m: v for m, v in s.items() if m != "per_stretch"} for k, s in systems.items()}, indent=1))
-    print(f"online {result['online_ms_median']:.1f} / {result['online_ms_p95']:.1f} ms; texture {json.dumps(result['texture']['all'])}")
+    print(
+        f"online {result['online_ms_median']:.1f} / {result['online_ms_p95']:.1f} ms; texture {json.dumps(result['texture']['all'])}"
+    )
     return 0
 
 
@@ -486,7 +509,18 @@ def figures(folder, figs, scene):
     for ax, t in zip(axes, picks):
         img = slam.load_image(seq, int(t))
         present = [j for j, i in enumerate(ids) if i in seq.frames[t].ids]
-        slam.draw_overlay(ax, img, seq.K, st.camera_T_world[t], seq.image_size, None, None, (tR[present], tC[present], tr[present]), [ids[j] for j in present], color="lime")
+        slam.draw_overlay(
+            ax,
+            img,
+            seq.K,
+            st.camera_T_world[t],
+            seq.image_size,
+            None,
+            None,
+            (tR[present], tC[present], tr[present]),
+            [ids[j] for j in present],
+            color="lime",
+        )
         slam.draw_overlay(
             ax,
             img,
@@ -500,7 +534,12 @@ def figures(folder, figs, scene):
             color="magenta",
         )
         ax.set_title(f"LM-O frame {st.frame_ids[t]}: truth (green), ROSHAN (magenta)", fontsize=9)
-    fig.text(0.01, 0.01, "Images: LM-O (BOP), scene 000002, CC BY 4.0. Boxes rendered from the meshes; ROSHAN never sees object poses.", fontsize=8)
+    fig.text(
+        0.01,
+        0.01,
+        "Images: LM-O (BOP), scene 000002, CC BY 4.0. Boxes rendered from the meshes; ROSHAN never sees object poses.",
+        fontsize=8,
+    )
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     sc.atomic_savefig(fig, folder / "roshan_real_frames.png", dpi=90)
     plt.close(fig)
@@ -511,7 +550,15 @@ def figures(folder, figs, scene):
     for k, col in colors.items():
         if k in ests:
             e = ests[k]
-            slam.draw_top_down(ax, np.asarray(e.rotation)[:J], np.asarray(e.center)[:J], np.abs(np.asarray(e.radii)[:J]), color=col, lw=1.2, label=k)
+            slam.draw_top_down(
+                ax,
+                np.asarray(e.rotation)[:J],
+                np.asarray(e.center)[:J],
+                np.abs(np.asarray(e.radii)[:J]),
+                color=col,
+                lw=1.2,
+                label=k,
+            )
     slam.draw_camera_path(ax, st.camera_T_world, color="tab:green", label="camera (truth)")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m, desk frame)")

@@ -318,7 +318,13 @@ def box_residual(
 
 
 def texture_residual(
-    camera_T_world, rotation, center, radii, texture_depth, texture_sigma: ArrayLike = 0.3, plane_fraction: ArrayLike = 1.0
+    camera_T_world,
+    rotation,
+    center,
+    radii,
+    texture_depth,
+    texture_sigma: ArrayLike = 0.3,
+    plane_fraction: ArrayLike = 1.0,
 ):
     """Texture-plane factor (section 4.3.3): ``(near-plane depth - measured depth) / sigma``.
 

@@ -56,9 +56,7 @@ def _synthetic_scene(moves=None, frames=8):
         objs = []
         for i, (p, R) in world.items():
             Rc, tc = cTw[:3, :3] @ R, cTw[:3, :3] @ p + cTw[:3, 3]
-            objs.append(
-                data.BopObject(i, f"c{i}", Rc, tc, tc, meshes[i].radii, np.array([0.0, 0.0, 10.0, 10.0]), 1.0)
-            )
+            objs.append(data.BopObject(i, f"c{i}", Rc, tc, tc, meshes[i].radii, np.array([0.0, 0.0, 10.0, 10.0]), 1.0))
         out.append(data.BopFrame(10 * t, K, (320, 240), None, tuple(objs)))  # type: ignore[arg-type]
     return data.BopScene(None, tuple(out), meshes), np.stack(cams)  # type: ignore[arg-type]
 
@@ -152,18 +150,25 @@ def test_stretch_sequence_never_carries_object_poses_and_drops_single_views(tmp_
     for f in scene.frames:  # boxes from the core's projection of each object's corners
         objs = []
         for o in f.objects:
-            pts = o.center + (np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * o.radii) @ o.rotation.T
+            pts = (
+                o.center
+                + (np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * o.radii) @ o.rotation.T
+            )
             uv, _ = q.project_points(pts, K, np.eye(4), xp=np)
             box = np.r_[uv.min(0), uv.max(0)]
             objs.append(data.BopObject(o.obj_id, o.class_name, o.rotation, o.translation, o.center, o.radii, box, 1.0))
-        frames.append(data.BopFrame(f.frame_id, K, f.image_size, tmp_path / "rgb" / f"{f.frame_id:06d}.png", tuple(objs)))
+        frames.append(
+            data.BopFrame(f.frame_id, K, f.image_size, tmp_path / "rgb" / f"{f.frame_id:06d}.png", tuple(objs))
+        )
     scene = data.BopScene(tmp_path, tuple(frames), scene.meshes)
     (st,) = data.find_stretches(scene)
     table, _ = data.user_class_table({f"c{i}": 2 * np.array(h) for i, (_, _, h) in OBJECTS.items()})
     seq, odo = data.stretch_sequence(st, table, seed=1, min_views=5)
     assert set(seq.object_ids) == {100, 600, 800}  # both spells of object 5 have 4 views only
     assert odo.shape == (7, 4, 4)
-    np.testing.assert_allclose(odo[2], q.relative_pose(seq.frames[2].camera_T_world, seq.frames[3].camera_T_world, xp=np))
+    np.testing.assert_allclose(
+        odo[2], q.relative_pose(seq.frames[2].camera_T_world, seq.frames[3].camera_T_world, xp=np)
+    )
     assert seq.frames[0].image == "rgb/000000.png"
     assert all(np.all(np.isnan(f.texture_depth)) for f in seq.frames)
     missed, _ = data.stretch_sequence(st, table, setting="missed", seed=1, miss_rate=0.5, min_views=1)
@@ -233,7 +238,9 @@ def _write_tiny_bop(root):
                 pts.append(p * np.array(h) * 1e3)
         pts = np.concatenate(pts + [corners])
         head = f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
-        (scene / "models" / f"obj_{i:06d}.ply").write_text(head + "\n".join(" ".join(f"{x:.3f}" for x in p) for p in pts) + "\n")
+        (scene / "models" / f"obj_{i:06d}.ply").write_text(
+            head + "\n".join(" ".join(f"{x:.3f}" for x in p) for p in pts) + "\n"
+        )
     for t in range(8):
         a = np.radians(-90 + 8 * t)
         cTw = _look([0.6 * np.cos(a), 0.6 * np.sin(a), 0.45], [0.0, 0.0, 0.03])

@@ -108,9 +108,16 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="with --tum: a JSON-lines file, one line per image: "
         '{"frame": "rgb/<t>.png", "detections": [{"box": [...], "class": ..., "id": track id, "score": ...}]}',
     )
-    p.add_argument("--split", choices=("tune", "test", "all"), default="all", help="with --bop: frame ids < 600, the rest, or all")
+    p.add_argument(
+        "--split", choices=("tune", "test", "all"), default="all", help="with --bop: frame ids < 600, the rest, or all"
+    )
     p.add_argument("--stretch", type=sc.nonnegative_int, default=0, help="with --bop: which stretch of the split")
-    p.add_argument("--setting", choices=("clean", "missed"), default="clean", help="with --bop: detections clean, or missed and cut by occluders")
+    p.add_argument(
+        "--setting",
+        choices=("clean", "missed"),
+        default="clean",
+        help="with --bop: detections clean, or missed and cut by occluders",
+    )
     p.add_argument(
         "--frontend",
         choices=("none", "lk", "orb"),
@@ -118,7 +125,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="measure texture planes on the images with ROSHAN's front end (jaxsem.slam.measure_texture): "
         "LK tracks, or ORB matches for frames far apart; needs int track ids",
     )
-    p.add_argument("--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate); noise seed (--bop)")
+    p.add_argument(
+        "--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate); noise seed (--bop)"
+    )
     p.add_argument("--objects", type=sc.positive_int, default=10, help="cars in the simulated map")
     p.add_argument("--frames", type=sc.positive_int, default=60, help="frames of the simulated flight")
     p.add_argument(
@@ -175,7 +184,9 @@ def _bop_sequence(args):
     scene = data.load_bop_split(args.bop, args.split)
     stretches = data.find_stretches(scene)
     if args.stretch >= len(stretches):
-        raise ValueError(f"--stretch: the {args.split} split of {args.bop} has {len(stretches)} stretches, got {args.stretch}")
+        raise ValueError(
+            f"--stretch: the {args.split} split of {args.bop} has {len(stretches)} stretches, got {args.stretch}"
+        )
     table, _ = data.user_class_table(data.bop_class_extents(scene))
     if args.classes is not None:
         from jaxsem import classes

@@ -14,6 +14,15 @@ from ._bop import (
     load_ply as load_ply,
     visible_boxes as visible_boxes,
 )
+from ._bop_eval import (
+    BOP_SPLITS as BOP_SPLITS,
+    LMO_TUNE_BELOW as LMO_TUNE_BELOW,
+    bop_class_extents as bop_class_extents,
+    bop_eval_batch as bop_eval_batch,
+    bop_split_frames as bop_split_frames,
+    load_bop_split as load_bop_split,
+    read_rgb as read_rgb,
+)
 from ._bop_slam import (
     STRETCH_SETTINGS as STRETCH_SETTINGS,
     OdometryModel as OdometryModel,
@@ -24,15 +33,6 @@ from ._bop_slam import (
     odometry_poses as odometry_poses,
     stretch_sequence as stretch_sequence,
     user_class_table as user_class_table,
-)
-from ._bop_eval import (
-    BOP_SPLITS as BOP_SPLITS,
-    LMO_TUNE_BELOW as LMO_TUNE_BELOW,
-    bop_class_extents as bop_class_extents,
-    bop_eval_batch as bop_eval_batch,
-    bop_split_frames as bop_split_frames,
-    load_bop_split as load_bop_split,
-    read_rgb as read_rgb,
 )
 from ._doors import (
     DOOR_BASELINE as DOOR_BASELINE,

@@ -156,7 +156,9 @@ def camera_from_anchors(world_corners: dict, frame: BopFrame, scene: BopScene, t
         P = np.concatenate([world_corners[i] for i in ids])
         Q = np.concatenate([seen[i] for i in ids])
         T = quadrics.fit_rigid_transform(P, Q, xp=np)
-        miss = {i: float(np.max(np.linalg.norm(world_corners[i] @ T[:3, :3].T + T[:3, 3] - seen[i], axis=1))) for i in ids}
+        miss = {
+            i: float(np.max(np.linalg.norm(world_corners[i] @ T[:3, :3].T + T[:3, 3] - seen[i], axis=1))) for i in ids
+        }
         worst = max(ids, key=lambda i: miss[i])
         if miss[worst] <= tol_m:
             rms = float(np.sqrt(np.mean(np.sum((P @ T[:3, :3].T + T[:3, 3] - Q) ** 2, axis=1))))
@@ -455,9 +457,14 @@ def stretch_sequence(
         "box_sigma": float(box_sigma),
         "pose_translation_sigma": float(max(prior_translation, 1e-4)),
         "pose_rotation_sigma_deg": float(max(prior_rotation_deg, 1e-2)),
-        "odometry_translation_sigma": float(max(math.hypot(odometry.noise_translation, odometry.drift_translation * math.sqrt(steps)), 1e-4)),
+        "odometry_translation_sigma": float(
+            max(math.hypot(odometry.noise_translation, odometry.drift_translation * math.sqrt(steps)), 1e-4)
+        ),
         "odometry_rotation_sigma": float(
-            max(math.radians(math.hypot(odometry.noise_rotation_deg, odometry.drift_rotation_deg * math.sqrt(steps))), 1e-4)
+            max(
+                math.radians(math.hypot(odometry.noise_rotation_deg, odometry.drift_rotation_deg * math.sqrt(steps))),
+                1e-4,
+            )
         ),
     }
     first = stretch.frames[0]

@@ -104,8 +104,8 @@ from ._sequence import (  # sequence directories (JSON layout)
     sequence_from_simulation as sequence_from_simulation,
     sequence_to_json as sequence_to_json,
 )
-from ._sequence_texture import measure_texture as measure_texture  # front end over a sequence
 from ._sequence_checks import check_box as check_box  # a detection box against its image
+from ._sequence_texture import measure_texture as measure_texture  # front end over a sequence
 from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
 from ._tum import TUM_INTRINSICS as TUM_INTRINSICS, load_tum_sequence as load_tum_sequence

@@ -211,7 +211,9 @@ class FrontEnd:
         class_ids = _check_class_ids(class_ids, boxes.shape[0])
         estimates = _check_estimates(landmark_estimates, self._landmarks)
         if track_ids is not None:
-            track_ids = [int(i) if isinstance(i, (int, np.integer)) and not isinstance(i, bool) else i for i in track_ids]
+            track_ids = [
+                int(i) if isinstance(i, (int, np.integer)) and not isinstance(i, bool) else i for i in track_ids
+            ]
             if len(track_ids) != boxes.shape[0]:
                 raise ValueError(f"track_ids: expected {boxes.shape[0]} ids (one per box), got {len(track_ids)}")
             if not all(isinstance(i, int) and i >= 0 for i in track_ids) or len(set(track_ids)) != len(track_ids):

@@ -37,7 +37,9 @@ def measure_texture(sequence: Sequence, config=None):
         bad = [i for i in fr.ids if not isinstance(i, (int, np.integer)) or isinstance(i, bool) or i < 0]
         if bad:
             raise ValueError(f"frames[{t}].ids: the front end needs non-negative int ids, got {bad[0]!r}")
-        dets = fe.process(load_image(sequence, t), fr.camera_T_world, fr.boxes, list(fr.classes), track_ids=list(fr.ids))
+        dets = fe.process(
+            load_image(sequence, t), fr.camera_T_world, fr.boxes, list(fr.classes), track_ids=list(fr.ids)
+        )
         depth = np.array([np.nan if d.texture_depth is None else d.texture_depth for d in dets], np.float64)
         frames.append(dataclasses.replace(fr, texture_depth=depth.reshape(len(fr.ids))))
         out.append(dets)
