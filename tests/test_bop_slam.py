@@ -282,3 +282,12 @@ def test_end_to_end_roshan_on_a_tiny_bop_scene(tmp_path):
     err = np.array([np.linalg.norm(np.asarray(est.center)[slot[i]] - truth[i]["center"]) for i in seq.object_ids])
     # cuboids seen as ellipsoids inscribed in them: the boxes agree to a few pixels
     assert np.median(err) < 0.02, err
+
+
+@pytest.mark.slow
+def test_roshan_command_names_the_stretch_flag_and_shows_the_layouts(tmp_path, run_cli):
+    scene = _write_tiny_bop(tmp_path)
+    status, _, err = run_cli(["roshan", "--bop", str(scene), "--stretch", "5", "--out", str(tmp_path / "out")])
+    assert status == 2 and "--stretch" in err and "1 stretches" in err and "Traceback" not in err
+    status, out, _ = run_cli(["roshan", "--help"])
+    assert status == 0 and "--bop" in out and "groundtruth.txt" in out and "scene_gt.json" in out
