@@ -74,9 +74,9 @@ class FrontEndConfig:
       matcher: ``"lk"`` (the thesis: corners tracked frame to frame with Lucas-Kanade) or
         ``"orb"`` (corners matched by ORB descriptor between the landmark's last sighting and
         this one: Hamming distance, Lowe's ratio ``match_ratio``, mutual best). Use ``"orb"``
-        for frames far apart: on LM-O's real desk (frames about 6 video frames apart, 10-40
-        degrees and 10-80 cm between frames) LK keeps 2-20 % of its tracks, so most detections
-        had no texture plane.
+        for frames far apart (large rotations between frames, as on LM-O's real desk, where LK
+        loses most of its tracks and most detections get no texture plane; measured in
+        ``benchmarks/RESULTS.md``).
       match_ratio: Lowe's ratio of the best to the second-best descriptor distance.
 
     Input:

@@ -1,11 +1,12 @@
 """Several starting headings per object, the best kept per object: :func:`solve_yaw_starts`.
 
 Boxes alone barely constrain an object's heading about the vertical, and the single-view
-initialisation starts every object at the identity: LM then settles in the nearest basin (on
-LM-O's real desk, 25-40 degrees off). Objects on a desk or a road stand upright in a gravity-
-aligned world (any VIO knows gravity), so only the heading is open: solve from a few headings
-about ``up``, keep for each object the one with the lowest cost of its own factors, and polish
-everything jointly from that start.
+initialisation starts every object at the identity: LM then settles in the nearest basin.
+Objects on a desk or a road stand upright in a gravity-aligned world (any VIO knows gravity), so
+only the heading is open: solve from a few headings about ``up``, keep for each object the one
+with the lowest cost of its own factors, and polish everything jointly from that start. It costs
+one vmapped solve per heading; on LM-O's real desk it did not lower the orientation error
+(``benchmarks/RESULTS.md``), so no solver uses it by default.
 """
 
 from __future__ import annotations
