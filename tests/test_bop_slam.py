@@ -291,3 +291,19 @@ def test_roshan_command_names_the_stretch_flag_and_shows_the_layouts(tmp_path, r
     assert status == 2 and "--stretch" in err and "1 stretches" in err and "Traceback" not in err
     status, out, _ = run_cli(["roshan", "--help"])
     assert status == 0 and "--bop" in out and "groundtruth.txt" in out and "scene_gt.json" in out
+
+
+@pytest.mark.slow
+def test_heading_starts_keep_per_object_the_start_with_the_lowest_cost():
+    # a toy map: the heading starts end no worse than the single start on the total cost
+    problem, _ = slam.toy_map(0)
+    config = slam.SolverConfig()
+    init = slam.initialize(problem, config)
+    single, _ = slam.solve_schur(problem, init, config)
+    est, info, start = slam.solve_yaw_starts(problem, init, config, yaws_deg=(0.0, 90.0))
+    J = problem.object_class.shape[0]
+    assert start.shape == (J,) and set(np.asarray(start).tolist()) <= {0, 1}
+    cost = lambda e: float(slam.total_cost(problem, e, config))
+    assert np.isfinite(cost(est)) and cost(est) <= cost(single) * 1.05
+    with pytest.raises(ValueError, match="yaws_deg"):
+        slam.solve_yaw_starts(problem, init, config, yaws_deg=())
