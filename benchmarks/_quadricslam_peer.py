@@ -2,7 +2,9 @@
 
 Runs under a Python 3.10 venv with ``gtsam-quadrics`` and ``numpy<2`` (not jaxsem's
 interpreter): ``python _quadricslam_peer.py IN.npz OUT.npz``. Factors: ``PriorFactorPose3`` on
-``world_T_camera`` (sigmas [rot, trans]) and ``BoundingBoxFactor`` (isotropic box sigma), the
+``world_T_camera`` (sigmas [rot, trans]), ``BetweenFactorPose3`` between consecutive poses when
+the file holds ``odometry`` (``odometry[t]`` = pose t+1 in pose t's frame, sigmas
+``odo_rot_sigma`` / ``odo_trans_sigma``) and ``BoundingBoxFactor`` (isotropic box sigma), the
 peer's defaults otherwise (``LevenbergMarquardtParams()``: relative and absolute error decrease
 1e-5, lambda 1e-5 x 10, 100 iterations). Times each map's ``optimize()`` alone.
 """
@@ -30,6 +32,12 @@ def solve(d, k):
         wTc = gtsam.Pose3(inv(d["pose_prior"][k, t]))
         graph.add(gtsam.PriorFactorPose3(X(t), wTc, prior_noise))
         values.insert(X(t), gtsam.Pose3(inv(d["init_pose"][k, t])))
+    if "odometry" in d:
+        odo_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([float(d["odo_rot_sigma"])] * 3 + [float(d["odo_trans_sigma"])] * 3)
+        )
+        for t in np.flatnonzero(d["odometry_mask"][k]):
+            graph.add(gtsam.BetweenFactorPose3(X(t), X(t + 1), gtsam.Pose3(d["odometry"][k, t]), odo_noise))
     for j in np.flatnonzero(d["object_mask"][k]):
         q = gq.ConstrainedDualQuadric(
             gtsam.Rot3(d["init_rotation"][k, j]),

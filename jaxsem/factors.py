@@ -317,18 +317,36 @@ def box_residual(
     return jnp.concatenate([edges, depth_barrier[..., None], inside_barrier[..., None]], axis=-1)
 
 
-def texture_residual(camera_T_world, rotation, center, radii, texture_depth, texture_sigma: ArrayLike = 0.3):
+def texture_residual(
+    camera_T_world,
+    rotation,
+    center,
+    radii,
+    texture_depth,
+    texture_sigma: ArrayLike = 0.3,
+    plane_fraction: ArrayLike = 1.0,
+):
     """Texture-plane factor (section 4.3.3): ``(near-plane depth - measured depth) / sigma``.
+
+    The predicted plane is ``t_z - plane_fraction * sqrt(e3^T R_c diag(r^2) R_c^T e3)``:
+    ``plane_fraction`` 1 is the thesis' tangent plane on the camera-facing side; 2/3 is the mean
+    depth of the visible surface of an ellipsoid sampled uniformly over its image (orthographic
+    approximation), which is what a mean of triangulated feature depths measures (measured on
+    LM-O's real desk: ``benchmarks/RESULTS.md``).
 
     Args:
       camera_T_world: (..., 4, 4); rotation (..., 3, 3); center (..., 3); radii (..., 3).
       texture_depth: (...) metres, the measured plane ``z_cam = depth``.
+      plane_fraction: fraction of the half-depth extent between the centre and the tangent plane.
 
     Returns:
       (...) whitened residual; finite and smooth everywhere (the predicted depth is
       ``t_z - sqrt(e3^T R_c diag(r^2) R_c^T e3)``, defined even for invalid geometry).
     """
     depth, _ = texture_plane_depth(rotation, center, radii, camera_T_world)
+    pose = jnp.asarray(camera_T_world, depth.dtype)
+    tz = jnp.sum(pose[..., 2, :3] * jnp.asarray(center, depth.dtype), axis=-1) + pose[..., 2, 3]
+    depth = tz - plane_fraction * (tz - depth)
     return (depth - jnp.asarray(texture_depth, depth.dtype)) / texture_sigma
 
 

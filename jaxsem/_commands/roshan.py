@@ -9,8 +9,29 @@ Examples::
     python infer/roshan.py --simulate forward --seed 0 --write-sequence out/sim_seq --out out/roshan
     # the baseline (boxes + pose priors only) on the same input
     python infer/roshan.py --simulate orbit --seed 1 --baseline --out out/baseline
-    # a TUM RGB-D folder with any 2D detector's tracked boxes (layout: jaxsem.slam.load_tum_sequence)
-    python infer/roshan.py --tum data/rgbd_dataset_freiburg1_desk --detections dets.jsonl --out out/tum
+    # a TUM RGB-D folder with any 2D detector's tracked boxes (layout: jaxsem.slam.load_tum_sequence),
+    # texture planes measured on its images by ROSHAN's front end
+    python infer/roshan.py --tum data/rgbd_dataset_freiburg1_desk --detections dets.jsonl \
+        --frontend orb --out out/tum
+    # one stretch of a BOP scene (LM-O's desk: jaxsem data fetch lmo), as a user's sequence
+    python infer/roshan.py --bop /tmp/realdata/lmo/test/000002 --split tune --stretch 0 \
+        --frontend orb --out out/lmo
+
+Input layouts:
+
+- ``--sequence DIR``: ``DIR/sequence.json`` (below) and the images it names.
+- ``--tum DIR --detections FILE``: a TUM RGB-D folder, ``rgb.txt`` (``timestamp filename`` per
+  line), ``groundtruth.txt`` (``timestamp tx ty tz qx qy qz qw``: camera-to-world, the pose
+  prior), optional ``depth.txt`` (not read); ``#`` starts a comment. ``FILE`` is one JSON line per
+  image: ``{"frame": "rgb/<t>.png" (or "timestamp": t), "detections": [{"box": [u_min, v_min,
+  u_max, v_max], "class": name, "score": optional, "id": track id}]}``; images pair with the
+  pose nearest in time (at most 0.02 s). Intrinsics from the folder's name (freiburg1/2/3).
+- ``--bop DIR``: a BOP scene folder (``scene_gt.json``, ``camera.json`` or ``scene_camera.json``,
+  ``rgb/``, ``models/obj_XXXXXX.ply`` beside or two levels up). The frames of ``--split`` are cut
+  into stretches where at least three objects stay put (``jaxsem.data.find_stretches``); stretch
+  ``--stretch`` becomes a sequence with drifting odometry as pose priors, each still object's
+  visible box (rendered from its mesh, with occlusion) plus 2 px noise, and user-style class
+  sizes (``jaxsem.data.stretch_sequence``, ``--setting``); the truth is kept for the errors.
 
 ``sequence.json``: ``{"K": 3x3, "image_size": [w, h], "frames": [{"camera_T_world": 4x4,
 "image": optional file name, "detections": [{"box": [u_min, v_min, u_max, v_max], "class":
@@ -49,6 +70,7 @@ CONFIG_FLAGS = (
     sc.ConfigFlag("noise.box_sigma", type=sc.positive_float),
     sc.ConfigFlag("noise.texture_sigma", type=sc.positive_float),
     sc.ConfigFlag("default_depth", type=sc.positive_float),
+    sc.ConfigFlag("texture_plane_fraction", type=sc.nonnegative_float),
 )
 
 
@@ -74,6 +96,11 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         type=sc.existing_dir,
         help="a TUM RGB-D folder (rgb.txt, groundtruth.txt); needs --detections",
     )
+    src.add_argument(
+        "--bop",
+        type=sc.existing_dir,
+        help="a BOP scene folder (scene_gt.json, camera.json, rgb/, models/): one stretch of it, see --stretch",
+    )
     src.add_argument("--simulate", choices=("forward", "orbit"), help="simulate a sequence instead")
     p.add_argument(
         "--detections",
@@ -81,7 +108,26 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="with --tum: a JSON-lines file, one line per image: "
         '{"frame": "rgb/<t>.png", "detections": [{"box": [...], "class": ..., "id": track id, "score": ...}]}',
     )
-    p.add_argument("--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate)")
+    p.add_argument(
+        "--split", choices=("tune", "test", "all"), default="all", help="with --bop: frame ids < 600, the rest, or all"
+    )
+    p.add_argument("--stretch", type=sc.nonnegative_int, default=0, help="with --bop: which stretch of the split")
+    p.add_argument(
+        "--setting",
+        choices=("clean", "missed"),
+        default="clean",
+        help="with --bop: detections clean, or missed and cut by occluders",
+    )
+    p.add_argument(
+        "--frontend",
+        choices=("none", "lk", "orb"),
+        default="none",
+        help="measure texture planes on the images with ROSHAN's front end (jaxsem.slam.measure_texture): "
+        "LK tracks, or ORB matches for frames far apart; needs int track ids",
+    )
+    p.add_argument(
+        "--seed", type=sc.nonnegative_int, default=0, help="simulation seed (--simulate); noise seed (--bop)"
+    )
     p.add_argument("--objects", type=sc.positive_int, default=10, help="cars in the simulated map")
     p.add_argument("--frames", type=sc.positive_int, default=60, help="frames of the simulated flight")
     p.add_argument(
@@ -126,7 +172,28 @@ def parse_args(argv=None, prog: str | None = None):
     args = parser.parse_args(argv)
     if (args.tum is None) != (args.detections is None):
         parser.error("--detections: goes with --tum (a TUM folder and its detections file, both or neither)")
+    if args.frontend != "none" and args.simulate:
+        parser.error("--frontend: needs images (--sequence, --tum or --bop), not --simulate")
     return args
+
+
+def _bop_sequence(args):
+    """Stretch ``--stretch`` of the BOP scene's ``--split`` as a sequence (truth attached)."""
+    from jaxsem import data
+
+    scene = data.load_bop_split(args.bop, args.split)
+    stretches = data.find_stretches(scene)
+    if args.stretch >= len(stretches):
+        raise ValueError(
+            f"--stretch: the {args.split} split of {args.bop} has {len(stretches)} stretches, got {args.stretch}"
+        )
+    table, _ = data.user_class_table(data.bop_class_extents(scene))
+    if args.classes is not None:
+        from jaxsem import classes
+
+        table = classes.ClassTable.from_json(args.classes, base=table)
+    seq, _ = data.stretch_sequence(stretches[args.stretch], table, setting=args.setting, seed=args.seed)
+    return seq
 
 
 def solver_config(args, sim_cfg=None, sequence=None):
@@ -192,8 +259,12 @@ def main(argv=None, prog: str | None = None) -> int:
             print(f"wrote {slam.save_sequence(sequence, args.write_sequence)}")
     elif args.tum:
         sequence = slam.load_tum_sequence(args.tum, args.detections, classes=_class_table(args))
+    elif args.bop:
+        sequence = _bop_sequence(args)
     else:
         sequence = slam.load_sequence(args.sequence, classes=_class_table(args))
+    if args.frontend != "none":
+        sequence, _ = slam.measure_texture(sequence, slam.FrontEndConfig(matcher=args.frontend))
     config = solver_config(args, sim_cfg, sequence)
     n = len(sequence.frames)
     print(

@@ -51,6 +51,46 @@ def rigid_transform(rotation, translation, *, xp: Any = jnp):
     return xp.concatenate([top, bottom[..., None, :]], -2)
 
 
+def fit_rigid_transform(points_from, points_to, weights=None, *, xp: Any = jnp):
+    """The rigid transform (4, 4) that best maps ``points_from`` (N, 3) onto ``points_to`` (N, 3)
+    in the weighted least-squares sense (Kabsch / Umeyama without scale): ``T`` minimising
+    ``sum_i w_i |R p_i + t - q_i|^2``, with ``det R = +1``.
+
+    E.g. a camera pose ``camera_T_world`` from object points known in the world and seen in the
+    camera. ``weights``: optional (N,) non-negative (default all 1); at least three points of
+    positive weight not on one line are needed for a unique answer (fewer give a finite, not
+    unique, transform). Leading batch axes broadcast; NaN-free for finite input (the SVD's
+    gradient is not defined at repeated singular values, as for any such fit).
+    """
+    xp = _namespace(xp)
+    P = _as_float_array("points_from", points_from, (3,), check_finite=True, xp=xp)
+    Q = _as_float_array("points_to", points_to, (3,), check_finite=True, xp=xp)
+    if P.ndim < 2 or Q.ndim < 2:
+        raise ValueError(f"points_from, points_to: expected (..., N, 3), got {P.shape} and {Q.shape}")
+    dtype = xp.result_type(P.dtype, Q.dtype)
+    P, Q = P.astype(dtype), Q.astype(dtype)
+    if weights is None:
+        w = xp.ones(P.shape[:-1], dtype)
+    else:
+        w = _as_float_array("weights", weights, (), check_finite=True, xp=xp).astype(dtype)
+        if _is_concrete(w) and bool(np.any(np.asarray(w) < 0)):
+            raise ValueError("weights: must be non-negative")
+    total = xp.maximum(xp.sum(w, axis=-1, keepdims=True), _eps(dtype))
+    mp = xp.sum(w[..., None] * P, axis=-2) / total
+    mq = xp.sum(w[..., None] * Q, axis=-2) / total
+    H = xp.matmul(xp.swapaxes((P - mp[..., None, :]) * w[..., None], -1, -2), Q - mq[..., None, :])
+    U, _, Vt = xp.linalg.svd(H)
+    d = xp.sign(xp.linalg.det(xp.matmul(U, Vt)))
+    d = xp.where(d == 0, 1.0, d)
+    ones = xp.ones(d.shape, dtype)
+    D = xp.stack([ones, ones, d.astype(dtype)], -1)
+    R = xp.matmul(xp.swapaxes(Vt, -1, -2) * D[..., None, :], xp.swapaxes(U, -1, -2))
+    t = mq - _matvec(R, mp)
+    top = xp.concatenate([R, t[..., None]], -1)
+    bottom = xp.broadcast_to(xp.array([0.0, 0.0, 0.0, 1.0], dtype), R.shape[:-2] + (4,))
+    return xp.concatenate([top, bottom[..., None, :]], -2)
+
+
 def transform_points(T, points, *, xp: Any = jnp):
     """Apply rigid transforms ``T`` (..., 4, 4) to points (..., 3): ``T[:3, :3] p + T[:3, 3]``."""
     xp = _namespace(xp)

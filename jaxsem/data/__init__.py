@@ -23,6 +23,17 @@ from ._bop_eval import (
     load_bop_split as load_bop_split,
     read_rgb as read_rgb,
 )
+from ._bop_slam import (
+    STRETCH_SETTINGS as STRETCH_SETTINGS,
+    OdometryModel as OdometryModel,
+    Spell as Spell,
+    Stretch as Stretch,
+    camera_from_anchors as camera_from_anchors,
+    find_stretches as find_stretches,
+    odometry_poses as odometry_poses,
+    stretch_sequence as stretch_sequence,
+    user_class_table as user_class_table,
+)
 from ._doors import (
     DOOR_BASELINE as DOOR_BASELINE,
     door_building as door_building,

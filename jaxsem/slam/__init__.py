@@ -58,6 +58,7 @@ from ._frontend_types import (
 from ._frontend_vision import hs_histogram as hs_histogram, triangulate_points as triangulate_points
 from ._init import initialize as initialize
 from ._map_json import map_to_json as map_to_json, truth_errors as truth_errors
+from ._multistart import object_costs as object_costs, solve_yaw_starts as solve_yaw_starts
 from ._online import (
     OnlineState as OnlineState,
     online_estimate as online_estimate,
@@ -105,6 +106,7 @@ from ._sequence import (  # sequence directories (JSON layout)
     sequence_to_json as sequence_to_json,
 )
 from ._sequence_checks import check_box as check_box  # a detection box against its image
+from ._sequence_texture import measure_texture as measure_texture  # front end over a sequence
 from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
 from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every device
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map

@@ -158,7 +158,9 @@ def box_rows(
         robust_scale=config.robust_scale,
     )
     if config.use_texture:
-        t = F.texture_residual(pose, rotation, center, radii, texture_depth, n.texture_sigma)
+        t = F.texture_residual(
+            pose, rotation, center, radii, texture_depth, n.texture_sigma, config.texture_plane_fraction
+        )
         t = F.robust_residual(t, config.texture_loss, config.robust_scale)
         t = jnp.where(texture_mask, t, 0.0)
     else:

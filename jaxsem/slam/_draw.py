@@ -107,6 +107,7 @@ def draw_overlay(
     object_ids=None,
     *,
     title=None,
+    color="tab:blue",
 ):
     """Detections and projected estimates over one image (or a blank canvas of the image size).
 
@@ -120,6 +121,8 @@ def draw_overlay(
         project: outline of the dual conic in blue, its box dashed.
       object_ids: optional (J,) labels of the ellipsoids; only those in ``ids`` are drawn when
         both are given (the objects detected in this frame).
+      color: matplotlib colour of the projected ellipsoids (to draw two sets over one image, e.g.
+        an estimate and the truth, call twice on the same axes with the same image).
     """
     from .. import quadrics as Q
 
@@ -159,8 +162,8 @@ def draw_overlay(
             for k in range(int(keep.sum())):
                 if bool(ok_b[k]) and bool(ok_c[k]):
                     pts = np.asarray(outline[k])
-                    ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.2)
-                    ax.add_patch(_rect(np.asarray(pbox[k]), color="tab:blue", lw=0.8, ls="--"))
+                    ax.plot(pts[:, 0], pts[:, 1], color=color, lw=1.2)
+                    ax.add_patch(_rect(np.asarray(pbox[k]), color=color, lw=0.8, ls="--"))
     if title:
         ax.set_title(title, fontsize=9)
     ax.set_xticks([])

@@ -102,6 +102,8 @@ class _Landmark:
     anchor_pose: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4, 4)))
     # image centroid predicted without an estimate: last box centre moved by the tracks' flow
     centre: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    # matcher "orb": the descriptors (N, 32) of the corners of the last sighting
+    descriptors: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 32), np.uint8))
 
 
 class FrontEnd:
@@ -171,7 +173,7 @@ class FrontEnd:
 
     # ---------------------------------------------------------------------------------------
 
-    def process(self, image, camera_T_world, boxes, class_ids=None, landmark_estimates=None):
+    def process(self, image, camera_T_world, boxes, class_ids=None, landmark_estimates=None, track_ids=None):
         """Associates and measures the detections of one frame.
 
         Args:
@@ -188,6 +190,11 @@ class FrontEnd:
             ignored. Used to
             predict landmark centroids; landmarks without an estimate (or behind the camera) fall
             back on their last box centre moved by their tracks' median flow since then.
+          track_ids: optional (M,) non-negative ints, distinct within the frame: the association
+            of a tracker that came with the detections (a detections file's ``id``). The front
+            end then measures texture planes only: detection ``i`` is landmark ``track_ids[i]``
+            (created on its first sighting), and the histogram association is skipped. Do not
+            mix calls with and without it on one front end.
 
         Returns:
           list of :class:`AssociatedDetection`, one per box, in input order.
@@ -203,6 +210,14 @@ class FrontEnd:
         boxes = _check_boxes(boxes, image.shape[:2], cfg.box_tolerance)
         class_ids = _check_class_ids(class_ids, boxes.shape[0])
         estimates = _check_estimates(landmark_estimates, self._landmarks)
+        if track_ids is not None:
+            track_ids = [
+                int(i) if isinstance(i, (int, np.integer)) and not isinstance(i, bool) else i for i in track_ids
+            ]
+            if len(track_ids) != boxes.shape[0]:
+                raise ValueError(f"track_ids: expected {boxes.shape[0]} ids (one per box), got {len(track_ids)}")
+            if not all(isinstance(i, int) and i >= 0 for i in track_ids) or len(set(track_ids)) != len(track_ids):
+                raise ValueError(f"track_ids: expected distinct non-negative ints, got {list(track_ids)[:8]}")
 
         code_gray = cv2.COLOR_RGB2GRAY if cfg.color_order == "rgb" else cv2.COLOR_BGR2GRAY
         code_hsv = cv2.COLOR_RGB2HSV if cfg.color_order == "rgb" else cv2.COLOR_BGR2HSV
@@ -211,17 +226,26 @@ class FrontEnd:
         self._shape = image.shape
         self._frame += 1
 
-        self._track(gray)
+        if cfg.matcher == "lk":
+            self._track(gray)
         predicted = self._predict(pose, estimates)
         hists = [hs_histogram(hsv, b, cfg.hist_bins, cfg.box_shrink) for b in boxes]
-        assignment, scores = self._associate(boxes, class_ids, hists, predicted)
+        if track_ids is None:
+            assignment, scores = self._associate(boxes, class_ids, hists, predicted)
+        else:  # the caller's tracker associates; new ids become new landmarks below
+            assignment = {i: lid for i, lid in enumerate(track_ids) if lid in self._landmarks}
+            scores = {i: (None, None) for i in assignment}
+            self._next_id = max([self._next_id] + [lid + 1 for lid in track_ids])
 
         results = []
         for i, box in enumerate(boxes):
             lid = assignment.get(i)
             if lid is None:
-                lid = self._next_id
-                self._next_id += 1
+                if track_ids is None:
+                    lid = self._next_id
+                    self._next_id += 1
+                else:
+                    lid = track_ids[i]
                 self._landmarks[lid] = _Landmark(
                     id=lid,
                     class_id=class_ids[i],
@@ -235,6 +259,8 @@ class FrontEnd:
                 is_new = True
             else:
                 lm = self._landmarks[lid]
+                if cfg.matcher == "orb":
+                    self._match(lm, gray, box)
                 depth, variance, status, n, baseline = self._texture(lm, box, pose)
                 corr, dist = scores[i]
                 is_new = False
@@ -243,7 +269,10 @@ class FrontEnd:
             lm.centre = 0.5 * (box[:2] + box[2:])
             lm.last_frame = self._frame
             lm.missed = 0
-            self._reseed(lm, gray, box, pose)
+            if cfg.matcher == "orb":
+                self._describe(lm, gray, box, pose)
+            else:
+                self._reseed(lm, gray, box, pose)
             results.append(
                 AssociatedDetection(
                     index=i,
@@ -269,6 +298,7 @@ class FrontEnd:
                     lm.points = lm.points[:0]
                     lm.anchor_uv = lm.anchor_uv[:0]
                     lm.anchor_pose = lm.anchor_pose[:0]
+                    lm.descriptors = lm.descriptors[:0]
         self._prev_gray = gray
         return results
 
@@ -385,6 +415,62 @@ class FrontEnd:
         used = baselines[far][ok][good] if good.size else np.zeros(0)
         baseline = float(np.median(used)) if used.size else float(np.max(baselines[far]))
         return depth, variance, status, n, baseline
+
+    def _orb_in_box(self, gray, box):
+        """ORB keypoints (K, 2) and descriptors (K, 32) inside ``box`` (shrunk by box_shrink)."""
+        cfg = self.config
+        x0, y0, x1, y1 = _box_pixels(box, gray.shape, cfg.box_shrink)
+        h, w = gray.shape
+        margin = int(math.ceil(cfg.orb_patch_size * 1.2 ** (cfg.orb_levels - 1))) + 2
+        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
+        cx1, cy1 = min(x1 + margin, w), min(y1 + margin, h)
+        crop = np.ascontiguousarray(gray[cy0:cy1, cx0:cx1])
+        mask = np.zeros(crop.shape, dtype=np.uint8)
+        mask[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0] = 255
+        keypoints, desc = self._orb.detectAndCompute(crop, mask)
+        if desc is None or not keypoints:
+            return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
+        uv = np.array([kp.pt for kp in keypoints], np.float32).reshape(-1, 2) + np.array([cx0, cy0], np.float32)
+        return uv, np.asarray(desc, np.uint8)
+
+    def _match(self, lm, gray, box):
+        """Matcher "orb": the landmark's stored corners moved to their descriptor matches in
+        this frame's box (unmatched corners dropped); anchors are kept."""
+        cfg = self.config
+        if lm.descriptors.shape[0] == 0 or lm.descriptors.shape[0] != lm.anchor_uv.shape[0]:
+            lm.points, lm.anchor_uv, lm.anchor_pose = lm.points[:0], lm.anchor_uv[:0], lm.anchor_pose[:0]
+            lm.descriptors = lm.descriptors[:0]
+            return
+        uv, desc = self._orb_in_box(gray, box)
+        if desc.shape[0] < 2:
+            lm.points, lm.anchor_uv, lm.anchor_pose = lm.points[:0], lm.anchor_uv[:0], lm.anchor_pose[:0]
+            lm.descriptors = lm.descriptors[:0]
+            return
+        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        knn = bf.knnMatch(lm.descriptors, desc, k=2)
+        back = {m.queryIdx: m.trainIdx for m in bf.match(desc, lm.descriptors)}
+        src, dst = [], []
+        for pair in knn:
+            if len(pair) < 2:
+                continue
+            m, second = pair
+            if m.distance < cfg.match_ratio * second.distance and back.get(m.trainIdx) == m.queryIdx:
+                src.append(m.queryIdx)
+                dst.append(m.trainIdx)
+        src_i, dst_i = np.asarray(src, np.int64), np.asarray(dst, np.int64)
+        lm.points = uv[dst_i]
+        lm.anchor_uv = lm.anchor_uv[src_i]
+        lm.anchor_pose = lm.anchor_pose[src_i]
+        lm.descriptors = lm.descriptors[src_i]
+
+    def _describe(self, lm, gray, box, pose):
+        """Matcher "orb": the landmark's corners become this sighting's ORB corners, anchored here
+        (the next sighting triangulates against this one)."""
+        uv, desc = self._orb_in_box(gray, box)
+        lm.points = uv
+        lm.anchor_uv = uv.astype(np.float64)
+        lm.anchor_pose = np.broadcast_to(pose, (uv.shape[0], 4, 4)).copy()
+        lm.descriptors = desc
 
     def _reseed(self, lm, gray, box, pose):
         """Tops up a landmark's corners with fresh ORB corners anchored at this frame."""

@@ -70,6 +70,15 @@ class FrontEndConfig:
       max_histograms: histograms of the last detections kept per landmark.
       same_class_only: only associate detections with landmarks of the same class id.
 
+    Matching:
+      matcher: ``"lk"`` (the thesis: corners tracked frame to frame with Lucas-Kanade) or
+        ``"orb"`` (corners matched by ORB descriptor between the landmark's last sighting and
+        this one: Hamming distance, Lowe's ratio ``match_ratio``, mutual best). Use ``"orb"``
+        for frames far apart (large rotations between frames, as on LM-O's real desk, where LK
+        loses most of its tracks and most detections get no texture plane; measured in
+        ``benchmarks/RESULTS.md``).
+      match_ratio: Lowe's ratio of the best to the second-best descriptor distance.
+
     Input:
       color_order: ``"rgb"`` (MuJoCo, PIL, imageio) or ``"bgr"`` (``cv2.imread``).
       box_tolerance: pixels a box may extend beyond the image (it is clipped); further out raises.
@@ -99,6 +108,8 @@ class FrontEndConfig:
     same_class_only: bool = True
     color_order: str = "rgb"
     box_tolerance: float = 2.0
+    matcher: str = "lk"
+    match_ratio: float = 0.8
 
     def __post_init__(self):
         positive_ints = ("max_features", "orb_levels", "lk_levels", "min_points", "max_histograms")
@@ -145,6 +156,10 @@ class FrontEndConfig:
                 f"FrontEndConfig.hist_bins: expected (hue_bins, saturation_bins) positive ints, got {self.hist_bins!r}"
             )
         object.__setattr__(self, "hist_bins", (int(bins[0]), int(bins[1])))
+        if self.matcher not in ("lk", "orb"):
+            raise ValueError(f"FrontEndConfig.matcher: expected 'lk' or 'orb', got {self.matcher!r}")
+        if not (isinstance(self.match_ratio, (int, float)) and 0 < self.match_ratio <= 1):
+            raise ValueError(f"FrontEndConfig.match_ratio: expected 0 < value <= 1, got {self.match_ratio!r}")
         if self.color_order not in ("rgb", "bgr"):
             raise ValueError(f"FrontEndConfig.color_order: expected 'rgb' or 'bgr', got {self.color_order!r}")
 

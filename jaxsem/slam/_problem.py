@@ -250,6 +250,7 @@ class CostModel(eqx.Module):
     shape_loss: str = eqx.field(static=True, default="l2")
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = 2.0
+    texture_plane_fraction: float | jnp.ndarray = 1.0
     barrier_weight: float | jnp.ndarray = 10.0
     min_depth: float | jnp.ndarray = 0.1
     degenerate_residual: float | jnp.ndarray = 1000.0
@@ -318,6 +319,10 @@ class SolverConfig(eqx.Module):
       box_loss, texture_loss, shape_loss, pose_loss: static robust loss names per factor type,
         ``"l2"``, ``"huber"`` or ``"cauchy"``.
       robust_scale: threshold of the robust losses in whitened units (sigmas).
+      texture_plane_fraction: where the texture factor puts the measured plane between the
+        ellipsoid's centre depth (0) and its camera-facing tangent plane (1, the thesis);
+        2/3 is the mean depth of the visible surface, what a mean of real feature depths
+        measures (:func:`jaxsem.factors.texture_residual`).
       default_depth: metres, single-view initialisation depth without a texture plane when
         ``depth_from_box`` is False, or when the box cannot give one (every edge at the border).
       depth_from_box: static; without a texture plane, a single-view initialisation places the
@@ -357,6 +362,7 @@ class SolverConfig(eqx.Module):
     shape_loss: str = eqx.field(static=True, default="l2")
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = 2.0
+    texture_plane_fraction: float | jnp.ndarray = 1.0
     default_depth: float | jnp.ndarray = 10.0
     depth_from_box: bool = eqx.field(static=True, default=True)
     max_steps: int = eqx.field(static=True, default=100)
