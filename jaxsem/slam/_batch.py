@@ -1,5 +1,5 @@
-"""Batch solvers of eq. 4.13: a structured Levenberg-Marquardt (Schur complement, the default) and
-optimistix's dense Levenberg-Marquardt (differentiable by the implicit adjoint).
+"""Batch solvers of eq. 4.13: the structured Levenberg-Marquardt of ROSHAN (Schur complement) in
+two forms, both ``optx.least_squares`` with :class:`~jaxsem.slam.SchurLevenbergMarquardt`.
 
 The structured LM is :class:`~jaxsem.slam.SchurLevenbergMarquardt` (``_schur.py``), an
 optimistix least-squares solver made of a descent (the damped Schur step,
@@ -15,11 +15,12 @@ that never lies: success needs the stopping rule met *and* a finite state and co
 :func:`solve_schur` wraps the solver with the rescue of stranded objects and the unfixable-object
 logic.
 
-Why the Schur path is the default (and not ``method="optimistix"``): optimistix materialises the
-dense Jacobian (one JVP per unknown) and solves it densely; on the QuadricSLAM setting (60
-poses + 10 objects, 450 unknowns) that measured 130 s to compile and 109 s per map on the
-2-core CPU, against well under a second for the Schur path. Use it when gradients must flow
-through the solution (implicit adjoint), e.g. to learn the class table.
+``solve_batch(..., method="optimistix")`` is the differentiable form: the same solver on an
+additive iterate, the tangent delta from the initial estimate, linearised by generic
+forward-mode columns (:func:`~jaxsem.slam.schur_normal`), so that optimistix's implicit adjoint
+gives gradients through the solution (e.g. to learn the class table). It has no rescue phase.
+It replaces optimistix's dense ``LevenbergMarquardt`` (one JVP per unknown and a dense QR per
+step), which was too slow to be a usable reference on full maps.
 """
 
 from __future__ import annotations
@@ -163,9 +164,10 @@ def solve_batch(
       init: :class:`SlamEstimate` to start from; None: :func:`jaxsem.slam.initialize` with this
         ``config`` (the solver's own class table, depth rule and texture use).
       config: :class:`SolverConfig`; :func:`jaxsem.slam.baseline_config` is the thesis' baseline.
-      method: ``"schur"`` (:func:`solve_schur`, the default: structured, fast) or
-        ``"optimistix"`` (dense LM, differentiable by the implicit adjoint, but slow to
-        compile and run on full maps: see the module docstring).
+      method: ``"schur"`` (:func:`solve_schur`, the default: rescue of stranded objects, then the
+        structured LM on the manifold) or ``"optimistix"`` (the same solver on the tangent delta
+        from ``init``, without the rescue phase, differentiable through the solution by
+        optimistix's implicit adjoint: see the module docstring).
       throw: raise (``eqx.error_if``, a runtime error) when the result is not successful.
 
     Returns:

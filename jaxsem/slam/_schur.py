@@ -22,11 +22,15 @@ What ``fn`` must declare (the "pose / landmark" protocol)
   priors, shape priors) has exactly this form.
 - ``structure(args)`` returns a :class:`SchurStructure`: the two index arrays, and optional
   masks of the free poses / landmarks (held ones do not move).
+- Optionally a fourth block ``pose_pair (T, e)`` (odometry / between factors): row ``t < T - 1``
+  may depend on poses ``t`` and ``t + 1``, the last row on pose ``T - 1`` only. The pose part of
+  the normal equations is then block-tridiagonal (``Normal.Hpp_next``).
 
 Nothing checks the declared sparsity (that would cost a dense Jacobian): a residual row that
 depends on a variable it did not declare makes the Jacobian silently wrong. The block Jacobian
 is recovered exactly by ``dp + dl`` forward-mode columns (each pose perturbed at once along one
-tangent axis, then each landmark: the declared sparsity keeps the columns apart), or given by
+tangent axis, then each landmark: the declared sparsity keeps the columns apart; ``2 dp + dl``
+with a ``pose_pair`` block, even and odd poses apart), or given by
 ``linearise(y, args) -> Normal`` when the caller has a faster one (ROSHAN's box factors use
 9 columns via the chain rule of ``camera_T_object``, :func:`jaxsem.slam.linearize`).
 
@@ -51,7 +55,8 @@ Jacobian is never taken for a rejected trial. ``sol.stats`` holds
 
 Differentiating through the solution: with the additive iterate, optimistix's implicit adjoint
 applies (the gradient of the cost vanishes at the optimum). With ``retract`` (a manifold
-iterate such as 4x4 matrices) it does not: use ``solve_batch(..., method="optimistix")``.
+iterate such as 4x4 matrices) it does not: solve for the tangent delta from a fixed anchor
+instead, additively, as ``solve_batch(..., method="optimistix")`` does for ROSHAN.
 """
 
 from __future__ import annotations
@@ -419,6 +424,24 @@ class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
       retract: optional ``retract(y, (pose_step, landmark_step)) -> y``; default ``y + step``
         with ``y = (poses, landmarks)``. pose_dim, landmark_dim: tangent sizes (with retract).
       lambda_init, lambda_max: initial damping and the limit of the search.
+
+    Example, planar poses ``(x, y, theta)`` observing point landmarks, each observation a
+    ``pair`` row of one pose and one landmark, plus pose priors (no landmark rows)::
+
+        def residuals(y, args):
+            poses, points = y
+            p, l = poses[args["pose"]], points[args["point"]]
+            c, s = jnp.cos(p[:, 2]), jnp.sin(p[:, 2])
+            d = l - p[:, :2]
+            seen = jnp.stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]], -1)
+            return seen - args["z"], poses - args["prior"], jnp.zeros((points.shape[0], 0))
+
+        solver = slam.SchurLevenbergMarquardt(
+            1e-8, 1e-8, structure=lambda a: slam.SchurStructure(a["pose"], a["point"])
+        )
+        sol = optx.least_squares(residuals, solver, (poses0, points0), args, max_steps=100)
+
+    ``tests/test_schur_solver.py`` solves such a problem against ``optx.LevenbergMarquardt``.
     """
 
     rtol: Any
