@@ -55,8 +55,10 @@ def _time(fn, args, repeats):
     t = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t
-    ts = []
-    for _ in range(1 + repeats):
+    t = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
+    ts = [time.perf_counter() - t]
+    for _ in range(repeats):
         t = time.perf_counter()
         out = jax.block_until_ready(compiled(*args))
         ts.append(time.perf_counter() - t)
