@@ -290,3 +290,10 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
         np.testing.assert_allclose(info_v.cost[k], info.cost, rtol=1e-5 * 1e-2)
         np.testing.assert_allclose(est_v.center[k], est.center, rtol=0, atol=1e-5)
     assert converged >= 3 and len(set(steps)) >= 4, steps
+
+
+def test_a_residual_function_without_blocks_is_rejected():
+    y0, args = _problem(10)
+    flat = lambda y, a: jnp.concatenate([b.reshape(-1) for b in _residuals(y, a)])
+    with pytest.raises(ValueError, match="residual blocks"):
+        slam.schur_normal(flat, y0, args, _structure(args))

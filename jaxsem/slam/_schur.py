@@ -268,9 +268,10 @@ def schur_normal(fn, y, args, structure: SchurStructure, retract=None, pose_dim=
 
     zero = (jnp.zeros((T, dpn), dtype), jnp.zeros((L, dln), dtype))
     blocks, lin = jax.linearize(g, zero)
-    if len(blocks) not in (3, 4):
+    if not isinstance(blocks, (tuple, list)) or len(blocks) not in (3, 4):
         raise ValueError(
-            f"fn: expected 3 residual blocks (pair, pose, landmark) or 4 (with pose_pair), got {len(blocks)}"
+            "fn: expected a tuple of 3 residual blocks (pair, pose, landmark) or 4 (with pose_pair), "
+            f"got {jax.tree_util.tree_structure(blocks)}"
         )
     colours = 2 if len(blocks) == 4 else 1
     n = colours * dpn + dln
