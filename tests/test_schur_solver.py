@@ -297,3 +297,24 @@ def test_a_residual_function_without_blocks_is_rejected():
     flat = lambda y, a: jnp.concatenate([b.reshape(-1) for b in _residuals(y, a)])
     with pytest.raises(ValueError, match="residual blocks"):
         slam.schur_normal(flat, y0, args, _structure(args))
+
+
+def test_a_jnp_tolerance_in_solver_config_does_not_recompile():
+    # Issue 23 (a user's friction): SolverConfig(rtol=jnp.asarray(...)) recompiled the solve
+    # (a strongly typed scalar where the default is a weakly typed Python float).
+    @jax.jit
+    def stopping(cfg):
+        return cfg.rtol * 2 + cfg.noise.box_sigma
+
+    written = [
+        slam.SolverConfig(),
+        slam.SolverConfig(rtol=1e-4),
+        slam.SolverConfig(rtol=jnp.asarray(1e-4), noise=slam.NoiseModel(box_sigma=np.float32(2.0))),
+    ]
+    for cfg in written:
+        stopping(cfg)
+    assert stopping._cache_size() == 1
+    assert isinstance(written[2].rtol, float) and isinstance(written[2].stopping.rtol, float)
+    # Traced tolerances stay traced: a vmapped config is one program.
+    batched = jax.vmap(lambda r: stopping(slam.SolverConfig(rtol=r)))(jnp.asarray([1e-3, 1e-6]))
+    np.testing.assert_allclose(batched, [3.002, 3.000002], rtol=1e-6)
