@@ -1,7 +1,7 @@
 """Learn a class shape-prior mean by differentiating solved maps through the batch solver.
 
 Simulated few-view Forward maps of cars are solved with ROSHAN (``jaxsem.slam.solve_batch``,
-optimistix Levenberg-Marquardt); the loss is the mean squared error of the solved radii against
+``method="optimistix"``: the Schur Levenberg-Marquardt on the tangent delta); the loss is the mean squared error of the solved radii against
 the truth, and its gradient w.r.t. the ``car`` prior mean flows through the solution by the
 implicit function theorem (optimistix's implicit adjoint). optax Adam updates the mean, which
 starts from a deliberately wrong value.

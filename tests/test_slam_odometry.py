@@ -168,3 +168,27 @@ def test_drifting_odometry_and_boxes_beat_odometry_alone():
     assert alone[-1] > 0.1, alone  # the drift is real
     assert solved.mean() < 0.5 * alone.mean(), (solved, alone)
     assert solved[-1] < 0.5 * alone[-1], (solved, alone)
+
+
+@pytest.mark.slow
+def test_generic_linearisation_with_odometry_equals_roshans():
+    # schur_normal's pose_pair block (2 dp + dl coloured columns) against ROSHAN's linearize
+    # (per-factor jacfwd) on a map with odometry: the differentiable path (solve_batch
+    # method="optimistix") linearises this way.
+    problem, _, _ = _drifting_problem(num_frames=5)
+    cfg = _cfg()
+    est = slam.initialize(problem, cfg)
+    free = problem.pose_mask.astype(jnp.float64)
+    solver = slam.roshan_solver(cfg)
+    args = (problem, cfg, free, problem.object_mask)
+
+    @jax.jit
+    def both(est):
+        fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
+        generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
+        return generic, slam.linearize(problem, est, cfg, free)
+
+    generic, roshan = both(est)
+    assert generic.Hpp_next is not None and roshan.Hpp_next is not None
+    for a, b in zip(generic, roshan):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))

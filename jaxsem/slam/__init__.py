@@ -6,8 +6,8 @@ Data structures (padded to capacity with masks, equinox pytrees): :class:`SlamPr
 :mod:`jaxsem.factors`.
 
 Solvers: :class:`SchurLevenbergMarquardt` (the structured LM as an optimistix solver, usable on
-any residual function with pose and landmark blocks), :func:`solve_batch` (it, by default; ``method="optimistix"`` for the
-dense, differentiable one), :func:`solve_schur`, and the online smoother :func:`online_init` /
+any residual function with pose and landmark blocks), :func:`solve_batch` (it, with the rescue of stranded objects; ``method="optimistix"``:
+it on the tangent delta, differentiable by the implicit adjoint), :func:`solve_schur`, and the online smoother :func:`online_init` /
 :func:`online_update` / :func:`online_estimate`. Every solver reports a :data:`RESULTS` code
 (``throw=`` to raise instead); :func:`baseline_config` is the thesis' baseline.
 

@@ -1,5 +1,5 @@
-"""Batch solvers of eq. 4.13: a structured Levenberg-Marquardt (Schur complement, the default) and
-optimistix's dense Levenberg-Marquardt (differentiable by the implicit adjoint).
+"""Batch solvers of eq. 4.13: the structured Levenberg-Marquardt of ROSHAN (Schur complement) in
+two forms, both ``optx.least_squares`` with :class:`~jaxsem.slam.SchurLevenbergMarquardt`.
 
 The structured LM is :class:`~jaxsem.slam.SchurLevenbergMarquardt` (``_schur.py``), an
 optimistix least-squares solver made of a descent (the damped Schur step,
@@ -15,11 +15,12 @@ that never lies: success needs the stopping rule met *and* a finite state and co
 :func:`solve_schur` wraps the solver with the rescue of stranded objects and the unfixable-object
 logic.
 
-Why the Schur path is the default (and not ``method="optimistix"``): optimistix materialises the
-dense Jacobian (one JVP per unknown) and solves it densely; on the QuadricSLAM setting (60
-poses + 10 objects, 450 unknowns) that measured 130 s to compile and 109 s per map on the
-2-core CPU, against well under a second for the Schur path. Use it when gradients must flow
-through the solution (implicit adjoint), e.g. to learn the class table.
+``solve_batch(..., method="optimistix")`` is the differentiable form: the same solver on an
+additive iterate, the tangent delta from the initial estimate, linearised by generic
+forward-mode columns (:func:`~jaxsem.slam.schur_normal`), so that optimistix's implicit adjoint
+gives gradients through the solution (e.g. to learn the class table). It has no rescue phase.
+It replaces optimistix's dense ``LevenbergMarquardt`` (one JVP per unknown and a dense QR per
+step), which was too slow to be a usable reference on full maps.
 """
 
 from __future__ import annotations
@@ -29,9 +30,11 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 
 from ._cost import (
+    Delta,
     Normal,
     box_health,
     linearize,
@@ -40,7 +43,6 @@ from ._cost import (
     retract_object,
     retract_pose,
     total_cost,
-    zero_delta,
 )
 from ._init import initialize
 from ._problem import SlamEstimate, SlamProblem, SolverConfig
@@ -101,14 +103,50 @@ def _throw(result, tree, throw: bool):
 
 
 # --------------------------------------------------------------------------------------------
-# Optimistix path (dense; differentiable through the solution).
+# The differentiable path: the same solver on the additive tangent delta (implicit adjoint).
 
 
-def _residual_fn(delta, args):
-    from ._cost import residual_blocks
-
+def _delta_residuals(y, args):
+    """ROSHAN's residual blocks at ``anchor`` moved by the tangent delta ``y = (pose (T, 6),
+    object (J, 9))`` (rotation, centre, radii parameter per object)."""
     problem, anchor, config = args
+    dp, do = y
+    delta = Delta(dp, do[:, :3], do[:, 3:6], do[:, 6:])
     return residual_blocks(problem, retract(anchor, delta), config)
+
+
+def _delta_structure(args) -> SchurStructure:
+    problem, _, _ = args
+    dtype = problem.pose_prior.dtype
+    return SchurStructure(problem.box_pose, problem.box_object, problem.pose_mask.astype(dtype), problem.object_mask)
+
+
+def _solve_implicit(problem: SlamProblem, init: SlamEstimate, config: SolverConfig):
+    """:class:`SchurLevenbergMarquardt` on the tangent delta from ``init`` (an additive iterate,
+    generic forward-mode linearisation: 15 columns, 21 with odometry), so that optimistix's
+    implicit adjoint differentiates the solution. The adjoint's linear solve is a least-squares
+    one (``well_posed=False``): padded poses and objects have no residuals, so the cost's Hessian
+    is singular along them."""
+    dtype = init.center.dtype
+    stop = config.stopping
+    solver = SchurLevenbergMarquardt(
+        stop.rtol, stop.atol, _delta_structure, lambda_init=stop.lambda_init, lambda_max=stop.lambda_max
+    )
+    T, J = init.camera_T_world.shape[0], init.center.shape[0]
+    y0 = (jnp.zeros((T, 6), dtype), jnp.zeros((J, 9), dtype))
+    sol = optx.least_squares(
+        _delta_residuals,
+        solver,
+        y0,
+        args=(problem, init, config),
+        options={"max_trials": config.max_steps},
+        max_steps=None,
+        adjoint=optx.ImplicitAdjoint(linear_solver=lx.AutoLinearSolver(well_posed=False)),
+        throw=False,
+    )
+    dp, do = sol.value
+    estimate = retract(init, Delta(dp, do[:, :3], do[:, 3:6], do[:, 6:]))
+    return estimate, sol.stats
 
 
 def solve_batch(
@@ -126,9 +164,10 @@ def solve_batch(
       init: :class:`SlamEstimate` to start from; None: :func:`jaxsem.slam.initialize` with this
         ``config`` (the solver's own class table, depth rule and texture use).
       config: :class:`SolverConfig`; :func:`jaxsem.slam.baseline_config` is the thesis' baseline.
-      method: ``"schur"`` (:func:`solve_schur`, the default: structured, fast) or
-        ``"optimistix"`` (dense LM, differentiable by the implicit adjoint, but slow to
-        compile and run on full maps: see the module docstring).
+      method: ``"schur"`` (:func:`solve_schur`, the default: rescue of stranded objects, then the
+        structured LM on the manifold) or ``"optimistix"`` (the same solver on the tangent delta
+        from ``init``, without the rescue phase, differentiable through the solution by
+        optimistix's implicit adjoint: see the module docstring).
       throw: raise (``eqx.error_if``, a runtime error) when the result is not successful.
 
     Returns:
@@ -141,31 +180,17 @@ def solve_batch(
         raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
     init = _cast(problem, initialize(problem, config) if init is None else init)
     dtype = init.center.dtype
-    solver = optx.LevenbergMarquardt(rtol=config.rtol, atol=config.atol)  # pyright: ignore[reportArgumentType]
-    args = (problem, init, config)
-    sol = optx.least_squares(
-        _residual_fn,
-        solver,
-        zero_delta(init),
-        args=args,
-        max_steps=config.max_steps,
-        throw=False,
-    )
-    estimate = retract(init, sol.value)
+    estimate, stats = _solve_implicit(problem, init, config)
     cost0 = total_cost(problem, init, config)
     cost = total_cost(problem, estimate, config)
     finite = _all_finite(estimate) & jnp.isfinite(cost) & _all_finite(problem) & jnp.isfinite(cost0)
-    result = RESULTS.promote(sol.result)
-    budget = (sol.result == optx.RESULTS.max_steps_reached) | (sol.result == optx.RESULTS.nonlinear_max_steps_reached)
-    result = RESULTS.where(budget, RESULTS.max_steps_reached, result)
-    result = RESULTS.where(finite, result, RESULTS.nonfinite)
-    steps = jnp.asarray(sol.stats["num_steps"], jnp.int32)
+    result = RESULTS.where(finite, stats["result"], RESULTS.nonfinite)
     J = init.center.shape[0]
     info = SolveInfo(
         result=result,
         success=result == RESULTS.successful,
-        steps=steps,
-        accepted=steps,
+        steps=jnp.asarray(stats["trials"], jnp.int32),
+        accepted=jnp.asarray(stats["accepted"], jnp.int32),
         initial_cost=cost0.astype(dtype),
         cost=cost.astype(dtype),
         unfixable=jnp.zeros(J, bool),

@@ -48,6 +48,21 @@ __all__ = [
 ]
 
 
+def _scalar(x: Any) -> Any:
+    """A concrete 0-d floating array as a Python float; anything else unchanged.
+
+    A config field given as ``jnp.asarray(1e-4)`` then has the same ``jit`` signature (a weakly
+    typed scalar) as one given as ``1e-4``: changing a tolerance or a weight never recompiles,
+    whichever way it is written. Tracers and batched arrays (a vmapped config) pass unchanged."""
+    from jax.core import Tracer
+
+    if isinstance(x, Tracer) or not isinstance(x, (jax.Array, np.ndarray, np.generic)):
+        return x
+    if np.ndim(x) != 0 or not np.issubdtype(x.dtype, np.floating):
+        return x
+    return float(x)
+
+
 class SlamProblem(eqx.Module):
     """Measurements of one map, padded to capacity (T poses, M boxes, J objects).
 
@@ -227,13 +242,13 @@ class NoiseModel(eqx.Module):
       shape_prior_scale: multiplies the class table's per-axis sigmas (1.0 = the table).
     """
 
-    pose_rotation_sigma: float | jnp.ndarray = 0.0175
-    pose_translation_sigma: float | jnp.ndarray = 0.05
-    odometry_rotation_sigma: float | jnp.ndarray = 0.0087
-    odometry_translation_sigma: float | jnp.ndarray = 0.02
-    box_sigma: float | jnp.ndarray = 3.0
-    texture_sigma: float | jnp.ndarray = 0.3
-    shape_prior_scale: float | jnp.ndarray = 1.0
+    pose_rotation_sigma: float | jnp.ndarray = eqx.field(default=0.0175, converter=_scalar)
+    pose_translation_sigma: float | jnp.ndarray = eqx.field(default=0.05, converter=_scalar)
+    odometry_rotation_sigma: float | jnp.ndarray = eqx.field(default=0.0087, converter=_scalar)
+    odometry_translation_sigma: float | jnp.ndarray = eqx.field(default=0.02, converter=_scalar)
+    box_sigma: float | jnp.ndarray = eqx.field(default=3.0, converter=_scalar)
+    texture_sigma: float | jnp.ndarray = eqx.field(default=0.3, converter=_scalar)
+    shape_prior_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
 
 
 class CostModel(eqx.Module):
@@ -243,17 +258,17 @@ class CostModel(eqx.Module):
     noise: NoiseModel = NoiseModel()
     use_texture: bool = eqx.field(static=True, default=True)
     use_shape_prior: bool = eqx.field(static=True, default=True)
-    baseline_shape_weight: float | jnp.ndarray = 10.0
-    border_margin: float | jnp.ndarray = 10.0
+    baseline_shape_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
+    border_margin: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     box_loss: str = eqx.field(static=True, default="l2")
     texture_loss: str = eqx.field(static=True, default="l2")
     shape_loss: str = eqx.field(static=True, default="l2")
     pose_loss: str = eqx.field(static=True, default="l2")
-    robust_scale: float | jnp.ndarray = 2.0
-    texture_plane_fraction: float | jnp.ndarray = 1.0
-    barrier_weight: float | jnp.ndarray = 10.0
-    min_depth: float | jnp.ndarray = 0.1
-    degenerate_residual: float | jnp.ndarray = 1000.0
+    robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
+    texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+    barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
+    min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
+    degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
@@ -262,11 +277,11 @@ class InitConfig(eqx.Module):
     """How a solve starts: the single-view depth and the batch solver's rescue of stranded
     objects. Fields as the same-named ones of :class:`SolverConfig`."""
 
-    default_depth: float | jnp.ndarray = 10.0
+    default_depth: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     depth_from_box: bool = eqx.field(static=True, default=True)
     robust_init: bool = eqx.field(static=True, default=True)
-    unfixable_rms: float | jnp.ndarray = 5.0
-    rescue_rtol: float | jnp.ndarray = 1e-2
+    unfixable_rms: float | jnp.ndarray = eqx.field(default=5.0, converter=_scalar)
+    rescue_rtol: float | jnp.ndarray = eqx.field(default=1e-2, converter=_scalar)
 
 
 class StoppingRule(eqx.Module):
@@ -274,10 +289,10 @@ class StoppingRule(eqx.Module):
     same-named ones of :class:`SolverConfig`."""
 
     max_steps: int = eqx.field(static=True, default=100)
-    rtol: float | jnp.ndarray = 1e-5
-    atol: float | jnp.ndarray = 1e-5
-    lambda_init: float | jnp.ndarray = 1e-3
-    lambda_max: float | jnp.ndarray = 1e10
+    rtol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
+    atol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
+    lambda_init: float | jnp.ndarray = eqx.field(default=1e-3, converter=_scalar)
+    lambda_max: float | jnp.ndarray = eqx.field(default=1e10, converter=_scalar)
 
 
 _PARTS = {"cost_model": CostModel, "initialisation": InitConfig, "stopping": StoppingRule}
@@ -355,27 +370,27 @@ class SolverConfig(eqx.Module):
     noise: NoiseModel = NoiseModel()
     use_texture: bool = eqx.field(static=True, default=True)
     use_shape_prior: bool = eqx.field(static=True, default=True)
-    baseline_shape_weight: float | jnp.ndarray = 10.0
-    border_margin: float | jnp.ndarray = 10.0
+    baseline_shape_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
+    border_margin: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     box_loss: str = eqx.field(static=True, default="l2")
     texture_loss: str = eqx.field(static=True, default="l2")
     shape_loss: str = eqx.field(static=True, default="l2")
     pose_loss: str = eqx.field(static=True, default="l2")
-    robust_scale: float | jnp.ndarray = 2.0
-    texture_plane_fraction: float | jnp.ndarray = 1.0
-    default_depth: float | jnp.ndarray = 10.0
+    robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
+    texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+    default_depth: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     depth_from_box: bool = eqx.field(static=True, default=True)
     max_steps: int = eqx.field(static=True, default=100)
-    rtol: float | jnp.ndarray = 1e-5
-    atol: float | jnp.ndarray = 1e-5
-    lambda_init: float | jnp.ndarray = 1e-3
-    lambda_max: float | jnp.ndarray = 1e10
+    rtol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
+    atol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
+    lambda_init: float | jnp.ndarray = eqx.field(default=1e-3, converter=_scalar)
+    lambda_max: float | jnp.ndarray = eqx.field(default=1e10, converter=_scalar)
     robust_init: bool = eqx.field(static=True, default=True)
-    unfixable_rms: float | jnp.ndarray = 5.0
-    rescue_rtol: float | jnp.ndarray = 1e-2
-    barrier_weight: float | jnp.ndarray = 10.0
-    min_depth: float | jnp.ndarray = 0.1
-    degenerate_residual: float | jnp.ndarray = 1000.0
+    unfixable_rms: float | jnp.ndarray = eqx.field(default=5.0, converter=_scalar)
+    rescue_rtol: float | jnp.ndarray = eqx.field(default=1e-2, converter=_scalar)
+    barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
+    min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
+    degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 

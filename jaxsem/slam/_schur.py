@@ -22,11 +22,15 @@ What ``fn`` must declare (the "pose / landmark" protocol)
   priors, shape priors) has exactly this form.
 - ``structure(args)`` returns a :class:`SchurStructure`: the two index arrays, and optional
   masks of the free poses / landmarks (held ones do not move).
+- Optionally a fourth block ``pose_pair (T, e)`` (odometry / between factors): row ``t < T - 1``
+  may depend on poses ``t`` and ``t + 1``, the last row on pose ``T - 1`` only. The pose part of
+  the normal equations is then block-tridiagonal (``Normal.Hpp_next``).
 
 Nothing checks the declared sparsity (that would cost a dense Jacobian): a residual row that
 depends on a variable it did not declare makes the Jacobian silently wrong. The block Jacobian
 is recovered exactly by ``dp + dl`` forward-mode columns (each pose perturbed at once along one
-tangent axis, then each landmark: the declared sparsity keeps the columns apart), or given by
+tangent axis, then each landmark: the declared sparsity keeps the columns apart; ``2 dp + dl``
+with a ``pose_pair`` block, even and odd poses apart), or given by
 ``linearise(y, args) -> Normal`` when the caller has a faster one (ROSHAN's box factors use
 9 columns via the chain rule of ``camera_T_object``, :func:`jaxsem.slam.linearize`).
 
@@ -51,7 +55,8 @@ Jacobian is never taken for a rejected trial. ``sol.stats`` holds
 
 Differentiating through the solution: with the additive iterate, optimistix's implicit adjoint
 applies (the gradient of the cost vanishes at the optimum). With ``retract`` (a manifold
-iterate such as 4x4 matrices) it does not: use ``solve_batch(..., method="optimistix")``.
+iterate such as 4x4 matrices) it does not: solve for the tangent delta from a fixed anchor
+instead, additively, as ``solve_batch(..., method="optimistix")`` does for ROSHAN.
 """
 
 from __future__ import annotations
@@ -217,13 +222,29 @@ def _add(y, step):
     return jax.tree_util.tree_map(lambda a, b: a + b.astype(a.dtype), y, step)
 
 
+def _colour_columns(jx, index, colours: int, dim: int):
+    """(R, a, dim): the Jacobian of each row w.r.t. the block it depends on, read from the
+    forward-mode columns ``jx`` (n, R, a) whose first ``colours * dim`` columns move the
+    blocks of one colour (``index % colours``) along one tangent axis each."""
+    R = jx.shape[1]
+    cols = jnp.moveaxis(jx[: colours * dim], 0, -1)  # (R, a, colours * dim)
+    cols = cols.reshape(R, cols.shape[1], colours, dim)
+    pick = (jnp.asarray(index) % colours).reshape(R, 1, 1, 1)
+    return jnp.take_along_axis(cols, pick, axis=2)[:, :, 0]
+
+
 def schur_normal(fn, y, args, structure: SchurStructure, retract=None, pose_dim=None, landmark_dim=None) -> Normal:
-    """Block normal equations of ``fn`` at ``y`` from ``dp + dl`` forward-mode columns.
+    """Block normal equations of ``fn`` at ``y`` from forward-mode columns.
 
     ``fn(y, args) -> (pair (M, a), pose (T, b), landmark (L, c))`` with the sparsity declared by
-    ``structure`` (module docstring). Without ``retract``, ``y = (poses (T, dp), landmarks
-    (L, dl))``; with it, ``pose_dim`` / ``landmark_dim`` give the tangent sizes and the
-    derivative is taken of ``fn(retract(y, (dp, dl)))`` at zero.
+    ``structure`` (module docstring), optionally with a fourth block ``pose_pair (T, e)`` whose
+    row ``t < T - 1`` may depend on poses ``t`` and ``t + 1`` (odometry / between factors; the
+    last row on pose ``T - 1`` only): the pose blocks are then block-tridiagonal
+    (``Normal.Hpp_next``). Columns: ``dp + dl`` (every pose moved at once along one tangent
+    axis, then every landmark), or ``2 dp + dl`` with a ``pose_pair`` block (even and odd poses
+    apart, so that the two poses of a row stay apart). Without ``retract``, ``y = (poses
+    (T, dp), landmarks (L, dl))``; with it, ``pose_dim`` / ``landmark_dim`` give the tangent
+    sizes and the derivative is taken of ``fn(retract(y, (dp, dl)))`` at zero.
     """
     if retract is None:
         poses, landmarks = y
@@ -246,21 +267,30 @@ def schur_normal(fn, y, args, structure: SchurStructure, retract=None, pose_dim=
             return fn(retract(y, d), args)
 
     zero = (jnp.zeros((T, dpn), dtype), jnp.zeros((L, dln), dtype))
-    (rb, rp, rl), lin = jax.linearize(g, zero)
-    n = dpn + dln
+    blocks, lin = jax.linearize(g, zero)
+    if not isinstance(blocks, (tuple, list)) or len(blocks) not in (3, 4):
+        raise ValueError(
+            "fn: expected a tuple of 3 residual blocks (pair, pose, landmark) or 4 (with pose_pair), "
+            f"got {jax.tree_util.tree_structure(blocks)}"
+        )
+    colours = 2 if len(blocks) == 4 else 1
+    n = colours * dpn + dln
     eye = jnp.eye(n, dtype=dtype)
-    # Column k: every pose (k < dp) or every landmark moves along tangent axis k at once.
-    seeds = (
-        jnp.broadcast_to(eye[:, None, :dpn], (n, T, dpn)),
-        jnp.broadcast_to(eye[:, None, dpn:], (n, L, dln)),
-    )
-    jb, jp, jl = jax.vmap(lin)(seeds)  # (n, M, a), (n, T, b), (n, L, c)
+    t_index = jnp.arange(T)
+    # Column c * dp + k moves the poses of colour c (t % colours == c) along tangent axis k;
+    # column colours * dp + k every landmark along axis k.
+    pose_seed = eye[:, : colours * dpn].reshape(n, colours, dpn)[:, t_index % colours]  # (n, T, dp)
+    seeds = (pose_seed, jnp.broadcast_to(eye[:, None, colours * dpn :], (n, L, dln)))
+    cols = jax.vmap(lin)(seeds)
+    rows = [jnp.reshape(r, r.shape[:1] + (-1,)) for r in blocks]
+    cols = [jnp.reshape(c, c.shape[:2] + (-1,)) for c in cols]
+    rb, rp, rl = rows[:3]
+    jb, jp, jl = cols[:3]
     pi, li = structure.pose_index, structure.landmark_index
-    Jbp = jnp.moveaxis(jb[:dpn], 0, -1)  # (M, a, dp)
-    Jbl = jnp.moveaxis(jb[dpn:], 0, -1)  # (M, a, dl)
-    Jpp = jnp.moveaxis(jp[:dpn], 0, -1)  # (T, b, dp)
-    Jll = jnp.moveaxis(jl[dpn:], 0, -1)  # (L, c, dl)
-    rb, rp, rl = (jnp.reshape(r, r.shape[:1] + (-1,)) for r in (rb, rp, rl))
+    Jbp = _colour_columns(jb, pi, colours, dpn)  # (M, a, dp)
+    Jbl = jnp.moveaxis(jb[colours * dpn :], 0, -1)  # (M, a, dl)
+    Jpp = _colour_columns(jp, t_index, colours, dpn)  # (T, b, dp)
+    Jll = jnp.moveaxis(jl[colours * dpn :], 0, -1)  # (L, c, dl)
     tr = lambda x: jnp.swapaxes(x, -1, -2)
     Hpp = jnp.zeros((T, dpn, dpn), dtype).at[pi].add(tr(Jbp) @ Jbp) + tr(Jpp) @ Jpp
     Hoo = jnp.zeros((L, dln, dln), dtype).at[li].add(tr(Jbl) @ Jbl) + tr(Jll) @ Jll
@@ -269,7 +299,16 @@ def schur_normal(fn, y, args, structure: SchurStructure, retract=None, pose_dim=
     gp = gp + jnp.einsum("tij,ti->tj", Jpp, rp)
     go = jnp.zeros((L, dln), dtype).at[li].add(jnp.einsum("mij,mi->mj", Jbl, rb))
     go = go + jnp.einsum("jik,ji->jk", Jll, rl)
-    return Normal(Hpp, Hoo, Hpo, gp, go, _sum_squares((rb, rp, rl)))
+    Hnext = None
+    if colours == 2:
+        ro, jo = rows[3], cols[3]
+        Ja = _colour_columns(jo, t_index, 2, dpn)  # row t w.r.t. pose t
+        Jb = _colour_columns(jo, t_index + 1, 2, dpn)  # row t w.r.t. pose t + 1
+        Jb = Jb * (t_index < T - 1).astype(dtype)[:, None, None]  # the last row has no next pose
+        Hpp = Hpp + tr(Ja) @ Ja + jnp.roll(tr(Jb) @ Jb, 1, axis=0)
+        gp = gp + jnp.einsum("tij,ti->tj", Ja, ro) + jnp.roll(jnp.einsum("tij,ti->tj", Jb, ro), 1, axis=0)
+        Hnext = tr(Ja) @ Jb
+    return Normal(Hpp, Hoo, Hpo, gp, go, _sum_squares(rows), Hnext)
 
 
 # --------------------------------------------------------------------------------------------
@@ -386,6 +425,24 @@ class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
       retract: optional ``retract(y, (pose_step, landmark_step)) -> y``; default ``y + step``
         with ``y = (poses, landmarks)``. pose_dim, landmark_dim: tangent sizes (with retract).
       lambda_init, lambda_max: initial damping and the limit of the search.
+
+    Example, planar poses ``(x, y, theta)`` observing point landmarks, each observation a
+    ``pair`` row of one pose and one landmark, plus pose priors (no landmark rows)::
+
+        def residuals(y, args):
+            poses, points = y
+            p, l = poses[args["pose"]], points[args["point"]]
+            c, s = jnp.cos(p[:, 2]), jnp.sin(p[:, 2])
+            d = l - p[:, :2]
+            seen = jnp.stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]], -1)
+            return seen - args["z"], poses - args["prior"], jnp.zeros((points.shape[0], 0))
+
+        solver = slam.SchurLevenbergMarquardt(
+            1e-8, 1e-8, structure=lambda a: slam.SchurStructure(a["pose"], a["point"])
+        )
+        sol = optx.least_squares(residuals, solver, (poses0, points0), args, max_steps=100)
+
+    ``tests/test_schur_solver.py`` solves such a problem against ``optx.LevenbergMarquardt``.
     """
 
     rtol: Any
