@@ -285,3 +285,32 @@ def test_bad_input_raises():
         sim.simulate(jax.random.key(0), {"path": "orbit"})
     with pytest.raises(ValueError, match="num_maps"):
         sim.simulate_batch(0, 0, FWD)
+
+
+def test_sim_imports_without_mujoco_and_rendering_says_what_to_install():
+    # Regression: jaxsem.sim imported mujoco at module load, so the simulated maps (no renderer)
+    # failed on an install without the optional 'sim' extra (seen on the GPU machine).
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(
+        """
+        import sys
+        class Block:
+            def find_spec(self, name, path=None, target=None):
+                if name == "mujoco" or name.startswith("mujoco."):
+                    raise ImportError("no mujoco here")
+        sys.meta_path.insert(0, Block())
+        from jaxsem import sim
+        sim.quadricslam_config("orbit", num_frames=4, num_objects=2, min_objects=2)
+        from jaxsem.sim import _render  # layers: white-box
+        try:
+            _render.mujoco.MjSpec
+        except ImportError as exc:
+            print("refused:", exc)
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "jaxsem[sim]" in out.stdout

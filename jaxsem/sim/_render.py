@@ -24,6 +24,7 @@ import dataclasses
 import math
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,22 @@ from ..quadrics import invert_pose
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import mujoco
+
+class _LazyMujoco:
+    """``mujoco``, imported at first use: MuJoCo is an optional dependency (the ``sim`` extra),
+    and ``jaxsem.sim`` also holds what needs no renderer (simulated SLAM maps, toy maps), so
+    importing it must work without MuJoCo installed."""
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            import mujoco as module
+        except ImportError as exc:
+            raise ImportError("rendering needs MuJoCo: pip install 'jaxsem[sim]' (or mujoco>=3.1)") from exc
+        globals()["mujoco"] = module
+        return getattr(module, name)
+
+
+mujoco: Any = _LazyMujoco()
 
 __all__ = ["SceneObject", "SceneRenderer", "render_views", "SHAPES", "bounding_ellipsoid_radii"]
 
