@@ -416,8 +416,11 @@ class FrontEnd:
         baseline = float(np.median(used)) if used.size else float(np.max(baselines[far]))
         return depth, variance, status, n, baseline
 
-    def _orb_in_box(self, gray, box):
-        """ORB keypoints (K, 2) and descriptors (K, 32) inside ``box`` (shrunk by box_shrink)."""
+    def _orb_crop(self, gray, box):
+        """``(crop, mask, cx0, cy0)``: ORB runs on a crop around the box, not the whole image
+        (its cost scales with the area); the margin covers ORB's border exclusion at its coarsest
+        level, so corners near the box edge survive as they would on the full image. ``mask``
+        (uint8, 255 inside the box shrunk by ``box_shrink``); ``(cx0, cy0)`` the crop's corner."""
         cfg = self.config
         x0, y0, x1, y1 = _box_pixels(box, gray.shape, cfg.box_shrink)
         h, w = gray.shape
@@ -427,6 +430,11 @@ class FrontEnd:
         crop = np.ascontiguousarray(gray[cy0:cy1, cx0:cx1])
         mask = np.zeros(crop.shape, dtype=np.uint8)
         mask[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0] = 255
+        return crop, mask, cx0, cy0
+
+    def _orb_in_box(self, gray, box):
+        """ORB keypoints (K, 2) and descriptors (K, 32) inside ``box`` (shrunk by box_shrink)."""
+        crop, mask, cx0, cy0 = self._orb_crop(gray, box)
         keypoints, desc = self._orb.detectAndCompute(crop, mask)
         if desc is None or not keypoints:
             return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
@@ -477,17 +485,7 @@ class FrontEnd:
         cfg = self.config
         if lm.points.shape[0] >= cfg.redetect_fraction * cfg.max_features and lm.points.shape[0] > 0:
             return
-        x0, y0, x1, y1 = _box_pixels(box, gray.shape, cfg.box_shrink)
-        # ORB on a crop around the box, not the whole image (its cost scales with the area); the
-        # margin covers ORB's border exclusion at its coarsest level, so corners near the box
-        # edge survive as they would on the full image.
-        h, w = gray.shape
-        margin = int(math.ceil(cfg.orb_patch_size * 1.2 ** (cfg.orb_levels - 1))) + 2
-        cx0, cy0 = max(x0 - margin, 0), max(y0 - margin, 0)
-        cx1, cy1 = min(x1 + margin, w), min(y1 + margin, h)
-        crop = np.ascontiguousarray(gray[cy0:cy1, cx0:cx1])
-        mask = np.zeros(crop.shape, dtype=np.uint8)
-        mask[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0] = 255
+        crop, mask, cx0, cy0 = self._orb_crop(gray, box)
         for u, v in lm.points:  # keep new corners away from surviving ones
             cv2.circle(mask, (int(round(float(u))) - cx0, int(round(float(v))) - cy0), 3, 0, -1)
         keypoints = self._orb.detect(crop, mask)
