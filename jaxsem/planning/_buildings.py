@@ -199,6 +199,20 @@ def _opening(run, width, clearance, rng):
     return (start, fixed, start + width, fixed + 2)
 
 
+def _footprint(rng, p, resolution: float):
+    """The footprint every family draws first, in this order from ``rng``: width and depth
+    within ``p.width`` / ``p.depth`` (m), a ``p.margin`` of outside around it. Returns the
+    metres-to-cells rounding, width, depth and margin in cells, the region grid (outside, and the
+    footprint as corridor) and the footprint's (r0, c0, r1, c1)."""
+    cells = lambda m: max(1, int(round(m / resolution)))
+    width, depth = cells(rng.uniform(*p.width)), cells(rng.uniform(*p.depth))
+    margin = cells(p.margin)
+    region = np.full((depth + 2 * margin, width + 2 * margin), OUTSIDE_REGION, np.int32)
+    rect = (margin, margin, margin + depth, margin + width)
+    region[rect[0] : rect[2], rect[1] : rect[3]] = CORRIDOR_REGION
+    return cells, width, depth, margin, region, rect
+
+
 def generate_building(
     seed: int, family: str = "train", resolution: float = DEFAULT_RESOLUTION, params: BuildingParams | None = None
 ) -> Building:
@@ -217,14 +231,8 @@ def generate_building(
     if not isinstance(p, BuildingParams):
         raise ValueError(f"params: expected BuildingParams or HouseParams, got {type(p).__name__}")
     rng = np.random.default_rng([int(seed), p.seed_offset, 0x15D])
-    cells = lambda m: max(1, int(round(m / resolution)))
-
-    width, depth = cells(rng.uniform(*p.width)), cells(rng.uniform(*p.depth))
-    margin = cells(p.margin)
-    H, W = depth + 2 * margin, width + 2 * margin
-    region = np.full((H, W), OUTSIDE_REGION, np.int32)
-    b0r, b0c, b1r, b1c = margin, margin, margin + depth, margin + width
-    region[b0r:b1r, b0c:b1c] = CORRIDOR_REGION
+    cells, width, depth, margin, region, (b0r, b0c, b1r, b1c) = _footprint(rng, p, resolution)
+    H, W = region.shape
 
     # Corridor spine along the long axis; work in a frame where the spine is horizontal.
     transpose = depth > width
@@ -441,14 +449,8 @@ def generate_house(
     if not (isinstance(resolution, (int, float)) and 0.02 <= resolution <= 0.5):
         raise ValueError(f"resolution: expected metres per cell in [0.02, 0.5], got {resolution!r}")
     rng = np.random.default_rng([int(seed), p.seed_offset, 0x4053])
-    cells = lambda m: max(1, int(round(m / resolution)))
-
-    width, depth = cells(rng.uniform(*p.width)), cells(rng.uniform(*p.depth))
-    margin = cells(p.margin)
-    H, W = depth + 2 * margin, width + 2 * margin
-    region = np.full((H, W), OUTSIDE_REGION, np.int32)
-    b0r, b0c, b1r, b1c = margin, margin, margin + depth, margin + width
-    region[b0r:b1r, b0c:b1c] = CORRIDOR_REGION
+    cells, width, depth, margin, region, (b0r, b0c, b1r, b1c) = _footprint(rng, p, resolution)
+    H, W = region.shape
     if rng.random() < p.l_shape_prob:  # cut a corner off: an L-shaped footprint
         ch, cw = int(depth * rng.uniform(*p.l_cut)), int(width * rng.uniform(*p.l_cut))
         corner = int(rng.integers(4))
