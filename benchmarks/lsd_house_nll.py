@@ -2,7 +2,7 @@
 
 Expert samples (thesis 3.3.2) on buildings no model trained on: ``house`` family seeds from 1000
 (the house fine-tune used seeds below 200) and ``test`` family seeds from 600; each model scores
-the same samples, the oracle on their full-map copies (``planning.with_full_map``). Paired
+the same samples, the oracle on their full-map copies (``lsd.with_full_map``). Paired
 differences per sample with their standard error.
 
     python benchmarks/lsd_house_nll.py --oracle OUT/lsd_house_oracle.npz --json benchmarks/results/lsd_house_nll.json
@@ -43,14 +43,14 @@ def main(argv=None) -> int:
     from jaxsem.scripting import atomic_write_text
 
     models = {"shipped": lsd.load_model("default"), "house": lsd.load_model("house")}
-    cfg = planning.ExpertConfig(samples_per_building=args.samples)
+    cfg = lsd.ExpertConfig(samples_per_building=args.samples)
     result = {"command": "python benchmarks/lsd_house_nll.py " + " ".join(argv or sys.argv[1:]), "sets": {}}
     for family, seeds in (("house", args.house_seeds), ("test", args.test_seeds)):
         shards = []
         for s in seeds:
             b = planning.generate_building(s, family)
-            d = planning.generate_expert_samples(b, s, cfg)
-            shards.append((d, planning.with_full_map(d, b) if args.oracle else None))
+            d = lsd.generate_expert_samples(b, s, cfg)
+            shards.append((d, lsd.with_full_map(d, b) if args.oracle else None))
         keys = [k for k in shards[0][0] if np.ndim(shards[0][0][k]) > 0 and k not in ("path_cells", "path_offsets")]
         data = {k: np.concatenate([d[k] for d, _ in shards]) for k in keys}
         scores = {}

@@ -1,5 +1,5 @@
 """The fully supervised oracle of LSD: the same network trained on the same expert samples, but
-seeing the *true* map around the robot instead of the partial one (``jaxsem.planning.with_full_map``).
+seeing the *true* map around the robot instead of the partial one (``jaxsem.lsd.with_full_map``).
 
 LSD learns from expert paths computed on the true map while it sees only what the robot has
 mapped. The oracle removes that gap and nothing else (same goals, paths, context, network,
@@ -36,7 +36,7 @@ def convert(data_dir: pathlib.Path, out_dir: pathlib.Path, progress: bool = True
     """Writes the full-map copy of every shard (skipping those done); returns the count."""
     import numpy as np
 
-    from jaxsem.planning import with_full_map
+    from jaxsem.lsd import with_full_map
 
     shards = sorted(data_dir.glob("expert_*.npz"))
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -6,7 +6,7 @@ window's minimum (section 3.2.5), so the mass outside is whatever that minimum a
 the mass the expert itself puts there: the expected share of the cells of a soft-cost optimal
 path (the expert's training target) that fall outside the window centred on the robot, split by
 goal indoors / outdoors. Robot positions and goals follow the expert data generator
-(``jaxsem.planning.ExpertConfig``: the robot starts at a clear indoor cell, goals are clear
+(``jaxsem.lsd.ExpertConfig``: the robot starts at a clear indoor cell, goals are clear
 cells at least 3 m away, 40 % outdoors) without its uniform-PRM navigation: the robot is placed
 at points along optimal paths from its start (every ``--every`` metres), which is where an
 expert robot walks. Only train-family buildings are used (never the test seeds).
@@ -147,7 +147,8 @@ def main(argv=None) -> int:
             raise SystemExit(f"--{name}: expected >= 1, got {getattr(args, name)}")
     if not args.every > 0:
         raise SystemExit(f"--every: expected > 0, got {args.every}")
-    from jaxsem.planning import ExpertConfig, generate_building
+    from jaxsem.lsd import ExpertConfig
+    from jaxsem.planning import generate_building
 
     ecfg = ExpertConfig()
     t0 = time.perf_counter()

@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from jaxsem import planning
+from jaxsem import lsd, planning
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import _harness
@@ -239,11 +239,11 @@ def main(argv=None):
     rows.append(("sense one pose (depth + objects)", t_sense, None))
 
     # Expert data throughput (one process; the script runs two workers over buildings).
-    small = planning.ExpertConfig(samples_per_building=4)
-    planning.generate_expert_samples(b, 1, small)  # warm-up compiles
-    cfg = planning.ExpertConfig(samples_per_building=args.expert_samples)
+    small = lsd.ExpertConfig(samples_per_building=4)
+    lsd.generate_expert_samples(b, 1, small)  # warm-up compiles
+    cfg = lsd.ExpertConfig(samples_per_building=args.expert_samples)
     t0 = time.perf_counter()
-    data = planning.generate_expert_samples(b, 2, cfg)
+    data = lsd.generate_expert_samples(b, 2, cfg)
     t_exp = time.perf_counter() - t0
     n_exp = len(data["context"])
     detail["expert_samples_per_s"] = n_exp / t_exp

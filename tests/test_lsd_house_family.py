@@ -126,5 +126,5 @@ def test_expert_loader_skips_half_written_shards(tmp_path):
     }
     np.savez_compressed(tmp_path / "expert_house_00001.npz", **shard)
     (tmp_path / "expert_house_00002.npz.tmp.npz").write_bytes(b"half")  # a worker stopped mid-write
-    loaded = planning.load_expert_dataset(tmp_path)
+    loaded = lsd.load_expert_dataset(tmp_path)
     assert len(loaded["context"]) == 1

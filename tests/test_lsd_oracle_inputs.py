@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from jaxsem.lsd import full_map_state, with_full_map
 from jaxsem.planning import (
     DOOR,
     EXIT_SIGN,
@@ -11,9 +12,7 @@ from jaxsem.planning import (
     OCCUPIED,
     UNKNOWN,
     WINDOW,
-    full_map_state,
     generate_building,
-    with_full_map,
 )
 
 SIZE = 160

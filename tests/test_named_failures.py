@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxsem.planning import load_expert_dataset
+from jaxsem.lsd import load_expert_dataset
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

@@ -7,25 +7,21 @@ import jax
 import numpy as np
 import pytest
 
+from jaxsem.lsd import SCHEMA_KEYS, ExpertConfig, generate_expert_samples, load_expert_dataset, write_expert_dataset
 from jaxsem.planning import (
     CROP_SIZE,
     DOOR,
     EXIT_SIGN,
     FREE,
     OCCUPIED,
-    SCHEMA_KEYS,
     UNKNOWN,
-    ExpertConfig,
     NavConfig,
     SoftCostGraph,
     empty_map_state,
     generate_building,
-    generate_expert_samples,
-    load_expert_dataset,
     local_inputs,
     navigate,
     sample_tasks,
-    write_expert_dataset,
 )
 
 RES = 0.1
@@ -340,7 +336,7 @@ def _job_that_dies_on_seed_1(job):
 def test_a_dead_expert_worker_raises_naming_the_seed_instead_of_hanging(tmp_path):
     """Regression: under multiprocessing.Pool a worker that died left its building unfinished and
     the command waiting forever (240 buildings: 2 missing, no error, at 0 % CPU)."""
-    from jaxsem.planning import write_expert_dataset
+    from jaxsem.lsd import write_expert_dataset
 
     with pytest.raises(ChildProcessError, match=r"workers: a worker process died .*seeds \[.*1.*\].*rerun"):
         write_expert_dataset(tmp_path, "train", [0, 1, 2], workers=2, progress=False, job_fn=_job_that_dies_on_seed_1)
@@ -369,7 +365,7 @@ def test_expert_workers_are_replaced_without_hanging(tmp_path):
     buildings than workers x worker_tasks must all be written."""
     import threading
 
-    from jaxsem.planning import write_expert_dataset
+    from jaxsem.lsd import write_expert_dataset
 
     result = {}
     th = threading.Thread(
@@ -385,3 +381,41 @@ def test_expert_workers_are_replaced_without_hanging(tmp_path):
     th.join(120)
     assert not th.is_alive(), "write_expert_dataset hung"
     assert len(result["paths"]) == 5 and all(pathlib.Path(p).exists() for p in result["paths"])
+
+
+def test_expert_data_moved_to_lsd_with_a_message():
+    # LSD's expert data is the method's (issue 23, layout by method): the planner says where it went.
+    import jaxsem.planning as planning
+
+    for name in ("ExpertConfig", "generate_expert_samples", "EXPERT_SCHEMA"):
+        with pytest.raises(AttributeError, match=f"jaxsem.lsd.{name}"):
+            getattr(planning, name)
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        planning.nonexistent
+    assert "path_cells" in __import__("jaxsem.lsd", fromlist=["EXPERT_SCHEMA"]).EXPERT_SCHEMA
+
+
+def test_task_pools_keep_their_clearance_and_side(tiny_building_for_pools):
+    from jaxsem.planning import task_pools
+
+    b = tiny_building_for_pools
+    inside, outside = task_pools(b, 0.3)
+    occ = np.argwhere(b.occupancy)
+    rng = np.random.default_rng(0)
+    for pool, indoor in ((inside, True), (outside, False)):
+        assert len(pool) > 0
+        assert np.all(b.indoor[pool[:, 0], pool[:, 1]] == indoor)
+        # brute force on a sample: each pooled cell's nearest occupied cell is >= 0.3 m away
+        some = pool[rng.choice(len(pool), 50)]
+        d = np.min(np.linalg.norm(some[:, None, :] - occ[None, :, :], axis=-1), axis=1) * b.resolution
+        assert np.all(d >= 0.3 - 1e-9)
+    # and a free cell next to a wall is in neither pool
+    free = b.free_cells()
+    near = free[np.min(np.abs(free[:, None, :] - occ[None, :200, :]).sum(-1), axis=1) == 1]
+    pooled = {tuple(c) for c in np.concatenate([inside, outside])}
+    assert near.size and not any(tuple(c) in pooled for c in near)
+
+
+@pytest.fixture(scope="module")
+def tiny_building_for_pools():
+    return generate_building(3, "train")

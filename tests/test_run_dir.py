@@ -152,12 +152,12 @@ def test_demo_records_its_run_and_says_where_the_figures_are(tmp_path, monkeypat
 
 
 def test_lsd_data_records_a_failure_while_writing(tmp_path, monkeypatch, run_cli):
-    from jaxsem import planning
+    from jaxsem import lsd
 
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device", str(tmp_path / "shards" / "expert_0.npz"))
 
-    monkeypatch.setattr(planning, "write_expert_dataset", full)
+    monkeypatch.setattr(lsd, "write_expert_dataset", full)
     argv = ["lsd", "data", "--out", str(tmp_path / "shards"), "--buildings", "2", "--workers", "1"]
     _, config, _ = _check_error(argv, run_cli, ["expert_0.npz", "No space left"])
     assert config["args"]["buildings"] == 2 and config["args"]["samples_per_building"] == 200

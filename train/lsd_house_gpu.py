@@ -13,7 +13,7 @@ function of its family and seed, so a shorter run's shards are a prefix of a lon
 interleave the two families so that a run stopped at its deadline keeps the mix. Everything
 under ``--root`` resumes; ``--out`` gets ``lsd_house.npz`` (the model), ``checkpoint.tar.gz`` (its last
 checkpoints), ``curve.csv`` (the learning curve) and ``run.json``. ``--oracle`` also writes each
-shard's full-map copy (``jaxsem.planning.with_full_map``) and trains the fully supervised oracle
+shard's full-map copy (``jaxsem.lsd.with_full_map``) and trains the fully supervised oracle
 on it at the same time, same init, config and samples (``lsd_house_oracle.npz``,
 ``curve_oracle.csv``): the gap between the two is what the partial map costs.
 """
@@ -47,15 +47,15 @@ def _save(path: pathlib.Path, data: dict) -> None:
 
 def _job(args):
     family, seed, samples, out, out_full = args
-    from jaxsem import planning
+    from jaxsem import lsd, planning
 
     path = pathlib.Path(out) / f"expert_{family}_{seed:05d}.npz"
     if path.exists():
         return str(path), -1
     b = planning.generate_building(seed, family)
-    data = planning.generate_expert_samples(b, seed, planning.ExpertConfig(samples_per_building=samples))
+    data = lsd.generate_expert_samples(b, seed, lsd.ExpertConfig(samples_per_building=samples))
     if out_full:  # the oracle's copy first: a shard in `out` always has its full-map twin
-        _save(pathlib.Path(out_full) / path.name, planning.with_full_map(data, b))
+        _save(pathlib.Path(out_full) / path.name, lsd.with_full_map(data, b))
     _save(path, data)
     return str(path), int(len(data["context"]))
 

@@ -3,7 +3,7 @@
     python infer/make_expert_data.py --out out/lsd_expert --family train --buildings 20 \\
         --samples-per-building 200 --workers 2
 
-The shard schema is documented in ``jaxsem.planning.EXPERT_SCHEMA`` (and ``schema.json`` in the
+The shard schema is documented in ``jaxsem.lsd.EXPERT_SCHEMA`` (and ``schema.json`` in the
 output folder). Existing shards are kept, so an interrupted run resumes. A figure of a few
 samples (partial maps, expert path, goal direction) is saved as ``samples.png``. The run
 directory (``--run-dir``) gets config.json and summary.json (shards, samples, samples per second,
@@ -19,7 +19,7 @@ import pathlib
 import time
 
 from jaxsem import scripting as sc
-from jaxsem.planning import ExpertConfig
+from jaxsem.lsd import ExpertConfig
 
 # Convenience flags for ExpertConfig fields (help from the dataclass where it documents the field).
 CONFIG_FLAGS = (
@@ -44,13 +44,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv=None, prog: str | None = None) -> int:
     args = build_parser(prog).parse_args(argv)
-    from jaxsem import planning
+    from jaxsem import lsd
 
-    cfg = sc.apply_config_flags(planning.ExpertConfig(), args, CONFIG_FLAGS)
+    cfg = sc.apply_config_flags(lsd.ExpertConfig(), args, CONFIG_FLAGS)
     seeds = range(args.first_seed, args.first_seed + args.buildings)
     t0 = time.perf_counter()
-    paths = planning.write_expert_dataset(args.out, args.family, seeds, cfg, workers=args.workers)
-    data = planning.load_expert_dataset(paths)
+    paths = lsd.write_expert_dataset(args.out, args.family, seeds, cfg, workers=args.workers)
+    data = lsd.load_expert_dataset(paths)
     n = len(data["context"])
     dt = time.perf_counter() - t0
     print(

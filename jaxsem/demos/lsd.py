@@ -31,21 +31,16 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     from ..lsd import (
         PRETRAINED,
         PRETRAINED_CPU,
+        ExpertConfig,
         LSDSampler,
         full_map_distribution,
+        generate_expert_samples,
         load_model,
         plot_navigation,
         tiny_config,
         train_and_evaluate,
     )
-    from ..planning import (
-        ExpertConfig,
-        NavConfig,
-        generate_building,
-        generate_expert_samples,
-        navigate,
-        sample_tasks,
-    )
+    from ..planning import NavConfig, generate_building, navigate, sample_tasks
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

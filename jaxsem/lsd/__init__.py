@@ -31,6 +31,16 @@ from ._experiment import (
     run_trials as run_trials,
     summarise as summarise,
 )
+from ._expert import (
+    SCHEMA_KEYS as SCHEMA_KEYS,
+    ExpertConfig as ExpertConfig,
+    __doc__ as EXPERT_SCHEMA,  # noqa: F401  (re-exported: the shard schema)
+    full_map_state as full_map_state,
+    generate_expert_samples as generate_expert_samples,
+    load_expert_dataset as load_expert_dataset,
+    with_full_map as with_full_map,
+    write_expert_dataset as write_expert_dataset,
+)
 from ._sampler import (
     LSDSampler as LSDSampler,
     full_map_distribution as full_map_distribution,

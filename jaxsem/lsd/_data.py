@@ -1,7 +1,7 @@
 """Expert data for LSD training: loading, splitting by building, batches, dihedral augmentation.
 
 The shard format is :mod:`jaxsem.planning`'s (``expert_<family>_<seed>.npz``; the module
-docstring of ``jaxsem.planning._expert`` lists the keys). Training needs four per-sample arrays:
+``jaxsem.lsd.EXPERT_SCHEMA`` lists the keys). Training needs four per-sample arrays:
 ``occupancy`` (S, k, k) int8, ``semantic`` (S, k, k) int8, ``context`` (S, 4) float32 and
 ``path_mask`` (S, k, k) bool; ``building_seed`` (S,) is used to hold out whole buildings.
 """
@@ -46,7 +46,7 @@ def check_expert_data(data: dict, map_size: int, context_dim: int) -> int:
 
 def load_expert_data(paths) -> dict:
     """Loads shards (a folder, one path, or a list) into one dict (see the planning schema)."""
-    from ..planning import load_expert_dataset
+    from ._expert import load_expert_dataset
 
     if isinstance(paths, (str, os.PathLike)) and not pathlib.Path(paths).is_dir():
         paths = [paths]

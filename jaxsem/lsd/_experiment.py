@@ -543,7 +543,7 @@ def prepare_model(
     if checkpoint:
         model, params, cfg = load_model(checkpoint)
         return model, params, {"checkpoint": str(checkpoint), "trained_here": False}
-    from ..planning import ExpertConfig, write_expert_dataset
+    from ._expert import ExpertConfig, write_expert_dataset
 
     workdir = pathlib.Path(workdir)
     t0 = time.perf_counter()

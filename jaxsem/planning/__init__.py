@@ -1,5 +1,6 @@
 """LSD planning world: procedural buildings, ray-cast sensors, soft-cost shortest paths, PRM,
-the online navigation loop and expert data generation (thesis chapter 3).
+the online navigation loop and the test tasks (thesis chapter 3). LSD's expert data and training
+live in :mod:`jaxsem.lsd`.
 
 Conventions: grids are ``[row, col] = [y, x]`` with an explicit ``origin`` (world x, y of the
 corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); world z is up.
@@ -24,8 +25,7 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
   :func:`largest_open_region`), hand annotations (:func:`read_annotations`,
   :func:`apply_annotations`) and a figure (:func:`plot_semantics`); :func:`load_occupancy` for
   the raw three-state grid.
-- Data: :func:`generate_expert_samples`, :func:`write_expert_dataset`,
-  :func:`load_expert_dataset` (schema: ``EXPERT_SCHEMA``), :func:`sample_tasks` ('II' / 'IO').
+- Tasks: :func:`sample_tasks` ('II' / 'IO', with C*), their pools :func:`task_pools`.
 """
 
 from ._buildings import (
@@ -42,18 +42,6 @@ from ._buildings import (
 from ._edges import (
     polyline_clear as polyline_clear,
     query_reach as query_reach,
-)
-from ._expert import (
-    SCHEMA_KEYS as SCHEMA_KEYS,
-    ExpertConfig as ExpertConfig,
-    Task as Task,
-    __doc__ as EXPERT_SCHEMA,  # noqa: F401  (re-exported: the shard schema)
-    full_map_state as full_map_state,
-    generate_expert_samples as generate_expert_samples,
-    load_expert_dataset as load_expert_dataset,
-    sample_tasks as sample_tasks,
-    with_full_map as with_full_map,
-    write_expert_dataset as write_expert_dataset,
 )
 from ._grid import (
     DEFAULT_RESOLUTION as DEFAULT_RESOLUTION,
@@ -139,3 +127,29 @@ from ._shortest_path import (
     shortest_path as shortest_path,
     soft_cost as soft_cost,
 )
+from ._tasks import (
+    Task as Task,
+    sample_tasks as sample_tasks,
+    task_pools as task_pools,
+)
+
+#: Names that moved to :mod:`jaxsem.lsd` (LSD's expert data is the method's, not the planner's).
+_MOVED_TO_LSD = (
+    "EXPERT_SCHEMA",
+    "SCHEMA_KEYS",
+    "ExpertConfig",
+    "full_map_state",
+    "generate_expert_samples",
+    "load_expert_dataset",
+    "with_full_map",
+    "write_expert_dataset",
+)
+
+
+def __getattr__(name: str):
+    if name in _MOVED_TO_LSD:
+        raise AttributeError(
+            f"jaxsem.planning.{name} moved to jaxsem.lsd.{name} (same arguments): expert data is LSD's "
+            "training data, and jaxsem.planning (the planner every method calls) imports no method"
+        )
+    raise AttributeError(f"module 'jaxsem.planning' has no attribute {name!r}")

@@ -130,6 +130,11 @@ class Building:
     def shape(self) -> tuple:
         return tuple(self.occupancy.shape)
 
+    def cell_center(self, rc) -> np.ndarray:
+        """World (x, y) (..., 2) of the centre of cell (row, col) (..., 2) (numpy, host side;
+        :func:`~jaxsem.planning.cell_to_world` is the jitted form)."""
+        return np.asarray(self.origin) + (np.asarray(rc)[..., ::-1] + 0.5) * self.resolution
+
     def free_cells(self, indoor: bool | None = None) -> np.ndarray:
         """(M, 2) int cells that are free; ``indoor`` True/False restricts to inside/outside."""
         mask = ~self.occupancy

@@ -125,7 +125,7 @@ def local_inputs(
         state.semantic,
         jnp.asarray(xy, origin.dtype),
         jnp.asarray(goal, origin.dtype),
-        jnp.asarray(bool(goal_outdoors)),
+        jnp.asarray(goal_outdoors, bool),
         origin,
         resolution,
         int(size),

@@ -1,4 +1,4 @@
-"""Expert data (thesis section 3.3.2) and the Inside-Inside / Inside-Outside test tasks.
+"""LSD's expert data (thesis section 3.3.2): partial maps paired with optimal paths.
 
 A robot starts indoors and navigates towards a random goal with the uniform PRM (Euclidean
 weights, no prior map), uncovering the partial maps. At random moments (probability
@@ -45,18 +45,28 @@ import pathlib
 import zipfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.ndimage
 
 from .._atomic import atomic_save_npz
-from ._buildings import Building, generate_building
-from ._grid import DEFAULT_RESOLUTION, FREE, NONE, OBJECT_CLASSES, OCCUPIED, MapState
-from ._navigate import CROP_SIZE, NavConfig, Trial, _local_inputs, local_inputs
-from ._shortest_path import SoftCostGraph
+from ..planning import (
+    CROP_SIZE,
+    DEFAULT_RESOLUTION,
+    FREE,
+    NONE,
+    OBJECT_CLASSES,
+    OCCUPIED,
+    Building,
+    MapState,
+    NavConfig,
+    SoftCostGraph,
+    Trial,
+    generate_building,
+    local_inputs,
+    task_pools,
+)
 
 SCHEMA_VERSION = 1
 SCHEMA_KEYS = (
@@ -104,79 +114,6 @@ _SHARD_ARRAYS = (
 )
 
 
-def _clear_cells(b: Building, clearance: float):
-    d = np.asarray(scipy.ndimage.distance_transform_edt(~b.occupancy)) * b.resolution
-    ok = d >= clearance
-    return np.argwhere(ok & b.indoor), np.argwhere(ok & ~b.indoor & (d >= clearance))
-
-
-def _to_world(b, rc):
-    return b.origin + (np.asarray(rc)[..., ::-1] + 0.5) * b.resolution
-
-
-class Task(NamedTuple):
-    """A test task: start/goal world (x, y) (2,), initial yaw, goal_outdoors, c_star (metres of
-    the soft-cost optimal path on the true map), c_star_cost (its soft cost)."""
-
-    start: np.ndarray
-    goal: np.ndarray
-    yaw0: float
-    goal_outdoors: bool
-    c_star: float
-    c_star_cost: float
-
-
-def sample_tasks(
-    building: Building,
-    kind: str,
-    count: int,
-    seed: int,
-    min_distance: float = 8.0,
-    clearance: float = 0.3,
-    graph: SoftCostGraph | None = None,
-    max_distance: float | None = None,
-    max_tries: int | None = None,
-) -> list:
-    """``count`` test tasks of ``kind`` 'II' (start and goal indoors) or 'IO' (start indoors,
-    goal outdoors), each with its resolution-optimal C*.
-
-    min_distance, max_distance: bounds (metres) on the straight-line start-goal distance (None:
-    no upper bound; on a campus-sized map a bound keeps tasks the size of the thesis' buildings);
-    clearance: metres from the nearest obstacle for start and goal (keeps them out of a laser
-    map's thin slivers); graph: the map's :class:`SoftCostGraph` when one is already built;
-    max_tries: candidate pairs drawn before giving up (default ``50 * count``). Fewer than
-    ``count`` tasks come back when the pools cannot give them (check ``len``).
-    """
-    if kind not in ("II", "IO"):
-        raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
-    if not (min_distance >= 0 and (max_distance is None or max_distance > min_distance)):
-        raise ValueError(f"max_distance: expected None or more than min_distance ({min_distance}), got {max_distance}")
-    if not clearance >= 0:
-        raise ValueError(f"clearance: expected >= 0 metres, got {clearance}")
-    # A scanned map has seed -1: the stream takes the seed's low 32 bits (a generated building's
-    # seeds are small and non-negative, so their tasks are unchanged).
-    rng = np.random.default_rng([int(seed), int(building.seed) & 0xFFFFFFFF, 0x7A5C])
-    inside, outside = _clear_cells(building, clearance)
-    pool = inside if kind == "II" else outside
-    if len(inside) == 0 or len(pool) == 0:
-        return []
-    graph = graph or SoftCostGraph(building.occupancy, building.origin, building.resolution)
-    tasks = []
-    for _ in range(50 * count if max_tries is None else int(max_tries)):
-        if len(tasks) == count:
-            break
-        s = _to_world(building, inside[rng.integers(len(inside))])
-        g = _to_world(building, pool[rng.integers(len(pool))])
-        d = np.linalg.norm(g - s)
-        if d < min_distance or (max_distance is not None and d > max_distance):
-            continue
-        p = graph.path(s, g)
-        if not p.found:
-            continue
-        tasks.append(Task(s, g, float(rng.uniform(-math.pi, math.pi)), kind == "IO", p.length, p.cost))
-    return tasks
-
-
 def _crop_path(cells: np.ndarray, center: np.ndarray, size: int):
     local = cells - center[None, :] + size // 2
     keep = np.all((local >= 0) & (local < size), axis=1)
@@ -196,16 +133,16 @@ def generate_expert_samples(
     rng = np.random.default_rng([int(seed), building.seed, 0xE4])
     key = jax.random.PRNGKey(int(rng.integers(2**31)))
     graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
-    inside, outside = _clear_cells(building, config.clearance)
+    inside, outside = task_pools(building, config.clearance)
     out = {k: [] for k in _SHARD_ARRAYS}
     n = 0
-    start = _to_world(building, inside[rng.integers(len(inside))])
+    start = building.cell_center(inside[rng.integers(len(inside))])
     state = None
     for _ in range(config.max_tasks):
         if n >= config.samples_per_building:
             break
         pool = outside if rng.random() < config.outdoor_goal_prob else inside
-        goal = _to_world(building, pool[rng.integers(len(pool))])
+        goal = building.cell_center(pool[rng.integers(len(pool))])
         key, sub = jax.random.split(key)
         trial = Trial(building, start, goal, sub, config.nav, None, float(rng.uniform(-math.pi, math.pi)), state=state)
         while n < config.samples_per_building:
@@ -214,11 +151,11 @@ def generate_expert_samples(
                 for _ in range(config.goals_per_moment):
                     out_goal = rng.random() < config.outdoor_goal_prob
                     pool = outside if out_goal else inside
-                    g = _to_world(building, pool[rng.integers(len(pool))])
+                    g = building.cell_center(pool[rng.integers(len(pool))])
                     for _try in range(19):  # at most 20 draws; the last one is kept
                         if np.linalg.norm(g - trial.xy) >= config.min_goal_distance:
                             break
-                        g = _to_world(building, pool[rng.integers(len(pool))])
+                        g = building.cell_center(pool[rng.integers(len(pool))])
                     p = tree.path_to(g)
                     if not p.found:
                         continue
@@ -303,19 +240,8 @@ def with_full_map(shard: dict, building: Building | None = None) -> dict:
     state = full_map_state(building)
     xy = jnp.asarray(np.asarray(shard["robot_xy"], np.float64).reshape(-1, 2))
     size = int(np.asarray(shard["occupancy"]).shape[-1])
-    crops = jax.vmap(
-        lambda p: _local_inputs(
-            state.occupancy,
-            state.semantic,
-            p,
-            p,
-            jnp.asarray(False),
-            jnp.asarray(building.origin, xy.dtype),
-            float(building.resolution),
-            size,
-            20.0,
-        )
-    )(xy)
+    origin = np.asarray(building.origin, np.float64)
+    crops = jax.vmap(lambda p: local_inputs(state, p, p, False, origin, float(building.resolution), size, 20.0))(xy)
     out = {k: np.asarray(v) for k, v in shard.items()}
     out["occupancy"] = np.asarray(crops.occupancy, np.int8).reshape(np.shape(shard["occupancy"]))
     out["semantic"] = np.asarray(crops.semantic, np.int8).reshape(np.shape(shard["semantic"]))
@@ -369,7 +295,7 @@ def write_expert_dataset(
                 "version": SCHEMA_VERSION,
                 "keys": list(SCHEMA_KEYS),
                 "crop_size": CROP_SIZE,
-                "doc": "see jaxsem.planning._expert module docstring / jaxsem.planning.EXPERT_SCHEMA",
+                "doc": "see jaxsem.lsd.EXPERT_SCHEMA",
             },
             indent=1,
         )
