@@ -19,6 +19,8 @@ Where the code lives (``jaxsem/_geometry/``):
 - ``poses.py``: ``rigid_transform``, ``transform_points``, ``invert_pose``, ``project_points``,
   ``back_project``, ``single_view_ellipsoid``, ``depth_from_box_size``, ``relative_pose``,
   ``cuboid_corners``, ``stereo_right_T_left``.
+- ``grid.py``: the ``Grid`` pytree (origin, resolution, static shape), ``world_to_cell``,
+  ``cell_to_world``, ``cell_in_grid`` (every map of the planner and the object maps).
 - ``shapes.py``: ``algebraic_distance``, ``ray_entry_range``, ``surface_points``, ``shape_bbox``,
   ``shape_distance`` and the ``SHAPE_*`` ids.
 
@@ -75,6 +77,12 @@ from ._geometry.conics import (
     project_dual_conic as project_dual_conic,
     texture_plane_depth as texture_plane_depth,
 )
+from ._geometry.grid import (
+    Grid as Grid,
+    cell_in_grid as cell_in_grid,
+    cell_to_world as cell_to_world,
+    world_to_cell as world_to_cell,
+)
 from ._geometry.ground import (
     ground_bounds as ground_bounds,
     ground_conic as ground_conic,
@@ -128,6 +136,7 @@ _is_concrete = _checks.is_concrete
 __all__ = [
     "Ellipsoid",
     "Camera",
+    "Grid",
     "dual_quadric",
     "primal_quadric",
     "project_dual_conic",
@@ -163,6 +172,9 @@ __all__ = [
     "fit_rigid_transform",
     "relative_pose",
     "cuboid_corners",
+    "world_to_cell",
+    "cell_to_world",
+    "cell_in_grid",
     "CUBOID_CORNER_SIGNS",
     "so3_exp",
     "quaternion_wxyz_to_rotation",

@@ -102,22 +102,21 @@ class _Clearance:
         self.dist = ndimage.distance_transform_edt(~np.asarray(building.occupancy)) * self.res  # type: ignore[operator]
 
     def __call__(self, xy) -> float:
-        c = np.floor((np.asarray(xy, np.float64) - self.origin) / self.res).astype(int)
-        H, W = self.dist.shape
-        if not (0 <= c[1] < H and 0 <= c[0] < W):
+        rc = Q.world_to_cell(np.asarray(xy, np.float64), self.origin, self.res, xp=np)
+        if not Q.cell_in_grid(rc, self.dist.shape, xp=np):
             return 0.0
-        return float(self.dist[c[1], c[0]])
+        return float(self.dist[rc[0], rc[1]])
 
     def sees(self, a, b, k, objects) -> bool:
         """No wall cell on the segment from ``a`` to ``b`` (world xy) outside object ``k``'s cells."""
         a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
         n = max(int(np.linalg.norm(b - a) / (0.5 * self.res)), 2)
         pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
-        cells = np.floor((pts - self.origin) / self.res).astype(int)
+        cells = Q.world_to_cell(pts, self.origin, self.res, xp=np)
         r0, c0, r1, c1 = objects.cells[k]
-        inside = (cells[:, 1] >= r0 - 1) & (cells[:, 1] < r1 + 1) & (cells[:, 0] >= c0 - 1) & (cells[:, 0] < c1 + 1)
+        inside = (cells[:, 0] >= r0 - 1) & (cells[:, 0] < r1 + 1) & (cells[:, 1] >= c0 - 1) & (cells[:, 1] < c1 + 1)
         H, W = self.dist.shape
-        rows, cols = np.clip(cells[:, 1], 0, H - 1), np.clip(cells[:, 0], 0, W - 1)
+        rows, cols = np.clip(cells[:, 0], 0, H - 1), np.clip(cells[:, 1], 0, W - 1)
         return bool(np.all((self.dist[rows, cols] > 0) | inside))
 
 

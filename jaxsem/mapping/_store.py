@@ -375,7 +375,7 @@ def _tiled(objects: Ellipsoids, grid_shape, origin, resolution, window):
     valid = objects.valid.reshape(-1)
     origin = origin.astype(ctr.dtype)
     # Tile corner: the centre cell minus half a tile (cells), so the centre sits mid-tile.
-    cell = jnp.floor((jax.lax.stop_gradient(ctr[:, :2]) - origin) / resolution).astype(jnp.int32)
+    cell = quadrics.world_to_cell(jax.lax.stop_gradient(ctr[:, :2]), origin, resolution)[:, ::-1]  # (col, row)
     corner = cell - window // 2  # (N, 2) as (col, row)
     tile_origin = origin + corner.astype(ctr.dtype) * resolution
 

@@ -28,6 +28,7 @@ import dataclasses
 
 import numpy as np
 
+from .. import quadrics as Q
 from ._grid import DEFAULT_RESOLUTION, DOOR, EXIT_SIGN, NONE, WALL, WINDOW
 
 OUTSIDE_REGION = -1
@@ -133,7 +134,7 @@ class Building:
     def cell_center(self, rc) -> np.ndarray:
         """World (x, y) (..., 2) of the centre of cell (row, col) (..., 2) (numpy, host side;
         :func:`~jaxsem.planning.cell_to_world` is the jitted form)."""
-        return np.asarray(self.origin) + (np.asarray(rc)[..., ::-1] + 0.5) * self.resolution
+        return Q.cell_to_world(rc, self.origin, self.resolution, xp=np)
 
     def free_cells(self, indoor: bool | None = None) -> np.ndarray:
         """(M, 2) int cells that are free; ``indoor`` True/False restricts to inside/outside."""
@@ -400,7 +401,7 @@ def generate_building(
     indoor = np.zeros((H, W), bool)
     indoor[b0r:b1r, b0c:b1c] = True
     origin = np.array([-margin * resolution, -margin * resolution])
-    entrance_xy = origin + (np.array(entrance[::-1], np.float64) + 0.5) * resolution
+    entrance_xy = Q.cell_to_world(np.array(entrance), origin, resolution, xp=np)
     return Building(
         occupancy=occupancy,
         semantic=semantic,
@@ -676,7 +677,7 @@ def generate_house(
     semantic = np.where(~occ & (semantic == WALL), NONE, semantic).astype(np.int8)
 
     origin = np.array([-margin * resolution, -margin * resolution])
-    entrance_xy = origin + (np.array(entrance[::-1], np.float64) + 0.5) * resolution
+    entrance_xy = Q.cell_to_world(np.array(entrance), origin, resolution, xp=np)
     kept = [r for i, r in enumerate(rooms) if find(i + 1) == find(0)]
     return Building(
         occupancy=occ,

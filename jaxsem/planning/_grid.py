@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
+
 # Semantic classes of the true world (int8). Walls, windows and exit signs are occupied cells;
 # doors are free cells (open doorways).
 NONE = 0
@@ -53,18 +55,15 @@ def empty_map_state(shape) -> MapState:
 
 
 def world_to_cell(xy, origin, resolution):
-    """World (x, y) (..., 2) -> integer cell (row, col) (..., 2) (floor; may lie off the grid)."""
-    xy = jnp.asarray(xy)
-    origin = jnp.asarray(origin, xy.dtype if jnp.issubdtype(xy.dtype, jnp.floating) else None)
-    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)
-    return rc[..., ::-1]
+    """World (x, y) (..., 2) -> integer cell (row, col) (..., 2) (floor; may lie off the grid).
+    The geometry core's :func:`jaxsem.quadrics.world_to_cell`."""
+    return Q.world_to_cell(xy, origin, resolution)
 
 
 def cell_to_world(rc, origin, resolution):
-    """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the cell centre."""
-    rc = jnp.asarray(rc)
-    origin = jnp.asarray(origin)
-    return origin + (rc[..., ::-1].astype(origin.dtype) + 0.5) * resolution
+    """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the cell centre. The geometry core's
+    :func:`jaxsem.quadrics.cell_to_world`."""
+    return Q.cell_to_world(rc, origin, resolution)
 
 
 def check_grid(name: str, grid, dtype_kind: str, shape=None) -> np.ndarray:
@@ -94,9 +93,9 @@ def check_point(name: str, xy, occupancy: np.ndarray, origin, resolution) -> np.
         raise ValueError(f"{name}: expected a world point (x, y) of shape (2,), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ValueError(f"{name}: must be finite, got {p.tolist()}")
-    rc = np.floor((p - np.asarray(origin, np.float64)) / resolution).astype(np.int64)[::-1]
+    rc = Q.world_to_cell(p, np.asarray(origin, np.float64), resolution, xp=np)
     H, W = occupancy.shape
-    if not (0 <= rc[0] < H and 0 <= rc[1] < W):
+    if not Q.cell_in_grid(rc, (H, W), xp=np):
         raise ValueError(
             f"{name}: point {p.tolist()} (cell {rc.tolist()}) is off the map of {H}x{W} cells "
             f"with origin {np.asarray(origin).tolist()} and resolution {resolution}"

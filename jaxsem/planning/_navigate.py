@@ -51,6 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
 from ._edges import polyline_clear
 from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
 from ._prm import PRM
@@ -83,7 +84,7 @@ class LocalInputs(NamedTuple):
 @functools.partial(jax.jit, static_argnames=("size", "max_distance", "resolution"))
 def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance):
     H, W = occupancy.shape
-    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
+    rc = Q.world_to_cell(xy, origin, resolution)
     pad = size
     occ = jnp.pad(occupancy, pad, constant_values=OCCUPIED)
     sem = jnp.pad(semantic, pad, constant_values=NONE)
@@ -215,7 +216,7 @@ class Trial:
         self.start = check_point("start", start, occ, self.origin, self.resolution)
         self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
         if goal_outdoors is None:
-            gr, gc = np.floor((self.goal - self.origin) / self.resolution).astype(int)[::-1]
+            gr, gc = Q.world_to_cell(self.goal, self.origin, self.resolution, xp=np)
             goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
         self.goal_outdoors = bool(goal_outdoors)
         if (
@@ -382,10 +383,9 @@ class Trial:
         return True
 
     def _in_known_obstacle(self) -> bool:
-        rc = np.floor((self.xy - self.origin) / self.resolution).astype(np.int64)[::-1]
+        rc = Q.world_to_cell(self.xy, self.origin, self.resolution, xp=np)
         occ = np.asarray(self.state.occupancy)
-        H, W = occ.shape
-        return bool(0 <= rc[0] < H and 0 <= rc[1] < W and occ[rc[0], rc[1]] == OCCUPIED)
+        return bool(Q.cell_in_grid(rc, occ.shape, xp=np) and occ[rc[0], rc[1]] == OCCUPIED)
 
     def _finish(self, success, reason):
         self.done, self.success, self.reason = True, success, reason

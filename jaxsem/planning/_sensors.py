@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
+from .. import quadrics as Q
 from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState
 
 
@@ -47,9 +48,9 @@ def _cast(occupancy, origin, resolution, xy, angles, max_range, n_samples):
     t = (jnp.arange(n_samples, dtype=dtype) + 1.0) * step
     direction = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1).astype(dtype)  # (R, 2)
     pts = xy[None, None, :] + t[None, :, None] * direction[:, None, :]  # (R, S, 2)
-    cr = jnp.floor((pts - origin) / resolution).astype(jnp.int32)
-    cols, rows = cr[..., 0], cr[..., 1]
-    on_map = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+    rc = Q.world_to_cell(pts, origin, resolution)
+    rows, cols = rc[..., 0], rc[..., 1]
+    on_map = Q.cell_in_grid(rc, (H, W))
     rows_c, cols_c = jnp.clip(rows, 0, H - 1), jnp.clip(cols, 0, W - 1)
     blocked = occupancy[rows_c, cols_c] | ~on_map
     # Seen: samples up to and including the first blocked one. The index of the first hit comes
@@ -153,7 +154,7 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     max_range = max(config.depth_range, config.object_range)
     half = int(math.ceil(max_range / resolution)) + 2
     wh, ww = min(2 * half + 1, H), min(2 * half + 1, W)
-    rc = jnp.floor((xy - origin) / resolution).astype(jnp.int32)[::-1]
+    rc = Q.world_to_cell(xy, origin, resolution)
     start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww]))
     win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))
     occ_t, sem_t = win(true_occupancy), win(true_semantic)

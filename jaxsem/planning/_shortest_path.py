@@ -18,6 +18,7 @@ import scipy.ndimage
 import scipy.sparse
 import scipy.sparse.csgraph
 
+from .. import quadrics as Q
 from ._grid import check_grid, check_point
 
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))  # the other four are the same edges reversed
@@ -91,7 +92,7 @@ class SoftCostGraph:
 
     def cell_of(self, name, xy):
         p = check_point(name, xy, self.occupancy, self.origin, self.resolution)
-        return np.floor((p - self.origin) / self.resolution).astype(np.int64)[::-1]
+        return Q.world_to_cell(p, self.origin, self.resolution, xp=np)
 
     def search(self, start) -> SearchTree:
         """Single-source Dijkstra from the world point ``start`` (2,) (must be a free cell)."""
@@ -134,7 +135,7 @@ class SearchTree:
             nodes.append(int(self.predecessors[nodes[-1]]))
         nodes = np.array(nodes[::-1], np.int64)
         cells = np.stack([nodes // W, nodes % W], -1)
-        points = g.origin + (cells[:, ::-1] + 0.5) * g.resolution
+        points = Q.cell_to_world(cells, g.origin, g.resolution, xp=np)
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=-1)))
         return GridPath(cells, points, float(self.dist.flat[node]), length, True)
 

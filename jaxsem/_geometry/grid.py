@@ -1,0 +1,112 @@
+"""Regular grids on the world plane: cell <-> world conversions and the :class:`Grid` pytree.
+
+Grids are indexed ``[row, col] = [y, x]``. ``origin`` is the world (x, y) of the corner of cell
+``[0, 0]`` and ``resolution`` is metres per cell, so the centre of cell ``[r, c]`` is
+``origin + (c + 0.5, r + 0.5) * resolution`` and a world point lies in cell
+``floor((y, x) - origin[::-1]) / resolution)``. The planner's maps, the object maps' top-down
+grids and every dataset writer use these two functions; nothing else converts.
+
+Host code passes ``xp=numpy`` (float64 arithmetic, int64 cells, no jax dispatch); the default is
+``jax.numpy`` (int32 cells, traceable).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._checks import as_float_array, is_concrete
+from ._common import _namespace
+
+
+def _index_dtype(xp):
+    return jnp.int32 if xp is jnp else np.int64
+
+
+def world_to_cell(xy, origin, resolution, xp=jnp):
+    """World (x, y) (..., 2) -> integer cell (row, col) (..., 2): the cell the point lies in
+    (floor; it may lie off the grid, see :func:`cell_in_grid`). int32 under jax, int64 under numpy.
+    """
+    xp = _namespace(xp)
+    xy = xp.asarray(xy)
+    if not xp.issubdtype(xy.dtype, xp.floating):
+        xy = xy.astype(xp.result_type(float))
+    origin = xp.asarray(origin, dtype=xy.dtype)
+    rc = xp.floor((xy - origin) / xp.asarray(resolution, dtype=xy.dtype)).astype(_index_dtype(xp))
+    return rc[..., ::-1]
+
+
+def cell_to_world(rc, origin, resolution, offset=0.5, xp=jnp):
+    """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the point ``offset`` cells into it
+    along both axes (0.5: the centre; an array of (..., 2) offsets in [0, 1) for jittered points).
+    The result has ``origin``'s floating dtype (float64 for a Python or int origin under x64)."""
+    xp = _namespace(xp)
+    origin = xp.asarray(origin)
+    if not xp.issubdtype(origin.dtype, xp.floating):
+        origin = origin.astype(xp.result_type(float))
+    rc = xp.asarray(rc)
+    offset = xp.asarray(offset, dtype=origin.dtype)
+    return origin + (rc[..., ::-1].astype(origin.dtype) + offset) * xp.asarray(resolution, dtype=origin.dtype)
+
+
+def cell_in_grid(rc, shape, xp=jnp):
+    """(...,) bool: cell (row, col) (..., 2) lies on a grid of ``shape`` (H, W)."""
+    xp = _namespace(xp)
+    rc = xp.asarray(rc)
+    h, w = (int(s) for s in shape)
+    return (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Grid:
+    """A regular grid on the world plane, a pytree: ``origin`` (..., 2) world (x, y) of the corner
+    of cell [0, 0] and ``resolution`` (...) metres per cell are leaves (batch axes may lead);
+    ``shape`` (H, W) is static (it sets array shapes).
+
+    The methods call this module's functions, so a grid converts as every other map does::
+
+        grid = quadrics.Grid.create(origin=(-5.0, -5.0), resolution=0.1, shape=(100, 100))
+        rc = grid.world_to_cell(xy)           # (..., 2) int32 (row, col)
+        ok = grid.contains(rc)
+        centres = grid.cell_to_world(rc)
+    """
+
+    origin: jax.Array
+    resolution: jax.Array
+    shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
+
+    @classmethod
+    def create(cls, origin, resolution, shape) -> Grid:
+        """Checked constructor: a finite (2,) origin, a finite positive resolution, (H, W) >= 1."""
+        origin = as_float_array("origin", origin, (2,), check_finite=True)
+        resolution = as_float_array("resolution", resolution, (), check_finite=True)
+        if is_concrete(resolution) and not bool(np.all(np.asarray(resolution) > 0)):
+            raise ValueError(f"resolution: expected metres per cell > 0, got {np.asarray(resolution)}")
+        try:
+            shape = tuple(int(s) for s in shape)
+        except TypeError:
+            raise ValueError(f"shape: expected (H, W) integers, got {shape!r}") from None
+        if len(shape) != 2 or min(shape) < 1:
+            raise ValueError(f"shape: expected (H, W) with H, W >= 1, got {shape}")
+        return cls(jnp.asarray(origin), jnp.asarray(resolution, origin.dtype), (shape[0], shape[1]))
+
+    @property
+    def extent(self) -> jax.Array:
+        """(..., 2) width and height in metres (x, y)."""
+        return jnp.asarray((self.shape[1], self.shape[0]), self.resolution.dtype) * self.resolution[..., None]
+
+    def world_to_cell(self, xy) -> jax.Array:
+        """:func:`world_to_cell` on this grid (batch axes of the grid broadcast with ``xy``'s)."""
+        return world_to_cell(xy, self.origin, self.resolution[..., None])
+
+    def cell_to_world(self, rc, offset=0.5) -> jax.Array:
+        """:func:`cell_to_world` on this grid."""
+        return cell_to_world(rc, self.origin, self.resolution[..., None], offset)
+
+    def contains(self, rc) -> jax.Array:
+        """:func:`cell_in_grid` on this grid."""
+        return cell_in_grid(rc, self.shape)

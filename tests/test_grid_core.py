@@ -1,0 +1,83 @@
+"""The geometry core's grids (``quadrics.Grid``, ``world_to_cell``, ``cell_to_world``,
+``cell_in_grid``): checked against the definition of a cell as a half-open square of the plane,
+under jit and vmap, in numpy and jax alike."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from jaxsem import quadrics as Q
+
+finite = st.floats(-50.0, 50.0, allow_nan=False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    x=finite,
+    y=finite,
+    ox=st.floats(-20.0, 20.0),
+    oy=st.floats(-20.0, 20.0),
+    res=st.sampled_from([0.05, 0.1, 0.25, 1.0]),
+)
+def test_a_point_lies_inside_the_square_of_its_cell(x, y, ox, oy, res):
+    xy, origin = np.array([x, y]), np.array([ox, oy])
+    rc = Q.world_to_cell(xy, origin, res, xp=np)
+    low = Q.cell_to_world(rc, origin, res, offset=0.0, xp=np)
+    high = Q.cell_to_world(rc, origin, res, offset=1.0, xp=np)
+    # half-open square [low, high), with float64 rounding at the edges
+    assert np.all(low <= xy + 1e-9) and np.all(xy < high + 1e-9)
+    # jax (int32 cells) agrees with numpy (int64)
+    rc_j = Q.world_to_cell(jnp.asarray(xy), jnp.asarray(origin), res)
+    assert rc_j.dtype == jnp.int32 and rc.dtype == np.int64
+    np.testing.assert_array_equal(np.asarray(rc_j), rc)
+
+
+def test_cell_centres_round_trip_and_follow_row_col_order():
+    rc = np.stack(np.meshgrid(np.arange(-2, 5), np.arange(-3, 4), indexing="ij"), -1).reshape(-1, 2)
+    origin = np.array([1.5, -2.0])
+    xy = Q.cell_to_world(rc, origin, 0.1, xp=np)
+    np.testing.assert_array_equal(Q.world_to_cell(xy, origin, 0.1, xp=np), rc)
+    # row is y, column is x: cell (0, 3) is three cells right of the origin corner
+    np.testing.assert_allclose(Q.cell_to_world(np.array([0, 3]), origin, 0.1, xp=np), [1.85, -1.95])
+
+
+def test_cell_in_grid_against_a_drawn_grid():
+    shape = (3, 4)
+    drawn = np.zeros((7, 8), bool)
+    drawn[2:5, 2:6] = True  # the grid's cells, shifted by (2, 2)
+    rc = np.argwhere(np.ones_like(drawn)) - 2
+    np.testing.assert_array_equal(Q.cell_in_grid(rc, shape, xp=np), drawn.reshape(-1))
+    np.testing.assert_array_equal(np.asarray(Q.cell_in_grid(jnp.asarray(rc), shape)), drawn.reshape(-1))
+
+
+def test_grid_is_a_pytree_under_jit_and_vmap_without_recompiling():
+    grid = Q.Grid.create(origin=(-5.0, -5.0), resolution=0.1, shape=(100, 120))
+    f = jax.jit(lambda g, xy: (g.world_to_cell(xy), g.contains(g.world_to_cell(xy))))
+    xy = jnp.array([[0.05, -4.95], [7.0, 0.0]])
+    rc, ok = f(grid, xy)
+    np.testing.assert_array_equal(np.asarray(rc), [[0, 50], [50, 120]])
+    np.testing.assert_array_equal(np.asarray(ok), [True, False])
+    f(Q.Grid.create(origin=(1.0, 2.0), resolution=0.2, shape=(100, 120)), xy + 1.0)
+    assert f._cache_size() == 1  # a new origin and resolution are data, not a new program
+    # a batch of grids (leading axes on origin and resolution) maps over points
+    grids = jax.vmap(lambda o, r: Q.Grid(o, r, (10, 10)))(jnp.zeros((3, 2)), jnp.array([0.1, 0.2, 0.5]))
+    cells = jax.vmap(lambda g: g.world_to_cell(jnp.array([0.55, 0.95])))(grids)
+    np.testing.assert_array_equal(np.asarray(cells), [[9, 5], [4, 2], [1, 1]])
+    np.testing.assert_allclose(np.asarray(grids.extent), [[1.0, 1.0], [2.0, 2.0], [5.0, 5.0]])
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        ({"origin": (0.0,), "resolution": 0.1, "shape": (2, 2)}, "origin"),
+        ({"origin": (0.0, np.nan), "resolution": 0.1, "shape": (2, 2)}, "origin"),
+        ({"origin": (0.0, 0.0), "resolution": 0.0, "shape": (2, 2)}, "resolution"),
+        ({"origin": (0.0, 0.0), "resolution": 0.1, "shape": (2, 0)}, "shape"),
+        ({"origin": (0.0, 0.0), "resolution": 0.1, "shape": 5}, "shape"),
+    ],
+)
+def test_grid_create_refuses_bad_input_naming_the_argument(kwargs, word):
+    with pytest.raises(ValueError, match=word):
+        Q.Grid.create(**kwargs)
