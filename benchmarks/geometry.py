@@ -106,7 +106,7 @@ def measure(n, repeats, with_numpy=True, layout="batch-leading"):
     rounds = {"fwd": repeats, "grad": repeats}
     if layout == "batch-leading":
         # Plain autodiff of the same forward formulas (no custom JVP rule), for comparison.
-        plain = jax.jit(jax.grad(box_loss(q._project_bbox_plain), argnums=(0, 1, 2, 3, 4)))
+        plain = jax.jit(jax.grad(box_loss(q.project_bbox_reference), argnums=(0, 1, 2, 3, 4)))
         plain = plain.lower(*dev, target).compile()
         jax.block_until_ready(plain(*dev, target))
         fns["grad_plain"], rounds["grad_plain"] = (lambda: plain(*dev, target)), max(1, min(5, repeats))

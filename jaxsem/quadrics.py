@@ -50,7 +50,6 @@ per call (which costs milliseconds in a per-object Python loop). The default is 
 
 from __future__ import annotations
 
-from . import _checks
 from ._geometry._common import (
     Camera as Camera,
     Ellipsoid as Ellipsoid,
@@ -59,9 +58,8 @@ from ._geometry._common import (
     safe_sqrt as safe_sqrt,
 )
 from ._geometry.bbox import (
-    _project_bbox as _project_bbox,
-    _project_bbox_plain as _project_bbox_plain,
     project_bbox as project_bbox,
+    project_bbox_reference as project_bbox_reference,
 )
 from ._geometry.conics import (
     camera_depth as camera_depth,
@@ -127,11 +125,6 @@ from ._geometry.shapes import (
 
 # Old names (scalar-first convention), kept so that existing code keeps working; not in __all__:
 # quaternion_to_rotation = quaternion_wxyz_to_rotation, rotation_to_quaternion = rotation_to_quaternion_wxyz.
-# Private names that other jaxsem packages use through this module (``quadrics._as_float_array``,
-# ``quadrics._is_concrete`` in jaxsem.mapping) and the benchmark and tests of the fused box path
-# (``_project_bbox``, ``_project_bbox_plain``, imported above) are kept here too.
-_as_float_array = _checks.as_float_array
-_is_concrete = _checks.is_concrete
 
 __all__ = [
     "Ellipsoid",
@@ -145,6 +138,7 @@ __all__ = [
     "cylinder_bbox",
     "conic_outline",
     "project_bbox",
+    "project_bbox_reference",
     "texture_plane_depth",
     "algebraic_distance",
     "ray_entry_range",

@@ -235,6 +235,13 @@ def _project_bbox_plain(R, c, r, K, T):
 _project_bbox = jax.custom_jvp(_project_bbox_plain)
 
 
+def project_bbox_reference(rotation, center, radii, K, camera_T_world):
+    """:func:`project_bbox`'s closed form differentiated by plain autodiff, without its hand-written
+    JVP rule: the same boxes and masks, slower gradients. A reference for tests and benchmarks of
+    the rule; the inputs must already share one batch shape (no broadcasting, no checks)."""
+    return _project_bbox_plain(rotation, center, radii, K, camera_T_world)
+
+
 @_project_bbox.defjvp
 def _project_bbox_jvp(primals, tangents):
     R, c, r, K, T = primals

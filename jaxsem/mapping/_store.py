@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics
+from .._checks import as_float_array, is_concrete
 
 __all__ = [
     "FUSIONS",
@@ -114,16 +115,16 @@ def ellipsoids(rotation, center, radii, class_id, valid=None) -> Ellipsoids:
     class_id (..., M) integers, valid (..., M) bool or None (all valid). ``ValueError`` names the
     argument whose shape does not fit.
     """
-    center = quadrics._as_float_array("center", center, (3,))
+    center = as_float_array("center", center, (3,))
     if center.ndim < 2:
         raise ValueError(f"center: expected shape (..., M, 3), got {tuple(center.shape)}")
     batch = tuple(center.shape[:-1])
-    radii = quadrics._as_float_array("radii", radii, (3,))
+    radii = as_float_array("radii", radii, (3,))
     if tuple(radii.shape[:-1]) != batch:
         raise ValueError(f"radii: expected shape {batch + (3,)} like center, got {tuple(radii.shape)}")
     if rotation is None:
         rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
-    rotation = quadrics._as_float_array("rotation", rotation, (3, 3))
+    rotation = as_float_array("rotation", rotation, (3, 3))
     if tuple(rotation.shape[:-2]) != batch:
         raise ValueError(f"rotation: expected shape {batch + (3, 3)}, got {tuple(rotation.shape)}")
     class_arr = jnp.asarray(class_id)
@@ -349,10 +350,10 @@ def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 
         return grid.astype(jnp.int8)
     if not isinstance(window, (int, np.integer)) or window < 2:
         raise ValueError(f"window: expected None or an int >= 2 (cells), got {window!r}")
-    origin = quadrics._as_float_array("origin", origin, (2,))
+    origin = as_float_array("origin", origin, (2,))
     if origin.ndim != 1:
         raise ValueError(f"origin: expected shape (2,), got {tuple(origin.shape)}")
-    if quadrics._is_concrete(objects.center) and quadrics._is_concrete(objects.radii):
+    if is_concrete(objects.center) and is_concrete(objects.radii):
         bounds = np.asarray(quadrics.ground_bounds(objects.rotation, objects.center, objects.radii))
         half = 0.5 * (bounds[..., 2:] - bounds[..., :2]) / float(resolution)
         too_big = np.asarray(objects.valid) & np.any(half + 1.0 > window // 2, axis=-1)
