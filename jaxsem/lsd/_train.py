@@ -95,6 +95,11 @@ def _optimizer_for(
     return optax.adam(rate)
 
 
+#: steps between two reads of the recent losses for the progress bar (each read waits for the
+#: device to finish the step it reads)
+_PROGRESS_EVERY = 25
+
+
 def _stage_of(step: int, config: TrainConfig) -> int:
     """Stage that the *next* optimiser step belongs to."""
     return 1 if step < config.stage1_steps else 2
@@ -144,6 +149,7 @@ def make_train_step(
 ):
     """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
     ``stage`` (cached per arguments, so a second run in the same process does not recompile).
+    ``params`` and ``opt_state`` are donated: use the returned ones, not the arguments.
     With ``mesh`` the batch comes split over its devices (:func:`jaxsem.parallel.shard_batch`)
     and the parameters, optimiser state and loss come back replicated."""
     loss_fn = make_loss_fn(model, stage, augment)
@@ -155,9 +161,11 @@ def make_train_step(
         trainable = cast(dict, optax.apply_updates(trainable, updates))  # same tree as its input, a dict
         return {**frozen, **trainable}, opt_state, value
 
+    # params and opt_state are donated: the step writes the new state into their buffers (the
+    # caller rebinds both to the outputs and never reads the old ones).
     if mesh is None:
-        return jax.jit(step)
-    return jax.jit(step, out_shardings=parallel.replicated(mesh))
+        return jax.jit(step, donate_argnums=(0, 1))
+    return jax.jit(step, out_shardings=parallel.replicated(mesh), donate_argnums=(0, 1))
 
 
 @functools.lru_cache(maxsize=16)
@@ -400,6 +408,10 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
         params = warm_start_params(params, load_model(config.init_from)[1], "init_from")
     start = run.start
     run.begin()
+    # the step donates params and opt_state: train on buffers of our own, never on arrays a
+    # caller or a cache (a loaded model, a warm start's source) may still hold
+    params = jax.tree.map(jnp.copy, params)
+    opt_state = None if opt_state is None else jax.tree.map(jnp.copy, opt_state)
     rep = None if mesh is None else parallel.replicated(mesh)
     if rep is not None:
         params, opt_state = jax.device_put((params, opt_state), rep)
@@ -409,7 +421,12 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
     figures.mkdir(exist_ok=True)
     step = start
     steps_fn = {}
-    recent: list[float] = []
+    # The last losses stay on the device: reading one back every step would wait for that step to
+    # finish (a host sync per step); they are read in bulk for the progress bar and the metrics.
+    recent: list = []
+
+    def recent_mean() -> float:
+        return float(np.mean(np.asarray(jax.device_get(recent), np.float64))) if recent else float("nan")
 
     def evaluate(stage_now: int) -> dict:
         val_nll = evaluate_nll(model, params, data, val_idx, stage_now) if len(val_idx) else float("nan")
@@ -425,7 +442,7 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
         rec = {
             "step": step,
             "stage": stage_now,
-            "train_nll": float(np.mean(recent)) if recent else float("nan"),
+            "train_nll": recent_mean(),
             "val_nll": val_nll,
             "uniform_nll": uniform_nll,
             "figure": str(fig),
@@ -453,9 +470,10 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
         skey = jax.random.fold_in(drop_key, step)
         params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
         step += 1
-        recent.append(float(loss))
+        recent.append(loss)
         recent = recent[-50:]
-        run.postfix({"stage": stage, "nll": float(np.mean(recent))})
+        if step % _PROGRESS_EVERY == 0:
+            run.postfix({"stage": stage, "nll": recent_mean()})
         end_of_stage = step == config.stage1_steps or step == config.total_steps
         if step % config.eval_every == 0 or end_of_stage:
             rec = evaluate(stage)
