@@ -5,6 +5,8 @@ import pathlib
 
 import pytest
 
+from jaxsem import slam
+
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 
 
@@ -45,3 +47,11 @@ def test_slam_from_my_detections_solves_one_and_many():
     # A batch solved one map after another gives each map exactly its solo answer (CPU default).
     assert result["many_equals_solo_m"] == 0.0
     assert sorted(result["many_position_m"])[1] < 0.5  # median over the three maps
+
+
+@pytest.mark.slow
+def test_online_slam_on_my_frames_maps_every_car():
+    result = _load("online_slam_on_my_frames").main()
+    # four cars passed at 4-4.5 m beside a 30 m drive, boxes with 2 px noise, 2 cm odometry noise
+    assert max(result["position_m"]) < 0.6 and sorted(result["position_m"])[1] < 0.3
+    assert result["message"] in ("", slam.result_message(slam.RESULTS.max_steps_reached))
