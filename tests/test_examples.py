@@ -3,6 +3,7 @@
 import importlib.util
 import pathlib
 
+import numpy as np
 import pytest
 
 from jaxsem import slam
@@ -55,3 +56,12 @@ def test_online_slam_on_my_frames_maps_every_car():
     # four cars passed at 4-4.5 m beside a 30 m drive, boxes with 2 px noise, 2 cm odometry noise
     assert max(result["position_m"]) < 0.6 and sorted(result["position_m"])[1] < 0.3
     assert result["message"] in ("", slam.result_message(slam.RESULTS.max_steps_reached))
+
+
+@pytest.mark.slow
+def test_volumon_on_my_images_predicts_and_fine_tunes_on_2d_labels(tmp_path):
+    result = _load("volumon_on_my_images").main(tmp_path / "run")
+    # the dual loss on the user's own labels falls, and held-out photos of the same object improve
+    assert result["last_dual"] < 0.5 * result["first_dual"]
+    assert np.median(result["after_m"]) < np.median(result["before_m"])
+    assert np.median(result["after_m"]) < 0.08

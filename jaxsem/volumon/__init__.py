@@ -47,6 +47,10 @@ from ._inputs import (
     prepare_inputs as prepare_inputs,
     to_float_image as to_float_image,
 )
+from ._labels import (
+    LabelBatch as LabelBatch,
+    label_batch as label_batch,
+)
 from ._losses import (
     LossConfig as LossConfig,
     LossTerms as LossTerms,

@@ -48,7 +48,8 @@ class TrainConfig:
         (a FAT-layout or ``make_synthetic`` directory, read by :mod:`jaxsem.data`; the command
         passes its batches to :func:`train_and_evaluate` as ``batch_fn``).
       data_dir: the directory of a ``data="directory"`` run (recorded with the config, so a
-        resume on other data is refused).
+        resume on other data is refused); empty when a user's own ``batch_fn`` feeds the run
+        (e.g. :class:`jaxsem.volumon.LabelBatch` batches), which needs no folder.
       class_names: the class list of a ``data="directory"`` run (class id = index; objects of
         other classes are skipped); empty: :data:`jaxsem.volumon.VOLUMON_CLASS_NAMES`.
     """
@@ -79,9 +80,9 @@ class TrainConfig:
     def __post_init__(self):
         if self.data not in ("device", "host", "directory"):
             raise ValueError(f"data: expected 'device', 'host' or 'directory', got {self.data!r}")
-        if (self.data == "directory") != bool(self.data_dir):
+        if self.data_dir and self.data != "directory":
             raise ValueError(
-                f"data_dir: expected a directory exactly when data == 'directory', got data={self.data!r}, "
+                f"data_dir: expected no directory unless data == 'directory', got data={self.data!r}, "
                 f"data_dir={self.data_dir!r}"
             )
         if self.class_mode not in ("true", "expectation"):

@@ -41,6 +41,7 @@ from ..training import TrainingRun, config_json
 from ._configs import TrainConfig
 from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
+from ._labels import LABELS_2D_ONLY
 from ._losses import volumon_loss
 from ._synthetic import make_batch
 
@@ -211,6 +212,12 @@ def _host_batch(config: TrainConfig, batch: dict, step: int) -> dict:
     missing = [k for k in TRAIN_KEYS if k not in batch]
     if missing:
         raise ValueError(f"batch_fn: the batch of step {step} lacks {missing} (expected the keys {list(TRAIN_KEYS)})")
+    if batch.get(LABELS_2D_ONLY, False) and config.loss.alpha_O > 0:
+        raise ValueError(
+            f"batch_fn: the batch of step {step} holds 2-D labels only (a LabelBatch), but this config's loss "
+            f"needs 3-D ground truth (loss.alpha_O = {config.loss.alpha_O}: the fully supervised oracle); "
+            "train a weak variant ('both', 'dual') on 2-D labels"
+        )
     out = {k: jnp.asarray(batch[k]) for k in TRAIN_KEYS}
     if config.augment:
         out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))
