@@ -55,7 +55,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
         sample_tasks,
     )
 
-    model, params, cfg = load_model(model_path)
+    model, params, cfg, _ = load_model(model_path)
     smp = LSDSampler(model, params, uniform_mix=0.0)
     rows = []
     for b in buildings:

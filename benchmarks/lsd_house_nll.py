@@ -55,12 +55,12 @@ def main(argv=None) -> int:
         data = {k: np.concatenate([d[k] for d, _ in shards]) for k in keys}
         scores = {}
         has = None
-        for name, (model, params, _) in models.items():
+        for name, (model, params, _, _) in models.items():
             nll, h = per_sample_nll(model, params, data)
             scores[name], has = nll, h if has is None else has & h
         if args.oracle:
             full = {k: np.concatenate([f[k] for _, f in shards]) for k in keys}
-            model, params, _ = lsd.load_model(args.oracle)
+            model, params, _, _ = lsd.load_model(args.oracle)
             scores["oracle"], h = per_sample_nll(model, params, full)
             has &= h
         row = {"buildings": seeds, "samples": int(has.sum()), "uniform": float(np.log(160 * 160))}

@@ -68,9 +68,9 @@ def _val_metrics(workdir, data_dir, batch: int = 32, model_from=None) -> dict:
 
     from jaxsem.lsd import load_expert_data, load_model, split_by_building
 
-    model, params, cfg = load_model(str(workdir))
+    model, params, cfg, _ = load_model(str(workdir))
     if model_from is not None:  # the split stays the run's, so the samples are the same
-        model, params, _ = load_model(model_from or None)
+        model, params, _, _ = load_model(model_from or None)
     data = load_expert_data(data_dir)
     _, val = split_by_building(data, cfg.val_fraction, cfg.seed, cfg.val_every_nth_building)
 

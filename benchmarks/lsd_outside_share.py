@@ -180,7 +180,7 @@ def main(argv=None) -> int:
     if args.model_tasks > 0:
         from jaxsem.lsd import LSDSampler, load_model
 
-        model, params, _ = load_model()
+        model, params, _, _ = load_model()
         sampler = LSDSampler(model, params)
         nb = args.buildings if args.model_buildings is None else args.model_buildings
         for s_ in range(args.first, args.first + nb):

@@ -201,7 +201,7 @@ def _run(args, argv) -> int:
             print(f"{kind}: {len(tasks[(i, kind)])} tasks (asked {args.trials})")
         buildings.append(b)
         facts.append(fact)
-    model, params, _ = load_model(args.checkpoint)
+    model, params, _, _ = load_model(args.checkpoint)
     sampler = LSDSampler(model, params)
     base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
     variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else None

@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     n = len(data["context"])
     rows, shown = [], []
     for m in args.models:
-        model, params, cfg = load_model(None if m == "shipped" else m)
+        model, params, cfg, _ = load_model(None if m == "shipped" else m)
         lp = _log_prob(model, params, data)
         nll = evaluate_nll(model, params, data, np.arange(n), stage=2)
         rows.append((m, cfg.model.upsample, peak_ratios(lp), nll))

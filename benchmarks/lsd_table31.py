@@ -326,7 +326,7 @@ def _run(args, argv) -> int:
         setup = ExperimentSetup(args.train_buildings, args.samples_per_building)
         model, params, info = prepare_model(args.workdir, args.checkpoint, setup, cfg, progress=not args.no_progress)
     else:
-        model, params, mcfg = load_model(args.checkpoint)
+        model, params, mcfg, _ = load_model(args.checkpoint)
         info = {
             "checkpoint": args.checkpoint or "shipped (jaxsem.lsd.PRETRAINED)",
             "trained_here": False,

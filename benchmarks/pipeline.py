@@ -265,7 +265,7 @@ def run(args) -> dict:
     from jaxsem.sim import BuildingRenderer
 
     planners = tuple(args.planners)
-    model, params, _ = load_model(args.checkpoint)
+    model, params, _, _ = load_model(args.checkpoint)
     lsd = LSDSampler(model, params, uniform_mix=args.uniform_mix)
     buildings = building_family("test", args.test_buildings, start=args.test_start)
     estimator = None

@@ -34,7 +34,7 @@ def two_rooms(resolution: float = 0.1) -> planning.OccupancyGrid:
 def main(seed: int = 0) -> dict:
     world = planning.grid_to_building(two_rooms())
     start, goal = np.array([3.0, 3.0]), np.array([13.0, 7.0])
-    model, params, _ = lsd.load_model()  # the shipped network
+    model, params, _, _ = lsd.load_model()  # the shipped network
     sampler = lsd.LSDSampler(model, params)
     result = planning.navigate(world, start, goal, jax.random.PRNGKey(seed), sampler=sampler)
     out = {

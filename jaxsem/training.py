@@ -55,7 +55,7 @@ import socket
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -69,6 +69,27 @@ __all__ = [
     "config_json",
     "read_metrics",
 ]
+
+
+class LoadedModel(NamedTuple):
+    """A trained model as every loader returns it (:func:`jaxsem.volumon.load_pretrained`,
+    :func:`jaxsem.lsd.load_model`): unpack it (``model, variables, config, meta = ...``) or read
+    its fields.
+
+    model: the flax module; variables: its parameters (VoluMon: ``params`` and ``batch_stats``;
+    LSD: the parameter tree, also ``.params``); config: the training config it was made with;
+    meta: where it came from (``name``, ``step`` where known, and what the export recorded).
+    """
+
+    model: Any
+    variables: Any
+    config: Any
+    meta: dict
+
+    @property
+    def params(self):
+        """``variables`` under the name LSD's code uses."""
+        return self.variables
 
 
 class ConfigMismatchError(ValueError):

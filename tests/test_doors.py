@@ -161,7 +161,7 @@ def test_demo_door_step_plans_through_the_found_door(tmp_path):
     from jaxsem.lsd import LSDSampler, load_model
     from jaxsem.planning import generate_building, sample_tasks
 
-    model, params, _ = load_model()
+    model, params, _, _ = load_model()
     building = generate_building(0, "test")
     task = sample_tasks(building, "IO", 1, seed=0)[0]
     lines, rec = run_door_plan(tmp_path, building, task, LSDSampler(model, params, uniform_mix=0.0), quick=True)

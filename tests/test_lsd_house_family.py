@@ -97,8 +97,8 @@ def test_unknown_family_and_wrong_params_name_the_argument():
 
 
 def test_house_model_loads_by_name():
-    model, params, config = lsd.load_model("house")
-    _, default_params, default_config = lsd.load_model("default")
+    model, params, config, _ = lsd.load_model("house")
+    _, default_params, default_config, _ = lsd.load_model("default")
     assert config.model == default_config.model  # same network, other weights
     leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(params)]
     assert all(np.isfinite(x).all() for x in leaves)

@@ -197,14 +197,14 @@ def test_export_and_load_model_file_round_trip(run, tmp_path):
     wd, res = run
     _, params, cfg = load_trained(wd)
     path = export_model(tmp_path / "m.npz", cfg, params)
-    model, p2, cfg2 = load_model(path)
+    model, p2, cfg2, _ = load_model(path)
     assert cfg2 == cfg and model.config == MODEL
     for a, b in zip(jax.tree_util.tree_leaves(params), jax.tree_util.tree_leaves(p2)):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="path: no such model file"):
         load_model(tmp_path / "missing.npz")
     if PRETRAINED_CPU.exists():  # the bundled model matches the 160 x 160 planner crops
-        m, _, c = load_model()
+        m, _, c, _ = load_model()
         assert m.config.map_size == 160 and c.model.context_dim == 4
 
 
@@ -212,7 +212,7 @@ def test_shipped_model_is_the_default():
     from jaxsem.lsd import PRETRAINED, load_model, load_model_file
 
     assert PRETRAINED.exists() and PRETRAINED.with_name("MODEL_CARD.md").exists()
-    model, params, cfg = load_model()
+    model, params, cfg, _ = load_model()
     _, _, cfg_file = load_model_file(PRETRAINED)
     assert cfg == cfg_file and cfg.model.log_range == 8.0 and model.config.map_size == 160
 
@@ -228,7 +228,7 @@ def test_new_networks_resize_and_old_configs_load_as_transposed(tmp_path):
     with np.load(PRETRAINED_CPU) as z:
         saved = json.loads(str(z["config_json"]))
     assert "upsample" not in saved["model"]
-    model, params, cfg = load_model(PRETRAINED_CPU)
+    model, params, cfg, _ = load_model(PRETRAINED_CPU)
     assert cfg.model.upsample == "transpose" and model.config.upsample == "transpose"
     assert params["dec_0"]["kernel"].shape[:2] == (2, 2)
 
@@ -242,7 +242,7 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
     from jaxsem.lsd import load_model
     from jaxsem.planning import empty_map_state, generate_building, local_inputs, sample_tasks, sense
 
-    model, params, _ = load_model()
+    model, params, _, _ = load_model()
     sampler = LSDSampler(model, params)
     logs = []
     for seed in (701, 702):
@@ -389,3 +389,16 @@ def test_init_from_fine_tunes_a_resize_network_from_an_exported_model(run, tmp_p
             data=_data(),
             progress=False,
         )
+
+
+def test_both_model_loaders_return_one_shape():
+    # issue 23: volumon.load_pretrained gave 4 values and lsd.load_model 3; both give a LoadedModel
+    from jaxsem import training, volumon
+    from jaxsem.lsd import load_model
+
+    lsd_model = load_model()
+    vol_model = volumon.load_pretrained()
+    for loaded in (lsd_model, vol_model):
+        assert isinstance(loaded, training.LoadedModel) and len(loaded) == 4
+        assert set(loaded.meta) >= {"name"}
+    assert lsd_model.params is lsd_model.variables and lsd_model.meta["step"] is None

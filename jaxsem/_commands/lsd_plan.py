@@ -228,7 +228,7 @@ def _run(args) -> int:
         start, goal = np.asarray(args.start), np.asarray(args.goal)
     sampler = None
     if args.sampler != "uniform":
-        model, params, _ = load_model(args.checkpoint)
+        model, params, _, _ = load_model(args.checkpoint)
         sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix)
     names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)

@@ -47,10 +47,10 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     t0 = time.perf_counter()
     ckpt = os.environ.get("JAXSEM_LSD_CHECKPOINT")
     if ckpt:
-        model, params, _ = load_model(ckpt)
+        model, params, _, _ = load_model(ckpt)
         how = f"loaded trained model from {ckpt}"
     elif PRETRAINED.exists() or PRETRAINED_CPU.exists():
-        model, params, _ = load_model()
+        model, params, _, _ = load_model()
         how = f"shipped model {(PRETRAINED if PRETRAINED.exists() else PRETRAINED_CPU).name}"
     else:
         b_train = generate_building(0, "train")

@@ -541,7 +541,7 @@ def prepare_model(
     from ._train import load_model, train_and_evaluate
 
     if checkpoint:
-        model, params, cfg = load_model(checkpoint)
+        model, params, cfg, _ = load_model(checkpoint)
         return model, params, {"checkpoint": str(checkpoint), "trained_here": False}
     from ._expert import ExpertConfig, write_expert_dataset
 

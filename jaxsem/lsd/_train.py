@@ -39,7 +39,7 @@ import optax
 from .. import parallel
 from ..checkpoint import Checkpointer
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
-from ..training import TrainingRun, config_json
+from ..training import LoadedModel, TrainingRun, config_json
 from ._config import TrainConfig
 from ._data import (
     batch_indices,
@@ -585,15 +585,21 @@ PRETRAINED_HOUSE = pathlib.Path(__file__).resolve().parent / "pretrained_house.n
 MODELS = {"default": PRETRAINED, "house": PRETRAINED_HOUSE, "cpu": PRETRAINED_CPU}
 
 
-def load_model(source=None):
-    """``(model, params, config)`` from a training workdir, an exported ``.npz`` file, a shipped
-    model's name (:data:`MODELS`: 'default', 'house', 'cpu'), or (None) the shipped model
-    :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent)."""
+def load_model(source=None) -> LoadedModel:
+    """``(model, params, config, meta)`` (a :class:`jaxsem.training.LoadedModel`, the shape
+    :func:`jaxsem.volumon.load_pretrained` returns too) from a training workdir, an exported
+    ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'house', 'cpu'), or (None)
+    the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent).
+    ``meta``: ``name`` (the file or folder) and ``step`` (a workdir's checkpoint; None for a file)."""
     if source is None:
         source = PRETRAINED if PRETRAINED.exists() else PRETRAINED_CPU
     if isinstance(source, str) and source in MODELS:
         source = MODELS[source]
     source = pathlib.Path(source)
     if source.suffix == ".npz":
-        return load_model_file(source)
-    return load_trained(source)
+        model, params, config = load_model_file(source)
+        return LoadedModel(model, params, config, {"name": str(source), "step": None})
+    model, params, config = load_trained(source)
+    from ..checkpoint import latest_step
+
+    return LoadedModel(model, params, config, {"name": str(source), "step": latest_step(source / "checkpoints")})

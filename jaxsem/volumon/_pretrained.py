@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..training import LoadedModel
 from ._configs import TrainConfig, config_from_dict
 
 PRETRAINED_DIR = pathlib.Path(__file__).resolve().parent / "pretrained"
@@ -89,8 +90,8 @@ def export_pretrained(
     return out_dir / f"{name}.npz"
 
 
-def load_pretrained(path=None, *, kind: str = "object"):
-    """``(model, variables, config, meta)`` of a shipped model or of a training run's workdir (a
+def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
+    """``(model, variables, config, meta)`` (a :class:`jaxsem.training.LoadedModel`) of a shipped model or of a training run's workdir (a
     folder with ``config.json`` and ``checkpoints/``).
 
     ``path`` None: the package's model of ``kind`` -- ``"object"`` (the four tabletop classes,
@@ -108,12 +109,7 @@ def load_pretrained(path=None, *, kind: str = "object"):
         model, variables, _ = load_trained(p, config)
         from ..checkpoint import latest_step
 
-        return (
-            model,
-            variables,
-            config,
-            {"name": str(p), "step": latest_step(p / "checkpoints")},
-        )
+        return LoadedModel(model, variables, config, {"name": str(p), "step": latest_step(p / "checkpoints")})
     if p.is_dir():
         p = p / f"{DEFAULT_NAME}.npz"
     meta_path = p.with_suffix(".json")
@@ -127,7 +123,7 @@ def load_pretrained(path=None, *, kind: str = "object"):
     with np.load(p) as z:
         variables = _unflatten({k: z[k] for k in z.files})
     model = _model_and_init(config.model, config.learning_rate)[0]  # the module only: nothing compiles
-    return model, variables, config, meta
+    return LoadedModel(model, variables, config, meta)
 
 
 def mean_size_radii(config: TrainConfig) -> np.ndarray:
