@@ -15,7 +15,7 @@ Where the code lives (``jaxsem/_geometry/``):
 - ``bbox.py``: ``project_bbox``, the fused closed-form box with its custom JVP.
 - ``ground.py``: ``ground_conic``, ``ground_bounds``, ``rasterize_footprint`` (top-down view).
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
-  ``look_at``, ``so3_exp``.
+  ``look_at``, ``so3_exp``, ``skew``, ``yaw_rotation``, ``ray_rotation``, ``allocentric_rotation``.
 - ``poses.py``: ``rigid_transform``, ``transform_points``, ``invert_pose``, ``project_points``,
   ``back_project``, ``single_view_ellipsoid``, ``depth_from_box_size``, ``relative_pose``,
   ``cuboid_corners``, ``stereo_right_T_left``.
@@ -101,15 +101,19 @@ from ._geometry.poses import (
     transform_points as transform_points,
 )
 from ._geometry.rotations import (
+    allocentric_rotation as allocentric_rotation,
     look_at as look_at,
     quaternion_to_rotation as quaternion_to_rotation,
     quaternion_wxyz_to_rotation as quaternion_wxyz_to_rotation,
     quaternion_xyzw_to_rotation as quaternion_xyzw_to_rotation,
     random_rotation as random_rotation,
+    ray_rotation as ray_rotation,
     rotation_to_quaternion as rotation_to_quaternion,
     rotation_to_quaternion_wxyz as rotation_to_quaternion_wxyz,
     rotation_to_quaternion_xyzw as rotation_to_quaternion_xyzw,
+    skew as skew,
     so3_exp as so3_exp,
+    yaw_rotation as yaw_rotation,
 )
 from ._geometry.shapes import (
     SHAPE_CUBOID as SHAPE_CUBOID,
@@ -171,6 +175,10 @@ __all__ = [
     "cell_in_grid",
     "CUBOID_CORNER_SIGNS",
     "so3_exp",
+    "skew",
+    "yaw_rotation",
+    "ray_rotation",
+    "allocentric_rotation",
     "quaternion_wxyz_to_rotation",
     "rotation_to_quaternion_wxyz",
     "quaternion_xyzw_to_rotation",

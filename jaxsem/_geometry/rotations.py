@@ -268,3 +268,59 @@ def so3_exp(omega):
     finite gradients, so this is NaN-free at zero."""
     omega = _as_float_array("omega", omega, (3,), check_finite=True)
     return jaxlie.SO3.exp(omega).as_matrix()
+
+
+# --------------------------------------------------------------------------------------------
+# Small rotation helpers every method uses (moved here from ROSHAN's cost, VoluMon's network and
+# the simulators, which each carried a copy).
+
+
+def skew(w, xp=jnp):
+    """The cross-product matrix ``[w]x`` (..., 3, 3) of ``w`` (..., 3): ``skew(w) @ v == w x v``."""
+    xp = _namespace(xp)
+    w = xp.asarray(w)
+    z = xp.zeros_like(w[..., 0])
+    return xp.stack(
+        [
+            xp.stack([z, -w[..., 2], w[..., 1]], -1),
+            xp.stack([w[..., 2], z, -w[..., 0]], -1),
+            xp.stack([-w[..., 1], w[..., 0], z], -1),
+        ],
+        -2,
+    )
+
+
+def yaw_rotation(yaw):
+    """Rotations (..., 3, 3) about the world z axis (up) by ``yaw`` (...) radians, counter-clockwise
+    seen from above: objects standing on the ground, robots on the floor. (``so3_exp`` of
+    ``(0, 0, yaw)``, so maps drawn with either are bit-identical.)"""
+    yaw = jnp.asarray(yaw)
+    if not jnp.issubdtype(yaw.dtype, jnp.floating):
+        yaw = yaw.astype(jnp.result_type(float))
+    zero = jnp.zeros_like(yaw)
+    return so3_exp(jnp.stack([zero, zero, yaw], -1))
+
+
+def ray_rotation(direction):
+    """Smallest rotation (..., 3, 3) taking the optical axis ``e_z`` to ``direction`` (..., 3).
+
+    ``R = I + [v]x + [v]x^2 / (1 + c)`` with ``v = e_z x n``, ``c = e_z . n`` (``n`` normalised).
+    Finite for any direction with ``c > -1``; VoluMon's rays point forward (``c > 0``). A zero
+    direction gives the identity. (The egocentric-allocentric conversion of thesis 5.2.)
+    """
+    from ._common import safe_div
+
+    n = jnp.asarray(direction)
+    norm = _safe_norm(n, jnp, -1, True)
+    ez = jnp.zeros_like(n).at[..., 2].set(1.0)
+    n = jnp.where(norm > 0, n / jnp.where(norm > 0, norm, 1.0), ez)
+    V = skew(jnp.stack([-n[..., 1], n[..., 0], jnp.zeros_like(n[..., 2])], -1))  # [e_z x n]x
+    k = safe_div(1.0, 1.0 + n[..., 2])[..., None, None]
+    return jnp.eye(3, dtype=n.dtype) + V + (V @ V) * k
+
+
+def allocentric_rotation(rotation, center):
+    """Allocentric rotation ``R_ray(center)^T R`` (..., 3, 3) of an object-to-camera ``rotation``
+    seen at camera-frame ``center``: its orientation relative to the ray it is seen along, what
+    VoluMon predicts (the inverse of ``ray_rotation(center) @ R_allo``)."""
+    return jnp.swapaxes(ray_rotation(center), -1, -2) @ rotation

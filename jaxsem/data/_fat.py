@@ -90,9 +90,7 @@ def cuboid_corners(rotation, center, dimensions) -> np.ndarray:
 
 def right_T_left(baseline: float = FAT_BASELINE) -> np.ndarray:
     """(4, 4) transform from the left camera frame to the right one (right camera at +x)."""
-    T = np.eye(4)
-    T[0, 3] = -float(baseline)
-    return T
+    return np.asarray(Q.stereo_right_T_left(float(baseline), np.float64))
 
 
 @dataclasses.dataclass(frozen=True)

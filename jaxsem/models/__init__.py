@@ -1,5 +1,7 @@
 """Flax models: the LSD sampling-distribution network (and VoluMon)."""
 
+# the egocentric-allocentric rotations live in the geometry core; kept here under their old names
+from ..quadrics import allocentric_rotation as allocentric_rotation, ray_rotation as ray_rotation
 from ._convert import (
     convert_torchvision_mobilenet_v2 as convert_torchvision_mobilenet_v2,
     load_backbone_into_volumon as load_backbone_into_volumon,
@@ -30,11 +32,9 @@ from ._volumon import (
     VoluMonConfig as VoluMonConfig,
     VoluMonNet as VoluMonNet,
     VoluMonOutput as VoluMonOutput,
-    allocentric_rotation as allocentric_rotation,
     box_features as box_features,
     expected_params as expected_params,
     init_volumon as init_volumon,
-    ray_rotation as ray_rotation,
     reconstruct as reconstruct,
     select_class_params as select_class_params,
 )

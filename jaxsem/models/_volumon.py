@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..quadrics import back_project, quaternion_to_rotation, safe_div, safe_norm
+from ..quadrics import back_project, quaternion_to_rotation, ray_rotation
 from ._mobilenet import MobileNetV2
 
 NUM_FREE = 10  # phi_D (3), phi_R (4), phi_UV (2), phi_Z (1)
@@ -101,27 +101,6 @@ class ReconstructionConfig:
             )
 
 
-def ray_rotation(direction):
-    """Smallest rotation (..., 3, 3) taking the optical axis ``e_z`` to ``direction`` (..., 3).
-
-    ``R = I + [v]x + [v]x^2 / (1 + c)`` with ``v = e_z x n``, ``c = e_z . n`` (``n`` normalised).
-    Finite for any direction with ``c > -1``; VoluMon's rays point forward (``c > 0``). A zero
-    direction gives the identity.
-    """
-    n = jnp.asarray(direction)
-    norm = safe_norm(n, axis=-1, keepdims=True)
-    ez = jnp.zeros_like(n).at[..., 2].set(1.0)
-    n = jnp.where(norm > 0, n / jnp.where(norm > 0, norm, 1.0), ez)
-    vx, vy, c = -n[..., 1], n[..., 0], n[..., 2]  # e_z x n = (-n_y, n_x, 0)
-    zero = jnp.zeros_like(vx)
-    V = jnp.stack(
-        [jnp.stack([zero, zero, vy], -1), jnp.stack([zero, zero, -vx], -1), jnp.stack([-vy, vx, zero], -1)], -2
-    )
-    k = safe_div(1.0, 1.0 + c)[..., None, None]
-    eye = jnp.eye(3, dtype=n.dtype)
-    return eye + V + (V @ V) * k
-
-
 def reconstruct(phi, box, K, config: ReconstructionConfig = ReconstructionConfig()) -> Ellipsoid:
     """Eq. 5.7: free parameters -> ellipsoid in the camera frame.
 
@@ -165,11 +144,6 @@ def reconstruct(phi, box, K, config: ReconstructionConfig = ReconstructionConfig
     R_allo = quaternion_to_rotation(phi[..., SLICE_R])
     rotation = ray_rotation(ray) @ R_allo
     return Ellipsoid(rotation, center, 0.5 * sizes)
-
-
-def allocentric_rotation(rotation, center):
-    """Inverse of the egocentric conversion: ``R_allo = R_ray(center)^T R`` (..., 3, 3)."""
-    return jnp.swapaxes(ray_rotation(center), -1, -2) @ rotation
 
 
 def select_class_params(phi, class_id):

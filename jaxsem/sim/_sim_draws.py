@@ -21,14 +21,9 @@ from ..quadrics import (
     single_view_ellipsoid,
     so3_exp,
     texture_plane_depth,
+    yaw_rotation,
 )
 from ._sim_config import SimConfig, class_table
-
-
-def _yaw_rotation(yaw):
-    """Rotation (..., 3, 3) about world z by ``yaw`` (...) radians."""
-    zero = jnp.zeros_like(yaw)
-    return so3_exp(jnp.stack([zero, zero, yaw], -1))
 
 
 class _Pool:
@@ -125,7 +120,7 @@ def _random_objects(pool: _Pool, config: SimConfig, dtype):
     mask = jnp.arange(n) < n_taken
     r = radii[source]
     center = jnp.concatenate([xy[source], r[:, 2:3]], axis=-1)
-    rotation = _yaw_rotation(yaw[source])
+    rotation = yaw_rotation(yaw[source])
     global_ids = jnp.asarray([factors.class_index(c) for c in config.classes], jnp.int32)
     return {
         "rotation": rotation,
@@ -290,7 +285,7 @@ def _initial_landmarks(pool: _Pool, objects, det, pose_prior, K, config: SimConf
     n = objects["center"].shape[0]
     ctr = objects["center"] + config.init_position_noise_m * pool.normal((n, 3))
     d_yaw = jnp.deg2rad(config.init_yaw_noise_deg) * pool.normal((n,))
-    rot = objects["rotation"] @ _yaw_rotation(d_yaw)
+    rot = objects["rotation"] @ yaw_rotation(d_yaw)
     rad = objects["radii"] + config.init_radii_noise_m * pool.normal((n, 3))
     rad = jnp.maximum(rad, 0.1)
     return rot, ctr, rad, first, observed

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 
-from .. import factors as F
+from .. import factors as F, quadrics as Q
 from ._problem import SlamEstimate, SlamProblem, SolverConfig
 
 BOX_ROWS = F.BOX_RESIDUAL_DIM + 1  # + texture plane
@@ -70,32 +70,20 @@ def retract_object(rotation, center, radii, dobj):
     return R, c, r
 
 
-def _hat3(w):
-    z = jnp.zeros_like(w[..., 0])
-    return jnp.stack(
-        [
-            jnp.stack([z, -w[..., 2], w[..., 1]], -1),
-            jnp.stack([w[..., 2], z, -w[..., 0]], -1),
-            jnp.stack([-w[..., 1], w[..., 0], z], -1),
-        ],
-        -2,
-    )
-
-
 def first_order_pose(pose, dp):
     """``pose @ (I + hat(dp))``: equals :func:`retract_pose` to first order at ``dp = 0``.
 
     Jacobians are only ever taken at ``dp = 0`` (relinearisation), where this gives exactly the
     same derivative as the exponential map with a far smaller graph (faster compiles).
     """
-    top = jnp.concatenate([_hat3(dp[..., 3:6]), dp[..., 0:3, None]], -1)
+    top = jnp.concatenate([Q.skew(dp[..., 3:6]), dp[..., 0:3, None]], -1)
     xi = jnp.concatenate([top, jnp.zeros_like(top[..., :1, :])], -2)
     return pose + pose @ xi
 
 
 def first_order_object(rotation, center, radii, dobj):
     """First-order twin of :func:`retract_object` (exact derivative at ``dobj = 0``)."""
-    R = rotation + rotation @ _hat3(dobj[..., 0:3])
+    R = rotation + rotation @ Q.skew(dobj[..., 0:3])
     r = F.radii_from_param(F.param_from_radii(radii) + dobj[..., 6:9])
     return R, center + dobj[..., 3:6], r
 
@@ -335,7 +323,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     Rt = jnp.swapaxes(R_o, -1, -2)
     t_inv = -jnp.einsum("mij,mj->mi", Rt, c_o)
     Jv, Jw = Jxi[..., 0:3], Jxi[..., 3:6]
-    Jp = jnp.concatenate([Jv @ Rt, Jv @ (_hat3(t_inv) @ Rt) + Jw @ Rt], -1)
+    Jp = jnp.concatenate([Jv @ Rt, Jv @ (Q.skew(t_inv) @ Rt) + Jw @ Rt], -1)
     Jo = jnp.concatenate([Jw, Jv @ Rt, Jds], -1)
     Jp = Jp * pose_free[bp][:, None, None]
 

@@ -16,10 +16,8 @@ from ._problem import SlamEstimate, make_problem
 
 
 def _yaw(angles):
-    """Rotations (N, 3, 3) about the world z axis by ``angles`` (N,) radians."""
-    angles = np.asarray(angles, np.float64)
-    omega = np.stack([np.zeros_like(angles), np.zeros_like(angles), angles], -1)
-    return np.asarray(Q.so3_exp(omega), np.float64)
+    """Rotations (N, 3, 3) about the world z axis by ``angles`` (N,) radians (host, float64)."""
+    return np.asarray(Q.yaw_rotation(np.asarray(angles, np.float64)), np.float64)
 
 
 def toy_map(

@@ -36,8 +36,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ..models import Ellipsoid, ReconstructionConfig, allocentric_rotation, reconstruct
-from ..quadrics import rotation_to_quaternion_wxyz
+from ..models import Ellipsoid, ReconstructionConfig, reconstruct
+from ..quadrics import allocentric_rotation, rotation_to_quaternion_wxyz
 from ._losses import SHAPE_ELLIPSOID, LossConfig, primal_loss_per_sample
 
 POSE_MASK = jnp.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1], bool)
