@@ -739,6 +739,46 @@ def test_segment_check_never_crosses_walls_and_accepts_open_space():
     assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, ORIGIN, RES, RADIUS)
 
 
+def _dense_rule(a, b, occ, samples):
+    """The edge rule read at every sample (numpy, float32 like the PRM): each sample's cell
+    free and on the map, both side cells of every diagonal step free."""
+    f = np.float32
+    t = np.arange(samples, dtype=f) / f(samples - 1)
+    a, b = a.astype(f), b.astype(f)
+    u = np.floor((a + t[:, None] * (b - a) - ORIGIN.astype(f)) / f(RES)).astype(int)
+    r, c = u[:, 1], u[:, 0]
+    H, W = occ.shape
+    if np.any((r < 0) | (r >= H) | (c < 0) | (c >= W)) or occ[r, c].any():
+        return False
+    diag = (r[1:] != r[:-1]) & (c[1:] != c[:-1])
+    return not np.any(diag & (occ[r[:-1], c[1:]] | occ[r[1:], c[:-1]]))
+
+
+def test_segment_check_equals_the_dense_rule():
+    """The edge check reads most samples through the clearance table and only the intervals
+    near a wall densely; its answer must be the dense rule's on every segment (short ones at
+    the roadmap's samples, long ones at the query reach's), walls grazed included."""
+    rng = np.random.default_rng(7)
+    occ = _thin_wall_map(rng)
+    free_cells = np.argwhere(~occ)
+    reach = 2.0 ** math.ceil(math.log2(math.hypot(6.0, 8.0)))
+    counts = {True: 0, False: 0}
+    for i in range(240):
+        a = (free_cells[rng.integers(len(free_cells))][::-1] + rng.random(2)) * RES
+        long = i % 3 == 0
+        b = a + rng.normal(size=2) * (3.0 if long else 0.6)
+        b = np.clip(b, 1e-3, np.array([80, 60]) * RES - 1e-3)
+        length = np.linalg.norm(b - a)
+        if long == (length <= RADIUS):
+            continue
+        r = reach if long else RADIUS
+        samples = max(2, int(math.ceil(r / (0.5 * RES))) + 1)
+        ok = polyline_clear(np.stack([a, b]), occ, ORIGIN, RES, RADIUS)
+        assert ok == _dense_rule(a, b, occ, samples), (a, b)
+        counts[ok] += 1
+    assert counts[True] > 20 and counts[False] > 20
+
+
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
     a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the

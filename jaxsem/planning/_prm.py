@@ -31,7 +31,7 @@ class PRM:
     [0, 0]'s corner; resolution: metres per cell; capacity: most samples it will hold (fixed
     shapes: growing never recompiles); k: neighbours per vertex (None: :func:`prm_star_k` of
     ``capacity``); radius: connection radius in
-    metres (None: :func:`default_radius` of ``capacity``); weight: 'euclidean' or 'neglogp'
+    metres (None: :func:`default_radius` of ``capacity`` over the cells not known occupied); weight: 'euclidean' or 'neglogp'
     (edge weights from the distribution given to :meth:`grow`; the latest one also weights the
     query's edges); sectors: 0 (each vertex links to its k nearest) or the direction sectors
     whose nearest come first (module docstring). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
@@ -64,8 +64,11 @@ class PRM:
         self._blocked_j = jnp.asarray(blocked)
         self.origin = origin_np
         self.resolution = float(resolution)
+        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.radius = (
-            float(radius) if radius is not None else default_radius(capacity, blocked.shape, resolution, weight)
+            float(radius)
+            if radius is not None
+            else default_radius(capacity, blocked.shape, resolution, weight, free_cells=self._free_cells)
         )
         self.weight = weight
         self.distribution = None
@@ -97,7 +100,9 @@ class PRM:
         distribution = _check_distribution(distribution, self.blocked.shape)
         dtype = self.roadmap.points.dtype
         dist = None if distribution is None else jnp.asarray(distribution, dtype)
-        cap = self._cap or _initial_cap(self.capacity, self.blocked.shape, self.resolution, self.radius)
+        cap = self._cap or _initial_cap(
+            self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
+        )
         self.roadmap, self._cap = _grow_exact(
             self.roadmap,
             key,

@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _edge_samples, _edges, query_reach
+from ._edges import _cells, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._neighbours import _knn, _select
 from ._sampling import _cost_grid, _sampling_weights, sample_points
@@ -108,16 +108,22 @@ class Roadmap(NamedTuple):
 LEARNED_RADIUS_FACTOR = 2.0
 
 
-def default_radius(n: int, shape, resolution: float, weight: str = "euclidean") -> float:
+def default_radius(
+    n: int, shape, resolution: float, weight: str = "euclidean", *, free_cells: int | None = None
+) -> float:
     """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 3 x the mean sample
     spacing, within [1, 8] m, rounded up to 0.5 m so that few distinct values (each a compile)
-    occur. It only bounds the search; the ``k`` nearest are usually closer (see
+    occur. ``free_cells``: the cells samples can land in (None: the whole map); the spacing is
+    that of ``n`` samples over them, since samples never land in known-occupied cells (on a
+    scanned campus two thirds of the map is blocked: the whole map's area overstates the spacing
+    by 1.7x and the radius reads 3x more candidates than it needs). It only bounds the search; the ``k`` nearest are usually closer (see
     ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
     learned sampler's roadmap) gives ``LEARNED_RADIUS_FACTOR`` times that, rounded up to 0.5 m:
     the navigation loop's rule (:meth:`~jaxsem.planning.Trial.connection_radius`), so that a
     one-shot LSD roadmap links like the loop's (a concentrated distribution leaves the few samples
     outside its window farther apart than the uniform radius)."""
-    area = shape[0] * shape[1] * resolution**2
+    cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
+    area = cells * resolution**2
     r = math.ceil(min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1)))) * 2.0) / 2.0
     if weight == "neglogp":
         r = math.ceil(2.0 * r * LEARNED_RADIUS_FACTOR) / 2.0
@@ -177,16 +183,11 @@ def _grow_impl(
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
+    cand = (nbr < M) & ok_new[:, None]
     clear, w = _edges(
-        blocked,
-        cost,
-        new[:, None, :],
-        other,
-        origin,
-        resolution,
-        _edge_samples(radius, resolution),
+        blocked, cost, new[:, None, :], other, origin, resolution, _edge_samples(radius, resolution), cand
     )
-    ev = (nbr < M) & clear & ok_new[:, None]
+    ev = cand & clear
     w = jnp.where(ev, w, jnp.inf)
     if keep > k:
         nbr, ev, w = _clear_first(nbr, ev, w, k)
@@ -212,16 +213,11 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
     r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
+    ev = rm.edge_valid & valid[:, None] & valid[j]
     clear, _ = _edges(
-        blocked,
-        None,
-        rm.points[:, None, :],
-        rm.points[j],
-        origin,
-        resolution,
-        _edge_samples(radius, resolution),
+        blocked, None, rm.points[:, None, :], rm.points[j], origin, resolution, _edge_samples(radius, resolution), ev
     )
-    ev = rm.edge_valid & clear & valid[:, None] & valid[j]
+    ev = ev & clear
     return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf))
 
 
@@ -252,10 +248,16 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     cost = _cost_grid(distribution) if neglogp else None
     # Each edge is checked with the samples polyline_clear uses for a segment of its length:
     # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
-    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(radius, resolution))
-    reach = query_reach(blocked.shape, resolution)
-    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(reach, resolution))
     short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    cand = nbr < M
+    s_short = _edge_samples(radius, resolution)
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_short, cand & short)
+    reach = query_reach(blocked.shape, resolution)
+    # Long edges: the rule's samples over the reach, a subset about one per 4 cells of an edge
+    # 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
+    s_long = _edge_samples(reach, resolution)
+    sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
+    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub)
     clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
     w = jnp.where(ev, w, jnp.inf).astype(dtype)
@@ -322,9 +324,11 @@ def _check_sectors(sectors) -> int:
     return int(sectors)
 
 
-def _initial_cap(n_total: int, shape, resolution, radius) -> int:
-    """Bucket slots for uniform samples: 4 x the mean bucket load, a power of two, >= 16."""
-    buckets = max(1.0, shape[0] * shape[1] * resolution**2 / radius**2)
+def _initial_cap(n_total: int, shape, resolution, radius, free_cells: int | None = None) -> int:
+    """Bucket slots for uniform samples: 4 x the mean load of a bucket (over the ``free_cells``
+    samples land in; None: the whole map), a power of two, >= 16."""
+    cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
+    buckets = max(1.0, cells * resolution**2 / radius**2)
     return max(16, 1 << int(math.ceil(math.log2(max(1.0, 4.0 * n_total / buckets)))))
 
 
