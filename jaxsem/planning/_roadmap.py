@@ -35,12 +35,16 @@ a sparse region still reaches the roadmap. Samples never link to the query slots
 not change the roadmap.
 
 Neighbour search is exact. Vertices are bucketed on a grid of cell size ``radius`` and each
-query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``.
-A bucket is read through ``bucket_cap`` slots; the search reports ``overflow`` (a result code
-in :attr:`Roadmap.overflow`) when any bucket holds more, and the Python entry points then rerun
-with enough slots, so nothing is dropped silently (samples concentrated by a learned
-distribution put hundreds of vertices in one bucket). When ``9 * bucket_cap`` would reach the
-vertex count, the search is brute force over all vertices (same result, no cap at all).
+query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``:
+three strips of three buckets, each contiguous in bucket order. A strip is read through
+``bucket_cap`` slots, and at most ``bucket_cap`` candidates within ``radius`` are kept; the
+search reports ``overflow`` (a result code in :attr:`Roadmap.overflow`) when a strip or a
+vertex's neighbourhood holds more, and the Python entry points then rerun with enough slots,
+so nothing is dropped silently (samples concentrated by a learned distribution put hundreds of
+vertices in one bucket). When ``3 * bucket_cap`` would reach the vertex count, the search is
+brute force over all vertices (same result, no cap at all). The candidates are ranked by
+counting (each one's rank is the number before it) rather than by sorting: XLA's CPU sort and
+a wide top_k cost 10-20x more on rows of a few dozen.
 
 Edge check: ``edge_samples`` points along each edge, at most half a cell apart, must lie in
 cells that are not known occupied, and so must both side cells of any diagonal step between
@@ -89,8 +93,8 @@ class Roadmap(NamedTuple):
     neighbors: (M, k) int32 slot indices (``M`` where there is none).
     edge_valid: (M, k) bool; edge_weight: (M, k) float (inf where invalid).
     num_samples: () int32, samples so far (slots ``2 .. 2 + num_samples``).
-    overflow: () bool result code: a neighbour search had fewer candidate slots than a bucket
-        held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
+    overflow: () bool result code: a neighbour search had fewer candidate slots than a strip of
+        buckets or a vertex's neighbourhood held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
         :func:`roadmap_grow` rerun with more slots and never return it set.
     """
 
@@ -325,11 +329,11 @@ def _check_sectors(sectors) -> int:
 
 
 def _initial_cap(n_total: int, shape, resolution, radius, free_cells: int | None = None) -> int:
-    """Bucket slots for uniform samples: 4 x the mean load of a bucket (over the ``free_cells``
-    samples land in; None: the whole map), a power of two, >= 16."""
+    """Strip slots for uniform samples: 2 x the mean load of a strip of 3 buckets (over the
+    ``free_cells`` samples land in; None: the whole map), a multiple of 16 (few compiles)."""
     cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
     buckets = max(1.0, cells * resolution**2 / radius**2)
-    return max(16, 1 << int(math.ceil(math.log2(max(1.0, 4.0 * n_total / buckets)))))
+    return 16 * max(1, int(math.ceil(2.0 * 3.0 * n_total / buckets / 16.0)))
 
 
 def roadmap_grow(
@@ -351,7 +355,7 @@ def roadmap_grow(
     known_map: (H, W) int8 partial map or bool obstacle grid; distribution: (H, W) cell weights
     (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
     it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
-    bucket_cap: neighbour-search slots per bucket to start with (None: a size for uniform
+    bucket_cap: neighbour-search slots per strip of 3 buckets to start with (None: a size for uniform
     samples); on overflow the search reruns with enough slots; sectors: 0 (the k nearest) or the
     direction sectors whose nearest come first (module docstring). Returns the grown roadmap.
     """
@@ -389,7 +393,7 @@ def roadmap_grow(
 def _grow_exact(
     roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
 ):
-    """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
+    """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
     Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
@@ -403,14 +407,14 @@ def _grow_exact(
             n=n,
             radius=radius,
             resolution=resolution,
-            cap=cap if 9 * cap < M else None,
+            cap=cap if 3 * cap < M else None,
             neglogp=neglogp,
             sectors=sectors,
             uniform_samples=uniform_samples,
         )
-        if 9 * cap >= M or before or not bool(out.overflow):
+        if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap
-        cap *= 4  # a bucket held more than ``cap`` vertices: rerun, nothing dropped
+        cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
 
 
 def roadmap_recheck(roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float) -> Roadmap:
