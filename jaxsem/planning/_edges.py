@@ -24,15 +24,15 @@ def _cells(points, origin, resolution, shape):
     return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
 
 
-def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None):
+def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None, table=None):
     """Clear flag and weight of segments a -> b (..., 2) on the grid (see the module docstring).
 
     With ``cost=None`` (Euclidean weights) the rule is decided by :func:`_edges_clear` (the same
     answer, most edges from a few dozen reads); with a cost grid every sample is read (the
     weight needs them all). ``mask``: the edges worth checking (the rest may come back either
-    way; None: all); ``subset``: see :func:`_edges_clear`."""
+    way; None: all); ``subset``, ``table``: see :func:`_edges_clear`."""
     if cost is None:
-        clear = _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask, subset=subset)
+        clear = _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask, subset=subset, table=table)
         return clear, _length(a, b)
     clear, er, ec = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
     return clear, _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
@@ -122,7 +122,9 @@ def _compact(mask, pad: int):
     return out.at[jnp.where(mask, pos, n + pad)].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
 
 
-def _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask=None, *, subset=None, chunk: int = 8192):
+def _edges_clear(
+    blocked, a, b, origin, resolution, edge_samples, mask=None, *, subset=None, table=None, chunk: int = 8192
+):
     """The edge rule of :func:`_edges_dense`, decided from a few reads where the map allows.
 
     Only edges where ``mask`` (broadcast to the edges; None: all) is set are checked (the rest
@@ -134,7 +136,8 @@ def _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask=None, *, 
     rule sample between them and every side cell of their diagonal steps is free. Only the
     intervals between subset samples that are not covered so (an edge grazing a wall: usually
     one or two of a dozen) read the rule's samples in between, with their diagonal side cells;
-    one of them blocked rejects the edge. The answer is the full rule's, sample for sample."""
+    one of them blocked rejects the edge. The answer is the full rule's, sample for sample.
+    ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here)."""
     shape = jnp.broadcast_shapes(a.shape, b.shape)[:-1]
     a, b = jnp.broadcast_to(a, shape + (2,)), jnp.broadcast_to(b, shape + (2,))
     fa, fb = a.reshape(-1, 2), b.reshape(-1, 2)
@@ -146,7 +149,7 @@ def _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask=None, *, 
     t_all = jnp.arange(S, dtype=dtype) / (S - 1)  # the rule's own parameters (_edges_dense)
     t_pick = t_all[pick]
     gap_t = jnp.asarray(np.diff(pick) / (S - 1), dtype)
-    table = _clearance_table(blocked)
+    table = _clearance_table(blocked) if table is None else table
     todo = jnp.ones(E, bool) if mask is None else jnp.broadcast_to(mask, shape).reshape(-1)
     F = min(int(chunk), E)
     order = _compact(todo, F)

@@ -13,11 +13,12 @@ from ._roadmap import (
     _blocked_from,
     _check_distribution,
     _check_sectors,
+    _connect_checked,
     _grow_exact,
     _initial_cap,
+    _map_aids,
     default_radius,
     prm_star_k,
-    roadmap_connect,
     roadmap_init,
     roadmap_recheck,
 )
@@ -62,6 +63,7 @@ class PRM:
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
+        self._aids = _map_aids(self._blocked_j, self.roadmap.points.dtype)
         self.origin = origin_np
         self.resolution = float(resolution)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -116,6 +118,7 @@ class PRM:
             self.weight == "neglogp",
             self.sectors,
             bool(uniform_samples),
+            self._aids,
         )
         if distribution is not None:
             self.distribution = distribution
@@ -132,23 +135,27 @@ class PRM:
             return False
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
+        self._aids = _map_aids(self._blocked_j, self.roadmap.points.dtype)
+        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         self._graph = None
         return True
 
     def query(self, start, goal) -> RoadmapPath:
         """Shortest roadmap path from ``start`` to ``goal`` (world (2,), not known occupied)."""
-        self.roadmap = roadmap_connect(
+        self.roadmap = _connect_checked(
             self.roadmap,
             start,
             goal,
             self.blocked,
+            self._blocked_j,
             self.origin,
             self.resolution,
             radius=self.radius,
             distribution=self.distribution,
             weight=self.weight,
             sectors=self.sectors,
+            aids=self._aids,
         )
         if self._graph is None:
             self._graph = _SampleGraph(self.roadmap)

@@ -68,10 +68,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _edge_samples, _edges, _subset, query_reach
+from ._edges import _cells, _clearance_table, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._neighbours import _knn, _select
-from ._sampling import _cost_grid, _sampling_weights, sample_points
+from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
@@ -161,14 +161,42 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
     )
 
 
+class _MapAids(NamedTuple):
+    """What the PRM keeps per known map so that every grow and query does not redo it: the
+    edge check's clearance table and the cumulative weights of uniform sampling."""
+
+    table: jax.Array
+    uniform_cdf: jax.Array
+
+
+@functools.partial(jax.jit, static_argnames=("dtype",))
+def _map_aids(blocked, dtype) -> _MapAids:
+    return _MapAids(_clearance_table(blocked), _cdf(_sampling_weights(blocked, None), dtype))
+
+
 def _grow_impl(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+    rm,
+    key,
+    blocked,
+    distribution,
+    origin,
+    *,
+    n,
+    radius,
+    resolution,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids: _MapAids | None = None,
 ):
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
-    new = sample_points(key, weights, n, origin, resolution)
+    uniform = distribution is None or uniform_samples
+    cdf = aids.uniform_cdf if aids is not None and uniform else None
+    new = sample_points(key, weights, n, origin, resolution, cdf)
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
@@ -228,7 +256,7 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
 _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
 
 
-def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0):
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     q = jnp.stack([start, goal]).astype(dtype)
@@ -255,13 +283,16 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
     cand = nbr < M
     s_short = _edge_samples(radius, resolution)
-    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_short, cand & short)
+    table = None if aids is None else aids.table
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_short, cand & short, table=table)
     reach = query_reach(blocked.shape, resolution)
     # Long edges: the rule's samples over the reach, a subset about one per 4 cells of an edge
     # 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
     s_long = _edge_samples(reach, resolution)
     sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
-    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub)
+    clear_l, w_l = _edges(
+        blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub, table=table
+    )
     clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
     w = jnp.where(ev, w, jnp.inf).astype(dtype)
@@ -391,7 +422,19 @@ def roadmap_grow(
 
 
 def _grow_exact(
-    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+    roadmap,
+    key,
+    blocked,
+    dist,
+    origin,
+    n,
+    radius,
+    resolution,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids=None,
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
     Returns (roadmap, the cap that sufficed)."""
@@ -411,6 +454,7 @@ def _grow_exact(
             neglogp=neglogp,
             sectors=sectors,
             uniform_samples=uniform_samples,
+            aids=aids,
         )
         if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap
@@ -451,6 +495,25 @@ def roadmap_connect(
     :func:`roadmap_grow`."""
     sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
+    return _connect_checked(
+        roadmap,
+        start,
+        goal,
+        blocked,
+        jnp.asarray(blocked),
+        origin,
+        resolution,
+        radius=radius,
+        distribution=distribution,
+        weight=weight,
+        sectors=sectors,
+    )
+
+
+def _connect_checked(
+    roadmap, start, goal, blocked, blocked_j, origin, resolution, *, radius, distribution, weight, sectors, aids=None
+):
+    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy."""
     origin_np = np.asarray(origin, np.float64)
     start = check_point("start", start, blocked, origin_np, resolution)
     goal = check_point("goal", goal, blocked, origin_np, resolution)
@@ -463,13 +526,14 @@ def roadmap_connect(
         roadmap,
         jnp.asarray(start, dtype),
         jnp.asarray(goal, dtype),
-        jnp.asarray(blocked),
+        blocked_j,
         dist,
         jnp.asarray(origin_np, dtype),
         radius=float(radius),
         resolution=float(resolution),
         neglogp=weight == "neglogp",
         sectors=sectors,
+        aids=aids,
     )
 
 
