@@ -20,6 +20,7 @@ from jaxsem.planning import (
     knn_within_radius,
     polyline_clear,
     prm_star_k,
+    roadmap_connect,
     roadmap_grow,
     roadmap_init,
     roadmap_shortest_path,
@@ -152,6 +153,53 @@ def test_prm_finds_the_corridor_path():
     closed[:, 49:51] = True
     rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
     assert not roadmap_shortest_path(rm).found
+
+
+@pytest.mark.slow
+def test_query_returns_the_roadmaps_shortest_path():
+    """Regression: with float32 weights scipy's Dijkstra summed the two stored copies of an edge
+    that both endpoints list, so a query preferred one-sided edges and returned paths several
+    percent longer than the roadmap's shortest. Reference: heapq Dijkstra over the roadmap's
+    edge lists (undirected, the start's and the goal's edges as made)."""
+    occ = _blocks(3, shape=(60, 100), n=25)
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(3)
+    # float32, as the PRM runs without x64 (the tests enable x64)
+    grown = roadmap_grow(
+        roadmap_init(N, prm_star_k(N), jnp.float32), jax.random.PRNGKey(5), occ, N, ORIGIN, RES, radius=RADIUS
+    )
+    checked = 0
+    for _ in range(4):
+        s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
+        rm = roadmap_connect(grown, s, g, occ, ORIGIN, RES, radius=RADIUS)
+        p = roadmap_shortest_path(rm)
+        nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
+        w = np.asarray(rm.edge_weight, np.float64)
+        M = nbr.shape[0]
+        adj = [[] for _ in range(M)]
+        for i, j in zip(*np.nonzero(ok)):
+            v = int(nbr[i, j])
+            adj[i].append((v, w[i, j]))
+            if i != 0 and v != 1:  # the start's edges lead out, the goal's lead in
+                adj[v].append((int(i), w[i, j]))
+            if i == 1:
+                adj[v].append((1, w[i, j]))
+        dist = np.full(M, np.inf)
+        dist[0] = 0.0
+        heap = [(0.0, 0)]
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > dist[u]:
+                continue
+            for v, wt in adj[u]:
+                if d + wt < dist[v]:
+                    dist[v] = d + wt
+                    heapq.heappush(heap, (dist[v], v))
+        assert p.found == np.isfinite(dist[1])
+        if p.found:
+            np.testing.assert_allclose(p.cost, dist[1], rtol=1e-5)
+            checked += 1
+    assert checked >= 2
 
 
 def test_unknown_counts_as_free():

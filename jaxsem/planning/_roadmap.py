@@ -216,9 +216,9 @@ def _grow_impl(
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
     cand = (nbr < M) & ok_new[:, None]
-    clear, w = _edges(
-        blocked, cost, new[:, None, :], other, origin, resolution, _edge_samples(radius, resolution), cand
-    )
+    table = None if aids is None else aids.table
+    S = _edge_samples(radius, resolution)
+    clear, w = _edges(blocked, cost, new[:, None, :], other, origin, resolution, S, cand, table=table)
     ev = cand & clear
     w = jnp.where(ev, w, jnp.inf)
     if keep > k:
