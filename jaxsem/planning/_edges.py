@@ -115,11 +115,12 @@ def _subset(S: int, C: int | None = None):
 
 def _compact(mask, pad: int):
     """Indices (n + pad,) of the set entries of the flat bool ``mask`` (n,), in order, then
-    ``n`` (jnp.nonzero without its cumsum: XLA's CPU cumsum is slow on long arrays)."""
+    ``n``; and each entry's place among them (n,) (jnp.nonzero without its cumsum: XLA's CPU
+    cumsum is slow on long arrays)."""
     n = mask.shape[0]
     pos = jax.lax.associative_scan(jnp.add, mask.astype(jnp.int32)) - 1
     out = jnp.full((n + pad,), n, jnp.int32)
-    return out.at[jnp.where(mask, pos, n + pad)].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    return out.at[jnp.where(mask, pos, n + pad)].set(jnp.arange(n, dtype=jnp.int32), mode="drop"), pos
 
 
 def _edges_clear(
@@ -137,7 +138,10 @@ def _edges_clear(
     intervals between subset samples that are not covered so (an edge grazing a wall: usually
     one or two of a dozen) read the rule's samples in between, with their diagonal side cells;
     one of them blocked rejects the edge. The answer is the full rule's, sample for sample.
-    ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here)."""
+    ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here).
+    The work lists are kept compact (edges to check, then edges with an uncovered interval,
+    then, a chunk at a time, those intervals), so the cost follows what needs reading rather
+    than the static shapes."""
     shape = jnp.broadcast_shapes(a.shape, b.shape)[:-1]
     a, b = jnp.broadcast_to(a, shape + (2,)), jnp.broadcast_to(b, shape + (2,))
     fa, fb = a.reshape(-1, 2), b.reshape(-1, 2)
@@ -152,7 +156,8 @@ def _edges_clear(
     table = _clearance_table(blocked) if table is None else table
     todo = jnp.ones(E, bool) if mask is None else jnp.broadcast_to(mask, shape).reshape(-1)
     F = min(int(chunk), E)
-    order = _compact(todo, F)
+    order, place = _compact(todo, F)  # order[p]: the p-th edge to check
+    n_todo = jnp.sum(todo)
 
     def coarse(i, carry):
         clear, unc = carry
@@ -165,32 +170,45 @@ def _edges_clear(
         lo = (table[er >> _BASE, ec >> _BASE].astype(dtype) - 1e-3) * resolution
         lo = jnp.where(eon, lo, -1.0)
         covered = lo[:, :-1] + lo[:, 1:] > _length(pa, pb)[:, None] * gap_t
-        clear = clear.at[ids].set(~hit, mode="drop")
-        unc = unc.at[ids].set(~covered & ~hit[:, None], mode="drop")
+        live = (ids < E)[:, None]
+        clear = jax.lax.dynamic_update_slice(clear, ~hit, (i * F,))
+        unc = jax.lax.dynamic_update_slice(unc, ~covered & ~hit[:, None] & live, (i * F, 0))
         return clear, unc
 
-    init = (jnp.zeros(E, bool), jnp.zeros((E, C - 1), bool))
-    clear, unc = jax.lax.fori_loop(0, (jnp.sum(todo) + F - 1) // F, coarse, init)
+    # Results in the compact order p (E + F rows: the last chunk may run past E).
+    init = (jnp.zeros(E + F, bool), jnp.zeros((E + F, C - 1), bool))
+    clear, unc = jax.lax.fori_loop(0, (n_todo + F - 1) // F, coarse, init)
     # Uncovered intervals: the rule's G + 1 samples from one subset sample to the next.
-    I = E * (C - 1)
+    has = jnp.any(unc, axis=1)
+    Fe = min(int(chunk), E + F)
+    grazing, _ = _compact(has, Fe)  # compact positions p of edges with an uncovered interval
+    I = Fe * (C - 1)
     F2 = min(int(chunk), I)
-    flat = unc.reshape(-1)
-    order2 = _compact(flat, F2)
     pick_j = jnp.asarray(pick[:-1], jnp.int32)
     step = jnp.arange(G + 1, dtype=jnp.int32)
 
-    def fine(i, bad):
-        ids = jax.lax.dynamic_slice(order2, (i * F2,), (F2,))
-        e = ids // (C - 1)
-        j = jnp.minimum(e, E - 1)
-        idx = jnp.minimum(pick_j[ids % (C - 1)][:, None] + step, S - 1)  # (F2, G + 1)
-        pa, pb = fa[j], fb[j]
-        along = pa[:, None, :] + t_all[idx][..., None] * (pb - pa)[:, None, :]
-        ok = _samples_clear(blocked, along, origin, resolution)
-        return bad.at[e].max(~ok, mode="drop")
+    def outer(i, bad):
+        ps = jax.lax.dynamic_slice(grazing, (i * Fe,), (Fe,))  # (Fe,) compact positions
+        u = unc[jnp.minimum(ps, E + F - 1)] & (ps < E + F)[:, None]
+        intervals, _ = _compact(u.reshape(-1), F2)
+        ps_pad = jnp.concatenate([ps, jnp.full((1,), E + F, ps.dtype)])
 
-    bad = jax.lax.fori_loop(0, (jnp.sum(flat) + F2 - 1) // F2, fine, jnp.zeros(E, bool))
-    return (clear & ~bad).reshape(shape)
+        def inner(t, bad):
+            q = jax.lax.dynamic_slice(intervals, (t * F2,), (F2,))
+            p = ps_pad[q // (C - 1)]  # E + F for padding: dropped below
+            e = order[jnp.minimum(p, E + F - 1)]
+            j = jnp.minimum(e, E - 1)
+            idx = jnp.minimum(pick_j[q % (C - 1)][:, None] + step, S - 1)  # (F2, G + 1)
+            pa, pb = fa[j], fb[j]
+            along = pa[:, None, :] + t_all[idx][..., None] * (pb - pa)[:, None, :]
+            ok = _samples_clear(blocked, along, origin, resolution)
+            return bad.at[p].max(~ok, mode="drop")
+
+        return jax.lax.fori_loop(0, (jnp.sum(u) + F2 - 1) // F2, inner, bad)
+
+    bad = jax.lax.fori_loop(0, (jnp.sum(has) + Fe - 1) // Fe, outer, jnp.zeros(E + F, bool))
+    ok = clear & ~bad
+    return (todo & ok[jnp.clip(place, 0, E + F - 1)]).reshape(shape)
 
 
 @functools.partial(jax.jit, static_argnames=("resolution", "edge_samples"))
