@@ -63,7 +63,7 @@ class PRM:
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(self._blocked_j, self.roadmap.points.dtype)
+        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
         self.origin = origin_np
         self.resolution = float(resolution)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -135,7 +135,7 @@ class PRM:
             return False
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(self._blocked_j, self.roadmap.points.dtype)
+        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         self._graph = None

@@ -169,9 +169,21 @@ class _MapAids(NamedTuple):
     uniform_cdf: jax.Array
 
 
-@functools.partial(jax.jit, static_argnames=("dtype",))
-def _map_aids(blocked, dtype) -> _MapAids:
-    return _MapAids(_clearance_table(blocked), _cdf(_sampling_weights(blocked, None), dtype))
+_table_jit = jax.jit(_clearance_table)
+_uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
+
+
+def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
+    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``. The
+    uniform CDF counts free cells: every partial sum is an integer, exact in float32 below
+    2**24 cells whatever the order of the additions, so numpy's cumsum gives the jitted scan's
+    values bit for bit (the same draws) in a third of the time."""
+    free = ~blocked.reshape(-1)
+    if 0 < np.count_nonzero(free) and blocked.size < 2**24:
+        cdf = jnp.asarray(np.cumsum(free, dtype=np.int32).astype(np.dtype(dtype)))
+    else:
+        cdf = _uniform_cdf_jit(blocked_j, np.dtype(dtype))
+    return _MapAids(_table_jit(blocked_j), cdf)
 
 
 def _grow_impl(
