@@ -20,6 +20,7 @@ from jaxsem.planning import (
     knn_within_radius,
     polyline_clear,
     prm_star_k,
+    roadmap_connect,
     roadmap_grow,
     roadmap_init,
     roadmap_shortest_path,
@@ -152,6 +153,53 @@ def test_prm_finds_the_corridor_path():
     closed[:, 49:51] = True
     rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
     assert not roadmap_shortest_path(rm).found
+
+
+@pytest.mark.slow
+def test_query_returns_the_roadmaps_shortest_path():
+    """Regression: with float32 weights scipy's Dijkstra summed the two stored copies of an edge
+    that both endpoints list, so a query preferred one-sided edges and returned paths several
+    percent longer than the roadmap's shortest. Reference: heapq Dijkstra over the roadmap's
+    edge lists (undirected, the start's and the goal's edges as made)."""
+    occ = _blocks(3, shape=(60, 100), n=25)
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(3)
+    # float32, as the PRM runs without x64 (the tests enable x64)
+    grown = roadmap_grow(
+        roadmap_init(N, prm_star_k(N), jnp.float32), jax.random.PRNGKey(5), occ, N, ORIGIN, RES, radius=RADIUS
+    )
+    checked = 0
+    for _ in range(4):
+        s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
+        rm = roadmap_connect(grown, s, g, occ, ORIGIN, RES, radius=RADIUS)
+        p = roadmap_shortest_path(rm)
+        nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
+        w = np.asarray(rm.edge_weight, np.float64)
+        M = nbr.shape[0]
+        adj = [[] for _ in range(M)]
+        for i, j in zip(*np.nonzero(ok)):
+            v = int(nbr[i, j])
+            adj[i].append((v, w[i, j]))
+            if i != 0 and v != 1:  # the start's edges lead out, the goal's lead in
+                adj[v].append((int(i), w[i, j]))
+            if i == 1:
+                adj[v].append((1, w[i, j]))
+        dist = np.full(M, np.inf)
+        dist[0] = 0.0
+        heap = [(0.0, 0)]
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > dist[u]:
+                continue
+            for v, wt in adj[u]:
+                if d + wt < dist[v]:
+                    dist[v] = d + wt
+                    heapq.heappush(heap, (dist[v], v))
+        assert p.found == np.isfinite(dist[1])
+        if p.found:
+            np.testing.assert_allclose(p.cost, dist[1], rtol=1e-5)
+            checked += 1
+    assert checked >= 2
 
 
 def test_unknown_counts_as_free():
@@ -737,6 +785,46 @@ def test_segment_check_never_crosses_walls_and_accepts_open_space():
     assert accepted > 20 and rejected > 20
     open_map = np.zeros((60, 80), bool)
     assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, ORIGIN, RES, RADIUS)
+
+
+def _dense_rule(a, b, occ, samples):
+    """The edge rule read at every sample (numpy, float32 like the PRM): each sample's cell
+    free and on the map, both side cells of every diagonal step free."""
+    f = np.float32
+    t = np.arange(samples, dtype=f) / f(samples - 1)
+    a, b = a.astype(f), b.astype(f)
+    u = np.floor((a + t[:, None] * (b - a) - ORIGIN.astype(f)) / f(RES)).astype(int)
+    r, c = u[:, 1], u[:, 0]
+    H, W = occ.shape
+    if np.any((r < 0) | (r >= H) | (c < 0) | (c >= W)) or occ[r, c].any():
+        return False
+    diag = (r[1:] != r[:-1]) & (c[1:] != c[:-1])
+    return not np.any(diag & (occ[r[:-1], c[1:]] | occ[r[1:], c[:-1]]))
+
+
+def test_segment_check_equals_the_dense_rule():
+    """The edge check reads most samples through the clearance table and only the intervals
+    near a wall densely; its answer must be the dense rule's on every segment (short ones at
+    the roadmap's samples, long ones at the query reach's), walls grazed included."""
+    rng = np.random.default_rng(7)
+    occ = _thin_wall_map(rng)
+    free_cells = np.argwhere(~occ)
+    reach = 2.0 ** math.ceil(math.log2(math.hypot(6.0, 8.0)))
+    counts = {True: 0, False: 0}
+    for i in range(240):
+        a = (free_cells[rng.integers(len(free_cells))][::-1] + rng.random(2)) * RES
+        long = i % 3 == 0
+        b = a + rng.normal(size=2) * (3.0 if long else 0.6)
+        b = np.clip(b, 1e-3, np.array([80, 60]) * RES - 1e-3)
+        length = np.linalg.norm(b - a)
+        if long == (length <= RADIUS):
+            continue
+        r = reach if long else RADIUS
+        samples = max(2, int(math.ceil(r / (0.5 * RES))) + 1)
+        ok = polyline_clear(np.stack([a, b]), occ, ORIGIN, RES, RADIUS)
+        assert ok == _dense_rule(a, b, occ, samples), (a, b)
+        counts[ok] += 1
+    assert counts[True] > 20 and counts[False] > 20
 
 
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():

@@ -24,14 +24,15 @@ def _cells(points, origin, resolution, shape):
     return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
 
 
-def _edges(blocked, cost, a, b, origin, resolution, edge_samples):
+def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None, table=None):
     """Clear flag and weight of segments a -> b (..., 2) on the grid (see the module docstring).
 
     With ``cost=None`` (Euclidean weights) the rule is decided by :func:`_edges_clear` (the same
     answer, most edges from a few dozen reads); with a cost grid every sample is read (the
-    weight needs them all)."""
+    weight needs them all). ``mask``: the edges worth checking (the rest may come back either
+    way; None: all); ``subset``, ``table``: see :func:`_edges_clear`."""
     if cost is None:
-        clear = _edges_clear(blocked, a, b, origin, resolution, edge_samples)
+        clear = _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask, subset=subset, table=table)
         return clear, _length(a, b)
     clear, er, ec = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
     return clear, _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
@@ -48,6 +49,17 @@ def _edges_dense(blocked, a, b, origin, resolution, edge_samples):
     t = jnp.arange(edge_samples, dtype=dtype) / (edge_samples - 1)
     along = a[..., None, :] + t[:, None] * (b - a)[..., None, :]  # (..., S, 2)
     er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+    clear = _cells_clear(blocked, er, ec, eon)
+    return clear, er, ec
+
+
+def _samples_clear(blocked, along, origin, resolution):
+    """The edge rule on consecutive samples ``along`` (..., S, 2) of a segment."""
+    er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+    return _cells_clear(blocked, er, ec, eon)
+
+
+def _cells_clear(blocked, er, ec, eon):
     clear = jnp.all(eon & ~blocked[er, ec], axis=-1)
     # Consecutive samples are at most half a cell apart, so they lie in the same or 8-adjacent
     # cells and the segment between them stays inside the 2 x 2 block they span; on a diagonal
@@ -55,8 +67,7 @@ def _edges_dense(blocked, a, b, origin, resolution, edge_samples):
     # (conservative), no edge passes through a known-occupied cell.
     diag = (er[..., 1:] != er[..., :-1]) & (ec[..., 1:] != ec[..., :-1])
     sides = blocked[er[..., :-1], ec[..., 1:]] | blocked[er[..., 1:], ec[..., :-1]]
-    clear &= ~jnp.any(diag & sides, axis=-1)
-    return clear, er, ec
+    return clear & ~jnp.any(diag & sides, axis=-1)
 
 
 #: Clearance table: blocks of 2**_BASE cells, levels up to blocks of 2**_TOP cells.
@@ -92,47 +103,112 @@ def _clearance_table(blocked):
     return out
 
 
-def _edges_clear(blocked, a, b, origin, resolution, edge_samples, chunk: int = 2048):
-    """The edge rule of :func:`_edges_dense`, decided for most edges from a few reads.
+def _subset(S: int, C: int | None = None):
+    """The rule's samples read first: every ``G``-th of the ``S`` (the last one too), ``C`` of
+    them (default about one per 4 cells of the longest edge). Returns (pick, G)."""
+    if C is None:
+        C = min(S, max(2, -(-(S - 1) // 8) + 1))
+    G = max(1, -(-(S - 1) // max(1, C - 1)))
+    C = -(-(S - 1) // G) + 1
+    return np.minimum(np.arange(C) * G, S - 1), G
 
-    A subset of the rule's own samples (about one per 4 cells of the longest edge) is read
-    twice: in the grid (one sample in a blocked or off-map cell rejects the edge, as the full
-    rule does) and in :func:`_clearance_table` (a disc around each sample free of blocked cells
-    and their neighbours). Where the discs of consecutive subset samples overlap along the edge,
-    every sample of the full rule and its side cells lie in free cells: the edge is accepted.
-    The rest (edges grazing a wall) get the full rule, ``chunk`` edges at a time."""
+
+def _compact(mask, pad: int):
+    """Indices (n + pad,) of the set entries of the flat bool ``mask`` (n,), in order, then
+    ``n``; and each entry's place among them (n,) (jnp.nonzero without its cumsum: XLA's CPU
+    cumsum is slow on long arrays)."""
+    n = mask.shape[0]
+    pos = jax.lax.associative_scan(jnp.add, mask.astype(jnp.int32)) - 1
+    out = jnp.full((n + pad,), n, jnp.int32)
+    return out.at[jnp.where(mask, pos, n + pad)].set(jnp.arange(n, dtype=jnp.int32), mode="drop"), pos
+
+
+def _edges_clear(
+    blocked, a, b, origin, resolution, edge_samples, mask=None, *, subset=None, table=None, chunk: int = 8192
+):
+    """The edge rule of :func:`_edges_dense`, decided from a few reads where the map allows.
+
+    Only edges where ``mask`` (broadcast to the edges; None: all) is set are checked (the rest
+    come back False), ``chunk`` at a time. A subset of the rule's own samples (``subset`` of
+    them, default about one per 4 cells of the longest edge) is read twice: in the grid (one
+    sample in a blocked or off-map cell rejects the edge, as the full rule does) and in
+    :func:`_clearance_table` (a disc around each sample free of blocked cells and their
+    neighbours). Where the discs of two consecutive subset samples overlap along the edge, every
+    rule sample between them and every side cell of their diagonal steps is free. Only the
+    intervals between subset samples that are not covered so (an edge grazing a wall: usually
+    one or two of a dozen) read the rule's samples in between, with their diagonal side cells;
+    one of them blocked rejects the edge. The answer is the full rule's, sample for sample.
+    ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here).
+    The work lists are kept compact (edges to check, then edges with an uncovered interval,
+    then, a chunk at a time, those intervals), so the cost follows what needs reading rather
+    than the static shapes."""
     shape = jnp.broadcast_shapes(a.shape, b.shape)[:-1]
     a, b = jnp.broadcast_to(a, shape + (2,)), jnp.broadcast_to(b, shape + (2,))
     fa, fb = a.reshape(-1, 2), b.reshape(-1, 2)
     E = fa.shape[0]
     dtype = a.dtype
     S = int(edge_samples)
-    C = min(S, max(2, -(-(S - 1) // 8) + 1))  # every ~8th sample: ~4 cells apart on the longest edge
-    pick = np.unique(np.round(np.linspace(0, S - 1, C)).astype(np.int64))
-    t = (jnp.arange(S, dtype=dtype) / (S - 1))[pick]
-    along = fa[:, None, :] + t[:, None] * (fb - fa)[:, None, :]  # (E, C, 2): samples of the rule
-    er, ec, eon = _cells(along, origin, resolution, blocked.shape)
-    hit = jnp.any(~eon | blocked[er, ec], axis=-1)
-    table = _clearance_table(blocked)
-    lo = (table[er >> _BASE, ec >> _BASE].astype(dtype) - 1e-3) * resolution
-    lo = jnp.where(eon, lo, -1.0)
-    gap = _length(fa, fb)[:, None] * jnp.asarray(np.diff(pick) / (S - 1), dtype)
-    covered = jnp.all(lo[:, :-1] + lo[:, 1:] > gap, axis=-1)
-    clear = ~hit & covered
-    todo = ~hit & ~covered
-    n_todo = jnp.sum(todo)
+    pick, G = _subset(S, subset)
+    C = len(pick)
+    t_all = jnp.arange(S, dtype=dtype) / (S - 1)  # the rule's own parameters (_edges_dense)
+    t_pick = t_all[pick]
+    gap_t = jnp.asarray(np.diff(pick) / (S - 1), dtype)
+    table = _clearance_table(blocked) if table is None else table
+    todo = jnp.ones(E, bool) if mask is None else jnp.broadcast_to(mask, shape).reshape(-1)
     F = min(int(chunk), E)
-    order = jnp.nonzero(todo, size=E, fill_value=E)[0]
-    order = jnp.concatenate([order, jnp.full((F,), E, order.dtype)])
+    order, place = _compact(todo, F)  # order[p]: the p-th edge to check
+    n_todo = jnp.sum(todo)
 
-    def body(i, clear):
+    def coarse(i, carry):
+        clear, unc = carry
         ids = jax.lax.dynamic_slice(order, (i * F,), (F,))
         j = jnp.minimum(ids, E - 1)
-        ok, _, _ = _edges_dense(blocked, fa[j], fb[j], origin, resolution, S)
-        return clear.at[ids].set(ok, mode="drop")
+        pa, pb = fa[j], fb[j]
+        along = pa[:, None, :] + t_pick[:, None] * (pb - pa)[:, None, :]  # (F, C, 2)
+        er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+        hit = jnp.any(~eon | blocked[er, ec], axis=-1)
+        lo = (table[er >> _BASE, ec >> _BASE].astype(dtype) - 1e-3) * resolution
+        lo = jnp.where(eon, lo, -1.0)
+        covered = lo[:, :-1] + lo[:, 1:] > _length(pa, pb)[:, None] * gap_t
+        live = (ids < E)[:, None]
+        clear = jax.lax.dynamic_update_slice(clear, ~hit, (i * F,))
+        unc = jax.lax.dynamic_update_slice(unc, ~covered & ~hit[:, None] & live, (i * F, 0))
+        return clear, unc
 
-    clear = jax.lax.fori_loop(0, (n_todo + F - 1) // F, body, clear)
-    return clear.reshape(shape)
+    # Results in the compact order p (E + F rows: the last chunk may run past E).
+    init = (jnp.zeros(E + F, bool), jnp.zeros((E + F, C - 1), bool))
+    clear, unc = jax.lax.fori_loop(0, (n_todo + F - 1) // F, coarse, init)
+    # Uncovered intervals: the rule's G + 1 samples from one subset sample to the next.
+    has = jnp.any(unc, axis=1)
+    Fe = min(int(chunk), E + F)
+    grazing, _ = _compact(has, Fe)  # compact positions p of edges with an uncovered interval
+    I = Fe * (C - 1)
+    F2 = min(int(chunk), I)
+    pick_j = jnp.asarray(pick[:-1], jnp.int32)
+    step = jnp.arange(G + 1, dtype=jnp.int32)
+
+    def outer(i, bad):
+        ps = jax.lax.dynamic_slice(grazing, (i * Fe,), (Fe,))  # (Fe,) compact positions
+        u = unc[jnp.minimum(ps, E + F - 1)] & (ps < E + F)[:, None]
+        intervals, _ = _compact(u.reshape(-1), F2)
+        ps_pad = jnp.concatenate([ps, jnp.full((1,), E + F, ps.dtype)])
+
+        def inner(t, bad):
+            q = jax.lax.dynamic_slice(intervals, (t * F2,), (F2,))
+            p = ps_pad[q // (C - 1)]  # E + F for padding: dropped below
+            e = order[jnp.minimum(p, E + F - 1)]
+            j = jnp.minimum(e, E - 1)
+            idx = jnp.minimum(pick_j[q % (C - 1)][:, None] + step, S - 1)  # (F2, G + 1)
+            pa, pb = fa[j], fb[j]
+            along = pa[:, None, :] + t_all[idx][..., None] * (pb - pa)[:, None, :]
+            ok = _samples_clear(blocked, along, origin, resolution)
+            return bad.at[p].max(~ok, mode="drop")
+
+        return jax.lax.fori_loop(0, (jnp.sum(u) + F2 - 1) // F2, inner, bad)
+
+    bad = jax.lax.fori_loop(0, (jnp.sum(has) + Fe - 1) // Fe, outer, jnp.zeros(E + F, bool))
+    ok = clear & ~bad
+    return (todo & ok[jnp.clip(place, 0, E + F - 1)]).reshape(shape)
 
 
 @functools.partial(jax.jit, static_argnames=("resolution", "edge_samples"))

@@ -13,11 +13,12 @@ from ._roadmap import (
     _blocked_from,
     _check_distribution,
     _check_sectors,
+    _connect_checked,
     _grow_exact,
     _initial_cap,
+    _map_aids,
     default_radius,
     prm_star_k,
-    roadmap_connect,
     roadmap_init,
     roadmap_recheck,
 )
@@ -31,7 +32,7 @@ class PRM:
     [0, 0]'s corner; resolution: metres per cell; capacity: most samples it will hold (fixed
     shapes: growing never recompiles); k: neighbours per vertex (None: :func:`prm_star_k` of
     ``capacity``); radius: connection radius in
-    metres (None: :func:`default_radius` of ``capacity``); weight: 'euclidean' or 'neglogp'
+    metres (None: :func:`default_radius` of ``capacity`` over the cells not known occupied); weight: 'euclidean' or 'neglogp'
     (edge weights from the distribution given to :meth:`grow`; the latest one also weights the
     query's edges); sectors: 0 (each vertex links to its k nearest) or the direction sectors
     whose nearest come first (module docstring). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
@@ -62,10 +63,14 @@ class PRM:
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
+        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
         self.origin = origin_np
         self.resolution = float(resolution)
+        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.radius = (
-            float(radius) if radius is not None else default_radius(capacity, blocked.shape, resolution, weight)
+            float(radius)
+            if radius is not None
+            else default_radius(capacity, blocked.shape, resolution, weight, free_cells=self._free_cells)
         )
         self.weight = weight
         self.distribution = None
@@ -97,7 +102,9 @@ class PRM:
         distribution = _check_distribution(distribution, self.blocked.shape)
         dtype = self.roadmap.points.dtype
         dist = None if distribution is None else jnp.asarray(distribution, dtype)
-        cap = self._cap or _initial_cap(self.capacity, self.blocked.shape, self.resolution, self.radius)
+        cap = self._cap or _initial_cap(
+            self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
+        )
         self.roadmap, self._cap = _grow_exact(
             self.roadmap,
             key,
@@ -111,6 +118,7 @@ class PRM:
             self.weight == "neglogp",
             self.sectors,
             bool(uniform_samples),
+            self._aids,
         )
         if distribution is not None:
             self.distribution = distribution
@@ -127,23 +135,27 @@ class PRM:
             return False
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
+        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
+        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         self._graph = None
         return True
 
     def query(self, start, goal) -> RoadmapPath:
         """Shortest roadmap path from ``start`` to ``goal`` (world (2,), not known occupied)."""
-        self.roadmap = roadmap_connect(
+        self.roadmap = _connect_checked(
             self.roadmap,
             start,
             goal,
             self.blocked,
+            self._blocked_j,
             self.origin,
             self.resolution,
             radius=self.radius,
             distribution=self.distribution,
             weight=self.weight,
             sectors=self.sectors,
+            aids=self._aids,
         )
         if self._graph is None:
             self._graph = _SampleGraph(self.roadmap)

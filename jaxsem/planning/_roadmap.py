@@ -35,12 +35,16 @@ a sparse region still reaches the roadmap. Samples never link to the query slots
 not change the roadmap.
 
 Neighbour search is exact. Vertices are bucketed on a grid of cell size ``radius`` and each
-query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``.
-A bucket is read through ``bucket_cap`` slots; the search reports ``overflow`` (a result code
-in :attr:`Roadmap.overflow`) when any bucket holds more, and the Python entry points then rerun
-with enough slots, so nothing is dropped silently (samples concentrated by a learned
-distribution put hundreds of vertices in one bucket). When ``9 * bucket_cap`` would reach the
-vertex count, the search is brute force over all vertices (same result, no cap at all).
+query point reads the 3 x 3 buckets around its own, which hold every point within ``radius``:
+three strips of three buckets, each contiguous in bucket order. A strip is read through
+``bucket_cap`` slots, and at most ``bucket_cap`` candidates within ``radius`` are kept; the
+search reports ``overflow`` (a result code in :attr:`Roadmap.overflow`) when a strip or a
+vertex's neighbourhood holds more, and the Python entry points then rerun with enough slots,
+so nothing is dropped silently (samples concentrated by a learned distribution put hundreds of
+vertices in one bucket). When ``3 * bucket_cap`` would reach the vertex count, the search is
+brute force over all vertices (same result, no cap at all). The candidates are ranked by
+counting (each one's rank is the number before it) rather than by sorting: XLA's CPU sort and
+a wide top_k cost 10-20x more on rows of a few dozen.
 
 Edge check: ``edge_samples`` points along each edge, at most half a cell apart, must lie in
 cells that are not known occupied, and so must both side cells of any diagonal step between
@@ -64,10 +68,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _edge_samples, _edges, query_reach
+from ._edges import _cells, _clearance_table, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._neighbours import _knn, _select
-from ._sampling import _cost_grid, _sampling_weights, sample_points
+from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
@@ -89,8 +93,8 @@ class Roadmap(NamedTuple):
     neighbors: (M, k) int32 slot indices (``M`` where there is none).
     edge_valid: (M, k) bool; edge_weight: (M, k) float (inf where invalid).
     num_samples: () int32, samples so far (slots ``2 .. 2 + num_samples``).
-    overflow: () bool result code: a neighbour search had fewer candidate slots than a bucket
-        held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
+    overflow: () bool result code: a neighbour search had fewer candidate slots than a strip of
+        buckets or a vertex's neighbourhood held, so some lists may miss a neighbour. :class:`PRM`, :func:`build_roadmap` and
         :func:`roadmap_grow` rerun with more slots and never return it set.
     """
 
@@ -108,16 +112,22 @@ class Roadmap(NamedTuple):
 LEARNED_RADIUS_FACTOR = 2.0
 
 
-def default_radius(n: int, shape, resolution: float, weight: str = "euclidean") -> float:
+def default_radius(
+    n: int, shape, resolution: float, weight: str = "euclidean", *, free_cells: int | None = None
+) -> float:
     """Connection radius (m) for ``n`` samples on a map of ``shape`` cells: 3 x the mean sample
     spacing, within [1, 8] m, rounded up to 0.5 m so that few distinct values (each a compile)
-    occur. It only bounds the search; the ``k`` nearest are usually closer (see
+    occur. ``free_cells``: the cells samples can land in (None: the whole map); the spacing is
+    that of ``n`` samples over them, since samples never land in known-occupied cells (on a
+    scanned campus two thirds of the map is blocked: the whole map's area overstates the spacing
+    by 1.7x and the radius reads 3x more candidates than it needs). It only bounds the search; the ``k`` nearest are usually closer (see
     ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
     learned sampler's roadmap) gives ``LEARNED_RADIUS_FACTOR`` times that, rounded up to 0.5 m:
     the navigation loop's rule (:meth:`~jaxsem.planning.Trial.connection_radius`), so that a
     one-shot LSD roadmap links like the loop's (a concentrated distribution leaves the few samples
     outside its window farther apart than the uniform radius)."""
-    area = shape[0] * shape[1] * resolution**2
+    cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
+    area = cells * resolution**2
     r = math.ceil(min(8.0, max(1.0, 3.0 * math.sqrt(area / max(n, 1)))) * 2.0) / 2.0
     if weight == "neglogp":
         r = math.ceil(2.0 * r * LEARNED_RADIUS_FACTOR) / 2.0
@@ -151,14 +161,54 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
     )
 
 
+class _MapAids(NamedTuple):
+    """What the PRM keeps per known map so that every grow and query does not redo it: the
+    edge check's clearance table and the cumulative weights of uniform sampling."""
+
+    table: jax.Array
+    uniform_cdf: jax.Array
+
+
+_table_jit = jax.jit(_clearance_table)
+_uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
+
+
+def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
+    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``. The
+    uniform CDF counts free cells: every partial sum is an integer, exact in float32 below
+    2**24 cells whatever the order of the additions, so numpy's cumsum gives the jitted scan's
+    values bit for bit (the same draws) in a third of the time."""
+    free = ~blocked.reshape(-1)
+    if 0 < np.count_nonzero(free) and blocked.size < 2**24:
+        cdf = jnp.asarray(np.cumsum(free, dtype=np.int32).astype(np.dtype(dtype)))
+    else:
+        cdf = _uniform_cdf_jit(blocked_j, np.dtype(dtype))
+    return _MapAids(_table_jit(blocked_j), cdf)
+
+
 def _grow_impl(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+    rm,
+    key,
+    blocked,
+    distribution,
+    origin,
+    *,
+    n,
+    radius,
+    resolution,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids: _MapAids | None = None,
 ):
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
-    new = sample_points(key, weights, n, origin, resolution)
+    uniform = distribution is None or uniform_samples
+    cdf = aids.uniform_cdf if aids is not None and uniform else None
+    new = sample_points(key, weights, n, origin, resolution, cdf)
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
@@ -177,16 +227,11 @@ def _grow_impl(
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
-    clear, w = _edges(
-        blocked,
-        cost,
-        new[:, None, :],
-        other,
-        origin,
-        resolution,
-        _edge_samples(radius, resolution),
-    )
-    ev = (nbr < M) & clear & ok_new[:, None]
+    cand = (nbr < M) & ok_new[:, None]
+    table = None if aids is None else aids.table
+    S = _edge_samples(radius, resolution)
+    clear, w = _edges(blocked, cost, new[:, None, :], other, origin, resolution, S, cand, table=table)
+    ev = cand & clear
     w = jnp.where(ev, w, jnp.inf)
     if keep > k:
         nbr, ev, w = _clear_first(nbr, ev, w, k)
@@ -212,23 +257,18 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
     r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
+    ev = rm.edge_valid & valid[:, None] & valid[j]
     clear, _ = _edges(
-        blocked,
-        None,
-        rm.points[:, None, :],
-        rm.points[j],
-        origin,
-        resolution,
-        _edge_samples(radius, resolution),
+        blocked, None, rm.points[:, None, :], rm.points[j], origin, resolution, _edge_samples(radius, resolution), ev
     )
-    ev = rm.edge_valid & clear & valid[:, None] & valid[j]
+    ev = ev & clear
     return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf))
 
 
 _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
 
 
-def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0):
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     q = jnp.stack([start, goal]).astype(dtype)
@@ -252,10 +292,19 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     cost = _cost_grid(distribution) if neglogp else None
     # Each edge is checked with the samples polyline_clear uses for a segment of its length:
     # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
-    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(radius, resolution))
-    reach = query_reach(blocked.shape, resolution)
-    clear_l, w_l = _edges(blocked, cost, q[:, None, :], other, origin, resolution, _edge_samples(reach, resolution))
     short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    cand = nbr < M
+    s_short = _edge_samples(radius, resolution)
+    table = None if aids is None else aids.table
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_short, cand & short, table=table)
+    reach = query_reach(blocked.shape, resolution)
+    # Long edges: the rule's samples over the reach, a subset about one per 4 cells of an edge
+    # 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
+    s_long = _edge_samples(reach, resolution)
+    sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
+    clear_l, w_l = _edges(
+        blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub, table=table
+    )
     clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
     w = jnp.where(ev, w, jnp.inf).astype(dtype)
@@ -322,10 +371,12 @@ def _check_sectors(sectors) -> int:
     return int(sectors)
 
 
-def _initial_cap(n_total: int, shape, resolution, radius) -> int:
-    """Bucket slots for uniform samples: 4 x the mean bucket load, a power of two, >= 16."""
-    buckets = max(1.0, shape[0] * shape[1] * resolution**2 / radius**2)
-    return max(16, 1 << int(math.ceil(math.log2(max(1.0, 4.0 * n_total / buckets)))))
+def _initial_cap(n_total: int, shape, resolution, radius, free_cells: int | None = None) -> int:
+    """Strip slots for uniform samples: 2 x the mean load of a strip of 3 buckets (over the
+    ``free_cells`` samples land in; None: the whole map), a multiple of 16 (few compiles)."""
+    cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
+    buckets = max(1.0, cells * resolution**2 / radius**2)
+    return 16 * max(1, int(math.ceil(2.0 * 3.0 * n_total / buckets / 16.0)))
 
 
 def roadmap_grow(
@@ -347,7 +398,7 @@ def roadmap_grow(
     known_map: (H, W) int8 partial map or bool obstacle grid; distribution: (H, W) cell weights
     (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
     it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
-    bucket_cap: neighbour-search slots per bucket to start with (None: a size for uniform
+    bucket_cap: neighbour-search slots per strip of 3 buckets to start with (None: a size for uniform
     samples); on overflow the search reruns with enough slots; sectors: 0 (the k nearest) or the
     direction sectors whose nearest come first (module docstring). Returns the grown roadmap.
     """
@@ -383,9 +434,21 @@ def roadmap_grow(
 
 
 def _grow_exact(
-    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, neglogp, sectors=0, uniform_samples=False
+    roadmap,
+    key,
+    blocked,
+    dist,
+    origin,
+    n,
+    radius,
+    resolution,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids=None,
 ):
-    """Grows with ``cap`` bucket slots, rerunning with 4x more while a bucket overflows.
+    """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
     Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
@@ -399,14 +462,15 @@ def _grow_exact(
             n=n,
             radius=radius,
             resolution=resolution,
-            cap=cap if 9 * cap < M else None,
+            cap=cap if 3 * cap < M else None,
             neglogp=neglogp,
             sectors=sectors,
             uniform_samples=uniform_samples,
+            aids=aids,
         )
-        if 9 * cap >= M or before or not bool(out.overflow):
+        if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap
-        cap *= 4  # a bucket held more than ``cap`` vertices: rerun, nothing dropped
+        cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
 
 
 def roadmap_recheck(roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float) -> Roadmap:
@@ -443,6 +507,25 @@ def roadmap_connect(
     :func:`roadmap_grow`."""
     sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
+    return _connect_checked(
+        roadmap,
+        start,
+        goal,
+        blocked,
+        jnp.asarray(blocked),
+        origin,
+        resolution,
+        radius=radius,
+        distribution=distribution,
+        weight=weight,
+        sectors=sectors,
+    )
+
+
+def _connect_checked(
+    roadmap, start, goal, blocked, blocked_j, origin, resolution, *, radius, distribution, weight, sectors, aids=None
+):
+    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy."""
     origin_np = np.asarray(origin, np.float64)
     start = check_point("start", start, blocked, origin_np, resolution)
     goal = check_point("goal", goal, blocked, origin_np, resolution)
@@ -455,13 +538,14 @@ def roadmap_connect(
         roadmap,
         jnp.asarray(start, dtype),
         jnp.asarray(goal, dtype),
-        jnp.asarray(blocked),
+        blocked_j,
         dist,
         jnp.asarray(origin_np, dtype),
         radius=float(radius),
         resolution=float(resolution),
         neglogp=weight == "neglogp",
         sectors=sectors,
+        aids=aids,
     )
 
 

@@ -37,33 +37,33 @@ def _edge_list(nbr, ok, w, rows):
 
 
 class _SampleGraph:
-    """The samples' edges as a symmetric CSR (both directions), rows 0 and 1 empty."""
+    """The samples' edges as a CSR in the direction each was made (row i: the edges in vertex
+    i's own list, in list order, so no sort is needed), rows 0 and 1 empty; searched as an
+    undirected graph."""
 
     def __init__(self, roadmap: Roadmap):
         nbr = np.asarray(roadmap.neighbors)[_QUERY:]
         ok = np.asarray(roadmap.edge_valid)[_QUERY:]
         w = np.asarray(roadmap.edge_weight)[_QUERY:]
         M = nbr.shape[0] + _QUERY
-        src, dst, wt = _edge_list(nbr, ok, w, np.arange(_QUERY, M))
-        s = np.concatenate([src, dst])
-        d = np.concatenate([dst, src])
-        ww = np.concatenate([wt, wt])
-        order = np.argsort(s, kind="stable")
-        self.indices = d[order].astype(np.int32)
-        self.data = ww[order]
-        self.indptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int32)
+        # A zero weight would vanish from the sparse matrix; clamp tiny ones. float64: scipy's
+        # Dijkstra converts other dtypes through a copy that sums duplicate entries (an edge
+        # that both endpoints list once doubled its weight when both directions were stored).
+        self.indices = nbr[ok].astype(np.int32)
+        self.data = np.maximum(w[ok].astype(np.float64), 1e-12)
+        self.indptr = np.concatenate([np.zeros(_QUERY + 1, np.int64), np.cumsum(ok.sum(1))]).astype(np.int32)
         self.M = M
 
 
 def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
-    """Dijkstra from the start over the sample graph plus the start's edges; the goal's edges
-    are read off the distances (the goal is only entered, never left)."""
+    """Dijkstra from the start over the sample graph (undirected) plus the start's edges; the
+    goal's edges are read off the distances (the goal is only entered, never left)."""
     M = graph.M
     nbr = np.asarray(roadmap.neighbors[:_QUERY])
     ok = np.asarray(roadmap.edge_valid[:_QUERY])
     w = np.asarray(roadmap.edge_weight[:_QUERY])
-    s_dst, s_w = nbr[0][ok[0]], np.maximum(w[0][ok[0]], 1e-12)
-    g_dst, g_w = nbr[1][ok[1]], np.maximum(w[1][ok[1]], 1e-12)
+    s_dst, s_w = nbr[0][ok[0]], np.maximum(w[0][ok[0]].astype(np.float64), 1e-12)
+    g_dst, g_w = nbr[1][ok[1]], np.maximum(w[1][ok[1]].astype(np.float64), 1e-12)
     if len(s_dst) == 0 or (len(g_dst) == 0 and GOAL not in s_dst):
         return _NOT_FOUND
     n0 = len(s_dst)
@@ -77,7 +77,7 @@ def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
         ),
         shape=(M, M),
     )
-    dist, pred = scipy.sparse.csgraph.dijkstra(csr, directed=True, indices=START, return_predecessors=True)
+    dist, pred = scipy.sparse.csgraph.dijkstra(csr, directed=False, indices=START, return_predecessors=True)
     best, via = dist[GOAL], -1
     if len(g_dst):
         through = dist[g_dst] + g_w

@@ -9,14 +9,20 @@ import jax
 import jax.numpy as jnp
 
 
-def sample_points(key, distribution, n: int, origin, resolution: float):
+def _cdf(distribution, dtype):
+    """The flattened cumulative weights :func:`sample_points` draws from."""
+    # associative_scan, not cumsum: XLA's CPU cumsum is a quadratic reduce-window.
+    return jax.lax.associative_scan(jnp.add, distribution.reshape(-1).astype(dtype))
+
+
+def sample_points(key, distribution, n: int, origin, resolution: float, cdf=None):
     """``n`` world points (n, 2): a cell drawn with probability ``distribution`` (H, W) (need
-    not be normalised, must be >= 0), then a uniform point inside the cell. Jittable."""
+    not be normalised, must be >= 0), then a uniform point inside the cell. ``cdf``: its
+    :func:`_cdf` when the caller keeps it (the same draws, without the scan over the map).
+    Jittable."""
     H, W = distribution.shape
     k_cell, k_in = jax.random.split(key)
-    p = distribution.reshape(-1).astype(origin.dtype)
-    # associative_scan, not cumsum: XLA's CPU cumsum is a quadratic reduce-window.
-    cdf = jax.lax.associative_scan(jnp.add, p)
+    cdf = _cdf(distribution, origin.dtype) if cdf is None else cdf
     u = jax.random.uniform(k_cell, (n,), origin.dtype) * cdf[-1]
     flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
     rc = jnp.stack([flat // W, flat % W], -1)
