@@ -38,6 +38,7 @@ from ._cost import (
     first_order_pose as first_order_pose,
     linearize as linearize,
     pose_rows as pose_rows,
+    prior_weight as prior_weight,
     residual_blocks as residual_blocks,
     retract as retract,
     retract_object as retract_object,

@@ -169,13 +169,24 @@ def box_rows(
     return jnp.where(box_mask, rows, 0.0)
 
 
-def pose_rows(pose, prior, mask, config: SolverConfig):
+def pose_rows(pose, prior, mask, config: SolverConfig, weight=None):
     """(6,) whitened pose-prior rows of one pose (:func:`jaxsem.factors.pose_prior_residual` with
-    the config's sigmas and robust loss; zero where ``mask`` is False)."""
+    the config's sigmas and robust loss; zero where ``mask`` is False). ``weight``: optional (2,)
+    ``[translation, rotation]`` multipliers of the whitened rows (the problem's
+    ``pose_prior_weight`` row; 0 = no prior)."""
     n = config.noise
     r = F.pose_prior_residual(pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma)
+    if weight is not None:
+        r = r * jnp.repeat(jnp.asarray(weight, r.dtype), 3)
     r = F.robust_residual(r, config.pose_loss, config.robust_scale)
     return jnp.where(mask, r, 0.0)
+
+
+def prior_weight(problem: SlamProblem):
+    """(T, 2) pose-prior weights of the problem (ones when it has none)."""
+    if problem.pose_prior_weight is not None:
+        return problem.pose_prior_weight
+    return jnp.ones(problem.pose_prior.shape[:-2] + (2,), problem.pose_prior.dtype)
 
 
 def odometry_rows(pose_a, pose_b, measured, mask, config: SolverConfig):
@@ -228,8 +239,8 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
         problem.image_size,
         config,
     )
-    poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None))(
-        estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config
+    poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None, 0))(
+        estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config, prior_weight(problem)
     )
     shapes = jax.vmap(shape_rows, in_axes=(0, 0, 0, None, None, None))(
         estimate.radii, problem.object_class, problem.object_mask, config, mean, sigma
@@ -339,12 +350,12 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     Jo = jnp.concatenate([Jw, Jv @ Rt, Jds], -1)
     Jp = Jp * pose_free[bp][:, None, None]
 
-    def pose_fn(dp, pose, prior, mask):
-        out = pose_rows(first_order_pose(pose, dp), prior, mask, config)
+    def pose_fn(dp, pose, prior, mask, weight):
+        out = pose_rows(first_order_pose(pose, dp), prior, mask, config, weight)
         return out, out
 
-    Jpp, rp = jax.vmap(jax.jacfwd(pose_fn, has_aux=True), in_axes=(None, 0, 0, 0))(
-        z6, est.camera_T_world, problem.pose_prior, problem.pose_mask
+    Jpp, rp = jax.vmap(jax.jacfwd(pose_fn, has_aux=True), in_axes=(None, 0, 0, 0, 0))(
+        z6, est.camera_T_world, problem.pose_prior, problem.pose_mask, prior_weight(problem)
     )
 
     def shape_fn(ds, radii, cls, mask):
