@@ -275,3 +275,58 @@ def test_a_prior_on_the_first_pose_only_follows_the_boxes_not_the_drift():
     freed = position_error(np.asarray(solve(only_first)[0].camera_T_world))
     print(f"mean camera position error: priors on every pose {pinned:.3f} m, first pose only {freed:.3f} m")
     assert freed < 0.5 * pinned, (freed, pinned)
+
+
+def test_upright_factor_against_finite_differences_and_its_symmetries():
+    rng = np.random.default_rng(5)
+    up = np.array([0.0, 0.0, 1.0])
+    q = rng.normal(size=4)
+    R = np.asarray(Q.quaternion_to_rotation(jnp.asarray(q / np.linalg.norm(q))))
+    yaw = np.asarray(jaxlie.SO3.from_z_radians(0.7).as_matrix())
+    flip = np.diag([1.0, -1.0, -1.0])
+    sigma = 0.1
+    # upright whatever the heading, and upside down too (the ellipsoid does not change)
+    np.testing.assert_allclose(F.upright_residual(yaw, up, sigma), 0.0, atol=1e-12)
+    np.testing.assert_allclose(F.upright_residual(yaw @ flip, up, sigma), 0.0, atol=1e-12)
+    # a tilt of a few degrees about the x axis reads sin(tilt) / sigma on one row
+    tilt = np.asarray(jaxlie.SO3.from_x_radians(0.05).as_matrix())
+    np.testing.assert_allclose(
+        np.abs(F.upright_residual(yaw @ tilt, up, sigma)), [0.0, np.sin(0.05) / sigma], atol=1e-12
+    )
+    # turning about the up axis changes nothing; the axis picks the standing axis
+    r = F.upright_residual(R, up, sigma)
+    np.testing.assert_allclose(F.upright_residual(yaw @ R, up, sigma), r, atol=1e-12)
+    assert F.upright_residual(R, up, sigma, axis=0).shape == (2,)
+    with pytest.raises(ValueError, match="axis"):
+        F.upright_residual(R, up, sigma, axis=3)
+    Rj = jnp.asarray(R)
+    f = lambda w: F.upright_residual(Rj @ jaxlie.SO3.exp(w).as_matrix(), jnp.asarray(up), sigma)
+    w0 = jnp.asarray(rng.normal(size=3) * 0.1)
+    eps = 1e-6
+    fd = np.stack([(f(w0 + eps * e) - f(w0 - eps * e)) / (2 * eps) for e in jnp.eye(3)], axis=1)
+    np.testing.assert_allclose(jax.jacfwd(f)(w0), fd, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.slow
+def test_upright_prior_linearisation_equals_the_generic_one():
+    problem, _, _ = _drifting_problem(num_frames=5)
+    cfg = _cfg(use_upright=True)
+    est = slam.initialize(problem, cfg)
+    # tilt every object so the prior is active
+    tilt = jnp.asarray(jaxlie.SO3.from_x_radians(0.3).as_matrix())
+    est = slam.SlamEstimate(est.camera_T_world, est.rotation @ tilt, est.center, est.radii)
+    assert slam.residual_blocks(problem, est, cfg)[2].shape[-1] == 5
+    free = problem.pose_mask.astype(jnp.float64)
+    solver = slam.roshan_solver(cfg)
+    args = (problem, cfg, free, problem.object_mask)
+
+    @jax.jit
+    def both(est):
+        fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
+        generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
+        return generic, slam.linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
+
+    generic, roshan, cost = both(est)
+    np.testing.assert_allclose(roshan.cost, cost, rtol=1e-10)
+    for a, b in zip(generic, roshan):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))

@@ -44,6 +44,7 @@ from ._cost import (
     retract_object as retract_object,
     retract_pose as retract_pose,
     total_cost as total_cost,
+    upright_rows as upright_rows,
 )
 from ._draw import (  # figures of sequences and maps
     draw_camera_path as draw_camera_path,

@@ -7,7 +7,7 @@ Variables are updated as tangent deltas around an anchor estimate (:class:`Delta
 Residual blocks (whitened, masked entries exactly zero):
 
 - boxes: (M, 7) = 4 edges, near-depth barrier, camera-inside barrier, texture plane;
-- pose priors: (T, 6); shape priors: (J, 3);
+- pose priors: (T, 6); shape priors: (J, 3), (J, 5) with the optional upright prior;
 - odometry (only when the problem has it): (T, 6), row ``t`` between poses ``t`` and ``t + 1``.
 
 Each box row touches exactly one pose and one ellipsoid, which the structured solver exploits;
@@ -220,8 +220,18 @@ def shape_rows(radii, object_class, mask, config: SolverConfig, mean, sigma):
     return jnp.where(mask, r, 0.0)
 
 
+def upright_rows(rotation, mask, config: SolverConfig):
+    """(2,) whitened upright-prior rows of one object (:func:`jaxsem.factors.upright_residual`
+    with the config's ``world_up`` / ``upright_sigma`` and the shape loss; zero where ``mask``
+    is False)."""
+    r = F.upright_residual(rotation, jnp.asarray(config.world_up, rotation.dtype), config.upright_sigma)
+    r = F.robust_residual(r, config.shape_loss, config.robust_scale)
+    return jnp.where(mask, r, 0.0)
+
+
 def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
-    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3))``, and ``odometry (T, 6)``
+    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3), or (J, 5) with the upright
+    prior)``, and ``odometry (T, 6)``
     as a fourth block when the problem has odometry (``problem.odometry`` not None)."""
     dtype = estimate.center.dtype
     mean, sigma = class_table(config, dtype, problem)
@@ -245,6 +255,9 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     shapes = jax.vmap(shape_rows, in_axes=(0, 0, 0, None, None, None))(
         estimate.radii, problem.object_class, problem.object_mask, config, mean, sigma
     )
+    if config.use_upright:
+        up = jax.vmap(upright_rows, in_axes=(0, 0, None))(estimate.rotation, problem.object_mask, config)
+        shapes = jnp.concatenate([shapes, up], axis=-1)
     if problem.odometry is not None:
         return boxes, poses, shapes, _odometry_block(problem, estimate.camera_T_world, config)
     return boxes, poses, shapes
@@ -367,6 +380,17 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         jnp.zeros(3, dtype), est.radii, problem.object_class, problem.object_mask
     )
     Js = jnp.zeros((J, 3, 9), dtype).at[:, :, 6:9].set(Js3)
+    if config.use_upright:
+
+        def up_fn(dw, R, mask):
+            out = upright_rows(R @ jaxlie.SO3.exp(dw).as_matrix().astype(R.dtype), mask, config)
+            return out, out
+
+        Ju, ru = jax.vmap(jax.jacfwd(up_fn, has_aux=True), in_axes=(None, 0, 0))(
+            jnp.zeros(3, dtype), est.rotation, problem.object_mask
+        )
+        Js = jnp.concatenate([Js, jnp.zeros((J, 2, 9), dtype).at[:, :, 0:3].set(Ju)], axis=1)
+        rs = jnp.concatenate([rs, ru], axis=-1)
 
     JpT = jnp.swapaxes(Jp, -1, -2)
     JoT = jnp.swapaxes(Jo, -1, -2)

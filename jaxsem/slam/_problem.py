@@ -276,6 +276,9 @@ class CostModel(eqx.Module):
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
+    use_upright: bool = eqx.field(static=True, default=False)
+    upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
+    world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
@@ -372,6 +375,13 @@ class SolverConfig(eqx.Module):
       min_depth: metres, the depth below which the near side of an ellipsoid counts as too close.
       degenerate_residual: pixels, soft cap of a box edge error and the base residual of an
         invalid projection (see :func:`jaxsem.factors.box_residual`).
+      use_upright: static; adds the upright prior (:func:`jaxsem.factors.upright_residual`) to
+        every object: its height axis (the class table's third dimension) along ``world_up``,
+        tilt sigma ``upright_sigma`` (radians, default 5 degrees), under ``shape_loss``. For
+        objects that rest on a table or the ground, in a world frame whose up is known (gravity
+        from a VIO / IMU). Off by default (the thesis has no such factor); the object rows of
+        :func:`jaxsem.slam.residual_blocks` then grow from 3 to 5.
+      world_up: static unit 3-vector (tuple), the world's up.
     """
 
     noise: NoiseModel = NoiseModel()
@@ -398,6 +408,9 @@ class SolverConfig(eqx.Module):
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
+    use_upright: bool = eqx.field(static=True, default=False)
+    upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
+    world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
