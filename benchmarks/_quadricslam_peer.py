@@ -2,7 +2,8 @@
 
 Runs under a Python 3.10 venv with ``gtsam-quadrics`` and ``numpy<2`` (not jaxsem's
 interpreter): ``python _quadricslam_peer.py IN.npz OUT.npz``. Factors: ``PriorFactorPose3`` on
-``world_T_camera`` (sigmas [rot, trans]), ``BetweenFactorPose3`` between consecutive poses when
+``world_T_camera`` (sigmas [rot, trans], divided per pose by ``pose_prior_weight`` [trans, rot]
+when the file holds it, no prior where both are 0), ``BetweenFactorPose3`` between consecutive poses when
 the file holds ``odometry`` (``odometry[t]`` = pose t+1 in pose t's frame, sigmas
 ``odo_rot_sigma`` / ``odo_trans_sigma``) and ``BoundingBoxFactor`` (isotropic box sigma), the
 peer's defaults otherwise (``LevenbergMarquardtParams()``: relative and absolute error decrease
@@ -28,9 +29,16 @@ def solve(d, k):
     X = lambda t: gtsam.symbol("x", t)
     Q = lambda j: gtsam.symbol("q", j)
     inv = lambda T: np.linalg.inv(T)
+    weight = d["pose_prior_weight"][k] if "pose_prior_weight" in d else None
     for t in np.flatnonzero(d["pose_mask"][k]):
         wTc = gtsam.Pose3(inv(d["pose_prior"][k, t]))
-        graph.add(gtsam.PriorFactorPose3(X(t), wTc, prior_noise))
+        if weight is None:
+            graph.add(gtsam.PriorFactorPose3(X(t), wTc, prior_noise))
+        elif np.any(weight[t] > 0):
+            # per-pose sigmas: the stated ones over [translation, rotation] weights, 0 = none
+            w_t, w_r = (max(float(x), 1e-9) for x in weight[t])
+            noise_t = gtsam.noiseModel.Diagonal.Sigmas(np.array([sr / w_r] * 3 + [st / w_t] * 3))
+            graph.add(gtsam.PriorFactorPose3(X(t), wTc, noise_t))
         values.insert(X(t), gtsam.Pose3(inv(d["init_pose"][k, t])))
     if "odometry" in d:
         odo_noise = gtsam.noiseModel.Diagonal.Sigmas(

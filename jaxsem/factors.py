@@ -20,6 +20,8 @@ The four factors of eq. 4.13, and odometry:
 3. :func:`texture_residual`: depth of the camera-facing tangent plane (eq. 4.11) minus the
    measured texture-plane depth. It is a smooth function everywhere, degenerate or not.
 4. :func:`shape_prior_residual`: radii against the class mean, per-axis sigma (section 4.3.4).
+5. :func:`upright_residual` (optional, not in the thesis): the object's height axis along the
+   world's up, for objects resting on a table or the ground.
 
 Radii are kept positive by the parameterisation ``radii = softplus(s)``
 (:func:`radii_from_param` / :func:`param_from_radii`): linear for large radii (no overflow),
@@ -73,6 +75,7 @@ __all__ = [
     "shape_prior_table",
     "single_view_init",
     "texture_residual",
+    "upright_residual",
 ]
 
 
@@ -353,6 +356,36 @@ def texture_residual(
 def shape_prior_residual(radii, mean, sigma):
     """Semantic shape prior (section 4.3.4): ``(radii - mean) / sigma``, (..., 3)."""
     return safe_div(jnp.asarray(radii) - mean, sigma)
+
+
+def upright_residual(rotation, up, sigma, axis: int = 2):
+    """Upright prior: an object's ``axis`` (its height, the class table's third dimension) along
+    the world's ``up`` (gravity's opposite: a VIO / IMU gives it; on a desk, the desk normal).
+
+    Objects resting on a table or a floor stand on their base; boxes alone leave their tilt
+    weakly observed (tens of degrees on the real LM-O desk). The residual is ``up`` expressed
+    in the object frame, its two components along the other axes, over ``sigma``: about
+    ``sin(tilt) / sigma``, zero for an upright object whatever its heading, and zero for the
+    upside-down one too (an ellipsoid is unchanged by that flip), smooth everywhere.
+
+    Args:
+      rotation: (..., 3, 3) object-to-world. up: (3,) or (..., 3) unit vector in the world.
+      sigma: radians (scalar or broadcastable): the tilt's standard deviation.
+      axis: the object axis that stands up (0, 1 or 2).
+
+    Returns:
+      (..., 2) whitened residual.
+
+    Raises:
+      ValueError: ``axis`` not 0, 1 or 2.
+    """
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis: expected 0, 1 or 2, got {axis!r}")
+    rotation = jnp.asarray(rotation)
+    up = jnp.asarray(up, rotation.dtype)
+    local = jnp.einsum("...ji,...j->...i", rotation, up)  # R^T up
+    others = [a for a in range(3) if a != axis]
+    return safe_div(local[..., others], jnp.asarray(sigma, rotation.dtype))
 
 
 def single_view_init(

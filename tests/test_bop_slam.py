@@ -307,3 +307,25 @@ def test_heading_starts_keep_per_object_the_start_with_the_lowest_cost():
     assert np.isfinite(cost(est)) and cost(est) <= cost(single) * 1.05
     with pytest.raises(ValueError, match="yaws_deg"):
         slam.solve_yaw_starts(problem, init, config, yaws_deg=())
+
+
+def test_pose_prior_weights_follow_the_stated_drift():
+    rng = np.random.default_rng(3)
+    T = 12
+    cams = np.stack([np.eye(4)] * T)
+    cams[:, 0, 3] = -0.05 * np.arange(T)  # the camera moves 5 cm along x per step
+    model = data.OdometryModel()
+    assert np.all(data.pose_prior_weights(cams, "all") == 1.0)
+    first = data.pose_prior_weights(cams, "first", model, prior_translation=0.02, prior_rotation_deg=1.0)
+    assert np.all(first[1:] == 0) and np.all(first[0] > 1)  # tighter than 2 cm / 1 deg
+    drift = data.pose_prior_weights(cams, "drift", model, prior_translation=0.02, prior_rotation_deg=1.0)
+    assert np.all(np.diff(drift, axis=0) < 0)  # looser at every step
+    # after 11 steps the stated model's spread: sampled drifts agree with the weight's sigma
+    ends = np.stack([data.odometry_poses(cams, model, rng)[-1] for _ in range(400)])
+    centres = np.einsum("nji,nj->ni", ends[:, :3, :3], -ends[:, :3, 3])
+    spread = np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1)) / 3)
+    assert 0.02 / drift[-1, 0] == pytest.approx(spread, rel=0.35)
+    with pytest.raises(ValueError, match="mode"):
+        data.pose_prior_weights(cams, "none")
+    with pytest.raises(ValueError, match="poses"):
+        data.pose_prior_weights(cams[0])

@@ -5,6 +5,7 @@ motion, invariant to where the world origin is, the pose prior when the first po
 origin); the block-tridiagonal Schur step against dense linear algebra; and end to end: drifting
 odometry plus boxes recovers the poses better than the odometry alone."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -190,5 +191,142 @@ def test_generic_linearisation_with_odometry_equals_roshans():
 
     generic, roshan = both(est)
     assert generic.Hpp_next is not None and roshan.Hpp_next is not None
+    for a, b in zip(generic, roshan):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
+
+
+def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
+    problem, _, _ = _drifting_problem(num_frames=4)
+    T = problem.num_poses
+    w = np.array([[3.0, 2.0], [0.0, 0.0], [0.5, 0.0], [1.0, 1.0]])
+    weighted = slam.make_problem(
+        problem.K,
+        problem.image_size,
+        problem.pose_prior,
+        problem.box,
+        problem.box_pose,
+        problem.box_object,
+        problem.object_class,
+        np.where(np.asarray(problem.texture_mask), np.asarray(problem.texture_depth), np.nan),
+        odometry=np.asarray(problem.odometry)[: T - 1],
+        pose_prior_weight=w,
+    )
+    cfg = _cfg()
+    est = slam.initialize(problem, cfg)
+    # poses off their priors, so every prior row is non-zero
+    est = slam.SlamEstimate(
+        jnp.asarray(
+            np.stack([_perturb(np.asarray(p), np.full(6, 0.01 * (k + 1))) for k, p in enumerate(est.camera_T_world)])
+        ),
+        est.rotation,
+        est.center,
+        est.radii,
+    )
+    plain = np.asarray(slam.residual_blocks(problem, est, cfg)[1])
+    rows = np.asarray(slam.residual_blocks(weighted, est, cfg)[1])
+    assert np.all(np.abs(plain) > 0)
+    np.testing.assert_allclose(rows, plain * np.repeat(w, 3, axis=1), rtol=1e-12)
+    # the structured solvers' linearisation sees the same weighted cost
+    free = weighted.pose_mask.astype(jnp.float64)
+    n = jax.jit(slam.linearize)(weighted, est, cfg, free)
+    np.testing.assert_allclose(n.cost, slam.total_cost(weighted, est, cfg), rtol=1e-10)
+    assert float(slam.total_cost(weighted, est, cfg)) != pytest.approx(float(slam.total_cost(problem, est, cfg)))
+    for bad in (np.ones(T + 1), -np.ones(T), np.full(T, np.nan)):
+        with pytest.raises(ValueError, match="pose_prior_weight"):
+            slam.make_problem(
+                problem.K,
+                problem.image_size,
+                problem.pose_prior,
+                problem.box,
+                problem.box_pose,
+                problem.box_object,
+                problem.object_class,
+                pose_prior_weight=bad,
+            )
+
+
+@pytest.mark.slow
+def test_a_prior_on_the_first_pose_only_follows_the_boxes_not_the_drift():
+    # Priors at 2 cm / 1 deg on every dead-reckoned pose pin the map to the drift; a prior on the
+    # first pose alone, with the same odometry and boxes, lets the boxes pull the poses back.
+    problem, true, dead = _drifting_problem()
+    noise = slam.NoiseModel(
+        pose_rotation_sigma=np.radians(1.0),
+        pose_translation_sigma=0.02,
+        odometry_rotation_sigma=0.005,
+        odometry_translation_sigma=0.02,
+        box_sigma=2.0,
+        texture_sigma=0.1,
+    )
+    cfg = slam.SolverConfig(noise=noise, max_steps=50)
+    T = problem.num_poses
+    first = np.zeros((T, 2))
+    first[0] = 20.0
+    only_first = eqx.tree_at(
+        lambda p: p.pose_prior_weight, problem, jnp.asarray(first, jnp.float64), is_leaf=lambda x: x is None
+    )
+    solve = jax.jit(lambda p: slam.solve_schur(p, None, cfg))
+
+    def position_error(poses):
+        centres = np.asarray(Q.invert_pose(poses))[:, :3, 3]
+        return np.linalg.norm(centres - np.asarray(Q.invert_pose(true))[:, :3, 3], axis=-1).mean()
+
+    pinned = position_error(np.asarray(solve(problem)[0].camera_T_world))
+    freed = position_error(np.asarray(solve(only_first)[0].camera_T_world))
+    print(f"mean camera position error: priors on every pose {pinned:.3f} m, first pose only {freed:.3f} m")
+    assert freed < 0.5 * pinned, (freed, pinned)
+
+
+def test_upright_factor_against_finite_differences_and_its_symmetries():
+    rng = np.random.default_rng(5)
+    up = np.array([0.0, 0.0, 1.0])
+    q = rng.normal(size=4)
+    R = np.asarray(Q.quaternion_to_rotation(jnp.asarray(q / np.linalg.norm(q))))
+    yaw = np.asarray(jaxlie.SO3.from_z_radians(0.7).as_matrix())
+    flip = np.diag([1.0, -1.0, -1.0])
+    sigma = 0.1
+    # upright whatever the heading, and upside down too (the ellipsoid does not change)
+    np.testing.assert_allclose(F.upright_residual(yaw, up, sigma), 0.0, atol=1e-12)
+    np.testing.assert_allclose(F.upright_residual(yaw @ flip, up, sigma), 0.0, atol=1e-12)
+    # a tilt of a few degrees about the x axis reads sin(tilt) / sigma on one row
+    tilt = np.asarray(jaxlie.SO3.from_x_radians(0.05).as_matrix())
+    np.testing.assert_allclose(
+        np.abs(F.upright_residual(yaw @ tilt, up, sigma)), [0.0, np.sin(0.05) / sigma], atol=1e-12
+    )
+    # turning about the up axis changes nothing; the axis picks the standing axis
+    r = F.upright_residual(R, up, sigma)
+    np.testing.assert_allclose(F.upright_residual(yaw @ R, up, sigma), r, atol=1e-12)
+    assert F.upright_residual(R, up, sigma, axis=0).shape == (2,)
+    with pytest.raises(ValueError, match="axis"):
+        F.upright_residual(R, up, sigma, axis=3)
+    Rj = jnp.asarray(R)
+    f = lambda w: F.upright_residual(Rj @ jaxlie.SO3.exp(w).as_matrix(), jnp.asarray(up), sigma)
+    w0 = jnp.asarray(rng.normal(size=3) * 0.1)
+    eps = 1e-6
+    fd = np.stack([(f(w0 + eps * e) - f(w0 - eps * e)) / (2 * eps) for e in jnp.eye(3)], axis=1)
+    np.testing.assert_allclose(jax.jacfwd(f)(w0), fd, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.slow
+def test_upright_prior_linearisation_equals_the_generic_one():
+    problem, _, _ = _drifting_problem(num_frames=5)
+    cfg = _cfg(use_upright=True)
+    est = slam.initialize(problem, cfg)
+    # tilt every object so the prior is active
+    tilt = jnp.asarray(jaxlie.SO3.from_x_radians(0.3).as_matrix())
+    est = slam.SlamEstimate(est.camera_T_world, est.rotation @ tilt, est.center, est.radii)
+    assert slam.residual_blocks(problem, est, cfg)[2].shape[-1] == 5
+    free = problem.pose_mask.astype(jnp.float64)
+    solver = slam.roshan_solver(cfg)
+    args = (problem, cfg, free, problem.object_mask)
+
+    @jax.jit
+    def both(est):
+        fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
+        generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
+        return generic, slam.linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
+
+    generic, roshan, cost = both(est)
+    np.testing.assert_allclose(roshan.cost, cost, rtol=1e-10)
     for a, b in zip(generic, roshan):
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))

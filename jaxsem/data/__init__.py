@@ -24,6 +24,7 @@ from ._bop_eval import (
     read_rgb as read_rgb,
 )
 from ._bop_slam import (
+    POSE_PRIOR_MODES as POSE_PRIOR_MODES,
     STRETCH_SETTINGS as STRETCH_SETTINGS,
     OdometryModel as OdometryModel,
     Spell as Spell,
@@ -31,6 +32,7 @@ from ._bop_slam import (
     camera_from_anchors as camera_from_anchors,
     find_stretches as find_stretches,
     odometry_poses as odometry_poses,
+    pose_prior_weights as pose_prior_weights,
     stretch_sequence as stretch_sequence,
     user_class_table as user_class_table,
 )

@@ -52,6 +52,8 @@ __all__ = [
     "Stretch",
     "find_stretches",
     "odometry_poses",
+    "pose_prior_weights",
+    "POSE_PRIOR_MODES",
     "stretch_sequence",
     "user_class_table",
 ]
@@ -328,6 +330,61 @@ def odometry_poses(camera_T_world, model: OdometryModel, rng: np.random.Generato
         measured = step @ _exp_se3(drift + sig_n * rng.standard_normal(6))
         out.append(np.linalg.inv(np.linalg.inv(out[-1]) @ measured))
     return np.stack(out)
+
+
+POSE_PRIOR_MODES = ("all", "first", "drift")
+
+
+def pose_prior_weights(
+    poses,
+    mode: str = "all",
+    odometry: OdometryModel = OdometryModel(),
+    prior_translation: float = 0.02,
+    prior_rotation_deg: float = 1.0,
+) -> np.ndarray:
+    """(T, 2) ``[translation, rotation]`` weights of absolute priors on integrated odometry
+    ``poses`` (T, 4, 4) ``camera_T_world``, relative to priors at ``prior_translation`` /
+    ``prior_rotation_deg`` (``jaxsem.slam.make_problem(pose_prior_weight=...)``).
+
+    - ``"all"``: every pose at the stated sigmas (ones), whatever the drift gathered so far;
+    - ``"first"``: the first pose at the odometry's white noise (the user knows where they
+      started), no prior on the others (the between factors carry the chain);
+    - ``"drift"``: pose ``t`` at the spread :class:`OdometryModel` implies after ``t`` steps:
+      per axis ``t n^2 + d^2 t (t + 1) (2 t + 1) / 6`` (white noise ``n`` plus the integral of
+      the random-walk drift ``d``), plus the rotation's share carried over to the translation
+      along the path (``var_rotation * distance^2 / 3``, the distance from the first camera
+      position: heading errors gathered evenly along a straight path), floored at one step's
+      white noise.
+
+    Raises:
+      ValueError: unknown ``mode``, ``poses`` not (T, 4, 4), non-positive prior sigmas.
+    """
+    poses = np.asarray(poses, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"poses: expected (T, 4, 4), got {poses.shape}")
+    if mode not in POSE_PRIOR_MODES:
+        raise ValueError(f"mode: expected one of {POSE_PRIOR_MODES}, got {mode!r}")
+    if not (prior_translation > 0 and prior_rotation_deg > 0):
+        raise ValueError(
+            f"prior_translation, prior_rotation_deg: expected > 0, got {prior_translation}, {prior_rotation_deg}"
+        )
+    T = len(poses)
+    n_t = max(odometry.noise_translation, 1e-6)
+    n_r = math.radians(max(odometry.noise_rotation_deg, 1e-4))
+    prior_r = math.radians(prior_rotation_deg)
+    if mode == "all":
+        return np.ones((T, 2))
+    if mode == "first":
+        out = np.zeros((T, 2))
+        out[0] = [prior_translation / n_t, prior_r / n_r]
+        return out
+    t = np.arange(T, dtype=np.float64)
+    walk = t * (t + 1) * (2 * t + 1) / 6
+    var_r = n_r**2 * np.maximum(t, 1) + math.radians(odometry.drift_rotation_deg) ** 2 * walk
+    centres = np.einsum("tji,tj->ti", poses[:, :3, :3], -poses[:, :3, 3])  # camera centres in the world
+    dist = np.linalg.norm(centres - centres[0], axis=1)
+    var_t = n_t**2 * np.maximum(t, 1) + odometry.drift_translation**2 * walk + var_r * dist**2 / 3
+    return np.stack([prior_translation / np.sqrt(var_t), prior_r / np.sqrt(var_r)], axis=1)
 
 
 def user_class_table(extents: dict, seed: int = 27, sigma_fraction: float = 0.3, low=0.8, high=1.25):

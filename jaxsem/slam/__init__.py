@@ -38,11 +38,13 @@ from ._cost import (
     first_order_pose as first_order_pose,
     linearize as linearize,
     pose_rows as pose_rows,
+    prior_weight as prior_weight,
     residual_blocks as residual_blocks,
     retract as retract,
     retract_object as retract_object,
     retract_pose as retract_pose,
     total_cost as total_cost,
+    upright_rows as upright_rows,
 )
 from ._draw import (  # figures of sequences and maps
     draw_camera_path as draw_camera_path,

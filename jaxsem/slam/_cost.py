@@ -7,7 +7,7 @@ Variables are updated as tangent deltas around an anchor estimate (:class:`Delta
 Residual blocks (whitened, masked entries exactly zero):
 
 - boxes: (M, 7) = 4 edges, near-depth barrier, camera-inside barrier, texture plane;
-- pose priors: (T, 6); shape priors: (J, 3);
+- pose priors: (T, 6); shape priors: (J, 3), (J, 5) with the optional upright prior;
 - odometry (only when the problem has it): (T, 6), row ``t`` between poses ``t`` and ``t + 1``.
 
 Each box row touches exactly one pose and one ellipsoid, which the structured solver exploits;
@@ -157,13 +157,24 @@ def box_rows(
     return jnp.where(box_mask, rows, 0.0)
 
 
-def pose_rows(pose, prior, mask, config: SolverConfig):
+def pose_rows(pose, prior, mask, config: SolverConfig, weight=None):
     """(6,) whitened pose-prior rows of one pose (:func:`jaxsem.factors.pose_prior_residual` with
-    the config's sigmas and robust loss; zero where ``mask`` is False)."""
+    the config's sigmas and robust loss; zero where ``mask`` is False). ``weight``: optional (2,)
+    ``[translation, rotation]`` multipliers of the whitened rows (the problem's
+    ``pose_prior_weight`` row; 0 = no prior)."""
     n = config.noise
     r = F.pose_prior_residual(pose, prior, n.pose_rotation_sigma, n.pose_translation_sigma)
+    if weight is not None:
+        r = r * jnp.repeat(jnp.asarray(weight, r.dtype), 3)
     r = F.robust_residual(r, config.pose_loss, config.robust_scale)
     return jnp.where(mask, r, 0.0)
+
+
+def prior_weight(problem: SlamProblem):
+    """(T, 2) pose-prior weights of the problem (ones when it has none)."""
+    if problem.pose_prior_weight is not None:
+        return problem.pose_prior_weight
+    return jnp.ones(problem.pose_prior.shape[:-2] + (2,), problem.pose_prior.dtype)
 
 
 def odometry_rows(pose_a, pose_b, measured, mask, config: SolverConfig):
@@ -197,8 +208,18 @@ def shape_rows(radii, object_class, mask, config: SolverConfig, mean, sigma):
     return jnp.where(mask, r, 0.0)
 
 
+def upright_rows(rotation, mask, config: SolverConfig):
+    """(2,) whitened upright-prior rows of one object (:func:`jaxsem.factors.upright_residual`
+    with the config's ``world_up`` / ``upright_sigma`` and the shape loss; zero where ``mask``
+    is False)."""
+    r = F.upright_residual(rotation, jnp.asarray(config.world_up, rotation.dtype), config.upright_sigma)
+    r = F.robust_residual(r, config.shape_loss, config.robust_scale)
+    return jnp.where(mask, r, 0.0)
+
+
 def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
-    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3))``, and ``odometry (T, 6)``
+    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3), or (J, 5) with the upright
+    prior)``, and ``odometry (T, 6)``
     as a fourth block when the problem has odometry (``problem.odometry`` not None)."""
     dtype = estimate.center.dtype
     mean, sigma = class_table(config, dtype, problem)
@@ -216,12 +237,15 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
         problem.image_size,
         config,
     )
-    poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None))(
-        estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config
+    poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None, 0))(
+        estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config, prior_weight(problem)
     )
     shapes = jax.vmap(shape_rows, in_axes=(0, 0, 0, None, None, None))(
         estimate.radii, problem.object_class, problem.object_mask, config, mean, sigma
     )
+    if config.use_upright:
+        up = jax.vmap(upright_rows, in_axes=(0, 0, None))(estimate.rotation, problem.object_mask, config)
+        shapes = jnp.concatenate([shapes, up], axis=-1)
     if problem.odometry is not None:
         return boxes, poses, shapes, _odometry_block(problem, estimate.camera_T_world, config)
     return boxes, poses, shapes
@@ -327,12 +351,12 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     Jo = jnp.concatenate([Jw, Jv @ Rt, Jds], -1)
     Jp = Jp * pose_free[bp][:, None, None]
 
-    def pose_fn(dp, pose, prior, mask):
-        out = pose_rows(first_order_pose(pose, dp), prior, mask, config)
+    def pose_fn(dp, pose, prior, mask, weight):
+        out = pose_rows(first_order_pose(pose, dp), prior, mask, config, weight)
         return out, out
 
-    Jpp, rp = jax.vmap(jax.jacfwd(pose_fn, has_aux=True), in_axes=(None, 0, 0, 0))(
-        z6, est.camera_T_world, problem.pose_prior, problem.pose_mask
+    Jpp, rp = jax.vmap(jax.jacfwd(pose_fn, has_aux=True), in_axes=(None, 0, 0, 0, 0))(
+        z6, est.camera_T_world, problem.pose_prior, problem.pose_mask, prior_weight(problem)
     )
 
     def shape_fn(ds, radii, cls, mask):
@@ -344,6 +368,17 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         jnp.zeros(3, dtype), est.radii, problem.object_class, problem.object_mask
     )
     Js = jnp.zeros((J, 3, 9), dtype).at[:, :, 6:9].set(Js3)
+    if config.use_upright:
+
+        def up_fn(dw, R, mask):
+            out = upright_rows(R @ jaxlie.SO3.exp(dw).as_matrix().astype(R.dtype), mask, config)
+            return out, out
+
+        Ju, ru = jax.vmap(jax.jacfwd(up_fn, has_aux=True), in_axes=(None, 0, 0))(
+            jnp.zeros(3, dtype), est.rotation, problem.object_mask
+        )
+        Js = jnp.concatenate([Js, jnp.zeros((J, 2, 9), dtype).at[:, :, 0:3].set(Ju)], axis=1)
+        rs = jnp.concatenate([rs, ru], axis=-1)
 
     JpT = jnp.swapaxes(Jp, -1, -2)
     JoT = jnp.swapaxes(Jo, -1, -2)

@@ -89,6 +89,12 @@ class SlamProblem(eqx.Module):
         :func:`jaxsem.factors.between_residual`; ``None`` (the default): no odometry factors.
       odometry_mask: (T,) bool, True where ``odometry[t]`` is measured (never for the last
         pose, nor where pose ``t`` or ``t + 1`` is masked out); given with ``odometry``.
+      pose_prior_weight: optional (T, 2) multipliers of each pose's whitened pose-prior rows,
+        ``[translation, rotation]``: pose ``t``'s prior sigmas are the noise model's divided by
+        them, 0 = no prior on that pose. For integrated odometry, whose error grows along the
+        path (a prior on the first pose and looser ones further on, or none: the between factors
+        then carry the chain). ``None`` (the default): every real pose at the noise model's
+        sigmas.
     """
 
     K: jnp.ndarray
@@ -106,6 +112,7 @@ class SlamProblem(eqx.Module):
     classes: _classes.ClassTable | None = eqx.field(static=True, default=None)
     odometry: jnp.ndarray | None = None
     odometry_mask: jnp.ndarray | None = None
+    pose_prior_weight: jnp.ndarray | None = None
 
     @property
     def num_poses(self) -> int:
@@ -269,6 +276,9 @@ class CostModel(eqx.Module):
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
+    use_upright: bool = eqx.field(static=True, default=False)
+    upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
+    world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
@@ -365,6 +375,13 @@ class SolverConfig(eqx.Module):
       min_depth: metres, the depth below which the near side of an ellipsoid counts as too close.
       degenerate_residual: pixels, soft cap of a box edge error and the base residual of an
         invalid projection (see :func:`jaxsem.factors.box_residual`).
+      use_upright: static; adds the upright prior (:func:`jaxsem.factors.upright_residual`) to
+        every object: its height axis (the class table's third dimension) along ``world_up``,
+        tilt sigma ``upright_sigma`` (radians, default 5 degrees), under ``shape_loss``. For
+        objects that rest on a table or the ground, in a world frame whose up is known (gravity
+        from a VIO / IMU). Off by default (the thesis has no such factor); the object rows of
+        :func:`jaxsem.slam.residual_blocks` then grow from 3 to 5.
+      world_up: static unit 3-vector (tuple), the world's up.
     """
 
     noise: NoiseModel = NoiseModel()
@@ -391,6 +408,9 @@ class SolverConfig(eqx.Module):
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
+    use_upright: bool = eqx.field(static=True, default=False)
+    upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
+    world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
@@ -494,6 +514,7 @@ def make_problem(
     classes: _classes.ClassTable | None = None,
     odometry=None,
     odometry_mask=None,
+    pose_prior_weight=None,
 ) -> SlamProblem:
     """Validated :class:`SlamProblem` from numpy-like inputs, optionally padded to capacity.
 
@@ -515,6 +536,9 @@ def make_problem(
         factor with ``NoiseModel.odometry_*_sigma``. Default: none (pose priors only).
       odometry_mask: optional (T - 1,) bool, which steps are measured (default: all; a step
         touching a masked-out pose is dropped).
+      pose_prior_weight: optional (T,) or (T, 2) ``[translation, rotation]`` multipliers of the
+        pose priors' whitened rows (:attr:`SlamProblem.pose_prior_weight`; finite, >= 0; 0 = no
+        prior on that pose). Default: none (every pose at the noise model's sigmas).
 
     Raises:
       ValueError: wrong shapes, non-finite K or poses, NaN or inverted boxes, class names not
@@ -609,6 +633,15 @@ def make_problem(
         odometry_mask = np.concatenate([odometry_mask, np.zeros(1, bool)])
     elif odometry_mask is not None:
         raise ValueError("odometry_mask: given without odometry")
+    if pose_prior_weight is not None:
+        w = _np("pose_prior_weight", pose_prior_weight, None)
+        if w.shape == (T,):
+            w = np.repeat(w[:, None], 2, axis=1)
+        if w.shape != (T, 2):
+            raise ValueError(f"pose_prior_weight: expected shape ({T},) or ({T}, 2), got {w.shape}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ValueError("pose_prior_weight: expected finite weights >= 0")
+        pose_prior_weight = w
 
     if capacity is not None:
         Tc, Mc, Jc = capacity
@@ -630,6 +663,8 @@ def make_problem(
         if odometry is not None and odometry_mask is not None:
             odometry = np.concatenate([odometry, np.broadcast_to(np.eye(4), (Tc - T, 4, 4))])
             odometry_mask = np.concatenate([odometry_mask, np.zeros(Tc - T, bool)])
+        if pose_prior_weight is not None:
+            pose_prior_weight = np.concatenate([pose_prior_weight, np.ones((Tc - T, 2))])
     # Padded / masked boxes get a harmless finite value so nothing downstream sees NaN.
     box = np.where(box_mask[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
     f = lambda a: jnp.asarray(a, dtype)
@@ -650,6 +685,7 @@ def make_problem(
         classes=None if classes is None else table,
         odometry=None if odometry is None else f(odometry),
         odometry_mask=None if odometry_mask is None else jnp.asarray(odometry_mask),
+        pose_prior_weight=None if pose_prior_weight is None else f(pose_prior_weight),
     )
 
 
