@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from jaxsem import quadrics as Q
 
@@ -14,6 +14,7 @@ finite = st.floats(-50.0, 50.0, allow_nan=False)
 
 
 @settings(max_examples=40, deadline=None)
+@example(x=0.0, y=0.4, ox=0.0, oy=-1.0, res=0.05)  # on a border: numpy 27, XLA 28 (both right)
 @given(
     x=finite,
     y=finite,
@@ -28,10 +29,12 @@ def test_a_point_lies_inside_the_square_of_its_cell(x, y, ox, oy, res):
     high = Q.cell_to_world(rc, origin, res, offset=1.0, xp=np)
     # half-open square [low, high), with float64 rounding at the edges
     assert np.all(low <= xy + 1e-9) and np.all(xy < high + 1e-9)
-    # jax (int32 cells) agrees with numpy (int64)
-    rc_j = Q.world_to_cell(jnp.asarray(xy), jnp.asarray(origin), res)
-    assert rc_j.dtype == jnp.int32 and rc.dtype == np.int64
-    np.testing.assert_array_equal(np.asarray(rc_j), rc)
+    # jax (int32 cells) agrees with numpy (int64), except for a point on a cell border, which
+    # either side's rounding may put in the next cell (XLA and numpy divide differently)
+    rc_j = np.asarray(Q.world_to_cell(jnp.asarray(xy), jnp.asarray(origin), res))
+    assert rc_j.dtype == np.int32 and rc.dtype == np.int64
+    on_border = np.abs((xy - origin) / res - np.round((xy - origin) / res))[::-1] < 1e-9
+    assert np.all((rc_j == rc) | (on_border & (np.abs(rc_j - rc) == 1)))
 
 
 def test_cell_centres_round_trip_and_follow_row_col_order():
