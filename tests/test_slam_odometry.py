@@ -195,6 +195,7 @@ def test_generic_linearisation_with_odometry_equals_roshans():
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
 
 
+@pytest.mark.slow  # two solver programs compile (12-18 s on the 2-core CPU)
 def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
     problem, _, _ = _drifting_problem(num_frames=4)
     T = problem.num_poses

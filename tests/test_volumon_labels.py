@@ -78,6 +78,7 @@ def test_label_batch_refuses_bad_labels_naming_the_argument(image, change, word)
         volumon.label_batch(**args, config=volumon.tiny_config())
 
 
+@pytest.mark.slow  # a tiny VoluMon compiles and trains (about 12 s)
 def test_a_weak_variant_trains_on_2d_labels_and_the_oracle_is_refused(image, tmp_path):
     batch = volumon.LabelBatch.concatenate([_labels(image), _labels(image)]).as_train_batch()
     cfg = volumon.get_config("both", "tiny").replace(data="directory", batch_size=4, num_steps=2)
