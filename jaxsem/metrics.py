@@ -299,7 +299,7 @@ def adi(true_points, pred_points, true_mask=None, pred_mask=None):
     m = jnp.asarray(true_mask, bool)
     total = jnp.sum(jnp.where(m, nearest, 0.0), axis=-1)
     n = jnp.sum(m, axis=-1)
-    return jnp.where(n > 0, total / jnp.maximum(n, 1), 0.0)
+    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(total.dtype), 0.0)
 
 
 def pass_rate_curve(errors, max_threshold=0.1, num_thresholds=1000):

@@ -1,6 +1,15 @@
 """Test environment: float64 on (precision checks), headless MuJoCo, small thread pools.
 
 Tests that check float32 behaviour pass float32 arrays explicitly.
+
+Strict settings for the whole suite (issue 23 item 6), optimistix-style:
+
+- dtype promotion is "strict" in every test: no silent float32 -> float64, int -> float or
+  int32 <-> int64 mixing, so a float32 input that comes back float64 (or an index array of
+  another integer width under x64) fails the test that feeds it. Weak-typed Python scalars
+  still promote. Library code casts explicitly (``astype``, ``jnp.asarray(x, dtype)``).
+- warnings are errors (pyproject's ``filterwarnings``).
+- rank promotion stays allowed: see the note beside the dtype setting below.
 """
 
 import gc
@@ -25,20 +34,10 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", None)
+jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
 import pytest  # noqa: E402
-
-
-@pytest.fixture
-def strict_numpy():
-    """optimistix-style strictness for a test: dtype promotion is strict (no silent float32 ->
-    float64 or int -> float mixing). The geometry core's tests use it, with warnings as errors.
-
-    Rank promotion stays allowed: numpy broadcasting of leading batch axes (a (3, 3) ``K`` with
-    (N, 3) points) is part of the API by design."""
-    with jax.numpy_dtype_promotion("strict"):
-        yield
 
 
 @pytest.fixture(autouse=True)

@@ -338,7 +338,7 @@ def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
 
     from jaxsem.lsd import warm_start_params
 
-    x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3))
+    x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3), jnp.float32)  # flax params: float32
     tconv, conv = nn.ConvTranspose(4, (2, 2), strides=(2, 2)), nn.Conv(4, (3, 3))
     pt = tconv.init(jax.random.PRNGKey(2), x)["params"]
     up = jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)

@@ -13,8 +13,6 @@ import pytest
 
 from jaxsem import quadrics as q
 
-pytestmark = [pytest.mark.usefixtures("strict_numpy"), pytest.mark.filterwarnings("error")]
-
 N_CASES = 200
 
 

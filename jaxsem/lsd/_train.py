@@ -542,7 +542,7 @@ def load_model_file(path):
     occ = jnp.zeros((1, k, k), jnp.int8)
     # eval_shape: the parameter structure without compiling an initialisation.
     like = jax.eval_shape(
-        lambda: model.init(jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim)))
+        lambda: model.init(jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim), jnp.float32))
     )["params"]
     if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
         raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")

@@ -84,7 +84,7 @@ def _knn(
         bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
         order = jnp.argsort(bid)
         sorted_bid = bid[order]
-        ids = jnp.arange(gx * gy)
+        ids = jnp.arange(gx * gy, dtype=bid.dtype)
         start = jnp.searchsorted(sorted_bid, ids, side="left")
         count = jnp.searchsorted(sorted_bid, ids, side="right") - start
         overflow = jnp.max(count) > cap
@@ -93,11 +93,11 @@ def _knn(
         nx, ny = qx[:, None] + off[None, :, 0], qy[:, None] + off[None, :, 1]  # (Q, 9)
         inside = (nx >= 0) & (nx < gx) & (ny >= 0) & (ny < gy)
         nb = jnp.where(inside, ny * gx + nx, 0)
-        j = jnp.arange(cap)
+        j = jnp.arange(cap, dtype=start.dtype)
         slot = start[nb][..., None] + j  # (Q, 9, cap)
         ok = (inside[..., None] & (j < count[nb][..., None])).reshape(Q, -1)
         cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
-    ok = ok & (cand != q_self[:, None])
+    ok = ok & (cand != q_self.astype(cand.dtype)[:, None])
     diff = db[cand] - queries[:, None, :]
     d2 = jnp.sum(diff**2, -1)
     d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
