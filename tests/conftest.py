@@ -77,6 +77,29 @@ def pytest_collection_modifyitems(config, items):
         raise pytest.UsageError("test ids containing 'error' (rename them): " + ", ".join(bad[:10]))
 
 
+class _Compiles:
+    """Counts XLA compilations (JAX's backend-compile event) inside a ``with`` block."""
+
+    def __enter__(self):
+        self.count = 0
+        jax.monitoring.register_event_duration_secs_listener(self._listen)
+        return self
+
+    def _listen(self, event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            self.count += 1
+
+    def __exit__(self, *exc):
+        jax.monitoring.unregister_event_duration_listener(self._listen)
+
+
+@pytest.fixture
+def compiles():
+    """``with compiles() as c: ...``; then ``c.count`` is the number of XLA compilations inside
+    the block (no-recompile tests: a second call with new values of the same shapes)."""
+    return _Compiles
+
+
 @pytest.fixture
 def run_cli(capsys):
     """``run_cli(argv)``: ``jaxsem *argv`` in-process, as a shell would see it: (exit status,
