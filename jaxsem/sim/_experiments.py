@@ -132,7 +132,7 @@ def solve_online(
 
     T = problem.pose_prior.shape[0]
     init_radii = init.radii if init_radii is None else init_radii
-    ks = jnp.arange(every, T + every, every).clip(max=T)
+    ks = jnp.arange(every, T + every, every, dtype=problem.box_pose.dtype).clip(max=T)
 
     def round_(carry, k):
         est, n_reinit = carry
