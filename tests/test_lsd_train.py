@@ -267,7 +267,7 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
 
 
 @pytest.mark.slow
-def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
+def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path, optax_promotion):  # optax directly
     from jaxsem.lsd import stage_optimizer
 
     cfg = dataclasses.replace(CFG, lr_schedule="cosine", stage1_steps=20, stage2_steps=10)

@@ -263,7 +263,8 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig, mesh: jax.shardi
         (_, (terms, new_bs)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
             state["params"], state["batch_stats"], batch
         )
-        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
+        with jax.numpy_dtype_promotion("standard"):  # optax's adam: decay ** int32 count (lsd/_train.py)
+            updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
         new_state = {
             **state,
