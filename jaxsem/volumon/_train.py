@@ -110,7 +110,8 @@ def augment(aug, local, glob):
 
     def one(a, lo, gl):
         lo = _hue_saturation(lo, a["hue"], a["sat"])
-        gl = _hue_saturation(gl, a["hue"], a["sat"]) * (jnp.max(gl, -1, keepdims=True) > 0)  # keep zeros zero
+        keep = jnp.max(gl, -1, keepdims=True) > 0  # keep zeros zero
+        gl = jnp.where(keep, _hue_saturation(gl, a["hue"], a["sat"]), jnp.zeros((), gl.dtype))
         return _erase(lo, a["erase_rect"], a["erase_on"], a["erase_val"]), gl
 
     return jax.vmap(one)(aug, local, glob)
