@@ -35,7 +35,7 @@ def fit(K, poses, boxes, valid, steps: int = 800, lr: float = 0.02):
     def loss(p):
         pred, ok = q.project_bbox(q.so3_exp(p["rotvec"]), p["center"], jnp.exp(p["log_radii"]), K, poses)
         use = (ok & valid)[:, None]
-        return jnp.sum(jnp.where(use, (pred - boxes) ** 2, 0.0)) / (4.0 * jnp.sum(use))
+        return jnp.sum(jnp.where(use, (pred - boxes) ** 2, 0.0)) / (4.0 * jnp.sum(use, dtype=pred.dtype))
 
     opt = optax.adam(lr)
 

@@ -196,10 +196,10 @@ def pose_prior_residual(camera_T_world, prior, rotation_sigma, translation_sigma
     """
     camera_T_world = jnp.asarray(camera_T_world)
     dtype = jnp.result_type(camera_T_world, prior)
-    # Matrix product, then log, cast back: jaxlie's SE3 inverse / compose / log promote float32
-    # to float64 under x64.
+    # Matrix product, then log in the default float dtype, cast back: jaxlie's SE3 log mixes
+    # float32 with its own float64 constants under x64 (refused by strict dtype promotion).
     rel = jnp.asarray(prior, dtype) @ invert_pose(camera_T_world.astype(dtype))
-    err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
+    err = jaxlie.SE3.from_matrix(rel.astype(jnp.result_type(float))).log().astype(dtype)
     ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
     return err / jnp.concatenate([ts, rs], axis=-1)
@@ -230,7 +230,7 @@ def between_residual(camera_T_world_a, camera_T_world_b, measured, rotation_sigm
     # measured^-1 a_T_b = (b_T_a measured)^-1: one product chain, then log, cast back (jaxlie's
     # SE3 promotes float32 to float64 under x64).
     rel = invert_pose(jnp.asarray(measured, dtype)) @ a @ invert_pose(b)
-    err = jaxlie.SE3.from_matrix(rel).log().astype(dtype)
+    err = jaxlie.SE3.from_matrix(rel.astype(jnp.result_type(float))).log().astype(dtype)
     ts = jnp.broadcast_to(jnp.asarray(translation_sigma, err.dtype), err.shape[:-1] + (3,))
     rs = jnp.broadcast_to(jnp.asarray(rotation_sigma, err.dtype), err.shape[:-1] + (3,))
     return err / jnp.concatenate([ts, rs], axis=-1)

@@ -150,7 +150,8 @@ def _box_faces(rotation, center, half):
 def _clip_polygon(verts, count, normal, offset, tol):
     """Sutherland-Hodgman clip of one convex polygon (fixed-size, masked) by ``n.x <= o + tol``."""
     V = verts.shape[0]
-    idx = jnp.arange(V)
+    count = jnp.asarray(count, jnp.int32)
+    idx = jnp.arange(V, dtype=jnp.int32)
     valid = idx < count
     nxt = jnp.where(idx + 1 < count, idx + 1, 0)
     cur_v, next_v = verts, verts[nxt]
@@ -174,7 +175,7 @@ def _clip_polygon(verts, count, normal, offset, tol):
 def _polygon_volume_term(verts, count):
     """Signed volume contribution ``sum v0 . (vi x vi+1) / 6`` of a polygon fan."""
     V = verts.shape[0]
-    i = jnp.arange(1, V - 1)
+    i = jnp.arange(1, V - 1, dtype=jnp.int32)
     tri = jnp.cross(verts[i], verts[i + 1])
     terms = jnp.sum(verts[0] * tri, axis=-1) / 6.0
     return jnp.sum(jnp.where(i + 1 < count, terms, 0.0))
@@ -299,7 +300,7 @@ def adi(true_points, pred_points, true_mask=None, pred_mask=None):
     m = jnp.asarray(true_mask, bool)
     total = jnp.sum(jnp.where(m, nearest, 0.0), axis=-1)
     n = jnp.sum(m, axis=-1)
-    return jnp.where(n > 0, total / jnp.maximum(n, 1), 0.0)
+    return jnp.where(n > 0, total / jnp.maximum(n, 1).astype(total.dtype), 0.0)
 
 
 def pass_rate_curve(errors, max_threshold=0.1, num_thresholds=1000):

@@ -96,7 +96,8 @@ def test_depth_back_projects_onto_the_door_frame(building, scene):
     out = scene.render(K, T, outputs=("depth", "seg"))
     rows, cols = np.nonzero(out["seg"] == k)
     assert len(rows) > 50
-    pts = np.asarray(quadrics.back_project(np.stack([cols, rows], -1).astype(float), out["depth"][rows, cols], K, T))
+    depth = out["depth"][rows, cols].astype(float)  # the render's float32, with float64 K and T
+    pts = np.asarray(quadrics.back_project(np.stack([cols, rows], -1).astype(float), depth, K, T))
     lo, hi = objects.box_min[k] - 0.02, objects.box_max[k] + 0.02
     inside = np.all((pts >= lo) & (pts <= hi), axis=1)
     assert inside.mean() > 0.99

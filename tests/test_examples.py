@@ -20,7 +20,7 @@ def _load(name):
 
 
 @pytest.mark.slow
-def test_fit_ellipsoid_to_boxes_recovers_the_truth():
+def test_fit_ellipsoid_to_boxes_recovers_the_truth(optax_promotion):  # the example runs optax.adam
     result = _load("fit_ellipsoid_to_boxes").main()
     assert result["last_loss"] < 1e-3 * result["first_loss"]
     assert result["box_rms_px"] < 0.5

@@ -81,7 +81,7 @@ def test_path_cells_to_mask_counts_and_padding():
 
 
 @pytest.mark.slow
-def test_nll_falls_when_overfitting_a_handful(net):
+def test_nll_falls_when_overfitting_a_handful(net, optax_promotion):  # its own optax.adam loop
     model, params = net
     rng = np.random.default_rng(4)
     occ, sem = _maps(rng, (4,))

@@ -267,7 +267,7 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
 
 
 @pytest.mark.slow
-def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path):
+def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path, optax_promotion):  # optax directly
     from jaxsem.lsd import stage_optimizer
 
     cfg = dataclasses.replace(CFG, lr_schedule="cosine", stage1_steps=20, stage2_steps=10)
@@ -338,7 +338,7 @@ def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
 
     from jaxsem.lsd import warm_start_params
 
-    x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3))
+    x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3), jnp.float32)  # flax params: float32
     tconv, conv = nn.ConvTranspose(4, (2, 2), strides=(2, 2)), nn.Conv(4, (3, 3))
     pt = tconv.init(jax.random.PRNGKey(2), x)["params"]
     up = jnp.repeat(jnp.repeat(x, 2, axis=1), 2, axis=2)

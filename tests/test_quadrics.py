@@ -14,8 +14,6 @@ import pytest
 from jaxsem import quadrics as q
 from jaxsem._geometry.bbox import _project_bbox  # layers: white-box (the custom-JVP path itself)
 
-pytestmark = [pytest.mark.usefixtures("strict_numpy"), pytest.mark.filterwarnings("error")]
-
 N_CASES = 200
 
 

@@ -17,8 +17,6 @@ from hypothesis import given, settings, strategies as st
 
 from jaxsem import quadrics as q
 
-pytestmark = [pytest.mark.usefixtures("strict_numpy"), pytest.mark.filterwarnings("error")]
-
 K = np.array([[525.0, 0.0, 320.0], [0.0, 520.0, 240.0], [0.0, 0.0, 1.0]])
 
 batch_shapes = hnp.array_shapes(min_dims=0, max_dims=3, min_side=1, max_side=3)

@@ -97,7 +97,8 @@ def test_online_update_returns_a_code_per_frame():
     for frame in frames:
         state = slam.online_update(state, frame)
         codes.append(int(slam.result_code(state.result)))
-    assert set(codes) <= {0, 1}, codes  # successful or step budget; never a failure here
+    budget = int(slam.result_code(slam.RESULTS.iterations_reached))
+    assert set(codes) <= {0, budget}, codes  # successful or step budget; never a failure here
     bad = eqx.tree_at(lambda f: f.box, frames[1], frames[1].box.at[0, 0].set(jnp.nan))
     state = slam.online_update(state, bad)
     assert bool(state.result == slam.RESULTS.nonfinite)

@@ -61,7 +61,7 @@ def test_device_batch_geometry(batch):
     shift = 0.5 * (b["box_left"][:, 0] + b["box_left"][:, 2] - b["box_right"][:, 0] - b["box_right"][:, 2])
     np.testing.assert_allclose(shift, disparity, rtol=0.35)
     # surface points project inside the left box and lie on the object's surface
-    uv, _ = quadrics.project_points(b["points"], b["K"][:, None], np.eye(4)[None, None])
+    uv, _ = quadrics.project_points(b["points"], b["K"][:, None], np.eye(4, dtype=b["points"].dtype)[None, None])
     m = b["point_mask"]
     uv = np.asarray(uv)
     assert np.all(uv[..., 0][m] >= b["box_left"][:, None, 0].repeat(16, 1)[m] - 1)

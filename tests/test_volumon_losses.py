@@ -31,7 +31,7 @@ def _random_ellipsoids(seed, n):
 
 
 def _stereo_boxes(ell, baseline=0.06):
-    T_r = stereo_right_T_left(jnp.full(ell.center.shape[:-1], baseline))
+    T_r = stereo_right_T_left(jnp.full(ell.center.shape[:-1], baseline), dtype=ell.center.dtype)
     bl, vl = quadrics.project_bbox(*ell, K, jnp.eye(4))
     br, vr = quadrics.project_bbox(*ell, K, T_r)
     assert np.all(vl) and np.all(vr)

@@ -166,12 +166,15 @@ def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
     """
     xp = _namespace(xp)
     uv = _as_float_array("uv", uv, (2,), check_finite=True, xp=xp)
+    # A Python number (``1.0``: unit-depth rays) takes the other arguments' dtype (a weak type).
+    scalar_depth = isinstance(depth, (int, float)) and not isinstance(depth, bool)
     depth = xp.asarray(depth)
     if _is_concrete(depth) and not bool(np.all(np.isfinite(np.asarray(depth)))):
         raise ValueError("depth: must be finite, got non-finite values (NaN or inf)")
     K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(uv=uv.shape[:-1], depth=depth.shape, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    dtype = xp.result_type(uv.dtype, depth.dtype, K.dtype, pose.dtype, float)
+    dtypes = (uv.dtype, K.dtype, pose.dtype) if scalar_depth else (uv.dtype, depth.dtype, K.dtype, pose.dtype)
+    dtype = xp.result_type(*dtypes, float)
     uv, depth, K, pose = uv.astype(dtype), depth.astype(dtype), K.astype(dtype), pose.astype(dtype)
     fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     fy, cy = K[..., 1, 1], K[..., 1, 2]

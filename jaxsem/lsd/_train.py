@@ -157,7 +157,11 @@ def make_train_step(
     def step(params, opt_state, batch, key):
         trainable, frozen = _trainable(params, stage)
         value, grads = jax.value_and_grad(loss_fn)(trainable, frozen, batch, key)
-        updates, opt_state = tx.update(grads, opt_state, trainable)
+        # optax 0.2.8's adam computes its bias correction as `decay ** count` (a Python float
+        # and the int32 step count), which strict dtype promotion refuses: optax's update alone
+        # runs under standard promotion.
+        with jax.numpy_dtype_promotion("standard"):
+            updates, opt_state = tx.update(grads, opt_state, trainable)
         trainable = cast(dict, optax.apply_updates(trainable, updates))  # same tree as its input, a dict
         return {**frozen, **trainable}, opt_state, value
 
@@ -560,7 +564,7 @@ def load_model_file(path):
     occ = jnp.zeros((1, k, k), jnp.int8)
     # eval_shape: the parameter structure without compiling an initialisation.
     like = jax.eval_shape(
-        lambda: model.init(jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim)))
+        lambda: model.init(jax.random.PRNGKey(0), occ, occ, jnp.zeros((1, config.model.context_dim), jnp.float32))
     )["params"]
     if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(params):
         raise ValueError(f"path: parameters in {str(path)!r} do not match the model config")

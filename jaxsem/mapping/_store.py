@@ -180,7 +180,7 @@ def _check_pair(state: ObjectMap, detections: Ellipsoids):
 
 def _associate(state: ObjectMap, det: Ellipsoids, gate, class_aware: bool) -> Association:
     M, N = det.valid.shape[0], state.valid.shape[0]
-    diff = jax.lax.stop_gradient(det.center[:, None, :] - state.center[None, :, :])
+    diff = jax.lax.stop_gradient(det.center[:, None, :].astype(state.center.dtype) - state.center[None, :, :])
     dist2 = jnp.sum(diff * diff, axis=-1)  # squared: no sqrt, no NaN gradient at 0
     gate = jnp.asarray(gate, dist2.dtype)
     ok = det.valid[:, None] & state.valid[None, :] & (dist2 <= gate * gate)

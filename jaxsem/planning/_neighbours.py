@@ -146,11 +146,11 @@ def _knn(
         start = jnp.searchsorted(sorted_bid, lo, side="left")
         count = jnp.where(inside, jnp.searchsorted(sorted_bid, hi, side="right") - start, 0)
         overflow = jnp.max(count) > cap
-        j = jnp.arange(cap)
+        j = jnp.arange(cap, dtype=start.dtype)
         slot = start[..., None] + j  # (Q, 3, cap)
         ok = (j < count[..., None]).reshape(Q, -1)
         cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
-    ok = ok & (cand != q_self[:, None])
+    ok = ok & (cand != q_self.astype(cand.dtype)[:, None])
     diff = db[cand] - queries[:, None, :]
     d2 = jnp.sum(diff**2, -1)
     d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)

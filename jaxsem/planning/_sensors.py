@@ -155,7 +155,7 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     half = int(math.ceil(max_range / resolution)) + 2
     wh, ww = min(2 * half + 1, H), min(2 * half + 1, W)
     rc = Q.world_to_cell(xy, origin, resolution)
-    start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww]))
+    start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww], jnp.int32))
     win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))
     occ_t, sem_t = win(true_occupancy), win(true_semantic)
     occ, sem = win(state.occupancy), win(state.semantic)

@@ -80,8 +80,9 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
     """Re-initialises objects stranded behind (or lost by) the camera of their latest box."""
     M = problem.box.shape[0]
     J = problem.object_class.shape[0]
-    idx = jnp.arange(M)
-    hit = (problem.box_object[None, :] == jnp.arange(J)[:, None]) & box_mask[None, :]
+    idx = jnp.arange(M, dtype=jnp.int32)
+    objects = jnp.arange(J, dtype=problem.box_object.dtype)
+    hit = (problem.box_object[None, :] == objects[:, None]) & box_mask[None, :]
     last = jnp.max(jnp.where(hit, idx[None, :], -1), axis=1)
     has = last >= 0
     last = jnp.maximum(last, 0)
@@ -132,7 +133,7 @@ def solve_online(
 
     T = problem.pose_prior.shape[0]
     init_radii = init.radii if init_radii is None else init_radii
-    ks = jnp.arange(every, T + every, every).clip(max=T)
+    ks = jnp.arange(every, T + every, every, dtype=problem.box_pose.dtype).clip(max=T)
 
     def round_(carry, k):
         est, n_reinit = carry
@@ -143,7 +144,7 @@ def solve_online(
             box_mask=bm,
             texture_mask=problem.texture_mask & bm,
             object_mask=problem.object_mask & seen,
-            pose_mask=problem.pose_mask & (jnp.arange(T) < k),
+            pose_mask=problem.pose_mask & (jnp.arange(T, dtype=ks.dtype) < k),
         )
         if reinit:
             est, lost = _reinitialise(sub, est, bm, config, init_radii, reinit_iou)

@@ -117,7 +117,7 @@ def _random_objects(pool: _Pool, config: SimConfig, dtype):
     # Gather the accepted candidates into their slots (slot k <- the candidate that took it).
     slot_of_candidate = jnp.where(slots >= 0, slots, n)
     source = jnp.zeros((n,), jnp.int32).at[slot_of_candidate].set(jnp.arange(m, dtype=jnp.int32), mode="drop")
-    mask = jnp.arange(n) < n_taken
+    mask = jnp.arange(n, dtype=jnp.int32) < n_taken
     r = radii[source]
     center = jnp.concatenate([xy[source], r[:, 2:3]], axis=-1)
     rotation = yaw_rotation(yaw[source])

@@ -40,6 +40,13 @@ class Delta(eqx.Module):
     radii: jnp.ndarray
 
 
+def _jaxlie_dtype():
+    """jaxlie computes in the default float dtype: its exp mixes float32 input with its own
+    float64 constants under x64 (refused by strict dtype promotion; standard promotion did the
+    same computation in float64). The result is cast back to the caller's dtype."""
+    return jnp.result_type(float)
+
+
 def zero_delta(estimate: SlamEstimate) -> Delta:
     dtype = estimate.center.dtype
     T = estimate.camera_T_world.shape[-3]
@@ -59,12 +66,12 @@ def retract_pose(pose, dp):
     matrix-to-quaternion conversion, which dominates compile time under ``jacfwd``.
     """
     # Cast: jaxlie's SE3.exp promotes float32 to float64 under x64.
-    return pose @ jaxlie.SE3.exp(dp).as_matrix().astype(pose.dtype)
+    return pose @ jaxlie.SE3.exp(dp.astype(_jaxlie_dtype())).as_matrix().astype(pose.dtype)
 
 
 def retract_object(rotation, center, radii, dobj):
     """Applies a 9-vector ``[dw, dc, ds]`` to one ellipsoid (or a batch of them)."""
-    R = rotation @ jaxlie.SO3.exp(dobj[..., 0:3]).as_matrix().astype(rotation.dtype)
+    R = rotation @ jaxlie.SO3.exp(dobj[..., 0:3].astype(_jaxlie_dtype())).as_matrix().astype(rotation.dtype)
     c = center + dobj[..., 3:6]
     r = F.radii_from_param(F.param_from_radii(radii) + dobj[..., 6:9])
     return R, c, r

@@ -25,8 +25,9 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     mean, _ = class_table(config, dtype, problem)
     M = problem.box.shape[0]
     J = problem.object_class.shape[0]
-    idx = jnp.arange(M)
-    hit = (problem.box_object[None, :] == jnp.arange(J)[:, None]) & problem.box_mask[None, :]
+    idx = jnp.arange(M, dtype=jnp.int32)
+    objects = jnp.arange(J, dtype=problem.box_object.dtype)
+    hit = (problem.box_object[None, :] == objects[:, None]) & problem.box_mask[None, :]
     first = jnp.min(jnp.where(hit, idx[None, :], M), axis=1)
     has_box = first < M
     first = jnp.minimum(first, M - 1)

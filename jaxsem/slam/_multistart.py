@@ -27,7 +27,7 @@ def object_costs(problem: SlamProblem, estimate: SlamEstimate, config: SolverCon
     blocks = residual_blocks(problem, estimate, config)
     boxes, shapes = blocks[0], blocks[2]
     J = problem.object_class.shape[0]
-    per_box = 0.5 * jnp.sum(boxes**2, axis=-1) * problem.box_mask
+    per_box = 0.5 * jnp.sum(boxes**2, axis=-1) * problem.box_mask.astype(boxes.dtype)
     cost = jax.ops.segment_sum(per_box, problem.box_object, num_segments=J)
     return jnp.where(problem.object_mask, cost + 0.5 * jnp.sum(shapes**2, axis=-1), 0.0)
 

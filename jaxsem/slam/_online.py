@@ -2,8 +2,8 @@
 
     state = online_init(config, capacity, K, image_size)
     for frame in frames:                      # jaxsem.slam.Frame / make_frame(...)
-        state = online_update(state, frame)   # jitted; compiles once per capacity
-    state = online_optimize(state)            # optional final full optimisation
+        state = online_update(state, frame)   # one jitted step, compiled once per capacity
+    state = online_optimize(state)            # optional final optimisation (the same step)
     estimate = online_estimate(state)
 
 All buffers have the static sizes of :class:`~jaxsem.slam.Capacity` (poses, boxes, objects,
@@ -45,7 +45,7 @@ class OnlineState(eqx.Module):
       frame_count: () int32 frames seen. box_count: () int32 boxes written.
       result: :data:`jaxsem.slam.RESULTS` of this frame's update: ``successful`` when the
         frame needed no optimisation or its LM met the stopping rule with a finite state;
-        ``max_steps_reached`` when the ``iterations`` budget ran out first (normal online,
+        ``iterations_reached`` when the ``iterations`` budget ran out first (normal online,
         the next optimisation continues); a failure code otherwise.
       config: :class:`SolverConfig`.
       optimize_every, iterations, window, max_detections: static ints.
@@ -169,6 +169,8 @@ def _optimize(state: OnlineState, iterations, free) -> OnlineState:
         state.problem.object_mask,
         iterations,
     )
+    # The budget here is `iterations` (not SolverConfig.max_steps): its own code and message.
+    result = RESULTS.where(result == RESULTS.max_steps_reached, RESULTS.iterations_reached, result)
     return eqx.tree_at(lambda s: (s.estimate, s.result), state, (est, result))
 
 
@@ -250,7 +252,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         estimate=estimate,
         pose_frame=pose_frame,
         frame_count=state.frame_count + 1,
-        box_count=(state.box_count + jnp.sum(det)).astype(jnp.int32),
+        box_count=state.box_count + jnp.sum(det, dtype=jnp.int32),
         result=RESULTS.successful,  # pyright: ignore[reportArgumentType]
         config=cfg,
         optimize_every=state.optimize_every,
@@ -304,22 +306,26 @@ online_step = jax.jit(_online_step)
 behind :func:`online_update` and :func:`online_optimize`."""
 
 
-def _update(state: OnlineState, frame: Frame) -> OnlineState:
+def online_update(state: OnlineState, frame: Frame) -> OnlineState:
+    """Adds one :class:`Frame` and, every ``optimize_every`` frames, optimises.
+
+    Runs :data:`online_step`, the one executable it shares with :func:`online_optimize`: the
+    first call (of either) compiles it; later calls with the same capacity and dtype reuse it.
+    Callable inside the user's ``jit`` too (then it is traced into that program).
+
+    Args:
+      state: :class:`OnlineState`; frame: :class:`Frame` with ``max_detections`` rows.
+
+    Returns:
+      the new :class:`OnlineState`; ``state.result`` is this frame's :data:`RESULTS` code.
+    """
+    import numpy as np
+
     _check_frame(state, frame)
-    return online_step(state, frame, jnp.asarray(False), jnp.asarray(0, jnp.int32))
-
-
-online_update = jax.jit(_update)
-online_update.__doc__ = """Adds one :class:`Frame` and, every ``optimize_every`` frames, optimises.
-
-Jitted: the first call compiles; later calls with the same capacity reuse the executable.
-
-Args:
-  state: :class:`OnlineState`; frame: :class:`Frame` with ``max_detections`` rows.
-
-Returns:
-  the new :class:`OnlineState`; ``state.result`` is this frame's :data:`RESULTS` code.
-"""
+    # The same argument types as online_optimize's (numpy bool and int32 scalars): one cache
+    # entry of online_step for both. (A jit of its own around online_step would be a second
+    # executable: online_optimize then compiled the step again, 8 s, issue 23 friction 7.)
+    return online_step(state, frame, np.asarray(False), np.asarray(0, np.int32))
 
 
 def empty_frame(state: OnlineState) -> Frame:
@@ -341,7 +347,9 @@ def empty_frame(state: OnlineState) -> Frame:
 
 def online_optimize(state: OnlineState, iterations: int = 50) -> OnlineState:
     """Relinearises and runs up to ``iterations`` LM steps over all kept poses and objects
-    (the final optimisation after the last frame). ``state.result`` is the LM's code."""
+    (the final optimisation after the last frame). ``state.result`` is the LM's code
+    (``iterations_reached`` when the budget ran out first). Runs :data:`online_step`, the
+    executable :func:`online_update` compiled: nothing new compiles."""
     import numpy as np
 
     if int(iterations) < 0:

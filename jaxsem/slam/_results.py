@@ -28,11 +28,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     Compare with ``info.result == RESULTS.successful`` (works under ``vmap``); the message of a
     code is ``RESULTS[item]``; the integer is :func:`result_code`. An ``optx.RESULTS`` item
     becomes one of these with ``RESULTS.promote(item)``. The ROSHAN solvers report
-    ``successful``, ``max_steps_reached`` (the step budget: ``SolverConfig.max_steps`` for a
-    batch solve, ``iterations`` online), ``nonfinite`` and the three codes below
-    (``unfixable_objects`` from the batch Schur solver only: it replaces ``successful`` when any
-    real object is flagged unfixable; the estimate of the other objects and the poses is the
-    converged one).
+    ``successful``, ``max_steps_reached`` (a batch solve's step budget,
+    ``SolverConfig.max_steps``), ``nonfinite`` and the codes below (``unfixable_objects`` from the
+    batch Schur solver only: it replaces ``successful`` when any real object is flagged
+    unfixable; the estimate of the other objects and the poses is the converged one;
+    ``iterations_reached`` from the online smoother only, whose budget is ``iterations``).
     """
 
     damping_limit = (
@@ -48,6 +48,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
         "projection in one of their frames, or box edges far off after the rescue; "
         "`SolveInfo.unfixable`): they were left out of the joint solve and their estimates are "
         "not to be trusted."
+    )
+    iterations_reached = (
+        "The online smoother's step budget ran out before the stopping rule was met "
+        "(`iterations` of `online_init` per optimisation, or of `online_optimize`): normal while "
+        "frames arrive, the next optimisation continues from this estimate."
     )
 
 

@@ -58,19 +58,21 @@ def sample_scene(key, scene: SceneConfig):
     (:func:`jaxsem.volumon._synthetic.sample_poses`).
     """
     ids, dims, colors, shapes = _class_tables(scene)
+    f32 = jnp.float32  # the renderer's dtype (the host generator's too), with or without x64
     H, W = scene.height, scene.width
     k = jax.random.split(key, 11)
     c = jax.random.randint(k[0], (), 0, len(ids))
-    half = 0.5 * jnp.asarray(dims)[c] * (1 + scene.size_jitter * jax.random.uniform(k[1], (3,), minval=-1, maxval=1))
-    q = jax.random.normal(k[2], (4,))
+    jitter = jax.random.uniform(k[1], (3,), f32, minval=-1, maxval=1)
+    half = 0.5 * jnp.asarray(dims)[c] * (1 + scene.size_jitter * jitter)
+    q = jax.random.normal(k[2], (4,), f32)
     R = quaternion_wxyz_to_rotation(q)
-    z = jax.random.uniform(k[3], (), minval=scene.depth_range[0], maxval=scene.depth_range[1])
+    z = jax.random.uniform(k[3], (), f32, minval=scene.depth_range[0], maxval=scene.depth_range[1])
     rmax = jnp.linalg.norm(half)
     margin = scene.focal * rmax / jnp.maximum(z - rmax, 1e-3) + 2
     lo = margin
     hi_u = jnp.maximum(W - 1 - margin, margin + 1e-3)
     hi_v = jnp.maximum(H - 1 - margin, margin + 1e-3)
-    uv01 = jax.random.uniform(k[4], (2,))
+    uv01 = jax.random.uniform(k[4], (2,), f32)
     uv = jnp.stack([lo + uv01[0] * (hi_u - lo), lo + uv01[1] * (hi_v - lo)])
     K = jnp.asarray(scene.K())
     center = back_project(uv, z, K, jnp.eye(4, dtype=K.dtype))
@@ -79,18 +81,18 @@ def sample_scene(key, scene: SceneConfig):
         "center": center,
         "half": half,
         "shape_id": jnp.asarray(shapes)[c],
-        "color": jnp.asarray(colors)[c] * jax.random.uniform(k[5], (), minval=0.85, maxval=1.15),
+        "color": jnp.asarray(colors)[c] * jax.random.uniform(k[5], (), f32, minval=0.85, maxval=1.15),
     }
     # one uniform draw per pixel and channel: unit-variance background noise (uniform, not
     # normal: threefry normals cost ~3x more on a CPU) and, from channel 0, the scores that pick
     # the surface points (they only matter on the object, where the background is not seen)
-    u = jax.random.uniform(k[9], (H, W, 3))
+    u = jax.random.uniform(k[9], (H, W, 3), f32)
     noise = {
-        "light": jax.random.normal(k[6], (3,)),
-        "bg0": jax.random.uniform(k[7], (3,)),
-        "bg1": jax.random.uniform(k[8], (3,)),
-        "bg_noise": (u - 0.5) * np.sqrt(12.0),
-        "box_noise": jax.random.normal(k[10], (4,)),
+        "light": jax.random.normal(k[6], (3,), f32),
+        "bg0": jax.random.uniform(k[7], (3,), f32),
+        "bg1": jax.random.uniform(k[8], (3,), f32),
+        "bg_noise": (u - 0.5) * float(np.sqrt(12.0)),
+        "box_noise": jax.random.normal(k[10], (4,), f32),
         "point_scores": u[..., 0].reshape(H * W),
     }
     return pose, noise, jnp.asarray(ids)[c]

@@ -27,8 +27,8 @@ def _bilinear(image, u, v):
     v = jnp.clip(v, 0.0, H - 1.0)
     u0 = jnp.clip(jnp.floor(u), 0, W - 2).astype(jnp.int32)
     v0 = jnp.clip(jnp.floor(v), 0, H - 2).astype(jnp.int32)
-    du = (u - u0)[..., None]
-    dv = (v - v0)[..., None]
+    du = (u - u0.astype(u.dtype))[..., None]
+    dv = (v - v0.astype(v.dtype))[..., None]
     a = image[v0, u0]
     b = image[v0, u0 + 1]
     c = image[v0 + 1, u0]

@@ -122,7 +122,8 @@ def _refine_one(phi0, box, K, points, mask, shape, free, recon, loss_cfg, num_st
         phi, state = carry
         val, g = jax.value_and_grad(loss)(phi)
         g = jnp.where(free, g, 0.0)
-        upd, state = opt.update(g, state, phi)
+        with jax.numpy_dtype_promotion("standard"):  # optax's adam: decay ** int32 count (lsd/_train.py)
+            upd, state = opt.update(g, state, phi)
         return (optax.apply_updates(phi, upd), state), val
 
     (phi, _), losses = jax.lax.scan(step, (phi0, opt.init(phi0)), None, length=num_steps)

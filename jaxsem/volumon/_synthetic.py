@@ -126,7 +126,7 @@ def _cylinder_hit(o, d, h):
     return s, hit, jnp.where(use_cap[..., None], n_cap, n_side)
 
 
-_FACE_TINTS = jnp.array(
+_FACE_TINTS = np.array(
     [[1.0, 1.0, 1.0], [0.55, 0.55, 0.55], [1.0, 0.85, 0.35], [0.35, 0.45, 1.0], [0.3, 1.0, 0.5], [1.0, 0.4, 0.9]]
 )
 
@@ -156,16 +156,16 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
     p_local = o + s[..., None] * d
     q = p_local / half
     ax = jnp.argmax(jnp.abs(q), -1)
-    sgn = (jnp.take_along_axis(q, ax[..., None], -1)[..., 0] > 0).astype(jnp.int32)
-    tint = _FACE_TINTS[2 * ax + sgn]
+    sgn = (jnp.take_along_axis(q, ax[..., None], -1)[..., 0] > 0).astype(ax.dtype)
+    tint = jnp.asarray(_FACE_TINTS, color.dtype)[2 * ax + sgn]
     n_cam = n_obj @ R.T
-    light = noise["light"] * 0.5 + jnp.array([0.3, -0.6, -1.0])
+    light = noise["light"] * 0.5 + jnp.array([0.3, -0.6, -1.0], noise["light"].dtype)
     light = light / jnp.linalg.norm(light)
     shade = 0.4 + 0.6 * jnp.clip(jnp.sum(n_cam * light, -1), 0.0, 1.0)  # light: towards the camera
     obj_rgb = color * tint * shade[..., None]
     g = (us / width)[..., None]
     bg = noise["bg0"] * (1 - g) + noise["bg1"] * g + 0.08 * noise["bg_noise"]
-    stripes = 0.5 + 0.5 * jnp.sin((us + 0.7 * vs) / 4.0)[..., None] * jnp.array([0.9, 0.2, 0.6])
+    stripes = 0.5 + 0.5 * jnp.sin((us + 0.7 * vs) / 4.0)[..., None] * jnp.array([0.9, 0.2, 0.6], us.dtype)
     bg = jnp.where(split_test, 0.5 * bg + 0.5 * stripes, bg)
     image = jnp.clip(jnp.where(hit[..., None], obj_rgb, bg), 0.0, 1.0)
     return image.astype(jnp.float32), depth.astype(jnp.float32), hit
@@ -233,7 +233,7 @@ def _render_batch(
         size = box_l[2:] - box_l[:2]
         box_in = box_l + noisy_scale * noise["box_noise"] * jnp.concatenate([size, size])
         box_in = jnp.concatenate([jnp.minimum(box_in[:2], box_in[2:] - 1.0), box_in[2:]])
-        box_in = jnp.clip(box_in, -0.5, jnp.array([W - 0.5, H - 0.5, W - 0.5, H - 0.5]))
+        box_in = jnp.clip(box_in, -0.5, jnp.array([W - 0.5, H - 0.5, W - 0.5, H - 0.5], box_in.dtype))
         # surface points: J distinct mask pixels drawn uniformly (top-k of random scores; far
         # cheaper on CPU than categorical sampling), back-projected with the depth
         scores = jnp.where(mask.ravel(), noise["point_scores"], -1.0)

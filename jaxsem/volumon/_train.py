@@ -111,7 +111,8 @@ def augment(aug, local, glob):
 
     def one(a, lo, gl):
         lo = _hue_saturation(lo, a["hue"], a["sat"])
-        gl = _hue_saturation(gl, a["hue"], a["sat"]) * (jnp.max(gl, -1, keepdims=True) > 0)  # keep zeros zero
+        keep = jnp.max(gl, -1, keepdims=True) > 0  # keep zeros zero
+        gl = jnp.where(keep, _hue_saturation(gl, a["hue"], a["sat"]), jnp.zeros((), gl.dtype))
         return _erase(lo, a["erase_rect"], a["erase_on"], a["erase_val"]), gl
 
     return jax.vmap(one)(aug, local, glob)
@@ -270,7 +271,8 @@ def make_train_step(model: VoluMonNet, tx, config: TrainConfig, mesh: jax.shardi
         (_, (terms, new_bs)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
             state["params"], state["batch_stats"], batch
         )
-        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
+        with jax.numpy_dtype_promotion("standard"):  # optax's adam: decay ** int32 count (lsd/_train.py)
+            updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
         new_state = {
             **state,
