@@ -100,6 +100,20 @@ class _Compiles:
         jax.monitoring.unregister_event_duration_listener(self._listen)
 
 
+@pytest.fixture(autouse=True)
+def _slow_tests_keep_standard_promotion(request):
+    """The slow tests run under standard dtype promotion for now: strict promotion reached the
+    whole fast suite at stop 25, but one slow test was still known to fail under it
+    (``test_volumon_losses::test_dual_loss_on_rendered_data``: float32 and float64 inputs meet in
+    ``dual_loss``) and about 28 slow tests were never run strict. Remove this fixture once a full
+    strict slow run passes."""
+    if request.node.get_closest_marker("slow") is None:
+        yield
+    else:
+        with jax.numpy_dtype_promotion("standard"):
+            yield
+
+
 @pytest.fixture
 def optax_promotion():
     """Standard dtype promotion for a test whose own code runs an optax optimiser (an opt-out of

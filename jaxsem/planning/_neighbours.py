@@ -56,7 +56,7 @@ def _count_before(key, groups, cols: int = 32):
     -> bool callables on (i, j) blocks; None: all j). Blocks of ``cols`` columns keep XLA's CPU
     reduction fast (a single (Q, C, C) reduction is 20x slower at C = 64)."""
     Q, C = key.shape
-    idx = jnp.arange(C)
+    idx = jnp.arange(C, dtype=jnp.int32)
     out = [jnp.zeros((Q, C), jnp.int32) for _ in groups]
     for s in range(0, C, cols):
         kj, ij = key[:, None, s : s + cols], idx[None, None, s : s + cols]
@@ -64,7 +64,7 @@ def _count_before(key, groups, cols: int = 32):
         before = (kj < ki) | ((kj == ki) & (ij < ii))
         for g, grp in enumerate(groups):
             m = before if grp is None else before & grp(slice(s, s + cols))
-            out[g] = out[g] + jnp.sum(m.astype(jnp.int32), -1)
+            out[g] = out[g] + jnp.sum(m, -1, dtype=jnp.int32)
     return out
 
 
