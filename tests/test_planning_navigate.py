@@ -103,6 +103,7 @@ def test_failed_roadmap_is_grown_not_the_end():
     assert sum(r.success for r in grown) > sum(r.success for r in first)
 
 
+@pytest.mark.slow  # a navigation trial grows its roadmap to the limit (about 15 s)
 def test_navigate_fails_when_goal_is_sealed_off():
     w = _two_rooms()
     w.occupancy[45:55, 59:61] = True  # close the door

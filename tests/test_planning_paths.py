@@ -202,6 +202,7 @@ def test_query_returns_the_roadmaps_shortest_path():
     assert checked >= 2
 
 
+@pytest.mark.slow  # two roadmaps on a building-sized grid (about 10 s)
 def test_unknown_counts_as_free():
     occ = _one_route_map()
     partial = np.full(occ.shape, UNKNOWN, np.int8)
