@@ -171,14 +171,9 @@ def test_drifting_odometry_and_boxes_beat_odometry_alone():
     assert solved[-1] < 0.5 * alone[-1], (solved, alone)
 
 
-@pytest.mark.slow
-def test_generic_linearisation_with_odometry_equals_roshans():
-    # schur_normal's pose_pair block (2 dp + dl coloured columns) against ROSHAN's linearize
-    # (per-factor jacfwd) on a map with odometry: the differentiable path (solve_batch
-    # method="optimistix") linearises this way.
-    problem, _, _ = _drifting_problem(num_frames=5)
-    cfg = _cfg()
-    est = slam.initialize(problem, cfg)
+def _generic_and_roshan_normal(problem, est, cfg):
+    """The Schur normal equations two ways: schur_normal's generic linearisation of
+    ``residual_blocks`` and ROSHAN's own ``linearize``; with the total cost."""
     free = problem.pose_mask.astype(jnp.float64)
     solver = slam.roshan_solver(cfg)
     args = (problem, cfg, free, problem.object_mask)
@@ -187,9 +182,20 @@ def test_generic_linearisation_with_odometry_equals_roshans():
     def both(est):
         fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
         generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
-        return generic, slam.linearize(problem, est, cfg, free)
+        return generic, slam.linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
 
-    generic, roshan = both(est)
+    return both(est)
+
+
+@pytest.mark.slow
+def test_generic_linearisation_with_odometry_equals_roshans():
+    # schur_normal's pose_pair block (2 dp + dl coloured columns) against ROSHAN's linearize
+    # (per-factor jacfwd) on a map with odometry: the differentiable path (solve_batch
+    # method="optimistix") linearises this way.
+    problem, _, _ = _drifting_problem(num_frames=5)
+    cfg = _cfg()
+    est = slam.initialize(problem, cfg)
+    generic, roshan, _ = _generic_and_roshan_normal(problem, est, cfg)
     assert generic.Hpp_next is not None and roshan.Hpp_next is not None
     for a, b in zip(generic, roshan):
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
@@ -317,17 +323,7 @@ def test_upright_prior_linearisation_equals_the_generic_one():
     tilt = jnp.asarray(jaxlie.SO3.from_x_radians(0.3).as_matrix())
     est = slam.SlamEstimate(est.camera_T_world, est.rotation @ tilt, est.center, est.radii)
     assert slam.residual_blocks(problem, est, cfg)[2].shape[-1] == 5
-    free = problem.pose_mask.astype(jnp.float64)
-    solver = slam.roshan_solver(cfg)
-    args = (problem, cfg, free, problem.object_mask)
-
-    @jax.jit
-    def both(est):
-        fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
-        generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
-        return generic, slam.linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
-
-    generic, roshan, cost = both(est)
+    generic, roshan, cost = _generic_and_roshan_normal(problem, est, cfg)
     np.testing.assert_allclose(roshan.cost, cost, rtol=1e-10)
     for a, b in zip(generic, roshan):
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
