@@ -158,6 +158,22 @@ def _split(rect, rng, max_side, min_side):
     return _split((r0, c0, r1, cut), rng, max_side, min_side) + _split((r0, cut, r1, c1), rng, max_side, min_side)
 
 
+def _divide(blocks, transpose: bool, corner, rng, p, cells, skip_empty: bool = False) -> list:
+    """Rooms (r0, c0, r1, c1) of the grid: each block, given in a local frame (rows and columns
+    swapped when ``transpose``, offset by the footprint's ``corner``), split by :func:`_split`
+    into rooms of ``p.room_size`` (m); ``skip_empty`` passes over blocks with no cells."""
+    min_room = cells(p.room_size[0] * 0.6)
+    max_side = (cells(p.room_size[0]), cells(p.room_size[1]))
+    rooms = []
+    for r0, c0, r1, c1 in blocks:
+        if transpose:
+            r0, c0, r1, c1 = c0, r0, c1, r1
+        g = (r0 + corner[0], c0 + corner[1], r1 + corner[0], c1 + corner[1])
+        if not skip_empty or (g[2] > g[0] and g[3] > g[1]):
+            rooms += _split(g, rng, max_side, min_room)
+    return rooms
+
+
 def _adjacency_runs(region):
     """{(a, b): list of (axis, fixed, lo, hi)} shared boundaries between regions a < b.
 
@@ -203,6 +219,140 @@ def _opening(run, width, clearance, rng):
     if axis == 0:
         return (fixed, start, fixed + 2, start + width)
     return (start, fixed, start + width, fixed + 2)
+
+
+class _Openings:
+    """The walls of a region grid and the openings cut through them, for both generators.
+
+    Every cell with a 4-neighbour in another region is wall (so interior walls are two cells
+    thick). Doors go through a run of wall two regions share, ``clear`` cells off its ends; a
+    union-find over the regions records which are joined, so that a repair pass can add doors
+    until every room reaches the corridor. All random draws come from ``rng`` in the order the
+    generators have always made them (their outputs are pinned).
+    """
+
+    def __init__(self, region, n_regions: int, clear: int, rng):
+        wall = np.zeros(region.shape, bool)
+        d0 = region[1:, :] != region[:-1, :]
+        d1 = region[:, 1:] != region[:, :-1]
+        wall[1:, :] |= d0
+        wall[:-1, :] |= d0
+        wall[:, 1:] |= d1
+        wall[:, :-1] |= d1
+        self.wall = wall
+        self.semantic = np.where(wall, WALL, NONE).astype(np.int8)
+        self.door = np.zeros(region.shape, bool)  # every cell opened (doors and open-plan gaps)
+        self.runs = _adjacency_runs(region)
+        self.n_regions, self.clear, self.rng = n_regions, clear, rng
+        self.parent = list(range(n_regions))
+
+    def find(self, i: int) -> int:
+        parent = self.parent
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def open(self, box, label=DOOR):
+        """Clear the wall in cell box ``box`` and mark it ``label`` in the semantic grid."""
+        r0, c0, r1, c1 = box
+        self.wall[r0:r1, c0:c1] = False
+        self.semantic[r0:r1, c0:c1] = label
+        self.door[r0:r1, c0:c1] = True
+
+    def cut(self, a: int, b: int, width: int, label=DOOR) -> bool:
+        """A ``width``-cell opening on a random run of the wall between regions a and b; False if
+        no run is long enough."""
+        cands = [r for r in self.runs.get((min(a, b), max(a, b)), []) if r[3] - r[2] >= width + 2 * self.clear]
+        if not cands:
+            return False
+        box = _opening(cands[int(self.rng.integers(len(cands)))], width, self.clear, self.rng)
+        if box is None:  # not reached: the candidates are long enough
+            return False
+        self.open(box, label)
+        self.parent[self.find(a)] = self.find(b)
+        return True
+
+    def neighbours(self, min_width: int) -> dict:
+        """{region: set of regions} sharing a wall run long enough for a ``min_width`` door."""
+        out: dict = {i: set() for i in range(self.n_regions)}
+        for (a, b), rl in self.runs.items():
+            if a >= 0 and any(r[3] - r[2] >= min_width + 2 * self.clear for r in rl):
+                out[a].add(b)
+                out[b].add(a)
+        return out
+
+    def link_rooms(self, neighbours: dict, width, skip=None):
+        """One door per room in a random order, to the corridor where they touch, else to a
+        random neighbour; ``width()`` draws each door's width (after the neighbour), ``skip(room)``
+        passes a room over."""
+        for room in self.rng.permutation(np.arange(1, self.n_regions)):
+            room = int(room)
+            if skip is not None and skip(room):
+                continue
+            if CORRIDOR_REGION in neighbours[room]:
+                self.cut(room, CORRIDOR_REGION, width())
+            elif neighbours[room]:
+                self.cut(room, int(self.rng.choice(sorted(neighbours[room]))), width())
+
+    def repair(self, neighbours: dict, width: int) -> list:
+        """Doors until every room reaches the corridor, preferring links to its component; a room
+        with no usable wall is joined to the corridor's component without one. Returns those rooms."""
+        sealed = []
+        corridor = CORRIDOR_REGION
+        for _ in range(2 * self.n_regions):
+            lost = [i for i in range(1, self.n_regions) if self.find(i) != self.find(corridor)]
+            if not lost:
+                break
+            progress = False
+            for room in lost:
+                reached = [n for n in sorted(neighbours[room]) if self.find(n) == self.find(corridor)]
+                if reached and self.cut(room, reached[0], width):
+                    progress = True
+            if not progress:
+                room = lost[0]
+                others = [n for n in sorted(neighbours[room]) if self.find(n) != self.find(room)]
+                if not others or not self.cut(room, others[0], width):
+                    self.parent[self.find(room)] = self.find(corridor)
+                    sealed.append(room)
+        return sealed
+
+    def building(
+        self, occupancy, semantic, indoor, margin, resolution, entrance, ext_doors, rooms, family, seed, known=None
+    ) -> Building:
+        """The :class:`Building` of these grids: origin ``margin`` cells outside the footprint's
+        corner, the entrance cell in metres, and the rooms the corridor reaches."""
+        origin = np.array([-margin * resolution, -margin * resolution])
+        reached = [r for i, r in enumerate(rooms) if self.find(i + 1) == self.find(CORRIDOR_REGION)]
+        return Building(
+            occupancy=occupancy,
+            semantic=semantic,
+            indoor=indoor,
+            origin=origin,
+            resolution=float(resolution),
+            entrance=Q.cell_to_world(np.array(entrance), origin, resolution, xp=np),
+            exterior_doors=np.array(ext_doors, np.int64).reshape(-1, 4),
+            rooms=np.array(reached, np.int64).reshape(-1, 4),
+            family=family,
+            seed=int(seed),
+            known=known,
+        )
+
+    def windows(self, prob: float, length: tuple, clearance: int):
+        """Windows on the rooms' exterior wall runs (each run with probability ``prob``, its
+        length drawn from ``length`` cells, inclusive): WINDOW over the wall cells of both layers."""
+        for (a, b), rl in self.runs.items():
+            if a != OUTSIDE_REGION or b == CORRIDOR_REGION:
+                continue
+            for run in rl:
+                if self.rng.random() > prob:
+                    continue
+                box = _opening(run, int(self.rng.integers(length[0], length[1] + 1)), clearance, self.rng)
+                if box is None:
+                    continue
+                r0, c0, r1, c1 = box
+                keep = self.semantic[r0:r1, c0:c1] == WALL
+                self.semantic[r0:r1, c0:c1] = np.where(keep, WINDOW, self.semantic[r0:r1, c0:c1])
 
 
 def _footprint(rng, p, resolution: float):
@@ -264,84 +414,21 @@ def generate_building(
         blocks.append((0, cs[0], spine[0], cs[1]))
         blocks.append((spine[1], cs[0], D, cs[1]))
 
-    def to_global(rect):
-        r0, c0, r1, c1 = rect
-        if transpose:
-            r0, c0, r1, c1 = c0, r0, c1, r1
-        return (r0 + b0r, c0 + b0c, r1 + b0r, c1 + b0c)
-
-    min_room = cells(p.room_size[0] * 0.6)
-    max_side = (cells(p.room_size[0]), cells(p.room_size[1]))
-    rooms = []
-    for blk in blocks:
-        rooms += _split(to_global(blk), rng, max_side, min_room)
+    rooms = _divide(blocks, transpose, (b0r, b0c), rng, p, cells)
     for i, (r0, c0, r1, c1) in enumerate(rooms):
         region[r0:r1, c0:c1] = i + 1
 
-    # Walls: every cell with a 4-neighbour in another region (so interior walls are 2 thick).
-    wall = np.zeros((H, W), bool)
-    d0 = region[1:, :] != region[:-1, :]
-    d1 = region[:, 1:] != region[:, :-1]
-    wall[1:, :] |= d0
-    wall[:-1, :] |= d0
-    wall[:, 1:] |= d1
-    wall[:, :-1] |= d1
-    semantic = np.where(wall, WALL, NONE).astype(np.int8)
-
-    runs = _adjacency_runs(region)
+    # Walls (two cells thick between regions), a door per room, then doors until all are reached.
     door_w, clear = cells(p.door_width), max(2, cells(0.3))
     n_regions = len(rooms) + 1
-    parent = list(range(n_regions))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    def cut_door(a, b):
-        cands = [r for r in runs.get((min(a, b), max(a, b)), []) if r[3] - r[2] >= door_w + 2 * clear]
-        if not cands:
-            return False
-        run = cands[int(rng.integers(len(cands)))]
-        box = _opening(run, door_w, clear, rng)
-        if box is None:  # not reached: the candidates are long enough
-            return False
-        r0, c0, r1, c1 = box
-        wall[r0:r1, c0:c1] = False
-        semantic[r0:r1, c0:c1] = DOOR
-        parent[find(a)] = find(b)
-        return True
-
-    neighbours = {i: set() for i in range(n_regions)}
-    for (a, b), rl in runs.items():
-        if a >= 0 and any(r[3] - r[2] >= door_w + 2 * clear for r in rl):
-            neighbours[a].add(b)
-            neighbours[b].add(a)
-    for room in rng.permutation(np.arange(1, n_regions)):
-        room = int(room)
-        if CORRIDOR_REGION in neighbours[room]:
-            cut_door(room, CORRIDOR_REGION)
-        elif neighbours[room]:
-            cut_door(room, int(rng.choice(sorted(neighbours[room]))))
-    # Reachability repair: join every component to the corridor's, preferring corridor links.
-    for _ in range(2 * n_regions):
-        lost = [i for i in range(1, n_regions) if find(i) != find(CORRIDOR_REGION)]
-        if not lost:
-            break
-        progress = False
-        for room in lost:
-            reached = [n for n in sorted(neighbours[room]) if find(n) == find(CORRIDOR_REGION)]
-            if reached and cut_door(room, reached[0]):
-                progress = True
-        if not progress:
-            room = lost[0]
-            others = [n for n in sorted(neighbours[room]) if find(n) != find(room)]
-            if not others or not cut_door(room, others[0]):
-                # A room with no usable wall: merge it into the corridor network (no walls).
-                r0, c0, r1, c1 = rooms[room - 1]
-                region[r0:r1, c0:c1] = CORRIDOR_REGION
-                parent[find(room)] = find(CORRIDOR_REGION)
+    cut = _Openings(region, n_regions, clear, rng)
+    wall, semantic, runs = cut.wall, cut.semantic, cut.runs
+    neighbours = cut.neighbours(door_w)
+    cut.link_rooms(neighbours, lambda: door_w)
+    for room in cut.repair(neighbours, door_w):
+        # A room with no usable wall: merged into the corridor network (no walls).
+        r0, c0, r1, c1 = rooms[room - 1]
+        region[r0:r1, c0:c1] = CORRIDOR_REGION
 
     # Exterior doors at corridor ends, exit signs on the inside face beside them.
     ext_runs = [r for r in runs.get((OUTSIDE_REGION, CORRIDOR_REGION), []) if r[3] - r[2] >= door_w + 6]
@@ -353,9 +440,8 @@ def generate_building(
         box = _opening((axis, fixed, lo, hi), door_w, 3, rng)
         if box is None:  # not reached: ext_runs are long enough
             continue
+        cut.open(box)
         r0, c0, r1, c1 = box
-        wall[r0:r1, c0:c1] = False
-        semantic[r0:r1, c0:c1] = DOOR
         ext_doors.append(box)
         # Which of the two wall layers faces the corridor (inside the footprint)?
         if axis == 0:
@@ -378,20 +464,7 @@ def generate_building(
         raise RuntimeError(f"building seed {seed}: no corridor reaches the exterior wall")
 
     # Windows on the exterior walls of rooms (both wall layers).
-    win_lo, win_hi = cells(p.window_length[0]), cells(p.window_length[1])
-    for (a, b), rl in runs.items():
-        if a != OUTSIDE_REGION or b == CORRIDOR_REGION:
-            continue
-        for run in rl:
-            if rng.random() > p.window_prob:
-                continue
-            length = int(rng.integers(win_lo, win_hi + 1))
-            box = _opening(run, length, clear + 1, rng)
-            if box is None:
-                continue
-            r0, c0, r1, c1 = box
-            keep = semantic[r0:r1, c0:c1] == WALL
-            semantic[r0:r1, c0:c1] = np.where(keep, WINDOW, semantic[r0:r1, c0:c1])
+    cut.windows(p.window_prob, (cells(p.window_length[0]), cells(p.window_length[1])), clear + 1)
 
     occupancy = wall.copy()
     occupancy[[0, -1], :] = True  # the fence
@@ -400,20 +473,7 @@ def generate_building(
     semantic[:, [0, -1]] = np.where(semantic[:, [0, -1]] == NONE, WALL, semantic[:, [0, -1]])
     indoor = np.zeros((H, W), bool)
     indoor[b0r:b1r, b0c:b1c] = True
-    origin = np.array([-margin * resolution, -margin * resolution])
-    entrance_xy = Q.cell_to_world(np.array(entrance), origin, resolution, xp=np)
-    return Building(
-        occupancy=occupancy,
-        semantic=semantic,
-        indoor=indoor,
-        origin=origin,
-        resolution=float(resolution),
-        entrance=entrance_xy,
-        exterior_doors=np.array(ext_doors, np.int64).reshape(-1, 4),
-        rooms=np.array([r for i, r in enumerate(rooms) if find(i + 1) == find(0)], np.int64).reshape(-1, 4),
-        family=family,
-        seed=int(seed),
-    )
+    return cut.building(occupancy, semantic, indoor, margin, resolution, entrance, ext_doors, rooms, family, seed)
 
 
 def _outer_cell(region, box, axis, rng, semantic=None):
@@ -475,19 +535,7 @@ def generate_house(
     local_blocks = [(0, a0, h0, a1), (h0 + hw, a0, D, a1)]
     local_blocks.append((0, a1, D, L) if from_start else (0, 0, D, a0))
 
-    def to_global(rect):
-        r0, c0, r1, c1 = rect
-        if not horizontal:
-            r0, c0, r1, c1 = c0, r0, c1, r1
-        return (r0 + b0r, c0 + b0c, r1 + b0r, c1 + b0c)
-
-    min_room = cells(p.room_size[0] * 0.6)
-    max_side = (cells(p.room_size[0]), cells(p.room_size[1]))
-    rects = []
-    for blk in local_blocks:
-        g = to_global(blk)
-        if g[2] > g[0] and g[3] > g[1]:
-            rects += _split(g, rng, max_side, min_room)
+    rects = _divide(local_blocks, not horizontal, (b0r, b0c), rng, p, cells, skip_empty=True)
     rooms = []
     for r0, c0, r1, c1 in rects:
         sub = footprint[r0:r1, c0:c1]
@@ -496,73 +544,21 @@ def generate_house(
         rooms.append((r0, c0, r1, c1))
         region[r0:r1, c0:c1] = np.where(sub, len(rooms), region[r0:r1, c0:c1])
 
-    wall = np.zeros((H, W), bool)
-    d0 = region[1:, :] != region[:-1, :]
-    d1 = region[:, 1:] != region[:, :-1]
-    wall[1:, :] |= d0
-    wall[:-1, :] |= d0
-    wall[:, 1:] |= d1
-    wall[:, :-1] |= d1
-    semantic = np.where(wall, WALL, NONE).astype(np.int8)
-    door = np.zeros((H, W), bool)
-
-    runs = _adjacency_runs(region)
     clear = max(2, cells(0.3))
     n_regions = len(rooms) + 1
-    parent = list(range(n_regions))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    def cut(a, b, width_m, label=True):
-        w = cells(width_m)
-        cands = [r for r in runs.get((min(a, b), max(a, b)), []) if r[3] - r[2] >= w + 2 * clear]
-        if not cands:
-            return False
-        box = _opening(cands[int(rng.integers(len(cands)))], w, clear, rng)
-        if box is None:  # not reached: the candidates are long enough
-            return False
-        r0, c0, r1, c1 = box
-        wall[r0:r1, c0:c1] = False
-        semantic[r0:r1, c0:c1] = DOOR if label else NONE
-        door[r0:r1, c0:c1] = True
-        parent[find(a)] = find(b)
-        return True
-
-    neighbours = {i: set() for i in range(n_regions)}
-    for (a, b), rl in runs.items():
-        if a >= 0 and any(r[3] - r[2] >= cells(p.door_width[0]) + 2 * clear for r in rl):
-            neighbours[a].add(b)
-            neighbours[b].add(a)
+    cut = _Openings(region, n_regions, clear, rng)
+    wall, semantic, door, runs, find = cut.wall, cut.semantic, cut.door, cut.runs, cut.find
+    neighbours = cut.neighbours(cells(p.door_width[0]))
     for a in range(1, n_regions):  # open plan: wide openings between some neighbour rooms
         for b in sorted(n for n in neighbours[a] if n > a):
             if rng.random() < p.open_plan_prob:
-                cut(a, b, rng.uniform(*p.open_width), label=False)
-    for room in rng.permutation(np.arange(1, n_regions)):
-        room = int(room)
-        if find(room) == find(CORRIDOR_REGION) and rng.random() < 0.5:
-            continue
-        if CORRIDOR_REGION in neighbours[room]:
-            cut(room, CORRIDOR_REGION, rng.uniform(*p.door_width))
-        elif neighbours[room]:
-            cut(room, int(rng.choice(sorted(neighbours[room]))), rng.uniform(*p.door_width))
-    for _ in range(2 * n_regions):
-        lost = [i for i in range(1, n_regions) if find(i) != find(CORRIDOR_REGION)]
-        if not lost:
-            break
-        progress = False
-        for room in lost:
-            reached = [n for n in sorted(neighbours[room]) if find(n) == find(CORRIDOR_REGION)]
-            if reached and cut(room, reached[0], p.door_width[0]):
-                progress = True
-        if not progress:
-            room = lost[0]
-            others = [n for n in sorted(neighbours[room]) if find(n) != find(room)]
-            if not others or not cut(room, others[0], p.door_width[0]):
-                parent[find(room)] = find(CORRIDOR_REGION)  # sealed: its floor becomes unknown below
+                cut.cut(a, b, cells(rng.uniform(*p.open_width)), label=NONE)
+    cut.link_rooms(
+        neighbours,
+        lambda: cells(rng.uniform(*p.door_width)),
+        skip=lambda room: find(room) == find(CORRIDOR_REGION) and rng.random() < 0.5,
+    )
+    cut.repair(neighbours, cells(p.door_width[0]))  # a sealed room's floor becomes unknown below
 
     # Exterior doors on any exterior wall run (hall or room), windows on rooms' exterior walls.
     ext_runs = [(k, r) for k in runs if k[0] == OUTSIDE_REGION for r in runs[k] if r[3] - r[2] >= cells(1.1) + 6]
@@ -574,28 +570,13 @@ def generate_house(
         box = _opening(run, cells(rng.uniform(0.9, 1.1)), 3, rng)
         if box is None:  # not reached: the runs are long enough
             continue
-        r0, c0, r1, c1 = box
-        wall[r0:r1, c0:c1] = False
-        semantic[r0:r1, c0:c1] = DOOR
-        door[r0:r1, c0:c1] = True
+        cut.open(box)
         ext_doors.append(box)
         if entrance is None:
             entrance = _outer_cell(region, box, run[0], rng)
     if entrance is None:  # pragma: no cover - every footprint has a long exterior run
         raise RuntimeError(f"house seed {seed}: no exterior wall long enough for a door")
-    win_lo, win_hi = cells(0.8), cells(1.8)
-    for (a, b), rl in runs.items():
-        if a != OUTSIDE_REGION or b == CORRIDOR_REGION:
-            continue
-        for run in rl:
-            if rng.random() > p.window_prob:
-                continue
-            box = _opening(run, int(rng.integers(win_lo, win_hi + 1)), clear + 1, rng)
-            if box is None:
-                continue
-            r0, c0, r1, c1 = box
-            keep = semantic[r0:r1, c0:c1] == WALL
-            semantic[r0:r1, c0:c1] = np.where(keep, WINDOW, semantic[r0:r1, c0:c1])
+    cut.windows(p.window_prob, (cells(0.8), cells(1.8)), clear + 1)
 
     # Furniture and columns; a piece stays only if the eroded free space stays one piece.
     cross = ndi.generate_binary_structure(2, 1)
@@ -676,22 +657,7 @@ def generate_house(
     semantic = np.where(occ & (semantic == DOOR), WALL, semantic).astype(np.int8)
     semantic = np.where(~occ & (semantic == WALL), NONE, semantic).astype(np.int8)
 
-    origin = np.array([-margin * resolution, -margin * resolution])
-    entrance_xy = Q.cell_to_world(np.array(entrance), origin, resolution, xp=np)
-    kept = [r for i, r in enumerate(rooms) if find(i + 1) == find(0)]
-    return Building(
-        occupancy=occ,
-        semantic=semantic,
-        indoor=footprint,
-        origin=origin,
-        resolution=float(resolution),
-        entrance=entrance_xy,
-        exterior_doors=np.array(ext_doors, np.int64).reshape(-1, 4),
-        rooms=np.array(kept, np.int64).reshape(-1, 4),
-        family=family,
-        seed=int(seed),
-        known=known,
-    )
+    return cut.building(occ, semantic, footprint, margin, resolution, entrance, ext_doors, rooms, family, seed, known)
 
 
 def building_family(family: str, count: int, start: int = 0, resolution: float = DEFAULT_RESOLUTION):
