@@ -46,14 +46,13 @@ from __future__ import annotations
 import json
 import math
 import pathlib
-import shutil
 from collections.abc import Callable
 from typing import Any
 
-import cv2
 import numpy as np
 
 from .. import quadrics as Q
+from ._synthetic import _check_formats, _check_image_size, _check_scenes, _partial_dir, _write_camera
 
 __all__ = [
     "DOOR_BASELINE",
@@ -80,11 +79,6 @@ def door_building(split: str, index: int, seed: int = 0):
         raise ValueError(f"split: expected one of {tuple(_SPLITS)}, got {split!r}")
     family, offset = _SPLITS[split]
     return generate_building(int(seed) * 100_000 + offset + int(index), family)
-
-
-def _write_image(path, array):
-    if not cv2.imwrite(str(path), array):
-        raise OSError(f"could not write {path}")
 
 
 def _cam_position(camera_T_world) -> np.ndarray:
@@ -175,14 +169,8 @@ def write_door_dataset(
 
     if split not in _SPLITS:
         raise ValueError(f"split: expected one of {tuple(_SPLITS)}, got {split!r}")
-    num_scenes, frames_per_scene = int(num_scenes), int(frames_per_scene)
-    if num_scenes < 1:
-        raise ValueError(f"num_scenes: expected >= 1, got {num_scenes}")
-    if frames_per_scene < 1:
-        raise ValueError(f"frames_per_scene: expected >= 1, got {frames_per_scene}")
-    width, height_px = (int(x) for x in image_size)
-    if width < 32 or height_px < 32:
-        raise ValueError(f"image_size: expected (W, H) of at least 32 px each, got {image_size}")
+    num_scenes, frames_per_scene = _check_scenes(num_scenes, frames_per_scene)
+    width, height_px = _check_image_size(image_size)
     if not (math.isfinite(float(baseline)) and 0 < float(baseline) <= 5):
         raise ValueError(f"baseline: expected 0 < baseline <= 5 m, got {baseline}")
     for name, rng_ in (("distance", distance), ("height", height), ("pitch_deg", pitch_deg)):
@@ -193,10 +181,7 @@ def write_door_dataset(
         raise ValueError(f"distance: expected a minimum of at least 0.5 m, got {distance}")
     if not 0 <= float(max_view_angle) < 90:
         raise ValueError(f"max_view_angle: expected 0 to 90 degrees, got {max_view_angle}")
-    if image_format not in ("jpg", "png"):
-        raise ValueError(f"image_format: expected 'jpg' or 'png', got {image_format!r}")
-    if bbox_order not in ("yx", "xy"):
-        raise ValueError(f"bbox_order: expected 'yx' or 'xy', got {bbox_order!r}")
+    _check_formats(image_format, bbox_order)
 
     from tqdm.auto import tqdm
 
@@ -223,24 +208,16 @@ def write_door_dataset(
         doors = np.flatnonzero(objects.class_id == DOOR)
         if doors.size == 0:  # pragma: no cover - every generated building has doors
             raise RuntimeError(f"building {building.family} {building.seed} has no door")
-        final, tmp = root / f"scene_{s:03d}", root / f"scene_{s:03d}.partial"
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
+        final = root / f"scene_{s:03d}"
         rng = np.random.default_rng([int(seed), ("train", "val", "test").index(split), s, 0xD00])
-        try:
+        with _partial_dir(final) as tmp:
             with BuildingRenderer(building, width, height_px) as renderer:
                 _write_scene(
                     tmp, rng, building, objects, doors, renderer, K, T_rl, frames_per_scene, settings,
                     image_format, bbox_order, bar,
                 )  # fmt: skip
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        meta = {"family": building.family, "building_seed": int(building.seed), "split": split, **settings}
-        (tmp / "_doors.json").write_text(json.dumps(meta, indent=1))
-        if final.exists():
-            shutil.rmtree(final)
-        tmp.rename(final)
+            meta = {"family": building.family, "building_seed": int(building.seed), "split": split, **settings}
+            (tmp / "_doors.json").write_text(json.dumps(meta, indent=1))
         scene_dirs.append(final)
     bar.close()
     return scene_dirs
@@ -343,15 +320,10 @@ def _write_scene(
             ("left", views[0], T, np.zeros(3)),
             ("right", views[1], T_right, T_rl[:3, 3]),
         ):
-            base = scene_dir / f"{stem}.{side}"
-            _write_image(f"{base}.{image_format}", view["rgb"][..., ::-1])
-            depth = np.round(view["depth"].astype(np.float64) / 1e-4)
-            _write_image(f"{base}.depth.png", np.where(depth > 65535, 0, depth).astype(np.uint16))
-            _write_image(f"{base}.seg.png", np.where(view["seg"] == k, seg_id, 0).astype(np.uint8))
             frame = _frame_json(placed, table, K, pose_T, offset, bbox_order)
             frame["objects"][0]["building_object"] = int(k)
-            with open(f"{base}.json", "w") as fh:
-                json.dump(frame, fh)
+            seg = np.where(view["seg"] == k, seg_id, 0).astype(np.uint8)
+            _write_camera(scene_dir / f"{stem}.{side}", image_format, view["rgb"], view["depth"], seg, frame)
         written += 1
         bar.update(1)
 

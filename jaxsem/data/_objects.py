@@ -56,15 +56,24 @@ import json
 import math
 import os
 import pathlib
-import shutil
 import xml.etree.ElementTree as ET
 
-import cv2
 import numpy as np
 
 from .. import classes as _classes, quadrics as Q
 from ._fat import FAT_BASELINE, right_T_left
-from ._synthetic import ObjectClass, _camera_pose, _frame_json, _write_settings, synthetic_intrinsics
+from ._synthetic import (
+    ObjectClass,
+    _camera_pose,
+    _check_formats,
+    _check_image_size,
+    _check_scenes,
+    _frame_json,
+    _partial_dir,
+    _write_camera,
+    _write_settings,
+    synthetic_intrinsics,
+)
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -572,11 +581,6 @@ def _sample_frame(
     raise RuntimeError("could not place any object in 30 camera poses; image too small for the objects?")
 
 
-def _write_image(path, array):
-    if not cv2.imwrite(str(path), array):
-        raise OSError(f"could not write {path}")
-
-
 def write_object_dataset(
     out_dir,
     num_scenes: int,
@@ -626,27 +630,19 @@ def write_object_dataset(
         raise ValueError(f"split: expected one of {tuple(_SPLIT_STREAM)}, got {split!r}")
     if labels not in ("volumon", "own"):
         raise ValueError(f"labels: expected 'volumon' or 'own', got {labels!r}")
-    num_scenes, frames_per_scene, max_objects = int(num_scenes), int(frames_per_scene), int(max_objects)
-    if num_scenes < 1:
-        raise ValueError(f"num_scenes: expected >= 1, got {num_scenes}")
-    if frames_per_scene < 1:
-        raise ValueError(f"frames_per_scene: expected >= 1, got {frames_per_scene}")
+    num_scenes, frames_per_scene = _check_scenes(num_scenes, frames_per_scene)
+    max_objects = int(max_objects)
     if max_objects < 1:
         raise ValueError(f"max_objects: expected >= 1, got {max_objects}")
     if int(num_distractors) < 0:
         raise ValueError(f"num_distractors: expected >= 0, got {num_distractors}")
-    width, height = (int(x) for x in image_size)
-    if width < 32 or height < 32:
-        raise ValueError(f"image_size: expected (W, H) of at least 32 px each, got {image_size}")
+    width, height = _check_image_size(image_size)
     lo, hi = (float(x) for x in depth_range)
     if not 0.2 <= lo <= hi <= 5.0:
         raise ValueError(f"depth_range: expected 0.2 <= min <= max <= 5 m, got {depth_range}")
     if not (math.isfinite(float(baseline)) and 0 <= float(baseline) <= 1):
         raise ValueError(f"baseline: expected 0 to 1 m, got {baseline}")
-    if image_format not in ("jpg", "png"):
-        raise ValueError(f"image_format: expected 'jpg' or 'png', got {image_format!r}")
-    if bbox_order not in ("yx", "xy"):
-        raise ValueError(f"bbox_order: expected 'yx' or 'xy', got {bbox_order!r}")
+    _check_formats(image_format, bbox_order)
     if assets is None:
         assets = robosuite_assets()
     if not isinstance(assets, ObjectAssets):
@@ -670,20 +666,11 @@ def write_object_dataset(
     for s in range(num_scenes):
         rng = np.random.default_rng([int(seed), stream, s, 0x0B1EC7])
         final = root / f"scene_{s:03d}"
-        tmp = root / f"scene_{s:03d}.partial"
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
-        try:
+        with _partial_dir(final) as tmp:
             _write_scene(
                 tmp, rng, assets, K, T_rl, (width, height), labels, max_objects, int(num_distractors),
                 (lo, hi), float(baseline), frames_per_scene, image_format, bbox_order, bar,
             )  # fmt: skip
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        if final.exists():
-            shutil.rmtree(final)
-        tmp.rename(final)
         scene_dirs.append(final)
     bar.close()
     return scene_dirs
@@ -743,16 +730,12 @@ def _write_scene(
             stem = f"{f:06d}"
             for side, pose, offset in (("left", T, np.zeros(3)), ("right", T_rl @ T, T_rl[:3, 3])):
                 view = scene.render(K, pose, seg_ids)
-                base = scene_dir / f"{stem}.{side}"
-                _write_image(f"{base}.{image_format}", view["rgb"][..., ::-1])
-                depth = np.round(view["depth"].astype(np.float64) / 1e-4)
-                _write_image(f"{base}.depth.png", np.where(depth > 65535, 0, depth).astype(np.uint16))
-                _write_image(f"{base}.seg.png", view["seg"])
                 frame = _frame_json(truth, table, K, pose, offset, bbox_order)
                 for ob, (k, *_) in zip(frame["objects"], truth):
                     ob["mesh_class"] = assets.objects[labelled[k]].class_name
-                with open(f"{base}.json", "w") as fh:
-                    json.dump(frame, fh)
+                _write_camera(
+                    scene_dir / f"{stem}.{side}", image_format, view["rgb"], view["depth"], view["seg"], frame
+                )
             bar.update(1)
     finally:
         scene.close()

@@ -24,10 +24,12 @@ streams (``split`` is part of every seed), so the test split shows unseen backgr
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import pathlib
+import shutil
 from collections.abc import Sequence
 
 import cv2
@@ -209,9 +211,66 @@ def _frame_json(placed, classes, K, camera_T_world, offset, bbox_order):
     }
 
 
-def _write_png(path, array):
+def _write_image(path, array):
+    """``cv2.imwrite`` that raises ``OSError`` naming the file instead of returning False."""
     if not cv2.imwrite(str(path), array):
         raise OSError(f"could not write {path}")
+
+
+@contextlib.contextmanager
+def _partial_dir(final: pathlib.Path):
+    """Yields an empty ``<final>.partial`` directory to write a scene into; on success it replaces
+    ``final``, on an exception it is removed: a failed or killed writer leaves no half scene."""
+    tmp = final.with_name(final.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if final.exists():
+        shutil.rmtree(final)
+    tmp.rename(final)
+
+
+def _check_image_size(image_size) -> tuple:
+    """``(W, H)`` of a writer's ``image_size`` (``ValueError`` below 32 px a side)."""
+    width, height = (int(x) for x in image_size)
+    if width < 32 or height < 32:
+        raise ValueError(f"image_size: expected (W, H) of at least 32 px each, got {image_size}")
+    return width, height
+
+
+def _check_scenes(num_scenes, frames_per_scene) -> tuple:
+    """``(num_scenes, frames_per_scene)`` as ints, each at least 1 (``ValueError`` naming it)."""
+    num_scenes, frames_per_scene = int(num_scenes), int(frames_per_scene)
+    if num_scenes < 1:
+        raise ValueError(f"num_scenes: expected >= 1, got {num_scenes}")
+    if frames_per_scene < 1:
+        raise ValueError(f"frames_per_scene: expected >= 1, got {frames_per_scene}")
+    return num_scenes, frames_per_scene
+
+
+def _check_formats(image_format, bbox_order):
+    """The output options every FAT-layout writer takes (``ValueError`` naming the argument)."""
+    if image_format not in ("jpg", "png"):
+        raise ValueError(f"image_format: expected 'jpg' or 'png', got {image_format!r}")
+    if bbox_order not in ("yx", "xy"):
+        raise ValueError(f"bbox_order: expected 'yx' or 'xy', got {bbox_order!r}")
+
+
+def _write_camera(base, image_format, rgb, depth, seg, frame):
+    """One camera's files of a frame in the FAT layout (module docstring), the one encoding of the
+    writers of :mod:`jaxsem.data`: ``<base>.<image_format>`` from RGB ``rgb`` (H, W, 3) uint8,
+    ``<base>.depth.png`` from ``depth`` (H, W) metres as uint16 0.1 mm (0 beyond 6.5535 m),
+    ``<base>.seg.png`` the uint8 labels ``seg``, ``<base>.json`` the dict ``frame``."""
+    _write_image(f"{base}.{image_format}", rgb[..., ::-1])
+    depth = np.round(depth.astype(np.float64) / 1e-4)
+    _write_image(f"{base}.depth.png", np.where(depth > 65535, 0, depth).astype(np.uint16))
+    _write_image(f"{base}.seg.png", seg)
+    with open(f"{base}.json", "w") as fh:
+        json.dump(frame, fh)
 
 
 def write_synthetic_dataset(
@@ -257,13 +316,8 @@ def write_synthetic_dataset(
         raise ValueError(f"num_frames, frames_per_scene: expected >= 1, got {num_frames}, {frames_per_scene}")
     if not 1 <= max_objects <= len(classes):
         raise ValueError(f"max_objects: expected 1..{len(classes)} (one per class), got {max_objects}")
-    width, height = (int(x) for x in image_size)
-    if width < 32 or height < 32:
-        raise ValueError(f"image_size: expected (W, H) of at least 32 px each, got {image_size}")
-    if image_format not in ("jpg", "png"):
-        raise ValueError(f"image_format: expected 'jpg' or 'png', got {image_format!r}")
-    if bbox_order not in ("yx", "xy"):
-        raise ValueError(f"bbox_order: expected 'yx' or 'xy', got {bbox_order!r}")
+    width, height = _check_image_size(image_size)
+    _check_formats(image_format, bbox_order)
     ids = [c.segmentation_class_id for c in classes]
     if len(set(ids)) != len(ids) or not all(0 < i < 256 for i in ids):
         raise ValueError(f"classes: segmentation_class_id values must be distinct in 1..255, got {ids}")
@@ -318,18 +372,11 @@ def write_synthetic_dataset(
                 stem = f"{f:06d}"
                 for side, pose, offset in (("left", T, np.zeros(3)), ("right", T_rl @ T, T_rl[:3, 3])):
                     view = scene.render(K, pose)
-                    base = scene_dir / f"{stem}.{side}"
-                    _write_png(f"{base}.{image_format}", view["rgb"][..., ::-1])
-                    depth = np.round(view["depth"].astype(np.float64) / 1e-4)
-                    depth = np.where(depth > 65535, 0, depth).astype(np.uint16)
-                    _write_png(f"{base}.depth.png", depth)
                     seg = np.zeros(view["seg"].shape, np.uint8)
                     for ci in shown:
                         seg[view["seg"] == ci] = classes[ci].segmentation_class_id
-                    _write_png(f"{base}.seg.png", seg)
                     frame = _frame_json(placed, classes, K, pose, offset, bbox_order)
-                    with open(f"{base}.json", "w") as fh:
-                        json.dump(frame, fh)
+                    _write_camera(scene_dir / f"{stem}.{side}", image_format, view["rgb"], view["depth"], seg, frame)
                 bar.update(1)
     bar.close()
     return scene_dirs
