@@ -170,3 +170,16 @@ def test_pixels_to_object_map_to_semantic_grid(building, scene):
     got = grid == planning.DOOR
     overlap = (got & truth).sum() / truth.sum()
     assert overlap > 0.6
+
+
+def test_renderer_checks_outputs_and_closes(building):
+    # the lifecycle and pass selection shared with SceneRenderer (jaxsem.sim._render._MujocoScene)
+    with BuildingRenderer(building, 32, 24) as sc:
+        K, T = robot_intrinsics(32, 24), robot_camera(building.entrance, 0.0)
+        assert set(sc.render(K, T, outputs="seg")) == {"seg", "seg_class"}
+        assert set(sc.render(K, T, outputs=("rgb",))) == {"rgb"}
+        with pytest.raises(ValueError, match="outputs"):
+            sc.render(K, T, outputs=("normals",))
+    with pytest.raises(ValueError, match="BuildingRenderer: render"):
+        sc.render(K, T)
+    sc.close()  # a second close does nothing

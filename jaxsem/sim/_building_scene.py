@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from ._render import _OUTPUTS, _MujocoScene
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 __all__ = [
@@ -50,7 +52,6 @@ __all__ = [
 _JAMB = 0.05  # door frame depth along the wall (m)
 _HEAD = 0.1  # door frame head height (m)
 _PROUD = 0.03  # exit-sign plate stands this far off the wall faces (m)
-_OUTPUTS = ("rgb", "depth", "seg")
 
 
 def _mujoco() -> Any:
@@ -335,7 +336,7 @@ def ellipsoids_from_depth(
     return ell, np.asarray(idx, np.int64)
 
 
-class BuildingRenderer:
+class BuildingRenderer(_MujocoScene):
     """A compiled building scene and its offscreen renderer; use as a context manager.
 
     Args:
@@ -366,12 +367,7 @@ class BuildingRenderer:
             self._label[gid] = k
             self._class[gid] = geom_class[name]
         self._cam = self.model.camera("robot").id
-        try:
-            self._renderer = mujoco.Renderer(self.model, height, width)
-        except mujoco.FatalError as exc:  # pragma: no cover - depends on the machine
-            raise RuntimeError(
-                f"MuJoCo could not create an OpenGL context ({exc}); set MUJOCO_GL=egl before mujoco is first imported"
-            ) from None
+        self._open_renderer(width, height)
 
     def render(self, K, camera_T_world, *, outputs: Sequence[str] = _OUTPUTS) -> dict:
         """One view. ``K`` (3, 3) pinhole without skew; ``camera_T_world`` (4, 4), OpenCV axes.
@@ -380,31 +376,11 @@ class BuildingRenderer:
         float32 z-depth in metres (0 on the sky); ``seg`` (H, W) int32 object index or -1, and
         ``seg_class`` (H, W) int8 semantic id (``WALL`` on walls, 0 on floor and sky).
         """
-        from ._render import mujoco_view
-
-        if self._renderer is None:
-            raise ValueError("BuildingRenderer: render() called after close()")
-        outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
-        if not outputs or any(o not in _OUTPUTS for o in outputs):
-            raise ValueError(f"outputs: expected a non-empty subset of {_OUTPUTS}, got {outputs}")
-        view = mujoco_view(self.model, self.data, self._renderer, self._cam, K, camera_T_world, outputs)
-        out = {k: view[k] for k in ("rgb", "depth") if k in outputs}
-        if "seg" in outputs:
-            out["seg"] = self._label[view["geom"]].astype(np.int32)
+        out, view = self._view(self._cam, K, camera_T_world, outputs)
+        if "seg" in out:
             out["seg_class"] = self._class[view["geom"]]
         return out
 
     def detect(self, seg, classes=None, *, min_area: int = 1, border: int = 0) -> SceneDetections:
         """:func:`detect_from_segmentation` with this scene's object classes."""
         return detect_from_segmentation(seg, self.objects.class_id, classes, min_area=min_area, border=border)
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

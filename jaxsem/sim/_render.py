@@ -256,7 +256,55 @@ def mujoco_view(model, data, renderer, cam: int, K, camera_T_world, outputs: Seq
     return out
 
 
-class SceneRenderer:
+class _MujocoScene:
+    """What jaxsem's compiled MuJoCo scenes share (:class:`SceneRenderer`,
+    :class:`jaxsem.sim.BuildingRenderer`): the offscreen renderer's opening and closing, the
+    context-manager protocol, and a view with its geom ids turned into object labels.
+
+    A subclass sets ``model``, ``data`` and ``_label`` (geom id -> object index, with a trailing
+    -1 that geom id -1, no geom, reads), then calls :meth:`_open_renderer`.
+    """
+
+    model: Any
+    data: Any
+    _label: np.ndarray
+    _renderer: Any = None
+
+    def _open_renderer(self, width: int, height: int):
+        try:
+            self._renderer = mujoco.Renderer(self.model, height, width)
+        except mujoco.FatalError as exc:  # pragma: no cover - depends on the machine
+            raise RuntimeError(
+                f"MuJoCo could not create an OpenGL context ({exc}). On a machine without a display set "
+                "MUJOCO_GL=egl (or osmesa) before mujoco is first imported (import jaxsem first, or "
+                f"export it); MUJOCO_GL is {os.environ.get('MUJOCO_GL')!r} here."
+            ) from None
+
+    def _view(self, cam: int, K, camera_T_world, outputs) -> tuple[dict, dict]:
+        """``(out, view)``: ``out`` holds the passes asked for (``rgb``, ``depth``, ``seg`` the
+        int32 object index or -1), ``view`` is :func:`mujoco_view`'s dict (``geom`` ids)."""
+        if self._renderer is None:
+            raise ValueError(f"{type(self).__name__}: render() called after close()")
+        outputs = _check_outputs(outputs)
+        view = mujoco_view(self.model, self.data, self._renderer, cam, K, camera_T_world, outputs)
+        out = {k: view[k] for k in ("rgb", "depth") if k in outputs}
+        if "seg" in outputs:
+            out["seg"] = self._label[view["geom"]].astype(np.int32)  # index -1 hits the trailing -1
+        return out, view
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class SceneRenderer(_MujocoScene):
     """One compiled MuJoCo scene and its offscreen renderer; render many views, then ``close()``.
 
     Use as a context manager. The model is compiled once; each ``render`` only moves the camera.
@@ -391,14 +439,7 @@ class SceneRenderer:
             # The compiler marks geoms posed like their body (here: identity rotation) to skip
             # their own pose in kinematics; move_object changes poses, so always use them.
             self.model.geom_sameframe[gid] = 0
-        try:
-            self._renderer = mujoco.Renderer(self.model, height, width)
-        except mujoco.FatalError as exc:
-            raise RuntimeError(
-                f"MuJoCo could not create an OpenGL context ({exc}). On a machine without a display set "
-                "MUJOCO_GL=egl (or osmesa) before mujoco is first imported (import jaxsem first, or "
-                f"export it); MUJOCO_GL is {os.environ.get('MUJOCO_GL')!r} here."
-            ) from None
+        self._open_renderer(width, height)
 
     def move_object(self, index: int, rotation, center, extents=None, *, hidden: bool = False):
         """Change object ``index``'s pose (and extents) without recompiling; ``hidden`` parks it
@@ -435,25 +476,7 @@ class SceneRenderer:
           dict with ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) float32 z-depth in metres (0 where
           nothing, i.e. the skybox), ``seg`` (H, W) int32 object index or -1 (those asked for).
         """
-        if self._renderer is None:
-            raise ValueError("SceneRenderer: render() called after close()")
-        outputs = _check_outputs(outputs)
-        view = mujoco_view(self.model, self.data, self._renderer, 0, K, camera_T_world, outputs)
-        out = {k: view[k] for k in ("rgb", "depth") if k in outputs}
-        if "seg" in outputs:
-            out["seg"] = self._label[view["geom"]].astype(np.int32)  # index -1 hits the trailing -1
-        return out
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
+        return self._view(0, K, camera_T_world, outputs)[0]
 
 
 def render_views(
