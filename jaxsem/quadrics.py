@@ -21,7 +21,7 @@ Where the code lives (``jaxsem/_geometry/``):
   ``cuboid_corners``, ``stereo_right_T_left``.
 - ``grid.py``: the ``Grid`` pytree (origin, resolution, static shape), ``world_to_cell``,
   ``cell_to_world``, ``cell_in_grid`` (every map of the planner and the object maps).
-- ``shapes.py``: ``algebraic_distance``, ``ray_entry_range``, ``surface_points``, ``shape_bbox``,
+- ``shapes.py``: ``algebraic_distance``, ``ray_entry_range``, ``ray_cast_local``, ``surface_points``, ``shape_bbox``,
   ``shape_distance`` and the ``SHAPE_*`` ids.
 
 Conventions (the only ones in jaxsem):
@@ -121,6 +121,7 @@ from ._geometry.shapes import (
     SHAPE_ELLIPSOID as SHAPE_ELLIPSOID,
     SUPERQUADRIC_EPS as SUPERQUADRIC_EPS,
     algebraic_distance as algebraic_distance,
+    ray_cast_local as ray_cast_local,
     ray_entry_range as ray_entry_range,
     shape_bbox as shape_bbox,
     shape_distance as shape_distance,
@@ -146,6 +147,7 @@ __all__ = [
     "texture_plane_depth",
     "algebraic_distance",
     "ray_entry_range",
+    "ray_cast_local",
     "shape_bbox",
     "shape_distance",
     "stereo_right_T_left",

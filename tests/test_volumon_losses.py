@@ -265,6 +265,40 @@ def test_ray_entry_range_matches_ray_marching(shape):
                 assert not hit[i, j]
 
 
+@pytest.mark.parametrize("shape", [0, 1, 2])
+def test_ray_cast_local_entry_and_normal(shape):
+    # the object-frame ray cast under ray_entry_range and VoluMon's renderer: rays of camera z = 1
+    # (not unit length), the parameter is the z-depth; the normal is the surface's at the entry
+    rng = np.random.default_rng(10 + shape)
+    half = np.array([0.05, 0.04, 0.07])
+    R = np.asarray(quadrics.random_rotation(jax.random.PRNGKey(shape)))
+    t = np.array([0.01, -0.02, 0.6])
+    uv = rng.normal(scale=0.08, size=(200, 2)) + t[:2] / t[2]
+    rays = np.concatenate([uv, np.ones((200, 1))], -1)
+    o, d = np.broadcast_to(-t @ R, rays.shape), rays @ R
+    s, hit, normal = (np.asarray(x) for x in quadrics.ray_cast_local(o, d, half, shape))
+    steps = np.linspace(0.0, 1.2, 24001)  # 0.05 mm marching
+    for j in range(200):
+        inside = _inside(o[j] + steps[:, None] * d[j], half, shape)
+        if inside.sum() > 20:  # grazing rays may straddle the sampling
+            assert hit[j] and abs(s[j] - steps[np.argmax(inside)]) < 2e-4
+        elif not inside.any():
+            assert not hit[j] and s[j] == 0
+    assert hit.sum() > 50
+    # the normal: unit, against the ray, and outward (a step along it leaves the object)
+    p = o[hit] + s[hit, None] * d[hit]
+    n = normal[hit]
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-6)
+    assert np.all(np.sum(n * d[hit], -1) < 0)
+    assert not _inside(p + 1e-3 * n, half, shape).any()
+    # ray_entry_range is this ray cast along unit rays: the range, not the z-depth
+    s_range, hit_range = quadrics.ray_entry_range(
+        jnp.asarray(rays[None]), R[None], t[None], half[None], np.array([shape])
+    )
+    np.testing.assert_array_equal(np.asarray(hit_range)[0], hit)
+    np.testing.assert_allclose(np.asarray(s_range)[0], s * np.linalg.norm(rays, axis=-1), rtol=1e-5)
+
+
 @pytest.mark.slow
 def test_ray_entry_range_finite_gradients_in_degenerate_rays():
 

@@ -83,41 +83,82 @@ def ray_entry_range(points, rotation, center, radii, shape):
     rng = safe_norm(points)
     u = jnp.einsum("...ji,...nj->...ni", rotation, safe_div(points, rng[..., None]))  # ray, object frame
     o = -jnp.einsum("...ji,...j->...i", rotation, center)[..., None, :]  # camera centre, object frame
-    r = radii[..., None, :]
-    big = jnp.asarray(1e6, points.dtype)
+    s, hit, _ = ray_cast_local(o, u, radii[..., None, :], jnp.asarray(shape)[..., None])
+    return s, hit
+
+
+def ray_cast_local(origin, direction, radii, shape):
+    """First entry of rays ``origin + s direction``, ``s > 0``, into an object in its own frame.
+
+    The one ray-shape intersection of the package: :func:`ray_entry_range` (a loss's range to
+    the object) and VoluMon's analytic renderer (depth, mask and shading of its training images)
+    both use it. ``shape`` as :func:`ray_entry_range`: :data:`SHAPE_CUBOID` of half extents
+    ``radii`` (slab test), :data:`SHAPE_ELLIPSOID` of semi-axes ``radii`` (the quadratic in
+    coordinates scaled by the radii), :data:`SHAPE_CYLINDER` along z (elliptic section of
+    semi-axes ``radii[:2]``, caps at ``z = +-radii[2]``). ``direction`` need not be a unit vector:
+    ``s`` is in its units (a ray of camera z = 1 gives the z-depth).
+
+    Args:
+      origin, direction: (..., 3) object frame; radii (..., 3); shape (...) int (all broadcast).
+
+    Returns:
+      ``(s, hit, normal)``: ``s`` (...) the ray parameter of the entry, 0 where ``hit`` (...) is
+      False; ``normal`` (..., 3) the outward unit normal there (meaningless where no hit). Values
+      are finite everywhere and the gradients of ``s`` too.
+    """
+    o, d, h = (jnp.asarray(x) for x in (origin, direction, radii))
+    # cuboid: slab test; the entry face is the axis of the latest entering slab
+    inv = 1.0 / jnp.where(jnp.abs(d) < 1e-9, 1e-9, d)
+    t1 = (-h - o) * inv
+    t2 = (h - o) * inv
+    tmin = jnp.minimum(t1, t2)
+    tmax = jnp.maximum(t1, t2)
+    s_cub = jnp.max(tmin, -1)
+    hit_cub = (jnp.min(tmax, -1) >= s_cub) & (s_cub > 0)
+    axis = jnp.argmax(tmin, -1)
+    p = o + s_cub[..., None] * d
+    n_cub = jax.nn.one_hot(axis, 3, dtype=o.dtype) * jnp.sign(jnp.take_along_axis(p, axis[..., None], -1))
 
     # ellipsoid: a s^2 + b s + c = 0 in coordinates scaled by the radii
-    us, os_ = u / r, o / r
-    a = jnp.sum(us * us, -1)
-    b = 2.0 * jnp.sum(us * os_, -1)
-    c = jnp.sum(os_ * os_, -1) - 1.0
-    disc = b * b - 4.0 * a * c
-    s_ell = safe_div(-b - safe_sqrt(disc), 2.0 * a)
+    os_, ds = o / h, d / h
+    a = jnp.sum(ds * ds, -1)
+    b = 2 * jnp.sum(os_ * ds, -1)
+    c = jnp.sum(os_ * os_, -1) - 1
+    disc = b * b - 4 * a * c
+    s_ell = safe_div(-b - safe_sqrt(disc), 2 * a)
     hit_ell = (disc > 0) & (s_ell > 0)
+    n_ell = (o + s_ell[..., None] * d) / (h * h)
+    n_ell = n_ell / jnp.maximum(jnp.linalg.norm(n_ell, axis=-1, keepdims=True), 1e-9)
 
-    # cuboid: slab test
-    t1 = safe_div(-r - o, u)
-    t2 = safe_div(r - o, u)
-    lo, hi = jnp.minimum(t1, t2), jnp.maximum(t1, t2)
-    s_cub = jnp.max(lo, -1)
-    hit_cub = (s_cub < jnp.min(hi, -1)) & (s_cub > 0)
+    # cylinder: the nearer of the side (the section's quadratic, within the caps) and the caps
+    h0, h1, h2 = h[..., 0], h[..., 1], h[..., 2]
+    a = (d[..., 0] / h0) ** 2 + (d[..., 1] / h1) ** 2
+    b = 2 * (o[..., 0] * d[..., 0] / h0**2 + o[..., 1] * d[..., 1] / h1**2)
+    c = (o[..., 0] / h0) ** 2 + (o[..., 1] / h1) ** 2 - 1
+    disc = b * b - 4 * a * c
+    s_side = (-b - safe_sqrt(disc)) / (2 * jnp.maximum(a, 1e-12))
+    z_side = o[..., 2] + s_side * d[..., 2]
+    side_ok = (disc > 0) & (s_side > 0) & (jnp.abs(z_side) <= h2)
+    dz = jnp.where(jnp.abs(d[..., 2]) < 1e-9, 1e-9, d[..., 2])
+    s_cap = jnp.minimum((h2 - o[..., 2]) / dz, (-h2 - o[..., 2]) / dz)
+    pc = o + s_cap[..., None] * d
+    cap_ok = (s_cap > 0) & ((pc[..., 0] / h0) ** 2 + (pc[..., 1] / h1) ** 2 <= 1)
+    big = jnp.asarray(1e9, o.dtype)
+    s_cyl = jnp.minimum(jnp.where(side_ok, s_side, big), jnp.where(cap_ok, s_cap, big))
+    hit_cyl = side_ok | cap_ok
+    p = o + s_cyl[..., None] * d
+    n_side = jnp.stack([p[..., 0] / h0**2, p[..., 1] / h1**2, jnp.zeros_like(s_cyl)], -1)
+    n_side = n_side / jnp.maximum(jnp.linalg.norm(n_side, axis=-1, keepdims=True), 1e-9)
+    n_cap = jnp.stack([jnp.zeros_like(s_cyl), jnp.zeros_like(s_cyl), jnp.sign(p[..., 2])], -1)
+    use_cap = cap_ok & (~side_ok | (s_cap <= s_side))
+    n_cyl = jnp.where(use_cap[..., None], n_cap, n_side)
 
-    # cylinder: the section's quadratic on (x, y), the slab on z
-    a2 = jnp.sum(us[..., :2] ** 2, -1)
-    b2 = 2.0 * jnp.sum(us[..., :2] * os_[..., :2], -1)
-    c2 = jnp.sum(os_[..., :2] ** 2, -1) - 1.0
-    disc2 = b2 * b2 - 4.0 * a2 * c2
-    parallel = a2 < 1e-12
-    root = safe_sqrt(disc2)
-    s_in = jnp.where(parallel, jnp.where(c2 < 0, -big, big), safe_div(-b2 - root, 2.0 * a2))
-    s_out = jnp.where(parallel, jnp.where(c2 < 0, big, -big), safe_div(-b2 + root, 2.0 * a2))
-    s_cyl = jnp.maximum(s_in, lo[..., 2])
-    hit_cyl = ((disc2 > 0) | parallel) & (s_cyl < jnp.minimum(s_out, hi[..., 2])) & (s_cyl > 0)
-
-    shape = jnp.asarray(shape)[..., None]
-    s = jnp.where(shape == 0, s_cub, jnp.where(shape == 2, s_cyl, s_ell))
-    hit = jnp.where(shape == 0, hit_cub, jnp.where(shape == 2, hit_cyl, hit_ell))
-    return jnp.where(hit, s, 0.0), hit
+    shape = jnp.asarray(shape)
+    is_cub, is_cyl = shape == SHAPE_CUBOID, shape == SHAPE_CYLINDER
+    s = jnp.where(is_cub, s_cub, jnp.where(is_cyl, s_cyl, s_ell))
+    hit = jnp.where(is_cub, hit_cub, jnp.where(is_cyl, hit_cyl, hit_ell))
+    normal = jnp.where(is_cub[..., None], n_cub, jnp.where(is_cyl[..., None], n_cyl, n_ell))
+    return jnp.where(hit, s, 0.0), hit, normal
 
 
 def surface_points(key, rotation, center, radii, n: int):

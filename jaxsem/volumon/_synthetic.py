@@ -1,10 +1,11 @@
 """A fast, exact, jittable ray-cast generator of VoluMon training samples (no files, no GPU).
 
 Each sample is one textured object (a cuboid like the FAT cracker box, or an ellipsoid) at a
-random pose in front of a stereo camera, over a random background. Ray casting is analytic (slab
-test for cuboids, quadratic for ellipsoids), so the depth, mask and surface points are exact and
-the left/right boxes are the exact projections (cuboid corners / closed-form dual conic). Samples
-are a pure function of ``(seed, index)``, which makes data order reproducible for exact resumes.
+random pose in front of a stereo camera, over a random background. Ray casting is analytic (the
+geometry core's :func:`jaxsem.quadrics.ray_cast_local`), so the depth, mask and surface points
+are exact and the left/right boxes are the exact projections (cuboid corners / closed-form dual
+conic). Samples are a pure function of ``(seed, index)``, which makes data order reproducible
+for exact resumes.
 
 Used by the training loop, tests and benchmarks when the MuJoCo dataset of :mod:`jaxsem.data`
 is not wanted; its batches have the same keys as the training loop expects (see
@@ -27,6 +28,7 @@ from ..quadrics import (
     back_project,
     invert_pose,
     quaternion_wxyz_to_rotation,
+    ray_cast_local,
     rigid_transform,
     shape_bbox,
 )
@@ -71,61 +73,6 @@ class SceneConfig:
         )
 
 
-def _cuboid_hit(o, d, h):
-    """Slab test in the object frame: o, d (..., 3), half extents h (3,) -> (s, hit, normal)."""
-    inv = 1.0 / jnp.where(jnp.abs(d) < 1e-9, 1e-9, d)
-    t1 = (-h - o) * inv
-    t2 = (h - o) * inv
-    tmin = jnp.minimum(t1, t2)
-    tmax = jnp.maximum(t1, t2)
-    near = jnp.max(tmin, -1)
-    far = jnp.min(tmax, -1)
-    hit = (far >= near) & (near > 0)
-    axis = jnp.argmax(tmin, -1)
-    p = o + near[..., None] * d
-    sign = jnp.sign(jnp.take_along_axis(p, axis[..., None], -1))
-    normal = jax.nn.one_hot(axis, 3, dtype=o.dtype) * sign
-    return near, hit, normal
-
-
-def _ellipsoid_hit(o, d, r):
-    os_, ds = o / r, d / r
-    a = jnp.sum(ds * ds, -1)
-    b = 2 * jnp.sum(os_ * ds, -1)
-    c = jnp.sum(os_ * os_, -1) - 1
-    disc = b * b - 4 * a * c
-    s = (-b - jnp.sqrt(jnp.maximum(disc, 0))) / (2 * a)
-    hit = (disc > 0) & (s > 0)
-    p = o + s[..., None] * d
-    n = p / (r * r)
-    n = n / jnp.maximum(jnp.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
-    return s, hit, n
-
-
-def _cylinder_hit(o, d, h):
-    """Elliptic cylinder with axis z (semi-axes h[0], h[1], half height h[2]) in its own frame."""
-    a = (d[..., 0] / h[0]) ** 2 + (d[..., 1] / h[1]) ** 2
-    b = 2 * (o[..., 0] * d[..., 0] / h[0] ** 2 + o[..., 1] * d[..., 1] / h[1] ** 2)
-    c = (o[..., 0] / h[0]) ** 2 + (o[..., 1] / h[1]) ** 2 - 1
-    disc = b * b - 4 * a * c
-    s_side = (-b - jnp.sqrt(jnp.maximum(disc, 0))) / (2 * jnp.maximum(a, 1e-12))
-    z_side = o[..., 2] + s_side * d[..., 2]
-    side_ok = (disc > 0) & (s_side > 0) & (jnp.abs(z_side) <= h[2])
-    dz = jnp.where(jnp.abs(d[..., 2]) < 1e-9, 1e-9, d[..., 2])
-    s_cap = jnp.minimum((h[2] - o[..., 2]) / dz, (-h[2] - o[..., 2]) / dz)
-    pc = o + s_cap[..., None] * d
-    cap_ok = (s_cap > 0) & ((pc[..., 0] / h[0]) ** 2 + (pc[..., 1] / h[1]) ** 2 <= 1)
-    big = jnp.asarray(1e9, o.dtype)
-    s = jnp.minimum(jnp.where(side_ok, s_side, big), jnp.where(cap_ok, s_cap, big))
-    hit = side_ok | cap_ok
-    p = o + s[..., None] * d
-    n_side = jnp.stack([p[..., 0] / h[0] ** 2, p[..., 1] / h[1] ** 2, jnp.zeros_like(s)], -1)
-    n_side = n_side / jnp.maximum(jnp.linalg.norm(n_side, axis=-1, keepdims=True), 1e-9)
-    n_cap = jnp.stack([jnp.zeros_like(s), jnp.zeros_like(s), jnp.sign(p[..., 2])], -1)
-    use_cap = cap_ok & (~side_ok | (s_cap <= s_side))
-    return s, hit, jnp.where(use_cap[..., None], n_cap, n_side)
-
-
 _FACE_TINTS = np.array(
     [[1.0, 1.0, 1.0], [0.55, 0.55, 0.55], [1.0, 0.85, 0.35], [0.35, 0.45, 1.0], [0.3, 1.0, 0.5], [1.0, 0.4, 0.9]]
 )
@@ -144,14 +91,8 @@ def render_sample(noise, pose, K, height: int, width: int, split_test: bool):
     object_T_camera = invert_pose(rigid_transform(R, t))
     o = jnp.broadcast_to(object_T_camera[:3, 3], rays.shape)
     d = rays @ R  # R^T ray, row-vector form
-    s_c, hit_c, n_c = _cuboid_hit(o, d, half)
-    s_e, hit_e, n_e = _ellipsoid_hit(o, d, half)
-    s_y, hit_y, n_y = _cylinder_hit(o, d, half)
-    is_cub, is_cyl = shape_id == 0, shape_id == 2
-    s = jnp.where(is_cub, s_c, jnp.where(is_cyl, s_y, s_e))
-    hit = jnp.where(is_cub, hit_c, jnp.where(is_cyl, hit_y, hit_e))
-    n_obj = jnp.where(is_cub, n_c, jnp.where(is_cyl, n_y, n_e))
-    depth = jnp.where(hit, s, 0.0)  # rays have z = 1, so the ray parameter is the z-depth
+    s, hit, n_obj = ray_cast_local(o, d, half, shape_id)
+    depth = s  # rays have z = 1, so the ray parameter is the z-depth (0 where no hit)
     # texture: tint by the dominant local axis of the hit point (orientation is visible)
     p_local = o + s[..., None] * d
     q = p_local / half
