@@ -421,11 +421,11 @@ def generate_building(
     # Walls (two cells thick between regions), a door per room, then doors until all are reached.
     door_w, clear = cells(p.door_width), max(2, cells(0.3))
     n_regions = len(rooms) + 1
-    cut = _Openings(region, n_regions, clear, rng)
-    wall, semantic, runs = cut.wall, cut.semantic, cut.runs
-    neighbours = cut.neighbours(door_w)
-    cut.link_rooms(neighbours, lambda: door_w)
-    for room in cut.repair(neighbours, door_w):
+    walls = _Openings(region, n_regions, clear, rng)
+    wall, semantic, runs = walls.wall, walls.semantic, walls.runs
+    neighbours = walls.neighbours(door_w)
+    walls.link_rooms(neighbours, lambda: door_w)
+    for room in walls.repair(neighbours, door_w):
         # A room with no usable wall: merged into the corridor network (no walls).
         r0, c0, r1, c1 = rooms[room - 1]
         region[r0:r1, c0:c1] = CORRIDOR_REGION
@@ -440,7 +440,7 @@ def generate_building(
         box = _opening((axis, fixed, lo, hi), door_w, 3, rng)
         if box is None:  # not reached: ext_runs are long enough
             continue
-        cut.open(box)
+        walls.open(box)
         r0, c0, r1, c1 = box
         ext_doors.append(box)
         # Which of the two wall layers faces the corridor (inside the footprint)?
@@ -464,7 +464,7 @@ def generate_building(
         raise RuntimeError(f"building seed {seed}: no corridor reaches the exterior wall")
 
     # Windows on the exterior walls of rooms (both wall layers).
-    cut.windows(p.window_prob, (cells(p.window_length[0]), cells(p.window_length[1])), clear + 1)
+    walls.windows(p.window_prob, (cells(p.window_length[0]), cells(p.window_length[1])), clear + 1)
 
     occupancy = wall.copy()
     occupancy[[0, -1], :] = True  # the fence
@@ -473,7 +473,7 @@ def generate_building(
     semantic[:, [0, -1]] = np.where(semantic[:, [0, -1]] == NONE, WALL, semantic[:, [0, -1]])
     indoor = np.zeros((H, W), bool)
     indoor[b0r:b1r, b0c:b1c] = True
-    return cut.building(occupancy, semantic, indoor, margin, resolution, entrance, ext_doors, rooms, family, seed)
+    return walls.building(occupancy, semantic, indoor, margin, resolution, entrance, ext_doors, rooms, family, seed)
 
 
 def _outer_cell(region, box, axis, rng, semantic=None):
@@ -546,19 +546,19 @@ def generate_house(
 
     clear = max(2, cells(0.3))
     n_regions = len(rooms) + 1
-    cut = _Openings(region, n_regions, clear, rng)
-    wall, semantic, door, runs, find = cut.wall, cut.semantic, cut.door, cut.runs, cut.find
-    neighbours = cut.neighbours(cells(p.door_width[0]))
+    walls = _Openings(region, n_regions, clear, rng)
+    wall, semantic, door, runs, find = walls.wall, walls.semantic, walls.door, walls.runs, walls.find
+    neighbours = walls.neighbours(cells(p.door_width[0]))
     for a in range(1, n_regions):  # open plan: wide openings between some neighbour rooms
         for b in sorted(n for n in neighbours[a] if n > a):
             if rng.random() < p.open_plan_prob:
-                cut.cut(a, b, cells(rng.uniform(*p.open_width)), label=NONE)
-    cut.link_rooms(
+                walls.cut(a, b, cells(rng.uniform(*p.open_width)), label=NONE)
+    walls.link_rooms(
         neighbours,
         lambda: cells(rng.uniform(*p.door_width)),
         skip=lambda room: find(room) == find(CORRIDOR_REGION) and rng.random() < 0.5,
     )
-    cut.repair(neighbours, cells(p.door_width[0]))  # a sealed room's floor becomes unknown below
+    walls.repair(neighbours, cells(p.door_width[0]))  # a sealed room's floor becomes unknown below
 
     # Exterior doors on any exterior wall run (hall or room), windows on rooms' exterior walls.
     ext_runs = [(k, r) for k in runs if k[0] == OUTSIDE_REGION for r in runs[k] if r[3] - r[2] >= cells(1.1) + 6]
@@ -570,13 +570,13 @@ def generate_house(
         box = _opening(run, cells(rng.uniform(0.9, 1.1)), 3, rng)
         if box is None:  # not reached: the runs are long enough
             continue
-        cut.open(box)
+        walls.open(box)
         ext_doors.append(box)
         if entrance is None:
             entrance = _outer_cell(region, box, run[0], rng)
     if entrance is None:  # pragma: no cover - every footprint has a long exterior run
         raise RuntimeError(f"house seed {seed}: no exterior wall long enough for a door")
-    cut.windows(p.window_prob, (cells(0.8), cells(1.8)), clear + 1)
+    walls.windows(p.window_prob, (cells(0.8), cells(1.8)), clear + 1)
 
     # Furniture and columns; a piece stays only if the eroded free space stays one piece.
     cross = ndi.generate_binary_structure(2, 1)
@@ -657,7 +657,7 @@ def generate_house(
     semantic = np.where(occ & (semantic == DOOR), WALL, semantic).astype(np.int8)
     semantic = np.where(~occ & (semantic == WALL), NONE, semantic).astype(np.int8)
 
-    return cut.building(occ, semantic, footprint, margin, resolution, entrance, ext_doors, rooms, family, seed, known)
+    return walls.building(occ, semantic, footprint, margin, resolution, entrance, ext_doors, rooms, family, seed, known)
 
 
 def building_family(family: str, count: int, start: int = 0, resolution: float = DEFAULT_RESOLUTION):
