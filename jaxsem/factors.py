@@ -22,6 +22,8 @@ The four factors of eq. 4.13, and odometry:
 4. :func:`shape_prior_residual`: radii against the class mean, per-axis sigma (section 4.3.4).
 5. :func:`upright_residual` (optional, not in the thesis): the object's height axis along the
    world's up, for objects resting on a table or the ground.
+6. :func:`support_residual` (optional, not in the thesis): the object's lowest point on a known
+   horizontal support.
 
 Radii are kept positive by the parameterisation ``radii = softplus(s)``
 (:func:`radii_from_param` / :func:`param_from_radii`): linear for large radii (no overflow),
@@ -75,6 +77,7 @@ __all__ = [
     "shape_prior_table",
     "single_view_init",
     "texture_residual",
+    "support_residual",
     "upright_residual",
 ]
 
@@ -386,6 +389,34 @@ def upright_residual(rotation, up, sigma, axis: int = 2):
     local = jnp.einsum("...ji,...j->...i", rotation, up)  # R^T up
     others = [a for a in range(3) if a != axis]
     return safe_div(local[..., others], jnp.asarray(sigma, rotation.dtype))
+
+
+def support_residual(rotation, center, radii, up, height, sigma):
+    """Support prior: an object's lowest point on a known horizontal support (a desk, a floor).
+
+    The lowest point of the ellipsoid along the world's ``up`` is at ``center . up -
+    |diag(radii) R^T up|`` (the support function of the ellipsoid in the ``-up`` direction); the
+    residual is its height above the support at ``height`` over ``sigma``. A tabletop user knows
+    the support from a plane fit (a depth camera, an AR framework's plane anchor, or features on
+    the desk around the objects); with boxes alone an object's depth along the viewing ray is
+    tied to its size, and the support fixes both. Smooth everywhere (``safe_sqrt``), finite for
+    degenerate radii.
+
+    Args:
+      rotation: (..., 3, 3) object-to-world; center: (..., 3); radii: (..., 3).
+      up: (3,) or (..., 3) unit vector in the world. height: the support's height along ``up``
+        (metres, world). sigma: metres.
+
+    Returns:
+      (..., 1) whitened residual.
+    """
+    rotation = jnp.asarray(rotation)
+    dtype = rotation.dtype
+    up = jnp.asarray(up, dtype)
+    local = jnp.einsum("...ji,...j->...i", rotation, up)  # R^T up
+    reach = safe_sqrt(jnp.sum(jnp.square(jnp.asarray(radii, dtype) * local), axis=-1))
+    bottom = jnp.sum(jnp.asarray(center, dtype) * up, axis=-1) - reach
+    return safe_div(bottom - jnp.asarray(height, dtype), jnp.asarray(sigma, dtype))[..., None]
 
 
 def single_view_init(

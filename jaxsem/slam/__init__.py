@@ -44,6 +44,7 @@ from ._cost import (
     retract_object as retract_object,
     retract_pose as retract_pose,
     total_cost as total_cost,
+    support_rows as support_rows,
     upright_rows as upright_rows,
 )
 from ._draw import (  # figures of sequences and maps
@@ -108,7 +109,10 @@ from ._sequence import (  # sequence directories (JSON layout)
     sequence_to_json as sequence_to_json,
 )
 from ._sequence_checks import check_box as check_box  # a detection box against its image
-from ._sequence_texture import measure_texture as measure_texture  # front end over a sequence
+from ._sequence_texture import (  # front end over a sequence
+    measure_texture as measure_texture,
+    support_height as support_height,
+)
 from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
 from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every device
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map

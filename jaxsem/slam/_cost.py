@@ -7,7 +7,8 @@ Variables are updated as tangent deltas around an anchor estimate (:class:`Delta
 Residual blocks (whitened, masked entries exactly zero):
 
 - boxes: (M, 7) = 4 edges, near-depth barrier, camera-inside barrier, texture plane;
-- pose priors: (T, 6); shape priors: (J, 3), (J, 5) with the optional upright prior;
+- pose priors: (T, 6); shape priors: (J, 3), plus 2 columns with the optional upright prior
+  and 1 with the optional support prior;
 - odometry (only when the problem has it): (T, 6), row ``t`` between poses ``t`` and ``t + 1``.
 
 Each box row touches exactly one pose and one ellipsoid, which the structured solver exploits;
@@ -140,7 +141,7 @@ def box_rows(
         pose,
         rotation,
         center,
-        radii,
+        radii * jnp.asarray(config.silhouette_scale, radii.dtype),
         box,
         K,
         image_size,
@@ -224,9 +225,25 @@ def upright_rows(rotation, mask, config: SolverConfig):
     return jnp.where(mask, r, 0.0)
 
 
+def support_rows(rotation, center, radii, mask, config: SolverConfig):
+    """(1,) whitened support-prior row of one object (:func:`jaxsem.factors.support_residual`
+    with the config's ``world_up`` / ``support_height`` / ``support_sigma`` and the shape loss;
+    zero where ``mask`` is False)."""
+    r = F.support_residual(
+        rotation,
+        center,
+        radii,
+        jnp.asarray(config.world_up, rotation.dtype),
+        config.support_height,
+        config.support_sigma,
+    )
+    r = F.robust_residual(r, config.shape_loss, config.robust_scale)
+    return jnp.where(mask, r, 0.0)
+
+
 def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
-    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3), or (J, 5) with the upright
-    prior)``, and ``odometry (T, 6)``
+    """All residuals: ``(boxes (M, 7), poses (T, 6), shapes (J, 3), plus 2 columns with the
+    upright prior and 1 with the support prior)``, and ``odometry (T, 6)``
     as a fourth block when the problem has odometry (``problem.odometry`` not None)."""
     dtype = estimate.center.dtype
     mean, sigma = class_table(config, dtype, problem)
@@ -253,6 +270,11 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     if config.use_upright:
         up = jax.vmap(upright_rows, in_axes=(0, 0, None))(estimate.rotation, problem.object_mask, config)
         shapes = jnp.concatenate([shapes, up], axis=-1)
+    if config.use_support:
+        sup = jax.vmap(support_rows, in_axes=(0, 0, 0, 0, None))(
+            estimate.rotation, estimate.center, estimate.radii, problem.object_mask, config
+        )
+        shapes = jnp.concatenate([shapes, sup], axis=-1)
     if problem.odometry is not None:
         return boxes, poses, shapes, _odometry_block(problem, estimate.camera_T_world, config)
     return boxes, poses, shapes
@@ -386,6 +408,17 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         )
         Js = jnp.concatenate([Js, jnp.zeros((J, 2, 9), dtype).at[:, :, 0:3].set(Ju)], axis=1)
         rs = jnp.concatenate([rs, ru], axis=-1)
+    if config.use_support:
+
+        def sup_fn(d9, R, c, r, mask):
+            out = support_rows(*first_order_object(R, c, r, d9), mask, config)
+            return out, out
+
+        Jsu, rsu = jax.vmap(jax.jacfwd(sup_fn, has_aux=True), in_axes=(None, 0, 0, 0, 0))(
+            jnp.zeros(9, dtype), est.rotation, est.center, est.radii, problem.object_mask
+        )
+        Js = jnp.concatenate([Js, Jsu], axis=1)
+        rs = jnp.concatenate([rs, rsu], axis=-1)
 
     JpT = jnp.swapaxes(Jp, -1, -2)
     JoT = jnp.swapaxes(Jo, -1, -2)

@@ -17,7 +17,8 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     half-extent when ``config.use_texture`` and the box has a texture measurement, else where
     the class-mean ellipsoid appears as large as the box (``config.depth_from_box``, the
     default) or at ``config.default_depth``; identity rotation; class-mean radii of the
-    problem's class table (or the config's override) (:func:`jaxsem.factors.single_view_init`).
+    problem's class table (or the config's override) (:func:`jaxsem.factors.single_view_init`;
+    the box is read as the outline of the ellipsoid ``config.silhouette_scale`` times larger).
     Objects without any box (or masked) get a finite placeholder (class-mean radii at the world
     origin) and have no effect on the cost. Jittable and vmappable over problems.
     """
@@ -33,12 +34,15 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     first = jnp.minimum(first, M - 1)
     pose = problem.pose_prior[problem.box_pose[first]]
     tex_mask = problem.texture_mask[first] if config.use_texture else jnp.zeros(J, bool)
+    # The box encloses the silhouette ellipsoid (``config.silhouette_scale`` times the extent
+    # ellipsoid): place that one, then keep the class-mean extents.
+    scale = jnp.asarray(config.silhouette_scale, dtype)
     radii_mean = mean[problem.object_class]
-    R, c, r = F.single_view_init(
+    R, c, _ = F.single_view_init(
         pose,
         problem.box[first],
         problem.K,
-        radii_mean,
+        radii_mean * scale,
         texture_depth=problem.texture_depth[first],
         texture_mask=tex_mask,
         default_depth=config.default_depth,
@@ -47,4 +51,4 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
         border_margin=config.border_margin,
     )
     c = jnp.where(has_box[:, None], c, 0.0)
-    return SlamEstimate(problem.pose_prior, R, c, r)
+    return SlamEstimate(problem.pose_prior, R, c, radii_mean)

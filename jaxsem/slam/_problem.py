@@ -273,12 +273,16 @@ class CostModel(eqx.Module):
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
     texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+    silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
     use_upright: bool = eqx.field(static=True, default=False)
     upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
     world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
+    use_support: bool = eqx.field(static=True, default=False)
+    support_height: float | jnp.ndarray = eqx.field(default=0.0, converter=_scalar)
+    support_sigma: float | jnp.ndarray = eqx.field(default=0.005, converter=_scalar)
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
@@ -348,6 +352,14 @@ class SolverConfig(eqx.Module):
         ellipsoid's centre depth (0) and its camera-facing tangent plane (1, the thesis);
         2/3 is the mean depth of the visible surface, what a mean of real feature depths
         measures (:func:`jaxsem.factors.texture_residual`).
+      silhouette_scale: how much larger than its inscribed ellipsoid an object's outline is.
+        A detector's box encloses the object's silhouette; a real object's corners and handles
+        reach beyond the ellipsoid inscribed in its bounding box, so its box is wider than that
+        ellipsoid's projected box (1.0: the thesis' model, exact for ellipsoidal objects; about
+        1.1 for the LM-O desk objects, up to sqrt(3) for a cube seen along its diagonal). The
+        box factor and the single-view start project the ellipsoid with radii scaled by it, so
+        the estimate stays the object's extent ellipsoid (what the shape prior and the metrics
+        describe).
       default_depth: metres, single-view initialisation depth without a texture plane when
         ``depth_from_box`` is False, or when the box cannot give one (every edge at the border).
       depth_from_box: static; without a texture plane, a single-view initialisation places the
@@ -382,6 +394,12 @@ class SolverConfig(eqx.Module):
         from a VIO / IMU). Off by default (the thesis has no such factor); the object rows of
         :func:`jaxsem.slam.residual_blocks` then grow from 3 to 5.
       world_up: static unit 3-vector (tuple), the world's up.
+      use_support: static; adds the support prior (:func:`jaxsem.factors.support_residual`) to
+        every object: its lowest point along ``world_up`` at ``support_height`` (metres, the
+        desk's or floor's height in the world), sigma ``support_sigma`` (metres, default 5 mm),
+        under ``shape_loss``. For objects resting on one known horizontal surface (a plane fit
+        from a depth camera or an AR framework, or :func:`jaxsem.slam.support_height` from the images).
+        Off by default; it adds one object row after the shape (and upright) rows.
     """
 
     noise: NoiseModel = NoiseModel()
@@ -395,6 +413,7 @@ class SolverConfig(eqx.Module):
     pose_loss: str = eqx.field(static=True, default="l2")
     robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
     texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+    silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     default_depth: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     depth_from_box: bool = eqx.field(static=True, default=True)
     max_steps: int = eqx.field(static=True, default=100)
@@ -411,6 +430,9 @@ class SolverConfig(eqx.Module):
     use_upright: bool = eqx.field(static=True, default=False)
     upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
     world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
+    use_support: bool = eqx.field(static=True, default=False)
+    support_height: float | jnp.ndarray = eqx.field(default=0.0, converter=_scalar)
+    support_sigma: float | jnp.ndarray = eqx.field(default=0.005, converter=_scalar)
     shape_prior_mean: jnp.ndarray | None = None
     shape_prior_sigma: jnp.ndarray | None = None
 
