@@ -436,7 +436,9 @@ def main(argv=None):
         seq_t, records = front_end(seq)
         desk, desk_points = slam.support_height(seq) if args.support == "features" else (float("nan"), 0)
         if np.isfinite(desk):
-            cfgs["roshan"] = cfgs["roshan"].replace(use_support=True, support_height=desk, support_sigma=args.support_sigma)
+            cfgs["roshan"] = cfgs["roshan"].replace(
+                use_support=True, support_height=desk, support_sigma=args.support_sigma
+            )
         tex_rows += [
             dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
         ]

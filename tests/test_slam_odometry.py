@@ -327,3 +327,18 @@ def test_upright_prior_linearisation_equals_the_generic_one():
     np.testing.assert_allclose(roshan.cost, cost, rtol=1e-10)
     for a, b in zip(generic, roshan):
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
+
+
+@pytest.mark.slow
+def test_support_prior_linearisation_equals_the_generic_one():
+    problem, _, _ = _drifting_problem(num_frames=5)
+    cfg = _cfg(use_upright=True, use_support=True, support_height=-0.5, support_sigma=0.05)
+    est = slam.initialize(problem, cfg)
+    tilt = jnp.asarray(jaxlie.SO3.from_x_radians(0.3).as_matrix())
+    est = slam.SlamEstimate(est.camera_T_world, est.rotation @ tilt, est.center, est.radii)
+    shapes = slam.residual_blocks(problem, est, cfg)[2]
+    assert shapes.shape[-1] == 6 and float(jnp.max(jnp.abs(shapes[:, 5]))) > 1.0  # the prior is active
+    generic, roshan, cost = _generic_and_roshan_normal(problem, est, cfg)
+    np.testing.assert_allclose(roshan.cost, cost, rtol=1e-10)
+    for a, b in zip(generic, roshan):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
