@@ -43,8 +43,8 @@ from ._cost import (
     retract as retract,
     retract_object as retract_object,
     retract_pose as retract_pose,
-    total_cost as total_cost,
     support_rows as support_rows,
+    total_cost as total_cost,
     upright_rows as upright_rows,
 )
 from ._draw import (  # figures of sequences and maps

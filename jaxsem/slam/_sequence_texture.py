@@ -95,7 +95,7 @@ def support_height(
             raise ValueError(f"{name}: expected a positive number, got {v!r}")
     K = np.asarray(sequence.K, np.float64)
     W, H = (int(x) for x in sequence.image_size)
-    orb = cv2.ORB_create(nfeatures=int(max_features), fastThreshold=7)
+    orb = cv2.ORB.create(nfeatures=int(max_features), fastThreshold=7)
     feats = []
     for t, fr in enumerate(sequence.frames):
         img = load_image(sequence, t)
