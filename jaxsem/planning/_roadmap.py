@@ -234,8 +234,7 @@ def _grow_impl(
     ev = cand & clear
     w = jnp.where(ev, w, jnp.inf)
     if keep > k:
-        nbr, ev, w = _clear_first(nbr, ev, w, k)
-        nbr = jnp.where(ev, nbr, M)
+        nbr, ev, w = _clear_first(nbr, ev, w, k, M)
     return Roadmap(
         points,
         valid,
@@ -309,8 +308,7 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     ev = (nbr < M) & clear
     w = jnp.where(ev, w, jnp.inf).astype(dtype)
     if keep > k:
-        nbr, ev, w = _clear_first(nbr, ev, w, k)
-        nbr = jnp.where(ev, nbr, M)
+        nbr, ev, w = _clear_first(nbr, ev, w, k, M)
     return rm._replace(
         points=points,
         valid=valid,
@@ -354,15 +352,20 @@ def _check_distribution(distribution, shape):
     return distribution
 
 
-def _clear_first(nbr, ev, w, k: int):
-    """Of candidate links (Q, K) in preference order, the first ``k`` that are clear (then the
-    rest, marked invalid): a blocked near candidate does not take a slot from a clear farther
-    one."""
-    K = nbr.shape[1]
-    rank = jnp.where(ev, 0, K) + jnp.arange(K)[None, :]
-    _, pos = jax.lax.top_k(-rank, k)
-    take = functools.partial(jnp.take_along_axis, indices=pos, axis=1)
-    return take(nbr), take(ev), take(w)
+def _clear_first(nbr, ev, w, k: int, none: int):
+    """Of candidate links (Q, K) in preference order, the first ``k`` that are clear, moved to
+    the front in order; the other slots hold no link (``none``, False, inf), so a blocked near
+    candidate does not take a slot from a clear farther one. Each clear link's slot is the count
+    of clear links before it (a running sum and one scatter: a top_k over the rows cost 6x
+    more on XLA's CPU)."""
+    Q, K = nbr.shape
+    pos = jax.lax.associative_scan(jnp.add, ev.astype(jnp.int32), axis=1) - 1
+    rows = jnp.broadcast_to(jnp.arange(Q)[:, None], (Q, K))
+    slot = jnp.where(ev & (pos < k), pos, k)
+    out_n = jnp.full((Q, k), none, nbr.dtype).at[rows, slot].set(nbr, mode="drop")
+    out_w = jnp.full((Q, k), jnp.inf, w.dtype).at[rows, slot].set(w, mode="drop")
+    out_e = jnp.zeros((Q, k), bool).at[rows, slot].set(True, mode="drop")
+    return out_n, out_e, out_w
 
 
 def _check_sectors(sectors) -> int:
