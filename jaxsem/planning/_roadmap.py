@@ -230,7 +230,7 @@ def _grow_impl(
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = _edge_samples(radius, resolution)
-    clear, w = _edges(blocked, cost, new[:, None, :], other, origin, resolution, S, cand, table=table)
+    clear, w = _edges_by_rows(blocked, cost, new, other, origin, resolution, S, cand, table)
     ev = cand & clear
     w = jnp.where(ev, w, jnp.inf)
     if keep > k:
@@ -244,6 +244,34 @@ def _grow_impl(
         rm.num_samples + n,
         rm.overflow | ovf,
     )
+
+
+#: Vertices whose candidate edges are checked at a time (the check's work lists then stay in
+#: cache).
+_EDGE_ROWS = 1024
+
+
+def _edges_by_rows(blocked, cost, new, other, origin, resolution, S, cand, table):
+    """:func:`_edges` of each new vertex (n, 2) to its candidates ``other`` (n, K, 2) where
+    ``cand``, ``_EDGE_ROWS`` vertices at a time (each edge's answer depends only on the edge)."""
+    n = new.shape[0]
+
+    def rows(args):
+        nw, ot, cd = args
+        return _edges(blocked, cost, nw[:, None, :], ot, origin, resolution, S, cd, table=table)
+
+    if n <= 2 * _EDGE_ROWS:
+        return rows((new, other, cand))
+    blocks = -(-n // _EDGE_ROWS)
+    pad = blocks * _EDGE_ROWS - n
+
+    def split(x, fill):
+        x = jnp.concatenate([x, jnp.full((pad, *x.shape[1:]), fill, x.dtype)])
+        return x.reshape(blocks, _EDGE_ROWS, *x.shape[1:])
+
+    clear, w = jax.lax.map(rows, (split(new, 0), split(other, 0), split(cand, False)))
+    K = other.shape[1]
+    return clear.reshape(-1, K)[:n], w.reshape(-1, K)[:n]
 
 
 _grow_jit = functools.partial(
