@@ -225,16 +225,11 @@ def _grow_impl(
         pr, pc, _ = _cells(points, origin, resolution, (H, W))
         density = distribution[pr, pc]
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
-    other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = _edge_samples(radius, resolution)
-    clear, w = _edges_by_rows(blocked, cost, new, other, origin, resolution, S, cand, table)
-    ev = cand & clear
-    w = jnp.where(ev, w, jnp.inf)
-    if keep > k:
-        nbr, ev, w = _clear_first(nbr, ev, w, k, M)
+    nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, table, k)
     return Roadmap(
         points,
         valid,
@@ -251,17 +246,26 @@ def _grow_impl(
 _EDGE_ROWS = 1024
 
 
-def _edges_by_rows(blocked, cost, new, other, origin, resolution, S, cand, table):
-    """:func:`_edges` of each new vertex (n, 2) to its candidates ``other`` (n, K, 2) where
-    ``cand``, ``_EDGE_ROWS`` vertices at a time (each edge's answer depends only on the edge)."""
-    n = new.shape[0]
+def _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, table, k: int):
+    """The links of each new vertex (n, 2) to its candidates ``nbr`` (n, K) among ``points``
+    (M, 2), checked where ``cand``: (n, k) neighbours (``M`` where none), clear flags and
+    weights, the first ``k`` clear candidates when K > k. ``_EDGE_ROWS`` vertices at a time
+    (each vertex's links depend only on its own row)."""
+    n, K = nbr.shape
+    M = points.shape[0]
 
     def rows(args):
-        nw, ot, cd = args
-        return _edges(blocked, cost, nw[:, None, :], ot, origin, resolution, S, cd, table=table)
+        nw, nb, cd = args
+        ot = points[jnp.minimum(nb, M - 1)]
+        clear, w = _edges(blocked, cost, nw[:, None, :], ot, origin, resolution, S, cd, table=table)
+        ev = cd & clear
+        w = jnp.where(ev, w, jnp.inf)
+        if K > k:
+            return _clear_first(nb, ev, w, k, M)
+        return nb, ev, w
 
     if n <= 2 * _EDGE_ROWS:
-        return rows((new, other, cand))
+        return rows((new, nbr, cand))
     blocks = -(-n // _EDGE_ROWS)
     pad = blocks * _EDGE_ROWS - n
 
@@ -269,9 +273,8 @@ def _edges_by_rows(blocked, cost, new, other, origin, resolution, S, cand, table
         x = jnp.concatenate([x, jnp.full((pad, *x.shape[1:]), fill, x.dtype)])
         return x.reshape(blocks, _EDGE_ROWS, *x.shape[1:])
 
-    clear, w = jax.lax.map(rows, (split(new, 0), split(other, 0), split(cand, False)))
-    K = other.shape[1]
-    return clear.reshape(-1, K)[:n], w.reshape(-1, K)[:n]
+    out = jax.lax.map(rows, (split(new, 0), split(nbr, M), split(cand, False)))
+    return tuple(x.reshape(blocks * _EDGE_ROWS, -1)[:n] for x in out)
 
 
 _grow_jit = functools.partial(
