@@ -104,7 +104,7 @@ _RANKED_MAX = 128
 
 
 #: Query rows searched at a time: the candidate arrays of a block (rows x 3 strips x slots)
-#: stay in cache; all rows at once ran 1.5x slower per row at 20,000 rows (256 to 1,024 rows a block: the same).
+#: stay in cache, where all rows at once do not (``benchmarks/RESULTS.md``, campus PRM).
 _ROWS = 512
 
 
