@@ -12,7 +12,9 @@ turns, repeat after repeat, in one run:
   clock runs inside the process (map parsing and process start excluded).
 - ``jaxsem``: :class:`jaxsem.planning.PRM` under its defaults (k = prm_star_k(N), 8 direction
   sectors, default radius), constructed + ``grow(N)`` + first ``query``; ``jaxsem_reuse``: each
-  later query on that roadmap.
+  later query on that roadmap. ``--fast-k K``: also a faster configuration (k = K, the default
+  radius times ``--fast-radius-factor``), timed in the same run and reported in its own rows
+  beside the defaults (never in their place).
 
 Queries: start and goal in free cells with at least 0.3 m clearance, at least 20 m apart and
 connected; C* the 8-connected grid shortest path (metres). Timings: medians after a warm-up
@@ -114,6 +116,18 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1000, help="query and roadmap seed (tuning: < 1000)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--name", default="lsd_prm_campus")
+    ap.add_argument(
+        "--fast-k",
+        type=int,
+        default=0,
+        help="also run a named faster jaxsem configuration with this k (0: defaults only); its rows say so",
+    )
+    ap.add_argument(
+        "--fast-radius-factor",
+        type=float,
+        default=1.0,
+        help="that configuration's radius: the default radius times this (rounded to 0.5 m)",
+    )
     args = ap.parse_args(argv)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -121,65 +135,82 @@ def main(argv=None) -> int:
     b = planning.load_map(args.map)
     tasks = sample_queries(b, args.tasks, args.seed)
     rows, recs = [], []
+    free_cells = int(np.count_nonzero(~np.asarray(b.occupancy)))
+    # Configurations: the PRM's defaults, and (--fast-k) a named faster one reported beside them.
+    configs = {"jaxsem": None}
+    if args.fast_k:
+        configs["jaxsem_fast"] = args.fast_k
     for n in args.n:
-        t = {"ompl_grid": [], "jaxsem": [], "jaxsem_reuse": []}
-        found = {"ompl_grid": [], "jaxsem": []}
-        ratio = {"ompl_grid": [], "jaxsem": []}
+        t = {"ompl_grid": [], **{c: [] for c in configs}, **{f"{c}_reuse": [] for c in configs}}
+        found = {"ompl_grid": [], **{c: [] for c in configs}}
+        ratio = {"ompl_grid": [], **{c: [] for c in configs}}
+        kw = {"jaxsem": {}}
+        if args.fast_k:
+            r = planning.default_radius(n, b.occupancy.shape, b.resolution, free_cells=free_cells)
+            kw["jaxsem_fast"] = {"k": args.fast_k, "radius": max(0.5, round(r * args.fast_radius_factor * 2) / 2)}
 
-        def jaxsem_run(seed):
+        def jaxsem_run(seed, c):
             t0 = time.perf_counter()
-            prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n)
+            prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, **kw[c])
             prm.grow(jax.random.PRNGKey(seed), n)
             p0 = prm.query(tasks[0][0], tasks[0][1])
             return time.perf_counter() - t0, prm, p0
 
-        jaxsem_run(args.seed + 999)  # warm-up (compilation)
+        for c in configs:
+            jaxsem_run(args.seed + 999, c)  # warm-up (compilation)
         for rep in range(args.repeats):
             seed = args.seed + rep
             o = run_ompl(exe, b, n, seed, tasks)
-            dt, prm, p0 = jaxsem_run(seed)
             t["ompl_grid"].append(o["build_s"] + o["queries"][0]["query_s"])
-            t["jaxsem"].append(dt)
-            for ti, (s, g, cstar) in enumerate(tasks):
-                if ti == 0:
-                    p = p0
-                else:
-                    t0 = time.perf_counter()
-                    p = prm.query(s, g)
-                    t["jaxsem_reuse"].append(time.perf_counter() - t0)
+            for ti in range(len(tasks)):
                 oq = o["queries"][ti]
                 found["ompl_grid"].append(oq["found"])
-                found["jaxsem"].append(bool(p.found))
-                ratio["ompl_grid"].append(oq["length"] / cstar if oq["found"] else np.nan)
-                ratio["jaxsem"].append(p.length / cstar if p.found else np.nan)
-                recs.append(
-                    {
-                        "n": n,
-                        "rep": rep,
-                        "task": ti,
-                        "c_star": cstar,
-                        "ompl": oq["found"] and oq["length"],
-                        "jaxsem": bool(p.found) and p.length,
-                    }
-                )
-            print(
-                f"N {n} rep {rep}: OMPL C++ grid {t['ompl_grid'][-1] * 1e3:.0f} ms, jaxsem {dt * 1e3:.0f} ms",
-                flush=True,
+                ratio["ompl_grid"].append(oq["length"] / tasks[ti][2] if oq["found"] else np.nan)
+            msg = f"N {n} rep {rep}: OMPL C++ grid {t['ompl_grid'][-1] * 1e3:.0f} ms"
+            for c in configs:
+                dt, prm, p0 = jaxsem_run(seed, c)
+                t[c].append(dt)
+                msg += f", {c} {dt * 1e3:.0f} ms"
+                for ti, (s, g, cstar) in enumerate(tasks):
+                    if ti == 0:
+                        p = p0
+                    else:
+                        t0 = time.perf_counter()
+                        p = prm.query(s, g)
+                        t[f"{c}_reuse"].append(time.perf_counter() - t0)
+                    oq = o["queries"][ti]
+                    found[c].append(bool(p.found))
+                    ratio[c].append(p.length / cstar if p.found else np.nan)
+                    recs.append(
+                        {
+                            "n": n,
+                            "config": c,
+                            "kwargs": kw[c],
+                            "rep": rep,
+                            "task": ti,
+                            "c_star": cstar,
+                            "ompl": oq["found"] and oq["length"],
+                            "jaxsem": bool(p.found) and p.length,
+                        }
+                    )
+            print(msg, flush=True)
+        for c in configs:
+            both = np.array(found["ompl_grid"]) & np.array(found[c])
+            med = {k: float(np.median(t[k])) * 1e3 for k in ("ompl_grid", c, f"{c}_reuse")}
+            rows.append(
+                {
+                    "n": n,
+                    "config": c,
+                    "kwargs": kw[c],
+                    "queries": len(found[c]),
+                    "found_ompl": int(np.sum(found["ompl_grid"])),
+                    "found_jaxsem": int(np.sum(found[c])),
+                    "both": int(both.sum()),
+                    "len_ompl": float(np.mean(np.array(ratio["ompl_grid"])[both])) if both.any() else None,
+                    "len_jaxsem": float(np.mean(np.array(ratio[c])[both])) if both.any() else None,
+                    "ms": {"ompl_grid": med["ompl_grid"], "jaxsem": med[c], "jaxsem_reuse": med[f"{c}_reuse"]},
+                }
             )
-        both = np.array(found["ompl_grid"]) & np.array(found["jaxsem"])
-        med = {c: float(np.median(v)) * 1e3 for c, v in t.items()}
-        rows.append(
-            {
-                "n": n,
-                "queries": len(found["jaxsem"]),
-                "found_ompl": int(np.sum(found["ompl_grid"])),
-                "found_jaxsem": int(np.sum(found["jaxsem"])),
-                "both": int(both.sum()),
-                "len_ompl": float(np.mean(np.array(ratio["ompl_grid"])[both])) if both.any() else None,
-                "len_jaxsem": float(np.mean(np.array(ratio["jaxsem"])[both])) if both.any() else None,
-                "ms": med,
-            }
-        )
     table = [
         "| N | queries | found OMPL | found jaxsem | length / C* OMPL (both found) | jaxsem | OMPL C++ grid checker: "
         "build + query (ms) | jaxsem build + query (ms) | jaxsem / OMPL time | jaxsem per query, reused (ms) |",
@@ -187,8 +218,9 @@ def main(argv=None) -> int:
     ]
     for r in rows:
         m = r["ms"]
+        label = str(r["n"]) if r["config"] == "jaxsem" else f"{r['n']}, jaxsem {r['kwargs']}"
         table.append(
-            f"| {r['n']} | {r['queries']} | {r['found_ompl']} | {r['found_jaxsem']} | {r['len_ompl']:.3f} | "
+            f"| {label} | {r['queries']} | {r['found_ompl']} | {r['found_jaxsem']} | {r['len_ompl']:.3f} | "
             f"{r['len_jaxsem']:.3f} | {m['ompl_grid']:.0f} | {m['jaxsem']:.0f} | {m['jaxsem'] / m['ompl_grid']:.2f} | "
             f"{m['jaxsem_reuse']:.1f} |"
         )

@@ -840,3 +840,37 @@ def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     loop = Trial.connection_radius(NavConfig(n_samples=500, max_growth=0), occ.shape, RES, learned=True)
     assert learned.radius == loop
     assert learned.radius >= 1.9 * uniform.radius
+
+
+def test_a_large_grow_keeps_the_first_k_clear_of_the_direction_rule():
+    """A grow of more vertices than the neighbour search and the edge check take at a time (both
+    work through blocks of rows): every vertex's list is, in order, the first k of its 2k
+    direction-first candidates (numpy) whose edge passes the dense rule (numpy)."""
+    rng = np.random.default_rng(3)
+    occ = _thin_wall_map(rng)
+    n, k, radius, sectors = 2600, 6, 0.5, 4
+    prm = PRM(occ, ORIGIN, RES, capacity=n, k=k, radius=radius, sectors=sectors)
+    prm.grow(jax.random.PRNGKey(0), n)
+    pts = np.asarray(prm.roadmap.points)
+    valid = np.asarray(prm.roadmap.valid)
+    nbr, ev = np.asarray(prm.roadmap.neighbors), np.asarray(prm.roadmap.edge_valid)
+    M = len(pts)
+    samples = max(2, int(math.ceil(radius / (0.5 * RES))) + 1)
+    m = max(1, -(-k // (2 * sectors)))
+    for i in range(2, M):
+        d = np.linalg.norm(pts - pts[i], axis=1)
+        ok = valid & (d <= radius) & (np.arange(M) >= 2)
+        ok[i] = False
+        ang = np.arctan2(pts[:, 1] - pts[i, 1], pts[:, 0] - pts[i, 0])
+        sec = np.clip(np.floor((ang + np.pi) * sectors / (2 * np.pi)).astype(int), 0, sectors - 1)
+        first = []
+        for s in range(sectors):
+            idx = np.flatnonzero(ok & (sec == s))
+            first += list(idx[np.argsort(d[idx])][:m])
+        first = sorted(first, key=lambda j: d[j])
+        rest = np.flatnonzero(ok)
+        rest = [j for j in rest[np.argsort(d[rest])] if j not in set(first)]
+        cands = (first + rest)[: 2 * k]
+        want = [j for j in cands if _dense_rule(pts[i], pts[j], occ, samples)][:k]
+        assert list(nbr[i][ev[i]]) == want, i
+        assert not ev[i][len(want) :].any() and np.all(nbr[i][len(want) :] == M)

@@ -5,6 +5,7 @@ connection policy (sectors), brute force where buckets would not pay (see
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -102,6 +103,11 @@ def _select_ranked(d2, diff, k: int, sectors: int, keep: int, sparser=None):
 _RANKED_MAX = 128
 
 
+#: Query rows searched at a time: the candidate arrays of a block (rows x 3 strips x slots)
+#: stay in cache, where all rows at once do not (``benchmarks/RESULTS.md``, campus PRM).
+_ROWS = 512
+
+
 def _knn(
     db,
     db_ok,
@@ -117,28 +123,51 @@ def _knn(
 ):
     """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
     excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
-    overflow). ``cap=None``: brute force. Local coordinates in [0, extent)."""
+    overflow). ``cap=None``: brute force. Local coordinates in [0, extent). Rows are searched
+    ``_ROWS`` at a time (each row's answer depends only on the row)."""
     M = db.shape[0]
     Q = queries.shape[0]
-    if cap is None or 3 * cap >= M:
+    grid = None
+    if not (cap is None or 3 * cap >= M):
+        gx = max(1, int(math.ceil(extent[0] / radius)))
+        gy = max(1, int(math.ceil(extent[1] / radius)))
+        bx, by = _bucket(db, radius, gx, gy)
+        bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
+        order = jnp.argsort(bid)
+        grid = (gx, gy, order, bid[order])
+    rows = functools.partial(
+        _knn_rows, db, db_ok, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
+    )
+    if Q <= _ROWS:
+        return rows(queries, q_self)
+    n_blocks = -(-Q // _ROWS)
+    pad = n_blocks * _ROWS - Q
+    # Padding repeats the last row (a real query: it cannot raise a false overflow).
+    qp = jnp.concatenate([queries, jnp.broadcast_to(queries[-1:], (pad, 2))]).reshape(n_blocks, _ROWS, 2)
+    sp = jnp.concatenate([q_self, jnp.broadcast_to(q_self[-1:], (pad,))]).reshape(n_blocks, _ROWS)
+    idx, overflow = jax.lax.map(lambda a: rows(*a), (qp, sp))
+    return idx.reshape(n_blocks * _ROWS, -1)[:Q], jnp.any(overflow)
+
+
+def _bucket(p, radius: float, gx: int, gy: int):
+    b = jnp.floor(p / radius).astype(jnp.int32)
+    return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
+
+
+def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid):
+    """:func:`_knn` on one block of query rows; ``grid``: (gx, gy, bucket order, sorted bucket
+    ids) of the bucketed search, None for brute force."""
+    M = db.shape[0]
+    Q = queries.shape[0]
+    if grid is None:
         cand = jnp.broadcast_to(jnp.arange(M)[None, :], (Q, M))
         ok = jnp.broadcast_to(db_ok[None, :], (Q, M))
         overflow = jnp.zeros((), bool)
     else:
-        gx = max(1, int(math.ceil(extent[0] / radius)))
-        gy = max(1, int(math.ceil(extent[1] / radius)))
-
-        def bucket(p):
-            b = jnp.floor(p / radius).astype(jnp.int32)
-            return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
-
-        bx, by = bucket(db)
-        bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
-        order = jnp.argsort(bid)
-        sorted_bid = bid[order]
+        gx, gy, order, sorted_bid = grid
         # The 3 x 3 buckets around a query are 3 strips of 3 buckets, each contiguous in the
         # bucket order: read ``cap`` slots per strip.
-        qx, qy = bucket(queries)
+        qx, qy = _bucket(queries, radius, gx, gy)
         ny = qy[:, None] + jnp.arange(-1, 2, dtype=jnp.int32)[None, :]  # (Q, 3)
         inside = (ny >= 0) & (ny < gy)
         lo = ny * gx + jnp.maximum(qx - 1, 0)[:, None]
@@ -158,7 +187,7 @@ def _knn(
     sparser = None
     if density is not None:  # (M,) sampling density of db points; queries are db[q_self]
         sparser = density[cand] <= density[jnp.maximum(q_self, 0)][:, None] * 1.001
-    if cap is not None and 3 * cap < M:
+    if grid is not None:
         # Keep the candidates within the radius (about pi/3 of a strip's): at most ``cap`` of
         # them, a row with more is an overflow too (rerun with more slots).
         inr = jnp.isfinite(d2)
