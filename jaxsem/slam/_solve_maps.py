@@ -50,8 +50,10 @@ def solve_maps(
       ``(estimates, infos)`` batched along ``B``: what ``jax.vmap(lambda p, i: solve_batch(p, i,
       config))(problems, inits)`` returns on one device. Per map the solve is the same program; a
       vmapped solver loop runs each map with the others of its batch, so results agree with a
-      whole-batch vmap to the solver's own batch-dependence (see ``tests/test_parallel_training.py``)
-      and exactly with a vmap over each device's slice.
+      whole-batch vmap to the solver's own batch-dependence, and with a vmap over each device's
+      slice to floating-point rounding, which XLA's compilation of the two programs decides and
+      an unconverged solve can amplify (``tests/test_parallel_training.py`` checks tightly
+      converged solves).
     """
     if method not in ("schur", "optimistix"):
         raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
