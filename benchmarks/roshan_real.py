@@ -194,7 +194,10 @@ def score(seq, rotation, center, radii):
 
 def true_support_height(seq):
     """Median over the stretch's objects of their lowest point along the world's z (scoring only)."""
-    bottoms = [o["center"][2] - np.linalg.norm(o["radii"] * o["rotation"][2, :]) for o in seq.truth["objects"]]
+    up = np.array([0.0, 0.0, 1.0])
+    bottoms = [
+        o["center"][2] - quadrics.half_extent(o["rotation"], o["radii"], up, xp=np) for o in seq.truth["objects"]
+    ]
     return float(np.median(bottoms))
 
 

@@ -51,6 +51,7 @@ from . import classes as _classes
 from .quadrics import (
     algebraic_distance,
     depth_from_box_size,
+    half_extent,
     invert_pose,
     project_bbox,
     safe_div,
@@ -399,7 +400,7 @@ def support_residual(rotation, center, radii, up, height, sigma):
     residual is its height above the support at ``height`` over ``sigma``. A tabletop user knows
     the support from a plane fit (a depth camera, an AR framework's plane anchor, or features on
     the desk around the objects); with boxes alone an object's depth along the viewing ray is
-    tied to its size, and the support fixes both. Smooth everywhere (``safe_sqrt``), finite for
+    tied to its size, and the support fixes both. Smooth everywhere (NaN-safe norm), finite for
     degenerate radii.
 
     Args:
@@ -413,8 +414,7 @@ def support_residual(rotation, center, radii, up, height, sigma):
     rotation = jnp.asarray(rotation)
     dtype = rotation.dtype
     up = jnp.asarray(up, dtype)
-    local = jnp.einsum("...ji,...j->...i", rotation, up)  # R^T up
-    reach = safe_sqrt(jnp.sum(jnp.square(jnp.asarray(radii, dtype) * local), axis=-1))
+    reach = half_extent(rotation, jnp.asarray(radii, dtype), up)
     bottom = jnp.sum(jnp.asarray(center, dtype) * up, axis=-1) - reach
     return safe_div(bottom - jnp.asarray(height, dtype), jnp.asarray(sigma, dtype))[..., None]
 
@@ -431,6 +431,7 @@ def single_view_init(
     depth_from_box: bool = True,
     image_size=None,
     border_margin: ArrayLike = 10.0,
+    silhouette_scale: ArrayLike = 1.0,
 ):
     """Single-image initialisation (section 4.3.5).
 
@@ -442,7 +443,9 @@ def single_view_init(
     border, within ``border_margin`` pixels of ``image_size``, are left out), so the start
     follows the scene's scale; at ``default_depth`` (metres, camera z) where no side constrains
     or ``depth_from_box`` is False (QuadricSLAM's fixed-depth start). Orientation is the
-    identity (object axes = world axes); radii are the class mean.
+    identity (object axes = world axes); radii are the class mean. With ``silhouette_scale`` the
+    box is the outline of the ellipsoid that many times the class mean
+    (``SolverConfig.silhouette_scale``): that ellipsoid is placed, the class mean returned.
 
     Args:
       camera_T_world: (..., 4, 4); box: (..., 4); K: (..., 3, 3); mean_radii: (..., 3).
@@ -457,7 +460,8 @@ def single_view_init(
     dtype = jnp.result_type(box, camera_T_world, K, float)
     K = jnp.asarray(K, dtype)
     pose = jnp.asarray(camera_T_world, dtype)
-    mean_radii = jnp.asarray(mean_radii, dtype)
+    extent_radii = jnp.asarray(mean_radii, dtype)
+    mean_radii = extent_radii * jnp.asarray(silhouette_scale, dtype)  # the outline's ellipsoid
     R_cw = pose[..., :3, :3]
     half_depth = safe_sqrt(jnp.sum(jnp.square(mean_radii * R_cw[..., 2, :]), axis=-1))
     depth = jnp.broadcast_to(jnp.asarray(default_depth, dtype), box.shape[:-1])
@@ -469,4 +473,5 @@ def single_view_init(
         tex = jnp.asarray(texture_depth, dtype)
         mask = jnp.ones(tex.shape, bool) if texture_mask is None else jnp.asarray(texture_mask)
         depth = jnp.where(mask & (tex > 0), tex + half_depth, depth)
-    return single_view_ellipsoid(box.astype(dtype), K, pose, depth, mean_radii)
+    R, c, _ = single_view_ellipsoid(box.astype(dtype), K, pose, depth, mean_radii)
+    return R, c, jnp.broadcast_to(extent_radii, c.shape)

@@ -11,7 +11,7 @@ Where the code lives (``jaxsem/_geometry/``):
   ``safe_div`` / ``safe_norm``.
 - ``conics.py``: ``dual_quadric``, ``primal_quadric``, ``camera_matrix``, ``project_dual_conic``,
   ``conic_bbox``, ``cylinder_bbox``, ``conic_outline``, ``camera_frame``, ``texture_plane_depth``,
-  ``camera_depth``.
+  ``camera_depth``, ``half_extent``.
 - ``bbox.py``: ``project_bbox``, the fused closed-form box with its custom JVP.
 - ``ground.py``: ``ground_conic``, ``ground_bounds``, ``rasterize_footprint`` (top-down view).
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
@@ -71,6 +71,7 @@ from ._geometry.conics import (
     cylinder_bbox as cylinder_bbox,
     dual_quadric as dual_quadric,
     ellipsoid_valid as ellipsoid_valid,
+    half_extent as half_extent,
     primal_quadric as primal_quadric,
     project_dual_conic as project_dual_conic,
     texture_plane_depth as texture_plane_depth,
@@ -161,6 +162,7 @@ __all__ = [
     "surface_points",
     "camera_depth",
     "camera_frame",
+    "half_extent",
     "look_at",
     "rigid_transform",
     "transform_points",

@@ -42,6 +42,8 @@ def test_support_residual_is_the_lowest_surface_point_over_sigma(seed):
     res = np.asarray(_support(R, c, r, UP, height, sigma))
     assert res.shape == (1,)
     reference = _lowest_sampled_height(R, c, r)
+    # the core's half-extent (host numpy path) gives the same lowest point
+    np.testing.assert_allclose(c @ UP - Q.half_extent(R, r, UP, xp=np), res[0] * sigma + height, atol=1e-9)
     # the grid's lowest point is at most a sampling step's sagitta above the true one
     tol = 5e-4 * float(np.max(r)) + 1e-9
     assert reference - tol <= res[0] * sigma + height <= reference + 1e-9

@@ -402,6 +402,29 @@ def texture_plane_depth(rotation, center, radii, camera_T_world):
     return depth, valid
 
 
+def half_extent(rotation, radii, direction, *, xp: Any = jnp):
+    """Half-extent of an ellipsoid along a unit ``direction``: ``|diag(radii) R^T d|``.
+
+    The ellipsoid's support function about its centre: its surface reaches ``center . d +-
+    half_extent`` along ``d`` (the lowest point above a support when ``d`` is up; the near
+    tangent plane when ``d`` is a camera's optical axis).
+
+    Args:
+      rotation: (..., 3, 3) object-to-world; radii: (..., 3); direction: (..., 3) unit vector
+        in the world. ``xp``: ``jax.numpy`` (default, with a NaN-safe norm: finite gradients
+        for zero radii) or ``numpy`` (host code).
+
+    Returns:
+      (...) metres.
+    """
+    xp = _namespace(xp)
+    rotation, radii, direction = (xp.asarray(x) for x in (rotation, radii, direction))
+    local = xp.einsum("...ji,...j->...i", rotation, direction)  # R^T d
+    if xp is np:
+        return np.linalg.norm(radii * local, axis=-1)
+    return safe_norm(radii * local, axis=-1)
+
+
 def camera_depth(center, camera_T_world, *, xp: Any = jnp):
     """Depth (camera z) of world points ``center`` (..., 3) seen from ``camera_T_world`` (..., 4, 4).
     ``xp``: ``jax.numpy`` (default) or ``numpy`` (host code)."""

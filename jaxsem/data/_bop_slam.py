@@ -113,15 +113,15 @@ def _support_normal(centres, normal, rotations, radii, iterations: int = 3):
     refined from ``normal``: each object's lowest point along the current normal (its support
     point), a plane fitted through those, repeated. A plane through the centres instead is
     tilted whenever the objects differ in height (a 20 cm driller beside a 5 cm duck)."""
+    from .. import quadrics
+
     for _ in range(iterations):
-        local = np.einsum("nji,j->ni", rotations, normal)  # R^T n per object
-        reach = np.linalg.norm(radii * local, axis=-1)
+        reach = quadrics.half_extent(rotations, radii, normal, xp=np)
         bottoms = centres - reach[:, None] * normal
         _, sv, vt = np.linalg.svd(bottoms - bottoms.mean(0))
         if sv[1] < 1e-6:  # collinear support points: keep the estimate
             break
-        new = vt[2] if vt[2] @ normal >= 0 else -vt[2]
-        normal = new
+        normal = vt[2] if vt[2] @ normal >= 0 else -vt[2]
     return normal
 
 

@@ -34,21 +34,18 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     first = jnp.minimum(first, M - 1)
     pose = problem.pose_prior[problem.box_pose[first]]
     tex_mask = problem.texture_mask[first] if config.use_texture else jnp.zeros(J, bool)
-    # The box encloses the silhouette ellipsoid (``config.silhouette_scale`` times the extent
-    # ellipsoid): place that one, then keep the class-mean extents.
-    scale = jnp.asarray(config.silhouette_scale, dtype)
-    radii_mean = mean[problem.object_class]
-    R, c, _ = F.single_view_init(
+    R, c, r = F.single_view_init(
         pose,
         problem.box[first],
         problem.K,
-        radii_mean * scale,
+        mean[problem.object_class],
         texture_depth=problem.texture_depth[first],
         texture_mask=tex_mask,
         default_depth=config.default_depth,
         depth_from_box=config.depth_from_box,
         image_size=problem.image_size,
         border_margin=config.border_margin,
+        silhouette_scale=config.silhouette_scale,
     )
     c = jnp.where(has_box[:, None], c, 0.0)
-    return SlamEstimate(problem.pose_prior, R, c, radii_mean)
+    return SlamEstimate(problem.pose_prior, R, c, r)

@@ -196,21 +196,19 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     is_new = det & ~pb.object_mask[oid]
     mean, _ = class_table(cfg, dtype, pb)
     tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
-    # The box is the outline of the silhouette ellipsoid (see SolverConfig.silhouette_scale).
-    scale = jnp.asarray(cfg.silhouette_scale, dtype)
-    R0, c0, _ = F.single_view_init(
+    R0, c0, r0 = F.single_view_init(
         prior,
         frame.box.astype(dtype),
         pb.K,
-        mean[frame.box_class] * scale,
+        mean[frame.box_class],
         texture_depth=frame.texture_depth.astype(dtype),
         texture_mask=tex_ok,
         default_depth=cfg.default_depth,
         depth_from_box=cfg.depth_from_box,
         image_size=pb.image_size,
         border_margin=cfg.border_margin,
+        silhouette_scale=cfg.silhouette_scale,
     )
-    r0 = mean[frame.box_class]
     # A detection that carries an initial ellipsoid (Frame.init_*) starts its new object there.
     given = frame.init_mask & is_new
     R0 = jnp.where(given[:, None, None], frame.init_rotation.astype(dtype), R0)
