@@ -187,7 +187,20 @@ def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
 
 
 def _sample_and_search(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, sectors, uniform_samples, aids
+    rm,
+    key,
+    blocked,
+    distribution,
+    origin,
+    *,
+    n,
+    radius,
+    resolution,
+    cap,
+    sectors,
+    uniform_samples,
+    aids,
+    order_all=True,
 ):
     """The first half of a grow: ``n`` new samples written into the roadmap's points and valid
     flags, and each new vertex's candidates (n, K) in preference order (K = 2k with sectors, k
@@ -215,7 +228,9 @@ def _sample_and_search(
     if sectors and distribution is not None:
         pr, pc, _ = _cells(points, origin, resolution, (H, W))
         density = distribution[pr, pc]
-    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
+    nbr, ovf = _knn(
+        points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density, order_all
+    )
     return points, valid, new, ok_new, s0, nbr, ovf
 
 
@@ -313,7 +328,9 @@ def _grow_lazy_impl(
     rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, sectors=0, uniform_samples=False, aids=None
 ):
     """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the same samples and
-    candidates as :func:`_grow_impl`. Returns (roadmap with the new points and no new edges, the
+    candidates as :func:`_grow_impl`, in its order where the order decides a link (rows with
+    more than k candidates; a row with at most k keeps every clear one whatever the order, so
+    its candidates are not ranked). Returns (roadmap with the new points and no new edges, the
     new vertices' candidates (n, K), ``M`` where none or where the vertex is not valid)."""
     M = rm.neighbors.shape[0]
     points, valid, _, ok_new, _, nbr, ovf = _sample_and_search(
@@ -329,6 +346,7 @@ def _grow_lazy_impl(
         sectors=sectors,
         uniform_samples=uniform_samples,
         aids=aids,
+        order_all=False,
     )
     rm = rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n, overflow=rm.overflow | ovf)
     return rm, jnp.where(ok_new[:, None], nbr, M)
