@@ -12,7 +12,9 @@ turns, repeat after repeat, in one run:
   clock runs inside the process (map parsing and process start excluded).
 - ``jaxsem``: :class:`jaxsem.planning.PRM` under its defaults (k = prm_star_k(N), 8 direction
   sectors, default radius), constructed + ``grow(N)`` + first ``query``; ``jaxsem_reuse``: each
-  later query on that roadmap. ``--fast-k K``: also a faster configuration (k = K, the default
+  later query on that roadmap. ``--lazy``: also the defaults with ``lazy=True`` (Lazy PRM: the
+  grow checks no edge, a query checks those its shortest path needs; the same roadmap and
+  shortest paths), in its own rows. ``--fast-k K``: also a faster configuration (k = K, the default
   radius times ``--fast-radius-factor``), timed in the same run and reported in its own rows
   beside the defaults (never in their place).
 
@@ -123,6 +125,11 @@ def main(argv=None) -> int:
         help="also run a named faster jaxsem configuration with this k (0: defaults only); its rows say so",
     )
     ap.add_argument(
+        "--lazy",
+        action="store_true",
+        help="also run the defaults with lazy=True (Lazy PRM: edges checked at query time), in their own rows",
+    )
+    ap.add_argument(
         "--fast-radius-factor",
         type=float,
         default=1.0,
@@ -140,11 +147,13 @@ def main(argv=None) -> int:
     configs = {"jaxsem": None}
     if args.fast_k:
         configs["jaxsem_fast"] = args.fast_k
+    if args.lazy:
+        configs["jaxsem_lazy"] = True
     for n in args.n:
         t = {"ompl_grid": [], **{c: [] for c in configs}, **{f"{c}_reuse": [] for c in configs}}
         found = {"ompl_grid": [], **{c: [] for c in configs}}
         ratio = {"ompl_grid": [], **{c: [] for c in configs}}
-        kw = {"jaxsem": {}}
+        kw = {"jaxsem": {}, "jaxsem_lazy": {"lazy": True}}
         if args.fast_k:
             r = planning.default_radius(n, b.occupancy.shape, b.resolution, free_cells=free_cells)
             kw["jaxsem_fast"] = {"k": args.fast_k, "radius": max(0.5, round(r * args.fast_radius_factor * 2) / 2)}

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jaxsem.planning import (
+    DEFAULT_SECTORS,
     OCCUPIED,
     PRM,
     UNKNOWN,
@@ -358,6 +359,32 @@ def test_knn_matches_brute_force(kind):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("sectors,k", [(8, 22), (8, 14), (0, 22)])
+def test_unordered_rows_hold_the_same_candidates(sectors, k):
+    """The lazy grow's search (``order_all=False``) ranks only rows with more than k candidates
+    (up to 64 such rows of a block of 512 alone; k = 14: more, the whole block): every row holds
+    the same candidates as the ranked search, in the same order where it has more than k."""
+    from jaxsem.planning._neighbours import _knn  # layers: white-box (the lazy grow's search)
+
+    rng = np.random.default_rng(0)
+    M, radius = 1500, 1.0
+    p = rng.uniform(0.0, 17.0, (M, 2))
+    pts = jnp.asarray(p)
+    slots = jnp.arange(M)
+    keep = 2 * k if sectors else k
+    args = (pts, jnp.ones(M, bool), pts, slots, k, radius, (17.0, 17.0), 96, sectors, keep)
+    ranked, o1 = jax.jit(lambda: _knn(*args))()
+    plain, o2 = jax.jit(lambda: _knn(*args, order_all=False))()
+    ranked, plain = np.asarray(ranked), np.asarray(plain)
+    assert not bool(o1) and not bool(o2)
+    count = (np.sum((p[:, None, :] - p[None, :, :]) ** 2, -1) <= radius**2).sum(1) - 1
+    over = count > k
+    assert 0 < over[:512].sum() and (over[:512].sum() <= 64) == (k == 22)  # the branch meant
+    np.testing.assert_array_equal(plain[over], ranked[over])
+    assert all(set(a) == set(b) for a, b in zip(plain[~over].tolist(), ranked[~over].tolist()))
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["uniform", "concentrated"])
 def test_grown_roadmap_neighbours_are_exact(kind):
     """Two batches, a tiny starting bucket cap (forces the rerun): every vertex holds the k
@@ -515,6 +542,95 @@ def test_prm_bad_input():
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="l1")
     with pytest.raises(ValueError, match="k"):
         build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, k=0)
+
+
+def _lazy_and_eager(occ, sectors, k, grows=((5, 500), (6, 500))):
+    eager = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS, sectors=sectors, k=k)
+    lazy = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS, sectors=sectors, k=k, lazy=True)
+    for seed, n in grows:  # two grows: the second batch's candidates include the first's vertices
+        eager.grow(jax.random.PRNGKey(seed), n)
+        lazy.grow(jax.random.PRNGKey(seed), n)
+    return eager, lazy
+
+
+def _assert_same_roadmap(eager, lazy):
+    """The lazy PRM's fully checked roadmap is the eager one edge for edge, weights bit for bit
+    (the slots may differ: the lazy grow does not rank a row's candidates when the order decides
+    nothing, and after a map update the eager PRM leaves a dropped edge in its slot)."""
+    full = lazy.checked_roadmap()
+    for field in ("points", "valid"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(full, field))[2:], np.asarray(getattr(eager.roadmap, field))[2:]
+        )
+
+    def edges(rm):
+        ev = np.asarray(rm.edge_valid)[2:]
+        rows = np.nonzero(ev)[0] + 2
+        return sorted(
+            zip(rows.tolist(), np.asarray(rm.neighbors)[2:][ev].tolist(), np.asarray(rm.edge_weight)[2:][ev].tolist())
+        )
+
+    assert edges(full) == edges(eager.roadmap)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sectors,k", [(8, None), (8, 6), (0, 6)])
+def test_lazy_prm_returns_the_eager_prms_paths(sectors, k):
+    """Lazy PRM (check only what the query's shortest path needs) against the eager PRM on the
+    same samples: every query finds the same shortest cost (the lazy search's answer is a
+    shortest path of the eager roadmap), a second identical query checks nothing new, and once
+    every edge is checked the lazy roadmap is the eager one edge for edge (candidates, the
+    first-k-clear rule, weights). k = 6 with 8 sectors: rows hold more candidates than k, so later slots
+    only count once the slots before them are checked."""
+    occ = _blocks(3, shape=(60, 100), n=25)
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(3)
+    eager, lazy = _lazy_and_eager(occ, sectors, k)
+    for _ in range(5):
+        s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
+        pe, pl = eager.query(s, g), lazy.query(s, g)
+        assert pe.found == pl.found
+        if pe.found:
+            np.testing.assert_allclose(pl.cost, pe.cost, rtol=1e-9)
+            np.testing.assert_allclose(pl.length, pl.cost, rtol=1e-5)  # Euclidean weights
+            assert pl.vertices[0] == 0 and pl.vertices[-1] == 1
+        assert lazy._lazy is not None
+        before = lazy._lazy.status.copy()
+        again = lazy.query(s, g)
+        np.testing.assert_array_equal(lazy._lazy.status, before)
+        assert again.found == pl.found and (not pl.found or again.cost == pl.cost)
+    # Only part of the roadmap was checked.
+    assert 0 < np.count_nonzero(lazy._lazy.status == 0)
+    _assert_same_roadmap(eager, lazy)
+
+
+@pytest.mark.slow
+def test_lazy_prm_after_a_map_update_and_without_a_path():
+    """A newer map (a wall with a gap, then closed): the lazy PRM forgets what it checked clear,
+    drops what the map blocks, and still returns the eager PRM's paths; with no route it finds
+    none."""
+    occ = _one_route_map()
+    start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
+    open_map = np.zeros_like(occ)
+    eager, lazy = _lazy_and_eager(open_map, DEFAULT_SECTORS, None)
+    pe, pl = eager.query(start, goal), lazy.query(start, goal)
+    np.testing.assert_allclose(pl.cost, pe.cost, rtol=1e-9)
+    for m in (occ, np.where(np.arange(occ.shape[1])[None, :] == 50, True, occ)):
+        assert eager.update_map(m) and lazy.update_map(m)
+        pe, pl = eager.query(start, goal), lazy.query(start, goal)
+        assert pe.found == pl.found
+        if pe.found:
+            np.testing.assert_allclose(pl.cost, pe.cost, rtol=1e-9)
+    assert not pl.found
+    _assert_same_roadmap(eager, lazy)
+
+
+def test_lazy_prm_bad_input():
+    occ = _one_route_map()
+    with pytest.raises(ValueError, match="lazy"):
+        PRM(occ, ORIGIN, RES, capacity=N, lazy=1)
+    with pytest.raises(ValueError, match="lazy"):
+        PRM(occ, ORIGIN, RES, capacity=N, lazy=True, weight="neglogp")
 
 
 @pytest.mark.slow

@@ -120,11 +120,14 @@ def _knn(
     sectors: int = 0,
     keep: int | None = None,
     density=None,
+    order_all: bool = True,
 ):
     """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
     excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
     overflow). ``cap=None``: brute force. Local coordinates in [0, extent). Rows are searched
-    ``_ROWS`` at a time (each row's answer depends only on the row)."""
+    ``_ROWS`` at a time (each row's answer depends only on the row). ``order_all=False``: a row
+    with at most ``k`` candidates within the radius returns them all in no particular order (the
+    same set; only rows with more are ranked, see :func:`_knn_rows`)."""
     M = db.shape[0]
     Q = queries.shape[0]
     grid = None
@@ -136,7 +139,17 @@ def _knn(
         order = jnp.argsort(bid)
         grid = (gx, gy, order, bid[order])
     rows = functools.partial(
-        _knn_rows, db, db_ok, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
+        _knn_rows,
+        db,
+        db_ok,
+        k=k,
+        radius=radius,
+        cap=cap,
+        sectors=sectors,
+        keep=keep,
+        density=density,
+        grid=grid,
+        order_all=order_all,
     )
     if Q <= _ROWS:
         return rows(queries, q_self)
@@ -154,7 +167,12 @@ def _bucket(p, radius: float, gx: int, gy: int):
     return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
 
 
-def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid):
+#: With ``order_all=False``: rows of a block ranked without ranking the whole block (more rows
+#: with over ``k`` candidates rank the whole block).
+_RANK_ROWS = 64
+
+
+def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid, order_all=True):
     """:func:`_knn` on one block of query rows; ``grid``: (gx, gy, bucket order, sorted bucket
     ids) of the bucketed search, None for brute force."""
     M = db.shape[0]
@@ -208,7 +226,11 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
         if sparser is not None:
             sparser = jnp.take_along_axis(sparser, col, axis=1)
     kk = min(want, cand.shape[1])
-    if cand.shape[1] <= _RANKED_MAX:
+    if grid is not None and not order_all and cand.shape[1] <= _RANKED_MAX and Q > _RANK_ROWS:
+        pos = _rank_over_k(d2, diff, k, sectors, want, sparser)
+        fin = pos < cand.shape[1]
+        pos = jnp.minimum(pos, cand.shape[1] - 1)
+    elif cand.shape[1] <= _RANKED_MAX:
         pos = _select_ranked(d2, diff, k, sectors, want, sparser)
         fin = pos < cand.shape[1]
         pos = jnp.minimum(pos, cand.shape[1] - 1)
@@ -218,6 +240,31 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
     if kk < want:
         idx = jnp.concatenate([idx, jnp.full((Q, want - kk), M, idx.dtype)], 1)
     return idx.astype(jnp.int32), overflow
+
+
+def _rank_over_k(d2, diff, k: int, sectors: int, keep: int, sparser=None):
+    """:func:`_select_ranked` where the order decides something: rows with more than ``k``
+    candidates (finite ``d2``, compacted to the front) are ranked; the others return their
+    candidates in place (the same set). Up to ``_RANK_ROWS`` such rows are gathered and ranked
+    alone; a block with more ranks every row."""
+    Q, C = d2.shape
+    kk = min(keep, C)
+    cnt = jnp.sum(jnp.isfinite(d2), axis=1, dtype=jnp.int32)
+    over = cnt > k
+    col = jnp.arange(kk, dtype=jnp.int32)[None, :]
+    plain = jnp.where(col < cnt[:, None], col, C)
+
+    def some(_):
+        which = jnp.nonzero(over, size=_RANK_ROWS, fill_value=Q)[0]
+        r = jnp.minimum(which, Q - 1)
+        sp = None if sparser is None else sparser[r]
+        ranked = _select_ranked(d2[r], diff[r], k, sectors, keep, sp)
+        return plain.at[which].set(ranked, mode="drop")
+
+    def every(_):
+        return _select_ranked(d2, diff, k, sectors, keep, sparser)
+
+    return jax.lax.cond(jnp.sum(over) <= _RANK_ROWS, some, every, None)
 
 
 def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None, sectors: int = 0):

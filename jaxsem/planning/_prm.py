@@ -7,9 +7,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from ._edges import _edge_samples
+from ._lazy import _checker, _LazyEdges
 from ._roadmap import (
     _QUERY,
     DEFAULT_SECTORS,
+    Roadmap,
     _blocked_from,
     _check_distribution,
     _check_sectors,
@@ -35,8 +38,12 @@ class PRM:
     metres (None: :func:`default_radius` of ``capacity`` over the cells not known occupied); weight: 'euclidean' or 'neglogp'
     (edge weights from the distribution given to :meth:`grow`; the latest one also weights the
     query's edges); sectors: 0 (each vertex links to its k nearest) or the direction sectors
-    whose nearest come first (module docstring). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
-    :attr:`roadmap`.
+    whose nearest come first (module docstring); lazy: check no edge when growing, only those
+    a query's shortest path needs (Lazy PRM, :mod:`jaxsem.planning._lazy`; the same roadmap and
+    the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
+    later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
+    :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
+    them all and returns the eager roadmap).
     """
 
     def __init__(
@@ -50,8 +57,13 @@ class PRM:
         radius: float | None = None,
         weight: str = "euclidean",
         sectors: int = DEFAULT_SECTORS,
+        lazy: bool = False,
     ):
         blocked = _blocked_from("known_map", known_map)
+        if not isinstance(lazy, bool):
+            raise ValueError(f"lazy: expected a bool, got {lazy!r}")
+        if lazy and weight != "euclidean":
+            raise ValueError(f"lazy: needs weight='euclidean' (edge weights known before the check), got {weight!r}")
         self.sectors = _check_sectors(sectors)
         origin_np = np.asarray(origin, np.float64)
         if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
@@ -76,6 +88,11 @@ class PRM:
         self.distribution = None
         self._cap: int | None = None
         self._graph: _SampleGraph | None = None
+        self.lazy = lazy
+        self._lazy: _LazyEdges | None = None
+        if lazy:
+            M, k = self.roadmap.neighbors.shape
+            self._lazy = _LazyEdges(M, 2 * k if self.sectors else k, k)
 
     @property
     def count(self) -> int:
@@ -105,6 +122,28 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
+        if self._lazy is not None:
+            s0 = _QUERY + self.count
+            (self.roadmap, cand), self._cap = _grow_exact(
+                self.roadmap,
+                key,
+                self._blocked_j,
+                dist,
+                jnp.asarray(self.origin, dtype),
+                int(n),
+                self.radius,
+                self.resolution,
+                cap,
+                False,
+                self.sectors,
+                bool(uniform_samples),
+                self._aids,
+                lazy=True,
+            )
+            self._lazy.add_rows(s0, np.asarray(cand))
+            if distribution is not None:
+                self.distribution = distribution
+            return self.count
         self.roadmap, self._cap = _grow_exact(
             self.roadmap,
             key,
@@ -127,17 +166,25 @@ class PRM:
 
     def update_map(self, known_map) -> bool:
         """Adopts a newer partial map; drops vertices and edges it blocks (only where something
-        changed: an unchanged map costs nothing). Returns True if the map changed."""
+        changed: an unchanged map costs nothing). Returns True if the map changed. With ``lazy``
+        the links are first settled on the old map (every unchecked edge is checked there, as the
+        eager grow did), so lazy saves nothing on a map that changes between queries."""
         blocked = _blocked_from("known_map", known_map)
         if blocked.shape != self.blocked.shape:
             raise ValueError(f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}")
         if np.array_equal(blocked, self.blocked):
             return False
+        if self._lazy is not None:
+            # The eager PRM chose its links on the old map: settle them there first (this
+            # checks every edge no query has checked yet).
+            self._lazy.settle(self._check_fn(chunk=16384))
         self.blocked = blocked
         self._blocked_j = jnp.asarray(blocked)
         self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
+        if self._lazy is not None:
+            self._lazy.forget_clear(np.asarray(self.roadmap.valid))
         self._graph = None
         return True
 
@@ -157,6 +204,39 @@ class PRM:
             sectors=self.sectors,
             aids=self._aids,
         )
+        if self._lazy is not None:
+            return self._lazy.search(self.roadmap, self._check_fn(), self.radius)
         if self._graph is None:
             self._graph = _SampleGraph(self.roadmap)
         return _search(self._graph, self.roadmap)
+
+    def _check_fn(self, chunk: int | None = None):
+        assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand
+        dtype = self.roadmap.points.dtype
+        kw = {} if chunk is None else {"chunk": chunk}
+        return _checker(
+            self._blocked_j,
+            np.asarray(self.roadmap.points),
+            self._lazy.cand,
+            jnp.asarray(self.origin, dtype),
+            self._aids.table,
+            self.resolution,
+            _edge_samples(self.radius, self.resolution),
+            **kw,
+        )
+
+    def checked_roadmap(self) -> Roadmap:
+        """The roadmap with every sample edge decided: with ``lazy``, checks the edges no query
+        has checked yet and returns what the eager PRM builds from the same samples (the
+        current query's rows as :attr:`roadmap` has them); without, :attr:`roadmap`."""
+        if self._lazy is None:
+            return self.roadmap
+        self._lazy.check_all(self._check_fn(chunk=16384))
+        dtype = self.roadmap.points.dtype
+        nbr, ev, w = self._lazy.links(np.asarray(self.roadmap.points), dtype)
+        rm = self.roadmap
+        return rm._replace(
+            neighbors=jnp.asarray(nbr).at[:_QUERY].set(rm.neighbors[:_QUERY]),
+            edge_valid=jnp.asarray(ev).at[:_QUERY].set(rm.edge_valid[:_QUERY]),
+            edge_weight=jnp.asarray(w).at[:_QUERY].set(rm.edge_weight[:_QUERY]),
+        )

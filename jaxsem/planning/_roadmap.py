@@ -54,7 +54,9 @@ thesis eq. 3.3) with ``weight='neglogp'``.
 
 Search (:func:`roadmap_shortest_path`, :meth:`PRM.query`) is scipy's Dijkstra on the host; the
 PRM keeps the roadmap's edge list in CSR form, so a query only adds its start's and goal's
-edges (a few milliseconds at 5000 vertices).
+edges (a few milliseconds at 5000 vertices). ``PRM(lazy=True)`` checks no edge when growing and
+only those a query's shortest path needs (:mod:`jaxsem.planning._lazy`): the same roadmap and
+shortest paths, cheaper to build and query once, dearer per reused query.
 """
 
 from __future__ import annotations
@@ -186,7 +188,7 @@ def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
     return _MapAids(_table_jit(blocked_j), cdf)
 
 
-def _grow_impl(
+def _sample_and_search(
     rm,
     key,
     blocked,
@@ -197,11 +199,15 @@ def _grow_impl(
     radius,
     resolution,
     cap,
-    neglogp,
-    sectors=0,
-    uniform_samples=False,
-    aids: _MapAids | None = None,
+    sectors,
+    uniform_samples,
+    aids,
+    order_all=True,
 ):
+    """The first half of a grow: ``n`` new samples written into the roadmap's points and valid
+    flags, and each new vertex's candidates (n, K) in preference order (K = 2k with sectors, k
+    without; ``M`` where none). Returns (points, valid, new points, their valid flags, first
+    slot, candidates, overflow)."""
     M, k = rm.neighbors.shape
     H, W = blocked.shape
     dtype = rm.points.dtype
@@ -224,7 +230,45 @@ def _grow_impl(
     if sectors and distribution is not None:
         pr, pc, _ = _cells(points, origin, resolution, (H, W))
         density = distribution[pr, pc]
-    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
+    nbr, ovf = _knn(
+        points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density, order_all
+    )
+    return points, valid, new, ok_new, s0, nbr, ovf
+
+
+def _grow_impl(
+    rm,
+    key,
+    blocked,
+    distribution,
+    origin,
+    *,
+    n,
+    radius,
+    resolution,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids: _MapAids | None = None,
+):
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    z = jnp.zeros((), jnp.int32)
+    points, valid, new, ok_new, s0, nbr, ovf = _sample_and_search(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        radius=radius,
+        resolution=resolution,
+        cap=cap,
+        sectors=sectors,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
     cost = _cost_grid(distribution) if neglogp else None
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
@@ -280,6 +324,39 @@ def _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, 
 _grow_jit = functools.partial(
     jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors", "uniform_samples")
 )(_grow_impl)
+
+
+def _grow_lazy_impl(
+    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, sectors=0, uniform_samples=False, aids=None
+):
+    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the same samples and
+    candidates as :func:`_grow_impl`, in its order where the order decides a link (rows with
+    more than k candidates; a row with at most k keeps every clear one whatever the order, so
+    its candidates are not ranked). Returns (roadmap with the new points and no new edges, the
+    new vertices' candidates (n, K), ``M`` where none or where the vertex is not valid)."""
+    M = rm.neighbors.shape[0]
+    points, valid, _, ok_new, _, nbr, ovf = _sample_and_search(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        radius=radius,
+        resolution=resolution,
+        cap=cap,
+        sectors=sectors,
+        uniform_samples=uniform_samples,
+        aids=aids,
+        order_all=False,
+    )
+    rm = rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n, overflow=rm.overflow | ovf)
+    return rm, jnp.where(ok_new[:, None], nbr, M)
+
+
+_grow_lazy_jit = functools.partial(
+    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "sectors", "uniform_samples")
+)(_grow_lazy_impl)
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -481,12 +558,33 @@ def _grow_exact(
     sectors=0,
     uniform_samples=False,
     aids=None,
+    lazy=False,
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
-    Returns (roadmap, the cap that sufficed)."""
+    Returns (roadmap, the cap that sufficed); with ``lazy`` (no edge checked,
+    :func:`_grow_lazy_impl`) ((roadmap, the new vertices' candidates), the cap)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
     while True:
+        if lazy:
+            out = _grow_lazy_jit(
+                roadmap,
+                key,
+                blocked,
+                dist,
+                origin,
+                n=n,
+                radius=radius,
+                resolution=resolution,
+                cap=cap if 3 * cap < M else None,
+                sectors=sectors,
+                uniform_samples=uniform_samples,
+                aids=aids,
+            )
+            if 3 * cap >= M or before or not bool(out[0].overflow):
+                return out, cap
+            cap *= 4
+            continue
         out = _grow_jit(
             roadmap,
             key,

@@ -1,0 +1,363 @@
+"""Lazy edge checking for :class:`~jaxsem.planning.PRM` (``lazy=True``; Bohlin and Kavraki's
+Lazy PRM): a grow finds each new vertex's candidates (the same samples and candidates, in the
+same order, as the eager grow) but checks no edge; a query searches the graph of every edge
+that may still be in the roadmap, checks only the edges of the path it found, drops those that
+are not, and searches again until the path is all checked or none is left. Checked edges are
+remembered, so later queries on the roadmap reuse them.
+
+The answer is the eager roadmap's. The eager grow keeps, of each vertex's candidates in
+preference order, the first ``k`` whose edge is clear. An edge of slot ``s`` of row ``r`` is
+*possible* while it is not known blocked and fewer than ``k`` edges before it in its row are
+known clear, and *in the roadmap* once it is clear and every slot before it is checked with
+fewer than ``k`` clear (slots below ``k`` need only their own check). The possible edges hold
+every edge of the eager roadmap, so a shortest path over them whose edges are all in the
+roadmap is a shortest path of the eager roadmap (same cost; equal-cost ties may pick another).
+
+The search is Dijkstra on the host (scipy) over weights reduced by the distance to the goal
+(``w(u, v) - h(u) + h(v)``, h: Euclidean distance to the goal, an admissible and consistent
+bound): Dijkstra on them is A*, and its ``limit`` then stops it at the ellipse of nodes that
+can lie on a path no longer than the limit, a fraction of the roadmap, instead of settling
+every node at every iteration.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+
+from ._edges import _edges, _edges_dense
+from ._roadmap import _QUERY, GOAL, START, Roadmap
+from ._roadmap_search import _NOT_FOUND, RoadmapPath
+
+#: Edge status codes.
+UNKNOWN, CLEAR, BLOCKED = 0, 1, 2
+
+#: Edges checked per call of the jitted check (one compiled shape for the query loop).
+_CHUNK = 128
+
+
+@functools.partial(jax.jit, static_argnames=("resolution", "edge_samples", "dense"))
+def _pairs_clear(blocked, a, b, mask, origin, table, *, resolution, edge_samples, dense=False):
+    """The edge rule on segments a -> b (E, 2). ``dense``: every sample read (a few hundred
+    edges: one fused pass, ~3x cheaper per call than the clearance-table path's work lists);
+    otherwise the clearance-table path (many edges). The same answers (:func:`_edges_clear`)."""
+    if dense:
+        clear, _, _ = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
+        return clear & mask
+    clear, _ = _edges(blocked, None, a, b, origin, resolution, edge_samples, mask, table=table)
+    return clear
+
+
+class _LazyEdges:
+    """Host state of a lazy roadmap's sample edges.
+
+    cand: (M, K) int32 each vertex's candidates in preference order (``M``: none; rows 0 and 1,
+    the query slots, have none); status: (M, K) int8 UNKNOWN / CLEAR / BLOCKED (BLOCKED where
+    there is no candidate); k: links kept per vertex. The search graph (symmetric CSR over the
+    candidate entries, each entry stored in both directions) is rebuilt after a grow.
+    """
+
+    def __init__(self, M: int, K: int, k: int):
+        self.M, self.K, self.k = int(M), int(K), int(k)
+        self.cand = np.full((self.M, self.K), self.M, np.int32)
+        self.status = np.full((self.M, self.K), BLOCKED, np.int8)
+        self.possible = np.zeros((self.M, self.K), bool)
+        self._graph = None
+
+    def add_rows(self, s0: int, cand) -> None:
+        cand = np.asarray(cand, np.int32)
+        self.cand[s0 : s0 + len(cand)] = cand
+        self.status[s0 : s0 + len(cand)] = np.where(cand < self.M, UNKNOWN, BLOCKED)
+        self.possible[s0 : s0 + len(cand)] = cand < self.M
+        self._graph = None
+
+    def settle(self, check_fn) -> None:
+        """Before the map changes: decides every row on the map the edges were chosen on (checks
+        what is still unknown), keeps the edges in the roadmap as unknown (to be rechecked on the
+        newer map) and drops the rest. The eager PRM drops what a newer map blocks without
+        promoting later candidates; this keeps the two roadmaps equal."""
+        self.check_all(check_fn)
+        _, in_rm = self._in_rows(np.arange(self.M))
+        self.status = np.where(in_rm, UNKNOWN, BLOCKED).astype(np.int8)
+
+    def forget_clear(self, valid) -> None:
+        """A newer map only adds obstacles: clear edges go back to unknown, edges at vertices
+        that are no longer valid become blocked."""
+        valid = np.asarray(valid, bool)
+        c = np.minimum(self.cand, self.M - 1)
+        gone = ~valid[:, None] | ~valid[c]
+        self.status = np.where(self.status == CLEAR, UNKNOWN, self.status).astype(np.int8)
+        self.status[gone & (self.cand < self.M)] = BLOCKED
+        self.possible, _ = self._in_rows(np.arange(self.M))
+        self._graph = None
+
+    # ------------------------------------------------------------------ the edge rule per row
+
+    def _in_rows(self, rows):
+        """(possible, in_roadmap) (R, K) for ``rows`` (module docstring)."""
+        st = self.status[rows]
+        clear = st == CLEAR
+        before = np.cumsum(clear, axis=1) - clear  # clear slots before each slot
+        free_slot = before < self.k
+        possible = (st != BLOCKED) & free_slot
+        unknown_before = np.cumsum(st == UNKNOWN, axis=1) - (st == UNKNOWN)
+        low = np.arange(self.K)[None, :] < self.k
+        in_rm = clear & free_slot & (low | (unknown_before == 0))
+        return possible, in_rm
+
+    def _needed(self, rows, slots):
+        """Flat (row, slot) of the unknown edges that decide whether slot ``slots`` of ``rows``
+        is in the roadmap: the slot itself, and below it too when it is at or past ``k``."""
+        j = np.arange(self.K)[None, :]
+        s = slots[:, None]
+        need = (self.status[rows] == UNKNOWN) & ((j == s) | ((s >= self.k) & (j < s)))
+        r, c = np.nonzero(need)
+        flat = np.unique(rows[r].astype(np.int64) * self.K + c)
+        return flat // self.K, flat % self.K
+
+    def check(self, rows, slots, check_fn) -> None:
+        """Checks the edges (rows, slots) with ``check_fn(a_rows, slots) -> clear`` and records
+        the answers."""
+        if len(rows):
+            self.status[rows, slots] = np.where(check_fn(rows, slots), CLEAR, BLOCKED)
+            touched = np.unique(rows)
+            self.possible[touched], _ = self._in_rows(touched)
+
+    # ------------------------------------------------------------------ query
+
+    def search(self, roadmap: Roadmap, check_fn, radius: float) -> RoadmapPath:
+        """Shortest path of the eager roadmap from the start to the goal of ``roadmap`` (its
+        rows 0 and 1 linked and checked), checking only the edges the search needs.
+
+        The search runs over the samples inside an ellipse with the start and goal as foci (a
+        path through a sample outside it is longer than the ellipse's bound, since edges are
+        straight segments), widened while the path found is longer than its bound or none is
+        found; ``radius`` sets the first bound's slack."""
+        pts = np.asarray(roadmap.points)
+        nq = np.asarray(roadmap.neighbors[:_QUERY])
+        okq = np.asarray(roadmap.edge_valid[:_QUERY])
+        wq = np.maximum(np.asarray(roadmap.edge_weight[:_QUERY], np.float64), 1e-12)
+        s_dst, s_w = nq[0][okq[0]], wq[0][okq[0]]
+        g_dst, g_w = nq[1][okq[1]], wq[1][okq[1]]
+        if len(s_dst) == 0 or (len(g_dst) == 0 and GOAL not in s_dst):
+            return _NOT_FOUND
+        p64 = pts.astype(np.float64)
+        hg = np.linalg.norm(p64 - p64[GOAL], axis=1)
+        ell = np.linalg.norm(p64 - p64[START], axis=1) + hg
+        ell[:_QUERY] = 0.0
+        D = hg[START]
+        top = float(ell.max())
+        bound = min(top, 1.2 * D + 2.0 * radius)
+        while True:
+            found = self._search_within(ell <= bound, pts, hg, s_dst, s_w, g_dst, g_w, bound - D, check_fn)
+            # Exact once its cost is within the bound (with slack for float32 weights).
+            if found is not None and found[1] <= bound * (1 - 1e-6) or bound >= top:
+                break
+            bound = top if 1.5 * bound >= top else 1.5 * bound
+        if found is None:
+            return _NOT_FOUND
+        path, cost = found
+        p = pts[path]
+        length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=-1)))
+        return RoadmapPath(path, p, cost, length, True)
+
+    def _search_within(self, inside, pts, hg, s_dst, s_w, g_dst, g_w, limit, check_fn):
+        """The lazy loop over the samples where ``inside`` (M,) (module docstring). Returns
+        (global path, cost) or None. Weights are reduced by ``hg``, the distance to the goal, and
+        Dijkstra stops past ``limit`` (reduced)."""
+        M, K = self.M, self.K
+        inside = inside.copy()
+        inside[:_QUERY] = False
+        rows = np.flatnonzero(inside)
+        R = len(rows)
+        loc = np.full(M + 1, -1, np.int64)
+        loc[rows] = np.arange(_QUERY, R + _QUERY)
+        loc[START], loc[GOAL] = START, GOAL
+        glob = np.concatenate([[START, GOAL], rows])
+        blk = self.cand[rows]  # (R, K)
+        tgt = loc[blk]
+        tgt[blk < _QUERY] = -1
+        live = (tgt >= 0).reshape(-1)
+        lf = np.flatnonzero(live)  # block entries in the subgraph, row-major
+        src = (lf // K + _QUERY).astype(np.int32)
+        dst = tgt.reshape(-1)[lf].astype(np.int32)
+        a = pts[glob[src]]
+        d = pts[glob[dst]] - a
+        # The eager grow's weights (_length in the roadmap's dtype), then float64.
+        tiny = np.asarray(1e-30, pts.dtype)
+        w = np.maximum(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + tiny).astype(np.float64), 1e-12)
+        dh = hg[glob[dst]] - hg[glob[src]]
+        red_f, red_r = np.maximum(w + dh, 0.0), np.maximum(w - dh, 0.0)  # >= 0 up to rounding
+        Nn = R + _QUERY
+        # The start's edges (row 0), the samples' own entries, then the entries that list them.
+        s_keep = loc[s_dst] >= 0
+        s_to = loc[s_dst][s_keep].astype(np.int32)
+        s_red = np.maximum(s_w[s_keep] + hg[s_dst[s_keep]] - hg[START], 0.0)
+        cnt_f = np.bincount(src, minlength=Nn)
+        cnt_f[START] = len(s_to)
+        ip_f = np.zeros(Nn + 1, np.int64)
+        np.cumsum(cnt_f, out=ip_f[1:])
+        ids = np.arange(len(lf), dtype=np.float64)
+        own = scipy.sparse.csr_matrix(
+            (np.concatenate([np.zeros(len(s_to)), ids]), np.concatenate([s_to, dst]), ip_f), shape=(Nn, Nn)
+        )
+        rev = own.tocsc()  # column-major: the entries that list each node, entry ids as data
+        rev_e = rev.data.astype(np.int64)
+        rev_ip = rev.indptr.astype(np.int64)
+        rev_src = rev.indices  # the row that lists the node: START for the start's entries
+        keep_r = rev_src != START  # the start is only left
+        rev_e, rev_src = rev_e[keep_r], rev_src[keep_r]
+        rev_col = np.repeat(np.arange(Nn), np.diff(rev_ip))[keep_r]
+        cnt_r = np.bincount(rev_col, minlength=Nn)
+        ip = np.zeros(Nn + 1, np.int64)
+        np.cumsum(cnt_f + cnt_r, out=ip[1:])
+        E = int(ip[-1])
+        indices = np.empty(E, np.int32)
+        base = np.empty(E, np.float64)
+        # Start entries.
+        indices[: len(s_to)] = s_to
+        base[: len(s_to)] = s_red
+        pos_f = np.arange(len(lf)) + len(s_to) - ip_f[src] + ip[src]
+        ip_r = np.zeros(Nn + 1, np.int64)
+        np.cumsum(cnt_r, out=ip_r[1:])
+        pos_r = np.arange(len(rev_e)) - ip_r[rev_col] + ip[rev_col] + cnt_f[rev_col]
+        indices[pos_f], base[pos_f] = dst, red_f
+        indices[pos_r], base[pos_r] = rev_src, red_r[rev_e]
+        at_f = np.full(R * K, -1, np.int64)
+        at_r = np.full(R * K, -1, np.int64)
+        at_f[lf] = pos_f
+        at_r[lf[rev_e]] = pos_r
+        data = base.copy()
+        imp = ~self.possible[rows].reshape(-1)[lf]
+        data[pos_f[imp]] = np.inf
+        data[at_r[lf[imp]][at_r[lf[imp]] >= 0]] = np.inf
+        g_keep = loc[g_dst] >= 0
+        g_at = loc[g_dst][g_keep]
+        g_red = g_w[g_keep] - hg[g_dst[g_keep]]  # entering the goal (h(goal) = 0)
+        ip32 = ip.astype(np.int32)
+        # A* in the reduced weights: explore only nodes with g + h <= D + lim; start narrow and
+        # widen (a failed narrow search costs little), never past the ellipse's own limit.
+        lim = min(limit, max(0.05 * hg[START], 1e-9))
+        while True:
+            csr = scipy.sparse.csr_matrix((data, indices, ip32), shape=(Nn, Nn))
+            dist, pred = scipy.sparse.csgraph.dijkstra(
+                csr, directed=True, indices=START, return_predecessors=True, limit=lim
+            )
+            best, via = dist[GOAL], -1
+            if len(g_at):
+                through = dist[g_at] + g_red
+                i = int(np.argmin(through))
+                if through[i] < best:
+                    best, via = float(through[i]), int(g_at[i])
+            if not (np.isfinite(best) and best <= lim):
+                if lim >= limit:
+                    return None
+                lim = min(limit, 3.0 * lim)
+                continue
+            lim = min(limit, max(lim, 1.2 * best))
+            path = [GOAL] if via < 0 else [GOAL, via]
+            node = path[-1]
+            while node != START:
+                node = int(pred[node])
+                path.append(node)
+            path = glob[np.array(path[::-1])]
+            u, v = path[:-1], path[1:]
+            inner = (u >= _QUERY) & (v >= _QUERY)
+            done, touched = self._certify(u[inner], v[inner], check_fn)
+            if done:
+                return path, float(best + hg[START])
+            # Some edge of the path is not in the roadmap: refresh the entries of the rows
+            # whose checks changed what is possible.
+            t = touched[loc[touched] >= 0]
+            f = ((loc[t] - _QUERY)[:, None] * K + np.arange(K)[None, :]).reshape(-1)
+            ok = self.possible[t].reshape(-1)
+            pf, pr = at_f[f], at_r[f]
+            m = pf >= 0
+            data[pf[m]] = np.where(ok[m], base[pf[m]], np.inf)
+            m = pr >= 0
+            data[pr[m]] = np.where(ok[m], base[pr[m]], np.inf)
+
+    def _certify(self, u, v, check_fn):
+        """Checks what decides the sample edges (u, v) of a path. Returns (True if all are in
+        the roadmap, the rows whose edges were checked)."""
+        if len(u) == 0:
+            return True, np.zeros(0, np.int64)
+        L = len(u)
+        ru, su = np.nonzero(self.cand[u] == v[:, None])
+        rv, sv = np.nonzero(self.cand[v] == u[:, None])
+        reps_e = np.concatenate([ru, rv])  # which path edge
+        reps_r = np.concatenate([u[ru], v[rv]])
+        reps_s = np.concatenate([su, sv])
+        possible, _ = self._in_rows(reps_r)
+        keep = possible[np.arange(len(reps_r)), reps_s]
+        reps_e, reps_r, reps_s = reps_e[keep], reps_r[keep], reps_s[keep]
+        rows, slots = self._needed(reps_r, reps_s)
+        self.check(rows, slots, check_fn)
+        _, in_rm = self._in_rows(reps_r)
+        ok = np.zeros(L, bool)
+        ok[reps_e[in_rm[np.arange(len(reps_r)), reps_s]]] = True
+        return bool(ok.all()), np.unique(rows)
+
+    def check_all(self, check_fn) -> None:
+        rows, slots = np.nonzero(self.status == UNKNOWN)
+        self.check(rows, slots, check_fn)
+
+    def links(self, points, dtype):
+        """The eager roadmap's (neighbors, edge_valid, edge_weight) rows of the samples, from
+        fully checked rows (call :meth:`check_all` first)."""
+        M, K, k = self.M, self.K, self.k
+        _, in_rm = self._in_rows(np.arange(M))
+        pos = np.cumsum(in_rm, axis=1) - 1
+        rows = np.broadcast_to(np.arange(M)[:, None], (M, K))
+        nbr = np.full((M, k), M, np.int32)
+        ev = np.zeros((M, k), bool)
+        w = np.full((M, k), np.inf, np.dtype(dtype))
+        sel = in_rm & (pos < k)
+        p = np.asarray(points)
+        c = np.minimum(self.cand, M - 1)
+        d = p[c] - p[:, None, :]
+        ww = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + np.asarray(1e-30, p.dtype))
+        if K == k:  # no preference order to apply: every candidate keeps its slot
+            return self.cand.copy(), in_rm, np.where(in_rm, ww, np.inf).astype(w.dtype)
+        nbr[rows[sel], pos[sel]] = self.cand[sel]
+        ev[rows[sel], pos[sel]] = True
+        w[rows[sel], pos[sel]] = ww[sel]
+        return nbr, ev, w
+
+
+def _checker(blocked_j, points, cand, origin, table, resolution: float, edge_samples: int, chunk: int = _CHUNK):
+    """``check(rows, slots) -> clear`` (numpy bool) for the edges from ``points[rows]`` to
+    their candidates, ``chunk`` edges per call of the jitted rule (one compiled shape)."""
+    pts = np.asarray(points)
+    dtype = pts.dtype
+
+    def check(rows, slots):
+        out = np.zeros(len(rows), bool)
+        for s in range(0, len(rows), chunk):
+            r, sl = rows[s : s + chunk], slots[s : s + chunk]
+            m = len(r)
+            a = np.zeros((chunk, 2), dtype)
+            b = np.zeros((chunk, 2), dtype)
+            a[:m] = pts[r]
+            b[:m] = pts[cand[r, sl]]
+            mask = np.arange(chunk) < m
+            ok = _pairs_clear(
+                blocked_j,
+                jnp.asarray(a),
+                jnp.asarray(b),
+                jnp.asarray(mask),
+                origin,
+                table,
+                resolution=resolution,
+                edge_samples=edge_samples,
+                dense=chunk <= _CHUNK,
+            )
+            out[s : s + m] = np.asarray(ok)[:m]
+        return out
+
+    return check
