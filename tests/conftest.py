@@ -4,10 +4,11 @@ Tests that check float32 behaviour pass float32 arrays explicitly.
 
 Strict settings for the whole suite (issue 23 item 6), optimistix-style:
 
-- dtype promotion is "strict" in every test: no silent float32 -> float64, int -> float or
-  int32 <-> int64 mixing, so a float32 input that comes back float64 (or an index array of
-  another integer width under x64) fails the test that feeds it. Weak-typed Python scalars
-  still promote. Library code casts explicitly (``astype``, ``jnp.asarray(x, dtype)``).
+- dtype promotion is "strict" in every test, the slow ones included: no silent float32 ->
+  float64, int -> float or int32 <-> int64 mixing, so a float32 input that comes back float64
+  (or an index array of another integer width under x64) fails the test that feeds it.
+  Weak-typed Python scalars still promote. Library code casts explicitly (``astype``,
+  ``jnp.asarray(x, dtype)``); a test whose own code runs optax asks for ``optax_promotion``.
 - warnings are errors (pyproject's ``filterwarnings``).
 - rank promotion stays allowed (``jax_numpy_rank_promotion`` "allow"), kept with the measured
   reason: with "raise", 55 of 278 tests in 12 representative modules (core geometry, factors,
@@ -98,20 +99,6 @@ class _Compiles:
 
     def __exit__(self, *exc):
         jax.monitoring.unregister_event_duration_listener(self._listen)
-
-
-@pytest.fixture(autouse=True)
-def _slow_tests_keep_standard_promotion(request):
-    """The slow tests run under standard dtype promotion for now: strict promotion reached the
-    whole fast suite at stop 25, but one slow test was still known to fail under it
-    (``test_volumon_losses::test_dual_loss_on_rendered_data``: float32 and float64 inputs meet in
-    ``dual_loss``) and about 28 slow tests were never run strict. Remove this fixture once a full
-    strict slow run passes."""
-    if request.node.get_closest_marker("slow") is None:
-        yield
-    else:
-        with jax.numpy_dtype_promotion("standard"):
-            yield
 
 
 @pytest.fixture

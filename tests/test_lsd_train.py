@@ -1,10 +1,12 @@
 """LSD training (jaxsem.lsd): two stages, frozen weights, checkpoint resume, sampler adapter."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from jaxsem.lsd import (
@@ -402,3 +404,135 @@ def test_both_model_loaders_return_one_shape():
         assert isinstance(loaded, training.LoadedModel) and len(loaded) == 4
         assert set(loaded.meta) >= {"name"}
     assert lsd_model.params is lsd_model.variables and lsd_model.meta["step"] is None
+
+
+def test_two_stage_optimizer_runs_each_stage_as_a_fresh_adam(optax_promotion):  # optax directly
+    """Issue 23: one optax transformation for both stages. Reference: the two separate stage
+    optimisers, the second one started fresh at the boundary (the loop before the single step)."""
+    from jaxsem.lsd import STAGE_LABELS, stage_optimizer, two_stage_optimizer
+    from jaxsem.models import is_context_param
+
+    cfg = dataclasses.replace(CFG, lr_schedule="cosine", weight_decay=1e-3, stage1_steps=2, stage2_steps=2)
+    params = {"enc_0": {"kernel": jnp.ones((2, 3)), "bias": jnp.zeros(3)}, "cs_0": {"kernel": jnp.full((4,), 0.5)}}
+    assert is_context_param("cs_0") and not is_context_param("enc_0")
+    gen, cs = split_params(params)
+    grads = [jax.tree.map(lambda x, i=i: jnp.sin(x + i), params) for i in range(cfg.total_steps)]
+    tx = two_stage_optimizer(cfg)
+    state = tx.init(params)
+    ref = {1: stage_optimizer(cfg, 1), 2: stage_optimizer(cfg, 2)}
+    ref_state = {1: ref[1].init(gen), 2: None}  # stage two's optimiser starts at the boundary
+    ref_params = {1: gen, 2: cs}
+    p = params
+    for i, g in enumerate(grads):
+        stage = 1 if i < cfg.stage1_steps else 2
+        if ref_state[stage] is None:
+            ref_state[stage] = ref[stage].init(ref_params[stage])
+        upd, state = jax.jit(tx.update)(g, state, p)
+        ref_upd, ref_state[stage] = jax.jit(ref[stage].update)(
+            split_params(g)[stage - 1], ref_state[stage], ref_params[stage]
+        )
+        ref_params[stage] = optax.apply_updates(ref_params[stage], ref_upd)
+        p = optax.apply_updates(p, upd)
+        active, frozen = split_params(upd)[stage - 1], split_params(upd)[2 - stage]
+        for a, b in zip(jax.tree.leaves(active), jax.tree.leaves(ref_upd)):
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
+        assert all(not np.any(np.asarray(u)) for u in jax.tree.leaves(frozen))
+        # the inactive optimiser's state (moments, Adam's and the schedule's counts) stays put
+        idle = state.inner_states[STAGE_LABELS[3 - stage]].inner_state.inner_state
+        fresh = tx.init(params).inner_states[STAGE_LABELS[3 - stage]].inner_state.inner_state
+        if stage == 1:
+            for a, b in zip(jax.tree.leaves(idle), jax.tree.leaves(fresh)):
+                np.testing.assert_array_equal(a, b)
+        assert int(state.inner_states[STAGE_LABELS[1]].inner_state.step) == i + 1
+    for a, b in zip(jax.tree.leaves(split_params(p)), jax.tree.leaves((ref_params[1], ref_params[2]))):
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def _reference_two_step_run(cfg, data, snapshot_at: int):
+    """The schedule before the single step, written out: stage one's own jitted step and
+    optimiser, then a fresh optimiser and stage two's step at the boundary. Returns the final
+    params, the losses and a legacy-layout checkpoint state (params, the current stage's
+    optimiser state, step) at step ``snapshot_at``."""
+    from jaxsem.lsd import batch_indices, make_train_step, stage_optimizer
+    from jaxsem.lsd._data import gather_batch  # layers: white-box
+
+    model, params = init_lsd(jax.random.PRNGKey(cfg.seed), cfg.model, jnp.float32)
+    params = jax.tree.map(jnp.copy, params)
+    train_idx, _ = split_by_building(data, cfg.val_fraction, cfg.seed, cfg.val_every_nth_building)
+    drop_key = jax.random.key(cfg.seed, impl="rbg")
+    opt_state, losses, snapshot = None, [], None
+    for step in range(cfg.total_steps):
+        if step == snapshot_at:
+            copy = functools.partial(jax.tree.map, np.array)  # the step donates its state
+            snapshot = {"params": copy(params), "opt_state": copy(opt_state), "step": np.asarray(step, np.int64)}
+        stage = 1 if step < cfg.stage1_steps else 2
+        tx = stage_optimizer(cfg, stage)
+        if step in (0, cfg.stage1_steps):
+            opt_state = tx.init(split_params(params)[stage - 1])
+        batch = gather_batch(data, batch_indices(train_idx, cfg.batch_size, step, cfg.seed))
+        with jax.numpy_dtype_promotion("standard"):  # optax's adam inside
+            params, opt_state, loss = make_train_step(model, tx, stage)(
+                params, opt_state, batch, jax.random.fold_in(drop_key, step)
+            )
+        losses.append(float(loss))
+    return params, losses, snapshot
+
+
+def _assert_same_training(params, ref):
+    """Equal up to float32 round-off, except the biases of the two output layers: the softmax
+    over the window does not change when a constant is added to all logits (unbounded output,
+    ``log_range`` None), so their gradient is round-off, which Adam scales up to a step of the
+    learning rate's size and random sign (they differ by up to 0.005 between two compiled
+    programs of the same arithmetic)."""
+    shift_invariant = {"dec_out", "cs_out"}
+    assert MODEL.log_range is None
+    for layer in params:
+        for name in params[layer]:
+            if name == "bias" and layer in shift_invariant:
+                continue
+            np.testing.assert_allclose(params[layer][name], ref[layer][name], rtol=1e-5, atol=1e-6, err_msg=layer)
+
+
+@pytest.mark.slow
+def test_one_compiled_step_equals_the_two_stage_schedule_and_resumes_exactly(tmp_path):
+    """Issue 23: both stages in one compiled step give the old schedule's parameters and losses;
+    a run stopped before the stage boundary resumes bit-identically across it; a checkpoint in
+    the old layout (one stage's optimiser state) loads and resumes as the old loop continued."""
+    import json
+    import shutil
+
+    from jaxsem.checkpoint import Checkpointer
+
+    cfg = dataclasses.replace(CFG, lr_schedule="cosine", stage1_steps=3, stage2_steps=3, checkpoint_every=100)
+    data = _data()
+    whole = train_and_evaluate(cfg, tmp_path / "whole", data=data, progress=False)
+    ref_params, ref_losses, legacy = _reference_two_step_run(cfg, data, snapshot_at=4)
+    _assert_same_training(whole.params, ref_params)
+    # train_nll of an evaluation: the mean of that stage's losses
+    nll = [h["train_nll"] for h in whole.history]
+    np.testing.assert_allclose(nll, [np.mean(ref_losses[:3]), np.mean(ref_losses[3:])], rtol=1e-5)
+    _, gen_end, _ = load_trained(tmp_path / "whole", step=cfg.stage1_steps)  # the stage-one checkpoint
+    assert split_params(gen_end)[1] and all(
+        np.array_equal(a, b)
+        for a, b in zip(jax.tree.leaves(split_params(gen_end)[0]), jax.tree.leaves(split_params(whole.params)[0]))
+    )
+
+    # stopped at step 2 (stage one), resumed: across the boundary, bit-identical
+    train_and_evaluate(cfg, tmp_path / "chunked", data=data, progress=False, stop_at=2)
+    chunked = train_and_evaluate(cfg, tmp_path / "chunked", data=data, progress=False)
+    assert chunked.resumed_from == 2
+    for a, b in zip(jax.tree.leaves(whole.params), jax.tree.leaves(chunked.params)):
+        np.testing.assert_array_equal(a, b)
+
+    # a legacy checkpoint (step 4, stage two's optimiser state only) resumes as the old loop
+    wd = tmp_path / "legacy"
+    train_and_evaluate(cfg, wd, data=data, progress=False, stop_at=4)
+    shutil.rmtree(wd / "checkpoints")
+    with Checkpointer(wd / "checkpoints") as ckpt:
+        ckpt.save(4, legacy)
+    _, loaded, _ = load_trained(wd)
+    for a, b in zip(jax.tree.leaves(loaded), jax.tree.leaves(legacy["params"])):
+        np.testing.assert_array_equal(a, b)
+    resumed = train_and_evaluate(cfg, wd, data=data, progress=False)
+    assert resumed.resumed_from == 4 and json.loads((wd / "config.json").read_text())["stage1_steps"] == 3
+    _assert_same_training(resumed.params, ref_params)

@@ -85,6 +85,19 @@ def test_single_view_ellipsoid_puts_the_centre_on_the_box_ray():
     assert r.shape == (5, 3)
 
 
+def test_stereo_pose_keeps_a_floating_baseline_dtype():
+    # strict promotion: a float64 baseline used to come back float32 and failed to mix with the
+    # float64 geometry in the dual loss (test_volumon_losses::test_dual_loss_on_rendered_data)
+    for dtype in (np.float32, np.float64):
+        T = q.stereo_right_T_left(np.array([0.1, 0.2], dtype))
+        assert T.dtype == dtype and T.shape == (2, 4, 4)
+        assert q.stereo_right_T_left(jnp.asarray(0.1, dtype)).dtype == dtype
+        np.testing.assert_allclose(T[1], np.array([[1, 0, 0, -0.2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype))
+    assert q.stereo_right_T_left(0.1).dtype == jnp.float32  # Python numbers: float32, as before
+    assert q.stereo_right_T_left(np.array(1)).dtype == jnp.float32
+    assert q.stereo_right_T_left(np.float32(0.1), jnp.float64).dtype == jnp.float64
+
+
 def test_cuboid_corners_follow_the_ndds_order():
     # FAT / NDDS: FrontTopRight, FrontTopLeft, FrontBottomLeft, FrontBottomRight, rear likewise; frame
     # x right, y down, z out of the front. Name each corner from its coordinates and compare.

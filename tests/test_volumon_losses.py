@@ -351,3 +351,19 @@ def test_ray_primal_distance_sees_the_extent_along_the_view_ray():
     # along its ray every visible point lies at least ~excess/2 behind the inflated front surface
     assert np.sqrt(losses["ray"]) > 0.5 * excess
     assert losses["ray"] > 4 * losses["radial"]
+
+
+def test_outline_of_a_float32_prediction_draws_under_strict_promotion():
+    # regression (strict promotion of the slow suite): a float32 prediction and K met the float64
+    # identity pose inside ellipsoid_outline (`jaxsem volumon predict` figures)
+    from jaxsem.volumon import ellipsoid_outline
+
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]], np.float32)
+    R, t, r = np.eye(3, dtype=np.float32), np.array([0, 0, 2], np.float32), np.full(3, 0.2, np.float32)
+    out = ellipsoid_outline(R, t, r, K, n=16)
+    ref = ellipsoid_outline(*(np.asarray(x, np.float64) for x in (R, t, r, K)), n=16)
+    assert out is not None and ref is not None and out.shape == (16, 2)
+    np.testing.assert_array_equal(out, ref)
+    # a sphere of radius 0.2 at 2 m, f = 100 px: a circle of radius 100 * 0.2 / sqrt(4 - 0.04) (to
+    # float32 input rounding)
+    np.testing.assert_allclose(np.hypot(out[:, 0] - 32, out[:, 1] - 24), 20 / np.sqrt(3.96), rtol=1e-6)

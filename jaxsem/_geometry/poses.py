@@ -327,10 +327,19 @@ def cuboid_corners(rotation, center, half_extents, *, xp: Any = jnp):
 # Stereo rigs (VoluMon's rectified pairs).
 
 
-def stereo_right_T_left(baseline, dtype=jnp.float32):
+def stereo_right_T_left(baseline, dtype=None):
     """``right_T_left`` (..., 4, 4) of a rectified stereo pair of ``baseline`` (...) metres: the right
     camera sits ``baseline`` along the left camera's +x, so a left-frame point ``p`` is
-    ``p - [b, 0, 0]`` in the right frame."""
+    ``p - [b, 0, 0]`` in the right frame.
+
+    dtype: the result's; None (default): a floating array's own dtype (a float64 baseline is not
+    rounded to float32, which strict dtype promotion would then refuse to mix with the float64
+    geometry it came with), float32 for Python numbers and integer arrays."""
+    if dtype is None:
+        floating = isinstance(baseline, (np.ndarray, np.generic, jnp.ndarray)) and jnp.issubdtype(
+            baseline.dtype, jnp.floating
+        )
+        dtype = baseline.dtype if floating else jnp.float32
     b = jnp.asarray(baseline, dtype)
     T = jnp.broadcast_to(jnp.eye(4, dtype=dtype), b.shape + (4, 4))
     return T.at[..., 0, 3].set(-b)

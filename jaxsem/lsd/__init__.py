@@ -51,6 +51,7 @@ from ._train import (
     PRETRAINED_CPU as PRETRAINED_CPU,
     PRETRAINED_HOUSE as PRETRAINED_HOUSE,
     RESUMABLE_FIELDS as RESUMABLE_FIELDS,
+    STAGE_LABELS as STAGE_LABELS,
     TrainResult as TrainResult,
     evaluate_nll as evaluate_nll,
     export_model as export_model,
@@ -58,8 +59,10 @@ from ._train import (
     load_model_file as load_model_file,
     load_trained as load_trained,
     make_train_step as make_train_step,
+    make_two_stage_step as make_two_stage_step,
     save_distribution_figure as save_distribution_figure,
     stage_optimizer as stage_optimizer,
     train_and_evaluate as train_and_evaluate,
+    two_stage_optimizer as two_stage_optimizer,
     warm_start_params as warm_start_params,
 )

@@ -1,19 +1,26 @@
 """Two-stage training of the LSD network (thesis 3.2.4, figure 3-4), with checkpoints and figures.
 
 Stage one optimises the encoder and the general decoder on ``softmax(phi_gen)``; stage two
-freezes them and optimises only the context branch on ``softmax(phi_gen + phi_cs)``. The freeze
-is structural: each stage's optimiser (optax Adam, or AdamW with ``weight_decay``) is built over
-its own parameter subset (:func:`jaxsem.models.split_params`) and gradients are taken only with
-respect to that subset, so the frozen weights are never touched (bit-identical) and no gradient
-is computed for them (stage two does not backpropagate through the encoder).
+freezes them and optimises only the context branch on ``softmax(phi_gen + phi_cs)``. Both stages
+run as one compiled step (:func:`make_two_stage_step`) with one optax transformation over the
+whole parameter tree (:func:`two_stage_optimizer`): ``optax.partition`` gives each group
+(:func:`jaxsem.models.split_params`) its stage's optimiser (:func:`stage_optimizer`: Adam, or
+AdamW with ``weight_decay``), wrapped in ``optax.transforms.conditionally_mask`` so that it runs
+only during its stage. An inactive optimiser's state does not move (moments, bias-correction
+count and schedule count alike), so stage two starts exactly as a fresh Adam would. The step's
+loss picks the stage from the same step counter with ``lax.cond``: stage two takes gradients
+with respect to the context branch only (it does not backpropagate through the encoder), and the
+frozen group is carried over unchanged (bit-identical).
 
-Checkpoints (:mod:`jaxsem.checkpoint`, orbax, ``workdir/checkpoints``) hold the parameters, the current stage's optimiser
-state and the step; a run restarted with the same config resumes from the latest one and, since
-batches and dropout keys are functions of (seed, step), continues exactly as an uninterrupted
-run would. Each evaluation writes ``workdir/figures/eval_<step>.png`` with the predicted
-distributions over a few validation maps and appends a row to ``workdir/metrics.jsonl``. The
-workdir, resume and config rules are the ones VoluMon's training shares
-(:class:`jaxsem.training.TrainingRun`).
+Checkpoints (:mod:`jaxsem.checkpoint`, orbax, ``workdir/checkpoints``) hold the parameters, the
+two-stage optimiser state and the step; a run restarted with the same config resumes from the
+latest one and, since batches and dropout keys are functions of (seed, step), continues exactly
+as an uninterrupted run would, across the stage boundary too. Checkpoints written before the
+single step (one stage's optimiser state: ``train/checkpoints/lsd_*``) still load and resume:
+their state is moved into the two-stage layout. Each evaluation writes
+``workdir/figures/eval_<step>.png`` with the predicted distributions over a few validation maps
+and appends a row to ``workdir/metrics.jsonl``. The workdir, resume and config rules are the
+ones VoluMon's training shares (:class:`jaxsem.training.TrainingRun`).
 
 Data parallel (``mesh=``, a one-axis :func:`jaxsem.parallel.data_mesh`): parameters and
 optimiser state are replicated on every device and each host batch is split along its leading
@@ -29,7 +36,7 @@ import json
 import pathlib
 import time
 from collections.abc import Callable
-from typing import NamedTuple, cast
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +44,7 @@ import numpy as np
 import optax
 
 from .. import parallel
-from ..checkpoint import Checkpointer
+from ..checkpoint import Checkpointer, CheckpointError
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
 from ..training import LoadedModel, TrainingRun, config_json
 from ._config import TrainConfig
@@ -69,8 +76,9 @@ class TrainResult(NamedTuple):
 def stage_optimizer(config: TrainConfig, stage: int) -> optax.GradientTransformation:
     """The optax optimiser training uses in ``stage`` (1: generator, 2: context head).
 
-    Its learning rate follows ``config.lr_schedule`` over the stage's own steps; for users who
-    write their own loop around :func:`make_train_step`.
+    Its learning rate follows ``config.lr_schedule`` over the stage's own steps. Training runs
+    both inside :func:`two_stage_optimizer`; alone, it serves a loop of one stage around
+    :func:`make_train_step`.
     """
     if stage not in (1, 2):
         raise ValueError(f"stage: expected 1 or 2, got {stage!r}")
@@ -93,6 +101,50 @@ def _optimizer_for(
     if weight_decay > 0:
         return optax.adamw(rate, weight_decay=weight_decay)
     return optax.adam(rate)
+
+
+#: the labels of :func:`two_stage_optimizer`'s two parameter groups, by stage
+STAGE_LABELS = {1: "gen", 2: "cs"}
+
+
+def _stage_labels(params) -> dict:
+    """``{layer: 'gen' | 'cs'}``: a prefix of the parameter tree naming each layer's group."""
+    gen, cs = split_params(params)
+    return {**{k: STAGE_LABELS[1] for k in gen}, **{k: STAGE_LABELS[2] for k in cs}}
+
+
+@functools.lru_cache(maxsize=16)
+def two_stage_optimizer(config: TrainConfig) -> optax.GradientTransformation:
+    """One optax transformation over the whole parameter tree for both stages.
+
+    ``optax.partition`` labels the encoder + general decoder 'gen' and the context branch 'cs'
+    (:data:`STAGE_LABELS`); each group gets its :func:`stage_optimizer`, wrapped in
+    ``optax.transforms.conditionally_mask`` on the global step (< ``config.stage1_steps``: 'gen';
+    after: 'cs'). An inactive group's updates are zero and its optimiser state, including Adam's
+    bias-correction count and the schedule's count, stays as it was: stage two's first step is
+    a fresh Adam's first step, as with a separate optimiser per stage. Both wrappers count every
+    update; :func:`make_two_stage_step` reads the stage from that counter.
+    """
+    n1 = int(config.stage1_steps)
+
+    def in_stage_one(step: Any, **_) -> jax.Array:
+        return jnp.asarray(step) < n1
+
+    def in_stage_two(step: Any, **_) -> jax.Array:
+        return jnp.asarray(step) >= n1
+
+    return optax.partition(
+        {
+            STAGE_LABELS[1]: optax.transforms.conditionally_mask(stage_optimizer(config, 1), in_stage_one),
+            STAGE_LABELS[2]: optax.transforms.conditionally_mask(stage_optimizer(config, 2), in_stage_two),
+        },
+        _stage_labels,
+    )
+
+
+def _update_count(opt_state: Any) -> jax.Array:
+    """Updates applied so far: the step counter of :func:`two_stage_optimizer`'s state (int32)."""
+    return opt_state.inner_states[STAGE_LABELS[1]].inner_state.step
 
 
 #: steps between two reads of the recent losses for the progress bar (each read waits for the
@@ -147,8 +199,10 @@ def make_train_step(
     augment: bool = True,
     mesh: jax.sharding.Mesh | None = None,
 ):
-    """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` for
-    ``stage`` (cached per arguments, so a second run in the same process does not recompile).
+    """A jitted ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` of one
+    stage, ``tx`` an optimiser over that stage's parameters (:func:`stage_optimizer`), for a loop
+    of one stage (training runs both in :func:`make_two_stage_step`). Cached per arguments, so a
+    second run in the same process does not recompile.
     ``params`` and ``opt_state`` are donated: use the returned ones, not the arguments.
     With ``mesh`` the batch comes split over its devices (:func:`jaxsem.parallel.shard_batch`)
     and the parameters, optimiser state and loss come back replicated."""
@@ -164,6 +218,66 @@ def make_train_step(
             updates, opt_state = tx.update(grads, opt_state, trainable)
         trainable = cast(dict, optax.apply_updates(trainable, updates))  # same tree as its input, a dict
         return {**frozen, **trainable}, opt_state, value
+
+    # params and opt_state are donated: the step writes the new state into their buffers (the
+    # caller rebinds both to the outputs and never reads the old ones).
+    if mesh is None:
+        return jax.jit(step, donate_argnums=(0, 1))
+    return jax.jit(step, out_shardings=parallel.replicated(mesh), donate_argnums=(0, 1))
+
+
+def make_two_stage_step(
+    model: LSDNet,
+    config: TrainConfig,
+    augment: bool = True,
+    mesh: jax.sharding.Mesh | None = None,
+):
+    """The training step of both stages, compiled once: a jitted
+    ``step(params, opt_state, batch, key) -> (params, opt_state, loss)`` with ``opt_state``
+    from ``two_stage_optimizer(config).init(params)``.
+
+    The stage comes from the optimiser state's step counter (no host sync, no recompile at the
+    boundary): ``lax.cond`` runs stage one's loss (general distribution, gradients of the
+    encoder + decoder) or stage two's (full product, gradients of the context branch only), and
+    the frozen group's parameters are returned unchanged. ``params`` and ``opt_state`` are
+    donated: use the returned ones. With ``mesh`` the batch comes split over its devices
+    (:func:`jaxsem.parallel.shard_batch`) and the state and loss come back replicated. Cached per
+    (model, optimiser, stage1_steps, augment, mesh).
+    """
+    return _two_stage_step(model, two_stage_optimizer(config), int(config.stage1_steps), augment, mesh)
+
+
+def _select(use, new: dict, old: dict) -> dict:
+    return jax.tree.map(lambda a, b: jnp.where(use, a, b), new, old)
+
+
+@functools.lru_cache(maxsize=16)
+def _two_stage_step(model, tx, stage1_steps: int, augment: bool, mesh):
+    def stage_grads(stage: int):
+        loss_fn = make_loss_fn(model, stage, augment)
+
+        def grads(params, batch, key):
+            trainable, frozen = _trainable(params, stage)
+            value, g = jax.value_and_grad(loss_fn)(trainable, frozen, batch, key)
+            return value, {**jax.tree.map(jnp.zeros_like, frozen), **g}
+
+        return grads
+
+    def step(params, opt_state, batch, key):
+        first = _update_count(opt_state) < stage1_steps
+        value, grads = jax.lax.cond(first, stage_grads(1), stage_grads(2), params, batch, key)
+        # optax 0.2.8's adam computes its bias correction as `decay ** count` (a Python float
+        # and the int32 step count), which strict dtype promotion refuses: optax's update alone
+        # runs under standard promotion.
+        with jax.numpy_dtype_promotion("standard"):
+            updates, opt_state = tx.update(grads, opt_state, params)
+        moved = cast(dict, optax.apply_updates(params, updates))
+        # the frozen group gets zero updates; keeping its old values makes it bit-identical (an
+        # added zero would turn a -0.0 into +0.0)
+        gen_new, cs_new = split_params(moved)
+        gen_old, cs_old = split_params(params)
+        params = {**_select(first, gen_new, gen_old), **_select(~first, cs_new, cs_old)}
+        return params, opt_state, value
 
     # params and opt_state are donated: the step writes the new state into their buffers (the
     # caller rebinds both to the outputs and never reads the old ones).
@@ -226,13 +340,60 @@ def evaluate_nll(
 RESUMABLE_FIELDS = ("stage2_steps", "eval_every", "checkpoint_every", "keep", "num_figure_samples", "init_from")
 
 
-def _state_like(model_params, config: TrainConfig, stage: int):
+def _state_like(model_params, config: TrainConfig):
+    return {
+        "params": model_params,
+        "opt_state": two_stage_optimizer(config).init(model_params),
+        "step": np.zeros((), np.int64),
+    }
+
+
+def _legacy_state_like(model_params, config: TrainConfig, step: int):
+    """The layout of checkpoints written before the single two-stage step: the optimiser state
+    of the stage that wrote step ``step`` only, over that stage's parameters."""
+    stage = _stage_of(max(step - 1, 0), config)
     trainable, _ = _trainable(model_params, stage)
     return {
         "params": model_params,
         "opt_state": stage_optimizer(config, stage).init(trainable),
         "step": np.zeros((), np.int64),
     }
+
+
+def _from_legacy(state: dict, config: TrainConfig) -> dict:
+    """A legacy checkpoint's state (:func:`_legacy_state_like`) in the two-stage layout: its
+    stage's optimiser state goes to that group, the other group's is fresh (stage one's is no
+    longer used after the boundary; stage two's had not started), and both step counters are
+    the checkpoint's step. Resuming from it continues exactly as the old two-step loop did."""
+    step = int(state["step"])
+    label = STAGE_LABELS[_stage_of(max(step - 1, 0), config)]
+    opt_state: Any = two_stage_optimizer(config).init(state["params"])  # an optax PartitionState
+    inner = opt_state.inner_states
+    masked = inner[label]
+    slot = masked.inner_state.inner_state
+    leaves = jax.tree.leaves(state["opt_state"])
+    like = jax.tree.leaves(slot)
+    if len(leaves) != len(like) or any(np.shape(a) != np.shape(b) for a, b in zip(leaves, like)):
+        raise CheckpointError(f"checkpoint of step {step}: its {label!r} optimiser state does not match the config")
+    slot = jax.tree.unflatten(jax.tree.structure(slot), [jnp.asarray(a, b.dtype) for a, b in zip(leaves, like)])
+    inner = {**inner, label: masked._replace(inner_state=masked.inner_state._replace(inner_state=slot))}
+    count = jnp.asarray(step, jnp.int32)
+    inner = {k: v._replace(inner_state=v.inner_state._replace(step=count)) for k, v in inner.items()}
+    return {**state, "opt_state": opt_state._replace(inner_states=inner)}
+
+
+def _restore(restore: Callable, params, config: TrainConfig) -> dict:
+    """``restore(like)`` (a function of the step giving the target) in the two-stage layout,
+    else in the legacy one, converted; a checkpoint readable in neither raises the first
+    layout's :class:`~jaxsem.checkpoint.CheckpointError`."""
+    try:
+        return restore(lambda step: _state_like(params, config))
+    except CheckpointError as exc:
+        try:
+            legacy = restore(lambda step: _legacy_state_like(params, config, step))
+        except CheckpointError:
+            raise exc from None
+        return _from_legacy(legacy, config)
 
 
 def config_to_dict(config: TrainConfig) -> dict:
@@ -272,7 +433,7 @@ def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None
         step = ckpt.latest_step() if step is None else step
         if step is None:
             raise ValueError(f"workdir: no checkpoint under {str(workdir / 'checkpoints')!r}")
-        state = ckpt.restore(_state_like(params, config, _stage_of(max(step - 1, 0), config)), step=step)
+        state = _restore(lambda like: ckpt.restore(like(step), step=step), params, config)
     finally:
         ckpt.close()
     return model, state["params"], config
@@ -397,15 +558,11 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
     train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed, config.val_every_nth_building)
     fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]
 
+    tx = two_stage_optimizer(config)
     opt_state = None
     if run.latest_step is not None:
-        # the state's shape depends on the stage of the checkpoint restored (an older one when
-        # the newest is unreadable)
-        state = run.restore(lambda step: _state_like(params, config, _stage_of(max(step - 1, 0), config)))
-        saved_stage = _stage_of(max(run.start - 1, 0), config)
-        params = state["params"]
-        if _stage_of(run.start, config) == saved_stage:
-            opt_state = state["opt_state"]
+        state = _restore(run.restore, params, config)
+        params, opt_state = state["params"], state["opt_state"]
     elif config.init_from:
         if not pathlib.Path(config.init_from).exists():
             raise ValueError(f"init_from: no such model file or training workdir {config.init_from!r}")
@@ -415,7 +572,7 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
     # the step donates params and opt_state: train on buffers of our own, never on arrays a
     # caller or a cache (a loaded model, a warm start's source) may still hold
     params = jax.tree.map(jnp.copy, params)
-    opt_state = None if opt_state is None else jax.tree.map(jnp.copy, opt_state)
+    opt_state = tx.init(params) if opt_state is None else jax.tree.map(jnp.copy, opt_state)
     rep = None if mesh is None else parallel.replicated(mesh)
     if rep is not None:
         params, opt_state = jax.device_put((params, opt_state), rep)
@@ -424,7 +581,7 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
     figures = workdir / "figures"
     figures.mkdir(exist_ok=True)
     step = start
-    steps_fn = {}
+    train_step = make_two_stage_step(model, config, augment=True, mesh=mesh)
     # The last losses stay on the device: reading one back every step would wait for that step to
     # finish (a host sync per step); they are read in bulk for the progress bar and the metrics.
     recent: list = []
@@ -457,22 +614,12 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
 
     last = config.total_steps if stop_at is None else min(int(stop_at), config.total_steps)
     for step in run.steps(start, last, total=config.total_steps, desc="lsd train", progress=progress):
-        stage = _stage_of(step, config)
-        tx = stage_optimizer(config, stage)
-        if opt_state is None:
-            opt_state = tx.init(_trainable(params, stage)[0])
-            if rep is not None:
-                opt_state = jax.device_put(opt_state, rep)
-        if stage not in steps_fn:
-            if mesh is None:
-                steps_fn[stage] = make_train_step(model, tx, stage, augment=True)
-            else:
-                steps_fn[stage] = make_train_step(model, tx, stage, augment=True, mesh=mesh)
+        stage = _stage_of(step, config)  # for the logs; the step reads its own counter
         batch = gather_batch(data, batch_indices(train_idx, config.batch_size, step, config.seed))
         if mesh is not None:
             batch = parallel.shard_batch(batch, mesh)
         skey = jax.random.fold_in(drop_key, step)
-        params, opt_state, loss = steps_fn[stage](params, opt_state, batch, skey)
+        params, opt_state, loss = train_step(params, opt_state, batch, skey)
         step += 1
         recent.append(loss)
         recent = recent[-50:]
@@ -488,8 +635,7 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
         if step % config.checkpoint_every == 0 or end_of_stage or step == last:
             run.save(step, {"params": params, "opt_state": opt_state, "step": np.asarray(step, np.int64)})
         if step == config.stage1_steps:
-            opt_state = None  # stage two: a fresh optimiser over the context branch
-            recent = []
+            recent = []  # stage two's losses are of another distribution
     history = run.metrics()
     return TrainResult(model, params, history, start, workdir)
 

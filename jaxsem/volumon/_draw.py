@@ -17,7 +17,11 @@ _EDGES = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4)
 
 
 def ellipsoid_outline(rotation, center, radii, K, n: int = 100):
-    """(n, 2) pixel points of the ellipse outline (camera-frame ellipsoid), or None if not an ellipse."""
+    """(n, 2) pixel points of the ellipse outline (camera-frame ellipsoid), or None if not an ellipse.
+
+    Computed in float64 (a figure's outline): a float32 prediction or ``K`` would otherwise meet
+    the float64 identity pose, which strict dtype promotion refuses."""
+    rotation, center, radii, K = (np.asarray(x, np.float64) for x in (rotation, center, radii, K))
     conic = project_dual_conic(dual_quadric(rotation, center, radii), K, np.eye(4))
     outline, valid = quadrics_conic_outline(conic, n)
     return np.asarray(outline, np.float64) if bool(valid) else None
