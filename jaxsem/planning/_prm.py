@@ -122,29 +122,9 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
-        if self._lazy is not None:
-            s0 = _QUERY + self.count
-            (self.roadmap, cand), self._cap = _grow_exact(
-                self.roadmap,
-                key,
-                self._blocked_j,
-                dist,
-                jnp.asarray(self.origin, dtype),
-                int(n),
-                self.radius,
-                self.resolution,
-                cap,
-                False,
-                self.sectors,
-                bool(uniform_samples),
-                self._aids,
-                lazy=True,
-            )
-            self._lazy.add_rows(s0, np.asarray(cand))
-            if distribution is not None:
-                self.distribution = distribution
-            return self.count
-        self.roadmap, self._cap = _grow_exact(
+        lazy = self._lazy is not None
+        s0 = _QUERY + self.count
+        out, self._cap = _grow_exact(
             self.roadmap,
             key,
             self._blocked_j,
@@ -154,11 +134,17 @@ class PRM:
             self.radius,
             self.resolution,
             cap,
-            self.weight == "neglogp",
+            not lazy and self.weight == "neglogp",
             self.sectors,
             bool(uniform_samples),
             self._aids,
+            lazy=lazy,
         )
+        if self._lazy is not None:
+            self.roadmap, cand = out
+            self._lazy.add_rows(s0, np.asarray(cand))
+        else:
+            self.roadmap = out
         if distribution is not None:
             self.distribution = distribution
         self._graph = None
