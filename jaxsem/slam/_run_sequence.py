@@ -88,7 +88,9 @@ def run_sequence(
       sequence: :class:`Sequence`.
       config: :class:`jaxsem.slam.SolverConfig` (default: ROSHAN's defaults).
       capacity: :class:`jaxsem.slam.Capacity` (default :func:`default_capacity`); it must hold
-        every object and the largest frame.
+        every object and the largest frame. The default follows the sequence, so each sequence
+        of another size compiles its own program (8-10 s on a 2-core CPU for the LM-O stretches);
+        to run many sequences, pass one capacity that holds them all.
       optimize_every, iterations, window: as :func:`jaxsem.slam.online_init`.
       callback: called after every frame as ``callback(index, state, seconds)``.
       dtype: float dtype (default: jax's default float).
