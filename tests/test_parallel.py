@@ -172,6 +172,7 @@ def test_sharded_slam_batch_and_lsd_gradient_equal_vmap(four_devices_slow):
     assert four_devices_slow["lsd_grad"] <= 1e-10
 
 
+@pytest.mark.slow  # its four-device child process (15 s) is shared with the slow tests above
 def test_sharded_object_maps_equal_vmap(four_devices):
     assert four_devices["mapping"] == 0.0
 
