@@ -652,16 +652,14 @@ def figures(folder, figs, scene):
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(7, 6))
-    slam.draw_top_down(ax, tR, tC, tr, color="k", lw=2.0, label="truth (mesh extents)")
+    slam.draw_top_down(ax, quadrics.Ellipsoid(tR, tC, tr), color="k", lw=2.0, label="truth (mesh extents)")
     colors = {"baseline": "tab:orange", "roshan": "tab:blue", "gtsam_quadrics": "tab:red"}
     for k, col in colors.items():
         if k in ests:
             e = ests[k]
             slam.draw_top_down(
                 ax,
-                np.asarray(e.rotation)[:J],
-                np.asarray(e.center)[:J],
-                np.abs(np.asarray(e.radii)[:J]),
+                jax.tree.map(lambda x: np.asarray(x)[:J], e.ellipsoid),
                 color=col,
                 lw=1.2,
                 label=k,

@@ -23,6 +23,7 @@ __all__ = [
     "check_rigid",
     "check_rotation",
     "is_concrete",
+    "require_type",
 ]
 
 #: Tolerance of the rotation checks: ``|R^T R - I| <= ROTATION_TOL`` entrywise (and det R > 0).
@@ -113,3 +114,17 @@ def check_rigid(name: str, transform) -> None:
 def check_positive(name: str, x) -> None:
     if is_concrete(x) and np.asarray(x).size and not bool(np.all(np.asarray(x) > 0)):
         raise ValueError(f"{name}: expected positive values, got min {float(np.min(np.asarray(x))):.3g}")
+
+
+def require_type(name: str, value, kind: type) -> Any:
+    """``value`` if it is a ``kind`` (a typed pytree of the core: ``Ellipsoid``, ``Camera``, ``Grid``),
+    else a ``ValueError`` naming the argument and how to build one. The boundary check of every
+    method-level function that takes a typed argument: loose arrays in its place are a call
+    written for a loose signature, which would otherwise shift every later argument."""
+    if isinstance(value, kind):
+        return value
+    fields = ", ".join(getattr(kind, "_fields", None) or [f.name for f in __import__("dataclasses").fields(kind)])
+    raise ValueError(
+        f"{name}: expected a jaxsem.quadrics.{kind.__name__}, got {type(value).__name__}; "
+        f"build one as quadrics.{kind.__name__}({fields})"
+    )

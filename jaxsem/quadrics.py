@@ -7,8 +7,8 @@ equation to its function). Neither imports anything else of jaxsem but ``jaxsem.
 
 Where the code lives (``jaxsem/_geometry/``):
 
-- ``_common.py``: argument checks, the ``Ellipsoid`` and ``Camera`` pytrees, ``safe_sqrt`` /
-  ``safe_div`` / ``safe_norm``.
+- ``_common.py``: argument checks, ``safe_sqrt`` / ``safe_div`` / ``safe_norm``.
+- ``types.py``: the ``Ellipsoid`` and ``Camera`` pytrees, whose methods call the functions below.
 - ``conics.py``: ``dual_quadric``, ``primal_quadric``, ``camera_matrix``, ``project_dual_conic``,
   ``conic_bbox``, ``cylinder_bbox``, ``conic_outline``, ``camera_frame``, ``texture_plane_depth``,
   ``camera_depth``, ``half_extent``.
@@ -51,8 +51,6 @@ per call (which costs milliseconds in a per-object Python loop). The default is 
 from __future__ import annotations
 
 from ._geometry._common import (
-    Camera as Camera,
-    Ellipsoid as Ellipsoid,
     safe_div as safe_div,
     safe_norm as safe_norm,
     safe_sqrt as safe_sqrt,
@@ -127,6 +125,10 @@ from ._geometry.shapes import (
     shape_bbox as shape_bbox,
     shape_distance as shape_distance,
     surface_points as surface_points,
+)
+from ._geometry.types import (
+    Camera as Camera,
+    Ellipsoid as Ellipsoid,
 )
 
 # Old names (scalar-first convention), kept so that existing code keeps working; not in __all__:

@@ -36,7 +36,9 @@ def test_footprint_matches_dense_surface_samples(seed):
     origin = np.array([-5.0, -5.0])
     pts = np.asarray(quadrics.surface_points(jax.random.PRNGKey(seed + 10), rot, center, radii, 40000))
     for j in range(4):
-        dets = mapping.ellipsoids(rot[j : j + 1], center[j : j + 1], radii[j : j + 1], [planning.DOOR])
+        dets = mapping.ellipsoids(
+            quadrics.Ellipsoid(rot[j : j + 1], center[j : j + 1], radii[j : j + 1]), [planning.DOOR]
+        )
         grid = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=None))
         rows, cols = np.nonzero(grid == planning.DOOR)
         xs, ys = origin[0] + (cols + 0.5) * res, origin[1] + (rows + 0.5) * res
@@ -55,7 +57,7 @@ def test_footprint_matches_dense_surface_samples(seed):
 def test_tiled_equals_full_grid_for_many_objects_and_edges():
     rot, center, radii = _random_ellipsoids(5, 20, spread=6.0)  # some hang off the grid
     cls = np.random.default_rng(5).choice(list(planning.OBJECT_CLASSES), 20)
-    dets = mapping.ellipsoids(rot, center, radii, cls, valid=np.arange(20) % 7 != 3)
+    dets = mapping.ellipsoids(quadrics.Ellipsoid(rot, center, radii), cls, valid=np.arange(20) % 7 != 3)
     origin, res, shape = np.array([-4.0, -3.0]), 0.1, (70, 90)
     full = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=None))
     tiled = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=32))
@@ -64,7 +66,7 @@ def test_tiled_equals_full_grid_for_many_objects_and_edges():
 
 
 def test_window_too_small_names_window():
-    dets = mapping.ellipsoids(None, [[0.0, 0.0, 1.0]], [[3.0, 0.5, 1.0]], [planning.DOOR])
+    dets = mapping.ellipsoids(quadrics.Ellipsoid(None, [[0.0, 0.0, 1.0]], [[3.0, 0.5, 1.0]]), [planning.DOOR])
     with pytest.raises(ValueError, match="window"):
         mapping.semantic_grid(dets, (100, 100), (-5.0, -5.0), 0.1, window=16)
 
@@ -105,7 +107,7 @@ def test_ground_truth_map_reproduces_generator_semantics(family, seed):
 def _frame(center, cls, radii=0.5, valid=None):
     center = np.asarray(center, float)
     radii = np.broadcast_to(np.asarray(radii, float), center.shape)
-    return mapping.ellipsoids(None, center, radii, np.asarray(cls, np.int32), valid)
+    return mapping.ellipsoids(quadrics.Ellipsoid(None, center, radii), np.asarray(cls, np.int32), valid)
 
 
 def test_repeated_detections_associate_and_new_ones_create():
@@ -158,7 +160,7 @@ def test_mean_fusion_averages_centres_and_shape_matrices():
     rot, center, radii = _random_ellipsoids(7, 3, spread=0.2)
     state = mapping.init(4)
     for j in range(3):
-        f = mapping.ellipsoids(rot[j : j + 1], center[j : j + 1], radii[j : j + 1], [D])
+        f = mapping.ellipsoids(quadrics.Ellipsoid(rot[j : j + 1], center[j : j + 1], radii[j : j + 1]), [D])
         state = mapping.update(state, f, gate=2.0, fusion="mean")
     assert int(state.valid.sum()) == 1 and int(state.observations[0]) == 3
     np.testing.assert_allclose(state.center[0], center.mean(0), atol=1e-12)
@@ -206,7 +208,7 @@ def _frame_jax(c, cls):
 
 def test_float32_stays_float32():
     state = mapping.init(3, jnp.float32)
-    f = mapping.ellipsoids(None, np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), [2])
+    f = mapping.ellipsoids(quadrics.Ellipsoid(None, np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32)), [2])
     state = mapping.update(state, f, fusion="mean")
     state = mapping.update(state, f, fusion="mean")
     assert state.center.dtype == jnp.float32 and state.radii.dtype == jnp.float32
@@ -217,9 +219,11 @@ def test_bad_arguments_name_themselves():
     with pytest.raises(ValueError, match="capacity"):
         mapping.init(0)
     with pytest.raises(ValueError, match="radii"):
-        mapping.ellipsoids(None, np.zeros((2, 3)), np.ones((3, 3)), [2, 2])
+        mapping.ellipsoids(quadrics.Ellipsoid(None, np.zeros((2, 3)), np.ones((3, 3))), [2, 2])
+    with pytest.raises(ValueError, match=r"ellipsoid: expected a jaxsem\.quadrics\.Ellipsoid"):
+        mapping.ellipsoids(np.zeros((2, 3)), [2, 2])  # loose arrays where the typed one belongs
     with pytest.raises(ValueError, match="class_id"):
-        mapping.ellipsoids(None, np.zeros((2, 3)), np.ones((2, 3)), [2.0, 2.0])
+        mapping.ellipsoids(quadrics.Ellipsoid(None, np.zeros((2, 3)), np.ones((2, 3))), [2.0, 2.0])
     with pytest.raises(ValueError, match="fusion"):
         mapping.update(mapping.init(2), _frame([[0, 0, 0]], [2]), fusion="median")
     with pytest.raises(ValueError, match="detections"):

@@ -94,9 +94,7 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
             slam.map_to_json(
                 result.object_ids,
                 result.object_classes,
-                result.rotation,
-                result.center,
-                result.radii,
+                result.ellipsoid,
                 result.camera_T_world,
             )
         )

@@ -138,7 +138,7 @@ def test_figures_compile_nothing_and_match_the_jax_geometry(compiles):
     K, pose = np.asarray(problem.K, np.float64), np.asarray(truth.camera_T_world[0], np.float64)
     fig, ax = plt.subplots()
     with compiles() as comp:
-        slam.draw_top_down(ax, R, c, r)
+        slam.draw_top_down(ax, Q.Ellipsoid(R, c, r))
         slam.draw_overlay(ax, None, K, pose, np.asarray(problem.image_size), None, None, (R, c, r))
     plt.close(fig)
     assert comp.count == 0

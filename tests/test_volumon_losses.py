@@ -360,8 +360,8 @@ def test_outline_of_a_float32_prediction_draws_under_strict_promotion():
 
     K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]], np.float32)
     R, t, r = np.eye(3, dtype=np.float32), np.array([0, 0, 2], np.float32), np.full(3, 0.2, np.float32)
-    out = ellipsoid_outline(R, t, r, K, n=16)
-    ref = ellipsoid_outline(*(np.asarray(x, np.float64) for x in (R, t, r, K)), n=16)
+    out = ellipsoid_outline(Ellipsoid(R, t, r), K, n=16)
+    ref = ellipsoid_outline(Ellipsoid(*(np.asarray(x, np.float64) for x in (R, t, r))), np.asarray(K, np.float64), n=16)
     assert out is not None and ref is not None and out.shape == (16, 2)
     np.testing.assert_array_equal(out, ref)
     # a sphere of radius 0.2 at 2 m, f = 100 px: a circle of radius 100 * 0.2 / sqrt(4 - 0.04) (to

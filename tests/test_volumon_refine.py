@@ -95,7 +95,9 @@ def test_postopt_from_the_truth_stays_there_with_the_class_shape():
     b = held_out_set(7, 12, scene, 32, 0.1)
     recon = ReconstructionConfig(depth_mode="disparity", baseline_focal=scene.baseline * scene.focal)
     loss = LossConfig(shape_aware=True, primal_distance="ray")
-    phi = phi_from_ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["box_input"], b["K"], recon)
+    phi = phi_from_ellipsoid(
+        quadrics.Ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"]), b["box_input"], b["K"], recon
+    )
     args = (phi, b["box_input"], b["K"], b["points"], b["point_mask"], recon, loss, 50)
     _, ell, _ = postopt(*args, shape=b["class_shape"])
     drift = np.linalg.norm(np.asarray(ell.center) - np.asarray(b["gt_center"]), axis=-1)

@@ -246,7 +246,7 @@ def main(argv=None, prog: str | None = None) -> int:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from jaxsem import sim, slam
+    from jaxsem import quadrics, sim, slam
 
     sim_cfg = None
     if args.simulate:
@@ -314,9 +314,7 @@ def main(argv=None, prog: str | None = None) -> int:
     map_json = slam.map_to_json(
         result.object_ids,
         result.object_classes,
-        result.rotation,
-        result.center,
-        result.radii,
+        result.ellipsoid,
         result.camera_T_world,
     )
 
@@ -326,18 +324,14 @@ def main(argv=None, prog: str | None = None) -> int:
         o = truth["objects"]
         slam.draw_top_down(
             ax,
-            np.stack([x["rotation"] for x in o]),
-            np.stack([x["center"] for x in o]),
-            np.stack([x["radii"] for x in o]),
+            quadrics.Ellipsoid(*(np.stack([x[k] for x in o]) for k in ("rotation", "center", "radii"))),
             color="k",
             lw=2.0,
             label="truth",
         )
     slam.draw_top_down(
         ax,
-        result.rotation,
-        result.center,
-        result.radii,
+        result.ellipsoid,
         color="tab:blue",
         lw=1.3,
         label="estimate",

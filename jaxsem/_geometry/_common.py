@@ -1,14 +1,14 @@
 """What every module of the geometry core builds on (private to :mod:`jaxsem._geometry`).
 
-Argument checks at the boundary (``ValueError`` naming the argument), the typed pytrees
-:class:`Ellipsoid` and :class:`Camera`, and NaN-safe primitives. The public names are re-exported
+Argument checks at the boundary (``ValueError`` naming the argument) and NaN-safe primitives
+(the typed pytrees live in ``types.py``). The public names are re-exported
 by :mod:`jaxsem.quadrics`.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -183,49 +183,6 @@ def _finite_or_zero(x, xp: Any = jnp):
     says False for them (computed from the original) then returns finite values and gradients.
     The identity, value and gradient, on finite entries."""
     return xp.where(xp.isfinite(x), x, xp.zeros((), x.dtype))
-
-
-# --------------------------------------------------------------------------------------------
-# Typed pytrees. NamedTuples are pytrees, so they pass through jit / vmap / grad unchanged, and
-# every function below also takes the plain arrays (``project_bbox(*ellipsoid, *camera)``).
-
-
-class Ellipsoid(NamedTuple):
-    """An ellipsoid in jaxsem's one representation.
-
-    Attributes:
-      rotation: (..., 3, 3) object-to-world (or -camera, for VoluMon's camera-frame outputs).
-      center: (..., 3) metres.
-      radii: (..., 3) semi-axes in metres (chapter 5's size ``d = 2 * radii``).
-    """
-
-    rotation: jax.Array
-    center: jax.Array
-    radii: jax.Array
-
-    @classmethod
-    def create(cls, rotation, center, radii) -> Ellipsoid:
-        """Checked constructor: shapes, finiteness, proper rotations, positive radii."""
-        rotation, center, radii, _ = _ellipsoid_args(rotation, center, radii)
-        return cls(rotation, center, radii)
-
-    @property
-    def sizes(self):
-        """Full axis lengths ``d = 2 * radii`` (chapter 5's size)."""
-        return 2.0 * self.radii
-
-
-class Camera(NamedTuple):
-    """A pinhole camera: ``K`` (..., 3, 3) and ``camera_T_world`` (..., 4, 4), OpenCV axes."""
-
-    K: jax.Array
-    camera_T_world: jax.Array
-
-    @classmethod
-    def create(cls, K, camera_T_world) -> Camera:
-        """Checked constructor: intrinsics with positive focal lengths, a rigid pose."""
-        K, pose = _camera_args(K, camera_T_world)
-        return cls(K, pose)
 
 
 # --------------------------------------------------------------------------------------------

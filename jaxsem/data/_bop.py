@@ -27,6 +27,8 @@ import pathlib
 
 import numpy as np
 
+from ..quadrics import Ellipsoid
+
 #: Linemod's object names (LM and LM-O share the ids).
 LINEMOD_NAMES = {
     1: "ape",
@@ -84,6 +86,11 @@ class BopObject:
     radii: np.ndarray
     visible_box: np.ndarray
     visible_fraction: float
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The object's bounding ellipsoid in the camera frame as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
 
 
 @dataclasses.dataclass(frozen=True)

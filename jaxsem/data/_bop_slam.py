@@ -43,6 +43,7 @@ import math
 
 import numpy as np
 
+from ..quadrics import Ellipsoid
 from ._bop import BopFrame, BopScene
 
 __all__ = [
@@ -79,6 +80,11 @@ class Spell:
     rotation: np.ndarray
     center: np.ndarray
     radii: np.ndarray
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The ground-truth ellipsoid in the world as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
 
 
 @dataclasses.dataclass(frozen=True)

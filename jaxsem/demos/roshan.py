@@ -88,6 +88,7 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     import matplotlib
 
     matplotlib.use("Agg")
+    import jax
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -96,11 +97,10 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     one = lambda x: np.asarray(x[index])
     observed = one(maps.observed)
     fig, ax = plt.subplots(figsize=(11, 5.2))
+    truth = jax.tree.map(one, maps.ellipsoid)
     slam.draw_top_down(
         ax,
-        one(maps.object_rotation),
-        one(maps.object_center),
-        one(maps.object_radii),
+        truth,
         one(maps.object_mask) & ~observed,
         color="0.6",
         ls=":",
@@ -109,9 +109,7 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     )
     slam.draw_top_down(
         ax,
-        one(maps.object_rotation),
-        one(maps.object_center),
-        one(maps.object_radii),
+        truth,
         observed,
         color="k",
         lw=2.0,
@@ -119,9 +117,7 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     )
     styles = {sim.BASELINE: dict(color="tab:red", ls="--", lw=1.3), sim.ROSHAN: dict(color="tab:blue", lw=1.3)}
     for system, est in estimates.items():
-        slam.draw_top_down(
-            ax, one(est.rotation), one(est.center), one(est.radii), observed, label=system, **styles[system]
-        )
+        slam.draw_top_down(ax, jax.tree.map(one, est.ellipsoid), observed, label=system, **styles[system])
         truth, guess = one(maps.object_center)[observed], one(est.center)[observed]
         for a, b in zip(guess, truth):  # each estimate joined to its true centre
             ax.plot([a[0], b[0]], [a[1], b[1]], ":", color=styles[system]["color"], lw=0.8)

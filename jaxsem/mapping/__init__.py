@@ -18,9 +18,9 @@ A functional store with a fixed capacity (an equinox pytree; jit once, ``vmap`` 
 
 Example::
 
-    from jaxsem import mapping, planning
+    from jaxsem import mapping, planning, quadrics
     state = mapping.init(64)
-    dets = mapping.ellipsoids(rotation, center, radii, class_id=[planning.DOOR] * len(center))
+    dets = mapping.ellipsoids(quadrics.Ellipsoid(rotation, center, radii), class_id=[planning.DOOR] * len(center))
     state = mapping.update(state, dets, gate=1.0)
     grid = mapping.semantic_grid(state, building.shape, building.origin, building.resolution)
 """

@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics
-from .._checks import as_float_array, is_concrete
+from .._checks import as_float_array, is_concrete, require_type
+from ..quadrics import Ellipsoid
 
 __all__ = [
     "FUSIONS",
@@ -64,6 +65,12 @@ class Ellipsoids(eqx.Module):
     center: jax.Array
     radii: jax.Array
     class_id: jax.Array
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The M ellipsoids (rows where ``valid`` is False included) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
+
     valid: jax.Array
 
 
@@ -81,6 +88,12 @@ class ObjectMap(eqx.Module):
     center: jax.Array
     radii: jax.Array
     class_id: jax.Array
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The N slots' ellipsoids (empty slots included; see ``valid``) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
+
     valid: jax.Array
     observations: jax.Array
     dropped: jax.Array
@@ -108,25 +121,27 @@ class Association(eqx.Module):
     created: jax.Array
 
 
-def ellipsoids(rotation, center, radii, class_id, valid=None) -> Ellipsoids:
-    """Checked constructor of :class:`Ellipsoids` from arrays (numpy or JAX).
+def ellipsoids(ellipsoid: Ellipsoid, class_id, valid=None) -> Ellipsoids:
+    """Checked constructor of :class:`Ellipsoids`: class-labelled ellipsoids for the store.
 
-    rotation (..., M, 3, 3) or None (identity), center (..., M, 3), radii (..., M, 3),
-    class_id (..., M) integers, valid (..., M) bool or None (all valid). ``ValueError`` names the
-    argument whose shape does not fit.
+    ellipsoid: a :class:`jaxsem.quadrics.Ellipsoid` of M world ellipsoids (numpy or JAX arrays:
+    rotation (..., M, 3, 3), or None for axis-aligned ones; center (..., M, 3); radii (..., M, 3)),
+    e.g. ``estimate.ellipsoid``; class_id (..., M) integers; valid (..., M) bool or None (all
+    valid). ``ValueError`` names the field whose shape does not fit.
     """
-    center = as_float_array("center", center, (3,))
+    rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
+    center = as_float_array("ellipsoid.center", center, (3,))
     if center.ndim < 2:
-        raise ValueError(f"center: expected shape (..., M, 3), got {tuple(center.shape)}")
+        raise ValueError(f"ellipsoid.center: expected shape (..., M, 3), got {tuple(center.shape)}")
     batch = tuple(center.shape[:-1])
-    radii = as_float_array("radii", radii, (3,))
+    radii = as_float_array("ellipsoid.radii", radii, (3,))
     if tuple(radii.shape[:-1]) != batch:
-        raise ValueError(f"radii: expected shape {batch + (3,)} like center, got {tuple(radii.shape)}")
+        raise ValueError(f"ellipsoid.radii: expected shape {batch + (3,)} like center, got {tuple(radii.shape)}")
     if rotation is None:
         rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
-    rotation = as_float_array("rotation", rotation, (3, 3))
+    rotation = as_float_array("ellipsoid.rotation", rotation, (3, 3))
     if tuple(rotation.shape[:-2]) != batch:
-        raise ValueError(f"rotation: expected shape {batch + (3, 3)}, got {tuple(rotation.shape)}")
+        raise ValueError(f"ellipsoid.rotation: expected shape {batch + (3, 3)}, got {tuple(rotation.shape)}")
     class_arr = jnp.asarray(class_id)
     if not jnp.issubdtype(class_arr.dtype, jnp.integer):
         raise ValueError(f"class_id: expected integers, got dtype {class_arr.dtype}")
@@ -291,8 +306,7 @@ def update(
     """Adds one frame's ellipsoid estimates to the store (associate, then fuse or create).
 
     state: :class:`ObjectMap` from :func:`init` (N slots); detections: :class:`Ellipsoids` (M, from
-    VoluMon predictions or a ROSHAN estimate, e.g. ``ellipsoids(est.rotation, est.center,
-    est.radii, classes)``); gate: association distance between centres in metres (traced);
+    VoluMon predictions or a ROSHAN estimate, e.g. ``ellipsoids(est.ellipsoid, classes)``); gate: association distance between centres in metres (traced);
     class_aware: only same-class pairs associate; fusion: ``"latest"`` (thesis 5.8.2: the new
     estimate overwrites) or ``"mean"`` (running mean of centre and shape matrix). Returns the new
     :class:`ObjectMap`; detections that found no free slot are counted in ``dropped``.

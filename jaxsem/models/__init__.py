@@ -1,7 +1,11 @@
 """Flax models: the LSD sampling-distribution network (and VoluMon)."""
 
 # the egocentric-allocentric rotations live in the geometry core; kept here under their old names
-from ..quadrics import allocentric_rotation as allocentric_rotation, ray_rotation as ray_rotation
+from ..quadrics import (
+    Ellipsoid as Ellipsoid,  # VoluMon's outputs: the core's one type
+    allocentric_rotation as allocentric_rotation,
+    ray_rotation as ray_rotation,
+)
 from ._convert import (
     convert_torchvision_mobilenet_v2 as convert_torchvision_mobilenet_v2,
     load_backbone_into_volumon as load_backbone_into_volumon,
@@ -27,7 +31,6 @@ from ._mobilenet import (
     make_divisible as make_divisible,
 )
 from ._volumon import (
-    Ellipsoid as Ellipsoid,
     ReconstructionConfig as ReconstructionConfig,
     VoluMonConfig as VoluMonConfig,
     VoluMonNet as VoluMonNet,

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..quadrics import back_project, quaternion_to_rotation, ray_rotation
+from ..quadrics import Ellipsoid, back_project, quaternion_to_rotation, ray_rotation
 from ._mobilenet import MobileNetV2
 
 NUM_FREE = 10  # phi_D (3), phi_R (4), phi_UV (2), phi_Z (1)
@@ -49,22 +49,6 @@ SLICE_D = slice(0, 3)
 SLICE_R = slice(3, 7)
 SLICE_UV = slice(7, 9)
 SLICE_Z = slice(9, 10)
-
-
-class Ellipsoid(NamedTuple):
-    """An ellipsoid in jaxsem conventions (camera frame for VoluMon outputs).
-
-    rotation: (..., 3, 3) object-to-camera; center: (..., 3) metres; radii: (..., 3) semi-axes.
-    """
-
-    rotation: jax.Array
-    center: jax.Array
-    radii: jax.Array
-
-    @property
-    def sizes(self):
-        """Full axis lengths ``d = 2 * radii`` (chapter 5's size)."""
-        return 2.0 * self.radii
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
+from ..quadrics import Camera, Ellipsoid
 
 PATHS = ("orbit", "forward", "views")
 INIT_MODES = ("single_view", "noisy_truth")
@@ -282,6 +283,16 @@ class SimulatedMap(eqx.Module):
     init_radii: jax.Array
     first_frame: jax.Array
     observed: jax.Array
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The N true objects (masked by ``object_mask``) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.object_rotation, self.object_center, self.object_radii)
+
+    @property
+    def cameras(self) -> Camera:
+        """The T true cameras as one :class:`jaxsem.quadrics.Camera` (``K`` shared, broadcast by the core)."""
+        return Camera(self.K, self.camera_T_world)
 
 
 def intrinsics(config: SimConfig, dtype=None) -> jax.Array:

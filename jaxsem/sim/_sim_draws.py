@@ -12,7 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import factors
+from .._checks import require_type
 from ..quadrics import (
+    Camera,
+    Ellipsoid,
     camera_frame,
     invert_pose,
     look_at,
@@ -187,18 +190,22 @@ def _perturb_poses(pool: _Pool, camera_T_world, sigma_m, sigma_deg):
     return invert_pose(noisy)
 
 
-def detect(key, rotation, center, radii, object_mask, camera_T_world, K, config: SimConfig):
+def detect(key, ellipsoid: Ellipsoid, object_mask, camera: Camera, config: SimConfig):
     """Noisy detections of every object in every frame, with the drop and edge rules.
 
     Args:
-      rotation, center, radii: (N, 3, 3), (N, 3), (N, 3) true ellipsoids; object_mask (N,).
-      camera_T_world: (T, 4, 4) true poses; K: (3, 3).
+      ellipsoid: the N true world ellipsoids (:class:`jaxsem.quadrics.Ellipsoid`, fields (N, ...));
+        object_mask (N,).
+      camera: the T true cameras (:class:`jaxsem.quadrics.Camera`: ``K`` (3, 3),
+        ``camera_T_world`` (T, 4, 4)); e.g. ``simulated_map.ellipsoid`` and ``.cameras``.
 
     Returns:
       dict of ``boxes`` (T, N, 4) clipped noisy boxes, ``box_mask`` (T, N), ``edge_mask``
       (T, N, 4), ``texture_depth`` (T, N), ``texture_sigma`` (T, N), ``texture_mask`` (T, N),
       ``true_boxes`` (T, N, 4).
     """
+    rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
+    K, camera_T_world = require_type("camera", camera, Camera)
     n_det = camera_T_world.shape[0] * center.shape[0]
     pool = _Pool(key, 5 * n_det, jnp.result_type(center.dtype, camera_T_world.dtype))
     return _detect(pool, rotation, center, radii, object_mask, camera_T_world, K, config)

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import require_type
+from ..quadrics import Ellipsoid
+
 # --------------------------------------------------------------------------------------------
 # Figures (matplotlib is imported by the caller; these only draw on the axes given).
 
@@ -20,11 +23,12 @@ def _ground_outline(rotation, center, radii, num_points: int = 72):
     return np.asarray(outline, np.float64)
 
 
-def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=None, **style):
+def draw_top_down(ax, ellipsoid: Ellipsoid, mask=None, *, label=None, labels=None, **style):
     """Draws ellipsoids seen from above (world x right, y up) on matplotlib axes ``ax``.
 
     Args:
-      rotation: (J, 3, 3) object-to-world; center: (J, 3); radii: (J, 3) semi-axes (m).
+      ellipsoid: a :class:`jaxsem.quadrics.Ellipsoid` of J world ellipsoids (numpy or jax arrays;
+        e.g. ``estimate.ellipsoid``); the absolute value of the radii is drawn.
       mask: optional (J,) bool, which ellipsoids to draw (default all).
       label: legend label (given to the first outline only).
       labels: optional (J,) strings written at the centres.
@@ -33,7 +37,8 @@ def draw_top_down(ax, rotation, center, radii, mask=None, *, label=None, labels=
     Returns:
       the list of line artists.
     """
-    outline = _ground_outline(rotation, center, radii)
+    rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
+    outline = _ground_outline(rotation, center, radii).reshape(-1, 72, 2)
     center = np.asarray(center, np.float64).reshape(-1, 3)
     mask = np.ones(len(outline), bool) if mask is None else np.asarray(mask, bool).reshape(-1)
     lines = []

@@ -11,6 +11,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..quadrics import Ellipsoid
+
 # Reasons attached to each detection's texture measurement (``AssociatedDetection.texture_status``).
 TEXTURE_OK = "ok"
 TEXTURE_NEW_LANDMARK = "new_landmark"  # first sighting: nothing to triangulate against yet
@@ -220,6 +222,11 @@ class LandmarkEstimates(NamedTuple):
     rotation: Any
     center: Any
     radii: Any
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The L ellipsoids (padding rows included) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
 
     @classmethod
     def from_mapping(cls, estimates: Mapping[int, Sequence[Any]]) -> LandmarkEstimates:

@@ -9,30 +9,34 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._checks import require_type
+from ..quadrics import Ellipsoid
+
 if TYPE_CHECKING:
     from ._run_sequence import SequenceResult
 
 
-def map_to_json(object_ids, object_classes, rotation, center, radii, camera_T_world=None) -> dict:
+def map_to_json(object_ids, object_classes, ellipsoid: Ellipsoid, camera_T_world=None) -> dict:
     """An estimated map as a JSON-ready dict.
 
     Args:
       object_ids: (J,) association ids; object_classes: (J,) class names.
-      rotation: (J, 3, 3) object-to-world; center: (J, 3) world; radii: (J, 3) semi-axes (m).
+      ellipsoid: the J world ellipsoids, a :class:`jaxsem.quadrics.Ellipsoid`.
       camera_T_world: optional (T, 4, 4) estimated poses, written as ``"camera_T_world"``.
 
     Returns:
       ``{"format", "frame": "world", "units": "metres", "objects": [{"id", "class", "center",
       "radii", "rotation"}], ["camera_T_world"]}``. ``SequenceResult`` fields fit directly:
-      ``map_to_json(r.object_ids, r.object_classes, r.rotation, r.center, r.radii, r.camera_T_world)``.
+      ``map_to_json(r.object_ids, r.object_classes, r.ellipsoid, r.camera_T_world)``.
     """
+    rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
     rotation = np.asarray(rotation, np.float64).reshape(-1, 3, 3)
     center = np.asarray(center, np.float64).reshape(-1, 3)
     radii = np.asarray(radii, np.float64).reshape(-1, 3)
     J = len(object_ids)
     if not (len(object_classes) == rotation.shape[0] == center.shape[0] == radii.shape[0] == J):
         raise ValueError(
-            f"object_ids, object_classes, rotation, center, radii: expected {J} objects each, got "
+            f"object_ids, object_classes, ellipsoid (rotation, center, radii): expected {J} objects each, got "
             f"{len(object_classes)}, {rotation.shape[0]}, {center.shape[0]}, {radii.shape[0]}"
         )
     out = {

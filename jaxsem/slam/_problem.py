@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
+from ..quadrics import Camera, Ellipsoid
 
 __all__ = [
     "Capacity",
@@ -141,6 +142,16 @@ class SlamEstimate(eqx.Module):
     rotation: jnp.ndarray
     center: jnp.ndarray
     radii: jnp.ndarray
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The J ellipsoids as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
+
+    def cameras(self, K) -> Camera:
+        """The T cameras with intrinsics ``K`` ((3, 3) shared, or (T, 3, 3)) as one
+        :class:`jaxsem.quadrics.Camera` (the core broadcasts a shared ``K``)."""
+        return Camera(jnp.asarray(K), self.camera_T_world)
 
 
 class Frame(eqx.Module):

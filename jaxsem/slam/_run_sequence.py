@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..quadrics import Ellipsoid
 from ._sequence_types import Sequence
 
 # --------------------------------------------------------------------------------------------
@@ -37,6 +38,11 @@ class SequenceResult:
     camera_T_world: np.ndarray
     frame_seconds: np.ndarray
     state: Any = None
+
+    @property
+    def ellipsoid(self) -> Ellipsoid:
+        """The J estimated ellipsoids as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
+        return Ellipsoid(self.rotation, self.center, self.radii)
 
 
 def _bucket(n: int, step: int) -> int:

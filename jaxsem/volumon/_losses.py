@@ -40,11 +40,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..models import Ellipsoid
 from ..quadrics import (
     SHAPE_CUBOID as SHAPE_CUBOID,
     SHAPE_CYLINDER as SHAPE_CYLINDER,
     SHAPE_ELLIPSOID as SHAPE_ELLIPSOID,
+    Ellipsoid,
     algebraic_distance,
     project_bbox,
     ray_entry_range,

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..quadrics import Ellipsoid
 from ..training import LoadedModel
 from ._configs import TrainConfig, config_from_dict
 
@@ -244,7 +245,7 @@ def evaluate_held_out(
         score("postopt", timed("postopt", lambda: postopt(phi, *data, steps, shape=shape)[1]))
         # PostOpt started at the exact ground truth: how far does the objective move it?
         phi_true = phi_from_ellipsoid(
-            b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["box_input"], b["K"], config.recon
+            Ellipsoid(b["gt_rotation"], b["gt_center"], b["gt_half_extents"]), b["box_input"], b["K"], config.recon
         )
         _, ell_t, _ = postopt(phi_true, *data, steps, shape=shape)
         drift = np.linalg.norm(np.asarray(ell_t.center) - gt["gt_center"], axis=-1)[keep]

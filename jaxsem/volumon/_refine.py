@@ -36,8 +36,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ..models import Ellipsoid, ReconstructionConfig, reconstruct
-from ..quadrics import allocentric_rotation, rotation_to_quaternion_wxyz
+from .._checks import require_type
+from ..models import ReconstructionConfig, reconstruct
+from ..quadrics import Ellipsoid, allocentric_rotation, rotation_to_quaternion_wxyz
 from ._losses import SHAPE_ELLIPSOID, LossConfig, primal_loss_per_sample
 
 POSE_MASK = jnp.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1], bool)
@@ -81,14 +82,16 @@ def init_from_points(box, K, points, point_mask, recon: ReconstructionConfig = R
 _RECON = ReconstructionConfig()
 
 
-def phi_from_ellipsoid(rotation, center, radii, box, K, recon: ReconstructionConfig = _RECON):
-    """Free parameters (..., 10) whose reconstruction (eq. 5.7, inside ``box``) is the given object.
+def phi_from_ellipsoid(ellipsoid: Ellipsoid, box, K, recon: ReconstructionConfig = _RECON):
+    """Free parameters (..., 10) whose reconstruction (eq. 5.7, inside ``box``) is ``ellipsoid``
+    (camera frame, the :class:`~jaxsem.quadrics.Ellipsoid` that :func:`jaxsem.models.reconstruct` returns).
 
     The inverse of :func:`jaxsem.models.reconstruct` for an object whose projected centre lies in
     the box: the axes are reordered so the radii increase (the network's convention; a column is
     negated where needed to keep a proper rotation), sizes below ``eps_s`` and equal sizes are
     clamped to tiny increments. Used to start PostOpt from the ground truth.
     """
+    rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
     order = jnp.argsort(radii, axis=-1)
     r = jnp.take_along_axis(radii, order, -1)
     R = jnp.take_along_axis(rotation, jnp.broadcast_to(order[..., None, :], rotation.shape), -1)
