@@ -115,7 +115,7 @@ class DetectionMapper:
         self._objects = None
 
     def observe(self, xy, yaw):
-        from jaxsem import mapping, slam
+        from jaxsem import mapping, quadrics, slam
         from jaxsem.sim import ellipsoids_from_depth, robot_camera
 
         T = robot_camera(np.asarray(xy, float), float(yaw))
@@ -140,7 +140,9 @@ class DetectionMapper:
                 return
             n_vis = len(np.unique(seg[seg >= 0]))
             slots = max(self.max_det, int(2 ** np.ceil(np.log2(max(n_vis, 1)))))  # few compiles
-            ell, idx = ellipsoids_from_depth(seg, depth, self.K, T, self.object_class, self.classes, capacity=slots)
+            ell, idx = ellipsoids_from_depth(
+                seg, depth, quadrics.Camera(self.K, T), self.object_class, self.classes, capacity=slots
+            )
             valid = np.zeros(ell.valid.shape[0], bool)
             valid[: len(idx)] = np.isin(idx, wanted)
             if self.kind == "volumon":

@@ -619,24 +619,22 @@ def figures(folder, figs, scene):
         slam.draw_overlay(
             ax,
             img,
-            seq.K,
-            st.camera_T_world[t],
+            quadrics.Camera(seq.K, st.camera_T_world[t]),
             seq.image_size,
             None,
             None,
-            (tR[present], tC[present], tr[present]),
+            quadrics.Ellipsoid(tR[present], tC[present], tr[present]),
             [ids[j] for j in present],
             color="lime",
         )
         slam.draw_overlay(
             ax,
             img,
-            seq.K,
-            st.camera_T_world[t],
+            quadrics.Camera(seq.K, st.camera_T_world[t]),
             seq.image_size,
             None,
             None,
-            tuple(np.asarray(x)[:J][present] for x in (est.rotation, est.center, est.radii)),
+            jax.tree.map(lambda x: np.asarray(x)[:J][present], est.ellipsoid),
             [ids[j] for j in present],
             color="magenta",
         )

@@ -157,8 +157,14 @@ def volumon_inits(m, cfg, model, variables, vcfg, rng, timing, box_noise=True):
         if not (box[2] - box[0] >= 2 and box[3] - box[1] >= 2):
             continue
         t1 = time.perf_counter()
-        R, c, r, ok = mapping.volumon_initial_ellipsoids(
-            model, variables, vcfg, np.asarray(view.left), box[None], cls, K, np.asarray(m.pose_prior[t])
+        (R, c, r), ok = mapping.volumon_initial_ellipsoids(
+            model,
+            variables,
+            vcfg,
+            np.asarray(view.left),
+            box[None],
+            cls,
+            quadrics.Camera(K, np.asarray(m.pose_prior[t])),
         )
         jax.block_until_ready(r)
         t2 = time.perf_counter()

@@ -154,7 +154,7 @@ def test_pixels_to_object_map_to_semantic_grid(building, scene):
         Tv = T.copy()
         Tv[:3, 3] -= np.array([dx, 0.0, 0.0])  # the camera moves dx along its own x axis
         out = scene.render(K, Tv, outputs=("depth", "seg"))
-        ell, idx = ellipsoids_from_depth(out["seg"], out["depth"], K, Tv, objects.class_id, capacity=8)
+        ell, idx = ellipsoids_from_depth(out["seg"], out["depth"], quadrics.Camera(K, Tv), objects.class_id, capacity=8)
         assert k in idx
         state = mapping.update(state, ell, gate=0.5)
     # The entrance door was associated across views, and its estimate is the true box's.

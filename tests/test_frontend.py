@@ -268,7 +268,7 @@ def test_on_the_library_renderer_in_a_cluttered_scene():
         T[:3, :3] = R_cv.T
         T[:3, 3] = -R_cv.T @ np.array([-0.4 + 0.15 * i, -3.2, 0.7])
         poses.append(T)
-    views = render_views(objects, K, np.stack(poses), WIDTH, HEIGHT, floor_z=0.0)
+    views = render_views(objects, quadrics.Camera(K, np.stack(poses)), WIDTH, HEIGHT, floor_z=0.0)
     frontend = FrontEnd(K)
     for t in range(5):
         boxes = np.array([seg_box(views["seg"][t], j) for j in range(3)])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsem import quadrics
+from jaxsem.quadrics import Camera
 from jaxsem.sim import SceneObject, SceneRenderer, render_views
 
 W, H, F = 160, 120, 150.0
@@ -45,7 +46,7 @@ def scene():
     T1[:3, :3] = np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]])
     T1[:3, 3] = [0.08, 0.01, 0.05]
     poses = np.stack([np.eye(4), T1])
-    out = render_views(objects, K, poses, W, H, background_seed=3, light_seed=4)
+    out = render_views(objects, Camera(K, poses), W, H, background_seed=3, light_seed=4)
     return objects, poses, out
 
 
@@ -95,15 +96,15 @@ def test_depth_on_object_matches_geometry(scene):
 def test_plane_depth_and_floor():
     """A wide thin slab facing the camera at 0.75 m: its front face reads 0.75 - thickness / 2."""
     slab = SceneObject("wall", "box", np.array([3.0, 3.0, 0.02]), np.eye(3), np.array([0.0, 0.0, 0.76]), 0)
-    out = render_views([slab], K, np.eye(4), W, H, textured=False)
+    out = render_views([slab], Camera(K, np.eye(4)), W, H, textured=False)
     np.testing.assert_allclose(out["depth"][0], 0.75, atol=1e-3)
     assert np.all(out["seg"][0] == 0)
-    only = render_views([slab], K, np.eye(4), W, H, textured=False, outputs=("depth",))
+    only = render_views([slab], Camera(K, np.eye(4)), W, H, textured=False, outputs=("depth",))
     assert set(only) == {"depth"}
     np.testing.assert_array_equal(only["depth"], out["depth"])
     # A floor is depth but not an object: z up world, camera 1 m above looking down at the floor.
     T = np.asarray(quadrics.look_at(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.001, 0.0])))
-    out = render_views([], K, T[None], W, H, floor_z=0.0)
+    out = render_views([], Camera(K, T[None]), W, H, floor_z=0.0)
     assert np.all(out["seg"] == -1)
     np.testing.assert_allclose(out["depth"][0], 1.0, atol=2e-3)
 
@@ -115,24 +116,24 @@ def test_textures_have_features_and_seeds_matter(scene):
     keypoints = orb.detect(gray, None)
     on_objects = [kp for kp in keypoints if out["seg"][0][int(kp.pt[1]), int(kp.pt[0])] >= 0]
     assert len(on_objects) >= 10
-    other = render_views(objects, K, poses[:1], W, H, background_seed=99, light_seed=4)
+    other = render_views(objects, Camera(K, poses[:1]), W, H, background_seed=99, light_seed=4)
     np.testing.assert_array_equal(other["seg"][0], out["seg"][0])
     background = out["seg"][0] == -1
     assert np.mean(np.abs(other["rgb"][0][background].astype(int) - out["rgb"][0][background])) > 5
-    again = render_views(objects, K, poses[:1], W, H, background_seed=3, light_seed=4)
+    again = render_views(objects, Camera(K, poses[:1]), W, H, background_seed=3, light_seed=4)
     np.testing.assert_array_equal(again["rgb"][0], out["rgb"][0])
 
 
 def test_bad_input():
     ob = SceneObject("ball", "ellipsoid", np.full(3, 0.07), np.eye(3), np.array([0, 0, 1.0]))
     with pytest.raises(ValueError, match="skew"):
-        render_views([ob], K + np.array([[0, 1.0, 0], [0, 0, 0], [0, 0, 0]]), np.eye(4), W, H)
+        render_views([ob], Camera(K + np.array([[0, 1.0, 0], [0, 0, 0], [0, 0, 0]]), np.eye(4)), W, H)
     with pytest.raises(ValueError, match="fx, fy > 0"):
-        render_views([ob], K * np.array([[1, 1, 1], [1, -1, 1], [1, 1, 1]]), np.eye(4), W, H)
+        render_views([ob], Camera(K * np.array([[1, 1, 1], [1, -1, 1], [1, 1, 1]]), np.eye(4)), W, H)
     with pytest.raises(ValueError, match="outputs"):
-        render_views([ob], K, np.eye(4), W, H, outputs=("normals",))
+        render_views([ob], Camera(K, np.eye(4)), W, H, outputs=("normals",))
     with pytest.raises(ValueError, match="camera_T_world"):
-        render_views([ob], K, np.eye(3), W, H)
+        render_views([ob], Camera(K, np.eye(3)), W, H)
     with pytest.raises(ValueError, match="shape"):
         SceneObject("x", "cone", np.ones(3), np.eye(3), np.zeros(3))
     with pytest.raises(ValueError, match="cylinder"):
@@ -151,7 +152,7 @@ def test_move_object_matches_fresh_scene():
     """Regression: geoms compiled with an identity pose ignored later rotations (geom_sameframe)."""
     R = np.asarray(quadrics.random_rotation(jax.random.PRNGKey(5)))
     ext = np.array([0.164, 0.213, 0.0718])
-    fresh = render_views([SceneObject("b", "box", ext, R, np.array([0.05, 0.02, 0.7]))], K, np.eye(4), W, H)
+    fresh = render_views([SceneObject("b", "box", ext, R, np.array([0.05, 0.02, 0.7]))], Camera(K, np.eye(4)), W, H)
     start = SceneObject("b", "box", ext * 1.2, np.eye(3), np.array([1.0, 1.0, 1.0]))
     with SceneRenderer([start], W, H) as scene:
         scene.move_object(0, R, np.array([0.05, 0.02, 0.7]), ext)
@@ -169,7 +170,7 @@ def test_general_intrinsics(fx, fy, cx, cy):
     R = np.asarray(quadrics.random_rotation(jax.random.PRNGKey(21)))
     ob = SceneObject("ball", "ellipsoid", np.array([0.08, 0.1, 0.14]), R, np.array([0.04, -0.03, 0.8]))
     box = SceneObject("b", "box", np.array([0.1, 0.12, 0.06]), R, np.array([-0.2, 0.05, 0.9]))
-    out = render_views([ob, box], Kg, np.eye(4), W, H, textured=False)
+    out = render_views([ob, box], Camera(Kg, np.eye(4)), W, H, textured=False)
     ref, valid = quadrics.project_bbox(R, ob.center, ob.extents / 2, Kg, np.eye(4))
     np.testing.assert_allclose(_mask_box(out["seg"][0] == 0), np.asarray(ref), atol=1.0)
     p = box.corners() @ Kg.T

@@ -139,7 +139,7 @@ def test_figures_compile_nothing_and_match_the_jax_geometry(compiles):
     fig, ax = plt.subplots()
     with compiles() as comp:
         slam.draw_top_down(ax, Q.Ellipsoid(R, c, r))
-        slam.draw_overlay(ax, None, K, pose, np.asarray(problem.image_size), None, None, (R, c, r))
+        slam.draw_overlay(ax, None, Q.Camera(K, pose), np.asarray(problem.image_size), None, None, Q.Ellipsoid(R, c, r))
     plt.close(fig)
     assert comp.count == 0
     # The host (numpy) geometry the figures use is the library's jnp geometry.

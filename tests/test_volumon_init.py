@@ -156,8 +156,8 @@ def test_volumon_world_ellipsoids_reproject_to_the_camera_frame_prediction(shipp
     # a camera away from the world origin, looking at the object
     eye, target = np.array([1.0, -2.0, 0.8]), np.array([1.5, -1.0, 0.6])
     camera_T_world = np.asarray(quadrics.look_at(eye, target, np.array([0.0, 0.0, 1.0])))
-    R, c, r, ok = mapping.volumon_initial_ellipsoids(
-        model, variables, config, np.asarray(view.left), box[None], 0, K, camera_T_world
+    (R, c, r), ok = mapping.volumon_initial_ellipsoids(
+        model, variables, config, np.asarray(view.left), box[None], 0, quadrics.Camera(K, camera_T_world)
     )
     assert bool(ok[0])
     # independent reference: the network's camera-frame ellipsoid through the public predictor
@@ -184,13 +184,17 @@ def test_volumon_world_ellipsoids_reproject_to_the_camera_frame_prediction(shipp
         )
         box2 = np.asarray(view2.box_left, np.float64)[None]
         out = mapping.volumon_initial_ellipsoids(
-            model, variables, config, np.asarray(view2.left), box2, 0, K, camera_T_world.copy()
+            model, variables, config, np.asarray(view2.left), box2, 0, quadrics.Camera(K, camera_T_world.copy())
         )
         jax.block_until_ready(out)
     assert c.count == 0
     with pytest.raises(ValueError, match="class_id"):
         mapping.volumon_initial_ellipsoids(
-            model, variables, config, np.asarray(view.left), box[None], 9, K, camera_T_world
+            model, variables, config, np.asarray(view.left), box[None], 9, quadrics.Camera(K, camera_T_world)
         )
     with pytest.raises(ValueError, match="camera_T_world"):
-        mapping.volumon_initial_ellipsoids(model, variables, config, np.asarray(view.left), box[None], 0, K, np.eye(3))
+        mapping.volumon_initial_ellipsoids(
+            model, variables, config, np.asarray(view.left), box[None], 0, quadrics.Camera(K, np.eye(3))
+        )
+    with pytest.raises(ValueError, match=r"camera: expected a jaxsem\.quadrics\.Camera"):
+        mapping.volumon_initial_ellipsoids(model, variables, config, np.asarray(view.left), box[None], 0, K)

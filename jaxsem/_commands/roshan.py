@@ -354,12 +354,11 @@ def main(argv=None, prog: str | None = None) -> int:
         slam.draw_overlay(
             ax,
             images[int(t)],
-            sequence.K,
-            result.camera_T_world[t],
+            quadrics.Camera(sequence.K, result.camera_T_world[t]),
             sequence.image_size,
             fr.boxes,
             fr.ids,
-            (result.rotation, result.center, result.radii),
+            result.ellipsoid,
             result.object_ids,
             title=f"frame {t}: detections (green), estimates projected (blue)",
         )

@@ -22,6 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics
+from .._checks import require_type
+from ..quadrics import Camera, Ellipsoid
 
 __all__ = ["volumon_initial_ellipsoids"]
 
@@ -50,7 +52,7 @@ def _to_world(rotation, center, radii, camera_T_world):
     return R_w, c_w, r, valid
 
 
-def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id, K, camera_T_world):
+def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id, camera: Camera):
     """World-frame ellipsoids of a VoluMon model for the boxes of one image.
 
     Args:
@@ -62,12 +64,14 @@ def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id,
       boxes: (N, 4) pixel boxes ``[u_min, v_min, u_max, v_max]`` inside the image.
       class_id: (N,) ints, the network's class rows (the shipped model:
         :data:`jaxsem.volumon.VOLUMON_CLASS_NAMES` order) or one int for all boxes.
-      K: (3, 3) intrinsics of the image (see the module docstring about the focal length).
-      camera_T_world: (4, 4) pose of the camera (world-to-camera, OpenCV axes).
+      camera: the image's :class:`jaxsem.quadrics.Camera`: ``K`` (3, 3) intrinsics (see the module
+        docstring about the focal length) and ``camera_T_world`` (4, 4) (world-to-camera, OpenCV
+        axes).
 
     Returns:
-      ``(rotation (N, 3, 3) object-to-world, center (N, 3) world, radii (N, 3) semi-axes (m),
-      valid (N,) bool)``, in ``camera_T_world`` 's float dtype. Where ``valid`` is False (a
+      ``(ellipsoid, valid)``: a :class:`jaxsem.quadrics.Ellipsoid` of N world ellipsoids
+      (rotation (N, 3, 3) object-to-world, center (N, 3), radii (N, 3) semi-axes in metres) in
+      ``camera_T_world`` 's float dtype, and valid (N,) bool. Where ``valid`` is False (a
       non-finite prediction, a centre behind the camera) the row is identity / origin / ones.
 
     Compiles once per number of boxes (the network and the transform are jitted). Raises
@@ -75,16 +79,17 @@ def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id,
     """
     from .. import volumon
 
+    K, camera_T_world = require_type("camera", camera, Camera)
     boxes_np = np.asarray(boxes, np.float64)
     if boxes_np.ndim != 2 or boxes_np.shape[-1] != 4:
         raise ValueError(f"boxes: expected shape (N, 4), got {boxes_np.shape}")
     n = boxes_np.shape[0]
     K_np = np.asarray(K, np.float64)
     if K_np.shape != (3, 3) or not np.all(np.isfinite(K_np)) or K_np[0, 0] <= 0 or K_np[1, 1] <= 0:
-        raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got shape {K_np.shape}")
+        raise ValueError(f"camera.K: expected finite (3, 3) intrinsics with fx, fy > 0, got shape {K_np.shape}")
     pose = np.asarray(camera_T_world)
     if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-        raise ValueError(f"camera_T_world: expected a finite (4, 4) pose, got shape {pose.shape}")
+        raise ValueError(f"camera.camera_T_world: expected a finite (4, 4) pose, got shape {pose.shape}")
     if not np.issubdtype(pose.dtype, np.floating):
         pose = pose.astype(float)
     cls = np.broadcast_to(np.asarray(class_id), (n,)) if np.ndim(class_id) == 0 else np.asarray(class_id)
@@ -103,4 +108,5 @@ def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id,
         jax.device_put(cls.astype(np.int32)),
     )
     dtype = jnp.result_type(pose.dtype) if jax.config.read("jax_enable_x64") else jnp.float32
-    return _to_world(ell.rotation, ell.center, ell.radii, jax.device_put(pose.astype(dtype)))
+    R, c, r, valid = _to_world(ell.rotation, ell.center, ell.radii, jax.device_put(pose.astype(dtype)))
+    return Ellipsoid(R, c, r), valid

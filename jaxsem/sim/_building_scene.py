@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from .._checks import require_type
+from ..quadrics import Camera
 from ._render import _OUTPUTS, _MujocoScene
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -275,8 +277,7 @@ def detect_from_segmentation(seg, object_class, classes=None, *, min_area: int =
 def ellipsoids_from_depth(
     seg,
     depth,
-    K,
-    camera_T_world,
+    camera: Camera,
     object_class,
     classes=None,
     *,
@@ -292,8 +293,8 @@ def ellipsoids_from_depth(
     one shrinks to its seen part. It is what the object map receives in place of VoluMon or
     ROSHAN when the pipeline is checked from pixels (``tests/test_building_scene.py``).
 
-    seg: (H, W) object indices (-1 none); depth: (H, W) z-depth (0 = none); K (3, 3);
-    camera_T_world (4, 4); object_class: (K,) semantic ids; classes: ids to report (default door
+    seg: (H, W) object indices (-1 none); depth: (H, W) z-depth (0 = none); camera: the view's
+    :class:`jaxsem.quadrics.Camera` (``K`` (3, 3), ``camera_T_world`` (4, 4)); object_class: (K,) semantic ids; classes: ids to report (default door
     and exit sign); min_pixels: fewest pixels with depth; min_extent: smallest box side in metres
     (flat point sets are thickened to it); capacity: pad to this many slots.
     Returns ``(ellipsoids, object_index)``: :class:`jaxsem.mapping.Ellipsoids` and the (D,)
@@ -303,6 +304,7 @@ def ellipsoids_from_depth(
     from ..mapping import box_ellipsoids
     from ..planning import DOOR, EXIT_SIGN
 
+    K, camera_T_world = require_type("camera", camera, Camera)
     seg, depth = np.asarray(seg), np.asarray(depth, np.float64)
     if seg.ndim != 2 or depth.shape != seg.shape:
         raise ValueError(f"seg, depth: expected two (H, W) images of one shape, got {seg.shape} and {depth.shape}")

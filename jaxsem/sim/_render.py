@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from ..quadrics import invert_pose
+from .._checks import require_type
+from ..quadrics import Camera, invert_pose
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -481,8 +482,7 @@ class SceneRenderer(_MujocoScene):
 
 def render_views(
     objects: Sequence[SceneObject],
-    K,
-    camera_T_world,
+    camera: Camera,
     width: int,
     height: int,
     *,
@@ -498,8 +498,9 @@ def render_views(
 
     Args:
       objects: sequence of :class:`SceneObject` (segmentation label = index in this list).
-      K: (3, 3) or (N, 3, 3) intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (no skew).
-      camera_T_world: (N, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
+      camera: the N views as one :class:`jaxsem.quadrics.Camera`: ``K`` (3, 3) or (N, 3, 3)
+        intrinsics ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (no skew) and ``camera_T_world``
+        (N, 4, 4) or (4, 4) world-to-camera transforms, OpenCV axes.
       width, height: image size in pixels.
       background_seed, light_seed, textured, floor_z, antialias, tessellation: see
         :class:`SceneRenderer`.
@@ -509,6 +510,7 @@ def render_views(
       dict of numpy arrays: ``rgb`` (N, H, W, 3) uint8, ``depth`` (N, H, W) float32 metres
       (z-depth, 0 where nothing), ``seg`` (N, H, W) int32 object index or -1.
     """
+    K, camera_T_world = require_type("camera", camera, Camera)
     poses = np.asarray(camera_T_world, dtype=np.float64)
     if poses.ndim == 2:
         poses = poses[None]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import require_type
-from ..quadrics import Ellipsoid
+from ..quadrics import Camera, Ellipsoid
 
 # --------------------------------------------------------------------------------------------
 # Figures (matplotlib is imported by the caller; these only draw on the axes given).
@@ -103,8 +103,7 @@ def draw_camera_path(
 def draw_overlay(
     ax,
     image,
-    K,
-    camera_T_world,
+    camera: Camera,
     image_size,
     boxes=None,
     ids=None,
@@ -119,11 +118,12 @@ def draw_overlay(
     Args:
       ax: matplotlib axes.
       image: (H, W, 3) or (H, W) array, or None for a blank grey canvas of ``image_size``.
-      K: (3, 3); camera_T_world: (4, 4) the pose to project with (the estimated one).
+      camera: the :class:`jaxsem.quadrics.Camera` to project with (``K`` (3, 3) and the estimated
+        ``camera_T_world`` (4, 4)).
       image_size: (width, height) pixels.
       boxes: optional (N, 4) measured boxes, drawn green; ids: their (N,) labels.
-      estimate: optional ``(rotation (J, 3, 3), center (J, 3), radii (J, 3))`` ellipsoids to
-        project: outline of the dual conic in blue, its box dashed.
+      estimate: optional :class:`jaxsem.quadrics.Ellipsoid` of J world ellipsoids to project
+        (e.g. ``result.ellipsoid``): outline of the dual conic in blue, its box dashed.
       object_ids: optional (J,) labels of the ellipsoids; only those in ``ids`` are drawn when
         both are given (the objects detected in this frame).
       color: matplotlib colour of the projected ellipsoids (to draw two sets over one image, e.g.
@@ -131,6 +131,7 @@ def draw_overlay(
     """
     from .. import quadrics as Q
 
+    K, camera_T_world = require_type("camera", camera, Camera)
     W, H = int(image_size[0]), int(image_size[1])
     if image is None:
         ax.imshow(np.full((H, W, 3), 0.92), extent=(0, W, H, 0))
@@ -149,7 +150,7 @@ def draw_overlay(
             if ids is not None:
                 ax.text(b[0], b[1] - 3, str(ids[i]), color="tab:green", fontsize=7)
     if estimate is not None:
-        rotation, center, radii = (np.asarray(x, np.float64) for x in estimate)
+        rotation, center, radii = (np.asarray(x, np.float64) for x in require_type("estimate", estimate, Ellipsoid))
         keep = np.ones(len(center), bool)
         if ids is not None and object_ids is not None:
             wanted = {str(i) for i in ids}
