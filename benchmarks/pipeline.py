@@ -250,9 +250,9 @@ class ObjectMapSampler:
             )
             self.state = mapping.update(self.state, frame, gate=0.5)
         try:
-            grid = mapping.semantic_grid(self.state, b.shape, b.origin, b.resolution)
+            grid = mapping.semantic_grid(self.state, b.grid)
         except ValueError:  # an estimate too large for the tiles (a diverged one): draw it whole
-            grid = mapping.semantic_grid(self.state, b.shape, b.origin, b.resolution, window=None)
+            grid = mapping.semantic_grid(self.state, b.grid, window=None)
         self.calls += 1
         return mapping.object_map_sampler(self.lsd, grid)(inputs)
 

@@ -129,6 +129,7 @@ from ._geometry.shapes import (
 from ._geometry.types import (
     Camera as Camera,
     Ellipsoid as Ellipsoid,
+    EllipsoidView as EllipsoidView,
 )
 
 # Old names (scalar-first convention), kept so that existing code keeps working; not in __all__:
@@ -138,6 +139,7 @@ __all__ = [
     "Ellipsoid",
     "Camera",
     "Grid",
+    "EllipsoidView",
     "dual_quadric",
     "primal_quadric",
     "project_dual_conic",

@@ -163,7 +163,7 @@ def test_pixels_to_object_map_to_semantic_grid(building, scene):
     np.testing.assert_allclose(np.asarray(state.center[j]), centre, atol=0.05)
     half = 0.5 * (objects.box_max[k] - objects.box_min[k])
     np.testing.assert_allclose(np.asarray(state.radii[j]), half, atol=0.05)
-    grid = np.asarray(mapping.semantic_grid(state, building.shape, building.origin, building.resolution))
+    grid = np.asarray(mapping.semantic_grid(state, building.grid))
     r0, c0, r1, c1 = objects.cells[k]
     truth = np.zeros(building.shape, bool)
     truth[r0:r1, c0:c1] = True

@@ -39,7 +39,7 @@ def test_footprint_matches_dense_surface_samples(seed):
         dets = mapping.ellipsoids(
             quadrics.Ellipsoid(rot[j : j + 1], center[j : j + 1], radii[j : j + 1]), [planning.DOOR]
         )
-        grid = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=None))
+        grid = np.asarray(mapping.semantic_grid(dets, quadrics.Grid.create(origin, res, shape), window=None))
         rows, cols = np.nonzero(grid == planning.DOOR)
         xs, ys = origin[0] + (cols + 0.5) * res, origin[1] + (rows + 0.5) * res
         xy = pts[j, :, :2]
@@ -50,7 +50,7 @@ def test_footprint_matches_dense_surface_samples(seed):
         hull_area = ConvexHull(xy).volume
         np.testing.assert_allclose(len(rows) * res * res, hull_area, rtol=0.05)
         # The tiled drawing is the same grid.
-        tiled = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=64))
+        tiled = np.asarray(mapping.semantic_grid(dets, quadrics.Grid.create(origin, res, shape), window=64))
         np.testing.assert_array_equal(tiled, grid)
 
 
@@ -59,8 +59,8 @@ def test_tiled_equals_full_grid_for_many_objects_and_edges():
     cls = np.random.default_rng(5).choice(list(planning.OBJECT_CLASSES), 20)
     dets = mapping.ellipsoids(quadrics.Ellipsoid(rot, center, radii), cls, valid=np.arange(20) % 7 != 3)
     origin, res, shape = np.array([-4.0, -3.0]), 0.1, (70, 90)
-    full = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=None))
-    tiled = np.asarray(mapping.semantic_grid(dets, shape, origin, res, window=32))
+    full = np.asarray(mapping.semantic_grid(dets, quadrics.Grid.create(origin, res, shape), window=None))
+    tiled = np.asarray(mapping.semantic_grid(dets, quadrics.Grid.create(origin, res, shape), window=32))
     np.testing.assert_array_equal(tiled, full)
     assert tiled.dtype == np.int8 and set(np.unique(tiled)) <= {0, 2, 3, 4}
 
@@ -68,7 +68,7 @@ def test_tiled_equals_full_grid_for_many_objects_and_edges():
 def test_window_too_small_names_window():
     dets = mapping.ellipsoids(quadrics.Ellipsoid(None, [[0.0, 0.0, 1.0]], [[3.0, 0.5, 1.0]]), [planning.DOOR])
     with pytest.raises(ValueError, match="window"):
-        mapping.semantic_grid(dets, (100, 100), (-5.0, -5.0), 0.1, window=16)
+        mapping.semantic_grid(dets, quadrics.Grid.create((-5.0, -5.0), 0.1, (100, 100)), window=16)
 
 
 # --------------------------------------------------------------------------------------------
@@ -86,7 +86,7 @@ def test_ground_truth_map_reproduces_generator_semantics(family, seed):
     }
     state = mapping.ground_truth_map(b, capacity=len(objs) + 8)
     assert int(state.valid.sum()) == len(objs) and int(state.dropped) == 0
-    grid = np.asarray(mapping.semantic_grid(state, b.shape, b.origin, b.resolution))
+    grid = np.asarray(mapping.semantic_grid(state, b.grid))
     truth = np.where(np.isin(b.semantic, planning.OBJECT_CLASSES), b.semantic, planning.NONE)
     assert grid.shape == truth.shape
     for cls in planning.OBJECT_CLASSES:
@@ -189,8 +189,9 @@ def test_jit_vmap_grad():
 
     g = jax.grad(loss)(centers[0])
     assert np.all(np.isfinite(g))
-    grid = jax.jit(lambda s: mapping.semantic_grid(s, (40, 40), jnp.zeros(2), 0.1))(
-        mapping.update(mapping.init(2), _frame_jax(jnp.array([[2.0, 2, 1], [1, 1, 1]]), D))
+    grid = jax.jit(lambda s, g: mapping.semantic_grid(s, g))(
+        mapping.update(mapping.init(2), _frame_jax(jnp.array([[2.0, 2, 1], [1, 1, 1]]), D)),
+        quadrics.Grid.create(jnp.zeros(2), 0.1, (40, 40)),  # a traced origin and resolution
     )
     assert grid.dtype == jnp.int8 and int((grid == D).sum()) > 0
 
@@ -220,6 +221,8 @@ def test_bad_arguments_name_themselves():
         mapping.init(0)
     with pytest.raises(ValueError, match="radii"):
         mapping.ellipsoids(quadrics.Ellipsoid(None, np.zeros((2, 3)), np.ones((3, 3))), [2, 2])
+    with pytest.raises(ValueError, match=r"grid: expected a jaxsem\.quadrics\.Grid"):
+        mapping.semantic_grid(mapping.init(2), (40, 40))  # a bare shape where the grid belongs
     with pytest.raises(ValueError, match=r"ellipsoid: expected a jaxsem\.quadrics\.Ellipsoid"):
         mapping.ellipsoids(np.zeros((2, 3)), [2, 2])  # loose arrays where the typed one belongs
     with pytest.raises(ValueError, match="class_id"):
@@ -237,8 +240,8 @@ def test_bad_arguments_name_themselves():
 def test_object_map_sampler_sees_the_object_map_crop():
     b = planning.generate_building(1, "train")
     state = mapping.ground_truth_map(b, capacity=128)
-    sem = mapping.semantic_grid(state, b.shape, b.origin, b.resolution)
-    ms = mapping.with_object_map(planning.empty_map_state(b.shape), state, b.origin, b.resolution)
+    sem = mapping.semantic_grid(state, b.grid)
+    ms = mapping.with_object_map(planning.empty_map_state(b.shape), state, b.grid)
     np.testing.assert_array_equal(ms.semantic, sem)
     xy = b.entrance
     reference = planning.local_inputs(ms, xy, xy, False, b.origin, b.resolution)

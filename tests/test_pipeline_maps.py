@@ -72,7 +72,7 @@ def test_roshan_map_from_rendered_boxes_lands_on_the_door(building, scene):
     assert np.asarray(ell.valid).tolist() == [j == k for j in range(len(objects))]
     assert int(ell.class_id[k]) == planning.DOOR
     np.testing.assert_allclose(np.asarray(ell.center[k]), centre, atol=0.3)
-    grid = np.asarray(mapping.semantic_grid(ell, building.shape, building.origin, building.resolution))
+    grid = np.asarray(mapping.semantic_grid(ell, building.grid))
     rows, cols = np.nonzero(grid == planning.DOOR)
     r0, c0, r1, c1 = objects.cells[k]
     assert rows.size > 0

@@ -196,3 +196,30 @@ class Camera(NamedTuple):
         T = jnp.asarray(self.camera_T_world)
         right_T_left = stereo_right_T_left(baseline, dtype=T.dtype)
         return Camera(self.K, right_T_left @ T)
+
+
+class EllipsoidView:
+    """A read-only attribute that bundles a container's three ellipsoid fields into an
+    :class:`Ellipsoid` (``estimate.ellipsoid``), so every method's results give the typed view
+    without writing the property again::
+
+        class SlamEstimate(eqx.Module):
+            rotation: jax.Array
+            center: jax.Array
+            radii: jax.Array
+            ellipsoid = EllipsoidView()
+    """
+
+    def __init__(self, rotation: str = "rotation", center: str = "center", radii: str = "radii"):
+        self.fields = (rotation, center, radii)
+
+    def __set_name__(self, owner, name):
+        self.__doc__ = (
+            f"``{name}``: the fields {', '.join(self.fields)} as one :class:`jaxsem.quadrics.Ellipsoid`"
+            " (batch axes leading)."
+        )
+
+    def __get__(self, obj, owner=None) -> Any:
+        if obj is None:
+            return self
+        return Ellipsoid(*(getattr(obj, f) for f in self.fields))

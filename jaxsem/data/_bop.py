@@ -27,7 +27,7 @@ import pathlib
 
 import numpy as np
 
-from ..quadrics import Ellipsoid
+from ..quadrics import EllipsoidView
 
 #: Linemod's object names (LM and LM-O share the ids).
 LINEMOD_NAMES = {
@@ -87,10 +87,7 @@ class BopObject:
     visible_box: np.ndarray
     visible_fraction: float
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The object's bounding ellipsoid in the camera frame as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
+    ellipsoid = EllipsoidView()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -43,7 +43,7 @@ import math
 
 import numpy as np
 
-from ..quadrics import Ellipsoid
+from ..quadrics import EllipsoidView
 from ._bop import BopFrame, BopScene
 
 __all__ = [
@@ -81,10 +81,7 @@ class Spell:
     center: np.ndarray
     radii: np.ndarray
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The ground-truth ellipsoid in the world as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
+    ellipsoid = EllipsoidView()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -98,7 +98,7 @@ def run_door_plan(out_dir, building, task, lsd_sampler, quick: bool, door_model=
         valid=jax.numpy.asarray([True]),
     )
     store = mapping.update(mapping.init(4), dets)
-    grid = mapping.semantic_grid(store, building.shape, building.origin, building.resolution, window=None)
+    grid = mapping.semantic_grid(store, building.grid, window=None)
     goal = _goal_behind(building, lo, hi, start)
     if goal is None:
         return ["door step skipped: no free cell behind the door"], {"skipped": "no goal behind the door"}

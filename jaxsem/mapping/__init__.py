@@ -22,7 +22,7 @@ Example::
     state = mapping.init(64)
     dets = mapping.ellipsoids(quadrics.Ellipsoid(rotation, center, radii), class_id=[planning.DOOR] * len(center))
     state = mapping.update(state, dets, gate=1.0)
-    grid = mapping.semantic_grid(state, building.shape, building.origin, building.resolution)
+    grid = mapping.semantic_grid(state, building.grid)
 """
 
 from ._building import (

@@ -7,19 +7,24 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
+from .._checks import require_type
+from ..quadrics import Grid
 from ._store import semantic_grid
 
 __all__ = ["object_map_sampler", "with_object_map"]
 
 
-def with_object_map(state, objects, origin, resolution):
+def with_object_map(state, objects, grid: Grid):
     """A :class:`jaxsem.planning.MapState` whose semantic channel is the object map's raster.
 
     state: the robot's partial maps (its occupancy is kept); objects: :class:`ObjectMap` or
-    :class:`Ellipsoids`; origin, resolution: those of the occupancy grid.
+    :class:`Ellipsoids`; grid: the occupancy grid's :class:`jaxsem.quadrics.Grid` (e.g.
+    ``building.grid``), of the state's shape.
     """
     shape = tuple(state.occupancy.shape[-2:])
-    return state._replace(semantic=semantic_grid(objects, shape, origin, resolution))
+    if tuple(require_type("grid", grid, Grid).shape) != shape:
+        raise ValueError(f"grid: expected the state's shape {shape}, got {grid.shape}")
+    return state._replace(semantic=semantic_grid(objects, grid))
 
 
 def object_map_sampler(sampler: Callable, semantic) -> Callable:

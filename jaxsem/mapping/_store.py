@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import quadrics
 from .._checks import as_float_array, is_concrete, require_type
-from ..quadrics import Ellipsoid
+from ..quadrics import Ellipsoid, EllipsoidView, Grid
 
 __all__ = [
     "FUSIONS",
@@ -65,13 +65,9 @@ class Ellipsoids(eqx.Module):
     center: jax.Array
     radii: jax.Array
     class_id: jax.Array
-
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The M ellipsoids (rows where ``valid`` is False included) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
-
     valid: jax.Array
+
+    ellipsoid = EllipsoidView()
 
 
 class ObjectMap(eqx.Module):
@@ -88,15 +84,11 @@ class ObjectMap(eqx.Module):
     center: jax.Array
     radii: jax.Array
     class_id: jax.Array
-
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The N slots' ellipsoids (empty slots included; see ``valid``) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
-
     valid: jax.Array
     observations: jax.Array
     dropped: jax.Array
+
+    ellipsoid = EllipsoidView()
 
     @property
     def capacity(self) -> int:
@@ -324,13 +316,13 @@ def _update_jit(state, det, gate, class_aware, fusion):
     return _update(state, det, gate, class_aware, fusion)
 
 
-def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 64) -> jax.Array:
+def semantic_grid(objects, grid: Grid, window: int | None = 64) -> jax.Array:
     """Rasterises the objects' ground footprints into an (H, W) int8 semantic grid.
 
     objects: an :class:`ObjectMap` or :class:`Ellipsoids` whose ``class_id`` are the planning
-    world's semantic ids; grid_shape: static (H, W); origin: (2,) world (x, y) of the corner of
-    cell [0, 0]; resolution: metres per cell (the occupancy grid's, so the two align cell for
-    cell). A cell takes the class of a footprint (orthographic projection along z,
+    world's semantic ids; grid: the :class:`jaxsem.quadrics.Grid` to draw on (origin, resolution,
+    static shape: the occupancy grid's, e.g. ``building.grid``, so the two align cell for cell;
+    origin and resolution may be traced). A cell takes the class of a footprint (orthographic projection along z,
     :func:`jaxsem.quadrics.rasterize_footprint`) that contains its centre; overlaps take the
     largest id (exit sign over window over door); everything else is ``NONE`` (0). This is the
     ``semantic`` leaf of :class:`jaxsem.planning.MapState` that LSD reads.
@@ -347,11 +339,9 @@ def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 
         objects = objects.objects()
     if not isinstance(objects, Ellipsoids):
         raise ValueError(f"objects: expected an ObjectMap or Ellipsoids, got {type(objects).__name__}")
-    grid_shape = tuple(int(g) for g in grid_shape)
-    if len(grid_shape) != 2 or min(grid_shape) < 1:
-        raise ValueError(f"grid_shape: expected (H, W) of positive ints, got {grid_shape}")
+    grid_shape, origin, resolution = require_type("grid", grid, Grid).shape, grid.origin, grid.resolution
     if window is None:
-        grid = quadrics.rasterize_footprint(
+        raster = quadrics.rasterize_footprint(
             objects.rotation,
             objects.center,
             objects.radii,
@@ -361,13 +351,13 @@ def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 
             resolution,
             mask=objects.valid,
         )
-        return grid.astype(jnp.int8)
+        return raster.astype(jnp.int8)
     if not isinstance(window, (int, np.integer)) or window < 2:
         raise ValueError(f"window: expected None or an int >= 2 (cells), got {window!r}")
     origin = as_float_array("origin", origin, (2,))
     if origin.ndim != 1:
         raise ValueError(f"origin: expected shape (2,), got {tuple(origin.shape)}")
-    if is_concrete(objects.center) and is_concrete(objects.radii):
+    if is_concrete(objects.center) and is_concrete(objects.radii) and is_concrete(resolution):
         bounds = np.asarray(quadrics.ground_bounds(objects.rotation, objects.center, objects.radii))
         half = 0.5 * (bounds[..., 2:] - bounds[..., :2]) / float(resolution)
         too_big = np.asarray(objects.valid) & np.any(half + 1.0 > window // 2, axis=-1)
@@ -377,10 +367,10 @@ def semantic_grid(objects, grid_shape, origin, resolution, window: int | None = 
                 f"{2 * float(half[too_big].max()) * float(resolution):.2f} m do not fit a tile of "
                 f"{window} cells at {float(resolution)} m/cell; pass a larger window or None"
             )
-    return _tiled(objects, grid_shape, origin, float(resolution), int(window))
+    return _tiled(objects, grid_shape, origin, resolution, int(window))
 
 
-@functools.partial(jax.jit, static_argnames=("grid_shape", "resolution", "window"))
+@functools.partial(jax.jit, static_argnames=("grid_shape", "window"))
 def _tiled(objects: Ellipsoids, grid_shape, origin, resolution, window):
     H, W = grid_shape
     rot = objects.rotation.reshape(-1, 3, 3)
@@ -389,6 +379,7 @@ def _tiled(objects: Ellipsoids, grid_shape, origin, resolution, window):
     cls = objects.class_id.reshape(-1)
     valid = objects.valid.reshape(-1)
     origin = origin.astype(ctr.dtype)
+    resolution = jnp.asarray(resolution).astype(ctr.dtype)
     # Tile corner: the centre cell minus half a tile (cells), so the centre sits mid-tile.
     cell = quadrics.world_to_cell(jax.lax.stop_gradient(ctr[:, :2]), origin, resolution)[:, ::-1]  # (col, row)
     corner = cell - window // 2  # (N, 2) as (col, row)

@@ -131,6 +131,11 @@ class Building:
     def shape(self) -> tuple:
         return tuple(self.occupancy.shape)
 
+    @property
+    def grid(self) -> Q.Grid:
+        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
+        return Q.Grid.create(self.origin, self.resolution, self.shape)
+
     def cell_center(self, rc) -> np.ndarray:
         """World (x, y) (..., 2) of the centre of cell (row, col) (..., 2) (numpy, host side;
         :func:`~jaxsem.planning.cell_to_world` is the jitted form)."""

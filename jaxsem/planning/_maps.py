@@ -39,6 +39,7 @@ import struct
 import numpy as np
 import scipy.ndimage
 
+from .. import quadrics as Q
 from ._buildings import Building
 from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN
 from ._semantics import (
@@ -75,6 +76,11 @@ class OccupancyGrid:
     @property
     def shape(self) -> tuple:
         return tuple(self.occupancy.shape)
+
+    @property
+    def grid(self) -> Q.Grid:
+        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
+        return Q.Grid.create(self.origin, self.resolution, self.shape)
 
     @property
     def extent_m(self) -> tuple:

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
-from ..quadrics import Camera, Ellipsoid
+from ..quadrics import Camera, EllipsoidView
 
 PATHS = ("orbit", "forward", "views")
 INIT_MODES = ("single_view", "noisy_truth")
@@ -284,10 +284,7 @@ class SimulatedMap(eqx.Module):
     first_frame: jax.Array
     observed: jax.Array
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The N true objects (masked by ``object_mask``) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.object_rotation, self.object_center, self.object_radii)
+    ellipsoid = EllipsoidView("object_rotation", "object_center", "object_radii")
 
     @property
     def cameras(self) -> Camera:

@@ -11,7 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..quadrics import Ellipsoid
+from ..quadrics import EllipsoidView
 
 # Reasons attached to each detection's texture measurement (``AssociatedDetection.texture_status``).
 TEXTURE_OK = "ok"
@@ -223,10 +223,7 @@ class LandmarkEstimates(NamedTuple):
     center: Any
     radii: Any
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The L ellipsoids (padding rows included) as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
+    ellipsoid = EllipsoidView()
 
     @classmethod
     def from_mapping(cls, estimates: Mapping[int, Sequence[Any]]) -> LandmarkEstimates:

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
-from ..quadrics import Camera, Ellipsoid
+from ..quadrics import Camera, EllipsoidView
 
 __all__ = [
     "Capacity",
@@ -143,10 +143,7 @@ class SlamEstimate(eqx.Module):
     center: jnp.ndarray
     radii: jnp.ndarray
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The J ellipsoids as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
+    ellipsoid = EllipsoidView()
 
     def cameras(self, K) -> Camera:
         """The T cameras with intrinsics ``K`` ((3, 3) shared, or (T, 3, 3)) as one

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..quadrics import Ellipsoid
+from ..quadrics import EllipsoidView
 from ._sequence_types import Sequence
 
 # --------------------------------------------------------------------------------------------
@@ -39,10 +39,7 @@ class SequenceResult:
     frame_seconds: np.ndarray
     state: Any = None
 
-    @property
-    def ellipsoid(self) -> Ellipsoid:
-        """The J estimated ellipsoids as one :class:`jaxsem.quadrics.Ellipsoid` (batch axes leading)."""
-        return Ellipsoid(self.rotation, self.center, self.radii)
+    ellipsoid = EllipsoidView()
 
 
 def _bucket(n: int, step: int) -> int:
