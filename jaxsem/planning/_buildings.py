@@ -95,8 +95,27 @@ HOUSE_PARAMS = HouseParams()
 FAMILIES = {"train": TRAIN_PARAMS, "test": TEST_PARAMS, "house": HOUSE_PARAMS}
 
 
+class GridMap:
+    """What every map of the planner shares: an ``occupancy`` (H, W) array on a grid of
+    ``origin`` (2,) and ``resolution`` (the fields of its dataclass), seen as ``shape`` and as the
+    core's :class:`jaxsem.quadrics.Grid`."""
+
+    occupancy: np.ndarray
+    origin: np.ndarray
+    resolution: float
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.occupancy.shape)
+
+    @property
+    def grid(self) -> Q.Grid:
+        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
+        return Q.Grid.create(self.origin, self.resolution, self.shape)
+
+
 @dataclasses.dataclass(frozen=True)
-class Building:
+class Building(GridMap):
     """A generated building on a grid (numpy arrays; ``[row, col] = [y, x]``).
 
     occupancy: (H, W) bool, True where a robot cannot be (walls, windows, exit-sign walls, fence).
@@ -126,15 +145,6 @@ class Building:
     family: str = "scanned"
     seed: int = -1
     known: np.ndarray | None = None
-
-    @property
-    def shape(self) -> tuple:
-        return tuple(self.occupancy.shape)
-
-    @property
-    def grid(self) -> Q.Grid:
-        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
-        return Q.Grid.create(self.origin, self.resolution, self.shape)
 
     def cell_center(self, rc) -> np.ndarray:
         """World (x, y) (..., 2) of the centre of cell (row, col) (..., 2) (numpy, host side;

@@ -39,8 +39,7 @@ import struct
 import numpy as np
 import scipy.ndimage
 
-from .. import quadrics as Q
-from ._buildings import Building
+from ._buildings import Building, GridMap
 from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN
 from ._semantics import (
     apply_annotations,
@@ -60,7 +59,7 @@ _IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp", ".tif", ".ti
 
 
 @dataclasses.dataclass(frozen=True)
-class OccupancyGrid:
+class OccupancyGrid(GridMap):
     """A three-state occupancy grid as read from a map file (numpy, ``[row, col] = [y, x]``).
 
     occupancy: (H, W) int8 in {UNKNOWN, FREE, OCCUPIED} = {-1, 0, 1}; row 0 at the lowest y.
@@ -72,15 +71,6 @@ class OccupancyGrid:
     origin: np.ndarray
     resolution: float
     source: str = ""
-
-    @property
-    def shape(self) -> tuple:
-        return tuple(self.occupancy.shape)
-
-    @property
-    def grid(self) -> Q.Grid:
-        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
-        return Q.Grid.create(self.origin, self.resolution, self.shape)
 
     @property
     def extent_m(self) -> tuple:
