@@ -135,23 +135,6 @@ def test_roshan_recovers_depth_and_shape_from_one_view_where_baseline_cannot():
 
 
 @pytest.mark.slow
-def test_vmap_over_maps_equals_a_loop_of_solves():
-    # Two maps of different real sizes padded to one capacity; the loop reuses SOLVE_ROSHAN.
-    maps = [slam.toy_map(s, num_objects=1, num_frames=7 + 3 * s, path="orbit", capacity=CAP) for s in range(2)]
-    problems = slam.stack_problems([m[0] for m in maps])
-    inits = jax.vmap(lambda p: slam.initialize(p, CFG_ROSHAN))(problems)
-    est_v, info_v = jax.jit(jax.vmap(lambda p, i: slam.solve_batch(p, i, CFG_ROSHAN, method="schur")))(problems, inits)
-    for i, (p, _) in enumerate(maps):
-        est, info = SOLVE_ROSHAN(p, slam.initialize(p, CFG_ROSHAN))
-        np.testing.assert_allclose(est_v.center[i], est.center, rtol=1e-6, atol=1e-8)
-        np.testing.assert_allclose(est_v.radii[i], est.radii, rtol=1e-6, atol=1e-8)
-        np.testing.assert_allclose(est_v.camera_T_world[i], est.camera_T_world, rtol=1e-6, atol=1e-8)
-        np.testing.assert_allclose(info_v.cost[i], info.cost, rtol=1e-6)
-        assert int(info.steps) > 0 and slam.result_code(info.result).shape == ()
-        assert float(info.cost) < float(info.initial_cost)
-
-
-@pytest.mark.slow
 def test_online_matches_batch_and_never_recompiles(compiles):
     problem, truth = slam.toy_map(1, num_objects=3, num_frames=12, path="forward")
     cfg = slam.SolverConfig(max_steps=100)
