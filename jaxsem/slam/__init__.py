@@ -72,15 +72,9 @@ from ._online import (
 )
 from ._problem import (
     Capacity as Capacity,
-    CostModel as CostModel,
     Frame as Frame,
-    InitConfig as InitConfig,
-    NoiseModel as NoiseModel,
     SlamEstimate as SlamEstimate,
     SlamProblem as SlamProblem,
-    SolverConfig as SolverConfig,
-    StoppingRule as StoppingRule,
-    baseline_config as baseline_config,
     bucket_capacity as bucket_capacity,
     compact_boxes as compact_boxes,
     make_frame as make_frame,
@@ -115,5 +109,13 @@ from ._sequence_texture import (  # front end over a sequence
 )
 from ._sequence_types import Sequence as Sequence, SequenceFrame as SequenceFrame
 from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every device
+from ._solver_config import (
+    CostModel as CostModel,
+    InitConfig as InitConfig,
+    NoiseModel as NoiseModel,
+    SolverConfig as SolverConfig,
+    StoppingRule as StoppingRule,
+    baseline_config as baseline_config,
+)
 from ._toy import frames_from_problem as frames_from_problem, toy_map as toy_map
 from ._tum import TUM_INTRINSICS as TUM_INTRINSICS, load_tum_sequence as load_tum_sequence

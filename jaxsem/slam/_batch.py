@@ -45,7 +45,7 @@ from ._cost import (
     total_cost,
 )
 from ._init import initialize
-from ._problem import SlamEstimate, SlamProblem, SolverConfig
+from ._problem import SlamEstimate, SlamProblem
 from ._results import RESULTS
 from ._schur import (
     SchurLevenbergMarquardt,
@@ -54,6 +54,7 @@ from ._schur import (
     damped_schur_step as damped_schur_step,
     damping_search as damping_search,
 )
+from ._solver_config import SolverConfig
 
 
 class SolveInfo(eqx.Module):

@@ -26,7 +26,8 @@ import jax.numpy as jnp
 import jaxlie
 
 from .. import factors as F, quadrics as Q
-from ._problem import SlamEstimate, SlamProblem, SolverConfig
+from ._problem import SlamEstimate, SlamProblem
+from ._solver_config import SolverConfig
 
 BOX_ROWS = F.BOX_RESIDUAL_DIM + 1  # + texture plane
 

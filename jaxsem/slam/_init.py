@@ -6,7 +6,8 @@ import jax.numpy as jnp
 
 from .. import factors as F
 from ._cost import class_table
-from ._problem import SlamEstimate, SlamProblem, SolverConfig
+from ._problem import SlamEstimate, SlamProblem
+from ._solver_config import SolverConfig
 
 
 def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:

@@ -16,7 +16,8 @@ import jax.numpy as jnp
 
 from ._batch import solve_schur
 from ._cost import residual_blocks
-from ._problem import SlamEstimate, SlamProblem, SolverConfig
+from ._problem import SlamEstimate, SlamProblem
+from ._solver_config import SolverConfig
 
 __all__ = ["object_costs", "solve_yaw_starts"]
 

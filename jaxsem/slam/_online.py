@@ -30,9 +30,10 @@ import jax.numpy as jnp
 from .. import classes as _classes, factors as F
 from ._batch import levenberg_marquardt
 from ._cost import class_table
-from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, SolverConfig
+from ._problem import Capacity, Frame, SlamEstimate, SlamProblem
 from ._results import RESULTS
 from ._schur import _all_finite
+from ._solver_config import SolverConfig
 
 
 class OnlineState(eqx.Module):

@@ -107,7 +107,8 @@ def run_sequence(
 
     from ._aot import exported
     from ._online import _online_step, empty_frame, online_init, online_step
-    from ._problem import SolverConfig, make_frame
+    from ._problem import make_frame
+    from ._solver_config import SolverConfig
 
     if not isinstance(sequence, Sequence):
         raise ValueError(f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}")

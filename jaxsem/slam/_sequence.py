@@ -88,7 +88,7 @@ __all__ = [
 def noise_model(sequence: Sequence, base=None):
     """The :class:`jaxsem.slam.NoiseModel` of ``base`` (default ``NoiseModel()``) with the
     sequence's ``"noise"`` fields applied (degrees converted to radians)."""
-    from ._problem import NoiseModel
+    from ._solver_config import NoiseModel
 
     base = NoiseModel() if base is None else base
     values = {name: getattr(base, name) for name in base.__dataclass_fields__}

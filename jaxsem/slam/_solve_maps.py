@@ -12,7 +12,8 @@ from jax.sharding import Mesh
 
 from .. import parallel
 from ._batch import SolveInfo, solve_batch
-from ._problem import SlamEstimate, SlamProblem, SolverConfig
+from ._problem import SlamEstimate, SlamProblem
+from ._solver_config import SolverConfig
 
 
 @functools.lru_cache(maxsize=32)
