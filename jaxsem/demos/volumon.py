@@ -31,14 +31,32 @@ def run(out_dir: pathlib.Path, quick: bool, train: bool = False) -> str:
     return _run_training(pathlib.Path(out_dir), quick)
 
 
+def _save_predictions(path: pathlib.Path, b: dict, ell, title: str) -> None:
+    """The first 8 held-out images of batch ``b`` with the predicted ellipsoids ``ell`` (camera
+    frame) and the true cuboids drawn over them, saved as one figure."""
+    import matplotlib.pyplot as plt
+
+    from jaxsem.quadrics import Ellipsoid
+    from jaxsem.volumon import draw_predictions
+
+    K = np.asarray(b["K"][0])
+    fig, axes = plt.subplots(2, 4, figsize=(12, 5))
+    for i, ax in enumerate(axes.ravel()):
+        e = Ellipsoid(*(np.asarray(x[i]) for x in ell))
+        truth = [Ellipsoid(*(np.asarray(b[k][i]) for k in ("gt_rotation", "gt_center", "gt_half_extents")))]
+        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
+    fig.suptitle(title)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=100)
+    plt.close(fig)
+
+
 def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     from jaxsem.volumon import (
-        draw_predictions,
         evaluate_held_out,
         held_out_set,
         load_pretrained,
@@ -51,18 +69,12 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
     res = evaluate_held_out(model, variables, cfg, seed=1, num=num, postopt_steps=0 if quick else 50)
     b = held_out_set(1, 8, cfg.scene, cfg.model.input_size, cfg.model.global_padding, keep_images=True, batch_size=8)
     _, ell, _ = make_predict_fn(model, cfg)(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
-    K = np.asarray(b["K"][0])
-    fig, axes = plt.subplots(2, 4, figsize=(12, 5))
-    for i, ax in enumerate(axes.ravel()):
-        e = [np.asarray(x[i]) for x in ell]
-        truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
-        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
-    fig.suptitle(
-        f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)"
+    _save_predictions(
+        out_dir / "volumon_predictions.png",
+        b,
+        ell,
+        f"VoluMon shipped model (step {meta.get('step')}) on held-out images (blue / orange: prediction; dashed: truth)",
     )
-    fig.tight_layout()
-    atomic_savefig(fig, out_dir / "volumon_predictions.png", dpi=100)
-    plt.close(fig)
     atomic_write_text(
         out_dir / "volumon.json", json.dumps({"model": meta.get("name"), "step": meta.get("step"), **res}, indent=1)
     )
@@ -90,7 +102,6 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
     import matplotlib.pyplot as plt
 
     from jaxsem.volumon import (
-        draw_predictions,
         evaluate_predictions,
         get_config,
         make_batch,
@@ -139,16 +150,12 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
             shape=b.get("class_shape"),
         )
         rows["network + PostOpt(50)"] = evaluate_predictions(ell_po._asdict(), b)
-    K = np.asarray(b["K"][0])
-    fig, axes = plt.subplots(2, 4, figsize=(12, 5))
-    for i, ax in enumerate(axes.ravel()):
-        e = [np.asarray(x[i]) for x in ell]
-        truth = [(np.asarray(b["gt_rotation"][i]), np.asarray(b["gt_center"][i]), np.asarray(b["gt_half_extents"][i]))]
-        draw_predictions(ax, np.asarray(b["image"][i]), [e], K, np.asarray(b["box_input"][i : i + 1]), truth)
-    fig.suptitle(f"VoluMon {cfg.variant} on held-out images (blue conic / orange box: prediction; dashed: truth)")
-    fig.tight_layout()
-    atomic_savefig(fig, out_dir / "volumon_predictions.png", dpi=100)
-    plt.close(fig)
+    _save_predictions(
+        out_dir / "volumon_predictions.png",
+        b,
+        ell,
+        f"VoluMon {cfg.variant} on held-out images (blue conic / orange box: prediction; dashed: truth)",
+    )
     hist = res["history"]
     if hist:
         fig, ax = plt.subplots(figsize=(5, 3.5))
