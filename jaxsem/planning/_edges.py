@@ -24,15 +24,17 @@ def _cells(points, origin, resolution, shape):
     return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
 
 
-def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None, table=None):
+def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None, table=None, chunk=8192):
     """Clear flag and weight of segments a -> b (..., 2) on the grid (see the module docstring).
 
     With ``cost=None`` (Euclidean weights) the rule is decided by :func:`_edges_clear` (the same
     answer, most edges from a few dozen reads); with a cost grid every sample is read (the
     weight needs them all). ``mask``: the edges worth checking (the rest may come back either
-    way; None: all); ``subset``, ``table``: see :func:`_edges_clear`."""
+    way; None: all); ``subset``, ``table``, ``chunk``: see :func:`_edges_clear`."""
     if cost is None:
-        clear = _edges_clear(blocked, a, b, origin, resolution, edge_samples, mask, subset=subset, table=table)
+        clear = _edges_clear(
+            blocked, a, b, origin, resolution, edge_samples, mask, subset=subset, table=table, chunk=chunk
+        )
         return clear, _length(a, b)
     clear, er, ec = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
     return clear, _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
@@ -139,6 +141,9 @@ def _edges_clear(
     one or two of a dozen) read the rule's samples in between, with their diagonal side cells;
     one of them blocked rejects the edge. The answer is the full rule's, sample for sample.
     ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here).
+    ``chunk``: the work lists' static width (edges, then intervals, per loop step); every step
+    reads the whole width, so a few edges with many samples each (a query's long edges: a few
+    grazing intervals of dozens of samples) want a narrow one.
     The work lists are kept compact (edges to check, then edges with an uncovered interval,
     then, a chunk at a time, those intervals), so the cost follows what needs reading rather
     than the static shapes."""

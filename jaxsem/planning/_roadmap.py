@@ -375,6 +375,12 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
 _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
 
 
+#: Work-list width of a query's long-edge check: at most 2 x 2k edges whose grazing intervals
+#: read dozens of samples each; the default width (8192 intervals a step) read ~450 k samples
+#: per step for the few dozen intervals a query needs.
+_LONG_CHUNK = 128
+
+
 def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
@@ -410,7 +416,17 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     s_long = _edge_samples(reach, resolution)
     sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
     clear_l, w_l = _edges(
-        blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub, table=table
+        blocked,
+        cost,
+        q[:, None, :],
+        other,
+        origin,
+        resolution,
+        s_long,
+        cand & ~short,
+        sub,
+        table=table,
+        chunk=_LONG_CHUNK,
     )
     clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
