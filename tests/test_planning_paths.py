@@ -944,6 +944,19 @@ def test_segment_check_equals_the_dense_rule():
     assert counts[True] > 20 and counts[False] > 20
 
 
+def test_host_clearance_table_equals_the_jitted_one():
+    """The PRM makes the edge check's clearance table on the host once per map; its values
+    must be the jitted table's (odd shapes, empty to dense maps, walls of one cell)."""
+    from jaxsem.planning._edges import _clearance_table, _clearance_table_np  # layers: white-box
+
+    rng = np.random.default_rng(5)
+    table = jax.jit(_clearance_table)  # one compile per shape: two shapes
+    maps = [_thin_wall_map(rng), np.ones((60, 80), bool)]
+    maps += [rng.random(shape) < p for shape in [(60, 80), (33, 65)] for p in (0.0, 0.002, 0.02, 0.3)]
+    for occ in maps:
+        np.testing.assert_array_equal(_clearance_table_np(occ), np.asarray(table(jnp.asarray(occ))))
+
+
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
     a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the

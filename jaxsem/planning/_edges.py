@@ -105,6 +105,48 @@ def _clearance_table(blocked):
     return out
 
 
+def _clearance_table_np(blocked: np.ndarray) -> np.ndarray:
+    """:func:`_clearance_table` of a numpy bool grid, value for value, on the host: per-map setup
+    that a PRM does once per map, where XLA's CPU strided bool reductions cost ~2.5x numpy's.
+    The dilation and the first 2 x 2 reduction are one strided 4 x 4 window per block; each
+    level's 3 x 3 test is made at its own resolution and the levels are merged coarse to fine
+    (a block whose neighbourhood is free at level l + 1 is free at level l too, so the finest
+    resolution's maximum is the top level that holds)."""
+    blocked = np.asarray(blocked, bool)
+    H, W = blocked.shape
+    top = 1 << _TOP
+    Hp, Wp = -(-H // top) * top, -(-W // top) * top
+    grid = np.ones((Hp + 3, Wp + 3), bool)  # off-map cells count as blocked
+    grid[1 : H + 1, 1 : W + 1] = blocked
+    # Level-0 block i (2**_BASE cells) with its 8-neighbour dilation: padded rows b*i .. b*i + b + 1.
+    b = 1 << _BASE
+    rows = grid[0 : Hp + 1 : b][: Hp // b].copy()
+    for d in range(1, b + 2):
+        rows |= grid[d::b][: Hp // b]
+    cols = rows[:, 0 : Wp + 1 : b][:, : Wp // b].copy()
+    for d in range(1, b + 2):
+        cols |= rows[:, d::b][:, : Wp // b]
+    free = ~cols
+    levels = []
+    for lev in range(_BASE, _TOP + 1):
+        f = np.zeros((free.shape[0] + 2, free.shape[1] + 2), bool)
+        f[1:-1, 1:-1] = free
+        nb = f[:, :-2] & f[:, 1:-1]
+        nb &= f[:, 2:]
+        nb3 = nb[:-2] & nb[1:-1]
+        nb3 &= nb[2:]
+        levels.append(nb3)
+        if lev < _TOP:
+            free = free[0::2, 0::2] & free[1::2, 0::2] & free[0::2, 1::2] & free[1::2, 1::2]
+    # Count the levels that hold (uint8: cheap to upsample); they are the lowest ones.
+    count = levels[-1].astype(np.uint8)
+    for nb in levels[-2::-1]:
+        count = np.repeat(np.repeat(count, 2, axis=0), 2, axis=1)
+        count += nb
+    value = np.array([0] + [1 << (_BASE + i) for i in range(len(levels))], np.int32)
+    return value[count]
+
+
 def _subset(S: int, C: int | None = None):
     """The rule's samples read first: every ``G``-th of the ``S`` (the last one too), ``C`` of
     them (default about one per 4 cells of the longest edge). Returns (pick, G)."""

@@ -70,7 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _clearance_table, _edge_samples, _edges, _subset, query_reach
+from ._edges import _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._neighbours import _knn, _select
 from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
@@ -171,21 +171,21 @@ class _MapAids(NamedTuple):
     uniform_cdf: jax.Array
 
 
-_table_jit = jax.jit(_clearance_table)
 _uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
 
 
 def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
-    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``. The
-    uniform CDF counts free cells: every partial sum is an integer, exact in float32 below
-    2**24 cells whatever the order of the additions, so numpy's cumsum gives the jitted scan's
-    values bit for bit (the same draws) in a third of the time."""
+    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``, made on
+    the host (:func:`_clearance_table_np`: the jitted table's values). The uniform CDF counts
+    free cells: every partial sum is an integer, exact in float32 below 2**24 cells whatever the
+    order of the additions, so numpy's cumsum gives the jitted scan's values bit for bit (the
+    same draws) in a third of the time."""
     free = ~blocked.reshape(-1)
     if 0 < np.count_nonzero(free) and blocked.size < 2**24:
-        cdf = jnp.asarray(np.cumsum(free, dtype=np.int32).astype(np.dtype(dtype)))
+        cdf = jax.device_put(np.cumsum(free.view(np.uint8), dtype=np.int32).astype(np.dtype(dtype)))
     else:
         cdf = _uniform_cdf_jit(blocked_j, np.dtype(dtype))
-    return _MapAids(_table_jit(blocked_j), cdf)
+    return _MapAids(jax.device_put(_clearance_table_np(blocked)), cdf)
 
 
 def _sample_and_search(
