@@ -957,6 +957,28 @@ def test_host_clearance_table_equals_the_jitted_one():
         np.testing.assert_array_equal(_clearance_table_np(occ), np.asarray(table(jnp.asarray(occ))))
 
 
+def test_the_per_map_setup_is_kept_by_content():
+    """The PRM keeps its per-map setup for the latest maps, matched cell for cell: a map edited
+    in place (the same array object) gets its own setup, the original map's comes back from
+    the cache, and clear_map_cache forgets it."""
+    from jaxsem.planning import clear_map_cache
+    from jaxsem.planning._edges import _clearance_table_np  # layers: white-box
+
+    occ = np.zeros((60, 80), bool)
+    first = PRM(occ, ORIGIN, RES, capacity=50)
+    assert PRM(occ.copy(), ORIGIN, RES, capacity=50)._aids is first._aids
+    occ[10:50, 40] = True  # edited in place
+    edited = PRM(occ, ORIGIN, RES, capacity=50)
+    assert edited._aids is not first._aids
+    np.testing.assert_array_equal(np.asarray(edited._aids.table), _clearance_table_np(occ))
+    assert PRM(np.zeros((60, 80), bool), ORIGIN, RES, capacity=50)._aids is first._aids
+    clear_map_cache()
+    again = PRM(occ, ORIGIN, RES, capacity=50)
+    assert again._aids is not edited._aids
+    np.testing.assert_array_equal(np.asarray(again._aids.table), np.asarray(edited._aids.table))
+    np.testing.assert_array_equal(np.asarray(again._aids.uniform_cdf), np.asarray(edited._aids.uniform_cdf))
+
+
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
     a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the

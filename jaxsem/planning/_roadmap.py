@@ -174,17 +174,45 @@ class _MapAids(NamedTuple):
 _uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
 
 
+#: Per-map aids of the latest maps, newest first: (the map's own copy, dtype, aids). A user who
+#: builds several roadmaps on one map (or a map that comes back) makes them once.
+_AIDS_CACHE: list[tuple[np.ndarray, np.dtype, _MapAids]] = []
+#: Maps whose aids are kept (each costs ~6 bytes per cell).
+_AIDS_CACHE_SIZE = 2
+
+
+def clear_map_cache() -> None:
+    """Forgets the per-map setup (clearance table, uniform sampling CDF) that :class:`PRM` keeps
+    for the latest maps it was built or updated on: frees their memory, and lets a timing see
+    what a PRM on a map not seen before costs."""
+    _AIDS_CACHE.clear()
+
+
 def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
-    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``, made on
-    the host (:func:`_clearance_table_np`: the jitted table's values). The uniform CDF counts
-    free cells: every partial sum is an integer, exact in float32 below 2**24 cells whatever the
-    order of the additions, so numpy's cumsum gives the jitted scan's values bit for bit (the
-    same draws) in a third of the time."""
+    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``: from
+    :data:`_AIDS_CACHE` when the same map (cell for cell) and dtype were seen lately, else made
+    and kept."""
+    dt = np.dtype(dtype)
+    for i, (m, d, aids) in enumerate(_AIDS_CACHE):
+        if d == dt and m.shape == blocked.shape and np.array_equal(m, blocked):
+            _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
+            return aids
+    aids = _make_map_aids(blocked, blocked_j, dt)
+    _AIDS_CACHE.insert(0, (np.array(blocked, bool), dt, aids))
+    del _AIDS_CACHE[_AIDS_CACHE_SIZE:]
+    return aids
+
+
+def _make_map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
+    """:func:`_map_aids` made on the host (:func:`_clearance_table_np`: the jitted table's
+    values). The uniform CDF counts free cells: every partial sum is an integer, exact in
+    float32 below 2**24 cells whatever the order of the additions, so numpy's cumsum gives the
+    jitted scan's values bit for bit (the same draws) in a third of the time."""
     free = ~blocked.reshape(-1)
     if 0 < np.count_nonzero(free) and blocked.size < 2**24:
-        cdf = jax.device_put(np.cumsum(free.view(np.uint8), dtype=np.int32).astype(np.dtype(dtype)))
+        cdf = jax.device_put(np.cumsum(free.view(np.uint8), dtype=np.int32).astype(dtype))
     else:
-        cdf = _uniform_cdf_jit(blocked_j, np.dtype(dtype))
+        cdf = _uniform_cdf_jit(blocked_j, dtype)
     return _MapAids(jax.device_put(_clearance_table_np(blocked)), cdf)
 
 
