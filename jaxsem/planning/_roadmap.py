@@ -72,7 +72,7 @@ from jax.core import Tracer
 
 from ._edges import _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
-from ._neighbours import _knn, _select
+from ._neighbours import _candidates_host, _knn, _select
 from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
@@ -216,6 +216,33 @@ def _make_map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
     return _MapAids(jax.device_put(_clearance_table_np(blocked)), cdf)
 
 
+def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples, aids):
+    """``n`` new samples written into the roadmap's points and valid flags. Returns (points,
+    valid, new points, their valid flags, first slot)."""
+    H, W = blocked.shape
+    dtype = rm.points.dtype
+    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
+    uniform = distribution is None or uniform_samples
+    cdf = aids.uniform_cdf if aids is not None and uniform else None
+    new = sample_points(key, weights, n, origin, resolution, cdf)
+    r, c, on = _cells(new, origin, resolution, (H, W))
+    ok_new = on & ~blocked[r, c]
+    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
+    z = jnp.zeros((), jnp.int32)
+    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
+    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    return points, valid, new, ok_new, s0
+
+
+def _density(points, distribution, origin, resolution, sectors):
+    """Each vertex's sampling density (the direction-first policy's "sparser" test), None
+    when it plays no part (no sectors, or uniform samples)."""
+    if not sectors or distribution is None:
+        return None
+    pr, pc, _ = _cells(points, origin, resolution, distribution.shape)
+    return distribution[pr, pc]
+
+
 def _sample_and_search(
     rm,
     key,
@@ -230,7 +257,6 @@ def _sample_and_search(
     sectors,
     uniform_samples,
     aids,
-    order_all=True,
 ):
     """The first half of a grow: ``n`` new samples written into the roadmap's points and valid
     flags, and each new vertex's candidates (n, K) in preference order (K = 2k with sectors, k
@@ -238,29 +264,24 @@ def _sample_and_search(
     slot, candidates, overflow)."""
     M, k = rm.neighbors.shape
     H, W = blocked.shape
-    dtype = rm.points.dtype
-    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
-    uniform = distribution is None or uniform_samples
-    cdf = aids.uniform_cdf if aids is not None and uniform else None
-    new = sample_points(key, weights, n, origin, resolution, cdf)
-    r, c, on = _cells(new, origin, resolution, (H, W))
-    ok_new = on & ~blocked[r, c]
-    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
-    z = jnp.zeros((), jnp.int32)
-    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
-    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    points, valid, new, ok_new, s0 = _sample_into(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
     slots = s0 + jnp.arange(n, dtype=jnp.int32)
     db_ok = valid & (jnp.arange(M) >= _QUERY)
     extent = (W * resolution, H * resolution)
     # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
     keep = 2 * k if sectors else k
-    density = None
-    if sectors and distribution is not None:
-        pr, pc, _ = _cells(points, origin, resolution, (H, W))
-        density = distribution[pr, pc]
-    nbr, ovf = _knn(
-        points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density, order_all
-    )
+    density = _density(points, distribution, origin, resolution, sectors)
+    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     return points, valid, new, ok_new, s0, nbr, ovf
 
 
@@ -354,37 +375,89 @@ _grow_jit = functools.partial(
 )(_grow_impl)
 
 
-def _grow_lazy_impl(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, sectors=0, uniform_samples=False, aids=None
-):
-    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the same samples and
-    candidates as :func:`_grow_impl`, in its order where the order decides a link (rows with
-    more than k candidates; a row with at most k keeps every clear one whatever the order, so
-    its candidates are not ranked). Returns (roadmap with the new points and no new edges, the
-    new vertices' candidates (n, K), ``M`` where none or where the vertex is not valid)."""
-    M = rm.neighbors.shape[0]
-    points, valid, _, ok_new, _, nbr, ovf = _sample_and_search(
+def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
+    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
+    edge). Returns (roadmap, the new samples' valid flags)."""
+    points, valid, _, ok_new, _ = _sample_into(
         rm,
         key,
         blocked,
         distribution,
         origin,
         n=n,
-        radius=radius,
         resolution=resolution,
-        cap=cap,
-        sectors=sectors,
         uniform_samples=uniform_samples,
         aids=aids,
-        order_all=False,
     )
-    rm = rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n, overflow=rm.overflow | ovf)
-    return rm, jnp.where(ok_new[:, None], nbr, M)
+    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
 
 
-_grow_lazy_jit = functools.partial(
-    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "sectors", "uniform_samples")
-)(_grow_lazy_impl)
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
+
+
+@functools.partial(jax.jit, static_argnames=("k", "radius", "resolution", "extent", "cap", "sectors", "keep"))
+def _knn_rows_jit(points, valid, rows, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep):
+    """The eager grow's neighbour search (:func:`_knn`, ranked) for the vertices ``rows`` alone:
+    their rows as a search of every new vertex would give them."""
+    M = points.shape[0]
+    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    db = points - origin
+    density = _density(points, distribution, origin, resolution, sectors)
+    return _knn(db, db_ok, db[rows], rows, k, radius, extent, cap, sectors, keep, density)
+
+
+def _grow_lazy(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids):
+    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the eager grow's
+    samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
+    vertex is not valid): the eager grow's set, in its order where the order decides a link.
+    Rows with at most k candidates keep every clear one whatever the order, so the host finds
+    their sets (:func:`_candidates_host`); the device ranks the others with the eager search.
+    Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
+    M, k = roadmap.neighbors.shape
+    H, W = blocked.shape
+    s0 = _QUERY + int(roadmap.num_samples)
+    rm, ok_new = _sample_lazy_jit(
+        roadmap,
+        key,
+        blocked,
+        dist,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    pts = np.asarray(rm.points)
+    db_ok = np.asarray(rm.valid) & (np.arange(M) >= _QUERY)
+    rows = np.arange(s0, s0 + n)
+    extent = (W * resolution, H * resolution)
+    keep = 2 * k if sectors else k
+    cand, need, cap = _candidates_host(pts - np.asarray(origin), db_ok, rows, k, radius, extent, keep, cap)
+    if need.any():
+        some = rows[need].astype(np.int32)
+        size = max(16, 1 << (len(some) - 1).bit_length())  # few compiled shapes
+        padded = np.concatenate([some, np.full(size - len(some), some[-1], np.int32)])
+        while True:
+            nb, ovf = _knn_rows_jit(
+                rm.points,
+                rm.valid,
+                jnp.asarray(padded),
+                dist,
+                origin,
+                k=k,
+                radius=radius,
+                resolution=resolution,
+                extent=extent,
+                cap=cap if 3 * cap < M else None,
+                sectors=sectors,
+                keep=keep,
+            )
+            if 3 * cap >= M or not bool(ovf):
+                break
+            cap *= 4  # the host's strip counts said no overflow: not expected, but never drop one
+        cand[need] = np.asarray(nb)[: len(some)]
+    cand[~np.asarray(ok_new)] = M
+    return (rm, cand), cap
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -606,29 +679,14 @@ def _grow_exact(
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
     Returns (roadmap, the cap that sufficed); with ``lazy`` (no edge checked,
-    :func:`_grow_lazy_impl`) ((roadmap, the new vertices' candidates), the cap)."""
+    :func:`_grow_lazy`) ((roadmap, the new vertices' candidates), the cap)."""
+    if lazy:
+        return _grow_lazy(
+            roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
+        )
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
     while True:
-        if lazy:
-            out = _grow_lazy_jit(
-                roadmap,
-                key,
-                blocked,
-                dist,
-                origin,
-                n=n,
-                radius=radius,
-                resolution=resolution,
-                cap=cap if 3 * cap < M else None,
-                sectors=sectors,
-                uniform_samples=uniform_samples,
-                aids=aids,
-            )
-            if 3 * cap >= M or before or not bool(out[0].overflow):
-                return out, cap
-            cap *= 4
-            continue
         out = _grow_jit(
             roadmap,
             key,
