@@ -297,11 +297,26 @@ class _LazyEdges:
         keep = possible[np.arange(len(reps_r)), reps_s]
         reps_e, reps_r, reps_s = reps_e[keep], reps_r[keep], reps_s[keep]
         rows, slots = self._needed(reps_r, reps_s)
+        if len(rows) % _CHUNK:
+            rows, slots = self._with_spares(rows, slots, np.concatenate([u, v]), _CHUNK - len(rows) % _CHUNK)
         self.check(rows, slots, check_fn)
         _, in_rm = self._in_rows(reps_r)
         ok = np.zeros(L, bool)
         ok[reps_e[in_rm[np.arange(len(reps_r)), reps_s]]] = True
         return bool(ok.all()), np.unique(rows)
+
+    def _with_spares(self, rows, slots, near, spare: int):
+        """(rows, slots) and up to ``spare`` more unknown, possible edges of the vertices
+        ``near`` (a path's), nearest slots first: a check call reads a fixed number of edges, so
+        these cost no device time, and a path's next detour often runs over them (fewer search
+        rounds)."""
+        w = np.unique(near)
+        unk = (self.status[w] == UNKNOWN) & self.possible[w]
+        s_, i_ = np.nonzero(unk.T)  # slot-major: every vertex's nearest first
+        er, es = w[i_], s_
+        fresh = ~np.isin(er.astype(np.int64) * self.K + es, rows.astype(np.int64) * self.K + slots)
+        er, es = er[fresh][:spare], es[fresh][:spare]
+        return np.concatenate([rows, er]), np.concatenate([slots, es])
 
     def check_all(self, check_fn) -> None:
         rows, slots = np.nonzero(self.status == UNKNOWN)

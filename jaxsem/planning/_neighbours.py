@@ -273,7 +273,7 @@ def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, 
     if n == 0 or len(ids) < 2:
         return cand, np.zeros(n, bool), cap
     db = np.asarray(db)
-    tree = scipy.spatial.cKDTree(db[ids].astype(np.float64), balanced_tree=False, compact_nodes=False)
+    tree = scipy.spatial.KDTree(db[ids].astype(np.float64), balanced_tree=False, compact_nodes=False)
     pairs = tree.query_pairs(radius * (1.0 + 1e-4), output_type="ndarray").astype(np.int32)
     a, b = ids[pairs[:, 0]], ids[pairs[:, 1]]
     x, y = np.ascontiguousarray(db[:, 0]), np.ascontiguousarray(db[:, 1])

@@ -18,6 +18,7 @@ from ._roadmap import (
     _check_sectors,
     _connect_checked,
     _grow_exact,
+    _grow_lazy,
     _initial_cap,
     _map_aids,
     default_radius,
@@ -122,29 +123,39 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
-        lazy = self._lazy is not None
-        s0 = _QUERY + self.count
-        out, self._cap = _grow_exact(
-            self.roadmap,
-            key,
-            self._blocked_j,
-            dist,
-            jnp.asarray(self.origin, dtype),
-            int(n),
-            self.radius,
-            self.resolution,
-            cap,
-            not lazy and self.weight == "neglogp",
-            self.sectors,
-            bool(uniform_samples),
-            self._aids,
-            lazy=lazy,
-        )
         if self._lazy is not None:
-            self.roadmap, cand = out
-            self._lazy.add_rows(s0, np.asarray(cand))
+            s0 = _QUERY + self.count
+            (self.roadmap, cand), self._cap = _grow_lazy(
+                self.roadmap,
+                key,
+                self._blocked_j,
+                dist,
+                jnp.asarray(self.origin, dtype),
+                int(n),
+                self.radius,
+                self.resolution,
+                cap,
+                self.sectors,
+                bool(uniform_samples),
+                self._aids,
+            )
+            self._lazy.add_rows(s0, cand)
         else:
-            self.roadmap = out
+            self.roadmap, self._cap = _grow_exact(
+                self.roadmap,
+                key,
+                self._blocked_j,
+                dist,
+                jnp.asarray(self.origin, dtype),
+                int(n),
+                self.radius,
+                self.resolution,
+                cap,
+                self.weight == "neglogp",
+                self.sectors,
+                bool(uniform_samples),
+                self._aids,
+            )
         if distribution is not None:
             self.distribution = distribution
         self._graph = None

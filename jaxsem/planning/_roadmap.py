@@ -406,7 +406,9 @@ def _knn_rows_jit(points, valid, rows, distribution, origin, *, k, radius, resol
     return _knn(db, db_ok, db[rows], rows, k, radius, extent, cap, sectors, keep, density)
 
 
-def _grow_lazy(roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids):
+def _grow_lazy(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
+) -> tuple[tuple[Roadmap, np.ndarray], int]:
     """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the eager grow's
     samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
     vertex is not valid): the eager grow's set, in its order where the order decides a link.
@@ -675,15 +677,9 @@ def _grow_exact(
     sectors=0,
     uniform_samples=False,
     aids=None,
-    lazy=False,
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
-    Returns (roadmap, the cap that sufficed); with ``lazy`` (no edge checked,
-    :func:`_grow_lazy`) ((roadmap, the new vertices' candidates), the cap)."""
-    if lazy:
-        return _grow_lazy(
-            roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
-        )
+    Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
     while True:
