@@ -1,8 +1,10 @@
 """Lazy edge checking for :class:`~jaxsem.planning.PRM` (``lazy=True``; Bohlin and Kavraki's
-Lazy PRM): a grow finds each new vertex's candidates (the same samples and candidates, in the
-same order, as the eager grow) but checks no edge; a query searches the graph of every edge
-that may still be in the roadmap, checks only the edges of the path it found, drops those that
-are not, and searches again until the path is all checked or none is left. Checked edges are
+Lazy PRM): a grow finds each new vertex's candidates (the eager grow's samples and candidate
+sets, in its order where the order decides a link: :func:`~jaxsem.planning._roadmap._grow_lazy`)
+but checks no edge; a query searches the graph of every edge that may still be in the roadmap,
+checks the edges that decide the path it found (and, in the check call's spare slots, the path
+vertices' nearest unknown edges: a detour often runs over them), drops those that are not in
+the roadmap, and searches again until the path is all in or none is left. Checked edges are
 remembered, so later queries on the roadmap reuse them.
 
 The answer is the eager roadmap's. The eager grow keeps, of each vertex's candidates in
