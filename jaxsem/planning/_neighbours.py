@@ -131,12 +131,7 @@ def _knn(
     Q = queries.shape[0]
     grid = None
     if not (cap is None or 3 * cap >= M):
-        gx = max(1, int(math.ceil(extent[0] / radius)))
-        gy = max(1, int(math.ceil(extent[1] / radius)))
-        bx, by = _bucket(db, radius, gx, gy)
-        bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
-        order = jnp.argsort(bid)
-        grid = (gx, gy, order, bid[order])
+        grid = (*_grid_dims(radius, extent), *_knn_grid(db, db_ok, radius, extent))
     rows = functools.partial(
         _knn_rows,
         db,
@@ -158,6 +153,21 @@ def _knn(
     sp = jnp.concatenate([q_self, jnp.broadcast_to(q_self[-1:], (pad,))]).reshape(n_blocks, _ROWS)
     idx, overflow = jax.lax.map(lambda a: rows(*a), (qp, sp))
     return idx.reshape(n_blocks * _ROWS, -1)[:Q], jnp.any(overflow)
+
+
+def _grid_dims(radius: float, extent) -> tuple[int, int]:
+    """Buckets (gx, gy) of side ``radius`` over the local extent."""
+    return max(1, int(math.ceil(extent[0] / radius))), max(1, int(math.ceil(extent[1] / radius)))
+
+
+def _knn_grid(db, db_ok, radius: float, extent):
+    """The bucketed search's (order, sorted bucket ids): ``db``'s points in bucket order (ties in
+    index order), unusable ones last."""
+    gx, gy = _grid_dims(radius, extent)
+    bx, by = _bucket(db, radius, gx, gy)
+    bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
+    order = jnp.argsort(bid)
+    return order, bid[order]
 
 
 def _bucket(p, radius: float, gx: int, gy: int):

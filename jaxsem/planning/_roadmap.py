@@ -72,7 +72,7 @@ from jax.core import Tracer
 
 from ._edges import _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
-from ._neighbours import _candidates_host, _knn, _select
+from ._neighbours import _candidates_host, _grid_dims, _knn, _knn_grid, _knn_rows, _select
 from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
@@ -395,15 +395,32 @@ def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, 
 _sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
 
 
+#: Vertices the lazy grow ranks on the device per call: one compiled shape, whatever their count.
+_RANK_CHUNK = 256
+
+
+@functools.partial(jax.jit, static_argnames=("radius", "extent"))
+def _grid_jit(points, valid, origin, *, radius, extent):
+    """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own)."""
+    M = points.shape[0]
+    return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
+
+
 @functools.partial(jax.jit, static_argnames=("k", "radius", "resolution", "extent", "cap", "sectors", "keep"))
-def _knn_rows_jit(points, valid, rows, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep):
-    """The eager grow's neighbour search (:func:`_knn`, ranked) for the vertices ``rows`` alone:
-    their rows as a search of every new vertex would give them."""
+def _knn_some_jit(
+    points, valid, rows, order, sorted_bid, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep
+):
+    """The eager grow's neighbour search (:func:`_knn_rows`, ranked) for the vertices ``rows``
+    alone (``order``, ``sorted_bid``: :func:`_grid_jit`, unused when ``cap`` is None: brute
+    force): their rows as a search of every new vertex gives them."""
     M = points.shape[0]
     db_ok = valid & (jnp.arange(M) >= _QUERY)
     db = points - origin
     density = _density(points, distribution, origin, resolution, sectors)
-    return _knn(db, db_ok, db[rows], rows, k, radius, extent, cap, sectors, keep, density)
+    grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
+    return _knn_rows(
+        db, db_ok, db[rows], rows, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
+    )
 
 
 def _grow_lazy(
@@ -437,27 +454,33 @@ def _grow_lazy(
     cand, need, cap = _candidates_host(pts - np.asarray(origin), db_ok, rows, k, radius, extent, keep, cap)
     if need.any():
         some = rows[need].astype(np.int32)
-        size = max(16, 1 << (len(some) - 1).bit_length())  # few compiled shapes
-        padded = np.concatenate([some, np.full(size - len(some), some[-1], np.int32)])
+        padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin, radius=radius, extent=extent)
         while True:
-            nb, ovf = _knn_rows_jit(
-                rm.points,
-                rm.valid,
-                jnp.asarray(padded),
-                dist,
-                origin,
-                k=k,
-                radius=radius,
-                resolution=resolution,
-                extent=extent,
-                cap=cap if 3 * cap < M else None,
-                sectors=sectors,
-                keep=keep,
-            )
-            if 3 * cap >= M or not bool(ovf):
+            use = cap if 3 * cap < M else None
+            parts = [
+                _knn_some_jit(
+                    rm.points,
+                    rm.valid,
+                    jnp.asarray(padded[i : i + _RANK_CHUNK]),
+                    order,
+                    sorted_bid,
+                    dist,
+                    origin,
+                    k=k,
+                    radius=radius,
+                    resolution=resolution,
+                    extent=extent,
+                    cap=use,
+                    sectors=sectors,
+                    keep=keep,
+                )
+                for i in range(0, len(padded), _RANK_CHUNK)
+            ]
+            if use is None or not any(bool(o) for _, o in parts):
                 break
             cap *= 4  # the host's strip counts said no overflow: not expected, but never drop one
-        cand[need] = np.asarray(nb)[: len(some)]
+        cand[need] = np.concatenate([np.asarray(nb) for nb, _ in parts])[: len(some)]
     cand[~np.asarray(ok_new)] = M
     return (rm, cand), cap
 
