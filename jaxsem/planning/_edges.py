@@ -116,16 +116,20 @@ def _clearance_table_np(blocked: np.ndarray) -> np.ndarray:
     H, W = blocked.shape
     top = 1 << _TOP
     Hp, Wp = -(-H // top) * top, -(-W // top) * top
-    grid = np.ones((Hp + 3, Wp + 3), bool)  # off-map cells count as blocked
-    grid[1 : H + 1, 1 : W + 1] = blocked
-    # Level-0 block i (2**_BASE cells) with its 8-neighbour dilation: padded rows b*i .. b*i + b + 1.
     b = 1 << _BASE
-    rows = grid[0 : Hp + 1 : b][: Hp // b].copy()
-    for d in range(1, b + 2):
-        rows |= grid[d::b][: Hp // b]
-    cols = rows[:, 0 : Wp + 1 : b][:, : Wp // b].copy()
-    for d in range(1, b + 2):
-        cols |= rows[:, d::b][:, : Wp // b]
+    grid = np.ones((Hp + 2 * b, Wp + 2 * b), bool)  # off-map cells count as blocked
+    grid[1 : H + 1, 1 : W + 1] = blocked
+    # Level-0 block i (b cells) with its 8-neighbour dilation spans padded rows b*i .. b*i + b + 1:
+    # OR the rows in runs of b, then b + 2 rows = 2 runs (_BASE = 1); the same over the columns.
+    runs = grid[0::b].copy()
+    for d in range(1, b):
+        runs |= grid[d::b]
+    rows = runs[:-1] | runs[1:]  # (Hp / b + 1, .): keep Hp / b
+    rows = rows[: Hp // b]
+    runs = rows[:, 0::b].copy()
+    for d in range(1, b):
+        runs |= rows[:, d::b]
+    cols = (runs[:, :-1] | runs[:, 1:])[:, : Wp // b]
     free = ~cols
     levels = []
     for lev in range(_BASE, _TOP + 1):
