@@ -44,7 +44,9 @@ class PRM:
     the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
     later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
     :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
-    them all and returns the eager roadmap).
+    them all and returns the eager roadmap). The per-map setup (the edge check's clearance table,
+    the uniform sampling CDF) is kept for the latest two maps, matched cell for cell, so several
+    roadmaps on one map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
     """
 
     def __init__(
