@@ -359,29 +359,39 @@ def test_knn_matches_brute_force(kind):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sectors,k", [(8, 22), (8, 14), (0, 22)])
-def test_unordered_rows_hold_the_same_candidates(sectors, k):
-    """The lazy grow's search (``order_all=False``) ranks only rows with more than k candidates
-    (up to 64 such rows of a block of 512 alone; k = 14: more, the whole block): every row holds
-    the same candidates as the ranked search, in the same order where it has more than k."""
-    from jaxsem.planning._neighbours import _knn  # layers: white-box (the lazy grow's search)
+@pytest.mark.parametrize("sectors,k", [(8, 22), (0, 22)])
+def test_host_rows_hold_the_same_candidates(sectors, k):
+    """The lazy grow finds on the host (a k-d tree) the candidates of the rows with at most k
+    of them, where the order decides nothing, and leaves the others to the device's ranked
+    search: every host row holds the ranked search's candidates, exactly the rows with more than
+    k are left, and a cap too small is raised as the device search's reruns would (x4)."""
+    from jaxsem.planning._neighbours import _candidates_host, _knn  # layers: white-box (lazy grow)
 
     rng = np.random.default_rng(0)
     M, radius = 1500, 1.0
-    p = rng.uniform(0.0, 17.0, (M, 2))
+    p = rng.uniform(0.0, 17.0, (M, 2)).astype(np.float32)
+    p[7] = p[8]  # a point drawn twice: each is the other's candidate at distance 0
+    ok = np.ones(M, bool)
+    ok[[3, 100]] = False  # unusable points: never a candidate, no candidates of their own
     pts = jnp.asarray(p)
     slots = jnp.arange(M)
     keep = 2 * k if sectors else k
-    args = (pts, jnp.ones(M, bool), pts, slots, k, radius, (17.0, 17.0), 96, sectors, keep)
-    ranked, o1 = jax.jit(lambda: _knn(*args))()
-    plain, o2 = jax.jit(lambda: _knn(*args, order_all=False))()
-    ranked, plain = np.asarray(ranked), np.asarray(plain)
-    assert not bool(o1) and not bool(o2)
-    count = (np.sum((p[:, None, :] - p[None, :, :]) ** 2, -1) <= radius**2).sum(1) - 1
-    over = count > k
-    assert 0 < over[:512].sum() and (over[:512].sum() <= 64) == (k == 22)  # the branch meant
-    np.testing.assert_array_equal(plain[over], ranked[over])
-    assert all(set(a) == set(b) for a, b in zip(plain[~over].tolist(), ranked[~over].tolist()))
+    args = (pts, jnp.asarray(ok), pts, slots, k, radius, (17.0, 17.0), 96, sectors, keep)
+    ranked, over = jax.jit(lambda: _knn(*args))()
+    ranked = np.where(ok[:, None], np.asarray(ranked), M)
+    assert not bool(over)
+    rows = np.arange(M)
+    host, need, cap = _candidates_host(p, ok, rows, k, radius, (17.0, 17.0), keep, 96)
+    assert cap == 96
+    d = p[None, :, :] - p[:, None, :]
+    near = (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] <= np.float32(radius**2)) & ok[None, :] & ok[:, None]
+    count = near.sum(1) - ok  # not itself
+    np.testing.assert_array_equal(need, count > k)
+    assert 0 < need.sum() < M // 2 and 7 in host[8] and 8 in host[7]
+    assert np.all(host[need] == M) and np.all(host[[3, 100]] == M)
+    assert all(set(a) == set(b) for a, b in zip(host[~need].tolist(), ranked[~need].tolist()))
+    _, _, raised = _candidates_host(p, ok, rows, k, radius, (17.0, 17.0), keep, 4)
+    assert raised == 64  # 4 -> 16 -> 64: a strip of 3 buckets holds ~55 points here
 
 
 @pytest.mark.slow
@@ -942,6 +952,41 @@ def test_segment_check_equals_the_dense_rule():
         assert ok == _dense_rule(a, b, occ, samples), (a, b)
         counts[ok] += 1
     assert counts[True] > 20 and counts[False] > 20
+
+
+def test_host_clearance_table_equals_the_jitted_one():
+    """The PRM makes the edge check's clearance table on the host once per map; its values
+    must be the jitted table's (odd shapes, empty to dense maps, walls of one cell)."""
+    from jaxsem.planning._edges import _clearance_table, _clearance_table_np  # layers: white-box
+
+    rng = np.random.default_rng(5)
+    table = jax.jit(_clearance_table)  # one compile per shape: two shapes
+    maps = [_thin_wall_map(rng), np.ones((60, 80), bool)]
+    maps += [rng.random(shape) < p for shape in [(60, 80), (33, 65)] for p in (0.0, 0.002, 0.02, 0.3)]
+    for occ in maps:
+        np.testing.assert_array_equal(_clearance_table_np(occ), np.asarray(table(jnp.asarray(occ))))
+
+
+def test_the_per_map_setup_is_kept_by_content():
+    """The PRM keeps its per-map setup for the latest maps, matched cell for cell: a map edited
+    in place (the same array object) gets its own setup, the original map's comes back from
+    the cache, and clear_map_cache forgets it."""
+    from jaxsem.planning import clear_map_cache
+    from jaxsem.planning._edges import _clearance_table_np  # layers: white-box
+
+    occ = np.zeros((60, 80), bool)
+    first = PRM(occ, ORIGIN, RES, capacity=50)
+    assert PRM(occ.copy(), ORIGIN, RES, capacity=50)._aids is first._aids
+    occ[10:50, 40] = True  # edited in place
+    edited = PRM(occ, ORIGIN, RES, capacity=50)
+    assert edited._aids is not first._aids
+    np.testing.assert_array_equal(np.asarray(edited._aids.table), _clearance_table_np(occ))
+    assert PRM(np.zeros((60, 80), bool), ORIGIN, RES, capacity=50)._aids is first._aids
+    clear_map_cache()
+    again = PRM(occ, ORIGIN, RES, capacity=50)
+    assert again._aids is not edited._aids
+    np.testing.assert_array_equal(np.asarray(again._aids.table), np.asarray(edited._aids.table))
+    np.testing.assert_array_equal(np.asarray(again._aids.uniform_cdf), np.asarray(edited._aids.uniform_cdf))
 
 
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():

@@ -12,7 +12,8 @@ corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); wor
   semantic int8 map of the objects seen; :func:`sense` updates them (jitted, vmappable).
 - Expert / C*: :class:`SoftCostGraph` (scipy Dijkstra, cost rising near walls),
   :func:`shortest_path`.
-- PRM: :class:`PRM` (build once, grow, update the map, many queries), the pure pieces
+- PRM: :class:`PRM` (build once, grow, update the map, many queries; :func:`clear_map_cache`
+  drops the per-map setup it keeps for the latest maps), the pure pieces
   :func:`roadmap_init` / :func:`roadmap_grow` / :func:`roadmap_recheck` / :func:`roadmap_connect`,
   :func:`build_roadmap` (one shot), :func:`make_roadmap_builder` (pure, vmappable),
   :func:`roadmap_shortest_path` (scipy, host), :func:`embed_local_distribution` (section 3.2.5).
@@ -89,6 +90,7 @@ from ._roadmap import (
     LEARNED_RADIUS_FACTOR as LEARNED_RADIUS_FACTOR,
     Roadmap as Roadmap,
     build_roadmap as build_roadmap,
+    clear_map_cache as clear_map_cache,
     default_radius as default_radius,
     make_roadmap_builder as make_roadmap_builder,
     prm_star_k as prm_star_k,

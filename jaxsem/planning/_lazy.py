@@ -1,8 +1,10 @@
 """Lazy edge checking for :class:`~jaxsem.planning.PRM` (``lazy=True``; Bohlin and Kavraki's
-Lazy PRM): a grow finds each new vertex's candidates (the same samples and candidates, in the
-same order, as the eager grow) but checks no edge; a query searches the graph of every edge
-that may still be in the roadmap, checks only the edges of the path it found, drops those that
-are not, and searches again until the path is all checked or none is left. Checked edges are
+Lazy PRM): a grow finds each new vertex's candidates (the eager grow's samples and candidate
+sets, in its order where the order decides a link: :func:`~jaxsem.planning._roadmap._grow_lazy`)
+but checks no edge; a query searches the graph of every edge that may still be in the roadmap,
+checks the edges that decide the path it found (and, in the check call's spare slots, the path
+vertices' nearest unknown edges: a detour often runs over them), drops those that are not in
+the roadmap, and searches again until the path is all in or none is left. Checked edges are
 remembered, so later queries on the roadmap reuse them.
 
 The answer is the eager roadmap's. The eager grow keeps, of each vertex's candidates in
@@ -297,11 +299,26 @@ class _LazyEdges:
         keep = possible[np.arange(len(reps_r)), reps_s]
         reps_e, reps_r, reps_s = reps_e[keep], reps_r[keep], reps_s[keep]
         rows, slots = self._needed(reps_r, reps_s)
+        if len(rows) % _CHUNK:
+            rows, slots = self._with_spares(rows, slots, np.concatenate([u, v]), _CHUNK - len(rows) % _CHUNK)
         self.check(rows, slots, check_fn)
         _, in_rm = self._in_rows(reps_r)
         ok = np.zeros(L, bool)
         ok[reps_e[in_rm[np.arange(len(reps_r)), reps_s]]] = True
         return bool(ok.all()), np.unique(rows)
+
+    def _with_spares(self, rows, slots, near, spare: int):
+        """(rows, slots) and up to ``spare`` more unknown, possible edges of the vertices
+        ``near`` (a path's), nearest slots first: a check call reads a fixed number of edges, so
+        these cost no device time, and a path's next detour often runs over them (fewer search
+        rounds)."""
+        w = np.unique(near)
+        unk = (self.status[w] == UNKNOWN) & self.possible[w]
+        s_, i_ = np.nonzero(unk.T)  # slot-major: every vertex's nearest first
+        er, es = w[i_], s_
+        fresh = ~np.isin(er.astype(np.int64) * self.K + es, rows.astype(np.int64) * self.K + slots)
+        er, es = er[fresh][:spare], es[fresh][:spare]
+        return np.concatenate([rows, er]), np.concatenate([slots, es])
 
     def check_all(self, check_fn) -> None:
         rows, slots = np.nonzero(self.status == UNKNOWN)

@@ -10,6 +10,8 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+import scipy.spatial
 
 
 def _per_sector(k: int, sectors: int) -> int:
@@ -120,24 +122,16 @@ def _knn(
     sectors: int = 0,
     keep: int | None = None,
     density=None,
-    order_all: bool = True,
 ):
     """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
     excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
     overflow). ``cap=None``: brute force. Local coordinates in [0, extent). Rows are searched
-    ``_ROWS`` at a time (each row's answer depends only on the row). ``order_all=False``: a row
-    with at most ``k`` candidates within the radius returns them all in no particular order (the
-    same set; only rows with more are ranked, see :func:`_knn_rows`)."""
+    ``_ROWS`` at a time (each row's answer depends only on the row)."""
     M = db.shape[0]
     Q = queries.shape[0]
     grid = None
     if not (cap is None or 3 * cap >= M):
-        gx = max(1, int(math.ceil(extent[0] / radius)))
-        gy = max(1, int(math.ceil(extent[1] / radius)))
-        bx, by = _bucket(db, radius, gx, gy)
-        bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
-        order = jnp.argsort(bid)
-        grid = (gx, gy, order, bid[order])
+        grid = (*_grid_dims(radius, extent), *_knn_grid(db, db_ok, radius, extent))
     rows = functools.partial(
         _knn_rows,
         db,
@@ -149,7 +143,6 @@ def _knn(
         keep=keep,
         density=density,
         grid=grid,
-        order_all=order_all,
     )
     if Q <= _ROWS:
         return rows(queries, q_self)
@@ -162,17 +155,27 @@ def _knn(
     return idx.reshape(n_blocks * _ROWS, -1)[:Q], jnp.any(overflow)
 
 
+def _grid_dims(radius: float, extent) -> tuple[int, int]:
+    """Buckets (gx, gy) of side ``radius`` over the local extent."""
+    return max(1, int(math.ceil(extent[0] / radius))), max(1, int(math.ceil(extent[1] / radius)))
+
+
+def _knn_grid(db, db_ok, radius: float, extent):
+    """The bucketed search's (order, sorted bucket ids): ``db``'s points in bucket order (ties in
+    index order), unusable ones last."""
+    gx, gy = _grid_dims(radius, extent)
+    bx, by = _bucket(db, radius, gx, gy)
+    bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
+    order = jnp.argsort(bid)
+    return order, bid[order]
+
+
 def _bucket(p, radius: float, gx: int, gy: int):
     b = jnp.floor(p / radius).astype(jnp.int32)
     return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
 
 
-#: With ``order_all=False``: rows of a block ranked without ranking the whole block (more rows
-#: with over ``k`` candidates rank the whole block).
-_RANK_ROWS = 64
-
-
-def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid, order_all=True):
+def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid):
     """:func:`_knn` on one block of query rows; ``grid``: (gx, gy, bucket order, sorted bucket
     ids) of the bucketed search, None for brute force."""
     M = db.shape[0]
@@ -226,11 +229,7 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
         if sparser is not None:
             sparser = jnp.take_along_axis(sparser, col, axis=1)
     kk = min(want, cand.shape[1])
-    if grid is not None and not order_all and cand.shape[1] <= _RANKED_MAX and Q > _RANK_ROWS:
-        pos = _rank_over_k(d2, diff, k, sectors, want, sparser)
-        fin = pos < cand.shape[1]
-        pos = jnp.minimum(pos, cand.shape[1] - 1)
-    elif cand.shape[1] <= _RANKED_MAX:
+    if cand.shape[1] <= _RANKED_MAX:
         pos = _select_ranked(d2, diff, k, sectors, want, sparser)
         fin = pos < cand.shape[1]
         pos = jnp.minimum(pos, cand.shape[1] - 1)
@@ -240,31 +239,6 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
     if kk < want:
         idx = jnp.concatenate([idx, jnp.full((Q, want - kk), M, idx.dtype)], 1)
     return idx.astype(jnp.int32), overflow
-
-
-def _rank_over_k(d2, diff, k: int, sectors: int, keep: int, sparser=None):
-    """:func:`_select_ranked` where the order decides something: rows with more than ``k``
-    candidates (finite ``d2``, compacted to the front) are ranked; the others return their
-    candidates in place (the same set). Up to ``_RANK_ROWS`` such rows are gathered and ranked
-    alone; a block with more ranks every row."""
-    Q, C = d2.shape
-    kk = min(keep, C)
-    cnt = jnp.sum(jnp.isfinite(d2), axis=1, dtype=jnp.int32)
-    over = cnt > k
-    col = jnp.arange(kk, dtype=jnp.int32)[None, :]
-    plain = jnp.where(col < cnt[:, None], col, C)
-
-    def some(_):
-        which = jnp.nonzero(over, size=_RANK_ROWS, fill_value=Q)[0]
-        r = jnp.minimum(which, Q - 1)
-        sp = None if sparser is None else sparser[r]
-        ranked = _select_ranked(d2[r], diff[r], k, sectors, keep, sp)
-        return plain.at[which].set(ranked, mode="drop")
-
-    def every(_):
-        return _select_ranked(d2, diff, k, sectors, keep, sparser)
-
-    return jax.lax.cond(jnp.sum(over) <= _RANK_ROWS, some, every, None)
 
 
 def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None, sectors: int = 0):
@@ -279,3 +253,87 @@ def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: 
     M = points.shape[0]
     idx, overflow = _knn(points, valid, points, jnp.arange(M), k, radius, extent, bucket_cap, sectors)
     return jnp.where(valid[:, None], idx, M), overflow
+
+
+#: Relative band around ``radius**2`` where the host's float32 squared distance is not trusted
+#: to fall on the device's side (the two differ by at most a couple of ulp, ~2e-7).
+_BORDER = 1e-5
+
+
+def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, cap: int):
+    """The lazy grow's neighbour search on the host (a k-d tree), for the rows where the order of
+    the candidates decides nothing: a row with at most ``k`` candidates keeps every clear one,
+    whatever the order, so it needs only its candidate set, which is :func:`_knn`'s exactly.
+
+    db: (M, 2) local coordinates (numpy, the roadmap's dtype); db_ok: (M,) bool usable points; rows: (n,)
+    the query rows' indices into ``db`` (their own points). A candidate of row ``q`` is a usable
+    point ``j != q`` with ``sum((db[j] - db[q])**2) <= radius**2`` in that dtype, :func:`_knn_rows`'
+    own arithmetic (products rounded, then summed). Rows with more than ``k`` candidates, and
+    rows with a candidate within ``_BORDER`` of the radius (where the device might round the other
+    way), are left to the device (:func:`_knn`, ``need``). ``cap``: the strip slots the device
+    search would start with (brute force once 3 x cap reaches M); returned as the slots it ends
+    with after its overflow reruns (x4 while a strip or a row holds more), so the device search
+    of the ``need`` rows takes the same path, with the same candidate order, as a search of
+    every row. Returns (cand (n, keep) int32, ``M`` where none and in
+    every ``need`` row; need (n,) bool; the cap)."""
+    M = db.shape[0]
+    n = len(rows)
+    ids = np.flatnonzero(db_ok).astype(np.int32)
+    cand = np.full((n, keep), M, np.int32)
+    if n == 0 or len(ids) < 2:
+        return cand, np.zeros(n, bool), cap
+    db = np.asarray(db)
+    tree = scipy.spatial.KDTree(db[ids].astype(np.float64), balanced_tree=False, compact_nodes=False)
+    pairs = tree.query_pairs(radius * (1.0 + 1e-4), output_type="ndarray").astype(np.int32)
+    a, b = ids[pairs[:, 0]], ids[pairs[:, 1]]
+    x, y = np.ascontiguousarray(db[:, 0]), np.ascontiguousarray(db[:, 1])
+    dx, dy = x[b] - x[a], y[b] - y[a]
+    d2 = (dx * dx + dy * dy).astype(np.float64)
+    r2 = float(db.dtype.type(radius**2))
+    inside = d2 <= r2 * (1.0 + _BORDER)
+    a, b, border = a[inside], b[inside], d2[inside] > r2 * (1.0 - _BORDER)
+    loc = np.full(M, -1, np.int32)
+    loc[rows] = np.arange(n, dtype=np.int32)
+    # Both directions of each pair, kept where the row is a query row.
+    src = np.concatenate([loc[a], loc[b]])
+    dst = np.concatenate([b, a])
+    brd = np.concatenate([border, border])
+    q = src >= 0
+    if not q.all():
+        src, dst, brd = src[q], dst[q], brd[q]
+    count = np.bincount(src, minlength=n)
+    need = count > k
+    need[src[brd]] = True
+    if 3 * cap < M:
+        # The device search's overflow reruns: strips of 3 buckets, and rows, holding more than cap.
+        gx = max(1, int(math.ceil(extent[0] / radius)))
+        gy = max(1, int(math.ceil(extent[1] / radius)))
+        cell = np.floor(db / db.dtype.type(radius)).astype(np.int64)
+        bx, by = np.clip(cell[:, 0], 0, gx - 1), np.clip(cell[:, 1], 0, gy - 1)
+        grid = np.zeros((gy + 2, gx + 2), np.int64)
+        np.add.at(grid, (by[ids] + 1, bx[ids] + 1), 1)
+        strips = grid[:, :-2] + grid[:, 1:-1] + grid[:, 2:]  # (gy + 2, gx): 3 buckets from x - 1
+        qx, qy = bx[rows], by[rows]
+        most = max(int(strips[qy[:, None] + np.arange(3)[None, :], qx[:, None]].max()), int(count.max()))
+        while most > cap and 3 * cap < M:
+            cap *= 4
+    ok = ~need[src]
+    src, dst = src[ok], dst[ok]
+    order = _grouped(src)
+    src, dst = src[order], dst[order]
+    start = np.zeros(n + 1, np.int32)
+    np.cumsum(np.bincount(src, minlength=n), out=start[1:])
+    # Entry i of row r goes to column i - start[r]: flat place r * keep + i - start[r].
+    np.put(cand, (src * keep - start[src]) + np.arange(len(src), dtype=np.int32), dst)
+    return cand, need, cap
+
+
+def _grouped(keys):
+    """An order of the non-negative int ``keys`` (below 2**32) that groups equal ones: a stable
+    radix sort over 16-bit digits (numpy's stable sort of uint16 is a counting sort, ~7x faster
+    than its sort of wider ints)."""
+    keys = np.asarray(keys)
+    order = np.argsort((keys & 0xFFFF).astype(np.uint16), kind="stable")
+    if keys.size and int(keys.max()) > 0xFFFF:
+        order = order[np.argsort((keys[order] >> 16).astype(np.uint16), kind="stable")]
+    return order

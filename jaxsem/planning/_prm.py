@@ -18,6 +18,7 @@ from ._roadmap import (
     _check_sectors,
     _connect_checked,
     _grow_exact,
+    _grow_lazy,
     _initial_cap,
     _map_aids,
     default_radius,
@@ -43,7 +44,9 @@ class PRM:
     the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
     later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
     :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
-    them all and returns the eager roadmap).
+    them all and returns the eager roadmap). The per-map setup (the edge check's clearance table,
+    the uniform sampling CDF) is kept for the latest two maps, matched cell for cell, so several
+    roadmaps on one map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
     """
 
     def __init__(
@@ -122,29 +125,39 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
-        lazy = self._lazy is not None
-        s0 = _QUERY + self.count
-        out, self._cap = _grow_exact(
-            self.roadmap,
-            key,
-            self._blocked_j,
-            dist,
-            jnp.asarray(self.origin, dtype),
-            int(n),
-            self.radius,
-            self.resolution,
-            cap,
-            not lazy and self.weight == "neglogp",
-            self.sectors,
-            bool(uniform_samples),
-            self._aids,
-            lazy=lazy,
-        )
         if self._lazy is not None:
-            self.roadmap, cand = out
-            self._lazy.add_rows(s0, np.asarray(cand))
+            s0 = _QUERY + self.count
+            (self.roadmap, cand), self._cap = _grow_lazy(
+                self.roadmap,
+                key,
+                self._blocked_j,
+                dist,
+                jnp.asarray(self.origin, dtype),
+                int(n),
+                self.radius,
+                self.resolution,
+                cap,
+                self.sectors,
+                bool(uniform_samples),
+                self._aids,
+            )
+            self._lazy.add_rows(s0, cand)
         else:
-            self.roadmap = out
+            self.roadmap, self._cap = _grow_exact(
+                self.roadmap,
+                key,
+                self._blocked_j,
+                dist,
+                jnp.asarray(self.origin, dtype),
+                int(n),
+                self.radius,
+                self.resolution,
+                cap,
+                self.weight == "neglogp",
+                self.sectors,
+                bool(uniform_samples),
+                self._aids,
+            )
         if distribution is not None:
             self.distribution = distribution
         self._graph = None

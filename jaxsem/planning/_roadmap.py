@@ -70,9 +70,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _clearance_table, _edge_samples, _edges, _subset, query_reach
+from ._edges import _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
-from ._neighbours import _knn, _select
+from ._neighbours import _candidates_host, _grid_dims, _knn, _knn_grid, _knn_rows, _select
 from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
@@ -171,21 +171,76 @@ class _MapAids(NamedTuple):
     uniform_cdf: jax.Array
 
 
-_table_jit = jax.jit(_clearance_table)
 _uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
 
 
+#: Per-map aids of the latest maps, newest first: (the map's own copy, dtype, aids). A user who
+#: builds several roadmaps on one map (or a map that comes back) makes them once.
+_AIDS_CACHE: list[tuple[np.ndarray, np.dtype, _MapAids]] = []
+#: Maps whose aids are kept (each costs ~6 bytes per cell).
+_AIDS_CACHE_SIZE = 2
+
+
+def clear_map_cache() -> None:
+    """Forgets the per-map setup (clearance table, uniform sampling CDF) that :class:`PRM` keeps
+    for the latest maps it was built or updated on: frees their memory, and lets a timing see
+    what a PRM on a map not seen before costs."""
+    _AIDS_CACHE.clear()
+
+
 def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
-    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``. The
-    uniform CDF counts free cells: every partial sum is an integer, exact in float32 below
-    2**24 cells whatever the order of the additions, so numpy's cumsum gives the jitted scan's
-    values bit for bit (the same draws) in a third of the time."""
+    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``: from
+    :data:`_AIDS_CACHE` when the same map (cell for cell) and dtype were seen lately, else made
+    and kept."""
+    dt = np.dtype(dtype)
+    for i, (m, d, aids) in enumerate(_AIDS_CACHE):
+        if d == dt and m.shape == blocked.shape and np.array_equal(m, blocked):
+            _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
+            return aids
+    aids = _make_map_aids(blocked, blocked_j, dt)
+    _AIDS_CACHE.insert(0, (np.array(blocked, bool), dt, aids))
+    del _AIDS_CACHE[_AIDS_CACHE_SIZE:]
+    return aids
+
+
+def _make_map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
+    """:func:`_map_aids` made on the host (:func:`_clearance_table_np`: the jitted table's
+    values). The uniform CDF counts free cells: every partial sum is an integer, exact in
+    float32 below 2**24 cells whatever the order of the additions, so numpy's cumsum gives the
+    jitted scan's values bit for bit (the same draws) in a third of the time."""
     free = ~blocked.reshape(-1)
     if 0 < np.count_nonzero(free) and blocked.size < 2**24:
-        cdf = jnp.asarray(np.cumsum(free, dtype=np.int32).astype(np.dtype(dtype)))
+        cdf = jax.device_put(np.cumsum(free.view(np.uint8), dtype=np.int32).astype(dtype))
     else:
-        cdf = _uniform_cdf_jit(blocked_j, np.dtype(dtype))
-    return _MapAids(_table_jit(blocked_j), cdf)
+        cdf = _uniform_cdf_jit(blocked_j, dtype)
+    return _MapAids(jax.device_put(_clearance_table_np(blocked)), cdf)
+
+
+def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples, aids):
+    """``n`` new samples written into the roadmap's points and valid flags. Returns (points,
+    valid, new points, their valid flags, first slot)."""
+    H, W = blocked.shape
+    dtype = rm.points.dtype
+    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
+    uniform = distribution is None or uniform_samples
+    cdf = aids.uniform_cdf if aids is not None and uniform else None
+    new = sample_points(key, weights, n, origin, resolution, cdf)
+    r, c, on = _cells(new, origin, resolution, (H, W))
+    ok_new = on & ~blocked[r, c]
+    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
+    z = jnp.zeros((), jnp.int32)
+    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
+    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    return points, valid, new, ok_new, s0
+
+
+def _density(points, distribution, origin, resolution, sectors):
+    """Each vertex's sampling density (the direction-first policy's "sparser" test), None
+    when it plays no part (no sectors, or uniform samples)."""
+    if not sectors or distribution is None:
+        return None
+    pr, pc, _ = _cells(points, origin, resolution, distribution.shape)
+    return distribution[pr, pc]
 
 
 def _sample_and_search(
@@ -202,7 +257,6 @@ def _sample_and_search(
     sectors,
     uniform_samples,
     aids,
-    order_all=True,
 ):
     """The first half of a grow: ``n`` new samples written into the roadmap's points and valid
     flags, and each new vertex's candidates (n, K) in preference order (K = 2k with sectors, k
@@ -210,29 +264,24 @@ def _sample_and_search(
     slot, candidates, overflow)."""
     M, k = rm.neighbors.shape
     H, W = blocked.shape
-    dtype = rm.points.dtype
-    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
-    uniform = distribution is None or uniform_samples
-    cdf = aids.uniform_cdf if aids is not None and uniform else None
-    new = sample_points(key, weights, n, origin, resolution, cdf)
-    r, c, on = _cells(new, origin, resolution, (H, W))
-    ok_new = on & ~blocked[r, c]
-    s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
-    z = jnp.zeros((), jnp.int32)
-    points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
-    valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
+    points, valid, new, ok_new, s0 = _sample_into(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
     slots = s0 + jnp.arange(n, dtype=jnp.int32)
     db_ok = valid & (jnp.arange(M) >= _QUERY)
     extent = (W * resolution, H * resolution)
     # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
     keep = 2 * k if sectors else k
-    density = None
-    if sectors and distribution is not None:
-        pr, pc, _ = _cells(points, origin, resolution, (H, W))
-        density = distribution[pr, pc]
-    nbr, ovf = _knn(
-        points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density, order_all
-    )
+    density = _density(points, distribution, origin, resolution, sectors)
+    nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     return points, valid, new, ok_new, s0, nbr, ovf
 
 
@@ -326,37 +375,114 @@ _grow_jit = functools.partial(
 )(_grow_impl)
 
 
-def _grow_lazy_impl(
-    rm, key, blocked, distribution, origin, *, n, radius, resolution, cap, sectors=0, uniform_samples=False, aids=None
-):
-    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the same samples and
-    candidates as :func:`_grow_impl`, in its order where the order decides a link (rows with
-    more than k candidates; a row with at most k keeps every clear one whatever the order, so
-    its candidates are not ranked). Returns (roadmap with the new points and no new edges, the
-    new vertices' candidates (n, K), ``M`` where none or where the vertex is not valid)."""
-    M = rm.neighbors.shape[0]
-    points, valid, _, ok_new, _, nbr, ovf = _sample_and_search(
+def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
+    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
+    edge). Returns (roadmap, the new samples' valid flags)."""
+    points, valid, _, ok_new, _ = _sample_into(
         rm,
         key,
         blocked,
         distribution,
         origin,
         n=n,
-        radius=radius,
         resolution=resolution,
-        cap=cap,
-        sectors=sectors,
         uniform_samples=uniform_samples,
         aids=aids,
-        order_all=False,
     )
-    rm = rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n, overflow=rm.overflow | ovf)
-    return rm, jnp.where(ok_new[:, None], nbr, M)
+    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
 
 
-_grow_lazy_jit = functools.partial(
-    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "sectors", "uniform_samples")
-)(_grow_lazy_impl)
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
+
+
+#: Vertices the lazy grow ranks on the device per call: one compiled shape, whatever their count.
+_RANK_CHUNK = 256
+
+
+@functools.partial(jax.jit, static_argnames=("radius", "extent"))
+def _grid_jit(points, valid, origin, *, radius, extent):
+    """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own)."""
+    M = points.shape[0]
+    return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
+
+
+@functools.partial(jax.jit, static_argnames=("k", "radius", "resolution", "extent", "cap", "sectors", "keep"))
+def _knn_some_jit(
+    points, valid, rows, order, sorted_bid, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep
+):
+    """The eager grow's neighbour search (:func:`_knn_rows`, ranked) for the vertices ``rows``
+    alone (``order``, ``sorted_bid``: :func:`_grid_jit`, unused when ``cap`` is None: brute
+    force): their rows as a search of every new vertex gives them."""
+    M = points.shape[0]
+    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    db = points - origin
+    density = _density(points, distribution, origin, resolution, sectors)
+    grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
+    return _knn_rows(
+        db, db_ok, db[rows], rows, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
+    )
+
+
+def _grow_lazy(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
+) -> tuple[tuple[Roadmap, np.ndarray], int]:
+    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the eager grow's
+    samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
+    vertex is not valid): the eager grow's set, in its order where the order decides a link.
+    Rows with at most k candidates keep every clear one whatever the order, so the host finds
+    their sets (:func:`_candidates_host`); the device ranks the others with the eager search.
+    Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
+    M, k = roadmap.neighbors.shape
+    H, W = blocked.shape
+    s0 = _QUERY + int(roadmap.num_samples)
+    rm, ok_new = _sample_lazy_jit(
+        roadmap,
+        key,
+        blocked,
+        dist,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    pts = np.asarray(rm.points)
+    db_ok = np.asarray(rm.valid) & (np.arange(M) >= _QUERY)
+    rows = np.arange(s0, s0 + n)
+    extent = (W * resolution, H * resolution)
+    keep = 2 * k if sectors else k
+    cand, need, cap = _candidates_host(pts - np.asarray(origin), db_ok, rows, k, radius, extent, keep, cap)
+    if need.any():
+        some = rows[need].astype(np.int32)
+        padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin, radius=radius, extent=extent)
+        while True:
+            use = cap if 3 * cap < M else None
+            parts = [
+                _knn_some_jit(
+                    rm.points,
+                    rm.valid,
+                    jnp.asarray(padded[i : i + _RANK_CHUNK]),
+                    order,
+                    sorted_bid,
+                    dist,
+                    origin,
+                    k=k,
+                    radius=radius,
+                    resolution=resolution,
+                    extent=extent,
+                    cap=use,
+                    sectors=sectors,
+                    keep=keep,
+                )
+                for i in range(0, len(padded), _RANK_CHUNK)
+            ]
+            if use is None or not any(bool(o) for _, o in parts):
+                break
+            cap *= 4  # the host's strip counts said no overflow: not expected, but never drop one
+        cand[need] = np.concatenate([np.asarray(nb) for nb, _ in parts])[: len(some)]
+    cand[~np.asarray(ok_new)] = M
+    return (rm, cand), cap
 
 
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
@@ -373,6 +499,12 @@ def _recheck_impl(rm, blocked, origin, *, radius, resolution):
 
 
 _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
+
+
+#: Work-list width of a query's long-edge check: at most 2 x 2k edges whose grazing intervals
+#: read dozens of samples each; the default width (8192 intervals a step) read ~450 k samples
+#: per step for the few dozen intervals a query needs.
+_LONG_CHUNK = 128
 
 
 def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
@@ -410,7 +542,17 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     s_long = _edge_samples(reach, resolution)
     sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
     clear_l, w_l = _edges(
-        blocked, cost, q[:, None, :], other, origin, resolution, s_long, cand & ~short, sub, table=table
+        blocked,
+        cost,
+        q[:, None, :],
+        other,
+        origin,
+        resolution,
+        s_long,
+        cand & ~short,
+        sub,
+        table=table,
+        chunk=_LONG_CHUNK,
     )
     clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
     ev = (nbr < M) & clear
@@ -558,33 +700,12 @@ def _grow_exact(
     sectors=0,
     uniform_samples=False,
     aids=None,
-    lazy=False,
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
-    Returns (roadmap, the cap that sufficed); with ``lazy`` (no edge checked,
-    :func:`_grow_lazy_impl`) ((roadmap, the new vertices' candidates), the cap)."""
+    Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
     while True:
-        if lazy:
-            out = _grow_lazy_jit(
-                roadmap,
-                key,
-                blocked,
-                dist,
-                origin,
-                n=n,
-                radius=radius,
-                resolution=resolution,
-                cap=cap if 3 * cap < M else None,
-                sectors=sectors,
-                uniform_samples=uniform_samples,
-                aids=aids,
-            )
-            if 3 * cap >= M or before or not bool(out[0].overflow):
-                return out, cap
-            cap *= 4
-            continue
         out = _grow_jit(
             roadmap,
             key,
