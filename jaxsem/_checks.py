@@ -8,6 +8,7 @@ carried by masks and result codes instead. This module imports nothing else of t
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -123,7 +124,7 @@ def require_type(name: str, value, kind: type) -> Any:
     written for a loose signature, which would otherwise shift every later argument."""
     if isinstance(value, kind):
         return value
-    fields = ", ".join(getattr(kind, "_fields", None) or [f.name for f in __import__("dataclasses").fields(kind)])
+    fields = ", ".join(getattr(kind, "_fields", None) or [f.name for f in dataclasses.fields(kind)])
     raise ValueError(
         f"{name}: expected a jaxsem.quadrics.{kind.__name__}, got {type(value).__name__}; "
         f"build one as quadrics.{kind.__name__}({fields})"
