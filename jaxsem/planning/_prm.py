@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._edges import _edge_samples
-from ._lazy import _checker, _LazyEdges
+from ._lazy import _CHUNK, _checker, _LazyEdges
 from ._roadmap import (
     _QUERY,
     DEFAULT_SECTORS,
@@ -20,7 +20,7 @@ from ._roadmap import (
     _grow_exact,
     _grow_lazy,
     _initial_cap,
-    _map_aids,
+    _map_setup,
     default_radius,
     prm_star_k,
     roadmap_init,
@@ -77,8 +77,8 @@ class PRM:
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
-        self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._blocked_j = self._setup.blocked_j
         self.origin = origin_np
         self.resolution = float(resolution)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -139,7 +139,7 @@ class PRM:
                 cap,
                 self.sectors,
                 bool(uniform_samples),
-                self._aids,
+                self._setup.aids(table=False),
             )
             self._lazy.add_rows(s0, cand)
         else:
@@ -156,7 +156,7 @@ class PRM:
                 self.weight == "neglogp",
                 self.sectors,
                 bool(uniform_samples),
-                self._aids,
+                self._setup.aids(table=True),
             )
         if distribution is not None:
             self.distribution = distribution
@@ -178,8 +178,8 @@ class PRM:
             # checks every edge no query has checked yet).
             self._lazy.settle(self._check_fn(chunk=16384))
         self.blocked = blocked
-        self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         if self._lazy is not None:
@@ -201,7 +201,7 @@ class PRM:
             distribution=self.distribution,
             weight=self.weight,
             sectors=self.sectors,
-            aids=self._aids,
+            setup=self._setup,
         )
         if self._lazy is not None:
             return self._lazy.search(self.roadmap, self._check_fn(), self.radius)
@@ -213,12 +213,13 @@ class PRM:
         assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand
         dtype = self.roadmap.points.dtype
         kw = {} if chunk is None else {"chunk": chunk}
+        # A query's calls read every sample (no table); many edges at once read the table.
         return _checker(
             self._blocked_j,
             np.asarray(self.roadmap.points),
             self._lazy.cand,
             jnp.asarray(self.origin, dtype),
-            self._aids.table,
+            None if chunk is None or chunk <= _CHUNK else self._setup.table(),
             self.resolution,
             _edge_samples(self.radius, self.resolution),
             **kw,
