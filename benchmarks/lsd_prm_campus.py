@@ -18,7 +18,7 @@ turns, repeat after repeat, in one run:
   radius times ``--fast-radius-factor``), timed in the same run and reported in its own rows
   beside the defaults (never in their place).
 
-The PRM keeps per-map setup (clearance table, sampling CDF) for the latest maps
+The PRM keeps per-map setup (sampling aids, clearance table) for the latest maps
 (:func:`jaxsem.planning.clear_map_cache`), so a repeated build on one map costs less than the first
 one on a new map: each jaxsem configuration is timed both ways, in turn, every repeat: "first
 build" with the cache cleared first (what a fresh user pays), then "build" on the same map again.

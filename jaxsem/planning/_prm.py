@@ -44,9 +44,11 @@ class PRM:
     the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
     later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
     :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
-    them all and returns the eager roadmap). The per-map setup (the edge check's clearance table,
-    the uniform sampling CDF) is kept for the latest two maps, matched cell for cell, so several
-    roadmaps on one map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
+    them all and returns the eager roadmap). The per-map setup (uniform sampling's free-cell words;
+    the edge check's clearance table, made on first use: a lazy PRM's queries need it only
+    around their start and goal until :meth:`checked_roadmap` or :meth:`update_map` checks many
+    edges) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
+    map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
     """
 
     def __init__(
