@@ -150,8 +150,13 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
         raise ValueError(f"capacity: expected a positive int, got {capacity!r}")
     if not (isinstance(k, (int, np.integer)) and k >= 1):
         raise ValueError(f"k: expected a positive int number of neighbours, got {k!r}")
-    dtype = dtype or jnp.result_type(float)
-    M = int(capacity) + _QUERY
+    dtype = np.dtype(dtype or jnp.result_type(float))
+    return _empty_roadmap(int(capacity) + _QUERY, int(k), dtype)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def _empty_roadmap(M: int, k: int, dtype) -> Roadmap:
+    """:func:`roadmap_init`'s arrays in one compiled call (seven eager ones cost ~1.3 ms)."""
     return Roadmap(
         points=jnp.zeros((M, 2), dtype),
         valid=jnp.zeros(M, bool),

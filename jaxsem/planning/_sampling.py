@@ -47,7 +47,10 @@ def _free_words(free) -> tuple[np.ndarray, np.ndarray]:
     b = np.packbits(free, bitorder="little")
     b = np.concatenate([b, np.zeros(-len(b) % 4, np.uint8)])
     words = b.view("<u4").astype(np.uint32)
-    per = _POPCOUNT[b].reshape(-1, 4).sum(axis=1, dtype=np.int32)
+    if hasattr(np, "bitwise_count"):  # numpy >= 2
+        per = np.bitwise_count(words)
+    else:  # each byte's count, the 4 summed into the top byte by one multiply
+        per = (_POPCOUNT[b].view("<u4").astype(np.uint32) * np.uint32(0x01010101)) >> np.uint32(24)
     return words, np.cumsum(per, dtype=np.int32)
 
 
