@@ -173,8 +173,9 @@ def main(argv=None) -> int:
             p0 = prm.query(tasks[0][0], tasks[0][1])
             return time.perf_counter() - t0, prm, p0
 
-        for c in configs:
-            jaxsem_run(args.seed + 999, c)  # warm-up (compilation)
+        for c in configs:  # warm-up (compilation): a first build on a new map, then one on the same map
+            jaxsem_run(args.seed + 999, c, fresh=True)
+            jaxsem_run(args.seed + 999, c)
         for rep in range(args.repeats):
             seed = args.seed + rep
             o = run_ompl(exe, b, n, seed, tasks)
