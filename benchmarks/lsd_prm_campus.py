@@ -18,7 +18,7 @@ turns, repeat after repeat, in one run:
   radius times ``--fast-radius-factor``), timed in the same run and reported in its own rows
   beside the defaults (never in their place).
 
-The PRM keeps per-map setup (clearance table, sampling CDF) for the latest maps
+The PRM keeps per-map setup (sampling aids, clearance table) for the latest maps
 (:func:`jaxsem.planning.clear_map_cache`), so a repeated build on one map costs less than the first
 one on a new map: each jaxsem configuration is timed both ways, in turn, every repeat: "first
 build" with the cache cleared first (what a fresh user pays), then "build" on the same map again.
@@ -173,8 +173,9 @@ def main(argv=None) -> int:
             p0 = prm.query(tasks[0][0], tasks[0][1])
             return time.perf_counter() - t0, prm, p0
 
-        for c in configs:
-            jaxsem_run(args.seed + 999, c)  # warm-up (compilation)
+        for c in configs:  # warm-up (compilation): a first build on a new map, then one on the same map
+            jaxsem_run(args.seed + 999, c, fresh=True)
+            jaxsem_run(args.seed + 999, c)
         for rep in range(args.repeats):
             seed = args.seed + rep
             o = run_ompl(exe, b, n, seed, tasks)

@@ -585,20 +585,30 @@ def _assert_same_roadmap(eager, lazy):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sectors,k", [(8, None), (8, 6), (0, 6)])
-def test_lazy_prm_returns_the_eager_prms_paths(sectors, k):
+def test_lazy_prm_returns_the_eager_prms_paths(sectors, k, monkeypatch):
     """Lazy PRM (check only what the query's shortest path needs) against the eager PRM on the
     same samples: every query finds the same shortest cost (the lazy search's answer is a
     shortest path of the eager roadmap), a second identical query checks nothing new, and once
     every edge is checked the lazy roadmap is the eager one edge for edge (candidates, the
     first-k-clear rule, weights). k = 6 with 8 sectors: rows hold more candidates than k, so later slots
     only count once the slots before them are checked."""
+    from jaxsem.planning import _roadmap  # layers: white-box
+
     occ = _blocks(3, shape=(60, 100), n=25)
     free = np.argwhere(~occ)
     rng = np.random.default_rng(3)
     eager, lazy = _lazy_and_eager(occ, sectors, k)
+    # Its own per-map setup, no table yet, and windows at any size: the queries' start and goal
+    # edges are checked through tables made on windows around them, with the eager answers.
+    monkeypatch.setattr(_roadmap, "_WHOLE_TABLE_SHARE", 0)
+    lazy._setup = _roadmap._MapSetup(occ, lazy.roadmap.points.dtype)
     for _ in range(5):
         s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
         pe, pl = eager.query(s, g), lazy.query(s, g)
+        for field in ("neighbors", "edge_valid", "edge_weight"):
+            np.testing.assert_array_equal(
+                np.asarray(getattr(lazy.roadmap, field))[:2], np.asarray(getattr(eager.roadmap, field))[:2]
+            )
         assert pe.found == pl.found
         if pe.found:
             np.testing.assert_allclose(pl.cost, pe.cost, rtol=1e-9)
@@ -611,6 +621,7 @@ def test_lazy_prm_returns_the_eager_prms_paths(sectors, k):
         assert again.found == pl.found and (not pl.found or again.cost == pl.cost)
     # Only part of the roadmap was checked.
     assert 0 < np.count_nonzero(lazy._lazy.status == 0)
+    assert not lazy._setup.has_table
     _assert_same_roadmap(eager, lazy)
 
 
@@ -976,17 +987,72 @@ def test_the_per_map_setup_is_kept_by_content():
 
     occ = np.zeros((60, 80), bool)
     first = PRM(occ, ORIGIN, RES, capacity=50)
-    assert PRM(occ.copy(), ORIGIN, RES, capacity=50)._aids is first._aids
+    assert PRM(occ.copy(), ORIGIN, RES, capacity=50)._setup is first._setup
     occ[10:50, 40] = True  # edited in place
     edited = PRM(occ, ORIGIN, RES, capacity=50)
-    assert edited._aids is not first._aids
-    np.testing.assert_array_equal(np.asarray(edited._aids.table), _clearance_table_np(occ))
-    assert PRM(np.zeros((60, 80), bool), ORIGIN, RES, capacity=50)._aids is first._aids
+    assert edited._setup is not first._setup
+    np.testing.assert_array_equal(np.asarray(edited._setup.table()), _clearance_table_np(occ))
+    assert PRM(np.zeros((60, 80), bool), ORIGIN, RES, capacity=50)._setup is first._setup
     clear_map_cache()
     again = PRM(occ, ORIGIN, RES, capacity=50)
-    assert again._aids is not edited._aids
-    np.testing.assert_array_equal(np.asarray(again._aids.table), np.asarray(edited._aids.table))
-    np.testing.assert_array_equal(np.asarray(again._aids.uniform_cdf), np.asarray(edited._aids.uniform_cdf))
+    assert again._setup is not edited._setup
+    np.testing.assert_array_equal(np.asarray(again._setup.table()), np.asarray(edited._setup.table()))
+    for a, b in zip(again._setup.aids(table=False), edited._setup.aids(table=False)):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_free_cell_sampling_draws_the_cdf_samples():
+    """Uniform samples come from the free cells' bit words (no CDF over every cell): the same
+    points as the CDF search draws, bit for bit, on maps from empty to nearly full and with a
+    single free cell (the last one)."""
+    from jaxsem.planning import sample_points
+    from jaxsem.planning._sampling import _free_words, _sampling_weights, sample_free_cells  # layers: white-box
+
+    rng = np.random.default_rng(0)
+    origin = jnp.asarray(ORIGIN, jnp.float32) + 0.37
+    one = np.ones((33, 65), bool)
+    one[32, 64] = False
+    maps = [rng.random((33, 65)) < p for p in (0.3, 0.0, 0.99)] + [one]
+    by_cdf = jax.jit(lambda key, occ: sample_points(key, _sampling_weights(occ, None), 3000, origin, RES))
+    by_words = jax.jit(lambda key, w, c: sample_free_cells(key, w, c, (33, 65), 3000, origin, RES))
+    for occ in maps:
+        words, counts = _free_words(~occ)
+        for seed in range(2):
+            key = jax.random.PRNGKey(seed)
+            want = by_cdf(key, jnp.asarray(occ))
+            got = by_words(key, jnp.asarray(words), jnp.asarray(counts))
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
+def test_a_query_table_on_windows_gives_the_edge_checks_answers():
+    """A lazy PRM's query on a new map reads the clearance table only around its start and goal
+    (made on windows, 0 elsewhere): every value is at most the whole table's, and the edge check
+    gives the rule's answers with it on edges inside, across and outside the windows."""
+    from jaxsem.planning._edges import _clearance_table_np, _edges_clear, _edges_dense  # layers: white-box
+    from jaxsem.planning._roadmap import _MapSetup  # layers: white-box
+
+    occ = _blocks(11, shape=(150, 260), n=80)
+    setup = _MapSetup(occ, np.float32)
+    window = setup.query_table([(0, 40, 0, 40), (100, 150, 200, 260)])
+    assert not setup.has_table
+    whole = _clearance_table_np(occ)
+    w = np.asarray(window)
+    assert w.shape == whole.shape and np.all(w <= whole) and w[:16, :16].any() and not w[34:, 34:90].any()
+    rng = np.random.default_rng(4)
+    a = rng.random((400, 2)) * [8.0, 6.0]
+    b = a + rng.normal(0.0, 2.0, (400, 2))
+    origin = jnp.asarray(ORIGIN, jnp.float32)
+    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
+    want, got = jax.jit(
+        lambda blocked, table: (
+            _edges_dense(blocked, a, b, origin, RES, 61)[0],
+            _edges_clear(blocked, a, b, origin, RES, 61, table=table),
+        )
+    )(jnp.asarray(occ), window)
+    assert 0 < int(np.sum(want)) < 400
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
 
 
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():

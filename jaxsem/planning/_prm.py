@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._edges import _edge_samples
-from ._lazy import _checker, _LazyEdges
+from ._lazy import _CHUNK, _checker, _LazyEdges
 from ._roadmap import (
     _QUERY,
     DEFAULT_SECTORS,
@@ -20,7 +20,7 @@ from ._roadmap import (
     _grow_exact,
     _grow_lazy,
     _initial_cap,
-    _map_aids,
+    _map_setup,
     default_radius,
     prm_star_k,
     roadmap_init,
@@ -44,9 +44,11 @@ class PRM:
     the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
     later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
     :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
-    them all and returns the eager roadmap). The per-map setup (the edge check's clearance table,
-    the uniform sampling CDF) is kept for the latest two maps, matched cell for cell, so several
-    roadmaps on one map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
+    them all and returns the eager roadmap). The per-map setup (uniform sampling's free-cell words;
+    the edge check's clearance table, made on first use: a lazy PRM's queries need it only
+    around their start and goal until :meth:`checked_roadmap` or :meth:`update_map` checks many
+    edges) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
+    map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
     """
 
     def __init__(
@@ -77,8 +79,8 @@ class PRM:
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
-        self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._blocked_j = self._setup.blocked_j
         self.origin = origin_np
         self.resolution = float(resolution)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -139,7 +141,7 @@ class PRM:
                 cap,
                 self.sectors,
                 bool(uniform_samples),
-                self._aids,
+                self._setup.aids(table=False),
             )
             self._lazy.add_rows(s0, cand)
         else:
@@ -156,7 +158,7 @@ class PRM:
                 self.weight == "neglogp",
                 self.sectors,
                 bool(uniform_samples),
-                self._aids,
+                self._setup.aids(table=True),
             )
         if distribution is not None:
             self.distribution = distribution
@@ -178,8 +180,8 @@ class PRM:
             # checks every edge no query has checked yet).
             self._lazy.settle(self._check_fn(chunk=16384))
         self.blocked = blocked
-        self._blocked_j = jnp.asarray(blocked)
-        self._aids = _map_aids(blocked, self._blocked_j, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
         if self._lazy is not None:
@@ -201,7 +203,7 @@ class PRM:
             distribution=self.distribution,
             weight=self.weight,
             sectors=self.sectors,
-            aids=self._aids,
+            setup=self._setup,
         )
         if self._lazy is not None:
             return self._lazy.search(self.roadmap, self._check_fn(), self.radius)
@@ -213,12 +215,13 @@ class PRM:
         assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand
         dtype = self.roadmap.points.dtype
         kw = {} if chunk is None else {"chunk": chunk}
+        # A query's calls read every sample (no table); many edges at once read the table.
         return _checker(
             self._blocked_j,
             np.asarray(self.roadmap.points),
             self._lazy.cand,
             jnp.asarray(self.origin, dtype),
-            self._aids.table,
+            None if chunk is None or chunk <= _CHUNK else self._setup.table(),
             self.resolution,
             _edge_samples(self.radius, self.resolution),
             **kw,

@@ -70,10 +70,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
+from ._edges import _BASE, _TOP, _cells, _clearance_table_np, _edge_samples, _edges, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._neighbours import _candidates_host, _grid_dims, _knn, _knn_grid, _knn_rows, _select
-from ._sampling import _cdf, _cost_grid, _sampling_weights, sample_points
+from ._sampling import _cdf, _cost_grid, _free_words, _sampling_weights, sample_free_cells, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
@@ -150,8 +150,13 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
         raise ValueError(f"capacity: expected a positive int, got {capacity!r}")
     if not (isinstance(k, (int, np.integer)) and k >= 1):
         raise ValueError(f"k: expected a positive int number of neighbours, got {k!r}")
-    dtype = dtype or jnp.result_type(float)
-    M = int(capacity) + _QUERY
+    dtype = np.dtype(dtype or jnp.result_type(float))
+    return _empty_roadmap(int(capacity) + _QUERY, int(k), dtype)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def _empty_roadmap(M: int, k: int, dtype) -> Roadmap:
+    """:func:`roadmap_init`'s arrays in one compiled call (seven eager ones cost ~1.3 ms)."""
     return Roadmap(
         points=jnp.zeros((M, 2), dtype),
         valid=jnp.zeros(M, bool),
@@ -164,56 +169,138 @@ def roadmap_init(capacity: int, k: int, dtype=None) -> Roadmap:
 
 
 class _MapAids(NamedTuple):
-    """What the PRM keeps per known map so that every grow and query does not redo it: the
-    edge check's clearance table and the cumulative weights of uniform sampling."""
+    """What a jitted grow or query reads of the per-map setup (:class:`_MapSetup`; None where
+    that step needs no such part): the edge check's clearance table, and uniform sampling's
+    free-cell words and their running counts (:func:`_free_words`) or, on maps where those do
+    not apply, its cumulative weights."""
 
-    table: jax.Array
-    uniform_cdf: jax.Array
+    table: jax.Array | None
+    free_words: jax.Array | None
+    free_counts: jax.Array | None
+    uniform_cdf: jax.Array | None
 
 
 _uniform_cdf_jit = jax.jit(lambda blocked, dtype: _cdf(_sampling_weights(blocked, None), dtype), static_argnums=1)
 
 
-#: Per-map aids of the latest maps, newest first: (the map's own copy, dtype, aids). A user who
-#: builds several roadmaps on one map (or a map that comes back) makes them once.
-_AIDS_CACHE: list[tuple[np.ndarray, np.dtype, _MapAids]] = []
-#: Maps whose aids are kept (each costs ~6 bytes per cell).
+def _aligned(a: np.ndarray) -> jax.Array:
+    """``a`` on the device. On a CPU backend a 64-byte aligned array is taken without a copy
+    (an unaligned one costs a copy into fresh pages: milliseconds for a map); only for arrays
+    nobody writes to afterwards."""
+    a = np.ascontiguousarray(a)
+    if a.ctypes.data % 64:
+        buf = np.empty(a.nbytes + 64, np.uint8)
+        off = (-buf.ctypes.data) % 64
+        out = buf[off : off + a.nbytes].view(a.dtype).reshape(a.shape)
+        out[...] = a
+        a = out
+    return jax.device_put(a)
+
+
+def _aligned_zeros(shape, dtype) -> np.ndarray:
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    buf = np.zeros(nbytes + 64, np.uint8)
+    off = (-buf.ctypes.data) % 64
+    return buf[off : off + nbytes].view(dtype).reshape(shape)
+
+
+#: A query's windows covering more than 1 / this of the map make the whole table instead.
+_WHOLE_TABLE_SHARE = 4
+
+
+class _MapSetup:
+    """The per-map setup of one known map (bool grid ``blocked``, kept as a private copy: the
+    cache's key), made once and shared by the roadmaps on that map: its device copy, uniform
+    sampling's free-cell words (made at once: a fraction of a millisecond), and the edge
+    check's clearance table, made on first use (:meth:`table`): a lazy PRM checks no edge
+    while it grows, and its query's start and goal edges need the table only around them
+    (:meth:`query_table`), so a first lazy build on a new map does without the whole table."""
+
+    def __init__(self, blocked: np.ndarray, dtype):
+        self.blocked = np.array(blocked, bool)
+        self.dtype = np.dtype(dtype)
+        self.blocked_j = _aligned(self.blocked)
+        free = ~self.blocked.reshape(-1)
+        self._words = self._counts = self._cdf = None
+        if 0 < np.count_nonzero(free) and self.blocked.size < 2**24:
+            words, counts = _free_words(free)
+            self._words, self._counts = _aligned(words), _aligned(counts)
+        else:  # nothing free (sampling falls back to every cell) or counts past float32's integers
+            self._cdf = _uniform_cdf_jit(self.blocked_j, self.dtype)
+        self._table: jax.Array | None = None
+
+    @property
+    def has_table(self) -> bool:
+        return self._table is not None
+
+    def table(self) -> jax.Array:
+        """The clearance table of the whole map (:func:`_clearance_table_np`: the jitted
+        table's values), made on the first call."""
+        if self._table is None:
+            self._table = _aligned(_clearance_table_np(self.blocked))
+        return self._table
+
+    def aids(self, table: bool) -> _MapAids:
+        """The sampling parts, and the whole table when ``table``."""
+        return _MapAids(self.table() if table else None, self._words, self._counts, self._cdf)
+
+    def query_table(self, boxes) -> jax.Array:
+        """A clearance table for edges inside ``boxes`` ((row0, row1, col0, col1) cell ranges,
+        ends excluded): the whole map's when it is made (or the boxes cover a quarter of the
+        map, :data:`_WHOLE_TABLE_SHARE`: then it is made and kept), else one with values only in the boxes (widened to
+        whole top-level blocks), each made on its own window with the cells outside the window
+        counted as blocked, and 0 elsewhere. Every value is a lower bound of the whole table's
+        (the window's obstacles include the map's), and the edge check reads the rule's samples
+        wherever the table cannot vouch for them, so its answers are the same with either
+        table; only what it reads differs."""
+        H, W = self.blocked.shape
+        top = 1 << _TOP
+        wins = []
+        for r0, r1, c0, c1 in boxes:
+            r0, c0 = max(0, int(r0)) // top * top, max(0, int(c0)) // top * top
+            r1, c1 = min(H, -(-int(r1) // top) * top), min(W, -(-int(c1) // top) * top)
+            if r0 < r1 and c0 < c1:
+                wins.append((r0, r1, c0, c1))
+        area = sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in wins)
+        if self._table is not None or _WHOLE_TABLE_SHARE * area >= H * W:
+            return self.table()
+        b = 1 << _BASE
+        out = _aligned_zeros((-(-H // top) * top // b, -(-W // top) * top // b), np.int32)
+        for r0, r1, c0, c1 in wins:
+            sub = _clearance_table_np(self.blocked[r0:r1, c0:c1])
+            h, w = -(-(r1 - r0) // b), -(-(c1 - c0) // b)
+            dst = out[r0 // b : r0 // b + h, c0 // b : c0 // b + w]
+            np.maximum(dst, sub[:h, :w], out=dst)
+        return jax.device_put(out)
+
+
+#: Per-map setup of the latest maps, newest first. A user who builds several roadmaps on one
+#: map (or a map that comes back) makes it once.
+_AIDS_CACHE: list[_MapSetup] = []
+#: Maps whose setup is kept (each costs ~6 bytes per cell).
 _AIDS_CACHE_SIZE = 2
 
 
 def clear_map_cache() -> None:
-    """Forgets the per-map setup (clearance table, uniform sampling CDF) that :class:`PRM` keeps
+    """Forgets the per-map setup (clearance table, sampling aids) that :class:`PRM` keeps
     for the latest maps it was built or updated on: frees their memory, and lets a timing see
     what a PRM on a map not seen before costs."""
     _AIDS_CACHE.clear()
 
 
-def _map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
-    """The aids of the bool grid ``blocked`` (numpy) and its device copy ``blocked_j``: from
-    :data:`_AIDS_CACHE` when the same map (cell for cell) and dtype were seen lately, else made
-    and kept."""
+def _map_setup(blocked: np.ndarray, dtype) -> _MapSetup:
+    """The :class:`_MapSetup` of the bool grid ``blocked`` (numpy): from :data:`_AIDS_CACHE`
+    when the same map (cell for cell) and dtype were seen lately, else made and kept."""
     dt = np.dtype(dtype)
-    for i, (m, d, aids) in enumerate(_AIDS_CACHE):
-        if d == dt and m.shape == blocked.shape and np.array_equal(m, blocked):
+    for i, setup in enumerate(_AIDS_CACHE):
+        if setup.dtype == dt and setup.blocked.shape == blocked.shape and np.array_equal(setup.blocked, blocked):
             _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
-            return aids
-    aids = _make_map_aids(blocked, blocked_j, dt)
-    _AIDS_CACHE.insert(0, (np.array(blocked, bool), dt, aids))
+            return setup
+    setup = _MapSetup(blocked, dt)
+    _AIDS_CACHE.insert(0, setup)
     del _AIDS_CACHE[_AIDS_CACHE_SIZE:]
-    return aids
-
-
-def _make_map_aids(blocked: np.ndarray, blocked_j, dtype) -> _MapAids:
-    """:func:`_map_aids` made on the host (:func:`_clearance_table_np`: the jitted table's
-    values). The uniform CDF counts free cells: every partial sum is an integer, exact in
-    float32 below 2**24 cells whatever the order of the additions, so numpy's cumsum gives the
-    jitted scan's values bit for bit (the same draws) in a third of the time."""
-    free = ~blocked.reshape(-1)
-    if 0 < np.count_nonzero(free) and blocked.size < 2**24:
-        cdf = jax.device_put(np.cumsum(free.view(np.uint8), dtype=np.int32).astype(dtype))
-    else:
-        cdf = _uniform_cdf_jit(blocked_j, dtype)
-    return _MapAids(jax.device_put(_clearance_table_np(blocked)), cdf)
+    return setup
 
 
 def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples, aids):
@@ -223,8 +310,11 @@ def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, unifo
     dtype = rm.points.dtype
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
     uniform = distribution is None or uniform_samples
-    cdf = aids.uniform_cdf if aids is not None and uniform else None
-    new = sample_points(key, weights, n, origin, resolution, cdf)
+    if aids is not None and uniform and aids.free_words is not None:
+        new = sample_free_cells(key, aids.free_words, aids.free_counts, (H, W), n, origin, resolution)
+    else:
+        cdf = aids.uniform_cdf if aids is not None and uniform else None
+        new = sample_points(key, weights, n, origin, resolution, cdf)
     r, c, on = _cells(new, origin, resolution, (H, W))
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
@@ -507,7 +597,9 @@ _recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution
 _LONG_CHUNK = 128
 
 
-def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
+def _query_candidates(rm, start, goal, sectors):
+    """A query's start and goal in the roadmap's points and valid flags, and their candidates
+    (2, keep) in preference order (``M`` where none). Returns (points, valid, q, nbr)."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     q = jnp.stack([start, goal]).astype(dtype)
@@ -527,6 +619,19 @@ def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, res
     nbr = jnp.where(fin, pos, M).astype(jnp.int32)
     if kk < keep:
         nbr = jnp.concatenate([nbr, jnp.full((2, keep - kk), M, jnp.int32)], 1)
+    return points, valid, q, nbr
+
+
+@functools.partial(jax.jit, static_argnames=("sectors",))
+def _query_candidates_jit(rm, start, goal, *, sectors):
+    return _query_candidates(rm, start, goal, sectors)[3]
+
+
+def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    keep = 2 * k if sectors else k
+    points, valid, q, nbr = _query_candidates(rm, start, goal, sectors)
     other = points[jnp.minimum(nbr, M - 1)]
     cost = _cost_grid(distribution) if neglogp else None
     # Each edge is checked with the samples polyline_clear uses for a segment of its length:
@@ -776,9 +881,10 @@ def roadmap_connect(
 
 
 def _connect_checked(
-    roadmap, start, goal, blocked, blocked_j, origin, resolution, *, radius, distribution, weight, sectors, aids=None
+    roadmap, start, goal, blocked, blocked_j, origin, resolution, *, radius, distribution, weight, sectors, setup=None
 ):
-    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy."""
+    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy;
+    ``setup``: the map's :class:`_MapSetup` (None: the table is made inside)."""
     origin_np = np.asarray(origin, np.float64)
     start = check_point("start", start, blocked, origin_np, resolution)
     goal = check_point("goal", goal, blocked, origin_np, resolution)
@@ -787,10 +893,27 @@ def _connect_checked(
     distribution = _check_distribution(distribution, blocked.shape)
     dtype = roadmap.points.dtype
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    start_j, goal_j = jnp.asarray(start, dtype), jnp.asarray(goal, dtype)
+    aids = None
+    if setup is not None and setup.has_table:
+        aids = _MapAids(setup.table(), None, None, None)
+    elif setup is not None:
+        # The table only where the query's edges run: the box of each end and its candidates.
+        nbr = np.asarray(_query_candidates_jit(roadmap, start_j, goal_j, sectors=sectors))
+        pts = np.asarray(roadmap.points, np.float64)
+        ends = np.stack([start, goal]).astype(np.float64)
+        boxes = []
+        for i in range(2):
+            c = nbr[i][nbr[i] < len(pts)]
+            xy = np.concatenate([ends[i : i + 1], np.where((c == GOAL)[:, None], ends[1], pts[c])])
+            cell = np.floor((xy - origin_np) / resolution)
+            lo, hi = cell.min(0) - 1, cell.max(0) + 2
+            boxes.append((lo[1], hi[1], lo[0], hi[0]))
+        aids = _MapAids(setup.query_table(boxes), None, None, None)
     return _connect_jit(
         roadmap,
-        jnp.asarray(start, dtype),
-        jnp.asarray(goal, dtype),
+        start_j,
+        goal_j,
         blocked_j,
         dist,
         jnp.asarray(origin_np, dtype),
