@@ -107,6 +107,7 @@ def test_pose_prior_whitens_simulated_odometry_noise_far_from_the_origin():
     np.testing.assert_allclose(mean_square, 1.0, rtol=0.15)
 
 
+@pytest.mark.slow  # about 5 s of compiling: the fast suite stays under 6 minutes
 def test_border_edges_are_dropped_exactly():
     pose, R, c, r = _scene(4)
     box, _ = Q.project_bbox(R, c, r, K, pose)

@@ -275,6 +275,7 @@ def test_informed_sampler_beats_uniform_at_few_samples():
             assert r.cost <= 1.3 * opt.length
 
 
+@pytest.mark.slow  # about 8 s of compiling the navigation loop: the fast suite stays under 6 minutes
 def test_robot_in_a_known_obstacle_ends_the_trial_as_a_collision():
     # Regression: a robot that moved through unknown space into a wall used to crash the trial
     # runner ("start: ... lies in an occupied cell" from the next roadmap query); it is a
