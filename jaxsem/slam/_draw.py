@@ -38,7 +38,8 @@ def draw_top_down(ax, ellipsoid: Ellipsoid, mask=None, *, label=None, labels=Non
       the list of line artists.
     """
     rotation, center, radii = require_type("ellipsoid", ellipsoid, Ellipsoid)
-    outline = _ground_outline(rotation, center, radii).reshape(-1, 72, 2)
+    outline = _ground_outline(rotation, center, radii)
+    outline = outline.reshape(-1, *outline.shape[-2:])  # one ellipsoid or J
     center = np.asarray(center, np.float64).reshape(-1, 3)
     mask = np.ones(len(outline), bool) if mask is None else np.asarray(mask, bool).reshape(-1)
     lines = []
