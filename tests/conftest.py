@@ -26,6 +26,15 @@ import sys
 import tempfile
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Under pytest-xdist (the README's command runs two worker processes) each worker gets folders of
+# its own below: the workers inherit the controlling process's environment, and two workers
+# writing one run folder or one compilation cache would step on each other.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _name in ("JAXSEM_RUNS_DIR", "JAXSEM_CACHE_DIR"):
+        os.environ.pop(_name, None)
+    # On a GPU machine, two workers that each take 75 % of the device's memory at start-up would
+    # leave the second one nothing: allocate as needed.
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # Commands run by the tests write their run directories (config.json, summary.json) here, not in
 # the checkout's runs/.
 os.environ.setdefault("JAXSEM_RUNS_DIR", tempfile.mkdtemp(prefix="jaxsem_test_runs_"))
