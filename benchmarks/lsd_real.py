@@ -81,6 +81,13 @@ def _parse(argv):
     )
     p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
     p.add_argument(
+        "--goal-flag",
+        choices=["map", "io"],
+        default="map",
+        help="the network's goal-outdoors flag: 'map' from the map (a stand-in outside's goals are "
+        "indoors, Building.outside_is_outdoors), 'io' 1 for every Inside-Outside goal (stops 23-28)",
+    )
+    p.add_argument(
         "--uniform-only",
         action="store_true",
         help="run the uniform planner alone (e.g. its large-N point of the figure 3-8 curve)",
@@ -181,6 +188,7 @@ def _run(args, argv) -> int:
             "indoor_free_m2": float((free & b.indoor).sum() * b.resolution**2),
             "outdoor_free_m2": float((free & ~b.indoor).sum() * b.resolution**2),
             "doors_found": int(ndi.label(b.semantic == DOOR, np.ones((3, 3)))[1]),
+            "outside_is_outdoors": bool(b.outside_is_outdoors),
             "figure": str(fig_i),
             "load_seconds": time.perf_counter() - t0,
         }
@@ -197,6 +205,8 @@ def _run(args, argv) -> int:
                 graph=graph,
                 max_distance=args.max_distance,
             )
+            if args.goal_flag == "io":
+                tasks[(i, kind)] = [t._replace(goal_outdoors=kind == "IO") for t in tasks[(i, kind)]]
             fact[f"tasks_{kind}"] = len(tasks[(i, kind)])
             print(f"{kind}: {len(tasks[(i, kind)])} tasks (asked {args.trials})")
         buildings.append(b)
@@ -241,6 +251,7 @@ def _run(args, argv) -> int:
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "git": _git(),
         "protocol": args.protocol,
+        "goal_flag": args.goal_flag,
         "nav_config": {k: v for k, v in dataclasses.asdict(base).items() if k != "sensor"},
         "map_facts": facts[0] if len(facts) == 1 else facts,
         "task_bounds": {

@@ -9,6 +9,7 @@ import os
 import pathlib
 import struct
 
+import jax
 import numpy as np
 import pytest
 import scipy.ndimage as ndi
@@ -115,6 +116,19 @@ def test_a_map_without_outside_gets_its_hall_as_outside(tmp_path):
     b = planning.grid_to_building(grid)
     assert not b.indoor[60, 60]  # the hall stands in for the outside
     assert b.indoor[62, 200]  # the corridor stays inside
+    # Its Inside-Outside goals come from the hall, but the network is told they are indoors.
+    assert not b.outside_is_outdoors
+    io = planning.sample_tasks(b, "IO", 3, seed=1, min_distance=6.0)
+    assert io and all(not b.indoor[tuple(np.floor(t.goal / RES).astype(int)[::-1])] for t in io)
+    assert not any(t.goal_outdoors for t in io)
+    trial = planning.Trial(b, io[0].start, io[0].goal, jax.random.key(0))
+    assert trial.goal_outdoors is False
+    # Hand-drawn outdoor boxes are the outside: no stand-in, and their goals are outdoors.
+    note = tmp_path / "out.json"
+    note.write_text(json.dumps({"outdoor": [[18.0, 5.5, 21.0, 7.0]]}))
+    drawn = planning.grid_to_building(grid, annotations=note)
+    assert drawn.outside_is_outdoors and drawn.indoor[60, 60] and not drawn.indoor[62, 200]
+    assert all(t.goal_outdoors for t in planning.sample_tasks(drawn, "IO", 2, seed=1, min_distance=6.0))
 
 
 def _resample_brute(occ, src_res, dst_res):

@@ -130,6 +130,11 @@ class Building(GridMap):
     :func:`~jaxsem.planning.load_map`; a generated building's seed seeds its trials' streams).
     known: (H, W) bool or None: the cells a scan observed (None: all of them). A scanned map's
         unknown cells are blocked in ``occupancy`` and marked here.
+    outside_is_outdoors: False when ``~indoor`` is not the open air but a stand-in for it (a
+        scanned map with no outside of its own, whose largest open hall or room takes the
+        Inside-Outside goals, :func:`~jaxsem.planning.grid_to_building`). ``indoor`` still
+        decides the task pools; this decides the LSD network's ``goal_outdoors`` flag, which
+        says where the goal is, not which pool it came from: a goal in a hall is indoors.
 
     Only the first five fields are needed; the rest describe how a generated building was made.
     """
@@ -145,6 +150,7 @@ class Building(GridMap):
     family: str = "scanned"
     seed: int = -1
     known: np.ndarray | None = None
+    outside_is_outdoors: bool = True
 
     def cell_center(self, rc) -> np.ndarray:
         """World (x, y) (..., 2) of the centre of cell (row, col) (..., 2) (numpy, host side;

@@ -224,7 +224,8 @@ def grid_to_building(
     from the occupancy (``doors``) are DOOR, the footprint (:func:`building_footprint`) is
     indoor; where less than ``MIN_OUTSIDE_AREA`` m^2 with half a metre of clearance lies outside
     it, the largest open region (:func:`largest_open_region`, 5 m across, else 4, 3, 2 or 1.5 m) is
-    taken as the outside. ``annotations`` (a JSON path or
+    taken as the outside (``outside_is_outdoors=False``: its goals are indoors, and the LSD
+    network is told so). ``annotations`` (a JSON path or
     its parsed dict) are applied last."""
     occ = np.asarray(grid.occupancy)
     res = float(grid.resolution)
@@ -244,13 +245,17 @@ def grid_to_building(
         # edges): the whole map is the building.
         indoor = np.ones_like(indoor)
     roomy = np.asarray(scipy.ndimage.distance_transform_edt(free), float) * res >= 0.5
-    if (roomy & ~indoor).sum() * res**2 < MIN_OUTSIDE_AREA:
+    outside_is_outdoors = True
+    drawn_outside = bool(annotations) and len(annotations.get("outdoor", ())) > 0
+    if (roomy & ~indoor).sum() * res**2 < MIN_OUTSIDE_AREA and not drawn_outside:
+        # (Hand-drawn "outdoor" boxes, applied below, are the outside: no stand-in then.)
         # The widest open area that is a room's size (5 m across, else 4, 3, 2, 1.5 m: a house's
         # largest room) stands in for the outside.
         for across in (5.0, 4.0, 3.0, 2.0, 1.5):
             hall = largest_open_region(occ, res, across=across)
             if hall.sum() * res**2 >= MIN_HALL_AREA:
                 indoor = indoor & ~hall
+                outside_is_outdoors = False
                 break
     if annotations:
         occ, semantic, indoor, unused = apply_annotations(occ, semantic, indoor, annotations, grid.origin, res)
@@ -267,6 +272,7 @@ def grid_to_building(
         origin=np.asarray(grid.origin, float),
         resolution=res,
         known=occ != UNKNOWN,
+        outside_is_outdoors=outside_is_outdoors,
     )
 
 

@@ -217,7 +217,7 @@ class Trial:
         self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
         if goal_outdoors is None:
             gr, gc = Q.world_to_cell(self.goal, self.origin, self.resolution, xp=np)
-            goal_outdoors = not bool(np.asarray(world.indoor)[gr, gc])
+            goal_outdoors = getattr(world, "outside_is_outdoors", True) and not bool(np.asarray(world.indoor)[gr, gc])
         self.goal_outdoors = bool(goal_outdoors)
         if (
             config.n_samples < 1
@@ -497,7 +497,8 @@ def navigate(
     world: a :class:`~jaxsem.planning.Building` (or an object with the same map fields); key: a
     JAX PRNG key (roadmap samples); sampler: None (uniform PRM) or a function of
     :class:`LocalInputs` returning (160, 160) probabilities; yaw0: initial heading (radians);
-    goal_outdoors: the context flag (default: from ``world.indoor`` at the goal).
+    goal_outdoors: the context flag (default: ``world.indoor`` at the goal says outside, and
+    the world's outside is the open air: ``Building.outside_is_outdoors``).
     Returns a :class:`NavResult`.
     """
     trial = Trial(world, start, goal, key, config, sampler, yaw0, goal_outdoors)

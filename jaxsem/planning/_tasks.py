@@ -27,8 +27,10 @@ def task_pools(building: Building, clearance: float) -> tuple[np.ndarray, np.nda
 
 
 class Task(NamedTuple):
-    """A test task: start/goal world (x, y) (2,), initial yaw, goal_outdoors, c_star (metres of
-    the soft-cost optimal path on the true map), c_star_cost (its soft cost)."""
+    """A test task: start/goal world (x, y) (2,), initial yaw, goal_outdoors (the network's
+    context flag: an Inside-Outside goal, unless the map's outside is a stand-in,
+    ``Building.outside_is_outdoors``), c_star (metres of the soft-cost optimal path on the true
+    map), c_star_cost (its soft cost)."""
 
     start: np.ndarray
     goal: np.ndarray
@@ -85,5 +87,6 @@ def sample_tasks(
         p = graph.path(s, g)
         if not p.found:
             continue
-        tasks.append(Task(s, g, float(rng.uniform(-math.pi, math.pi)), kind == "IO", p.length, p.cost))
+        outdoors = kind == "IO" and bool(getattr(building, "outside_is_outdoors", True))
+        tasks.append(Task(s, g, float(rng.uniform(-math.pi, math.pi)), outdoors, p.length, p.cost))
     return tasks
