@@ -241,16 +241,23 @@ def make_batch(
         split == "test",
         jnp.float32(scene.box_noise if noisy else 0.0),
     )
-    out = dict(out)
+    return _batch_dict(out, K, scene, jnp.asarray(poses["class_id"]), jp, keep_images)
+
+
+def _batch_dict(rendered, K, scene: SceneConfig, class_id, poses, keep_images: bool) -> dict:
+    """A batch's dict from :func:`_render_batch`'s arrays: the camera, class ids and ground-truth
+    poses added (``class_id`` (B,), ``poses`` the sampled poses' arrays), ``image`` dropped
+    unless ``keep_images``; shared by the host (:func:`make_batch`) and device batches."""
+    out = dict(rendered)
     if not keep_images:
         out.pop("image")
-    B = len(indices)
+    B = class_id.shape[0]
     out["K"] = jnp.broadcast_to(K, (B, 3, 3))
     out["baseline"] = jnp.full((B,), scene.baseline, jnp.float32)
-    out["class_id"] = jnp.asarray(poses["class_id"])
-    out["gt_rotation"] = jp["rotation"]
-    out["gt_center"] = jp["center"]
-    out["gt_half_extents"] = jp["half"]
-    out["gt_shape_id"] = jp["shape_id"]
-    out["class_shape"] = jp["shape_id"]  # the class's shape (class table), what shape-aware losses may use
+    out["class_id"] = class_id
+    out["gt_rotation"] = poses["rotation"]
+    out["gt_center"] = poses["center"]
+    out["gt_half_extents"] = poses["half"]
+    out["gt_shape_id"] = poses["shape_id"]
+    out["class_shape"] = poses["shape_id"]  # the class's shape (class table), what shape-aware losses may use
     return out
