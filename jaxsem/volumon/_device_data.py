@@ -147,19 +147,9 @@ def device_batch(
     """
     keys = jax.random.split(key, batch_size)
     poses, noise, class_id = jax.vmap(lambda k: sample_scene(k, scene))(keys)
-    K = jnp.asarray(scene.K())
-    out = _render_batch(
-        noise,
-        poses,
-        K,
-        jnp.float32(scene.baseline),
-        scene,
-        int(input_size),
-        float(padding),
-        bool(split_test),
-        jnp.float32(scene.box_noise if noisy else 0.0),
+    return _batch_dict(
+        _render_batch, noise, poses, class_id, scene, input_size, padding, split_test, noisy, keep_images
     )
-    return _batch_dict(out, K, scene, class_id, poses, keep_images)
 
 
 device_batch_jit = jax.jit(
