@@ -63,11 +63,13 @@ import numpy as np
 from .. import classes as _classes, quadrics as Q
 from ._fat import FAT_BASELINE, right_T_left
 from ._synthetic import (
+    _SPLIT_STREAM,
     ObjectClass,
     _camera_pose,
     _check_formats,
     _check_image_size,
     _check_scenes,
+    _check_split,
     _frame_json,
     _partial_dir,
     _write_camera,
@@ -113,7 +115,6 @@ _WALL_TEXTURES = (
     "gray-woodgrain",
 )
 _DISTRACTOR_TEXTURES = ("metal", "clay", "brass-ambra", "steel-brushed", "gray-felt", "ceramic", "dirt", "red-wood")
-_SPLIT_STREAM = {"train": 0, "val": 1, "test": 2}
 _TEXTURE_TYPES = ("2d", "cube", "skybox")
 _PARK = np.array([0.0, 0.0, -1e3])  # where unused bodies wait, far below the floor
 
@@ -626,8 +627,7 @@ def write_object_dataset(
     Returns:
       The scene directories written (``pathlib.Path``).
     """
-    if split not in _SPLIT_STREAM:
-        raise ValueError(f"split: expected one of {tuple(_SPLIT_STREAM)}, got {split!r}")
+    _check_split(split, _SPLIT_STREAM)
     if labels not in ("volumon", "own"):
         raise ValueError(f"labels: expected 'volumon' or 'own', got {labels!r}")
     num_scenes, frames_per_scene = _check_scenes(num_scenes, frames_per_scene)
