@@ -40,13 +40,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1, help="held-out seed (a stream no training seed uses)")
     p.add_argument("--num", type=sc.positive_int, default=256, help="number of detections")
     p.add_argument("--json", type=sc.output_file, default=None, help="write the figures here (atomically)")
-    p.add_argument(
-        "--workdir",
-        type=sc.existing_path,
-        default=None,
-        help="a training run (config.json + checkpoints/) or a .npz model (default: the shipped model)",
+    add_model_arguments(
+        p, sc.existing_path, "a training run (config.json + checkpoints/) or a .npz model (default: the shipped model)"
     )
-    add_model_argument(p)
     p.add_argument("--postopt", type=sc.nonnegative_int, default=0, help="also refine with PostOpt for this many steps")
     p.add_argument(
         "--data",
@@ -86,8 +82,11 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     return p
 
 
-def add_model_argument(p) -> None:
-    """The ``--model`` flag of the VoluMon commands (read back with :func:`resolve_model`)."""
+def add_model_arguments(p, workdir_type, workdir_help: str) -> None:
+    """The model-source flags of the VoluMon commands, ``--workdir`` (of ``workdir_type``, a
+    command's own meaning in ``workdir_help``) and ``--model``, read back together with
+    :func:`resolve_model`."""
+    p.add_argument("--workdir", type=workdir_type, default=None, help=workdir_help)
     p.add_argument(
         "--model",
         default=None,

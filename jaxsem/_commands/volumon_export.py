@@ -95,8 +95,4 @@ def _curves(metrics, png):
     )
     axes[2].set_title("held-out centre")
     axes[2].legend()
-    for ax in axes:
-        ax.set_xlabel("step")
-    fig.tight_layout()
-    sc.atomic_savefig(fig, png, dpi=80)
-    plt.close(fig)
+    sc.save_step_figure(fig, axes, png, dpi=80)

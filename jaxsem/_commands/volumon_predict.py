@@ -36,7 +36,7 @@ import pathlib
 import numpy as np
 
 from jaxsem import scripting as sc
-from jaxsem._commands.volumon_eval import add_model_argument, resolve_model
+from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
 
 
 def intrinsics(text: str) -> tuple[float, float, float, float]:
@@ -104,13 +104,7 @@ def check_class_id(class_id: int, cfg) -> None:
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
-    p.add_argument(
-        "--workdir",
-        type=pathlib.Path,
-        default=None,
-        help="training run (config.json + checkpoints/); default: the shipped model",
-    )
-    add_model_argument(p)
+    add_model_arguments(p, pathlib.Path, "training run (config.json + checkpoints/); default: the shipped model")
     p.add_argument(
         "--train-steps",
         type=sc.positive_int,

@@ -239,9 +239,6 @@ def _plot(workdir):
     fig, ax = plt.subplots(figsize=(6, 4))
     for k in ("total", "dual", "primal", "size"):
         ax.semilogy([r["step"] for r in recs], [max(r[k], 1e-12) for r in recs], label=k)
-    ax.set_xlabel("step")
     ax.set_ylabel("loss")
     ax.legend()
-    fig.tight_layout()
-    sc.atomic_savefig(fig, workdir / "loss.png", dpi=100)
-    plt.close(fig)
+    sc.save_step_figure(fig, [ax], workdir / "loss.png", dpi=100)

@@ -14,6 +14,7 @@ import pathlib
 import numpy as np
 
 from ._bop import BopFrame, BopScene, load_bop_scene
+from ._synthetic import _check_split
 
 __all__ = [
     "BOP_SPLITS",
@@ -33,8 +34,7 @@ NUM_MESH_POINTS = 500
 
 
 def _split_filter(split: str, below: int):
-    if split not in BOP_SPLITS:
-        raise ValueError(f"split: expected one of {BOP_SPLITS}, got {split!r}")
+    _check_split(split, BOP_SPLITS)
     if split == "tune":
         return lambda fid: fid < below
     if split == "test":

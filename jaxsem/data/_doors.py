@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 
 from .. import quadrics as Q
-from ._synthetic import _check_formats, _check_image_size, _check_scenes, _partial_dir, _write_camera
+from ._synthetic import _check_formats, _check_image_size, _check_scenes, _check_split, _partial_dir, _write_camera
 
 __all__ = [
     "DOOR_BASELINE",
@@ -75,8 +75,7 @@ def door_building(split: str, index: int, seed: int = 0):
     """The building of scene ``index`` of ``split`` (the same one :func:`write_door_dataset` renders)."""
     from ..planning import generate_building
 
-    if split not in _SPLITS:
-        raise ValueError(f"split: expected one of {tuple(_SPLITS)}, got {split!r}")
+    _check_split(split, _SPLITS)
     family, offset = _SPLITS[split]
     return generate_building(int(seed) * 100_000 + offset + int(index), family)
 
@@ -167,8 +166,7 @@ def write_door_dataset(
     from ..planning import DOOR
     from ..sim import BuildingRenderer, robot_intrinsics
 
-    if split not in _SPLITS:
-        raise ValueError(f"split: expected one of {tuple(_SPLITS)}, got {split!r}")
+    _check_split(split, _SPLITS)
     num_scenes, frames_per_scene = _check_scenes(num_scenes, frames_per_scene)
     width, height_px = _check_image_size(image_size)
     if not (math.isfinite(float(baseline)) and 0 < float(baseline) <= 5):

@@ -175,6 +175,10 @@ class FatFrame:
         return len(self.class_names)
 
 
+_ANNOTATION_FIELDS = frozenset(f.name for f in dataclasses.fields(FatAnnotation))
+_FRAME_FIELDS = frozenset(f.name for f in dataclasses.fields(FatFrame))
+
+
 def _read_json(path: pathlib.Path) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"FAT file missing: {path}")
@@ -462,24 +466,15 @@ class FatSequence(Sequence[FatFrame]):
         seg = np.full(raw_seg.shape, -1, np.int32)
         for i, sid in enumerate(seg_ids):
             seg[raw_seg == sid] = i
+        # The frame carries every label of its annotation that it has a field for.
+        labels = {name: getattr(ann, name) for name in _FRAME_FIELDS & _ANNOTATION_FIELDS}
         return FatFrame(
-            path=ann.path,
+            **labels,
             image=image,
             right_image=right_image,
             depth=(raw_depth.astype(np.float64) * o["depth_scale"]).astype(np.float32),
             seg=seg,
-            K=ann.K,
-            baseline=ann.baseline,
-            right_T_left=ann.right_T_left,
-            class_names=ann.class_names,
             segmentation_ids=np.asarray(seg_ids, np.int64).reshape(ann.num_objects),
-            boxes_left=ann.boxes_left,
-            boxes_right=ann.boxes_right,
-            has_right_box=ann.has_right_box,
-            rotation=ann.rotation,
-            center=ann.center,
-            dimensions=ann.dimensions,
-            visibility=ann.visibility,
             extra=extra,
         )
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from .. import quadrics as Q
 from ._bop import LINEMOD_NAMES, Mesh
-from ._objects import _material, _mujoco
+from ._objects import _LightRig, _material, _mujoco, _random_lights
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -223,6 +223,10 @@ def _add_texture(spec, name, data: np.ndarray):
     return name
 
 
+#: The desk scenes' lights: 1-3 above the desk (MuJoCo's default attenuation, as the rooms').
+_DESK_LIGHTS = _LightRig((0.1, 0.35), 4, (1.5, 1.5), 1.0, (1.0, 2.5), 0.4, 0.3, 0.2, 0.5)
+
+
 @dataclasses.dataclass
 class _Item:
     body: int
@@ -308,27 +312,7 @@ class _DeskScene:
             body.add_geom(name=f"prim{j}", type=shapes[kind], size=size, material=f"prim_mat{j}")
             self._primitive_half.append(half)
             self._distractor_specs.append(("prim", f"prim{j}"))
-        spec.visual.headlight.ambient = list(rng.uniform(0.1, 0.35) * np.ones(3))
-        spec.visual.headlight.diffuse = list(rng.uniform(0.0, 0.3) * np.ones(3))
-        spec.visual.headlight.specular = [0.05, 0.05, 0.05]
-        self._light_diffuse = []
-        for j in range(int(rng.integers(1, 4))):
-            warm = rng.uniform(-1, 1)
-            colour = np.clip(np.array([1.0 + 0.15 * warm, 1.0, 1.0 - 0.2 * warm]), 0, 1) * rng.uniform(0.3, 0.8)
-            pos = np.array([rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(1.0, 2.5)])
-            direction = -pos + rng.normal(0, 0.4, 3)
-            direction[2] = -abs(direction[2]) - 0.3
-            spec.worldbody.add_light(
-                name=f"light{j}",
-                type=mj.mjtLightType.mjLIGHT_SPOT if rng.random() < 0.5 else mj.mjtLightType.mjLIGHT_DIRECTIONAL,
-                pos=list(pos),
-                dir=list(direction / np.linalg.norm(direction)),
-                diffuse=list(colour),
-                specular=[0.2, 0.2, 0.2],
-                cutoff=float(rng.uniform(40, 80)),
-                castshadow=bool(rng.random() < 0.5),
-            )
-            self._light_diffuse.append(colour)
+        self._light_diffuse = _random_lights(spec, rng, _DESK_LIGHTS)
         spec.worldbody.add_camera(name="view", pos=[0, 0, 1], quat=[1, 0, 0, 0], fovy=45.0)
         self.model = spec.compile()
         self.data = mj.MjData(self.model)

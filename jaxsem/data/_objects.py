@@ -63,11 +63,13 @@ import numpy as np
 from .. import classes as _classes, quadrics as Q
 from ._fat import FAT_BASELINE, right_T_left
 from ._synthetic import (
+    _SPLIT_STREAM,
     ObjectClass,
     _camera_pose,
     _check_formats,
     _check_image_size,
     _check_scenes,
+    _check_split,
     _frame_json,
     _partial_dir,
     _write_camera,
@@ -113,7 +115,6 @@ _WALL_TEXTURES = (
     "gray-woodgrain",
 )
 _DISTRACTOR_TEXTURES = ("metal", "clay", "brass-ambra", "steel-brushed", "gray-felt", "ceramic", "dirt", "red-wood")
-_SPLIT_STREAM = {"train": 0, "val": 1, "test": 2}
 _TEXTURE_TYPES = ("2d", "cube", "skybox")
 _PARK = np.array([0.0, 0.0, -1e3])  # where unused bodies wait, far below the floor
 
@@ -292,6 +293,61 @@ def _texture(spec, name, rng, files, kind="2d"):
     return name
 
 
+@dataclasses.dataclass(frozen=True)
+class _LightRig:
+    """How a scene's random lights are drawn (:func:`_random_lights`): the headlight's ambient
+    range; 1 to ``max_count - 1`` lights at ``xy_scale`` times a uniform (x, y) within
+    ``xy_half`` and a height in ``height`` (m), aimed at the origin give or take a normal
+    ``spread`` and at least ``drop`` downwards; their ``specular`` and shadow probability."""
+
+    ambient: tuple
+    max_count: int
+    xy_half: tuple
+    xy_scale: float
+    height: tuple
+    spread: float
+    drop: float
+    specular: float
+    shadow: float
+
+
+def _room_lights(hx: float, hy: float) -> _LightRig:
+    """The object rooms' lights: 1-4 under the ceiling of a room of half sizes ``hx``, ``hy``."""
+    return _LightRig((0.05, 0.3), 5, (hx, hy), 0.8, (1.8, 2.9), 0.7, 0.5, 0.15, 0.6)
+
+
+def _random_lights(spec, rng, rig: _LightRig) -> list:
+    """Adds the headlight settings and random lights of ``rig`` to ``spec`` (directional or spot,
+    random colour temperature, shadows from some), drawing from ``rng`` in a fixed order; returns
+    each light's diffuse colour (3,)."""
+    mj = _mujoco()
+    spec.visual.headlight.ambient = list(rng.uniform(*rig.ambient) * np.ones(3))
+    spec.visual.headlight.diffuse = list(rng.uniform(0.0, 0.3) * np.ones(3))
+    spec.visual.headlight.specular = [0.05, 0.05, 0.05]
+    (ax, ay), k = rig.xy_half, rig.xy_scale
+    diffuse = []
+    for j in range(int(rng.integers(1, rig.max_count))):
+        warm = rng.uniform(-1, 1)
+        colour = np.clip(np.array([1.0 + 0.15 * warm, 1.0, 1.0 - 0.2 * warm]), 0, 1) * rng.uniform(0.3, 0.8)
+        pos = np.array([rng.uniform(-ax, ax) * k, rng.uniform(-ay, ay) * k, rng.uniform(*rig.height)])
+        direction = -pos + rng.normal(0, rig.spread, 3)
+        direction[2] = -abs(direction[2]) - rig.drop
+        spot = bool(rng.random() < 0.5)
+        spec.worldbody.add_light(
+            name=f"light{j}",
+            type=mj.mjtLightType.mjLIGHT_SPOT if spot else mj.mjtLightType.mjLIGHT_DIRECTIONAL,
+            pos=list(pos),
+            dir=list(direction / np.linalg.norm(direction)),
+            diffuse=list(colour),
+            specular=[rig.specular] * 3,
+            cutoff=float(rng.uniform(40, 80)),
+            attenuation=[1.0, 0.0, 0.0],
+            castshadow=bool(rng.random() < rig.shadow),
+        )
+        diffuse.append(colour)
+    return diffuse
+
+
 def _material(spec, name, tex, texrepeat=(1.0, 1.0), texuniform=True, rgba=(1.0, 1.0, 1.0, 1.0), specular=0.3):
     mj = _mujoco()
     mat = spec.add_material(
@@ -397,29 +453,7 @@ class _ObjectScene:
             body.add_geom(name=f"distractor{j}", type=shapes[kind], size=size, material=f"dis_mat{j}")
             self._distractor_half.append(half)
         # lights: 1-4, directional or spot, random colour temperature; shadows from some
-        spec.visual.headlight.ambient = list(rng.uniform(0.05, 0.3) * np.ones(3))
-        spec.visual.headlight.diffuse = list(rng.uniform(0.0, 0.3) * np.ones(3))
-        spec.visual.headlight.specular = [0.05, 0.05, 0.05]
-        self._light_diffuse = []
-        for j in range(int(rng.integers(1, 5))):
-            warm = rng.uniform(-1, 1)
-            colour = np.clip(np.array([1.0 + 0.15 * warm, 1.0, 1.0 - 0.2 * warm]), 0, 1) * rng.uniform(0.3, 0.8)
-            pos = np.array([rng.uniform(-hx, hx) * 0.8, rng.uniform(-hy, hy) * 0.8, rng.uniform(1.8, 2.9)])
-            direction = np.array([0.0, 0.0, 0.0]) - pos + rng.normal(0, 0.7, 3)
-            direction[2] = -abs(direction[2]) - 0.5
-            spot = bool(rng.random() < 0.5)
-            spec.worldbody.add_light(
-                name=f"light{j}",
-                type=mj.mjtLightType.mjLIGHT_SPOT if spot else mj.mjtLightType.mjLIGHT_DIRECTIONAL,
-                pos=list(pos),
-                dir=list(direction / np.linalg.norm(direction)),
-                diffuse=list(colour),
-                specular=[0.15, 0.15, 0.15],
-                cutoff=float(rng.uniform(40, 80)),
-                attenuation=[1.0, 0.0, 0.0],
-                castshadow=bool(rng.random() < 0.6),
-            )
-            self._light_diffuse.append(colour)
+        self._light_diffuse = _random_lights(spec, rng, _room_lights(hx, hy))
         spec.worldbody.add_camera(name="view", pos=[0, 0, 0], quat=[1, 0, 0, 0], fovy=45.0)
         try:
             self.model = spec.compile()
@@ -626,8 +660,7 @@ def write_object_dataset(
     Returns:
       The scene directories written (``pathlib.Path``).
     """
-    if split not in _SPLIT_STREAM:
-        raise ValueError(f"split: expected one of {tuple(_SPLIT_STREAM)}, got {split!r}")
+    _check_split(split, _SPLIT_STREAM)
     if labels not in ("volumon", "own"):
         raise ValueError(f"labels: expected 'volumon' or 'own', got {labels!r}")
     num_scenes, frames_per_scene = _check_scenes(num_scenes, frames_per_scene)

@@ -242,6 +242,14 @@ def _check_image_size(image_size) -> tuple:
     return width, height
 
 
+def _check_split(split: str, splits) -> str:
+    """``split`` when it is one of ``splits`` (a writer's split names); ``ValueError`` listing
+    them otherwise."""
+    if split not in splits:
+        raise ValueError(f"split: expected one of {tuple(splits)}, got {split!r}")
+    return split
+
+
 def _check_scenes(num_scenes, frames_per_scene) -> tuple:
     """``(num_scenes, frames_per_scene)`` as ints, each at least 1 (``ValueError`` naming it)."""
     num_scenes, frames_per_scene = int(num_scenes), int(frames_per_scene)
@@ -309,8 +317,7 @@ def write_synthetic_dataset(
     Returns:
       List of the scene directories written (``pathlib.Path``).
     """
-    if split not in _SPLIT_STREAM:
-        raise ValueError(f"split: expected one of {tuple(_SPLIT_STREAM)}, got {split!r}")
+    _check_split(split, _SPLIT_STREAM)
     num_frames, frames_per_scene, max_objects = int(num_frames), int(frames_per_scene), int(max_objects)
     if num_frames < 1 or frames_per_scene < 1:
         raise ValueError(f"num_frames, frames_per_scene: expected >= 1, got {num_frames}, {frames_per_scene}")

@@ -132,11 +132,7 @@ def _curves(metrics, png, compare=()):
         )
     axes[1].set_title("periodic evaluation (val doors)")
     axes[1].legend()
-    for ax in axes:
-        ax.set_xlabel("step")
-    fig.tight_layout()
-    sc.atomic_savefig(fig, png, dpi=80)
-    plt.close(fig)
+    sc.save_step_figure(fig, axes, png, dpi=80)
 
 
 if __name__ == "__main__":

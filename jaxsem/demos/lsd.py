@@ -40,7 +40,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         tiny_config,
         train_and_evaluate,
     )
-    from ..planning import NavConfig, generate_building, navigate, sample_tasks
+    from ..planning import NavConfig, generate_building, sample_tasks
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -86,16 +86,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
     sampler = LSDSampler(model, params, uniform_mix=0.0)
     results = {}
     for name, smp in (("uniform", None), ("lsd", sampler)):
-        results[name] = navigate(
-            building,
-            task.start,
-            task.goal,
-            key,
-            cfg,
-            smp,
-            yaw0=task.yaw0,
-            goal_outdoors=task.goal_outdoors,
-        )
+        results[name] = task.navigate(building, key, cfg, smp)
     lsd = results["lsd"]
     xy = lsd.path[-1]
     dist = full_map_distribution(

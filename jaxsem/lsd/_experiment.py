@@ -35,7 +35,7 @@ def _trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
 
 def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = False, base=None) -> dict:
     """One (building, set, trial, N): every planner from the same start, yaw and key."""
-    from ..planning import NavConfig, navigate
+    from ..planning import NavConfig
 
     b, kind, t_i, task, n = job
     base = base or NavConfig()
@@ -52,16 +52,7 @@ def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = 
     for name, (smp, changes) in planners.items():
         cfg = dataclasses.replace(base, n_samples=n, max_steps=max_steps, **changes)
         t0 = time.perf_counter()
-        res = navigate(
-            b,
-            task.start,
-            task.goal,
-            key,
-            cfg,
-            smp,
-            yaw0=task.yaw0,
-            goal_outdoors=task.goal_outdoors,
-        )
+        res = task.navigate(b, key, cfg, smp)
         rec[name] = {
             "success": bool(res.success),
             "cost": float(res.cost),
@@ -468,24 +459,16 @@ def plot_success(summary: dict, path) -> None:
     for ax, kind in zip(axes[0], sets):
         rows = sorted((v for v in summary.values() if v["set"] == kind), key=lambda v: v["n"])
         ns = [v["n"] for v in rows]
-        ax.errorbar(
-            ns,
-            [100 * v["success_lsd"] for v in rows],
-            yerr=[100 * v.get("success_lsd_sem", 0.0) for v in rows],
-            fmt="o-",
-            color="tab:red",
-            capsize=3,
-            label="PRM + LSD",
-        )
-        ax.errorbar(
-            ns,
-            [100 * v["success_uniform"] for v in rows],
-            yerr=[100 * v.get("success_uniform_sem", 0.0) for v in rows],
-            fmt="s--",
-            color="k",
-            capsize=3,
-            label="PRM + Unf",
-        )
+        for who, fmt, color, label in (("lsd", "o-", "tab:red", "PRM + LSD"), ("uniform", "s--", "k", "PRM + Unf")):
+            ax.errorbar(
+                ns,
+                [100 * v[f"success_{who}"] for v in rows],
+                yerr=[100 * v.get(f"success_{who}_sem", 0.0) for v in rows],
+                fmt=fmt,
+                color=color,
+                capsize=3,
+                label=label,
+            )
         # Each variant both planners ran (paired_X): its own pair of lines, hollow markers.
         pairs = sorted({k[len("paired_") :] for v in rows for k in v if k.startswith("paired_")})
         for x, (cl, cu) in zip(pairs, [("tab:orange", "tab:gray"), ("tab:purple", "tab:olive")] * 4):

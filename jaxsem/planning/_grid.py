@@ -7,7 +7,9 @@ Grids are indexed ``[row, col] = [y, x]``. ``origin`` is the world (x, y) of the
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import pathlib
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -64,6 +66,16 @@ def cell_to_world(rc, origin, resolution):
     """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the cell centre. The geometry core's
     :func:`jaxsem.quadrics.cell_to_world`."""
     return Q.cell_to_world(rc, origin, resolution)
+
+
+def read_text_as(path: pathlib.Path, parse: Callable[[str], Any], errors: tuple, what: str) -> Any:
+    """``parse`` of the text file at ``path``; a one-line ``ValueError`` ("not a readable
+    ``what``") when it cannot be read, decoded or parsed (``errors``: the parser's own
+    exceptions), the check every map and annotation file goes through first."""
+    try:
+        return parse(path.read_text())
+    except (OSError, UnicodeDecodeError, *errors) as exc:
+        raise ValueError(f"{path}: not a readable {what} ({exc})") from None
 
 
 def check_grid(name: str, grid, dtype_kind: str, shape=None) -> np.ndarray:

@@ -40,7 +40,7 @@ import numpy as np
 import scipy.ndimage
 
 from ._buildings import Building, GridMap
-from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN
+from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN, read_text_as
 from ._semantics import (
     apply_annotations,
     building_footprint,
@@ -296,10 +296,7 @@ def _read_image(path: pathlib.Path) -> np.ndarray:
 def _parse_yaml(path: pathlib.Path) -> dict:
     import yaml
 
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: not a readable YAML file ({exc})") from None
+    data = read_text_as(path, yaml.safe_load, (yaml.YAMLError,), "YAML file")
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping of map_server fields, got {type(data).__name__}")
     return data

@@ -127,38 +127,18 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
+        # The lazy and eager grows take the same samples (the eager grow also weighs its edges).
+        origin = jnp.asarray(self.origin, dtype)
+        args = (self.roadmap, key, self._blocked_j, dist, origin, int(n), self.radius, self.resolution, cap)
         if self._lazy is not None:
             s0 = _QUERY + self.count
             (self.roadmap, cand), self._cap = _grow_lazy(
-                self.roadmap,
-                key,
-                self._blocked_j,
-                dist,
-                jnp.asarray(self.origin, dtype),
-                int(n),
-                self.radius,
-                self.resolution,
-                cap,
-                self.sectors,
-                bool(uniform_samples),
-                self._setup.aids(table=False),
+                *args, self.sectors, bool(uniform_samples), self._setup.aids(table=False)
             )
             self._lazy.add_rows(s0, cand)
         else:
             self.roadmap, self._cap = _grow_exact(
-                self.roadmap,
-                key,
-                self._blocked_j,
-                dist,
-                jnp.asarray(self.origin, dtype),
-                int(n),
-                self.radius,
-                self.resolution,
-                cap,
-                self.weight == "neglogp",
-                self.sectors,
-                bool(uniform_samples),
-                self._setup.aids(table=True),
+                *args, self.weight == "neglogp", self.sectors, bool(uniform_samples), self._setup.aids(table=True)
             )
         if distribution is not None:
             self.distribution = distribution

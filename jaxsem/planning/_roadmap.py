@@ -333,7 +333,7 @@ def _density(points, distribution, origin, resolution, sectors):
     return distribution[pr, pc]
 
 
-def _sample_and_search(
+def _grow_impl(
     rm,
     key,
     blocked,
@@ -344,16 +344,18 @@ def _sample_and_search(
     radius,
     resolution,
     cap,
-    sectors,
-    uniform_samples,
-    aids,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids: _MapAids | None = None,
 ):
-    """The first half of a grow: ``n`` new samples written into the roadmap's points and valid
-    flags, and each new vertex's candidates (n, K) in preference order (K = 2k with sectors, k
-    without; ``M`` where none). Returns (points, valid, new points, their valid flags, first
-    slot, candidates, overflow)."""
+    """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
+    vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
+    none), then their links checked. Returns the grown roadmap."""
     M, k = rm.neighbors.shape
     H, W = blocked.shape
+    dtype = rm.points.dtype
+    z = jnp.zeros((), jnp.int32)
     points, valid, new, ok_new, s0 = _sample_into(
         rm,
         key,
@@ -372,42 +374,6 @@ def _sample_and_search(
     keep = 2 * k if sectors else k
     density = _density(points, distribution, origin, resolution, sectors)
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
-    return points, valid, new, ok_new, s0, nbr, ovf
-
-
-def _grow_impl(
-    rm,
-    key,
-    blocked,
-    distribution,
-    origin,
-    *,
-    n,
-    radius,
-    resolution,
-    cap,
-    neglogp,
-    sectors=0,
-    uniform_samples=False,
-    aids: _MapAids | None = None,
-):
-    M, k = rm.neighbors.shape
-    dtype = rm.points.dtype
-    z = jnp.zeros((), jnp.int32)
-    points, valid, new, ok_new, s0, nbr, ovf = _sample_and_search(
-        rm,
-        key,
-        blocked,
-        distribution,
-        origin,
-        n=n,
-        radius=radius,
-        resolution=resolution,
-        cap=cap,
-        sectors=sectors,
-        uniform_samples=uniform_samples,
-        aids=aids,
-    )
     cost = _cost_grid(distribution) if neglogp else None
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table

@@ -37,7 +37,7 @@ import pathlib
 import numpy as np
 import scipy.ndimage as ndi
 
-from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WALL, WINDOW
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WALL, WINDOW, read_text_as
 
 DOOR_WIDTH = (0.6, 1.4)  # metres: the narrowest door a robot passes, the widest double door
 _EIGHT = np.ones((3, 3), bool)
@@ -231,10 +231,7 @@ def read_annotations(path) -> dict:
     """The boxes of an annotation JSON file (see the module docstring), validated: a dict of
     ``(K, 4)`` float arrays ``[x0, y0, x1, y1]`` (world metres) per key present."""
     path = pathlib.Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: not a readable JSON annotation file ({exc})") from None
+    data = read_text_as(path, json.loads, (json.JSONDecodeError,), "JSON annotation file")
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected an object with keys {', '.join(_ANNOTATION_KEYS)}")
     unknown = sorted(set(data) - set(_ANNOTATION_KEYS))

@@ -8,12 +8,14 @@ The pools are free cells at least ``clearance`` metres from any obstacle, inside
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 import scipy.ndimage
 
 from ._buildings import Building
+from ._navigate import NavConfig, NavResult, navigate
 from ._shortest_path import SoftCostGraph
 
 
@@ -38,6 +40,11 @@ class Task(NamedTuple):
     goal_outdoors: bool
     c_star: float
     c_star_cost: float
+
+    def navigate(self, world, key, config: NavConfig = NavConfig(), sampler: Callable | None = None) -> NavResult:
+        """Runs this task as one online navigation trial in ``world`` from its start, initial yaw
+        and context flag to its goal (:func:`~jaxsem.planning.navigate`)."""
+        return navigate(world, self.start, self.goal, key, config, sampler, self.yaw0, self.goal_outdoors)
 
 
 def sample_tasks(

@@ -67,6 +67,7 @@ from ._errors import (
     run_main as run_main,
     wants_debug as wants_debug,
 )
+from ._figures import save_step_figure as save_step_figure
 from ._runs import (
     FIGURE_SUFFIXES as FIGURE_SUFFIXES,
     RUN_DIR_ENV as RUN_DIR_ENV,
@@ -107,6 +108,7 @@ __all__ = [
     "atomic_write_text",
     "atomic_write_bytes",
     "atomic_savefig",
+    "save_step_figure",
     "atomic_save_npz",
     "atomic_path",
     "CommandParser",

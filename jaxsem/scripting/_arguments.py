@@ -61,14 +61,20 @@ def int_list(text: str) -> list[int]:
     return [_number(p, int) for p in parts]
 
 
-def existing_file(text: str) -> pathlib.Path:
-    """A path to an existing regular file."""
+def _existing(text: str, what: str, is_kind: Callable[[pathlib.Path], bool] | None = None) -> pathlib.Path:
+    """``text`` as a path that exists (``no such <what>`` otherwise) and, given ``is_kind``,
+    is of that kind (``not a <what>``): the one check behind the ``existing_*`` types."""
     path = pathlib.Path(text)
     if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such file")
-    if not path.is_file():
-        raise argparse.ArgumentTypeError(f"{text}: not a file")
+        raise argparse.ArgumentTypeError(f"{text}: no such {what}")
+    if is_kind is not None and not is_kind(path):
+        raise argparse.ArgumentTypeError(f"{text}: not a {what}")
     return path
+
+
+def existing_file(text: str) -> pathlib.Path:
+    """A path to an existing regular file."""
+    return _existing(text, "file", pathlib.Path.is_file)
 
 
 def devices(text: str) -> int | str:
@@ -116,20 +122,12 @@ def devices_mesh(devices, batch_size: int):
 
 def existing_path(text: str) -> pathlib.Path:
     """A path to an existing file or directory."""
-    path = pathlib.Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such file or directory")
-    return path
+    return _existing(text, "file or directory")
 
 
 def existing_dir(text: str) -> pathlib.Path:
     """A path to an existing directory."""
-    path = pathlib.Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such directory")
-    if not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: not a directory")
-    return path
+    return _existing(text, "directory", pathlib.Path.is_dir)
 
 
 def output_dir(text: str) -> pathlib.Path:

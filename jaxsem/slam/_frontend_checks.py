@@ -12,15 +12,22 @@ from ._frontend_types import LandmarkEstimates
 # Input checks at the Python boundary.
 
 
-def _check_K(K):
+def _finite_matrix(name: str, value, shape: tuple) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape``; a ``ValueError`` naming ``name``
+    otherwise (the checks every matrix argument starts with)."""
     try:
-        K = np.asarray(K, dtype=np.float64)
+        value = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"K: cannot be converted to a float array ({exc})") from None
-    if K.shape != (3, 3):
-        raise ValueError(f"K: expected shape (3, 3), got {K.shape}")
-    if not np.all(np.isfinite(K)):
-        raise ValueError(f"K: must be finite, got {K.tolist()}")
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    if value.shape != shape:
+        raise ValueError(f"{name}: expected shape {shape}, got {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{name}: must be finite, got {value.tolist()}")
+    return value
+
+
+def _check_K(K):
+    K = _finite_matrix("K", K, (3, 3))
     if not (np.allclose(K[2], [0, 0, 1]) and K[1, 0] == 0 and K[0, 0] > 0 and K[1, 1] > 0):
         raise ValueError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}")
     return K
@@ -29,14 +36,7 @@ def _check_K(K):
 def _check_pose(pose):
     if hasattr(pose, "as_matrix") and callable(pose.as_matrix):  # jaxlie.SE3, as in jaxsem.quadrics
         pose = pose.as_matrix()
-    try:
-        pose = np.asarray(pose, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"camera_T_world: cannot be converted to a float array ({exc})") from None
-    if pose.shape != (4, 4):
-        raise ValueError(f"camera_T_world: expected shape (4, 4), got {pose.shape}")
-    if not np.all(np.isfinite(pose)):
-        raise ValueError(f"camera_T_world: must be finite, got {pose.tolist()}")
+    pose = _finite_matrix("camera_T_world", pose, (4, 4))
     if not np.allclose(pose[3], [0, 0, 0, 1], atol=1e-6):
         raise ValueError(f"camera_T_world: expected last row [0, 0, 0, 1], got {pose[3].tolist()}")
     R = pose[:3, :3]

@@ -35,18 +35,28 @@ def initialize(problem: SlamProblem, config: SolverConfig) -> SlamEstimate:
     first = jnp.minimum(first, M - 1)
     pose = problem.pose_prior[problem.box_pose[first]]
     tex_mask = problem.texture_mask[first] if config.use_texture else jnp.zeros(J, bool)
-    R, c, r = F.single_view_init(
+    radii = mean[problem.object_class]
+    box, depth = problem.box[first], problem.texture_depth[first]
+    R, c, r = box_init(config, pose, box, problem.K, radii, depth, tex_mask, problem.image_size)
+    c = jnp.where(has_box[:, None], c, 0.0)
+    return SlamEstimate(problem.pose_prior, R, c, r)
+
+
+def box_init(config: SolverConfig, pose, box, K, radii, texture_depth, texture_mask, image_size):
+    """Ellipsoids (R, c, r) from one box each (:func:`jaxsem.factors.single_view_init`) with the
+    config's initialisation settings (default depth, depth from the box, border margin,
+    silhouette scale): the one place the batch (:func:`initialize`) and online initialisations
+    read them."""
+    return F.single_view_init(
         pose,
-        problem.box[first],
-        problem.K,
-        mean[problem.object_class],
-        texture_depth=problem.texture_depth[first],
-        texture_mask=tex_mask,
+        box,
+        K,
+        radii,
+        texture_depth=texture_depth,
+        texture_mask=texture_mask,
         default_depth=config.default_depth,
         depth_from_box=config.depth_from_box,
-        image_size=problem.image_size,
+        image_size=image_size,
         border_margin=config.border_margin,
         silhouette_scale=config.silhouette_scale,
     )
-    c = jnp.where(has_box[:, None], c, 0.0)
-    return SlamEstimate(problem.pose_prior, R, c, r)

@@ -27,9 +27,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .. import classes as _classes, factors as F
+from .. import classes as _classes
 from ._batch import levenberg_marquardt
 from ._cost import class_table
+from ._init import box_init
 from ._problem import Capacity, Frame, SlamEstimate, SlamProblem
 from ._results import RESULTS
 from ._schur import _all_finite
@@ -197,19 +198,8 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     is_new = det & ~pb.object_mask[oid]
     mean, _ = class_table(cfg, dtype, pb)
     tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
-    R0, c0, r0 = F.single_view_init(
-        prior,
-        frame.box.astype(dtype),
-        pb.K,
-        mean[frame.box_class],
-        texture_depth=frame.texture_depth.astype(dtype),
-        texture_mask=tex_ok,
-        default_depth=cfg.default_depth,
-        depth_from_box=cfg.depth_from_box,
-        image_size=pb.image_size,
-        border_margin=cfg.border_margin,
-        silhouette_scale=cfg.silhouette_scale,
-    )
+    det_box, det_depth = frame.box.astype(dtype), frame.texture_depth.astype(dtype)
+    R0, c0, r0 = box_init(cfg, prior, det_box, pb.K, mean[frame.box_class], det_depth, tex_ok, pb.image_size)
     # A detection that carries an initial ellipsoid (Frame.init_*) starts its new object there.
     given = frame.init_mask & is_new
     R0 = jnp.where(given[:, None, None], frame.init_rotation.astype(dtype), R0)

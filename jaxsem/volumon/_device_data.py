@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..quadrics import back_project, quaternion_wxyz_to_rotation
-from ._synthetic import CLASSES, SHAPE_IDS, SceneConfig, _render_batch
+from ._synthetic import CLASSES, SHAPE_IDS, SceneConfig, _batch_dict, _render_batch
 
 _TRAIN_STREAM = 0x5EED
 _EVAL_STREAM = 0xE7A1
@@ -147,32 +147,9 @@ def device_batch(
     """
     keys = jax.random.split(key, batch_size)
     poses, noise, class_id = jax.vmap(lambda k: sample_scene(k, scene))(keys)
-    K = jnp.asarray(scene.K())
-    out = dict(
-        _render_batch(
-            noise,
-            poses,
-            K,
-            jnp.float32(scene.baseline),
-            scene,
-            int(input_size),
-            float(padding),
-            bool(split_test),
-            jnp.float32(scene.box_noise if noisy else 0.0),
-        )
+    return _batch_dict(
+        _render_batch, noise, poses, class_id, scene, input_size, padding, split_test, noisy, keep_images
     )
-    if not keep_images:
-        out.pop("image")
-    B = batch_size
-    out["K"] = jnp.broadcast_to(K, (B, 3, 3))
-    out["baseline"] = jnp.full((B,), scene.baseline, jnp.float32)
-    out["class_id"] = class_id
-    out["gt_rotation"] = poses["rotation"]
-    out["gt_center"] = poses["center"]
-    out["gt_half_extents"] = poses["half"]
-    out["gt_shape_id"] = poses["shape_id"]
-    out["class_shape"] = poses["shape_id"]  # the class's shape (class table), what shape-aware losses may use
-    return out
 
 
 device_batch_jit = jax.jit(

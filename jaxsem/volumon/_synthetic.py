@@ -227,30 +227,44 @@ def make_batch(
         raise ValueError(f"split: expected 'train' or 'test', got {split!r}")
     indices = np.asarray(indices).ravel()
     poses = sample_poses(seed + (0 if split == "train" else 7919), indices, scene)
-    K = jnp.asarray(scene.K())
     noise = sample_noise(seed + (0 if split == "train" else 7919), indices, scene)
     jp = {k: jnp.asarray(v) for k, v in poses.items() if k != "class_id"}
-    out = _render_batch_jit(
-        noise,
-        jp,
-        K,
-        jnp.float32(scene.baseline),
-        scene,
-        int(input_size),
-        float(padding),
-        split == "test",
-        jnp.float32(scene.box_noise if noisy else 0.0),
+    class_id = jnp.asarray(poses["class_id"])
+    return _batch_dict(
+        _render_batch_jit, noise, jp, class_id, scene, input_size, padding, split == "test", noisy, keep_images
     )
-    out = dict(out)
+
+
+def _batch_dict(
+    render, noise, poses, class_id, scene: SceneConfig, input_size, padding, split_test, noisy, keep_images: bool
+) -> dict:
+    """A batch's dict: ``render`` (:func:`_render_batch` or its jitted form) of the sampled
+    ``noise`` and ``poses`` (their arrays), with the camera, class ids (``class_id`` (B,)) and
+    ground-truth poses added, ``image`` dropped unless ``keep_images``; shared by the host
+    (:func:`make_batch`) and device batches."""
+    K = jnp.asarray(scene.K())
+    out = dict(
+        render(
+            noise,
+            poses,
+            K,
+            jnp.float32(scene.baseline),
+            scene,
+            int(input_size),
+            float(padding),
+            bool(split_test),
+            jnp.float32(scene.box_noise if noisy else 0.0),
+        )
+    )
     if not keep_images:
         out.pop("image")
-    B = len(indices)
+    B = class_id.shape[0]
     out["K"] = jnp.broadcast_to(K, (B, 3, 3))
     out["baseline"] = jnp.full((B,), scene.baseline, jnp.float32)
-    out["class_id"] = jnp.asarray(poses["class_id"])
-    out["gt_rotation"] = jp["rotation"]
-    out["gt_center"] = jp["center"]
-    out["gt_half_extents"] = jp["half"]
-    out["gt_shape_id"] = jp["shape_id"]
-    out["class_shape"] = jp["shape_id"]  # the class's shape (class table), what shape-aware losses may use
+    out["class_id"] = class_id
+    out["gt_rotation"] = poses["rotation"]
+    out["gt_center"] = poses["center"]
+    out["gt_half_extents"] = poses["half"]
+    out["gt_shape_id"] = poses["shape_id"]
+    out["class_shape"] = poses["shape_id"]  # the class's shape (class table), what shape-aware losses may use
     return out
