@@ -48,6 +48,16 @@ def test_every_convenience_flag_is_a_config_field_and_help_shows_its_default():
         assert set(flags) <= set(seen.get(name, [])), (name, seen.get(name))
 
 
+def test_every_command_with_config_flags_has_one_generated_set():
+    with_flags = set()
+    for name, parser in _parsers():
+        if sc.config_flags(parser):
+            with_flags.add(name)
+            sets = [a for a in parser._actions if "--set" in a.option_strings]
+            assert len(sets) == 1 and sets[0].dest == "set", name
+    assert set(EXPECTED) <= with_flags
+
+
 @dataclasses.dataclass(frozen=True)
 class _Inner:
     """A nested config.
@@ -127,6 +137,11 @@ def test_config_checks_and_set_go_through_one_path():
     # --set comes after the flags
     cfg = sc.apply_config_flags(_Toy(), parser.parse_args(["--steps", "5"]), flags, ["steps=7"])
     assert cfg.steps == 7
+    # the parser's own --set (added once with the flags) is read when no list is given
+    args = parser.parse_args(["--steps", "5", "--set", "steps=8", "--set", "inner.depth=4"])
+    assert sc.apply_config_flags(_Toy(), args, flags) == _Toy(steps=8, inner=_Inner(depth=4.0))
+    with pytest.raises(sc.UsageError, match="^--set: .*'bogus'"):
+        sc.apply_config_flags(_Toy(), parser.parse_args(["--set", "bogus=1"]), flags)
 
 
 def test_a_fixed_base_is_the_default_and_shown():

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-from jaxsem import config as jcfg, scripting as sc
+from jaxsem import scripting as sc
 from jaxsem.lsd import PRESETS, TrainConfig
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
@@ -47,14 +47,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override any TrainConfig field by name (repeatable)",
-    )
-    p.add_argument(
         "--chunk-steps",
         type=sc.positive_int,
         default=None,
@@ -77,7 +69,7 @@ def main(argv=None, prog: str | None = None) -> int:
     from jaxsem.lsd import train_and_evaluate
 
     cfg = get_config(args.config)
-    cfg = jcfg.override(sc.apply_config_flags(cfg, args, CONFIG_FLAGS), args.overrides)
+    cfg = sc.apply_config_flags(cfg, args, CONFIG_FLAGS)
     mesh = sc.devices_mesh(args.devices, cfg.batch_size)
     sc.record_config(train_config=cfg)
     stop_at = None

@@ -24,7 +24,6 @@ import sys
 from typing import Any
 
 from jaxsem import scripting as sc
-from jaxsem.config import override
 from jaxsem.volumon import SIZES, VARIANTS, TrainConfig, get_config, train_and_evaluate
 
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
@@ -93,13 +92,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="with --data: directory whose objects the periodic evaluation scores (default: --data itself, a fit check)",
     )
     p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override any config field by its dotted name, e.g. --set loss.primal_distance=ray (repeatable)",
-    )
-    p.add_argument(
         "--init-from",
         default=None,
         metavar="MODEL",
@@ -148,11 +140,6 @@ def main(argv=None, prog: str | None = None) -> int:
     a = p.parse_args(argv)
     cfg = get_config(a.variant, a.size)
     cfg = sc.apply_config_flags(cfg, a, CONFIG_FLAGS)
-    if a.set:
-        try:
-            cfg = override(cfg, a.set)
-        except ValueError as exc:
-            p.error(f"--set: {exc}")
     batch_fn = eval_batch = None
     if a.eval_data is not None and a.data is None:
         p.error("--eval-data: needs --data")

@@ -44,13 +44,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     from ..volumon import TrainConfig
 
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override any config field by its dotted name, e.g. --set loss.alpha_S=0 (repeatable)",
-    )
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
     p.add_argument("--score", type=sc.existing_dir, default=None, help="score the latest checkpoint on this directory")
     p.add_argument("--export", action="store_true", help="export the latest checkpoint as the shipped door model")
@@ -87,7 +80,7 @@ def main(argv=None) -> int:
             _curves(a.workdir / "metrics.jsonl", out / "volumon_door_curves.png", a.compare)
             print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
         return 0
-    cfg = sc.apply_config_flags(get_config(a.variant, "door"), a, CONFIG_FLAGS, a.set)
+    cfg = sc.apply_config_flags(get_config(a.variant, "door"), a, CONFIG_FLAGS)
     result = train_door_model(cfg, a.data, a.workdir, eval_data=a.eval_data, stop_after=a.stop_after, force=a.force)
     if result.get("eval") is not None:
         print(json.dumps(result["eval"], indent=1))

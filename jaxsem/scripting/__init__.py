@@ -25,6 +25,9 @@ A command (``jaxsem ...``, ``train/*.py``, ``infer/*.py``, ``benchmarks/*.py``) 
    are made by :func:`add_config_flags` from the config dataclass (type, help text, default) and
    applied by :func:`apply_config_flags` through :func:`jaxsem.config.override`, the path of
    ``--set``, so the config's own checks and the one-line errors naming the flag are shared.
+   :func:`add_config_flags` adds ``--set`` itself, once per parser, so every command with a
+   config (``roshan``, ``volumon train``, ``lsd data``, ``lsd train``, ``lsd plan``, the door
+   trainer) takes it the same way.
 """
 
 from __future__ import annotations

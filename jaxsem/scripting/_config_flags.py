@@ -198,7 +198,20 @@ def add_config_flags(
     and ``--help`` says "default: the preset's". With ``base`` (the one config the command starts
     from) the flag's default is that config's value, shown in ``--help`` and recorded with the
     arguments. A name that is not a field of ``config_cls`` raises ``ValueError`` at once.
+
+    The parser also gets the generic ``--set KEY=VALUE`` (repeatable, once per parser however
+    many groups of flags it has), which reaches every field of ``config_cls`` by its dotted name;
+    :func:`apply_config_flags` applies it after the flags.
     """
+    if "--set" not in getattr(parser, "_option_string_actions", {}):
+        parser.add_argument(
+            "--set",
+            dest="set",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help=f"override any {config_cls.__name__} field by its dotted name (repeatable; applied after the flags)",
+        )
     out = []
     for spec in flags:
         spec = ConfigFlag(spec) if isinstance(spec, str) else spec
@@ -239,11 +252,17 @@ def config_flags(parser: argparse.ArgumentParser) -> list[tuple[type, tuple[Conf
     return list(getattr(parser, "_config_flags", []))
 
 
-def apply_config_flags(config, args: argparse.Namespace, flags: Sequence[ConfigFlag], sets: Sequence[str] = ()):
+def apply_config_flags(
+    config, args: argparse.Namespace, flags: Sequence[ConfigFlag], sets: Sequence[str] | None = None
+):
     """``config`` with every given flag of ``flags`` applied, then the ``--set KEY=VALUE``
-    assignments ``sets``, all through :func:`jaxsem.config.override` (so the config's own checks
-    run). A bad value raises :class:`UsageError` naming the flag (or ``--set``)."""
+    assignments ``sets`` (default: the ``--set`` that :func:`add_config_flags` added, ``args.set``),
+    all through :func:`jaxsem.config.override` (so the config's own checks run). A bad value
+    raises :class:`UsageError` naming the flag (or ``--set``)."""
     from ..config import override
+
+    if sets is None:
+        sets = getattr(args, "set", None) or ()
 
     for spec in flags:
         value = getattr(args, spec.dest, None)
