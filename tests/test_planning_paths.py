@@ -592,7 +592,7 @@ def test_lazy_prm_returns_the_eager_prms_paths(sectors, k, monkeypatch):
     every edge is checked the lazy roadmap is the eager one edge for edge (candidates, the
     first-k-clear rule, weights). k = 6 with 8 sectors: rows hold more candidates than k, so later slots
     only count once the slots before them are checked."""
-    from jaxsem.planning import _roadmap  # layers: white-box
+    from jaxsem.planning import _map_setup  # layers: white-box
 
     occ = _blocks(3, shape=(60, 100), n=25)
     free = np.argwhere(~occ)
@@ -600,8 +600,8 @@ def test_lazy_prm_returns_the_eager_prms_paths(sectors, k, monkeypatch):
     eager, lazy = _lazy_and_eager(occ, sectors, k)
     # Its own per-map setup, no table yet, and windows at any size: the queries' start and goal
     # edges are checked through tables made on windows around them, with the eager answers.
-    monkeypatch.setattr(_roadmap, "_WHOLE_TABLE_SHARE", 0)
-    lazy._setup = _roadmap._MapSetup(occ, lazy.roadmap.points.dtype)
+    monkeypatch.setattr(_map_setup, "_WHOLE_TABLE_SHARE", 0)
+    lazy._setup = _map_setup._MapSetup(occ, lazy.roadmap.points.dtype)
     for _ in range(5):
         s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
         pe, pl = eager.query(s, g), lazy.query(s, g)
@@ -1031,7 +1031,7 @@ def test_a_query_table_on_windows_gives_the_edge_checks_answers():
     (made on windows, 0 elsewhere): every value is at most the whole table's, and the edge check
     gives the rule's answers with it on edges inside, across and outside the windows."""
     from jaxsem.planning._edges import _clearance_table_np, _edges_clear, _edges_dense  # layers: white-box
-    from jaxsem.planning._roadmap import _MapSetup  # layers: white-box
+    from jaxsem.planning._map_setup import _MapSetup  # layers: white-box
 
     occ = _blocks(11, shape=(150, 260), n=80)
     setup = _MapSetup(occ, np.float32)

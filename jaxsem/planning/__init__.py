@@ -61,6 +61,7 @@ from ._grid import (
     empty_map_state as empty_map_state,
     world_to_cell as world_to_cell,
 )
+from ._map_setup import clear_map_cache as clear_map_cache
 from ._maps import (
     MIN_OUTSIDE_AREA as MIN_OUTSIDE_AREA,
     OccupancyGrid as OccupancyGrid,
@@ -90,7 +91,6 @@ from ._roadmap import (
     LEARNED_RADIUS_FACTOR as LEARNED_RADIUS_FACTOR,
     Roadmap as Roadmap,
     build_roadmap as build_roadmap,
-    clear_map_cache as clear_map_cache,
     default_radius as default_radius,
     make_roadmap_builder as make_roadmap_builder,
     prm_star_k as prm_star_k,

@@ -1,6 +1,6 @@
 """Lazy edge checking for :class:`~jaxsem.planning.PRM` (``lazy=True``; Bohlin and Kavraki's
 Lazy PRM): a grow finds each new vertex's candidates (the eager grow's samples and candidate
-sets, in its order where the order decides a link: :func:`~jaxsem.planning._roadmap._grow_lazy`)
+sets, in its order where the order decides a link: :func:`_grow_lazy`)
 but checks no edge; a query searches the graph of every edge that may still be in the roadmap,
 checks the edges that decide the path it found (and, in the check call's spare slots, the path
 vertices' nearest unknown edges: a detour often runs over them), drops those that are not in
@@ -33,7 +33,8 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from ._edges import _edges, _edges_dense
-from ._roadmap import _QUERY, GOAL, START, Roadmap
+from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
+from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_into
 from ._roadmap_search import _NOT_FOUND, RoadmapPath
 
 #: Edge status codes.
@@ -41,6 +42,119 @@ UNKNOWN, CLEAR, BLOCKED = 0, 1, 2
 
 #: Edges checked per call of the jitted check (one compiled shape for the query loop).
 _CHUNK = 128
+
+
+# ------------------------------------------------------------------ growing without edge checks
+
+
+def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
+    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
+    edge). Returns (roadmap, the new samples' valid flags)."""
+    points, valid, _, ok_new, _ = _sample_into(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
+
+
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
+
+
+#: Vertices the lazy grow ranks on the device per call: one compiled shape, whatever their count.
+_RANK_CHUNK = 256
+
+
+@functools.partial(jax.jit, static_argnames=("radius", "extent"))
+def _grid_jit(points, valid, origin, *, radius, extent):
+    """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own)."""
+    M = points.shape[0]
+    return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
+
+
+@functools.partial(jax.jit, static_argnames=("k", "radius", "resolution", "extent", "cap", "sectors", "keep"))
+def _knn_some_jit(
+    points, valid, rows, order, sorted_bid, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep
+):
+    """The eager grow's neighbour search (:func:`_knn_rows`, ranked) for the vertices ``rows``
+    alone (``order``, ``sorted_bid``: :func:`_grid_jit`, unused when ``cap`` is None: brute
+    force): their rows as a search of every new vertex gives them."""
+    M = points.shape[0]
+    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    db = points - origin
+    density = _density(points, distribution, origin, resolution, sectors)
+    grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
+    return _knn_rows(
+        db, db_ok, db[rows], rows, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
+    )
+
+
+def _grow_lazy(
+    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
+) -> tuple[tuple[Roadmap, np.ndarray], int]:
+    """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the eager grow's
+    samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
+    vertex is not valid): the eager grow's set, in its order where the order decides a link.
+    Rows with at most k candidates keep every clear one whatever the order, so the host finds
+    their sets (:func:`_candidates_host`); the device ranks the others with the eager search.
+    Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
+    M, k = roadmap.neighbors.shape
+    H, W = blocked.shape
+    s0 = _QUERY + int(roadmap.num_samples)
+    rm, ok_new = _sample_lazy_jit(
+        roadmap,
+        key,
+        blocked,
+        dist,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    pts = np.asarray(rm.points)
+    db_ok = np.asarray(rm.valid) & (np.arange(M) >= _QUERY)
+    rows = np.arange(s0, s0 + n)
+    extent = (W * resolution, H * resolution)
+    keep = 2 * k if sectors else k
+    cand, need, cap = _candidates_host(pts - np.asarray(origin), db_ok, rows, k, radius, extent, keep, cap)
+    if need.any():
+        some = rows[need].astype(np.int32)
+        padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin, radius=radius, extent=extent)
+        while True:
+            use = cap if 3 * cap < M else None
+            parts = [
+                _knn_some_jit(
+                    rm.points,
+                    rm.valid,
+                    jnp.asarray(padded[i : i + _RANK_CHUNK]),
+                    order,
+                    sorted_bid,
+                    dist,
+                    origin,
+                    k=k,
+                    radius=radius,
+                    resolution=resolution,
+                    extent=extent,
+                    cap=use,
+                    sectors=sectors,
+                    keep=keep,
+                )
+                for i in range(0, len(padded), _RANK_CHUNK)
+            ]
+            if use is None or not any(bool(o) for _, o in parts):
+                break
+            cap *= 4  # the host's strip counts said no overflow: not expected, but never drop one
+        cand[need] = np.concatenate([np.asarray(nb) for nb, _ in parts])[: len(some)]
+    cand[~np.asarray(ok_new)] = M
+    return (rm, cand), cap
 
 
 @functools.partial(jax.jit, static_argnames=("resolution", "edge_samples", "dense"))

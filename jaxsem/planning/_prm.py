@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._edges import _edge_samples
-from ._lazy import _CHUNK, _checker, _LazyEdges
+from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
+from ._map_setup import _map_setup
 from ._roadmap import (
     _QUERY,
     DEFAULT_SECTORS,
@@ -18,9 +19,7 @@ from ._roadmap import (
     _check_sectors,
     _connect_checked,
     _grow_exact,
-    _grow_lazy,
     _initial_cap,
-    _map_setup,
     default_radius,
     prm_star_k,
     roadmap_init,
