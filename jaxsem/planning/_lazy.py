@@ -34,7 +34,7 @@ import scipy.sparse.csgraph
 
 from ._edges import _edges, _edges_dense
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_into
+from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath
 
 #: Edge status codes.
@@ -45,26 +45,6 @@ _CHUNK = 128
 
 
 # ------------------------------------------------------------------ growing without edge checks
-
-
-def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
-    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
-    edge). Returns (roadmap, the new samples' valid flags)."""
-    points, valid, _, ok_new, _ = _sample_into(
-        rm,
-        key,
-        blocked,
-        distribution,
-        origin,
-        n=n,
-        resolution=resolution,
-        uniform_samples=uniform_samples,
-        aids=aids,
-    )
-    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
-
-
-_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
 
 
 #: Vertices the lazy grow ranks on the device per call: one compiled shape, whatever their count.

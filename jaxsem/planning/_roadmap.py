@@ -297,6 +297,26 @@ _grow_jit = functools.partial(
 )(_grow_impl)
 
 
+def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
+    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
+    edge). Returns (roadmap, the new samples' valid flags)."""
+    points, valid, _, ok_new, _ = _sample_into(
+        rm,
+        key,
+        blocked,
+        distribution,
+        origin,
+        n=n,
+        resolution=resolution,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
+
+
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
+
+
 def _recheck_impl(rm, blocked, origin, *, radius, resolution):
     M, _ = rm.neighbors.shape
     r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
