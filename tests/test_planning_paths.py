@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from jaxsem.planning import (
     DEFAULT_SECTORS,
@@ -94,6 +95,64 @@ def test_soft_cost_dijkstra_matches_python_reference(seed):
         c = np.sum(lens * 0.5 * (cost[tuple(p.cells[:-1].T)] + cost[tuple(p.cells[1:].T)]))
         assert c == pytest.approx(ref[tuple(goal)], rel=1e-12)
         assert p.length == pytest.approx(lens.sum(), rel=1e-12)
+
+
+def _segment_cells(a, b, samples=400):
+    """Cells a straight segment between two cell centres passes through (dense sampling)."""
+    t = np.linspace(0.0, 1.0, samples)[:, None]
+    pts = (1 - t) * np.asarray(a, float) + t * np.asarray(b, float)
+    return np.unique(np.floor(pts + 0.5).astype(int), axis=0)
+
+
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 14))
+@settings(max_examples=25, deadline=None)
+def test_sixteen_connected_lengths_against_straight_lines_and_segments(seed, n):
+    """connectivity=16 (knight moves): on any map its paths are no longer than the 8-connected
+    ones, no shorter than the straight line, and every segment stays in free cells (checked by
+    dense sampling of the segment); on an empty map they are within 2.7 % of the straight line."""
+    occ = _blocks(seed, n=n)
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(seed)
+    a, b = free[rng.integers(len(free), size=2)]
+    to_world = lambda rc: ORIGIN + (np.asarray(rc)[::-1] + 0.5) * RES
+    p8 = SoftCostGraph(occ, ORIGIN, RES, weight=0.0).path(to_world(a), to_world(b))
+    p16 = SoftCostGraph(occ, ORIGIN, RES, weight=0.0, connectivity=16).path(to_world(a), to_world(b))
+    assert p16.found == p8.found
+    if not p8.found:
+        return
+    straight = RES * float(np.hypot(*(b - a)))
+    assert straight - 1e-9 <= p16.length <= p8.length + 1e-9
+    assert p16.cost == pytest.approx(p16.length, rel=1e-12)  # weight 0: cost is length
+    for c0, c1 in zip(p16.cells[:-1], p16.cells[1:]):
+        assert np.abs(c1 - c0).max() <= 2 and np.abs(c1 - c0).min() <= 1
+        crossed = _segment_cells(c0, c1)
+        assert not occ[tuple(crossed.T)].any()
+    empty = np.zeros_like(occ)
+    e16 = SoftCostGraph(empty, ORIGIN, RES, weight=0.0, connectivity=16).path(to_world(a), to_world(b))
+    e8 = SoftCostGraph(empty, ORIGIN, RES, weight=0.0).path(to_world(a), to_world(b))
+    assert e16.length <= straight * 1.0275 + 1e-9
+    assert e8.length <= straight * 1.0824 + 1e-9
+
+
+def test_knight_move_needs_the_cells_it_crosses():
+    """A knight move whose segment crosses an occupied cell is not taken (a drawn case)."""
+    occ = np.ones((4, 5), bool)
+    occ[1, 1] = occ[2, 3] = False  # the two ends: (1, 1) -> (2, 3)
+    occ[1, 2] = occ[2, 2] = False  # the two cells its segment crosses
+    g = lambda o: SoftCostGraph(o, ORIGIN, RES, weight=0.0, connectivity=16)
+    ends = ORIGIN + (np.array([[1, 1], [3, 2]]) + 0.5) * RES
+    p = g(occ).path(ends[0], ends[1])
+    assert p.found and len(p.cells) == 2 and p.length == pytest.approx(RES * math.sqrt(5))
+    blocked = occ.copy()
+    blocked[2, 2], blocked[1, 3] = True, False  # the way round: along row 1, then down
+    q = g(blocked).path(ends[0], ends[1])
+    assert q.found and len(q.cells) == 4 and q.length == pytest.approx(3 * RES)
+    with pytest.raises(ValueError, match="connectivity"):
+        SoftCostGraph(occ, ORIGIN, RES, connectivity=4)
+    with pytest.raises(ValueError, match="limit"):
+        g(occ).search(ends[0], limit=0.0)
+    # limit: cells beyond it read as unreachable
+    assert not g(occ).search(ends[0], limit=0.1).path_to(ends[1]).found
 
 
 def test_soft_cost_rises_near_walls():

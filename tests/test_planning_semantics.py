@@ -278,6 +278,50 @@ def test_real_map_command_names_bad_flags(tmp_path, capsys):
     assert not (tmp_path / "o.json").exists()
 
 
+def test_floor_of_real_map_tasks_against_straight_lines_and_the_door_corner(tmp_path, capsys):
+    """benchmarks/lsd_real_floor.py reloads the run's map from its command and measures each
+    task's shortest possible length: a straight line inside one room, the polyline round the
+    doorway's corner between the rooms (the visibility path, drawn by hand)."""
+    path = tmp_path / "rooms.gridmap.gz"
+    _write_gridmap(path, _two_rooms(0.9, gap_at=1.5), RES)
+    records = tmp_path / "run.records.jsonl"
+    same = ([1.05, 1.05], [4.05, 3.05])
+    across = ([2.05, 3.85], [8.05, 3.85])
+    corner = [[2.05, 3.85], [5.15, 2.35], [5.25, 2.35], [8.05, 3.85]]  # the door's top cells
+    around = float(np.sum(np.linalg.norm(np.diff(corner, axis=0), axis=1)))
+    straight = float(np.linalg.norm(np.subtract(same[1], same[0])))
+    rows = []
+    for trial, ((s, g), ref) in enumerate([(same, straight), (across, around)]):
+        run = lambda cost: {"success": True, "cost": cost}
+        rows.append(
+            {"building": -1, "set": "II", "trial": trial, "n": 60, "c_star": 1.1 * ref, "start": s, "goal": g,
+             "uniform": run(ref), "lsd": run(0.9 * ref)}
+        )  # fmt: skip
+    records.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    run_json = tmp_path / "run.json"
+    command = f"python benchmarks/lsd_real.py --map {path} --json {run_json}"
+    run_json.write_text(json.dumps({"benchmark": "lsd_real", "command": command, "records": str(records)}))
+    spec = importlib.util.spec_from_file_location("lsd_real_floor", ROOT / "benchmarks" / "lsd_real_floor.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "floor.json"
+    assert mod.main(["--json", str(run_json), "--out", str(out)]) == 0
+    row = json.loads(out.read_text())["runs"]["run"]["rows"]["II-60"]
+    assert row["mutual"] == 2
+    # uniform drove the shortest paths: the 16-connected floor is at most 2.7 % above them, never
+    # below; LSD 10 % below uniform; no room below a planner that is on the floor
+    assert 1 / 1.0275 - 1e-3 <= row["cb_over_floor"] <= 1.0 + 1e-3
+    assert row["floor_over_cstar"] == pytest.approx(1 / 1.1, rel=0.03)
+    assert row["lsd_below_uniform"] == pytest.approx(0.1)
+    assert -0.03 <= row["room_below_uniform"] <= 1e-3 <= row["room_below_uniform_bound"] <= 0.03
+    assert "| run | II-60 | 2 / 2 |" in capsys.readouterr().out
+    bad = tmp_path / "other.json"
+    bad.write_text(json.dumps({"benchmark": "lsd_prm"}))
+    with pytest.raises(SystemExit, match="--json"):
+        mod.main(["--json", str(bad), "--out", str(tmp_path / "o.json")])
+    assert not (tmp_path / "o.json").exists()
+
+
 def test_real_lab_map_semantics_when_present(tmp_path):
     root = os.environ.get("JAXSEM_MAPS_DIR")
     path = pathlib.Path(root or "/nonexistent") / "uwb_ro-localization_demo_map.gridmap.gz"
