@@ -3,6 +3,7 @@ references (projected surface points), noise statistics, masks, vmap, conversion
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -314,3 +315,24 @@ def test_sim_imports_without_mujoco_and_rendering_says_what_to_install():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "jaxsem[sim]" in out.stdout
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.6])
+def test_online_reinitialisation_follows_the_batch_rule_and_the_silhouette_scale(scale):
+    """An object the online protocol re-initialises from its latest box lands where the batch
+    initialisation puts an object seen only in that box, silhouette scale included (the online
+    rule once ignored ``SolverConfig.silhouette_scale`` and always read the box as the object)."""
+    from jaxsem.sim._experiments import _reinitialise  # layers: white-box (one round, no solve)
+
+    problem, _ = slam.toy_map(3, num_objects=2, num_frames=8, path="orbit")
+    cfg = slam.SolverConfig(silhouette_scale=scale)
+    idx = np.arange(problem.box.shape[0])
+    obj, mask = np.asarray(problem.box_object), np.asarray(problem.box_mask)
+    last = np.array([idx[(obj == j) & mask].max() for j in range(2)])
+    only_last = eqx.tree_at(lambda p: p.box_mask, problem, jnp.asarray(np.isin(idx, last) & mask))
+    batch = slam.initialize(only_last, cfg)
+    stranded = slam.SlamEstimate(batch.camera_T_world, batch.rotation, batch.center + 1e4, batch.radii)
+    online, lost = _reinitialise(problem, stranded, problem.box_mask, cfg, batch.radii, 0.0)
+    assert bool(jnp.all(lost))
+    for a, b in ((online.rotation, batch.rotation), (online.center, batch.center), (online.radii, batch.radii)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)

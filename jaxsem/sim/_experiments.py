@@ -23,9 +23,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from .. import factors
 from ..metrics import ellipsoid_errors
 from ..quadrics import project_bbox
+from ..slam import box_init
 
 __all__ = ["BASELINE", "ROSHAN", "solver_config", "solve_online", "map_errors", "box_iou"]
 
@@ -91,17 +91,9 @@ def _reinitialise(problem, est, box_mask, config, init_radii, reinit_iou):
     pred, valid = project_bbox(est.rotation, est.center, est.radii, problem.K, pose)
     lost = has & (~valid | (box_iou(pred, box) < reinit_iou))  # IoU < 0 never holds
     tex_mask = problem.texture_mask[last] & config.use_texture
-    R, c, r = factors.single_view_init(
-        pose,
-        box,
-        problem.K,
-        init_radii,
-        texture_depth=problem.texture_depth[last],
-        texture_mask=tex_mask,
-        default_depth=config.default_depth,
-        depth_from_box=config.depth_from_box,
-        image_size=problem.image_size,
-        border_margin=config.border_margin,
+    # The batch initialisation's own rule (slam.box_init: depth, border margin, silhouette scale)
+    R, c, r = box_init(
+        config, pose, box, problem.K, init_radii, problem.texture_depth[last], tex_mask, problem.image_size
     )
     pick = lambda new, old: jnp.where(lost.reshape(lost.shape + (1,) * (old.ndim - 1)), new, old)
     return _replace(est, rotation=pick(R, est.rotation), center=pick(c, est.center), radii=pick(r, est.radii)), lost

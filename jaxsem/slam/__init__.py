@@ -59,7 +59,7 @@ from ._frontend_types import (
     LandmarkEstimates as LandmarkEstimates,
 )
 from ._frontend_vision import hs_histogram as hs_histogram, triangulate_points as triangulate_points
-from ._init import initialize as initialize
+from ._init import box_init as box_init, initialize as initialize
 from ._map_json import map_to_json as map_to_json, truth_errors as truth_errors
 from ._multistart import object_costs as object_costs, solve_yaw_starts as solve_yaw_starts
 from ._online import (
