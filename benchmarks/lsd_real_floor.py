@@ -37,6 +37,7 @@ def _parse(argv):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--json", required=True, nargs="+", help="lsd_real.py outputs (their records lie beside them)")
     p.add_argument("--out", required=True, help="output JSON (a Markdown table is printed)")
+    p.add_argument("--figure", default=None, help="per-task C/floor of both planners (default: <out stem>.png)")
     p.add_argument("--data", default=None, help="replace the folder of the maps named in the JSON (moved data)")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     return p.parse_args(argv)
@@ -117,6 +118,10 @@ def _rows(records: list, floors: list) -> dict:
         mutual = [i for i in idx if records[i]["uniform"]["success"] and records[i]["lsd"]["success"]]
         if not mutual:
             continue
+        tasks = {"uniform": [], "lsd": []}
+        for i in mutual:
+            for k in tasks:
+                tasks[k].append(float(records[i][k]["cost"] / floors[i]))
         cs = np.array([records[i]["c_star"] for i in mutual])
         fl = np.array([floors[i] for i in mutual])
         cb = np.array([records[i]["uniform"]["cost"] for i in mutual])
@@ -135,12 +140,45 @@ def _rows(records: list, floors: list) -> dict:
             "lsd_below_uniform": float(1.0 - l / b),
             "room_below_uniform": float(1.0 - f / b),
             "room_below_uniform_bound": float(1.0 - f / DISCRETISATION / b),
+            "per_task_over_floor": tasks,
             "tasks_within_2pct_of_floor": {
                 "uniform": int(np.sum(cb <= 1.02 * fl)),
                 "lsd": int(np.sum(cl <= 1.02 * fl)),
             },
         }
     return rows
+
+
+def _figure(runs: dict, path: pathlib.Path) -> None:
+    """One panel per row: each task's C/floor, uniform against LSD, with the lines where LSD
+    equals uniform and where it is 10 % below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxsem.scripting import atomic_savefig
+
+    panels = [(f"{run}\n{name}", row) for run, v in runs.items() for name, row in v["rows"].items()]
+    if not panels:
+        return
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 4.2), squeeze=False)
+    for ax, (title, row) in zip(axes[0], panels):
+        u, l = row["per_task_over_floor"]["uniform"], row["per_task_over_floor"]["lsd"]
+        hi = max(1.5, min(3.0, max(u + l) * 1.05))
+        ax.plot([1, hi], [1, hi], "k-", lw=0.8, label="LSD = uniform")
+        ax.plot([1, hi], [0.9, 0.9 * hi], "k--", lw=0.8, label="LSD 10 % below")
+        ax.axhline(1.0, color="grey", lw=0.6)
+        ax.scatter(u, l, s=14, c="tab:red", label=f"{row['mutual']} tasks")
+        ax.set_xlim(0.95, hi)
+        ax.set_ylim(0.85, hi)
+        ax.set_xlabel("uniform: driven / shortest possible")
+        ax.set_ylabel("LSD: driven / shortest possible")
+        ax.set_title(title, fontsize=8)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -186,6 +224,9 @@ def _run(args, runs, argv) -> int:
             )
         print(f"{f.stem}: {len(records)} tasks ({time.perf_counter() - t0:.0f} s)", flush=True)
     result["table"] = "\n".join(lines)
+    figure = pathlib.Path(args.figure) if args.figure else pathlib.Path(args.out).with_suffix(".png")
+    _figure(result["runs"], figure)
+    result["figure"] = str(figure)
     result["seconds"] = time.perf_counter() - t0
     print(result["table"])
     atomic_write_text(pathlib.Path(args.out), json.dumps(result, indent=1))

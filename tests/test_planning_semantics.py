@@ -315,6 +315,7 @@ def test_floor_of_real_map_tasks_against_straight_lines_and_the_door_corner(tmp_
     assert row["lsd_below_uniform"] == pytest.approx(0.1)
     assert -0.03 <= row["room_below_uniform"] <= 1e-3 <= row["room_below_uniform_bound"] <= 0.03
     assert "| run | II-60 | 2 / 2 |" in capsys.readouterr().out
+    assert (tmp_path / "floor.png").stat().st_size > 0
     bad = tmp_path / "other.json"
     bad.write_text(json.dumps({"benchmark": "lsd_prm"}))
     with pytest.raises(SystemExit, match="--json"):
