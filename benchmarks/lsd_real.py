@@ -12,7 +12,8 @@ bounds, and runs both planners from the same start, yaw and key on every task an
   after a failed search).
 
 LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (no uniform mix).
-``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?).
+``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?);
+``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
 same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<N>``
 (``success_uniform``, ``success_lsd``, ``lsd_only``, ``uniform_only``, ``cl_over_cstar``,
@@ -80,6 +81,11 @@ def _parse(argv):
         help="LSD workdir, exported .npz or a shipped model by name (default, house; None: the default)",
     )
     p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
+    p.add_argument(
+        "--euclid",
+        action="store_true",
+        help="add LSD with Euclidean edge weights (a variant row; the default is the thesis' -log p)",
+    )
     p.add_argument(
         "--goal-flag",
         choices=["map", "io"],
@@ -214,7 +220,10 @@ def _run(args, argv) -> int:
     model, params, _, _ = load_model(args.checkpoint)
     sampler = LSDSampler(model, params)
     base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
-    variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else None
+    variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else {}
+    if args.euclid:
+        variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
+    variants = variants or None
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     t1 = time.perf_counter()
