@@ -15,7 +15,9 @@ A problem keeps the class table it was built with (``make_problem(..., classes=C
 :class:`jaxsem.classes.ClassTable`); odometry between consecutive poses is
 ``make_problem(..., odometry=...)`` (between factors, :func:`jaxsem.factors.between_residual`;
 the batch solvers handle it, the online smoother does not yet). Objects without a depth
-measurement start where their class size matches their box (``SolverConfig.depth_from_box``).
+measurement start where their class size matches their box (``SolverConfig.depth_from_box``). :func:`box_init`
+is the one single-view rule that :func:`initialize`, the online smoother and
+:func:`jaxsem.sim.solve_online`'s re-initialisation share.
 """
 
 from ._batch import (
