@@ -20,6 +20,8 @@ same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<
 ``cb_over_cstar``, ...), the map's facts and the command, to ``--json``.
 
 Seeds: tasks come from ``--seed``; seeds below 1000 are for tuning, report on others.
+How much room a row's C/C* leaves (each task's shortest possible length):
+``benchmarks/lsd_real_floor.py --json <this JSON>``.
 
     python benchmarks/lsd_real.py --map DATA/mrpt/2006-MalagaCampus.gridmap.gz --trials 20 \\
         --n 500 --sets II IO --protocol thesis --seed 1000 --json benchmarks/results/lsd_real_campus.json
