@@ -268,7 +268,10 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
     # their estimates are not compared: an unconverged Forward-map solve amplifies the last-bit
     # difference of a batched kernel about 2x per step (4e-16 m after the first accepted step,
     # 1e-2 m after 50; benchmarks/RESULTS.md), so a cut solve's answer is path-dependent
-    # (slam.solve_many's strategy "map" gives those the solo answer bit for bit).
+    # (slam.solve_many's strategy "map" gives those the solo answer bit for bit). A member near
+    # the budget can even end with different codes: on one CPU (2026-11-26, a 2-core sandbox)
+    # 903 converged solo after 88 steps (cost 80.4) while its batched twin ran to the budget
+    # (cost 77.9); elsewhere both were cut. Such a member is allowed once, cut on one side.
     cfg = slam.SolverConfig()
     seeds = range(900, 906)
     maps = [slam.toy_map(s, capacity=(30, 128, 5))[0] for s in seeds]
@@ -277,11 +280,16 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
     solve = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))
     est_v, info_v = jax.jit(jax.vmap(lambda p, i: slam.solve_schur(p, i, cfg)))(slam.stack_problems(maps), stacked)
-    steps, converged = [], 0
+    steps, converged, split = [], 0, []
+    cut = int(slam.result_code(slam.RESULTS.max_steps_reached))
     for k, (p, i) in enumerate(zip(maps, inits)):
         est, info = solve(p, i)
         steps.append(int(info.steps))
-        assert int(slam.result_code(info.result)) == int(slam.result_code(info_v.result)[k]), seeds[k]
+        codes = {int(slam.result_code(info.result)), int(slam.result_code(info_v.result)[k])}
+        if len(codes) > 1:  # path-dependent near the budget: one side converged, the other cut
+            assert cut in codes and len(codes) == 2, (seeds[k], codes)
+            split.append(seeds[k])
+            continue
         if not bool(info.success):
             assert bool(info.result == slam.RESULTS.max_steps_reached)
             continue
@@ -289,7 +297,7 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
         assert int(info_v.steps[k]) == int(info.steps)
         np.testing.assert_allclose(info_v.cost[k], info.cost, rtol=1e-5 * 1e-2)
         np.testing.assert_allclose(est_v.center[k], est.center, rtol=0, atol=1e-5)
-    assert converged >= 3 and len(set(steps)) >= 4, steps
+    assert converged >= 3 and len(set(steps)) >= 4 and len(split) <= 1, (steps, split)
 
 
 def test_a_residual_function_without_blocks_is_rejected():
