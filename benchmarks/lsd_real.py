@@ -147,6 +147,19 @@ def main(argv=None) -> int:
         return 2
 
 
+def load_run_map(args, path):
+    """One map of the run as its flags read it (lsd_real_floor.py reloads a run's maps with it)."""
+    from jaxsem.planning import load_map
+
+    return load_map(
+        path,
+        resolution=args.resolution,
+        annotations=args.annotations,
+        hatch_px=args.hatch_px,
+        footprint=args.footprint,
+    )
+
+
 def _zeroed_semantics(sampler):
     import jax.numpy as jnp
 
@@ -164,7 +177,7 @@ def _run(args, argv) -> int:
 
     from jaxsem.cli import enable_compilation_cache
     from jaxsem.lsd import LSDSampler, format_table, load_model, run_trials, summarise
-    from jaxsem.planning import DOOR, NavConfig, SoftCostGraph, load_map, plot_semantics, sample_tasks
+    from jaxsem.planning import DOOR, NavConfig, SoftCostGraph, plot_semantics, sample_tasks
     from jaxsem.scripting import atomic_write_text
 
     enable_compilation_cache()
@@ -174,13 +187,7 @@ def _run(args, argv) -> int:
     buildings, facts, tasks = [], [], {}
     for i, path in enumerate(args.map):
         t0 = time.perf_counter()
-        b = load_map(
-            path,
-            resolution=args.resolution,
-            annotations=args.annotations,
-            hatch_px=args.hatch_px,
-            footprint=args.footprint,
-        )
+        b = load_run_map(args, path)
         if len(args.map) > 1:  # records name the map by its index
             b = dataclasses.replace(b, seed=i)
         fig_i = figure if len(args.map) == 1 else figure.with_name(f"{figure.stem}_{i}{figure.suffix}")

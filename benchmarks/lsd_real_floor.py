@@ -73,23 +73,17 @@ def _maps(run: dict, data: str | None) -> list:
     """The run's buildings, loaded as its command loaded them (index = the records' building)."""
     import shlex
 
-    from jaxsem.planning import load_map
-
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
     import lsd_real
 
-    argv = shlex.split(run["command"])[2:]
-    a = lsd_real._parse(argv)
+    a = lsd_real._parse(shlex.split(run["command"])[2:])
     paths = [str(pathlib.Path(data) / pathlib.Path(m).name) if data else m for m in a.map]
     for m in paths:
         if not pathlib.Path(m).is_file():
             raise SystemExit(
                 f"lsd_real_floor: the run's map {m!r} is missing (fetch it, or name its folder with --data)"
             )
-    return [
-        load_map(m, resolution=a.resolution, annotations=a.annotations, hatch_px=a.hatch_px, footprint=a.footprint)
-        for m in paths
-    ]
+    return [lsd_real.load_run_map(a, m) for m in paths]
 
 
 def _floors(buildings: list, records: list) -> list:
