@@ -12,7 +12,7 @@ width distributions in one figure. Two more statistics, measured the same way on
 doorways), and *door spacing*, the distance from each chokepoint (a cluster of ridge cells
 0.5-1.0 m wide: a doorway or a gap between furniture) to the nearest other one. ``--families``
 picks the generated families (``house``: the house-like family, issue 25 item 4);
-``--examples K`` also draws K house-family buildings.
+``--examples K`` also draws K buildings of ``--examples-family`` (house by default).
 
     python benchmarks/lsd_map_stats.py --maps DATA/mrpt/2006-MalagaCampus.gridmap.gz \\
         DATA/mrpt/uwb_ro-localization_demo_map.gridmap.gz --houses DATA/hm3d/hm3d_{1..9}.png \\
@@ -85,7 +85,10 @@ def main(argv=None) -> int:
     p.add_argument("--generated", type=int, default=12, help="generated buildings per family")
     p.add_argument("--families", nargs="*", default=["train", "test", "house"], help="generated families to measure")
     p.add_argument(
-        "--examples", type=int, default=0, help="draw this many house-family buildings (<json stem>_examples.png)"
+        "--examples", type=int, default=0, help="draw this many generated buildings (<json stem>_examples.png)"
+    )
+    p.add_argument(
+        "--examples-family", default="house", choices=("train", "test", "house", "campus"), help="their family"
     )
     p.add_argument("--json", required=True)
     args = p.parse_args(argv)
@@ -169,19 +172,22 @@ def main(argv=None) -> int:
         ),
     )
     if args.examples:
-        atomic_savefig(_examples_figure(args.examples, plt, np, planning), out.with_name(out.stem + "_examples.png"))
+        atomic_savefig(
+            _examples_figure(args.examples, plt, np, planning, args.examples_family),
+            out.with_name(out.stem + "_examples.png"),
+        )
     print(f"wrote {out} and {png}")
     return 0
 
 
-def _examples_figure(count: int, plt, np, planning):
-    """Generated ``house`` buildings: free white, obstacles black, unknown grey, doors green,
+def _examples_figure(count: int, plt, np, planning, family: str = "house"):
+    """Generated buildings of ``family``: free white, obstacles black, unknown grey, doors green,
     windows blue (ours, drawn by the generator: free to publish, unlike the HM3D drawings)."""
     cols = min(count, 4)
     rows = (count + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 4 * rows), dpi=90, squeeze=False)
     for seed, ax in zip(range(count), axes.ravel()):
-        b = planning.generate_building(seed, family="house")
+        b = planning.generate_building(seed, family=family)
         img = np.ones(b.shape + (3,))
         img[b.occupancy] = 0.0
         if b.known is not None:
@@ -190,7 +196,7 @@ def _examples_figure(count: int, plt, np, planning):
         img[b.semantic == planning.WINDOW] = (0.2, 0.5, 1.0)
         free = (~b.occupancy & b.indoor).sum() * b.resolution**2
         ax.imshow(img, origin="lower", extent=(0, b.shape[1] * b.resolution, 0, b.shape[0] * b.resolution))
-        ax.set_title(f"house {seed}: {free:.0f} m^2 of free floor", fontsize=9)
+        ax.set_title(f"{family} {seed}: {free:.0f} m^2 of free floor", fontsize=9)
     for ax in axes.ravel()[count:]:
         ax.axis("off")
     fig.tight_layout()

@@ -8,6 +8,9 @@ the final model, a compact copy of the last checkpoint and the learning curve:
     python train/lsd_house_gpu.py --root /tmp/lsdh --out OUT --house 180 --house-samples 160 \\
         --train 60 --train-samples 120 --workers 14 --data-deadline 200 --deadline 500
 
+``--family campus`` swaps the house family for the long university buildings of the ``campus``
+family (``--house`` then counts campus buildings; the model is ``lsd_campus.npz``).
+
 Shards are named ``expert_<family>_<seed>.npz`` (as ``jaxsem lsd data`` writes them) and each is a
 function of its family and seed, so a shorter run's shards are a prefix of a longer run's. Jobs
 interleave the two families so that a run stopped at its deadline keeps the mix. Everything
@@ -67,7 +70,7 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
     if full_dir is not None:
         full_dir.mkdir(parents=True, exist_ok=True)
     full = str(full_dir) if full_dir is not None else ""
-    house = [("house", s, args.house_samples, str(data_dir), full) for s in range(args.house)]
+    house = [(args.family, s, args.house_samples, str(data_dir), full) for s in range(args.house)]
     train = [("train", s, args.train_samples, str(data_dir), full) for s in range(args.train)]
     jobs, ratio = [], max(1, round(len(house) / max(1, len(train))))
     while house or train:  # interleave: `ratio` houses, then one train building
@@ -93,7 +96,7 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
         for p in d.glob(".expert_*.tmp") if d is not None else ():
             p.unlink()
     shards = sorted(str(p) for p in data_dir.glob("expert_*.npz"))
-    fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in ("house", "train")}
+    fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in (args.family, "train")}
     info = {"shards": len(shards), "by_family": fam, "seconds": round(time.time() - t, 1), "jobs": len(jobs)}
     print("data:", info, flush=True)
     return info
@@ -103,8 +106,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", required=True, help="data and workdir (resumes)")
     ap.add_argument("--out", required=True, help="where the model, checkpoint and curve go")
-    ap.add_argument("--house", type=int, default=180)
-    ap.add_argument("--house-samples", type=int, default=160)
+    ap.add_argument("--family", default="house", choices=("house", "campus"), help="the new building family")
+    ap.add_argument("--house", type=int, default=180, help="buildings of --family")
+    ap.add_argument("--house-samples", type=int, default=160, help="expert samples per --family building")
     ap.add_argument("--train", type=int, default=60)
     ap.add_argument("--train-samples", type=int, default=120)
     ap.add_argument("--workers", type=int, default=14)
@@ -159,7 +163,7 @@ def main(argv=None) -> int:
         suffix = "" if name == "house" else "_oracle"
         try:
             _, params, config = lsd.load_trained(workdir)
-            lsd.export_model(out / f"lsd_house{suffix}.npz", config, params)
+            lsd.export_model(out / f"lsd_{args.family}{suffix}.npz", config, params)
             rows = [json.loads(x) for x in (workdir / "metrics.jsonl").read_text().splitlines() if x.strip()]
         except Exception as e:  # report and go on: the other run's files still come back
             print(f"export {name}: {e!r}", flush=True)

@@ -33,7 +33,7 @@ CONFIG_FLAGS = (
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ap = sc.command_parser(prog, __doc__)
     ap.add_argument("--out", type=sc.output_dir, default="out/lsd_expert", help="output folder for the shards")
-    ap.add_argument("--family", choices=("train", "test", "house"), default="train", help="building family")
+    ap.add_argument("--family", choices=("train", "test", "house", "campus"), default="train", help="building family")
     ap.add_argument("--buildings", type=sc.positive_int, default=20, help="number of buildings (seeds)")
     ap.add_argument("--first-seed", type=sc.nonnegative_int, default=0, help="seed of the first building")
     sc.add_config_flags(ap, ExpertConfig, CONFIG_FLAGS, base=ExpertConfig())

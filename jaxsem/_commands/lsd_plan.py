@@ -118,7 +118,7 @@ def plot_over_time(world, snapshots, path, goal, out, panels: int = 6, title: st
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     p.add_argument("--map", default=None, help="npz map file (None: a generated building)")
-    p.add_argument("--family", default="test", choices=("train", "test", "house"), help="building family")
+    p.add_argument("--family", default="test", choices=("train", "test", "house", "campus"), help="building family")
     p.add_argument("--building", type=int, default=0, help="building seed")
     p.add_argument(
         "--start",

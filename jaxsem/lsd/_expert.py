@@ -29,7 +29,7 @@ key                     shape, dtype         meaning
 ``goal_outdoors``       (S,) bool            goal outside the building
 ``path_cost``           (S,) float32         soft cost of the full optimal path
 ``building_seed``       () int64             seed of the building (with ``family``)
-``family``              () str               'train' or 'test'
+``family``              () str               'train', 'test', 'house' or 'campus'
 ``resolution``          () float32           metres per cell (0.1)
 ======================  ===================  ==============================================
 """

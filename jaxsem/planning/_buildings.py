@@ -20,6 +20,9 @@ free-standing tables and columns), then takes a navmesh-like margin off the free
 grown by one cell, the agent's radius) and adds scan-like noise (ragged obstacle edges, speckles);
 free islands cut off by clutter and the inside of furniture are unknown (``Building.known``).
 Its seed stream is its own; the train and test families are unchanged by it.
+
+The ``campus`` family (``CAMPUS_PARAMS``) is the train family's layout drawn at the size of the
+scanned university buildings: 60-110 m long, 3-6 m corridors, halls up to 12 m, its own seed stream.
 """
 
 from __future__ import annotations
@@ -62,6 +65,19 @@ TEST_PARAMS = BuildingParams(
     room_size=(4.0, 9.5),
     seed_offset=1_000_003,
 )
+#: Long university buildings like the scanned Malaga campus (issue 25 item 4): 60-110 m long,
+#: a 3-6 m corridor spine, cross corridors every 20-40 m, rooms up to 12 m (halls) and a wide
+#: outside; the campus' corridors are 3-6 m wide where the train family's are 1.8-2.4 m.
+CAMPUS_PARAMS = BuildingParams(
+    width=(60.0, 110.0),
+    depth=(26.0, 44.0),
+    margin=8.0,
+    corridor_width=(3.0, 6.0),
+    cross_spacing=(20.0, 40.0),
+    room_size=(3.5, 12.0),
+    n_exterior_doors=(2, 4),
+    seed_offset=3_000_017,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,7 +108,7 @@ class HouseParams:
 
 
 HOUSE_PARAMS = HouseParams()
-FAMILIES = {"train": TRAIN_PARAMS, "test": TEST_PARAMS, "house": HOUSE_PARAMS}
+FAMILIES = {"train": TRAIN_PARAMS, "test": TEST_PARAMS, "house": HOUSE_PARAMS, "campus": CAMPUS_PARAMS}
 
 
 class GridMap:
@@ -393,7 +409,7 @@ def _footprint(rng, p, resolution: float):
 def generate_building(
     seed: int, family: str = "train", resolution: float = DEFAULT_RESOLUTION, params: BuildingParams | None = None
 ) -> Building:
-    """One procedural building of ``family`` ('train', 'test' or 'house'), deterministic in ``seed``.
+    """One procedural building of ``family`` ('train', 'test', 'house' or 'campus'), deterministic in ``seed``.
 
     ``params`` overrides the family's :class:`BuildingParams` (:class:`HouseParams`: a house). See the module docstring for the
     layout rules and :class:`Building` for the arrays returned.
