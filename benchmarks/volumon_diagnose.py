@@ -162,14 +162,12 @@ def axis_ratios(model, variables, config) -> dict:
     samples: which axis a size error sits on."""
     import numpy as np
 
-    from jaxsem.volumon import make_predict_fn
+    from jaxsem.volumon import predict_batch
 
     b = _held_out(
         config.seed, config.num_eval, config.scene, config.model.input_size, config.model.global_padding, config.noisy
     )
-    _, ell, _ = make_predict_fn(model, config)(
-        variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"]
-    )
+    _, ell, _ = predict_batch(model, config, variables, b)
     ratio = np.sort(np.asarray(ell.radii), -1) / np.sort(np.asarray(b["gt_half_extents"]), -1)
     keep = np.asarray(b["sample_mask"], bool)
     med = np.median(ratio[keep], 0)

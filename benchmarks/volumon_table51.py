@@ -86,6 +86,7 @@ def main():
         make_predict_fn,
         optimise_from_scratch,
         postopt,
+        predict_batch,
         train_and_evaluate,
     )
 
@@ -112,7 +113,7 @@ def main():
         variables = {"params": st["params"], "batch_stats": st["batch_stats"]}
         test = _test_set(cfg, a.num_test, noisy=cfg.noisy)
         predict = make_predict_fn(res["model"], cfg)
-        phi, ell, _ = predict(variables, test["local"], test["global"], test["box_input"], test["K"], test["class_id"])
+        phi, ell, _ = predict_batch(res["model"], cfg, variables, test)
         rows[NAMES[v]] = evaluate_predictions(ell._asdict(), test)
         models[v] = (cfg, variables, predict, test, phi)
         print(NAMES[v], rows[NAMES[v]], flush=True)

@@ -181,3 +181,21 @@ def test_train_from_a_directory_end_to_end_with_exact_resume(tmp_path):
         train_and_evaluate(cfg, tmp_path / "c", progress=False)
     with pytest.raises(ValueError, match="data: .* not a directory"):
         volumon_batch_source(tmp_path / "nope", batch_size=4, **sizes)
+
+
+@pytest.mark.slow  # compiles a tiny VoluMon (about 20-70 s on 2 cores)
+def test_predict_batch_reads_the_batch_the_network_reads():
+    from jaxsem.volumon import init_state, make_predict_fn, predict_batch
+
+    cfg = _config()
+    state, model, _ = init_state(cfg)
+    variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
+    b = make_batch(cfg.seed, np.arange(3), cfg.scene, cfg.model.input_size, cfg.model.global_padding, "train")
+    _, ell, _ = predict_batch(model, cfg, variables, b)
+    # the reference: the jitted predictor with the five inputs named one by one
+    _, ref, _ = make_predict_fn(model, cfg)(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    for got, want in zip(ell, ref):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert np.asarray(ell.center).shape == (3, 3)
+    with pytest.raises(ValueError, match=r"batch: missing \['K'\]"):
+        predict_batch(model, cfg, variables, {k: v for k, v in b.items() if k != "K"})

@@ -168,6 +168,7 @@ def main(argv=None, prog: str | None = None) -> int:
         load_trained,
         make_batch,
         make_predict_fn,
+        predict_batch,
         prepare_inputs,
         train_and_evaluate,
     )
@@ -221,7 +222,7 @@ def main(argv=None, prog: str | None = None) -> int:
                 a.split,
                 keep_images=True,
             )
-        _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+        _, ell, _ = predict_batch(model, cfg, variables, b)
         K = np.asarray(b["K"][0])
         for i in range(a.num):
             e = [np.asarray(x[i]) for x in ell]

@@ -60,7 +60,7 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
         evaluate_held_out,
         held_out_set,
         load_pretrained,
-        make_predict_fn,
+        predict_batch,
     )
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -68,7 +68,7 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
     num = 16 if quick else 64
     res = evaluate_held_out(model, variables, cfg, seed=1, num=num, postopt_steps=0 if quick else 50)
     b = held_out_set(1, 8, cfg.scene, cfg.model.input_size, cfg.model.global_padding, keep_images=True, batch_size=8)
-    _, ell, _ = make_predict_fn(model, cfg)(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    _, ell, _ = predict_batch(model, cfg, variables, b)
     _save_predictions(
         out_dir / "volumon_predictions.png",
         b,
@@ -105,8 +105,8 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
         evaluate_predictions,
         get_config,
         make_batch,
-        make_predict_fn,
         postopt,
+        predict_batch,
         train_and_evaluate,
     )
 
@@ -133,9 +133,7 @@ def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
         "test",
         keep_images=True,
     )
-    phi, ell, _ = make_predict_fn(res["model"], cfg)(
-        variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"]
-    )
+    phi, ell, _ = predict_batch(res["model"], cfg, variables, b)
     rows = {"network": evaluate_predictions(ell._asdict(), b)}
     if not quick:
         _, ell_po, _ = postopt(

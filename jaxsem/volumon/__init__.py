@@ -105,6 +105,7 @@ from ._train import (
     load_trained as load_trained,
     make_predict_fn as make_predict_fn,
     make_train_step as make_train_step,
+    predict_batch as predict_batch,
     predict_params as predict_params,
     train_and_evaluate as train_and_evaluate,
     warm_start_variables as warm_start_variables,

@@ -71,11 +71,10 @@ def evaluate_doors(model, variables, config: TrainConfig, batch: dict) -> dict:
     inputs and ground truth, :func:`jaxsem.data.door_eval_batch`), with the true depth range and
     the errors of a constant baseline (every door the batch's mean true size, centred on the ray
     through its box centre at the batch's median true depth: what box position alone gives)."""
-    from ._train import make_predict_fn
+    from ._train import predict_batch
 
     b = batch
-    predict = make_predict_fn(model, config)
-    _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+    _, ell, _ = predict_batch(model, config, variables, b)
     pred = jax.tree.map(np.asarray, ell._asdict())
     e = door_errors(pred, b)
     out: dict[str, Any] = {"num": int(len(e["center"]))}

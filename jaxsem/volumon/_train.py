@@ -157,6 +157,20 @@ def make_predict_fn(model: VoluMonNet, config: TrainConfig) -> Callable:
     return predict
 
 
+#: What the network reads from a batch dict (``make_batch``, ``held_out_set``, the door and LM-O
+#: batches), in :func:`make_predict_fn`'s order.
+BATCH_INPUTS = ("local", "global", "box_input", "K", "class_id")
+
+
+def predict_batch(model: VoluMonNet, config: TrainConfig, variables, batch) -> tuple:
+    """``(phi, Ellipsoid, class_logits)`` of :func:`make_predict_fn` on a batch dict: the one
+    place that knows which of a batch's arrays the network reads (:data:`BATCH_INPUTS`)."""
+    missing = [k for k in BATCH_INPUTS if k not in batch]
+    if missing:
+        raise ValueError(f"batch: missing {missing}; expected the keys {list(BATCH_INPUTS)}")
+    return make_predict_fn(model, config)(variables, *(jnp.asarray(batch[k]) for k in BATCH_INPUTS))
+
+
 @functools.lru_cache(maxsize=16)
 def _model_and_init(model_config, learning_rate):
     model = VoluMonNet(model_config)
@@ -320,12 +334,10 @@ def evaluate(
     ``"host"``: indices ``0..num-1`` of the host generator's ``split``.
     """
     num = config.num_eval if num is None else num
-    predict = make_predict_fn(model, config)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
     gt_keys = ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
     if batch is not None:
-        args = (batch[k] for k in ("local", "global", "box_input", "K", "class_id"))
-        _, ell, _ = predict(variables, *map(jnp.asarray, args))
+        _, ell, _ = predict_batch(model, config, variables, batch)
         return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), {k: np.asarray(batch[k]) for k in gt_keys})
     if config.data == "directory":
         raise ValueError("batch: a run on a directory is evaluated on a given batch (no held-out stream of its own)")
@@ -339,7 +351,7 @@ def evaluate(
             config.noisy,
             batch_size=batch_size,
         )
-        _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+        _, ell, _ = predict_batch(model, config, variables, b)
         gt = {
             k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
         }
@@ -350,7 +362,7 @@ def evaluate(
         b = make_batch(
             config.seed, idx, config.scene, config.model.input_size, config.model.global_padding, split, config.noisy
         )
-        _, ell, _ = predict(variables, b["local"], b["global"], b["box_input"], b["K"], b["class_id"])
+        _, ell, _ = predict_batch(model, config, variables, b)
         preds.append(jax.tree.map(np.asarray, ell._asdict()))
         gts.append(
             {k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")}
