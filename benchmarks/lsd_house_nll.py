@@ -6,6 +6,9 @@ the same samples, the oracle on their full-map copies (``lsd.with_full_map``). P
 differences per sample with their standard error.
 
     python benchmarks/lsd_house_nll.py --oracle OUT/lsd_house_oracle.npz --json benchmarks/results/lsd_house_nll.json
+
+``--family campus --model OUT/lsd_campus.npz`` scores a campus fine-tune the same way, on
+``campus`` family seeds from 1000 (its fine-tune used seeds below 100).
 """
 
 from __future__ import annotations
@@ -30,7 +33,9 @@ def per_sample_nll(model, params, data):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--house-seeds", type=int, nargs="+", default=[1000, 1001, 1002])
+    p.add_argument("--family", default="house", choices=("house", "campus"), help="the fine-tune's building family")
+    p.add_argument("--model", default=None, help="its model (.npz or shipped name; default: the family's name)")
+    p.add_argument("--house-seeds", "--family-seeds", type=int, nargs="+", default=[1000, 1001, 1002])
     p.add_argument("--test-seeds", type=int, nargs="+", default=[600])
     p.add_argument("--samples", type=int, default=100, help="expert samples per building")
     p.add_argument("--oracle", default=None, help="the full-map oracle model (.npz), optional")
@@ -42,10 +47,11 @@ def main(argv=None) -> int:
     from jaxsem import lsd, planning
     from jaxsem.scripting import atomic_write_text
 
-    models = {"shipped": lsd.load_model("default"), "house": lsd.load_model("house")}
+    fam = args.family
+    models = {"shipped": lsd.load_model("default"), fam: lsd.load_model(args.model or fam)}
     cfg = lsd.ExpertConfig(samples_per_building=args.samples)
     result = {"command": "python benchmarks/lsd_house_nll.py " + " ".join(argv or sys.argv[1:]), "sets": {}}
-    for family, seeds in (("house", args.house_seeds), ("test", args.test_seeds)):
+    for family, seeds in ((fam, args.house_seeds), ("test", args.test_seeds)):
         shards = []
         for s in seeds:
             b = planning.generate_building(s, family)
@@ -66,7 +72,7 @@ def main(argv=None) -> int:
         row = {"buildings": seeds, "samples": int(has.sum()), "uniform": float(np.log(160 * 160))}
         for name, v in scores.items():
             row[name] = float(v[has].mean())
-        for a, b_ in (("shipped", "house"), ("house", "oracle")):
+        for a, b_ in (("shipped", fam), (fam, "oracle")):
             if a in scores and b_ in scores:
                 d = scores[a][has] - scores[b_][has]
                 row[f"{a}_minus_{b_}"] = [float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))]
