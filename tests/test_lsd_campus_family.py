@@ -64,3 +64,18 @@ def test_campus_family_is_pinned():
         for a in (b.occupancy, b.semantic, b.indoor, b.rooms, b.exterior_doors, b.entrance):
             h.update(np.ascontiguousarray(a).tobytes())
     assert h.hexdigest() == "a382ec2cedddbee99395486a2f3bc634cdc15557"
+
+
+def test_campus_model_loads_by_name():
+    import jax
+
+    from jaxsem import lsd
+
+    _, params, config, _ = lsd.load_model("campus")
+    _, default_params, default_config, _ = lsd.load_model("default")
+    assert config.model == default_config.model  # the same network, other weights
+    leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(params)]
+    assert all(np.isfinite(x).all() for x in leaves)
+    other = [np.asarray(x) for x in jax.tree_util.tree_leaves(default_params)]
+    assert any(not np.array_equal(a, b) for a, b in zip(leaves, other))
+    assert lsd.PRETRAINED_CAMPUS.stat().st_size < 2_000_000

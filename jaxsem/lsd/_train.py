@@ -731,14 +731,19 @@ PRETRAINED = pathlib.Path(__file__).resolve().parent / "pretrained.npz"
 #: train family (``train/lsd_house_gpu.py``; ``MODEL_CARD.md``, "The house model").
 PRETRAINED_HOUSE = pathlib.Path(__file__).resolve().parent / "pretrained_house.npz"
 
+#: The campus model: the shipped model fine-tuned on the ``campus`` building family (long
+#: university buildings, 3-6 m corridors) mixed with the train family (``train/lsd_house_gpu.py
+#: --family campus``; ``MODEL_CARD.md``, "The campus model").
+PRETRAINED_CAMPUS = pathlib.Path(__file__).resolve().parent / "pretrained_campus.npz"
+
 #: Shipped models by name (:func:`load_model`).
-MODELS = {"default": PRETRAINED, "house": PRETRAINED_HOUSE, "cpu": PRETRAINED_CPU}
+MODELS = {"default": PRETRAINED, "house": PRETRAINED_HOUSE, "campus": PRETRAINED_CAMPUS, "cpu": PRETRAINED_CPU}
 
 
 def load_model(source=None) -> LoadedModel:
     """``(model, params, config, meta)`` (a :class:`jaxsem.training.LoadedModel`, the shape
     :func:`jaxsem.volumon.load_pretrained` returns too) from a training workdir, an exported
-    ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'house', 'cpu'), or (None)
+    ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'house', 'campus', 'cpu'), or (None)
     the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent).
     ``meta``: ``name`` (the file or folder) and ``step`` (a workdir's checkpoint; None for a file)."""
     if source is None:
