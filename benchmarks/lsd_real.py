@@ -13,7 +13,8 @@ bounds, and runs both planners from the same start, yaw and key on every task an
 
 LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (no uniform mix).
 ``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?);
-``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant).
+``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant), ``--replan-when-blocked``
+one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
 same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<N>``
 (``success_uniform``, ``success_lsd``, ``lsd_only``, ``uniform_only``, ``cl_over_cstar``,
@@ -87,6 +88,12 @@ def _parse(argv):
         "--euclid",
         action="store_true",
         help="add LSD with Euclidean edge weights (a variant row; the default is the thesis' -log p)",
+    )
+    p.add_argument(
+        "--replan-when-blocked",
+        action="store_true",
+        help="add LSD that replans only when its route is blocked, as the reused uniform roadmap "
+        "effectively does (a variant row; the default draws a fresh roadmap every replan_every steps)",
     )
     p.add_argument(
         "--goal-flag",
@@ -232,6 +239,8 @@ def _run(args, argv) -> int:
     variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else {}
     if args.euclid:
         variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
+    if args.replan_when_blocked:
+        variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
     variants = variants or None
     if args.uniform_only:
         variants = {"uniform": (None, {})}

@@ -254,6 +254,32 @@ def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path):
     assert again[1]["uniform"]["path"] == first[1]["uniform"]["path"]  # same key: same trial
 
 
+@pytest.mark.slow
+def test_real_map_variant_that_replans_only_when_blocked(tmp_path):
+    """``--replan-when-blocked`` adds an LSD row on the same tasks whose route is kept until it
+    is blocked: it never draws more roadmaps than the default LSD, which draws one every 20 steps."""
+    occ = _two_rooms(0.9, gap_at=1.5)
+    path = tmp_path / "rooms.gridmap.gz"
+    _write_gridmap(path, occ, 0.1)
+    spec = importlib.util.spec_from_file_location("lsd_real", ROOT / "benchmarks" / "lsd_real.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "r.json"
+    argv = [
+        "--map", str(path), "--trials", "2", "--n", "60", "--sets", "II", "--protocol", "defaults",
+        "--seed", "1", "--min-distance", "3", "--max-distance", "9", "--max-steps", "60",
+        "--replan-when-blocked", "--json", str(out), "--no-progress",
+    ]  # fmt: skip
+    assert mod.main(argv) == 0
+    result = json.loads(out.read_text())
+    assert "success_lsd_blocked" in result["summary"]["II-60"]
+    records = [json.loads(x) for x in pathlib.Path(result["records"]).read_text().splitlines()]
+    assert len(records) == 2
+    for r in records:
+        assert r["lsd_blocked"]["plans"] <= r["lsd"]["plans"]
+    assert any(r["lsd"]["steps"] > 20 and r["lsd_blocked"]["plans"] < r["lsd"]["plans"] for r in records)
+
+
 def test_streamed_records_read_back_past_a_torn_tail(tmp_path):
     from jaxsem.lsd import read_records
 
