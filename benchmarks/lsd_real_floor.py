@@ -43,24 +43,32 @@ def _parse(argv):
     return p.parse_args(argv)
 
 
-def _check(args) -> list:
+def read_runs(paths, prog: str = "lsd_real_floor", need_command: bool = True) -> list:
+    """``[(json path, run dict, records path)]`` of ``lsd_real.py`` outputs named by ``--json``;
+    ``SystemExit`` naming the flag and file for a missing, foreign or record-less one (``prog``
+    prefixes the message; also used by ``lsd_real_uturns.py``)."""
     runs = []
-    for path in args.json:
+    for path in paths:
         f = pathlib.Path(path)
         if not f.is_file():
-            raise SystemExit(f"lsd_real_floor: --json: no such file {path!r}")
+            raise SystemExit(f"{prog}: --json: no such file {path!r}")
         try:
             run = json.loads(f.read_text())
         except json.JSONDecodeError as exc:
-            raise SystemExit(f"lsd_real_floor: --json: {path!r} is not JSON ({exc.msg})") from None
-        if run.get("benchmark") != "lsd_real" or "command" not in run:
-            raise SystemExit(f"lsd_real_floor: --json: {path!r} is not an lsd_real.py output")
-        records = pathlib.Path(run["records"])
+            raise SystemExit(f"{prog}: --json: {path!r} is not JSON ({exc.msg})") from None
+        if run.get("benchmark") != "lsd_real" or (need_command and "command" not in run):
+            raise SystemExit(f"{prog}: --json: {path!r} is not an lsd_real.py output")
+        records = pathlib.Path(run.get("records", ""))
         if not records.is_file():
             records = f.with_name(f.stem + ".records.jsonl")
         if not records.is_file():
-            raise SystemExit(f"lsd_real_floor: --json: no records beside {path!r}")
+            raise SystemExit(f"{prog}: --json: no records beside {path!r}")
         runs.append((f, run, records))
+    return runs
+
+
+def _check(args) -> list:
+    runs = read_runs(args.json)
     if args.data is not None and not pathlib.Path(args.data).is_dir():
         raise SystemExit(f"lsd_real_floor: --data: no such folder {args.data!r}")
     out = pathlib.Path(args.out)

@@ -57,23 +57,10 @@ def _parse(argv):
 
 def main(argv=None) -> int:
     args = _parse(argv)
-    runs = []
-    for path in args.json:
-        f = pathlib.Path(path)
-        if not f.is_file():
-            raise SystemExit(f"lsd_real_uturns: --json: no such file {path!r}")
-        try:
-            run = json.loads(f.read_text())
-        except json.JSONDecodeError as exc:
-            raise SystemExit(f"lsd_real_uturns: --json: {path!r} is not JSON ({exc.msg})") from None
-        if run.get("benchmark") != "lsd_real":
-            raise SystemExit(f"lsd_real_uturns: --json: {path!r} is not an lsd_real.py output")
-        records = pathlib.Path(run.get("records", ""))
-        if not records.is_file():
-            records = f.with_name(f.stem + ".records.jsonl")
-        if not records.is_file():
-            raise SystemExit(f"lsd_real_uturns: --json: no records beside {path!r}")
-        runs.append((f, records))
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+    from lsd_real_floor import read_runs
+
+    runs = [(f, records) for f, _, records in read_runs(args.json, "lsd_real_uturns", need_command=False)]
     if args.window < 1 or not 90.0 <= args.angle <= 180.0:
         raise SystemExit("lsd_real_uturns: --window: expected >= 1 and --angle in [90, 180]")
 
