@@ -23,6 +23,8 @@ import sys
 
 import numpy as np
 
+REASONS = ("replans_blocked", "replans_periodic")  # the record keys of jaxsem.lsd's trial runner
+
 
 def uturns(path, window: int = 4, angle: float = 150.0) -> int:
     """U-turns of a driven ``(T, 2)`` polyline: heading changes over ``window`` steps above
@@ -68,11 +70,13 @@ def main(argv=None) -> int:
 
     out = {"command": "python benchmarks/lsd_real_uturns.py " + " ".join(argv or sys.argv[1:]), "rows": []}
     lines = [
-        "| run | row | mutual | U-turns uniform / LSD (mean) | detours: task (C_b/C*, U-turns; C_l/C*, U-turns) |",
-        "|---|---|---|---|---|",
+        "| run | row | mutual | U-turns uniform / LSD (mean) | replans blocked / periodic: uniform; LSD (mean) "
+        "| detours: task (C_b/C*, U-turns; C_l/C*, U-turns) |",
+        "|---|---|---|---|---|---|",
     ]
     for f, records in runs:
         rows: dict = {}
+        why: dict = {}
         for r in map(json.loads, records.read_text().splitlines()):
             u, lsd = r["uniform"], r["lsd"]
             if not (u["success"] and lsd["success"]):
@@ -81,8 +85,15 @@ def main(argv=None) -> int:
             cu, cl = u["cost"] / r["c_star"], lsd["cost"] / r["c_star"]
             tu, tl = uturns(u["path"], args.window, args.angle), uturns(lsd["path"], args.window, args.angle)
             rows.setdefault(key, []).append((int(r["trial"]), cu, tu, cl, tl))
+            # why each planner replanned (records written before the counts existed lack them)
+            why.setdefault(key, []).append([x.get(k, np.nan) for x in (u, lsd) for k in REASONS])
         for key, t in rows.items():
             a = np.array(t, np.float64)
+            w = np.array(why[key], np.float64).mean(axis=0)
+            replans = {
+                f"{k}_{p}": (None if np.isnan(v) else float(v))
+                for (p, k), v in zip([(p, k) for p in ("uniform", "lsd") for k in REASONS], w)
+            }
             detours = [x for x in t if max(x[1], x[3]) > args.detour]
             row = {
                 "run": f.stem,
@@ -90,6 +101,7 @@ def main(argv=None) -> int:
                 "mutual": len(t),
                 "uturns_uniform": float(a[:, 2].mean()),
                 "uturns_lsd": float(a[:, 4].mean()),
+                **replans,
                 "detours": [
                     {"trial": i, "cb_over_cstar": cu, "uturns_uniform": tu, "cl_over_cstar": cl, "uturns_lsd": tl}
                     for i, cu, tu, cl, tl in detours
@@ -97,8 +109,9 @@ def main(argv=None) -> int:
             }
             out["rows"].append(row)
             listed = "; ".join(f"{i} ({cu:.2f}, {tu}; {cl:.2f}, {tl})" for i, cu, tu, cl, tl in detours)
+            rp = "n/a" if np.isnan(w).any() else f"{w[0]:.1f} / {w[1]:.1f}; {w[2]:.1f} / {w[3]:.1f}"
             lines.append(
-                f"| {f.stem} | {key} | {len(t)} | {row['uturns_uniform']:.2f} / {row['uturns_lsd']:.2f} | {listed} |"
+                f"| {f.stem} | {key} | {len(t)} | {row['uturns_uniform']:.2f} / {row['uturns_lsd']:.2f} | {rp} | {listed} |"
             )
     print("\n".join(lines))
     atomic_write_text(pathlib.Path(args.out), json.dumps(out, indent=1))

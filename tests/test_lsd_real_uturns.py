@@ -63,6 +63,18 @@ def test_script_lists_the_detours(tmp_path, capsys):
     row = json.loads(out.read_text())["rows"][0]
     assert row["mutual"] == 2 and row["uturns_uniform"] == 0.0 and row["uturns_lsd"] == 1.0
     assert [d["trial"] for d in row["detours"]] == [1] and row["detours"][0]["cl_over_cstar"] == pytest.approx(4.0)
+    assert row["replans_blocked_lsd"] is None  # records from before the replan reasons
+    # Records with replan reasons: their means per task, per planner.
+    recs = [rec(0, straight), rec(1, walk)]
+    for r, (bu, pu, bl, pl) in zip(recs, [(0, 1, 2, 3), (0, 3, 4, 5)]):
+        r["uniform"].update(replans_blocked=bu, replans_periodic=pu)
+        r["lsd"].update(replans_blocked=bl, replans_periodic=pl)
+    records.write_text("\n".join(json.dumps(r) for r in recs))
+    assert mod.main(["--json", str(tmp_path / "run.json"), "--out", str(out)]) == 0
+    row = json.loads(out.read_text())["rows"][0]
+    got = [row[f"replans_{k}_{p}"] for p in ("uniform", "lsd") for k in ("blocked", "periodic")]
+    assert got == [0.0, 2.0, 3.0, 4.0]
+    assert "0.0 / 2.0; 3.0 / 4.0" in capsys.readouterr().out
     (tmp_path / "other.json").write_text(json.dumps({"benchmark": "lsd_table31"}))
     with pytest.raises(SystemExit, match="not an lsd_real.py output"):
         mod.main(["--json", str(tmp_path / "other.json"), "--out", str(tmp_path / "x.json")])

@@ -421,3 +421,56 @@ def test_task_pools_keep_their_clearance_and_side(tiny_building_for_pools):
 @pytest.fixture(scope="module")
 def tiny_building_for_pools():
     return generate_building(3, "train")
+
+
+def _open_room():
+    """10 x 4 m, walls on the border only: nothing inside can block a plan."""
+    occ = np.zeros((40, 100), bool)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    sem = np.where(occ, 1, 0).astype(np.int8)
+    return World(occ, sem, np.ones_like(occ), np.array([0.0, 0.0]))
+
+
+@pytest.mark.slow
+def test_replan_reasons_in_an_open_room_are_all_periodic():
+    # Nothing inside the room can block a plan, so every replan after the first is the timer's;
+    # a shorter timer replans more often, and a timer longer than the trial never fires.
+    w = _open_room()
+    start, goal = np.array([1.0, 2.0]), np.array([9.0, 2.0])
+    runs = {}
+    for every in (5, 20, 1000):
+        cfg = dataclasses.replace(CFG, replan_every=every, step_length=0.1)
+        res = navigate(w, start, goal, jax.random.PRNGKey(0), cfg, yaw0=0.0)
+        assert res.success, res.reason
+        assert res.blocked_replans == 0
+        assert res.searches - res.grown == 1 + res.periodic_replans
+        assert res.periodic_replans <= res.steps // every
+        runs[every] = res.periodic_replans
+    assert runs[5] > runs[20] > 0 and runs[1000] == 0
+
+
+def _hidden_wall():
+    """20 x 6 m: a wall across x = 12 m with a 1.5 m gap at the top, beyond the depth camera's
+    5 m from a start at x = 2 m."""
+    occ = np.zeros((60, 200), bool)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    occ[:45, 119:121] = True
+    sem = np.where(occ, 1, 0).astype(np.int8)
+    return World(occ, sem, np.ones_like(occ), np.array([0.0, 0.0]))
+
+
+@pytest.mark.slow
+def test_replan_reasons_behind_a_wall_are_blocked_plans():
+    # The first plan runs straight at the unseen wall; coming within range of it blocks the plan.
+    # With the timer off, only blocked plans (and first legs the turn showed blocked) replan.
+    w = _hidden_wall()
+    start, goal = np.array([2.0, 2.0]), np.array([18.0, 2.0])
+    cfg = dataclasses.replace(CFG, replan_every=CFG.max_steps + 1)
+    res = navigate(w, start, goal, jax.random.PRNGKey(0), cfg, yaw0=0.0)
+    assert res.success, res.reason
+    assert res.periodic_replans == 0 and res.blocked_replans >= 1
+    assert res.searches - res.grown >= 1 + res.blocked_replans
+    crossing = res.path[np.argmin(np.abs(res.path[:, 0] - 12.0))]
+    assert crossing[1] >= 4.4  # through the gap

@@ -60,6 +60,8 @@ def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = 
             "steps": int(res.steps),
             "plans": int(res.plans),
             "grown": int(res.grown),
+            "replans_blocked": int(res.blocked_replans),
+            "replans_periodic": int(res.periodic_replans),
             "seconds": time.perf_counter() - t0,
         }
         if keep_paths:

@@ -170,7 +170,10 @@ class NavResult:
     """Outcome of one trial. path: (T, 2) world polyline travelled (start first: the position after
     each step, plus the plan corners passed within a step); cost: metres travelled (its length); success; reason: 'goal', 'no_plan', 'max_steps' or 'collision' (the robot ended up in a cell its map knows to be occupied); steps; plans (roadmaps built);
     final_state: the partial maps at the end; last_distribution: (H, W) or None; grown: roadmap
-    growths after failed searches; searches: roadmap queries (replans);
+    growths after failed searches; searches: roadmap queries (replans); blocked_replans /
+    periodic_replans: replans because the rest of the plan crossed a known obstacle / because
+    ``replan_every`` steps had passed on a clear plan (the others are the first plan and the
+    replans after a first leg that the turn showed blocked);
     distributions: (step, xy, (160, 160) window distribution, (2,) window centre cell) at each
     of the first ``keep_distributions`` LSD replans (``Trial(keep_distributions=...)``)"""
 
@@ -185,6 +188,8 @@ class NavResult:
     grown: int = 0
     searches: int = 0
     distributions: list = dataclasses.field(default_factory=list)
+    blocked_replans: int = 0
+    periodic_replans: int = 0
 
 
 class Trial:
@@ -261,6 +266,8 @@ class Trial:
         self.last_distribution = None
         self.grown = 0
         self.searches = 0
+        self.blocked_replans = 0
+        self.periodic_replans = 0
         self.keep_distributions = int(keep_distributions)
         self.distributions: list = []
         self.prm: PRM | None = None
@@ -417,7 +424,17 @@ class Trial:
             # trials). Checked after the look, so no roadmap is ever asked to start there.
             self._finish(False, "collision")
             return False
-        if self.plan is None or self.since_plan >= cfg.replan_every or not self._clear(self.plan, blocked):
+        if self.plan is None:
+            why = None
+        elif not self._clear(self.plan, blocked):
+            why = "blocked"
+        elif self.since_plan >= cfg.replan_every:
+            why = "periodic"
+        else:
+            why = ""
+        if why != "":
+            self.blocked_replans += why == "blocked"
+            self.periodic_replans += why == "periodic"
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
@@ -479,6 +496,8 @@ class Trial:
             self.grown,
             self.searches,
             list(self.distributions),
+            self.blocked_replans,
+            self.periodic_replans,
         )
 
 
