@@ -452,6 +452,7 @@ class Trial:
         # Move step_length along the plan.
         remaining = cfg.step_length
         plan = self.plan
+        assert plan is not None  # kept (why == "") or set by the replan above
         while remaining > 1e-12 and len(plan) > 1:
             seg = plan[1] - plan[0]
             L = float(np.hypot(*seg))
