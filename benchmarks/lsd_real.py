@@ -114,6 +114,14 @@ def _parse(argv):
     return p.parse_args(argv)
 
 
+def run_args(command: str):
+    """The flags of a recorded run (its JSON's ``command``: ``python benchmarks/lsd_real.py ...``),
+    parsed as that run parsed them."""
+    import shlex
+
+    return _parse(shlex.split(command)[2:])
+
+
 def _check(args):
     for path in args.map:
         if not pathlib.Path(path).is_file():
@@ -167,6 +175,46 @@ def load_run_map(args, path):
     )
 
 
+def run_tasks(args, b, kind: str, graph=None) -> list:
+    """The run's ``kind`` tasks on building ``b`` as its flags draw them (``lsd_real_replay.py``
+    redraws a run's tasks with it)."""
+    from jaxsem.planning import sample_tasks
+
+    tasks = sample_tasks(
+        b,
+        kind,
+        args.trials,
+        args.seed,
+        min_distance=args.min_distance,
+        clearance=args.clearance,
+        graph=graph,
+        max_distance=args.max_distance,
+    )
+    if args.goal_flag == "io":
+        tasks = [t._replace(goal_outdoors=kind == "IO") for t in tasks]
+    return tasks
+
+
+def run_planners(args) -> tuple:
+    """``(LSD sampler, base NavConfig, variants)`` of the run as its flags set them: the base is
+    the protocol's; variants maps each extra row's name to ``(sampler, NavConfig changes)``
+    (None: uniform and LSD alone). ``jaxsem.lsd.run_trials`` takes them as they are."""
+    from jaxsem.lsd import LSDSampler, load_model
+    from jaxsem.planning import NavConfig
+
+    model, params, _, _ = load_model(args.checkpoint)
+    sampler = LSDSampler(model, params)
+    base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
+    variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else {}
+    if args.euclid:
+        variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
+    if args.replan_when_blocked:
+        variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
+    if args.uniform_only:
+        variants = {"uniform": (None, {})}
+    return sampler, base, variants or None
+
+
 def _zeroed_semantics(sampler):
     import jax.numpy as jnp
 
@@ -183,8 +231,8 @@ def _run(args, argv) -> int:
     import scipy.ndimage as ndi
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import LSDSampler, format_table, load_model, run_trials, summarise
-    from jaxsem.planning import DOOR, NavConfig, SoftCostGraph, plot_semantics, sample_tasks
+    from jaxsem.lsd import format_table, run_trials, summarise
+    from jaxsem.planning import DOOR, SoftCostGraph, plot_semantics
     from jaxsem.scripting import atomic_write_text
 
     enable_compilation_cache()
@@ -217,33 +265,12 @@ def _run(args, argv) -> int:
         print(f"map: {fact}")
         graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
         for kind in args.sets:
-            tasks[(i, kind)] = sample_tasks(
-                b,
-                kind,
-                args.trials,
-                args.seed,
-                min_distance=args.min_distance,
-                clearance=args.clearance,
-                graph=graph,
-                max_distance=args.max_distance,
-            )
-            if args.goal_flag == "io":
-                tasks[(i, kind)] = [t._replace(goal_outdoors=kind == "IO") for t in tasks[(i, kind)]]
+            tasks[(i, kind)] = run_tasks(args, b, kind, graph)
             fact[f"tasks_{kind}"] = len(tasks[(i, kind)])
             print(f"{kind}: {len(tasks[(i, kind)])} tasks (asked {args.trials})")
         buildings.append(b)
         facts.append(fact)
-    model, params, _, _ = load_model(args.checkpoint)
-    sampler = LSDSampler(model, params)
-    base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
-    variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else {}
-    if args.euclid:
-        variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
-    if args.replan_when_blocked:
-        variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
-    variants = variants or None
-    if args.uniform_only:
-        variants = {"uniform": (None, {})}
+    sampler, base, variants = run_planners(args)
     t1 = time.perf_counter()
     records = run_trials(
         buildings,

@@ -77,20 +77,18 @@ def _check(args) -> list:
     return runs
 
 
-def _maps(run: dict, data: str | None) -> list:
-    """The run's buildings, loaded as its command loaded them (index = the records' building)."""
-    import shlex
-
+def load_run_maps(run: dict, data: str | None, prog: str = "lsd_real_floor") -> list:
+    """The run's buildings, loaded as its command loaded them (index = the records' building);
+    ``data``: the folder the maps lie in now (None: the paths of the run's command). Also used
+    by ``lsd_real_replay.py``."""
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
     import lsd_real
 
-    a = lsd_real._parse(shlex.split(run["command"])[2:])
+    a = lsd_real.run_args(run["command"])
     paths = [str(pathlib.Path(data) / pathlib.Path(m).name) if data else m for m in a.map]
     for m in paths:
         if not pathlib.Path(m).is_file():
-            raise SystemExit(
-                f"lsd_real_floor: the run's map {m!r} is missing (fetch it, or name its folder with --data)"
-            )
+            raise SystemExit(f"{prog}: the run's map {m!r} is missing (fetch it, or name its folder with --data)")
     return [lsd_real.load_run_map(a, m) for m in paths]
 
 
@@ -227,7 +225,7 @@ def _run(args, runs, argv) -> int:
     for f, run, records_path in runs:
         records = [json.loads(x) for x in records_path.read_text().splitlines() if x.strip()]
         records = [r for r in records if "uniform" in r and "lsd" in r]
-        floors = _floors(_maps(run, args.data), records)
+        floors = _floors(load_run_maps(run, args.data), records)
         rows = _rows(records, floors)
         result["runs"][f.stem] = {"command": run["command"], "rows": rows}
         for name, v in rows.items():

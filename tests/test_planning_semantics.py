@@ -278,6 +278,30 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path):
     for r in records:
         assert r["lsd_blocked"]["plans"] <= r["lsd"]["plans"]
     assert any(r["lsd"]["steps"] > 20 and r["lsd_blocked"]["plans"] < r["lsd"]["plans"] for r in records)
+    # Every trial records why its planners replanned; the route-kept row never on the timer.
+    for r in records:
+        assert r["lsd_blocked"]["replans_periodic"] == 0
+        assert r["lsd"]["replans_periodic"] + r["lsd"]["replans_blocked"] < r["lsd"]["plans"] + r["lsd"]["grown"]
+    assert any(r["lsd"]["replans_periodic"] > 0 for r in records if r["lsd"]["steps"] > 20)
+    # A trial replayed from its record (benchmarks/lsd_real_replay.py) drives as it was recorded.
+    spec = importlib.util.spec_from_file_location("lsd_real_replay", ROOT / "benchmarks" / "lsd_real_replay.py")
+    rep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rep)
+    t = max(records, key=lambda r: r["lsd"]["steps"])["trial"]
+    fig = tmp_path / "replay.png"
+    argv = ["--json", str(out), "--trial", str(t), "--planner", "lsd_blocked", "--out", str(fig), "--panels", "3"]
+    assert rep.main(argv) == 0
+    got = json.loads(fig.with_suffix(".json").read_text())
+    rec = [r for r in records if r["trial"] == t][0]["lsd_blocked"]
+    assert got["replayed_as_recorded"] and got["steps"] == rec["steps"]
+    assert got["replans_blocked"] == rec["replans_blocked"] and fig.stat().st_size > 0
+    assert [e["reason"] for e in got["replans"]][0] == "first plan"
+    assert sum(e["reason"] == "blocked" for e in got["replans"]) == rec["replans_blocked"]
+    with pytest.raises(SystemExit, match="--planner"):
+        rep.main([*argv[:4], "--planner", "lsd_nosem", "--out", str(tmp_path / "x.png")])
+    with pytest.raises(SystemExit, match="--trial"):
+        rep.main(["--json", str(out), "--trial", "7", "--out", str(tmp_path / "x.png")])
+    assert not (tmp_path / "x.png").exists()
 
 
 def test_streamed_records_read_back_past_a_torn_tail(tmp_path):

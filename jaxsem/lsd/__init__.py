@@ -30,6 +30,7 @@ from ._experiment import (
     read_records as read_records,
     run_trials as run_trials,
     summarise as summarise,
+    trial_key as trial_key,
 )
 from ._expert import (
     SCHEMA_KEYS as SCHEMA_KEYS,

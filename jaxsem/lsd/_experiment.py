@@ -22,8 +22,13 @@ import numpy as np
 from ..metrics import mean_sem, zero_intercept_slope
 
 
-def _trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
-    # Same key for every planner; a function of the trial only (not of Python's hash seed).
+def trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
+    """The PRNG key of one trial of :func:`run_trials`: task seed ``seed``, the building's seed,
+    set ``kind`` ('II' or 'IO'), task index ``t_i`` and budget ``n``. Every planner of the trial
+    gets the same key, a function of the trial only (not of Python's hash seed), so a trial can
+    be replayed from its record."""
+    if kind not in ("II", "IO"):
+        raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
     return jax.random.PRNGKey(
         int(
             np.random.default_rng(
@@ -39,7 +44,7 @@ def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = 
 
     b, kind, t_i, task, n = job
     base = base or NavConfig()
-    key = _trial_key(seed, b.seed, kind, t_i, n)
+    key = trial_key(seed, b.seed, kind, t_i, n)
     rec = {
         "building": int(b.seed),
         "set": kind,
