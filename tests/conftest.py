@@ -22,6 +22,7 @@ Strict settings for the whole suite (issue 23 item 6), optimistix-style:
 
 import gc
 import os
+import pathlib
 import sys
 import tempfile
 
@@ -146,3 +147,22 @@ def run_cli(capsys):
         return status, out, err
 
     return run
+
+
+@pytest.fixture
+def script():
+    """``script("benchmarks/lsd_real.py")``: a repository script imported as a module (named by
+    its stem), for tests of a benchmark's or a command's own functions."""
+    import importlib.util
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+
+    def load(relpath: str):
+        path = root / relpath
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        assert spec is not None and spec.loader is not None, relpath
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load

@@ -3,23 +3,12 @@ deterministic per seed, one connected indoor network, and passages as wide as th
 Malaga campus' (3-6 m corridors, where the train family draws 1.8-2.4 m)."""
 
 import hashlib
-import importlib.util
-import pathlib
 
 import numpy as np
 import pytest
 import scipy.ndimage
 
 from jaxsem.planning import generate_building
-
-
-def _stats_module():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "lsd_map_stats.py"
-    spec = importlib.util.spec_from_file_location("lsd_map_stats", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
 
 CAMPUS_SEEDS = (0, 4)
 
@@ -37,8 +26,8 @@ def test_campus_is_deterministic_and_its_own_stream(campuses):
     assert train.occupancy.shape != campuses[0].occupancy.shape
 
 
-def test_campus_is_long_connected_and_wide(campuses):
-    stats = _stats_module()
+def test_campus_is_long_connected_and_wide(campuses, script):
+    stats = script("benchmarks/lsd_map_stats.py")
     train_w = np.concatenate(
         [stats.ridge_widths(~b.occupancy & b.indoor, b.resolution) for b in map(generate_building, (0, 4))]
     )

@@ -1,6 +1,5 @@
 """Table 3.1 experiment (jaxsem.lsd + benchmarks/lsd_table31.py): statistics and a tiny end-to-end."""
 
-import importlib.util
 import json
 import pathlib
 
@@ -48,10 +47,8 @@ def test_summarise_against_hand_computed_statistics():
 
 
 @pytest.mark.slow
-def test_table_script_end_to_end_tiny(tmp_path):
-    spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_table_script_end_to_end_tiny(tmp_path, script):
+    mod = script("benchmarks/lsd_table31.py")
     rc = mod.main(
         [
             # The bundled CPU model keeps this test short; training is covered by test_lsd_train.
@@ -146,10 +143,8 @@ def test_a_variant_both_planners_ran_is_paired_like_the_defaults():
 
 
 @pytest.mark.slow
-def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path):
-    spec = importlib.util.spec_from_file_location("lsd_table31", ROOT / "benchmarks" / "lsd_table31.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path, script):
+    mod = script("benchmarks/lsd_table31.py")
     args = ["--checkpoint", str(PRETRAINED_CPU), "--out", str(tmp_path), "--test-buildings", "1", "--trials", "1"]
     args += ["--n", "100", "--sets", "II", "--max-steps", "60", "--no-progress", "--ablations", "thesis"]
     assert mod.main([*args, "--name", "th"]) == 0

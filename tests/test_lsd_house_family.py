@@ -2,8 +2,6 @@
 and shaped like the HM3D houses, the old families unchanged, the model loads by name."""
 
 import hashlib
-import importlib.util
-import pathlib
 
 import jax
 import numpy as np
@@ -14,14 +12,6 @@ from jaxsem import lsd, planning
 from jaxsem.planning import DOOR, WINDOW, generate_building
 
 HOUSE_SEEDS = (0, 3, 5)
-
-
-def _stats_module():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "lsd_map_stats.py"
-    spec = importlib.util.spec_from_file_location("lsd_map_stats", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +42,8 @@ def test_house_is_one_connected_home_with_doors_and_unknown_cells(houses):
         assert len(b.exterior_doors) >= 1 and len(b.rooms) >= 3
 
 
-def test_house_statistics_are_in_the_hm3d_range(houses):
-    stats = _stats_module()
+def test_house_statistics_are_in_the_hm3d_range(houses, script):
+    stats = script("benchmarks/lsd_map_stats.py")
     widths, free_m2 = [], []
     for b in houses:
         free = ~b.occupancy & b.indoor

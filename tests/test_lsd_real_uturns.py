@@ -1,19 +1,9 @@
 """benchmarks/lsd_real_uturns.py: U-turns counted on drawn paths, and the script on written records."""
 
-import importlib.util
 import json
-import pathlib
 
 import numpy as np
 import pytest
-
-
-def _module():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "lsd_real_uturns.py"
-    spec = importlib.util.spec_from_file_location("lsd_real_uturns", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _walk(*legs, step=0.25):
@@ -26,8 +16,8 @@ def _walk(*legs, step=0.25):
     return np.array(p)
 
 
-def test_uturns_on_drawn_paths():
-    u = _module().uturns
+def test_uturns_on_drawn_paths(script):
+    u = script("benchmarks/lsd_real_uturns.py").uturns
     assert u(_walk((1, 0, 10))) == 0
     assert u(_walk((1, 0, 10), (0, 1, 10))) == 0  # a corner is not a U-turn
     assert u(_walk((1, 0, 10), (-1, 0, 6))) == 1  # out and back
@@ -38,8 +28,8 @@ def test_uturns_on_drawn_paths():
     assert u(_walk((1, 0, 1))) == 0  # too short to tell
 
 
-def test_script_lists_the_detours(tmp_path, capsys):
-    mod = _module()
+def test_script_lists_the_detours(tmp_path, capsys, script):
+    mod = script("benchmarks/lsd_real_uturns.py")
     walk = _walk((1, 0, 10), (-1, 0, 10), (1, 0, 20))
     straight = _walk((1, 0, 10))
 

@@ -3,7 +3,6 @@ footprint, the stand-in outside, annotations, resampling against a brute-force o
 bounds, and a real-map trial end to end (a written MRPT gridmap; the real lab map when present)."""
 
 import gzip
-import importlib.util
 import json
 import os
 import pathlib
@@ -218,15 +217,13 @@ def test_task_bounds_and_a_scanned_maps_seed():
 
 
 @pytest.mark.slow
-def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path):
+def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path, script):
     """The benchmark on a written gridmap at 0.05 m (resampled to 0.1 m): records stream as
     trials end, a rerun resumes without running them again, a torn last line is redone."""
     occ = np.kron(_two_rooms(0.9, gap_at=1.5), np.ones((2, 2), np.int8))  # 0.05 m cells
     path = tmp_path / "rooms.gridmap.gz"
     _write_gridmap(path, occ, 0.05, x_min=-3.0, y_min=4.0)
-    spec = importlib.util.spec_from_file_location("lsd_real", ROOT / "benchmarks" / "lsd_real.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = script("benchmarks/lsd_real.py")
     out = tmp_path / "r.json"
     argv = [
         "--map", str(path), "--trials", "2", "--n", "60", "--sets", "II", "--protocol", "thesis",
@@ -255,15 +252,13 @@ def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path):
 
 
 @pytest.mark.slow
-def test_real_map_variant_that_replans_only_when_blocked(tmp_path):
+def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     """``--replan-when-blocked`` adds an LSD row on the same tasks whose route is kept until it
     is blocked: it never draws more roadmaps than the default LSD, which draws one every 20 steps."""
     occ = _two_rooms(0.9, gap_at=1.5)
     path = tmp_path / "rooms.gridmap.gz"
     _write_gridmap(path, occ, 0.1)
-    spec = importlib.util.spec_from_file_location("lsd_real", ROOT / "benchmarks" / "lsd_real.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = script("benchmarks/lsd_real.py")
     out = tmp_path / "r.json"
     argv = [
         "--map", str(path), "--trials", "2", "--n", "60", "--sets", "II", "--protocol", "defaults",
@@ -284,9 +279,7 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path):
         assert r["lsd"]["replans_periodic"] + r["lsd"]["replans_blocked"] < r["lsd"]["plans"] + r["lsd"]["grown"]
     assert any(r["lsd"]["replans_periodic"] > 0 for r in records if r["lsd"]["steps"] > 20)
     # A trial replayed from its record (benchmarks/lsd_real_replay.py) drives as it was recorded.
-    spec = importlib.util.spec_from_file_location("lsd_real_replay", ROOT / "benchmarks" / "lsd_real_replay.py")
-    rep = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(rep)
+    rep = script("benchmarks/lsd_real_replay.py")
     t = max(records, key=lambda r: r["lsd"]["steps"])["trial"]
     fig = tmp_path / "replay.png"
     argv = ["--json", str(out), "--trial", str(t), "--planner", "lsd_blocked", "--out", str(fig), "--panels", "3"]
@@ -315,10 +308,8 @@ def test_streamed_records_read_back_past_a_torn_tail(tmp_path):
         read_records(f)
 
 
-def test_real_map_command_names_bad_flags(tmp_path, capsys):
-    spec = importlib.util.spec_from_file_location("lsd_real", ROOT / "benchmarks" / "lsd_real.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_real_map_command_names_bad_flags(tmp_path, capsys, script):
+    mod = script("benchmarks/lsd_real.py")
     with pytest.raises(SystemExit, match="--map"):
         mod.main(["--map", str(tmp_path / "none.yaml"), "--json", str(tmp_path / "o.json")])
     path = tmp_path / "m.gridmap.gz"
@@ -328,7 +319,7 @@ def test_real_map_command_names_bad_flags(tmp_path, capsys):
     assert not (tmp_path / "o.json").exists()
 
 
-def test_floor_of_real_map_tasks_against_straight_lines_and_the_door_corner(tmp_path, capsys):
+def test_floor_of_real_map_tasks_against_straight_lines_and_the_door_corner(tmp_path, capsys, script):
     """benchmarks/lsd_real_floor.py reloads the run's map from its command and measures each
     task's shortest possible length: a straight line inside one room, the polyline round the
     doorway's corner between the rooms (the visibility path, drawn by hand)."""
@@ -351,9 +342,7 @@ def test_floor_of_real_map_tasks_against_straight_lines_and_the_door_corner(tmp_
     run_json = tmp_path / "run.json"
     command = f"python benchmarks/lsd_real.py --map {path} --json {run_json}"
     run_json.write_text(json.dumps({"benchmark": "lsd_real", "command": command, "records": str(records)}))
-    spec = importlib.util.spec_from_file_location("lsd_real_floor", ROOT / "benchmarks" / "lsd_real_floor.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = script("benchmarks/lsd_real_floor.py")
     out = tmp_path / "floor.json"
     assert mod.main(["--json", str(run_json), "--out", str(out)]) == 0
     row = json.loads(out.read_text())["runs"]["run"]["rows"]["II-60"]
