@@ -14,7 +14,8 @@ bounds, and runs both planners from the same start, yaw and key on every task an
 LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (no uniform mix).
 ``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?);
 ``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant), ``--replan-when-blocked``
-one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant).
+one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant),
+``--outmass`` one whose cells outside the window share a calibrated mass (a variant).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
 same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<N>``
 (``success_uniform``, ``success_lsd``, ``lsd_only``, ``uniform_only``, ``cl_over_cstar``,
@@ -94,6 +95,12 @@ def _parse(argv):
         action="store_true",
         help="add LSD that replans only when its route is blocked, as the reused uniform roadmap "
         "effectively does (a variant row; the default draws a fresh roadmap every replan_every steps)",
+    )
+    p.add_argument(
+        "--outmass",
+        action="store_true",
+        help="add LSD whose cells outside the 16 m window share a calibrated mass (lsd_table31.OUTSIDE_MASS, "
+        "NavConfig.outside_mass) instead of the window's minimum (a variant row; the default is the thesis' rule)",
     )
     p.add_argument(
         "--goal-flag",
@@ -210,6 +217,11 @@ def run_planners(args) -> tuple:
         variants["lsd_euclid"] = (sampler, {"edge_weight": "euclidean"})
     if args.replan_when_blocked:
         variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
+    if args.outmass:
+        sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+        from lsd_table31 import OUTSIDE_MASS
+
+        variants["lsd_outmass"] = (sampler, {"outside_mass": OUTSIDE_MASS})
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None
