@@ -16,6 +16,8 @@ LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (
 ``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant), ``--replan-when-blocked``
 one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant),
 ``--outmass`` one whose cells outside the window share a calibrated mass (a variant).
+``--reuse-base RUN`` runs only the variant rows and takes uniform and LSD from an earlier run of
+the same tasks (their records are joined, so every reader of the records sees all rows).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
 same command resumes from them. Writes ``summary`` with rows ``II-<N>`` / ``IO-<N>``
 (``success_uniform``, ``success_lsd``, ``lsd_only``, ``uniform_only``, ``cl_over_cstar``,
@@ -114,6 +116,13 @@ def _parse(argv):
         action="store_true",
         help="run the uniform planner alone (e.g. its large-N point of the figure 3-8 curve)",
     )
+    p.add_argument(
+        "--reuse-base",
+        default=None,
+        metavar="RUN",
+        help="an earlier lsd_real.py output on the same tasks (same map, seed, trials, bounds, protocol, "
+        "step limit and model): run only the variant rows and take uniform and LSD from its records",
+    )
     p.add_argument("--json", required=True, help="output JSON (records stream beside it)")
     p.add_argument("--figure", default=None, help="map semantics figure (default: <json stem>_map.png)")
     p.add_argument("--no-progress", action="store_true")
@@ -148,6 +157,41 @@ def _check(args):
     out = pathlib.Path(args.json)
     if out.exists() and out.is_dir():
         raise SystemExit(f"lsd_real: --json: {args.json!r} is a folder")
+    if args.reuse_base is not None:
+        _check_reuse(args)
+
+
+# The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
+SAME_TASK_FLAGS = (
+    "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
+    "goal_flag", "resolution", "annotations", "hatch_px", "footprint",
+)  # fmt: skip
+
+
+def _check_reuse(args) -> None:
+    """``--reuse-base``: the earlier run exists, has records, drew the same tasks and ran uniform
+    and LSD on every set and N asked; this run adds variant rows only."""
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+    from lsd_real_floor import read_runs
+
+    _, run, _ = read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0]
+    if args.uniform_only or not (args.nosem or args.euclid or args.replan_when_blocked or args.outmass):
+        raise SystemExit(
+            "lsd_real: --reuse-base: name at least one variant row (--nosem, --euclid, ...) and not --uniform-only"
+        )
+    base = run_args(run["command"])
+    for name in SAME_TASK_FLAGS:
+        if getattr(base, name) != getattr(args, name):
+            flag = "--" + name.replace("_", "-")
+            raise SystemExit(
+                f"lsd_real: --reuse-base: {flag} is {getattr(args, name)!r} here but {getattr(base, name)!r} in {args.reuse_base!r}"
+            )
+    if [pathlib.Path(m).name for m in base.map] != [pathlib.Path(m).name for m in args.map]:
+        raise SystemExit(f"lsd_real: --reuse-base: --map differs from {args.reuse_base!r}")
+    if base.uniform_only or not set(args.sets) <= set(base.sets) or not set(args.n) <= set(base.n):
+        raise SystemExit(
+            f"lsd_real: --reuse-base: {args.reuse_base!r} lacks uniform and LSD rows for --sets / --n asked"
+        )
 
 
 def _git():
@@ -297,8 +341,17 @@ def _run(args, argv) -> int:
         records_path=records_path,
         keep_paths=True,
         nav_config=base,
-        base=not args.uniform_only,
+        base=not (args.uniform_only or args.reuse_base),
     )
+    if args.reuse_base:  # the earlier run's uniform and LSD rows joined to this run's variants
+        sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+        from lsd_real_floor import read_runs
+
+        from jaxsem.lsd import merge_records, read_records
+
+        earlier = read_records(read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0][2])
+        records = merge_records(records, [r for r in earlier if r["set"] in args.sets and r["n"] in args.n])
+        atomic_write_text(records_path, "".join(json.dumps(r) + "\n" for r in records))
     if args.uniform_only:
         summary = {}
         for kind in args.sets:
@@ -326,6 +379,7 @@ def _run(args, argv) -> int:
             "clearance": args.clearance,
         },
         "seconds": time.perf_counter() - t1,
+        "reuse_base": args.reuse_base,
         "summary": summary,
         "table": table,
         "records": str(records_path),

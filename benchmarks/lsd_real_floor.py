@@ -43,7 +43,7 @@ def _parse(argv):
     return p.parse_args(argv)
 
 
-def read_runs(paths, prog: str = "lsd_real_floor", need_command: bool = True) -> list:
+def read_runs(paths, prog: str = "lsd_real_floor", need_command: bool = True, flag: str = "--json") -> list:
     """``[(json path, run dict, records path)]`` of ``lsd_real.py`` outputs named by ``--json``;
     ``SystemExit`` naming the flag and file for a missing, foreign or record-less one (``prog``
     prefixes the message; also used by ``lsd_real_uturns.py``)."""
@@ -51,18 +51,18 @@ def read_runs(paths, prog: str = "lsd_real_floor", need_command: bool = True) ->
     for path in paths:
         f = pathlib.Path(path)
         if not f.is_file():
-            raise SystemExit(f"{prog}: --json: no such file {path!r}")
+            raise SystemExit(f"{prog}: {flag}: no such file {path!r}")
         try:
             run = json.loads(f.read_text())
         except json.JSONDecodeError as exc:
-            raise SystemExit(f"{prog}: --json: {path!r} is not JSON ({exc.msg})") from None
+            raise SystemExit(f"{prog}: {flag}: {path!r} is not JSON ({exc.msg})") from None
         if run.get("benchmark") != "lsd_real" or (need_command and "command" not in run):
-            raise SystemExit(f"{prog}: --json: {path!r} is not an lsd_real.py output")
+            raise SystemExit(f"{prog}: {flag}: {path!r} is not an lsd_real.py output")
         records = pathlib.Path(run.get("records", ""))
         if not records.is_file():
             records = f.with_name(f.stem + ".records.jsonl")
         if not records.is_file():
-            raise SystemExit(f"{prog}: --json: no records beside {path!r}")
+            raise SystemExit(f"{prog}: {flag}: no records beside {path!r}")
         runs.append((f, run, records))
     return runs
 

@@ -260,12 +260,12 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     _write_gridmap(path, occ, 0.1)
     mod = script("benchmarks/lsd_real.py")
     out = tmp_path / "r.json"
-    argv = [
+    run_argv = [
         "--map", str(path), "--trials", "2", "--n", "60", "--sets", "II", "--protocol", "defaults",
         "--seed", "1", "--min-distance", "3", "--max-distance", "9", "--max-steps", "60",
         "--replan-when-blocked", "--json", str(out), "--no-progress",
     ]  # fmt: skip
-    assert mod.main(argv) == 0
+    assert mod.main(run_argv) == 0
     result = json.loads(out.read_text())
     assert "success_lsd_blocked" in result["summary"]["II-60"]
     records = [json.loads(x) for x in pathlib.Path(result["records"]).read_text().splitlines()]
@@ -290,6 +290,28 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     assert got["replans_blocked"] == rec["replans_blocked"] and fig.stat().st_size > 0
     assert [e["reason"] for e in got["replans"]][0] == "first plan"
     assert sum(e["reason"] == "blocked" for e in got["replans"]) == rec["replans_blocked"]
+    # A variant added later on the same tasks runs alone; uniform and LSD come from the earlier run.
+    more = tmp_path / "more.json"
+    argv2 = [*run_argv[: run_argv.index("--replan-when-blocked")], "--euclid", "--reuse-base", str(out)]
+    assert mod.main([*argv2, "--json", str(more), "--no-progress"]) == 0
+    joined = [json.loads(x) for x in (tmp_path / "more.records.jsonl").read_text().splitlines()]
+    assert len(joined) == 2 and all({"uniform", "lsd", "lsd_blocked", "lsd_euclid"} <= set(r) for r in joined)
+    assert [r["lsd"] for r in joined] == [r["lsd"] for r in records]  # taken, not run again
+    assert "success_lsd_euclid" in json.loads(more.read_text())["summary"]["II-60"]
+    bad = [*argv2, "--seed", "2", "--json", str(tmp_path / "bad.json")]
+    with pytest.raises(SystemExit, match="--seed is 2 here but 1"):
+        mod.main(bad)
+    with pytest.raises(SystemExit, match="name at least one variant"):
+        mod.main(
+            [
+                *run_argv[: run_argv.index("--replan-when-blocked")],
+                "--reuse-base",
+                str(out),
+                "--json",
+                str(tmp_path / "bad.json"),
+            ]
+        )
+    assert not (tmp_path / "bad.json").exists()
     with pytest.raises(SystemExit, match="--planner"):
         rep.main([*argv[:4], "--planner", "lsd_nosem", "--out", str(tmp_path / "x.png")])
     with pytest.raises(SystemExit, match="--trial"):
