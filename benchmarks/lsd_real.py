@@ -130,6 +130,16 @@ def _parse(argv):
     return p.parse_args(argv)
 
 
+def _sibling(name: str):
+    """Another script of ``benchmarks/`` imported as a module."""
+    import importlib
+
+    here = str(pathlib.Path(__file__).resolve().parent)
+    if here not in sys.path:
+        sys.path.insert(0, here)
+    return importlib.import_module(name)
+
+
 def run_args(command: str):
     """The flags of a recorded run (its JSON's ``command``: ``python benchmarks/lsd_real.py ...``),
     parsed as that run parsed them."""
@@ -161,6 +171,8 @@ def _check(args):
         _check_reuse(args)
 
 
+# The flags that each add a variant row (run_planners).
+VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
     "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
@@ -171,11 +183,8 @@ SAME_TASK_FLAGS = (
 def _check_reuse(args) -> None:
     """``--reuse-base``: the earlier run exists, has records, drew the same tasks and ran uniform
     and LSD on every set and N asked; this run adds variant rows only."""
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-    from lsd_real_floor import read_runs
-
-    _, run, _ = read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0]
-    if args.uniform_only or not (args.nosem or args.euclid or args.replan_when_blocked or args.outmass):
+    _, run, _ = _sibling("lsd_real_floor").read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0]
+    if args.uniform_only or not any(getattr(args, f) for f in VARIANT_FLAGS):
         raise SystemExit(
             "lsd_real: --reuse-base: name at least one variant row (--nosem, --euclid, ...) and not --uniform-only"
         )
@@ -262,10 +271,7 @@ def run_planners(args) -> tuple:
     if args.replan_when_blocked:
         variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
     if args.outmass:
-        sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-        from lsd_table31 import OUTSIDE_MASS
-
-        variants["lsd_outmass"] = (sampler, {"outside_mass": OUTSIDE_MASS})
+        variants["lsd_outmass"] = (sampler, {"outside_mass": _sibling("lsd_table31").OUTSIDE_MASS})
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None
@@ -344,11 +350,9 @@ def _run(args, argv) -> int:
         base=not (args.uniform_only or args.reuse_base),
     )
     if args.reuse_base:  # the earlier run's uniform and LSD rows joined to this run's variants
-        sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-        from lsd_real_floor import read_runs
-
         from jaxsem.lsd import merge_records, read_records
 
+        read_runs = _sibling("lsd_real_floor").read_runs
         earlier = read_records(read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0][2])
         records = merge_records(records, [r for r in earlier if r["set"] in args.sets and r["n"] in args.n])
         atomic_write_text(records_path, "".join(json.dumps(r) + "\n" for r in records))

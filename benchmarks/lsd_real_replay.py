@@ -70,45 +70,53 @@ def _check(args):
     return run, rec
 
 
-def replay(trial, panels: int, spread: bool) -> tuple:
-    """Runs ``trial`` (a ``jaxsem.planning.Trial``) to its end; returns ``(events, snapshots)``:
-    one event per replan (step, position, reason, plan) and, for the replans to draw, the
-    robot's known occupancy at that moment (a spread selection keeps every replan's map until
-    the end, so it is thinned as it goes)."""
+def replay(trial, window: float) -> list:
+    """Runs ``trial`` (a ``jaxsem.planning.Trial``) to its end; returns one event per replan:
+    step, position, reason, plan, the length of the path driven so far, and what the robot knew
+    to be occupied then within ``window`` metres around it (a bool crop and its world extent)."""
     import numpy as np
 
-    events, snaps = [], {}
+    from jaxsem.planning import OCCUPIED
+
+    o, res = np.asarray(trial.origin, np.float64), float(trial.resolution)
+    half = int(np.ceil(window / 2 / res))
+    events = []
     while not trial.done:
         searches, blocked, periodic = trial.searches, trial.blocked_replans, trial.periodic_replans
         trial.step()
         if trial.searches == searches:
             continue
-        i = len(events)
         if trial.blocked_replans > blocked:
             why = "blocked"  # the rest of the plan crossed a known obstacle
         elif trial.periodic_replans > periodic:
             why = "timer"  # replan_every steps on a clear plan
         else:
-            why = "first plan" if i == 0 else "turn blocked"  # the first leg, seen after turning
-        plan = None if trial.plan is None else np.asarray(trial.plan, np.float64).copy()
+            why = "first plan" if not events else "turn blocked"  # the first leg, seen after turning
+        known = np.asarray(trial.state.occupancy)
+        c, r = np.floor((trial.xy - o) / res).astype(int)
+        r0, r1 = max(r - half, 0), min(r + half, known.shape[0])
+        c0, c1 = max(c - half, 0), min(c + half, known.shape[1])
         events.append(
-            {"step": trial.steps, "xy": trial.xy.tolist(), "reason": why, "plan": plan, "driven": len(trial.path)}
+            {
+                "step": trial.steps,
+                "xy": trial.xy.tolist(),
+                "reason": why,
+                "plan": None if trial.plan is None else np.asarray(trial.plan, np.float64).copy(),
+                "driven": len(trial.path),
+                "known": known[r0:r1, c0:c1] == OCCUPIED,
+                "known_extent": (o[0] + c0 * res, o[0] + c1 * res, o[1] + r0 * res, o[1] + r1 * res),
+            }
         )
-        if spread or i < panels:
-            snaps[i] = np.asarray(trial.state.occupancy).copy()
-            if spread and len(snaps) > 4 * panels:  # keep every other one
-                snaps = {k: v for j, (k, v) in enumerate(sorted(snaps.items())) if j % 2 == 0}
-    return events, snaps
+    return events
 
 
-def _figure(b, trial, events, snaps, chosen, title, window, path) -> None:
+def _figure(b, trial, events, chosen, title, window, path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from jaxsem.planning import OCCUPIED
     from jaxsem.scripting import atomic_savefig
 
     occ = np.asarray(b.occupancy)
@@ -123,8 +131,10 @@ def _figure(b, trial, events, snaps, chosen, title, window, path) -> None:
     for ax, i in zip(axes.ravel(), chosen):
         e = events[i]
         ax.imshow(occ, origin="lower", cmap="Greys", vmin=0, vmax=4, extent=ext, interpolation="nearest")
-        known = np.ma.masked_where(snaps[i] != OCCUPIED, np.ones(occ.shape))
-        ax.imshow(known, origin="lower", cmap="Greys", vmin=0, vmax=1, extent=ext, interpolation="nearest")
+        known = np.ma.masked_where(~e["known"], np.ones(e["known"].shape))
+        ax.imshow(
+            known, origin="lower", cmap="Greys", vmin=0, vmax=1, extent=e["known_extent"], interpolation="nearest"
+        )
         ax.plot(path_xy[: e["driven"], 0], path_xy[: e["driven"], 1], "b-", lw=1)
         if e["plan"] is not None:
             ax.plot(e["plan"][:, 0], e["plan"][:, 1], "r.-", lw=1, ms=2)
@@ -182,16 +192,14 @@ def _run(args, run, rec, argv) -> int:
     cfg = dataclasses.replace(base, n_samples=rec["n"], max_steps=a.max_steps, **changes)
     key = trial_key(a.seed, b.seed, args.set, args.trial, rec["n"])
     trial = Trial(b, task.start, task.goal, key, cfg, smp, task.yaw0, task.goal_outdoors)
-    events, snaps = replay(trial, args.panels, args.spread)
+    events = replay(trial, args.window)
     res = trial.result()
     recorded = rec[args.planner]
     same = bool(np.isclose(res.cost, recorded["cost"], rtol=1e-6) and res.success == recorded["success"])
-    if args.spread:
-        want = np.unique(np.linspace(0, len(events) - 1, min(args.panels, len(events))).round().astype(int))
-        chosen = [min(snaps, key=lambda k: abs(k - w)) for w in want]
-        chosen = sorted(set(chosen))
+    if args.spread:  # panels evenly spread over the trial's replans
+        chosen = sorted(set(np.linspace(0, len(events) - 1, min(args.panels, len(events))).round().astype(int)))
     else:
-        chosen = sorted(snaps)[: args.panels]
+        chosen = list(range(min(args.panels, len(events))))
     cstar = float(rec["c_star"])
     title = (
         f"{pathlib.Path(args.json).stem}: {args.set} task {args.trial}, {args.planner}, C/C* {res.cost / cstar:.2f}, "
@@ -199,7 +207,7 @@ def _run(args, run, rec, argv) -> int:
         + ("" if same else f" (REPLAY DIFFERS: recorded C/C* {recorded['cost'] / cstar:.2f})")
     )
     out = pathlib.Path(args.out)
-    _figure(b, trial, events, snaps, chosen, title, args.window, out)
+    _figure(b, trial, events, chosen, title, args.window, out)
     result = {
         "command": "python benchmarks/lsd_real_replay.py " + " ".join(argv),
         "run": str(args.json),

@@ -423,11 +423,14 @@ def tiny_building_for_pools():
     return generate_building(3, "train")
 
 
-def _open_room():
-    """10 x 4 m, walls on the border only: nothing inside can block a plan."""
-    occ = np.zeros((40, 100), bool)
+def _walled_room(rows: int, cols: int, inner=None):
+    """``rows`` x ``cols`` cells at RES with a wall on the border; ``inner``: (row slice, col
+    slice) of one more wall inside."""
+    occ = np.zeros((rows, cols), bool)
     occ[[0, -1], :] = True
     occ[:, [0, -1]] = True
+    if inner is not None:
+        occ[inner] = True
     sem = np.where(occ, 1, 0).astype(np.int8)
     return World(occ, sem, np.ones_like(occ), np.array([0.0, 0.0]))
 
@@ -436,7 +439,7 @@ def _open_room():
 def test_replan_reasons_in_an_open_room_are_all_periodic():
     # Nothing inside the room can block a plan, so every replan after the first is the timer's;
     # a shorter timer replans more often, and a timer longer than the trial never fires.
-    w = _open_room()
+    w = _walled_room(40, 100)  # 10 x 4 m, nothing inside
     start, goal = np.array([1.0, 2.0]), np.array([9.0, 2.0])
     runs = {}
     for every in (5, 20, 1000):
@@ -450,22 +453,12 @@ def test_replan_reasons_in_an_open_room_are_all_periodic():
     assert runs[5] > runs[20] > 0 and runs[1000] == 0
 
 
-def _hidden_wall():
-    """20 x 6 m: a wall across x = 12 m with a 1.5 m gap at the top, beyond the depth camera's
-    5 m from a start at x = 2 m."""
-    occ = np.zeros((60, 200), bool)
-    occ[[0, -1], :] = True
-    occ[:, [0, -1]] = True
-    occ[:45, 119:121] = True
-    sem = np.where(occ, 1, 0).astype(np.int8)
-    return World(occ, sem, np.ones_like(occ), np.array([0.0, 0.0]))
-
-
 @pytest.mark.slow
 def test_replan_reasons_behind_a_wall_are_blocked_plans():
     # The first plan runs straight at the unseen wall; coming within range of it blocks the plan.
     # With the timer off, only blocked plans (and first legs the turn showed blocked) replan.
-    w = _hidden_wall()
+    # 20 x 6 m, a wall across x = 12 m with a 1.5 m gap at the top: beyond the depth camera's 5 m
+    w = _walled_room(60, 200, (slice(0, 45), slice(119, 121)))
     start, goal = np.array([2.0, 2.0]), np.array([18.0, 2.0])
     cfg = dataclasses.replace(CFG, replan_every=CFG.max_steps + 1)
     res = navigate(w, start, goal, jax.random.PRNGKey(0), cfg, yaw0=0.0)

@@ -424,17 +424,12 @@ class Trial:
             # trials). Checked after the look, so no roadmap is ever asked to start there.
             self._finish(False, "collision")
             return False
-        if self.plan is None:
-            why = None
-        elif not self._clear(self.plan, blocked):
-            why = "blocked"
-        elif self.since_plan >= cfg.replan_every:
-            why = "periodic"
-        else:
-            why = ""
-        if why != "":
-            self.blocked_replans += why == "blocked"
-            self.periodic_replans += why == "periodic"
+        replan = self.plan is None  # the first plan, or a first leg the turn showed blocked
+        if not replan and not self._clear(self.plan, blocked):
+            replan, self.blocked_replans = True, self.blocked_replans + 1
+        elif not replan and self.since_plan >= cfg.replan_every:
+            replan, self.periodic_replans = True, self.periodic_replans + 1
+        if replan:
             if not self._replan():
                 self._finish(False, "no_plan")
                 return False
