@@ -15,7 +15,9 @@ LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (
 ``--nosem`` adds a row: LSD with its semantic input zeroed (does finding doors matter?);
 ``--euclid`` one with Euclidean edge weights instead of the thesis' -log p (a variant), ``--replan-when-blocked``
 one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant),
-``--outmass`` one whose cells outside the window share a calibrated mass (a variant).
+``--outmass`` one whose cells outside the window share a calibrated mass (a variant),
+``--unknown-weight W`` two (uniform and LSD) whose edge weights charge a metre through unknown
+cells W times one through known free cells (a variant of both planners, compared pairwise).
 ``--reuse-base RUN`` runs only the variant rows and takes uniform and LSD from an earlier run of
 the same tasks (their records are joined, so every reader of the records sees all rows).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
@@ -105,6 +107,15 @@ def _parse(argv):
         "NavConfig.outside_mass) instead of the window's minimum (a variant row; the default is the thesis' rule)",
     )
     p.add_argument(
+        "--unknown-weight",
+        type=float,
+        default=None,
+        metavar="W",
+        help="add uniform and LSD whose edge weights charge a metre through unknown cells W times one "
+        "through known free cells (NavConfig.unknown_weight; variant rows uniform_unk and lsd_unk, "
+        "compared pairwise; the default is the thesis' 1)",
+    )
+    p.add_argument(
         "--goal-flag",
         choices=["map", "io"],
         default="map",
@@ -164,6 +175,8 @@ def _check(args):
         raise SystemExit(f"lsd_real: --hatch-px: expected pixels > 0, got {args.hatch_px}")
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
         raise SystemExit(f"lsd_real: --resolution: expected metres per pixel > 0, got {args.resolution}")
+    if args.unknown_weight is not None and not (math.isfinite(args.unknown_weight) and args.unknown_weight > 0):
+        raise SystemExit(f"lsd_real: --unknown-weight: expected a finite number > 0, got {args.unknown_weight}")
     out = pathlib.Path(args.json)
     if out.exists() and out.is_dir():
         raise SystemExit(f"lsd_real: --json: {args.json!r} is a folder")
@@ -172,7 +185,7 @@ def _check(args):
 
 
 # The flags that each add a variant row (run_planners).
-VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass")
+VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
     "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
@@ -272,6 +285,9 @@ def run_planners(args) -> tuple:
         variants["lsd_blocked"] = (sampler, {"replan_every": args.max_steps + 1})
     if args.outmass:
         variants["lsd_outmass"] = (sampler, {"outside_mass": _sibling("lsd_table31").OUTSIDE_MASS})
+    if args.unknown_weight is not None:
+        unk = {"unknown_weight": args.unknown_weight}
+        variants.update(uniform_unk=(None, unk), lsd_unk=(sampler, unk))
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None

@@ -17,6 +17,7 @@ from jaxsem.planning import (
     UNKNOWN,
     NavConfig,
     SoftCostGraph,
+    Trial,
     empty_map_state,
     generate_building,
     local_inputs,
@@ -180,6 +181,20 @@ def test_navigate_bad_input():
             CFG,
             sampler=lambda inputs: np.ones((10, 10)),
         )
+    for uw in (0.0, float("inf")):
+        with pytest.raises(ValueError, match="unknown_weight"):
+            navigate(w, [2.0, 2.0], [10.0, 2.0], key, dataclasses.replace(CFG, unknown_weight=uw))
+
+
+def test_the_planners_roadmap_charges_unknown_cells_as_configured():
+    w = _two_rooms()
+    cfg = dataclasses.replace(CFG, unknown_weight=3.0)
+    trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), cfg)
+    for _ in range(3):
+        trial.step()
+    assert trial.prm is not None and trial.prm.unknown_weight == 3.0
+    res = navigate(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), cfg)
+    assert res.success, res.reason
 
 
 @pytest.fixture(scope="module")

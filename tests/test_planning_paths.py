@@ -1160,3 +1160,98 @@ def test_a_large_grow_keeps_the_first_k_clear_of_the_direction_rule():
         want = [j for j in cands if _dense_rule(pts[i], pts[j], occ, samples)][:k]
         assert list(nbr[i][ev[i]]) == want, i
         assert not ev[i][len(want) :].any() and np.all(nbr[i][len(want) :] == M)
+
+
+def _half_known_map():
+    """The 10 x 6 m walled room (int8 partial map): the left half known free, the right unknown."""
+    known = np.full((60, 100), UNKNOWN, np.int8)
+    known[:, :50] = 0  # FREE
+    known[[0, -1], :] = OCCUPIED
+    known[:, [0, -1]] = OCCUPIED
+    return known
+
+
+def _unknown_share(a, b, unknown, samples=2000):
+    """Share of a segment's length over unknown cells, by dense sampling (the reference)."""
+    t = (np.arange(samples) + 0.5) / samples
+    pts = a[None] + t[:, None] * (b - a)[None]
+    cell = np.floor((pts - ORIGIN) / RES).astype(int)
+    return unknown[cell[:, 1], cell[:, 0]].mean()
+
+
+def _edge_list(rm):
+    pts, nbr = np.asarray(rm.points, np.float64), np.asarray(rm.neighbors)
+    ev, w = np.asarray(rm.edge_valid), np.asarray(rm.edge_weight, np.float64)
+    i, j = np.nonzero(ev)
+    i, j = i[i >= 2], j[i >= 2]  # the samples' own edges
+    return pts[i], pts[nbr[i, j]], w[i, j]
+
+
+def test_unknown_weight_charges_metres_through_unknown_cells():
+    known = _half_known_map()
+    unknown = known == UNKNOWN
+    key = jax.random.PRNGKey(4)
+    plain = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS)
+    plain.grow(key, N)
+    for weight, dist in (("euclidean", None), ("neglogp", np.ones(known.shape))):
+        prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, weight=weight, unknown_weight=3.0)
+        prm.grow(key, N, dist)
+        # The same links as the plain roadmap (only the weights change).
+        np.testing.assert_array_equal(np.asarray(prm.roadmap.edge_valid), np.asarray(plain.roadmap.edge_valid))
+        a, b, w = _edge_list(prm.roadmap)
+        length = np.linalg.norm(b - a, axis=1)
+        unit = 1.0 if dist is None else np.log(known.size)  # -log p of a uniform distribution
+        share = np.array([_unknown_share(p, q, unknown) for p, q in zip(a, b)])
+        # The PRM reads 31 points per edge (half a cell apart at the radius): the share is
+        # theirs, within about one point's worth of the dense one.
+        err = np.abs(w - unit * length * (1 + 2 * share))
+        assert np.all(err <= unit * 2 * length * 1.5 / 30 + 1e-5), err.max()
+        assert (share == 0).sum() > 100 and (share == 1).sum() > 100 and ((share > 0) & (share < 1)).sum() > 20
+        np.testing.assert_allclose(w[share == 0], unit * length[share == 0], rtol=1e-5)
+        np.testing.assert_allclose(w[share == 1], 3 * unit * length[share == 1], rtol=1e-5)
+
+
+def test_unknown_weight_reweighs_edges_when_cells_become_known():
+    known = _half_known_map()
+    prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, unknown_weight=3.0)
+    prm.grow(jax.random.PRNGKey(4), N)
+    links = np.asarray(prm.roadmap.edge_valid).copy()
+    seen = np.where(known == UNKNOWN, np.int8(0), known)  # the same obstacles, everything seen
+    assert prm.update_map(seen) and not prm.update_map(seen)
+    np.testing.assert_array_equal(np.asarray(prm.roadmap.edge_valid), links)
+    a, b, w = _edge_list(prm.roadmap)
+    np.testing.assert_allclose(w, np.linalg.norm(b - a, axis=1), rtol=1e-5)
+
+
+def test_unknown_weight_takes_the_route_seen_free():
+    # A 4 x 3 m block in the room; the way over it is 0.7 m shorter but all unknown, the way
+    # under it known free. The thesis' weights go over, unknown cells charged 4x go under.
+    known = np.zeros((60, 100), np.int8)
+    known[30:, :] = UNKNOWN
+    known[[0, -1], :] = OCCUPIED
+    known[:, [0, -1]] = OCCUPIED
+    known[12:42, 30:70] = OCCUPIED
+    start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
+    ys = {}
+    for uw in (1.0, 4.0):
+        prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, unknown_weight=uw)
+        prm.grow(jax.random.PRNGKey(0), N)
+        p = prm.query(start, goal)
+        assert p.found
+        ys[uw] = p.points[:, 1]
+    assert ys[1.0].max() > 4.0  # over the block
+    assert ys[4.0].min() < 1.3 and ys[4.0].max() <= 3.1  # under it, never into the unknown half
+
+
+def test_unknown_weight_bad_input():
+    known = _half_known_map()
+    for bad in (0.0, -1.0, float("inf"), float("nan"), True, "2"):
+        with pytest.raises(ValueError, match="unknown_weight"):
+            PRM(known, ORIGIN, RES, capacity=10, unknown_weight=bad)
+    with pytest.raises(ValueError, match="known_map"):
+        PRM(known == OCCUPIED, ORIGIN, RES, capacity=10, unknown_weight=2.0)
+    with pytest.raises(ValueError, match="lazy"):
+        PRM(known, ORIGIN, RES, capacity=10, unknown_weight=2.0, lazy=True)
+    prm = PRM(known, ORIGIN, RES, capacity=10, unknown_weight=2.0)
+    with pytest.raises(ValueError, match="known_map"):
+        prm.update_map(known == OCCUPIED)

@@ -292,12 +292,17 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     assert sum(e["reason"] == "blocked" for e in got["replans"]) == rec["replans_blocked"]
     # A variant added later on the same tasks runs alone; uniform and LSD come from the earlier run.
     more = tmp_path / "more.json"
-    argv2 = [*run_argv[: run_argv.index("--replan-when-blocked")], "--euclid", "--reuse-base", str(out)]
+    argv2 = [
+        *run_argv[: run_argv.index("--replan-when-blocked")],
+        *("--euclid", "--unknown-weight", "3", "--reuse-base", str(out)),
+    ]
     assert mod.main([*argv2, "--json", str(more), "--no-progress"]) == 0
     joined = [json.loads(x) for x in (tmp_path / "more.records.jsonl").read_text().splitlines()]
-    assert len(joined) == 2 and all({"uniform", "lsd", "lsd_blocked", "lsd_euclid"} <= set(r) for r in joined)
+    rows = {"uniform", "lsd", "lsd_blocked", "lsd_euclid", "uniform_unk", "lsd_unk"}
+    assert len(joined) == 2 and all(rows <= set(r) for r in joined)
     assert [r["lsd"] for r in joined] == [r["lsd"] for r in records]  # taken, not run again
-    assert "success_lsd_euclid" in json.loads(more.read_text())["summary"]["II-60"]
+    row = json.loads(more.read_text())["summary"]["II-60"]
+    assert "success_lsd_euclid" in row and "mutual" in row["paired_unk"]
     bad = [*argv2, "--seed", "2", "--json", str(tmp_path / "bad.json")]
     with pytest.raises(SystemExit, match="--seed is 2 here but 1"):
         mod.main(bad)
@@ -338,6 +343,8 @@ def test_real_map_command_names_bad_flags(tmp_path, capsys, script):
     _write_gridmap(path, _two_rooms(0.9), 0.1)
     with pytest.raises(SystemExit, match="--max-distance"):
         mod.main(["--map", str(path), "--min-distance", "9", "--max-distance", "3", "--json", str(tmp_path / "o.json")])
+    with pytest.raises(SystemExit, match="--unknown-weight"):
+        mod.main(["--map", str(path), "--unknown-weight", "0", "--json", str(tmp_path / "o.json")])
     assert not (tmp_path / "o.json").exists()
 
 

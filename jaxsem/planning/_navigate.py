@@ -160,6 +160,11 @@ class NavConfig:
     # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
     # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
     sectors: int = DEFAULT_SECTORS
+    # what a metre through an unknown cell costs in the edge weights against one through a known
+    # free cell (PRM's unknown_weight): 1, the thesis' rule, or above 1 (a variant for either
+    # planner: still optimistic, but a route already seen free wins over an equal one through
+    # unknown space)
+    unknown_weight: float = 1.0
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
@@ -235,11 +240,12 @@ class Trial:
                 config.outside_mass is None
                 or (len(config.outside_mass) == 2 and all(0.0 <= float(q) < 1.0 for q in config.outside_mass))
             )
+            or not 0.0 < config.unknown_weight < math.inf
         ):
             raise ValueError(
                 f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0, growth "
-                f"'sampler' or 'uniform', learned_radius_factor >= 1 and outside_mass None or two "
-                f"shares in [0, 1) expected, got {config}"
+                f"'sampler' or 'uniform', learned_radius_factor >= 1, outside_mass None or two "
+                f"shares in [0, 1) and a finite unknown_weight > 0 expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
@@ -330,6 +336,7 @@ class Trial:
             radius=self.radius,
             weight=self.weight,
             sectors=cfg.sectors,
+            unknown_weight=cfg.unknown_weight,
         )
 
     def _replan(self) -> bool:

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._edges import _edge_samples
+from ._grid import UNKNOWN
 from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
@@ -20,6 +21,7 @@ from ._roadmap import (
     _connect_checked,
     _grow_exact,
     _initial_cap,
+    _recheck_jit,
     default_radius,
     prm_star_k,
     roadmap_init,
@@ -48,6 +50,13 @@ class PRM:
     around their start and goal until :meth:`checked_roadmap` or :meth:`update_map` checks many
     edges) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
     map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
+
+    unknown_weight: what a metre through an unknown cell costs against one through a known free
+    cell (1: the same, the thesis' rule). Above 1 the planner stays optimistic about unknown
+    cells (they are still free to cross) but prefers a route it has seen free to an equally long
+    one through unknown space; the edges' weights follow :meth:`update_map`. Needs an int8
+    partial map (a bool grid has no unknown cells) and an eager roadmap (weights read every
+    sample of an edge, so ``lazy`` gains nothing).
     """
 
     def __init__(
@@ -62,12 +71,23 @@ class PRM:
         weight: str = "euclidean",
         sectors: int = DEFAULT_SECTORS,
         lazy: bool = False,
+        unknown_weight: float = 1.0,
     ):
         blocked = _blocked_from("known_map", known_map)
         if not isinstance(lazy, bool):
             raise ValueError(f"lazy: expected a bool, got {lazy!r}")
         if lazy and weight != "euclidean":
             raise ValueError(f"lazy: needs weight='euclidean' (edge weights known before the check), got {weight!r}")
+        if not (
+            isinstance(unknown_weight, (int, float, np.floating))
+            and not isinstance(unknown_weight, bool)
+            and 0 < unknown_weight < np.inf
+        ):
+            raise ValueError(f"unknown_weight: expected a finite number > 0, got {unknown_weight!r}")
+        self.unknown_weight = float(unknown_weight)
+        if self.unknown_weight != 1.0 and lazy:
+            raise ValueError("lazy: needs unknown_weight=1 (edge weights known before the check)")
+        self._unknown = self._unknown_cells(known_map)
         self.sectors = _check_sectors(sectors)
         origin_np = np.asarray(origin, np.float64)
         if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
@@ -78,6 +98,7 @@ class PRM:
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
+        self._factor = self._factor_grid()
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
         self.origin = origin_np
@@ -97,6 +118,23 @@ class PRM:
         if lazy:
             M, k = self.roadmap.neighbors.shape
             self._lazy = _LazyEdges(M, 2 * k if self.sectors else k, k)
+
+    def _unknown_cells(self, known_map) -> np.ndarray | None:
+        """The map's unknown cells when ``unknown_weight`` is not 1 (None otherwise)."""
+        if self.unknown_weight == 1.0:
+            return None
+        arr = np.asarray(known_map)
+        if arr.dtype != np.int8:
+            raise ValueError(
+                f"known_map: unknown_weight={self.unknown_weight} needs an int8 partial map "
+                f"(UNKNOWN/FREE/OCCUPIED), got dtype {arr.dtype}"
+            )
+        return arr == UNKNOWN
+
+    def _factor_grid(self):
+        if self._unknown is None:
+            return None
+        return jnp.where(jnp.asarray(self._unknown), self.unknown_weight, 1.0).astype(self.roadmap.points.dtype)
 
     @property
     def count(self) -> int:
@@ -137,7 +175,12 @@ class PRM:
             self._lazy.add_rows(s0, cand)
         else:
             self.roadmap, self._cap = _grow_exact(
-                *args, self.weight == "neglogp", self.sectors, bool(uniform_samples), self._setup.aids(table=True)
+                *args,
+                self.weight == "neglogp",
+                self.sectors,
+                bool(uniform_samples),
+                self._setup.aids(table=True),
+                factor=self._factor,
             )
         if distribution is not None:
             self.distribution = distribution
@@ -146,23 +189,42 @@ class PRM:
 
     def update_map(self, known_map) -> bool:
         """Adopts a newer partial map; drops vertices and edges it blocks (only where something
-        changed: an unchanged map costs nothing). Returns True if the map changed. With ``lazy``
+        changed: an unchanged map costs nothing; with ``unknown_weight`` the kept edges are
+        weighed again when cells became known). Returns True if the map changed. With ``lazy``
         the links are first settled on the old map (every unchecked edge is checked there, as the
         eager grow did), so lazy saves nothing on a map that changes between queries."""
         blocked = _blocked_from("known_map", known_map)
         if blocked.shape != self.blocked.shape:
             raise ValueError(f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}")
-        if np.array_equal(blocked, self.blocked):
+        unknown = self._unknown_cells(known_map)
+        same_unknown = unknown is None or self._unknown is None or np.array_equal(unknown, self._unknown)
+        if np.array_equal(blocked, self.blocked) and same_unknown:
             return False
         if self._lazy is not None:
             # The eager PRM chose its links on the old map: settle them there first (this
             # checks every edge no query has checked yet).
             self._lazy.settle(self._check_fn(chunk=16384))
         self.blocked = blocked
+        self._unknown = unknown
+        self._factor = self._factor_grid()
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
-        self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
+        if self._factor is None:
+            self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
+        else:
+            dtype = self.roadmap.points.dtype
+            dist = None if self.distribution is None else jnp.asarray(self.distribution, dtype)
+            self.roadmap = _recheck_jit(
+                self.roadmap,
+                self._blocked_j,
+                jnp.asarray(self.origin, dtype),
+                dist,
+                self._factor,
+                radius=self.radius,
+                resolution=self.resolution,
+                neglogp=self.weight == "neglogp",
+            )
         if self._lazy is not None:
             self._lazy.forget_clear(np.asarray(self.roadmap.valid))
         self._graph = None
@@ -183,6 +245,7 @@ class PRM:
             weight=self.weight,
             sectors=self.sectors,
             setup=self._setup,
+            factor=self._factor,
         )
         if self._lazy is not None:
             return self._lazy.search(self.roadmap, self._check_fn(), self.radius)

@@ -199,6 +199,16 @@ def _density(points, distribution, origin, resolution, sectors):
     return distribution[pr, pc]
 
 
+def _edge_cost(distribution, factor, neglogp):
+    """The cell cost that edge weights integrate: ``-log p`` of the distribution (``neglogp``)
+    or 1, times ``factor`` ((H, W) per-cell multipliers, e.g. :class:`PRM`'s ``unknown_weight``
+    on unknown cells; None: none). None when both are off: the weight is the Euclidean length,
+    decided by the fast clear check."""
+    if factor is None:
+        return _cost_grid(distribution) if neglogp else None
+    return (_cost_grid(distribution) if neglogp else 1.0) * factor
+
+
 def _grow_impl(
     rm,
     key,
@@ -214,6 +224,7 @@ def _grow_impl(
     sectors=0,
     uniform_samples=False,
     aids: _MapAids | None = None,
+    factor=None,
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
@@ -240,7 +251,7 @@ def _grow_impl(
     keep = 2 * k if sectors else k
     density = _density(points, distribution, origin, resolution, sectors)
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
-    cost = _cost_grid(distribution) if neglogp else None
+    cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = _edge_samples(radius, resolution)
@@ -317,20 +328,24 @@ def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, 
 _sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
 
 
-def _recheck_impl(rm, blocked, origin, *, radius, resolution):
+def _recheck_impl(rm, blocked, origin, distribution=None, factor=None, *, radius, resolution, neglogp=False):
+    """Drops what ``blocked`` blocks; with a ``factor`` grid (weights that follow the map, e.g.
+    unknown cells charged more) the kept edges' weights are read again on the new map."""
     M, _ = rm.neighbors.shape
     r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
     ev = rm.edge_valid & valid[:, None] & valid[j]
-    clear, _ = _edges(
-        blocked, None, rm.points[:, None, :], rm.points[j], origin, resolution, _edge_samples(radius, resolution), ev
+    cost = None if factor is None else _edge_cost(distribution, factor, neglogp)
+    clear, w = _edges(
+        blocked, cost, rm.points[:, None, :], rm.points[j], origin, resolution, _edge_samples(radius, resolution), ev
     )
     ev = ev & clear
-    return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, rm.edge_weight, jnp.inf))
+    w = rm.edge_weight if cost is None else w.astype(rm.edge_weight.dtype)
+    return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, w, jnp.inf))
 
 
-_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution"))(_recheck_impl)
+_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp"))(_recheck_impl)
 
 
 #: Work-list width of a query's long-edge check: at most 2 x 2k edges whose grazing intervals
@@ -369,13 +384,15 @@ def _query_candidates_jit(rm, start, goal, *, sectors):
     return _query_candidates(rm, start, goal, sectors)[3]
 
 
-def _connect_impl(rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None):
+def _connect_impl(
+    rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None, factor=None
+):
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     keep = 2 * k if sectors else k
     points, valid, q, nbr = _query_candidates(rm, start, goal, sectors)
     other = points[jnp.minimum(nbr, M - 1)]
-    cost = _cost_grid(distribution) if neglogp else None
+    cost = _edge_cost(distribution, factor, neglogp)
     # Each edge is checked with the samples polyline_clear uses for a segment of its length:
     # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
     short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
@@ -547,6 +564,7 @@ def _grow_exact(
     sectors=0,
     uniform_samples=False,
     aids=None,
+    factor=None,
 ):
     """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
     Returns (roadmap, the cap that sufficed)."""
@@ -567,6 +585,7 @@ def _grow_exact(
             sectors=sectors,
             uniform_samples=uniform_samples,
             aids=aids,
+            factor=factor,
         )
         if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap
@@ -623,7 +642,20 @@ def roadmap_connect(
 
 
 def _connect_checked(
-    roadmap, start, goal, blocked, blocked_j, origin, resolution, *, radius, distribution, weight, sectors, setup=None
+    roadmap,
+    start,
+    goal,
+    blocked,
+    blocked_j,
+    origin,
+    resolution,
+    *,
+    radius,
+    distribution,
+    weight,
+    sectors,
+    setup=None,
+    factor=None,
 ):
     """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy;
     ``setup``: the map's :class:`_MapSetup` (None: the table is made inside)."""
@@ -664,6 +696,7 @@ def _connect_checked(
         neglogp=weight == "neglogp",
         sectors=sectors,
         aids=aids,
+        factor=factor,
     )
 
 
