@@ -17,7 +17,8 @@ LSD is the shipped model (or ``--checkpoint``) under the thesis' sampling rule (
 one that keeps its route until the route is blocked, as the reused uniform roadmap does (a variant),
 ``--outmass`` one whose cells outside the window share a calibrated mass (a variant),
 ``--unknown-weight W`` two (uniform and LSD) whose edge weights charge a metre through unknown
-cells W times one through known free cells (a variant of both planners, compared pairwise).
+cells W times one through known free cells (a variant of both planners, compared pairwise),
+``--lsd-scale S`` one whose network sees the partial maps pooled S x S (a window S times wider).
 ``--reuse-base RUN`` runs only the variant rows and takes uniform and LSD from an earlier run of
 the same tasks (their records are joined, so every reader of the records sees all rows).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
@@ -116,6 +117,14 @@ def _parse(argv):
         "compared pairwise; the default is the thesis' 1)",
     )
     p.add_argument(
+        "--lsd-scale",
+        type=int,
+        default=None,
+        metavar="S",
+        help="add LSD whose network sees the partial maps pooled S x S (a 16 S m window; "
+        "NavConfig.sampler_scale; variant row lsd_scale; the default is the thesis' 1)",
+    )
+    p.add_argument(
         "--goal-flag",
         choices=["map", "io"],
         default="map",
@@ -177,6 +186,8 @@ def _check(args):
         raise SystemExit(f"lsd_real: --resolution: expected metres per pixel > 0, got {args.resolution}")
     if args.unknown_weight is not None and not (math.isfinite(args.unknown_weight) and args.unknown_weight > 0):
         raise SystemExit(f"lsd_real: --unknown-weight: expected a finite number > 0, got {args.unknown_weight}")
+    if args.lsd_scale is not None and args.lsd_scale < 1:
+        raise SystemExit(f"lsd_real: --lsd-scale: expected an int >= 1, got {args.lsd_scale}")
     out = pathlib.Path(args.json)
     if out.exists() and out.is_dir():
         raise SystemExit(f"lsd_real: --json: {args.json!r} is a folder")
@@ -185,7 +196,7 @@ def _check(args):
 
 
 # The flags that each add a variant row (run_planners).
-VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight")
+VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
     "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
@@ -288,6 +299,8 @@ def run_planners(args) -> tuple:
     if args.unknown_weight is not None:
         unk = {"unknown_weight": args.unknown_weight}
         variants.update(uniform_unk=(None, unk), lsd_unk=(sampler, unk))
+    if args.lsd_scale is not None:
+        variants["lsd_scale"] = (sampler, {"sampler_scale": args.lsd_scale})
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None

@@ -134,6 +134,40 @@ def test_learned_sampler_hook_gets_local_inputs():
     assert res.last_distribution.sum() == pytest.approx(1.0, rel=1e-5)
 
 
+def test_a_coarser_sampler_sees_pooled_maps_and_its_distribution_covers_their_cells():
+    # sampler_scale=2: the network's 160 cells span 32 m; each of its cells is a 2 x 2 block of
+    # the robot's map (occupied if any cell is, else free if any is), and the distribution it
+    # returns lands on those blocks. Reference: the pooling done cell by cell here.
+    w = _two_rooms()
+    seen, one_hot = [], np.zeros((CROP_SIZE, CROP_SIZE))
+    one_hot[CROP_SIZE // 2 + 3, CROP_SIZE // 2 - 5] = 1.0  # 3 sampler cells down, 5 left
+
+    def sampler(inputs):
+        seen.append((inputs, np.asarray(trial.state.occupancy)))
+        return one_hot * 0.9 + 0.1 / one_hot.size
+
+    cfg = dataclasses.replace(CFG, sampler_scale=2)
+    trial = Trial(w, [4.0, 2.5], [10.0, 2.0], jax.random.PRNGKey(2), cfg, sampler=sampler)
+    trial.step()
+    inp, known = seen[0]
+    r0, c0 = (int(v) for v in np.asarray(inp.center_cell))
+    robot = np.floor((trial.start[::-1] - w.origin[::-1]) / RES).astype(int)
+    assert (r0, c0) == (robot[0] // 2, robot[1] // 2)
+    crop = np.asarray(inp.occupancy)
+    for dr, dc in [(0, 0), (3, -5), (-7, 9), (10, 2), (-12, -20)]:
+        block = known[2 * (r0 + dr) : 2 * (r0 + dr) + 2, 2 * (c0 + dc) : 2 * (c0 + dc) + 2]
+        want = OCCUPIED if (block == OCCUPIED).any() else FREE if (block == FREE).any() else UNKNOWN
+        assert crop[CROP_SIZE // 2 + dr, CROP_SIZE // 2 + dc] == want
+    assert (crop == FREE).sum() > 50 and (crop == OCCUPIED).sum() > 10
+    dist = np.asarray(trial.last_distribution)
+    assert dist.shape == known.shape and dist.sum() == pytest.approx(1.0, rel=1e-5)
+    peak = np.argwhere(dist == dist.max())
+    r, c = 2 * (r0 + 3), 2 * (c0 - 5)
+    assert sorted(map(tuple, peak)) == [(r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1)]
+    res = navigate(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(2), cfg, sampler=sampler)
+    assert res.success, res.reason
+
+
 def test_local_inputs_crop_and_context():
     w = _two_rooms()
     st = empty_map_state(w.occupancy.shape)
@@ -181,6 +215,8 @@ def test_navigate_bad_input():
             CFG,
             sampler=lambda inputs: np.ones((10, 10)),
         )
+    with pytest.raises(ValueError, match="sampler_scale"):
+        navigate(w, [2.0, 2.0], [10.0, 2.0], key, dataclasses.replace(CFG, sampler_scale=0))
     for uw in (0.0, float("inf")):
         with pytest.raises(ValueError, match="unknown_weight"):
             navigate(w, [2.0, 2.0], [10.0, 2.0], key, dataclasses.replace(CFG, unknown_weight=uw))

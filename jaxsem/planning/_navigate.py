@@ -53,7 +53,7 @@ import numpy as np
 
 from .. import quadrics as Q
 from ._edges import polyline_clear
-from ._grid import NONE, OCCUPIED, MapState, check_grid, check_point, empty_map_state
+from ._grid import FREE, NONE, OCCUPIED, UNKNOWN, MapState, check_grid, check_point, empty_map_state
 from ._prm import PRM
 from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
 from ._sampling import embed_local_distribution
@@ -102,6 +102,34 @@ def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resoluti
         ]
     ).astype(jnp.float32)
     return LocalInputs(occ_c, sem_c, ctx, rc)
+
+
+@functools.partial(jax.jit, static_argnames=("scale",))
+def _pooled_state(state: MapState, scale: int) -> MapState:
+    """The partial maps at ``scale`` times the cell size: a cell is occupied if any of its
+    ``scale x scale`` cells is, else free if any is, else unknown; its semantic class is the
+    largest code among them. Off-map padding (bottom, right) is unknown."""
+    H, W = state.occupancy.shape
+    Hp, Wp = -(-H // scale) * scale, -(-W // scale) * scale
+
+    def blocks(x, fill):
+        x = jnp.pad(x, ((0, Hp - H), (0, Wp - W)), constant_values=fill)
+        return x.reshape(Hp // scale, scale, Wp // scale, scale)
+
+    occ = blocks(state.occupancy, UNKNOWN)
+    pooled = jnp.where(
+        jnp.any(occ == OCCUPIED, axis=(1, 3)), OCCUPIED, jnp.where(jnp.any(occ == FREE, axis=(1, 3)), FREE, UNKNOWN)
+    )
+    return MapState(pooled.astype(jnp.int8), jnp.max(blocks(state.semantic, NONE), axis=(1, 3)))
+
+
+@functools.partial(jax.jit, static_argnames=("scale", "shape"))
+def _unpooled(dist, scale: int, shape):
+    """A pooled map's cell weights spread evenly over its cells' ``scale x scale`` cells of the
+    full map ``shape``, renormalised."""
+    H, W = shape
+    full = jnp.repeat(jnp.repeat(dist, scale, axis=0), scale, axis=1)[:H, :W]
+    return full / jnp.sum(full)
 
 
 def local_inputs(
@@ -160,6 +188,10 @@ class NavConfig:
     # PRM links chosen by direction first (the nearest in each of 8 sectors, then the nearest):
     # 0 is the plain k nearest, which left LSD's dense clusters and sparse outside unlinked.
     sectors: int = DEFAULT_SECTORS
+    # the cell size a learned sampler sees, in map cells: 1 (the map's own, the thesis' rule) or
+    # s > 1 (a variant: the partial maps pooled s x s, so the 160-cell window spans s times the
+    # metres, and its distribution spread back over the map's cells)
+    sampler_scale: int = 1
     # what a metre through an unknown cell costs in the edge weights against one through a known
     # free cell (PRM's unknown_weight): 1, the thesis' rule, or above 1 (a variant for either
     # planner: still optimistic, but a route already seen free wins over an equal one through
@@ -179,7 +211,8 @@ class NavResult:
     periodic_replans: replans because the rest of the plan crossed a known obstacle / because
     ``replan_every`` steps had passed on a clear plan (the others are the first plan and the
     replans after a first leg that the turn showed blocked);
-    distributions: (step, xy, (160, 160) window distribution, (2,) window centre cell) at each
+    distributions: (step, xy, (160, 160) window distribution, (2,) window centre cell, in the
+    sampler's cells: ``NavConfig.sampler_scale`` map cells wide) at each
     of the first ``keep_distributions`` LSD replans (``Trial(keep_distributions=...)``)"""
 
     path: np.ndarray
@@ -241,11 +274,12 @@ class Trial:
                 or (len(config.outside_mass) == 2 and all(0.0 <= float(q) < 1.0 for q in config.outside_mass))
             )
             or not 0.0 < config.unknown_weight < math.inf
+            or not (isinstance(config.sampler_scale, int) and config.sampler_scale >= 1)
         ):
             raise ValueError(
                 f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0, growth "
                 f"'sampler' or 'uniform', learned_radius_factor >= 1, outside_mass None or two "
-                f"shares in [0, 1) and a finite unknown_weight > 0 expected, got {config}"
+                f"shares in [0, 1), a finite unknown_weight > 0 and an int sampler_scale >= 1 expected, got {config}"
             )
         self.config = config
         self.sampler = sampler
@@ -310,13 +344,16 @@ class Trial:
         )
 
     def local_inputs(self) -> LocalInputs:
+        """What the learned sampler sees now (its cells ``config.sampler_scale`` map cells wide;
+        ``center_cell`` in those cells)."""
+        s = self.config.sampler_scale
         return local_inputs(
-            self.state,
+            self.state if s == 1 else _pooled_state(self.state, s),
             self.xy,
             self.goal,
             self.goal_outdoors,
             self.origin,
-            self.resolution,
+            self.resolution * s,
             CROP_SIZE,
             self.config.max_context_distance,
         )
@@ -353,7 +390,12 @@ class Trial:
                 )
             local = local.reshape(CROP_SIZE, CROP_SIZE)
             q = None if cfg.outside_mass is None else float(cfg.outside_mass[int(self.goal_outdoors)])
-            dist = embed_local_distribution(local, inputs.center_cell, known.shape, q)
+            s = cfg.sampler_scale
+            if s == 1:
+                dist = embed_local_distribution(local, inputs.center_cell, known.shape, q)
+            else:
+                pooled = (-(-known.shape[0] // s), -(-known.shape[1] // s))
+                dist = _unpooled(embed_local_distribution(local, inputs.center_cell, pooled, q), s, known.shape)
             self.last_distribution = dist
             if self.keep_distributions and len(self.distributions) < self.keep_distributions:
                 self.distributions.append(
