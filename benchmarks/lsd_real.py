@@ -18,7 +18,8 @@ one that keeps its route until the route is blocked, as the reused uniform roadm
 ``--outmass`` one whose cells outside the window share a calibrated mass (a variant),
 ``--unknown-weight W`` two (uniform and LSD) whose edge weights charge a metre through unknown
 cells W times one through known free cells (a variant of both planners, compared pairwise),
-``--lsd-scale S`` one whose network sees the partial maps pooled S x S (a window S times wider).
+``--lsd-scale S`` one whose network sees the partial maps pooled S x S (a window S times wider),
+``--oracle MODEL`` the fully supervised oracle network fed the true map's crops (a diagnostic).
 ``--reuse-base RUN`` runs only the variant rows and takes uniform and LSD from an earlier run of
 the same tasks (their records are joined, so every reader of the records sees all rows).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
@@ -125,6 +126,14 @@ def _parse(argv):
         "NavConfig.sampler_scale; variant row lsd_scale; the default is the thesis' 1)",
     )
     p.add_argument(
+        "--oracle",
+        default=None,
+        metavar="MODEL",
+        help="add the fully supervised oracle network (an exported .npz, e.g. train/checkpoints/lsd_campus/"
+        "lsd_campus_oracle.npz) fed the true map's crops at its window (jaxsem.lsd.full_map_sampler; "
+        "variant row lsd_oracle: how far a network that saw the building around it would get)",
+    )
+    p.add_argument(
         "--goal-flag",
         choices=["map", "io"],
         default="map",
@@ -186,6 +195,10 @@ def _check(args):
         raise SystemExit(f"lsd_real: --resolution: expected metres per pixel > 0, got {args.resolution}")
     if args.unknown_weight is not None and not (math.isfinite(args.unknown_weight) and args.unknown_weight > 0):
         raise SystemExit(f"lsd_real: --unknown-weight: expected a finite number > 0, got {args.unknown_weight}")
+    if args.oracle is not None and not pathlib.Path(args.oracle).is_file():
+        raise SystemExit(f"lsd_real: --oracle: no such file {args.oracle!r}")
+    if args.oracle is not None and len(args.map) > 1:
+        raise SystemExit("lsd_real: --oracle: needs a single --map (it reads that map's true crops)")
     if args.lsd_scale is not None and args.lsd_scale < 1:
         raise SystemExit(f"lsd_real: --lsd-scale: expected an int >= 1, got {args.lsd_scale}")
     out = pathlib.Path(args.json)
@@ -196,7 +209,7 @@ def _check(args):
 
 
 # The flags that each add a variant row (run_planners).
-VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale")
+VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale", "oracle")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
     "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
@@ -279,11 +292,12 @@ def run_tasks(args, b, kind: str, graph=None) -> list:
     return tasks
 
 
-def run_planners(args) -> tuple:
+def run_planners(args, world=None) -> tuple:
     """``(LSD sampler, base NavConfig, variants)`` of the run as its flags set them: the base is
     the protocol's; variants maps each extra row's name to ``(sampler, NavConfig changes)``
-    (None: uniform and LSD alone). ``jaxsem.lsd.run_trials`` takes them as they are."""
-    from jaxsem.lsd import LSDSampler, load_model
+    (None: uniform and LSD alone). ``jaxsem.lsd.run_trials`` takes them as they are. world: the
+    run's map (a Building; ``--oracle`` reads its true crops)."""
+    from jaxsem.lsd import LSDSampler, full_map_sampler, load_model
     from jaxsem.planning import NavConfig
 
     model, params, _, _ = load_model(args.checkpoint)
@@ -301,6 +315,11 @@ def run_planners(args) -> tuple:
         variants.update(uniform_unk=(None, unk), lsd_unk=(sampler, unk))
     if args.lsd_scale is not None:
         variants["lsd_scale"] = (sampler, {"sampler_scale": args.lsd_scale})
+    if args.oracle is not None:
+        if world is None:
+            raise ValueError("world: --oracle needs the run's map")
+        oracle, oracle_params, _, _ = load_model(args.oracle)
+        variants["lsd_oracle"] = (full_map_sampler(LSDSampler(oracle, oracle_params), world), {})
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None
@@ -361,7 +380,7 @@ def _run(args, argv) -> int:
             print(f"{kind}: {len(tasks[(i, kind)])} tasks (asked {args.trials})")
         buildings.append(b)
         facts.append(fact)
-    sampler, base, variants = run_planners(args)
+    sampler, base, variants = run_planners(args, buildings[0])
     t1 = time.perf_counter()
     records = run_trials(
         buildings,

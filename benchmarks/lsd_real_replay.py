@@ -184,7 +184,7 @@ def _run(args, run, rec, argv) -> int:
     if not (np.allclose(task.start, rec["start"], atol=1e-4) and np.allclose(task.goal, rec["goal"], atol=1e-4)):
         raise ValueError(f"--json: task {args.trial} redrawn at {task.start.tolist()} -> {task.goal.tolist()}, "
                          f"recorded {rec['start']} -> {rec['goal']}: the map or the code that draws tasks changed")  # fmt: skip
-    sampler, base, variants = lsd_real.run_planners(a)
+    sampler, base, variants = lsd_real.run_planners(a, b)
     planners = {"uniform": (None, {}), "lsd": (sampler, {}), **(variants or {})}
     if args.planner not in planners:
         raise SystemExit(f"lsd_real_replay: --planner: {args.planner!r} cannot be rebuilt from the run's flags")

@@ -89,3 +89,34 @@ def test_bad_shards(building):
     other = generate_building(4, "train")
     with pytest.raises(ValueError, match="building"):
         with_full_map(shard, other)
+
+
+def test_the_oracle_sampler_sees_the_true_map_at_the_robots_window(building):
+    # In the online loop the robot's partial map is all unknown here; the wrapped sampler must be
+    # handed the true map's crops at the same window (and the same goal context).
+    from jaxsem.lsd import full_map_sampler
+    from jaxsem.planning import empty_map_state, local_inputs
+
+    seen = []
+
+    def stub(inputs):
+        seen.append(inputs)
+        return np.full((SIZE, SIZE), 1.0 / SIZE**2)
+
+    fn = full_map_sampler(stub, building)
+    H, W = building.occupancy.shape
+    is_object = np.isin(building.semantic, (DOOR, WINDOW, EXIT_SIGN))
+    rng = np.random.default_rng(3)
+    for row, col in [(H // 2, W // 3), (2, W - 3)]:
+        xy = building.origin + (np.array([col, row]) + 0.5) * building.resolution
+        partial = local_inputs(empty_map_state((H, W)), xy, xy + 7.0, True, building.origin, building.resolution)
+        out = fn(partial)
+        assert out.shape == (SIZE, SIZE)
+        got = seen[-1]
+        np.testing.assert_array_equal(np.asarray(got.context), np.asarray(partial.context))
+        for a, b in rng.integers(0, SIZE, (300, 2)):
+            r, c = row - SIZE // 2 + a, col - SIZE // 2 + b
+            inside = 0 <= r < H and 0 <= c < W
+            want_occ = (OCCUPIED if building.occupancy[r, c] else FREE) if inside else OCCUPIED
+            want_sem = int(building.semantic[r, c]) if inside and is_object[r, c] else NONE
+            assert got.occupancy[a, b] == want_occ and got.semantic[a, b] == want_sem, (row, col, a, b)

@@ -345,6 +345,8 @@ def test_real_map_command_names_bad_flags(tmp_path, capsys, script):
         mod.main(["--map", str(path), "--min-distance", "9", "--max-distance", "3", "--json", str(tmp_path / "o.json")])
     with pytest.raises(SystemExit, match="--unknown-weight"):
         mod.main(["--map", str(path), "--unknown-weight", "0", "--json", str(tmp_path / "o.json")])
+    with pytest.raises(SystemExit, match="--oracle"):
+        mod.main(["--map", str(path), "--oracle", str(tmp_path / "none.npz"), "--json", str(tmp_path / "o.json")])
     assert not (tmp_path / "o.json").exists()
 
 

@@ -45,6 +45,7 @@ from ._expert import (
 from ._sampler import (
     LSDSampler as LSDSampler,
     full_map_distribution as full_map_distribution,
+    full_map_sampler as full_map_sampler,
 )
 from ._train import (
     MODELS as MODELS,

@@ -74,3 +74,31 @@ def full_map_distribution(
     )
     local = sampler(inputs)
     return np.asarray(embed_local_distribution(local, inputs.center_cell, state.occupancy.shape))
+
+
+def full_map_sampler(sampler, world, max_distance: float = 20.0):
+    """A sampler that gives ``sampler`` the *true* map's crops at the robot's window in place of
+    its partial map's (the goal context unchanged): the fully supervised oracle network
+    (trained on :func:`~jaxsem.lsd.with_full_map` crops) in the online loop, a diagnostic of how
+    much shorter the drives of a network that saw the building around it would be. It still
+    sees only its window, and the planner still plans on the robot's partial map.
+
+    sampler: ``sampler(LocalInputs) -> (k, k)`` (e.g. an :class:`LSDSampler` of the oracle);
+    world: the trial's world (a :class:`jaxsem.planning.Building`: ``occupancy``, ``semantic``,
+    ``origin``, ``resolution``). For ``NavConfig.sampler_scale`` 1 (the window's centre cell is
+    read as a cell of ``world``)."""
+    from ..planning import local_inputs
+    from ._expert import full_map_state
+
+    state = full_map_state(world)
+    origin = np.asarray(world.origin, np.float64)
+    res = float(world.resolution)
+
+    def fn(inputs):
+        centre = np.asarray(inputs.center_cell, np.float64)
+        xy = origin + (centre[::-1] + 0.5) * res  # the centre cell's middle, world (x, y)
+        size = int(np.shape(inputs.occupancy)[-1])
+        true = local_inputs(state, xy, xy, False, origin, res, size, max_distance)
+        return sampler(inputs._replace(occupancy=true.occupancy, semantic=true.semantic))
+
+    return fn
