@@ -6,7 +6,8 @@ network's probabilities over the window. The planner embeds the window into the 
 outside it get the window's minimum, then everything is renormalised:
 :func:`jaxsem.planning.embed_local_distribution`), samples PRM vertices from it and weights edges
 by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
-:func:`full_map_distribution` does the same embedding for a map state, for figures and users.
+:func:`full_map_distribution` does the same embedding for a map state, for figures and users;
+:func:`full_map_sampler` wraps a sampler to see the true map in its window (the oracle's use).
 """
 
 from __future__ import annotations
