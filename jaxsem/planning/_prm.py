@@ -25,7 +25,6 @@ from ._roadmap import (
     default_radius,
     prm_star_k,
     roadmap_init,
-    roadmap_recheck,
 )
 from ._roadmap_search import RoadmapPath, _SampleGraph, _search
 
@@ -210,21 +209,20 @@ class PRM:
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
-        if self._factor is None:
-            self.roadmap = roadmap_recheck(self.roadmap, blocked, self.origin, self.resolution, radius=self.radius)
-        else:
-            dtype = self.roadmap.points.dtype
-            dist = None if self.distribution is None else jnp.asarray(self.distribution, dtype)
-            self.roadmap = _recheck_jit(
-                self.roadmap,
-                self._blocked_j,
-                jnp.asarray(self.origin, dtype),
-                dist,
-                self._factor,
-                radius=self.radius,
-                resolution=self.resolution,
-                neglogp=self.weight == "neglogp",
-            )
+        # With a factor grid the kept edges are weighed again (their cells may have become known).
+        reweigh = self._factor is not None
+        dtype = self.roadmap.points.dtype
+        dist = jnp.asarray(self.distribution, dtype) if reweigh and self.distribution is not None else None
+        self.roadmap = _recheck_jit(
+            self.roadmap,
+            self._blocked_j,
+            jnp.asarray(self.origin, dtype),
+            dist,
+            self._factor,
+            radius=self.radius,
+            resolution=self.resolution,
+            neglogp=reweigh and self.weight == "neglogp",
+        )
         if self._lazy is not None:
             self._lazy.forget_clear(np.asarray(self.roadmap.valid))
         self._graph = None
