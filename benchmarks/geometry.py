@@ -189,7 +189,7 @@ def notes(r):
         "",
         "How: `project_bbox` runs a fused private path (`jaxsem/_geometry/bbox.py`, behind the jaxsem.quadrics facade) "
         "that agrees with `conic_bbox(project_dual_conic(dual_quadric(...)))` to "
-        "~1e-12 relative in float64, masks and gradients included (`tests/test_quadrics.py`). The "
+        "~1e-12 relative in float64, masks and gradients included (`tests/geometry/test_quadrics.py`). The "
         "forward is two elementwise XLA loops over the inputs: the validity mask, and the four edges "
         "computed in a (..., 4) lane space (one lane per edge, so the loop vectorises across lanes "
         "and reads each input once). The gradient comes from a custom JVP rule whose transpose keeps "

@@ -12,10 +12,10 @@ yaw and PRNG key, with:
 - ``lsd_prior``: LSD fed the object map of *all* the building's objects from the start (an
   oracle: what a complete, exact object map would buy);
 - ``lsd_depthmap``: LSD fed an object map of *estimated* objects: every ``--observe-every``
-  steps the robot's camera view is rendered (jaxsem.sim.BuildingRenderer at the robot's pose),
+  steps the robot's camera view is rendered (jaxsem.mapping.BuildingRenderer at the robot's pose),
   door / window / exit-sign boxes are read off the segmentation (the stand-in detector), and
   each detected object's segmented depth pixels give a per-frame ellipsoid
-  (``jaxsem.sim.ellipsoids_from_depth``: a depth stand-in for VoluMon), associated (greedy by
+  (``jaxsem.mapping.ellipsoids_from_depth``: a depth stand-in for VoluMon), associated (greedy by
   centroid) and fused into a jaxsem.mapping store;
 - ``lsd_volumon``: the same rendered views and detections as ``lsd_depthmap``, but each door's
   ellipsoid is the shipped VoluMon door model's single-view estimate from the RGB image and its
@@ -89,8 +89,8 @@ class DetectionMapper:
         estimator=None,
     ):
         from jaxsem import mapping, slam
+        from jaxsem.mapping import robot_intrinsics
         from jaxsem.planning import DOOR, EXIT_SIGN, WINDOW
-        from jaxsem.sim import robot_intrinsics
 
         if kind not in ("depth", "volumon", "roshan"):
             raise ValueError(f"kind: expected 'depth', 'volumon' or 'roshan', got {kind!r}")
@@ -116,7 +116,7 @@ class DetectionMapper:
 
     def observe(self, xy, yaw):
         from jaxsem import mapping, quadrics, slam
-        from jaxsem.sim import ellipsoids_from_depth, robot_camera
+        from jaxsem.mapping import ellipsoids_from_depth, robot_camera
 
         T = robot_camera(np.asarray(xy, float), float(yaw))
         passes = ("rgb", "depth", "seg") if self.kind == "volumon" else ("depth", "seg")
@@ -262,9 +262,9 @@ def run(args) -> dict:
 
     from jaxsem import mapping
     from jaxsem.lsd import LSDSampler, load_model
+    from jaxsem.mapping import BuildingRenderer
     from jaxsem.metrics import mean_sem
     from jaxsem.planning import DOOR, NavConfig, Trial, building_family, sample_tasks
-    from jaxsem.sim import BuildingRenderer
 
     planners = tuple(args.planners)
     model, params, _, _ = load_model(args.checkpoint)
@@ -529,7 +529,7 @@ def main(argv=None) -> int:
             f"camera's rendered views ({WIDTH} x {HEIGHT} px, every {args.observe_every} steps; "
             f"door / window / exit-sign boxes of at least {args.min_area} px from the segmentation): "
             "`lsd_depthmap` per-frame ellipsoids from the segmented depth "
-            "(`jaxsem.sim.ellipsoids_from_depth`, a depth stand-in for VoluMon; boxes touching the "
+            "(`jaxsem.mapping.ellipsoids_from_depth`, a depth stand-in for VoluMon; boxes touching the "
             f"border left out), greedy centroid association, fusion `{args.fusion}`; `lsd_volumon` "
             "the same, but every door's ellipsoid from the shipped VoluMon door model (RGB image + "
             "box, monocular; `jaxsem.volumon.load_pretrained(kind='door')`), windows and exit signs "

@@ -140,7 +140,8 @@ def child(args) -> dict:
         record("volumon_step", lambda: step1(state)[0]["params"], lambda: step_d(state_d)[0]["params"], (), B)
 
     if args.slam:
-        from jaxsem import sim, slam
+        from jaxsem import slam
+        from jaxsem.slam import sim
 
         scfg = sim.quadricslam_config("orbit", num_frames=20, num_objects=5, min_objects=5)
         maps = sim.simulate_batch(0, B, scfg)

@@ -6,14 +6,16 @@ imported on first use so that ``import jaxsem`` stays light:
 - :mod:`jaxsem.quadrics`  ellipsoids as dual/primal quadrics, boxes, texture planes, ground conics
 - :mod:`jaxsem.metrics`   pose/shape errors, 3D IoU, ADI, AUC
 - :mod:`jaxsem.factors`   ROSHAN residuals and the class shape table
-- :mod:`jaxsem.slam`      batch and online solvers, initialisation, OpenCV front end
-- :mod:`jaxsem.sim`       simulated ellipsoid maps, camera paths, rendering
+- :mod:`jaxsem.slam`      batch and online solvers, initialisation, OpenCV front end, BOP sequences;
+                          :mod:`jaxsem.slam.sim` simulated ellipsoid maps and camera paths
 - :mod:`jaxsem.models`    flax MobileNetV2, VoluMon, LSD
-- :mod:`jaxsem.data`      FAT-layout loaders, synthetic writers, input pipelines
+- :mod:`jaxsem.data`      what every method shares: BOP and FAT readers, MuJoCo rendering, fetcher
 - :mod:`jaxsem.planning`  buildings, sensors, shortest paths, PRM, navigation loop
-- :mod:`jaxsem.volumon`   VoluMon losses, training, refinement, evaluation
+- :mod:`jaxsem.volumon`   VoluMon losses, training, refinement, evaluation; its data in
+                          :mod:`jaxsem.volumon.data`
 - :mod:`jaxsem.lsd`       LSD training and the learned PRM sampler
-- :mod:`jaxsem.mapping`   object maps for planning (ellipsoid estimates -> semantic grid)
+- :mod:`jaxsem.mapping`   object maps for planning (ellipsoid estimates -> semantic grid), rendered
+                          buildings and the door model
 - :mod:`jaxsem.classes`   the one object class table (sizes, shapes)
 """
 

@@ -102,7 +102,7 @@ CLASSES: tuple[ObjectClass, ...] = (
     ObjectClass("soup_can", "cylinder", (0.0677, 0.0677, 0.1018), (0.004, 0.004, 0.006), (0.8, 0.8, 0.75)),
     ObjectClass("ball", "ellipsoid", (0.064, 0.070, 0.078), (0.005, 0.005, 0.005), (0.2, 0.45, 0.85)),
     ObjectClass("melon", "ellipsoid", (0.14, 0.14, 0.20), (0.015, 0.015, 0.02), (0.4, 0.8, 0.3)),
-    # The textured meshes of robosuite 1.5.2 (jaxsem.data.robosuite_assets): full extents of the
+    # The textured meshes of robosuite 1.5.2 (jaxsem.volumon.data.robosuite_assets): full extents of the
     # compiled mesh's vertices after robosuite's mesh scale, in the mesh file's frame (z up);
     # sigma 5 % of each extent (one instance per class). The bottle's cross-section measures
     # 5.51 x 5.86 cm; the table keeps a cylinder round (their mean).

@@ -43,7 +43,7 @@ and in the script, before any other JAX call::
     solve_all = parallel.sharded_vmap(solve_one, mesh)
 
 On one CPU host, ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (set before JAX starts)
-gives four CPU devices, which is how ``tests/test_parallel.py`` checks that sharded results equal
+gives four CPU devices, which is how ``tests/slam/test_parallel.py`` checks that sharded results equal
 single-device ones.
 """
 

@@ -45,7 +45,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
 # _restore_compilation_cache below turns it off again after each test.
 os.environ.setdefault("JAXSEM_CACHE_DIR", tempfile.mkdtemp(prefix="jaxsem_test_cache_"))
 # ... and commands run by the tests (in-process or as subprocesses) leave it off unless a test asks
-# for it (tests/test_run_dir.py deletes this variable to test the default).
+# for it (tests/integration/test_run_dir.py deletes this variable to test the default).
 os.environ["JAXSEM_NO_COMPILATION_CACHE"] = "1"
 
 import jax
@@ -151,7 +151,7 @@ def run_cli(capsys):
 
 @pytest.fixture
 def script():
-    """``script("benchmarks/lsd_real.py")``: a repository script imported as a module (named by
+    """``script("benchmarks/lsd/lsd_real.py")``: a repository script imported as a module (named by
     its stem), for tests of a benchmark's or a command's own functions."""
     import importlib.util
 

@@ -28,10 +28,10 @@ Input layouts:
   pose nearest in time (at most 0.02 s). Intrinsics from the folder's name (freiburg1/2/3).
 - ``--bop DIR``: a BOP scene folder (``scene_gt.json``, ``camera.json`` or ``scene_camera.json``,
   ``rgb/``, ``models/obj_XXXXXX.ply`` beside or two levels up). The frames of ``--split`` are cut
-  into stretches where at least three objects stay put (``jaxsem.data.find_stretches``); stretch
+  into stretches where at least three objects stay put (``jaxsem.slam.find_stretches``); stretch
   ``--stretch`` becomes a sequence with drifting odometry as pose priors, each still object's
   visible box (rendered from its mesh, with occlusion) plus 2 px noise, and user-style class
-  sizes (``jaxsem.data.stretch_sequence``, ``--setting``); the truth is kept for the errors.
+  sizes (``jaxsem.slam.stretch_sequence``, ``--setting``); the truth is kept for the errors.
 
 ``sequence.json``: ``{"K": 3x3, "image_size": [w, h], "frames": [{"camera_T_world": 4x4,
 "image": optional file name, "detections": [{"box": [u_min, v_min, u_max, v_max], "class":
@@ -179,20 +179,21 @@ def parse_args(argv=None, prog: str | None = None):
 
 def _bop_sequence(args):
     """Stretch ``--stretch`` of the BOP scene's ``--split`` as a sequence (truth attached)."""
-    from jaxsem import data
+    from .. import slam
+    from ..volumon import data as vdata
 
-    scene = data.load_bop_split(args.bop, args.split)
-    stretches = data.find_stretches(scene)
+    scene = vdata.load_bop_split(args.bop, args.split)
+    stretches = slam.find_stretches(scene)
     if args.stretch >= len(stretches):
         raise ValueError(
             f"--stretch: the {args.split} split of {args.bop} has {len(stretches)} stretches, got {args.stretch}"
         )
-    table, _ = data.user_class_table(data.bop_class_extents(scene))
+    table, _ = slam.user_class_table(vdata.bop_class_extents(scene))
     if args.classes is not None:
         from jaxsem import classes
 
         table = classes.ClassTable.from_json(args.classes, base=table)
-    seq, _ = data.stretch_sequence(stretches[args.stretch], table, setting=args.setting, seed=args.seed)
+    seq, _ = slam.stretch_sequence(stretches[args.stretch], table, setting=args.setting, seed=args.seed)
     return seq
 
 
@@ -201,7 +202,8 @@ def solver_config(args, sim_cfg=None, sequence=None):
     optional ``"noise"`` object next; the flags override both)."""
     import math
 
-    from jaxsem import sim, slam
+    from .. import slam
+    from ..slam import sim
 
     system = sim.BASELINE if args.baseline else sim.ROSHAN
     if sim_cfg is not None:
@@ -246,7 +248,8 @@ def main(argv=None, prog: str | None = None) -> int:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from jaxsem import quadrics, sim, slam
+    from .. import quadrics, slam
+    from ..slam import sim
 
     sim_cfg = None
     if args.simulate:

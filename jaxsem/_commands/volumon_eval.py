@@ -16,7 +16,7 @@ class's true mesh extent, axis-aligned to the camera, depth from the box's size,
 box's ray; ``baseline_mesh_axes``: the same with the mesh's own axis order instead of the pair
 of axes that matches the box's aspect) and, with --oracle DIR, ``oracle`` (that model scored the
 same way; with --model lmo the fully supervised oracle shipped beside the LM-O model is scored by
-default). On a folder of rendered desk detections (``python -m jaxsem.data.make_lmo_renders``)
+default). On a folder of rendered desk detections (``python -m jaxsem.volumon.data.make_lmo_renders``)
 the same keys (ADI there against the mesh extent's cuboid): the sim-to-real gap of the LM-O model.
 
 Example (the tuning split of LM-O; the test split, ids >= 600, is held out)::
@@ -126,7 +126,6 @@ def _bop_figures(args, model, variables, config) -> dict:
     """The BOP-scene figures (see the module docstring)."""
     import numpy as np
 
-    from jaxsem import data
     from jaxsem.volumon import (
         class_rows,
         evaluate_scene_batch,
@@ -134,17 +133,19 @@ def _bop_figures(args, model, variables, config) -> dict:
         summarise_detections,
     )
 
+    from ..volumon import data as vdata
+
     oracle = _load_oracle(args)
-    scene = data.load_bop_split(args.data, args.split)
+    scene = vdata.load_bop_split(args.data, args.split)
     if not scene.frames:
         raise sc.UsageError(f"--split: {args.data} has no frame in the {args.split!r} split")
-    batch = data.bop_eval_batch(
+    batch = vdata.bop_eval_batch(
         scene,
         input_size=config.model.input_size,
         global_padding=config.model.global_padding,
         min_visible=args.min_visible,
     )
-    extents = data.bop_class_extents(scene)
+    extents = vdata.bop_class_extents(scene)
     rows, mapping = class_rows(batch["class_name"], config, args.class_mapping, extents)
     net = evaluate_scene_batch(model, variables, config, batch, rows)
     net.pop("pred")
@@ -181,7 +182,7 @@ def _bop_figures(args, model, variables, config) -> dict:
             config.model.input_size,
             config.model.global_padding,
         ):
-            o_batch = data.bop_eval_batch(
+            o_batch = vdata.bop_eval_batch(
                 scene,
                 input_size=o_config.model.input_size,
                 global_padding=o_config.model.global_padding,
@@ -207,19 +208,20 @@ def _load_oracle(args):
 
 
 def _desk_figures(args, model, variables, config) -> dict:
-    """Figures on held-out rendered desk detections (``python -m jaxsem.data.make_lmo_renders``):
+    """Figures on held-out rendered desk detections (``python -m jaxsem.volumon.data.make_lmo_renders``):
     the same keys as on a BOP scene (network, known-size baseline, oracle), the objects at least
     ``--min-visible`` visible. ADI here scores against the mesh extent's cuboid (the detections
     keep no mesh points), not ADD-S."""
     import numpy as np
 
-    from jaxsem import data
     from jaxsem.volumon import class_rows, evaluate_scene_batch, known_size_ellipsoid, summarise_detections
 
+    from ..volumon import data as vdata
+
     oracle = _load_oracle(args)
-    batch = data.desk_eval_batch(args.data, num=args.num, min_visible=args.min_visible)
-    batch["class_name"] = np.asarray(data.LMO_CLASS_NAMES)[batch["class_id"]]
-    extents = {n: None for n in data.LMO_CLASS_NAMES}
+    batch = vdata.desk_eval_batch(args.data, num=args.num, min_visible=args.min_visible)
+    batch["class_name"] = np.asarray(vdata.LMO_CLASS_NAMES)[batch["class_id"]]
+    extents = {n: None for n in vdata.LMO_CLASS_NAMES}
 
     def figures(m, v, c):
         rows, mapping = class_rows(batch["class_name"], c, "generic", extents)
@@ -249,7 +251,7 @@ def main(argv=None, prog: str | None = None) -> int:
     """``jaxsem volumon eval``: held-out figures of the shipped model (or ``--workdir``) as JSON."""
     args = build_parser(prog).parse_args(argv)
     bop = _is_bop(args.data)
-    from jaxsem.data import is_desk_detections
+    from ..volumon.data import is_desk_detections
 
     desk = args.data is not None and is_desk_detections(args.data)
     if bop and args.split is None:
@@ -276,7 +278,7 @@ def main(argv=None, prog: str | None = None) -> int:
         else:
             batch = None
             if args.data is not None:
-                from jaxsem.data import volumon_eval_batch
+                from ..volumon.data import volumon_eval_batch
 
                 batch = volumon_eval_batch(
                     args.data,

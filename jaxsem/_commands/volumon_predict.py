@@ -292,8 +292,10 @@ def _predict_bop_frame(a) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxsem import data
     from jaxsem.volumon import class_rows, draw_predictions, evaluate_scene_batch, load_pretrained
+
+    from .. import data
+    from ..volumon import data as vdata
 
     # A BOP scene's default is the model trained for real objects (LM-O's classes).
     path, kind = resolve_model(a.model if (a.model or a.workdir) else "lmo", a.workdir)
@@ -306,7 +308,7 @@ def _predict_bop_frame(a) -> int:
         raise sc.UsageError(f"--frame: {a.frame} is not a frame of {a.data}/scene_gt.json")
     frame = scene.frames[0]
     try:
-        batch = data.bop_eval_batch(
+        batch = vdata.bop_eval_batch(
             scene,
             input_size=cfg.model.input_size,
             global_padding=cfg.model.global_padding,
@@ -314,9 +316,9 @@ def _predict_bop_frame(a) -> int:
         )
     except ValueError as exc:
         raise sc.UsageError(f"--min-visible: {str(exc).removeprefix('min_visible: ')}") from None
-    rows, mapping = class_rows(batch["class_name"], cfg, a.class_mapping, data.bop_class_extents(scene))
+    rows, mapping = class_rows(batch["class_name"], cfg, a.class_mapping, vdata.bop_class_extents(scene))
     pred = evaluate_scene_batch(model, variables, cfg, batch, rows, repeats=1)["pred"]
-    image = data.read_rgb(frame.image_path)
+    image = vdata.read_rgb(frame.image_path)
     K = np.asarray(frame.K)
     n = len(batch["box_input"])
     predicted = [(pred["rotation"][i], pred["center"][i], pred["radii"][i]) for i in range(n)]

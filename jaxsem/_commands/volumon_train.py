@@ -107,8 +107,9 @@ def _warm_start(source: str, cfg):
     """Variables for ``--init-from``: the source model's, its class rows mapped by shape."""
     import numpy as np
 
-    from jaxsem.data import LMO_CLASS_SHAPES
     from jaxsem.volumon import SHAPE_IDS, load_pretrained, model_class_names, warm_start_variables
+
+    from ..volumon.data import LMO_CLASS_SHAPES
 
     path = None if source in ("object", "door") else source
     _, variables, src_cfg, _ = load_pretrained(path, kind=source if path is None else "object")
@@ -126,11 +127,11 @@ def _warm_start(source: str, cfg):
 
 
 def _loader_options(path) -> dict | None:
-    """A door dataset (``python -m jaxsem.data.make_doors``) records its own stereo baseline;
+    """A door dataset (``python -m jaxsem.mapping.make_doors``) records its own stereo baseline;
     other directories use the reader's default."""
     if not any(pathlib.Path(path).rglob("_doors.json")):
         return None
-    from jaxsem.data import door_data_baseline
+    from ..mapping import door_data_baseline
 
     return {"baseline": door_data_baseline(path)}
 
@@ -145,7 +146,7 @@ def main(argv=None, prog: str | None = None) -> int:
         p.error("--eval-data: needs --data")
     if a.data is not None:
         cfg = cfg.replace(data="directory", data_dir=str(a.data.resolve()))
-        from jaxsem.data import (
+        from ..volumon.data import (
             desk_batch_source,
             desk_eval_batch,
             is_desk_detections,
@@ -160,7 +161,7 @@ def main(argv=None, prog: str | None = None) -> int:
             class_names=cfg.class_names or None,  # e.g. the door preset's ("door",)
         )
         try:
-            if is_desk_detections(a.data):  # rendered desk detections (python -m jaxsem.data.make_lmo_renders)
+            if is_desk_detections(a.data):  # rendered desk detections (python -m jaxsem.volumon.data.make_lmo_renders)
                 batch_fn, n = desk_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed)
                 if cfg.num_eval > 0:
                     eval_batch = desk_eval_batch(a.eval_data or a.data, num=cfg.num_eval)

@@ -1,9 +1,24 @@
-"""Data: the Falling Things (FAT) layout loader, synthetic FAT-layout writers (primitives; textured
-object meshes; doors of generated buildings), input pipelines.
+"""Data every method shares: the BOP and Falling Things (FAT) readers, the MuJoCo renderer, the
+fetcher of real data sets.
 
-Public names are re-exported from private modules; import them from here.
+- BOP scenes (LM-O and the like): :func:`load_bop_scene`, :func:`visible_boxes`, :func:`load_ply`.
+- FAT-layout annotations and frames: :func:`load_fat_annotations`, :func:`load_fat_frame`,
+  :func:`load_fat_scene`.
+- Rendering (MuJoCo, loaded on first use): :class:`SceneRenderer`, :func:`render_views`;
+  :class:`MujocoScene` is the lifecycle every MuJoCo scene of the package shares.
+- Writing the FAT layout: :mod:`jaxsem.data.fat_writer` (what every FAT-layout writer shares).
+- Real data: :func:`fetch` (``jaxsem data fetch``) and its table :data:`DATASETS`.
+
+Each method's own data lives with the method: VoluMon's pipelines and writers in
+:mod:`jaxsem.volumon.data`, ROSHAN's BOP sequences in :mod:`jaxsem.slam`, the rendered buildings
+and doors in :mod:`jaxsem.mapping`. Their old names here still resolve for one release, with a
+:class:`DeprecationWarning`.
 """
 
+import importlib as _importlib
+import warnings as _warnings
+
+from . import fat_writer as fat_writer
 from ._bop import (
     LINEMOD_NAMES as LINEMOD_NAMES,
     BopFrame as BopFrame,
@@ -13,36 +28,6 @@ from ._bop import (
     load_bop_scene as load_bop_scene,
     load_ply as load_ply,
     visible_boxes as visible_boxes,
-)
-from ._bop_eval import (
-    BOP_SPLITS as BOP_SPLITS,
-    LMO_TUNE_BELOW as LMO_TUNE_BELOW,
-    bop_class_extents as bop_class_extents,
-    bop_eval_batch as bop_eval_batch,
-    bop_split_frames as bop_split_frames,
-    load_bop_split as load_bop_split,
-    read_rgb as read_rgb,
-)
-from ._bop_slam import (
-    POSE_PRIOR_MODES as POSE_PRIOR_MODES,
-    STRETCH_SETTINGS as STRETCH_SETTINGS,
-    OdometryModel as OdometryModel,
-    Spell as Spell,
-    Stretch as Stretch,
-    camera_from_anchors as camera_from_anchors,
-    find_stretches as find_stretches,
-    odometry_poses as odometry_poses,
-    pose_prior_weights as pose_prior_weights,
-    stretch_sequence as stretch_sequence,
-    user_class_table as user_class_table,
-)
-from ._doors import (
-    DOOR_BASELINE as DOOR_BASELINE,
-    door_building as door_building,
-    door_data_baseline as door_data_baseline,
-    door_eval_batch as door_eval_batch,
-    train_door_model as train_door_model,
-    write_door_dataset as write_door_dataset,
 )
 from ._fat import (
     FAT_BASELINE as FAT_BASELINE,
@@ -58,51 +43,98 @@ from ._fat import (
     load_fat_scene as load_fat_scene,
     right_T_left as right_T_left,
 )
-from ._fetch import DATASETS as DATASETS, FetchError as FetchError, Source as Source, fetch as fetch
-from ._lmo_renders import (
-    LMO_CLASS_NAMES as LMO_CLASS_NAMES,
-    LMO_CLASS_SHAPES as LMO_CLASS_SHAPES,
-    LMO_IMAGE_SIZE as LMO_IMAGE_SIZE,
-    LMO_K as LMO_K,
-    LMO_OBJECT_IDS as LMO_OBJECT_IDS,
-    DeskConfig as DeskConfig,
-    desk_batch_source as desk_batch_source,
-    desk_eval_batch as desk_eval_batch,
-    detections_from_frames as detections_from_frames,
-    face_color_atlas as face_color_atlas,
-    is_desk_detections as is_desk_detections,
-    load_desk_detections as load_desk_detections,
-    load_distractor_meshes as load_distractor_meshes,
-    load_lmo_meshes as load_lmo_meshes,
-    render_desk_frames as render_desk_frames,
-    write_desk_detections as write_desk_detections,
+from ._fetch import (
+    DATASETS as DATASETS,
+    FetchError as FetchError,
+    Source as Source,
+    fetch as fetch,
 )
-from ._objects import (
-    ROBOSUITE_OBJECTS as ROBOSUITE_OBJECTS,
-    MeshAsset as MeshAsset,
-    ObjectAssets as ObjectAssets,
-    ObjectAssetsMissingError as ObjectAssetsMissingError,
-    robosuite_assets as robosuite_assets,
-    write_object_dataset as write_object_dataset,
+from ._render import (
+    RENDER_OUTPUTS as RENDER_OUTPUTS,
+    SHAPES as SHAPES,
+    MujocoScene as MujocoScene,
+    SceneObject as SceneObject,
+    SceneRenderer as SceneRenderer,
+    bounding_ellipsoid_radii as bounding_ellipsoid_radii,
+    mujoco_intrinsics as mujoco_intrinsics,
+    mujoco_quaternion as mujoco_quaternion,
+    mujoco_view as mujoco_view,
+    render_views as render_views,
 )
-from ._pipeline import (
-    SHAPE_IDS as SHAPE_IDS,
-    PipelineConfig as PipelineConfig,
-    VolumonDataset as VolumonDataset,
-    as_volumon_batch as as_volumon_batch,
-    crop_inputs as crop_inputs,
-    find_scenes as find_scenes,
-    mask_depth_points as mask_depth_points,
-    thesis_config as thesis_config,
-)
-from ._synthetic import (
-    DEFAULT_CLASSES as DEFAULT_CLASSES,
-    ObjectClass as ObjectClass,
-    object_box as object_box,
-    synthetic_intrinsics as synthetic_intrinsics,
-    write_synthetic_dataset as write_synthetic_dataset,
-)
-from ._volumon_source import (
-    volumon_batch_source as volumon_batch_source,
-    volumon_eval_batch as volumon_eval_batch,
-)
+
+# Names that moved to the method that uses them: name -> its new module (deprecated aliases).
+_MOVED = {
+    "BOP_SPLITS": "jaxsem.volumon.data",
+    "DEFAULT_CLASSES": "jaxsem.volumon.data",
+    "DOOR_BASELINE": "jaxsem.mapping",
+    "DeskConfig": "jaxsem.volumon.data",
+    "LMO_CLASS_NAMES": "jaxsem.volumon.data",
+    "LMO_CLASS_SHAPES": "jaxsem.volumon.data",
+    "LMO_IMAGE_SIZE": "jaxsem.volumon.data",
+    "LMO_K": "jaxsem.volumon.data",
+    "LMO_OBJECT_IDS": "jaxsem.volumon.data",
+    "LMO_TUNE_BELOW": "jaxsem.volumon.data",
+    "MeshAsset": "jaxsem.volumon.data",
+    "ObjectAssets": "jaxsem.volumon.data",
+    "ObjectAssetsMissingError": "jaxsem.volumon.data",
+    "ObjectClass": "jaxsem.volumon.data",
+    "OdometryModel": "jaxsem.slam",
+    "POSE_PRIOR_MODES": "jaxsem.slam",
+    "PipelineConfig": "jaxsem.volumon.data",
+    "ROBOSUITE_OBJECTS": "jaxsem.volumon.data",
+    "SHAPE_IDS": "jaxsem.volumon.data",
+    "STRETCH_SETTINGS": "jaxsem.slam",
+    "Spell": "jaxsem.slam",
+    "Stretch": "jaxsem.slam",
+    "VolumonDataset": "jaxsem.volumon.data",
+    "as_volumon_batch": "jaxsem.volumon.data",
+    "bop_class_extents": "jaxsem.volumon.data",
+    "bop_eval_batch": "jaxsem.volumon.data",
+    "bop_split_frames": "jaxsem.volumon.data",
+    "camera_from_anchors": "jaxsem.slam",
+    "crop_inputs": "jaxsem.volumon.data",
+    "desk_batch_source": "jaxsem.volumon.data",
+    "desk_eval_batch": "jaxsem.volumon.data",
+    "detections_from_frames": "jaxsem.volumon.data",
+    "door_building": "jaxsem.mapping",
+    "door_data_baseline": "jaxsem.mapping",
+    "door_eval_batch": "jaxsem.mapping",
+    "face_color_atlas": "jaxsem.volumon.data",
+    "find_scenes": "jaxsem.volumon.data",
+    "find_stretches": "jaxsem.slam",
+    "is_desk_detections": "jaxsem.volumon.data",
+    "load_bop_split": "jaxsem.volumon.data",
+    "load_desk_detections": "jaxsem.volumon.data",
+    "load_distractor_meshes": "jaxsem.volumon.data",
+    "load_lmo_meshes": "jaxsem.volumon.data",
+    "mask_depth_points": "jaxsem.volumon.data",
+    "object_box": "jaxsem.volumon.data",
+    "odometry_poses": "jaxsem.slam",
+    "pose_prior_weights": "jaxsem.slam",
+    "read_rgb": "jaxsem.volumon.data",
+    "render_desk_frames": "jaxsem.volumon.data",
+    "robosuite_assets": "jaxsem.volumon.data",
+    "stretch_sequence": "jaxsem.slam",
+    "synthetic_intrinsics": "jaxsem.volumon.data",
+    "thesis_config": "jaxsem.volumon.data",
+    "train_door_model": "jaxsem.mapping",
+    "user_class_table": "jaxsem.slam",
+    "volumon_batch_source": "jaxsem.volumon.data",
+    "volumon_eval_batch": "jaxsem.volumon.data",
+    "write_desk_detections": "jaxsem.volumon.data",
+    "write_door_dataset": "jaxsem.mapping",
+    "write_object_dataset": "jaxsem.volumon.data",
+    "write_synthetic_dataset": "jaxsem.volumon.data",
+}
+
+
+def __getattr__(name):
+    if name in _MOVED:
+        target = _MOVED[name]
+        _warnings.warn(
+            f"jaxsem.data.{name} moved to {target}.{name}; the old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(_importlib.import_module(target), name)
+    raise AttributeError(f"module 'jaxsem.data' has no attribute {name!r}")

@@ -24,7 +24,7 @@ a documented option:
   FrontBottomLeft, FrontBottomRight, then the same four on the rear face, in the object frame
   x right, y down, z forward (OpenCV axes, right-handed), so x = c0 - c1, y = c3 - c0, z = c0 - c4
   and the corners are ``R(quaternion_xyzw) @ local + cuboid_centroid``. Checked on an object of a
-  published NDDS export (``tests/test_data_fat_published.py``): that frame is proper and equals
+  published NDDS export (``tests/data/test_data_fat_published.py``): that frame is proper and equals
   ``R(quaternion_xyzw)`` to 1e-4, the corners rebuilt from it are the file's within 0.1 mm, and
   ``pose_transform`` (stored row-vector style) is ``(R @ [[0, 1, 0], [0, 0, -1], [1, 0, 0]])^T``,
   the exporter's own axes; this loader does not use it. A mirrored corner list (left-handed

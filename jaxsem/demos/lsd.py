@@ -4,7 +4,7 @@ A trained model is used when one is found: ``$JAXSEM_LSD_CHECKPOINT`` (a trainin
 exported .npz), else the shipped model ``jaxsem/lsd/pretrained.npz`` (see its MODEL_CARD.md); without
 either, the demo makes a few expert samples on one train-family building and trains a small
 network for a few steps first (it says so in the table): that model has seen very little, so
-the comparison shows the pipeline rather than the thesis' result (benchmarks/lsd_table31.py).
+the comparison shows the pipeline rather than the thesis' result (benchmarks/lsd/lsd_table31.py).
 The LSD sampler follows the thesis' rule (the window distribution, the window's minimum outside
 it, -log p edge weights; no uniform mixing): the shipped network bounds its output range so that
 the window's minimum keeps samples outside the window (``jaxsem.models.LSDConfig.log_range``).

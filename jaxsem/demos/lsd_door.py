@@ -1,9 +1,9 @@
 """The LSD demo's door step (thesis 5.8): a door that VoluMon found in the rendered building,
 put in an object map, and an LSD plan through it.
 
-From the start of the demo's task the robot's camera (:func:`jaxsem.sim.robot_camera`, 320 x 240,
+From the start of the demo's task the robot's camera (:func:`jaxsem.mapping.robot_camera`, 320 x 240,
 69.4 degrees) looks around in eight headings of the rendered building
-(:class:`jaxsem.sim.BuildingRenderer`); the largest door box of the segmentation (the stand-in
+(:class:`jaxsem.mapping.BuildingRenderer`); the largest door box of the segmentation (the stand-in
 detector; boxes off the image border) goes with the RGB image through the shipped VoluMon door
 model (:func:`jaxsem.volumon.load_pretrained` ``kind="door"``, monocular), whose world ellipsoid
 is the only object of a :mod:`jaxsem.mapping` store. Its raster is the semantic map LSD reads
@@ -25,8 +25,8 @@ WIDTH, HEIGHT = 320, 240
 
 def _find_door(renderer, K, start, yaw0):
     """The largest door box seen from ``start`` in eight headings: (yaw, camera_T_world, box, index)."""
+    from ..mapping import robot_camera
     from ..planning import DOOR
-    from ..sim import robot_camera
 
     best = None
     for i in range(8):
@@ -65,9 +65,9 @@ def run_door_plan(out_dir, building, task, lsd_sampler, quick: bool, door_model=
     import jax
 
     from .. import mapping, quadrics
+    from ..mapping import BuildingRenderer, robot_intrinsics
     from ..planning import DOOR, NavConfig, navigate, world_to_cell
     from ..scripting import record_output
-    from ..sim import BuildingRenderer, robot_intrinsics
     from ..volumon import SingleViewEstimator, load_pretrained
 
     t0 = time.perf_counter()

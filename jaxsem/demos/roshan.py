@@ -1,9 +1,9 @@
 """ROSHAN demo: a forward flight past parked cars, baseline vs ROSHAN (thesis 4.4, Forward path).
 
-Simulates :func:`jaxsem.sim.quadricslam_config` Forward maps (cars within 15 deg of the flight
+Simulates :func:`jaxsem.slam.sim.quadricslam_config` Forward maps (cars within 15 deg of the flight
 direction, a camera 1.5 m up flying a straight line past them; box noise 3 px, pose prior
 5 cm / 1 deg, one texture plane per box), and solves every map with both systems of
-:func:`jaxsem.sim.solver_config` under the online protocol of :func:`jaxsem.sim.solve_online`
+:func:`jaxsem.slam.sim.solver_config` under the online protocol of :func:`jaxsem.slam.sim.solve_online`
 (re-optimised every 10 frames):
 
 - baseline: pose priors + box factors (+ a weak shape regulariser); objects start as
@@ -35,14 +35,15 @@ def simulate_and_solve(seed: int, num_maps: int, cfg, *, every: int = 10, steps:
     """Simulates ``num_maps`` maps of ``cfg`` and solves them with both systems.
 
     Returns:
-      ``(maps, estimates, errors, seconds)``: the :class:`jaxsem.sim.SimulatedMap` batch (leading
+      ``(maps, estimates, errors, seconds)``: the :class:`jaxsem.slam.sim.SimulatedMap` batch (leading
       axis M), ``{system: SlamEstimate}`` (leading axis M), ``{system: {metric: (M,) array,
       "count": (M,)}}`` and ``{system: seconds}`` (compilation included).
     """
     import jax
     import numpy as np
 
-    from .. import sim, slam
+    from .. import slam
+    from ..slam import sim
 
     maps = sim.simulate_batch(seed, num_maps, cfg)
     estimates, errors, seconds = {}, {}, {}
@@ -92,7 +93,8 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from .. import sim, slam
+    from .. import slam
+    from ..slam import sim
 
     one = lambda x: np.asarray(x[index])
     observed = one(maps.observed)
@@ -136,7 +138,7 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
 
 def run(out_dir: pathlib.Path, quick: bool) -> str:
     """Runs the demo; writes ``roshan_forward.png`` into ``out_dir``; returns the table."""
-    from .. import sim
+    from ..slam import sim
 
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -87,7 +87,7 @@ PRESETS: Presets[TrainConfig] = Presets(TrainConfig)
 
 @PRESETS.register("cpu")
 def _cpu(c: TrainConfig) -> TrainConfig:
-    """CPU-sized run used by ``benchmarks/lsd_table31.py`` when it trains its own model."""
+    """CPU-sized run used by ``benchmarks/lsd/lsd_table31.py`` when it trains its own model."""
     return dataclasses.replace(c, stage1_steps=1200, stage2_steps=600, eval_every=600, checkpoint_every=600)
 
 
@@ -153,7 +153,7 @@ def _house(c: TrainConfig) -> TrainConfig:
 def _pair(c: TrainConfig) -> TrainConfig:
     """A 2,000 + 1,000-step run of the shipped network (``scale`` with resize upsampling) from a
     fresh initialisation, for paired comparisons on the same data: the full-map oracle against the
-    partial-map network (``benchmarks/lsd_oracle.py``); about 20 minutes on one CPU core."""
+    partial-map network (``benchmarks/lsd/lsd_oracle.py``); about 20 minutes on one CPU core."""
     base = _scale(c)
     return dataclasses.replace(
         base,

@@ -10,7 +10,7 @@ A functional store with a fixed capacity (an equinox pytree; jit once, ``vmap`` 
   Use the planning world's ids (``jaxsem.planning.DOOR``, ``WINDOW``, ``EXIT_SIGN``).
 - Planning glue: :func:`with_object_map` (a ``MapState`` whose semantic channel is the raster),
   :func:`object_map_sampler` (an LSD sampler that reads the object map).
-- From detections (:mod:`jaxsem.sim` renders them): :func:`roshan_init` / :func:`roshan_frame` /
+- From detections (:class:`BuildingRenderer` renders them): :func:`roshan_init` / :func:`roshan_frame` /
   :func:`roshan_objects` (ROSHAN's online smoother on building classes, its current ellipsoids
   as map objects); :func:`map_errors` (a map's position / size errors against ground truth).
 - Ground truth: :func:`building_objects` / :func:`ground_truth_map` turn a generated building's
@@ -32,6 +32,15 @@ from ._building import (
     building_objects,
     ground_truth_map,
 )
+from ._building_scene import (
+    BuildingRenderer as BuildingRenderer,
+    SceneDetections as SceneDetections,
+    building_mjcf as building_mjcf,
+    detect_from_segmentation as detect_from_segmentation,
+    ellipsoids_from_depth as ellipsoids_from_depth,
+    robot_camera as robot_camera,
+    robot_intrinsics as robot_intrinsics,
+)
 from ._detections import (
     ROSHAN_CLASSES,
     map_errors,
@@ -39,6 +48,14 @@ from ._detections import (
     roshan_init,
     roshan_objects,
     roshan_priors,
+)
+from ._doors import (
+    DOOR_BASELINE as DOOR_BASELINE,
+    door_building as door_building,
+    door_data_baseline as door_data_baseline,
+    door_eval_batch as door_eval_batch,
+    train_door_model as train_door_model,
+    write_door_dataset as write_door_dataset,
 )
 from ._planning import object_map_sampler, with_object_map
 from ._store import (
@@ -55,6 +72,19 @@ from ._store import (
 from ._volumon_init import volumon_initial_ellipsoids
 
 __all__ = [
+    "BuildingRenderer",
+    "SceneDetections",
+    "building_mjcf",
+    "detect_from_segmentation",
+    "ellipsoids_from_depth",
+    "robot_camera",
+    "robot_intrinsics",
+    "DOOR_BASELINE",
+    "door_building",
+    "door_data_baseline",
+    "door_eval_batch",
+    "train_door_model",
+    "write_door_dataset",
     "FUSIONS",
     "Association",
     "BuildingObjects",

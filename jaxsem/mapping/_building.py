@@ -5,7 +5,7 @@ grid. Each 4-connected component of one class is one object; its cells' extent i
 footprint box (cell edges, world metres), and a per-class height range (:class:`ObjectHeights`)
 makes it a 3D box. The ellipsoid of a box is the one inscribed in it (axis-aligned, radii = half
 the box's extents), so its footprint misses only the corner cells of the box: a one-cell error at
-the boundary (``tests/test_mapping.py`` checks this on generated buildings).
+the boundary (``tests/integration/test_mapping.py`` checks this on generated buildings).
 """
 
 from __future__ import annotations

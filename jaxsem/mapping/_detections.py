@@ -1,11 +1,11 @@
 """Object maps from detections (thesis 5.8.2, issue 13 part 3): ROSHAN's online state as map
 objects, and the error of a map against ground truth.
 
-The building renderer (:class:`jaxsem.sim.BuildingRenderer`) gives per-frame boxes, segmentation
+The building renderer (:class:`jaxsem.mapping.BuildingRenderer`) gives per-frame boxes, segmentation
 and depth; this module turns what an estimator made of them into :class:`Ellipsoids` on the
 planning world's semantic ids, so :func:`jaxsem.mapping.semantic_grid` can rasterise them:
 
-- a per-frame estimator (VoluMon, or :func:`jaxsem.sim.ellipsoids_from_depth` standing in for
+- a per-frame estimator (VoluMon, or :func:`jaxsem.mapping.ellipsoids_from_depth` standing in for
   it) already yields :class:`Ellipsoids`: feed them to :func:`jaxsem.mapping.update`;
 - ROSHAN (:mod:`jaxsem.slam`'s online smoother) is fed the boxes with the known camera poses:
   :func:`roshan_init` (a smoother whose shape-prior table has one row per building class,

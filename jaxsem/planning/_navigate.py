@@ -18,7 +18,7 @@ samples from the current distribution, up to ``max_growth`` times; a trial fails
 the first failed roadmap ends the trial). ``NavResult.grown`` counts the growths. Reuse and
 growth are this library's defaults, not the thesis': its protocol as written (3.3.3) draws a
 fresh roadmap at every replan for both planners and ends a trial at the first roadmap without a
-path, ``NavConfig(reuse_roadmap=False, max_growth=0)`` (``benchmarks/lsd_table31.py --ablations
+path, ``NavConfig(reuse_roadmap=False, max_growth=0)`` (``benchmarks/lsd/lsd_table31.py --ablations
 thesis`` runs both planners so, beside the defaults).
 
 Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM + Unf). Otherwise
@@ -29,14 +29,14 @@ integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwis
 link vertices direction-first (``NavConfig.sectors``; see :mod:`jaxsem.planning._roadmap`), and a
 learned sampler's roadmap gets twice the uniform radius (``learned_radius_factor``): outside the
 window its few samples are too far apart for the uniform radius, which ended most Inside-Outside
-trials with 'no_plan' (``benchmarks/lsd_diagnose_finding.md``).
+trials with 'no_plan' (``benchmarks/lsd/lsd_diagnose_finding.md``).
 
 Where the loop runs: sensing, crops, sampling, neighbour search and edge checks are jitted JAX
 (and vmappable: ``sense`` and the roadmap builder take batches); the graph search is scipy's
 Dijkstra on the host, and so is the control flow of a trial, which is why trials run one after
 another (:func:`navigate`) rather than under ``vmap``; :func:`jaxsem.lsd.run_trials` with a
 ``mesh`` deals whole trials over devices instead (one host thread per device). Per step the host
-work is a few milliseconds; see ``benchmarks/lsd_speed.py``.
+work is a few milliseconds; see ``benchmarks/lsd/lsd_speed.py``.
 """
 
 from __future__ import annotations
@@ -323,7 +323,7 @@ class Trial:
         rest of the map (where an outdoor goal lies) only the window's minimum, 5-15 % of them at
         a spacing of 5-8 m, which a 6 m radius leaves in islands; the goal's component was cut
         off from the robot's in all 10 Inside-Outside 'no plan' failures examined
-        (``benchmarks/lsd_diagnose_finding.md``)."""
+        (``benchmarks/lsd/lsd_diagnose_finding.md``)."""
         if config.radius is not None:
             return float(config.radius)
         r = default_radius(config.n_samples, shape, resolution)

@@ -28,7 +28,7 @@ itself come first, then the nearest of the rest; of the first ``2k`` candidates 
 first ``k`` whose edge is clear are kept. Why: under a learned distribution the samples are dense
 in a few places and sparse elsewhere, and the plain k nearest of a vertex near a dense cluster
 all lie inside the cluster (or behind the wall beside it), so clusters a door or a gap apart, and
-the sparse samples beyond them, were never linked (see ``benchmarks/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
+the sparse samples beyond them, were never linked (see ``benchmarks/lsd/lsd_diagnose_finding.md``). A query's start links to its ``k`` nearest samples and
 the goal, the goal to its ``k`` nearest samples, chosen by the same rule but at *any* distance
 (not bounded by ``radius``; such long edges are checked over :func:`query_reach`): a goal outside
 a sparse region still reaches the roadmap. Samples never link to the query slots, so queries do
@@ -80,7 +80,7 @@ from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
 #: navigation planner (``NavConfig.sectors``): direction first over 8 sectors, which found more
 #: paths than the plain k nearest, no longer (``benchmarks/RESULTS.md``, "Design measurements";
-#: ``benchmarks/lsd_prm.py`` reports held-out buildings).
+#: ``benchmarks/lsd/lsd_prm.py`` reports held-out buildings).
 DEFAULT_SECTORS = 8
 
 #: Query slots: the start and goal of the current query.
@@ -124,7 +124,7 @@ def default_radius(
     that of ``n`` samples over them, since samples never land in known-occupied cells (on a
     scanned campus two thirds of the map is blocked: the whole map's area overstates the spacing
     by 1.7x and the radius reads 3x more candidates than it needs). It only bounds the search; the ``k`` nearest are usually closer (see
-    ``benchmarks/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
+    ``benchmarks/lsd/lsd_prm.py`` for the quality this gives against OMPL). ``weight='neglogp'`` (a
     learned sampler's roadmap) gives ``LEARNED_RADIUS_FACTOR`` times that, rounded up to 0.5 m:
     the navigation loop's rule (:meth:`~jaxsem.planning.Trial.connection_radius`), so that a
     one-shot LSD roadmap links like the loop's (a concentrated distribution leaves the few samples

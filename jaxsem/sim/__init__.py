@@ -1,54 +1,58 @@
-"""Simulation: random ellipsoid maps, camera paths and noisy ROSHAN measurements (thesis 4.4).
+"""Deprecated: ROSHAN's simulator is :mod:`jaxsem.slam.sim`, the MuJoCo renderer
+:mod:`jaxsem.data`, the rendered buildings :mod:`jaxsem.mapping`. The old names resolve here for
+one release, with a :class:`DeprecationWarning`."""
 
-Public names are re-exported from private modules; import them from here.
-"""
+import importlib as _importlib
+import warnings as _warnings
 
-from ._building_scene import (
-    BuildingRenderer as BuildingRenderer,
-    SceneDetections as SceneDetections,
-    building_mjcf as building_mjcf,
-    detect_from_segmentation as detect_from_segmentation,
-    ellipsoids_from_depth as ellipsoids_from_depth,
-    robot_camera as robot_camera,
-    robot_intrinsics as robot_intrinsics,
-)
-from ._ellipsoid_maps import (  # simulated maps, and into the solver's structures
-    ground_truth as ground_truth,
-    initial_estimate as initial_estimate,
-    simulate as simulate,
-    simulate_batch as simulate_batch,
-    simulate_views as simulate_views,
-    to_problem as to_problem,
-)
-from ._experiments import (
-    BASELINE as BASELINE,
-    ROSHAN as ROSHAN,
-    box_iou as box_iou,
-    map_errors as map_errors,
-    solve_online as solve_online,
-    solver_config as solver_config,
-)
-from ._render import (  # MuJoCo rendering of textured objects (VoluMon data; mujoco loads lazily)
-    SHAPES as SHAPES,
-    SceneObject as SceneObject,
-    SceneRenderer as SceneRenderer,
-    bounding_ellipsoid_radii as bounding_ellipsoid_radii,
-    mujoco_intrinsics as mujoco_intrinsics,
-    mujoco_quaternion as mujoco_quaternion,
-    mujoco_view as mujoco_view,
-    render_views as render_views,
-)
-from ._sim_config import (  # the simulator's config, presets and map type
-    SimConfig as SimConfig,
-    SimulatedMap as SimulatedMap,
-    class_table as class_table,
-    intrinsics as intrinsics,
-    quadricslam_config as quadricslam_config,
-    thesis_config as thesis_config,
-)
-from ._sim_draws import (  # the random draws of a map
-    camera_path as camera_path,
-    detect as detect,
-    perturb_poses as perturb_poses,
-    random_objects as random_objects,
-)
+_MOVED = {
+    "BASELINE": "jaxsem.slam.sim",
+    "BuildingRenderer": "jaxsem.mapping",
+    "ROSHAN": "jaxsem.slam.sim",
+    "SHAPES": "jaxsem.data",
+    "SceneDetections": "jaxsem.mapping",
+    "SceneObject": "jaxsem.data",
+    "SceneRenderer": "jaxsem.data",
+    "SimConfig": "jaxsem.slam.sim",
+    "SimulatedMap": "jaxsem.slam.sim",
+    "bounding_ellipsoid_radii": "jaxsem.data",
+    "box_iou": "jaxsem.slam.sim",
+    "building_mjcf": "jaxsem.mapping",
+    "camera_path": "jaxsem.slam.sim",
+    "class_table": "jaxsem.slam.sim",
+    "detect": "jaxsem.slam.sim",
+    "detect_from_segmentation": "jaxsem.mapping",
+    "ellipsoids_from_depth": "jaxsem.mapping",
+    "ground_truth": "jaxsem.slam.sim",
+    "initial_estimate": "jaxsem.slam.sim",
+    "intrinsics": "jaxsem.slam.sim",
+    "map_errors": "jaxsem.slam.sim",
+    "mujoco_intrinsics": "jaxsem.data",
+    "mujoco_quaternion": "jaxsem.data",
+    "mujoco_view": "jaxsem.data",
+    "perturb_poses": "jaxsem.slam.sim",
+    "quadricslam_config": "jaxsem.slam.sim",
+    "random_objects": "jaxsem.slam.sim",
+    "render_views": "jaxsem.data",
+    "robot_camera": "jaxsem.mapping",
+    "robot_intrinsics": "jaxsem.mapping",
+    "simulate": "jaxsem.slam.sim",
+    "simulate_batch": "jaxsem.slam.sim",
+    "simulate_views": "jaxsem.slam.sim",
+    "solve_online": "jaxsem.slam.sim",
+    "solver_config": "jaxsem.slam.sim",
+    "thesis_config": "jaxsem.slam.sim",
+    "to_problem": "jaxsem.slam.sim",
+}
+
+
+def __getattr__(name):
+    if name in _MOVED:
+        target = _MOVED[name]
+        _warnings.warn(
+            f"jaxsem.sim.{name} moved to {target}.{name}; the old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(_importlib.import_module(target), name)
+    raise AttributeError(f"module 'jaxsem.sim' has no attribute {name!r}")

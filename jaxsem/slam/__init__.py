@@ -17,7 +17,7 @@ A problem keeps the class table it was built with (``make_problem(..., classes=C
 the batch solvers handle it, the online smoother does not yet). Objects without a depth
 measurement start where their class size matches their box (``SolverConfig.depth_from_box``). :func:`box_init`
 is the one single-view rule that :func:`initialize`, the online smoother and
-:func:`jaxsem.sim.solve_online`'s re-initialisation share.
+:func:`jaxsem.slam.sim.solve_online`'s re-initialisation share.
 """
 
 from ._batch import (
@@ -30,6 +30,19 @@ from ._batch import (
     solve_batch as solve_batch,
     solve_many as solve_many,
     solve_schur as solve_schur,
+)
+from ._bop_slam import (
+    POSE_PRIOR_MODES as POSE_PRIOR_MODES,
+    STRETCH_SETTINGS as STRETCH_SETTINGS,
+    OdometryModel as OdometryModel,
+    Spell as Spell,
+    Stretch as Stretch,
+    camera_from_anchors as camera_from_anchors,
+    find_stretches as find_stretches,
+    odometry_poses as odometry_poses,
+    pose_prior_weights as pose_prior_weights,
+    stretch_sequence as stretch_sequence,
+    user_class_table as user_class_table,
 )
 from ._cost import (
     Delta as Delta,

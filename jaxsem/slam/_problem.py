@@ -584,7 +584,7 @@ def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
     first ``max_boxes`` box slots kept.
 
     Box factors cost the same whether a slot is real or padding, so a problem padded to many
-    unused slots (e.g. ``jaxsem.sim.to_problem`` keeps one slot per frame and object, dropped
+    unused slots (e.g. ``jaxsem.slam.sim.to_problem`` keeps one slot per frame and object, dropped
     detections included) solves ``M / max_boxes`` times faster per iteration after this, with
     the same answer. Pick ``max_boxes`` from :func:`bucket_capacity` of the largest number of
     real boxes over the problems that share a compilation. Works on batched problems (leading

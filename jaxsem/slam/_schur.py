@@ -444,7 +444,7 @@ class SchurLevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         )
         sol = optx.least_squares(residuals, solver, (poses0, points0), args, max_steps=100)
 
-    ``tests/test_schur_solver.py`` solves such a problem against ``optx.LevenbergMarquardt``.
+    ``tests/slam/test_schur_solver.py`` solves such a problem against ``optx.LevenbergMarquardt``.
     """
 
     rtol: Any

@@ -46,7 +46,7 @@ Functions (numpy in and out, plain data, no jit needed):
 - :func:`load_sequence` / :func:`save_sequence`: read / write the layout (``ValueError`` naming
   the file and the JSON field on bad input; the checks are in ``_sequence_checks.py``, the
   dataclasses in ``_sequence_types.py``).
-- :func:`sequence_from_simulation`: a :class:`jaxsem.sim.SimulatedMap` as a :class:`Sequence`
+- :func:`sequence_from_simulation`: a :class:`jaxsem.slam.sim.SimulatedMap` as a :class:`Sequence`
   (pose priors as poses, ground-truth association, texture planes, truth attached).
 
 Next to it in :mod:`jaxsem.slam` (each its own module):
@@ -231,14 +231,14 @@ def load_image(sequence: Sequence, index: int):
 
 
 def sequence_from_simulation(sim_map, image_size) -> Sequence:
-    """A simulated map (:func:`jaxsem.sim.simulate`, one map, no batch axis) as a :class:`Sequence`.
+    """A simulated map (:func:`jaxsem.slam.sim.simulate`, one map, no batch axis) as a :class:`Sequence`.
 
     Poses are the noisy odometry (``pose_prior``), detections the noisy boxes with the
     ground-truth association (id = object slot) and the texture-plane depth where the simulator
     gives one; ``truth`` holds the true poses and every object of the map. No images.
 
     Args:
-      sim_map: a :class:`jaxsem.sim.SimulatedMap` (fields ``pose_prior`` (T, 4, 4), ``boxes``
+      sim_map: a :class:`jaxsem.slam.sim.SimulatedMap` (fields ``pose_prior`` (T, 4, 4), ``boxes``
         (T, N, 4), ``box_mask`` (T, N), ``texture_depth`` / ``texture_mask`` (T, N), ``object_*``,
         ``camera_T_world``, ``K``).
       image_size: ``(width, height)``, e.g. ``config.image_size``.

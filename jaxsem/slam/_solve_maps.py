@@ -39,7 +39,7 @@ def solve_maps(
     Args:
       problems, inits: a batch of maps (every leaf with the same leading axis ``B``, e.g.
         ``jax.vmap(sim.to_problem)`` and ``jax.vmap(sim.initial_estimate)`` of
-        :func:`jaxsem.sim.simulate_batch`); ``B`` need not divide by the device count (padded by
+        :func:`jaxsem.slam.sim.simulate_batch`); ``B`` need not divide by the device count (padded by
         repeating the last map, the copies dropped).
       config: :class:`SolverConfig` shared by every map (default ROSHAN's); passed
         as a replicated pytree, so its traced fields do not recompile.
@@ -53,7 +53,7 @@ def solve_maps(
       vmapped solver loop runs each map with the others of its batch, so results agree with a
       whole-batch vmap to the solver's own batch-dependence, and with a vmap over each device's
       slice to floating-point rounding, which XLA's compilation of the two programs decides and
-      an unconverged solve can amplify (``tests/test_parallel_training.py`` checks tightly
+      an unconverged solve can amplify (``tests/integration/test_parallel_training.py`` checks tightly
       converged solves).
     """
     if method not in ("schur", "optimistix"):

@@ -1,7 +1,7 @@
 """A small numpy generator of ellipsoid maps for the solvers' tests, examples and benchmarks.
 
 It exists so that the solvers can be tested on their own; the full simulator is
-:mod:`jaxsem.sim`. Objects are car-sized ellipsoids (the ``car`` class with per-object size
+:mod:`jaxsem.slam.sim`. Objects are car-sized ellipsoids (the ``car`` class with per-object size
 noise) on a ground patch; the camera follows an ``"orbit"`` (circle looking at the centre) or a
 ``"forward"`` path (straight line along x past the objects); boxes are projected exactly, clipped
 to the image (so truncated edges sit on the border and are dropped by the edge mask), and noised.

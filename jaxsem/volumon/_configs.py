@@ -5,7 +5,7 @@
 - :func:`thesis_config`: the thesis' network (width 1.0, 224 x 224), batch 50, lr 1e-5 (section
   5.5.1): for a GPU.
 - :func:`door_config`: the door model of section 5.8.1 (one class, absolute depth up to 15 m,
-  eps_s = 0.1 m, alpha_y = 0.5 m) on rendered building doors (:mod:`jaxsem.data` 's door writer).
+  eps_s = 0.1 m, alpha_y = 0.5 m) on rendered building doors (:mod:`jaxsem.mapping` 's door writer).
 - :func:`get_config(variant, size)`: ``variant`` in :data:`VARIANTS` (Dual only, Primal only,
   Both, Both Noisy; section 5.5.1 weights) on top of ``size`` in ``("cpu", "thesis", "tiny")``
   (tiny: for tests).
@@ -45,7 +45,7 @@ class TrainConfig:
       log_every: steps between logged loss lines.
       data: "device" (batches made inside the jitted step from a PRNG key, no host work),
         "host" (numpy generator indexed by (seed, index), ``num_train`` samples) or "directory"
-        (a FAT-layout or ``make_synthetic`` directory, read by :mod:`jaxsem.data`; the command
+        (a FAT-layout or ``make_synthetic`` directory, read by :mod:`jaxsem.volumon.data`; the command
         passes its batches to :func:`train_and_evaluate` as ``batch_fn``).
       data_dir: the directory of a ``data="directory"`` run (recorded with the config, so a
         resume on other data is refused); empty when a user's own ``batch_fn`` feeds the run
@@ -187,7 +187,7 @@ def door_config() -> TrainConfig:
     eps_s = 0.1 m and alpha_y = 0.5 m (the thesis' shape constants for doors), the box-shaped
     (shape-aware) dual loss. Use with ``variant="dual"`` (the thesis' Dual-Only: a doorway is
     negative space, so the primal loss has no surface to fit) on a directory of
-    :func:`jaxsem.data.write_door_dataset`."""
+    :func:`jaxsem.mapping.write_door_dataset`."""
     base = fast_config()
     return base.replace(
         model=dataclasses.replace(base.model, num_classes=1),
@@ -211,7 +211,7 @@ LMO_CLASS_NAMES = ("ape", "can", "cat", "driller", "duck", "eggbox", "glue", "ho
 def lmo_config() -> TrainConfig:
     """The LM-O model: :func:`fast_config` 's network (so it warm-starts from the shipped object
     model) with an eight-class head (:data:`LMO_CLASS_NAMES`), trained on rendered desk
-    detections (``python -m jaxsem.data.make_lmo_renders``; ``data="directory"``, the folder of
+    detections (``python -m jaxsem.volumon.data.make_lmo_renders``; ``data="directory"``, the folder of
     ``chunk_NNNN.npz``). Learning rate 1e-4 (a warm start), checkpoints every 250 steps, the
     evaluation every 250 steps on held-out renders."""
     base = fast_config()

@@ -1,11 +1,11 @@
 """The door model of thesis 5.8.1: scoring and single-view estimates.
 
-(Training on rendered building doors is :func:`jaxsem.data.train_door_model`: the data layer
+(Training on rendered building doors is :func:`jaxsem.mapping.train_door_model`: the data layer
 reads the directories, this package stays below it.)
 
 - :func:`door_errors` / :func:`evaluate_doors`: centre, size, yaw and orientation errors of door
   estimates against the building generator's door boxes (held-out: test-family buildings; the
-  batch from :func:`jaxsem.data.door_eval_batch`).
+  batch from :func:`jaxsem.mapping.door_eval_batch`).
 - :class:`SingleViewEstimator`: the shipped model as a detector-to-ellipsoid function for maps
   and planning: image + boxes + camera -> world ellipsoids (:func:`jaxsem.volumon.load_pretrained`
   ``kind="door"``).
@@ -36,7 +36,7 @@ def _horizontal_angle(a, b, up) -> np.ndarray:
 def door_errors(pred: dict, gt: dict) -> dict:
     """Per-door errors of estimates ``pred`` (``rotation`` (B, 3, 3), ``center`` (B, 3), ``radii``
     (B, 3), camera frame) against ``gt`` (``gt_rotation`` object-to-camera with the object frame
-    the world's axes, ``gt_center``, ``gt_half_extents``: :func:`jaxsem.data.volumon_eval_batch`
+    the world's axes, ``gt_center``, ``gt_half_extents``: :func:`jaxsem.volumon.data.volumon_eval_batch`
     of a door directory).
 
     Returns numpy arrays (B,): ``center`` (m, distance of centres), ``depth`` (m, |z| difference in
@@ -68,7 +68,7 @@ def door_errors(pred: dict, gt: dict) -> dict:
 
 def evaluate_doors(model, variables, config: TrainConfig, batch: dict) -> dict:
     """Medians (and 90th percentiles) of :func:`door_errors` over the doors of ``batch`` (network
-    inputs and ground truth, :func:`jaxsem.data.door_eval_batch`), with the true depth range and
+    inputs and ground truth, :func:`jaxsem.mapping.door_eval_batch`), with the true depth range and
     the errors of a constant baseline (every door the batch's mean true size, centred on the ray
     through its box centre at the batch's median true depth: what box position alone gives)."""
     from ._train import predict_batch

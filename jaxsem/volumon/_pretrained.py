@@ -159,7 +159,7 @@ def evaluate_held_out(
     (``postopt_from_truth_*``: how far its objective moves the true centre).
 
     ``batch``: score these detections instead (network inputs, ``points``, ``point_mask`` and
-    ground truth ``gt_*``, ``sample_mask``, e.g. :func:`jaxsem.data.volumon_eval_batch` of a FAT
+    ground truth ``gt_*``, ``sample_mask``, e.g. :func:`jaxsem.volumon.data.volumon_eval_batch` of a FAT
     directory); ``seed`` and ``num`` are then ignored (``num`` is the batch's size).
 
     ``scratch_steps``: also run the optimisation-only baseline (thesis "Optimize from scratch",

@@ -1,6 +1,6 @@
 """Scoring ellipsoids on real annotated frames (a BOP scene) and the known-size geometric baseline.
 
-The batch is built by the data layer (:func:`jaxsem.data.bop_eval_batch`): network inputs of the
+The batch is built by the data layer (:func:`jaxsem.volumon.data.bop_eval_batch`): network inputs of the
 visible boxes, the true pose and mesh extent of each object, its mesh points in the camera frame
 (so ADI is ADD-S) and per detection its class name and visible fraction. This module only scores:
 
@@ -166,7 +166,7 @@ def summarise_detections(pred: Mapping, gt: Mapping) -> dict:
 
 
 def evaluate_scene_batch(model, variables, config, batch: Mapping, class_rows, repeats: int = 5) -> dict:
-    """The network's figures on a scene batch (:func:`jaxsem.data.bop_eval_batch`).
+    """The network's figures on a scene batch (:func:`jaxsem.volumon.data.bop_eval_batch`).
 
     Args:
       model, variables, config: a VoluMon model (:func:`jaxsem.volumon.load_pretrained`).

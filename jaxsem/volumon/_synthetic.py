@@ -7,7 +7,7 @@ are exact and the left/right boxes are the exact projections (cuboid corners / c
 conic). Samples are a pure function of ``(seed, index)``, which makes data order reproducible
 for exact resumes.
 
-Used by the training loop, tests and benchmarks when the MuJoCo dataset of :mod:`jaxsem.data`
+Used by the training loop, tests and benchmarks when the MuJoCo dataset of :mod:`jaxsem.volumon.data`
 is not wanted; its batches have the same keys as the training loop expects (see
 :func:`make_batch`).
 

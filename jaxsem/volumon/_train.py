@@ -397,7 +397,7 @@ def train_and_evaluate(
         :class:`ConfigMismatchError`); the new config is written.
       batch_fn: with ``config.data == "directory"``: ``step -> batch`` (numpy arrays with the keys
         of :data:`TRAIN_KEYS`, a pure function of the step so that a resume sees the same data),
-        e.g. from :class:`jaxsem.data.VolumonDataset` and :func:`jaxsem.data.as_volumon_batch`.
+        e.g. from :class:`jaxsem.volumon.data.VolumonDataset` and :func:`jaxsem.volumon.data.as_volumon_batch`.
       eval_batch: with ``config.data == "directory"``: the batch (same keys plus ground truth
         ``gt_*``) the periodic evaluation scores; None: no evaluation.
       mesh: train data-parallel over this one-axis mesh (:func:`jaxsem.parallel.data_mesh`, or

@@ -1,0 +1,679 @@
+"""ROSHAN on real photographs with ground truth: the LM-O desk (BOP scene), stretch by stretch.
+
+Each stretch of the split (``jaxsem.slam.find_stretches``: at least three objects still; camera
+poses fitted on them) becomes a user's sequence (``jaxsem.slam.stretch_sequence``): integrated
+odometry with drift (``jaxsem.slam.OdometryModel`` defaults: 1 mm / 0.1 deg white noise and a
+0.2 mm / 0.02 deg random-walk drift per step), each still object's visible box rendered from its
+mesh with occlusion plus 2 px noise, user-style class priors (each class's size off the truth by
+a seeded factor in [0.8, 1.25], sigma 30 %, ``jaxsem.slam.user_class_table``). Absolute pose
+priors (``--pose-priors``, ``jaxsem.slam.pose_prior_weights``): by default on the first pose only
+(the user knows where they started; the integrated poses drift beyond the 2 cm a prior on each
+would claim, which pinned every system to the drift: tuning split, ROSHAN 2.6 -> 1.5 cm), the
+between factors carrying the rest. ROSHAN never sees an object pose. Systems, all on the same boxes, odometry and priors:
+
+- ``baseline``: pose prior(s) + odometry + boxes (``jaxsem.slam.baseline_config``), batch Schur LM;
+- ``roshan``: + texture planes measured on the real images by ROSHAN's own front end
+  (``jaxsem.slam.measure_texture``: ORB corners matched between sightings, ids from the
+  detections; Cauchy loss) + the class shape prior + the upright prior (objects resting on the
+  desk, the world's up known: ROSHAN's own knowledge, like its shape prior; the baseline and
+  gtsam_quadrics have no such factor) (``--yaw-starts``: solved from four headings about the
+  desk's up axis, ``jaxsem.slam.solve_yaw_starts``; on the tuning split it left the median
+  orientation unchanged at 35 degrees for 25 times the time, so it is off by default);
+  each box read as the outline of an ellipsoid 1.1 times the object's extents
+  (``--silhouette-scale``), and the support prior: every object's lowest point on the desk, whose
+  height ROSHAN's front end measures from the features around the objects (``--support``);
+- ``roshan_volumon``: the same, each object initialised by the shipped LM-O VoluMon model
+  (``jaxsem.volumon.load_pretrained(kind="lmo")``) from its first detection;
+- ``gtsam_quadrics``: QuadricSLAM's LM with its own defaults (``benchmarks/roshan/_quadricslam_peer.py``
+  under a Python 3.10 venv) on the pose priors, odometry and boxes, started from the baseline's
+  initial estimate (ROSHAN's single-view init: depth from the box and the class size).
+
+Scored with ``jaxsem.metrics`` (``ellipsoid_errors``: symmetric objects handled by sorting axes;
+``iou_3d_boxes`` of the ellipsoids' bounding boxes against the mesh extents) over every spell;
+medians over objects. A ``collapse`` is an object more than 10 cm off. The online smoother
+(``jaxsem.slam.run_sequence``, ROSHAN config, pose priors only) gives the per-frame times.
+Item 7 of issue 27: per detection with a texture measurement, its depth against the true
+ellipsoid's texture plane and the mesh's nearest and mean front-surface depth.
+
+Run: ``python benchmarks/roshan/roshan_real.py --scene /tmp/realdata/lmo/test/000002 --split tune
+--json out.json [--setting missed] [--figures DIR]``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxsem import metrics, quadrics, scripting as sc, slam  # noqa: E402
+from jaxsem.volumon import data as vdata  # noqa: E402
+
+HERE = pathlib.Path(__file__).resolve().parent
+SYSTEMS = ("baseline", "roshan", "roshan_volumon", "gtsam_quadrics")
+COLLAPSE_M = 0.10
+#: One padded size for every stretch: one compilation per system.
+CAPACITY = (48, 384, 48)
+
+#: The front end's settings for 640x480 real frames about 6 video frames apart (tuned on frames
+#: below 600 only): ORB descriptor matching between sightings instead of LK tracks (LK keeps
+#: 2-20 % of its tracks over the 10-40 deg, 10-80 cm between these frames), more and weaker ORB
+#: corners for the objects' weak texture, a 1.5 cm baseline, a 4 px reprojection gate (the
+#: odometry poses drift) and a 3 cm depth spread (objects are 5-20 cm across).
+FRONTEND = dict(
+    matcher="orb",
+    max_features=300,
+    orb_fast_threshold=5,
+    box_shrink=0.05,
+    min_baseline=0.015,
+    min_points=5,
+    max_reprojection_error=4.0,
+    max_depth_variance=0.03**2,
+)
+#: Texture-plane sigma (metres) of the solver, and the solver's config beside the noise model.
+TEXTURE_SIGMA = 0.03
+#: Shared by every jaxsem system: the rescue holds the (drifting) odometry poses, so its
+#: box-edge RMS gate is widened from 5 to 10 sigmas (at 5, 2 and 6 objects of two tuning
+#: stretches were flagged unfixable and held out).
+SHARED = dict(unfixable_rms=10.0)
+#: ROSHAN's texture factor reads the mean visible surface (2/3 of the way from the centre to
+#: the tangent plane: jaxsem.factors.texture_residual), as the real features measure, under a
+#: Cauchy loss: the driller's and the cat's planes measure the background 6-13 cm behind
+#: (tuning split, first-pose prior: 1.45 -> 1.40 cm, IoU 0.507 -> 0.514; Huber 1.40 / 0.510).
+#: The objects rest on the desk: the upright prior (jaxsem.factors.upright_residual, 5 degrees)
+#: holds their height axis along the world's up (the desk normal here; gravity from a VIO for a
+#: user). ROSHAN's estimates were tilted 10-50 degrees, which was most of the orientation error
+#: (tuning split: 33.3 -> 13.6 degrees, IoU 0.514 -> 0.531, shape 1.70 -> 1.51 cm).
+ROSHAN = dict(texture_plane_fraction=2.0 / 3.0, texture_loss="cauchy", use_upright=True)
+#: The detected (visible mesh) boxes are 1.09 / 1.12 times (width / height, median over the
+#: tuning split's detections) the inscribed extent ellipsoid's projected box, 0.78 times the
+#: extent cuboid's: ROSHAN reads each box as the outline of an ellipsoid 1.1 times the object's
+#: extents (jaxsem.slam.SolverConfig.silhouette_scale; tuning split: shape 1.51 -> 1.19 cm,
+#: IoU 0.531 -> 0.554; 1.15 and 1.2 gave IoU 0.552 / 0.530).
+SILHOUETTE_SCALE = 1.1
+#: The support prior (jaxsem.factors.support_residual): every object's lowest point on the desk,
+#: whose height comes from the images' features outside the boxes (jaxsem.slam.support_height,
+#: on the odometry poses). Sigma 1 cm (tuning split: 5 mm 1.05 cm / IoU 0.596 / 16.0 deg, 1 cm
+#: 0.96 / 0.609 / 14.1, 2 cm 1.13 / 0.580 / 13.8): the features sit 3-6 mm above the meshes'
+#: lowest points.
+SUPPORT_SIGMA = 0.01
+#: The upright prior's tilt sigma (jaxsem.slam.SolverConfig.upright_sigma, degrees here). The
+#: library's default is 5 degrees; on the tuning split the boxes still tilted the driller 34-38
+#: degrees and the cat 30-36 against it (their true tilts 2-4 and 12-17). Tuning split, position /
+#: IoU / orientation: 5 deg 0.96 cm / 0.609 / 14.1; 3 deg 1.02 / 0.612 / 10.6; **2 deg 1.02 /
+#: 0.626 / 9.4**; 1 deg 1.06 / 0.630 / 9.1 (RESULTS.md, stop 27).
+UPRIGHT_SIGMA_DEG = 2.0
+
+
+def noise_model(seq) -> slam.NoiseModel:
+    return slam.noise_model(seq, slam.NoiseModel(texture_sigma=TEXTURE_SIGMA))
+
+
+def configs(seq, silhouette_scale=None, upright_sigma_deg=None):
+    noise = noise_model(seq)
+    scale = SILHOUETTE_SCALE if silhouette_scale is None else silhouette_scale
+    tilt = np.radians(UPRIGHT_SIGMA_DEG if upright_sigma_deg is None else upright_sigma_deg)
+    return {
+        "baseline": slam.baseline_config(noise=noise, **SHARED),
+        "roshan": slam.SolverConfig(noise=noise, **SHARED, **ROSHAN, silhouette_scale=scale, upright_sigma=tilt),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Front end, problems, scoring.
+
+
+def front_end(seq):
+    """The sequence with the front end's texture depths, and one record per detection."""
+    seq_t, dets = slam.measure_texture(seq, slam.FrontEndConfig(**FRONTEND))
+    records = [
+        {
+            "frame": t,
+            "id": i,
+            "status": x.texture_status,
+            "points": int(x.num_points),
+            "depth": None if x.texture_depth is None else float(x.texture_depth),
+        }
+        for t, (fr, ds) in enumerate(zip(seq.frames, dets))
+        for x, i in zip(ds, fr.ids)
+    ]
+    return seq_t, records
+
+
+def problem_of(seq, odometry, table, prior_weight=None):
+    slot = {i: j for j, i in enumerate(seq.object_ids)}
+    boxes, pose_idx, obj, tex = [], [], [], []
+    for t, fr in enumerate(seq.frames):
+        for b, i, d in zip(fr.boxes, fr.ids, fr.texture_depth):
+            boxes.append(b)
+            pose_idx.append(t)
+            obj.append(slot[i])
+            tex.append(d)
+    return slam.make_problem(
+        seq.K,
+        seq.image_size,
+        np.stack([f.camera_T_world for f in seq.frames]),
+        np.asarray(boxes).reshape(-1, 4),
+        np.asarray(pose_idx),
+        np.asarray(obj),
+        list(seq.object_classes),
+        np.asarray(tex),
+        capacity=CAPACITY,
+        classes=table,
+        odometry=odometry,
+        pose_prior_weight=prior_weight,
+        dtype=jnp.float64,
+    )
+
+
+def score(seq, rotation, center, radii):
+    """Per-object errors (numpy) of estimates in object-slot order against the sequence's truth."""
+    by_id = {o["id"]: o for o in seq.truth["objects"]}
+    ids = [i for i in seq.object_ids if i in by_id]
+    slot = {i: j for j, i in enumerate(seq.object_ids)}
+    js = [slot[i] for i in ids]
+    tr = [by_id[i] for i in ids]
+    TR = np.stack([o["rotation"] for o in tr])
+    TC = np.stack([o["center"] for o in tr])
+    TRd = np.stack([o["radii"] for o in tr])
+    R, c, r = (np.asarray(x, np.float64)[js] for x in (rotation, center, radii))
+    ok = np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(R), axis=(1, 2))
+    R = np.where(ok[:, None, None], R, np.eye(3))
+    c = np.where(ok[:, None], c, 1e3)
+    r = np.where(ok[:, None], np.abs(r), 1e-3)
+    e = jax.jit(metrics.ellipsoid_errors)(R, c, r, TR, TC, TRd)
+    iou = np.asarray(jax.jit(metrics.iou_3d_boxes)(R, c, r, TR, TC, TRd))
+    out = {k: np.asarray(v, np.float64) for k, v in e.items()}
+    out["iou"] = iou
+    out["ids"] = ids
+    return out
+
+
+def true_support_height(seq):
+    """Median over the stretch's objects of their lowest point along the world's z (scoring only)."""
+    up = np.array([0.0, 0.0, 1.0])
+    bottoms = [
+        o["center"][2] - quadrics.half_extent(o["rotation"], o["radii"], up, xp=np) for o in seq.truth["objects"]
+    ]
+    return float(np.median(bottoms))
+
+
+def summary(errs):
+    pos = np.concatenate([e["position"] for e in errs])
+    return {
+        "position_m": float(np.median(pos)),
+        "shape_m": float(np.median(np.concatenate([e["shape"] for e in errs]))),
+        "orientation_deg": float(np.median(np.concatenate([e["orientation"] for e in errs]))),
+        "iou_3d": float(np.median(np.concatenate([e["iou"] for e in errs]))),
+        "collapses": int(np.sum(~(pos <= COLLAPSE_M))),
+        "objects": int(len(pos)),
+    }
+
+
+def stretch_row(e, ms, info=None):
+    row = {
+        "position_m": float(np.median(e["position"])),
+        "shape_m": float(np.median(e["shape"])),
+        "orientation_deg": float(np.median(e["orientation"])),
+        "iou_3d": float(np.median(e["iou"])),
+        "collapses": int(np.sum(~(e["position"] <= COLLAPSE_M))),
+        "ms_per_map": ms,
+    }
+    if info is not None:
+        row["result"] = slam.result_message(info.result) if hasattr(slam, "result_message") else None
+        row["result_code"] = int(np.asarray(slam.result_code(info.result)))
+        row["successful"] = bool(np.asarray(info.success))
+        row["unfixable"] = int(np.asarray(info.unfixable).sum())
+        row["steps"] = int(np.asarray(info.steps))
+        row["rescued"] = int(np.asarray(info.rescued).sum())
+    return row
+
+
+# --------------------------------------------------------------------------------------------
+# VoluMon initial ellipsoids.
+
+
+class VolumonInit:
+    def __init__(self):
+        from jaxsem import volumon
+
+        self.model, self.variables, self.config, self.meta = volumon.load_pretrained(kind="lmo")
+        self.names = volumon.model_class_names(self.config)
+        self.predict = volumon.make_predict_fn(self.model, self.config)
+        self.prepare = volumon.prepare_inputs
+
+    def initial(self, seq):
+        """{id: world ellipsoid} from each object's first detection."""
+        out = {}
+        done = set()
+        for t, fr in enumerate(seq.frames):
+            new = [k for k, i in enumerate(fr.ids) if i not in done]
+            if not new:
+                continue
+            img = slam.load_image(seq, t)
+            W, H = seq.image_size
+            boxes = np.clip(fr.boxes[new], -0.5, [W - 0.5, H - 0.5, W - 0.5, H - 0.5])
+            local, glob = self.prepare(
+                img, boxes, int(self.config.model.input_size), float(self.config.model.global_padding)
+            )
+            rows = np.array([self.names.index(fr.classes[k]) if fr.classes[k] in self.names else 0 for k in new])
+            K = np.broadcast_to(seq.K, (len(new), 3, 3))
+            _, ell, _ = self.predict(
+                self.variables,
+                jnp.asarray(local, jnp.float32),
+                jnp.asarray(glob, jnp.float32),
+                jnp.asarray(boxes, jnp.float32),
+                jnp.asarray(K, jnp.float32),
+                jnp.asarray(rows, jnp.int32),
+            )
+            wTc = np.linalg.inv(fr.camera_T_world)
+            for n, k in enumerate(new):
+                R = np.asarray(ell.rotation[n], np.float64)
+                c = np.asarray(ell.center[n], np.float64)
+                r = np.asarray(ell.radii[n], np.float64)
+                if np.all(np.isfinite(R)) and np.all(np.isfinite(c)) and np.all(r > 0):
+                    U, _, Vt = np.linalg.svd(wTc[:3, :3] @ R)
+                    out[fr.ids[k]] = {"rotation": U @ Vt, "center": wTc[:3, :3] @ c + wTc[:3, 3], "radii": r}
+                done.add(fr.ids[k])
+        return out
+
+
+def init_from(problem, base_init, seq, initial):
+    slot = {i: j for j, i in enumerate(seq.object_ids)}
+    R, c, r = (np.array(x) for x in (base_init.rotation, base_init.center, base_init.radii))
+    for i, v in initial.items():
+        j = slot[i]
+        R[j], c[j], r[j] = v["rotation"], v["center"], v["radii"]
+    return slam.SlamEstimate(base_init.camera_T_world, jnp.asarray(R), jnp.asarray(c), jnp.asarray(r))
+
+
+# --------------------------------------------------------------------------------------------
+# Item 7: texture-plane depth against the truth.
+
+
+def texture_truth(seq, stretch, records, scene):
+    """Per record with a depth: the true ellipsoid's texture-plane depth, the mesh's nearest and
+    mean front-surface depth (vertices nearer than the centre) in that frame."""
+    by_spell = {s.id: s for s in stretch.spells}
+    rows = []
+    for rec in records:
+        s = by_spell[rec["id"]]
+        cTw = stretch.camera_T_world[rec["frame"]]
+        plane = float(
+            quadrics.texture_plane_depth(
+                jnp.asarray(s.rotation), jnp.asarray(s.center), jnp.asarray(s.radii), jnp.asarray(cTw)
+            )[0]
+        )
+        mesh = scene.meshes[s.obj_id]
+        # the spell's mean pose: model -> world is (R_w, origin) with the extent centre at s.center
+        Rw = s.rotation
+        origin = s.center - Rw @ mesh.center
+        pts = (mesh.vertices @ Rw.T + origin) @ cTw[:3, :3].T + cTw[:3, 3]
+        zc = (cTw[:3, :3] @ s.center + cTw[:3, 3])[2]
+        z = pts[:, 2]
+        rows.append(
+            {
+                **rec,
+                "class": s.class_name,
+                "true_plane": plane,
+                "mesh_near": float(z.min()),
+                "mesh_front": float(z[z < zc].mean()),
+            }
+        )
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# The peer.
+
+
+def run_peer(peer_python, problems, inits, cfg):
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
+        a = lambda name, tree: np.stack([np.asarray(getattr(x, name), np.float64) for x in tree])
+        b = lambda name: np.stack([np.asarray(getattr(p, name)) for p in problems])
+        np.savez(
+            src,
+            K=np.asarray(problems[0].K, np.float64),
+            pose_prior=a("pose_prior", problems),
+            pose_mask=b("pose_mask"),
+            init_pose=a("camera_T_world", inits),
+            init_rotation=a("rotation", inits),
+            init_center=a("center", inits),
+            init_radii=a("radii", inits),
+            object_mask=b("object_mask"),
+            box=a("box", problems),
+            box_pose=b("box_pose"),
+            box_object=b("box_object"),
+            box_mask=b("box_mask"),
+            odometry=a("odometry", problems),
+            odometry_mask=b("odometry_mask"),
+            pose_prior_weight=np.stack([np.asarray(slam.prior_weight(p), np.float64) for p in problems]),
+            rot_sigma=float(cfg.noise.pose_rotation_sigma),
+            trans_sigma=float(cfg.noise.pose_translation_sigma),
+            odo_rot_sigma=float(cfg.noise.odometry_rotation_sigma),
+            odo_trans_sigma=float(cfg.noise.odometry_translation_sigma),
+            box_sigma=float(cfg.noise.box_sigma),
+        )
+        subprocess.run([peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True)
+        return dict(np.load(dst))
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def parse_args(argv=None):
+    p = sc.command_parser("roshan_real.py", __doc__)
+    p.add_argument("--scene", type=sc.existing_dir, required=True, help="BOP scene folder (LM-O test/000002)")
+    p.add_argument("--split", choices=("tune", "test"), required=True, help="frame ids below 600 (tune) or the rest")
+    p.add_argument("--json", type=sc.output_file, required=True, help="where the results go")
+    p.add_argument(
+        "--setting", choices=slam.STRETCH_SETTINGS, default="clean", help="detections: clean, or missed and cut"
+    )
+    p.add_argument(
+        "--seed", type=sc.nonnegative_int, default=0, help="odometry and box noise seed (stretch i uses seed + i)"
+    )
+    p.add_argument("--prior-seed", type=sc.nonnegative_int, default=27, help="seed of the class-size factors")
+    p.add_argument(
+        "--peer-python",
+        default="/tmp/gq/bin/python",
+        help="Python 3.10 with gtsam-quadrics and numpy<2 ('' to skip the peer)",
+    )
+    p.add_argument(
+        "--pose-priors",
+        choices=slam.POSE_PRIOR_MODES,
+        default="first",
+        help="absolute priors on the integrated odometry poses, the same for every system "
+        "(jaxsem.slam.pose_prior_weights; 'all' was the setting before 2026-11-26 03:00)",
+    )
+    p.add_argument(
+        "--silhouette-scale",
+        type=sc.positive_float,
+        default=SILHOUETTE_SCALE,
+        help="ROSHAN's box model: the outline is this times the extent ellipsoid's "
+        "(jaxsem.slam.SolverConfig.silhouette_scale; 1.0 is the thesis' model)",
+    )
+    p.add_argument(
+        "--support",
+        choices=("features", "none"),
+        default="features",
+        help="ROSHAN's support prior: the desk's height from the images' features around the objects "
+        "(jaxsem.slam.support_height) or none",
+    )
+    p.add_argument(
+        "--upright-sigma",
+        type=sc.positive_float,
+        default=UPRIGHT_SIGMA_DEG,
+        help="degrees, ROSHAN's upright prior's tilt sigma (jaxsem.slam.SolverConfig.upright_sigma)",
+    )
+    p.add_argument(
+        "--support-sigma", type=sc.positive_float, default=SUPPORT_SIGMA, help="metres, the support prior's sigma"
+    )
+    p.add_argument(
+        "--repeats", type=sc.positive_int, default=3, help="timed solves per system and stretch after a warm-up"
+    )
+    p.add_argument("--figures", type=pathlib.Path, default=None, help="write the figures into this folder")
+    p.add_argument("--no-volumon", action="store_true", help="skip the VoluMon-initialised system")
+    p.add_argument("--yaw-starts", action="store_true", help="ROSHAN from four headings (jaxsem.slam.solve_yaw_starts)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    args = p.parse_args(argv)
+    if args.peer_python and not pathlib.Path(args.peer_python).exists():
+        p.error(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
+    return args
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    scene = vdata.load_bop_split(args.scene, args.split)
+    stretches = slam.find_stretches(scene)
+    if not stretches:
+        raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split")
+    table, factors = slam.user_class_table(vdata.bop_class_extents(scene), seed=args.prior_seed)
+    vol = None if args.no_volumon else VolumonInit()
+    solve = jax.jit(slam.solve_schur)
+    solve_starts = jax.jit(lambda p, i, c: slam.solve_yaw_starts(p, i, c)[:2])
+    init_fn = jax.jit(slam.initialize)
+    per = {k: [] for k in SYSTEMS}
+    errs = {k: [] for k in SYSTEMS}
+    online_ms, tex_rows, stretch_info = [], [], []
+    problems_b, inits_b, seqs = [], [], []
+    figs = []
+    for n, st in enumerate(stretches):
+        seq, odo = slam.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n)
+        cfgs = configs(seq, args.silhouette_scale, args.upright_sigma)
+        seq_t, records = front_end(seq)
+        desk, desk_points = slam.support_height(seq) if args.support == "features" else (float("nan"), 0)
+        if np.isfinite(desk):
+            cfgs["roshan"] = cfgs["roshan"].replace(
+                use_support=True, support_height=desk, support_sigma=args.support_sigma
+            )
+        tex_rows += [
+            dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
+        ]
+        feat = [r["points"] for r in records]
+        weight = slam.pose_prior_weights(
+            np.stack([f.camera_T_world for f in seq.frames]),
+            args.pose_priors,
+            prior_translation=seq.noise["pose_translation_sigma"],
+            prior_rotation_deg=seq.noise["pose_rotation_sigma_deg"],
+        )
+        pb = problem_of(seq, odo, table, weight)
+        pr = problem_of(seq_t, odo, table, weight)
+        ests = {}
+        for name, prob, cfg, init in (
+            ("baseline", pb, cfgs["baseline"], None),
+            ("roshan", pr, cfgs["roshan"], "headings" if args.yaw_starts else None),
+            ("roshan_volumon", pr, cfgs["roshan"], "volumon"),
+        ):
+            if init == "volumon" and vol is None:
+                continue
+            i0 = init_fn(prob, cfg)
+            if init == "volumon":
+                assert vol is not None
+                i0 = init_from(prob, i0, seq, vol.initial(seq))
+            run = solve_starts if init == "headings" else solve
+            compiled = run.lower(prob, i0, cfg).compile()  # compiled once per system (cached), not timed
+            # The first call of a fresh executable took 8-10 s where the next took 0.2-0.5 s
+            # (stop 26): warm up, then the median of --repeats timed calls.
+            est, info = jax.block_until_ready(compiled(prob, i0, cfg))
+            times = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                jax.block_until_ready(compiled(prob, i0, cfg))
+                times.append(time.perf_counter() - t0)
+            ms = 1e3 * float(np.median(times))
+            e = score(seq, est.rotation, est.center, est.radii)
+            errs[name].append(e)
+            per[name].append(stretch_row(e, ms, info))
+            ests[name] = est
+            if name == "baseline":
+                problems_b.append(pb)
+                inits_b.append(i0)
+        res = slam.run_sequence(seq_t, cfgs["roshan"])
+        online_ms += list(1e3 * res.frame_seconds[1:])
+        eo = score(seq, res.rotation, res.center, res.radii)
+        stretch_info.append(
+            {
+                "frames": [int(st.frame_ids[0]), int(st.frame_ids[-1])],
+                "num_frames": len(st.frame_ids),
+                "anchors": list(st.anchors),
+                "objects": len(seq.object_ids),
+                "detections": int(sum(len(f.ids) for f in seq.frames)),
+                "texture_measurements": int(sum(r["depth"] is not None for r in records)),
+                "features_per_box_median": float(np.median(feat)) if feat else 0.0,
+                "online_roshan": stretch_row(eo, None),
+                "camera_fit_rms_mm": float(1e3 * np.max(st.fit_rms)),
+                "support_height_m": desk,
+                "support_points": desk_points,
+                "true_support_height_m": true_support_height(seq),
+            }
+        )
+        seqs.append(seq)
+        figs.append((st, seq, ests))
+        print(
+            f"stretch {n} ({st.frame_ids[0]}-{st.frame_ids[-1]}, {len(seq.object_ids)} objects): "
+            + ", ".join(
+                f"{k} {per[k][-1]['position_m'] * 100:.1f} cm / {per[k][-1]['iou_3d']:.2f}" for k in per if per[k]
+            ),
+            flush=True,
+        )
+    if args.peer_python:
+        out = run_peer(args.peer_python, problems_b, inits_b, configs(seqs[0])["baseline"])
+        for n, seq in enumerate(seqs):
+            e = score(seq, out["rotation"][n], out["center"][n], out["radii"][n])
+            errs["gtsam_quadrics"].append(e)
+            per["gtsam_quadrics"].append(stretch_row(e, 1e3 * float(out["time"][n])))
+            figs[n][2]["gtsam_quadrics"] = slam.SlamEstimate(
+                jnp.asarray(out["poses"][n]),
+                jnp.asarray(out["rotation"][n]),
+                jnp.asarray(out["center"][n]),
+                jnp.asarray(out["radii"][n]),
+            )
+    systems = {}
+    for k in SYSTEMS:
+        if not errs[k]:
+            continue
+        systems[k] = {
+            **summary(errs[k]),
+            "ms_per_map": float(np.median([r["ms_per_map"] for r in per[k]])),
+            "per_stretch": per[k],
+        }
+    result = {
+        "command": "python benchmarks/roshan/roshan_real.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "machine": f"{platform.machine()} {os.cpu_count()}-core CPU, shared (load {os.getloadavg()[0]:.1f})",
+        "split": args.split,
+        "setting": args.setting,
+        "pose_priors": args.pose_priors,
+        "systems": systems,
+        "online_ms_median": float(np.median(online_ms)),
+        "online_ms_p95": float(np.percentile(online_ms, 95)),
+        "stretches": stretch_info,
+        "class_factors": factors,
+        "odometry_model": dict(slam.OdometryModel().__dict__),
+        "texture": texture_summary(tex_rows),
+        "seconds": time.perf_counter() - t_start,
+    }
+    sc.atomic_write_text(args.json, json.dumps(result, indent=1, default=float))
+    if args.figures is not None:
+        figures(args.figures, figs, scene)
+    print(json.dumps({k: {m: v for m, v in s.items() if m != "per_stretch"} for k, s in systems.items()}, indent=1))
+    print(
+        f"online {result['online_ms_median']:.1f} / {result['online_ms_p95']:.1f} ms; texture {json.dumps(result['texture']['all'])}"
+    )
+    return 0
+
+
+def texture_summary(rows):
+    def stats(rs):
+        if not rs:
+            return {"count": 0}
+        m = np.array([r["depth"] for r in rs])
+        out = {"count": len(rs)}
+        for key in ("true_plane", "mesh_near", "mesh_front"):
+            d = m - np.array([r[key] for r in rs])
+            out[f"bias_vs_{key}_m"] = float(np.median(d))
+            out[f"mad_vs_{key}_m"] = float(np.median(np.abs(d - np.median(d))))
+        return out
+
+    classes = sorted({r["class"] for r in rows})
+    return {"all": stats(rows), "per_class": {c: stats([r for r in rows if r["class"] == c]) for c in classes}}
+
+
+# --------------------------------------------------------------------------------------------
+# Figures.
+
+
+def figures(folder, figs, scene):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    st, seq, ests = max(figs, key=lambda f: len(f[1].object_ids))
+    est = ests["roshan"]
+    ids = seq.object_ids
+    truth = {o["id"]: o for o in seq.truth["objects"]}
+    J = len(ids)
+    tR = np.stack([truth[i]["rotation"] for i in ids])
+    tC = np.stack([truth[i]["center"] for i in ids])
+    tr = np.stack([truth[i]["radii"] for i in ids])
+    picks = np.linspace(0, len(seq.frames) - 1, 3).round().astype(int)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for ax, t in zip(axes, picks):
+        img = slam.load_image(seq, int(t))
+        present = [j for j, i in enumerate(ids) if i in seq.frames[t].ids]
+        slam.draw_overlay(
+            ax,
+            img,
+            quadrics.Camera(seq.K, st.camera_T_world[t]),
+            seq.image_size,
+            None,
+            None,
+            quadrics.Ellipsoid(tR[present], tC[present], tr[present]),
+            [ids[j] for j in present],
+            color="lime",
+        )
+        slam.draw_overlay(
+            ax,
+            img,
+            quadrics.Camera(seq.K, st.camera_T_world[t]),
+            seq.image_size,
+            None,
+            None,
+            jax.tree.map(lambda x: np.asarray(x)[:J][present], est.ellipsoid),
+            [ids[j] for j in present],
+            color="magenta",
+        )
+        ax.set_title(f"LM-O frame {st.frame_ids[t]}: truth (green), ROSHAN (magenta)", fontsize=9)
+    fig.text(
+        0.01,
+        0.01,
+        "Images: LM-O (BOP), scene 000002, CC BY 4.0. Boxes rendered from the meshes; ROSHAN never sees object poses.",
+        fontsize=8,
+    )
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    sc.atomic_savefig(fig, folder / "roshan_real_frames.png", dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    slam.draw_top_down(ax, quadrics.Ellipsoid(tR, tC, tr), color="k", lw=2.0, label="truth (mesh extents)")
+    colors = {"baseline": "tab:orange", "roshan": "tab:blue", "gtsam_quadrics": "tab:red"}
+    for k, col in colors.items():
+        if k in ests:
+            e = ests[k]
+            slam.draw_top_down(
+                ax,
+                jax.tree.map(lambda x: np.asarray(x)[:J], e.ellipsoid),
+                color=col,
+                lw=1.2,
+                label=k,
+            )
+    slam.draw_camera_path(ax, st.camera_T_world, color="tab:green", label="camera (truth)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m, desk frame)")
+    ax.set_ylabel("y (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"LM-O desk, frames {st.frame_ids[0]}-{st.frame_ids[-1]} from above", fontsize=10)
+    fig.tight_layout()
+    sc.atomic_savefig(fig, folder / "roshan_real_top_down.png", dpi=90)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.exit(sc.run_main(main))

@@ -1,0 +1,289 @@
+"""Every command fails well on bad input: non-zero exit, one line naming the flag or file, no
+traceback, nothing half-written. Per script: a missing file, a corrupt file and an out-of-range
+number (the sweep of the core issue), run as a user would, in a subprocess."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad")
+    (d / "corrupt.npz").write_bytes(b"this is not a zip file")
+    (d / "corrupt.json").write_text("{ not json")
+    (d / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    seq = d / "seq_corrupt"
+    seq.mkdir()
+    (seq / "sequence.json").write_text('{"intrinsics": ')
+    empty = d / "empty_dir"
+    empty.mkdir()
+    (d / "a_file").write_text("x")
+    # a BOP scene folder (issue 24 item 5): only scene_gt.json, enough for the checks before any work
+    (d / "bop").mkdir()
+    (d / "bop" / "scene_gt.json").write_text("{}")
+    # volumon predict's own inputs: a readable image, good boxes and bad ones (issue 26 item 5)
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(d / "image.png"), np.full((96, 128, 3), 127, np.uint8))
+    (d / "boxes.json").write_text("[[10, 10, 60, 50]]")
+    (d / "box_str.json").write_text('{"box": "a"}')
+    (d / "box_5.json").write_text("[[10, 10, 60, 50], [1, 2, 3, 4, 5]]")
+    (d / "box_nan.json").write_text("[[10, 10, NaN, 50]]")
+    (d / "box_huge.json").write_text("[[0, 0, 1e9, 1e9]]")
+    # roshan's sequences (issue 26 item 6): no detections anywhere (a misspelt key), a huge box, a
+    # frame image that cannot be read
+    import json
+
+    def sequence(name, frame, image=None):
+        (d / name).mkdir()
+        frame = {"camera_T_world": np.eye(4).tolist(), **frame}
+        if image is not None:
+            (d / name / "frame0.png").write_bytes(image)
+            frame["image"] = "frame0.png"
+        data = {"K": [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]], "image_size": [640, 480], "frames": [frame]}
+        (d / name / "sequence.json").write_text(json.dumps(data))
+
+    det = {"box": [10, 20, 50, 60], "class": "car", "id": 0}
+    sequence("seq_misspelt", {"detection": [det]})
+    sequence("seq_huge_box", {"detections": [{**det, "box": [0, 0, 1e9, 1e9]}]})
+    sequence("seq_bad_image", {"detections": [det]}, image=b"\x89PNG\r\n\x1a\n garbage")
+    return d
+
+
+def _cases(d):
+    out = d / "out"  # each case writes (if at all) under out / <its id prefix>
+    return [
+        # (id, argv, words the one error line must contain)
+        ("roshan-missing", ["infer/roshan.py", "--sequence", str(d / "nope"), "--out", str(out / "r1")], ["nope"]),
+        (
+            "roshan-corrupt",
+            ["infer/roshan.py", "--sequence", str(d / "seq_corrupt"), "--out", str(out / "r2")],
+            ["sequence.json"],
+        ),
+        (
+            "roshan-range",
+            ["infer/roshan.py", "--simulate", "forward", "--frames", "0", "--out", str(out / "r3")],
+            ["--frames"],
+        ),
+        (
+            "roshan-no-detections",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_misspelt"), "--out", str(out / "r4")],
+            ["seq_misspelt/sequence.json", "detections", "'detection'"],
+        ),
+        (
+            "roshan-huge-box",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_huge_box"), "--out", str(out / "r5")],
+            ["seq_huge_box/sequence.json", "frames[0].detections[0].box", "10 times"],
+        ),
+        (
+            "roshan-unreadable-image",
+            ["-m", "jaxsem.cli", "roshan", "--sequence", str(d / "seq_bad_image"), "--out", str(out / "r6")],
+            ["frames[0].image", "frame0.png"],
+        ),
+        ("plan-missing", ["infer/plan.py", "--map", str(d / "nope.npz"), "--out", str(out / "p1.png")], ["nope.npz"]),
+        (
+            "plan-corrupt",
+            ["infer/plan.py", "--map", str(d / "corrupt.npz"), "--out", str(out / "p2.png")],
+            ["corrupt.npz"],
+        ),
+        ("plan-range", ["infer/plan.py", "--n", "0", "--out", str(out / "p3.png")], ["--n"]),
+        (
+            "expert-range",
+            ["infer/make_expert_data.py", "--sample-prob", "nan", "--out", str(out / "e1")],
+            ["--sample-prob"],
+        ),
+        ("expert-workers", ["infer/make_expert_data.py", "--workers", "0", "--out", str(out / "e2")], ["--workers"]),
+        ("expert-out-file", ["infer/make_expert_data.py", "--out", str(d / "a_file")], ["a_file"]),
+        (
+            "volumon-missing",
+            [
+                "infer/volumon.py",
+                "--image",
+                str(d / "nope.png"),
+                "--boxes",
+                str(d / "corrupt.json"),
+                "--out",
+                str(out / "v1"),
+            ],
+            ["nope.png"],
+        ),
+        (
+            "volumon-corrupt",
+            [
+                "infer/volumon.py",
+                "--image",
+                str(d / "corrupt.png"),
+                "--boxes",
+                str(d / "corrupt.json"),
+                "--out",
+                str(out / "v2"),
+            ],
+            ["corrupt"],
+        ),
+        ("volumon-range", ["infer/volumon.py", "--split", "test", "--num", "0", "--out", str(out / "v3")], ["--num"]),
+        # issue 26 item 5: every input of volumon predict checked before any work, naming the flag / file
+        *[
+            (
+                f"volumon-{name}",
+                ["-m", "jaxsem.cli", "volumon", "predict", "--image", str(d / "image.png"), "--boxes", str(d / boxes)]
+                + extra
+                + ["--out", str(out / f"v-{name}")],
+                words,
+            )
+            for name, boxes, extra, words in [
+                ("class-id", "boxes.json", ["--class-id", "99"], ["--class-id", "99", "0 to 3", "soup_can"]),
+                ("class-id-negative", "boxes.json", ["--class-id", "-1"], ["--class-id", "-1"]),
+                ("box-string", "box_str.json", [], ["--boxes", "box_str.json", "[0].box", "'a'"]),
+                ("box-5-numbers", "box_5.json", [], ["--boxes", "box_5.json", "[1]", "[1, 2, 3, 4, 5]"]),
+                ("box-nan", "box_nan.json", [], ["--boxes", "box_nan.json", "[0]", "finite"]),
+                ("box-huge", "box_huge.json", [], ["--boxes", "box_huge.json", "[0]", "10 times"]),
+                ("boxes-corrupt", "corrupt.json", [], ["--boxes", "corrupt.json", "JSON"]),
+                ("K-text", "boxes.json", ["--K", "abc"], ["--K", "abc"]),
+                ("K-nan", "boxes.json", ["--K", "nan,110,63.5,47.5"], ["--K", "nan"]),
+                ("K-focal", "boxes.json", ["--K", "0,110,63.5,47.5"], ["--K", "fx, fy > 0"]),
+            ]
+        ],
+        ("train-volumon-range", ["train/volumon.py", "--workdir", str(out / "tv"), "--steps", "-5"], ["--steps"]),
+        (
+            "train-volumon-workdir-file",
+            ["train/volumon.py", "--workdir", str(d / "a_file"), "--steps", "1"],
+            ["a_file"],
+        ),
+        ("train-lsd-missing", ["train/lsd.py", "--data", str(d / "nope"), "--workdir", str(out / "tl1")], ["nope"]),
+        (
+            "train-lsd-empty",
+            ["train/lsd.py", "--data", str(d / "empty_dir"), "--workdir", str(out / "tl2")],
+            ["empty_dir"],
+        ),
+        (
+            "train-lsd-range",
+            ["train/lsd.py", "--data", str(d / "empty_dir"), "--workdir", str(out / "tl3"), "--batch-size", "0"],
+            ["--batch-size"],
+        ),
+        ("jaxsem-demo-parts", ["-m", "jaxsem.cli", "demo", "--parts", "bogus", "--out", str(out / "demo")], ["bogus"]),
+        ("jaxsem-eval-range", ["-m", "jaxsem.cli", "volumon", "eval", "--num", "0"], ["--num"]),
+        ("jaxsem-eval-workdir", ["-m", "jaxsem.cli", "volumon", "eval", "--workdir", str(d / "nope")], ["nope"]),
+        (
+            "jaxsem-eval-data",
+            ["-m", "jaxsem.cli", "volumon", "eval", "--data", str(d / "nodata")],
+            ["--data", "nodata"],
+        ),
+        (
+            "train-volumon-data",
+            ["train/volumon.py", "--workdir", str(out / "td"), "--data", str(d / "nodata")],
+            ["--data", "nodata"],
+        ),
+        # issue 24 item 3: the LM-O desk renders
+        (
+            "make-lmo-renders-models",
+            [
+                "-m",
+                "jaxsem.volumon.data.make_lmo_renders",
+                "--models",
+                str(d / "nomodels"),
+                "--out",
+                str(out / "r"),
+                "--frames",
+                "1",
+            ],
+            ["--models", "nomodels"],
+        ),
+        # issue 24 item 5: volumon eval on a BOP scene
+        *[
+            (f"jaxsem-eval-bop-{name}", ["-m", "jaxsem.cli", "volumon", "eval"] + argv, words)
+            for name, argv, words in [
+                ("missing-scene", ["--data", str(d / "no_scene"), "--split", "tune"], ["--data", "no_scene"]),
+                ("split-unknown", ["--data", str(d / "bop"), "--split", "val"], ["--split", "val"]),
+                ("split-missing", ["--data", str(d / "bop")], ["--split"]),
+                (
+                    "visible-range",
+                    ["--data", str(d / "bop"), "--split", "tune", "--min-visible", "1.5"],
+                    ["--min-visible"],
+                ),
+                (
+                    "model-unknown",
+                    ["--model", "lmo2", "--data", str(d / "bop"), "--split", "tune"],
+                    ["--model", "lmo2", "lmo"],  # the message lists the shipped names, the LM-O model among them
+                ),
+                (
+                    "model-path",
+                    ["--model", str(d / "nope.npz"), "--data", str(d / "bop"), "--split", "tune"],
+                    ["--model"],
+                ),
+                ("split-not-bop", ["--split", "tune"], ["--split"]),
+            ]
+        ],
+        # issue 24 item 6: volumon predict on a BOP frame
+        (
+            "volumon-bop-frame-missing",
+            ["-m", "jaxsem.cli", "volumon", "predict", "--data", str(d / "bop"), "--out", str(out / "vb")],
+            ["--frame"],
+        ),
+        (
+            "volumon-bop-not-a-scene",
+            [
+                "-m",
+                "jaxsem.cli",
+                "volumon",
+                "predict",
+                "--data",
+                str(d / "empty_dir"),
+                "--frame",
+                "3",
+                "--out",
+                str(out / "vb2"),
+            ],
+            ["--data"],
+        ),
+        (
+            "volumon-predict-model-unknown",
+            [
+                "-m",
+                "jaxsem.cli",
+                "volumon",
+                "predict",
+                "--model",
+                "lmo2",
+                "--data",
+                str(d / "bop"),
+                "--frame",
+                "3",
+                "--out",
+                str(out / "vb3"),
+            ],
+            ["--model", "lmo2", "lmo"],
+        ),
+    ]
+
+
+CASE_IDS = [c[0] for c in _cases(pathlib.Path("/x"))]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case_id", CASE_IDS)
+def test_bad_input_gives_one_line_naming_it(case_id, files):
+    _, argv, words = next(c for c in _cases(files) if c[0] == case_id)
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONWARNINGS": "ignore"}
+    cmd = [sys.executable, *(argv if argv[0] == "-m" else [str(ROOT / argv[0]), *argv[1:]])]
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    err_lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode != 0, f"exit 0 on bad input; stdout: {proc.stdout[-500:]}"
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    # argparse prints its usage line before the error; the error itself is the last line.
+    assert err_lines, "no error message"
+    last = err_lines[-1]
+    for word in words:
+        assert word in last, f"{word!r} not named in: {last}"
+    # Nothing half-written: the output paths named on the command line hold no files.
+    for arg in argv:
+        path = pathlib.Path(arg)
+        if str(path).startswith(str(files / "out")) and path.exists():
+            leftovers = [p for p in ([path] if path.is_file() else path.rglob("*")) if p.is_file()]
+            assert not leftovers, f"partial outputs left behind: {leftovers[:5]}"

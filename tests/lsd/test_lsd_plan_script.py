@@ -1,0 +1,59 @@
+"""infer/plan.py: defaults in --help, one-line flag errors, figures from a short run."""
+
+import importlib.util
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("plan_script", ROOT / "infer" / "plan.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_help_shows_defaults(capsys):
+    with pytest.raises(SystemExit):
+        _module().main(["--help"])
+    out = capsys.readouterr().out
+    assert "(default: 500)" in out and "(default: 2000)" in out and "(default: 0.0)" in out
+
+
+def test_bad_flags_name_the_flag(tmp_path):
+    mod = _module()
+    with pytest.raises(SystemExit, match="--map"):
+        mod.main(["--map", str(tmp_path / "missing.npz")])
+    with pytest.raises(SystemExit, match="--n"):
+        mod.main(["--n", "0"])
+    with pytest.raises(SystemExit, match="--uniform-mix"):
+        mod.main(["--uniform-mix", "1.5"])
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(SystemExit, match="--out"):
+        mod.main(["--out", str(tmp_path / "a_file" / "plan.png")])
+
+
+@pytest.mark.slow
+def test_short_run_writes_the_map_and_the_strip(tmp_path):
+    out = tmp_path / "new" / "plan.png"  # regression: the figure's folder is made (it failed after the run)
+    rc = _module().main(
+        [
+            "--building",
+            "0",
+            "--kind",
+            "II",
+            "--sampler",
+            "lsd",
+            "--max-steps",
+            "25",
+            "--out",
+            str(out),
+            "--no-progress",
+            "--panels",
+            "3",
+        ]
+    )
+    assert rc == 0 and out.stat().st_size > 0
+    assert (tmp_path / "new" / "plan_over_time.png").stat().st_size > 0
