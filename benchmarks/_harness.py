@@ -1,4 +1,5 @@
-"""What every benchmark here shares: one timer, round-robin timing of rivals, the machine line.
+"""What every benchmark here shares: one timer, round-robin timing of rivals, the machine line,
+the results epilogue (JSON + markdown with a command / date / machine header).
 
 The rules (``CONTRIBUTING.md``, "How we measure"): warm up (compile) before timing, wait for the
 result with ``jax.block_until_ready``, report medians, and time a baseline or peer in the same
@@ -11,8 +12,12 @@ script as the other private helpers of this folder are imported::
 
 from __future__ import annotations
 
+import datetime
+import json
 import os
+import pathlib
 import platform
+import subprocess
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -62,3 +67,28 @@ def machine() -> str:
         cpu = platform.processor() or platform.machine()
         return f"{cpu}, {os.cpu_count()}-core CPU (shared, noisy)"
     return f"{dev.device_kind} ({dev.platform}), jax {jax.__version__}"
+
+
+def utc_now() -> str:
+    """The run's date for the results header, ``YYYY-MM-DD HH:MM UTC``."""
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def nproc() -> str:
+    """``nproc``'s answer (the cores this process may use), as text; empty where it fails."""
+    return subprocess.run(["nproc"], capture_output=True, text=True, check=False).stdout.strip()
+
+
+def header(title: str, command: str, date: str, machine: str) -> list[str]:
+    """The markdown results header: a title, then command, date and machine, each its own paragraph."""
+    return [title, "", f"Command: `{command}`", "", f"Date: {date}", "", f"Machine: {machine}", ""]
+
+
+def write_results(out, name: str, record: Mapping[str, Any], md: list[str], json_default=None) -> pathlib.Path:
+    """Writes ``out/name.json`` (``record``, indent 1) and ``out/name.md`` (``md``'s lines), making
+    ``out`` if need be; returns ``out`` as a path."""
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=json_default))
+    (out / f"{name}.md").write_text("\n".join(md))
+    return out

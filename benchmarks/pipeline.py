@@ -43,16 +43,16 @@ Writes benchmarks/results/pipeline.{json,md}.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import pathlib
 import platform
-import subprocess
 import sys
 import time
 
 import jax.numpy as jnp
 import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _harness
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 PLANNERS = ("uniform", "lsd", "lsd_objmap", "lsd_prior", "lsd_depthmap", "lsd_volumon", "lsd_roshan")
@@ -264,7 +264,8 @@ def run(args) -> dict:
     from jaxsem.lsd import LSDSampler, load_model
     from jaxsem.mapping import BuildingRenderer
     from jaxsem.metrics import mean_sem
-    from jaxsem.planning import DOOR, NavConfig, Trial, building_family, sample_tasks
+    from jaxsem.planning import DOOR, NavConfig, Trial, sample_tasks
+    from jaxsem.planning._buildings import building_family  # layers: white-box
 
     planners = tuple(args.planners)
     model, params, _, _ = load_model(args.checkpoint)
@@ -491,33 +492,11 @@ def main(argv=None) -> int:
     print(table)
     print(map_table)
     cmd = " ".join(["python benchmarks/pipeline.py", *(sys.argv[1:] if argv is None else argv)])
-    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    machine = f"{platform.machine()} CPU, {subprocess.run(['nproc'], capture_output=True, text=True, check=False).stdout.strip()} cores (shared, noisy)"
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{args.name}.json").write_text(
-        json.dumps(
-            {
-                "command": cmd,
-                "date": date,
-                "machine": machine,
-                "args": vars(args),
-                "seconds": total,
-                **result,
-            },
-            indent=1,
-            default=float,
-        )
-    )
+    date = _harness.utc_now()
+    machine = f"{platform.machine()} CPU, {_harness.nproc()} cores (shared, noisy)"
+    record = {"command": cmd, "date": date, "machine": machine, "args": vars(args), "seconds": total, **result}
     md = [
-        f"## Integration: LSD with object maps (`{args.name}`, thesis 5.8.3)",
-        "",
-        f"Command: `{cmd}`",
-        "",
-        f"Date: {date}",
-        "",
-        f"Machine: {machine}",
-        "",
+        *_harness.header(f"## Integration: LSD with object maps (`{args.name}`, thesis 5.8.3)", cmd, date, machine),
         (
             f"Test-family buildings {args.test_start}..{args.test_start + args.test_buildings - 1}, "
             f"{args.trials} tasks per building and set, step limit {args.max_steps}, LSD uniform mix "
@@ -554,7 +533,7 @@ def main(argv=None) -> int:
         ),
         "",
     ]
-    (out / f"{args.name}.md").write_text("\n".join(md))
+    out = _harness.write_results(args.out, args.name, record, md, json_default=float)
     print(f"wrote {out / (args.name + '.json')} and .md in {total / 60:.1f} min")
     return 0
 

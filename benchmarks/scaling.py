@@ -25,7 +25,6 @@ devices (GPUs, or hosts). Writes benchmarks/results/scaling.{json,md}.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
 import pathlib
@@ -34,6 +33,8 @@ import subprocess
 import sys
 import time
 from typing import Any
+
+from jaxsem.volumon._train import init_state  # layers: white-box
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import _harness
@@ -131,7 +132,7 @@ def child(args) -> dict:
         from jaxsem import volumon
 
         vcfg = volumon.get_config("both", "tiny").replace(data="device", batch_size=B, augment=True)
-        state, vmodel, tx = volumon.init_state(vcfg)
+        state, vmodel, tx = init_state(vcfg)
         step1 = volumon.make_train_step(vmodel, tx, vcfg)
         step_d = volumon.make_train_step(vmodel, tx, vcfg, mesh)
         state_d = jax.device_put(state, parallel.replicated(mesh))
@@ -224,33 +225,11 @@ def main(argv=None) -> int:
     table = "\n".join(lines)
     print(table)
     cmd = "python benchmarks/scaling.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    nproc = subprocess.run(["nproc"], capture_output=True, text=True, check=False).stdout.strip()
-    machine = f"{platform.machine()} host, {nproc} cores, platform {runs[0]['platform']} (shared, noisy)"
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{args.name}.json").write_text(
-        json.dumps(
-            {
-                "command": cmd,
-                "date": date,
-                "machine": machine,
-                "args": vars(args),
-                "runs": runs,
-                "seconds": total,
-            },
-            indent=1,
-        )
-    )
+    date = _harness.utc_now()
+    machine = f"{platform.machine()} host, {_harness.nproc()} cores, platform {runs[0]['platform']} (shared, noisy)"
+    record = {"command": cmd, "date": date, "machine": machine, "args": vars(args), "runs": runs, "seconds": total}
     md = [
-        f"## Scaling over devices (`{args.name}`, jaxsem.parallel)",
-        "",
-        f"Command: `{cmd}`",
-        "",
-        f"Date: {date}",
-        "",
-        f"Machine: {machine}",
-        "",
+        *_harness.header(f"## Scaling over devices (`{args.name}`, jaxsem.parallel)", cmd, date, machine),
         (
             "Each D is a separate process with D devices; `sharded` is `parallel.sharded_vmap` "
             "(shard_map over a data-axis Mesh, batch padded to a multiple of D), `vmap` is "
@@ -268,7 +247,7 @@ def main(argv=None) -> int:
         ),
         "",
     ]
-    (out / f"{args.name}.md").write_text("\n".join(md))
+    out = _harness.write_results(args.out, args.name, record, md)
     print(f"wrote {out / (args.name + '.json')} and .md in {total / 60:.1f} min")
     return 0
 

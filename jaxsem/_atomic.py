@@ -15,6 +15,8 @@ import pathlib
 import tempfile
 from collections.abc import Callable
 
+import numpy as np
+
 #: Called with each path written with ``record=True`` (the active run's bookkeeping).
 _WRITE_HOOKS: list[Callable[[pathlib.Path], None]] = []
 
@@ -70,8 +72,6 @@ def atomic_savefig(fig, path: str | os.PathLike, **kwargs) -> pathlib.Path:
 
 def atomic_save_npz(path: str | os.PathLike, *, record: bool = True, **arrays) -> pathlib.Path:
     """``numpy.savez_compressed`` to ``path`` atomically."""
-    import numpy as np
-
     with atomic_path(path, record=record) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **arrays)
     return pathlib.Path(path)

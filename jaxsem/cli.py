@@ -25,6 +25,11 @@ import shlex
 import sys
 from collections.abc import Callable, Sequence
 
+import jax
+
+from jaxsem import scripting as sc
+from jaxsem.scripting import run_main
+
 DEMO_PARTS = ("geometry", "roshan", "volumon", "lsd")
 NO_CACHE_ENV = "JAXSEM_NO_COMPILATION_CACHE"
 
@@ -86,8 +91,6 @@ def enable_compilation_cache(cache_dir: str | None = None, enabled: bool | None 
     ``enabled=False`` (``--no-compilation-cache``) turns it off instead, as does
     ``JAXSEM_NO_COMPILATION_CACHE=1`` when ``enabled`` is None.
     """
-    import jax
-
     if enabled is None:
         enabled = os.environ.get(NO_CACHE_ENV, "") not in ("1", "true", "yes")
     if not enabled:
@@ -139,8 +142,6 @@ def _run_command(module, name: str, argv: Sequence[str] | None, prog: str | None
     and ``NOT_RUN_DIR`` (folder arguments the run directory must differ from: a training workdir
     has its own ``config.json``).
     """
-    from jaxsem import scripting as sc
-
     argv = list(sys.argv[1:] if argv is None else argv)
     parse = getattr(module, "parse_args", None)
     args = parse(argv, prog) if parse else module.build_parser(prog).parse_args(argv)
@@ -203,8 +204,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     for words, _, _ in COMMANDS:
         if tuple(argv[: len(words)]) == words:
-            from jaxsem.scripting import run_main
-
             prog = "jaxsem " + " ".join(words)
             return run_main(command(" ".join(words), prog=prog), argv[len(words) :], prog=prog)
     _parser().parse_args(argv)  # prints help (exit 0) or a usage error naming the bad word (exit 2)

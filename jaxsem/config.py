@@ -68,7 +68,7 @@ def _replace(config, **changes):
     if _is_namedtuple(config):
         return config._replace(**changes)
     try:
-        import equinox as eqx
+        import equinox as eqx  # deferred: equinox is heavy and only equinox-module configs need it
 
         if isinstance(config, eqx.Module):
             names = list(changes)

@@ -338,8 +338,8 @@ def texture_residual(
     The predicted plane is ``t_z - plane_fraction * sqrt(e3^T R_c diag(r^2) R_c^T e3)``:
     ``plane_fraction`` 1 is the thesis' tangent plane on the camera-facing side; 2/3 is the mean
     depth of the visible surface of an ellipsoid sampled uniformly over its image (orthographic
-    approximation), which is what a mean of triangulated feature depths measures (measured on
-    LM-O's real desk: ``benchmarks/RESULTS.md``).
+    approximation), which is what a mean of triangulated feature depths measures (checked on
+    LM-O's real desk: ``benchmarks/roshan/HISTORY.md``, "ROSHAN on the real LM-O desk").
 
     Args:
       camera_T_world: (..., 4, 4); rotation (..., 3, 3); center (..., 3); radii (..., 3).

@@ -1,5 +1,5 @@
 """Metrics: ellipsoid errors with symmetries, exact 3D IoU of oriented boxes, ADI, pass-rate AUC,
-and the statistics of plan-cost ratios.
+detection average precision, and the statistics of plan-cost ratios.
 
 All array functions are jnp, broadcast over leading batch axes and work under ``jit`` and ``vmap``.
 """
@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import as_float_array as _as_float_array, batch_shape as _batch_shape
-from .quadrics import rotation_to_quaternion_wxyz, safe_norm, safe_sqrt
+from .quadrics import box_iou, rotation_to_quaternion_wxyz, safe_norm, safe_sqrt
 
 __all__ = [
     "ellipsoid_errors",
@@ -22,6 +22,7 @@ __all__ = [
     "add",
     "pass_rate_curve",
     "auc_pass_rate",
+    "average_precision",
     "mean_sem",
     "zero_intercept_slope",
 ]
@@ -345,3 +346,51 @@ def zero_intercept_slope(x, y):
         raise ValueError(f"x, y: expected equal shapes, got {x.shape} and {y.shape}")
     denom = float(np.dot(x, x))
     return float(np.dot(x, y) / denom) if denom > 0 else float("nan")
+
+
+def average_precision(detections, truth, num_classes: int, iou_threshold: float = 0.5):
+    """Detection average precision per class (PASCAL VOC's all-point rule) over a set of images.
+
+    Detections are taken in descending score over all images; each is a true positive when its
+    IoU with a not yet matched true box of its class in its image is at least ``iou_threshold``
+    (the best such box), else a false positive. AP is the area under the precision envelope
+    (precision made non-increasing) over recall. Host-side numpy (a set of images of any sizes).
+
+    Args:
+      detections: ``(image, box, class_id, score)`` arrays (D,), (D, 4), (D,), (D,).
+      truth: ``(image, box, class_id)`` arrays (T,), (T, 4), (T,).
+      num_classes: N; classes with no true box get NaN.
+
+    Returns:
+      ``(ap, recall)``: (N,) AP per class and (N,) the recall of all detections (NaN without truth).
+    """
+    d_img, d_box, d_cls, d_score = (np.asarray(x) for x in detections)
+    t_img, t_box, t_cls = (np.asarray(x) for x in truth)
+    ap = np.full(int(num_classes), np.nan)
+    recall = np.full(int(num_classes), np.nan)
+    for c in range(int(num_classes)):
+        tc = np.flatnonzero(t_cls == c)
+        if not len(tc):
+            continue
+        dc = np.flatnonzero(d_cls == c)
+        dc = dc[np.argsort(-d_score[dc], kind="stable")]
+        used = np.zeros(len(tc), bool)
+        tp = np.zeros(len(dc), bool)
+        if len(dc):
+            iou = np.asarray(box_iou(d_box[dc][:, None].astype(np.float64), t_box[tc][None].astype(np.float64)))
+            same = d_img[dc][:, None] == t_img[tc][None]
+            iou = np.where(same, iou, -1.0)
+            for i in range(len(dc)):
+                cand = np.where(used, -1.0, iou[i])
+                j = int(np.argmax(cand))
+                if cand[j] >= iou_threshold:
+                    used[j] = True
+                    tp[i] = True
+        ctp = np.cumsum(tp)
+        rec = ctp / len(tc)
+        prec = ctp / np.arange(1, len(dc) + 1)
+        env = np.maximum.accumulate(prec[::-1])[::-1] if len(dc) else prec
+        steps = np.diff(np.concatenate([[0.0], rec]))
+        ap[c] = float(np.sum(steps * env))
+        recall[c] = float(rec[-1]) if len(dc) else 0.0
+    return ap, recall

@@ -13,6 +13,7 @@ Where the code lives (``jaxsem/_geometry/``):
   ``conic_bbox``, ``cylinder_bbox``, ``conic_outline``, ``camera_frame``, ``texture_plane_depth``,
   ``camera_depth``, ``half_extent``.
 - ``bbox.py``: ``project_bbox``, the fused closed-form box with its custom JVP.
+- ``boxes.py``: ``box_area``, ``box_iou``: image boxes compared (one definition for every part).
 - ``ground.py``: ``ground_conic``, ``ground_bounds``, ``rasterize_footprint`` (top-down view).
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
   ``look_at``, ``so3_exp``, ``skew``, ``yaw_rotation``, ``ray_rotation``, ``allocentric_rotation``.
@@ -20,7 +21,7 @@ Where the code lives (``jaxsem/_geometry/``):
   ``back_project``, ``single_view_ellipsoid``, ``depth_from_box_size``, ``relative_pose``,
   ``cuboid_corners``, ``stereo_right_T_left``.
 - ``grid.py``: the ``Grid`` pytree (origin, resolution, static shape), ``world_to_cell``,
-  ``cell_to_world``, ``cell_in_grid`` (every map of the planner and the object maps).
+  ``cell_to_world``, ``cell_in_grid``, ``box_to_cells`` (every map of the planner and the object maps).
 - ``shapes.py``: ``algebraic_distance``, ``ray_entry_range``, ``ray_cast_local``, ``surface_points``, ``shape_bbox``,
   ``shape_distance`` and the ``SHAPE_*`` ids.
 
@@ -59,6 +60,7 @@ from ._geometry.bbox import (
     project_bbox as project_bbox,
     project_bbox_reference as project_bbox_reference,
 )
+from ._geometry.boxes import box_area as box_area, box_iou as box_iou
 from ._geometry.conics import (
     camera_depth as camera_depth,
     camera_frame as camera_frame,
@@ -76,6 +78,7 @@ from ._geometry.conics import (
 )
 from ._geometry.grid import (
     Grid as Grid,
+    box_to_cells as box_to_cells,
     cell_in_grid as cell_in_grid,
     cell_to_world as cell_to_world,
     world_to_cell as world_to_cell,
@@ -181,6 +184,7 @@ __all__ = [
     "world_to_cell",
     "cell_to_world",
     "cell_in_grid",
+    "box_to_cells",
     "CUBOID_CORNER_SIGNS",
     "so3_exp",
     "skew",

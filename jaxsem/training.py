@@ -57,6 +57,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
+import jax
 import numpy as np
 
 from .checkpoint import Checkpointer, CheckpointError
@@ -491,7 +492,7 @@ class TrainingRun:
         """``range(start, end)``, with a tqdm bar over ``total`` steps when ``progress``."""
         it: Iterable[int] = range(int(start), int(end))
         if progress:
-            from tqdm.auto import tqdm
+            from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import; only a run with a progress bar needs it
 
             self._bar = tqdm(it, initial=int(start), total=int(total), desc=desc, leave=False)
             it = self._bar
@@ -531,8 +532,6 @@ class TrainingRun:
 
 
 def _process_index() -> int:
-    import jax
-
     return jax.process_index()
 
 

@@ -150,6 +150,26 @@ def run_cli(capsys):
 
 
 @pytest.fixture
+def axes_titles(monkeypatch):
+    """The titles set on matplotlib axes during the test, in order (``Agg`` backend); the titles
+    are still set."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    titles = []
+    original = matplotlib.axes.Axes.set_title
+
+    def record(self, label, *args, **kwargs):
+        titles.append(label)
+        return original(self, label, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", record)
+    return titles
+
+
+@pytest.fixture
 def script():
     """``script("benchmarks/lsd/lsd_real.py")``: a repository script imported as a module (named by
     its stem), for tests of a benchmark's or a command's own functions."""

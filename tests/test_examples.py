@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsem import slam
+from jaxsem.slam._results import RESULTS  # layers: white-box
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 
@@ -55,7 +56,7 @@ def test_online_slam_on_my_frames_maps_every_car():
     result = _load("online_slam_on_my_frames").main()
     # four cars passed at 4-4.5 m beside a 30 m drive, boxes with 2 px noise, 2 cm odometry noise
     assert max(result["position_m"]) < 0.6 and sorted(result["position_m"])[1] < 0.3
-    budget = (slam.RESULTS.max_steps_reached, slam.RESULTS.iterations_reached)
+    budget = (RESULTS.max_steps_reached, RESULTS.iterations_reached)
     assert result["message"] in ("", *(slam.result_message(code) for code in budget))
 
 

@@ -172,7 +172,7 @@ def main(argv=None) -> int:
             raise SystemExit(f"--models: no such file or folder {m!r}")
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.planning import building_family
+    from jaxsem.planning._buildings import building_family  # layers: white-box
 
     enable_compilation_cache()
     buildings = building_family("test", args.buildings, start=args.first)

@@ -18,16 +18,16 @@ import json
 import pathlib
 import sys
 
+from jaxsem.lsd._train import evaluate_nll  # layers: white-box
+
 
 def per_sample_nll(model, params, data):
     """``(nll (S,), has_path (S,))``: each sample's NLL per path cell (``lsd.evaluate_nll`` on
     that sample alone; 0 where a sample's path leaves the window at once, masked by has_path)."""
     import numpy as np
 
-    from jaxsem import lsd
-
     has = np.asarray(data["path_mask"]).reshape(len(data["context"]), -1).any(axis=1)
-    nll = np.array([lsd.evaluate_nll(model, params, data, np.array([i]), 2, batch_size=1) for i in range(len(has))])
+    nll = np.array([evaluate_nll(model, params, data, np.array([i]), 2, batch_size=1) for i in range(len(has))])
     return nll, has
 
 

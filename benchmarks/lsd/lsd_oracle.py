@@ -66,7 +66,8 @@ def _val_metrics(workdir, data_dir, batch: int = 32, model_from=None) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxsem.lsd import load_expert_data, load_model, split_by_building
+    from jaxsem.lsd import load_expert_data, load_model
+    from jaxsem.lsd._data import split_by_building  # layers: white-box
 
     model, params, cfg, _ = load_model(str(workdir))
     if model_from is not None:  # the split stays the run's, so the samples are the same
@@ -147,14 +148,10 @@ def report(args) -> int:
     if any(curves.values()):
         first = next(m for m in curves.values() if m)
         ax.axhline(first[0]["uniform_nll"], color="k", ls="--", lw=0.8, label="uniform")
-    ax.set_xlabel("step")
-    ax.set_ylabel("validation NLL per expert-path cell (nats)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / f"{args.name}.png", dpi=100)
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+    from lsd_training_curves import save_step_plot
+
+    out = save_step_plot(fig, ax, "validation NLL per expert-path cell (nats)", args.out, args.name)
     steps = sorted({h["step"] for m in curves.values() for h in m})
     lines = [
         f"# LSD against its full-map oracle ({time.strftime('%Y-%m-%d')})",

@@ -31,102 +31,15 @@ import time
 
 import jax
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
 from jaxsem import planning
+from jaxsem.planning._edges import polyline_clear  # layers: white-box
+from jaxsem.planning._roadmap import DEFAULT_SECTORS, default_radius  # layers: white-box
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _ompl_peer import OmplPRM, ompl_version
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
-
-
-class OmplPRM:
-    """OMPL's PRM on a grid map from Python, grown to exactly ``n`` milestones."""
-
-    def __init__(self, b, n, k=10, trivial=False, seed=0):
-        from ompl import base as ob, geometric as og, util as ou
-
-        ou.RNG.setSeed(int(seed) + 1)
-        ou.setLogLevel(ou.LOG_ERROR)
-        occ, res = b.occupancy, b.resolution
-        H, W = occ.shape
-        ox, oy = float(b.origin[0]), float(b.origin[1])
-        space = ob.RealVectorStateSpace(2)
-        bounds = ob.RealVectorBounds(2)
-        bounds.setLow(0, ox)
-        bounds.setHigh(0, ox + W * res)
-        bounds.setLow(1, oy)
-        bounds.setHigh(1, oy + H * res)
-        space.setBounds(bounds)
-        si = ob.SpaceInformation(space)
-        if trivial:
-            si.setStateValidityChecker(ob.AllValidStateValidityChecker(si))
-        else:
-
-            def valid(s):
-                c, r = int((s[0] - ox) / res), int((s[1] - oy) / res)
-                return bool(0 <= r < H and 0 <= c < W and not occ[r, c])  # OMPL needs a real bool
-
-            si.setStateValidityChecker(valid)
-        si.setStateValidityCheckingResolution(0.5 * res / space.getMaximumExtent())
-        si.setup()
-        pdef = ob.ProblemDefinition(si)
-        planner = og.PRM(si)
-        planner.setProblemDefinition(pdef)
-        planner.setMaxNearestNeighbors(k)
-        planner.setup()
-        t0 = time.perf_counter()
-        # Exactly n milestones; growRoadmap runs in this thread, so a Python condition is safe.
-        planner.growRoadmapPtc(ob.PlannerTerminationCondition(lambda: planner.milestoneCount() >= n))
-        self.build_s = time.perf_counter() - t0
-        pd = ob.PlannerData(si)
-        planner.getPlannerData(pd)
-        M = pd.numVertices()
-        self.pts = np.array([[pd.getVertex(i).getState()[0], pd.getVertex(i).getState()[1]] for i in range(M)])
-        src, dst = [], []
-        for i in range(M):
-            for j in pd.getEdges(i):
-                src.append(i)
-                dst.append(j)
-        self.src, self.dst = np.array(src, np.int64), np.array(dst, np.int64)
-        self.M, self.k, self.si = M, k, si
-
-    def query(self, start, goal):
-        """(seconds, found, length, points): start and goal linked to their k nearest milestones."""
-        t0 = time.perf_counter()
-        si, M, pts = self.si, self.M, self.pts
-        a, b = si.allocState(), si.allocState()
-        src, dst = [self.src], [self.dst]
-        for q_idx, q in ((M, start), (M + 1, goal)):
-            d = np.linalg.norm(pts - q, axis=1)
-            for j in np.argsort(d)[: self.k]:
-                a[0], a[1] = float(q[0]), float(q[1])
-                b[0], b[1] = float(pts[j, 0]), float(pts[j, 1])
-                if si.checkMotion(a, b):
-                    src.append(np.array([q_idx]))
-                    dst.append(np.array([int(j)]))
-        src, dst = np.concatenate(src), np.concatenate(dst)
-        allp = np.vstack([pts, start, goal])
-        w = np.maximum(np.linalg.norm(allp[src] - allp[dst], axis=1), 1e-12)
-        g = scipy.sparse.csr_matrix((w, (src, dst)), shape=(M + 2, M + 2))
-        dist, pred = scipy.sparse.csgraph.dijkstra(g, directed=False, indices=M, return_predecessors=True)
-        elapsed = time.perf_counter() - t0
-        found = bool(np.isfinite(dist[M + 1]))
-        path = []
-        if found:  # after the clock: the path's points are for the edge-rule check only
-            v = M + 1
-            while v >= 0:
-                path.append(allp[v])
-                v = pred[v]
-        return elapsed, found, float(dist[M + 1]), np.array(path[::-1]).reshape(-1, 2)
-
-
-def _ompl_version() -> str:
-    import importlib.metadata
-
-    try:
-        return importlib.metadata.version("ompl")
-    except importlib.metadata.PackageNotFoundError:
-        return "(version unknown)"
 
 
 def _len_cell(mean, sem) -> str:
@@ -136,7 +49,7 @@ def _len_cell(mean, sem) -> str:
     return f"{mean:.3f}" if sem is None else f"{mean:+.3f} +- {sem:.3f}" if mean < 0 else f"{mean:.3f} +- {sem:.3f}"
 
 
-def jaxsem_build(b, n, key, k, radius, sectors=planning.DEFAULT_SECTORS):
+def jaxsem_build(b, n, key, k, radius, sectors=DEFAULT_SECTORS):
     prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius, sectors=sectors)
     prm.grow(key, n)
     jax.block_until_ready(prm.roadmap)
@@ -168,7 +81,7 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--sectors",
         type=int,
-        default=planning.DEFAULT_SECTORS,
+        default=DEFAULT_SECTORS,
         help="jaxsem connection policy: direction sectors (0: the plain k nearest)",
     )
     ap.add_argument("--seed", type=int, default=0)
@@ -186,7 +99,7 @@ def main(argv=None) -> int:
         tasks = planning.sample_tasks(b, "II", args.tasks, seed=args.seed)
         for n in args.n:
             if args.radius_scale is None:
-                radius = planning.default_radius(n, b.shape, b.resolution)
+                radius = default_radius(n, b.shape, b.resolution)
             else:
                 area = b.shape[0] * b.shape[1] * b.resolution**2
                 radius = float(np.ceil(2 * args.radius_scale * np.sqrt(area / n)) / 2)
@@ -226,8 +139,7 @@ def main(argv=None) -> int:
                                 # does OMPL's path (half-cell point checks) pass jaxsem's edge
                                 # rule (no occupied cell touched, diagonal side cells included)?
                                 "passes_jaxsem_rule": bool(
-                                    o_found
-                                    and planning.polyline_clear(o_path, b.occupancy, b.origin, b.resolution, radius)
+                                    o_found and polyline_clear(o_path, b.occupancy, b.origin, b.resolution, radius)
                                 ),
                             },
                             "jaxsem": {
@@ -356,7 +268,7 @@ def main(argv=None) -> int:
         f"k = {args.k or 'prm_star_k(N) (26 / 29 / 35 at N = 500 / 1000 / 5000)'}, radius {'planning.default_radius' if args.radius_scale is None else f'{args.radius_scale} x spacing'}, "
         f"{'direction-first links over ' + str(args.sectors) + ' sectors (the default policy)' if args.sectors else 'the plain k nearest (sectors 0)'}, "
         "valid-state sampling, exact neighbour search; "
-        f"OMPL {_ompl_version()}: PRM, k = 10, growRoadmapPtc to N milestones. "
+        f"OMPL {ompl_version()}: PRM, k = 10, growRoadmapPtc to N milestones. "
         "Length / C*: mean +- s.e.m. of the raw roadmap path over the soft-cost optimal length, on queries "
         "both solved. The validity rules differ: OMPL checks points half a cell apart, jaxsem's edge rule "
         "also forbids the side cells of a diagonal step (no occupied cell touched); the column 'passing "

@@ -47,6 +47,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from jaxsem import planning
+from jaxsem.planning._roadmap import default_radius  # layers: white-box
 
 HERE = pathlib.Path(__file__).resolve().parent
 BENCH = HERE.parent  # benchmarks/: the shared results folder and _harness
@@ -162,7 +163,7 @@ def main(argv=None) -> int:
         ratio = {"ompl_grid": [], **{c: [] for c in configs}}
         kw = {"jaxsem": {}, "jaxsem_lazy": {"lazy": True}}
         if args.fast_k:
-            r = planning.default_radius(n, b.occupancy.shape, b.resolution, free_cells=free_cells)
+            r = default_radius(n, b.occupancy.shape, b.resolution, free_cells=free_cells)
             kw["jaxsem_fast"] = {"k": args.fast_k, "radius": max(0.5, round(r * args.fast_radius_factor * 2) / 2)}
 
         def jaxsem_run(seed, c, fresh=False):

@@ -341,7 +341,8 @@ def _run(args, argv) -> int:
     import scipy.ndimage as ndi
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import format_table, run_trials, summarise
+    from jaxsem.lsd import run_trials, summarise
+    from jaxsem.lsd._experiment import format_table  # layers: white-box
     from jaxsem.planning import DOOR, SoftCostGraph, plot_semantics
     from jaxsem.scripting import atomic_write_text
 
@@ -398,7 +399,8 @@ def _run(args, argv) -> int:
         base=not (args.uniform_only or args.reuse_base),
     )
     if args.reuse_base:  # the earlier run's uniform and LSD rows joined to this run's variants
-        from jaxsem.lsd import merge_records, read_records
+        from jaxsem.lsd import read_records
+        from jaxsem.lsd._experiment import merge_records  # layers: white-box
 
         read_runs = _sibling("lsd_real_floor").read_runs
         earlier = read_records(read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0][2])

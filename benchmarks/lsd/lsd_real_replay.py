@@ -170,7 +170,7 @@ def _run(args, run, rec, argv) -> int:
     from lsd_real_floor import load_run_maps
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import trial_key
+    from jaxsem.lsd._experiment import trial_key  # layers: white-box
     from jaxsem.planning import SoftCostGraph, Trial
     from jaxsem.scripting import atomic_write_text
 

@@ -30,13 +30,14 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
 from jaxsem import lsd, planning
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 import _harness
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _ompl_peer import OmplPRM, edge_degree as _degree
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
@@ -49,89 +50,10 @@ def ours_prm(b, task, n, seed, k):
     return rm
 
 
-def _degree(src, dst, m):
-    """Mean number of distinct undirected edges per vertex."""
-    a, b = np.minimum(src, dst), np.maximum(src, dst)
-    return 2.0 * len(np.unique(a.astype(np.int64) * (m + 2) + b)) / max(m, 1)
-
-
 def ours_degree(rm):
     nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
     src = np.repeat(np.arange(nbr.shape[0]), nbr.shape[1])[ok.ravel()]
     return _degree(src, nbr.ravel()[ok.ravel()], int(np.asarray(rm.valid).sum()))
-
-
-class OmplPRM:
-    """OMPL's PRM on a grid map from Python, built to exactly ``n`` milestones."""
-
-    def __init__(self, b, n, k=10):
-        from ompl import base as ob, geometric as og
-
-        occ, res = b.occupancy, b.resolution
-        H, W = occ.shape
-        ox, oy = float(b.origin[0]), float(b.origin[1])
-        space = ob.RealVectorStateSpace(2)
-        bounds = ob.RealVectorBounds(2)
-        bounds.setLow(0, ox)
-        bounds.setHigh(0, ox + W * res)
-        bounds.setLow(1, oy)
-        bounds.setHigh(1, oy + H * res)
-        space.setBounds(bounds)
-        si = ob.SpaceInformation(space)
-
-        def valid(s):
-            c, r = int((s[0] - ox) / res), int((s[1] - oy) / res)
-            return bool(0 <= r < H and 0 <= c < W and not occ[r, c])  # OMPL needs a real bool
-
-        si.setStateValidityChecker(valid)
-        si.setStateValidityCheckingResolution(0.5 * res / space.getMaximumExtent())
-        si.setup()
-        pdef = ob.ProblemDefinition(si)
-        planner = og.PRM(si)
-        planner.setProblemDefinition(pdef)
-        planner.setMaxNearestNeighbors(k)
-        planner.setup()
-        t0 = time.perf_counter()
-        # Exactly n milestones: growRoadmap runs in this thread, so a Python condition is safe
-        # here (PRM::solve's second thread is what deadlocks on one); it costs one call per
-        # milestone, against hundreds of validity-checker calls per milestone.
-        planner.growRoadmapPtc(ob.PlannerTerminationCondition(lambda: planner.milestoneCount() >= n))
-        self.build_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        pd = ob.PlannerData(si)
-        planner.getPlannerData(pd)
-        M = pd.numVertices()
-        self.pts = np.array([[pd.getVertex(i).getState()[0], pd.getVertex(i).getState()[1]] for i in range(M)])
-        src, dst = [], []
-        for i in range(M):
-            for j in pd.getEdges(i):
-                src.append(i)
-                dst.append(j)
-        self.src, self.dst = np.array(src, np.int64), np.array(dst, np.int64)
-        self.extract_s = time.perf_counter() - t0
-        self.M, self.k, self.si = M, k, si
-        self.degree = _degree(self.src, self.dst, M)
-
-    def query(self, start, goal):
-        """Connects start and goal to their k nearest milestones (checkMotion), then Dijkstra."""
-        t0 = time.perf_counter()
-        si, M, pts = self.si, self.M, self.pts
-        a, b = si.allocState(), si.allocState()
-        src, dst = [self.src], [self.dst]
-        for q_idx, q in ((M, start), (M + 1, goal)):
-            d = np.linalg.norm(pts - q, axis=1)
-            for j in np.argsort(d)[: self.k]:
-                a[0], a[1] = float(q[0]), float(q[1])
-                b[0], b[1] = float(pts[j, 0]), float(pts[j, 1])
-                if si.checkMotion(a, b):
-                    src.append(np.array([q_idx]))
-                    dst.append(np.array([int(j)]))
-        src, dst = np.concatenate(src), np.concatenate(dst)
-        allp = np.vstack([pts, start, goal])
-        w = np.maximum(np.linalg.norm(allp[src] - allp[dst], axis=1), 1e-12)
-        g = scipy.sparse.csr_matrix((w, (src, dst)), shape=(M + 2, M + 2))
-        dist = scipy.sparse.csgraph.dijkstra(g, directed=False, indices=M)
-        return time.perf_counter() - t0, bool(np.isfinite(dist[M + 1])), float(dist[M + 1])
 
 
 def main(argv=None):
@@ -188,7 +110,7 @@ def main(argv=None):
                 f"{t_query * 1e3:.2f} ms, found {path.found}, length {path.length:.2f} m"
             )
             if om is not None:
-                t_oq, o_found, o_len = om.query(task.start, task.goal)
+                t_oq, o_found, o_len, _ = om.query(task.start, task.goal, with_path=False)
                 # OMPL builds one roadmap per map and reuses it: its build counts once per map.
                 om_q.append(t_oq)
                 om_found += o_found

@@ -78,7 +78,8 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from jaxsem.lsd import evaluate_nll, load_expert_data, load_model
+    from jaxsem.lsd import load_expert_data, load_model
+    from jaxsem.lsd._train import evaluate_nll  # layers: white-box
 
     data = load_expert_data(args.data)
     n = len(data["context"])

@@ -177,7 +177,8 @@ def main(argv=None) -> int:
 
 
 def _merge(args, argv) -> int:
-    from jaxsem.lsd import format_table, merge_records, plot_success, summarise
+    from jaxsem.lsd import plot_success, summarise
+    from jaxsem.lsd._experiment import format_table, merge_records  # layers: white-box
 
     runs, parts = [], []
     for f in args.merge:
@@ -222,13 +223,6 @@ def _merge(args, argv) -> int:
         ),
     )
     plot_success(summary, out / f"{args.name}.png")
-    verdict = [
-        f"{k}: LSD {100 * v['success_lsd']:.0f} +- {100 * v['success_lsd_sem']:.0f} % vs Unf "
-        f"{100 * v['success_uniform']:.0f} +- {100 * v['success_uniform_sem']:.0f} % "
-        f"({100 * (v['success_lsd'] - v['success_uniform']):+.0f} points; target >= +15), "
-        f"{v['lsd_only']} LSD-only vs {v['uniform_only']} uniform-only successes"
-        for k, v in summary.items()
-    ]
     md = [
         f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)",
         "",
@@ -245,19 +239,34 @@ def _merge(args, argv) -> int:
         "",
         *[f"- `{q['command']}` ({q['date']}, {(q['seconds'] or 0) / 60:.1f} min)" for q in parts],
         "",
-        table,
-        "",
-        "Success (binomial s.e.m.): " + "; ".join(verdict) + ".",
-        "",
-        "Thesis (10 train / 3 test real floorplans, 1500 tasks): N=500 success Unf 25 % vs LSD 69 %; "
-        "II C_l/C* 1.21-1.42 vs C_b/C* 1.32-1.51.",
-        "",
-        f"![success rates]({args.name}.png)",
-        "",
+        *_md_tail(table, "Success", summary, args.name),
     ]
     _write(out / f"{args.name}.md", "\n".join(md))
     print(f"wrote {out / (args.name + '.json')}, .md, .png")
     return 0
+
+
+def _md_tail(table: str, label: str, summary: dict, name: str) -> list:
+    """The results markdown's last lines: the table, the success verdict of every row (``label``
+    leads it), the thesis' figures and the success plot."""
+    verdict = [
+        f"{k}: LSD {100 * v['success_lsd']:.0f} +- {100 * v['success_lsd_sem']:.0f} % vs Unf "
+        f"{100 * v['success_uniform']:.0f} +- {100 * v['success_uniform_sem']:.0f} % "
+        f"({100 * (v['success_lsd'] - v['success_uniform']):+.0f} points; target >= +15), "
+        f"{v['lsd_only']} LSD-only vs {v['uniform_only']} uniform-only successes"
+        for k, v in summary.items()
+    ]
+    return [
+        table,
+        "",
+        f"{label} (binomial s.e.m.): " + "; ".join(verdict) + ".",
+        "",
+        "Thesis (10 train / 3 test real floorplans, 1500 tasks): N=500 success Unf 25 % vs LSD 69 %; "
+        "II C_l/C* 1.21-1.42 vs C_b/C* 1.32-1.51.",
+        "",
+        f"![success rates]({name}.png)",
+        "",
+    ]
 
 
 def _run_header(args, argv):
@@ -301,18 +310,9 @@ def _run(args, argv) -> int:
     import dataclasses
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import (
-        ExperimentSetup,
-        LSDSampler,
-        format_table,
-        get_config,
-        load_model,
-        plot_success,
-        prepare_model,
-        run_trials,
-        summarise,
-    )
-    from jaxsem.planning import building_family
+    from jaxsem.lsd import LSDSampler, get_config, load_model, plot_success, run_trials, summarise
+    from jaxsem.lsd._experiment import ExperimentSetup, format_table, prepare_model  # layers: white-box
+    from jaxsem.planning._buildings import building_family  # layers: white-box
 
     enable_compilation_cache()
     mesh = _mesh(args.devices)
@@ -396,15 +396,6 @@ def _run(args, argv) -> int:
         ),
     )
     plot_success(summary, out / f"{args.name}.png")
-    verdict = []
-    for k, v in summary.items():
-        d = 100 * (v["success_lsd"] - v["success_uniform"])
-        verdict.append(
-            f"{k}: LSD {100 * v['success_lsd']:.0f} +- {100 * v['success_lsd_sem']:.0f} % vs Unf "
-            f"{100 * v['success_uniform']:.0f} +- {100 * v['success_uniform_sem']:.0f} % "
-            f"({d:+.0f} points; target >= +15), {v['lsd_only']} LSD-only vs {v['uniform_only']} "
-            f"uniform-only successes"
-        )
     md = [
         f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)",
         "",
@@ -421,15 +412,7 @@ def _run(args, argv) -> int:
         f"{args.max_steps}, seed {args.seed}, LSD uniform mix {args.uniform_mix}; a failed roadmap is grown "
         f"up to twice (NavConfig.max_growth); devices {devices}; total {total / 60:.1f} min.",
         "",
-        table,
-        "",
-        "Success at each N (binomial s.e.m.): " + "; ".join(verdict) + ".",
-        "",
-        "Thesis (10 train / 3 test real floorplans, 1500 tasks): N=500 success Unf 25 % vs LSD 69 %; "
-        "II C_l/C* 1.21-1.42 vs C_b/C* 1.32-1.51.",
-        "",
-        f"![success rates]({args.name}.png)",
-        "",
+        *_md_tail(table, "Success at each N", summary, args.name),
     ]
     _write(out / f"{args.name}.md", "\n".join(md))
     print(f"wrote {out / (args.name + '.json')}, .md, .png in {total / 60:.1f} min")

@@ -17,6 +17,20 @@ import sys
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
 
+def save_step_plot(fig, ax, ylabel: str, out, name: str) -> pathlib.Path:
+    """Labels a plot over training steps (legend, light grid) and saves it as ``out/name.png``
+    (100 dpi), making ``out`` if need be; returns ``out`` as a path. Also ``lsd_oracle.py``'s."""
+    ax.set_xlabel("step")
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / f"{name}.png", dpi=100)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__.splitlines()[0],
@@ -71,14 +85,7 @@ def main(argv=None) -> int:
     if stage2:
         ax.axvline(stage2[0], color="grey", lw=0.8)
         ax.text(stage2[0], ax.get_ylim()[1], " stage 2", va="top", fontsize=8)
-    ax.set_xlabel("step")
-    ax.set_ylabel("NLL per expert-path cell (nats)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / f"{args.name}.png", dpi=100)
+    out = save_step_plot(fig, ax, "NLL per expert-path cell (nats)", args.out, args.name)
     (out / f"{args.name}.json").write_text(
         json.dumps(
             {"train": {str(s): train[s][0] for s in steps}, "validation": metrics},

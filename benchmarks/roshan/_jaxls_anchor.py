@@ -30,6 +30,7 @@ import jaxlie
 import numpy as np
 
 from jaxsem import factors as F, slam
+from jaxsem.slam._cost import box_rows, pose_rows  # layers: white-box
 
 try:
     import jaxls
@@ -70,7 +71,7 @@ def build(problem: slam.SlamProblem, init: slam.SlamEstimate, config: slam.Solve
 
     def box_cost(vals, pv, rv, vv, box, td, tm, bm):
         v = vals[vv]
-        return slam.box_rows(
+        return box_rows(
             vals[pv].as_matrix(),
             vals[rv].as_matrix(),
             v[:3],
@@ -85,7 +86,7 @@ def build(problem: slam.SlamProblem, init: slam.SlamEstimate, config: slam.Solve
         )
 
     def prior_cost(vals, pv, prior, pm):
-        return slam.pose_rows(vals[pv].as_matrix(), prior, pm, config)
+        return pose_rows(vals[pv].as_matrix(), prior, pm, config)
 
     bp, bo = problem.box_pose, problem.box_object
     bm = problem.box_mask & problem.object_mask[bo] & problem.pose_mask[bp]

@@ -52,6 +52,19 @@ import time
 
 import jax
 
+from jaxsem.slam import _cost as slam_cost  # layers: white-box
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._bop_slam import (  # layers: white-box
+    POSE_PRIOR_MODES,
+    STRETCH_SETTINGS,
+    OdometryModel,
+    pose_prior_weights,
+)
+from jaxsem.slam._multistart import solve_yaw_starts  # layers: white-box
+from jaxsem.slam._results import result_code  # layers: white-box
+from jaxsem.slam._sequence_texture import support_height  # layers: white-box
+from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
@@ -116,8 +129,8 @@ SUPPORT_SIGMA = 0.01
 UPRIGHT_SIGMA_DEG = 2.0
 
 
-def noise_model(seq) -> slam.NoiseModel:
-    return slam.noise_model(seq, slam.NoiseModel(texture_sigma=TEXTURE_SIGMA))
+def noise_model(seq) -> NoiseModel:
+    return slam.noise_model(seq, NoiseModel(texture_sigma=TEXTURE_SIGMA))
 
 
 def configs(seq, silhouette_scale=None, upright_sigma_deg=None):
@@ -232,7 +245,7 @@ def stretch_row(e, ms, info=None):
     }
     if info is not None:
         row["result"] = slam.result_message(info.result) if hasattr(slam, "result_message") else None
-        row["result_code"] = int(np.asarray(slam.result_code(info.result)))
+        row["result_code"] = int(np.asarray(result_code(info.result)))
         row["successful"] = bool(np.asarray(info.success))
         row["unfixable"] = int(np.asarray(info.unfixable).sum())
         row["steps"] = int(np.asarray(info.steps))
@@ -359,7 +372,7 @@ def run_peer(peer_python, problems, inits, cfg):
             box_mask=b("box_mask"),
             odometry=a("odometry", problems),
             odometry_mask=b("odometry_mask"),
-            pose_prior_weight=np.stack([np.asarray(slam.prior_weight(p), np.float64) for p in problems]),
+            pose_prior_weight=np.stack([np.asarray(slam_cost.prior_weight(p), np.float64) for p in problems]),
             rot_sigma=float(cfg.noise.pose_rotation_sigma),
             trans_sigma=float(cfg.noise.pose_translation_sigma),
             odo_rot_sigma=float(cfg.noise.odometry_rotation_sigma),
@@ -378,9 +391,7 @@ def parse_args(argv=None):
     p.add_argument("--scene", type=sc.existing_dir, required=True, help="BOP scene folder (LM-O test/000002)")
     p.add_argument("--split", choices=("tune", "test"), required=True, help="frame ids below 600 (tune) or the rest")
     p.add_argument("--json", type=sc.output_file, required=True, help="where the results go")
-    p.add_argument(
-        "--setting", choices=slam.STRETCH_SETTINGS, default="clean", help="detections: clean, or missed and cut"
-    )
+    p.add_argument("--setting", choices=STRETCH_SETTINGS, default="clean", help="detections: clean, or missed and cut")
     p.add_argument(
         "--seed", type=sc.nonnegative_int, default=0, help="odometry and box noise seed (stretch i uses seed + i)"
     )
@@ -392,7 +403,7 @@ def parse_args(argv=None):
     )
     p.add_argument(
         "--pose-priors",
-        choices=slam.POSE_PRIOR_MODES,
+        choices=POSE_PRIOR_MODES,
         default="first",
         help="absolute priors on the integrated odometry poses, the same for every system "
         "(jaxsem.slam.pose_prior_weights; 'all' was the setting before 2026-11-26 03:00)",
@@ -442,8 +453,8 @@ def main(argv=None):
         raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split")
     table, factors = slam.user_class_table(vdata.bop_class_extents(scene), seed=args.prior_seed)
     vol = None if args.no_volumon else VolumonInit()
-    solve = jax.jit(slam.solve_schur)
-    solve_starts = jax.jit(lambda p, i, c: slam.solve_yaw_starts(p, i, c)[:2])
+    solve = jax.jit(solve_schur)
+    solve_starts = jax.jit(lambda p, i, c: solve_yaw_starts(p, i, c)[:2])
     init_fn = jax.jit(slam.initialize)
     per = {k: [] for k in SYSTEMS}
     errs = {k: [] for k in SYSTEMS}
@@ -454,7 +465,7 @@ def main(argv=None):
         seq, odo = slam.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n)
         cfgs = configs(seq, args.silhouette_scale, args.upright_sigma)
         seq_t, records = front_end(seq)
-        desk, desk_points = slam.support_height(seq) if args.support == "features" else (float("nan"), 0)
+        desk, desk_points = support_height(seq) if args.support == "features" else (float("nan"), 0)
         if np.isfinite(desk):
             cfgs["roshan"] = cfgs["roshan"].replace(
                 use_support=True, support_height=desk, support_sigma=args.support_sigma
@@ -463,7 +474,7 @@ def main(argv=None):
             dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
         ]
         feat = [r["points"] for r in records]
-        weight = slam.pose_prior_weights(
+        weight = pose_prior_weights(
             np.stack([f.camera_T_world for f in seq.frames]),
             args.pose_priors,
             prior_translation=seq.noise["pose_translation_sigma"],
@@ -562,7 +573,7 @@ def main(argv=None):
         "online_ms_p95": float(np.percentile(online_ms, 95)),
         "stretches": stretch_info,
         "class_factors": factors,
-        "odometry_model": dict(slam.OdometryModel().__dict__),
+        "odometry_model": dict(OdometryModel().__dict__),
         "texture": texture_summary(tex_rows),
         "seconds": time.perf_counter() - t_start,
     }
@@ -617,28 +628,21 @@ def figures(folder, figs, scene):
     for ax, t in zip(axes, picks):
         img = slam.load_image(seq, int(t))
         present = [j for j, i in enumerate(ids) if i in seq.frames[t].ids]
-        slam.draw_overlay(
-            ax,
-            img,
-            quadrics.Camera(seq.K, st.camera_T_world[t]),
-            seq.image_size,
-            None,
-            None,
-            quadrics.Ellipsoid(tR[present], tC[present], tr[present]),
-            [ids[j] for j in present],
-            color="lime",
-        )
-        slam.draw_overlay(
-            ax,
-            img,
-            quadrics.Camera(seq.K, st.camera_T_world[t]),
-            seq.image_size,
-            None,
-            None,
-            jax.tree.map(lambda x: np.asarray(x)[:J][present], est.ellipsoid),
-            [ids[j] for j in present],
-            color="magenta",
-        )
+        for ellipsoid, color in (
+            (quadrics.Ellipsoid(tR[present], tC[present], tr[present]), "lime"),
+            (jax.tree.map(lambda x: np.asarray(x)[:J][present], est.ellipsoid), "magenta"),
+        ):
+            slam.draw_overlay(
+                ax,
+                img,
+                quadrics.Camera(seq.K, st.camera_T_world[t]),
+                seq.image_size,
+                None,
+                None,
+                ellipsoid,
+                [ids[j] for j in present],
+                color=color,
+            )
         ax.set_title(f"LM-O frame {st.frame_ids[t]}: truth (green), ROSHAN (magenta)", fontsize=9)
     fig.text(
         0.01,

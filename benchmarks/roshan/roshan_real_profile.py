@@ -19,6 +19,9 @@ import sys
 import jax
 import jax.numpy as jnp
 
+from jaxsem.slam._batch import damped_schur_step, solve_schur  # layers: white-box
+from jaxsem.slam._cost import linearize  # layers: white-box
+
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 import _harness
 import roshan_real
@@ -64,13 +67,13 @@ def main(argv=None) -> int:
     problem = roshan_real.problem_of(seq_t, odo, table)
     init = jax.jit(slam.initialize)(problem, cfgs["roshan"])
     free = jnp.ones(init.camera_T_world.shape[0], init.center.dtype)
-    n = jax.jit(slam.linearize)(problem, init, cfgs["roshan"], free)
+    n = jax.jit(linearize)(problem, init, cfgs["roshan"], free)
     print(f"machine: {_harness.machine()}; poses {n.Hpp.shape[0]} (padded), objects {n.Hoo.shape[0]} (padded)")
     rows = {}
     rows["linearize (ms)"] = _harness.median_time(
-        jax.jit(slam.linearize), problem, init, cfgs["roshan"], free, repeats=args.repeats
+        jax.jit(linearize), problem, init, cfgs["roshan"], free, repeats=args.repeats
     )
-    step = jax.jit(slam.damped_schur_step)
+    step = jax.jit(damped_schur_step)
     rows["Schur step, odometry (ms)"] = _harness.median_time(
         step, n, 1e-3, free, problem.object_mask, repeats=args.repeats
     )
@@ -86,7 +89,7 @@ def main(argv=None) -> int:
     rows["previous tridiagonal elimination alone (ms)"] = _harness.median_time(
         jax.jit(_tridiagonal_solve_before), damped, n.Hpp_next, rhs, repeats=args.repeats
     )
-    solve = jax.jit(slam.solve_schur)
+    solve = jax.jit(solve_schur)
     for name in ("baseline", "roshan"):
         cfg = cfgs[name]
         i0 = jax.jit(slam.initialize)(problem, cfg)

@@ -25,6 +25,7 @@ import numpy as np
 import optimistix as optx
 
 from jaxsem import factors as F, quadrics as Q, slam
+from jaxsem.slam._cost import Delta, retract  # layers: white-box
 
 
 def _dense_solve(problem, init, config):
@@ -32,14 +33,14 @@ def _dense_solve(problem, init, config):
 
     def fn(delta, args):
         p, anchor, cfg = args
-        return slam.residual_blocks(p, slam.retract(anchor, delta), cfg)
+        return slam.residual_blocks(p, retract(anchor, delta), cfg)
 
     T, J, dtype = init.camera_T_world.shape[0], init.center.shape[0], init.center.dtype
-    zero = slam.Delta(jnp.zeros((T, 6), dtype), *(jnp.zeros((J, 3), dtype) for _ in range(3)))
+    zero = Delta(jnp.zeros((T, 6), dtype), *(jnp.zeros((J, 3), dtype) for _ in range(3)))
 
     solver = optx.LevenbergMarquardt(rtol=config.rtol, atol=config.atol)  # pyright: ignore[reportArgumentType]
     sol = optx.least_squares(fn, solver, zero, args=(problem, init, config), max_steps=config.max_steps, throw=False)
-    est = slam.retract(init, sol.value)
+    est = retract(init, sol.value)
     return est, slam.total_cost(problem, est, config), sol.result == optx.RESULTS.successful
 
 

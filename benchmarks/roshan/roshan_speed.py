@@ -17,9 +17,15 @@ import argparse
 import json
 import pathlib
 import subprocess
+import sys
 import time
 
 import jax
+
+from jaxsem.slam._batch import damped_schur_step, solve_schur  # layers: white-box
+from jaxsem.slam._cost import linearize, retract_object, retract_pose  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity, compact_boxes  # layers: white-box
+from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
 jax.config.update("jax_enable_x64", True)
 
@@ -31,15 +37,13 @@ from jaxsem.slam import sim  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 BENCH = HERE.parent  # benchmarks/: the shared results folder and _harness
+sys.path.insert(0, str(BENCH))
+import _harness  # noqa: E402
 
 
 def _median_time(fn, repeats):
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+    """Median seconds of ``repeats`` calls of ``fn()`` (no warm-up: the callers warm up)."""
+    return _harness.median_time(fn, repeats=repeats, warmup=False)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -162,12 +166,12 @@ def batch_benchmark(args):
     problems = sim.to_problem(maps, sim_cfg)
     # Real boxes first, padding trimmed to the batch's power-of-two bucket (600 -> 256 slots).
     most = int(np.max(np.asarray(problems.box_mask.sum(-1))))
-    slots = min(int(problems.box.shape[-2]), slam.bucket_capacity(1, most, 1)[1])
-    problems = slam.compact_boxes(problems, slots)
+    slots = min(int(problems.box.shape[-2]), bucket_capacity(1, most, 1)[1])
+    problems = compact_boxes(problems, slots)
     inits = sim.initial_estimate(maps)
     # QuadricSLAM's factor set (pose priors + box factors) so that GTSAM solves the same cost.
     cfg = sim.solver_config("baseline", sim_cfg, max_steps=args.max_steps, baseline_shape_weight=0.0)
-    solve = lambda p, i: slam.solve_schur(p, i, cfg)
+    solve = lambda p, i: solve_schur(p, i, cfg)
     vm = jax.jit(jax.vmap(solve))
     one = jax.jit(solve)
     t = time.perf_counter()
@@ -252,16 +256,16 @@ def component_times(problems, inits, cfg, args):
     take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
     p0, e0 = take(problems, 0), take(inits, 0)
     free = lambda p: p.pose_mask.astype(p.pose_prior.dtype)
-    lin = lambda p, e: slam.linearize(p, e, cfg, free(p))
-    step = lambda p, nrm: slam.damped_schur_step(nrm, jnp.asarray(1e-3, nrm.Hpp.dtype), free(p), p.object_mask)
+    lin = lambda p, e: linearize(p, e, cfg, free(p))
+    step = lambda p, nrm: damped_schur_step(nrm, jnp.asarray(1e-3, nrm.Hpp.dtype), free(p), p.object_mask)
     cost = lambda p, e: slam.total_cost(p, e, cfg)
 
     def fixed(p, e):
         def body(_, est):
             nrm = lin(p, est)
             dp, do = step(p, nrm)
-            R, c, r = slam.retract_object(est.rotation, est.center, est.radii, 1e-3 * do)
-            est = slam.SlamEstimate(slam.retract_pose(est.camera_T_world, 1e-3 * dp), R, c, r)
+            R, c, r = retract_object(est.rotation, est.center, est.radii, 1e-3 * do)
+            est = slam.SlamEstimate(retract_pose(est.camera_T_world, 1e-3 * dp), R, c, r)
             return jax.tree_util.tree_map(lambda x: x + 0 * cost(p, est), est)
 
         return jax.lax.fori_loop(0, args.fixed_iterations, body, e)
@@ -288,7 +292,7 @@ def online_benchmark(args):
         args.seed, num_objects=args.online_objects, num_frames=args.online_frames, path="forward"
     )
     D = int(max(np.bincount(np.asarray(problem.box_pose)[np.asarray(problem.box_mask)]).max(), 1))
-    frames = slam.frames_from_problem(problem, max_detections=D)
+    frames = frames_from_problem(problem, max_detections=D)
     cap = slam.Capacity(
         max_poses=args.window, max_objects=args.online_objects, max_boxes=args.window * D, max_detections=D
     )

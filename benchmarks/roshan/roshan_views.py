@@ -41,6 +41,8 @@ import time
 
 import numpy as np
 
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+
 METRICS = ("shape", "position", "orientation")
 UNITS = {"shape": "m", "position": "m", "orientation": "deg"}
 SYSTEMS = ("baseline", "roshan")
@@ -126,7 +128,7 @@ def make_solver(system, cfg, max_views, steps, init_mode):
         init = sim.initial_estimate(m)
         if init_mode == "single_view" and system == sim.ROSHAN:
             init = slam.initialize(problem, sc)  # texture depth, class-mean radii
-        est, info = slam.solve_schur(problem, init, sc)
+        est, info = solve_schur(problem, init, sc)
         err = sim.map_errors(est, m)
         # Pose-prior residual at the true poses (noise-model check), over the active views.
         r = factors.pose_prior_residual(

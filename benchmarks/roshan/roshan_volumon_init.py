@@ -52,6 +52,8 @@ import time
 
 import jax
 
+from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
+
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
@@ -114,7 +116,7 @@ def sim_config(args, max_depth: float = 1.1) -> sim.SimConfig:
 
 
 def solver_config(cfg: sim.SimConfig, use_texture: bool = True) -> slam.SolverConfig:
-    noise = slam.NoiseModel(
+    noise = NoiseModel(
         pose_rotation_sigma=float(np.deg2rad(cfg.pose_noise_deg)),
         pose_translation_sigma=cfg.pose_noise_m,
         box_sigma=cfg.box_noise_px,

@@ -31,6 +31,10 @@ import time
 
 import jax
 
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity, compact_boxes  # layers: white-box
+from jaxsem.slam._results import result_code  # layers: white-box
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402  (after enabling x64)
@@ -44,7 +48,8 @@ import _jaxls_anchor as jaxls_anchor  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 BENCH = HERE.parent  # benchmarks/: the shared results folder and _harness
-
+sys.path.insert(0, str(BENCH))
+import _harness  # noqa: E402
 
 NOTES = """How to read it: ms/map (loop) is the median over maps of one jitted solve each (after a
 warm-up); ms/map (vmap) is one vmapped solve of all maps divided by their number; steps are the
@@ -62,16 +67,12 @@ static), so its compile column is the first map's. The verdict is in ``benchmark
 
 
 # One compilation per system for every block (same padded shapes on both paths).
-_VMAP = jax.jit(jax.vmap(slam.solve_schur, in_axes=(0, 0, None)))
+_VMAP = jax.jit(jax.vmap(solve_schur, in_axes=(0, 0, None)))
 
 
 def _time(fn, repeats):
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+    """Median seconds of ``repeats`` calls of ``fn()`` (no warm-up: the callers warm up)."""
+    return _harness.median_time(fn, repeats=repeats, warmup=False)
 
 
 def _prior_dev(est_poses, problems, cfg):
@@ -106,8 +107,8 @@ def run_block(path, init_name, args, peer_python):
     # to the power-of-two bucket of the largest map (never above the original size), as a user
     # building problems with slam.make_problem + slam.bucket_capacity would.
     most = int(np.max(np.asarray(problems.box_mask.sum(-1))))
-    slots = min(int(problems.box.shape[-2]), slam.bucket_capacity(1, most, 1)[1])
-    problems = slam.compact_boxes(problems, slots)
+    slots = min(int(problems.box.shape[-2]), bucket_capacity(1, most, 1)[1])
+    problems = compact_boxes(problems, slots)
     roshan = sim.solver_config("roshan", scfg, max_steps=args.max_steps)
     qs = sim.solver_config("baseline", scfg, max_steps=args.max_steps, baseline_shape_weight=0.0)
     if init_name == "plain":
@@ -117,7 +118,7 @@ def run_block(path, init_name, args, peer_python):
     take = lambda tree, k: jax.tree_util.tree_map(lambda x: x[k], tree)
     rows = []
     for name, cfg in (("jaxsem QS factors", qs), ("jaxsem ROSHAN", roshan)):
-        one = lambda p, i, cfg=cfg: slam.solve_schur(p, i, cfg)  # jitted; compiled once per system
+        one = lambda p, i, cfg=cfg: solve_schur(p, i, cfg)  # jitted; compiled once per system
         vm = lambda p, i, cfg=cfg: _VMAP(p, i, cfg)
         t = time.perf_counter()
         jax.block_until_ready(one(take(problems, 0), take(inits, 0)))
@@ -129,7 +130,7 @@ def run_block(path, init_name, args, peer_python):
         jax.block_until_ready(vm(problems, inits))
         t_vmap = _time(lambda vm=vm: vm(problems, inits), args.repeats) / args.maps
         est, info = vm(problems, inits)
-        codes = np.bincount(np.asarray(slam.result_code(info.result)), minlength=5).tolist()
+        codes = np.bincount(np.asarray(result_code(info.result)), minlength=5).tolist()
         rows.append(
             _summary(
                 name,

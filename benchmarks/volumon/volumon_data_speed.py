@@ -41,16 +41,9 @@ def main(argv=None) -> int:
     p.add_argument("--tag", default="volumon_data_speed")
     a = p.parse_args(argv)
 
-    from jaxsem.volumon import (
-        TRAIN_KEYS,
-        augmentation_params,
-        device_batch_jit,
-        get_config,
-        init_state,
-        make_batch,
-        make_train_step,
-        train_key,
-    )
+    from jaxsem.volumon import get_config, make_batch, make_train_step
+    from jaxsem.volumon._device_data import device_batch_jit, train_key  # layers: white-box
+    from jaxsem.volumon._train import TRAIN_KEYS, augmentation_params, init_state  # layers: white-box
 
     base = get_config("both", a.size).replace(batch_size=a.batch_size)
     host_cfg = base.replace(data="host", num_train=100000)

@@ -1,5 +1,7 @@
-"""Runs one benchmark script, ``benchmarks/NAME.py`` of a source checkout, with the arguments that
-follow NAME (``jaxsem bench geometry --pairs 1000`` is ``python benchmarks/geometry.py --pairs 1000``).
+"""Runs one benchmark script of a source checkout, ``benchmarks/NAME.py`` or a method's
+``benchmarks/<method>/NAME.py``, with the arguments that follow NAME (``jaxsem bench geometry
+--pairs 1000`` is ``python benchmarks/geometry.py --pairs 1000``; ``jaxsem bench roshan_real ...`` is
+``python benchmarks/roshan/roshan_real.py ...``).
 
 In: NAME and its own flags (``jaxsem bench NAME --help`` shows them). Out: what the benchmark
 writes, by convention ``benchmarks/results/NAME.json`` and ``.md``; the exit status is the
@@ -47,13 +49,17 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     return p
 
 
+def _scripts(folder: pathlib.Path) -> dict[str, pathlib.Path]:
+    """Benchmark name -> its script: ``folder/NAME.py`` and the methods' ``folder/<method>/NAME.py``
+    (``_helpers.py`` are not benchmarks; names are unique across the folders)."""
+    paths = sorted([*folder.glob("*.py"), *folder.glob("*/*.py")], key=lambda p: p.stem)
+    return {p.stem: p for p in paths if not p.stem.startswith("_")}
+
+
 def benchmarks(folder: pathlib.Path) -> dict[str, str]:
-    """Benchmark name -> the first sentence of its docstring, cut at 100 characters (``_helpers.py``
-    are not benchmarks)."""
+    """Benchmark name -> the first sentence of its docstring, cut at 100 characters."""
     names = {}
-    for path in sorted(folder.glob("*.py")):
-        if path.stem.startswith("_"):
-            continue
+    for path in _scripts(folder).values():
         try:
             doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"), str(path))) or ""
         except (SyntaxError, UnicodeDecodeError):
@@ -116,7 +122,8 @@ def main(argv=None, prog: str | None = None) -> int:
     else:
         env.pop("JAX_COMPILATION_CACHE_DIR", None)
     start = time.time()
-    status = subprocess.run([sys.executable, str(folder / f"{name}.py"), *args.args], check=False, env=env).returncode
+    script = _scripts(folder).get(name, folder / f"{name}.py")
+    status = subprocess.run([sys.executable, str(script), *args.args], check=False, env=env).returncode
     results = folder / "results"
     sc.record(benchmark=name, exit_status=status)
     sc.record_output(*(p for p in sorted(results.glob(f"{name}*")) if p.stat().st_mtime >= start - 1))

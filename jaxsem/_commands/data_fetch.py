@@ -13,6 +13,9 @@ from __future__ import annotations
 
 from jaxsem import scripting as sc
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 NAMES = ("lmo", "ycb", "maps", "houses")
 
 

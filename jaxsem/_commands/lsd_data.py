@@ -21,6 +21,9 @@ import time
 from jaxsem import scripting as sc
 from jaxsem.lsd import ExpertConfig
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 # Convenience flags for ExpertConfig fields (help from the dataclass where it documents the field).
 CONFIG_FLAGS = (
     sc.ConfigFlag("samples_per_building", type=sc.positive_int, help="expert samples per building"),

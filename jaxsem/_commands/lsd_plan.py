@@ -28,6 +28,9 @@ from typing import Any
 from jaxsem import scripting as sc
 from jaxsem.planning import NavConfig
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 # The planner's settings: NavConfig's defaults with a shorter step limit (the thesis uses 10000),
 # and convenience flags for two of its fields (--n, --max-steps).
 NAV_BASE = NavConfig(max_steps=2000)

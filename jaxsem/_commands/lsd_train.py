@@ -23,6 +23,9 @@ import pathlib
 from jaxsem import scripting as sc
 from jaxsem.lsd import PRESETS, TrainConfig
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 NOT_RUN_DIR = ("workdir",)  # the workdir has its own config.json
 
 # Convenience flags for TrainConfig fields (help from the dataclass; --set reaches every field).

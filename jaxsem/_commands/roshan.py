@@ -64,6 +64,9 @@ import time
 from jaxsem import scripting as sc
 from jaxsem.slam import SolverConfig
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 # Convenience flags for SolverConfig fields (help from the dataclass; the sequence's "noise" and
 # the simulator's noise come first, these flags override them).
 CONFIG_FLAGS = (
@@ -257,7 +260,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if args.simulate == "forward" and args.frames != 60:  # keep the path length
             sim_cfg = sim_cfg.replace(forward_step=0.75 * 59 / max(args.frames - 1, 1))
         one = jax.jit(sim.simulate, static_argnums=1)(jax.random.key(args.seed), sim_cfg)
-        sequence = slam.sequence_from_simulation(one, sim_cfg.image_size)
+        sequence = sim.sequence_from_simulation(one, sim_cfg.image_size)
         if args.write_sequence:
             print(f"wrote {slam.save_sequence(sequence, args.write_sequence)}")
     elif args.tum:
@@ -372,7 +375,7 @@ def main(argv=None, prog: str | None = None) -> int:
     # map.json last: a run that failed on the way leaves none behind
     sc.atomic_write_text(args.out / "map.json", json.dumps(map_json, indent=1))
     if truth and truth.get("objects"):
-        err = slam.truth_errors(result, truth)
+        err = sim.truth_errors(result, truth)
         print("| id | shape (m) | position (m) | orientation (deg) |\n|---|---|---|---|")
         for k, i in enumerate(err["ids"]):
             print(f"| {i} | {err['shape'][k]:.2f} | {err['position'][k]:.2f} | {err['orientation'][k]:.1f} |")

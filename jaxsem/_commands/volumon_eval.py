@@ -32,6 +32,9 @@ import pathlib
 
 from jaxsem import scripting as sc
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 SPLITS = ("tune", "test", "all")
 
 

@@ -20,6 +20,9 @@ import sys
 
 from jaxsem import scripting as sc
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)

@@ -38,6 +38,9 @@ import numpy as np
 from jaxsem import scripting as sc
 from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
 
+# Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
+# and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
 
 def intrinsics(text: str) -> tuple[float, float, float, float]:
     """``--K``: ``fx,fy,cx,cy``, four finite numbers with fx, fy > 0."""

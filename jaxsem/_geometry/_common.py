@@ -105,7 +105,7 @@ def _eps(dtype) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# The same checks as masks, for traced values (issue 26): each is a few elementwise operations on
+# The same checks as masks, for traced values: each is a few elementwise operations on
 # the trailing components, cheap next to the geometry it guards. Every public function with a
 # ``valid`` output folds them in, so that under ``jit`` a bad input reads ``valid=False`` where an
 # eager call raises ``ValueError``. They are False for NaN and inf (every comparison is).

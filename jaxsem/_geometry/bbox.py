@@ -94,7 +94,7 @@ def _bbox_valid(R, c, r, K, T):
     disc_u = _dot3(wa, wa) - _dot3(cu, cu)
     disc_v = _dot3(wb, wb) - _dot3(cv, cv)
     eps = _eps(near.dtype)
-    ok = _ellipsoid_ok(R, c, r) & _intrinsics_ok(K) & _pose_ok(T)  # the inputs (issue 26)
+    ok = _ellipsoid_ok(R, c, r) & _intrinsics_ok(K) & _pose_ok(T)  # the inputs, under jit
     return (near > eps * (jnp.abs(tz) + half_depth)) & (disc_u >= 0) & (disc_v >= 0) & ok
 
 

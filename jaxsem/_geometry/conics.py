@@ -202,7 +202,7 @@ _conic_bbox_compiled = _eager_compiled(_conic_bbox, static_argnums=(1,))
 def _is_ellipse(c13, c23, c33, disc_u, disc_v, det, det_scale):
     """The ``valid`` test of :func:`conic_bbox` on the scaled terms of :func:`_conic_terms`.
 
-    Scale-aware (issue 26): each sign test is made against the rounding level of its own terms,
+    Scale-aware: each sign test is made against the rounding level of its own terms,
     not against a fixed fraction of the largest entry. A small object seen far off-centre has a
     pixel conic whose ``C33`` is 1e-7 of its largest entry and whose determinant is 1e-15 of it,
     below float32 resolution; fixed thresholds there marked ordinary valid views invalid in
@@ -274,7 +274,7 @@ def cylinder_bbox(rotation, center, radii, K, camera_T_world, *, xp: Any = jnp):
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
     K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(cylinder=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    ok = _ellipsoid_ok(rotation, center, radii, xp) & _intrinsics_ok(K, xp) & _pose_ok(pose, xp)  # issue 26
+    ok = _ellipsoid_ok(rotation, center, radii, xp) & _intrinsics_ok(K, xp) & _pose_ok(pose, xp)  # the inputs
     rotation, center, radii, K, pose = (_finite_or_zero(x, xp) for x in (rotation, center, radii, K, pose))
     flat = radii * xp.asarray([1.0, 1.0, 0.0], radii.dtype)
     axis = rotation[..., :, 2] * radii[..., 2:]
@@ -393,7 +393,7 @@ def texture_plane_depth(rotation, center, radii, camera_T_world):
     _batch_shape(ellipsoid=batch, camera_T_world=pose.shape[:-2])
     dtype = jnp.result_type(rotation.dtype, pose.dtype)
     rotation, center, radii, pose = (x.astype(dtype) for x in (rotation, center, radii, pose))
-    ok = _ellipsoid_ok(rotation, center, radii) & _pose_ok(pose)  # the inputs, under jit (issue 26)
+    ok = _ellipsoid_ok(rotation, center, radii) & _pose_ok(pose)  # the inputs, under jit
     rotation, center, radii, pose = (_finite_or_zero(x) for x in (rotation, center, radii, pose))
     Rc, tc = _camera_frame(rotation, center, pose)
     half_depth = safe_norm(radii * Rc[..., 2, :], axis=-1)

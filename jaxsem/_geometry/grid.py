@@ -39,7 +39,7 @@ def world_to_cell(xy, origin, resolution, xp=jnp):
     return rc[..., ::-1]
 
 
-def cell_to_world(rc, origin, resolution, offset=0.5, xp=jnp):
+def cell_to_world(rc, origin, resolution, offset: float | jax.Array = 0.5, xp=jnp):
     """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of the point ``offset`` cells into it
     along both axes (0.5: the centre; an array of (..., 2) offsets in [0, 1) for jittered points).
     The result has ``origin``'s floating dtype (float64 for a Python or int origin under x64)."""
@@ -60,6 +60,22 @@ def cell_in_grid(rc, shape, xp=jnp):
     return (rc[..., 0] >= 0) & (rc[..., 0] < h) & (rc[..., 1] >= 0) & (rc[..., 1] < w)
 
 
+def box_to_cells(box, origin, resolution, shape):
+    """The cells a world box ``(x0, y0, x1, y1)`` (x0 <= x1, y0 <= y1) covers on a grid of
+    ``shape`` (H, W), as the half-open ranges ``(r0, r1, c0, c1)`` (Python ints, clipped to the
+    grid, ``r0 <= r1`` and ``c0 <= c1``): every cell whose open interior meets the closed box, so
+    an edge lying on a cell boundary marks nothing past it. Host code (hand annotations)."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    ox, oy = (float(v) for v in np.asarray(origin, np.float64))
+    res = float(resolution)
+    h, w = (int(s) for s in shape)
+    c0 = max(int(np.floor((x0 - ox) / res)), 0)
+    r0 = max(int(np.floor((y0 - oy) / res)), 0)
+    c1 = min(int(np.ceil((x1 - ox) / res)), w)
+    r1 = min(int(np.ceil((y1 - oy) / res)), h)
+    return r0, max(r1, r0), c0, max(c1, c0)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Grid:
@@ -75,8 +91,8 @@ class Grid:
         centres = grid.cell_to_world(rc)
     """
 
-    origin: jax.Array
-    resolution: jax.Array
+    origin: jax.Array | np.ndarray
+    resolution: jax.Array | np.ndarray
     shape: tuple[int, int] = dataclasses.field(metadata={"static": True})
 
     @classmethod
@@ -94,6 +110,14 @@ class Grid:
             raise ValueError(f"shape: expected (H, W) with H, W >= 1, got {shape}")
         return cls(jnp.asarray(origin), jnp.asarray(resolution, origin.dtype), (shape[0], shape[1]))
 
+    @classmethod
+    def host(cls, origin, resolution, shape) -> Grid:
+        """:meth:`create` for host code (map files, numpy readers): the leaves are float64 numpy
+        arrays, so a map's origin and resolution convert exactly whatever jax's default float
+        is (under ``jit`` they become tracers as any numpy argument does)."""
+        grid = cls.create(origin, resolution, shape)
+        return cls(np.asarray(origin, np.float64), np.asarray(resolution, np.float64), grid.shape)
+
     @property
     def extent(self) -> jax.Array:
         """(..., 2) width and height in metres (x, y)."""
@@ -110,3 +134,7 @@ class Grid:
     def contains(self, rc) -> jax.Array:
         """:func:`cell_in_grid` on this grid."""
         return cell_in_grid(rc, self.shape)
+
+    def box_to_cells(self, box) -> tuple[int, int, int, int]:
+        """:func:`box_to_cells` on this (unbatched, concrete) grid."""
+        return box_to_cells(box, self.origin, self.resolution, self.shape)

@@ -100,7 +100,7 @@ def rasterize_footprint(
     rotation = jnp.broadcast_to(rotation, batch + (3, 3))
     center = jnp.broadcast_to(center, batch + (3,))
     radii = jnp.broadcast_to(radii, batch + (3,))
-    valid = _ellipsoid_ok(rotation, center, radii)  # under jit (issue 26); eagerly checked above
+    valid = _ellipsoid_ok(rotation, center, radii)  # under jit; eagerly checked above
     rot = _finite_or_zero(rotation).reshape(-1, 3, 3)
     ctr = _finite_or_zero(center).reshape(-1, 3)
     rad = _finite_or_zero(radii).reshape(-1, 3)

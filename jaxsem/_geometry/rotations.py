@@ -30,6 +30,7 @@ from ._common import (
     _rotation_ok,
     _safe_norm,
     _safe_sqrt,
+    safe_div,
 )
 
 # --------------------------------------------------------------------------------------------
@@ -308,8 +309,6 @@ def ray_rotation(direction):
     Finite for any direction with ``c > -1``; VoluMon's rays point forward (``c > 0``). A zero
     direction gives the identity. (The egocentric-allocentric conversion of thesis 5.2.)
     """
-    from ._common import safe_div
-
     n = jnp.asarray(direction)
     norm = _safe_norm(n, jnp, -1, True)
     ez = jnp.zeros_like(n).at[..., 2].set(1.0)

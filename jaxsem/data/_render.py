@@ -41,7 +41,7 @@ class _LazyMujoco:
 
     def __getattr__(self, name: str) -> Any:
         try:
-            import mujoco as module
+            import mujoco as module  # deferred: mujoco is optional (the sim extra)
         except ImportError as exc:
             raise ImportError("rendering needs MuJoCo: pip install 'jaxsem[sim]' (or mujoco>=3.1)") from exc
         globals()["mujoco"] = module

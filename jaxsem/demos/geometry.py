@@ -29,10 +29,10 @@ def make_scene(seed: int = 0, num_objects: int = 6):
 
 
 def run(out_dir: pathlib.Path, quick: bool = False) -> str:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
     from matplotlib.patches import Rectangle
 
     out_dir = pathlib.Path(out_dir)
@@ -63,7 +63,7 @@ def run(out_dir: pathlib.Path, quick: bool = False) -> str:
         ax_img.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, ls="--", color=colour))
         ax_img.text(u0, v0 - 4, f"#{i}", color=colour, fontsize=8)
     ax_img.add_patch(Rectangle((0, 0), 640, 480, fill=False, color="k"))
-    from matplotlib.colors import ListedColormap
+    from matplotlib.colors import ListedColormap  # deferred: matplotlib is optional (the sim extra)
 
     n = len(radii)
     cmap = ListedColormap(["white"] + [CLASS_COLOURS[i % len(CLASS_COLOURS)] for i in range(n)])

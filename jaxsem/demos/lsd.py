@@ -22,26 +22,26 @@ import os
 import pathlib
 import time
 
+import jax
+
+from ..lsd import (
+    PRETRAINED,
+    PRETRAINED_CPU,
+    ExpertConfig,
+    LSDSampler,
+    full_map_distribution,
+    generate_expert_samples,
+    load_model,
+    plot_navigation,
+    tiny_config,
+    train_and_evaluate,
+)
+from ..planning import NavConfig, generate_building, sample_tasks
 from ..scripting import atomic_write_text, record_output
+from .lsd_door import run_door_plan
 
 
 def run(out_dir: pathlib.Path, quick: bool) -> str:
-    import jax
-
-    from ..lsd import (
-        PRETRAINED,
-        PRETRAINED_CPU,
-        ExpertConfig,
-        LSDSampler,
-        full_map_distribution,
-        generate_expert_samples,
-        load_model,
-        plot_navigation,
-        tiny_config,
-        train_and_evaluate,
-    )
-    from ..planning import NavConfig, generate_building, sample_tasks
-
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -120,7 +120,6 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         }
         for name, r in results.items()
     }
-    from .lsd_door import run_door_plan
 
     door_lines, door = run_door_plan(out_dir, building, task, sampler, quick)
     atomic_write_text(

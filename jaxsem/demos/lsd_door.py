@@ -18,16 +18,20 @@ import math
 import pathlib
 import time
 
+import jax
 import numpy as np
+
+from .. import mapping, quadrics
+from ..mapping import BuildingRenderer, robot_camera, robot_intrinsics
+from ..planning import DOOR, NavConfig, navigate, world_to_cell
+from ..scripting import atomic_savefig, record_output
+from ..volumon import SingleViewEstimator, load_pretrained
 
 WIDTH, HEIGHT = 320, 240
 
 
 def _find_door(renderer, K, start, yaw0):
     """The largest door box seen from ``start`` in eight headings: (yaw, camera_T_world, box, index)."""
-    from ..mapping import robot_camera
-    from ..planning import DOOR
-
     best = None
     for i in range(8):
         yaw = float(yaw0) + i * math.pi / 4
@@ -43,8 +47,6 @@ def _find_door(renderer, K, start, yaw0):
 
 def _goal_behind(building, door_lo, door_hi, camera_xy):
     """A free point 1.5-3 m behind the door (on the side away from the camera), or None."""
-    from ..planning import world_to_cell
-
     centre = 0.5 * (door_lo[:2] + door_hi[:2])
     ext = door_hi[:2] - door_lo[:2]
     normal = np.array([0.0, 1.0]) if ext[0] >= ext[1] else np.array([1.0, 0.0])
@@ -62,14 +64,6 @@ def _goal_behind(building, door_lo, door_hi, camera_xy):
 def run_door_plan(out_dir, building, task, lsd_sampler, quick: bool, door_model=None) -> tuple[list, dict]:
     """Find a door with VoluMon, map it, plan through it with ``lsd_sampler`` (a
     :class:`jaxsem.lsd.LSDSampler`); returns (table lines, JSON record)."""
-    import jax
-
-    from .. import mapping, quadrics
-    from ..mapping import BuildingRenderer, robot_intrinsics
-    from ..planning import DOOR, NavConfig, navigate, world_to_cell
-    from ..scripting import record_output
-    from ..volumon import SingleViewEstimator, load_pretrained
-
     t0 = time.perf_counter()
     try:
         vm, vv, vc, meta = load_pretrained(door_model, kind="door")
@@ -142,13 +136,11 @@ def run_door_plan(out_dir, building, task, lsd_sampler, quick: bool, door_model=
 
 
 def _figure(path, rgb, box, image_outline, building, lo, hi, outline, start, goal, trajectory, T):
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
     from matplotlib.patches import Rectangle
-
-    from ..scripting import atomic_savefig
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
     axes[0].imshow(rgb)

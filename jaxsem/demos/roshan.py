@@ -15,9 +15,8 @@ Returns a markdown table of the median over maps of each map's mean shape (m), p
 orientation (deg, symmetry-aware) error, and writes ``roshan_forward.png``: a top-down view of
 the first map (true ellipsoids, both estimates, the camera path).
 
-``quick``: 1 map of 4 cars and 30 frames (about 20-30 s on a 2-core CPU, mostly compilation);
-otherwise 16 maps of 10 cars and 60 frames (the Table 4.1 setting at a small scale; about a
-minute).
+``quick``: 1 map of 4 cars and 30 frames (seconds, mostly compilation);
+otherwise 16 maps of 10 cars and 60 frames (the Table 4.1 setting at a small scale).
 """
 
 from __future__ import annotations
@@ -25,7 +24,12 @@ from __future__ import annotations
 import pathlib
 import time
 
+import jax
+import numpy as np
+
+from .. import slam
 from ..scripting import atomic_savefig
+from ..slam import sim
 
 METRICS = ("shape", "position", "orientation")
 UNITS = {"shape": "m", "position": "m", "orientation": "deg"}
@@ -39,12 +43,6 @@ def simulate_and_solve(seed: int, num_maps: int, cfg, *, every: int = 10, steps:
       axis M), ``{system: SlamEstimate}`` (leading axis M), ``{system: {metric: (M,) array,
       "count": (M,)}}`` and ``{system: seconds}`` (compilation included).
     """
-    import jax
-    import numpy as np
-
-    from .. import slam
-    from ..slam import sim
-
     maps = sim.simulate_batch(seed, num_maps, cfg)
     estimates, errors, seconds = {}, {}, {}
     for system in (sim.BASELINE, sim.ROSHAN):
@@ -68,8 +66,6 @@ def simulate_and_solve(seed: int, num_maps: int, cfg, *, every: int = 10, steps:
 
 def error_table(errors, seconds=None) -> str:
     """Markdown table of the median over maps of the per-map mean errors, one row per system."""
-    import numpy as np
-
     head = "| system | " + " | ".join(f"{m} ({UNITS[m]})" for m in METRICS) + " | objects scored |"
     if seconds is not None:
         head += " time (s) |"
@@ -86,15 +82,10 @@ def error_table(errors, seconds=None) -> str:
 def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> None:
     """Top-down figure of map ``index``: truth (black), baseline (red dashed), ROSHAN (blue),
     each estimate joined to its true centre by a dotted line, and the camera path (green)."""
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-    import jax
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from .. import slam
-    from ..slam import sim
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
 
     one = lambda x: np.asarray(x[index])
     observed = one(maps.observed)
@@ -138,8 +129,6 @@ def plot_map(maps, estimates, index: int, path: pathlib.Path, title: str) -> Non
 
 def run(out_dir: pathlib.Path, quick: bool) -> str:
     """Runs the demo; writes ``roshan_forward.png`` into ``out_dir``; returns the table."""
-    from ..slam import sim
-
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if quick:

@@ -20,12 +20,25 @@ import pathlib
 
 import numpy as np
 
+from jaxsem.quadrics import Ellipsoid
+from jaxsem.volumon import (
+    PRETRAINED_DIR,
+    draw_predictions,
+    evaluate_held_out,
+    evaluate_predictions,
+    get_config,
+    held_out_set,
+    load_pretrained,
+    make_batch,
+    postopt,
+    predict_batch,
+    train_and_evaluate,
+)
+
 from ..scripting import atomic_savefig, atomic_write_text
 
 
 def run(out_dir: pathlib.Path, quick: bool, train: bool = False) -> str:
-    from jaxsem.volumon import PRETRAINED_DIR
-
     if not train and (PRETRAINED_DIR / "volumon_fast.npz").exists():
         return _run_shipped(pathlib.Path(out_dir), quick)
     return _run_training(pathlib.Path(out_dir), quick)
@@ -34,10 +47,7 @@ def run(out_dir: pathlib.Path, quick: bool, train: bool = False) -> str:
 def _save_predictions(path: pathlib.Path, b: dict, ell, title: str) -> None:
     """The first 8 held-out images of batch ``b`` with the predicted ellipsoids ``ell`` (camera
     frame) and the true cuboids drawn over them, saved as one figure."""
-    import matplotlib.pyplot as plt
-
-    from jaxsem.quadrics import Ellipsoid
-    from jaxsem.volumon import draw_predictions
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
 
     K = np.asarray(b["K"][0])
     fig, axes = plt.subplots(2, 4, figsize=(12, 5))
@@ -52,16 +62,9 @@ def _save_predictions(path: pathlib.Path, b: dict, ell, title: str) -> None:
 
 
 def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-
-    from jaxsem.volumon import (
-        evaluate_held_out,
-        held_out_set,
-        load_pretrained,
-        predict_batch,
-    )
 
     out_dir.mkdir(parents=True, exist_ok=True)
     model, variables, cfg, meta = load_pretrained()
@@ -96,19 +99,10 @@ def _run_shipped(out_dir: pathlib.Path, quick: bool) -> str:
 
 
 def _run_training(out_dir: pathlib.Path, quick: bool) -> str:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from jaxsem.volumon import (
-        evaluate_predictions,
-        get_config,
-        make_batch,
-        postopt,
-        predict_batch,
-        train_and_evaluate,
-    )
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     if quick:

@@ -2,9 +2,28 @@
 
 The network itself is :class:`jaxsem.models.LSDNet`; the planning world, the PRM and the online
 loop are in :mod:`jaxsem.planning`.
+
+What a user calls, by job:
+
+- configs: :class:`TrainConfig`, :func:`get_config`, :data:`PRESETS`, :func:`default_config`,
+  :func:`cpu_config`, :func:`tiny_config`;
+- expert data (the shard schema :data:`EXPERT_SCHEMA`): :class:`ExpertConfig`,
+  :func:`generate_expert_samples`, :func:`with_full_map`, :func:`write_expert_dataset`,
+  :func:`load_expert_dataset`, :func:`load_expert_data`;
+- training: :func:`train_and_evaluate` (both stages in one compiled step,
+  :func:`make_two_stage_step` / :func:`two_stage_optimizer`; :func:`make_train_step` is one
+  stage's step), :func:`load_trained`, :func:`export_model`;
+- trained models and the planner's sampler: :func:`load_model`, :data:`PRETRAINED`,
+  :data:`PRETRAINED_CPU`, :data:`PRETRAINED_CAMPUS`, :data:`PRETRAINED_HOUSE`,
+  :class:`LSDSampler`, :func:`full_map_distribution`, :func:`full_map_sampler`;
+- experiments: :func:`run_trials`, :func:`read_records`, :func:`summarise`,
+  :func:`plot_success`, :func:`plot_navigation`.
+
+The building blocks (augmentation, batching, the record schema, the stage optimizers, ...) stay
+importable from their private modules, e.g. ``jaxsem.lsd._data``, for tests and benchmarks;
+``ConfigMismatchError`` is :mod:`jaxsem.training`'s.
 """
 
-from ..training import ConfigMismatchError as ConfigMismatchError
 from ._config import (
     PRESETS as PRESETS,
     TrainConfig as TrainConfig,
@@ -13,30 +32,17 @@ from ._config import (
     get_config as get_config,
     tiny_config as tiny_config,
 )
-from ._data import (
-    batch_indices as batch_indices,
-    check_expert_data as check_expert_data,
-    dihedral_augment as dihedral_augment,
-    load_expert_data as load_expert_data,
-    split_by_building as split_by_building,
-)
+from ._data import load_expert_data as load_expert_data
 from ._experiment import (
-    ExperimentSetup as ExperimentSetup,
-    format_table as format_table,
-    merge_records as merge_records,
     plot_navigation as plot_navigation,
     plot_success as plot_success,
-    prepare_model as prepare_model,
     read_records as read_records,
     run_trials as run_trials,
     summarise as summarise,
-    trial_key as trial_key,
 )
 from ._expert import (
-    SCHEMA_KEYS as SCHEMA_KEYS,
     ExpertConfig as ExpertConfig,
     __doc__ as EXPERT_SCHEMA,  # noqa: F401  (re-exported: the shard schema)
-    full_map_state as full_map_state,
     generate_expert_samples as generate_expert_samples,
     load_expert_dataset as load_expert_dataset,
     with_full_map as with_full_map,
@@ -48,24 +54,15 @@ from ._sampler import (
     full_map_sampler as full_map_sampler,
 )
 from ._train import (
-    MODELS as MODELS,
     PRETRAINED as PRETRAINED,
     PRETRAINED_CAMPUS as PRETRAINED_CAMPUS,
     PRETRAINED_CPU as PRETRAINED_CPU,
     PRETRAINED_HOUSE as PRETRAINED_HOUSE,
-    RESUMABLE_FIELDS as RESUMABLE_FIELDS,
-    STAGE_LABELS as STAGE_LABELS,
-    TrainResult as TrainResult,
-    evaluate_nll as evaluate_nll,
     export_model as export_model,
     load_model as load_model,
-    load_model_file as load_model_file,
     load_trained as load_trained,
     make_train_step as make_train_step,
     make_two_stage_step as make_two_stage_step,
-    save_distribution_figure as save_distribution_figure,
-    stage_optimizer as stage_optimizer,
     train_and_evaluate as train_and_evaluate,
     two_stage_optimizer as two_stage_optimizer,
-    warm_start_params as warm_start_params,
 )

@@ -93,14 +93,14 @@ def _cpu(c: TrainConfig) -> TrainConfig:
 
 @PRESETS.register("scale")
 def _scale(c: TrainConfig) -> TrainConfig:
-    """The first run of the shipped model (then fine-tuned by ``scale_resize``): expert data
-    from 240 train buildings (``infer/make_expert_data.py --buildings 240``), bounded output
-    range (``log_range=8``, see :class:`jaxsem.models.LSDConfig`), transposed-convolution
-    upsampling as that run had it (``train/checkpoints/lsd_scale`` resumes with this preset),
-    8,000 + 2,500 steps at batch 16 with a cosine rate decay per stage, checkpoints every 1,000
-    steps (chunked: a restart resumes); about an hour on a 2-core CPU. Validation: the buildings
-    whose seed is a multiple of 20. A new run without stripes from the start: ``--set
-    model.upsample=resize``, or the ``scale_resize`` fine-tune from it."""
+    """The shipped model's base training (``scale_resize`` fine-tunes it): expert data from
+    240 train buildings (``infer/make_expert_data.py --buildings 240``), bounded output range
+    (``log_range=8``, see :class:`jaxsem.models.LSDConfig`), transposed-convolution upsampling
+    so that ``train/checkpoints/lsd_scale`` resumes with this preset, 8,000 + 2,500 steps at
+    batch 16 with a cosine rate decay per stage, checkpoints every 1,000 steps (chunked: a
+    restart resumes). Validation: the buildings whose seed is a multiple of 20. A network
+    without stripes from the start: ``--set model.upsample=resize``, or the ``scale_resize``
+    fine-tune from it."""
     return dataclasses.replace(
         c,
         model=LSDConfig(log_range=8.0, upsample="transpose"),
@@ -119,8 +119,7 @@ def _scale(c: TrainConfig) -> TrainConfig:
 def _scale_resize(c: TrainConfig) -> TrainConfig:
     """The ``scale`` run's network with resize upsampling (no stripes, ``LSDConfig.upsample``),
     fine-tuned from a ``scale`` model: pass it as ``init_from`` (``--set
-    init_from=train/checkpoints/lsd_scale``); 3,000 + 1,500 steps, about 45 minutes on a 2-core
-    CPU."""
+    init_from=train/checkpoints/lsd_scale``); 3,000 + 1,500 steps."""
     base = _scale(c)
     return dataclasses.replace(
         base,
@@ -183,7 +182,7 @@ def _tiny(c: TrainConfig) -> TrainConfig:
 
 
 def default_config() -> TrainConfig:
-    """The default (a few minutes of training on a 2-core CPU for a few thousand samples)."""
+    """The default (a few minutes of training on a CPU for a few thousand samples)."""
     return PRESETS["default"]
 
 

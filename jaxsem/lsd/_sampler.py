@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
 from ..models import LSDNet, lsd_distribution
 
 
@@ -97,7 +98,7 @@ def full_map_sampler(sampler, world, max_distance: float = 20.0):
 
     def fn(inputs):
         centre = np.asarray(inputs.center_cell, np.float64)
-        xy = origin + (centre[::-1] + 0.5) * res  # the centre cell's middle, world (x, y)
+        xy = Q.cell_to_world(centre, origin, res, xp=np)  # the centre cell's middle, world (x, y)
         size = int(np.shape(inputs.occupancy)[-1])
         true = local_inputs(state, xy, xy, False, origin, res, size, max_distance)
         return sampler(inputs._replace(occupancy=true.occupancy, semantic=true.semantic))

@@ -553,7 +553,7 @@ def _train(config, workdir, run, data, progress, stop_at, log, mesh) -> TrainRes
     key = jax.random.PRNGKey(config.seed)
     model, params = init_lsd(key, config.model, dtype)
     # Dropout / augmentation keys use the 'rbg' generator: threefry dropout masks made the
-    # train step's compile slower (benchmarks/RESULTS.md, "Design measurements").
+    # train step's compile slower (benchmarks/RESULTS.md, "Other: devices and design measurements").
     drop_key = jax.random.key(config.seed, impl="rbg")
     train_idx, val_idx = split_by_building(data, config.val_fraction, config.seed, config.val_every_nth_building)
     fig_idx = val_idx[: config.num_figure_samples] if len(val_idx) else train_idx[: config.num_figure_samples]

@@ -23,6 +23,15 @@ Example::
     dets = mapping.ellipsoids(quadrics.Ellipsoid(rotation, center, radii), class_id=[planning.DOOR] * len(center))
     state = mapping.update(state, dets, gate=1.0)
     grid = mapping.semantic_grid(state, building.grid)
+
+The rest of the face, by job: the store's :data:`FUSIONS`, :class:`Association`; buildings'
+objects :class:`BuildingObjects`, :class:`ObjectHeights`, :func:`box_ellipsoids`; the rendered
+building :func:`building_mjcf`, :class:`SceneDetections`, :func:`detect_from_segmentation`,
+:func:`ellipsoids_from_depth`, :func:`robot_camera`, :func:`robot_intrinsics`; ROSHAN on
+buildings :data:`ROSHAN_CLASSES`, :func:`roshan_priors`, and VoluMon's start
+:func:`volumon_initial_ellipsoids`; doors :func:`door_building`, :func:`write_door_dataset`,
+:func:`train_door_model`, :func:`door_data_baseline`, :func:`door_eval_batch`,
+:data:`DOOR_BASELINE`.
 """
 
 from ._building import (

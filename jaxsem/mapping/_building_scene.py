@@ -35,9 +35,11 @@ from typing import Any
 
 import numpy as np
 
+from .. import quadrics
 from .._checks import require_type
 from ..data import RENDER_OUTPUTS, MujocoScene
 from ..quadrics import Camera
+from ._building import ObjectHeights, box_ellipsoids, building_objects
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -98,8 +100,8 @@ def building_mjcf(building, heights=None, *, width: int = 640, height: int = 480
       object index (-1 for walls) and to semantic class id; the
       :class:`jaxsem.mapping.BuildingObjects` whose order the object indices follow.
     """
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
     from ..planning import DOOR, EXIT_SIGN, WALL, WINDOW
-    from . import ObjectHeights, building_objects
 
     heights = heights or ObjectHeights()
     sem = np.asarray(building.semantic)
@@ -203,8 +205,6 @@ def robot_intrinsics(width: int, height: int, hfov_deg: float = 69.4) -> np.ndar
 def robot_camera(xy, yaw: float, height: float = 1.2, pitch_deg: float = 0.0) -> np.ndarray:
     """``camera_T_world`` (4, 4) of a camera ``height`` metres above the robot at world ``xy``
     looking along heading ``yaw`` (radians, from world x towards y), tilted down by ``pitch_deg``."""
-    from .. import quadrics
-
     xy = np.asarray(xy, float)
     if xy.shape != (2,) or not np.all(np.isfinite(xy)):
         raise ValueError(f"xy: expected a finite world point (2,), got {np.asarray(xy).tolist()}")
@@ -240,6 +240,7 @@ def detect_from_segmentation(seg, object_class, classes=None, *, min_area: int =
     labelled pixels; border: drop boxes closer than this many pixels to the image edge (the
     thesis dropped boxes under 2000 px^2 or within 50 px of the border, section 5.8.1).
     """
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
     from ..planning import DOOR, EXIT_SIGN
 
     seg = np.asarray(seg)
@@ -300,9 +301,8 @@ def ellipsoids_from_depth(
     Returns ``(ellipsoids, object_index)``: :class:`jaxsem.mapping.Ellipsoids` and the (D,)
     object index of each estimate.
     """
-    from .. import quadrics
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
     from ..planning import DOOR, EXIT_SIGN
-    from . import box_ellipsoids
 
     K, camera_T_world = require_type("camera", camera, Camera)
     seg, depth = np.asarray(seg), np.asarray(depth, np.float64)

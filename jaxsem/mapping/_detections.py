@@ -1,4 +1,4 @@
-"""Object maps from detections (thesis 5.8.2, issue 13 part 3): ROSHAN's online state as map
+"""Object maps from detections (thesis 5.8.2): ROSHAN's online state as map
 objects, and the error of a map against ground truth.
 
 The building renderer (:class:`jaxsem.mapping.BuildingRenderer`) gives per-frame boxes, segmentation
@@ -21,7 +21,7 @@ their sigmas, but not its 4.5 cm thickness: the renderer labels the door *openin
 through the wall), as thick as the wall (0.2 m in the generated buildings), and a 4.5 cm
 ellipsoid has a ground footprint thinner than half a 0.1 m cell, which the semantic grid would
 not show at all. The class table has no window or exit sign, so their rows come from the
-building generator's parameters (``jaxsem.planning.BuildingParams.window_length`` 1-2 m, one
+building generator's parameters (``jaxsem.planning._buildings.BuildingParams.window_length`` 1-2 m, one
 wall layer 0.2 m thick, :class:`jaxsem.mapping.ObjectHeights`: windows 0.9-2.1 m, signs
 1.9-2.2 m) with loose sigmas; see :func:`roshan_priors`.
 """
@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import classes as _classes
+from .. import classes as _classes, metrics
 from ._store import Ellipsoids, ObjectMap, associate
 
 __all__ = [
@@ -88,9 +88,9 @@ def roshan_init(K, image_size, capacity, config=None, *, optimize_every: int = 2
     (``max_objects`` must exceed the largest association id); config:
     :class:`jaxsem.slam.SolverConfig` (default ROSHAN's) whose shape-prior table is replaced by
     :func:`roshan_priors`; optimize_every, iterations, window: as ``online_init`` (the poses are
-    known, so a short pose window suffices). Returns a :class:`jaxsem.slam.OnlineState`.
+    known, so a short pose window suffices). Returns a :class:`jaxsem.slam._online.OnlineState`.
     """
-    from .. import slam
+    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     mean, sigma = roshan_priors()
     config = (config or slam.SolverConfig()).replace(shape_prior_mean=mean, shape_prior_sigma=sigma)
@@ -107,7 +107,7 @@ def roshan_frame(camera_T_world, box, semantic_class, object_id, texture_depth=N
     object index); texture_depth: optional (N,) metres of the object's near surface (NaN: none);
     max_detections: the smoother's ``Capacity.max_detections`` (extra detections: ValueError).
     """
-    from .. import slam
+    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     box = np.asarray(box, np.float64).reshape(-1, 4)
     frame = slam.make_frame(
@@ -132,10 +132,10 @@ def roshan_frame(camera_T_world, box, semantic_class, object_id, texture_depth=N
 
 
 def roshan_objects(state) -> Ellipsoids:
-    """The smoother's current ellipsoids (:class:`jaxsem.slam.OnlineState`) as
+    """The smoother's current ellipsoids (:class:`jaxsem.slam._online.OnlineState`) as
     :class:`Ellipsoids` with planning semantic ids; slot ``j`` is association id ``j``.
     Objects not yet seen, or with a non-finite estimate, are invalid."""
-    from .. import slam
+    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     est, pb = slam.online_estimate(state), slam.online_problem(state)
     rot, ctr, rad = (np.asarray(a) for a in (est.rotation, est.center, est.radii))
@@ -166,8 +166,6 @@ def map_errors(objects, truth: Ellipsoids, *, gate: float = 2.0) -> dict:
     (:func:`jaxsem.metrics.ellipsoid_errors`; NaN where unmatched or invalid), and ``slot`` (M,)
     the matched map slot (``N`` where none).
     """
-    from .. import metrics
-
     if isinstance(objects, Ellipsoids):  # slot j holds object j (no association, nothing to compile)
         n = objects.valid.shape[-1]
         objects = ObjectMap(

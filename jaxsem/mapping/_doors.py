@@ -53,6 +53,8 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..data import fat_writer
+from ._building import building_objects
+from ._building_scene import BuildingRenderer, robot_camera, robot_intrinsics
 
 __all__ = [
     "DOOR_BASELINE",
@@ -73,6 +75,7 @@ _CLASS = "door"
 
 def door_building(split: str, index: int, seed: int = 0):
     """The building of scene ``index`` of ``split`` (the same one :func:`write_door_dataset` renders)."""
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
     from ..planning import generate_building
 
     fat_writer.check_split(split, _SPLITS)
@@ -88,7 +91,7 @@ class _Clearance:
     """Distance (m) from each free cell to the nearest occupied cell of a building."""
 
     def __init__(self, building):
-        from scipy import ndimage
+        from scipy import ndimage  # deferred: scipy.ndimage is slow to import (~0.2 s)
 
         self.res = float(building.resolution)
         self.origin = np.asarray(building.origin, np.float64).reshape(2)
@@ -162,9 +165,7 @@ def write_door_dataset(
     Returns:
       The scene directories written (``pathlib.Path``).
     """
-    from ..planning import DOOR
-    from . import building_objects
-    from ._building_scene import BuildingRenderer, robot_intrinsics
+    from ..planning import DOOR  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
 
     fat_writer.check_split(split, _SPLITS)
     num_scenes, frames_per_scene = fat_writer.check_scenes(num_scenes, frames_per_scene)
@@ -181,7 +182,7 @@ def write_door_dataset(
         raise ValueError(f"max_view_angle: expected 0 to 90 degrees, got {max_view_angle}")
     fat_writer.check_formats(image_format, bbox_order)
 
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import
 
     K = robot_intrinsics(width, height_px)
     T_rl = np.asarray(Q.stereo_right_T_left(float(baseline)), np.float64)
@@ -249,15 +250,13 @@ def _sample_pose(rng, objects, doors, clear, K, T_rl, st):
 
 
 def _robot_camera(xy, yaw, height, pitch):
-    from ._building_scene import robot_camera
-
     return robot_camera(xy, yaw, height, pitch)
 
 
 def _write_scene(
     scene_dir, rng, building, objects, doors, renderer, K, T_rl, frames, st, image_format, bbox_order, bar
 ):  # fmt: skip
-    from ..planning import DOOR
+    from ..planning import DOOR  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
     from ..volumon.data import ObjectClass, object_box
 
     width, height = renderer.width, renderer.height
@@ -352,6 +351,7 @@ def _sizes(config) -> dict[str, Any]:
 def door_eval_batch(path, config, num: int | None = None) -> dict:
     """Every door of the directory ``path`` once (the first ``num``), as one batch sized for the
     VoluMon ``config`` (:func:`jaxsem.volumon.data.volumon_eval_batch` with the writer's baseline)."""
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.volumon (~0.7 s)
     from ..volumon.data import volumon_eval_batch
 
     return volumon_eval_batch(
@@ -376,6 +376,7 @@ def train_door_model(
     ``stop_after``: steps of this call (a chunk; re-running with the same ``workdir`` resumes).
     Returns :func:`jaxsem.volumon.train_and_evaluate` 's dict.
     """
+    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.volumon (~0.7 s)
     from ..volumon import train_and_evaluate
     from ..volumon.data import volumon_batch_source
 

@@ -17,11 +17,10 @@ import pathlib
 import sys
 
 from .. import scripting as sc
+from ._doors import DOOR_BASELINE, write_door_dataset
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
-    from ._doors import DOOR_BASELINE
-
     p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=sc.HelpFormatter)
     p.add_argument("--out", type=sc.output_dir, required=True, help="root directory (the split goes in a subdirectory)")
     p.add_argument("--scenes", type=sc.positive_int, required=True, help="buildings (scene directories) to render")
@@ -50,7 +49,6 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.min_distance > a.max_distance:
         p.error(f"--min-distance: {a.min_distance} exceeds --max-distance {a.max_distance}")
-    from ._doors import write_door_dataset
 
     dirs = write_door_dataset(
         a.out,

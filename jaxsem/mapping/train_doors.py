@@ -7,7 +7,7 @@
     python -m jaxsem.mapping.train_doors --data DATA/train --workdir runs/door_dual --export
 
 A thin wrapper over :func:`jaxsem.mapping.train_door_model` with the ``door`` preset
-(:func:`jaxsem.volumon.door_config`; ``--variant dual`` is the thesis' Dual-Only, ``oracle`` the
+(:func:`jaxsem.volumon._configs.door_config`; ``--variant dual`` is the thesis' Dual-Only, ``oracle`` the
 fully supervised diagnostic). Re-running with the same ``--workdir`` resumes; ``--stop-after N``
 trains N steps of this call (a chunk). ``--score DIR`` prints the door errors
 (:func:`jaxsem.volumon.evaluate_doors`) of the workdir's latest checkpoint on DIR as JSON;
@@ -23,6 +23,7 @@ import pathlib
 import sys
 
 from .. import scripting as sc
+from ._doors import door_eval_batch, train_door_model
 
 # Convenience flags for TrainConfig fields (type and help from the dataclass; --set reaches every field).
 CONFIG_FLAGS = (
@@ -41,7 +42,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--eval-data", type=sc.existing_dir, default=None, help="doors the periodic evaluation scores")
     p.add_argument("--variant", choices=("dual", "oracle"), default="dual", help="Dual-Only (thesis) or oracle")
     p.add_argument("--stop-after", type=sc.positive_int, default=None, help="steps of this call (a chunk)")
-    from ..volumon import TrainConfig
+    from ..volumon import TrainConfig  # deferred: jaxsem.volumon is heavy (~0.7 s); keeps this script's --help fast
 
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
@@ -63,8 +64,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     p = build_parser("python -m jaxsem.mapping.train_doors")
     a = p.parse_args(argv)
+    # deferred: jaxsem.volumon is heavy (~0.7 s); keeps this script's --help fast
     from ..volumon import PRETRAINED_DIR, evaluate_doors, export_pretrained, get_config, load_pretrained
-    from ._doors import door_eval_batch, train_door_model
 
     if a.score is not None or a.export:
         if not (a.workdir / "config.json").exists():
@@ -96,10 +97,10 @@ def _eval_rows(metrics) -> list:
 def _curves(metrics, png, compare=()):
     """Dual loss and held-out centre / size errors against the step (and the centre error of the
     ``compare`` workdirs' evaluations)."""
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is optional (the sim extra)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
 
     rows = [json.loads(x) for x in pathlib.Path(metrics).read_text().splitlines() if x.strip()]
     loss = [r for r in rows if "total" in r]

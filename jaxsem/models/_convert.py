@@ -12,9 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import jax
 import numpy as np
 
-from ._mobilenet import block_layout
+from ._mobilenet import MobileNetV2, block_layout
 
 
 def _conv(sd, key, prefix_used):
@@ -84,10 +85,6 @@ def convert_torchvision_mobilenet_v2(
         ) from None
 
     # check shapes against the architecture before anyone runs it
-    import jax
-
-    from ._mobilenet import MobileNetV2  # local import: flax only when converting
-
     expected = jax.eval_shape(
         lambda: MobileNetV2(width_multiplier).init(jax.random.PRNGKey(0), np.zeros((1, 32, 32, 3), np.float32))
     )

@@ -24,7 +24,7 @@ Figures 3-2 and 3-4 of the thesis, in flax linen:
 ``-log p(cell)`` (dividing by the path length keeps long and short paths on one scale), averaged
 over the samples that have any path cell in the crop.
 
-The defaults are CPU-sized (forward of one 160 x 160 map in a few ms on a 2-core CPU); the sizes
+The defaults are CPU-sized (a forward pass of one 160 x 160 map is cheap on a CPU); the sizes
 are fields of :class:`LSDConfig`.
 """
 
@@ -57,11 +57,13 @@ class LSDConfig:
     dropout_rate: dropout on the latent and inside both decoders (training only).
     log_range: bound (nats) on the spread of the output log-probabilities: the logits pass
         through ``(R / 2) tanh(x / (R / 2))``, so over one window ``max p / min p <= e^R``.
-        ``None``: unbounded (networks trained before the bound existed). Why: the planner sets
-        every cell outside the window to the window's *minimum* (thesis 3.2.5), an extreme-value
-        statistic; an unbounded network trained on path likelihood pushes single cells (walls,
-        the off-map padding) to 1e-11 and the outside then gets almost no samples (``benchmarks/RESULTS.md``, "Design measurements";
-        the LSD model card).
+        ``None``: unbounded (saved networks without the bound). Why: the planner sets every cell
+        outside the window to the window's *minimum* (thesis 3.2.5), an extreme-value statistic;
+        an unbounded network trained on path likelihood pushes single cells (walls, the off-map
+        padding) to vanishing probabilities and the outside then gets almost no samples. With
+        the bound the outside keeps a share of the samples even where the network is fully
+        confident (``benchmarks/RESULTS.md``, "Other: devices and design measurements"; the LSD
+        model card).
     upsample: 'resize' (the default and the shipped model's: nearest-neighbour doubling, then a
         3 x 3 convolution) or 'transpose' (2 x 2 transposed convolutions, stride 2: the networks
         trained before the shipped one; saved configs without this field load as 'transpose',

@@ -161,7 +161,8 @@ class VoluMonConfig:
       global_padding: fraction of the box size kept around the box in the masked global image.
       backbone: "mobilenet_v2" (the thesis) or "small_cnn" (four strided 3x3 convolutions with
         batch norm: compiles in seconds; the CPU preset -- XLA's CPU depthwise convolutions make
-        MobileNetV2 far slower to train on a CPU, ``benchmarks/RESULTS.md``, "Design measurements").
+        MobileNetV2 far slower to train on a CPU, ``benchmarks/RESULTS.md``, "Other: devices and
+        design measurements").
       cnn_width: channels of the first ``small_cnn`` layer (then 2x, 4x, 4x).
       rotation_init: starting allocentric rotation of the head's bias. "identity" (object axes =
         camera axes: the longest axis d2 along the viewing ray) or "short_axis_along_ray" (object

@@ -65,7 +65,7 @@ TEST_PARAMS = BuildingParams(
     room_size=(4.0, 9.5),
     seed_offset=1_000_003,
 )
-#: Long university buildings like the scanned Malaga campus (issue 25 item 4): 60-110 m long,
+#: Long university buildings like the scanned Malaga campus: 60-110 m long,
 #: a 3-6 m corridor spine, cross corridors every 20-40 m, rooms up to 12 m (halls) and a wide
 #: outside; the campus' corridors are 3-6 m wide where the train family's are 1.8-2.4 m.
 CAMPUS_PARAMS = BuildingParams(
@@ -126,8 +126,10 @@ class GridMap:
 
     @property
     def grid(self) -> Q.Grid:
-        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape)."""
-        return Q.Grid.create(self.origin, self.resolution, self.shape)
+        """The map's :class:`jaxsem.quadrics.Grid` (origin, resolution, shape), its leaves the
+        map's own float64 numpy values (host readers convert exactly; under ``jit`` they become
+        the tracer dtype as any numpy argument does)."""
+        return Q.Grid.host(self.origin, self.resolution, self.shape)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,31 +12,35 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
+from ._grid import _grid
+
 
 def _edge_samples(radius: float, resolution: float) -> int:
     return max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
 
 
-def _cells(points, origin, resolution, shape):
-    H, W = shape
-    cr = jnp.floor((points - origin) / resolution).astype(jnp.int32)
-    on = (cr[..., 0] >= 0) & (cr[..., 0] < W) & (cr[..., 1] >= 0) & (cr[..., 1] < H)
-    return jnp.clip(cr[..., 1], 0, H - 1), jnp.clip(cr[..., 0], 0, W - 1), on
+def _cells(points, grid):
+    """(row, col, on-grid) of world ``points`` (..., 2) on ``grid``, rows and columns clipped
+    to it (read them only where ``on``)."""
+    H, W = grid.shape
+    rc = Q.world_to_cell(points, grid.origin, grid.resolution)
+    on = Q.cell_in_grid(rc, grid.shape)
+    return jnp.clip(rc[..., 0], 0, H - 1), jnp.clip(rc[..., 1], 0, W - 1), on
 
 
-def _edges(blocked, cost, a, b, origin, resolution, edge_samples, mask=None, subset=None, table=None, chunk=8192):
-    """Clear flag and weight of segments a -> b (..., 2) on the grid (see the module docstring).
+def _edges(blocked, cost, a, b, grid, edge_samples, mask=None, subset=None, table=None, chunk=8192):
+    """Clear flag and weight of segments a -> b (..., 2) on the ``grid`` of ``blocked`` (see the
+    module docstring).
 
     With ``cost=None`` (Euclidean weights) the rule is decided by :func:`_edges_clear` (the same
     answer, most edges from a few dozen reads); with a cost grid every sample is read (the
     weight needs them all). ``mask``: the edges worth checking (the rest may come back either
     way; None: all); ``subset``, ``table``, ``chunk``: see :func:`_edges_clear`."""
     if cost is None:
-        clear = _edges_clear(
-            blocked, a, b, origin, resolution, edge_samples, mask, subset=subset, table=table, chunk=chunk
-        )
+        clear = _edges_clear(blocked, a, b, grid, edge_samples, mask, subset=subset, table=table, chunk=chunk)
         return clear, _length(a, b)
-    clear, er, ec = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
+    clear, er, ec = _edges_dense(blocked, a, b, grid, edge_samples)
     return clear, _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
 
 
@@ -45,19 +49,19 @@ def _length(a, b):
     return jnp.sqrt(jnp.sum((b - a) ** 2, -1) + 1e-30)
 
 
-def _edges_dense(blocked, a, b, origin, resolution, edge_samples):
+def _edges_dense(blocked, a, b, grid, edge_samples):
     """The edge rule read at every one of the ``edge_samples`` points (module docstring)."""
     dtype = a.dtype
     t = jnp.arange(edge_samples, dtype=dtype) / (edge_samples - 1)
     along = a[..., None, :] + t[:, None] * (b - a)[..., None, :]  # (..., S, 2)
-    er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+    er, ec, eon = _cells(along, grid)
     clear = _cells_clear(blocked, er, ec, eon)
     return clear, er, ec
 
 
-def _samples_clear(blocked, along, origin, resolution):
+def _samples_clear(blocked, along, grid):
     """The edge rule on consecutive samples ``along`` (..., S, 2) of a segment."""
-    er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+    er, ec, eon = _cells(along, grid)
     return _cells_clear(blocked, er, ec, eon)
 
 
@@ -171,9 +175,7 @@ def _compact(mask, pad: int):
     return out.at[jnp.where(mask, pos, n + pad)].set(jnp.arange(n, dtype=jnp.int32), mode="drop"), pos
 
 
-def _edges_clear(
-    blocked, a, b, origin, resolution, edge_samples, mask=None, *, subset=None, table=None, chunk: int = 8192
-):
+def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, table=None, chunk: int = 8192):
     """The edge rule of :func:`_edges_dense`, decided from a few reads where the map allows.
 
     Only edges where ``mask`` (broadcast to the edges; None: all) is set are checked (the rest
@@ -216,9 +218,9 @@ def _edges_clear(
         j = jnp.minimum(ids, E - 1)
         pa, pb = fa[j], fb[j]
         along = pa[:, None, :] + t_pick[:, None] * (pb - pa)[:, None, :]  # (F, C, 2)
-        er, ec, eon = _cells(along, origin, resolution, blocked.shape)
+        er, ec, eon = _cells(along, grid)
         hit = jnp.any(~eon | blocked[er, ec], axis=-1)
-        lo = (table[er >> _BASE, ec >> _BASE].astype(dtype) - 1e-3) * resolution
+        lo = (table[er >> _BASE, ec >> _BASE].astype(dtype) - 1e-3) * grid.resolution.astype(dtype)
         lo = jnp.where(eon, lo, -1.0)
         covered = lo[:, :-1] + lo[:, 1:] > _length(pa, pb)[:, None] * gap_t
         live = (ids < E)[:, None]
@@ -252,7 +254,7 @@ def _edges_clear(
             idx = jnp.minimum(pick_j[q % (C - 1)][:, None] + step, S - 1)  # (F2, G + 1)
             pa, pb = fa[j], fb[j]
             along = pa[:, None, :] + t_all[idx][..., None] * (pb - pa)[:, None, :]
-            ok = _samples_clear(blocked, along, origin, resolution)
+            ok = _samples_clear(blocked, along, grid)
             return bad.at[p].max(~ok, mode="drop")
 
         return jax.lax.fori_loop(0, (jnp.sum(u) + F2 - 1) // F2, inner, bad)
@@ -262,9 +264,9 @@ def _edges_clear(
     return (todo & ok[jnp.clip(place, 0, E + F - 1)]).reshape(shape)
 
 
-@functools.partial(jax.jit, static_argnames=("resolution", "edge_samples"))
-def _segments_clear(blocked, a, b, origin, *, resolution, edge_samples):
-    clear, _ = _edges(blocked, None, a, b, origin, resolution, edge_samples)
+@functools.partial(jax.jit, static_argnames=("edge_samples",))
+def _segments_clear(blocked, a, b, grid, *, edge_samples):
+    clear, _ = _edges(blocked, None, a, b, grid, edge_samples)
     return jnp.all(clear)
 
 
@@ -297,8 +299,7 @@ def polyline_clear(points, blocked, origin, resolution: float, radius: float, dt
             blocked_j,
             jnp.asarray(aa, dtype),
             jnp.asarray(bb, dtype),
-            origin_j,
-            resolution=float(resolution),
+            _grid(origin_j, float(resolution), blocked.shape),
             edge_samples=_edge_samples(r, resolution),
         )
         if not bool(ok):

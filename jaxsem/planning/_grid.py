@@ -68,6 +68,14 @@ def cell_to_world(rc, origin, resolution):
     return Q.cell_to_world(rc, origin, resolution)
 
 
+def _grid(origin, resolution, shape) -> Q.Grid:
+    """The :class:`jaxsem.quadrics.Grid` inside a jitted step (the PRM's, the sensors'):
+    ``origin`` (2,) (traced, the points' dtype) and the step's static ``resolution`` as a leaf
+    of that dtype (the same arithmetic as the Python float it stands for)."""
+    origin = jnp.asarray(origin)
+    return Q.Grid(origin, jnp.asarray(resolution, origin.dtype), (int(shape[0]), int(shape[1])))
+
+
 def read_text_as(path: pathlib.Path, parse: Callable[[str], Any], errors: tuple, what: str) -> Any:
     """``parse`` of the text file at ``path``; a one-line ``ValueError`` ("not a readable
     ``what``") when it cannot be read, decoded or parsed (``errors``: the parser's own
@@ -95,8 +103,9 @@ def check_grid(name: str, grid, dtype_kind: str, shape=None) -> np.ndarray:
     return arr
 
 
-def check_point(name: str, xy, occupancy: np.ndarray, origin, resolution) -> np.ndarray:
-    """A world point (2,) that lies on the grid and in a free cell, else ``ValueError``."""
+def check_point(name: str, xy, occupancy: np.ndarray, grid: Q.Grid) -> np.ndarray:
+    """A world point (2,) that lies on ``grid`` (the cells of ``occupancy``) and in a free cell,
+    else ``ValueError``."""
     try:
         p = np.asarray(xy, dtype=np.float64)
     except Exception as exc:
@@ -105,12 +114,13 @@ def check_point(name: str, xy, occupancy: np.ndarray, origin, resolution) -> np.
         raise ValueError(f"{name}: expected a world point (x, y) of shape (2,), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ValueError(f"{name}: must be finite, got {p.tolist()}")
-    rc = Q.world_to_cell(p, np.asarray(origin, np.float64), resolution, xp=np)
+    origin, resolution = np.asarray(grid.origin, np.float64), float(grid.resolution)
+    rc = Q.world_to_cell(p, origin, resolution, xp=np)
     H, W = occupancy.shape
     if not Q.cell_in_grid(rc, (H, W), xp=np):
         raise ValueError(
             f"{name}: point {p.tolist()} (cell {rc.tolist()}) is off the map of {H}x{W} cells "
-            f"with origin {np.asarray(origin).tolist()} and resolution {resolution}"
+            f"with origin {origin.tolist()} and resolution {resolution}"
         )
     if occupancy[rc[0], rc[1]]:
         raise ValueError(f"{name}: point {p.tolist()} (cell {rc.tolist()}) lies in an occupied cell")

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from ._edges import _edges, _edges_dense
+from ._edges import _edges, _edges_dense, _grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath
@@ -68,7 +68,8 @@ def _knn_some_jit(
     M = points.shape[0]
     db_ok = valid & (jnp.arange(M) >= _QUERY)
     db = points - origin
-    density = _density(points, distribution, origin, resolution, sectors)
+    cells = None if distribution is None else _grid(origin, resolution, distribution.shape)
+    density = _density(points, distribution, cells, sectors)
     grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
     return _knn_rows(
         db, db_ok, db[rows], rows, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
@@ -143,9 +144,9 @@ def _pairs_clear(blocked, a, b, mask, origin, table, *, resolution, edge_samples
     edges: one fused pass, ~3x cheaper per call than the clearance-table path's work lists);
     otherwise the clearance-table path (many edges). The same answers (:func:`_edges_clear`)."""
     if dense:
-        clear, _, _ = _edges_dense(blocked, a, b, origin, resolution, edge_samples)
+        clear, _, _ = _edges_dense(blocked, a, b, _grid(origin, resolution, blocked.shape), edge_samples)
         return clear & mask
-    clear, _ = _edges(blocked, None, a, b, origin, resolution, edge_samples, mask, table=table)
+    clear, _ = _edges(blocked, None, a, b, _grid(origin, resolution, blocked.shape), edge_samples, mask, table=table)
     return clear
 
 

@@ -258,7 +258,7 @@ def grid_to_building(
                 outside_is_outdoors = False
                 break
     if annotations:
-        occ, semantic, indoor, unused = apply_annotations(occ, semantic, indoor, annotations, grid.origin, res)
+        occ, semantic, indoor, unused = apply_annotations(occ, semantic, indoor, annotations, grid.grid)
         if unused:
             raise ValueError(
                 f"annotations: {', '.join(unused)} mark no cell of the map (outside it, or a window / "

@@ -256,8 +256,9 @@ class Trial:
         self.world = world
         self.origin = np.asarray(world.origin, np.float64)
         self.resolution = _check_resolution(world.resolution)
-        self.start = check_point("start", start, occ, self.origin, self.resolution)
-        self.goal = check_point("goal", goal, occ, self.origin, self.resolution)
+        self.grid = Q.Grid.host(self.origin, self.resolution, occ.shape)
+        self.start = check_point("start", start, occ, self.grid)
+        self.goal = check_point("goal", goal, occ, self.grid)
         if goal_outdoors is None:
             gr, gc = Q.world_to_cell(self.goal, self.origin, self.resolution, xp=np)
             goal_outdoors = getattr(world, "outside_is_outdoors", True) and not bool(np.asarray(world.indoor)[gr, gc])
@@ -317,7 +318,7 @@ class Trial:
     @staticmethod
     def connection_radius(config: NavConfig, shape, resolution: float, learned: bool) -> float:
         """The roadmap's connection radius (m): ``config.radius`` when set, else
-        :func:`~jaxsem.planning.default_radius` of ``n_samples`` (3 x the mean spacing of uniform
+        :func:`~jaxsem.planning._roadmap.default_radius` of ``n_samples`` (3 x the mean spacing of uniform
         samples, 6 m on the test buildings at N = 500), times ``learned_radius_factor`` for a
         learned sampler, rounded up to 0.5 m. Why: the window keeps most of the samples and the
         rest of the map (where an outdoor goal lies) only the window's minimum, 5-15 % of them at

@@ -106,7 +106,8 @@ _RANKED_MAX = 128
 
 
 #: Query rows searched at a time: the candidate arrays of a block (rows x 3 strips x slots)
-#: stay in cache, where all rows at once do not (``benchmarks/RESULTS.md``, campus PRM).
+#: stay in cache, where all rows at once do not (``benchmarks/lsd/HISTORY.md``, "PRM on the
+#: campus map against OMPL's C++ PRM").
 _ROWS = 512
 
 

@@ -70,7 +70,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from ._edges import _cells, _edge_samples, _edges, _subset, query_reach
+from .. import quadrics as Q
+from ._edges import _cells, _edge_samples, _edges, _grid, _subset, query_reach
 from ._grid import OCCUPIED, check_point
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _select
@@ -79,7 +80,8 @@ from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
 #: navigation planner (``NavConfig.sectors``): direction first over 8 sectors, which found more
-#: paths than the plain k nearest, no longer (``benchmarks/RESULTS.md``, "Design measurements";
+#: paths than the plain k nearest, no longer (``benchmarks/RESULTS.md``, "Other: devices and
+#: design measurements";
 #: ``benchmarks/lsd/lsd_prm.py`` reports held-out buildings).
 DEFAULT_SECTORS = 8
 
@@ -141,7 +143,7 @@ def prm_star_k(n: int) -> int:
     """Neighbours per vertex for ``n`` samples: PRM*'s ``ceil(e (1 + 1/d) ln n)`` with d = 2
     (Karaman and Frazzoli 2011; OMPL's ``PRMstar`` uses the same rule): 26 at n = 500, 29 at
     1000, 35 at 5000. Fewer neighbours, or OMPL-like growing batches, solved fewer queries
-    (``benchmarks/RESULTS.md``, "Design measurements")."""
+    (``benchmarks/RESULTS.md``, "Other: devices and design measurements")."""
     return max(1, int(math.ceil(math.e * 1.5 * math.log(max(int(n), 2)))))
 
 
@@ -176,12 +178,13 @@ def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, unifo
     dtype = rm.points.dtype
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
     uniform = distribution is None or uniform_samples
+    grid = _grid(origin, resolution, (H, W))
     if aids is not None and uniform and aids.free_words is not None:
-        new = sample_free_cells(key, aids.free_words, aids.free_counts, (H, W), n, origin, resolution)
+        new = sample_free_cells(key, aids.free_words, aids.free_counts, n, grid)
     else:
         cdf = aids.uniform_cdf if aids is not None and uniform else None
-        new = sample_points(key, weights, n, origin, resolution, cdf)
-    r, c, on = _cells(new, origin, resolution, (H, W))
+        new = sample_points(key, weights, n, grid, cdf)
+    r, c, on = _cells(new, grid)
     ok_new = on & ~blocked[r, c]
     s0 = (_QUERY + rm.num_samples).astype(jnp.int32)
     z = jnp.zeros((), jnp.int32)
@@ -190,12 +193,12 @@ def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, unifo
     return points, valid, new, ok_new, s0
 
 
-def _density(points, distribution, origin, resolution, sectors):
+def _density(points, distribution, grid, sectors):
     """Each vertex's sampling density (the direction-first policy's "sparser" test), None
     when it plays no part (no sectors, or uniform samples)."""
     if not sectors or distribution is None:
         return None
-    pr, pc, _ = _cells(points, origin, resolution, distribution.shape)
+    pr, pc, _ = _cells(points, grid)
     return distribution[pr, pc]
 
 
@@ -249,13 +252,14 @@ def _grow_impl(
     extent = (W * resolution, H * resolution)
     # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
     keep = 2 * k if sectors else k
-    density = _density(points, distribution, origin, resolution, sectors)
+    grid = _grid(origin, resolution, (H, W))
+    density = _density(points, distribution, grid, sectors)
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = _edge_samples(radius, resolution)
-    nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, table, k)
+    nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k)
     return Roadmap(
         points,
         valid,
@@ -272,7 +276,7 @@ def _grow_impl(
 _EDGE_ROWS = 1024
 
 
-def _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, table, k: int):
+def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int):
     """The links of each new vertex (n, 2) to its candidates ``nbr`` (n, K) among ``points``
     (M, 2), checked where ``cand``: (n, k) neighbours (``M`` where none), clear flags and
     weights, the first ``k`` clear candidates when K > k. ``_EDGE_ROWS`` vertices at a time
@@ -283,7 +287,7 @@ def _link_by_rows(blocked, cost, points, new, nbr, origin, resolution, S, cand, 
     def rows(args):
         nw, nb, cd = args
         ot = points[jnp.minimum(nb, M - 1)]
-        clear, w = _edges(blocked, cost, nw[:, None, :], ot, origin, resolution, S, cd, table=table)
+        clear, w = _edges(blocked, cost, nw[:, None, :], ot, grid, S, cd, table=table)
         ev = cd & clear
         w = jnp.where(ev, w, jnp.inf)
         if K > k:
@@ -332,14 +336,13 @@ def _recheck_impl(rm, blocked, origin, distribution=None, factor=None, *, radius
     """Drops what ``blocked`` blocks; with a ``factor`` grid (weights that follow the map, e.g.
     unknown cells charged more) the kept edges' weights are read again on the new map."""
     M, _ = rm.neighbors.shape
-    r, c, on = _cells(rm.points, origin, resolution, blocked.shape)
+    grid = _grid(origin, resolution, blocked.shape)
+    r, c, on = _cells(rm.points, grid)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
     ev = rm.edge_valid & valid[:, None] & valid[j]
     cost = None if factor is None else _edge_cost(distribution, factor, neglogp)
-    clear, w = _edges(
-        blocked, cost, rm.points[:, None, :], rm.points[j], origin, resolution, _edge_samples(radius, resolution), ev
-    )
+    clear, w = _edges(blocked, cost, rm.points[:, None, :], rm.points[j], grid, _edge_samples(radius, resolution), ev)
     ev = ev & clear
     w = rm.edge_weight if cost is None else w.astype(rm.edge_weight.dtype)
     return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, w, jnp.inf))
@@ -399,7 +402,8 @@ def _connect_impl(
     cand = nbr < M
     s_short = _edge_samples(radius, resolution)
     table = None if aids is None else aids.table
-    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, origin, resolution, s_short, cand & short, table=table)
+    grid = _grid(origin, resolution, blocked.shape)
+    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, grid, s_short, cand & short, table=table)
     reach = query_reach(blocked.shape, resolution)
     # Long edges: the rule's samples over the reach, a subset about one per 4 cells of an edge
     # 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
@@ -410,8 +414,7 @@ def _connect_impl(
         cost,
         q[:, None, :],
         other,
-        origin,
-        resolution,
+        grid,
         s_long,
         cand & ~short,
         sub,
@@ -660,8 +663,9 @@ def _connect_checked(
     """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy;
     ``setup``: the map's :class:`_MapSetup` (None: the table is made inside)."""
     origin_np = np.asarray(origin, np.float64)
-    start = check_point("start", start, blocked, origin_np, resolution)
-    goal = check_point("goal", goal, blocked, origin_np, resolution)
+    grid = Q.Grid.host(origin_np, resolution, blocked.shape)
+    start = check_point("start", start, blocked, grid)
+    goal = check_point("goal", goal, blocked, grid)
     if weight == "neglogp" and distribution is None:
         raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     distribution = _check_distribution(distribution, blocked.shape)
@@ -680,9 +684,9 @@ def _connect_checked(
         for i in range(2):
             c = nbr[i][nbr[i] < len(pts)]
             xy = np.concatenate([ends[i : i + 1], np.where((c == GOAL)[:, None], ends[1], pts[c])])
-            cell = np.floor((xy - origin_np) / resolution)
+            cell = Q.world_to_cell(xy, origin_np, resolution, xp=np)
             lo, hi = cell.min(0) - 1, cell.max(0) + 2
-            boxes.append((lo[1], hi[1], lo[0], hi[0]))
+            boxes.append((lo[0], hi[0], lo[1], hi[1]))
         aids = _MapAids(setup.query_table(boxes), None, None, None)
     return _connect_jit(
         roadmap,
@@ -729,8 +733,9 @@ def build_roadmap(
     origin_np = np.asarray(origin, np.float64)
     if origin_np.shape != (2,):
         raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
-    check_point("start", start, blocked, origin_np, resolution)
-    check_point("goal", goal, blocked, origin_np, resolution)
+    grid = Q.Grid.host(origin_np, resolution, blocked.shape)
+    check_point("start", start, blocked, grid)
+    check_point("goal", goal, blocked, grid)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
     if weight not in ("euclidean", "neglogp"):

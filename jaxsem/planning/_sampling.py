@@ -9,6 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
+from .._checks import require_type
+
 
 def _cdf(distribution, dtype):
     """The flattened cumulative weights :func:`sample_points` draws from."""
@@ -16,25 +19,30 @@ def _cdf(distribution, dtype):
     return jax.lax.associative_scan(jnp.add, distribution.reshape(-1).astype(dtype))
 
 
-def sample_points(key, distribution, n: int, origin, resolution: float, cdf=None):
+def sample_points(key, distribution, n: int, grid: Q.Grid, cdf=None):
     """``n`` world points (n, 2): a cell drawn with probability ``distribution`` (H, W) (need
-    not be normalised, must be >= 0), then a uniform point inside the cell. ``cdf``: its
-    :func:`_cdf` when the caller keeps it (the same draws, without the scan over the map).
-    Jittable."""
+    not be normalised, must be >= 0), then a uniform point inside the cell of ``grid`` (a
+    :class:`jaxsem.quadrics.Grid` of ``distribution``'s shape; the points take its origin's
+    dtype). ``cdf``: its :func:`_cdf` when the caller keeps it (the same draws, without the scan
+    over the map). Jittable."""
+    grid = require_type("grid", grid, Q.Grid)
+    if tuple(grid.shape) != tuple(distribution.shape):
+        raise ValueError(f"grid: expected the distribution's shape {tuple(distribution.shape)}, got {grid.shape}")
     H, W = distribution.shape
+    dtype = grid.origin.dtype
     k_cell, k_in = jax.random.split(key)
-    cdf = _cdf(distribution, origin.dtype) if cdf is None else cdf
-    u = jax.random.uniform(k_cell, (n,), origin.dtype) * cdf[-1]
+    cdf = _cdf(distribution, dtype) if cdf is None else cdf
+    u = jax.random.uniform(k_cell, (n,), dtype) * cdf[-1]
     flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
-    return _in_cells(k_in, flat, W, origin, resolution)
+    return _in_cells(k_in, flat, grid)
 
 
-def _in_cells(k_in, flat, W: int, origin, resolution: float):
-    """A uniform point inside each of the flat cell indices ``flat`` (n,) of a grid ``W`` wide."""
-    n = flat.shape[0]
+def _in_cells(k_in, flat, grid):
+    """A uniform point inside each of the flat cell indices ``flat`` (n,) of ``grid``."""
+    n, W = flat.shape[0], grid.shape[1]
     rc = jnp.stack([flat // W, flat % W], -1)
-    jitter = jax.random.uniform(k_in, (n, 2), origin.dtype)
-    return origin + (rc[:, ::-1].astype(origin.dtype) + jitter) * resolution
+    jitter = jax.random.uniform(k_in, (n, 2), grid.origin.dtype)
+    return Q.cell_to_world(rc, grid.origin, grid.resolution, offset=jitter)
 
 
 def _free_words(free) -> tuple[np.ndarray, np.ndarray]:
@@ -60,17 +68,18 @@ _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], np.uint8)
 _LOW_BITS = np.array([(1 << (j + 1)) - 1 for j in range(32)], np.uint64).astype(np.uint32)
 
 
-def sample_free_cells(key, words, counts, shape, n: int, origin, resolution: float):
+def sample_free_cells(key, words, counts, n: int, grid):
     """The draws of :func:`sample_points` over the uniform weights of the free cells, point for
     point (same ``key``, same cells, same jitter), from :func:`_free_words` ``(words, counts)``
-    of a map ``shape`` (H, W) with fewer than 2**24 cells and at least one free: there the CDF
+    of a map on ``grid`` (H, W) with fewer than 2**24 cells and at least one free: there the CDF
     holds exact integers, so the cell the CDF search finds for a draw ``u`` is the free cell of
     rank ``floor(u)`` (the last cell when ``u`` rounds up to the free count, as the search's
     clip gives). Jittable."""
-    H, W = shape
+    H, W = grid.shape
+    dtype = grid.origin.dtype
     k_cell, k_in = jax.random.split(key)
     total = counts[-1]
-    u = jax.random.uniform(k_cell, (n,), origin.dtype) * total.astype(origin.dtype)
+    u = jax.random.uniform(k_cell, (n,), dtype) * total.astype(dtype)
     rank = jnp.floor(u).astype(jnp.int32)
     wi = jnp.minimum(jnp.searchsorted(counts, rank, side="right"), counts.shape[0] - 1)
     word = words[wi]
@@ -78,7 +87,7 @@ def sample_free_cells(key, words, counts, shape, n: int, origin, resolution: flo
     upto = jax.lax.population_count(word[:, None] & jnp.asarray(_LOW_BITS)[None, :]).astype(jnp.int32)
     bit = jnp.sum(upto <= below[:, None], axis=1, dtype=jnp.int32)
     flat = jnp.where(rank < total, wi * 32 + bit, H * W - 1)
-    return _in_cells(k_in, flat, W, origin, resolution)
+    return _in_cells(k_in, flat, grid)
 
 
 def _cost_grid(distribution):

@@ -16,8 +16,8 @@ signs (thesis 3.2), so a real map needs them from somewhere:
   (doors, laser gaps), and what the outside (the map's border, through unknown and free cells)
   cannot reach is the building. Free cells outside it are outdoors (laser fans through doors and
   windows, courtyards open to the outside); where there are none (a map of one building's
-  inside), the largest open region (a hall) stands in for the outside, as issue 25 asks: the
-  Inside-Outside tasks then end there.
+  inside), the largest open region (a hall) stands in for the outside, so that
+  Inside-Outside tasks still have a goal region: they end there.
 - **Annotations** (:func:`apply_annotations`): a JSON file of world-frame boxes
   ``{"doors": [[x0, y0, x1, y1], ...], "windows": [...], "exit_signs": [...], "outdoor": [...],
   "indoor": [...]}`` (the thesis annotated windows and exit signs by hand). Doors make their
@@ -37,6 +37,8 @@ import pathlib
 import numpy as np
 import scipy.ndimage as ndi
 
+from .. import quadrics as Q
+from .._checks import require_type
 from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WALL, WINDOW, read_text_as
 
 DOOR_WIDTH = (0.6, 1.4)  # metres: the narrowest door a robot passes, the widest double door
@@ -249,25 +251,24 @@ def read_annotations(path) -> dict:
     return out
 
 
-def _box_cells(box, origin, resolution, shape):
-    x0, y0, x1, y1 = box
-    c0 = max(int(math.floor((x0 - origin[0]) / resolution)), 0)
-    r0 = max(int(math.floor((y0 - origin[1]) / resolution)), 0)
-    c1 = min(int(math.ceil((x1 - origin[0]) / resolution)), shape[1])
-    r1 = min(int(math.ceil((y1 - origin[1]) / resolution)), shape[0])
-    return slice(r0, max(r1, r0)), slice(c0, max(c1, c0))
+def _box_cells(box, grid):
+    r0, r1, c0, c1 = Q.box_to_cells(box, grid.origin, grid.resolution, grid.shape)
+    return slice(r0, r1), slice(c0, c1)
 
 
-def apply_annotations(occupancy, semantic, indoor, annotations: dict, origin, resolution: float):
-    """Copies of (occupancy three-state, semantic, indoor) with the annotation boxes applied.
+def apply_annotations(occupancy, semantic, indoor, annotations: dict, grid):
+    """Copies of (occupancy three-state, semantic, indoor) with the annotation boxes applied on
+    ``grid`` (:class:`jaxsem.quadrics.Grid` of the maps' cells, e.g. a map's ``.grid``).
     Returns (occupancy, semantic, indoor, unused) where ``unused`` lists the boxes that touched
     no cell they could mark (``"windows[2]"``)."""
+    grid = require_type("grid", grid, Q.Grid)
     occ, sem, ind = np.array(occupancy), np.array(semantic), np.array(indoor)
-    origin = np.asarray(origin, float)
+    if tuple(grid.shape) != occ.shape:
+        raise ValueError(f"grid: expected the maps' shape {occ.shape}, got shape {tuple(grid.shape)}")
     unused = []
     for key, cls in (("doors", DOOR), ("windows", WINDOW), ("exit_signs", EXIT_SIGN)):
         for i, box in enumerate(annotations.get(key, ())):
-            sl = _box_cells(box, origin, resolution, occ.shape)
+            sl = _box_cells(box, grid)
             if cls == DOOR:
                 if occ[sl].size == 0:
                     unused.append(f"{key}[{i}]")
@@ -280,7 +281,7 @@ def apply_annotations(occupancy, semantic, indoor, annotations: dict, origin, re
                 sem[sl] = np.where(hit, cls, sem[sl])
     for key, value in (("outdoor", False), ("indoor", True)):
         for i, box in enumerate(annotations.get(key, ())):
-            sl = _box_cells(box, origin, resolution, occ.shape)
+            sl = _box_cells(box, grid)
             if ind[sl].size == 0:
                 unused.append(f"{key}[{i}]")
             ind[sl] = value

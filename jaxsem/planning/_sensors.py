@@ -22,7 +22,8 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
-from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState
+from .._checks import require_type
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState, _grid
 
 
 class SensorConfig(NamedTuple):
@@ -40,15 +41,16 @@ def _samples(max_range, resolution, step_cells):
     return int(math.ceil(max_range / (resolution * step_cells)))
 
 
-def _cast(occupancy, origin, resolution, xy, angles, max_range, n_samples):
-    """Marches rays; returns (rows, cols) (R, S) int32, visible (R, S), blocked (R, S), ranges (R,)."""
+def _cast(occupancy, grid, xy, angles, max_range, n_samples):
+    """Marches rays over ``occupancy`` on ``grid``; returns (rows, cols) (R, S) int32, visible
+    (R, S), blocked (R, S), ranges (R,)."""
     H, W = occupancy.shape
-    dtype = origin.dtype
+    dtype = grid.origin.dtype
     step = max_range / n_samples
     t = (jnp.arange(n_samples, dtype=dtype) + 1.0) * step
     direction = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1).astype(dtype)  # (R, 2)
     pts = xy[None, None, :] + t[None, :, None] * direction[:, None, :]  # (R, S, 2)
-    rc = Q.world_to_cell(pts, origin, resolution)
+    rc = Q.world_to_cell(pts, grid.origin, grid.resolution)
     rows, cols = rc[..., 0], rc[..., 1]
     on_map = Q.cell_in_grid(rc, (H, W))
     rows_c, cols_c = jnp.clip(rows, 0, H - 1), jnp.clip(cols, 0, W - 1)
@@ -159,7 +161,7 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))
     occ_t, sem_t = win(true_occupancy), win(true_semantic)
     occ, sem = win(state.occupancy), win(state.semantic)
-    w_origin = origin + start[::-1].astype(dtype) * resolution
+    window = _grid(Q.cell_to_world(start, origin, resolution, offset=0.0), resolution, (wh, ww))
 
     # One fan covering the wider field of view out to the longer range; each sensor keeps the
     # samples inside its own cone and range.
@@ -167,7 +169,7 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     n_rays = config.rays
     n_s = _samples(max_range, resolution, config.step_cells)
     angles = _fan(yaw, wide, n_rays, dtype)
-    rows, cols, vis, _, _ = _cast(occ_t, w_origin, resolution, xy, angles, max_range, n_s)
+    rows, cols, vis, _, _ = _cast(occ_t, window, xy, angles, max_range, n_s)
     t = (jnp.arange(n_s, dtype=dtype) + 1.0) * (max_range / n_s)
     rel = jnp.abs(angles - yaw)[:, None]
     eps = 1e-6
@@ -189,14 +191,18 @@ def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, c
     )
 
 
-def cast_rays(occupancy, origin, resolution, xy, angles, max_range):
+def cast_rays(occupancy, grid: Q.Grid, xy, angles, max_range):
     """Ranges (R,) to the first occupied (or off-grid) cell along each ray, ``max_range`` if none.
 
-    occupancy: (H, W) bool; xy: (2,) world start; angles: (R,) world headings in radians. Marched
-    at half a cell, so a range is exact to half a cell. Jitted per (shape, ranges).
+    occupancy: (H, W) bool on ``grid`` (a concrete :class:`jaxsem.quadrics.Grid`: its resolution
+    sets the number of march samples); xy: (2,) world start; angles: (R,) world headings in
+    radians. Marched at half a cell, so a range is exact to half a cell. Jitted per (shape, ranges).
     """
-    resolution = _check_resolution(resolution)
-    origin = jnp.asarray(origin, jnp.result_type(float))
+    grid = require_type("grid", grid, Q.Grid)
+    if tuple(grid.shape) != tuple(np.shape(occupancy)):
+        raise ValueError(f"grid: expected occupancy's shape {tuple(np.shape(occupancy))}, got {grid.shape}")
+    resolution = _check_resolution(grid.resolution)
+    origin = jnp.asarray(grid.origin, jnp.result_type(float))
     n = _samples(float(max_range), resolution, 0.5)
     return _cast_ranges(
         jnp.asarray(occupancy),
@@ -211,4 +217,4 @@ def cast_rays(occupancy, origin, resolution, xy, angles, max_range):
 
 @functools.partial(jax.jit, static_argnames=("resolution", "max_range", "n"))
 def _cast_ranges(occupancy, origin, resolution, xy, angles, max_range, n):
-    return _cast(occupancy, origin, resolution, xy, angles, max_range, n)[4]
+    return _cast(occupancy, _grid(origin, resolution, occupancy.shape), xy, angles, max_range, n)[4]

@@ -6,7 +6,8 @@ cell from a Euclidean distance transform), edges between 8-neighbours weighted b
 times the mean cost of their two cells, and no diagonal step that cuts an occupied corner. It
 runs on the host (numpy/scipy): one single-source search gives the optimal paths to every goal,
 which is what the expert data generator needs. scipy's Dijkstra is many times faster here than a
-jittable JAX min-plus sweep (``benchmarks/RESULTS.md``, "Design measurements").
+jittable JAX min-plus sweep (``benchmarks/RESULTS.md``, "Other: devices and design
+measurements").
 """
 
 from __future__ import annotations
@@ -126,7 +127,7 @@ class SoftCostGraph:
         return self.occupancy.shape
 
     def cell_of(self, name, xy):
-        p = check_point(name, xy, self.occupancy, self.origin, self.resolution)
+        p = check_point(name, xy, self.occupancy, Q.Grid.host(self.origin, self.resolution, self.shape))
         return Q.world_to_cell(p, self.origin, self.resolution, xp=np)
 
     def search(self, start, limit: float | None = None) -> SearchTree:

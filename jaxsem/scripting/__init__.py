@@ -28,12 +28,28 @@ A command (``jaxsem ...``, ``train/*.py``, ``infer/*.py``, ``benchmarks/*.py``) 
    :func:`add_config_flags` adds ``--set`` itself, once per parser, so every command with a
    config (``roshan``, ``volumon train``, ``lsd data``, ``lsd train``, ``lsd plan``, the door
    trainer) takes it the same way.
+
+What a command calls, by job:
+
+- errors and the entry point: :class:`UsageError`, :func:`run_main`, :class:`HelpFormatter`;
+- checked flags: :func:`positive_int`, :func:`nonnegative_int`, :func:`positive_float`,
+  :func:`nonnegative_float`, :func:`finite_float`, :func:`probability`,
+  :func:`positive_probability`, :func:`int_list`, :func:`existing_file`, :func:`existing_dir`,
+  :func:`existing_path`, :func:`output_file`, :func:`output_dir`, :func:`add_devices_argument`,
+  :func:`devices_mesh`;
+- config flags: :class:`ConfigFlag`, :func:`add_config_flags`, :func:`apply_config_flags`;
+- atomic outputs: :func:`atomic_write_text`, :func:`atomic_write_bytes`, :func:`atomic_savefig`,
+  :func:`atomic_save_npz`, :func:`save_step_figure`;
+- runs: :func:`command_parser`, :class:`Run`, :func:`start_run`, :func:`default_run_dir`,
+  :func:`active_run`, :func:`record`, :func:`record_config`, :func:`record_output`.
+
+The rest (the parser class, the run-directory variable, the ``--set`` helpers, ...) stays
+importable from the private modules, e.g. ``jaxsem.scripting._runs``, for tests.
 """
 
 from __future__ import annotations
 
 from .._atomic import (
-    atomic_path as atomic_path,
     atomic_save_npz as atomic_save_npz,
     atomic_savefig as atomic_savefig,
     atomic_write_bytes as atomic_write_bytes,
@@ -41,7 +57,6 @@ from .._atomic import (
 )
 from ._arguments import (
     add_devices_argument as add_devices_argument,
-    devices as devices,
     devices_mesh as devices_mesh,
     existing_dir as existing_dir,
     existing_file as existing_file,
@@ -61,20 +76,14 @@ from ._config_flags import (
     ConfigFlag as ConfigFlag,
     add_config_flags as add_config_flags,
     apply_config_flags as apply_config_flags,
-    config_field_help as config_field_help,
-    config_flags as config_flags,
 )
 from ._errors import (
     HelpFormatter as HelpFormatter,
     UsageError as UsageError,
     run_main as run_main,
-    wants_debug as wants_debug,
 )
 from ._figures import save_step_figure as save_step_figure
 from ._runs import (
-    FIGURE_SUFFIXES as FIGURE_SUFFIXES,
-    RUN_DIR_ENV as RUN_DIR_ENV,
-    CommandParser as CommandParser,
     Run as Run,
     active_run as active_run,
     command_parser as command_parser,
@@ -88,7 +97,6 @@ from ._runs import (
 __all__ = [
     "UsageError",
     "run_main",
-    "wants_debug",
     "HelpFormatter",
     "positive_int",
     "nonnegative_int",
@@ -106,15 +114,11 @@ __all__ = [
     "ConfigFlag",
     "add_config_flags",
     "apply_config_flags",
-    "config_flags",
-    "config_field_help",
     "atomic_write_text",
     "atomic_write_bytes",
     "atomic_savefig",
     "save_step_figure",
     "atomic_save_npz",
-    "atomic_path",
-    "CommandParser",
     "command_parser",
     "Run",
     "start_run",

@@ -8,6 +8,8 @@ import math
 import pathlib
 from collections.abc import Callable
 
+from .. import parallel
+from ..parallel import parse_devices
 from ._errors import UsageError
 
 # --------------------------------------------------------------------------------------------
@@ -79,8 +81,6 @@ def existing_file(text: str) -> pathlib.Path:
 
 def devices(text: str) -> int | str:
     """``--devices``: ``all`` or a positive count (checked against the devices JAX sees later)."""
-    from ..parallel import parse_devices
-
     try:
         return parse_devices(text)
     except ValueError as exc:
@@ -106,7 +106,6 @@ def devices_mesh(devices, batch_size: int):
     :class:`UsageError` naming ``--devices`` or ``--batch-size`` when it cannot be used."""
     if devices is None:
         return None
-    from .. import parallel
 
     parallel.initialize_distributed()  # a no-op on one machine
     try:

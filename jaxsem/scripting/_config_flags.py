@@ -4,10 +4,17 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
+import inspect
+import re
+import textwrap
+import types
+import typing
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..config import fields, override
 from ._arguments import _ranged, finite_float
 from ._errors import UsageError
 
@@ -48,8 +55,6 @@ class ConfigFlag:
 def _config_field(config_cls: type, dotted: str) -> tuple[type, dataclasses.Field]:
     """The dataclass that owns the last name of ``dotted`` (nested configs followed through their
     defaults or annotations), and that field; ``ValueError`` naming ``dotted`` otherwise."""
-    import typing
-
     cls = config_cls
     parts = dotted.split(".")
     for i, name in enumerate(parts):
@@ -76,9 +81,6 @@ def _docstring_entries(doc: str) -> dict[str, str]:
     ``a / b: text``, continuation lines indented deeper), inside or without an ``Attributes:``
     heading. An entry whose leading names have no colon (``a, b (note), c.``) documents each of
     them with the whole entry."""
-    import inspect
-    import re
-
     lines = inspect.cleandoc(doc).splitlines()
     entries: list[list[str]] = []
     indent = None
@@ -108,10 +110,6 @@ def _docstring_entries(doc: str) -> dict[str, str]:
 def _source_docs(cls: type) -> dict[str, str]:
     """``{field: text}`` from the class body: an attribute docstring (a string right after the
     field) or a trailing ``# comment`` on the field's line."""
-    import ast
-    import inspect
-    import textwrap
-
     try:
         source = textwrap.dedent(inspect.getsource(cls))
     except (OSError, TypeError):
@@ -157,9 +155,6 @@ def _field_type(config_cls: type, dotted: str) -> Callable[[str], Any]:
     """An argparse type from the field's annotation (int, finite float, bool, str; ``X | None``
     reads X). Other annotations take the text as it is, and :func:`jaxsem.config.override` reads it
     as ``--set`` would."""
-    import types
-    import typing
-
     cls, field = _config_field(config_cls, dotted)
     hint = typing.get_type_hints(cls).get(field.name, field.type)
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
@@ -222,8 +217,6 @@ def add_config_flags(
             raise ValueError(f"{spec.field}: {config_cls.__name__} documents nothing for it; give ConfigFlag(help=...)")
         value = None
         if base is not None:
-            from ..config import fields
-
             value = base
             for name in spec.field.split("."):
                 value = fields(value)[name]
@@ -259,8 +252,6 @@ def apply_config_flags(
     assignments ``sets`` (default: the ``--set`` that :func:`add_config_flags` added, ``args.set``),
     all through :func:`jaxsem.config.override` (so the config's own checks run). A bad value
     raises :class:`UsageError` naming the flag (or ``--set``)."""
-    from ..config import override
-
     if sets is None:
         sets = getattr(args, "set", None) or ()
 

@@ -12,7 +12,7 @@ def save_step_figure(fig, axes, path: str | os.PathLike, *, dpi: int) -> pathlib
     """Finishes a figure of curves against the training step (``axes``: its axes, each labelled
     "step"), writes it to ``path`` atomically (:func:`atomic_savefig`) and closes it, so a
     command that draws one figure per run leaves no figure open."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: matplotlib is optional (the sim extra)
 
     for ax in axes:
         ax.set_xlabel("step")

@@ -13,10 +13,12 @@ import pathlib
 import sys
 import time
 from collections.abc import Iterator, Mapping
+from importlib import metadata
 from typing import Any
 
 from .. import _atomic
 from .._atomic import atomic_write_text
+from ..config import to_dict
 from ._arguments import output_dir
 from ._errors import _EXPECTED, HelpFormatter, UsageError, _one_line
 
@@ -114,15 +116,11 @@ def _jsonable(value: Any) -> Any:
     if hasattr(value, "tolist"):  # numpy / jax scalars and arrays
         return _jsonable(value.tolist())
     if dataclasses.is_dataclass(value) and not isinstance(value, type):  # a config
-        from ..config import to_dict
-
         return _jsonable(to_dict(value))
     return str(value)
 
 
 def _versions() -> dict[str, str | None]:
-    from importlib import metadata
-
     out: dict[str, str | None] = {"python": sys.version.split()[0]}
     for name in ("jaxsem", "jax", "jaxlib"):
         try:

@@ -2,11 +2,11 @@
 
 JAX's persistent compilation cache saves the XLA compile, but every new process still traces
 the Python function and lowers it before it can look the executable up. For the online
-smoother's step (:func:`jaxsem.slam.run_sequence`) tracing alone is about 1.5 s on a 2-core
-CPU, a third of a 60-frame run. :func:`exported` keeps the traced and lowered program
+smoother's step (:func:`jaxsem.slam.run_sequence`) tracing alone is a large share of a short
+run. :func:`exported` keeps the traced and lowered program
 (``jax.export``: StableHLO plus its calling convention) in
 ``<jax_compilation_cache_dir>/jaxsem-exports/`` and calls it from there: a later process only
-parses it (about 0.5 s) and finds the executable in JAX's cache.
+parses it (much cheaper than tracing) and finds the executable in JAX's cache.
 
 - On exactly when JAX's persistent compilation cache is (a directory set and
   ``jax_enable_compilation_cache`` true; the command line turns both on, ``--no-compilation-cache``
@@ -18,8 +18,8 @@ parses it (about 0.5 s) and finds the executable in JAX's cache.
 - The file holds the ``jax.export.Exported`` in JAX's own serialisation (``Exported.serialize``,
   flatbuffers: loading it runs no Python code).
 - Why not the compiled executable itself (``jax.experimental.serialize_executable``)? Loaded
-  that way the online step crashed the process on the CPU (``benchmarks/RESULTS.md``, "Design measurements"), so only the portable
-  program is kept.
+  that way the online step crashed the process on the CPU (``benchmarks/RESULTS.md``, "Other:
+  devices and design measurements"), so only the portable program is kept.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import functools
 import hashlib
 import pathlib
 from collections.abc import Callable
+from importlib.metadata import version
 from typing import Any
 
 import jax
@@ -64,8 +65,6 @@ def _aval(x) -> str:
 
 
 def _key(name: str, leaves, tree) -> str:
-    from importlib.metadata import version
-
     device = jax.devices()[0]
     h = hashlib.sha256()
     for part in (

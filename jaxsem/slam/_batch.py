@@ -6,7 +6,7 @@ optimistix least-squares solver made of a descent (the damped Schur step,
 :func:`damped_schur_step`) and a search (the damping rule, :func:`damping_search`), called
 through ``optx.least_squares`` by :func:`levenberg_marquardt` with ROSHAN's residuals
 (:func:`~jaxsem.slam.residual_blocks`), its 9-column linearisation
-(:func:`~jaxsem.slam.linearize`) and the manifold retraction (:func:`roshan_solver`).
+(:func:`~jaxsem.slam._cost.linearize`) and the manifold retraction (:func:`roshan_solver`).
 
 Each trial costs one reduced solve and one cost evaluation; a relinearisation follows each
 accepted trial. The stopping rule is GTSAM's (relative or absolute cost decrease of an accepted
@@ -17,7 +17,7 @@ logic.
 
 ``solve_batch(..., method="optimistix")`` is the differentiable form: the same solver on an
 additive iterate, the tangent delta from the initial estimate, linearised by generic
-forward-mode columns (:func:`~jaxsem.slam.schur_normal`), so that optimistix's implicit adjoint
+forward-mode columns (:func:`~jaxsem.slam._schur.schur_normal`), so that optimistix's implicit adjoint
 gives gradients through the solution (e.g. to learn the class table). It has no rescue phase.
 It replaces optimistix's dense ``LevenbergMarquardt`` (one JVP per unknown and a dense QR per
 step), which was too slow to be a usable reference on full maps.
@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from ..quadrics import back_project, invert_pose
 from ._cost import (
     Delta,
     Normal,
@@ -293,8 +294,6 @@ def _triangulate(problem: SlamProblem, est: SlamEstimate, min_depth):
     2 deg of parallax) and the point is at least ``min_depth`` (``SolverConfig.min_depth``) in
     front of every camera that saw it.
     """
-    from ..quadrics import back_project, invert_pose
-
     dtype = est.center.dtype
     J = est.center.shape[0]
     bp, bo, bm = problem.box_pose, problem.box_object, problem.box_mask
@@ -450,9 +449,8 @@ def default_strategy(backend: str | None = None) -> str:
 
     Why: a vmapped Levenberg-Marquardt loop runs until its slowest member stops and pays for the
     batched linear algebra of every member at every step; on a CPU that is slower than solving
-    the maps one after another (``benchmarks/RESULTS.md``, ROSHAN solver speed: the loop of
-    jitted solves beat the vmap 3 to 1 on 50 Forward maps), while an accelerator has the lanes
-    to spare."""
+    the maps one after another (``benchmarks/RESULTS.md``, "ROSHAN object SLAM", "Solver
+    speed"), while an accelerator has the lanes to spare."""
     return "map" if (backend or jax.default_backend()) == "cpu" else "vmap"
 
 

@@ -20,7 +20,7 @@ between frames. ROSHAN needs a world that stays put, so the scene is cut into *s
   ellipsoid is the mean of its per-frame world poses (centre of the mesh extent, half extents as
   radii: :class:`jaxsem.data.BopObject`).
 
-:func:`stretch_sequence` turns one stretch into a :class:`jaxsem.slam.Sequence` with the truth
+:func:`stretch_sequence` turns one stretch into a :class:`jaxsem.slam._sequence_types.Sequence` with the truth
 attached; ROSHAN never sees an object pose:
 
 - poses: integrated odometry (:class:`OdometryModel`): from the true first pose, each step is the
@@ -41,10 +41,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
+from .. import classes as _classes, quadrics
 from ..data import BopFrame, BopScene
 from ..quadrics import EllipsoidView
+from ._sequence_types import Sequence, SequenceFrame
 
 __all__ = [
     "STRETCH_SETTINGS",
@@ -116,8 +119,6 @@ def _support_normal(centres, normal, rotations, radii, iterations: int = 3):
     refined from ``normal``: each object's lowest point along the current normal (its support
     point), a plane fitted through those, repeated. A plane through the centres instead is
     tilted whenever the objects differ in height (a 20 cm driller beside a 5 cm duck)."""
-    from .. import quadrics
-
     for _ in range(iterations):
         reach = quadrics.half_extent(rotations, radii, normal, xp=np)
         bottoms = centres - reach[:, None] * normal
@@ -175,8 +176,6 @@ def camera_from_anchors(world_corners: dict, frame: BopFrame, scene: BopScene, t
     """``(camera_T_world, kept ids, rms)`` of one frame from the anchors' corners: a rigid fit
     over every present anchor, refitted without those whose corners miss by more than ``tol_m``
     (largest first, one at a time). ``camera_T_world`` is None when fewer than three agree."""
-    from .. import quadrics
-
     seen = {o.obj_id: _corners(o, scene) for o in frame.objects if o.obj_id in world_corners}
     ids = sorted(seen)
     while len(ids) >= 3:
@@ -336,8 +335,6 @@ class OdometryModel:
 
 def _exp_se3(xi) -> np.ndarray:
     """SE(3) exponential of a (6,) tangent ``[rotation (3), translation (3)]`` (small steps)."""
-    import cv2
-
     R, _ = cv2.Rodrigues(np.asarray(xi[:3], np.float64).reshape(3, 1))
     return _pose(R, np.asarray(xi[3:], np.float64))
 
@@ -421,8 +418,6 @@ def user_class_table(extents: dict, seed: int = 27, sigma_fraction: float = 0.3,
     e.g. :func:`jaxsem.volumon.data.bop_class_extents`) registered at its dimensions times one factor per
     class drawn log-uniformly in ``[low, high]`` (seeded; classes in sorted order), with sigma
     ``sigma_fraction`` of the nominal size, as an ellipsoid class. ``factors``: name -> factor."""
-    from .. import classes
-
     if not extents:
         raise ValueError("extents: no classes")
     if not (0 < low <= 1 <= high):
@@ -433,8 +428,8 @@ def user_class_table(extents: dict, seed: int = 27, sigma_fraction: float = 0.3,
     for name in sorted(extents):
         f = float(np.exp(rng.uniform(np.log(low), np.log(high))))
         dims = f * np.asarray(extents[name], np.float64)
-        row = classes.ObjectClass(name, "ellipsoid", tuple(dims), tuple(sigma_fraction * dims))
-        table = classes.ClassTable((row,)) if table is None else table.with_classes(classes.ClassTable((row,)))
+        row = _classes.ObjectClass(name, "ellipsoid", tuple(dims), tuple(sigma_fraction * dims))
+        table = _classes.ClassTable((row,)) if table is None else table.with_classes(_classes.ClassTable((row,)))
         factors[name] = f
     return table, factors
 
@@ -458,7 +453,7 @@ def stretch_sequence(
     prior_translation: float = 0.02,
     prior_rotation_deg: float = 1.0,
 ):
-    """One stretch as a :class:`jaxsem.slam.Sequence` (module docstring) with ``truth`` (the true
+    """One stretch as a :class:`jaxsem.slam._sequence_types.Sequence` (module docstring) with ``truth`` (the true
     poses and every spell's ellipsoid) and ``noise`` (box sigma; the pose priors, which are the
     integrated odometry, at ``prior_translation`` / ``prior_rotation_deg``; each odometry step at
     its white noise and the drift it can gather over the stretch, added in quadrature).
@@ -471,9 +466,6 @@ def stretch_sequence(
     Raises:
       ValueError: unknown ``setting``, a class of the stretch missing from ``classes``.
     """
-    from .. import quadrics
-    from . import Sequence, SequenceFrame
-
     if setting not in STRETCH_SETTINGS:
         raise ValueError(f"setting: expected one of {STRETCH_SETTINGS}, got {setting!r}")
     for s in stretch.spells:

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import jaxlie
 
 from .. import factors as F, quadrics as Q
+from ..quadrics import project_bbox
 from ._problem import SlamEstimate, SlamProblem
 from ._solver_config import SolverConfig
 
@@ -463,8 +464,6 @@ def box_health(problem: SlamProblem, est: SlamEstimate, config: SolverConfig):
       (ellipsoid behind or around that camera, camera inside it); (J,) root-mean-square of the
       object's whitened, constraining edge residuals (0 for objects without boxes).
     """
-    from ..quadrics import project_bbox
-
     dtype = est.center.dtype
     bp, bo, bm = problem.box_pose, problem.box_object, problem.box_mask
     J = est.center.shape[0]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import quadrics as Q
 from .._checks import require_type
 from ..quadrics import Camera, Ellipsoid
 
@@ -15,8 +16,6 @@ from ..quadrics import Camera, Ellipsoid
 
 def _ground_outline(rotation, center, radii, num_points: int = 72):
     """Top-down outline (orthographic along z) of ellipsoids: (..., num_points, 2) world x, y."""
-    from .. import quadrics as Q
-
     # numpy (xp=np): figures are host code, and eager jnp ops would each compile a program.
     R, c, r = (np.asarray(x, np.float64) for x in (rotation, center, radii))
     outline, _ = Q.conic_outline(Q.ground_conic(R, c, np.abs(r), xp=np), num_points, xp=np)
@@ -130,8 +129,6 @@ def draw_overlay(
       color: matplotlib colour of the projected ellipsoids (to draw two sets over one image, e.g.
         an estimate and the truth, call twice on the same axes with the same image).
     """
-    from .. import quadrics as Q
-
     K, camera_T_world = require_type("camera", camera, Camera)
     W, H = int(image_size[0]), int(image_size[1])
     if image is None:
@@ -178,6 +175,6 @@ def draw_overlay(
 
 
 def _rect(b, **style):
-    import matplotlib.patches as mpatches
+    import matplotlib.patches as mpatches  # deferred: matplotlib is optional (the sim extra)
 
     return mpatches.Rectangle((b[0], b[1]), b[2] - b[0], b[3] - b[1], fill=False, **style)

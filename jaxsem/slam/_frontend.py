@@ -77,6 +77,7 @@ from ._frontend_vision import (
     hs_histogram,
     triangulate_points,
 )
+from ._problem import make_frame
 
 __all__ = [
     "FrontEnd",
@@ -524,8 +525,6 @@ def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_object
       ValueError: from :func:`jaxsem.slam.make_frame` (too many detections, ids beyond
         ``max_objects``, unknown class names).
     """
-    from ._problem import make_frame
-
     n = len(detections)
     box = np.array([d.box for d in detections], dtype=np.float64).reshape(n, 4)
     classes = [d.class_id for d in detections]

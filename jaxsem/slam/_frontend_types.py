@@ -77,8 +77,8 @@ class FrontEndConfig:
         ``"orb"`` (corners matched by ORB descriptor between the landmark's last sighting and
         this one: Hamming distance, Lowe's ratio ``match_ratio``, mutual best). Use ``"orb"``
         for frames far apart (large rotations between frames, as on LM-O's real desk, where LK
-        loses most of its tracks and most detections get no texture plane; measured in
-        ``benchmarks/RESULTS.md``).
+        loses most of its tracks and most detections get no texture plane;
+        ``benchmarks/roshan/HISTORY.md``, "ROSHAN on the real LM-O desk").
       match_ratio: Lowe's ratio of the best to the second-best descriptor distance.
 
     Input:

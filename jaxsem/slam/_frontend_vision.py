@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import cv2
+import jax
 import numpy as np
 
 from .. import quadrics
@@ -138,8 +139,6 @@ _PROJECT_CACHE: dict = {}
 
 def _predicted_centroids(K, pose, estimates):
     """Predicted box centres (L, 2) and validity (L,) of the estimated ellipsoids."""
-    import jax
-
     fn = _PROJECT_CACHE.get("fn")
     if fn is None:
         fn = jax.jit(quadrics.project_bbox)

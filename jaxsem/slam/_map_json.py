@@ -7,9 +7,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+import jax
 import numpy as np
 
 from .._checks import require_type
+from ..metrics import ellipsoid_errors
 from ..quadrics import Ellipsoid
 
 if TYPE_CHECKING:
@@ -67,10 +69,6 @@ def truth_errors(result: SequenceResult, truth: Mapping) -> dict:
       float}}`` over the K estimated objects that have a true counterpart
       (:func:`jaxsem.metrics.ellipsoid_errors`, symmetry-aware).
     """
-    import jax
-
-    from ..metrics import ellipsoid_errors
-
     by_id = {o["id"]: o for o in truth.get("objects", [])}
     keep = [j for j, i in enumerate(result.object_ids) if i in by_id]
     out: dict = {"ids": [result.object_ids[j] for j in keep]}

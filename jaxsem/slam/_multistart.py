@@ -6,7 +6,8 @@ Objects on a desk or a road stand upright in a gravity-aligned world (any VIO kn
 only the heading is open: solve from a few headings about ``up``, keep for each object the one
 with the lowest cost of its own factors, and polish everything jointly from that start. It costs
 one vmapped solve per heading; on LM-O's real desk it did not lower the orientation error
-(``benchmarks/RESULTS.md``), so no solver uses it by default.
+(``benchmarks/roshan/HISTORY.md``, "ROSHAN on the real LM-O desk"), so no solver uses it by
+default.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def solve_yaw_starts(
     yaws_deg=(0.0, 45.0, 90.0, 135.0),
     up=(0.0, 0.0, 1.0),
 ):
-    """``(estimate, info, start)``: :func:`jaxsem.slam.solve_schur` from ``init`` with every
+    """``(estimate, info, start)``: :func:`jaxsem.slam._batch.solve_schur` from ``init`` with every
     object turned by each of ``yaws_deg`` about the world's ``up`` (one vmapped solve), then per
     object the start whose solve gave its own factors the lowest cost (:func:`object_costs`),
     the poses of the start with the lowest total cost, and one joint solve from there.

@@ -15,7 +15,7 @@ ids (``0 <= object_id < max_objects``); an id seen for the first time is initial
 single detection (section 4.3.5).
 
 Every ``optimize_every`` frames the graph is relinearised and ``iterations`` steps of the
-structured (Schur) Levenberg-Marquardt of :func:`jaxsem.slam.solve_schur` are run over the poses
+structured (Schur) Levenberg-Marquardt of :func:`jaxsem.slam._batch.solve_schur` are run over the poses
 of the last ``window`` frames (older poses held fixed) and all objects.
 """
 
@@ -26,6 +26,7 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import classes as _classes
 from ._batch import levenberg_marquardt
@@ -45,7 +46,7 @@ class OnlineState(eqx.Module):
       estimate: :class:`SlamEstimate` of the same sizes.
       pose_frame: (P,) int32 frame number held by each pose slot (-1 = empty).
       frame_count: () int32 frames seen. box_count: () int32 boxes written.
-      result: :data:`jaxsem.slam.RESULTS` of this frame's update: ``successful`` when the
+      result: :data:`jaxsem.slam._results.RESULTS` of this frame's update: ``successful`` when the
         frame needed no optimisation or its LM met the stopping rule with a finite state;
         ``iterations_reached`` when the ``iterations`` budget ran out first (normal online,
         the next optimisation continues); a failure code otherwise.
@@ -90,8 +91,6 @@ def online_init(
       classes: the :class:`jaxsem.classes.ClassTable` of the frames' ``box_class`` (default: the
         built-in table; build frames with ``make_frame(..., classes=...)`` of the same table).
     """
-    import numpy as np
-
     if optimize_every < 1 or iterations < 1:
         raise ValueError(f"optimize_every, iterations: expected >= 1, got {optimize_every}, {iterations}")
     P, J, B, D = capacity
@@ -311,19 +310,15 @@ def online_update(state: OnlineState, frame: Frame) -> OnlineState:
     Returns:
       the new :class:`OnlineState`; ``state.result`` is this frame's :data:`RESULTS` code.
     """
-    import numpy as np
-
     _check_frame(state, frame)
     # The same argument types as online_optimize's (numpy bool and int32 scalars): one cache
     # entry of online_step for both. (A jit of its own around online_step would be a second
-    # executable: online_optimize then compiled the step again, 8 s, issue 23 friction 7.)
+    # executable, so online_optimize would compile the step a second time.)
     return online_step(state, frame, np.asarray(False), np.asarray(0, np.int32))
 
 
 def empty_frame(state: OnlineState) -> Frame:
     """A frame without detections of the state's size (host arrays only: nothing compiles)."""
-    import numpy as np
-
     D = state.max_detections
     dtype = state.problem.pose_prior.dtype
     return Frame(
@@ -342,8 +337,6 @@ def online_optimize(state: OnlineState, iterations: int = 50) -> OnlineState:
     (the final optimisation after the last frame). ``state.result`` is the LM's code
     (``iterations_reached`` when the budget ran out first). Runs :data:`online_step`, the
     executable :func:`online_update` compiled: nothing new compiles."""
-    import numpy as np
-
     if int(iterations) < 0:
         raise ValueError(f"iterations: expected >= 0, got {iterations}")
     return online_step(state, empty_frame(state), np.asarray(True), np.asarray(iterations, np.int32))

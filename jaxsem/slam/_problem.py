@@ -28,6 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 
 from .. import classes as _classes
 from ..quadrics import Camera, EllipsoidView
@@ -170,7 +171,6 @@ class Frame(eqx.Module):
     def __post_init__(self):
         # Fill the optional initial ellipsoids (host arrays: nothing compiles) and check concrete
         # values at this boundary; traced frames (inside jit / vmap) are only shape-checked.
-        from jax.core import Tracer
 
         lead = tuple(np.shape(self.box)[:-1])
         traced = isinstance(self.box, Tracer)
@@ -594,8 +594,6 @@ def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
       ValueError: ``max_boxes`` below 1, or (for concrete inputs) more real boxes than
         ``max_boxes`` in some problem.
     """
-    from jax.core import Tracer
-
     max_boxes = int(max_boxes)
     if max_boxes < 1:
         raise ValueError(f"max_boxes: expected an int >= 1, got {max_boxes}")
@@ -626,6 +624,4 @@ _BOX_FIELDS = ("box", "box_pose", "box_object", "box_mask", "texture_depth", "te
 
 def stack_problems(problems):
     """Stack problems of equal padded size along a new leading axis (for ``jax.vmap``)."""
-    import jax
-
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *problems)

@@ -5,13 +5,21 @@ capacities that fit a sequence, and objects seeded from the sequence's initial e
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
+import jax
 import numpy as np
 
+from .. import classes as _classes
 from ..quadrics import EllipsoidView
+from ._aot import exported
+from ._online import _online_step, empty_frame, online_init, online_step
+from ._problem import Capacity, make_frame
 from ._sequence_types import Sequence
+from ._solver_config import SolverConfig
 
 # --------------------------------------------------------------------------------------------
 # The online smoother over a sequence.
@@ -27,7 +35,7 @@ class SequenceResult:
       camera_T_world: (T, 4, 4) estimated pose of every frame (the latest estimate it had
         before it left the smoother's window, or the final one).
       frame_seconds: (T,) wall time of each ``online_update`` (the first includes compilation).
-      state: the final :class:`jaxsem.slam.OnlineState`.
+      state: the final :class:`jaxsem.slam._online.OnlineState`.
     """
 
     object_ids: tuple
@@ -50,8 +58,6 @@ def default_capacity(sequence: Sequence, max_poses: int = 256):
     """A :class:`jaxsem.slam.Capacity` that fits ``sequence`` (sizes rounded up to buckets so that
     similar sequences share a compilation): every frame up to ``max_poses``, every object, the
     most detections of any frame."""
-    from ._problem import Capacity
-
     T = len(sequence.frames)
     D = max([len(f.ids) for f in sequence.frames] + [1])
     J = max(len(sequence.object_ids), 1)
@@ -92,7 +98,7 @@ def run_sequence(
       config: :class:`jaxsem.slam.SolverConfig` (default: ROSHAN's defaults).
       capacity: :class:`jaxsem.slam.Capacity` (default :func:`default_capacity`); it must hold
         every object and the largest frame. The default follows the sequence, so each sequence
-        of another size compiles its own program (8-10 s on a 2-core CPU for the LM-O stretches);
+        of another size compiles its own program (several seconds on a CPU);
         to run many sequences, pass one capacity that holds them all.
       optimize_every, iterations, window: as :func:`jaxsem.slam.online_init`.
       callback: called after every frame as ``callback(index, state, seconds)``.
@@ -101,15 +107,6 @@ def run_sequence(
     Returns:
       :class:`SequenceResult`.
     """
-    import time
-
-    import jax
-
-    from ._aot import exported
-    from ._online import _online_step, empty_frame, online_init, online_step
-    from ._problem import make_frame
-    from ._solver_config import SolverConfig
-
     if not isinstance(sequence, Sequence):
         raise ValueError(f"sequence: expected a Sequence (load_sequence), got {type(sequence).__name__}")
     config = SolverConfig() if config is None else config
@@ -192,11 +189,6 @@ def run_sequence(
 def _seed_objects(state, objects):
     """``state`` with objects ``(slot, class name, {"center", "radii", "rotation"})`` set as
     initialised (host-side arrays: no compile); their first detection then adds boxes only."""
-    import equinox as eqx
-    import jax
-
-    from .. import classes as _classes
-
     pb, est = state.problem, state.estimate
     table = _classes.as_table(pb.classes)
     arrays = {

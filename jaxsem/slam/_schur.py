@@ -7,7 +7,7 @@ shrink the damping, else grow it), driven by ``optx.least_squares``::
 
     solver = slam.SchurLevenbergMarquardt(rtol=1e-5, atol=1e-5, structure=my_structure)
     sol = optx.least_squares(my_residuals, solver, (poses0, landmarks0), args, throw=False)
-    sol.stats["result"]     # jaxsem.slam.RESULTS item (extends optx.RESULTS)
+    sol.stats["result"]     # jaxsem.slam._results.RESULTS item (extends optx.RESULTS)
 
 What ``fn`` must declare (the "pose / landmark" protocol)
 --------------------------------------------------------
@@ -32,7 +32,7 @@ is recovered exactly by ``dp + dl`` forward-mode columns (each pose perturbed at
 tangent axis, then each landmark: the declared sparsity keeps the columns apart; ``2 dp + dl``
 with a ``pose_pair`` block, even and odd poses apart), or given by
 ``linearise(y, args) -> Normal`` when the caller has a faster one (ROSHAN's box factors use
-9 columns via the chain rule of ``camera_T_object``, :func:`jaxsem.slam.linearize`).
+9 columns via the chain rule of ``camera_T_object``, :func:`jaxsem.slam._cost.linearize`).
 
 Cost model: the pose blocks are block-diagonal (block-tridiagonal with odometry between
 consecutive poses, ``Normal.Hpp_next``: then eliminated by a block-tridiagonal solve, a scan
@@ -49,7 +49,7 @@ was not finite). One optimistix step is one GTSAM iteration: a relinearisation (
 accepted trial) and then trials (one reduced solve and one cost evaluation each) until the
 search accepts one or fails; the trials are an inner ``while_loop``, so under ``vmap`` the
 Jacobian is never taken for a rejected trial. ``sol.stats`` holds
-``result`` (the precise :data:`~jaxsem.slam.RESULTS` item), ``trials`` and ``accepted``.
+``result`` (the precise :data:`~jaxsem.slam._results.RESULTS` item), ``trials`` and ``accepted``.
 ``options={"max_trials": n}`` caps the trials (``n`` may be traced; ``max_steps`` of
 ``optx.least_squares`` caps the iterations).
 
@@ -142,7 +142,7 @@ def damped_schur_step(n: Normal, lam, pose_free, obj_free):
     solve (:func:`_tridiagonal_solve`) instead of per-pose inverses.
 
     Args:
-      n: :class:`~jaxsem.slam.Normal` at the current estimate.
+      n: :class:`~jaxsem.slam._cost.Normal` at the current estimate.
       lam: () Marquardt damping. pose_free: (T,) float, 0 for held poses. obj_free: (J,) bool.
 
     Returns:

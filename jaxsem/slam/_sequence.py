@@ -35,7 +35,7 @@ v_max]``)::
       }
     }
 
-The association ids are the front end's landmark ids (:class:`jaxsem.slam.FrontEnd`); any
+The association ids are the front end's landmark ids (:class:`jaxsem.slam._frontend.FrontEnd`); any
 non-negative int or string works: :func:`load_sequence` maps them, in order of first
 appearance, to dense object slots ``0 .. J-1`` of the online smoother and keeps the original
 ids for the output map. A detection's ``texture_depth`` is the texture-plane depth (thesis
@@ -65,8 +65,10 @@ import json
 import math
 import pathlib
 
+import cv2
 import numpy as np
 
+from .. import classes as _classes, factors
 from ._sequence_checks import _parse
 from ._sequence_types import (
     FORMAT_TAG,
@@ -74,6 +76,7 @@ from ._sequence_types import (
     Sequence,
     SequenceFrame,
 )
+from ._solver_config import NoiseModel
 
 __all__ = [
     "load_sequence",
@@ -86,10 +89,8 @@ __all__ = [
 
 
 def noise_model(sequence: Sequence, base=None):
-    """The :class:`jaxsem.slam.NoiseModel` of ``base`` (default ``NoiseModel()``) with the
+    """The :class:`jaxsem.slam._solver_config.NoiseModel` of ``base`` (default ``NoiseModel()``) with the
     sequence's ``"noise"`` fields applied (degrees converted to radians)."""
-    from ._solver_config import NoiseModel
-
     base = NoiseModel() if base is None else base
     values = {name: getattr(base, name) for name in base.__dataclass_fields__}
     for key, value in (sequence.noise or {}).items():
@@ -182,8 +183,6 @@ def sequence_to_json(sequence: Sequence) -> dict:
             tr["camera_T_world"] = _list(sequence.truth["camera_T_world"])
         out["truth"] = tr
     if sequence.classes is not None:
-        from .. import classes as _classes
-
         extra = [r for r in sequence.classes.rows if r not in _classes.DEFAULT_TABLE.rows]
         if extra:
             out["classes"] = _classes.ClassTable(tuple(extra)).to_dict()["classes"]
@@ -217,7 +216,6 @@ def load_image(sequence: Sequence, index: int):
     path = sequence.image_path(index)
     if path is None:
         return None
-    import cv2
 
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
@@ -243,8 +241,6 @@ def sequence_from_simulation(sim_map, image_size) -> Sequence:
         ``camera_T_world``, ``K``).
       image_size: ``(width, height)``, e.g. ``config.image_size``.
     """
-    from .. import factors
-
     g = lambda name: np.asarray(getattr(sim_map, name))
     pose, boxes, mask = g("pose_prior"), g("boxes"), g("box_mask")
     if pose.ndim != 3 or boxes.ndim != 3:

@@ -10,6 +10,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from .. import classes as _classes
 from ._sequence_types import Sequence, SequenceFrame
 
 
@@ -70,9 +71,7 @@ def _vector(where, field, value, n, positive=False):
 
 def _class_name(where, field, value, table=None):
     """``value`` checked against the class table (``None``: the built-in one)."""
-    from .. import classes
-
-    names = classes.as_table(table).names
+    names = _classes.as_table(table).names
     if not isinstance(value, str):
         _fail(where, field, f"expected a class name string, got {value!r}")
     if value not in names:
@@ -124,8 +123,6 @@ def check_box(where, field, value, image_size):
 
 
 def _parse(data, where, root, table=None):
-    from .. import classes as _classes
-
     if not isinstance(data, dict):
         _fail(where, "top level", f"expected a JSON object, got {type(data).__name__}")
     if data.get("classes") is not None:

@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 
+from ._frontend import FrontEnd
+from ._frontend_vision import triangulate_points
+from ._sequence import load_image
 from ._sequence_types import Sequence
 
 __all__ = ["measure_texture", "support_height"]
@@ -14,7 +18,7 @@ __all__ = ["measure_texture", "support_height"]
 
 def measure_texture(sequence: Sequence, config=None):
     """``(sequence with texture depths, detections)``: every frame's image through
-    :class:`jaxsem.slam.FrontEnd` (``config``: a :class:`jaxsem.slam.FrontEndConfig`), each
+    :class:`jaxsem.slam._frontend.FrontEnd` (``config``: a :class:`jaxsem.slam.FrontEndConfig`), each
     detection associated by the sequence's ids (``track_ids``), its texture-plane depth written
     where the front end accepted one (NaN elsewhere; depths already in the sequence are
     replaced). ``detections``: per frame, the front end's :class:`AssociatedDetection` list
@@ -24,9 +28,6 @@ def measure_texture(sequence: Sequence, config=None):
       ValueError: a frame without an image, an unreadable image, or an id that is not a
         non-negative int (the front end's landmark ids are ints).
     """
-    from ._frontend import FrontEnd
-    from ._sequence import load_image
-
     if not isinstance(sequence, Sequence):
         raise ValueError(f"sequence: expected a Sequence, got {type(sequence).__name__}")
     fe = FrontEnd(sequence.K, config)
@@ -78,11 +79,6 @@ def support_height(
     Raises:
       ValueError: a frame without an image, or a bad argument (named).
     """
-    import cv2
-
-    from ._frontend_vision import triangulate_points
-    from ._sequence import load_image
-
     if not isinstance(sequence, Sequence):
         raise ValueError(f"sequence: expected a Sequence, got {type(sequence).__name__}")
     up = np.asarray(world_up, np.float64).reshape(-1)

@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 
 __all__ = ["CostModel", "InitConfig", "NoiseModel", "SolverConfig", "StoppingRule", "baseline_config"]
 
@@ -23,8 +24,6 @@ def _scalar(x: Any) -> Any:
     A config field given as ``jnp.asarray(1e-4)`` then has the same ``jit`` signature (a weakly
     typed scalar) as one given as ``1e-4``: changing a tolerance or a weight never recompiles,
     whichever way it is written. Tracers and batched arrays (a vmapped config) pass unchanged."""
-    from jax.core import Tracer
-
     if isinstance(x, Tracer) or not isinstance(x, (jax.Array, np.ndarray, np.generic)):
         return x
     if np.ndim(x) != 0 or not np.issubdtype(x.dtype, np.floating):
@@ -161,8 +160,8 @@ class SolverConfig(eqx.Module):
       depth_from_box: static; without a texture plane, a single-view initialisation places the
         object at the depth where the class-mean ellipsoid would project to the size of its box
         (:func:`jaxsem.quadrics.depth_from_box_size`): the solver follows the scene's scale (a
-        tabletop at 0.8 m, a street at 15 m). False: the fixed ``default_depth`` (the behaviour
-        before stop 23, QuadricSLAM's initialisation).
+        tabletop at 0.8 m, a street at 15 m). False: the fixed ``default_depth`` (QuadricSLAM's
+        initialisation).
       max_steps: static, Levenberg-Marquardt step cap (trial steps, rejected ones included) per
         phase of a solve.
       rtol, atol: the stopping rule above (traced floats: vmappable, no recompile).
@@ -194,7 +193,7 @@ class SolverConfig(eqx.Module):
         every object: its lowest point along ``world_up`` at ``support_height`` (metres, the
         desk's or floor's height in the world), sigma ``support_sigma`` (metres, default 5 mm),
         under ``shape_loss``. For objects resting on one known horizontal surface (a plane fit
-        from a depth camera or an AR framework, or :func:`jaxsem.slam.support_height` from the images).
+        from a depth camera or an AR framework, or :func:`jaxsem.slam._sequence_texture.support_height` from the images).
         Off by default; it adds one object row after the shape (and upright) rows.
     """
 

@@ -9,10 +9,11 @@ to the image (so truncated edges sit on the border and are dropped by the edge m
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from .. import factors as F, quadrics as Q
-from ._problem import SlamEstimate, make_problem
+from ._problem import SlamEstimate, make_frame, make_problem
 
 
 def _yaw(angles):
@@ -117,7 +118,6 @@ def toy_map(
             np.concatenate([center, np.zeros((Jc - num_objects, 3))]),
             np.concatenate([radii, np.ones((Jc - num_objects, 3))]),
         ]
-    import jax.numpy as jnp
 
     dtype = problem.K.dtype
     truth = SlamEstimate(*(jnp.asarray(a, dtype) for a in values))
@@ -127,8 +127,6 @@ def toy_map(
 def frames_from_problem(problem, max_detections: int = 16):
     """Splits a :class:`SlamProblem` into per-pose :class:`Frame` s (for the online smoother);
     the association id is the object index. Returns a list of frames, one per real pose."""
-    from ._problem import make_frame
-
     out = []
     box = np.asarray(problem.box)
     bp = np.asarray(problem.box_pose)

@@ -26,6 +26,7 @@ import pathlib
 
 import numpy as np
 
+from ..quadrics import quaternion_xyzw_to_rotation
 from ._sequence_checks import _assoc_id, _class_name, check_box
 from ._sequence_types import Sequence, SequenceFrame
 
@@ -59,8 +60,6 @@ def _read_list(path: pathlib.Path, columns: int) -> list[list[str]]:
 
 
 def _camera_T_world(where: str, values) -> np.ndarray:
-    from ..quadrics import quaternion_xyzw_to_rotation
-
     t = np.asarray(values[:3], float)
     quat = np.asarray(values[3:7], float)
     norm = float(np.linalg.norm(quat))

@@ -1,68 +1,46 @@
-"""VoluMon (thesis chapter 5): losses, inputs, synthetic data, training, refinement, evaluation."""
+"""VoluMon (thesis chapter 5): losses, inputs, synthetic data, training, refinement, evaluation.
 
-from ..training import ConfigMismatchError as ConfigMismatchError
+What a user calls, by job:
+
+- configs: :class:`TrainConfig`, :func:`get_config`, :func:`config_from_dict`, :data:`VARIANTS`,
+  :data:`SIZES`, :data:`SHAPE_IDS`, :data:`VOLUMON_CLASS_NAMES`, :func:`model_class_names`,
+  :func:`class_rows`;
+- inputs and labels: :func:`prepare_inputs`, :func:`render_object_stereo`, :class:`LabelBatch`,
+  :func:`label_batch`, :func:`make_batch`;
+- training: :func:`train_and_evaluate`, :func:`make_train_step`, :class:`LossConfig`,
+  :func:`volumon_loss`, :func:`warm_start_variables`;
+- prediction and refinement: :func:`make_predict_fn`, :func:`predict_params`,
+  :func:`predict_batch`, :func:`refine`, :func:`postopt`, :func:`optimise_from_scratch`,
+  :class:`SingleViewEstimator`;
+- evaluation: :func:`held_out_set`, :func:`evaluate_held_out`, :func:`evaluate_predictions`,
+  :func:`evaluate_scene_batch`, :func:`summarise_detections`, :func:`evaluate_doors`,
+  :func:`known_size_ellipsoid`, :data:`ORACLES`, :func:`draw_predictions`;
+- trained models: :func:`load_pretrained`, :func:`load_trained`, :func:`export_pretrained`,
+  :data:`PRETRAINED_DIR`, :data:`SHIPPED`.
+
+The data pipelines are :mod:`jaxsem.volumon.data`'s; the detect-and-lift network (VoluMon
+R-CNN, thesis 5.7) trains through :mod:`jaxsem.volumon.rcnn`. The building blocks (each loss term, the
+device-side batches, the input crops, the presets, ...) stay importable from their private
+modules, e.g. ``jaxsem.volumon._losses``, for tests and benchmarks; ``ConfigMismatchError`` is
+:mod:`jaxsem.training`'s.
+"""
+
 from ._configs import (
-    LMO_CLASS_NAMES as LMO_CLASS_NAMES,
-    PRESETS as PRESETS,
     SIZES as SIZES,
     VARIANTS as VARIANTS,
     TrainConfig as TrainConfig,
     config_from_dict as config_from_dict,
-    default_config as default_config,
-    door_config as door_config,
     get_config as get_config,
-    lmo_config as lmo_config,
-    thesis_config as thesis_config,
-    tiny_config as tiny_config,
 )
-from ._device_data import (
-    augmentation_numbers as augmentation_numbers,
-    device_batch as device_batch,
-    device_batch_jit as device_batch_jit,
-    eval_key as eval_key,
-    held_out_set as held_out_set,
-    sample_scene as sample_scene,
-    train_key as train_key,
-)
-from ._door import (
-    SingleViewEstimator as SingleViewEstimator,
-    door_errors as door_errors,
-    evaluate_doors as evaluate_doors,
-)
-from ._draw import (
-    box_corners_2d as box_corners_2d,
-    draw_predictions as draw_predictions,
-    ellipsoid_outline as ellipsoid_outline,
-)
-from ._eval import (
-    cuboid_surface_points as cuboid_surface_points,
-    detection_errors as detection_errors,
-    evaluate_predictions as evaluate_predictions,
-    size_errors as size_errors,
-)
-from ._inputs import (
-    check_image_and_boxes as check_image_and_boxes,
-    crop_and_resize as crop_and_resize,
-    masked_global_image as masked_global_image,
-    prepare_inputs as prepare_inputs,
-    to_float_image as to_float_image,
-)
+from ._device_data import held_out_set as held_out_set
+from ._door import SingleViewEstimator as SingleViewEstimator, evaluate_doors as evaluate_doors
+from ._draw import draw_predictions as draw_predictions
+from ._eval import evaluate_predictions as evaluate_predictions
 from ._labels import (
     LabelBatch as LabelBatch,
     label_batch as label_batch,
 )
-from ._losses import (
-    LossConfig as LossConfig,
-    LossTerms as LossTerms,
-    box_error as box_error,
-    dual_loss as dual_loss,
-    dual_loss_per_sample as dual_loss_per_sample,
-    oracle_loss_per_sample as oracle_loss_per_sample,
-    primal_loss as primal_loss,
-    primal_loss_per_sample as primal_loss_per_sample,
-    size_variance_loss as size_variance_loss,
-    volumon_loss as volumon_loss,
-)
+from ._losses import LossConfig as LossConfig, volumon_loss as volumon_loss
 from ._pretrained import (
     ORACLES as ORACLES,
     PRETRAINED_DIR as PRETRAINED_DIR,
@@ -70,18 +48,14 @@ from ._pretrained import (
     evaluate_held_out as evaluate_held_out,
     export_pretrained as export_pretrained,
     load_pretrained as load_pretrained,
-    mean_size_radii as mean_size_radii,
+    prepare_inputs as prepare_inputs,
 )
 from ._refine import (
-    init_from_points as init_from_points,
     optimise_from_scratch as optimise_from_scratch,
-    phi_from_ellipsoid as phi_from_ellipsoid,
     postopt as postopt,
     refine as refine,
 )
 from ._scene_eval import (
-    CLASS_MAPPINGS as CLASS_MAPPINGS,
-    VISIBILITY_BINS as VISIBILITY_BINS,
     class_rows as class_rows,
     evaluate_scene_batch as evaluate_scene_batch,
     known_size_ellipsoid as known_size_ellipsoid,
@@ -89,19 +63,11 @@ from ._scene_eval import (
     summarise_detections as summarise_detections,
 )
 from ._synthetic import (
-    CLASSES as CLASSES,
     SHAPE_IDS as SHAPE_IDS,
     VOLUMON_CLASS_NAMES as VOLUMON_CLASS_NAMES,
-    SceneConfig as SceneConfig,
     make_batch as make_batch,
 )
 from ._train import (
-    TRAIN_KEYS as TRAIN_KEYS,
-    augment as augment,
-    augmentation_params as augmentation_params,
-    batch_indices as batch_indices,
-    evaluate as evaluate,
-    init_state as init_state,
     load_trained as load_trained,
     make_predict_fn as make_predict_fn,
     make_train_step as make_train_step,
@@ -110,7 +76,4 @@ from ._train import (
     train_and_evaluate as train_and_evaluate,
     warm_start_variables as warm_start_variables,
 )
-from ._views import (
-    StereoView as StereoView,
-    render_object_stereo as render_object_stereo,
-)
+from ._views import render_object_stereo as render_object_stereo

@@ -1,7 +1,7 @@
 """Training configs: one default (CPU-sized, VoluMon Both) and variants that change a few fields.
 
 - :func:`default_config`: CPU-sized (MobileNetV2 width 0.35, 64 x 64 inputs, synthetic 128 x 96
-  stereo images) -- trains to a useful model in minutes on a 2-core CPU.
+  stereo images) -- trains to a useful model in minutes on a CPU.
 - :func:`thesis_config`: the thesis' network (width 1.0, 224 x 224), batch 50, lr 1e-5 (section
   5.5.1): for a GPU.
 - :func:`door_config`: the door model of section 5.8.1 (one class, absolute depth up to 15 m,
@@ -243,7 +243,7 @@ def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
 
     dual: alpha_D = 1, alpha_P = 0; primal: alpha_D = 0, alpha_P = 1; both: 1, 1; both_noisy:
     both with noisy input boxes. alpha_S = 100 in all (thesis). oracle: fully supervised on the
-    3D labels (:func:`jaxsem.volumon.oracle_loss_per_sample`; a diagnostic, not a VoluMon variant).
+    3D labels (:func:`jaxsem.volumon._losses.oracle_loss_per_sample`; a diagnostic, not a VoluMon variant).
     Sizes: the presets of :data:`PRESETS` -- "cpu" (MobileNetV2 0.35, one class), "fast"
     (:func:`fast_config`), "door" (:func:`door_config`), "lmo" (:func:`lmo_config`), "thesis", "tiny" -- or a JSON file of :class:`TrainConfig` fields over
     the default (:func:`jaxsem.config.load`).
@@ -268,12 +268,11 @@ def get_config(variant: str = "both", size: str = "cpu") -> TrainConfig:
 
 def config_from_dict(d: dict) -> TrainConfig:
     """Inverse of ``dataclasses.asdict(TrainConfig)`` (e.g. the ``config.json`` of a training run)."""
-    from ..models import ReconstructionConfig as _R, VoluMonConfig as _V
 
     def tup(x):
         return tuple(tup(v) for v in x) if isinstance(x, list) else x
 
-    sub = {"model": _V, "recon": _R, "loss": LossConfig, "scene": SceneConfig}
+    sub = {"model": VoluMonConfig, "recon": ReconstructionConfig, "loss": LossConfig, "scene": SceneConfig}
     kw = {}
     for k, v in d.items():
         if k in sub:

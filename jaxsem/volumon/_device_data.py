@@ -6,8 +6,8 @@ augmentation numbers with ``jax.random``, and renders stereo boxes, depth, masks
 inputs with the exact ray-caster of :mod:`jaxsem.volumon._synthetic` (boxes and corners from
 :mod:`jaxsem.quadrics`). Nothing runs on the host: the train step calls it with
 ``jax.random.fold_in(key, step)`` and compiles once. The host generator
-:func:`jaxsem.volumon.make_batch` (numpy draws per sample, about 0.15-0.3 s per batch of 32 on
-a 2-core CPU whatever the accelerator) stays for the old-against-new benchmark and for samples
+:func:`jaxsem.volumon.make_batch` (numpy draws per sample: host-bound, so an accelerator does not
+make it faster) stays for the old-against-new benchmark and for samples
 indexed by ``(seed, index)``.
 
 Keys: :func:`train_key` and :func:`eval_key` derive the training and held-out streams from a
@@ -99,7 +99,7 @@ def sample_scene(key, scene: SceneConfig):
 
 
 def augmentation_numbers(key, batch_size: int, erase_prob: float = 0.5):
-    """The augmentation numbers of :func:`jaxsem.volumon.augment`, drawn with ``jax.random``."""
+    """The augmentation numbers of :func:`jaxsem.volumon._train.augment`, drawn with ``jax.random``."""
     k = jax.random.split(key, 6)
     B = batch_size
     rect = jnp.concatenate(

@@ -18,8 +18,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from .. import quadrics as Q
+from .. import metrics, quadrics as Q
 from ._configs import TrainConfig
+from ._inputs import prepare_inputs
+from ._train import make_predict_fn, predict_batch
 
 __all__ = ["SingleViewEstimator", "door_errors", "evaluate_doors"]
 
@@ -46,8 +48,6 @@ def door_errors(pred: dict, gt: dict) -> dict:
     normal, both projected on the floor plane) and ``orientation`` (deg,
     :func:`jaxsem.metrics.ellipsoid_errors`, the ellipsoid's symmetries handled).
     """
-    from .. import metrics
-
     R, c, r = (np.asarray(pred[k], np.float64) for k in ("rotation", "center", "radii"))
     Rt, ct, ht = (np.asarray(gt[k], np.float64) for k in ("gt_rotation", "gt_center", "gt_half_extents"))
     up = Rt[..., :, 2]  # world z in the camera frame
@@ -71,8 +71,6 @@ def evaluate_doors(model, variables, config: TrainConfig, batch: dict) -> dict:
     inputs and ground truth, :func:`jaxsem.mapping.door_eval_batch`), with the true depth range and
     the errors of a constant baseline (every door the batch's mean true size, centred on the ray
     through its box centre at the batch's median true depth: what box position alone gives)."""
-    from ._train import predict_batch
-
     b = batch
     _, ell, _ = predict_batch(model, config, variables, b)
     pred = jax.tree.map(np.asarray, ell._asdict())
@@ -116,15 +114,11 @@ class SingleViewEstimator:
     """
 
     def __init__(self, model, variables, config: TrainConfig, capacity: int = 8):
-        from ._train import make_predict_fn
-
         self.model, self.variables, self.config = model, variables, config
         self.capacity = max(int(capacity), 1)
         self._predict = make_predict_fn(model, config)
 
     def __call__(self, image, boxes, K, camera_T_world=None, class_id=None):
-        from ._inputs import prepare_inputs
-
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         n = boxes.shape[0]
         if n == 0:

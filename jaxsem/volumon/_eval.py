@@ -92,7 +92,7 @@ def size_errors(pred_radii, gt_half_extents):
 
 @jax.jit
 def _errors(pred_R, pred_t, pred_r, gt_R, gt_t, true_pts, pred_dirs, gt_h):
-    # deterministic sample sets (no threefry: its compile costs seconds on this CPU)
+    # deterministic sample sets (no threefry: its hash is slow to compile on a CPU)
     trans = jnp.linalg.norm(pred_t - gt_t, axis=-1)
     pred_pts = jnp.einsum("bij,bnj->bni", pred_R, pred_dirs[None] * pred_r[:, None, :]) + pred_t[:, None, :]
     adi = metrics.adi(true_pts, pred_pts)

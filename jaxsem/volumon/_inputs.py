@@ -111,11 +111,12 @@ def to_float_image(image):
 def prepare_inputs(image, boxes, size: int | None = None, padding: float | None = None, *, config=None):
     """One image (H, W, 3) and its boxes (N, 4) -> (local (N, S, S, 3), global (N, S, S, 3)) float32.
 
-    ``size`` and ``padding`` must be the ones the network was trained with: by default they are
-    read from ``config`` (a VoluMon config, or its ``model`` part, e.g. the third value of
-    :func:`jaxsem.volumon.load_pretrained`), else from the shipped object model's config (input
-    size 48, padding 0.1). A fixed default of 64 once fed the 48-pixel shipped model crops of the
-    wrong scale with no error (depths 12 % off). Explicit arguments win.
+    ``size`` and ``padding`` must be the ones the network was trained with: the explicit
+    arguments, else those of ``config`` (a VoluMon config, or its ``model`` part, e.g. the third
+    value of :func:`jaxsem.volumon.load_pretrained`, or any object with ``input_size`` and
+    ``global_padding``). There is no fixed default here (a default of 64 once fed the 48-pixel
+    shipped model crops of the wrong scale with no error): :func:`jaxsem.volumon.prepare_inputs`
+    falls back to the shipped object model's values; this one raises ValueError.
 
     Checks the input at the Python boundary (see :func:`check_image_and_boxes`); use the jittable
     :func:`crop_and_resize` / :func:`masked_global_image` inside traced code.
@@ -124,25 +125,18 @@ def prepare_inputs(image, boxes, size: int | None = None, padding: float | None 
     model = getattr(config, "model", config)
     if config is not None and not hasattr(model, "input_size"):
         raise ValueError(f"config: expected a VoluMon config (or its model part), got {type(config).__name__}")
-    if model is None:
-        model = _shipped_model_inputs()
-    size = int(model.input_size if size is None else size)
-    padding = float(model.global_padding if padding is None else padding)
+    if model is not None:
+        size = model.input_size if size is None else size
+        padding = model.global_padding if padding is None else padding
+    if size is None or padding is None:
+        raise ValueError(
+            "size, padding: expected both (the network's input size and global padding) or a config, "
+            f"got size={size!r}, padding={padding!r} and no config"
+        )
+    size, padding = int(size), float(padding)
     if size < 8:
         raise ValueError(f"size: expected an input size of at least 8 pixels, got {size}")
     return _prepare(to_float_image(image), jnp.asarray(boxes, jnp.float32), size, padding)
-
-
-@functools.lru_cache(maxsize=1)
-def _shipped_model_inputs():
-    """The shipped object model's ``input_size`` and ``global_padding`` (read from its JSON)."""
-    import json
-    import types
-
-    from ._pretrained import PRETRAINED_DIR, SHIPPED
-
-    model = json.loads((PRETRAINED_DIR / f"{SHIPPED['object']}.json").read_text())["config"]["model"]
-    return types.SimpleNamespace(input_size=int(model["input_size"]), global_padding=float(model["global_padding"]))
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3))

@@ -22,11 +22,9 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from ._inputs import prepare_inputs
+from ._pretrained import prepare_inputs
 from ._synthetic import CLASSES, SHAPE_IDS
-
-#: the key :meth:`LabelBatch.as_train_batch` sets: the batch carries no 3-D ground truth
-LABELS_2D_ONLY = "labels_2d_only"
+from ._train import LABELS_2D_ONLY
 
 #: a field of a label batch: numpy on the host (as built), jax arrays once put on a device
 Array = np.ndarray | jax.Array
@@ -58,7 +56,7 @@ class LabelBatch(NamedTuple):
 
     def as_train_batch(self) -> dict:
         """The dict :func:`jaxsem.volumon.train_and_evaluate`'s ``batch_fn`` returns: the keys of
-        :data:`jaxsem.volumon.TRAIN_KEYS`, the 3-D ground truth as placeholders (identity
+        :data:`jaxsem.volumon._train.TRAIN_KEYS`, the 3-D ground truth as placeholders (identity
         rotation, zero centre, unit half extents; no loss of a weak config reads them) and
         ``labels_2d_only`` set."""
         b = int(np.shape(self.box_left)[0])
@@ -124,7 +122,7 @@ def label_batch(
       input_boxes: (N, 4) the boxes the network's inputs are cut from (a detector's boxes);
         default ``boxes_left``.
       class_shape: (N,) ``SHAPE_IDS`` of the classes; default from the shipped class table
-        (:data:`jaxsem.volumon.CLASSES`) for ids below its length, else the ellipsoid.
+        (:data:`jaxsem.volumon._device_data.CLASSES`) for ids below its length, else the ellipsoid.
       points, point_mask: (N, J, 3) surface points in the left camera frame (e.g. back-projected
         depth inside each object's mask) and (N, J) bool; default none (the primal loss then
         skips these samples).

@@ -39,6 +39,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import optax
 
 from ..quadrics import (
     SHAPE_CUBOID as SHAPE_CUBOID,
@@ -313,8 +314,6 @@ def volumon_loss(
     if config.alpha_S > 0:
         size = size_variance_loss(ellipsoid.sizes, batch["class_id"], num_classes, mask, config)
     if class_logits is not None and num_classes > 1 and config.alpha_C > 0:
-        import optax
-
         ce = optax.softmax_cross_entropy_with_integer_labels(class_logits, batch["class_id"])
         cls = _masked_mean(ce, jnp.ones(ce.shape, bool) if mask is None else jnp.asarray(mask, bool))
     total = (

@@ -7,23 +7,32 @@ config, the step, the seed) and ``MODEL_CARD.md``. Nothing downloads at run time
 
 from __future__ import annotations
 
+import functools
 import json
 import pathlib
 import time
+import types
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..checkpoint import latest_step
 from ..quadrics import Ellipsoid
 from ..training import LoadedModel
+from . import _inputs
 from ._configs import TrainConfig, config_from_dict
+from ._device_data import held_out_set
+from ._eval import detection_errors, evaluate_predictions, size_errors
+from ._refine import optimise_from_scratch, phi_from_ellipsoid, postopt
+from ._synthetic import CLASSES
+from ._train import _model_and_init, load_trained, make_predict_fn
 
 PRETRAINED_DIR = pathlib.Path(__file__).resolve().parent / "pretrained"
 DEFAULT_NAME = "volumon_fast"
 #: The shipped models by kind: the tabletop object model, the door model (thesis 5.8.1) and the
-#: LM-O model (the eight LM-O classes, trained weakly on rendered desks; issue 24).
+#: LM-O model (the eight LM-O classes, trained weakly on rendered desks).
 SHIPPED = {"object": DEFAULT_NAME, "door": "volumon_door", "lmo": "volumon_lmo"}
 #: The fully supervised oracle shipped beside a model (same data, same steps; a diagnostic).
 ORACLES = {"lmo": "volumon_lmo_oracle"}
@@ -62,15 +71,12 @@ def export_pretrained(
 
     Atomic (written to temporary names, then renamed). Returns the ``.npz`` path.
     """
-    from ._train import load_trained
-
     workdir = pathlib.Path(workdir)
     cfg_path = workdir / "config.json"
     if not cfg_path.exists():
         raise ValueError(f"workdir: {workdir} has no config.json (not a training run)")
     config = config_from_dict(json.loads(cfg_path.read_text()))
     _, variables, _ = load_trained(workdir, config, step=step)
-    from ..checkpoint import latest_step
 
     used = latest_step(workdir / "checkpoints") if step is None else int(step)
     out_dir = pathlib.Path(out_dir)
@@ -100,16 +106,12 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
     (the eight LM-O classes, ``volumon_lmo``; its fully supervised oracle ``volumon_lmo_oracle``
     ships beside it, load it by path); see ``MODEL_CARD.md``. Raises ValueError naming the path when it is neither, or naming ``kind``.
     """
-    from ._train import _model_and_init, load_trained
-
     if kind not in SHIPPED:
         raise ValueError(f"kind: expected one of {sorted(SHIPPED)}, got {kind!r}")
     p = PRETRAINED_DIR / f"{SHIPPED[kind]}.npz" if path is None else pathlib.Path(path)
     if p.is_dir() and (p / "config.json").exists():
         config = config_from_dict(json.loads((p / "config.json").read_text()))
         model, variables, _ = load_trained(p, config)
-        from ..checkpoint import latest_step
-
         return LoadedModel(model, variables, config, {"name": str(p), "step": latest_step(p / "checkpoints")})
     if p.is_dir():
         p = p / f"{DEFAULT_NAME}.npz"
@@ -127,10 +129,33 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
     return LoadedModel(model, variables, config, meta)
 
 
+@functools.lru_cache(maxsize=1)
+def shipped_model_inputs() -> types.SimpleNamespace:
+    """The shipped object model's ``input_size`` and ``global_padding`` (read from its JSON)."""
+    model = json.loads((PRETRAINED_DIR / f"{SHIPPED['object']}.json").read_text())["config"]["model"]
+    return types.SimpleNamespace(input_size=int(model["input_size"]), global_padding=float(model["global_padding"]))
+
+
+def prepare_inputs(image, boxes, size: int | None = None, padding: float | None = None, *, config=None):
+    """One image (H, W, 3) and its boxes (N, 4) -> (local (N, S, S, 3), global (N, S, S, 3)) float32.
+
+    ``size`` and ``padding`` must be the ones the network was trained with: by default they are
+    read from ``config`` (a VoluMon config, or its ``model`` part, e.g. the third value of
+    :func:`jaxsem.volumon.load_pretrained`), else from the shipped object model's config (input
+    size 48, padding 0.1). A fixed default of 64 once fed the 48-pixel shipped model crops of the
+    wrong scale with no error (depths 12 % off). Explicit arguments win.
+
+    Checks the input at the Python boundary (see :func:`jaxsem.volumon._inputs.check_image_and_boxes`);
+    use the jittable :func:`jaxsem.volumon._inputs.crop_and_resize` /
+    :func:`jaxsem.volumon._inputs.masked_global_image` inside traced code.
+    """
+    if config is None and (size is None or padding is None):
+        config = shipped_model_inputs()
+    return _inputs.prepare_inputs(image, boxes, size, padding, config=config)
+
+
 def mean_size_radii(config: TrainConfig) -> np.ndarray:
     """Sorted semi-axes (3,) of the *constant* baseline: the mean over the training classes' sorted radii."""
-    from ._synthetic import CLASSES
-
     r = np.sort(np.asarray([CLASSES[i][2] for i in config.scene.classes], np.float64) / 2, -1)
     return r.mean(0)
 
@@ -170,10 +195,6 @@ def evaluate_held_out(
     [0, 1], times 10 (so it is on the same 0-10 scale as the other AUCs; equal to 10 x mean IoU
     up to the trapezoid rule).
     """
-    from ._device_data import held_out_set
-    from ._eval import detection_errors, evaluate_predictions, size_errors
-    from ._train import make_predict_fn
-
     if batch is not None:
         b = {k: jnp.asarray(v) for k, v in batch.items()}
         num = int(b["local"].shape[0])
@@ -223,7 +244,6 @@ def evaluate_held_out(
         "radii": gt["gt_half_extents"],
     }
     out.update({f"ceiling_{k}": v for k, v in _summary(truth, gt, evaluate_predictions, detection_errors).items()})
-    from ._refine import optimise_from_scratch, phi_from_ellipsoid, postopt
 
     data = (b["box_input"], b["K"], b["points"], b["point_mask"], config.recon, config.loss)
     shape = b.get("class_shape")

@@ -24,7 +24,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import quadrics as Q
+from .. import classes as class_table, quadrics as Q
+from ._eval import detection_errors, evaluate_predictions
+from ._pretrained import _summary
+from ._synthetic import VOLUMON_CLASS_NAMES
+from ._train import make_predict_fn
 
 __all__ = [
     "CLASS_MAPPINGS",
@@ -117,9 +121,6 @@ def _aspect_matched(box, radii):
 
 def _figures(pred: Mapping, gt: Mapping, keep: np.ndarray) -> dict:
     """The figures of ``jaxsem volumon eval`` (``num`` and the summary keys) over the rows ``keep``."""
-    from ._eval import detection_errors, evaluate_predictions
-    from ._pretrained import _summary
-
     mask = np.asarray(gt.get("sample_mask", np.ones(len(keep), bool)), bool) & keep
     n = int(mask.sum())
     if n == 0:
@@ -182,8 +183,6 @@ def evaluate_scene_batch(model, variables, config, batch: Mapping, class_rows, r
       the dict of :func:`summarise_detections` plus ``network_ms_per_detection``, and the
       predictions (``pred``: numpy ``rotation``, ``center``, ``radii``) for drawing.
     """
-    from ._train import make_predict_fn
-
     rows = np.asarray(class_rows, np.int64)
     B = int(np.asarray(batch["box_input"]).shape[0])
     if rows.shape != (B,):
@@ -226,8 +225,6 @@ CLASS_MAPPINGS = ("generic", "nearest")
 def model_class_names(config) -> tuple[str, ...]:
     """The class names of a VoluMon model's class head, in row order (the shipped object model's
     four when its config does not list them; ``()`` when unknown)."""
-    from ._synthetic import VOLUMON_CLASS_NAMES
-
     n = int(config.model.num_classes)
     names = tuple(config.class_names)
     if names:
@@ -249,8 +246,6 @@ def class_rows(object_classes, config, mode: str = "generic", extents: Mapping |
       rows (B,) int, and the ``class_mapping`` dict: ``mode``, ``model_classes`` and ``classes``
       (object class -> what was used, in words).
     """
-    from .. import classes as class_table
-
     if mode not in CLASS_MAPPINGS:
         raise ValueError(f"mode: expected one of {CLASS_MAPPINGS}, got {mode!r}")
     names = model_class_names(config)

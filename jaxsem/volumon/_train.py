@@ -38,10 +38,9 @@ from .. import parallel
 from ..checkpoint import Checkpointer
 from ..models import VoluMonNet, box_features, expected_params, reconstruct, select_class_params
 from ..training import TrainingRun, config_json
-from ._configs import TrainConfig
+from ._configs import TrainConfig, config_from_dict
 from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
-from ._labels import LABELS_2D_ONLY
 from ._losses import volumon_loss
 from ._synthetic import make_batch
 
@@ -62,6 +61,10 @@ TRAIN_KEYS = (
     "gt_center",
     "gt_half_extents",
 )
+
+#: the key a 2-D label batch sets (:meth:`jaxsem.volumon.LabelBatch.as_train_batch`): the batch
+#: carries no 3-D ground truth, so a loss that needs it is refused
+LABELS_2D_ONLY = "labels_2d_only"
 
 #: config fields that may change between the chunks of one run (length, logging, evaluation)
 RESUMABLE_FIELDS = ("num_steps", "checkpoint_every", "keep_checkpoints", "eval_every", "num_eval", "log_every")
@@ -421,8 +424,6 @@ def train_and_evaluate(
     workdir = pathlib.Path(workdir)
 
     def normalise(old: dict) -> dict:  # through the dataclasses: fields added since take their defaults
-        from ._configs import config_from_dict
-
         return config_json(config_from_dict(old))
 
     # first: a second run on the same workdir is refused before any work (the workdir's lock)
@@ -554,8 +555,6 @@ def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None
         path = workdir / "config.json"
         if not path.exists():
             raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
-        from ._configs import config_from_dict
-
         try:
             config = config_from_dict(json.loads(path.read_text()))
         except (TypeError, ValueError) as exc:

@@ -75,7 +75,7 @@ def render_object_stereo(
       rotation: (3, 3) object-to-camera (left camera, OpenCV axes); center: (3,) camera frame (m).
       half_extents: (3,) the shape's half extents (m) along its axes (for an ellipsoid its radii;
         a cylinder's axis is object z).
-      class_id: row of :data:`jaxsem.volumon.CLASSES` (its shape and base colour).
+      class_id: row of :data:`jaxsem.volumon._device_data.CLASSES` (its shape and base colour).
       K: (3, 3) intrinsics; baseline: stereo baseline (m, > 0); height, width: image size.
       seed: numpy seed of the light and the background (the same seed gives the same picture).
       split_test: the held-out background style (stripes in unseen colours).

@@ -142,15 +142,30 @@ def test_bench_lists_the_benchmarks(run_cli):
     status, out, _ = run_cli(["bench", "--list"])
     assert status == 0
     names = [line.split()[0] for line in out.splitlines() if line.strip()]
-    expected = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.stem.startswith("_"))
-    assert names == expected and "geometry" in names and "scaling" in names
+    scripts = [*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "benchmarks").glob("*/*.py")]
+    expected = sorted(p.stem for p in scripts if not p.stem.startswith("_"))
+    assert names == expected and "geometry" in names and "scaling" in names and "roshan_real" in names
 
 
 def test_bench_runs_a_script_with_its_arguments(tmp_path, capfd):
     (tmp_path / "hello.py").write_text('"""Says hello."""\nimport sys\nprint("hello", sys.argv[1:])\nsys.exit(3)\n')
     (tmp_path / "_helper.py").write_text("")
+    (tmp_path / "method").mkdir()
+    (tmp_path / "method" / "in_a_folder.py").write_text('"""Lives in a method\'s folder."""\nprint("found")\n')
     assert cli.main(["bench", "--dir", str(tmp_path), "--list"]) == 0
-    assert capfd.readouterr().out.split() == ["hello", "Says", "hello"]
+    assert capfd.readouterr().out.split() == [
+        "hello",
+        "Says",
+        "hello",
+        "in_a_folder",
+        "Lives",
+        "in",
+        "a",
+        "method's",
+        "folder",
+    ]
+    assert cli.main(["bench", "--dir", str(tmp_path), "in_a_folder"]) == 0
+    assert "found" in capfd.readouterr().out
     assert cli.main(["bench", "--dir", str(tmp_path), "hello", "--flag", "1", "--list"]) == 3
     assert "hello ['--flag', '1', '--list']" in capfd.readouterr().out
 

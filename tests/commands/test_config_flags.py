@@ -7,6 +7,7 @@ import importlib
 import pytest
 
 from jaxsem import cli, config as jcfg, scripting as sc
+from jaxsem.scripting._config_flags import config_flags  # layers: white-box
 
 # Commands that offer convenience flags for config fields, and a few flags each must keep.
 EXPECTED = {
@@ -35,7 +36,7 @@ def test_every_convenience_flag_is_a_config_field_and_help_shows_its_default():
     seen = {}
     for name, parser in _parsers():
         help_text = " ".join(parser.format_help().split())
-        for cls, flags in sc.config_flags(parser):
+        for cls, flags in config_flags(parser):
             for flag in flags:
                 _field_default(cls, flag.field)  # a real field (KeyError otherwise)
                 action = parser._option_string_actions[flag.flag]
@@ -51,7 +52,7 @@ def test_every_convenience_flag_is_a_config_field_and_help_shows_its_default():
 def test_every_command_with_config_flags_has_one_generated_set():
     with_flags = set()
     for name, parser in _parsers():
-        if sc.config_flags(parser):
+        if config_flags(parser):
             with_flags.add(name)
             sets = [a for a in parser._actions if "--set" in a.option_strings]
             assert len(sets) == 1 and sets[0].dest == "set", name

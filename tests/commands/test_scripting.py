@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsem import scripting as sc
+from jaxsem._atomic import atomic_path  # layers: white-box
 
 
 def _main_raising(exc):
@@ -83,7 +84,7 @@ def test_output_paths_refuse_files_and_directories(tmp_path):
 def test_atomic_writes_leave_nothing_on_failure(tmp_path):
     target = tmp_path / "out.json"
     sc.atomic_write_text(target, "old")
-    with pytest.raises(RuntimeError), sc.atomic_path(target) as tmp:
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
         tmp.write_text("half")
         raise RuntimeError("crash mid-write")
     assert target.read_text() == "old"

@@ -41,7 +41,7 @@ def test_simulator_reads_the_table():
 
 
 def test_synthetic_dataset_classes_read_the_table():
-    from jaxsem.volumon.data import DEFAULT_CLASSES
+    from jaxsem.volumon.data._synthetic import DEFAULT_CLASSES  # layers: white-box
 
     for c in DEFAULT_CLASSES:
         ref = classes.get(c.name)

@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import factors as F, quadrics as Q, slam as C
+from jaxsem import factors as F, quadrics as Q
+from jaxsem.slam._cost import first_order_object, first_order_pose, retract_object, retract_pose  # layers: white-box
 
 K = jnp.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
 IMAGE = jnp.array([640.0, 480.0])
@@ -39,8 +40,8 @@ def _pose_obj_fn(factor, pose, R, c, r):
     radii parameter 3) through the true exponential-map retraction."""
 
     def f(x):
-        P = C.retract_pose(pose, x[:6])
-        R2, c2, r2 = C.retract_object(R, c, r, x[6:15])
+        P = retract_pose(pose, x[:6])
+        R2, c2, r2 = retract_object(R, c, r, x[6:15])
         return factor(P, R2, c2, r2)
 
     return f
@@ -58,8 +59,8 @@ def test_box_residual_jacobian_matches_finite_differences():
 
     # The first-order twins used by the structured solver give the same Jacobian at zero.
     def g(x):
-        P = C.first_order_pose(pose, x[:6])
-        R2, c2, r2 = C.first_order_object(R, c, r, x[6:15])
+        P = first_order_pose(pose, x[:6])
+        R2, c2, r2 = first_order_object(R, c, r, x[6:15])
         return F.box_residual(P, R2, c2, r2, meas, K, IMAGE)
 
     np.testing.assert_allclose(jax.jit(jax.jacfwd(g))(jnp.zeros(15)), jac, rtol=1e-9, atol=1e-9)
@@ -71,8 +72,8 @@ def test_texture_pose_shape_jacobians_match_finite_differences():
     depth, _ = Q.texture_plane_depth(R, c, r, pose)
     f = _pose_obj_fn(lambda P, R2, c2, r2: F.texture_residual(P, R2, c2, r2, depth + 0.3, 0.2)[None], pose, R, c, r)
     _fd_check(f, jnp.zeros(15))
-    prior = C.retract_pose(pose, jnp.array([0.1, -0.05, 0.02, 0.03, -0.02, 0.04]))
-    fp = lambda x: F.pose_prior_residual(C.retract_pose(pose, x), prior, 0.02, 0.05)
+    prior = retract_pose(pose, jnp.array([0.1, -0.05, 0.02, 0.03, -0.02, 0.04]))
+    fp = lambda x: F.pose_prior_residual(retract_pose(pose, x), prior, 0.02, 0.05)
     _fd_check(fp, jnp.full(6, 0.01))
     mean, sigma = jnp.array([2.4, 0.9, 0.7]), jnp.array([0.3, 0.1, 0.1])
     fs = lambda s: F.shape_prior_residual(F.radii_from_param(s), mean, sigma)

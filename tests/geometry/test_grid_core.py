@@ -84,3 +84,36 @@ def test_grid_is_a_pytree_under_jit_and_vmap_without_recompiling():
 def test_grid_create_refuses_bad_input_naming_the_argument(kwargs, word):
     with pytest.raises(ValueError, match=word):
         Q.Grid.create(**kwargs)
+
+
+# World coordinates on a 1/64 m lattice: every difference and quotient below is exact.
+lattice = st.integers(-256, 256).map(lambda i: i / 64)
+
+
+@settings(max_examples=60, deadline=None)
+@example(x0=1.0, y0=0.5, w=0.0, h=1.5, ox=0.0, oy=0.0, res=0.25)  # zero width on a cell border
+@example(x0=0.3125, y0=0.3125, w=0.0, h=0.0, ox=0.0, oy=0.0, res=0.25)  # a point inside one cell
+@example(x0=-4.0, y0=-4.0, w=4.0, h=4.0, ox=-1.0, oy=-0.5, res=0.25)  # past the low edges
+@given(
+    x0=lattice,
+    y0=lattice,
+    w=lattice.map(abs),
+    h=lattice.map(abs),
+    ox=st.sampled_from([-2.0, -1.0, 0.0, 0.5]),
+    oy=st.sampled_from([-2.0, -0.5, 0.0]),
+    res=st.sampled_from([0.25, 0.5, 1.0]),
+)
+def test_box_to_cells_marks_the_cells_whose_interior_meets_the_box(x0, y0, w, h, ox, oy, res):
+    x1, y1 = x0 + w, y0 + h
+    shape = (9, 11)
+    r0, r1, c0, c1 = Q.box_to_cells((x0, y0, x1, y1), (ox, oy), res, shape)
+    got = np.zeros(shape, bool)
+    got[r0:r1, c0:c1] = True
+    # brute force: cell [r, c] is the open square (ox + c res, ox + (c + 1) res) x (...), marked
+    # when it meets the closed box
+    rr, cc = np.mgrid[: shape[0], : shape[1]]
+    want = (ox + cc * res < x1) & (ox + (cc + 1) * res > x0) & (oy + rr * res < y1) & (oy + (rr + 1) * res > y0)
+    np.testing.assert_array_equal(got, want)
+    assert r0 <= r1 and c0 <= c1
+    grid = Q.Grid.create(origin=(ox, oy), resolution=res, shape=shape)
+    assert grid.box_to_cells((x0, y0, x1, y1)) == (r0, r1, c0, c1)

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from jaxsem import mapping, quadrics, slam, volumon
+from jaxsem import mapping, quadrics, slam
 from jaxsem.slam import sim
+from jaxsem.volumon._draw import box_corners_2d, ellipsoid_outline  # layers: white-box
+from jaxsem.volumon._refine import phi_from_ellipsoid  # layers: white-box
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 480.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -126,9 +128,9 @@ def test_loose_arrays_where_a_typed_argument_belongs_are_named():
     cases = [
         ("ellipsoid", lambda: mapping.ellipsoids(c, [2])),
         ("ellipsoid", lambda: slam.map_to_json([1], ["car"], R)),
-        ("ellipsoid", lambda: volumon.box_corners_2d(R[0], K)),
-        ("ellipsoid", lambda: volumon.ellipsoid_outline(c[0], K)),
-        ("ellipsoid", lambda: volumon.phi_from_ellipsoid(R, np.zeros((1, 4)), K)),
+        ("ellipsoid", lambda: box_corners_2d(R[0], K)),
+        ("ellipsoid", lambda: ellipsoid_outline(c[0], K)),
+        ("ellipsoid", lambda: phi_from_ellipsoid(R, np.zeros((1, 4)), K)),
         ("camera", lambda: sim.detect(jax.random.PRNGKey(0), quadrics.Ellipsoid(R, c, r), np.ones(1, bool), K, None)),
     ]
     for name, call in cases:

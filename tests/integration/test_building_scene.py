@@ -1,7 +1,5 @@
 """The LSD building as a MuJoCo scene: MJCF, rendering conventions, the segmentation detector."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -15,20 +13,7 @@ from jaxsem.mapping import (
     robot_intrinsics,
 )
 
-TINY = dataclasses.replace(
-    planning.TRAIN_PARAMS,
-    width=(10.0, 11.0),
-    depth=(7.0, 8.0),
-    margin=2.0,
-    room_size=(3.0, 4.0),
-    deep_block=20.0,
-)
 W, H = 160, 120
-
-
-@pytest.fixture(scope="module")
-def building():
-    return planning.generate_building(0, "train", params=TINY)
 
 
 @pytest.fixture(scope="module")

@@ -111,7 +111,7 @@ def _door_truth(yaw_deg=0.0):
 
 
 def test_door_metrics_measure_yaw_centre_and_size():
-    from jaxsem.volumon import door_errors
+    from jaxsem.volumon._door import door_errors  # layers: white-box
 
     R, c = _door_truth()
     half = np.array([0.1, 0.5, 1.05])  # thickness along world x (the wall normal faces the camera)

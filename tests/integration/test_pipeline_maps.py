@@ -1,7 +1,6 @@
 """Object maps from rendered detections (issue 13 part 3): ROSHAN's online state as map objects,
 map errors against ground truth, and one tiny step of benchmarks/pipeline.py's mapper."""
 
-import dataclasses
 import importlib.util
 import pathlib
 
@@ -11,21 +10,8 @@ import pytest
 from jaxsem import mapping, planning, slam
 from jaxsem.mapping import BuildingRenderer, robot_camera, robot_intrinsics
 
-TINY = dataclasses.replace(
-    planning.TRAIN_PARAMS,
-    width=(10.0, 11.0),
-    depth=(7.0, 8.0),
-    margin=2.0,
-    room_size=(3.0, 4.0),
-    deep_block=20.0,
-)
 W, H = 160, 120
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def building():
-    return planning.generate_building(0, "train", params=TINY)
 
 
 @pytest.fixture(scope="module")

@@ -14,12 +14,13 @@ import jax
 import pytest
 
 from jaxsem import cli, scripting as sc
+from jaxsem.scripting._runs import RUN_DIR_ENV  # layers: white-box
 
 
 @pytest.fixture(autouse=True)
 def _isolated(tmp_path, monkeypatch):
     """Default run directories under tmp_path; the compilation-cache setting restored after."""
-    monkeypatch.setenv(sc.RUN_DIR_ENV, str(tmp_path / "runs"))
+    monkeypatch.setenv(RUN_DIR_ENV, str(tmp_path / "runs"))
     monkeypatch.delenv(cli.NO_CACHE_ENV, raising=False)
     before = jax.config.jax_compilation_cache_dir
     yield

@@ -7,8 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from jaxsem import lsd, volumon
+from jaxsem import (
+    lsd,
+    training as lsd_training,  # layers: white-box
+    training as volumon_training,  # layers: white-box
+    volumon,
+)
 from jaxsem.training import ConfigMismatchError, TrainingRun, config_json, read_metrics
+from jaxsem.volumon._configs import PRESETS  # layers: white-box
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,7 +103,7 @@ def test_unreadable_config_json_is_refused_clearly(tmp_path):
 
 def test_volumon_and_lsd_share_the_contract():
     # One error type for a mismatched resume, one load_trained signature (workdir, config=None, *, step=None).
-    assert volumon.ConfigMismatchError is lsd.ConfigMismatchError is ConfigMismatchError
+    assert volumon_training.ConfigMismatchError is lsd_training.ConfigMismatchError is ConfigMismatchError
     import inspect
 
     for fn in (volumon.load_trained, lsd.load_trained):
@@ -109,7 +115,7 @@ def test_volumon_and_lsd_share_the_contract():
 def test_both_models_take_named_presets_or_a_json_file(tmp_path):
     # One way to configure: a preset by name, or a JSON file of fields over the default.
     assert {"default", "cpu", "scale", "tiny"} <= set(lsd.PRESETS.names)
-    assert {"default", "cpu", "fast", "thesis", "tiny"} <= set(volumon.PRESETS.names)
+    assert {"default", "cpu", "fast", "thesis", "tiny"} <= set(PRESETS.names)
     assert lsd.get_config("tiny").stage1_steps < lsd.get_config("default").stage1_steps
     f = tmp_path / "lsd.json"
     f.write_text(json.dumps({"batch_size": 3, "model": {"log_range": 6.0}}))

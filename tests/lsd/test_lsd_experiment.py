@@ -6,7 +6,8 @@ import pathlib
 import numpy as np
 import pytest
 
-from jaxsem.lsd import PRETRAINED_CPU, format_table, summarise
+from jaxsem.lsd import PRETRAINED_CPU, summarise
+from jaxsem.lsd._experiment import format_table  # layers: white-box
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
@@ -97,29 +98,16 @@ def test_table_script_end_to_end_tiny(tmp_path, script):
         mod.main(["--sets", "OO", "--out", str(tmp_path)])
 
 
-def test_success_figure_names_the_trial_counts_of_every_n(tmp_path, monkeypatch):
+def test_success_figure_names_the_trial_counts_of_every_n(tmp_path, axes_titles):
     # regression: the title gave the first N's trial count when a merged table had 100 trials at
     # N = 500 and 30 at the other N
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.axes
-
     from jaxsem.lsd import plot_success
 
-    titles = []
-    original = matplotlib.axes.Axes.set_title
-
-    def record(self, label, *args, **kwargs):
-        titles.append(label)
-        return original(self, label, *args, **kwargs)
-
-    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", record)
     row = dict(set="II", success_lsd=0.9, success_uniform=0.8, success_lsd_sem=0.03, success_uniform_sem=0.04)
     summary = {"II-200": dict(row, n=200, trials=30), "II-500": dict(row, n=500, trials=100)}
     plot_success(summary, tmp_path / "s.png")
     assert (tmp_path / "s.png").stat().st_size > 0
-    assert titles == ["II: 30-100 trials per N"]
+    assert axes_titles == ["II: 30-100 trials per N"]
 
 
 def test_a_variant_both_planners_ran_is_paired_like_the_defaults():

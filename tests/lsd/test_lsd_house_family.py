@@ -10,6 +10,7 @@ import scipy.ndimage
 
 from jaxsem import lsd, planning
 from jaxsem.planning import DOOR, WINDOW, generate_building
+from jaxsem.planning._buildings import TRAIN_PARAMS  # layers: white-box
 
 HOUSE_SEEDS = (0, 3, 5)
 
@@ -83,7 +84,7 @@ def test_unknown_family_and_wrong_params_name_the_argument():
     with pytest.raises(ValueError, match="family"):
         generate_building(0, "villa")
     with pytest.raises(ValueError, match="params"):
-        planning.generate_house(0, params=planning.TRAIN_PARAMS)
+        planning.generate_house(0, params=TRAIN_PARAMS)
 
 
 def test_house_model_loads_by_name():

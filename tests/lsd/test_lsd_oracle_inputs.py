@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from jaxsem.lsd import full_map_state, with_full_map
+from jaxsem.lsd import with_full_map
+from jaxsem.lsd._expert import full_map_state  # layers: white-box
 from jaxsem.planning import (
     DOOR,
     EXIT_SIGN,

@@ -9,16 +9,9 @@ import numpy as np
 import optax
 import pytest
 
-from jaxsem.lsd import (
-    LSDSampler,
-    TrainConfig,
-    dihedral_augment,
-    full_map_distribution,
-    load_trained,
-    save_distribution_figure,
-    split_by_building,
-    train_and_evaluate,
-)
+from jaxsem.lsd import LSDSampler, TrainConfig, full_map_distribution, load_trained, train_and_evaluate
+from jaxsem.lsd._data import dihedral_augment, split_by_building  # layers: white-box
+from jaxsem.lsd._train import save_distribution_figure  # layers: white-box
 from jaxsem.models import LSDConfig, init_lsd, split_params
 
 K = 32
@@ -93,7 +86,7 @@ def test_stage_two_leaves_encoder_decoder_bit_identical(run):
 @pytest.mark.slow
 def test_resume_with_another_config_is_refused(run):
     wd, _ = run
-    from jaxsem.lsd import ConfigMismatchError
+    from jaxsem.training import ConfigMismatchError
 
     with pytest.raises(ConfigMismatchError, match="learning_rate: checkpoint 0.01, now 0.02"):
         train_and_evaluate(dataclasses.replace(CFG, learning_rate=2e-2), wd, data=_data(), progress=False)
@@ -211,7 +204,8 @@ def test_export_and_load_model_file_round_trip(run, tmp_path):
 
 
 def test_shipped_model_is_the_default():
-    from jaxsem.lsd import PRETRAINED, load_model, load_model_file
+    from jaxsem.lsd import PRETRAINED, load_model
+    from jaxsem.lsd._train import load_model_file  # layers: white-box
 
     assert PRETRAINED.exists() and PRETRAINED.with_name("MODEL_CARD.md").exists()
     model, params, cfg, _ = load_model()
@@ -270,7 +264,7 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
 
 @pytest.mark.slow
 def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path, optax_promotion):  # optax directly
-    from jaxsem.lsd import stage_optimizer
+    from jaxsem.lsd._train import stage_optimizer  # layers: white-box
 
     cfg = dataclasses.replace(CFG, lr_schedule="cosine", stage1_steps=20, stage2_steps=10)
     # Adam's step for a constant gradient is the rate itself: the first step of each stage moves
@@ -301,22 +295,9 @@ def test_cosine_schedule_decays_each_stage_and_resumes_exactly(tmp_path, optax_p
         stage_optimizer(cfg, 3)
 
 
-def test_distribution_figure_titles_print_the_context_rounded(tmp_path, monkeypatch):
+def test_distribution_figure_titles_print_the_context_rounded(tmp_path, axes_titles):
     # regression: float32 context through tolist() printed 0.47999998927..., and the titles of
     # neighbouring panels ran into each other
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.axes
-
-    titles = []
-    original = matplotlib.axes.Axes.set_title
-
-    def record(self, label, *args, **kwargs):
-        titles.append(label)
-        return original(self, label, *args, **kwargs)
-
-    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", record)
     k = 16
     batch = {
         "occupancy": np.zeros((2, k, k), np.int8),
@@ -327,7 +308,7 @@ def test_distribution_figure_titles_print_the_context_rounded(tmp_path, monkeypa
     path = tmp_path / "dist.png"
     save_distribution_figure(path, batch, np.full((2, k, k), -np.log(k * k)), title="t")
     assert path.stat().st_size > 0
-    ctx_titles = [t for t in titles if "ctx" in t]
+    ctx_titles = [t for t in axes_titles if "ctx" in t]
     assert len(ctx_titles) == 2
     assert "0.48" in ctx_titles[0] and "-0.88" in ctx_titles[0]
     assert all(len(t.split("\n")[-1]) <= 32 for t in ctx_titles), ctx_titles
@@ -338,7 +319,7 @@ def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
     # 2 x 2 output block equals the warm-started 3 x 3 convolution on the nearest-doubled input.
     import flax.linen as nn
 
-    from jaxsem.lsd import warm_start_params
+    from jaxsem.lsd._train import warm_start_params  # layers: white-box
 
     x = jax.random.normal(jax.random.PRNGKey(1), (2, 5, 7, 3), jnp.float32)  # flax params: float32
     tconv, conv = nn.ConvTranspose(4, (2, 2), strides=(2, 2)), nn.Conv(4, (3, 3))
@@ -361,7 +342,8 @@ def test_warm_start_turns_a_transposed_kernel_into_its_parity_average():
 
 @pytest.mark.slow
 def test_init_from_fine_tunes_a_resize_network_from_an_exported_model(run, tmp_path):
-    from jaxsem.lsd import export_model, warm_start_params
+    from jaxsem.lsd import export_model
+    from jaxsem.lsd._train import warm_start_params  # layers: white-box
 
     wd, _ = run
     _, params, cfg = load_trained(wd)
@@ -409,7 +391,8 @@ def test_both_model_loaders_return_one_shape():
 def test_two_stage_optimizer_runs_each_stage_as_a_fresh_adam(optax_promotion):  # optax directly
     """Issue 23: one optax transformation for both stages. Reference: the two separate stage
     optimisers, the second one started fresh at the boundary (the loop before the single step)."""
-    from jaxsem.lsd import STAGE_LABELS, stage_optimizer, two_stage_optimizer
+    from jaxsem.lsd import two_stage_optimizer
+    from jaxsem.lsd._train import STAGE_LABELS, stage_optimizer  # layers: white-box
     from jaxsem.models import is_context_param
 
     cfg = dataclasses.replace(CFG, lr_schedule="cosine", weight_decay=1e-3, stage1_steps=2, stage2_steps=2)
@@ -453,8 +436,9 @@ def _reference_two_step_run(cfg, data, snapshot_at: int):
     optimiser, then a fresh optimiser and stage two's step at the boundary. Returns the final
     params, the losses and a legacy-layout checkpoint state (params, the current stage's
     optimiser state, step) at step ``snapshot_at``."""
-    from jaxsem.lsd import batch_indices, make_train_step, stage_optimizer
-    from jaxsem.lsd._data import gather_batch  # layers: white-box
+    from jaxsem.lsd import make_train_step
+    from jaxsem.lsd._data import batch_indices, gather_batch  # layers: white-box
+    from jaxsem.lsd._train import stage_optimizer  # layers: white-box
 
     model, params = init_lsd(jax.random.PRNGKey(cfg.seed), cfg.model, jnp.float32)
     params = jax.tree.map(jnp.copy, params)

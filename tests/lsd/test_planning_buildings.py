@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import scipy.ndimage
 
-from jaxsem import planning
 from jaxsem.planning import DOOR, EXIT_SIGN, WALL, WINDOW, generate_building
+from jaxsem.planning._buildings import TEST_PARAMS, TRAIN_PARAMS  # layers: white-box
 
 SEEDS = [("train", 0), ("train", 7), ("test", 0), ("test", 11)]
 
@@ -106,8 +106,8 @@ def test_deterministic_and_families_differ():
     tr = [generate_building(s, "train").indoor.sum() for s in range(6)]
     te = [generate_building(s, "test").indoor.sum() for s in range(6)]
     assert np.mean(te) > np.mean(tr)
-    assert planning.TRAIN_PARAMS != planning.TEST_PARAMS
-    assert planning.TRAIN_PARAMS.seed_offset != planning.TEST_PARAMS.seed_offset
+    assert TRAIN_PARAMS != TEST_PARAMS
+    assert TRAIN_PARAMS.seed_offset != TEST_PARAMS.seed_offset
 
 
 def test_bad_family_and_resolution():

@@ -7,7 +7,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaxsem.lsd import SCHEMA_KEYS, ExpertConfig, generate_expert_samples, load_expert_dataset, write_expert_dataset
+from jaxsem.lsd import ExpertConfig, generate_expert_samples, load_expert_dataset, write_expert_dataset
+from jaxsem.lsd._expert import SCHEMA_KEYS  # layers: white-box
 from jaxsem.planning import (
     CROP_SIZE,
     DOOR,

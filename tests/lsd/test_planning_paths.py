@@ -10,30 +10,37 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from jaxsem.planning import (
-    DEFAULT_SECTORS,
     OCCUPIED,
     PRM,
     UNKNOWN,
     SoftCostGraph,
     build_roadmap,
-    default_radius,
     embed_local_distribution,
     generate_building,
-    knn_within_radius,
-    polyline_clear,
+    roadmap_shortest_path,
+    shortest_path,
+)
+from jaxsem.planning._edges import polyline_clear  # layers: white-box
+from jaxsem.planning._neighbours import knn_within_radius  # layers: white-box
+from jaxsem.planning._roadmap import (  # layers: white-box
+    DEFAULT_SECTORS,
+    default_radius,
     prm_star_k,
     roadmap_connect,
     roadmap_grow,
     roadmap_init,
-    roadmap_shortest_path,
-    shortest_path,
-    soft_cost,
 )
+from jaxsem.planning._shortest_path import soft_cost  # layers: white-box
 
 RES = 0.1
 ORIGIN = np.array([0.0, 0.0])
 # One map shape, sample count and radius for all PRM tests: each combination is one compile.
 N, RADIUS = 1000, 1.5
+
+
+def _roadmap(seed, occ, start, goal, **kw):
+    """``build_roadmap`` at the shared ``N``, ``ORIGIN``, ``RES`` and ``RADIUS``."""
+    return build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS, **kw)
 
 
 def _blocks(seed, shape=(32, 36), n=10):
@@ -199,7 +206,7 @@ def test_prm_finds_the_corridor_path():
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
     found = 0
     for seed in range(3):
-        rm = build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS)
+        rm = _roadmap(seed, occ, start, goal)
         p = roadmap_shortest_path(rm)
         found += p.found
         if p.found:
@@ -211,7 +218,7 @@ def test_prm_finds_the_corridor_path():
     # With the gap closed there is no route.
     closed = occ.copy()
     closed[:, 49:51] = True
-    rm = build_roadmap(jax.random.PRNGKey(0), closed, start, goal, N, ORIGIN, RES, radius=RADIUS)
+    rm = _roadmap(0, closed, start, goal)
     assert not roadmap_shortest_path(rm).found
 
 
@@ -269,16 +276,7 @@ def test_unknown_counts_as_free():
     partial[occ] = UNKNOWN
     partial[:, 49:51] = OCCUPIED
     partial[27:33, 49:51] = UNKNOWN
-    rm = build_roadmap(
-        jax.random.PRNGKey(1),
-        partial,
-        [1.0, 3.0],
-        [9.0, 3.0],
-        N,
-        ORIGIN,
-        RES,
-        radius=RADIUS,
-    )
+    rm = _roadmap(1, partial, [1.0, 3.0], [9.0, 3.0])
     assert roadmap_shortest_path(rm).found
 
 
@@ -287,17 +285,7 @@ def test_concentrated_distribution_places_vertices_there():
     occ = np.zeros((60, 100), bool)
     dist = np.zeros(occ.shape)
     dist[10:20, 70:80] = 1.0
-    rm = build_roadmap(
-        jax.random.PRNGKey(0),
-        occ,
-        [0.5, 0.5],
-        [9.5, 5.5],
-        N,
-        ORIGIN,
-        RES,
-        distribution=dist,
-        radius=RADIUS,
-    )
+    rm = _roadmap(0, occ, [0.5, 0.5], [9.5, 5.5], distribution=dist)
     pts = np.asarray(rm.points)[2:]
     assert np.all((pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0))
     # Uniform inside the cells: the in-cell offsets fill the cells.
@@ -306,17 +294,7 @@ def test_concentrated_distribution_places_vertices_there():
     # A 90 / 10 split of mass shows up in the counts.
     dist2 = np.full(occ.shape, 0.1 / (6000 - 100))
     dist2[10:20, 70:80] = 0.9 / 100
-    rm = build_roadmap(
-        jax.random.PRNGKey(1),
-        occ,
-        [0.5, 0.5],
-        [9.5, 5.5],
-        N,
-        ORIGIN,
-        RES,
-        distribution=dist2,
-        radius=RADIUS,
-    )
+    rm = _roadmap(1, occ, [0.5, 0.5], [9.5, 5.5], distribution=dist2)
     pts = np.asarray(rm.points)[2:]
     inside = (pts[:, 0] >= 7.0) & (pts[:, 0] < 8.0) & (pts[:, 1] >= 1.0) & (pts[:, 1] < 2.0)
     assert abs(inside.mean() - 0.9) < 0.03
@@ -330,18 +308,7 @@ def test_edges_never_cross_known_obstacles(weight):
     start = ORIGIN + (free[0][::-1] + 0.5) * RES
     goal = ORIGIN + (free[-1][::-1] + 0.5) * RES
     dist = np.random.default_rng(0).random(occ.shape) + 0.1
-    rm = build_roadmap(
-        jax.random.PRNGKey(2),
-        occ,
-        start,
-        goal,
-        N,
-        ORIGIN,
-        RES,
-        distribution=dist,
-        weight=weight,
-        radius=RADIUS,
-    )
+    rm = _roadmap(2, occ, start, goal, distribution=dist, weight=weight)
     pts = np.asarray(rm.points)
     nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
     assert ok.sum() > 3000
@@ -463,30 +430,19 @@ def test_grown_roadmap_neighbours_are_exact(kind):
     if kind == "concentrated":
         dist[30:33, 60:63] = 1e4
     rm = roadmap_init(800, 6)
-    rm = roadmap_grow(
-        rm,
-        jax.random.PRNGKey(0),
-        occ,
-        400,
-        ORIGIN,
-        RES,
-        distribution=dist,
-        radius=0.9,
-        bucket_cap=2,
-        sectors=0,  # the plain k nearest, checked against brute force
-    )
-    rm = roadmap_grow(
-        rm,
-        jax.random.PRNGKey(1),
-        occ,
-        400,
-        ORIGIN,
-        RES,
-        distribution=dist,
-        radius=0.9,
-        bucket_cap=2,
-        sectors=0,  # the plain k nearest, checked against brute force
-    )
+    for seed in (0, 1):  # two batches of 400
+        rm = roadmap_grow(
+            rm,
+            jax.random.PRNGKey(seed),
+            occ,
+            400,
+            ORIGIN,
+            RES,
+            distribution=dist,
+            radius=0.9,
+            bucket_cap=2,
+            sectors=0,  # the plain k nearest, checked against brute force
+        )
     assert not bool(rm.overflow) and int(rm.num_samples) == 800
     pts = np.asarray(rm.points)
     nbr = np.asarray(rm.neighbors)
@@ -538,18 +494,7 @@ def test_prm_reuse_grow_and_update():
 
 def test_roadmap_shapes_and_no_nan():
     occ = _one_route_map()
-    rm = build_roadmap(
-        jax.random.PRNGKey(0),
-        occ,
-        [1.0, 3.0],
-        [9.0, 3.0],
-        N,
-        ORIGIN,
-        RES,
-        distribution=np.ones(occ.shape),
-        weight="neglogp",
-        radius=RADIUS,
-    )
+    rm = _roadmap(0, occ, [1.0, 3.0], [9.0, 3.0], distribution=np.ones(occ.shape), weight="neglogp")
     w = np.asarray(rm.edge_weight)
     assert not np.isnan(w).any() and np.isfinite(w[np.asarray(rm.edge_valid)]).all()
     assert rm.points.shape == (N + 2, 2) and rm.neighbors.shape == (
@@ -749,7 +694,7 @@ def test_found_paths_pass_the_navigation_check():
     """Regression (issue 11): the loop re-checked plans with a second, stricter segment test, so a
     path grazing a wall corner was 'blocked' right after the PRM found it clear and a robot on a
     reused roadmap replanned the same path forever without moving. Both now share one check."""
-    from jaxsem.planning import polyline_clear
+    from jaxsem.planning._edges import polyline_clear  # layers: white-box
 
     occ = _blocks(7, shape=(60, 100), n=60)
     prm = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS)
@@ -1066,16 +1011,22 @@ def test_free_cell_sampling_draws_the_cdf_samples():
     """Uniform samples come from the free cells' bit words (no CDF over every cell): the same
     points as the CDF search draws, bit for bit, on maps from empty to nearly full and with a
     single free cell (the last one)."""
-    from jaxsem.planning import sample_points
-    from jaxsem.planning._sampling import _free_words, _sampling_weights, sample_free_cells  # layers: white-box
+    from jaxsem.planning._edges import _grid  # layers: white-box
+    from jaxsem.planning._sampling import (  # layers: white-box
+        _free_words,
+        _sampling_weights,
+        sample_free_cells,
+        sample_points,
+    )
 
     rng = np.random.default_rng(0)
     origin = jnp.asarray(ORIGIN, jnp.float32) + 0.37
     one = np.ones((33, 65), bool)
     one[32, 64] = False
     maps = [rng.random((33, 65)) < p for p in (0.3, 0.0, 0.99)] + [one]
-    by_cdf = jax.jit(lambda key, occ: sample_points(key, _sampling_weights(occ, None), 3000, origin, RES))
-    by_words = jax.jit(lambda key, w, c: sample_free_cells(key, w, c, (33, 65), 3000, origin, RES))
+    grid = _grid(origin, RES, (33, 65))
+    by_cdf = jax.jit(lambda key, occ: sample_points(key, _sampling_weights(occ, None), 3000, grid))
+    by_words = jax.jit(lambda key, w, c: sample_free_cells(key, w, c, 3000, grid))
     for occ in maps:
         words, counts = _free_words(~occ)
         for seed in range(2):
@@ -1089,7 +1040,7 @@ def test_a_query_table_on_windows_gives_the_edge_checks_answers():
     """A lazy PRM's query on a new map reads the clearance table only around its start and goal
     (made on windows, 0 elsewhere): every value is at most the whole table's, and the edge check
     gives the rule's answers with it on edges inside, across and outside the windows."""
-    from jaxsem.planning._edges import _clearance_table_np, _edges_clear, _edges_dense  # layers: white-box
+    from jaxsem.planning._edges import _clearance_table_np, _edges_clear, _edges_dense, _grid  # layers: white-box
     from jaxsem.planning._map_setup import _MapSetup  # layers: white-box
 
     occ = _blocks(11, shape=(150, 260), n=80)
@@ -1102,12 +1053,12 @@ def test_a_query_table_on_windows_gives_the_edge_checks_answers():
     rng = np.random.default_rng(4)
     a = rng.random((400, 2)) * [8.0, 6.0]
     b = a + rng.normal(0.0, 2.0, (400, 2))
-    origin = jnp.asarray(ORIGIN, jnp.float32)
+    grid = _grid(jnp.asarray(ORIGIN, jnp.float32), RES, occ.shape)
     a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
     want, got = jax.jit(
         lambda blocked, table: (
-            _edges_dense(blocked, a, b, origin, RES, 61)[0],
-            _edges_clear(blocked, a, b, origin, RES, 61, table=table),
+            _edges_dense(blocked, a, b, grid, 61)[0],
+            _edges_clear(blocked, a, b, grid, 61, table=table),
         )
     )(jnp.asarray(occ), window)
     assert 0 < int(np.sum(want)) < 400

@@ -15,6 +15,13 @@ import scipy.ndimage as ndi
 
 from jaxsem import planning
 from jaxsem.planning import DOOR, FREE, OCCUPIED, UNKNOWN, WINDOW
+from jaxsem.planning._maps import resample_occupancy  # layers: white-box
+from jaxsem.planning._semantics import (  # layers: white-box
+    building_footprint,
+    find_doors,
+    largest_open_region,
+    read_annotations,
+)
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 RES = 0.1
@@ -38,7 +45,7 @@ def _two_rooms(gap_m: float, gap_at: float = 3.0, column: bool = False):
 
 def test_a_door_is_found_where_it_was_drawn():
     occ = _two_rooms(0.9, gap_at=1.5)
-    doors = planning.find_doors(occ, RES)
+    doors = find_doors(occ, RES)
     labels, n = ndi.label(doors, np.ones((3, 3)))
     assert n == 1
     rows, cols = np.nonzero(doors)
@@ -57,16 +64,16 @@ def test_a_door_is_found_where_it_was_drawn():
     ],
 )
 def test_no_door_where_there_is_none(occ, why):
-    assert not planning.find_doors(occ, RES).any(), why
+    assert not find_doors(occ, RES).any(), why
 
 
 def test_door_finding_rejects_bad_arguments():
     with pytest.raises(ValueError, match="width"):
-        planning.find_doors(_two_rooms(0.9), RES, width=(1.2, 0.8))
+        find_doors(_two_rooms(0.9), RES, width=(1.2, 0.8))
     with pytest.raises(ValueError, match="resolution"):
-        planning.find_doors(_two_rooms(0.9), 0.0)
+        find_doors(_two_rooms(0.9), 0.0)
     with pytest.raises(ValueError, match="occupancy"):
-        planning.find_doors(np.zeros(5), RES)
+        find_doors(np.zeros(5), RES)
 
 
 def _house_in_a_yard():
@@ -81,7 +88,7 @@ def _house_in_a_yard():
 
 
 def test_footprint_of_a_closed_house_is_its_inside():
-    indoor = planning.building_footprint(_house_in_a_yard(), RES, method="walls")
+    indoor = building_footprint(_house_in_a_yard(), RES, method="walls")
     assert indoor[70, 70] and indoor[45, 45] and indoor[95, 95]
     assert not indoor[10, 10] and not indoor[20, 120] and not indoor[130, 70]
     # What lies a metre outside the door is outside, a metre inside is inside.
@@ -93,7 +100,7 @@ def test_density_footprint_cuts_a_scans_ray_tips():
     occ[60:140, 60:140] = FREE  # the densely seen building
     for k in range(0, 60, 6):  # thin rays escaping to the right through a window
         occ[95 + k // 6, 140:195] = FREE
-    indoor = planning.building_footprint(occ, RES, method="density")
+    indoor = building_footprint(occ, RES, method="density")
     assert indoor[100, 100] and indoor[65, 65]
     assert not indoor[97, 190]  # a ray's tip
 
@@ -102,7 +109,7 @@ def test_largest_open_region_is_the_hall_not_the_corridor():
     occ = np.full((120, 220), OCCUPIED, np.int8)
     occ[10:110, 10:110] = FREE  # a 10 x 10 m hall
     occ[55:70, 110:210] = FREE  # a 1.5 m corridor off it
-    hall = planning.largest_open_region(occ, RES)
+    hall = largest_open_region(occ, RES)
     assert hall[60, 60] and hall[15, 60] and hall[60, 105]
     assert not hall[60, 200]
 
@@ -162,7 +169,7 @@ def test_resampling_against_brute_force_overlap(src_res, dst_res):
     rng = np.random.default_rng(7)
     occ = rng.choice(np.array([FREE, FREE, FREE, UNKNOWN, OCCUPIED], np.int8), size=(13, 17))
     grid = planning.OccupancyGrid(occ, np.array([1.0, -2.0]), src_res)
-    got = planning.resample_occupancy(grid, dst_res)
+    got = resample_occupancy(grid, dst_res)
     assert got.resolution == dst_res
     np.testing.assert_allclose(got.origin, [1.0, -2.0])
     np.testing.assert_array_equal(got.occupancy, _resample_brute(occ, src_res, dst_res))
@@ -182,10 +189,10 @@ def test_annotations_mark_windows_and_doors_and_name_bad_boxes(tmp_path):
         planning.grid_to_building(grid, annotations=note)
     note.write_text(json.dumps({"doorz": []}))
     with pytest.raises(ValueError, match="doorz"):
-        planning.read_annotations(note)
+        read_annotations(note)
     note.write_text(json.dumps({"doors": [[1.0, 2.0, 0.5, 3.0]]}))
     with pytest.raises(ValueError, match="'doors'"):
-        planning.read_annotations(note)
+        read_annotations(note)
 
 
 def _write_gridmap(path, occ, res, x_min=0.0, y_min=0.0):

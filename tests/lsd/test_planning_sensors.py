@@ -7,18 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem.planning import (
-    DOOR,
-    EXIT_SIGN,
-    FREE,
-    OCCUPIED,
-    UNKNOWN,
-    WINDOW,
-    SensorConfig,
-    cast_rays,
-    empty_map_state,
-    sense,
-)
+from jaxsem import quadrics as Q
+from jaxsem.planning import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WINDOW, SensorConfig, empty_map_state, sense
+from jaxsem.planning._sensors import cast_rays  # layers: white-box
 
 RES = 0.1
 ORIGIN = np.array([-1.0, -2.0])
@@ -121,7 +112,7 @@ def test_cast_rays_against_exact_traversal():
     x, y = ORIGIN[0] + 55.5 * RES, ORIGIN[1] + 45.5 * RES
     occ[44:48, 54:58] = False
     angles = np.linspace(-math.pi, math.pi, 181)[:-1]
-    got = np.asarray(cast_rays(occ, ORIGIN, RES, [x, y], angles, 6.0))
+    got = np.asarray(cast_rays(occ, Q.Grid.host(ORIGIN, RES, occ.shape), [x, y], angles, 6.0))
     ref = np.array([_dda_range(occ, x, y, a, 6.0) for a in angles])
     step = 6.0 / math.ceil(6.0 / (0.5 * RES))
     # Samples can only find a cell after entering it, and within one step of the entry, except
@@ -198,3 +189,18 @@ def test_state_must_match_map():
     occ, sem = _random_world(0)
     with pytest.raises(ValueError, match="state.occupancy"):
         sense(occ, sem, empty_map_state((10, 10)), [0.5, 0.5, 0.0], ORIGIN, RES)
+
+
+def test_loose_arrays_where_a_grid_belongs_are_refused_naming_the_argument():
+    from jaxsem.planning._sampling import sample_points  # layers: white-box
+    from jaxsem.planning._semantics import apply_annotations  # layers: white-box
+
+    occ = np.zeros((8, 9), bool)
+    with pytest.raises(ValueError, match="^grid: expected a jaxsem.quadrics.Grid"):
+        cast_rays(occ, ORIGIN, [0.0, 0.0], [0.0], 1.0)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(ValueError, match="^grid: expected occupancy's shape"):
+        cast_rays(occ, Q.Grid.host(ORIGIN, RES, (9, 8)), [0.0, 0.0], [0.0], 1.0)
+    with pytest.raises(ValueError, match="^grid: expected a jaxsem.quadrics.Grid"):
+        sample_points(jax.random.PRNGKey(0), jnp.ones((8, 9)), 4, ORIGIN)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(ValueError, match="^grid: expected a jaxsem.quadrics.Grid"):
+        apply_annotations(occ.astype(np.int8), occ.astype(np.int8), occ, {}, ORIGIN)

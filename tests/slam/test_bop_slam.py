@@ -9,6 +9,15 @@ import numpy as np
 import pytest
 
 from jaxsem import data, factors as F, quadrics as q, slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._bop_slam import (  # layers: white-box
+    OdometryModel,
+    camera_from_anchors,
+    odometry_poses,
+    pose_prior_weights,
+)
+from jaxsem.slam._frontend import FrontEnd  # layers: white-box
+from jaxsem.slam._multistart import solve_yaw_starts  # layers: white-box
 from jaxsem.volumon import data as vdata
 
 K = np.array([[500.0, 0.0, 160.0], [0.0, 500.0, 120.0], [0.0, 0.0, 1.0]])
@@ -112,7 +121,7 @@ def test_camera_from_anchors_recovers_a_constructed_pose_and_drops_a_moved_objec
         local = mesh.center + np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * mesh.radii
         world[o.obj_id] = (local @ o.rotation.T + o.translation) @ wTc[:3, :3].T + wTc[:3, 3]
     world[8] = world[8] + [0.1, 0.0, 0.0]  # object 8 "moved" since
-    T, kept, rms = slam.camera_from_anchors(world, frame, scene, tol_m=0.01)
+    T, kept, rms = camera_from_anchors(world, frame, scene, tol_m=0.01)
     assert kept == (1, 5, 6) and rms < 1e-9
     np.testing.assert_allclose(T, cams[3], atol=1e-9)
 
@@ -135,14 +144,14 @@ def test_fit_rigid_transform_against_a_known_transform_and_weights():
 
 def test_odometry_without_noise_is_exact_and_with_noise_starts_at_the_truth():
     _, cams = _synthetic_scene()
-    zero = slam.OdometryModel(0.0, 0.0, 0.0, 0.0)
-    np.testing.assert_allclose(slam.odometry_poses(cams, zero, np.random.default_rng(0)), cams, atol=1e-12)
-    noisy = slam.odometry_poses(cams, slam.OdometryModel(), np.random.default_rng(0))
+    zero = OdometryModel(0.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(odometry_poses(cams, zero, np.random.default_rng(0)), cams, atol=1e-12)
+    noisy = odometry_poses(cams, OdometryModel(), np.random.default_rng(0))
     np.testing.assert_allclose(noisy[0], cams[0])
     off = np.linalg.norm(np.linalg.inv(noisy[-1])[:3, 3] - np.linalg.inv(cams[-1])[:3, 3])
     assert 0 < off < 0.05
     with pytest.raises(ValueError, match="drift_translation"):
-        slam.OdometryModel(drift_translation=-1.0)
+        OdometryModel(drift_translation=-1.0)
 
 
 def test_user_class_table_is_seeded_and_within_the_stated_factors():
@@ -219,7 +228,7 @@ def test_front_end_takes_a_trackers_ids_and_measures_a_fronto_parallel_plane(mat
     pose_a = np.eye(4)
     pose_b = np.eye(4)
     pose_b[0, 3] = -0.04  # camera_T_world of a camera at x = +0.04
-    fe = slam.FrontEnd(K, slam.FrontEndConfig(matcher=matcher, min_baseline=0.01, max_depth_variance=0.01))
+    fe = FrontEnd(K, slam.FrontEndConfig(matcher=matcher, min_baseline=0.01, max_depth_variance=0.01))
     box_a, box_b = np.array([[100.0, 60.0, 220.0, 180.0]]), np.array([[80.0, 60.0, 200.0, 180.0]])
     (first,) = fe.process(a, pose_a, box_a, ["duck"], track_ids=[7])
     assert first.landmark_id == 7 and first.texture_status == "new_landmark"
@@ -292,7 +301,7 @@ def test_end_to_end_roshan_on_a_tiny_bop_scene(tmp_path):
     # upright at heading 0 and the solve spends its last ~50 steps turning the headings along a
     # flat valley (cost 215.5 -> 215.0): 146 steps, past the default 100.
     config = slam.SolverConfig(noise=slam.noise_model(seq), unfixable_rms=10.0, max_steps=200)
-    est, info = slam.solve_schur(problem, slam.initialize(problem, config), config)
+    est, info = solve_schur(problem, slam.initialize(problem, config), config)
     assert bool(info.success)
     truth = {o["id"]: o for o in seq.truth["objects"]}
     err = np.array([np.linalg.norm(np.asarray(est.center)[slot[i]] - truth[i]["center"]) for i in seq.object_ids])
@@ -315,14 +324,14 @@ def test_heading_starts_keep_per_object_the_start_with_the_lowest_cost():
     problem, _ = slam.toy_map(0, num_objects=3, num_frames=10)
     config = slam.SolverConfig()
     init = slam.initialize(problem, config)
-    single, _ = slam.solve_schur(problem, init, config)
-    est, info, start = slam.solve_yaw_starts(problem, init, config, yaws_deg=(0.0, 90.0))
+    single, _ = solve_schur(problem, init, config)
+    est, info, start = solve_yaw_starts(problem, init, config, yaws_deg=(0.0, 90.0))
     J = problem.object_class.shape[0]
     assert start.shape == (J,) and set(np.asarray(start).tolist()) <= {0, 1}
     cost = lambda e: float(slam.total_cost(problem, e, config))
     assert np.isfinite(cost(est)) and cost(est) <= cost(single) * 1.05
     with pytest.raises(ValueError, match="yaws_deg"):
-        slam.solve_yaw_starts(problem, init, config, yaws_deg=())
+        solve_yaw_starts(problem, init, config, yaws_deg=())
 
 
 def test_pose_prior_weights_follow_the_stated_drift():
@@ -330,18 +339,18 @@ def test_pose_prior_weights_follow_the_stated_drift():
     T = 12
     cams = np.stack([np.eye(4)] * T)
     cams[:, 0, 3] = -0.05 * np.arange(T)  # the camera moves 5 cm along x per step
-    model = slam.OdometryModel()
-    assert np.all(slam.pose_prior_weights(cams, "all") == 1.0)
-    first = slam.pose_prior_weights(cams, "first", model, prior_translation=0.02, prior_rotation_deg=1.0)
+    model = OdometryModel()
+    assert np.all(pose_prior_weights(cams, "all") == 1.0)
+    first = pose_prior_weights(cams, "first", model, prior_translation=0.02, prior_rotation_deg=1.0)
     assert np.all(first[1:] == 0) and np.all(first[0] > 1)  # tighter than 2 cm / 1 deg
-    drift = slam.pose_prior_weights(cams, "drift", model, prior_translation=0.02, prior_rotation_deg=1.0)
+    drift = pose_prior_weights(cams, "drift", model, prior_translation=0.02, prior_rotation_deg=1.0)
     assert np.all(np.diff(drift, axis=0) < 0)  # looser at every step
     # after 11 steps the stated model's spread: sampled drifts agree with the weight's sigma
-    ends = np.stack([slam.odometry_poses(cams, model, rng)[-1] for _ in range(400)])
+    ends = np.stack([odometry_poses(cams, model, rng)[-1] for _ in range(400)])
     centres = np.einsum("nji,nj->ni", ends[:, :3, :3], -ends[:, :3, 3])
     spread = np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1)) / 3)
     assert 0.02 / drift[-1, 0] == pytest.approx(spread, rel=0.35)
     with pytest.raises(ValueError, match="mode"):
-        slam.pose_prior_weights(cams, "none")
+        pose_prior_weights(cams, "none")
     with pytest.raises(ValueError, match="poses"):
-        slam.pose_prior_weights(cams[0])
+        pose_prior_weights(cams[0])

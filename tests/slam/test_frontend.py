@@ -17,13 +17,10 @@ import numpy as np
 import pytest
 
 import jaxsem.slam._frontend_vision as fe_mod  # layers: white-box (the projection cache, one test)
-from jaxsem.slam import (
-    FrontEnd,
-    FrontEndConfig,
-    LandmarkEstimates,
-    to_frame,
-    triangulate_points,
-)
+from jaxsem.slam import FrontEndConfig
+from jaxsem.slam._frontend import FrontEnd, to_frame  # layers: white-box
+from jaxsem.slam._frontend_types import LandmarkEstimates  # layers: white-box
+from jaxsem.slam._frontend_vision import triangulate_points  # layers: white-box
 
 mujoco = pytest.importorskip("mujoco")
 

@@ -6,6 +6,10 @@ import re
 import numpy as np
 import pytest
 
+from jaxsem.slam._map_json import truth_errors  # layers: white-box
+from jaxsem.slam._sequence import sequence_from_simulation  # layers: white-box
+from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
+
 
 def _table_rows(table: str) -> dict:
     rows = {}
@@ -42,12 +46,11 @@ SIZES = dict(num_objects=4, num_frames=30, forward_step=0.75 * 59 / 29)
 def simulated():
     import jax
 
-    from jaxsem import slam
     from jaxsem.slam import sim
 
     cfg = sim.quadricslam_config("forward", **SIZES)
     one = jax.jit(sim.simulate, static_argnums=1)(jax.random.key(2), cfg)
-    return cfg, one, slam.sequence_from_simulation(one, cfg.image_size)
+    return cfg, one, sequence_from_simulation(one, cfg.image_size)
 
 
 @pytest.mark.slow
@@ -110,7 +113,7 @@ def test_sequence_round_trip_and_online_map_close_to_truth(tmp_path, simulated):
         R = np.array(o["rotation"])
         np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-6)
     assert np.all(np.isfinite(np.array(out["camera_T_world"])))
-    e = slam.truth_errors(result, back.truth)
+    e = truth_errors(result, back.truth)
     np.testing.assert_allclose(np.sort(e["position"]), np.sort(err), atol=1e-9)
 
 
@@ -273,7 +276,7 @@ def test_sequence_noise_model_loads_validates_and_round_trips(tmp_path):
     seq = slam.load_sequence(_write(tmp_path, data))
     noise = slam.noise_model(seq)
     assert noise.box_sigma == 2.0 and math.isclose(noise.pose_rotation_sigma, math.radians(2.0))
-    assert noise.texture_sigma == slam.NoiseModel().texture_sigma  # untouched fields keep defaults
+    assert noise.texture_sigma == NoiseModel().texture_sigma  # untouched fields keep defaults
     slam.save_sequence(seq, tmp_path / "rt")
     assert slam.load_sequence(tmp_path / "rt").noise == seq.noise
     for noise_field, pattern in (

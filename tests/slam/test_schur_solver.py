@@ -10,6 +10,11 @@ import optimistix as optx
 import pytest
 
 from jaxsem import slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._cost import linearize  # layers: white-box
+from jaxsem.slam._results import RESULTS, result_code  # layers: white-box
+from jaxsem.slam._schur import SchurStructure, schur_normal  # layers: white-box
+from jaxsem.slam._solver_config import CostModel, InitConfig, NoiseModel, StoppingRule  # layers: white-box
 
 T, L = 6, 3
 
@@ -33,7 +38,7 @@ def _residuals(y, args):
 
 
 def _structure(args):
-    return slam.SchurStructure(args["pose_index"], args["landmark_index"])
+    return SchurStructure(args["pose_index"], args["landmark_index"])
 
 
 def _problem(seed, noise=0.02):
@@ -69,7 +74,7 @@ def test_a_users_residual_function_matches_a_dense_reference():
     y0, args = _problem(0)
     sol = optx.least_squares(_residuals, SOLVER, y0, args, throw=False, max_steps=200)
     assert bool(sol.result == optx.RESULTS.successful)
-    assert bool(sol.stats["result"] == slam.RESULTS.successful)
+    assert bool(sol.stats["result"] == RESULTS.successful)
     assert int(sol.stats["accepted"]) >= 2 and int(sol.stats["trials"]) >= int(sol.stats["accepted"])
     dense = optx.least_squares(_residuals, optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12), y0, args, max_steps=500)
     for a, b in zip(sol.value, dense.value):
@@ -78,17 +83,23 @@ def test_a_users_residual_function_matches_a_dense_reference():
     assert _cost(sol.value, args) < 0.5 * _cost(y0, args)
 
 
-def test_generic_normal_equations_equal_the_dense_ones():
-    y0, args = _problem(1)
-    n = slam.schur_normal(_residuals, y0, args, _structure(args))
+def _dense_normal(residuals, y0, args):
+    """``(H, g, r)``: the dense Gauss-Newton normal equations of ``residuals`` at ``y0`` (poses, then
+    objects, flattened), from ``jax.jacfwd``, and the flat residual: the reference for ``schur_normal``."""
 
     def flat(x):
         y = (x[: T * 3].reshape(T, 3), x[T * 3 :].reshape(L, 2))
-        return jnp.concatenate([b.reshape(-1) for b in _residuals(y, args)])
+        return jnp.concatenate([b.reshape(-1) for b in residuals(y, args)])
 
     x0 = jnp.concatenate([y0[0].reshape(-1), y0[1].reshape(-1)])
-    Jd = jax.jacfwd(flat)(x0)
-    H, g = Jd.T @ Jd, Jd.T @ flat(x0)
+    Jd, r = jax.jacfwd(flat)(x0), flat(x0)
+    return Jd.T @ Jd, Jd.T @ r, r
+
+
+def test_generic_normal_equations_equal_the_dense_ones():
+    y0, args = _problem(1)
+    n = schur_normal(_residuals, y0, args, _structure(args))
+    H, g, _ = _dense_normal(_residuals, y0, args)
     np.testing.assert_allclose(n.gp.reshape(-1), g[: T * 3], rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(n.go.reshape(-1), g[T * 3 :], rtol=1e-10, atol=1e-9)
     for t in range(T):
@@ -114,8 +125,8 @@ def test_generic_linearisation_equals_roshans_on_a_map():
 
     @jax.jit
     def both(est):
-        generic = slam.schur_normal(fn, est, args, structure, solver.retract, 6, 9)
-        return generic, slam.linearize(problem, est, cfg, free)
+        generic = schur_normal(fn, est, args, structure, solver.retract, 6, 9)
+        return generic, linearize(problem, est, cfg, free)
 
     generic, roshan = both(est)
     for a, b in zip(generic, roshan):
@@ -138,15 +149,8 @@ def _residuals_odometry(y, args):
 def test_an_odometry_block_gives_block_tridiagonal_normal_equations():
     y0, args = _problem(9)
     y0 = (y0[0] + 0.05, y0[1])
-    n = slam.schur_normal(_residuals_odometry, y0, args, _structure(args))
-
-    def flat(x):
-        y = (x[: T * 3].reshape(T, 3), x[T * 3 :].reshape(L, 2))
-        return jnp.concatenate([b.reshape(-1) for b in _residuals_odometry(y, args)])
-
-    x0 = jnp.concatenate([y0[0].reshape(-1), y0[1].reshape(-1)])
-    Jd = jax.jacfwd(flat)(x0)
-    H, g = Jd.T @ Jd, Jd.T @ flat(x0)
+    n = schur_normal(_residuals_odometry, y0, args, _structure(args))
+    H, g, r = _dense_normal(_residuals_odometry, y0, args)
     assert n.Hpp_next is not None
     np.testing.assert_allclose(n.gp.reshape(-1), g[: T * 3], rtol=1e-10, atol=1e-8)
     for t in range(T):
@@ -155,24 +159,22 @@ def test_an_odometry_block_gives_block_tridiagonal_normal_equations():
             nxt = H[3 * t : 3 * t + 3, 3 * t + 3 : 3 * t + 6]
             assert np.abs(nxt).max() > 1.0  # the odometry couples the poses
             np.testing.assert_allclose(n.Hpp_next[t], nxt, rtol=1e-10, atol=1e-8)
-    np.testing.assert_allclose(n.cost, 0.5 * float(jnp.sum(flat(x0) ** 2)), rtol=1e-12)
+    np.testing.assert_allclose(n.cost, 0.5 * float(jnp.sum(r**2)), rtol=1e-12)
     sol = optx.least_squares(_residuals_odometry, SOLVER, y0, args, throw=False, max_steps=200)
     dense = optx.least_squares(
         _residuals_odometry, optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12), y0, args, max_steps=500
     )
-    assert bool(sol.stats["result"] == slam.RESULTS.successful)
+    assert bool(sol.stats["result"] == RESULTS.successful)
     for a, b in zip(sol.value, dense.value):
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-8)
 
 
 def test_results_extend_optimistix_results():
-    assert issubclass(slam.RESULTS, optx.RESULTS)
-    promoted = slam.RESULTS.promote(optx.RESULTS.nonfinite)
-    assert bool(promoted == slam.RESULTS.nonfinite)
-    assert "damping" in slam.RESULTS[slam.RESULTS.damping_limit]
-    batched = jax.vmap(lambda k: slam.RESULTS.where(k > 0, slam.RESULTS.damping_limit, slam.RESULTS.successful))(
-        jnp.arange(2)
-    )
+    assert issubclass(RESULTS, optx.RESULTS)
+    promoted = RESULTS.promote(optx.RESULTS.nonfinite)
+    assert bool(promoted == RESULTS.nonfinite)
+    assert "damping" in RESULTS[RESULTS.damping_limit]
+    batched = jax.vmap(lambda k: RESULTS.where(k > 0, RESULTS.damping_limit, RESULTS.successful))(jnp.arange(2))
     messages = slam.result_message(batched)
     assert messages[0] == "successful" and "damping" in messages[1]
 
@@ -180,15 +182,15 @@ def test_results_extend_optimistix_results():
 def test_a_step_budget_and_a_fixed_problem():
     y0, args = _problem(2)
     sol = optx.least_squares(_residuals, SOLVER, y0, args, options={"max_trials": 1}, max_steps=None, throw=False)
-    assert bool(sol.stats["result"] == slam.RESULTS.max_steps_reached)
+    assert bool(sol.stats["result"] == RESULTS.max_steps_reached)
     assert bool(sol.result == optx.RESULTS.nonlinear_max_steps_reached) and int(sol.stats["trials"]) == 1
 
     def held(a):
-        return slam.SchurStructure(a["pose_index"], a["landmark_index"], jnp.zeros(T), jnp.zeros(L, bool))
+        return SchurStructure(a["pose_index"], a["landmark_index"], jnp.zeros(T), jnp.zeros(L, bool))
 
     fixed = slam.SchurLevenbergMarquardt(1e-8, 1e-8, held)
     sol = optx.least_squares(_residuals, fixed, y0, args, throw=False)
-    assert bool(sol.stats["result"] == slam.RESULTS.successful) and int(sol.stats["trials"]) == 0
+    assert bool(sol.stats["result"] == RESULTS.successful) and int(sol.stats["trials"]) == 0
     np.testing.assert_array_equal(sol.value[0], y0[0])
 
 
@@ -204,7 +206,7 @@ def test_vmapped_members_stop_at_their_own_iteration_with_their_solo_answer():
     for k, (y, a) in enumerate(problems):
         one = solve(y, a)
         assert int(one.stats["trials"]) == trials[k] and int(one.stats["accepted"]) == int(batch.stats["accepted"][k])
-        assert bool(one.stats["result"] == slam.RESULTS.successful)
+        assert bool(one.stats["result"] == RESULTS.successful)
         for u, v in zip(one.value, batch.value):
             np.testing.assert_allclose(v[k], u, rtol=1e-10, atol=1e-12)
 
@@ -221,8 +223,8 @@ def test_vmapped_roshan_maps_equal_their_solo_solves():
     inits = [slam.initialize(p, cfg) for p in maps]
     problems = slam.stack_problems(maps)
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
-    solve = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))
-    est_v, info_v = jax.jit(jax.vmap(lambda p, i: slam.solve_schur(p, i, cfg)))(problems, stacked)
+    solve = jax.jit(lambda p, i: solve_schur(p, i, cfg))
+    est_v, info_v = jax.jit(jax.vmap(lambda p, i: solve_schur(p, i, cfg)))(problems, stacked)
     steps = []
     for k, (p, i) in enumerate(zip(maps, inits)):
         est, info = solve(p, i)
@@ -246,16 +248,16 @@ def test_no_recompile_on_a_second_call_or_another_tolerance():
     y1, args1 = _problem(8)
     sol = solve(y1, args1, jnp.asarray(1e-4))
     assert solve._cache_size() == before == 1
-    assert bool(sol.stats["result"] == slam.RESULTS.successful)
+    assert bool(sol.stats["result"] == RESULTS.successful)
 
 
 def test_solver_config_splits_into_cost_model_initialisation_and_stopping_rule():
     cfg = slam.SolverConfig(rtol=1e-3, use_texture=False, rescue_rtol=0.05)
-    assert cfg.stopping == slam.StoppingRule(rtol=1e-3)
-    assert cfg.initialisation == slam.InitConfig(rescue_rtol=0.05)
-    assert cfg.cost_model == slam.CostModel(use_texture=False)
+    assert cfg.stopping == StoppingRule(rtol=1e-3)
+    assert cfg.initialisation == InitConfig(rescue_rtol=0.05)
+    assert cfg.cost_model == CostModel(use_texture=False)
     assert slam.SolverConfig.from_parts(cfg.cost_model, cfg.initialisation, cfg.stopping) == cfg
-    parts = [f for p in (slam.CostModel, slam.InitConfig, slam.StoppingRule) for f in p.__dataclass_fields__]
+    parts = [f for p in (CostModel, InitConfig, StoppingRule) for f in p.__dataclass_fields__]
     assert sorted(parts) == sorted(slam.SolverConfig.__dataclass_fields__)  # each field in one part
     assert slam.roshan_solver(cfg).rtol == 1e-3
 
@@ -278,20 +280,20 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
     assert maps[0].pose_prior.dtype == jnp.float64
     inits = [slam.initialize(p, cfg) for p in maps]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
-    solve = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))
-    est_v, info_v = jax.jit(jax.vmap(lambda p, i: slam.solve_schur(p, i, cfg)))(slam.stack_problems(maps), stacked)
+    solve = jax.jit(lambda p, i: solve_schur(p, i, cfg))
+    est_v, info_v = jax.jit(jax.vmap(lambda p, i: solve_schur(p, i, cfg)))(slam.stack_problems(maps), stacked)
     steps, converged, split = [], 0, []
-    cut = int(slam.result_code(slam.RESULTS.max_steps_reached))
+    cut = int(result_code(RESULTS.max_steps_reached))
     for k, (p, i) in enumerate(zip(maps, inits)):
         est, info = solve(p, i)
         steps.append(int(info.steps))
-        codes = {int(slam.result_code(info.result)), int(slam.result_code(info_v.result)[k])}
+        codes = {int(result_code(info.result)), int(result_code(info_v.result)[k])}
         if len(codes) > 1:  # path-dependent near the budget: one side converged, the other cut
             assert cut in codes and len(codes) == 2, (seeds[k], codes)
             split.append(seeds[k])
             continue
         if not bool(info.success):
-            assert bool(info.result == slam.RESULTS.max_steps_reached)
+            assert bool(info.result == RESULTS.max_steps_reached)
             continue
         converged += 1
         assert int(info_v.steps[k]) == int(info.steps)
@@ -304,7 +306,7 @@ def test_a_residual_function_without_blocks_is_rejected():
     y0, args = _problem(10)
     flat = lambda y, a: jnp.concatenate([b.reshape(-1) for b in _residuals(y, a)])
     with pytest.raises(ValueError, match="residual blocks"):
-        slam.schur_normal(flat, y0, args, _structure(args))
+        schur_normal(flat, y0, args, _structure(args))
 
 
 def test_a_jnp_tolerance_in_solver_config_does_not_recompile():
@@ -317,7 +319,7 @@ def test_a_jnp_tolerance_in_solver_config_does_not_recompile():
     written = [
         slam.SolverConfig(),
         slam.SolverConfig(rtol=1e-4),
-        slam.SolverConfig(rtol=jnp.asarray(1e-4), noise=slam.NoiseModel(box_sigma=np.float32(2.0))),
+        slam.SolverConfig(rtol=jnp.asarray(1e-4), noise=NoiseModel(box_sigma=np.float32(2.0))),
     ]
     for cfg in written:
         stopping(cfg)

@@ -9,11 +9,14 @@ import numpy as np
 import pytest
 
 from jaxsem import slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity, compact_boxes  # layers: white-box
+from jaxsem.slam._results import result_code  # layers: white-box
 
 CAP = (16, 32, 2)
 CFG = slam.SolverConfig(max_steps=40)
-SOLVE = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
-VSOLVE = jax.jit(jax.vmap(lambda p, i: slam.solve_schur(p, i, CFG)))
+SOLVE = jax.jit(lambda p, i: solve_schur(p, i, CFG))
+VSOLVE = jax.jit(jax.vmap(lambda p, i: solve_schur(p, i, CFG)))
 
 
 def _map(seed, num_frames):
@@ -42,7 +45,7 @@ def test_vmapped_member_equals_its_solo_solve_and_ignores_the_other_members():
     for k, (p, i) in enumerate([a, b]):
         est, info = SOLVE(p, i)
         assert int(info_ab.steps[k]) == int(info.steps) and int(info_ab.accepted[k]) == int(info.accepted)
-        assert int(slam.result_code(info_ab.result)[k]) == int(slam.result_code(info.result))
+        assert int(result_code(info_ab.result)[k]) == int(result_code(info.result))
         np.testing.assert_allclose(est_ab.center[k], est.center, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(est_ab.radii[k], est.radii, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(est_ab.camera_T_world[k], est.camera_T_world, rtol=1e-6, atol=1e-8)
@@ -61,13 +64,13 @@ def _with_holes(problem):
 @pytest.mark.slow
 def test_compact_boxes_keeps_the_answer_and_shares_a_bucket():
     cfg = CFG.tight(max_steps=60)
-    solve = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))
+    solve = jax.jit(lambda p, i: solve_schur(p, i, cfg))
     p1, i1 = _map(3, 12)
     p1 = _with_holes(p1)
     n_real = int(p1.box_mask.sum())
-    cap = slam.bucket_capacity(12, n_real, 2)[1]
+    cap = bucket_capacity(12, n_real, 2)[1]
     assert cap < p1.box.shape[0]
-    c1 = slam.compact_boxes(p1, cap)
+    c1 = compact_boxes(p1, cap)
     assert c1.box.shape == (cap, 4) and bool(jnp.all(c1.box_mask[:n_real])) and not bool(jnp.any(c1.box_mask[n_real:]))
     e_full, info_full = solve(p1, i1)
     e_c, info_c = solve(c1, i1)
@@ -76,12 +79,12 @@ def test_compact_boxes_keeps_the_answer_and_shares_a_bucket():
     np.testing.assert_allclose(info_c.cost, info_full.cost, rtol=1e-6)
     # A second problem of another real size compacted to the same bucket: no recompile.
     p2, i2 = _map(4, 7)
-    c2 = slam.compact_boxes(p2, cap)
+    c2 = compact_boxes(p2, cap)
     before = solve._cache_size()
     solve(c2, i2)
     assert solve._cache_size() == before
     # Batched problems compact too (vmap or leading axes), and too small a capacity is an error.
-    both = slam.compact_boxes(slam.stack_problems([p1, p2]), cap)
+    both = compact_boxes(slam.stack_problems([p1, p2]), cap)
     np.testing.assert_array_equal(both.box_mask[0], c1.box_mask)
     with pytest.raises(ValueError, match="max_boxes"):
-        slam.compact_boxes(p1, n_real - 1)
+        compact_boxes(p1, n_real - 1)

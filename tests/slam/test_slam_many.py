@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsem import slam
+from jaxsem.slam._batch import default_strategy  # layers: white-box
 
 CFG = slam.SolverConfig(max_steps=12)  # small budget: some maps stop on it, some converge
 
@@ -41,7 +42,7 @@ def test_map_strategy_equals_solo_solves_exactly(batch):
 
 @pytest.mark.slow
 def test_strategy_by_backend_and_bad_arguments():
-    assert slam.default_strategy("cpu") == "map" and slam.default_strategy("gpu") == "vmap"
+    assert default_strategy("cpu") == "map" and default_strategy("gpu") == "vmap"
     maps = [slam.toy_map(s, num_objects=2, num_frames=4, capacity=(4, 8, 2))[0] for s in (0, 1)]
     problems = slam.stack_problems(maps)
     with pytest.raises(ValueError, match="strategy"):

@@ -13,6 +13,10 @@ import numpy as np
 import pytest
 
 from jaxsem import factors as F, quadrics as Q, slam
+from jaxsem.slam._batch import damped_schur_step, solve_schur  # layers: white-box
+from jaxsem.slam._cost import Delta, linearize, retract  # layers: white-box
+from jaxsem.slam._schur import schur_normal  # layers: white-box
+from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
 
 
 def _pose(rng, scale=3.0):
@@ -101,7 +105,7 @@ def _drifting_problem(seed=0, num_frames=10, bias=(0.01, 0.0, 0.02, 0.0, 0.004, 
 
 
 def _cfg(**kw):
-    noise = slam.NoiseModel(
+    noise = NoiseModel(
         pose_rotation_sigma=1.0,  # the priors are the dead-reckoned poses: nearly no weight
         pose_translation_sigma=10.0,
         odometry_rotation_sigma=0.005,
@@ -122,8 +126,8 @@ def test_tridiagonal_schur_step_equals_dense_normal_equations():
 
     def flat(x):
         o = x[T * 6 :].reshape(J, 9)
-        d = slam.Delta(x[: T * 6].reshape(T, 6), o[:, :3], o[:, 3:6], o[:, 6:])
-        return jnp.concatenate([b.reshape(-1) for b in slam.residual_blocks(problem, slam.retract(init, d), cfg)])
+        d = Delta(x[: T * 6].reshape(T, 6), o[:, :3], o[:, 3:6], o[:, 6:])
+        return jnp.concatenate([b.reshape(-1) for b in slam.residual_blocks(problem, retract(init, d), cfg)])
 
     lam = 1e-2
     free = problem.pose_mask.astype(jnp.float64).at[0].set(0.0)  # pose 0 held
@@ -138,8 +142,8 @@ def test_tridiagonal_schur_step_equals_dense_normal_equations():
         Hd = H + lam * (jnp.diag(jnp.diag(H)) + 1e-9 * jnp.eye(x0.shape[0]))
         Hd = jnp.where((keep[:, None] * keep[None, :]) > 0, Hd, jnp.eye(x0.shape[0]))
         dense = jnp.linalg.solve(Hd, -Jd.T @ r) * keep
-        n = slam.linearize(problem, init, cfg, free)
-        dp, do = slam.damped_schur_step(n, lam, free, problem.object_mask)
+        n = linearize(problem, init, cfg, free)
+        dp, do = damped_schur_step(n, lam, free, problem.object_mask)
         return dense, jnp.concatenate([dp.reshape(-1), do.reshape(-1)]), 0.5 * jnp.sum(r * r), n.cost
 
     dense, schur, cost, ncost = both(jnp.zeros(T * 6 + J * 9))
@@ -154,7 +158,7 @@ def test_drifting_odometry_and_boxes_beat_odometry_alone():
     cfg = _cfg(max_steps=50)
     free = np.ones(problem.num_poses, bool)
     free[0] = False  # the first pose anchors the map (it is the truth)
-    est, info = jax.jit(lambda p, f: slam.solve_schur(p, None, cfg, pose_free=f))(problem, free)
+    est, info = jax.jit(lambda p, f: solve_schur(p, None, cfg, pose_free=f))(problem, free)
     assert bool(jnp.isfinite(info.cost)) and not bool(info.unfixable.any())
 
     def position_error(poses):
@@ -181,8 +185,8 @@ def _generic_and_roshan_normal(problem, est, cfg):
     @jax.jit
     def both(est):
         fn = lambda e, a: slam.residual_blocks(a[0], e, a[1])
-        generic = slam.schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
-        return generic, slam.linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
+        generic = schur_normal(fn, est, args, solver.structure(args), solver.retract, 6, 9)
+        return generic, linearize(problem, est, cfg, free), slam.total_cost(problem, est, cfg)
 
     return both(est)
 
@@ -201,12 +205,9 @@ def test_generic_linearisation_with_odometry_equals_roshans():
         np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-7 * float(jnp.max(jnp.abs(b))))
 
 
-@pytest.mark.slow  # two solver programs compile (12-18 s on the 2-core CPU)
-def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
-    problem, _, _ = _drifting_problem(num_frames=4)
-    T = problem.num_poses
-    w = np.array([[3.0, 2.0], [0.0, 0.0], [0.5, 0.0], [1.0, 1.0]])
-    weighted = slam.make_problem(
+def _same_boxes(problem, *args, **kw):
+    """``slam.make_problem`` of ``problem``'s camera, pose priors and boxes, the rest from the arguments."""
+    return slam.make_problem(
         problem.K,
         problem.image_size,
         problem.pose_prior,
@@ -214,6 +215,18 @@ def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
         problem.box_pose,
         problem.box_object,
         problem.object_class,
+        *args,
+        **kw,
+    )
+
+
+@pytest.mark.slow  # two solver programs compile (12-18 s on the 2-core CPU)
+def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
+    problem, _, _ = _drifting_problem(num_frames=4)
+    T = problem.num_poses
+    w = np.array([[3.0, 2.0], [0.0, 0.0], [0.5, 0.0], [1.0, 1.0]])
+    weighted = _same_boxes(
+        problem,
         np.where(np.asarray(problem.texture_mask), np.asarray(problem.texture_depth), np.nan),
         odometry=np.asarray(problem.odometry)[: T - 1],
         pose_prior_weight=w,
@@ -235,21 +248,12 @@ def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
     np.testing.assert_allclose(rows, plain * np.repeat(w, 3, axis=1), rtol=1e-12)
     # the structured solvers' linearisation sees the same weighted cost
     free = weighted.pose_mask.astype(jnp.float64)
-    n = jax.jit(slam.linearize)(weighted, est, cfg, free)
+    n = jax.jit(linearize)(weighted, est, cfg, free)
     np.testing.assert_allclose(n.cost, slam.total_cost(weighted, est, cfg), rtol=1e-10)
     assert float(slam.total_cost(weighted, est, cfg)) != pytest.approx(float(slam.total_cost(problem, est, cfg)))
     for bad in (np.ones(T + 1), -np.ones(T), np.full(T, np.nan)):
         with pytest.raises(ValueError, match="pose_prior_weight"):
-            slam.make_problem(
-                problem.K,
-                problem.image_size,
-                problem.pose_prior,
-                problem.box,
-                problem.box_pose,
-                problem.box_object,
-                problem.object_class,
-                pose_prior_weight=bad,
-            )
+            _same_boxes(problem, pose_prior_weight=bad)
 
 
 @pytest.mark.slow
@@ -257,7 +261,7 @@ def test_a_prior_on_the_first_pose_only_follows_the_boxes_not_the_drift():
     # Priors at 2 cm / 1 deg on every dead-reckoned pose pin the map to the drift; a prior on the
     # first pose alone, with the same odometry and boxes, lets the boxes pull the poses back.
     problem, true, dead = _drifting_problem()
-    noise = slam.NoiseModel(
+    noise = NoiseModel(
         pose_rotation_sigma=np.radians(1.0),
         pose_translation_sigma=0.02,
         odometry_rotation_sigma=0.005,
@@ -272,7 +276,7 @@ def test_a_prior_on_the_first_pose_only_follows_the_boxes_not_the_drift():
     only_first = eqx.tree_at(
         lambda p: p.pose_prior_weight, problem, jnp.asarray(first, jnp.float64), is_leaf=lambda x: x is None
     )
-    solve = jax.jit(lambda p: slam.solve_schur(p, None, cfg))
+    solve = jax.jit(lambda p: solve_schur(p, None, cfg))
 
     def position_error(poses):
         centres = np.asarray(Q.invert_pose(poses))[:, :3, 3]

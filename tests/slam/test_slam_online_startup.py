@@ -10,6 +10,8 @@ import pytest
 
 from jaxsem import quadrics as Q, slam
 from jaxsem.slam import _aot  # layers: white-box (the exported-program mechanics themselves)
+from jaxsem.slam._results import RESULTS  # layers: white-box
+from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
 matplotlib.use("Agg")
 
@@ -18,7 +20,7 @@ CFG = slam.SolverConfig(max_steps=30)
 
 def _state_and_frames(seed=3):
     problem, _ = slam.toy_map(seed, num_objects=2, num_frames=8, path="orbit")
-    frames = slam.frames_from_problem(problem, max_detections=2)
+    frames = frames_from_problem(problem, max_detections=2)
     cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
     state = slam.online_init(CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=2)
     return state, frames
@@ -42,7 +44,7 @@ def test_update_and_final_optimize_share_one_compiled_step(compiles):
     # then compiled a second program, 8 s; issue 23 friction 7).
     assert c.count <= 1
     assert int(final.frame_count) == len(frames)  # the final mode inserts nothing
-    assert bool(final.result == slam.RESULTS.successful) or bool(final.result == slam.RESULTS.iterations_reached)
+    assert bool(final.result == RESULTS.successful) or bool(final.result == RESULTS.iterations_reached)
     cost = lambda s: float(slam.total_cost(s.problem, s.estimate, s.config))
     assert cost(final) <= cost(state)
     # New data of the same shapes (another map, a new state): nothing compiles.
@@ -53,7 +55,7 @@ def test_update_and_final_optimize_share_one_compiled_step(compiles):
         short = slam.online_optimize(state2, 1)
     assert c.count == 0
     # Online, the budget that ran out is `iterations`, and the message says so.
-    assert bool(short.result == slam.RESULTS.iterations_reached)
+    assert bool(short.result == RESULTS.iterations_reached)
     message = slam.result_message(short.result)
     assert "`iterations`" in message and "max_steps" not in message
 

@@ -9,9 +9,13 @@ import numpy as np
 import pytest
 
 from jaxsem import factors as F, slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity  # layers: white-box
+from jaxsem.slam._results import RESULTS, result_code  # layers: white-box
+from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
 CFG = slam.SolverConfig(max_steps=30)
-SOLVE = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
+SOLVE = jax.jit(lambda p, i: solve_schur(p, i, CFG))
 
 
 def _small(seed=0, capacity=None, num_frames=8):
@@ -22,7 +26,7 @@ def _small(seed=0, capacity=None, num_frames=8):
 def test_clean_problem_succeeds_and_reports_steps():
     problem, _ = _small()
     _, info = SOLVE(problem, slam.initialize(problem, CFG))
-    assert bool(info.success) and bool(info.result == slam.RESULTS.successful)
+    assert bool(info.success) and bool(info.result == RESULTS.successful)
     assert int(info.accepted) >= 1 and int(info.steps) >= int(info.accepted)
     assert float(info.cost) < float(info.initial_cost)
 
@@ -46,9 +50,9 @@ def test_nonfinite_input_is_never_success(where):
         problem = eqx.tree_at(lambda p: p.pose_prior, problem, problem.pose_prior.at[2, 1, 3].set(jnp.inf))
     _, info = SOLVE(problem, init)
     assert not bool(info.success)
-    assert bool(info.result == slam.RESULTS.nonfinite)
+    assert bool(info.result == RESULTS.nonfinite)
     with pytest.raises(Exception, match="(?i)non-?finite"):
-        jax.block_until_ready(slam.solve_schur(problem, init, CFG, throw=True))
+        jax.block_until_ready(solve_schur(problem, init, CFG, throw=True))
 
 
 @pytest.mark.slow
@@ -56,10 +60,10 @@ def test_step_budget_is_not_success_and_throw_raises():
     problem, _ = _small()
     init = slam.initialize(problem, CFG)
     init = eqx.tree_at(lambda e: e.center, init, init.center + 3.0)
-    _, info = slam.solve_schur(problem, init, CFG, max_steps=1)
-    assert bool(info.result == slam.RESULTS.max_steps_reached) and not bool(info.success)
+    _, info = solve_schur(problem, init, CFG, max_steps=1)
+    assert bool(info.result == RESULTS.max_steps_reached) and not bool(info.success)
     with pytest.raises(Exception, match="maximum number of"):
-        jax.block_until_ready(slam.solve_schur(problem, init, CFG, max_steps=1, throw=True))
+        jax.block_until_ready(solve_schur(problem, init, CFG, max_steps=1, throw=True))
 
 
 @pytest.mark.slow
@@ -68,18 +72,18 @@ def test_float32_problem_under_x64():
     problem, _ = _small()
     f32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, problem)
     init = slam.initialize(f32, CFG)
-    est, info = slam.solve_schur(f32, init, CFG)
+    est, info = solve_schur(f32, init, CFG)
     assert est.center.dtype == jnp.float32 and info.cost.dtype == jnp.float32
     assert bool(info.success), slam.result_message(info.result)
 
 
 @pytest.mark.slow
 def test_no_recompile_for_another_size_in_the_same_bucket():
-    cap = slam.bucket_capacity(9, 18, 2)
-    assert cap == slam.bucket_capacity(12, 20, 2)
+    cap = bucket_capacity(9, 18, 2)
+    assert cap == bucket_capacity(12, 20, 2)
     a, _ = _small(1, capacity=cap, num_frames=7)
     b, _ = _small(2, capacity=cap, num_frames=9)
-    solve = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG))
+    solve = jax.jit(lambda p, i: solve_schur(p, i, CFG))
     solve(a, slam.initialize(a, CFG))
     before = solve._cache_size()
     _, info = solve(b, slam.initialize(b, CFG))
@@ -90,18 +94,18 @@ def test_no_recompile_for_another_size_in_the_same_bucket():
 @pytest.mark.slow
 def test_online_update_returns_a_code_per_frame():
     problem, _ = _small(3)
-    frames = slam.frames_from_problem(problem, max_detections=2)
+    frames = frames_from_problem(problem, max_detections=2)
     cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
     state = slam.online_init(CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=3)
     codes = []
     for frame in frames:
         state = slam.online_update(state, frame)
-        codes.append(int(slam.result_code(state.result)))
-    budget = int(slam.result_code(slam.RESULTS.iterations_reached))
+        codes.append(int(result_code(state.result)))
+    budget = int(result_code(RESULTS.iterations_reached))
     assert set(codes) <= {0, budget}, codes  # successful or step budget; never a failure here
     bad = eqx.tree_at(lambda f: f.box, frames[1], frames[1].box.at[0, 0].set(jnp.nan))
     state = slam.online_update(state, bad)
-    assert bool(state.result == slam.RESULTS.nonfinite)
+    assert bool(state.result == RESULTS.nonfinite)
 
 
 @pytest.mark.slow
@@ -112,7 +116,7 @@ def test_pose_priors_hold_under_plain_initialisation_forward():
     cfg = slam.baseline_config(baseline_shape_weight=0.0, max_steps=60, depth_from_box=False)
     init = slam.initialize(problem, cfg)  # fixed default depth 10 m, class-mean radii ...
     init = slam.SlamEstimate(init.camera_T_world, init.rotation, init.center, jnp.ones_like(init.radii))
-    est, info = jax.jit(lambda p, i: slam.solve_schur(p, i, cfg))(problem, init)
+    est, info = jax.jit(lambda p, i: solve_schur(p, i, cfg))(problem, init)
     assert bool(jnp.isfinite(info.cost))
     n = cfg.noise
     w = F.pose_prior_residual(

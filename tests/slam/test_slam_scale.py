@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from jaxsem import classes, quadrics as Q, slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._results import RESULTS  # layers: white-box
 
 K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
 SIZE = (640, 480)
@@ -102,10 +104,10 @@ def test_no_success_with_unfixable_objects():
         ),
     )
     cfg = slam.SolverConfig(max_steps=40)
-    _, info = jax.jit(lambda p: slam.solve_schur(p, None, cfg))(problem)
+    _, info = jax.jit(lambda p: solve_schur(p, None, cfg))(problem)
     assert bool(info.unfixable[2]) and not bool(info.unfixable[:2].any())
     assert not bool(info.success)
-    assert bool(info.result == slam.RESULTS.unfixable_objects), slam.result_message(info.result)
+    assert bool(info.result == RESULTS.unfixable_objects), slam.result_message(info.result)
 
 
 @pytest.mark.slow
@@ -127,7 +129,7 @@ def test_rescue_reaches_a_tabletop_with_the_configs_min_depth():
     problem = slam.make_problem(K, SIZE, np.stack(poses), boxes, box_pose, box_object, [o[0] for o in objects])
     truth = np.array([o[1] for o in objects])
     cfg = slam.SolverConfig(depth_from_box=False, max_steps=60)
-    solve = jax.jit(lambda p, c: slam.solve_schur(p, None, c))
+    solve = jax.jit(lambda p, c: solve_schur(p, None, c))
     est, info = solve(problem, cfg)
     assert bool(info.rescued.all()) and bool(info.success), slam.result_message(info.result)
     assert float(np.abs(np.asarray(est.center) - truth).max()) < 0.01

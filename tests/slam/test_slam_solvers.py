@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 from jaxsem import quadrics as Q, slam, slam as C
+from jaxsem.slam._batch import damped_schur_step, solve_schur  # layers: white-box
+from jaxsem.slam._cost import Delta, linearize, retract  # layers: white-box
+from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
 K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
 R_TRUE = np.asarray(Q.quaternion_to_rotation(jnp.array([0.9, 0.1, 0.2, 0.3]) / np.linalg.norm([0.9, 0.1, 0.2, 0.3])))
@@ -22,8 +25,8 @@ CAP = (10, 10, 1)
 # Tight stopping: these tests check exact recovery; QuadricSLAM's factor set (no shape term).
 CFG_BASE = slam.baseline_config(baseline_shape_weight=0.0).tight(max_steps=60)
 CFG_ROSHAN = slam.SolverConfig().tight(max_steps=60)
-SOLVE_BASE = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG_BASE))
-SOLVE_ROSHAN = jax.jit(lambda p, i: slam.solve_schur(p, i, CFG_ROSHAN))
+SOLVE_BASE = jax.jit(lambda p, i: solve_schur(p, i, CFG_BASE))
+SOLVE_ROSHAN = jax.jit(lambda p, i: solve_schur(p, i, CFG_ROSHAN))
 
 
 def _orbit(T=10):
@@ -76,8 +79,8 @@ def test_schur_step_equals_dense_normal_equations():
 
     def flat(x):
         o = x[T * 6 :].reshape(J, 9)
-        d = C.Delta(x[: T * 6].reshape(T, 6), o[:, :3], o[:, 3:6], o[:, 6:])
-        return jnp.concatenate([b.reshape(-1) for b in C.residual_blocks(problem, C.retract(init, d), cfg)])
+        d = Delta(x[: T * 6].reshape(T, 6), o[:, :3], o[:, 3:6], o[:, 6:])
+        return jnp.concatenate([b.reshape(-1) for b in C.residual_blocks(problem, retract(init, d), cfg)])
 
     lam = 1e-2
 
@@ -89,8 +92,8 @@ def test_schur_step_equals_dense_normal_equations():
         Hd = H + lam * (jnp.diag(jnp.diag(H)) + 1e-9 * jnp.eye(x0.shape[0]))
         dense = jnp.linalg.solve(Hd, -Jd.T @ r)
         free = problem.pose_mask.astype(x0.dtype)
-        n = C.linearize(problem, init, cfg, free)
-        dp, do = slam.damped_schur_step(n, lam, free, problem.object_mask)
+        n = linearize(problem, init, cfg, free)
+        dp, do = damped_schur_step(n, lam, free, problem.object_mask)
         return dense, jnp.concatenate([dp.reshape(-1), do.reshape(-1)])
 
     dense, schur = both(jnp.zeros(T * 6 + J * 9))
@@ -138,7 +141,7 @@ def test_roshan_recovers_depth_and_shape_from_one_view_where_baseline_cannot():
 def test_online_matches_batch_and_never_recompiles(compiles):
     problem, truth = slam.toy_map(1, num_objects=3, num_frames=12, path="forward")
     cfg = slam.SolverConfig(max_steps=100)
-    frames = slam.frames_from_problem(problem, max_detections=4)
+    frames = frames_from_problem(problem, max_detections=4)
     cap = slam.Capacity(
         max_poses=12,
         max_objects=3,
@@ -157,7 +160,7 @@ def test_online_matches_batch_and_never_recompiles(compiles):
     assert int(graph.box_mask.sum()) == int(problem.box_mask.sum())
     c_online = float(slam.total_cost(graph, online, cfg))
     # The batch reference: a full solve of the same factors from the single-view initialisation.
-    est, info = jax.jit(lambda p: slam.solve_schur(p, slam.initialize(p, cfg), cfg))(graph)
+    est, info = jax.jit(lambda p: solve_schur(p, slam.initialize(p, cfg), cfg))(graph)
     c_batch = float(info.cost)
     assert np.isfinite(c_online) and c_online <= 1.01 * c_batch
     # Both land near the truth.

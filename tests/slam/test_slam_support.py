@@ -15,6 +15,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from jaxsem import factors as F, quadrics as Q, slam
+from jaxsem.slam._batch import solve_schur  # layers: white-box
+from jaxsem.slam._sequence_texture import support_height  # layers: white-box
+from jaxsem.slam._sequence_types import Sequence, SequenceFrame  # layers: white-box
 
 UP = np.array([0.0, 0.0, 1.0])
 _support = jax.jit(F.support_residual)
@@ -110,20 +113,20 @@ def _desk_sequence(tmp_path, height, num_frames=4, size=(320, 240)):
         name = f"{t:03d}.png"
         cv2.imwrite(str(tmp_path / name), np.repeat(img[..., None], 3, -1))
         frames.append(
-            slam.SequenceFrame(cam, np.array([[140.0, 100.0, 180.0, 140.0]]), ("car",), (0,), np.array([np.nan]), name)
+            SequenceFrame(cam, np.array([[140.0, 100.0, 180.0, 140.0]]), ("car",), (0,), np.array([np.nan]), name)
         )
-    return slam.Sequence(K, (W, H), tuple(frames), root=tmp_path)
+    return Sequence(K, (W, H), tuple(frames), root=tmp_path)
 
 
 def test_support_height_finds_a_textured_desk_at_its_height(tmp_path):
     seq = _desk_sequence(tmp_path, height=-0.07)
-    h, n = slam.support_height(seq, min_baseline=0.02)
+    h, n = support_height(seq, min_baseline=0.02)
     assert n >= 50
     assert abs(h - (-0.07)) < 0.003, h
     with pytest.raises(ValueError, match="world_up"):
-        slam.support_height(seq, world_up=(0.0, 0.0, 2.0))
+        support_height(seq, world_up=(0.0, 0.0, 2.0))
     with pytest.raises(ValueError, match="band"):
-        slam.support_height(seq, band=0.0)
+        support_height(seq, band=0.0)
 
 
 def test_single_view_start_places_the_silhouette_ellipsoid_on_the_box():
@@ -157,7 +160,7 @@ def test_boxes_of_a_larger_outline_give_the_extents_back_with_silhouette_scale()
     bo = problem.box_object
     box, _ = Q.project_bbox(truth.rotation[bo], truth.center[bo], 1.25 * truth.radii[bo], problem.K, cams)
     problem = eqx.tree_at(lambda p: p.box, problem, jnp.where(problem.box_mask[:, None], box, problem.box))
-    solve = jax.jit(slam.solve_schur)
+    solve = jax.jit(solve_schur)
     errs = {}
     for scale in (1.0, 1.25):
         cfg = slam.SolverConfig(

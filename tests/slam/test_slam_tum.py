@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsem import quadrics as q, slam
+from jaxsem.slam._tum import TUM_INTRINSICS  # layers: white-box
 
 
 def _folder(tmp_path, gt_lines=None):
@@ -53,7 +54,7 @@ def test_frames_pair_with_the_nearest_pose_and_poses_invert(tmp_path):
     np.testing.assert_allclose(second.camera_T_world[:3, :3] @ [1.0, 0, 0], [0, -1, 0], atol=1e-9)
     assert second.ids == (3,)  # the 0.1-score detection dropped
     assert np.all(np.isnan(first.texture_depth))
-    np.testing.assert_allclose(seq.K[0, 0], slam.TUM_INTRINSICS["freiburg1"][0])
+    np.testing.assert_allclose(seq.K[0, 0], TUM_INTRINSICS["freiburg1"][0])
     assert seq.object_ids == (3,) and seq.object_classes == ("cereal_box",)
 
 

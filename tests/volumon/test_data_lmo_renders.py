@@ -16,7 +16,10 @@ import pytest
 from jaxsem import data, quadrics as Q, volumon
 from jaxsem.data import Mesh
 from jaxsem.volumon import data as vdata
+from jaxsem.volumon._configs import LMO_CLASS_NAMES, tiny_config  # layers: white-box
+from jaxsem.volumon._train import TRAIN_KEYS, init_state  # layers: white-box
 from jaxsem.volumon.data import LMO_OBJECT_IDS, DeskConfig
+from jaxsem.volumon.data._bop_eval import LMO_TUNE_BELOW  # layers: white-box
 
 SIZE = (128, 96)
 K_SMALL = np.array([[114.5, 0.0, 64.0], [0.0, 114.7, 48.0], [0.0, 0.0, 1.0]])  # LM-O's field of view at 128 x 96
@@ -171,7 +174,7 @@ def test_write_desk_detections_resumes_and_batches_are_pure_functions_of_the_ste
     fn, num = vdata.desk_batch_source(desk_dir, batch_size=3, seed=1)
     assert num == n
     a, b = fn(5), fn(5)
-    assert set(volumon.TRAIN_KEYS) <= set(a)
+    assert set(TRAIN_KEYS) <= set(a)
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
     assert a["local"].dtype == np.float32 and a["local"].max() <= 1.0
@@ -183,10 +186,10 @@ def test_write_desk_detections_resumes_and_batches_are_pure_functions_of_the_ste
 
 @pytest.mark.slow  # two network initialisations compile (~10 s on a busy 2-core CPU)
 def test_warm_start_copies_layers_and_maps_class_rows():
-    base = volumon.tiny_config()
+    base = tiny_config()
     src_cfg = base.replace(model=base.model.__class__(**{**vars(base.model), "num_classes": 2}))
     dst_cfg = base.replace(model=base.model.__class__(**{**vars(base.model), "num_classes": 3}))
-    state, _, _ = volumon.init_state(src_cfg.replace(seed=7))
+    state, _, _ = init_state(src_cfg.replace(seed=7))
     src = {"params": state["params"], "batch_stats": state["batch_stats"]}
     out = volumon.warm_start_variables(src, dst_cfg, [1, 0, 1])
     k_src = np.asarray(src["params"]["local_out"]["kernel"]).reshape(-1, 2, 9)
@@ -207,7 +210,7 @@ def test_warm_start_copies_layers_and_maps_class_rows():
 def test_lmo_preset_is_the_fast_network_with_eight_classes():
     cfg = volumon.get_config("both", "lmo")
     fast = volumon.get_config("both", "fast")
-    assert cfg.model.num_classes == 8 and cfg.class_names == volumon.LMO_CLASS_NAMES == vdata.LMO_CLASS_NAMES
+    assert cfg.model.num_classes == 8 and cfg.class_names == LMO_CLASS_NAMES == vdata.LMO_CLASS_NAMES
     assert dataclasses.replace(cfg.model, num_classes=4) == fast.model  # so the shipped object model warm-starts it
     assert volumon.get_config("oracle", "lmo").loss.alpha_O == 1.0
 
@@ -248,7 +251,7 @@ def test_shipped_lmo_model_beats_the_known_size_baseline_on_tuning_frames_when_p
     if not (root / "scene_gt.json").is_file():
         pytest.skip("LM-O absent (set JAXSEM_DATA_DIR to the folder of `jaxsem data fetch lmo`)")
     scene = data.load_bop_scene(root, frame_filter=lambda i: i < 120)  # a handful of tuning frames only
-    assert scene.frames and all(f.frame_id < vdata.LMO_TUNE_BELOW for f in scene.frames)
+    assert scene.frames and all(f.frame_id < LMO_TUNE_BELOW for f in scene.frames)
     model, variables, cfg, _ = volumon.load_pretrained(kind="lmo")
     b = vdata.bop_eval_batch(scene, input_size=cfg.model.input_size, global_padding=cfg.model.global_padding)
     rows, _ = volumon.class_rows(b["class_name"], cfg)

@@ -7,14 +7,8 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.data import load_fat_scene
-from jaxsem.volumon.data import (
-    PipelineConfig,
-    VolumonDataset,
-    as_volumon_batch,
-    crop_inputs,
-    mask_depth_points,
-    write_synthetic_dataset,
-)
+from jaxsem.volumon.data import PipelineConfig, VolumonDataset, write_synthetic_dataset
+from jaxsem.volumon.data._pipeline import as_volumon_batch, crop_inputs, mask_depth_points  # layers: white-box
 
 CFG = PipelineConfig(patch_size=32, global_size=40, n_points=64, box_noise=0.1)
 

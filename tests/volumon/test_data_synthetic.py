@@ -8,7 +8,8 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.data import load_fat_scene
-from jaxsem.volumon.data import DEFAULT_CLASSES, object_box, write_synthetic_dataset
+from jaxsem.volumon.data import object_box, write_synthetic_dataset
+from jaxsem.volumon.data._synthetic import DEFAULT_CLASSES  # layers: white-box
 from jaxsem.volumon.data.make_synthetic import main as make_synthetic_main
 
 

@@ -11,20 +11,13 @@ import pytest
 from jaxsem import quadrics
 from jaxsem.models import Ellipsoid
 from jaxsem.quadrics import shape_distance, stereo_right_T_left
-from jaxsem.volumon import (
-    ConfigMismatchError,
-    LossConfig,
-    SceneConfig,
-    device_batch,
-    dual_loss_per_sample,
-    get_config,
-    held_out_set,
-    init_state,
-    make_train_step,
-    primal_loss_per_sample,
-    size_errors,
-    train_and_evaluate,
-)
+from jaxsem.training import ConfigMismatchError
+from jaxsem.volumon import LossConfig, get_config, held_out_set, make_train_step, train_and_evaluate
+from jaxsem.volumon._device_data import device_batch  # layers: white-box
+from jaxsem.volumon._eval import size_errors  # layers: white-box
+from jaxsem.volumon._losses import dual_loss_per_sample, primal_loss_per_sample  # layers: white-box
+from jaxsem.volumon._synthetic import SceneConfig  # layers: white-box
+from jaxsem.volumon._train import init_state  # layers: white-box
 
 SCENE = SceneConfig(
     height=48,

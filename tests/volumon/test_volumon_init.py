@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from jaxsem import mapping, quadrics, slam, volumon
+from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
 CAP_D = 4
 # one solver setting and smoother schedule for every test: the online step compiles once
@@ -16,7 +17,7 @@ SCHEDULE = dict(optimize_every=3, iterations=2)
 @pytest.fixture(scope="module")
 def toy():
     problem, truth = slam.toy_map(3, num_objects=3, num_frames=12, path="forward")
-    frames = slam.frames_from_problem(problem, max_detections=CAP_D)
+    frames = frames_from_problem(problem, max_detections=CAP_D)
     cap = slam.Capacity(max_poses=12, max_objects=3, max_boxes=int(problem.box.shape[0]) + 2, max_detections=CAP_D)
     return problem, truth, frames, cap
 

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from jaxsem import volumon
+from jaxsem.volumon._configs import tiny_config  # layers: white-box
+from jaxsem.volumon._train import TRAIN_KEYS  # layers: white-box
 
 K = np.array([[55.0, 0.0, 32.0], [0.0, 55.0, 24.0], [0.0, 0.0, 1.0]])
 
@@ -18,12 +20,12 @@ def image():
 def _labels(image, n=2, **kw):
     left = np.array([[10.0, 8.0, 30.0, 30.0], [34.0, 12.0, 50.0, 40.0]])[:n]
     right = left - np.array([4.0, 0.0, 4.0, 0.0])
-    return volumon.label_batch(image, left, right, K, 0.06, np.arange(n) % 4, config=volumon.tiny_config(), **kw)
+    return volumon.label_batch(image, left, right, K, 0.06, np.arange(n) % 4, config=tiny_config(), **kw)
 
 
 def test_label_batch_holds_the_labels_and_the_crops_of_the_boxes(image):
     b = _labels(image)
-    s = volumon.tiny_config().model.input_size
+    s = tiny_config().model.input_size
     assert b.local.shape == (2, s, s, 3) and b.global_image.shape == (2, s, s, 3)
     np.testing.assert_array_equal(b.box_input, b.box_left)  # default: the labelled left box
     np.testing.assert_allclose(b.box_right[:, 0], b.box_left[:, 0] - 4.0)
@@ -39,7 +41,7 @@ def test_label_batch_holds_the_labels_and_the_crops_of_the_boxes(image):
 
 def test_as_train_batch_has_every_training_key_and_says_it_is_2d_only(image):
     out = _labels(image).as_train_batch()
-    assert set(volumon.TRAIN_KEYS) <= set(out)
+    assert set(TRAIN_KEYS) <= set(out)
     assert out["labels_2d_only"] is True
     joined = volumon.LabelBatch.concatenate([_labels(image), _labels(image, n=1)])
     assert joined.box_left.shape == (3, 4) and joined.local.shape[0] == 3
@@ -75,7 +77,7 @@ def test_label_batch_refuses_bad_labels_naming_the_argument(image, change, word)
     }
     args.update(change)
     with pytest.raises(ValueError, match=word):
-        volumon.label_batch(**args, config=volumon.tiny_config())
+        volumon.label_batch(**args, config=tiny_config())
 
 
 @pytest.mark.slow  # a tiny VoluMon compiles and trains (about 12 s)

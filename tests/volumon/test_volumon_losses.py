@@ -8,16 +8,9 @@ import pytest
 from jaxsem import quadrics
 from jaxsem.models import Ellipsoid
 from jaxsem.quadrics import stereo_right_T_left
-from jaxsem.volumon import (
-    LossConfig,
-    SceneConfig,
-    box_error,
-    dual_loss,
-    make_batch,
-    primal_loss,
-    size_variance_loss,
-    volumon_loss,
-)
+from jaxsem.volumon import LossConfig, make_batch, volumon_loss
+from jaxsem.volumon._losses import box_error, dual_loss, primal_loss, size_variance_loss  # layers: white-box
+from jaxsem.volumon._synthetic import SceneConfig  # layers: white-box
 
 K = jnp.array([[110.0, 0, 63.5], [0, 110.0, 47.5], [0, 0, 1]])
 
@@ -356,7 +349,7 @@ def test_ray_primal_distance_sees_the_extent_along_the_view_ray():
 def test_outline_of_a_float32_prediction_draws_under_strict_promotion():
     # regression (strict promotion of the slow suite): a float32 prediction and K met the float64
     # identity pose inside ellipsoid_outline (`jaxsem volumon predict` figures)
-    from jaxsem.volumon import ellipsoid_outline
+    from jaxsem.volumon._draw import ellipsoid_outline  # layers: white-box
 
     K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]], np.float32)
     R, t, r = np.eye(3, dtype=np.float32), np.array([0, 0, 2], np.float32), np.full(3, 0.2, np.float32)

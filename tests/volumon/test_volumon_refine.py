@@ -9,7 +9,8 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.models import allocentric_rotation, reconstruct
-from jaxsem.volumon import LossConfig, get_config, make_batch, optimise_from_scratch, postopt, primal_loss_per_sample
+from jaxsem.volumon import LossConfig, get_config, make_batch, optimise_from_scratch, postopt
+from jaxsem.volumon._losses import primal_loss_per_sample  # layers: white-box
 
 
 def _batch(classes, n):
@@ -89,7 +90,9 @@ def test_postopt_from_the_truth_stays_there_with_the_class_shape():
     was not a zero of its objective and PostOpt moved it (median 0.9 cm, p90 3.5 cm on held-out
     detections; here, 12 cuboids: 2.9 cm drawn as ellipsoids, 0.2 cm with their shape)."""
     from jaxsem.models import ReconstructionConfig
-    from jaxsem.volumon import LossConfig, SceneConfig, held_out_set, phi_from_ellipsoid, postopt
+    from jaxsem.volumon import LossConfig, held_out_set, postopt
+    from jaxsem.volumon._refine import phi_from_ellipsoid  # layers: white-box
+    from jaxsem.volumon._synthetic import SceneConfig  # layers: white-box
 
     scene = SceneConfig()
     b = held_out_set(7, 12, scene, 32, 0.1)

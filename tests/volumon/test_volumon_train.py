@@ -9,17 +9,11 @@ import pytest
 
 from jaxsem import quadrics
 from jaxsem.models import allocentric_rotation, reconstruct
-from jaxsem.volumon import (
-    SceneConfig,
-    batch_indices,
-    get_config,
-    init_from_points,
-    make_batch,
-    optimise_from_scratch,
-    postopt,
-    primal_loss_per_sample,
-    train_and_evaluate,
-)
+from jaxsem.volumon import get_config, make_batch, optimise_from_scratch, postopt, train_and_evaluate
+from jaxsem.volumon._losses import primal_loss_per_sample  # layers: white-box
+from jaxsem.volumon._refine import init_from_points  # layers: white-box
+from jaxsem.volumon._synthetic import SceneConfig  # layers: white-box
+from jaxsem.volumon._train import batch_indices  # layers: white-box
 
 
 def _config():
@@ -150,7 +144,8 @@ def test_train_from_a_directory_end_to_end_with_exact_resume(tmp_path):
     """``config.data == "directory"``: batches from jaxsem.data's pipeline over a written dataset."""
     import jax
 
-    from jaxsem.volumon import ConfigMismatchError, get_config, train_and_evaluate
+    from jaxsem.training import ConfigMismatchError
+    from jaxsem.volumon import get_config, train_and_evaluate
     from jaxsem.volumon.data import volumon_batch_source, volumon_eval_batch, write_synthetic_dataset
 
     write_synthetic_dataset(tmp_path / "d", 8, seed=5, frames_per_scene=4, progress=False)
@@ -185,7 +180,8 @@ def test_train_from_a_directory_end_to_end_with_exact_resume(tmp_path):
 
 @pytest.mark.slow  # compiles a tiny VoluMon (about 20-70 s on 2 cores)
 def test_predict_batch_reads_the_batch_the_network_reads():
-    from jaxsem.volumon import init_state, make_predict_fn, predict_batch
+    from jaxsem.volumon import make_predict_fn, predict_batch
+    from jaxsem.volumon._train import init_state  # layers: white-box
 
     cfg = _config()
     state, model, _ = init_state(cfg)

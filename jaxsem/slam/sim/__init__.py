@@ -3,8 +3,22 @@
 The MuJoCo renderer is :mod:`jaxsem.data`'s; the rendered buildings are :mod:`jaxsem.mapping`'s.
 
 Public names are re-exported from private modules; import them from here.
+
+What a user calls, by job:
+
+- configs: :class:`SimConfig`, :func:`thesis_config`, :func:`quadricslam_config`,
+  :func:`class_table`, :func:`intrinsics`;
+- maps and measurements: :func:`simulate`, :func:`simulate_batch`, :func:`simulate_views`,
+  :class:`SimulatedMap`, and its draws :func:`random_objects`, :func:`camera_path`,
+  :func:`detect`, :func:`perturb_poses`;
+- into the solver: :func:`to_problem`, :func:`ground_truth`, :func:`initial_estimate`,
+  :func:`sequence_from_simulation` (a simulated map as a sequence directory);
+- experiments: the systems :data:`ROSHAN` and :data:`BASELINE`, :func:`solver_config`,
+  :func:`solve_online`, :func:`map_errors`, :func:`truth_errors`, :func:`box_iou`.
 """
 
+from .._map_json import truth_errors as truth_errors  # an estimated map against the simulated truth
+from .._sequence import sequence_from_simulation as sequence_from_simulation  # a simulated map as a sequence directory
 from ._ellipsoid_maps import (  # simulated maps, and into the solver's structures
     ground_truth as ground_truth,
     initial_estimate as initial_estimate,

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from ...quadrics import (
     look_at,
 )
+from .._problem import SlamEstimate, SlamProblem
 
 # The configuration and the map type live in _sim_config.py, the random draws in _sim_draws.py;
 # this module assembles and simulates maps and turns them into the solver's structures.
@@ -220,8 +221,6 @@ def to_problem(sim: SimulatedMap, config: SimConfig):
     every map of a config has the same padded size M = T * N. Objects never detected are masked
     out (``object_mask = observed``).
     """
-    from .. import SlamProblem
-
     T, N = sim.box_mask.shape[-2:]
     batch = sim.box_mask.shape[:-2]
     dtype = sim.boxes.dtype
@@ -247,13 +246,9 @@ def to_problem(sim: SimulatedMap, config: SimConfig):
 
 def ground_truth(sim: SimulatedMap):
     """The true poses and ellipsoids as a :class:`jaxsem.slam.SlamEstimate`."""
-    from .. import SlamEstimate
-
     return SlamEstimate(sim.camera_T_world, sim.object_rotation, sim.object_center, sim.object_radii)
 
 
 def initial_estimate(sim: SimulatedMap):
     """The config's initial estimate (pose priors + ``init_*`` landmarks) as a ``SlamEstimate``."""
-    from .. import SlamEstimate
-
     return SlamEstimate(sim.pose_prior, sim.init_rotation, sim.init_center, sim.init_radii)

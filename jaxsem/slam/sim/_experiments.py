@@ -2,7 +2,7 @@
 
 The thesis evaluates an *online* system: frames arrive one at a time, a new object is initialised
 from its first detection, and the graph is re-optimised periodically (section 4.3.6). The
-experiments here reproduce that protocol on top of :func:`jaxsem.slam.solve_schur` with fixed
+experiments here reproduce that protocol on top of :func:`jaxsem.slam._batch.solve_schur` with fixed
 padded shapes: after every ``every`` frames the problem restricted to the frames seen so far
 (masks, so nothing recompiles) is re-solved, warm-started from the previous estimate.
 
@@ -24,8 +24,11 @@ import jax
 import jax.numpy as jnp
 
 from ...metrics import ellipsoid_errors
-from ...quadrics import project_bbox
-from .. import box_init
+from ...quadrics import box_iou as _box_iou, project_bbox
+from .._batch import solve_schur
+from .._cost import total_cost
+from .._init import box_init
+from .._solver_config import NoiseModel, SolverConfig, baseline_config
 
 __all__ = ["BASELINE", "ROSHAN", "solver_config", "solve_online", "map_errors", "box_iou"]
 
@@ -41,8 +44,6 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
     (ten times the class sigma) in place of the semantic prior, as the thesis' baseline keeps
     "improvements on shape regularisation".
     """
-    from .. import NoiseModel, SolverConfig
-
     if system not in (BASELINE, ROSHAN):
         raise ValueError(f"system: expected 'baseline' or 'roshan', got {system!r}")
     noise = NoiseModel(
@@ -54,20 +55,14 @@ def solver_config(system: str, sim_config, max_steps: int = 10, **changes):
     kwargs: dict[str, Any] = dict(noise=noise, max_steps=max_steps, default_depth=sim_config.init_depth)
     kwargs.update(changes)
     if system == BASELINE:
-        from .. import baseline_config
-
         return baseline_config(**kwargs)
     return SolverConfig(**kwargs)
 
 
 def box_iou(a, b):
-    """IoU of boxes (..., 4) ``[u_min, v_min, u_max, v_max]`` (0 for empty or disjoint boxes)."""
-    lo = jnp.maximum(a[..., :2], b[..., :2])
-    hi = jnp.minimum(a[..., 2:], b[..., 2:])
-    inter = jnp.prod(jnp.maximum(hi - lo, 0.0), axis=-1)
-    area = lambda x: jnp.prod(jnp.maximum(x[..., 2:] - x[..., :2], 0.0), axis=-1)
-    union = area(a) + area(b) - inter
-    return inter / jnp.maximum(union, 1e-9)
+    """IoU of boxes (..., 4) ``[u_min, v_min, u_max, v_max]`` (0 for empty or disjoint boxes): the
+    core's :func:`jaxsem.quadrics.box_iou`."""
+    return _box_iou(a, b)
 
 
 def _replace(module, **fields):
@@ -121,8 +116,6 @@ def solve_online(
       (estimate, info) with ``info = {"steps": (rounds,), "reinitialised": (J,) int32 count,
       "cost": final cost of the full problem}``.
     """
-    from .. import solve_schur, total_cost
-
     T = problem.pose_prior.shape[0]
     init_radii = init.radii if init_radii is None else init_radii
     ks = jnp.arange(every, T + every, every, dtype=problem.box_pose.dtype).clip(max=T)

@@ -32,8 +32,8 @@ from ._sim_config import SimConfig, class_table
 class _Pool:
     """One Gaussian draw carved into all the noise a map needs.
 
-    Each ``jax.random`` call inlines a threefry hash that costs about a second of compile time on
-    this CPU; one call per map instead of a dozen keeps ``simulate`` quick to compile. Uniform
+    Each ``jax.random`` call inlines a threefry hash that adds noticeably to compile time on a
+    CPU; one call per map instead of a dozen keeps ``simulate`` quick to compile. Uniform
     variates are ``Phi(g)`` of standard normals (exactly uniform).
     """
 

@@ -14,6 +14,7 @@ import pathlib
 import numpy as np
 
 from ...data import BopFrame, BopScene, fat_writer, load_bop_scene
+from .._inputs import prepare_inputs
 
 __all__ = [
     "BOP_SPLITS",
@@ -25,7 +26,7 @@ __all__ = [
     "read_rgb",
 ]
 
-#: The fixed split of LM-O scene 000002 (issue 24): frame ids below this are the tuning split.
+#: The fixed split of LM-O scene 000002: frame ids below this are the tuning split.
 LMO_TUNE_BELOW = 600
 BOP_SPLITS = ("tune", "test", "all")
 #: Mesh points per object kept for ADD-S (evenly strided over the vertices).
@@ -55,7 +56,7 @@ def bop_split_frames(scene: BopScene, split: str, below: int = LMO_TUNE_BELOW) -
 
 def read_rgb(path) -> np.ndarray:
     """An image file as (H, W, 3) uint8 RGB; ValueError naming the file when it cannot be read."""
-    import cv2
+    import cv2  # deferred: cv2 is slow to import (~0.1 s) and only this function needs it
 
     path = pathlib.Path(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
@@ -104,8 +105,6 @@ def bop_eval_batch(
       ValueError: ``min_visible`` outside [0, 1]; a frame image that cannot be read (naming it);
         no object left (naming the count and the threshold).
     """
-    from .. import prepare_inputs
-
     min_visible = float(min_visible)
     if not 0.0 <= min_visible <= 1.0:
         raise ValueError(f"min_visible: expected a fraction in [0, 1], got {min_visible}")

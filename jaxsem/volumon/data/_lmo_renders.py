@@ -39,7 +39,8 @@ import pathlib
 import numpy as np
 
 from ... import quadrics as Q
-from ...data import LINEMOD_NAMES, Mesh
+from ...data import LINEMOD_NAMES, Mesh, load_ply, mujoco_quaternion, mujoco_view
+from .._inputs import prepare_inputs
 from ._objects import _LightRig, _material, _mujoco, _random_lights
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -125,8 +126,6 @@ class DeskConfig:
 def load_lmo_meshes(models_dir) -> dict:
     """The eight LM-O meshes (object id -> :class:`Mesh`, metres, vertex colours) of a BOP
     ``models/`` folder; ValueError naming a missing file or a mesh without colours or faces."""
-    from ...data import load_ply
-
     models_dir = pathlib.Path(models_dir)
     out = {}
     for i in LMO_OBJECT_IDS:
@@ -338,8 +337,6 @@ class _DeskScene:
         return _Item(m.body(name).id, gid, v, float(np.max(np.linalg.norm(v[:, :2], axis=-1))), float(v[:, 2].min()))
 
     def place(self, item: _Item, R=None, p=None):
-        from ...data import mujoco_quaternion
-
         if R is None:
             self.model.body_pos[item.body] = [0.0, 0.0, -50.0]
             self.model.body_quat[item.body] = [1.0, 0.0, 0.0, 0.0]
@@ -348,8 +345,6 @@ class _DeskScene:
             self.model.body_quat[item.body] = mujoco_quaternion(R)
 
     def render(self, K, camera_T_world, outputs=("rgb", "depth")) -> dict:
-        from ...data import mujoco_view
-
         return mujoco_view(self.model, self.data, self.renderer, 0, K, camera_T_world, outputs)
 
     def close(self):
@@ -396,7 +391,7 @@ def _place_cluster(rng, items, radius, placed=None, tries=40, ring=(0.0, 1.0)):
 
 def _camera_effects(rng, rgb: np.ndarray) -> np.ndarray:
     """Blur, gain, gamma and sensor noise of a cheap RGB camera (uint8 in, uint8 out)."""
-    import cv2
+    import cv2  # deferred: cv2 is slow to import (~0.1 s) and only this function needs it
 
     img = rgb.astype(np.float32) / 255.0
     sigma = float(rng.uniform(0.0, 1.3))
@@ -547,8 +542,6 @@ def _render_frame(rng, scene: _DeskScene, config: DeskConfig, K, size, baseline,
 
 def _alone_pixels(scene: _DeskScene, i, poses, K, T) -> int:
     """Pixels of object ``i`` rendered with nothing else in the way (a segmentation pass)."""
-    from ...data import mujoco_view
-
     m = scene.model
     saved = m.geom_rgba.copy()
     others = [it.geom for j, it in scene.objects.items() if j != i] + [d.geom for d in scene.distractors]
@@ -589,8 +582,6 @@ def detections_from_frames(
     ``gt_rotation``, ``gt_center``, ``gt_half_extents``, ``gt_shape_id`` (0: scored against the
     mesh extent's cuboid, as :func:`jaxsem.volumon.data.bop_eval_batch`).
     """
-    from .. import prepare_inputs
-
     rng = np.random.default_rng([int(seed), 0xDE7])
     names = tuple(class_names)
     rows: dict[str, list] = {
@@ -683,7 +674,7 @@ def write_desk_detections(
     interrupted call resumes by skipping the chunks already written; each is written atomically)
     and the first ``previews`` frames of chunk 0 as ``preview_K.jpg``. Returns the chunk paths.
     """
-    import cv2
+    import cv2  # deferred: cv2 and tqdm.auto are slow to import; only the writer needs them
     from tqdm.auto import tqdm
 
     out = pathlib.Path(out_dir)
@@ -738,7 +729,7 @@ def load_desk_detections(path) -> dict:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-#: Keys of a training batch of desk detections (:data:`jaxsem.volumon.TRAIN_KEYS` and the truth for scoring).
+#: Keys of a training batch of desk detections (:data:`jaxsem.volumon._train.TRAIN_KEYS` and the truth for scoring).
 _BATCH_KEYS = (
     "local", "global", "box_input", "box_left", "box_right", "K", "baseline", "points", "point_mask", "class_id",
     "sample_mask", "class_shape", "gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id",
@@ -765,7 +756,7 @@ def desk_batch_source(path, *, batch_size: int, seed: int = 0, min_visible: floa
     """``(batch_fn, num_samples)`` for ``jaxsem.volumon.train_and_evaluate`` on the desk
     detections in ``path``: ``batch_fn(step)`` is batch ``step`` of seeded per-epoch
     permutations (a pure function of the step, so a resumed run sees the same batches), keys of
-    :data:`jaxsem.volumon.TRAIN_KEYS`, images as float32 in [0, 1]. ``min_visible``: keep only
+    :data:`jaxsem.volumon._train.TRAIN_KEYS`, images as float32 in [0, 1]. ``min_visible``: keep only
     detections at least this visible."""
     det = load_desk_detections(path)
     keep = np.nonzero(det["visible_fraction"] >= float(min_visible))[0]

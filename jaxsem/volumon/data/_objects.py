@@ -61,7 +61,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from ... import classes as _classes, quadrics as Q
-from ...data import FAT_BASELINE, fat_writer, right_T_left
+from ...data import FAT_BASELINE, fat_writer, mujoco_quaternion, mujoco_view, right_T_left
+from .._synthetic import VOLUMON_CLASS_NAMES
 from ._synthetic import _SPLIT_STREAM, ObjectClass, _camera_pose, synthetic_intrinsics
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -262,7 +263,7 @@ def robosuite_assets(root=None) -> ObjectAssets:
 
 
 def _mujoco():
-    import mujoco
+    import mujoco  # deferred: mujoco is optional (the sim extra)
 
     return mujoco
 
@@ -485,8 +486,6 @@ class _ObjectScene:
 
     def place(self, b: _Body, world_R_obj, world_centre):
         """Pose body ``b`` so that its box centre is at ``world_centre``; ``None`` parks it."""
-        from ...data import mujoco_quaternion
-
         if world_R_obj is None:
             self.model.body_pos[b.body] = _PARK
             self.model.body_quat[b.body] = [1.0, 0.0, 0.0, 0.0]
@@ -509,8 +508,6 @@ class _ObjectScene:
     def render(self, K, camera_T_world, labels: dict) -> dict:
         """RGB (H, W, 3) uint8, z-depth (H, W) float32 m (0: nothing), seg (H, W) uint8 (``labels``:
         geom id -> segmentation id; 0 elsewhere) of one view."""
-        from ...data import mujoco_view
-
         if self._renderer is None:
             raise ValueError("_ObjectScene: render() called after close()")
         view = mujoco_view(self.model, self.data, self._renderer, 0, K, camera_T_world)
@@ -664,13 +661,11 @@ def write_object_dataset(
     if not isinstance(assets, ObjectAssets):
         raise ValueError(f"assets: expected an ObjectAssets, got {type(assets).__name__}")
     if labels == "volumon":
-        from .. import VOLUMON_CLASS_NAMES
-
         bad = [o.class_name for o in assets.objects if o.volumon_class not in VOLUMON_CLASS_NAMES]
         if bad:
             raise ValueError(f"assets: labels='volumon' needs a volumon_class in {VOLUMON_CLASS_NAMES} for {bad}")
 
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import and only the writer needs it
 
     K = synthetic_intrinsics(width, height)
     T_rl = right_T_left(baseline)

@@ -208,7 +208,7 @@ def write_synthetic_dataset(
     if len(set(ids)) != len(ids) or not all(0 < i < 256 for i in ids):
         raise ValueError(f"classes: segmentation_class_id values must be distinct in 1..255, got {ids}")
 
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import and only the writer needs it
 
     K = synthetic_intrinsics(width, height)
     T_rl = right_T_left(baseline)

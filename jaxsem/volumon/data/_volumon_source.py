@@ -3,7 +3,7 @@
 :func:`volumon_batch_source` joins :class:`VolumonDataset` (this package's input pipeline) to
 :func:`jaxsem.volumon.train_and_evaluate` (``config.data == "directory"``): ``batch_fn(step)`` is
 a pure function of the seed and the step (so a resumed run sees the same batches), in the keys of
-:data:`jaxsem.volumon.TRAIN_KEYS`, and the evaluation batch holds every usable object of the
+:data:`jaxsem.volumon._train.TRAIN_KEYS`, and the evaluation batch holds every usable object of the
 evaluation directory once, with ground truth.
 """
 
@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .._synthetic import VOLUMON_CLASS_NAMES
 from ._pipeline import PipelineConfig, VolumonDataset, as_volumon_batch
 
 __all__ = ["volumon_batch_source", "volumon_eval_batch"]
@@ -29,8 +30,6 @@ def _keys(batch: dict) -> dict:
 
 def _names_and_config(class_names, input_size, global_padding, num_points) -> tuple[tuple, PipelineConfig]:
     """The class list (default: VoluMon's) and the pipeline sized like the network's inputs."""
-    from .. import VOLUMON_CLASS_NAMES
-
     names = tuple(VOLUMON_CLASS_NAMES if class_names is None else class_names)
     cfg = PipelineConfig(
         patch_size=int(input_size),

@@ -14,6 +14,7 @@ import argparse
 import sys
 
 from ... import scripting as sc
+from ._lmo_renders import write_desk_detections
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -31,7 +32,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     a = build_parser("python -m jaxsem.volumon.data.make_lmo_renders").parse_args(argv)
-    from ._lmo_renders import write_desk_detections
 
     try:
         paths = write_desk_detections(

@@ -16,6 +16,7 @@ import pathlib
 import sys
 
 from ... import scripting as sc
+from ._objects import robosuite_assets, write_object_dataset
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -53,7 +54,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     a = build_parser("python -m jaxsem.volumon.data.make_objects").parse_args(argv)
-    from ._objects import robosuite_assets, write_object_dataset
 
     dirs = write_object_dataset(
         a.out,

@@ -1,0 +1,384 @@
+"""VoluMon R-CNN (thesis 5.7): one network that detects objects and lifts each to an ellipsoid.
+
+A two-stage detector in the style of Faster R-CNN with the VoluMon head of figure 5-8:
+
+- **backbone**: MobileNetV2 cut at stride 16 (its first 13 inverted residual blocks);
+- **region proposals**: a 3 x 3 conv over the features, objectness and box deltas for
+  ``len(anchor_sizes) x len(aspect_ratios)`` anchors per cell; the top ``pre_nms`` by score go
+  through fixed-shape non-maximum suppression (:func:`jaxsem.models.nms`) to ``proposals`` boxes;
+- **RoI features**: bilinear RoI pooling (:func:`jaxsem.models.roi_align`) of each proposal into
+  ``roi_size x roi_size`` cells, two fully connected layers;
+- **heads** on the RoI feature: class logits (background + N classes), class-agnostic box deltas,
+  and the ``N x 10`` VoluMon free parameters (with the RoI's box features, as the VoluMon network
+  reads its box), which :func:`reconstruct` turns into an ellipsoid given the detected box and the
+  intrinsics (eq. 5.17).
+
+The free parameters of a detection are the row of its class (*VoluMon R-CNN Multi-Class*) or the
+expectation under the predicted class probabilities (eq. 5.18, *Multi-Class Expectation*):
+``RCNNConfig.param_rule``.
+
+Every shape is static: ``proposals`` RoIs and ``max_detections`` detections per image, the
+padding masked. Images come in at ``input_size``; boxes are in that image's pixels and the
+intrinsics are scaled to it by the caller (:func:`jaxsem.volumon.rcnn_inputs`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..quadrics import Ellipsoid, box_iou
+from ._detect import nms, roi_align
+from ._mobilenet import ConvBN, InvertedResidual, block_layout, make_divisible
+from ._volumon import (
+    ROTATION_INITS,
+    ReconstructionConfig,
+    _head_bias_init,
+    box_features,
+    expected_params,
+    reconstruct,
+    select_class_params,
+)
+
+PARAM_RULES = ("class", "expectation")
+_STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
+_MAX_LOG_SCALE = math.log(1000.0 / 16)
+
+
+@dataclasses.dataclass(frozen=True)
+class RCNNConfig:
+    """Sizes and rules of :class:`VoluMonRCNN` (a CPU-sized default).
+
+    Attributes:
+      num_classes: N object classes (class 0 of the logits is the background).
+      input_size: ``(W, H)`` of the network's image; multiples of 16.
+      width_multiplier: MobileNetV2 width.
+      anchor_sizes: anchor side lengths in input pixels; aspect_ratios: height / width.
+      pre_nms, proposals: proposals kept before and after the proposal NMS (``rpn_nms`` IoU).
+      roi_size: RoI pooling cells per side; hidden: width of the RoI head's layers.
+      max_detections: detections per image; score_threshold, det_nms: their rules.
+      param_rule: "class" (the row of the true class in training, of the detected class at test)
+        or "expectation" (eq. 5.18 in both).
+      rotation_init: the VoluMon head's initial allocentric rotation (``ROTATION_INITS``).
+      reconstruction: constants of eq. 5.7 (:class:`ReconstructionConfig`).
+    """
+
+    num_classes: int = 8
+    input_size: tuple = (320, 240)
+    width_multiplier: float = 0.5
+    anchor_sizes: tuple = (16.0, 32.0, 64.0, 128.0)
+    aspect_ratios: tuple = (0.5, 1.0, 2.0)
+    pre_nms: int = 300
+    proposals: int = 48
+    rpn_nms: float = 0.7
+    roi_size: int = 7
+    hidden: int = 256
+    max_detections: int = 16
+    score_threshold: float = 0.05
+    det_nms: float = 0.5
+    param_rule: str = "class"
+    rotation_init: str = "identity"
+    reconstruction: ReconstructionConfig = ReconstructionConfig(
+        alpha_y=0.05, eps_s=0.01, depth_mode="absolute", min_depth=0.2, max_depth=2.5
+    )
+
+    def __post_init__(self):
+        if int(self.num_classes) < 1:
+            raise ValueError(f"num_classes: expected >= 1, got {self.num_classes}")
+        w, h = (int(x) for x in self.input_size)
+        if w < 32 or h < 32 or w % 16 or h % 16:
+            raise ValueError(f"input_size: expected (W, H) multiples of 16, at least 32, got {self.input_size}")
+        if self.param_rule not in PARAM_RULES:
+            raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
+        if self.rotation_init not in ROTATION_INITS:
+            raise ValueError(f"rotation_init: expected one of {tuple(ROTATION_INITS)}, got {self.rotation_init!r}")
+        for name in ("pre_nms", "proposals", "roi_size", "hidden", "max_detections"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        if (
+            not self.anchor_sizes
+            or not self.aspect_ratios
+            or min(self.anchor_sizes) <= 0
+            or min(self.aspect_ratios) <= 0
+        ):
+            raise ValueError("anchor_sizes, aspect_ratios: expected non-empty positive values")
+
+    @property
+    def feature_shape(self) -> tuple:
+        w, h = (int(x) for x in self.input_size)
+        return h // 16, w // 16
+
+    @property
+    def anchors_per_cell(self) -> int:
+        return len(self.anchor_sizes) * len(self.aspect_ratios)
+
+
+def anchors(config: RCNNConfig) -> np.ndarray:
+    """The anchors (h * w * A, 4) of the feature map, cell-major, in input pixels."""
+    h, w = config.feature_shape
+    base = []
+    for size in config.anchor_sizes:
+        for ratio in config.aspect_ratios:
+            bw, bh = size / math.sqrt(ratio), size * math.sqrt(ratio)
+            base.append([-bw / 2, -bh / 2, bw / 2, bh / 2])
+    base = np.asarray(base)
+    cy, cx = np.meshgrid((np.arange(h) + 0.5) * 16, (np.arange(w) + 0.5) * 16, indexing="ij")
+    shift = np.stack([cx, cy, cx, cy], -1).reshape(-1, 1, 4)
+    return (shift + base[None]).reshape(-1, 4)
+
+
+def encode_boxes(reference, target, weights=(1.0, 1.0, 1.0, 1.0)):
+    """Faster R-CNN deltas ``(dx, dy, dw, dh)`` taking ``reference`` (..., 4) to ``target`` (..., 4)."""
+    rw = jnp.maximum(reference[..., 2] - reference[..., 0], 1e-3)
+    rh = jnp.maximum(reference[..., 3] - reference[..., 1], 1e-3)
+    tw = jnp.maximum(target[..., 2] - target[..., 0], 1e-3)
+    th = jnp.maximum(target[..., 3] - target[..., 1], 1e-3)
+    dx = (0.5 * (target[..., 0] + target[..., 2]) - 0.5 * (reference[..., 0] + reference[..., 2])) / rw
+    dy = (0.5 * (target[..., 1] + target[..., 3]) - 0.5 * (reference[..., 1] + reference[..., 3])) / rh
+    wx, wy, ww, wh = weights
+    return jnp.stack([wx * dx, wy * dy, ww * jnp.log(tw / rw), wh * jnp.log(th / rh)], -1)
+
+
+def decode_boxes(reference, deltas, weights=(1.0, 1.0, 1.0, 1.0)):
+    """Inverse of :func:`encode_boxes` (the size deltas clamped, so a box never overflows)."""
+    wx, wy, ww, wh = weights
+    rw = reference[..., 2] - reference[..., 0]
+    rh = reference[..., 3] - reference[..., 1]
+    cx = 0.5 * (reference[..., 0] + reference[..., 2]) + deltas[..., 0] / wx * rw
+    cy = 0.5 * (reference[..., 1] + reference[..., 3]) + deltas[..., 1] / wy * rh
+    w = rw * jnp.exp(jnp.minimum(deltas[..., 2] / ww, _MAX_LOG_SCALE))
+    h = rh * jnp.exp(jnp.minimum(deltas[..., 3] / wh, _MAX_LOG_SCALE))
+    return jnp.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], -1)
+
+
+HEAD_WEIGHTS = (10.0, 10.0, 5.0, 5.0)
+
+
+def _clip(boxes, size):
+    w, h = size
+    return jnp.stack(
+        [
+            jnp.clip(boxes[..., 0], 0, w),
+            jnp.clip(boxes[..., 1], 0, h),
+            jnp.clip(boxes[..., 2], 0, w),
+            jnp.clip(boxes[..., 3], 0, h),
+        ],
+        -1,
+    )
+
+
+class RCNNOutput(NamedTuple):
+    """What one forward pass gives (per image, batch leading).
+
+    rpn_logits (B, A), rpn_deltas (B, A, 4): over the anchors; rois (B, R, 4) and roi_valid (B, R):
+    the RoIs the heads read; class_logits (B, R, N + 1); box_deltas (B, R, 4); phi (B, R, N, 10).
+    """
+
+    rpn_logits: jax.Array
+    rpn_deltas: jax.Array
+    rois: jax.Array
+    roi_valid: jax.Array
+    class_logits: jax.Array
+    box_deltas: jax.Array
+    phi: jax.Array
+
+
+class Detections(NamedTuple):
+    """Detections per image, ``D = max_detections`` slots, batch leading.
+
+    box (B, D, 4) in the input image's pixels; class_id (B, D) in ``[0, N)``; score (B, D) its
+    probability; probabilities (B, D, N) over the object classes; ellipsoid: the camera-frame
+    :class:`jaxsem.quadrics.Ellipsoid` (B, D); valid (B, D): a real detection (the rest is padding).
+    """
+
+    box: jax.Array
+    class_id: jax.Array
+    score: jax.Array
+    probabilities: jax.Array
+    ellipsoid: Ellipsoid
+    valid: jax.Array
+
+
+class VoluMonRCNN(nn.Module):
+    """The network (module docstring). ``__call__(images, K, extra_rois=None, train=False)``:
+    images (B, H, W, 3) in [0, 1] at ``config.input_size``, K (B, 3, 3) scaled to it; in training
+    ``extra_rois`` (B, G, 4) with a mask (the true boxes) join the proposals. Returns
+    :class:`RCNNOutput`."""
+
+    config: RCNNConfig = RCNNConfig()
+
+    if TYPE_CHECKING:
+
+        def __hash__(self) -> int: ...
+
+        def apply(self, *args: Any, **kwargs: Any) -> Any: ...
+
+    @nn.compact
+    def __call__(self, images, K, extra_rois=None, extra_valid=None, train: bool = False) -> RCNNOutput:
+        cfg = self.config
+        n, a = int(cfg.num_classes), cfg.anchors_per_cell
+        W, H = (int(x) for x in cfg.input_size)
+        if images.shape[1:] != (H, W, 3):
+            raise ValueError(f"images: expected shape (B, {H}, {W}, 3) (config.input_size), got {images.shape}")
+        mean = jnp.array([0.485, 0.456, 0.406], images.dtype)
+        std = jnp.array([0.229, 0.224, 0.225], images.dtype)
+        x = (images - mean) / std
+        x = ConvBN(make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2, name="features_0")(x, train)
+        for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS]):
+            x = InvertedResidual(cin, cout, s, t, name=f"features_{i + 1}")(x, train)
+        feats = x  # (B, H/16, W/16, C)
+        B = feats.shape[0]
+
+        r = nn.relu(nn.Conv(cfg.hidden, (3, 3), padding="SAME", name="rpn_conv")(feats))
+        small = nn.initializers.normal(0.01)
+        rpn_logits = nn.Conv(a, (1, 1), kernel_init=small, name="rpn_cls")(r).reshape(B, -1)
+        rpn_deltas = nn.Conv(4 * a, (1, 1), kernel_init=small, name="rpn_box")(r).reshape(B, -1, 4)
+
+        anc = jnp.asarray(anchors(cfg), feats.dtype)
+        boxes = _clip(decode_boxes(anc, jax.lax.stop_gradient(rpn_deltas)), (W, H))
+        wh = boxes[..., 2:] - boxes[..., :2]
+        score = jnp.where(jnp.all(wh >= 2.0, -1), jax.lax.stop_gradient(rpn_logits), -jnp.inf)
+        k = min(int(cfg.pre_nms), anc.shape[0])
+        top, top_i = jax.lax.top_k(score, k)
+        top_boxes = jnp.take_along_axis(boxes, top_i[..., None], axis=1)
+        keep, keep_ok = nms(top_boxes, jnp.where(jnp.isfinite(top), top, -1e30), cfg.proposals, cfg.rpn_nms, -1e29)
+        rois = jnp.take_along_axis(top_boxes, keep[..., None], axis=1)
+        roi_valid = keep_ok
+        if extra_rois is not None:
+            extra_valid = jnp.ones(extra_rois.shape[:2], bool) if extra_valid is None else extra_valid
+            rois = jnp.concatenate([rois, extra_rois.astype(rois.dtype)], 1)
+            roi_valid = jnp.concatenate([roi_valid, extra_valid], 1)
+        rois = jax.lax.stop_gradient(rois)
+
+        pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, rois)
+        h = pooled.reshape(pooled.shape[:2] + (-1,))
+        h = nn.relu(nn.Dense(cfg.hidden, name="roi_fc0")(h))
+        h = nn.relu(nn.Dense(cfg.hidden, name="roi_fc1")(h))
+        class_logits = nn.Dense(n + 1, name="cls_out")(h)
+        box_deltas = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")(h)
+        bf = box_features(rois, K[:, None]).astype(h.dtype)
+        v = nn.relu(nn.Dense(cfg.hidden, name="volumon_fc0")(jnp.concatenate([h, bf], -1)))
+        tiny = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
+        local = nn.Dense(
+            9 * n,
+            kernel_init=tiny,
+            bias_init=_head_bias_init(n, "local", ROTATION_INITS[cfg.rotation_init]),
+            name="phi_local",
+        )(v).reshape(v.shape[:-1] + (n, 9))
+        z = nn.Dense(n, kernel_init=tiny, name="phi_depth")(v)
+        phi = jnp.concatenate([local, z[..., None]], -1)
+        return RCNNOutput(rpn_logits, rpn_deltas, rois, roi_valid, class_logits, box_deltas, phi)
+
+
+def init_rcnn(key, config: RCNNConfig = RCNNConfig(), batch: int = 1):
+    """``(model, variables)`` of :class:`VoluMonRCNN` at ``config``."""
+    W, H = (int(x) for x in config.input_size)
+    model = VoluMonRCNN(config)
+    K = jnp.broadcast_to(jnp.array([[W, 0.0, W / 2], [0.0, W, H / 2], [0.0, 0.0, 1.0]], jnp.float32), (batch, 3, 3))
+    variables = model.init(key, jnp.zeros((batch, H, W, 3), jnp.float32), K)
+    return model, variables
+
+
+def free_params(phi, class_logits, class_id, rule: str):
+    """The 10 free parameters of RoIs: the row of ``class_id`` (rule "class") or the expectation
+    under the object-class probabilities (rule "expectation", eq. 5.18).
+
+    phi (..., N, 10); class_logits (..., N + 1) with the background first; class_id (...) in [0, N).
+    """
+    if rule == "expectation":
+        return expected_params(phi, class_logits[..., 1:])
+    return select_class_params(phi, class_id)
+
+
+def detect(output: RCNNOutput, K, config: RCNNConfig) -> Detections:
+    """Detections from one forward pass: per RoI its most probable object class, the box refined by
+    the head, class-aware NMS, the ``max_detections`` best; each with its ellipsoid (eq. 5.17)."""
+    cfg = config
+    W, H = (int(x) for x in cfg.input_size)
+    probs = jax.nn.softmax(output.class_logits, -1)
+    obj = probs[..., 1:]
+    cls = jnp.argmax(obj, -1)
+    score = jnp.max(obj, -1)
+    boxes = _clip(decode_boxes(output.rois, output.box_deltas, HEAD_WEIGHTS), (W, H))
+    ok = output.roi_valid & jnp.all(boxes[..., 2:] - boxes[..., :2] >= 1.0, -1)
+    score = jnp.where(ok, score, -1.0)
+    offset = (cls.astype(boxes.dtype) * 2.0 * (W + H))[..., None]  # separate the classes for one NMS
+    keep, valid = nms(boxes + offset, score, cfg.max_detections, cfg.det_nms, cfg.score_threshold)
+    take = lambda x: jnp.take_along_axis(x, keep.reshape(keep.shape + (1,) * (x.ndim - 2)), axis=1)
+    box, cid, sc, p = take(boxes), jnp.take_along_axis(cls, keep, 1), jnp.take_along_axis(score, keep, 1), take(obj)
+    phi = free_params(take(output.phi), take(output.class_logits), cid, cfg.param_rule)
+    ellipsoid = reconstruct(phi, box, jnp.asarray(K)[:, None], cfg.reconstruction)
+    return Detections(box, cid, jnp.where(valid, sc, 0.0), p, ellipsoid, valid)
+
+
+def match(rois, roi_valid, boxes, box_valid, threshold: float):
+    """Each RoI's best true box: ``(index, iou, matched)``; matched where IoU >= ``threshold``."""
+    iou = box_iou(rois[..., :, None, :], boxes[..., None, :, :])
+    iou = jnp.where(roi_valid[..., :, None] & box_valid[..., None, :], iou, -1.0)
+    index = jnp.argmax(iou, -1)
+    best = jnp.max(iou, -1)
+    return index, best, best >= threshold
+
+
+def _smooth_l1(x, beta=1.0 / 9):
+    ax = jnp.abs(x)
+    return jnp.where(ax < beta, 0.5 * x * x / beta, ax - 0.5 * beta)
+
+
+def _mean_where(values, mask):
+    m = mask.astype(values.dtype)
+    return jnp.sum(values * m) / jnp.maximum(jnp.sum(m), 1.0)
+
+
+def _rpn_targets(anc, boxes, box_valid, pos_iou: float, neg_iou: float):
+    """Per anchor: ``(positive, negative, target_box)`` against one image's true boxes (G, 4)."""
+    iou = jnp.where(box_valid[None], box_iou(anc[:, None], boxes[None]), -1.0)  # (A, G)
+    best = jnp.max(iou, 1)
+    which = jnp.argmax(iou, 1)
+    best_of_box = jnp.max(iou, 0)
+    is_best = jnp.any((iou >= best_of_box[None] - 1e-6) & (iou > 0.1) & box_valid[None], 1)
+    pos = (best >= pos_iou) | is_best
+    neg = (best < neg_iou) & ~pos
+    return pos, neg, boxes[which]
+
+
+def detection_loss(
+    output: RCNNOutput, boxes, class_id, box_valid, config: RCNNConfig, fg_iou=0.5, rpn_pos=0.7, rpn_neg=0.3
+):
+    """Faster R-CNN's terms of one forward pass against the true boxes (B, G, 4), classes (B, G)
+    and mask (B, G): proposal objectness and box (anchors at IoU >= ``rpn_pos`` or each object's
+    best anchor against those below ``rpn_neg``, the two halves weighted alike), RoI class (objects
+    at IoU >= ``fg_iou`` against background, weighted alike) and box (on the objects' RoIs).
+
+    Returns ``(terms, (index, foreground, true_class))``: the scalar terms and each RoI's matched
+    object, whether it is one, and that object's class (for the VoluMon terms)."""
+    anc = jnp.asarray(anchors(config), output.rpn_deltas.dtype)
+    boxes = jnp.asarray(boxes, anc.dtype)
+    pos, neg, tgt = jax.vmap(lambda b, v: _rpn_targets(anc, b, v, rpn_pos, rpn_neg))(boxes, box_valid)
+    bce = optax.sigmoid_binary_cross_entropy(output.rpn_logits, pos.astype(output.rpn_logits.dtype))
+    rpn_cls = 0.5 * _mean_where(bce, pos) + 0.5 * _mean_where(bce, neg)
+    rpn_box = _mean_where(jnp.sum(_smooth_l1(output.rpn_deltas - encode_boxes(anc, tgt)), -1), pos)
+    index, _, fg = match(output.rois, output.roi_valid, boxes, box_valid, fg_iou)
+    bg = output.roi_valid & ~fg
+    true_cls = jnp.take_along_axis(jnp.asarray(class_id), index, 1)
+    label = jnp.where(fg, true_cls + 1, 0)
+    ce = optax.softmax_cross_entropy_with_integer_labels(output.class_logits, label)
+    cls_loss = 0.5 * _mean_where(ce, fg) + 0.5 * _mean_where(ce, bg)
+    matched = jnp.take_along_axis(boxes, index[..., None], axis=1)
+    box_target = encode_boxes(output.rois, matched, HEAD_WEIGHTS)
+    box_loss = _mean_where(jnp.sum(_smooth_l1(output.box_deltas - box_target), -1), fg)
+    terms = {
+        "rpn_cls": rpn_cls,
+        "rpn_box": rpn_box,
+        "cls": cls_loss,
+        "box": box_loss,
+        "fg_rois": jnp.sum(fg.astype(output.rpn_logits.dtype)) / fg.shape[0],
+    }
+    return terms, (index, fg, true_cls)

@@ -1,0 +1,207 @@
+"""Whole frames for the detect-and-lift network: rendered LM-O desks and real BOP photographs as
+arrays of images with every labelled object's boxes and class.
+
+A frame dict (what :func:`jaxsem.volumon.data.render_desk_frames` yields, and what
+:func:`bop_frames` makes of a real photograph) holds ``rgb`` (H, W, 3) uint8, ``K`` and
+``objects``, each with ``class_name``, ``visible_box`` and, where a stereo pair was rendered,
+the amodal ``box_left`` / ``box_right``; the 3D truth (``rotation``, ``center``, ``radii``) rides
+along for scoring and the oracle, never for the weak losses.
+
+:func:`frame_arrays` turns frames into fixed-shape arrays at the network's image size (images
+uint8, K and boxes scaled, objects padded to ``max_objects`` with ``box_valid``);
+:func:`write_desk_frames` renders and stores them in resumable chunks; :func:`frames_batch` picks
+a training batch (images as float in [0, 1]).
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import cv2
+import numpy as np
+
+from ._bop_eval import bop_split_frames, load_bop_split, read_rgb
+from ._lmo_renders import (
+    LMO_CLASS_NAMES,
+    LMO_K,
+    DeskConfig,
+    load_distractor_meshes,
+    load_lmo_meshes,
+    render_desk_frames,
+)
+
+#: Array keys of :func:`frame_arrays` (``image`` uint8, the rest float32 / int32 / bool).
+FRAME_KEYS = (
+    "image", "K", "boxes", "class_id", "box_valid", "box_left", "box_right", "stereo_valid", "right_T_left",
+    "visible_fraction", "gt_rotation", "gt_center", "gt_half_extents",
+)  # fmt: skip
+
+
+def frame_arrays(
+    frames,
+    image_size: tuple,
+    class_names=LMO_CLASS_NAMES,
+    max_objects: int = 8,
+    baseline: float = 0.06,
+    min_visible: float = 0.0,
+) -> dict:
+    """Frames as fixed-shape arrays at ``image_size`` ``(W, H)`` (keys :data:`FRAME_KEYS`).
+
+    Objects with no visible box or below ``min_visible`` visible fraction are not labels. An
+    object without ``box_right`` has no stereo label (``stereo_valid`` False). ``ValueError``
+    naming ``max_objects`` when a frame holds more labels, ``class_names`` for an unknown class."""
+    W, H = (int(x) for x in image_size)
+    names = list(class_names)
+    G = int(max_objects)
+    out: dict = {k: [] for k in FRAME_KEYS}
+    rtl = np.eye(4)
+    rtl[0, 3] = -float(baseline)
+    for fr in frames:
+        h0, w0 = fr["rgb"].shape[:2]
+        sx, sy = W / w0, H / h0
+        scale = np.array([sx, sy, sx, sy])
+        objs = [
+            o
+            for o in fr["objects"]
+            if np.all(np.isfinite(o["visible_box"])) and float(o.get("visible_fraction", 1.0)) >= min_visible
+        ]
+        if len(objs) > G:
+            raise ValueError(f"max_objects: a frame holds {len(objs)} labelled objects, more than {G}")
+        unknown = sorted({o["class_name"] for o in objs} - set(names))
+        if unknown:
+            raise ValueError(f"class_names: no class {unknown[0]!r} among {names}")
+        n = len(objs)
+
+        def rows(key, shape, fill=0.0, objs=objs, n=n):
+            a = np.full((G, *shape), fill, np.float64)
+            for i, o in enumerate(objs):
+                a[i] = np.asarray(o[key], np.float64)
+            return a
+
+        out["image"].append(cv2.resize(np.asarray(fr["rgb"], np.uint8), (W, H), interpolation=cv2.INTER_AREA))
+        out["K"].append(np.diag([sx, sy, 1.0]) @ np.asarray(fr["K"], np.float64))
+        out["boxes"].append(rows("visible_box", (4,)) * scale)
+        out["class_id"].append(np.array([names.index(o["class_name"]) for o in objs] + [0] * (G - n)))
+        out["box_valid"].append(np.arange(G) < n)
+        stereo = np.array([("box_right" in o) for o in objs] + [False] * (G - n))
+        out["stereo_valid"].append(stereo)
+        left = np.zeros((G, 4))
+        right = np.zeros((G, 4))
+        for i, o in enumerate(objs):
+            if stereo[i]:
+                left[i], right[i] = np.asarray(o["box_left"]) * scale, np.asarray(o["box_right"]) * scale
+        out["box_left"].append(left)
+        out["box_right"].append(right)
+        out["right_T_left"].append(rtl)
+        out["visible_fraction"].append(
+            np.array([float(o.get("visible_fraction", 1.0)) for o in objs] + [0.0] * (G - n))
+        )
+        R = np.tile(np.eye(3), (G, 1, 1))
+        for i, o in enumerate(objs):
+            R[i] = o["rotation"]
+        out["gt_rotation"].append(R)
+        out["gt_center"].append(rows("center", (3,)))
+        out["gt_half_extents"].append(rows("radii", (3,), 1.0))
+    if not out["image"]:
+        raise ValueError("frames: expected at least one frame")
+    arrays = {k: np.stack(v) for k, v in out.items()}
+    for k in arrays:
+        if arrays[k].dtype == np.float64:
+            arrays[k] = arrays[k].astype(np.float32)
+    arrays["class_id"] = arrays["class_id"].astype(np.int32)
+    return arrays
+
+
+def frames_batch(arrays: dict, idx=None) -> dict:
+    """The frames ``idx`` (all by default) of :func:`frame_arrays` as a training batch: images
+    float32 in [0, 1]."""
+    idx = slice(None) if idx is None else np.asarray(idx)
+    batch = {k: arrays[k][idx] for k in FRAME_KEYS}
+    batch["image"] = batch["image"].astype(np.float32) / 255.0
+    return batch
+
+
+def bop_frames(scene_dir, split: str) -> list:
+    """The photographs of one split of a BOP scene as frame dicts (visible boxes and classes; no
+    stereo labels). ``split``: ``"tune"`` or ``"test"`` of :func:`load_bop_split`."""
+    scene = load_bop_split(scene_dir, split)
+    frames = []
+    for f in bop_split_frames(scene, split):
+        objects = [
+            {
+                "class_name": o.class_name,
+                "visible_box": o.visible_box,
+                "visible_fraction": o.visible_fraction,
+                "rotation": o.rotation,
+                "center": o.center,
+                "radii": o.radii,
+                "frame_id": f.frame_id,
+            }
+            for o in f.objects
+        ]
+        frames.append({"rgb": read_rgb(f.image_path), "K": f.K, "objects": objects, "frame_id": f.frame_id})
+    return frames
+
+
+def write_desk_frames(
+    out_dir,
+    num_frames: int,
+    seed: int,
+    *,
+    models_dir,
+    distractor_dir=None,
+    image_size: tuple = (320, 240),
+    chunk: int = 50,
+    max_objects: int = 8,
+    config: DeskConfig = DeskConfig(),
+    progress: bool = True,
+) -> list:
+    """Render ``num_frames`` desk frames straight at ``image_size`` (the LM-O intrinsics scaled)
+    and write their :func:`frame_arrays` as ``out_dir/frames_NNNN.npz`` chunks (seeds per chunk:
+    an interrupted call resumes by skipping the chunks written; each is written atomically).
+    Returns the chunk paths."""
+    from tqdm.auto import tqdm
+
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meshes = load_lmo_meshes(models_dir)
+    distractors = load_distractor_meshes(distractor_dir) if distractor_dir is not None else []
+    W, H = (int(x) for x in image_size)
+    K = np.diag([W / 640.0, H / 480.0, 1.0]) @ np.asarray(LMO_K, np.float64)
+    n_chunks = -(-int(num_frames) // int(chunk))
+    paths = []
+    bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc="desk frames")
+    for c in range(n_chunks):
+        path = out / f"frames_{c:04d}.npz"
+        n = min(int(chunk), int(num_frames) - c * int(chunk))
+        paths.append(path)
+        if path.exists():
+            bar.update(n)
+            continue
+
+        def counted(c=c, n=n):
+            for fr in render_desk_frames(
+                meshes, n, seed=int(seed) * 100003 + c, distractors=distractors, config=config, K=K, image_size=(W, H)
+            ):
+                bar.update(1)
+                yield fr
+
+        arrays = frame_arrays(counted(), (W, H), max_objects=max_objects)
+        tmp = out / f"frames_{c:04d}.tmp.npz"
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+    bar.close()
+    return paths
+
+
+def load_frame_chunks(path) -> dict:
+    """The arrays of :func:`write_desk_frames` (a folder of ``frames_NNNN.npz``), concatenated."""
+    path = pathlib.Path(path)
+    files = [f for f in sorted(path.glob("frames_[0-9]*.npz")) if ".tmp" not in f.name]
+    if not files:
+        raise ValueError(f"path: no frames_NNNN.npz chunks in {path}")
+    parts = []
+    for f in files:
+        with np.load(f) as z:
+            parts.append({k: z[k] for k in z.files})
+    return {k: np.concatenate([p[k] for p in parts]) for k in FRAME_KEYS}

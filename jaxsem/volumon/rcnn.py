@@ -1,0 +1,298 @@
+"""VoluMon R-CNN (thesis 5.7): training the detect-and-lift network from 2D labels only.
+
+The network is :class:`jaxsem.models.VoluMonRCNN`; this module trains and scores it:
+:class:`RCNNTrainConfig`, :class:`RCNNLossConfig`, :func:`train_rcnn`, :func:`rcnn_loss`,
+:func:`make_rcnn_step`, :func:`rcnn_batch`, :func:`evaluate_detections`.
+
+The loss is Faster R-CNN's (proposal objectness and box, RoI class and box) plus VoluMon's weak
+terms on the RoIs matched to a true object: the dual box loss on the object's stereo boxes
+(eq. 5.11, where a frame has a right image) and the intra-class size consistency (eq. 5.14).
+During the burn-in only the detection terms count (the thesis' 5 epochs), so the VoluMon head
+starts on RoIs that already find objects.
+
+A batch (:func:`rcnn_batch`) is a dict of arrays, batch axis leading, ``G`` true objects per
+image padded with ``box_valid`` False:
+
+- ``image`` (B, H, W, 3) float in [0, 1] at the network's ``input_size``; ``K`` (B, 3, 3) scaled to it;
+- ``boxes`` (B, G, 4) the visible boxes (the detector's labels), ``class_id`` (B, G) in [0, N);
+- ``box_left``, ``box_right`` (B, G, 4) amodal stereo boxes, ``stereo_valid`` (B, G), and
+  ``right_T_left`` (B, 4, 4): the dual loss's labels (``stereo_valid`` False: no dual term);
+- optional, never read by the weak losses: ``gt_rotation``, ``gt_center``, ``gt_half_extents``
+  (B, G, ...) for the fully supervised oracle and for scoring.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "RCNNLossConfig",
+    "RCNNTrainConfig",
+    "evaluate_detections",
+    "make_rcnn_step",
+    "rcnn_batch",
+    "rcnn_loss",
+    "train_rcnn",
+]
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .. import metrics
+from ..models import RCNNConfig, RCNNOutput, detect, detection_loss, free_params, init_rcnn, reconstruct
+from ..quadrics import box_iou
+from ..training import TrainingRun, config_json
+from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
+from .data import frame_arrays, frames_batch
+
+
+@dataclasses.dataclass(frozen=True)
+class RCNNLossConfig:
+    """Weights and matching rules of the R-CNN loss.
+
+    Attributes:
+      rpn, classification, box: weights of the detection terms.
+      dual, size: weights of VoluMon's dual box loss and intra-class size consistency (the
+        thesis' only two terms for R-CNN).
+      oracle: weight of the fully supervised 3D loss (the oracle run; 0 in a weak run).
+      burn_in: steps with the detection terms alone.
+      fg_iou: a RoI is an object's at IoU >= fg_iou; rpn_pos / rpn_neg: an anchor is positive at
+        IoU >= rpn_pos (or the best anchor of an object), negative below rpn_neg.
+      volumon: the VoluMon loss constants (``pixel_scale``, ``length_unit``, ``eps_v`` ...).
+    """
+
+    rpn: float = 1.0
+    classification: float = 1.0
+    box: float = 1.0
+    dual: float = 1.0
+    size: float = 1.0
+    oracle: float = 0.0
+    burn_in: int = 500
+    fg_iou: float = 0.5
+    rpn_pos: float = 0.7
+    rpn_neg: float = 0.3
+    volumon: LossConfig = LossConfig(pixel_scale=10.0, alpha_S=1.0)
+
+
+def _mean_where(values, mask):
+    m = mask.astype(values.dtype)
+    return jnp.sum(values * m) / jnp.maximum(jnp.sum(m), 1.0)
+
+
+def rcnn_loss(output: RCNNOutput, batch: dict, config: RCNNConfig, loss: RCNNLossConfig, volumon_on) -> tuple:
+    """The total loss and its terms (a dict of scalars) of one forward pass on ``batch``.
+
+    ``volumon_on`` (a scalar 0 / 1): whether the VoluMon terms count (0 during the burn-in).
+    """
+    terms, (index, fg, true_cls) = detection_loss(
+        output, batch["boxes"], batch["class_id"], batch["box_valid"], config, loss.fg_iou, loss.rpn_pos, loss.rpn_neg
+    )
+    take = lambda x: jnp.take_along_axis(x, index.reshape(index.shape + (1,) * (x.ndim - 2)), axis=1)
+    phi = free_params(output.phi, output.class_logits, true_cls, config.param_rule)
+    K = batch["K"][:, None]
+    ell = reconstruct(phi, output.rois, K, config.reconstruction)
+    stereo = fg & take(batch["stereo_valid"])
+    dual = dual_loss_per_sample(
+        ell, take(batch["box_left"]), take(batch["box_right"]), K, batch["right_T_left"][:, None], loss.volumon
+    )
+    dual_loss = _mean_where(dual, stereo)
+    n = int(config.num_classes)
+    sizes = (2.0 * ell.radii).reshape(-1, 3)
+    size_loss = size_variance_loss(sizes, true_cls.reshape(-1), n, fg.reshape(-1), loss.volumon)
+    terms = {**terms, "dual": dual_loss, "size": size_loss}
+    total = (
+        loss.rpn * (terms["rpn_cls"] + terms["rpn_box"]) + loss.classification * terms["cls"] + loss.box * terms["box"]
+    )
+    volumon = loss.dual * dual_loss + loss.size * size_loss
+    if loss.oracle > 0 and "gt_rotation" in batch:
+        oracle = oracle_loss_per_sample(
+            ell, take(batch["gt_rotation"]), take(batch["gt_center"]), take(batch["gt_half_extents"])
+        )
+        terms["oracle"] = _mean_where(oracle, fg)
+        volumon = volumon + loss.oracle * terms["oracle"]
+    total = total + volumon_on * volumon
+    terms["total"] = total
+    return total, terms
+
+
+def rcnn_batch(frames, config: RCNNConfig, class_names, max_objects: int, baseline: float = 0.06) -> dict:
+    """A training batch of frame dicts (rendered desks, :func:`jaxsem.volumon.data.bop_frames`) at
+    the network's ``input_size`` (:func:`jaxsem.volumon.data.frame_arrays`, then float images)."""
+    return frames_batch(frame_arrays(frames, config.input_size, class_names, max_objects, baseline))
+
+
+def make_rcnn_step(model, config: RCNNConfig, loss: RCNNLossConfig, tx):
+    """A jitted SGD step ``(params, batch_stats, opt_state, batch, step) -> (params, batch_stats,
+    opt_state, terms)``; the VoluMon terms count from ``loss.burn_in`` on."""
+
+    def loss_fn(params, batch_stats, batch, step):
+        out, updates = model.apply(
+            {"params": params, "batch_stats": batch_stats},
+            batch["image"],
+            batch["K"],
+            batch["boxes"],
+            batch["box_valid"],
+            train=True,
+            mutable=["batch_stats"],
+        )
+        on = (step >= loss.burn_in).astype(jnp.float32)
+        total, terms = rcnn_loss(out, batch, config, loss, on)
+        return total, (terms, updates["batch_stats"])
+
+    @jax.jit
+    def step_fn(params, batch_stats, opt_state, batch, step):
+        (_, (terms, stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch_stats, batch, step)
+        with jax.numpy_dtype_promotion("standard"):  # optax's bias correction mixes int32 and float
+            updates, opt_state = tx.update(grads, opt_state, params)
+        params = optax.apply_updates(params, updates)
+        return params, stats, opt_state, terms
+
+    return step_fn
+
+
+@dataclasses.dataclass(frozen=True)
+class RCNNTrainConfig:
+    """One R-CNN training run.
+
+    Attributes:
+      model, loss: :class:`RCNNConfig`, :class:`RCNNLossConfig`.
+      batch_size: frames per step, of which ``real_per_batch`` real photographs (when given).
+      learning_rate, clip: Adam's step size and the gradient's global-norm clip.
+      num_steps, checkpoint_every, eval_every: the run's length and its rhythm.
+      eval_frames: held-out frames scored at each evaluation.
+      seed: the initialisation and the batch order (a pure function of the step).
+    """
+
+    model: RCNNConfig = RCNNConfig()
+    loss: RCNNLossConfig = RCNNLossConfig()
+    batch_size: int = 8
+    real_per_batch: int = 2
+    learning_rate: float = 1e-3
+    clip: float = 10.0
+    num_steps: int = 100_000
+    checkpoint_every: int = 250
+    eval_every: int = 500
+    eval_frames: int = 64
+    seed: int = 0
+    keep: int = 2
+
+
+def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
+    rng = np.random.default_rng([seed, stream, step])
+    return rng.choice(n, size=k, replace=n < k)
+
+
+def evaluate_detections(model, variables, arrays: dict, config: RCNNConfig, batch: int = 8) -> dict:
+    """Detection AP50 (mean over classes with truth) and the 3D errors of the detections matched
+    to a true object at IoU >= 0.5 (median centre error, translation AUC out of 10 at 10 cm) on
+    the frames of :func:`jaxsem.volumon.data.frame_arrays`."""
+    fwd = jax.jit(lambda v, img, K: detect(model.apply(v, img, K), K, config))
+    n = arrays["image"].shape[0]
+    dets, truth, centre_err = [], [], []
+    for s in range(0, n, batch):
+        idx = np.arange(s, min(s + batch, n))
+        pad = np.concatenate([idx, np.full(batch - len(idx), idx[-1])])
+        b = frames_batch(arrays, pad)
+        d = jax.device_get(fwd(variables, b["image"], b["K"]))
+        for j, i in enumerate(idx):
+            ok = np.asarray(d.valid[j])
+            dets.append((np.full(ok.sum(), i), d.box[j][ok], d.class_id[j][ok], d.score[j][ok]))
+            tv = b["box_valid"][j]
+            truth.append((np.full(tv.sum(), i), b["boxes"][j][tv], b["class_id"][j][tv]))
+            if ok.any() and tv.any():
+                iou = np.asarray(
+                    box_iou(d.box[j][ok][:, None].astype(np.float64), b["boxes"][j][tv][None].astype(np.float64))
+                )
+                same = d.class_id[j][ok][:, None] == b["class_id"][j][tv][None]
+                iou = np.where(same, iou, -1.0)
+                for t in range(iou.shape[1]):
+                    k = int(np.argmax(iou[:, t]))
+                    if iou[k, t] >= 0.5:
+                        c = np.asarray(d.ellipsoid.center[j])[ok][k]
+                        centre_err.append(float(np.linalg.norm(c - b["gt_center"][j][tv][t])))
+    cat = lambda parts, i: np.concatenate([p[i] for p in parts])
+    ap, recall = metrics.average_precision(
+        tuple(cat(dets, i) for i in range(4)), tuple(cat(truth, i) for i in range(3)), config.num_classes
+    )
+    errs = np.asarray(centre_err)
+    return {
+        "ap50": float(np.nanmean(ap)),
+        "ap50_per_class": [None if np.isnan(a) else float(a) for a in ap],
+        "recall50": float(np.nanmean(recall)),
+        "num_matched": int(len(errs)),
+        "median_center_error_m": float(np.median(errs)) if len(errs) else float("nan"),
+        "trans_auc": float(metrics.auc_pass_rate(jnp.asarray(errs), 0.1)) if len(errs) else 0.0,
+    }
+
+
+def train_rcnn(
+    config: RCNNTrainConfig,
+    workdir,
+    renders: dict,
+    real: dict | None = None,
+    held_out: dict | None = None,
+    *,
+    progress: bool = True,
+    stop_at: int | None = None,
+    log=None,
+):
+    """Train (or resume) VoluMon R-CNN in ``workdir`` with the project's training scaffold
+    (:class:`jaxsem.training.TrainingRun`: config check, resumable orbax checkpoints, metrics).
+
+    ``renders``, ``real``, ``held_out``: :func:`jaxsem.volumon.data.frame_arrays` dicts at
+    ``config.model.input_size`` (the real photographs join each batch, ``real_per_batch`` of
+    them; ``held_out`` is scored every ``eval_every`` steps). Returns ``(model, variables,
+    metrics rows)``."""
+    if not isinstance(config, RCNNTrainConfig):
+        raise ValueError(f"config: expected an RCNNTrainConfig, got {type(config).__name__}")
+    W, H = (int(x) for x in config.model.input_size)
+    for name, arr in (("renders", renders), ("real", real), ("held_out", held_out)):
+        if arr is not None and tuple(arr["image"].shape[1:3]) != (H, W):
+            raise ValueError(f"{name}: images of {arr['image'].shape[1:3]} (H, W), the model reads {(H, W)}")
+    model, variables = init_rcnn(jax.random.PRNGKey(config.seed), config.model, config.batch_size)
+    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+    state = {
+        "params": variables["params"],
+        "batch_stats": variables["batch_stats"],
+        "opt_state": tx.init(variables["params"]),
+        "step": np.asarray(0, np.int64),
+    }
+    run = TrainingRun(workdir, config_json(config), keep=config.keep, log=log)
+    with run:
+        if run.latest_step is not None:
+            state = run.restore(state)
+        run.begin()
+        step_fn = make_rcnn_step(model, config.model, config.loss, tx)
+        params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
+        n_real = 0 if real is None else min(config.real_per_batch, config.batch_size - 1)
+        last = config.num_steps if stop_at is None else min(int(stop_at), config.num_steps)
+        recent: list = []
+        step = run.start
+        for step in run.steps(run.start, last, total=config.num_steps, desc="volumon rcnn", progress=progress):
+            b = frames_batch(
+                renders, _indices(renders["image"].shape[0], config.batch_size - n_real, config.seed, step, 0)
+            )
+            if n_real:
+                assert real is not None
+                r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))
+                b = {k: np.concatenate([b[k], r[k]]) for k in b}
+            params, stats, opt, terms = step_fn(params, stats, opt, b, jnp.asarray(step))
+            recent.append(terms)
+            recent = recent[-50:]
+            done = step + 1
+            if done % 25 == 0:
+                run.postfix({k: float(np.mean([float(t[k]) for t in recent])) for k in ("total", "cls", "dual")})
+            if done % config.eval_every == 0 or done == last:
+                row = {"step": done, **{k: float(np.mean([float(t[k]) for t in recent])) for k in recent[-1]}}
+                if held_out is not None:
+                    ev = evaluate_detections(model, {"params": params, "batch_stats": stats}, held_out, config.model)
+                    row.update({f"heldout_{k}": v for k, v in ev.items()})
+                run.log_metrics(row)
+                run.write(f"step {done}: " + ", ".join(f"{k} {v:.3g}" for k, v in row.items() if isinstance(v, float)))
+            if done % config.checkpoint_every == 0 or done == last:
+                run.save(
+                    done, {"params": params, "batch_stats": stats, "opt_state": opt, "step": np.asarray(done, np.int64)}
+                )
+        return model, {"params": params, "batch_stats": stats}, run.metrics()
