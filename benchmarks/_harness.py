@@ -79,6 +79,19 @@ def nproc() -> str:
     return subprocess.run(["nproc"], capture_output=True, text=True, check=False).stdout.strip()
 
 
+def output_arguments(parser, stem: str, written: str = ".json / .md", *, float32: bool = False) -> None:
+    """Adds the output flags a results-writing benchmark shares: ``--out`` (the folder, default
+    ``benchmarks/results``) and ``--name`` (the file stem, default ``stem``); with ``float32`` also
+    ``--float32`` (solve in float32 instead of float64). ``written`` lists the files' endings for
+    ``--out``'s help."""
+    if float32:
+        parser.add_argument("--float32", action="store_true", help="solve in float32 (default float64)")
+    parser.add_argument(
+        "--out", default=str(pathlib.Path(__file__).resolve().parent / "results"), help=f"folder for {stem}{written}"
+    )
+    parser.add_argument("--name", default=stem, help="output file stem")
+
+
 def header(title: str, command: str, date: str, machine: str) -> list[str]:
     """The markdown results header: a title, then command, date and machine, each its own paragraph."""
     return [title, "", f"Command: `{command}`", "", f"Date: {date}", "", f"Machine: {machine}", ""]

@@ -53,6 +53,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "an image + boxes (or a synthetic split) -> ellipsoids.json and overlays",
     ),
     (
+        ("volumon", "detect"),
+        "volumon_detect",
+        "a photograph -> objects detected and lifted to ellipsoids by VoluMon R-CNN (JSON and a figure)",
+    ),
+    (
         ("volumon", "eval"),
         "volumon_eval",
         "held-out synthetic detections of several classes -> JSON figures",
@@ -78,7 +83,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
 )
 GROUPS = {
     "data": "real data sets: fetch them through the package registries",
-    "volumon": "VoluMon: image + box -> 3D ellipsoid (train, predict, eval, export)",
+    "volumon": "VoluMon: image + box -> 3D ellipsoid (train, predict, detect, eval, export)",
     "lsd": "LSD: learned sampling distributions for PRM planning (data, train, plan)",
 }
 

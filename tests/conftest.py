@@ -186,3 +186,25 @@ def script():
         return mod
 
     return load
+
+
+@pytest.fixture(scope="session")
+def four_cpu_child():
+    """``four_cpu_child(code, *args)``: runs ``python -c code *args`` in a subprocess with four host
+    CPU devices (``--xla_force_host_platform_device_count=4``) and returns the JSON of its last
+    ``RESULT {...}`` line (the test fails with the child's stderr if it has none or exits non-zero)."""
+    import json
+    import subprocess
+
+    def run(code: str, *args: str) -> dict:
+        env = dict(os.environ)
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
+        env.setdefault("JAX_PLATFORMS", "cpu")
+        proc = subprocess.run(
+            [sys.executable, "-c", code, *args], check=False, env=env, capture_output=True, text=True, timeout=900
+        )
+        lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+        assert proc.returncode == 0 and lines, proc.stderr[-4000:]
+        return json.loads(lines[-1][len("RESULT ") :])
+
+    return run

@@ -24,8 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from jaxsem import factors as F, quadrics as Q, slam
+from jaxsem import factors as F, slam
 from jaxsem.slam._cost import Delta, retract  # layers: white-box
+from jaxsem.slam._toy import few_views  # layers: white-box
 
 
 def _dense_solve(problem, init, config):
@@ -67,16 +68,7 @@ def _time(fn, args, repeats):
 
 
 def _few_views(dtype):
-    K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
-    R = np.asarray(Q.quaternion_to_rotation(jnp.array([np.cos(0.2), 0.0, 0.0, np.sin(0.2)])))
-    c, r = np.array([15.0, 2.0, 0.8]), np.array([2.6, 0.95, 0.8])
-    eyes = np.array([[0.0, 0.0, 1.5], [1.0, 0.1, 1.5], [2.0, 0.0, 1.5]])
-    poses = np.asarray(Q.look_at(eyes, eyes + np.array([1.0, 0.0, 0.0])))
-    box, _ = Q.project_bbox(R, c, r, K, poses)
-    depth, _ = Q.texture_plane_depth(R, c, r, poses)
-    problem = slam.make_problem(
-        K, [640, 480], poses, np.asarray(box), [0, 1, 2], [0, 0, 0], ["car"], texture_depth=np.asarray(depth)
-    )
+    problem, r = few_views()
     return problem, jnp.asarray(r, dtype)
 
 

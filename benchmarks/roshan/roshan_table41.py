@@ -29,6 +29,9 @@ import time
 import jax
 import numpy as np
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+import _harness
+
 THESIS = {  # Table 4.1 (median over 50 maps of per-map mean errors)
     ("orbit", "baseline"): (0.26, 0.11, 26.81),
     ("orbit", "roshan"): (0.17, 0.10, 17.97),
@@ -52,13 +55,7 @@ def parse_args(argv=None):
     p.add_argument("--frames", type=int, default=None, help="override frames per path (60)")
     p.add_argument("--every", type=int, default=10, help="frames between online optimisations")
     p.add_argument("--steps", type=int, default=10, help="LM steps per optimisation")
-    p.add_argument("--float32", action="store_true", help="solve in float32 (default float64)")
-    p.add_argument(
-        "--out",
-        default=str(pathlib.Path(__file__).resolve().parents[1] / "results"),
-        help="folder for roshan_table41.json / .md",
-    )
-    p.add_argument("--name", default="roshan_table41", help="output file stem")
+    _harness.output_arguments(p, "roshan_table41", float32=True)
     return p.parse_args(argv)
 
 

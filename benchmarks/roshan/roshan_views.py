@@ -41,6 +41,9 @@ import time
 
 import numpy as np
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+import _harness
+
 from jaxsem.slam._batch import solve_schur  # layers: white-box
 
 METRICS = ("shape", "position", "orientation")
@@ -83,13 +86,7 @@ def parse_args(argv=None):
         default=None,
         help="override the pose prior's rotation noise (deg per axis; preset 1.0)",
     )
-    p.add_argument("--float32", action="store_true", help="solve in float32 (default float64)")
-    p.add_argument(
-        "--out",
-        default=str(pathlib.Path(__file__).resolve().parents[1] / "results"),
-        help="folder for roshan_views.json / .md / .png",
-    )
-    p.add_argument("--name", default="roshan_views", help="output file stem")
+    _harness.output_arguments(p, "roshan_views", ".json / .md / .png", float32=True)
     args = p.parse_args(argv)
     args.seed_list = _numbers(args.seeds, "--seeds", kind=int)
     args.view_list = _numbers(args.views, "--views", kind=int)

@@ -23,8 +23,7 @@ The rest of the face, by job: BOP types :class:`BopScene`, :class:`BopFrame`,
 :func:`mujoco_quaternion`, :func:`mujoco_view`; the fetcher's :class:`Source`, :exc:`FetchError`.
 """
 
-import importlib as _importlib
-import warnings as _warnings
+from jaxsem._deprecated import moved_attribute as _moved_attribute
 
 from . import fat_writer as fat_writer
 from ._bop import (
@@ -137,12 +136,4 @@ _MOVED = {
 
 
 def __getattr__(name):
-    if name in _MOVED:
-        target = _MOVED[name]
-        _warnings.warn(
-            f"jaxsem.data.{name} moved to {target}.{name}; the old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(_importlib.import_module(target), name)
-    raise AttributeError(f"module 'jaxsem.data' has no attribute {name!r}")
+    return _moved_attribute("jaxsem.data", _MOVED, name)

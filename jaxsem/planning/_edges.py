@@ -13,11 +13,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as Q
-from ._grid import _grid
+from ._grid import _grid, host_grid
 
 
 def _edge_samples(radius: float, resolution: float) -> int:
     return max(2, int(math.ceil(radius / (0.5 * resolution))) + 1)
+
+
+def _extent(grid) -> tuple[float, float]:
+    """(width, height) in metres of a host grid (Python floats: the neighbour search's static
+    bucket extent)."""
+    res = float(grid.resolution)
+    return (grid.shape[1] * res, grid.shape[0] * res)
 
 
 def _cells(points, grid):
@@ -270,24 +277,27 @@ def _segments_clear(blocked, a, b, grid, *, edge_samples):
     return jnp.all(clear)
 
 
-def polyline_clear(points, blocked, origin, resolution: float, radius: float, dtype=None) -> bool:
+def polyline_clear(points, blocked, grid: Q.Grid, radius: float, dtype=None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
     check on the bool grid ``blocked``: the same samples as the PRM used for an edge of that
     length (segments up to ``radius``: the roadmap's; longer ones, a query's start or goal
     edges: :func:`query_reach`'s), same precision ``dtype``, so a plan the PRM found clear is
     never judged blocked on the same map (a looser or stricter second test made robots stand
-    still, replanning the same path)."""
+    still, replanning the same path). ``grid``: the :class:`jaxsem.quadrics.Grid` of ``blocked``
+    (or a map holding one)."""
+    blocked = np.asarray(blocked)
+    grid = host_grid("grid", grid, blocked.shape)
+    resolution = float(grid.resolution)
     pts = np.asarray(points, np.float64)
     if len(pts) < 2:
         return True
-    blocked = np.asarray(blocked)
     dtype = dtype or jnp.result_type(float)
     a, b = pts[:-1], pts[1:]
     length = np.linalg.norm(b - a, axis=1)
     short = length <= radius * (1 + 1e-6)
     reach = query_reach(blocked.shape, resolution)
     blocked_j = jnp.asarray(blocked)
-    origin_j = jnp.asarray(np.asarray(origin, np.float64), dtype)
+    grid_j = _grid(grid, dtype)
     for sel, r in ((short, radius), (~short, max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9)))))):
         if not sel.any():
             continue
@@ -299,7 +309,7 @@ def polyline_clear(points, blocked, origin, resolution: float, radius: float, dt
             blocked_j,
             jnp.asarray(aa, dtype),
             jnp.asarray(bb, dtype),
-            _grid(origin_j, float(resolution), blocked.shape),
+            grid_j,
             edge_samples=_edge_samples(r, resolution),
         )
         if not bool(ok):

@@ -68,12 +68,37 @@ def cell_to_world(rc, origin, resolution):
     return Q.cell_to_world(rc, origin, resolution)
 
 
-def _grid(origin, resolution, shape) -> Q.Grid:
-    """The :class:`jaxsem.quadrics.Grid` inside a jitted step (the PRM's, the sensors'):
-    ``origin`` (2,) (traced, the points' dtype) and the step's static ``resolution`` as a leaf
-    of that dtype (the same arithmetic as the Python float it stands for)."""
-    origin = jnp.asarray(origin)
-    return Q.Grid(origin, jnp.asarray(resolution, origin.dtype), (int(shape[0]), int(shape[1])))
+def _grid(grid: Q.Grid, dtype) -> Q.Grid:
+    """A host grid (:func:`host_grid`) for a jitted step (the PRM's, the sensors'): its origin and
+    resolution as jax leaves of the points' ``dtype`` (traced there; the sizes the resolution
+    sets are the step's static arguments, computed on the host from the grid)."""
+    return Q.Grid(jnp.asarray(grid.origin, dtype), jnp.asarray(grid.resolution, dtype), grid.shape)
+
+
+def host_grid(name: str, grid, shape=None) -> Q.Grid:
+    """The Python-boundary check of a grid argument: ``grid`` a :class:`jaxsem.quadrics.Grid` or
+    a map that holds one (``.grid``: :class:`~jaxsem.planning.Building`,
+    :class:`~jaxsem.planning.OccupancyGrid`), returned with float64 numpy leaves (its resolution
+    then sets the static sizes of the jitted steps); ``shape``: the (H, W) it must have (None: any).
+    Anything else (a loose origin array) raises ``ValueError`` naming the argument."""
+    g = getattr(grid, "grid", grid) if not isinstance(grid, Q.Grid) else grid
+    if not isinstance(g, Q.Grid):
+        raise ValueError(
+            f"{name}: expected a jaxsem.quadrics.Grid (or a map with .grid: Building, OccupancyGrid), got "
+            f"{type(grid).__name__}; build one as quadrics.Grid.host(origin, resolution, shape)"
+        )
+    if isinstance(g.origin, jax.core.Tracer) or isinstance(g.resolution, jax.core.Tracer):
+        raise ValueError(f"{name}: expected a concrete grid at the Python boundary, got traced leaves")
+    origin, resolution = np.asarray(g.origin, np.float64), np.asarray(g.resolution, np.float64)
+    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+        raise ValueError(f"{name}: expected a finite (2,) origin, got {origin.tolist()}")
+    if resolution.shape != () or not (np.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"{name}: expected a resolution > 0 metres per cell, got {resolution.tolist()}")
+    if origin is not g.origin or resolution is not g.resolution:
+        g = Q.Grid(origin, resolution, g.shape)
+    if shape is not None and tuple(g.shape) != tuple(int(s) for s in shape):
+        raise ValueError(f"{name}: expected a grid of shape {tuple(shape)} (the map's), got {g.shape}")
+    return g
 
 
 def read_text_as(path: pathlib.Path, parse: Callable[[str], Any], errors: tuple, what: str) -> Any:

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from ._edges import _edges, _edges_dense, _grid
+from ._edges import _edges, _edges_dense, _extent, _grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath
@@ -58,18 +58,15 @@ def _grid_jit(points, valid, origin, *, radius, extent):
     return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
 
 
-@functools.partial(jax.jit, static_argnames=("k", "radius", "resolution", "extent", "cap", "sectors", "keep"))
-def _knn_some_jit(
-    points, valid, rows, order, sorted_bid, distribution, origin, *, k, radius, resolution, extent, cap, sectors, keep
-):
+@functools.partial(jax.jit, static_argnames=("k", "radius", "extent", "cap", "sectors", "keep"))
+def _knn_some_jit(points, valid, rows, order, sorted_bid, distribution, grid, *, k, radius, extent, cap, sectors, keep):
     """The eager grow's neighbour search (:func:`_knn_rows`, ranked) for the vertices ``rows``
     alone (``order``, ``sorted_bid``: :func:`_grid_jit`, unused when ``cap`` is None: brute
     force): their rows as a search of every new vertex gives them."""
     M = points.shape[0]
     db_ok = valid & (jnp.arange(M) >= _QUERY)
-    db = points - origin
-    cells = None if distribution is None else _grid(origin, resolution, distribution.shape)
-    density = _density(points, distribution, cells, sectors)
+    db = points - grid.origin
+    density = _density(points, distribution, grid, sectors)
     grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
     return _knn_rows(
         db, db_ok, db[rows], rows, k=k, radius=radius, cap=cap, sectors=sectors, keep=keep, density=density, grid=grid
@@ -77,38 +74,38 @@ def _knn_some_jit(
 
 
 def _grow_lazy(
-    roadmap, key, blocked, dist, origin, n, radius, resolution, cap, sectors, uniform_samples, aids
+    roadmap, key, blocked, dist, grid, n, radius, cap, sectors, uniform_samples, aids
 ) -> tuple[tuple[Roadmap, np.ndarray], int]:
     """A grow that checks no edge (lazy PRM, :mod:`jaxsem.planning._lazy`): the eager grow's
     samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
     vertex is not valid): the eager grow's set, in its order where the order decides a link.
     Rows with at most k candidates keep every clear one whatever the order, so the host finds
     their sets (:func:`_candidates_host`); the device ranks the others with the eager search.
+    ``grid``: the map's host grid (:func:`~jaxsem.planning._grid.host_grid`).
     Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
-    H, W = blocked.shape
     s0 = _QUERY + int(roadmap.num_samples)
+    grid_j = _grid(grid, roadmap.points.dtype)
     rm, ok_new = _sample_lazy_jit(
         roadmap,
         key,
         blocked,
         dist,
-        origin,
+        grid_j,
         n=n,
-        resolution=resolution,
         uniform_samples=uniform_samples,
         aids=aids,
     )
     pts = np.asarray(rm.points)
     db_ok = np.asarray(rm.valid) & (np.arange(M) >= _QUERY)
     rows = np.arange(s0, s0 + n)
-    extent = (W * resolution, H * resolution)
+    extent = _extent(grid)
     keep = 2 * k if sectors else k
-    cand, need, cap = _candidates_host(pts - np.asarray(origin), db_ok, rows, k, radius, extent, keep, cap)
+    cand, need, cap = _candidates_host(pts - np.asarray(grid_j.origin), db_ok, rows, k, radius, extent, keep, cap)
     if need.any():
         some = rows[need].astype(np.int32)
         padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
-        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin, radius=radius, extent=extent)
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, grid_j.origin, radius=radius, extent=extent)
         while True:
             use = cap if 3 * cap < M else None
             parts = [
@@ -119,10 +116,9 @@ def _grow_lazy(
                     order,
                     sorted_bid,
                     dist,
-                    origin,
+                    grid_j,
                     k=k,
                     radius=radius,
-                    resolution=resolution,
                     extent=extent,
                     cap=use,
                     sectors=sectors,
@@ -138,15 +134,15 @@ def _grow_lazy(
     return (rm, cand), cap
 
 
-@functools.partial(jax.jit, static_argnames=("resolution", "edge_samples", "dense"))
-def _pairs_clear(blocked, a, b, mask, origin, table, *, resolution, edge_samples, dense=False):
+@functools.partial(jax.jit, static_argnames=("edge_samples", "dense"))
+def _pairs_clear(blocked, a, b, mask, grid, table, *, edge_samples, dense=False):
     """The edge rule on segments a -> b (E, 2). ``dense``: every sample read (a few hundred
     edges: one fused pass, ~3x cheaper per call than the clearance-table path's work lists);
     otherwise the clearance-table path (many edges). The same answers (:func:`_edges_clear`)."""
     if dense:
-        clear, _, _ = _edges_dense(blocked, a, b, _grid(origin, resolution, blocked.shape), edge_samples)
+        clear, _, _ = _edges_dense(blocked, a, b, grid, edge_samples)
         return clear & mask
-    clear, _ = _edges(blocked, None, a, b, _grid(origin, resolution, blocked.shape), edge_samples, mask, table=table)
+    clear, _ = _edges(blocked, None, a, b, grid, edge_samples, mask, table=table)
     return clear
 
 
@@ -442,9 +438,10 @@ class _LazyEdges:
         return nbr, ev, w
 
 
-def _checker(blocked_j, points, cand, origin, table, resolution: float, edge_samples: int, chunk: int = _CHUNK):
+def _checker(blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK):
     """``check(rows, slots) -> clear`` (numpy bool) for the edges from ``points[rows]`` to
-    their candidates, ``chunk`` edges per call of the jitted rule (one compiled shape)."""
+    their candidates on ``grid`` (the points' dtype, :func:`~jaxsem.planning._grid._grid`),
+    ``chunk`` edges per call of the jitted rule (one compiled shape)."""
     pts = np.asarray(points)
     dtype = pts.dtype
 
@@ -463,9 +460,8 @@ def _checker(blocked_j, points, cand, origin, table, resolution: float, edge_sam
                 jnp.asarray(a),
                 jnp.asarray(b),
                 jnp.asarray(mask),
-                origin,
+                grid,
                 table,
-                resolution=resolution,
                 edge_samples=edge_samples,
                 dense=chunk <= _CHUNK,
             )

@@ -53,11 +53,22 @@ import numpy as np
 
 from .. import quadrics as Q
 from ._edges import polyline_clear
-from ._grid import FREE, NONE, OCCUPIED, UNKNOWN, MapState, check_grid, check_point, empty_map_state
+from ._grid import (
+    FREE,
+    NONE,
+    OCCUPIED,
+    UNKNOWN,
+    MapState,
+    _grid,
+    check_grid,
+    check_point,
+    empty_map_state,
+    host_grid,
+)
 from ._prm import PRM
 from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
 from ._sampling import embed_local_distribution
-from ._sensors import SensorConfig, _check_resolution, _sense_jit
+from ._sensors import SensorConfig, _check_resolution, _sense_jit, _sense_sizes
 
 CROP_SIZE = 160
 CONTEXT_SIZE = 4
@@ -81,10 +92,9 @@ class LocalInputs(NamedTuple):
     center_cell: jax.Array
 
 
-@functools.partial(jax.jit, static_argnames=("size", "max_distance", "resolution"))
-def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, origin, resolution, size, max_distance):
-    H, W = occupancy.shape
-    rc = Q.world_to_cell(xy, origin, resolution)
+@functools.partial(jax.jit, static_argnames=("size", "max_distance"))
+def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, grid, size, max_distance):
+    rc = Q.world_to_cell(xy, grid.origin, grid.resolution)
     pad = size
     occ = jnp.pad(occupancy, pad, constant_values=OCCUPIED)
     sem = jnp.pad(semantic, pad, constant_values=NONE)
@@ -137,26 +147,26 @@ def local_inputs(
     xy,
     goal,
     goal_outdoors,
-    origin,
-    resolution: float,
+    grid: Q.Grid,
     size: int = CROP_SIZE,
     max_distance: float = 20.0,
 ) -> LocalInputs:
     """Robot-centred crops of the partial maps plus the goal context (see :class:`LocalInputs`).
 
-    state: :class:`MapState` (H, W); xy, goal: (2,) world (x, y); goal_outdoors: bool;
-    max_distance: metres at which the context's distance saturates. Jitted.
+    state: :class:`MapState` (H, W); xy, goal: (2,) world (x, y); goal_outdoors: bool; grid:
+    the state's :class:`jaxsem.quadrics.Grid` (or a map holding one, e.g. a
+    :class:`~jaxsem.planning.Building`); max_distance: metres at which the context's distance
+    saturates. Jitted.
     """
-    resolution = _check_resolution(resolution)
-    origin = jnp.asarray(origin, jnp.result_type(float))
+    grid = host_grid("grid", grid, state.occupancy.shape[-2:])
+    dtype = jnp.result_type(float)
     return _local_inputs(
         state.occupancy,
         state.semantic,
-        jnp.asarray(xy, origin.dtype),
-        jnp.asarray(goal, origin.dtype),
+        jnp.asarray(xy, dtype),
+        jnp.asarray(goal, dtype),
         jnp.asarray(goal_outdoors, bool),
-        origin,
-        resolution,
+        _grid(grid, dtype),
         int(size),
         float(max_distance),
     )
@@ -290,7 +300,8 @@ class Trial:
         self.weight = weight
         self._occ_j = jnp.asarray(occ)
         self._sem_j = jnp.asarray(sem, jnp.int8)
-        self._origin_j = jnp.asarray(self.origin, jnp.result_type(float))
+        self._grid_j = _grid(self.grid, jnp.result_type(float))
+        self._sense_sizes = _sense_sizes(self.grid, config.sensor)
         self.key = key
         self.xy = self.start.copy()
         self.yaw = float(yaw0)
@@ -333,42 +344,41 @@ class Trial:
         return r
 
     def _sense(self):
-        pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._origin_j.dtype)
+        pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._grid_j.origin.dtype)
         self.state = _sense_jit(
             self._occ_j,
             self._sem_j,
             self.state,
             pose,
-            self._origin_j,
-            self.resolution,
+            self._grid_j,
             self.config.sensor,
+            **self._sense_sizes,
         )
 
     def local_inputs(self) -> LocalInputs:
         """What the learned sampler sees now (its cells ``config.sampler_scale`` map cells wide;
         ``center_cell`` in those cells)."""
         s = self.config.sampler_scale
+        state = self.state if s == 1 else _pooled_state(self.state, s)
         return local_inputs(
-            self.state if s == 1 else _pooled_state(self.state, s),
+            state,
             self.xy,
             self.goal,
             self.goal_outdoors,
-            self.origin,
-            self.resolution * s,
+            self.grid if s == 1 else Q.Grid(self.origin, np.asarray(self.resolution * s), state.occupancy.shape),
             CROP_SIZE,
             self.config.max_context_distance,
         )
 
     def _clear(self, points, blocked) -> bool:
         # The PRM's own edge check, so a plan it found clear is clear here on the same map.
-        return polyline_clear(points, blocked, self.origin, self.resolution, self.radius)
+        return polyline_clear(points, blocked, self.grid, self.radius)
 
     def _new_prm(self, known) -> PRM:
         cfg = self.config
         return PRM(
             known,
-            self.origin,
-            self.resolution,
+            self.grid,
             capacity=cfg.n_samples * (1 + cfg.max_growth),
             k=cfg.k if cfg.k is not None else prm_star_k(cfg.n_samples),
             radius=self.radius,

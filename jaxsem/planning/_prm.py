@@ -7,8 +7,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from .. import quadrics as Q
 from ._edges import _edge_samples
-from ._grid import UNKNOWN
+from ._grid import UNKNOWN, _grid, host_grid
 from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
@@ -32,8 +33,9 @@ from ._roadmap_search import RoadmapPath, _SampleGraph, _search
 class PRM:
     """A roadmap on a partial map that is built once, grown, rechecked and queried many times.
 
-    known_map: (H, W) int8 partial map or bool obstacle grid; origin: (2,) world (x, y) of cell
-    [0, 0]'s corner; resolution: metres per cell; capacity: most samples it will hold (fixed
+    known_map: (H, W) int8 partial map or bool obstacle grid; grid: its
+    :class:`jaxsem.quadrics.Grid` (origin, resolution, shape) or a map holding one (``.grid``:
+    :class:`~jaxsem.planning.Building`, :class:`~jaxsem.planning.OccupancyGrid`); capacity: most samples it will hold (fixed
     shapes: growing never recompiles); k: neighbours per vertex (None: :func:`prm_star_k` of
     ``capacity``); radius: connection radius in
     metres (None: :func:`default_radius` of ``capacity`` over the cells not known occupied); weight: 'euclidean' or 'neglogp'
@@ -61,8 +63,7 @@ class PRM:
     def __init__(
         self,
         known_map,
-        origin,
-        resolution: float,
+        grid: Q.Grid,
         *,
         capacity: int,
         k: int | None = None,
@@ -88,11 +89,7 @@ class PRM:
             raise ValueError("lazy: needs unknown_weight=1 (edge weights known before the check)")
         self._unknown = self._unknown_cells(known_map)
         self.sectors = _check_sectors(sectors)
-        origin_np = np.asarray(origin, np.float64)
-        if origin_np.shape != (2,) or not np.all(np.isfinite(origin_np)):
-            raise ValueError(f"origin: expected a finite (2,) world point, got {origin_np.tolist()}")
-        if not (isinstance(resolution, (int, float)) and resolution > 0):
-            raise ValueError(f"resolution: expected metres per cell > 0, got {resolution!r}")
+        self.grid = host_grid("grid", grid, blocked.shape)
         if weight not in ("euclidean", "neglogp"):
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
@@ -100,13 +97,11 @@ class PRM:
         self._factor = self._factor_grid()
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
-        self.origin = origin_np
-        self.resolution = float(resolution)
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
         self.radius = (
             float(radius)
             if radius is not None
-            else default_radius(capacity, blocked.shape, resolution, weight, free_cells=self._free_cells)
+            else default_radius(capacity, blocked.shape, self.resolution, weight, free_cells=self._free_cells)
         )
         self.weight = weight
         self.distribution = None
@@ -134,6 +129,16 @@ class PRM:
         if self._unknown is None:
             return None
         return jnp.where(jnp.asarray(self._unknown), self.unknown_weight, 1.0).astype(self.roadmap.points.dtype)
+
+    @property
+    def origin(self) -> np.ndarray:
+        """(2,) float64 world (x, y) of cell [0, 0]'s corner (:attr:`grid`'s)."""
+        return self.grid.origin
+
+    @property
+    def resolution(self) -> float:
+        """Metres per cell (:attr:`grid`'s)."""
+        return float(self.grid.resolution)
 
     @property
     def count(self) -> int:
@@ -164,8 +169,7 @@ class PRM:
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
         # The lazy and eager grows take the same samples (the eager grow also weighs its edges).
-        origin = jnp.asarray(self.origin, dtype)
-        args = (self.roadmap, key, self._blocked_j, dist, origin, int(n), self.radius, self.resolution, cap)
+        args = (self.roadmap, key, self._blocked_j, dist, self.grid, int(n), self.radius, cap)
         if self._lazy is not None:
             s0 = _QUERY + self.count
             (self.roadmap, cand), self._cap = _grow_lazy(
@@ -216,11 +220,10 @@ class PRM:
         self.roadmap = _recheck_jit(
             self.roadmap,
             self._blocked_j,
-            jnp.asarray(self.origin, dtype),
+            _grid(self.grid, dtype),
             dist,
             self._factor,
-            radius=self.radius,
-            resolution=self.resolution,
+            edge_samples=_edge_samples(self.radius, self.resolution),
             neglogp=reweigh and self.weight == "neglogp",
         )
         if self._lazy is not None:
@@ -236,8 +239,7 @@ class PRM:
             goal,
             self.blocked,
             self._blocked_j,
-            self.origin,
-            self.resolution,
+            self.grid,
             radius=self.radius,
             distribution=self.distribution,
             weight=self.weight,
@@ -260,9 +262,8 @@ class PRM:
             self._blocked_j,
             np.asarray(self.roadmap.points),
             self._lazy.cand,
-            jnp.asarray(self.origin, dtype),
+            _grid(self.grid, dtype),
             None if chunk is None or chunk <= _CHUNK else self._setup.table(),
-            self.resolution,
             _edge_samples(self.radius, self.resolution),
             **kw,
         )

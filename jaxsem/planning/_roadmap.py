@@ -5,7 +5,7 @@ hold the current query's start and goal, slots ``2 .. 2 + count`` the samples. T
 pure jitted functions (:func:`roadmap_init`, :func:`roadmap_grow`, :func:`roadmap_recheck`,
 :func:`roadmap_connect`) and :class:`PRM` is the host-side object most users want::
 
-    prm = PRM(known_map, origin, resolution, capacity=2000)
+    prm = PRM(known_map, grid, capacity=2000)  # grid: a quadrics.Grid (or a Building's .grid)
     prm.grow(key, 1000)                    # uniform over cells not known occupied
     path = prm.query(start, goal)          # many queries on one roadmap
     prm.update_map(newer_map)              # a partial map only gains obstacles: drop what they hit
@@ -71,8 +71,8 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
-from ._edges import _cells, _edge_samples, _edges, _grid, _subset, query_reach
-from ._grid import OCCUPIED, check_point
+from ._edges import _cells, _edge_samples, _edges, _extent, _grid, _subset, query_reach
+from ._grid import OCCUPIED, check_point, host_grid
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _select
 from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_points
@@ -171,14 +171,13 @@ def _empty_roadmap(M: int, k: int, dtype) -> Roadmap:
     )
 
 
-def _sample_into(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples, aids):
-    """``n`` new samples written into the roadmap's points and valid flags. Returns (points,
-    valid, new points, their valid flags, first slot)."""
-    H, W = blocked.shape
+def _sample_into(rm, key, blocked, distribution, grid, *, n, uniform_samples, aids):
+    """``n`` new samples written into the roadmap's points and valid flags (``grid``: the map's,
+    leaves of the points' dtype). Returns (points, valid, new points, their valid flags, first
+    slot)."""
     dtype = rm.points.dtype
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
     uniform = distribution is None or uniform_samples
-    grid = _grid(origin, resolution, (H, W))
     if aids is not None and uniform and aids.free_words is not None:
         new = sample_free_cells(key, aids.free_words, aids.free_counts, n, grid)
     else:
@@ -217,11 +216,12 @@ def _grow_impl(
     key,
     blocked,
     distribution,
-    origin,
+    grid,
     *,
     n,
     radius,
-    resolution,
+    edge_samples,
+    extent,
     cap,
     neglogp,
     sectors=0,
@@ -231,9 +231,10 @@ def _grow_impl(
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
-    none), then their links checked. Returns the grown roadmap."""
+    none), then their links checked. ``grid``: the map's (leaves of the points' dtype);
+    ``edge_samples`` (:func:`_edge_samples` of the radius) and ``extent`` (:func:`_extent`): the
+    sizes its resolution sets, static. Returns the grown roadmap."""
     M, k = rm.neighbors.shape
-    H, W = blocked.shape
     dtype = rm.points.dtype
     z = jnp.zeros((), jnp.int32)
     points, valid, new, ok_new, s0 = _sample_into(
@@ -241,24 +242,22 @@ def _grow_impl(
         key,
         blocked,
         distribution,
-        origin,
+        grid,
         n=n,
-        resolution=resolution,
         uniform_samples=uniform_samples,
         aids=aids,
     )
     slots = s0 + jnp.arange(n, dtype=jnp.int32)
     db_ok = valid & (jnp.arange(M) >= _QUERY)
-    extent = (W * resolution, H * resolution)
     # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
     keep = 2 * k if sectors else k
-    grid = _grid(origin, resolution, (H, W))
     density = _density(points, distribution, grid, sectors)
+    origin = grid.origin
     nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
     cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
-    S = _edge_samples(radius, resolution)
+    S = edge_samples
     nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k)
     return Roadmap(
         points,
@@ -308,11 +307,11 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 
 
 _grow_jit = functools.partial(
-    jax.jit, static_argnames=("n", "radius", "resolution", "cap", "neglogp", "sectors", "uniform_samples")
+    jax.jit, static_argnames=("n", "radius", "edge_samples", "extent", "cap", "neglogp", "sectors", "uniform_samples")
 )(_grow_impl)
 
 
-def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, uniform_samples=False, aids=None):
+def _sample_lazy_impl(rm, key, blocked, distribution, grid, *, n, uniform_samples=False, aids=None):
     """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
     edge). Returns (roadmap, the new samples' valid flags)."""
     points, valid, _, ok_new, _ = _sample_into(
@@ -320,35 +319,34 @@ def _sample_lazy_impl(rm, key, blocked, distribution, origin, *, n, resolution, 
         key,
         blocked,
         distribution,
-        origin,
+        grid,
         n=n,
-        resolution=resolution,
         uniform_samples=uniform_samples,
         aids=aids,
     )
     return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
 
 
-_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "resolution", "uniform_samples"))(_sample_lazy_impl)
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "uniform_samples"))(_sample_lazy_impl)
 
 
-def _recheck_impl(rm, blocked, origin, distribution=None, factor=None, *, radius, resolution, neglogp=False):
+def _recheck_impl(rm, blocked, grid, distribution=None, factor=None, *, edge_samples, neglogp=False):
     """Drops what ``blocked`` blocks; with a ``factor`` grid (weights that follow the map, e.g.
-    unknown cells charged more) the kept edges' weights are read again on the new map."""
+    unknown cells charged more) the kept edges' weights are read again on the new map.
+    ``edge_samples``: :func:`_edge_samples` of the roadmap's radius on ``grid``."""
     M, _ = rm.neighbors.shape
-    grid = _grid(origin, resolution, blocked.shape)
     r, c, on = _cells(rm.points, grid)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
     ev = rm.edge_valid & valid[:, None] & valid[j]
     cost = None if factor is None else _edge_cost(distribution, factor, neglogp)
-    clear, w = _edges(blocked, cost, rm.points[:, None, :], rm.points[j], grid, _edge_samples(radius, resolution), ev)
+    clear, w = _edges(blocked, cost, rm.points[:, None, :], rm.points[j], grid, edge_samples, ev)
     ev = ev & clear
     w = rm.edge_weight if cost is None else w.astype(rm.edge_weight.dtype)
     return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, w, jnp.inf))
 
 
-_recheck_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp"))(_recheck_impl)
+_recheck_jit = functools.partial(jax.jit, static_argnames=("edge_samples", "neglogp"))(_recheck_impl)
 
 
 #: Work-list width of a query's long-edge check: at most 2 x 2k edges whose grazing intervals
@@ -388,8 +386,10 @@ def _query_candidates_jit(rm, start, goal, *, sectors):
 
 
 def _connect_impl(
-    rm, start, goal, blocked, distribution, origin, *, radius, resolution, neglogp, sectors=0, aids=None, factor=None
+    rm, start, goal, blocked, distribution, grid, *, radius, edge_samples, long_samples, neglogp, sectors=0, aids=None, factor=None
 ):
+    """A query's start and goal linked (module docstring) on ``grid`` (leaves of the points'
+    dtype); ``edge_samples``, ``long_samples``: :func:`_query_samples` of the radius (static)."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     keep = 2 * k if sectors else k
@@ -400,14 +400,12 @@ def _connect_impl(
     # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
     short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
     cand = nbr < M
-    s_short = _edge_samples(radius, resolution)
+    s_short = edge_samples
     table = None if aids is None else aids.table
-    grid = _grid(origin, resolution, blocked.shape)
     clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, grid, s_short, cand & short, table=table)
-    reach = query_reach(blocked.shape, resolution)
-    # Long edges: the rule's samples over the reach, a subset about one per 4 cells of an edge
-    # 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
-    s_long = _edge_samples(reach, resolution)
+    # Long edges: the rule's samples over the query reach, a subset about one per 4 cells of an
+    # edge 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
+    s_long = long_samples
     sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
     clear_l, w_l = _edges(
         blocked,
@@ -435,7 +433,19 @@ def _connect_impl(
     )
 
 
-_connect_jit = functools.partial(jax.jit, static_argnames=("radius", "resolution", "neglogp", "sectors"))(_connect_impl)
+_connect_jit = functools.partial(
+    jax.jit, static_argnames=("radius", "edge_samples", "long_samples", "neglogp", "sectors")
+)(_connect_impl)
+
+
+def _query_samples(radius: float, grid) -> dict:
+    """The static sample counts of :func:`_connect_impl` on a host ``grid``: a short edge's (up
+    to ``radius``) and a long one's (over :func:`query_reach`)."""
+    res = float(grid.resolution)
+    return {
+        "edge_samples": _edge_samples(radius, res),
+        "long_samples": _edge_samples(query_reach(grid.shape, res), res),
+    }
 
 
 # ----------------------------------------------------------------------------- boundary checks
@@ -504,8 +514,7 @@ def roadmap_grow(
     key,
     known_map,
     n: int,
-    origin,
-    resolution: float,
+    grid: Q.Grid,
     *,
     distribution=None,
     radius: float,
@@ -515,7 +524,8 @@ def roadmap_grow(
 ) -> Roadmap:
     """Adds ``n`` samples (valid vertices) to ``roadmap`` and links them (module docstring).
 
-    known_map: (H, W) int8 partial map or bool obstacle grid; distribution: (H, W) cell weights
+    known_map: (H, W) int8 partial map or bool obstacle grid; grid: its
+    :class:`jaxsem.quadrics.Grid` (or a map holding one, ``.grid``); distribution: (H, W) cell weights
     (None: uniform over the cells not known occupied); radius: connection radius in metres (keep
     it fixed for one roadmap); weight: 'euclidean' or 'neglogp' (needs ``distribution``);
     bucket_cap: neighbour-search slots per strip of 3 buckets to start with (None: a size for uniform
@@ -524,6 +534,7 @@ def roadmap_grow(
     """
     sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
+    grid = host_grid("grid", grid, blocked.shape)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
     if weight not in ("euclidean", "neglogp"):
@@ -535,18 +546,16 @@ def roadmap_grow(
     count = int(roadmap.num_samples)
     if count + int(n) > M - _QUERY:
         raise ValueError(f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, {count} used)")
-    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
-    cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, resolution, radius)
+    cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, float(grid.resolution), radius)
     dist = None if distribution is None else jnp.asarray(distribution, roadmap.points.dtype)
     return _grow_exact(
         roadmap,
         key,
         jnp.asarray(blocked),
         dist,
-        origin_j,
+        grid,
         int(n),
         float(radius),
-        float(resolution),
         cap,
         weight == "neglogp",
         sectors,
@@ -558,10 +567,9 @@ def _grow_exact(
     key,
     blocked,
     dist,
-    origin,
+    grid,
     n,
     radius,
-    resolution,
     cap,
     neglogp,
     sectors=0,
@@ -569,20 +577,22 @@ def _grow_exact(
     aids=None,
     factor=None,
 ):
-    """Grows with ``cap`` strip slots, rerunning with 4x more while a strip overflows.
-    Returns (roadmap, the cap that sufficed)."""
+    """Grows with ``cap`` strip slots on the host ``grid``, rerunning with 4x more while a strip
+    overflows. Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
+    grid_j = _grid(grid, roadmap.points.dtype)
     while True:
         out = _grow_jit(
             roadmap,
             key,
             blocked,
             dist,
-            origin,
+            grid_j,
             n=n,
             radius=radius,
-            resolution=resolution,
+            edge_samples=_edge_samples(radius, float(grid.resolution)),
+            extent=_extent(grid),
             cap=cap if 3 * cap < M else None,
             neglogp=neglogp,
             sectors=sectors,
@@ -595,18 +605,18 @@ def _grow_exact(
         cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
 
 
-def roadmap_recheck(roadmap: Roadmap, known_map, origin, resolution: float, *, radius: float) -> Roadmap:
-    """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` shows
-    blocked. A partial map only gains obstacles (unknown -> occupied), so nothing is added back;
-    when cells are freed, build a new roadmap. ``radius`` as when the roadmap was grown."""
+def roadmap_recheck(roadmap: Roadmap, known_map, grid: Q.Grid, *, radius: float) -> Roadmap:
+    """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` (on
+    ``grid``, a :class:`jaxsem.quadrics.Grid` or a map holding one) shows blocked. A partial map
+    only gains obstacles (unknown -> occupied), so nothing is added back; when cells are freed,
+    build a new roadmap. ``radius`` as when the roadmap was grown."""
     blocked = _blocked_from("known_map", known_map)
-    origin_j = jnp.asarray(np.asarray(origin, np.float64), roadmap.points.dtype)
+    grid = host_grid("grid", grid, blocked.shape)
     return _recheck_jit(
         roadmap,
         jnp.asarray(blocked),
-        origin_j,
-        radius=float(radius),
-        resolution=float(resolution),
+        _grid(grid, roadmap.points.dtype),
+        edge_samples=_edge_samples(float(radius), float(grid.resolution)),
     )
 
 
@@ -615,8 +625,7 @@ def roadmap_connect(
     start,
     goal,
     known_map,
-    origin,
-    resolution: float,
+    grid: Q.Grid,
     *,
     radius: float,
     distribution=None,
@@ -625,7 +634,7 @@ def roadmap_connect(
 ) -> Roadmap:
     """Puts a query's ``start`` and ``goal`` (world (2,), not known occupied) into slots 0 and 1
     and links them to samples at any distance (module docstring); the samples' own links are
-    unchanged. ``radius``: the roadmap's (which of its edges count as short); ``sectors`` as in
+    unchanged. ``grid``: the map's :class:`jaxsem.quadrics.Grid` (or a map holding one); ``radius``: the roadmap's (which of its edges count as short); ``sectors`` as in
     :func:`roadmap_grow`."""
     sectors = _check_sectors(sectors)
     blocked = _blocked_from("known_map", known_map)
@@ -635,8 +644,7 @@ def roadmap_connect(
         goal,
         blocked,
         jnp.asarray(blocked),
-        origin,
-        resolution,
+        host_grid("grid", grid, blocked.shape),
         radius=radius,
         distribution=distribution,
         weight=weight,
@@ -650,8 +658,7 @@ def _connect_checked(
     goal,
     blocked,
     blocked_j,
-    origin,
-    resolution,
+    grid,
     *,
     radius,
     distribution,
@@ -660,10 +667,9 @@ def _connect_checked(
     setup=None,
     factor=None,
 ):
-    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy) and its device copy;
-    ``setup``: the map's :class:`_MapSetup` (None: the table is made inside)."""
-    origin_np = np.asarray(origin, np.float64)
-    grid = Q.Grid.host(origin_np, resolution, blocked.shape)
+    """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy), its device copy and its
+    host ``grid`` (:func:`host_grid`); ``setup``: the map's :class:`_MapSetup` (None: the table
+    is made inside)."""
     start = check_point("start", start, blocked, grid)
     goal = check_point("goal", goal, blocked, grid)
     if weight == "neglogp" and distribution is None:
@@ -684,7 +690,7 @@ def _connect_checked(
         for i in range(2):
             c = nbr[i][nbr[i] < len(pts)]
             xy = np.concatenate([ends[i : i + 1], np.where((c == GOAL)[:, None], ends[1], pts[c])])
-            cell = Q.world_to_cell(xy, origin_np, resolution, xp=np)
+            cell = Q.world_to_cell(xy, grid.origin, float(grid.resolution), xp=np)
             lo, hi = cell.min(0) - 1, cell.max(0) + 2
             boxes.append((lo[0], hi[0], lo[1], hi[1]))
         aids = _MapAids(setup.query_table(boxes), None, None, None)
@@ -694,9 +700,9 @@ def _connect_checked(
         goal_j,
         blocked_j,
         dist,
-        jnp.asarray(origin_np, dtype),
+        _grid(grid, dtype),
         radius=float(radius),
-        resolution=float(resolution),
+        **_query_samples(float(radius), grid),
         neglogp=weight == "neglogp",
         sectors=sectors,
         aids=aids,
@@ -710,8 +716,7 @@ def build_roadmap(
     start,
     goal,
     n: int,
-    origin,
-    resolution: float,
+    grid: Q.Grid,
     *,
     distribution=None,
     k: int | None = None,
@@ -723,32 +728,30 @@ def build_roadmap(
     """One-shot PRM: ``n`` samples plus the start (slot 0) and goal (slot 1) on a partial map.
 
     known_map: (H, W) int8 partial map (OCCUPIED blocks; UNKNOWN and FREE are free) or a bool
-    obstacle grid; start, goal: (2,) world (x, y), on the map, not known occupied; distribution:
+    obstacle grid; grid: its :class:`jaxsem.quadrics.Grid` (or a map holding one: a
+    :class:`~jaxsem.planning.Building`); start, goal: (2,) world (x, y), on the map, not known
+    occupied; distribution:
     (H, W) non-negative cell weights (None: uniform); k: neighbours per vertex (None: :func:`prm_star_k` of n);
     radius: connection radius in metres (None: :func:`default_radius`); weight: 'euclidean' or
     'neglogp' (needs ``distribution``). Search it with :func:`roadmap_shortest_path`; to reuse
     one roadmap for many queries use :class:`PRM`.
     """
     blocked = _blocked_from("known_map", known_map)
-    origin_np = np.asarray(origin, np.float64)
-    if origin_np.shape != (2,):
-        raise ValueError(f"origin: expected shape (2,), got shape {origin_np.shape}")
-    grid = Q.Grid.host(origin_np, resolution, blocked.shape)
+    grid = host_grid("grid", grid, blocked.shape)
     check_point("start", start, blocked, grid)
     check_point("goal", goal, blocked, grid)
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n: expected a positive int number of samples, got {n!r}")
     if weight not in ("euclidean", "neglogp"):
         raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
-    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, resolution, weight)
+    radius = float(radius) if radius is not None else default_radius(n, blocked.shape, float(grid.resolution), weight)
     rm = roadmap_init(int(n), prm_star_k(n) if k is None else k)
     rm = roadmap_grow(
         rm,
         key,
         blocked,
         int(n),
-        origin_np,
-        resolution,
+        grid,
         distribution=distribution,
         radius=radius,
         weight=weight,
@@ -760,8 +763,7 @@ def build_roadmap(
         start,
         goal,
         blocked,
-        origin_np,
-        resolution,
+        grid,
         radius=radius,
         distribution=distribution,
         weight=weight,
@@ -798,19 +800,22 @@ def make_roadmap_builder(
     radius = float(radius) if radius is not None else default_radius(n, (H, W), resolution, weight)
     kk = prm_star_k(n) if k is None else int(k)
     sectors = _check_sectors(sectors)
+    sizes = Q.Grid.host((0.0, 0.0), float(resolution), (H, W))  # the static sizes its resolution sets
 
     def build(key, blocked, distribution, start, goal, origin):
         rm = roadmap_init(int(n), kk, origin.dtype)
         dist = None if uniform else distribution
+        grid = Q.Grid(origin, jnp.asarray(float(resolution), origin.dtype), (H, W))
         rm = _grow_impl(
             rm,
             key,
             blocked,
             dist,
-            origin,
+            grid,
             n=int(n),
             radius=radius,
-            resolution=float(resolution),
+            edge_samples=_edge_samples(radius, float(resolution)),
+            extent=_extent(sizes),
             cap=bucket_cap,
             neglogp=weight == "neglogp",
             sectors=sectors,
@@ -821,9 +826,9 @@ def make_roadmap_builder(
             goal,
             blocked,
             dist,
-            origin,
+            grid,
             radius=radius,
-            resolution=float(resolution),
+            **_query_samples(radius, sizes),
             neglogp=weight == "neglogp",
             sectors=sectors,
         )

@@ -23,7 +23,7 @@ from jax.core import Tracer
 
 from .. import quadrics as Q
 from .._checks import require_type
-from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState, _grid
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState, _grid, host_grid
 
 
 class SensorConfig(NamedTuple):
@@ -71,28 +71,24 @@ def _fan(yaw, fov_deg, n_rays, dtype):
     return yaw + jnp.linspace(-half, half, n_rays, dtype=dtype)
 
 
-def sense(
-    true_occupancy, true_semantic, state: MapState, pose, origin, resolution, config: SensorConfig = SensorConfig()
-) -> MapState:
+def sense(true_occupancy, true_semantic, state: MapState, pose, grid: Q.Grid, config: SensorConfig = SensorConfig()) -> MapState:
     """Updates the partial maps with what both sensors see from ``pose``.
 
     true_occupancy: (H, W) bool; true_semantic: (H, W) int8 (class constants of the world);
     state: :class:`MapState` with (H, W) leaves; pose: (3,) world (x, y, yaw) in metres/radians;
-    origin: (2,) world (x, y) of cell [0, 0]'s corner; resolution: metres per cell (a Python
-    float: it sets the number of march samples). Jitted; ``jax.vmap`` over ``state`` and ``pose``
+    grid: the :class:`jaxsem.quadrics.Grid` of the true maps (or a map holding one, e.g. a
+    :class:`~jaxsem.planning.Building`; concrete: its resolution sets the number of march
+    samples and the sensors' window). Jitted; ``jax.vmap`` over ``state`` and ``pose``
     senses many robots at once. Returns the new :class:`MapState`.
     """
-    resolution = _check_resolution(resolution)
     # Cheap conversions only (numpy in, jit converts at dispatch): this wrapper runs every step
     # and a jnp.asarray per argument cost more than the sensing itself.
     dtype = np.dtype(jnp.result_type(float))
-    origin = _host_or_jax(origin, dtype)
-    if tuple(origin.shape) != (2,):
-        raise ValueError(f"origin: expected shape (2,), got shape {tuple(origin.shape)}")
+    _check_true_maps(true_occupancy, true_semantic)
+    grid = host_grid("grid", grid, np.shape(true_occupancy))
     pose = _host_or_jax(pose, dtype)
     if tuple(pose.shape[-1:]) != (3,):
         raise ValueError(f"pose: expected shape (..., 3) = (x, y, yaw), got shape {tuple(pose.shape)}")
-    _check_true_maps(true_occupancy, true_semantic)
     occ_shape = tuple(np.shape(true_occupancy))
     for name, leaf in (("state.occupancy", state.occupancy), ("state.semantic", state.semantic)):
         if tuple(leaf.shape[-2:]) != occ_shape or leaf.dtype != jnp.int8:
@@ -102,7 +98,25 @@ def sense(
             )
     if not (isinstance(true_semantic, jax.Array) and true_semantic.dtype == jnp.int8):
         true_semantic = np.asarray(true_semantic, np.int8)
-    return _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config)
+    return _sense_jit(
+        true_occupancy, true_semantic, state, pose, _host_leaves(grid, dtype), config, **_sense_sizes(grid, config)
+    )
+
+
+def _host_leaves(grid: Q.Grid, dtype) -> Q.Grid:
+    """A host grid with numpy leaves of ``dtype`` (jit converts them at dispatch)."""
+    return Q.Grid(np.asarray(grid.origin, dtype), np.asarray(grid.resolution, dtype), grid.shape)
+
+
+def _sense_sizes(grid: Q.Grid, config: SensorConfig) -> dict:
+    """The static sizes of :func:`_sense_jit` that a host ``grid``'s resolution sets: the half
+    width of the sensors' window and the march samples per ray, in cells."""
+    resolution = _check_resolution(grid.resolution)
+    max_range = max(config.depth_range, config.object_range)
+    return {
+        "half": int(math.ceil(max_range / resolution)) + 2,
+        "n_s": _samples(max_range, resolution, config.step_cells),
+    }
 
 
 def _host_or_jax(x, dtype):
@@ -139,35 +153,34 @@ def _check_true_maps(true_occupancy, true_semantic):
             )
 
 
-@functools.partial(jax.jit, static_argnames=("resolution", "config"))
-def _sense_jit(true_occupancy, true_semantic, state, pose, origin, resolution, config):
+@functools.partial(jax.jit, static_argnames=("config", "half", "n_s"))
+def _sense_jit(true_occupancy, true_semantic, state, pose, grid, config, *, half, n_s):
     if pose.ndim > 1:  # a batch of robots, each with its own state
-        fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, origin, resolution, config)
+        fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, grid, config, half, n_s)
         return jax.vmap(fn)(state, pose)
-    return _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, config)
+    return _sense_one(true_occupancy, true_semantic, state, pose, grid, config, half, n_s)
 
 
-def _sense_one(true_occupancy, true_semantic, state, pose, origin, resolution, config):
+def _sense_one(true_occupancy, true_semantic, state, pose, grid, config, half, n_s):
+    """One robot's sensing on ``grid``; ``half``, ``n_s``: :func:`_sense_sizes` (static)."""
     H, W = true_occupancy.shape
     xy, yaw = pose[:2], pose[2]
-    dtype = origin.dtype
+    dtype = grid.origin.dtype
     # Work in a window that holds every cell the sensors can reach: the full-grid updates would
     # otherwise dominate (a building map has ~2e5 cells, the sensors see a few thousand).
     max_range = max(config.depth_range, config.object_range)
-    half = int(math.ceil(max_range / resolution)) + 2
     wh, ww = min(2 * half + 1, H), min(2 * half + 1, W)
-    rc = Q.world_to_cell(xy, origin, resolution)
+    rc = Q.world_to_cell(xy, grid.origin, grid.resolution)
     start = jnp.clip(rc - half, 0, jnp.array([H - wh, W - ww], jnp.int32))
     win = lambda g: jax.lax.dynamic_slice(g, (start[0], start[1]), (wh, ww))
     occ_t, sem_t = win(true_occupancy), win(true_semantic)
     occ, sem = win(state.occupancy), win(state.semantic)
-    window = _grid(Q.cell_to_world(start, origin, resolution, offset=0.0), resolution, (wh, ww))
+    window = Q.Grid(Q.cell_to_world(start, grid.origin, grid.resolution, offset=0.0), grid.resolution, (wh, ww))
 
     # One fan covering the wider field of view out to the longer range; each sensor keeps the
     # samples inside its own cone and range.
     wide = max(config.depth_fov_deg, config.object_fov_deg)
     n_rays = config.rays
-    n_s = _samples(max_range, resolution, config.step_cells)
     angles = _fan(yaw, wide, n_rays, dtype)
     rows, cols, vis, _, _ = _cast(occ_t, window, xy, angles, max_range, n_s)
     t = (jnp.arange(n_s, dtype=dtype) + 1.0) * (max_range / n_s)
@@ -202,19 +215,18 @@ def cast_rays(occupancy, grid: Q.Grid, xy, angles, max_range):
     if tuple(grid.shape) != tuple(np.shape(occupancy)):
         raise ValueError(f"grid: expected occupancy's shape {tuple(np.shape(occupancy))}, got {grid.shape}")
     resolution = _check_resolution(grid.resolution)
-    origin = jnp.asarray(grid.origin, jnp.result_type(float))
+    dtype = jnp.result_type(float)
     n = _samples(float(max_range), resolution, 0.5)
     return _cast_ranges(
         jnp.asarray(occupancy),
-        origin,
-        resolution,
-        jnp.asarray(xy, origin.dtype),
-        jnp.asarray(angles, origin.dtype),
+        _grid(grid, dtype),
+        jnp.asarray(xy, dtype),
+        jnp.asarray(angles, dtype),
         float(max_range),
         n,
     )
 
 
-@functools.partial(jax.jit, static_argnames=("resolution", "max_range", "n"))
-def _cast_ranges(occupancy, origin, resolution, xy, angles, max_range, n):
-    return _cast(occupancy, _grid(origin, resolution, occupancy.shape), xy, angles, max_range, n)[4]
+@functools.partial(jax.jit, static_argnames=("max_range", "n"))
+def _cast_ranges(occupancy, grid, xy, angles, max_range, n):
+    return _cast(occupancy, grid, xy, angles, max_range, n)[4]

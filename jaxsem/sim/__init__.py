@@ -2,8 +2,7 @@
 :mod:`jaxsem.data`, the rendered buildings :mod:`jaxsem.mapping`. The old names resolve here for
 one release, with a :class:`DeprecationWarning`."""
 
-import importlib as _importlib
-import warnings as _warnings
+from jaxsem._deprecated import moved_attribute as _moved_attribute
 
 _MOVED = {
     "BASELINE": "jaxsem.slam.sim",
@@ -47,12 +46,4 @@ _MOVED = {
 
 
 def __getattr__(name):
-    if name in _MOVED:
-        target = _MOVED[name]
-        _warnings.warn(
-            f"jaxsem.sim.{name} moved to {target}.{name}; the old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(_importlib.import_module(target), name)
-    raise AttributeError(f"module 'jaxsem.sim' has no attribute {name!r}")
+    return _moved_attribute("jaxsem.sim", _MOVED, name)

@@ -26,7 +26,12 @@ from __future__ import annotations
 __all__ = [
     "RCNNLossConfig",
     "RCNNTrainConfig",
+    "SHIPPED_RCNN",
+    "detect_image",
     "evaluate_detections",
+    "export_rcnn",
+    "load_rcnn",
+    "rcnn_config_from_dict",
     "make_rcnn_step",
     "rcnn_batch",
     "rcnn_loss",
@@ -34,6 +39,9 @@ __all__ = [
 ]
 
 import dataclasses
+import functools
+import json
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -41,11 +49,13 @@ import numpy as np
 import optax
 
 from .. import metrics
-from ..models import RCNNConfig, RCNNOutput, detect, detection_loss, free_params, init_rcnn, reconstruct
+from ..checkpoint import latest_step, restore_checkpoint
+from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
 from ..quadrics import box_iou
-from ..training import TrainingRun, config_json
+from ..training import LoadedModel, TrainingRun, config_json
 from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
-from .data import frame_arrays, frames_batch
+from ._pretrained import PRETRAINED_DIR
+from .data import LMO_CLASS_NAMES, frame_arrays, frames_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,6 +173,7 @@ class RCNNTrainConfig:
       num_steps, checkpoint_every, eval_every: the run's length and its rhythm.
       eval_frames: held-out frames scored at each evaluation.
       seed: the initialisation and the batch order (a pure function of the step).
+      class_names: the names of the model's classes (ids are their indices).
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -177,6 +188,7 @@ class RCNNTrainConfig:
     eval_frames: int = 64
     seed: int = 0
     keep: int = 2
+    class_names: tuple = LMO_CLASS_NAMES
 
 
 def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
@@ -247,6 +259,8 @@ def train_rcnn(
     metrics rows)``."""
     if not isinstance(config, RCNNTrainConfig):
         raise ValueError(f"config: expected an RCNNTrainConfig, got {type(config).__name__}")
+    if len(config.class_names) != config.model.num_classes:
+        raise ValueError(f"class_names: {len(config.class_names)} names for {config.model.num_classes} classes")
     W, H = (int(x) for x in config.model.input_size)
     for name, arr in (("renders", renders), ("real", real), ("held_out", held_out)):
         if arr is not None and tuple(arr["image"].shape[1:3]) != (H, W):
@@ -259,7 +273,13 @@ def train_rcnn(
         "opt_state": tx.init(variables["params"]),
         "step": np.asarray(0, np.int64),
     }
-    run = TrainingRun(workdir, config_json(config), keep=config.keep, log=log)
+    run = TrainingRun(
+        workdir,
+        config_json(config),
+        keep=config.keep,
+        normalise=lambda old: config_json(rcnn_config_from_dict(old)),
+        log=log,
+    )
     with run:
         if run.latest_step is not None:
             state = run.restore(state)
@@ -296,3 +316,136 @@ def train_rcnn(
                     done, {"params": params, "batch_stats": stats, "opt_state": opt, "step": np.asarray(done, np.int64)}
                 )
         return model, {"params": params, "batch_stats": stats}, run.metrics()
+
+
+# ----------------------------------------------------------------------------- models on disk
+
+#: The shipped LM-O detect-and-lift model's file stem in ``jaxsem/volumon/pretrained``.
+SHIPPED_RCNN = "volumon_lmo_rcnn"
+
+
+def _from_dict(cls, d: dict):
+    """A frozen dataclass from its :func:`dataclasses.asdict` form (nested configs, tuples)."""
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            continue
+        v = d[f.name]
+        default = f.default if f.default is not dataclasses.MISSING else None
+        if dataclasses.is_dataclass(default) and isinstance(v, dict):
+            v = _from_dict(type(default), v)
+        elif isinstance(default, tuple) and isinstance(v, list):
+            v = tuple(v)
+        kwargs[f.name] = v
+    return cls(**kwargs)
+
+
+def rcnn_config_from_dict(d: dict) -> RCNNTrainConfig:
+    """:class:`RCNNTrainConfig` of a run's ``config.json`` (fields added since take their defaults)."""
+    return _from_dict(RCNNTrainConfig, d)
+
+
+def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = None) -> pathlib.Path:
+    """Write ``variables`` as ``<path>.npz`` (float32) and the config with ``meta`` as
+    ``<path>.json``, each atomically; returns the npz path."""
+    path = pathlib.Path(path).with_suffix("")
+    flat = {
+        "/".join(str(getattr(k, "key", k)) for k in p): np.asarray(v, np.float32)
+        for p, v in jax.tree_util.tree_leaves_with_path(variables)
+    }
+    npz = path.with_suffix(".npz")
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, **flat)
+    tmp.replace(npz)
+    info = {"config": config_json(config), **(meta or {})}
+    tmp_json = path.with_name(path.name + ".tmp.json")
+    tmp_json.write_text(json.dumps(info, indent=1))
+    tmp_json.replace(path.with_suffix(".json"))
+    return npz
+
+
+def load_rcnn(path=None) -> LoadedModel:
+    """The shipped LM-O detect-and-lift model (``path`` None), an exported ``.npz`` (with its
+    ``.json``), or a training workdir's latest checkpoint, as a :class:`jaxsem.training.LoadedModel`."""
+    p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz" if path is None else pathlib.Path(path)
+    if p.is_dir():
+        cfg_path = p / "config.json"
+        if not cfg_path.is_file():
+            raise ValueError(f"model: {p} is not a training workdir (no config.json)")
+        config = rcnn_config_from_dict(json.loads(cfg_path.read_text()))
+        model, variables = init_rcnn(jax.random.PRNGKey(0), config.model, 1)
+        step = latest_step(p / "checkpoints")
+        if step is None:
+            raise ValueError(f"model: no checkpoint under {p / 'checkpoints'}")
+        like = {"params": variables["params"], "batch_stats": variables["batch_stats"]}
+        state = restore_checkpoint(
+            p / "checkpoints",
+            {**like, "opt_state": _opt_like(config, variables), "step": np.asarray(0, np.int64)},
+            step,
+        )
+        return LoadedModel(
+            model,
+            {"params": state["params"], "batch_stats": state["batch_stats"]},
+            config,
+            {"name": str(p), "step": step},
+        )
+    meta_path = p.with_suffix(".json")
+    if not p.is_file() or not meta_path.is_file():
+        raise ValueError(f"model: no exported R-CNN at {p} (expected {p.name} and {meta_path.name})")
+    meta = json.loads(meta_path.read_text())
+    config = rcnn_config_from_dict(meta["config"])
+    with np.load(p) as z:
+        flat = {k: z[k] for k in z.files}
+    variables: dict = {}
+    for key, value in flat.items():
+        node = variables
+        *parents, leaf = key.split("/")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = jnp.asarray(value)
+    return LoadedModel(VoluMonRCNN(config.model), variables, config, meta)
+
+
+def _opt_like(config: RCNNTrainConfig, variables):
+    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+    return tx.init(variables["params"])
+
+
+def detect_image(loaded: LoadedModel, image, K) -> dict:
+    """Detections of one photograph of any size: ``image`` (H, W, 3) uint8 RGB, ``K`` (3, 3) its
+    intrinsics. The network reads it resized to its ``input_size``; boxes come back in the
+    photograph's pixels, ellipsoids in its camera frame (metres). Returns numpy arrays of the
+    valid detections: ``box`` (D, 4), ``class_id`` (D,), ``class_name`` (list), ``score`` (D,),
+    ``probabilities`` (D, N), ``rotation`` (D, 3, 3), ``center`` (D, 3), ``radii`` (D, 3)."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"image: expected (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K: expected a (3, 3) pinhole matrix with positive focal lengths, got {K.tolist()}")
+    cfg: RCNNConfig = loaded.config.model
+    frame = {"rgb": image, "K": K, "objects": []}
+    arrays = frame_arrays([frame], cfg.input_size, max_objects=1)
+    b = frames_batch(arrays)
+    d = jax.device_get(_detect_fn(loaded.model)(loaded.variables, b["image"], b["K"]))
+    ok = np.asarray(d.valid[0])
+    W, H = (int(x) for x in cfg.input_size)
+    back = np.array([image.shape[1] / W, image.shape[0] / H] * 2)
+    names = list(loaded.config.class_names)
+    cid = np.asarray(d.class_id[0])[ok]
+    return {
+        "box": np.asarray(d.box[0])[ok] * back,
+        "class_id": cid,
+        "class_name": [names[int(c)] for c in cid],
+        "score": np.asarray(d.score[0])[ok],
+        "probabilities": np.asarray(d.probabilities[0])[ok],
+        "rotation": np.asarray(d.ellipsoid.rotation[0])[ok],
+        "center": np.asarray(d.ellipsoid.center[0])[ok],
+        "radii": np.asarray(d.ellipsoid.radii[0])[ok],
+    }
+
+
+@functools.lru_cache(maxsize=4)
+def _detect_fn(model):
+    cfg = model.config
+    return jax.jit(lambda v, img, K: detect(model.apply(v, img, K), K, cfg))

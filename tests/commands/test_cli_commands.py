@@ -22,6 +22,7 @@ HELP = {
     ("roshan",): ["--sequence", "--simulate", "--out", "--optimize-every", "map.json"],
     ("volumon", "train"): ["--workdir", "--variant", "--size", "--steps", "--data", "--set"],
     ("volumon", "predict"): ["--workdir", "--image", "--boxes", "--split", "--num", "--out", "ellipsoids.json"],
+    ("volumon", "detect"): ["--model", "--image", "--K", "--out", "detections.json", "detections.png"],
     ("volumon", "eval"): ["--seed", "--num", "--json", "--workdir", "--data"],
     ("volumon", "export"): ["--workdir", "--step", "--out", "volumon_fast.npz"],
     ("lsd", "data"): ["--out", "--family", "--buildings", "--samples-per-building", "--workers"],

@@ -1,20 +1,11 @@
 """``benchmarks/collect_results.py`` indexes benchmarks/results/ and leaves RESULTS.md alone."""
 
-import importlib.util
 import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
-def _collect():
-    spec = importlib.util.spec_from_file_location("collect_results", ROOT / "benchmarks" / "collect_results.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_index_lists_results_by_method_and_leaves_results_page_alone(tmp_path):
+def test_index_lists_results_by_method_and_leaves_results_page_alone(tmp_path, script):
     results = tmp_path / "results"
     results.mkdir()
     (results / "lsd_speed.md").write_text("## LSD planner speed\n\n| a |\n")
@@ -23,7 +14,7 @@ def test_index_lists_results_by_method_and_leaves_results_page_alone(tmp_path):
     (results / "scaling.md").write_text("no heading\n")
     page = tmp_path / "RESULTS.md"
     page.write_text("hand-written\n")
-    mod = _collect()
+    mod = script("benchmarks/collect_results.py")
     assert mod.main(["--results", str(results)]) == 0
     index = (results / mod.INDEX_NAME).read_text()
     assert "## LSD\n\n- [lsd_speed.json](lsd_speed.json), [lsd_speed.md](lsd_speed.md): LSD planner speed" in index

@@ -9,11 +9,7 @@ SLAM evaluation (:func:`jaxsem.slam.solve_maps`) compiles ROSHAN's solver for mi
 CPU, so it runs in its own subprocess, marked slow.
 """
 
-import json
-import os
 import pathlib
-import subprocess
-import sys
 import textwrap
 
 import pytest
@@ -146,21 +142,9 @@ SLAM = COMMON + textwrap.dedent(
 )
 
 
-def _run_child(code):
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
-    env.setdefault("JAX_PLATFORMS", "cpu")
-    proc = subprocess.run(
-        [sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=900
-    )
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, proc.stderr[-4000:]
-    return json.loads(lines[-1][len("RESULT ") :])
-
-
 @pytest.fixture(scope="module")
-def training():
-    return _run_child(TRAINING)
+def training(four_cpu_child):
+    return four_cpu_child(TRAINING)
 
 
 @pytest.mark.slow
@@ -195,8 +179,8 @@ def test_devices_option_names_a_mesh(training):
 
 
 @pytest.mark.slow
-def test_sharded_batch_slam_equals_vmapped_solve():
-    res = _run_child(SLAM)
+def test_sharded_batch_slam_equals_vmapped_solve(four_cpu_child):
+    res = four_cpu_child(SLAM)
     assert res["slam_shape"] == [4, 2, 3]
     # Tightly converged solves (rtol 1e-10) agree to 1e-3 relative. Bit-equality (1e-9 after 3 steps, until
     # stop 26) depended on XLA compiling shard_map(vmap) and vmap alike: one more traced config

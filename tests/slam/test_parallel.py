@@ -6,10 +6,6 @@ which compares each sharded result with ``jax.vmap`` on the same inputs and repo
 differences as JSON.
 """
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import jax
@@ -122,31 +118,14 @@ CHILD = textwrap.dedent(
 )
 
 
-def _run_child(mode):
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
-    env.setdefault("JAX_PLATFORMS", "cpu")
-    proc = subprocess.run(
-        [sys.executable, "-c", CHILD, mode],
-        check=False,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, proc.stderr[-4000:]
-    return json.loads(lines[-1][len("RESULT ") :])
+@pytest.fixture(scope="module")
+def four_devices(four_cpu_child):
+    return four_cpu_child(CHILD, "fast")
 
 
 @pytest.fixture(scope="module")
-def four_devices():
-    return _run_child("fast")
-
-
-@pytest.fixture(scope="module")
-def four_devices_slow():
-    return _run_child("slow")
+def four_devices_slow(four_cpu_child):
+    return four_cpu_child(CHILD, "slow")
 
 
 @pytest.mark.slow

@@ -5,24 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsem import factors as F, quadrics as Q, slam
-
-K = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]])
-
-
-def _few_views():
-    """Three nearby views of one car (a forward-like, ill-posed setting where the prior matters)."""
-    R = np.asarray(Q.quaternion_to_rotation(jnp.array([np.cos(0.2), 0.0, 0.0, np.sin(0.2)])))
-    c = np.array([15.0, 2.0, 0.8])
-    r = np.array([2.6, 0.95, 0.8])
-    eyes = np.array([[0.0, 0.0, 1.5], [1.0, 0.1, 1.5], [2.0, 0.0, 1.5]])
-    poses = np.asarray(Q.look_at(eyes, eyes + np.array([1.0, 0.0, 0.0])))
-    box, _ = Q.project_bbox(R, c, r, K, poses)
-    depth, _ = Q.texture_plane_depth(R, c, r, poses)
-    problem = slam.make_problem(
-        K, [640, 480], poses, np.asarray(box), [0, 1, 2], [0, 0, 0], ["car"], texture_depth=np.asarray(depth)
-    )
-    return problem, r
+from jaxsem import factors as F, slam
+from jaxsem.slam._toy import few_views as _few_views  # layers: white-box
 
 
 @pytest.mark.slow

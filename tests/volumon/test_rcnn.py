@@ -158,3 +158,46 @@ def test_detector_learns_a_few_frames_to_ap_one(optax_promotion):
     truth = (np.nonzero(tv)[0], batch["boxes"][tv], batch["class_id"][tv])
     ap, _ = metrics.average_precision(dets, truth, 3)
     assert np.nanmean(ap) == pytest.approx(1.0)
+
+
+@pytest.mark.slow
+def test_export_load_and_the_detect_command_on_a_photo_of_another_size(tmp_path):
+    import json
+
+    import cv2
+
+    from jaxsem import cli
+    from jaxsem.volumon.rcnn import RCNNTrainConfig, detect_image, export_rcnn, load_rcnn
+
+    config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
+    _, v = init_rcnn(jax.random.PRNGKey(1), TINY, 1)
+    npz = export_rcnn(tmp_path / "m", v, config, {"steps": 0})
+    loaded = load_rcnn(npz)
+    assert loaded.config == config
+    photo = _frames(1, 3, W=256, H=192)[0]
+    K = np.array([[240.0, 0, 128], [0, 240, 96], [0, 0, 1]])
+    d = detect_image(loaded, photo["rgb"], K)
+    assert d["box"].shape[1:] == (4,) and np.all(d["box"][:, 2] <= 256.0 + 1e-3)  # the photo's pixels
+    assert len(d["class_name"]) == len(d["score"]) and np.all(np.isfinite(d["center"]))
+    cv2.imwrite(str(tmp_path / "photo.png"), photo["rgb"][..., ::-1])
+    status = cli.main(
+        [
+            "volumon",
+            "detect",
+            "--model",
+            str(npz),
+            "--image",
+            str(tmp_path / "photo.png"),
+            "--K",
+            "240,240,128,96",
+            "--out",
+            str(tmp_path / "out"),
+            "--min-score",
+            "0",
+        ]
+    )
+    assert status == 0
+    rows = json.loads((tmp_path / "out" / "detections.json").read_text())["detections"]
+    assert len(rows) == len(d["score"]) and (tmp_path / "out" / "detections.png").is_file()
+    with pytest.raises(ValueError, match="image"):
+        detect_image(loaded, photo["rgb"].astype(np.float32), K)
