@@ -59,7 +59,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
     smp = LSDSampler(model, params, uniform_mix=0.0)
     rows = []
     for b in buildings:
-        graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
+        graph = SoftCostGraph(b.occupancy, b)
         for kind in ("II", "IO"):
             for ti, t in enumerate(sample_tasks(b, kind, tasks_per_set, seed, graph=graph)):
                 tr = Trial(
@@ -99,8 +99,7 @@ def diagnose(model_path, buildings, tasks_per_set, n, seed):
                     for rep in range(3):
                         prm = PRM(
                             known,
-                            b.origin,
-                            b.resolution,
+                            b,
                             capacity=n,
                             k=None,
                             radius=tr.radius,

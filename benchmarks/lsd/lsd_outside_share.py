@@ -47,7 +47,7 @@ def shares_for_building(b, rng, tasks: int, goals: int, every: float, outdoor_pr
 
     from jaxsem.planning import SoftCostGraph
 
-    graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
+    graph = SoftCostGraph(b.occupancy, b)
     d = np.asarray(scipy.ndimage.distance_transform_edt(~b.occupancy)) * b.resolution
     ok = d >= 0.3
     inside, outside = np.argwhere(ok & b.indoor), np.argwhere(ok & ~b.indoor)

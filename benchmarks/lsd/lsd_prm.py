@@ -50,7 +50,7 @@ def _len_cell(mean, sem) -> str:
 
 
 def jaxsem_build(b, n, key, k, radius, sectors=DEFAULT_SECTORS):
-    prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, k=k, radius=radius, sectors=sectors)
+    prm = planning.PRM(b.occupancy, b, capacity=n, k=k, radius=radius, sectors=sectors)
     prm.grow(key, n)
     jax.block_until_ready(prm.roadmap)
     return prm
@@ -138,9 +138,7 @@ def main(argv=None) -> int:
                                 "query_s": t_oq,
                                 # does OMPL's path (half-cell point checks) pass jaxsem's edge
                                 # rule (no occupied cell touched, diagonal side cells included)?
-                                "passes_jaxsem_rule": bool(
-                                    o_found and polyline_clear(o_path, b.occupancy, b.origin, b.resolution, radius)
-                                ),
+                                "passes_jaxsem_rule": bool(o_found and polyline_clear(o_path, b.occupancy, b, radius)),
                             },
                             "jaxsem": {
                                 "found": bool(p.found),

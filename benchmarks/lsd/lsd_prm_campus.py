@@ -170,7 +170,7 @@ def main(argv=None) -> int:
             if fresh:
                 planning.clear_map_cache()
             t0 = time.perf_counter()
-            prm = planning.PRM(b.occupancy, b.origin, b.resolution, capacity=n, **kw[c])
+            prm = planning.PRM(b.occupancy, b, capacity=n, **kw[c])
             prm.grow(jax.random.PRNGKey(seed), n)
             p0 = prm.query(tasks[0][0], tasks[0][1])
             return time.perf_counter() - t0, prm, p0

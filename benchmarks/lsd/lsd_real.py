@@ -374,7 +374,7 @@ def _run(args, argv) -> int:
             "load_seconds": time.perf_counter() - t0,
         }
         print(f"map: {fact}")
-        graph = SoftCostGraph(b.occupancy, b.origin, b.resolution)
+        graph = SoftCostGraph(b.occupancy, b)
         for kind in args.sets:
             tasks[(i, kind)] = run_tasks(args, b, kind, graph)
             fact[f"tasks_{kind}"] = len(tasks[(i, kind)])

@@ -103,7 +103,7 @@ def _floors(buildings: list, records: list) -> list:
         i = 0 if r["building"] < 0 else int(r["building"])
         b = buildings[i]
         if i not in graphs:
-            graphs[i] = SoftCostGraph(b.occupancy, b.origin, b.resolution, weight=0.0, connectivity=16)
+            graphs[i] = SoftCostGraph(b.occupancy, b, weight=0.0, connectivity=16)
         tree = graphs[i].search(np.asarray(r["start"]), limit=4.0 * float(r["c_star"]) + 5.0)
         out.append(tree.path_to(np.asarray(r["goal"])).length)
     return out

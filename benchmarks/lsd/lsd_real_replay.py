@@ -179,7 +179,7 @@ def _run(args, run, rec, argv) -> int:
     a = lsd_real.run_args(run["command"])
     i = 0 if rec["building"] < 0 else int(rec["building"])
     b = load_run_maps(run, args.data, "lsd_real_replay")[i]
-    tasks = lsd_real.run_tasks(a, b, args.set, SoftCostGraph(b.occupancy, b.origin, b.resolution))
+    tasks = lsd_real.run_tasks(a, b, args.set, SoftCostGraph(b.occupancy, b))
     task = tasks[args.trial]
     if not (np.allclose(task.start, rec["start"], atol=1e-4) and np.allclose(task.goal, rec["goal"], atol=1e-4)):
         raise ValueError(f"--json: task {args.trial} redrawn at {task.start.tolist()} -> {task.goal.tolist()}, "

@@ -43,9 +43,7 @@ RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
 
 def ours_prm(b, task, n, seed, k):
-    rm = planning.build_roadmap(
-        jax.random.PRNGKey(seed), b.occupancy, task.start, task.goal, n, b.origin, b.resolution, k=k
-    )
+    rm = planning.build_roadmap(jax.random.PRNGKey(seed), b.occupancy, task.start, task.goal, n, b, k=k)
     jax.block_until_ready(rm)
     return rm
 
@@ -154,10 +152,8 @@ def main(argv=None):
     st = planning.empty_map_state(b.shape)
     occ, sem = jnp.asarray(b.occupancy), jnp.asarray(b.semantic)
     pose = jnp.asarray([b.entrance[0], b.entrance[1], np.pi])
-    planning.sense(occ, sem, st, pose, b.origin, b.resolution)
-    t_sense, _ = _harness.timed(
-        lambda: planning.sense(occ, sem, st, pose, b.origin, b.resolution), repeats=200, warmup=False
-    )
+    planning.sense(occ, sem, st, pose, b)
+    t_sense, _ = _harness.timed(lambda: planning.sense(occ, sem, st, pose, b), repeats=200, warmup=False)
     rows.append(("sense one pose (depth + objects)", t_sense, None))
 
     # Expert data throughput (one process; the script runs two workers over buildings).

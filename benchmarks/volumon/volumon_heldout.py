@@ -71,13 +71,7 @@ def main(argv=None) -> int:
     if a.data is not None:
         from jaxsem.volumon.data import volumon_eval_batch
 
-        batch = volumon_eval_batch(
-            a.data,
-            input_size=cfg.model.input_size,
-            global_padding=cfg.model.global_padding,
-            num_points=cfg.scene.num_points,
-            num=a.num,
-        )
+        batch = volumon_eval_batch(a.data, num=a.num, **cfg.data_sizes())
         a.seeds = [str(a.data)]
         per_seed = {
             a.seeds[0]: evaluate_held_out(
@@ -207,12 +201,7 @@ def draw_examples(data, path, model, variables, cfg, meta, frames: int = 6) -> N
 
     scene = find_scenes(data)[0]
     seq = FatSequence(scene)
-    batch = volumon_eval_batch(
-        scene,
-        input_size=cfg.model.input_size,
-        global_padding=cfg.model.global_padding,
-        num_points=cfg.scene.num_points,
-    )
+    batch = volumon_eval_batch(scene, **cfg.data_sizes())
     _, ell, _ = make_predict_fn(model, cfg)(
         variables, batch["local"], batch["global"], batch["box_input"], batch["K"], batch["class_id"]
     )

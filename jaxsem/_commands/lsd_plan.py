@@ -43,6 +43,8 @@ CONFIG_FLAGS = (
 def _load_map(path):
     import numpy as np
 
+    from jaxsem import quadrics as Q
+
     if not pathlib.Path(path).exists():
         raise SystemExit(f"--map: no such file {path!r}")
     try:
@@ -54,12 +56,14 @@ def _load_map(path):
             if k not in z:
                 raise SystemExit(f"--map: {path} lacks key {k!r} (needs occupancy, semantic, origin, resolution)")
         occ = z["occupancy"].astype(bool)
+        origin, resolution = np.asarray(z["origin"], np.float64), float(z["resolution"])
         return types.SimpleNamespace(
+            grid=Q.Grid.host(origin, resolution, occ.shape),
             occupancy=occ,
             semantic=z["semantic"].astype(np.int8),
             indoor=z["indoor"].astype(bool) if "indoor" in z else np.ones_like(occ),
-            origin=np.asarray(z["origin"], np.float64),
-            resolution=float(z["resolution"]),
+            origin=origin,
+            resolution=resolution,
             seed=0,
         )
 
@@ -277,8 +281,7 @@ def _run(args) -> int:
                 res.path[-1],
                 goal,
                 trial.goal_outdoors,
-                world.origin,
-                world.resolution,
+                world,
             )
     out = pathlib.Path(args.out)
     plot_navigation(

@@ -88,13 +88,14 @@ def main(argv=None, prog: str | None = None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     fig, ax = plt.subplots(figsize=(image.shape[1] / 100, image.shape[0] / 100), dpi=100)
     ax.imshow(image)
     eye = np.eye(4)
     for r in rows:
         u0, v0, u1, v1 = r["box"]
-        ax.add_patch(plt.Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color="lime", lw=1.5))
+        ax.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, color="lime", lw=1.5))
         conic = Q.project_dual_conic(
             Q.dual_quadric(np.array(r["rotation"]), np.array(r["center"]), np.array(r["radii"]), xp=np), K, eye, xp=np
         )

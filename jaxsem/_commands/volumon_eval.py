@@ -283,13 +283,7 @@ def main(argv=None, prog: str | None = None) -> int:
             if args.data is not None:
                 from ..volumon.data import volumon_eval_batch
 
-                batch = volumon_eval_batch(
-                    args.data,
-                    input_size=config.model.input_size,
-                    global_padding=config.model.global_padding,
-                    num_points=config.scene.num_points,
-                    num=args.num,
-                )
+                batch = volumon_eval_batch(args.data, num=args.num, **config.data_sizes())
             result = evaluate_held_out(
                 model, variables, config, args.seed, args.num, postopt_steps=args.postopt, batch=batch
             )

@@ -157,12 +157,8 @@ def main(argv=None, prog: str | None = None) -> int:
             volumon_eval_batch,
         )
 
-        sizes: dict[str, Any] = dict(
-            input_size=cfg.model.input_size,
-            global_padding=cfg.model.global_padding,
-            num_points=cfg.scene.num_points,
-            class_names=cfg.class_names or None,  # e.g. the door preset's ("door",)
-        )
+        # class_names: e.g. the door preset's ("door",)
+        sizes: dict[str, Any] = dict(cfg.data_sizes(), class_names=cfg.class_names or None)
         try:
             if is_desk_detections(a.data):  # rendered desk detections (python -m jaxsem.volumon.data.make_lmo_renders)
                 batch_fn, n = desk_batch_source(a.data, batch_size=cfg.batch_size, seed=cfg.seed)

@@ -95,8 +95,7 @@ def run(out_dir: pathlib.Path, quick: bool) -> str:
         xy,
         task.goal,
         task.goal_outdoors,
-        building.origin,
-        building.resolution,
+        building,
     )
     fig = out_dir / "lsd_demo.png"
     plot_navigation(

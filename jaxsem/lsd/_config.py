@@ -153,14 +153,8 @@ def _pair(c: TrainConfig) -> TrainConfig:
     """A 2,000 + 1,000-step run of the shipped network (``scale`` with resize upsampling) from a
     fresh initialisation, for paired comparisons on the same data: the full-map oracle against the
     partial-map network (``benchmarks/lsd/lsd_oracle.py``); about 20 minutes on one CPU core."""
-    base = _scale(c)
     return dataclasses.replace(
-        base,
-        model=dataclasses.replace(base.model, upsample="resize"),
-        stage1_steps=2000,
-        stage2_steps=1000,
-        eval_every=500,
-        checkpoint_every=500,
+        _scale_resize(c), stage1_steps=2000, stage2_steps=1000, eval_every=500, checkpoint_every=500
     )
 
 

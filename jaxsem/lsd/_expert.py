@@ -132,7 +132,7 @@ def generate_expert_samples(
     """
     rng = np.random.default_rng([int(seed), building.seed, 0xE4])
     key = jax.random.PRNGKey(int(rng.integers(2**31)))
-    graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
+    graph = SoftCostGraph(building.occupancy, building)
     inside, outside = task_pools(building, config.clearance)
     out = {k: [] for k in _SHARD_ARRAYS}
     n = 0
@@ -164,8 +164,7 @@ def generate_expert_samples(
                         trial.xy,
                         g,
                         out_goal,
-                        building.origin,
-                        building.resolution,
+                        building,
                         CROP_SIZE,
                         config.nav.max_context_distance,
                     )
@@ -240,8 +239,8 @@ def with_full_map(shard: dict, building: Building | None = None) -> dict:
     state = full_map_state(building)
     xy = jnp.asarray(np.asarray(shard["robot_xy"], np.float64).reshape(-1, 2))
     size = int(np.asarray(shard["occupancy"]).shape[-1])
-    origin = np.asarray(building.origin, np.float64)
-    crops = jax.vmap(lambda p: local_inputs(state, p, p, False, origin, float(building.resolution), size, 20.0))(xy)
+    grid = building.grid
+    crops = jax.vmap(lambda p: local_inputs(state, p, p, False, grid, size, 20.0))(xy)
     out = {k: np.asarray(v) for k, v in shard.items()}
     out["occupancy"] = np.asarray(crops.occupancy, np.int8).reshape(np.shape(shard["occupancy"]))
     out["semantic"] = np.asarray(crops.semantic, np.int8).reshape(np.shape(shard["semantic"]))

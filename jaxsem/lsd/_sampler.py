@@ -13,6 +13,7 @@ by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
 from __future__ import annotations
 
 import copy
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +21,9 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..models import LSDNet, lsd_distribution
+
+if TYPE_CHECKING:
+    from ..planning._grid import GridLike
 
 
 class LSDSampler:
@@ -62,18 +66,16 @@ class LSDSampler:
 
 
 def full_map_distribution(
-    sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, origin, resolution: float, max_distance: float = 20.0
+    sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, grid: GridLike, max_distance: float = 20.0
 ) -> np.ndarray:
     """The planner's full-map distribution (H, W) (sums to 1) at robot position ``xy``.
 
     state: :class:`jaxsem.planning.MapState`; xy, goal: (2,) world (x, y); goal_outdoors: the
-    context flag. Crops and context exactly as in the online loop.
+    context flag; grid: the state's :class:`jaxsem.quadrics.Grid` (or a map holding one). Crops and context exactly as in the online loop.
     """
     from ..planning import embed_local_distribution, local_inputs
 
-    inputs = local_inputs(
-        state, xy, goal, goal_outdoors, origin, resolution, sampler.model.config.map_size, max_distance
-    )
+    inputs = local_inputs(state, xy, goal, goal_outdoors, grid, sampler.model.config.map_size, max_distance)
     local = sampler(inputs)
     return np.asarray(embed_local_distribution(local, inputs.center_cell, state.occupancy.shape))
 
@@ -95,12 +97,13 @@ def full_map_sampler(sampler, world, max_distance: float = 20.0):
     state = full_map_state(world)
     origin = np.asarray(world.origin, np.float64)
     res = float(world.resolution)
+    grid = Q.Grid.host(origin, res, state.occupancy.shape)
 
     def fn(inputs):
         centre = np.asarray(inputs.center_cell, np.float64)
         xy = Q.cell_to_world(centre, origin, res, xp=np)  # the centre cell's middle, world (x, y)
         size = int(np.shape(inputs.occupancy)[-1])
-        true = local_inputs(state, xy, xy, False, origin, res, size, max_distance)
+        true = local_inputs(state, xy, xy, False, grid, size, max_distance)
         return sampler(inputs._replace(occupancy=true.occupancy, semantic=true.semantic))
 
     return fn

@@ -15,6 +15,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
+from ..planning import DOOR, EXIT_SIGN, WINDOW
 from ._store import Ellipsoids, ObjectMap, init, update
 
 __all__ = [
@@ -61,10 +62,7 @@ class BuildingObjects:
 def building_objects(building, heights: ObjectHeights = ObjectHeights()) -> BuildingObjects:
     """Doors, windows and exit signs of ``building`` (a :class:`jaxsem.planning.Building` or any
     object with ``semantic`` (H, W), ``origin`` (2,) and ``resolution``) as boxes."""
-    from scipy import ndimage  # deferred: scipy.ndimage is slow to import (~0.2 s)
-
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..planning import DOOR, EXIT_SIGN, WINDOW
+    from scipy import ndimage  # deferred: scipy.ndimage is slow to import and only this function needs it
 
     sem = np.asarray(building.semantic)
     if sem.ndim != 2:

@@ -38,6 +38,7 @@ import numpy as np
 from .. import quadrics
 from .._checks import require_type
 from ..data import RENDER_OUTPUTS, MujocoScene
+from ..planning import DOOR, EXIT_SIGN, WALL, WINDOW
 from ..quadrics import Camera
 from ._building import ObjectHeights, box_ellipsoids, building_objects
 
@@ -100,8 +101,6 @@ def building_mjcf(building, heights=None, *, width: int = 640, height: int = 480
       object index (-1 for walls) and to semantic class id; the
       :class:`jaxsem.mapping.BuildingObjects` whose order the object indices follow.
     """
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..planning import DOOR, EXIT_SIGN, WALL, WINDOW
 
     heights = heights or ObjectHeights()
     sem = np.asarray(building.semantic)
@@ -240,8 +239,6 @@ def detect_from_segmentation(seg, object_class, classes=None, *, min_area: int =
     labelled pixels; border: drop boxes closer than this many pixels to the image edge (the
     thesis dropped boxes under 2000 px^2 or within 50 px of the border, section 5.8.1).
     """
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..planning import DOOR, EXIT_SIGN
 
     seg = np.asarray(seg)
     if seg.ndim != 2:
@@ -301,8 +298,6 @@ def ellipsoids_from_depth(
     Returns ``(ellipsoids, object_index)``: :class:`jaxsem.mapping.Ellipsoids` and the (D,)
     object index of each estimate.
     """
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..planning import DOOR, EXIT_SIGN
 
     K, camera_T_world = require_type("camera", camera, Camera)
     seg, depth = np.asarray(seg), np.asarray(depth, np.float64)

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import classes as _classes, metrics
+from .. import classes as _classes, metrics, slam
 from ._store import Ellipsoids, ObjectMap, associate
 
 __all__ = [
@@ -90,7 +90,6 @@ def roshan_init(K, image_size, capacity, config=None, *, optimize_every: int = 2
     :func:`roshan_priors`; optimize_every, iterations, window: as ``online_init`` (the poses are
     known, so a short pose window suffices). Returns a :class:`jaxsem.slam._online.OnlineState`.
     """
-    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     mean, sigma = roshan_priors()
     config = (config or slam.SolverConfig()).replace(shape_prior_mean=mean, shape_prior_sigma=sigma)
@@ -107,7 +106,6 @@ def roshan_frame(camera_T_world, box, semantic_class, object_id, texture_depth=N
     object index); texture_depth: optional (N,) metres of the object's near surface (NaN: none);
     max_detections: the smoother's ``Capacity.max_detections`` (extra detections: ValueError).
     """
-    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     box = np.asarray(box, np.float64).reshape(-1, 4)
     frame = slam.make_frame(
@@ -135,7 +133,6 @@ def roshan_objects(state) -> Ellipsoids:
     """The smoother's current ellipsoids (:class:`jaxsem.slam._online.OnlineState`) as
     :class:`Ellipsoids` with planning semantic ids; slot ``j`` is association id ``j``.
     Objects not yet seen, or with a non-finite estimate, are invalid."""
-    from .. import slam  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.slam (~0.3 s)
 
     est, pb = slam.online_estimate(state), slam.online_problem(state)
     rot, ctr, rad = (np.asarray(a) for a in (est.rotation, est.center, est.radii))

@@ -53,6 +53,9 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..data import fat_writer
+from ..planning import DOOR, generate_building
+from ..volumon import train_and_evaluate
+from ..volumon.data import ObjectClass, object_box, volumon_batch_source, volumon_eval_batch
 from ._building import building_objects
 from ._building_scene import BuildingRenderer, robot_camera, robot_intrinsics
 
@@ -75,8 +78,6 @@ _CLASS = "door"
 
 def door_building(split: str, index: int, seed: int = 0):
     """The building of scene ``index`` of ``split`` (the same one :func:`write_door_dataset` renders)."""
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..planning import generate_building
 
     fat_writer.check_split(split, _SPLITS)
     family, offset = _SPLITS[split]
@@ -91,7 +92,7 @@ class _Clearance:
     """Distance (m) from each free cell to the nearest occupied cell of a building."""
 
     def __init__(self, building):
-        from scipy import ndimage  # deferred: scipy.ndimage is slow to import (~0.2 s)
+        from scipy import ndimage  # deferred: scipy.ndimage is slow to import and only this function needs it
 
         self.res = float(building.resolution)
         self.origin = np.asarray(building.origin, np.float64).reshape(2)
@@ -165,7 +166,6 @@ def write_door_dataset(
     Returns:
       The scene directories written (``pathlib.Path``).
     """
-    from ..planning import DOOR  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
 
     fat_writer.check_split(split, _SPLITS)
     num_scenes, frames_per_scene = fat_writer.check_scenes(num_scenes, frames_per_scene)
@@ -182,7 +182,7 @@ def write_door_dataset(
         raise ValueError(f"max_view_angle: expected 0 to 90 degrees, got {max_view_angle}")
     fat_writer.check_formats(image_format, bbox_order)
 
-    from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import
+    from tqdm.auto import tqdm  # deferred: tqdm.auto is slow to import and only the writer needs it
 
     K = robot_intrinsics(width, height_px)
     T_rl = np.asarray(Q.stereo_right_T_left(float(baseline)), np.float64)
@@ -256,8 +256,6 @@ def _robot_camera(xy, yaw, height, pitch):
 def _write_scene(
     scene_dir, rng, building, objects, doors, renderer, K, T_rl, frames, st, image_format, bbox_order, bar
 ):  # fmt: skip
-    from ..planning import DOOR  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.planning (~0.6 s)
-    from ..volumon.data import ObjectClass, object_box
 
     width, height = renderer.width, renderer.height
     seg_id = fat_writer.segmentation_id(_CLASS)
@@ -351,8 +349,6 @@ def _sizes(config) -> dict[str, Any]:
 def door_eval_batch(path, config, num: int | None = None) -> dict:
     """Every door of the directory ``path`` once (the first ``num``), as one batch sized for the
     VoluMon ``config`` (:func:`jaxsem.volumon.data.volumon_eval_batch` with the writer's baseline)."""
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.volumon (~0.7 s)
-    from ..volumon.data import volumon_eval_batch
 
     return volumon_eval_batch(
         path, num=num, loader_options={"baseline": door_data_baseline(path)}, **_sizes(config)
@@ -376,9 +372,6 @@ def train_door_model(
     ``stop_after``: steps of this call (a chunk; re-running with the same ``workdir`` resumes).
     Returns :func:`jaxsem.volumon.train_and_evaluate` 's dict.
     """
-    # deferred: keeps `import jaxsem.mapping` from loading jaxsem.volumon (~0.7 s)
-    from ..volumon import train_and_evaluate
-    from ..volumon.data import volumon_batch_source
 
     data = pathlib.Path(data).resolve()
     config = config.replace(data="directory", data_dir=str(data))

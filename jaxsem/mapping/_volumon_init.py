@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import quadrics
+from .. import quadrics, volumon
 from .._checks import require_type
 from ..quadrics import Camera, Ellipsoid
 
@@ -77,7 +77,6 @@ def volumon_initial_ellipsoids(model, variables, config, image, boxes, class_id,
     Compiles once per number of boxes (the network and the transform are jitted). Raises
     ``ValueError`` naming the argument on bad shapes or non-finite values.
     """
-    from .. import volumon  # deferred: keeps `import jaxsem.mapping` from loading jaxsem.volumon (~0.7 s)
 
     K, camera_T_world = require_type("camera", camera, Camera)
     boxes_np = np.asarray(boxes, np.float64)

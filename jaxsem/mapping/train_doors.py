@@ -42,7 +42,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--eval-data", type=sc.existing_dir, default=None, help="doors the periodic evaluation scores")
     p.add_argument("--variant", choices=("dual", "oracle"), default="dual", help="Dual-Only (thesis) or oracle")
     p.add_argument("--stop-after", type=sc.positive_int, default=None, help="steps of this call (a chunk)")
-    from ..volumon import TrainConfig  # deferred: jaxsem.volumon is heavy (~0.7 s); keeps this script's --help fast
+    from ..volumon import TrainConfig  # deferred: jaxsem.volumon is heavy; keeps this script's --help fast
 
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
@@ -64,7 +64,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     p = build_parser("python -m jaxsem.mapping.train_doors")
     a = p.parse_args(argv)
-    # deferred: jaxsem.volumon is heavy (~0.7 s); keeps this script's --help fast
+    # deferred: jaxsem.volumon is heavy; keeps this script's --help fast
     from ..volumon import PRETRAINED_DIR, evaluate_doors, export_pretrained, get_config, load_pretrained
 
     if a.score is not None or a.export:

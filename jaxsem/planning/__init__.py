@@ -3,7 +3,9 @@ the online navigation loop and the test tasks (thesis chapter 3). LSD's expert d
 live in :mod:`jaxsem.lsd`.
 
 Conventions: grids are ``[row, col] = [y, x]`` with an explicit ``origin`` (world x, y of the
-corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default); world z is up.
+corner of cell [0, 0]) and ``resolution`` (metres per cell, 0.1 by default), bundled as a
+:class:`jaxsem.quadrics.Grid` that every function here takes as ``grid`` (or a map holding one:
+``building.grid``, so ``PRM(building.occupancy, building, capacity=500)``); world z is up.
 
 What a user calls, by job:
 

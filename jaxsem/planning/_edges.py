@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as Q
-from ._grid import _grid, host_grid
+from ._grid import GridLike, _grid, host_grid
 
 
 def _edge_samples(radius: float, resolution: float) -> int:
@@ -277,7 +277,7 @@ def _segments_clear(blocked, a, b, grid, *, edge_samples):
     return jnp.all(clear)
 
 
-def polyline_clear(points, blocked, grid: Q.Grid, radius: float, dtype=None) -> bool:
+def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
     check on the bool grid ``blocked``: the same samples as the PRM used for an edge of that
     length (segments up to ``radius``: the roadmap's; longer ones, a query's start or goal

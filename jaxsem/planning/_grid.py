@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import pathlib
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol, TypeAlias
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 
 from .. import quadrics as Q
 
@@ -69,13 +70,32 @@ def cell_to_world(rc, origin, resolution):
 
 
 def _grid(grid: Q.Grid, dtype) -> Q.Grid:
-    """A host grid (:func:`host_grid`) for a jitted step (the PRM's, the sensors'): its origin and
-    resolution as jax leaves of the points' ``dtype`` (traced there; the sizes the resolution
-    sets are the step's static arguments, computed on the host from the grid)."""
+    """``grid`` with jax leaves of the points' ``dtype``: inside a jitted step (the PRM's, the
+    sensors') a :func:`static_grid`'s values become constants, as the Python floats they are."""
     return Q.Grid(jnp.asarray(grid.origin, dtype), jnp.asarray(grid.resolution, dtype), grid.shape)
 
 
-def host_grid(name: str, grid, shape=None) -> Q.Grid:
+def static_grid(grid: Q.Grid) -> Q.Grid:
+    """A host grid (:func:`host_grid`) as a static argument of a jitted step: Python-float leaves,
+    so the grid hashes and its resolution stays a compile-time constant (it sets the step's
+    array sizes, and the cell arithmetic is then the same as with the float it is)."""
+    o = np.asarray(grid.origin, np.float64)
+    return Q.Grid((float(o[0]), float(o[1])), float(grid.resolution), grid.shape)  # pyright: ignore[reportArgumentType]
+
+
+class HasGrid(Protocol):
+    """A map that holds its :class:`jaxsem.quadrics.Grid` (:class:`~jaxsem.planning.Building`,
+    :class:`~jaxsem.planning.OccupancyGrid`, any ``GridMap``)."""
+
+    @property
+    def grid(self) -> Q.Grid: ...
+
+
+#: What the planner's ``grid`` arguments take: a grid, or a map that holds one.
+GridLike: TypeAlias = "Q.Grid | HasGrid"
+
+
+def host_grid(name: str, grid: GridLike, shape=None) -> Q.Grid:
     """The Python-boundary check of a grid argument: ``grid`` a :class:`jaxsem.quadrics.Grid` or
     a map that holds one (``.grid``: :class:`~jaxsem.planning.Building`,
     :class:`~jaxsem.planning.OccupancyGrid`), returned with float64 numpy leaves (its resolution
@@ -87,7 +107,7 @@ def host_grid(name: str, grid, shape=None) -> Q.Grid:
             f"{name}: expected a jaxsem.quadrics.Grid (or a map with .grid: Building, OccupancyGrid), got "
             f"{type(grid).__name__}; build one as quadrics.Grid.host(origin, resolution, shape)"
         )
-    if isinstance(g.origin, jax.core.Tracer) or isinstance(g.resolution, jax.core.Tracer):
+    if isinstance(g.origin, Tracer) or isinstance(g.resolution, Tracer):
         raise ValueError(f"{name}: expected a concrete grid at the Python boundary, got traced leaves")
     origin, resolution = np.asarray(g.origin, np.float64), np.asarray(g.resolution, np.float64)
     if origin.shape != (2,) or not np.all(np.isfinite(origin)):

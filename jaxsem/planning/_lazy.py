@@ -33,6 +33,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from ._edges import _edges, _edges_dense, _extent, _grid
+from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath
@@ -58,13 +59,14 @@ def _grid_jit(points, valid, origin, *, radius, extent):
     return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
 
 
-@functools.partial(jax.jit, static_argnames=("k", "radius", "extent", "cap", "sectors", "keep"))
+@functools.partial(jax.jit, static_argnames=("grid", "k", "radius", "extent", "cap", "sectors", "keep"))
 def _knn_some_jit(points, valid, rows, order, sorted_bid, distribution, grid, *, k, radius, extent, cap, sectors, keep):
     """The eager grow's neighbour search (:func:`_knn_rows`, ranked) for the vertices ``rows``
     alone (``order``, ``sorted_bid``: :func:`_grid_jit`, unused when ``cap`` is None: brute
     force): their rows as a search of every new vertex gives them."""
     M = points.shape[0]
     db_ok = valid & (jnp.arange(M) >= _QUERY)
+    grid = _grid(grid, points.dtype)
     db = points - grid.origin
     density = _density(points, distribution, grid, sectors)
     grid = None if cap is None else (*_grid_dims(radius, extent), order, sorted_bid)
@@ -85,13 +87,13 @@ def _grow_lazy(
     Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
-    grid_j = _grid(grid, roadmap.points.dtype)
+    origin_j = jnp.asarray(grid.origin, roadmap.points.dtype)
     rm, ok_new = _sample_lazy_jit(
         roadmap,
         key,
         blocked,
         dist,
-        grid_j,
+        static_grid(grid),
         n=n,
         uniform_samples=uniform_samples,
         aids=aids,
@@ -101,11 +103,11 @@ def _grow_lazy(
     rows = np.arange(s0, s0 + n)
     extent = _extent(grid)
     keep = 2 * k if sectors else k
-    cand, need, cap = _candidates_host(pts - np.asarray(grid_j.origin), db_ok, rows, k, radius, extent, keep, cap)
+    cand, need, cap = _candidates_host(pts - np.asarray(origin_j), db_ok, rows, k, radius, extent, keep, cap)
     if need.any():
         some = rows[need].astype(np.int32)
         padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
-        order, sorted_bid = _grid_jit(rm.points, rm.valid, grid_j.origin, radius=radius, extent=extent)
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin_j, radius=radius, extent=extent)
         while True:
             use = cap if 3 * cap < M else None
             parts = [
@@ -116,7 +118,7 @@ def _grow_lazy(
                     order,
                     sorted_bid,
                     dist,
-                    grid_j,
+                    static_grid(grid),
                     k=k,
                     radius=radius,
                     extent=extent,
@@ -134,8 +136,9 @@ def _grow_lazy(
     return (rm, cand), cap
 
 
-@functools.partial(jax.jit, static_argnames=("edge_samples", "dense"))
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples", "dense"))
 def _pairs_clear(blocked, a, b, mask, grid, table, *, edge_samples, dense=False):
+    grid = _grid(grid, a.dtype)
     """The edge rule on segments a -> b (E, 2). ``dense``: every sample read (a few hundred
     edges: one fused pass, ~3x cheaper per call than the clearance-table path's work lists);
     otherwise the clearance-table path (many edges). The same answers (:func:`_edges_clear`)."""
@@ -440,7 +443,7 @@ class _LazyEdges:
 
 def _checker(blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK):
     """``check(rows, slots) -> clear`` (numpy bool) for the edges from ``points[rows]`` to
-    their candidates on ``grid`` (the points' dtype, :func:`~jaxsem.planning._grid._grid`),
+    their candidates on ``grid`` (a :func:`~jaxsem.planning._grid.static_grid`),
     ``chunk`` edges per call of the jitted rule (one compiled shape)."""
     pts = np.asarray(points)
     dtype = pts.dtype

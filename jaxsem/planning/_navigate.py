@@ -58,12 +58,14 @@ from ._grid import (
     NONE,
     OCCUPIED,
     UNKNOWN,
+    GridLike,
     MapState,
     _grid,
     check_grid,
     check_point,
     empty_map_state,
     host_grid,
+    static_grid,
 )
 from ._prm import PRM
 from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
@@ -92,8 +94,9 @@ class LocalInputs(NamedTuple):
     center_cell: jax.Array
 
 
-@functools.partial(jax.jit, static_argnames=("size", "max_distance"))
+@functools.partial(jax.jit, static_argnames=("grid", "size", "max_distance"))
 def _local_inputs(occupancy, semantic, xy, goal, goal_outdoors, grid, size, max_distance):
+    grid = _grid(grid, xy.dtype)
     rc = Q.world_to_cell(xy, grid.origin, grid.resolution)
     pad = size
     occ = jnp.pad(occupancy, pad, constant_values=OCCUPIED)
@@ -147,7 +150,7 @@ def local_inputs(
     xy,
     goal,
     goal_outdoors,
-    grid: Q.Grid,
+    grid: GridLike,
     size: int = CROP_SIZE,
     max_distance: float = 20.0,
 ) -> LocalInputs:
@@ -166,7 +169,7 @@ def local_inputs(
         jnp.asarray(xy, dtype),
         jnp.asarray(goal, dtype),
         jnp.asarray(goal_outdoors, bool),
-        _grid(grid, dtype),
+        static_grid(grid),
         int(size),
         float(max_distance),
     )
@@ -300,7 +303,7 @@ class Trial:
         self.weight = weight
         self._occ_j = jnp.asarray(occ)
         self._sem_j = jnp.asarray(sem, jnp.int8)
-        self._grid_j = _grid(self.grid, jnp.result_type(float))
+        self._grid_s = static_grid(self.grid)
         self._sense_sizes = _sense_sizes(self.grid, config.sensor)
         self.key = key
         self.xy = self.start.copy()
@@ -344,13 +347,13 @@ class Trial:
         return r
 
     def _sense(self):
-        pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], self._grid_j.origin.dtype)
+        pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], jnp.result_type(float))
         self.state = _sense_jit(
             self._occ_j,
             self._sem_j,
             self.state,
             pose,
-            self._grid_j,
+            self._grid_s,
             self.config.sensor,
             **self._sense_sizes,
         )
@@ -365,7 +368,13 @@ class Trial:
             self.xy,
             self.goal,
             self.goal_outdoors,
-            self.grid if s == 1 else Q.Grid(self.origin, np.asarray(self.resolution * s), state.occupancy.shape),
+            self.grid
+            if s == 1
+            else Q.Grid(
+                self.origin,
+                np.asarray(self.resolution * s),
+                (int(state.occupancy.shape[0]), int(state.occupancy.shape[1])),
+            ),
             CROP_SIZE,
             self.config.max_context_distance,
         )

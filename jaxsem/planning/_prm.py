@@ -7,9 +7,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .. import quadrics as Q
 from ._edges import _edge_samples
-from ._grid import UNKNOWN, _grid, host_grid
+from ._grid import UNKNOWN, GridLike, host_grid, static_grid
 from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
@@ -63,7 +62,7 @@ class PRM:
     def __init__(
         self,
         known_map,
-        grid: Q.Grid,
+        grid: GridLike,
         *,
         capacity: int,
         k: int | None = None,
@@ -133,7 +132,7 @@ class PRM:
     @property
     def origin(self) -> np.ndarray:
         """(2,) float64 world (x, y) of cell [0, 0]'s corner (:attr:`grid`'s)."""
-        return self.grid.origin
+        return np.asarray(self.grid.origin, np.float64)
 
     @property
     def resolution(self) -> float:
@@ -220,7 +219,7 @@ class PRM:
         self.roadmap = _recheck_jit(
             self.roadmap,
             self._blocked_j,
-            _grid(self.grid, dtype),
+            static_grid(self.grid),
             dist,
             self._factor,
             edge_samples=_edge_samples(self.radius, self.resolution),
@@ -255,14 +254,13 @@ class PRM:
 
     def _check_fn(self, chunk: int | None = None):
         assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand
-        dtype = self.roadmap.points.dtype
         kw = {} if chunk is None else {"chunk": chunk}
         # A query's calls read every sample (no table); many edges at once read the table.
         return _checker(
             self._blocked_j,
             np.asarray(self.roadmap.points),
             self._lazy.cand,
-            _grid(self.grid, dtype),
+            static_grid(self.grid),
             None if chunk is None or chunk <= _CHUNK else self._setup.table(),
             _edge_samples(self.radius, self.resolution),
             **kw,

@@ -72,7 +72,7 @@ from jax.core import Tracer
 
 from .. import quadrics as Q
 from ._edges import _cells, _edge_samples, _edges, _extent, _grid, _subset, query_reach
-from ._grid import OCCUPIED, check_point, host_grid
+from ._grid import OCCUPIED, GridLike, check_point, host_grid, static_grid
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _select
 from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_points
@@ -176,6 +176,7 @@ def _sample_into(rm, key, blocked, distribution, grid, *, n, uniform_samples, ai
     leaves of the points' dtype). Returns (points, valid, new points, their valid flags, first
     slot)."""
     dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
     uniform = distribution is None or uniform_samples
     if aids is not None and uniform and aids.free_words is not None:
@@ -231,11 +232,12 @@ def _grow_impl(
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
-    none), then their links checked. ``grid``: the map's (leaves of the points' dtype);
+    none), then their links checked. ``grid``: the map's (:func:`static_grid` under jit);
     ``edge_samples`` (:func:`_edge_samples` of the radius) and ``extent`` (:func:`_extent`): the
     sizes its resolution sets, static. Returns the grown roadmap."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
     z = jnp.zeros((), jnp.int32)
     points, valid, new, ok_new, s0 = _sample_into(
         rm,
@@ -307,7 +309,8 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 
 
 _grow_jit = functools.partial(
-    jax.jit, static_argnames=("n", "radius", "edge_samples", "extent", "cap", "neglogp", "sectors", "uniform_samples")
+    jax.jit,
+    static_argnames=("grid", "n", "radius", "edge_samples", "extent", "cap", "neglogp", "sectors", "uniform_samples"),
 )(_grow_impl)
 
 
@@ -327,7 +330,7 @@ def _sample_lazy_impl(rm, key, blocked, distribution, grid, *, n, uniform_sample
     return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
 
 
-_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("n", "uniform_samples"))(_sample_lazy_impl)
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("grid", "n", "uniform_samples"))(_sample_lazy_impl)
 
 
 def _recheck_impl(rm, blocked, grid, distribution=None, factor=None, *, edge_samples, neglogp=False):
@@ -335,6 +338,7 @@ def _recheck_impl(rm, blocked, grid, distribution=None, factor=None, *, edge_sam
     unknown cells charged more) the kept edges' weights are read again on the new map.
     ``edge_samples``: :func:`_edge_samples` of the roadmap's radius on ``grid``."""
     M, _ = rm.neighbors.shape
+    grid = _grid(grid, rm.points.dtype)
     r, c, on = _cells(rm.points, grid)
     valid = rm.valid & on & ~blocked[r, c]
     j = jnp.minimum(rm.neighbors, M - 1)
@@ -346,7 +350,7 @@ def _recheck_impl(rm, blocked, grid, distribution=None, factor=None, *, edge_sam
     return rm._replace(valid=valid, edge_valid=ev, edge_weight=jnp.where(ev, w, jnp.inf))
 
 
-_recheck_jit = functools.partial(jax.jit, static_argnames=("edge_samples", "neglogp"))(_recheck_impl)
+_recheck_jit = functools.partial(jax.jit, static_argnames=("grid", "edge_samples", "neglogp"))(_recheck_impl)
 
 
 #: Work-list width of a query's long-edge check: at most 2 x 2k edges whose grazing intervals
@@ -386,12 +390,26 @@ def _query_candidates_jit(rm, start, goal, *, sectors):
 
 
 def _connect_impl(
-    rm, start, goal, blocked, distribution, grid, *, radius, edge_samples, long_samples, neglogp, sectors=0, aids=None, factor=None
+    rm,
+    start,
+    goal,
+    blocked,
+    distribution,
+    grid,
+    *,
+    radius,
+    edge_samples,
+    long_samples,
+    neglogp,
+    sectors=0,
+    aids=None,
+    factor=None,
 ):
-    """A query's start and goal linked (module docstring) on ``grid`` (leaves of the points'
-    dtype); ``edge_samples``, ``long_samples``: :func:`_query_samples` of the radius (static)."""
+    """A query's start and goal linked (module docstring) on ``grid`` (:func:`static_grid` under
+    jit); ``edge_samples``, ``long_samples``: :func:`_query_samples` of the radius (static)."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
     keep = 2 * k if sectors else k
     points, valid, q, nbr = _query_candidates(rm, start, goal, sectors)
     other = points[jnp.minimum(nbr, M - 1)]
@@ -434,7 +452,7 @@ def _connect_impl(
 
 
 _connect_jit = functools.partial(
-    jax.jit, static_argnames=("radius", "edge_samples", "long_samples", "neglogp", "sectors")
+    jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "neglogp", "sectors")
 )(_connect_impl)
 
 
@@ -514,7 +532,7 @@ def roadmap_grow(
     key,
     known_map,
     n: int,
-    grid: Q.Grid,
+    grid: GridLike,
     *,
     distribution=None,
     radius: float,
@@ -581,14 +599,13 @@ def _grow_exact(
     overflows. Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
-    grid_j = _grid(grid, roadmap.points.dtype)
     while True:
         out = _grow_jit(
             roadmap,
             key,
             blocked,
             dist,
-            grid_j,
+            static_grid(grid),
             n=n,
             radius=radius,
             edge_samples=_edge_samples(radius, float(grid.resolution)),
@@ -605,7 +622,7 @@ def _grow_exact(
         cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
 
 
-def roadmap_recheck(roadmap: Roadmap, known_map, grid: Q.Grid, *, radius: float) -> Roadmap:
+def roadmap_recheck(roadmap: Roadmap, known_map, grid: GridLike, *, radius: float) -> Roadmap:
     """Drops the vertices and edges of ``roadmap`` that a newer partial map ``known_map`` (on
     ``grid``, a :class:`jaxsem.quadrics.Grid` or a map holding one) shows blocked. A partial map
     only gains obstacles (unknown -> occupied), so nothing is added back; when cells are freed,
@@ -615,7 +632,7 @@ def roadmap_recheck(roadmap: Roadmap, known_map, grid: Q.Grid, *, radius: float)
     return _recheck_jit(
         roadmap,
         jnp.asarray(blocked),
-        _grid(grid, roadmap.points.dtype),
+        static_grid(grid),
         edge_samples=_edge_samples(float(radius), float(grid.resolution)),
     )
 
@@ -625,7 +642,7 @@ def roadmap_connect(
     start,
     goal,
     known_map,
-    grid: Q.Grid,
+    grid: GridLike,
     *,
     radius: float,
     distribution=None,
@@ -700,7 +717,7 @@ def _connect_checked(
         goal_j,
         blocked_j,
         dist,
-        _grid(grid, dtype),
+        static_grid(grid),
         radius=float(radius),
         **_query_samples(float(radius), grid),
         neglogp=weight == "neglogp",
@@ -716,7 +733,7 @@ def build_roadmap(
     start,
     goal,
     n: int,
-    grid: Q.Grid,
+    grid: GridLike,
     *,
     distribution=None,
     k: int | None = None,
@@ -805,7 +822,7 @@ def make_roadmap_builder(
     def build(key, blocked, distribution, start, goal, origin):
         rm = roadmap_init(int(n), kk, origin.dtype)
         dist = None if uniform else distribution
-        grid = Q.Grid(origin, jnp.asarray(float(resolution), origin.dtype), (H, W))
+        grid = Q.Grid(origin, float(resolution), (H, W))  # pyright: ignore[reportArgumentType]
         rm = _grow_impl(
             rm,
             key,

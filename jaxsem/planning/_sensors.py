@@ -23,7 +23,7 @@ from jax.core import Tracer
 
 from .. import quadrics as Q
 from .._checks import require_type
-from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, MapState, _grid, host_grid
+from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, WINDOW, GridLike, MapState, _grid, host_grid, static_grid
 
 
 class SensorConfig(NamedTuple):
@@ -71,7 +71,9 @@ def _fan(yaw, fov_deg, n_rays, dtype):
     return yaw + jnp.linspace(-half, half, n_rays, dtype=dtype)
 
 
-def sense(true_occupancy, true_semantic, state: MapState, pose, grid: Q.Grid, config: SensorConfig = SensorConfig()) -> MapState:
+def sense(
+    true_occupancy, true_semantic, state: MapState, pose, grid: GridLike, config: SensorConfig = SensorConfig()
+) -> MapState:
     """Updates the partial maps with what both sensors see from ``pose``.
 
     true_occupancy: (H, W) bool; true_semantic: (H, W) int8 (class constants of the world);
@@ -99,13 +101,8 @@ def sense(true_occupancy, true_semantic, state: MapState, pose, grid: Q.Grid, co
     if not (isinstance(true_semantic, jax.Array) and true_semantic.dtype == jnp.int8):
         true_semantic = np.asarray(true_semantic, np.int8)
     return _sense_jit(
-        true_occupancy, true_semantic, state, pose, _host_leaves(grid, dtype), config, **_sense_sizes(grid, config)
+        true_occupancy, true_semantic, state, pose, static_grid(grid), config, **_sense_sizes(grid, config)
     )
-
-
-def _host_leaves(grid: Q.Grid, dtype) -> Q.Grid:
-    """A host grid with numpy leaves of ``dtype`` (jit converts them at dispatch)."""
-    return Q.Grid(np.asarray(grid.origin, dtype), np.asarray(grid.resolution, dtype), grid.shape)
 
 
 def _sense_sizes(grid: Q.Grid, config: SensorConfig) -> dict:
@@ -153,7 +150,7 @@ def _check_true_maps(true_occupancy, true_semantic):
             )
 
 
-@functools.partial(jax.jit, static_argnames=("config", "half", "n_s"))
+@functools.partial(jax.jit, static_argnames=("grid", "config", "half", "n_s"))
 def _sense_jit(true_occupancy, true_semantic, state, pose, grid, config, *, half, n_s):
     if pose.ndim > 1:  # a batch of robots, each with its own state
         fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, grid, config, half, n_s)
@@ -162,10 +159,12 @@ def _sense_jit(true_occupancy, true_semantic, state, pose, grid, config, *, half
 
 
 def _sense_one(true_occupancy, true_semantic, state, pose, grid, config, half, n_s):
-    """One robot's sensing on ``grid``; ``half``, ``n_s``: :func:`_sense_sizes` (static)."""
+    """One robot's sensing on ``grid`` (a :func:`static_grid`); ``half``, ``n_s``:
+    :func:`_sense_sizes` (static)."""
     H, W = true_occupancy.shape
     xy, yaw = pose[:2], pose[2]
-    dtype = grid.origin.dtype
+    dtype = jnp.result_type(float)
+    grid = _grid(grid, dtype)
     # Work in a window that holds every cell the sensors can reach: the full-grid updates would
     # otherwise dominate (a building map has ~2e5 cells, the sensors see a few thousand).
     max_range = max(config.depth_range, config.object_range)
@@ -219,7 +218,7 @@ def cast_rays(occupancy, grid: Q.Grid, xy, angles, max_range):
     n = _samples(float(max_range), resolution, 0.5)
     return _cast_ranges(
         jnp.asarray(occupancy),
-        _grid(grid, dtype),
+        static_grid(grid),
         jnp.asarray(xy, dtype),
         jnp.asarray(angles, dtype),
         float(max_range),
@@ -227,6 +226,6 @@ def cast_rays(occupancy, grid: Q.Grid, xy, angles, max_range):
     )
 
 
-@functools.partial(jax.jit, static_argnames=("max_range", "n"))
+@functools.partial(jax.jit, static_argnames=("grid", "max_range", "n"))
 def _cast_ranges(occupancy, grid, xy, angles, max_range, n):
-    return _cast(occupancy, grid, xy, angles, max_range, n)[4]
+    return _cast(occupancy, _grid(grid, xy.dtype), xy, angles, max_range, n)[4]

@@ -20,7 +20,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from .. import quadrics as Q
-from ._grid import check_grid, check_point
+from ._grid import GridLike, check_grid, check_point, host_grid
 
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))  # the other four are the same edges reversed
 # Knight moves (16-connected) and the two cells each one's segment crosses between its ends: the
@@ -89,7 +89,8 @@ class GridPath:
 class SoftCostGraph:
     """The 8-connected soft-cost graph of one true map, built once and searched many times.
 
-    ``SoftCostGraph(occupancy, origin, resolution)``; ``search(start)`` runs one single-source
+    ``SoftCostGraph(occupancy, grid)`` (``grid``: the map's :class:`jaxsem.quadrics.Grid`, or a
+    map holding one: ``SoftCostGraph(building.occupancy, building)``); ``search(start)`` runs one single-source
     Dijkstra and returns a :class:`SearchTree` from which ``path_to(goal)`` reads any path.
 
     connectivity: 8 (the expert's and C*'s graph) or 16, which adds the knight moves (a cell two
@@ -103,8 +104,7 @@ class SoftCostGraph:
     def __init__(
         self,
         occupancy,
-        origin,
-        resolution: float,
+        grid: GridLike,
         weight: float = 4.0,
         scale: float = 0.4,
         connectivity: int = 8,
@@ -113,10 +113,9 @@ class SoftCostGraph:
             raise ValueError(f"connectivity: expected 8 or 16, got {connectivity!r}")
         occ = check_grid("occupancy", occupancy, "bool")
         self.occupancy = occ
-        self.origin = np.asarray(origin, np.float64)
-        if self.origin.shape != (2,):
-            raise ValueError(f"origin: expected shape (2,), got shape {self.origin.shape}")
-        self.resolution = float(resolution)
+        self.grid = host_grid("grid", grid, occ.shape)
+        self.origin = self.grid.origin
+        self.resolution = float(self.grid.resolution)
         self.cost = soft_cost(occ, self.resolution, weight, scale)
         H, W = occ.shape
         src, dst, wts = _grid_edges(occ, self.cost, self.resolution, connectivity)
@@ -127,7 +126,7 @@ class SoftCostGraph:
         return self.occupancy.shape
 
     def cell_of(self, name, xy):
-        p = check_point(name, xy, self.occupancy, Q.Grid.host(self.origin, self.resolution, self.shape))
+        p = check_point(name, xy, self.occupancy, self.grid)
         return Q.world_to_cell(p, self.origin, self.resolution, xp=np)
 
     def search(self, start, limit: float | None = None) -> SearchTree:
@@ -185,12 +184,11 @@ class SearchTree:
         return GridPath(cells, points, float(self.dist.flat[node]), length, True)
 
 
-def shortest_path(
-    occupancy, start, goal, origin, resolution: float, weight: float = 4.0, scale: float = 0.4
-) -> GridPath:
-    """Soft-cost optimal path from ``start`` to ``goal`` (world (x, y), (2,)) on a bool grid.
+def shortest_path(occupancy, start, goal, grid: GridLike, weight: float = 4.0, scale: float = 0.4) -> GridPath:
+    """Soft-cost optimal path from ``start`` to ``goal`` (world (x, y), (2,)) on a bool grid
+    ``occupancy`` whose :class:`jaxsem.quadrics.Grid` is ``grid`` (or a map holding one).
 
     Builds the graph each call; keep a :class:`SoftCostGraph` for many queries on one map.
     """
-    g = SoftCostGraph(occupancy, origin, resolution, weight, scale)
+    g = SoftCostGraph(occupancy, grid, weight, scale)
     return g.path(start, goal)

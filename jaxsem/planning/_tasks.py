@@ -81,7 +81,7 @@ def sample_tasks(
     pool = inside if kind == "II" else outside
     if len(inside) == 0 or len(pool) == 0:
         return []
-    graph = graph or SoftCostGraph(building.occupancy, building.origin, building.resolution)
+    graph = graph or SoftCostGraph(building.occupancy, building)
     tasks = []
     for _ in range(50 * count if max_tries is None else int(max_tries)):
         if len(tasks) == count:

@@ -53,9 +53,14 @@ class NoiseModel(eqx.Module):
     shape_prior_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
 
 
-class CostModel(eqx.Module):
-    """Which factors of eq. 4.13 are used and how they are weighted: the cost every solver
-    minimises. Fields as the same-named ones of :class:`SolverConfig`."""
+# Each field is declared once, in one of five groups; the public classes below inherit the groups
+# they hold. A dataclass takes its bases' fields in reverse MRO order, so each class lists its
+# groups last first: every class keeps its field order (positional construction, pytree leaves,
+# config JSON) and no public class is a subclass of another.
+
+
+class _CostFactors(eqx.Module):
+    """The factors, losses and scales: the first fields of :class:`CostModel`."""
 
     noise: NoiseModel = NoiseModel()
     use_texture: bool = eqx.field(static=True, default=True)
@@ -69,6 +74,11 @@ class CostModel(eqx.Module):
     robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
     texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+
+
+class _CostGuards(eqx.Module):
+    """Barriers, the optional priors and the class table: the last fields of :class:`CostModel`."""
+
     barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
     degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
@@ -82,20 +92,23 @@ class CostModel(eqx.Module):
     shape_prior_sigma: jnp.ndarray | None = None
 
 
-class InitConfig(eqx.Module):
-    """How a solve starts: the single-view depth and the batch solver's rescue of stranded
-    objects. Fields as the same-named ones of :class:`SolverConfig`."""
+class _InitStart(eqx.Module):
+    """The single-view start: the first fields of :class:`InitConfig`."""
 
     default_depth: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
     depth_from_box: bool = eqx.field(static=True, default=True)
+
+
+class _InitRescue(eqx.Module):
+    """The batch solver's rescue: the last fields of :class:`InitConfig`."""
+
     robust_init: bool = eqx.field(static=True, default=True)
     unfixable_rms: float | jnp.ndarray = eqx.field(default=5.0, converter=_scalar)
     rescue_rtol: float | jnp.ndarray = eqx.field(default=1e-2, converter=_scalar)
 
 
-class StoppingRule(eqx.Module):
-    """When the Levenberg-Marquardt stops (GTSAM's rule) and its damping. Fields as the
-    same-named ones of :class:`SolverConfig`."""
+class _Stopping(eqx.Module):
+    """The fields of :class:`StoppingRule`."""
 
     max_steps: int = eqx.field(static=True, default=100)
     rtol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
@@ -104,10 +117,25 @@ class StoppingRule(eqx.Module):
     lambda_max: float | jnp.ndarray = eqx.field(default=1e10, converter=_scalar)
 
 
+class CostModel(_CostGuards, _CostFactors):
+    """Which factors of eq. 4.13 are used and how they are weighted: the cost every solver
+    minimises. Fields as the same-named ones of :class:`SolverConfig`."""
+
+
+class InitConfig(_InitRescue, _InitStart):
+    """How a solve starts: the single-view depth and the batch solver's rescue of stranded
+    objects. Fields as the same-named ones of :class:`SolverConfig`."""
+
+
+class StoppingRule(_Stopping):
+    """When the Levenberg-Marquardt stops (GTSAM's rule) and its damping. Fields as the
+    same-named ones of :class:`SolverConfig`."""
+
+
 _PARTS = {"cost_model": CostModel, "initialisation": InitConfig, "stopping": StoppingRule}
 
 
-class SolverConfig(eqx.Module):
+class SolverConfig(_CostGuards, _InitRescue, _Stopping, _InitStart, _CostFactors):
     """Which factors are used, how they are weighted, and how the solvers iterate.
 
     Three parts, each its own module: :class:`CostModel` (the cost), :class:`InitConfig` (how a
@@ -196,40 +224,6 @@ class SolverConfig(eqx.Module):
         from a depth camera or an AR framework, or :func:`jaxsem.slam._sequence_texture.support_height` from the images).
         Off by default; it adds one object row after the shape (and upright) rows.
     """
-
-    noise: NoiseModel = NoiseModel()
-    use_texture: bool = eqx.field(static=True, default=True)
-    use_shape_prior: bool = eqx.field(static=True, default=True)
-    baseline_shape_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
-    border_margin: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
-    box_loss: str = eqx.field(static=True, default="l2")
-    texture_loss: str = eqx.field(static=True, default="l2")
-    shape_loss: str = eqx.field(static=True, default="l2")
-    pose_loss: str = eqx.field(static=True, default="l2")
-    robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
-    texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
-    silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
-    default_depth: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
-    depth_from_box: bool = eqx.field(static=True, default=True)
-    max_steps: int = eqx.field(static=True, default=100)
-    rtol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
-    atol: float | jnp.ndarray = eqx.field(default=1e-5, converter=_scalar)
-    lambda_init: float | jnp.ndarray = eqx.field(default=1e-3, converter=_scalar)
-    lambda_max: float | jnp.ndarray = eqx.field(default=1e10, converter=_scalar)
-    robust_init: bool = eqx.field(static=True, default=True)
-    unfixable_rms: float | jnp.ndarray = eqx.field(default=5.0, converter=_scalar)
-    rescue_rtol: float | jnp.ndarray = eqx.field(default=1e-2, converter=_scalar)
-    barrier_weight: float | jnp.ndarray = eqx.field(default=10.0, converter=_scalar)
-    min_depth: float | jnp.ndarray = eqx.field(default=0.1, converter=_scalar)
-    degenerate_residual: float | jnp.ndarray = eqx.field(default=1000.0, converter=_scalar)
-    use_upright: bool = eqx.field(static=True, default=False)
-    upright_sigma: float | jnp.ndarray = eqx.field(default=0.0873, converter=_scalar)
-    world_up: tuple = eqx.field(static=True, default=(0.0, 0.0, 1.0))
-    use_support: bool = eqx.field(static=True, default=False)
-    support_height: float | jnp.ndarray = eqx.field(default=0.0, converter=_scalar)
-    support_sigma: float | jnp.ndarray = eqx.field(default=0.005, converter=_scalar)
-    shape_prior_mean: jnp.ndarray | None = None
-    shape_prior_sigma: jnp.ndarray | None = None
 
     def replace(self, **changes) -> SolverConfig:
         """A copy with some fields changed."""

@@ -100,6 +100,17 @@ class TrainConfig:
     def replace(self, **changes) -> TrainConfig:
         return dataclasses.replace(self, **changes)
 
+    def data_sizes(self) -> dict:
+        """The sizes a directory's data is prepared at for this config: ``input_size`` and
+        ``global_padding`` (the model's) and ``num_points`` (the scene's), as keyword arguments
+        of :func:`jaxsem.volumon.data.volumon_eval_batch` and
+        :func:`jaxsem.volumon.data.volumon_batch_source`."""
+        return {
+            "input_size": self.model.input_size,
+            "global_padding": self.model.global_padding,
+            "num_points": self.scene.num_points,
+        }
+
 
 def default_config() -> TrainConfig:
     """CPU-sized VoluMon Both: width 0.35, 64 x 64 inputs, 128 x 96 images (f = 110 px)."""

@@ -42,6 +42,7 @@ import dataclasses
 import functools
 import json
 import pathlib
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -349,7 +350,7 @@ def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = No
     """Write ``variables`` as ``<path>.npz`` (float32) and the config with ``meta`` as
     ``<path>.json``, each atomically; returns the npz path."""
     path = pathlib.Path(path).with_suffix("")
-    flat = {
+    flat: dict[str, Any] = {
         "/".join(str(getattr(k, "key", k)) for k in p): np.asarray(v, np.float32)
         for p, v in jax.tree_util.tree_leaves_with_path(variables)
     }
@@ -373,7 +374,8 @@ def load_rcnn(path=None) -> LoadedModel:
         if not cfg_path.is_file():
             raise ValueError(f"model: {p} is not a training workdir (no config.json)")
         config = rcnn_config_from_dict(json.loads(cfg_path.read_text()))
-        model, variables = init_rcnn(jax.random.PRNGKey(0), config.model, 1)
+        model, init = init_rcnn(jax.random.PRNGKey(0), config.model, 1)
+        variables = dict(init)
         step = latest_step(p / "checkpoints")
         if step is None:
             raise ValueError(f"model: no checkpoint under {p / 'checkpoints'}")

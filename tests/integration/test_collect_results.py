@@ -1,9 +1,5 @@
 """``benchmarks/collect_results.py`` indexes benchmarks/results/ and leaves RESULTS.md alone."""
 
-import pathlib
-
-ROOT = pathlib.Path(__file__).resolve().parents[2]
-
 
 def test_index_lists_results_by_method_and_leaves_results_page_alone(tmp_path, script):
     results = tmp_path / "results"

@@ -244,14 +244,14 @@ def test_object_map_sampler_sees_the_object_map_crop():
     ms = mapping.with_object_map(planning.empty_map_state(b.shape), state, b.grid)
     np.testing.assert_array_equal(ms.semantic, sem)
     xy = b.entrance
-    reference = planning.local_inputs(ms, xy, xy, False, b.origin, b.resolution)
+    reference = planning.local_inputs(ms, xy, xy, False, b)
     seen = {}
 
     def sampler(inputs):
         seen["semantic"] = inputs.semantic
         return jnp.ones((planning.CROP_SIZE, planning.CROP_SIZE)) / planning.CROP_SIZE**2
 
-    own = planning.local_inputs(planning.empty_map_state(b.shape), xy, xy, False, b.origin, b.resolution)
+    own = planning.local_inputs(planning.empty_map_state(b.shape), xy, xy, False, b)
     mapping.object_map_sampler(sampler, sem)(own)
     np.testing.assert_array_equal(seen["semantic"], reference.semantic)
     assert int((reference.semantic > 0).sum()) > 0

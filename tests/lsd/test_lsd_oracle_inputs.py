@@ -110,7 +110,7 @@ def test_the_oracle_sampler_sees_the_true_map_at_the_robots_window(building):
     rng = np.random.default_rng(3)
     for row, col in [(H // 2, W // 3), (2, W - 3)]:
         xy = building.origin + (np.array([col, row]) + 0.5) * building.resolution
-        partial = local_inputs(empty_map_state((H, W)), xy, xy + 7.0, True, building.origin, building.resolution)
+        partial = local_inputs(empty_map_state((H, W)), xy, xy + 7.0, True, building)
         out = fn(partial)
         assert out.shape == (SIZE, SIZE)
         got = seen[-1]

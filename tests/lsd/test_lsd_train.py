@@ -9,6 +9,7 @@ import numpy as np
 import optax
 import pytest
 
+from jaxsem import quadrics as Q
 from jaxsem.lsd import LSDSampler, TrainConfig, full_map_distribution, load_trained, train_and_evaluate
 from jaxsem.lsd._data import dihedral_augment, split_by_building  # layers: white-box
 from jaxsem.lsd._train import save_distribution_figure  # layers: white-box
@@ -157,8 +158,9 @@ def test_sampler_adapter_embedding_rule():
     state = MapState(jnp.asarray(rng.integers(-1, 2, (H, W)), jnp.int8), jnp.zeros((H, W), jnp.int8))
     origin, res = np.zeros(2), 0.1
     xy, goal = np.array([2.05, 1.55]), np.array([6.0, 4.0])  # cell (row 15, col 20)
-    full = full_map_distribution(sampler, state, xy, goal, False, origin, res)
-    inputs = local_inputs(state, xy, goal, False, origin, res, K)
+    grid = Q.Grid.host(origin, res, (H, W))
+    full = full_map_distribution(sampler, state, xy, goal, False, grid)
+    inputs = local_inputs(state, xy, goal, False, grid, K)
     local = np.asarray(sampler(inputs), np.float64)
     assert np.isclose(local.sum(), 1.0, atol=1e-5)
     np.testing.assert_array_equal(np.asarray(inputs.center_cell), [15, 20])
@@ -246,8 +248,8 @@ def test_shipped_model_distribution_has_no_upsampling_stripes():
         for task in sample_tasks(b, "IO", 2, seed=seed):
             state = empty_map_state(b.shape)
             for yaw in np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False):
-                state = sense(b.occupancy, b.semantic, state, np.array([*task.start, yaw]), b.origin, b.resolution)
-            inputs = local_inputs(state, task.start, task.goal, task.goal_outdoors, b.origin, b.resolution)
+                state = sense(b.occupancy, b.semantic, state, np.array([*task.start, yaw]), b)
+            inputs = local_inputs(state, task.start, task.goal, task.goal_outdoors, b)
             prob = np.asarray(sampler(inputs), np.float64)
             assert np.all(np.isfinite(prob)) and np.all(prob > 0)
             logs.append(np.log(prob))

@@ -7,6 +7,7 @@ import jax
 import numpy as np
 import pytest
 
+from jaxsem import quadrics as Q
 from jaxsem.lsd import ExpertConfig, generate_expert_samples, load_expert_dataset, write_expert_dataset
 from jaxsem.lsd._expert import SCHEMA_KEYS  # layers: white-box
 from jaxsem.planning import (
@@ -37,6 +38,10 @@ class World:
     origin: np.ndarray
     resolution: float = RES
 
+    @property
+    def grid(self) -> Q.Grid:
+        return Q.Grid.host(self.origin, self.resolution, self.occupancy.shape)
+
 
 def _two_rooms():
     """12 x 6 m: two rooms joined by a door in a wall at x = 6 m; the door is off the line."""
@@ -65,7 +70,7 @@ def test_navigate_reaches_goal_through_the_door():
     seg = np.linalg.norm(np.diff(res.path, axis=0), axis=1)
     assert res.cost == pytest.approx(seg.sum())
     assert np.all(seg <= CFG.step_length + 1e-9)
-    c_star = SoftCostGraph(w.occupancy, w.origin, RES).path(start, goal).length
+    c_star = SoftCostGraph(w.occupancy, w).path(start, goal).length
     via_door = np.linalg.norm([4.0, 3.0]) * 2
     assert via_door - 0.3 <= res.cost <= 2.5 * c_star
     # Never inside an occupied cell; it went through the door.
@@ -180,14 +185,14 @@ def test_local_inputs_crop_and_context():
         semantic=np.where(np.arange(120)[None] == 33, EXIT_SIGN, 0).astype(np.int8) * np.ones((60, 1), np.int8),
     )
     xy = np.array([3.05, 2.05])  # cell (20, 30)
-    inp = local_inputs(st, xy, [3.05 + 30.0, 2.05], True, w.origin, RES)
+    inp = local_inputs(st, xy, [3.05 + 30.0, 2.05], True, w)
     c = CROP_SIZE // 2
     o = np.asarray(inp.occupancy)
     assert o[c, c] == FREE and o[c + 1, c] == OCCUPIED and o[c, c + 1] == UNKNOWN
     assert o[0, 0] == OCCUPIED  # off the map
     assert np.all(np.asarray(inp.semantic)[c - 20 : c + 39, c + 3] == EXIT_SIGN)
     np.testing.assert_allclose(np.asarray(inp.context), [1.0, 0.0, 1.0, 1.0], atol=1e-6)
-    inp = local_inputs(st, xy, [3.05, 2.05 - 5.0], False, w.origin, RES)
+    inp = local_inputs(st, xy, [3.05, 2.05 - 5.0], False, w)
     np.testing.assert_allclose(np.asarray(inp.context), [0.0, -1.0, 0.25, 0.0], atol=1e-6)
     assert tuple(np.asarray(inp.center_cell)) == (20, 30)
 
@@ -284,7 +289,7 @@ def test_expert_samples_schema_and_paths(building, tmp_path):
 
 
 def test_sample_tasks(building):
-    graph = SoftCostGraph(building.occupancy, building.origin, building.resolution)
+    graph = SoftCostGraph(building.occupancy, building)
     for kind in ("II", "IO"):
         tasks = sample_tasks(building, kind, 4, seed=0, graph=graph)
         assert len(tasks) == 4
@@ -307,7 +312,7 @@ def test_informed_sampler_beats_uniform_at_few_samples():
     # uniform samples in a 12 x 6 m map mostly do not.
     w = _two_rooms()
     start, goal = np.array([2.0, 2.0]), np.array([10.0, 2.0])
-    opt = SoftCostGraph(w.occupancy, w.origin, RES).path(start, goal)
+    opt = SoftCostGraph(w.occupancy, w).path(start, goal)
     truth = np.full(w.occupancy.shape, 1e-6)
     truth[opt.cells[:, 0], opt.cells[:, 1]] = 1.0
 

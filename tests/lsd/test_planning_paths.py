@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from jaxsem import quadrics as Q
 from jaxsem.planning import (
     OCCUPIED,
     PRM,
@@ -34,13 +35,20 @@ from jaxsem.planning._shortest_path import soft_cost  # layers: white-box
 
 RES = 0.1
 ORIGIN = np.array([0.0, 0.0])
+
+
+def grid_of(known_map) -> Q.Grid:
+    """The test maps' grid: ``ORIGIN``, ``RES`` and the map's (H, W)."""
+    return Q.Grid.host(ORIGIN, RES, np.shape(known_map)[-2:])
+
+
 # One map shape, sample count and radius for all PRM tests: each combination is one compile.
 N, RADIUS = 1000, 1.5
 
 
 def _roadmap(seed, occ, start, goal, **kw):
     """``build_roadmap`` at the shared ``N``, ``ORIGIN``, ``RES`` and ``RADIUS``."""
-    return build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, ORIGIN, RES, radius=RADIUS, **kw)
+    return build_roadmap(jax.random.PRNGKey(seed), occ, start, goal, N, grid_of(occ), radius=RADIUS, **kw)
 
 
 def _blocks(seed, shape=(32, 36), n=10):
@@ -84,7 +92,7 @@ def test_soft_cost_dijkstra_matches_python_reference(seed):
     occ = _blocks(seed)
     free = np.argwhere(~occ)
     start = tuple(free[seed * 7 % len(free)])
-    g = SoftCostGraph(occ, ORIGIN, RES)
+    g = SoftCostGraph(occ, grid_of(occ))
     tree = g.search(ORIGIN + (np.array(start[::-1]) + 0.5) * RES)
     ref = _python_dijkstra(occ, soft_cost(occ, RES), start)
     np.testing.assert_allclose(tree.dist, ref, rtol=1e-12, atol=1e-12)
@@ -122,8 +130,8 @@ def test_sixteen_connected_lengths_against_straight_lines_and_segments(seed, n):
     rng = np.random.default_rng(seed)
     a, b = free[rng.integers(len(free), size=2)]
     to_world = lambda rc: ORIGIN + (np.asarray(rc)[::-1] + 0.5) * RES
-    p8 = SoftCostGraph(occ, ORIGIN, RES, weight=0.0).path(to_world(a), to_world(b))
-    p16 = SoftCostGraph(occ, ORIGIN, RES, weight=0.0, connectivity=16).path(to_world(a), to_world(b))
+    p8 = SoftCostGraph(occ, grid_of(occ), weight=0.0).path(to_world(a), to_world(b))
+    p16 = SoftCostGraph(occ, grid_of(occ), weight=0.0, connectivity=16).path(to_world(a), to_world(b))
     assert p16.found == p8.found
     if not p8.found:
         return
@@ -135,8 +143,8 @@ def test_sixteen_connected_lengths_against_straight_lines_and_segments(seed, n):
         crossed = _segment_cells(c0, c1)
         assert not occ[tuple(crossed.T)].any()
     empty = np.zeros_like(occ)
-    e16 = SoftCostGraph(empty, ORIGIN, RES, weight=0.0, connectivity=16).path(to_world(a), to_world(b))
-    e8 = SoftCostGraph(empty, ORIGIN, RES, weight=0.0).path(to_world(a), to_world(b))
+    e16 = SoftCostGraph(empty, grid_of(empty), weight=0.0, connectivity=16).path(to_world(a), to_world(b))
+    e8 = SoftCostGraph(empty, grid_of(empty), weight=0.0).path(to_world(a), to_world(b))
     assert e16.length <= straight * 1.0275 + 1e-9
     assert e8.length <= straight * 1.0824 + 1e-9
 
@@ -146,7 +154,7 @@ def test_knight_move_needs_the_cells_it_crosses():
     occ = np.ones((4, 5), bool)
     occ[1, 1] = occ[2, 3] = False  # the two ends: (1, 1) -> (2, 3)
     occ[1, 2] = occ[2, 2] = False  # the two cells its segment crosses
-    g = lambda o: SoftCostGraph(o, ORIGIN, RES, weight=0.0, connectivity=16)
+    g = lambda o: SoftCostGraph(o, grid_of(o), weight=0.0, connectivity=16)
     ends = ORIGIN + (np.array([[1, 1], [3, 2]]) + 0.5) * RES
     p = g(occ).path(ends[0], ends[1])
     assert p.found and len(p.cells) == 2 and p.length == pytest.approx(RES * math.sqrt(5))
@@ -155,7 +163,7 @@ def test_knight_move_needs_the_cells_it_crosses():
     q = g(blocked).path(ends[0], ends[1])
     assert q.found and len(q.cells) == 4 and q.length == pytest.approx(3 * RES)
     with pytest.raises(ValueError, match="connectivity"):
-        SoftCostGraph(occ, ORIGIN, RES, connectivity=4)
+        SoftCostGraph(occ, grid_of(occ), connectivity=4)
     with pytest.raises(ValueError, match="limit"):
         g(occ).search(ends[0], limit=0.0)
     # limit: cells beyond it read as unreachable
@@ -169,7 +177,7 @@ def test_soft_cost_rises_near_walls():
     assert np.isinf(c[0, 0])
     assert np.all(np.diff(c[5, 1:]) <= 0) and c[5, 1] > c[5, 19] >= 1.0
     # The optimal path keeps away from the wall when it can.
-    p = shortest_path(occ, [0.15, 0.15], [0.15, 1.85], ORIGIN, RES)
+    p = shortest_path(occ, [0.15, 0.15], [0.15, 1.85], grid_of(occ))
     assert p.found and p.cells[:, 1].max() > 2
 
 
@@ -178,13 +186,13 @@ def test_shortest_path_bad_input():
     occ[0, 0] = True
     occ[5, 5] = False
     with pytest.raises(ValueError, match="start"):
-        shortest_path(occ, [0.05, 0.05], [0.55, 0.55], ORIGIN, RES)
+        shortest_path(occ, [0.05, 0.05], [0.55, 0.55], grid_of(occ))
     with pytest.raises(ValueError, match="goal"):
-        shortest_path(occ, [0.55, 0.55], [50.0, 0.55], ORIGIN, RES)
+        shortest_path(occ, [0.55, 0.55], [50.0, 0.55], grid_of(occ))
     with pytest.raises(ValueError, match="occupancy"):
-        shortest_path(occ.astype(np.uint8), [0.55, 0.55], [0.55, 0.55], ORIGIN, RES)
+        shortest_path(occ.astype(np.uint8), [0.55, 0.55], [0.55, 0.55], grid_of(occ.astype(np.uint8)))
     with pytest.raises(ValueError, match="occupancy"):
-        shortest_path(occ[None], [0.55, 0.55], [0.55, 0.55], ORIGIN, RES)
+        shortest_path(occ[None], [0.55, 0.55], [0.55, 0.55], grid_of(occ[None]))
 
 
 # ----------------------------------------------------------------------------------------- PRM
@@ -233,12 +241,12 @@ def test_query_returns_the_roadmaps_shortest_path():
     rng = np.random.default_rng(3)
     # float32, as the PRM runs without x64 (the tests enable x64)
     grown = roadmap_grow(
-        roadmap_init(N, prm_star_k(N), jnp.float32), jax.random.PRNGKey(5), occ, N, ORIGIN, RES, radius=RADIUS
+        roadmap_init(N, prm_star_k(N), jnp.float32), jax.random.PRNGKey(5), occ, N, grid_of(occ), radius=RADIUS
     )
     checked = 0
     for _ in range(4):
         s, g = (ORIGIN + (free[rng.integers(len(free))][::-1] + 0.5) * RES for _ in range(2))
-        rm = roadmap_connect(grown, s, g, occ, ORIGIN, RES, radius=RADIUS)
+        rm = roadmap_connect(grown, s, g, occ, grid_of(occ), radius=RADIUS)
         p = roadmap_shortest_path(rm)
         nbr, ok = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
         w = np.asarray(rm.edge_weight, np.float64)
@@ -436,8 +444,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
             jax.random.PRNGKey(seed),
             occ,
             400,
-            ORIGIN,
-            RES,
+            grid_of(occ),
             distribution=dist,
             radius=0.9,
             bucket_cap=2,
@@ -458,7 +465,7 @@ def test_grown_roadmap_neighbours_are_exact(kind):
 @pytest.mark.slow
 def test_prm_reuse_grow_and_update():
     occ = _one_route_map()
-    prm = PRM(occ, ORIGIN, RES, capacity=2 * N, radius=RADIUS)
+    prm = PRM(occ, grid_of(occ), capacity=2 * N, radius=RADIUS)
     prm.grow(jax.random.PRNGKey(0), N)
     queries = [
         ([1.0, 3.0], [9.0, 3.0]),
@@ -530,13 +537,13 @@ def test_prm_bad_input():
     occ = _one_route_map()
     key = jax.random.PRNGKey(0)
     with pytest.raises(ValueError, match="start"):
-        build_roadmap(key, occ, [5.0, 1.0], [9.0, 3.0], 10, ORIGIN, RES)  # in the wall
+        build_roadmap(key, occ, [5.0, 1.0], [9.0, 3.0], 10, grid_of(occ))  # in the wall
     with pytest.raises(ValueError, match="goal"):
-        build_roadmap(key, occ, [1.0, 3.0], [19.0, 3.0], 10, ORIGIN, RES)  # off the map
+        build_roadmap(key, occ, [1.0, 3.0], [19.0, 3.0], 10, grid_of(occ))  # off the map
     with pytest.raises(ValueError, match="known_map"):
-        build_roadmap(key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
+        build_roadmap(key, occ.astype(np.float32), [1.0, 3.0], [9.0, 3.0], 10, grid_of(occ.astype(np.float32)))
     with pytest.raises(ValueError, match="known_map"):
-        build_roadmap(key, occ[None], [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES)
+        build_roadmap(key, occ[None], [1.0, 3.0], [9.0, 3.0], 10, grid_of(occ[None]))
     with pytest.raises(ValueError, match="distribution"):
         build_roadmap(
             key,
@@ -544,23 +551,22 @@ def test_prm_bad_input():
             [1.0, 3.0],
             [9.0, 3.0],
             10,
-            ORIGIN,
-            RES,
+            grid_of(occ),
             distribution=np.ones((3, 3)),
         )
     with pytest.raises(ValueError, match="distribution"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="neglogp")
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, grid_of(occ), weight="neglogp")
     with pytest.raises(ValueError, match="n"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, ORIGIN, RES)
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 0, grid_of(occ))
     with pytest.raises(ValueError, match="weight"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, weight="l1")
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, grid_of(occ), weight="l1")
     with pytest.raises(ValueError, match="k"):
-        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, ORIGIN, RES, k=0)
+        build_roadmap(key, occ, [1.0, 3.0], [9.0, 3.0], 10, grid_of(occ), k=0)
 
 
 def _lazy_and_eager(occ, sectors, k, grows=((5, 500), (6, 500))):
-    eager = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS, sectors=sectors, k=k)
-    lazy = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS, sectors=sectors, k=k, lazy=True)
+    eager = PRM(occ, grid_of(occ), capacity=N, radius=RADIUS, sectors=sectors, k=k)
+    lazy = PRM(occ, grid_of(occ), capacity=N, radius=RADIUS, sectors=sectors, k=k, lazy=True)
     for seed, n in grows:  # two grows: the second batch's candidates include the first's vertices
         eager.grow(jax.random.PRNGKey(seed), n)
         lazy.grow(jax.random.PRNGKey(seed), n)
@@ -653,9 +659,9 @@ def test_lazy_prm_after_a_map_update_and_without_a_path():
 def test_lazy_prm_bad_input():
     occ = _one_route_map()
     with pytest.raises(ValueError, match="lazy"):
-        PRM(occ, ORIGIN, RES, capacity=N, lazy=1)
+        PRM(occ, grid_of(occ), capacity=N, lazy=1)
     with pytest.raises(ValueError, match="lazy"):
-        PRM(occ, ORIGIN, RES, capacity=N, lazy=True, weight="neglogp")
+        PRM(occ, grid_of(occ), capacity=N, lazy=True, weight="neglogp")
 
 
 @pytest.mark.slow
@@ -678,8 +684,7 @@ def test_roadmap_builder_vmaps_over_trials():
             starts[i],
             goals[i],
             N,
-            ORIGIN,
-            RES,
+            grid_of(occ),
             distribution=dist[i],
             weight="neglogp",
             radius=RADIUS,
@@ -697,7 +702,7 @@ def test_found_paths_pass_the_navigation_check():
     from jaxsem.planning._edges import polyline_clear  # layers: white-box
 
     occ = _blocks(7, shape=(60, 100), n=60)
-    prm = PRM(occ, ORIGIN, RES, capacity=N, radius=RADIUS)
+    prm = PRM(occ, grid_of(occ), capacity=N, radius=RADIUS)
     prm.grow(jax.random.PRNGKey(5), N)
     free = np.argwhere(~occ)
     rng = np.random.default_rng(0)
@@ -707,11 +712,11 @@ def test_found_paths_pass_the_navigation_check():
         p = prm.query(s, g)
         if p.found:
             found += 1
-            assert polyline_clear(p.points, occ, ORIGIN, RES, RADIUS)
+            assert polyline_clear(p.points, occ, grid_of(occ), RADIUS)
             # Every sub-leg from a point part-way along the first segment too (the robot moved).
             mid = p.points[0] + 0.37 * (p.points[1] - p.points[0])
             q = prm.query(mid, g)
-            assert q.found and polyline_clear(q.points, occ, ORIGIN, RES, RADIUS)
+            assert q.found and polyline_clear(q.points, occ, grid_of(occ), RADIUS)
     assert found >= 15
 
 
@@ -787,12 +792,12 @@ def test_sparse_side_of_a_learned_distribution_is_linked():
     found = {"old": 0, "new": 0}
     for seed in range(8):
         for name, sectors, radius in (("old", 0, base), ("new", learned.sectors, 2 * base)):
-            prm = PRM(occ, ORIGIN, RES, capacity=300, k=12, radius=radius, sectors=sectors)
+            prm = PRM(occ, grid_of(occ), capacity=300, k=12, radius=radius, sectors=sectors)
             prm.grow(jax.random.PRNGKey(seed), 300, dist)
             p = prm.query(start, goal)
             if p.found:
                 found[name] += 1
-                assert polyline_clear(p.points, occ, ORIGIN, RES, radius)
+                assert polyline_clear(p.points, occ, grid_of(occ), radius)
                 assert np.allclose(p.points[[0, -1]], [start, goal])
     assert found["new"] >= 7 and found["old"] <= 2, found
 
@@ -802,14 +807,14 @@ def test_query_links_to_samples_beyond_radius():
     occ = np.zeros((60, 100), bool)
     dist = np.zeros(occ.shape)
     dist[:, :30] = 1.0  # samples only in x < 3 m
-    prm = PRM(occ, ORIGIN, RES, capacity=200, k=8, radius=1.0)
+    prm = PRM(occ, grid_of(occ), capacity=200, k=8, radius=1.0)
     prm.grow(jax.random.PRNGKey(0), 200, dist)
     goal = np.array([9.5, 3.0])  # > 6 m from every sample
     p = prm.query(np.array([1.0, 3.0]), goal)
     assert p.found and np.linalg.norm(p.points[-2] - goal) > 6.0
-    assert polyline_clear(p.points, occ, ORIGIN, RES, 1.0)
+    assert polyline_clear(p.points, occ, grid_of(occ), 1.0)
     occ[:, 50:52] = True  # a wall across the map: no edge may cross it
-    prm2 = PRM(occ, ORIGIN, RES, capacity=200, k=8, radius=1.0)
+    prm2 = PRM(occ, grid_of(occ), capacity=200, k=8, radius=1.0)
     prm2.grow(jax.random.PRNGKey(0), 200, dist)
     assert not prm2.query(np.array([1.0, 3.0]), goal).found
 
@@ -823,7 +828,7 @@ def test_uniform_growth_spreads_samples_but_keeps_the_learned_weights():
     occ = np.zeros((60, 100), bool)
     dist = np.full(occ.shape, 1e-6)
     dist[10:20, 70:80] = 1.0  # 1/60 of the map holds almost all the mass
-    prm = PRM(occ, ORIGIN, RES, capacity=600, k=10, radius=1.0, weight="neglogp")
+    prm = PRM(occ, grid_of(occ), capacity=600, k=10, radius=1.0, weight="neglogp")
     prm.grow(jax.random.PRNGKey(0), 300, dist)
     prm.grow(jax.random.PRNGKey(1), 300, uniform_samples=True)
     pts = np.asarray(prm.roadmap.points)[2:]
@@ -866,8 +871,7 @@ def test_one_shot_neighbours_exact_on_concentrated_samples(n):
         start,
         goal,
         n,
-        b.origin,
-        b.resolution,
+        b,
         distribution=dist,
         sectors=0,  # the plain k nearest, checked against brute force
     )
@@ -911,7 +915,7 @@ def test_segment_check_never_crosses_walls_and_accepts_open_space():
             a = (free_cells[rng.integers(len(free_cells))][::-1] + rng.random(2)) * RES
             b = a + rng.normal(size=2) * 1.5
             b = np.clip(b, 1e-3, np.array([80, 60]) * RES - 1e-3)
-            ok = polyline_clear(np.stack([a, b]), occ, ORIGIN, RES, RADIUS)
+            ok = polyline_clear(np.stack([a, b]), occ, grid_of(occ), RADIUS)
             u = (a + t * (b - a)) / RES
             rc = np.floor(u).astype(int)
             inside = occ[rc[:, 1], rc[:, 0]]
@@ -926,7 +930,7 @@ def test_segment_check_never_crosses_walls_and_accepts_open_space():
                 assert not ok, (m, a, b)
     assert accepted > 20 and rejected > 20
     open_map = np.zeros((60, 80), bool)
-    assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, ORIGIN, RES, RADIUS)
+    assert polyline_clear(np.array([[1.0, 1.0], [7.0, 5.0], [2.0, 5.0]]), open_map, grid_of(open_map), RADIUS)
 
 
 def _dense_rule(a, b, occ, samples):
@@ -963,7 +967,7 @@ def test_segment_check_equals_the_dense_rule():
             continue
         r = reach if long else RADIUS
         samples = max(2, int(math.ceil(r / (0.5 * RES))) + 1)
-        ok = polyline_clear(np.stack([a, b]), occ, ORIGIN, RES, RADIUS)
+        ok = polyline_clear(np.stack([a, b]), occ, grid_of(occ), RADIUS)
         assert ok == _dense_rule(a, b, occ, samples), (a, b)
         counts[ok] += 1
     assert counts[True] > 20 and counts[False] > 20
@@ -990,15 +994,15 @@ def test_the_per_map_setup_is_kept_by_content():
     from jaxsem.planning._edges import _clearance_table_np  # layers: white-box
 
     occ = np.zeros((60, 80), bool)
-    first = PRM(occ, ORIGIN, RES, capacity=50)
-    assert PRM(occ.copy(), ORIGIN, RES, capacity=50)._setup is first._setup
+    first = PRM(occ, grid_of(occ), capacity=50)
+    assert PRM(occ.copy(), grid_of(occ.copy()), capacity=50)._setup is first._setup
     occ[10:50, 40] = True  # edited in place
-    edited = PRM(occ, ORIGIN, RES, capacity=50)
+    edited = PRM(occ, grid_of(occ), capacity=50)
     assert edited._setup is not first._setup
     np.testing.assert_array_equal(np.asarray(edited._setup.table()), _clearance_table_np(occ))
-    assert PRM(np.zeros((60, 80), bool), ORIGIN, RES, capacity=50)._setup is first._setup
+    assert PRM(np.zeros((60, 80), bool), grid_of(np.zeros((60, 80), bool)), capacity=50)._setup is first._setup
     clear_map_cache()
-    again = PRM(occ, ORIGIN, RES, capacity=50)
+    again = PRM(occ, grid_of(occ), capacity=50)
     assert again._setup is not edited._setup
     np.testing.assert_array_equal(np.asarray(again._setup.table()), np.asarray(edited._setup.table()))
     for a, b in zip(again._setup.aids(table=False), edited._setup.aids(table=False)):
@@ -1024,7 +1028,7 @@ def test_free_cell_sampling_draws_the_cdf_samples():
     one = np.ones((33, 65), bool)
     one[32, 64] = False
     maps = [rng.random((33, 65)) < p for p in (0.3, 0.0, 0.99)] + [one]
-    grid = _grid(origin, RES, (33, 65))
+    grid = _grid(Q.Grid.host(origin, RES, (33, 65)), jnp.float32)
     by_cdf = jax.jit(lambda key, occ: sample_points(key, _sampling_weights(occ, None), 3000, grid))
     by_words = jax.jit(lambda key, w, c: sample_free_cells(key, w, c, 3000, grid))
     for occ in maps:
@@ -1053,7 +1057,7 @@ def test_a_query_table_on_windows_gives_the_edge_checks_answers():
     rng = np.random.default_rng(4)
     a = rng.random((400, 2)) * [8.0, 6.0]
     b = a + rng.normal(0.0, 2.0, (400, 2))
-    grid = _grid(jnp.asarray(ORIGIN, jnp.float32), RES, occ.shape)
+    grid = _grid(grid_of(occ), jnp.float32)
     a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
     want, got = jax.jit(
         lambda blocked, table: (
@@ -1072,8 +1076,8 @@ def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     from jaxsem.planning import NavConfig, Trial
 
     occ = np.zeros((200, 300), bool)
-    uniform = PRM(occ, ORIGIN, RES, capacity=500, weight="euclidean")
-    learned = PRM(occ, ORIGIN, RES, capacity=500, weight="neglogp")
+    uniform = PRM(occ, grid_of(occ), capacity=500, weight="euclidean")
+    learned = PRM(occ, grid_of(occ), capacity=500, weight="neglogp")
     loop = Trial.connection_radius(NavConfig(n_samples=500, max_growth=0), occ.shape, RES, learned=True)
     assert learned.radius == loop
     assert learned.radius >= 1.9 * uniform.radius
@@ -1086,7 +1090,7 @@ def test_a_large_grow_keeps_the_first_k_clear_of_the_direction_rule():
     rng = np.random.default_rng(3)
     occ = _thin_wall_map(rng)
     n, k, radius, sectors = 2600, 6, 0.5, 4
-    prm = PRM(occ, ORIGIN, RES, capacity=n, k=k, radius=radius, sectors=sectors)
+    prm = PRM(occ, grid_of(occ), capacity=n, k=k, radius=radius, sectors=sectors)
     prm.grow(jax.random.PRNGKey(0), n)
     pts = np.asarray(prm.roadmap.points)
     valid = np.asarray(prm.roadmap.valid)
@@ -1142,10 +1146,10 @@ def test_unknown_weight_charges_metres_through_unknown_cells():
     known = _half_known_map()
     unknown = known == UNKNOWN
     key = jax.random.PRNGKey(4)
-    plain = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS)
+    plain = PRM(known, grid_of(known), capacity=N, radius=RADIUS)
     plain.grow(key, N)
     for weight, dist in (("euclidean", None), ("neglogp", np.ones(known.shape))):
-        prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, weight=weight, unknown_weight=3.0)
+        prm = PRM(known, grid_of(known), capacity=N, radius=RADIUS, weight=weight, unknown_weight=3.0)
         prm.grow(key, N, dist)
         # The same links as the plain roadmap (only the weights change).
         np.testing.assert_array_equal(np.asarray(prm.roadmap.edge_valid), np.asarray(plain.roadmap.edge_valid))
@@ -1164,7 +1168,7 @@ def test_unknown_weight_charges_metres_through_unknown_cells():
 
 def test_unknown_weight_reweighs_edges_when_cells_become_known():
     known = _half_known_map()
-    prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, unknown_weight=3.0)
+    prm = PRM(known, grid_of(known), capacity=N, radius=RADIUS, unknown_weight=3.0)
     prm.grow(jax.random.PRNGKey(4), N)
     links = np.asarray(prm.roadmap.edge_valid).copy()
     seen = np.where(known == UNKNOWN, np.int8(0), known)  # the same obstacles, everything seen
@@ -1185,7 +1189,7 @@ def test_unknown_weight_takes_the_route_seen_free():
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
     ys = {}
     for uw in (1.0, 4.0):
-        prm = PRM(known, ORIGIN, RES, capacity=N, radius=RADIUS, unknown_weight=uw)
+        prm = PRM(known, grid_of(known), capacity=N, radius=RADIUS, unknown_weight=uw)
         prm.grow(jax.random.PRNGKey(0), N)
         p = prm.query(start, goal)
         assert p.found
@@ -1198,11 +1202,11 @@ def test_unknown_weight_bad_input():
     known = _half_known_map()
     for bad in (0.0, -1.0, float("inf"), float("nan"), True, "2"):
         with pytest.raises(ValueError, match="unknown_weight"):
-            PRM(known, ORIGIN, RES, capacity=10, unknown_weight=bad)
+            PRM(known, grid_of(known), capacity=10, unknown_weight=bad)
     with pytest.raises(ValueError, match="known_map"):
-        PRM(known == OCCUPIED, ORIGIN, RES, capacity=10, unknown_weight=2.0)
+        PRM(known == OCCUPIED, grid_of(known == OCCUPIED), capacity=10, unknown_weight=2.0)
     with pytest.raises(ValueError, match="lazy"):
-        PRM(known, ORIGIN, RES, capacity=10, unknown_weight=2.0, lazy=True)
-    prm = PRM(known, ORIGIN, RES, capacity=10, unknown_weight=2.0)
+        PRM(known, grid_of(known), capacity=10, unknown_weight=2.0, lazy=True)
+    prm = PRM(known, grid_of(known), capacity=10, unknown_weight=2.0)
     with pytest.raises(ValueError, match="known_map"):
         prm.update_map(known == OCCUPIED)

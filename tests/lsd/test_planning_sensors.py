@@ -73,7 +73,7 @@ def test_sense_matches_per_ray_reference(seed):
     rc = free[rng.integers(len(free))]
     pose = np.array([ORIGIN[0] + (rc[1] + 0.37) * RES, ORIGIN[1] + (rc[0] + 0.61) * RES, rng.uniform(-3, 3)])
     st = empty_map_state(occ.shape)
-    got = sense(occ, sem, st, pose, ORIGIN, RES, SMALL)
+    got = sense(occ, sem, st, pose, Q.Grid.host(ORIGIN, RES, occ.shape), SMALL)
     ref_occ, ref_sem = _reference_sense(occ, sem, np.asarray(st.occupancy), np.asarray(st.semantic), pose, SMALL)
     got_occ = np.asarray(got.occupancy)
     assert got.occupancy.dtype == jnp.int8 and got.semantic.dtype == jnp.int8
@@ -131,7 +131,13 @@ def test_nothing_seen_through_walls():
     sem[10:70, 80:82] = DOOR  # doors and a window behind the wall
     sem[30:40, 60:62] = WINDOW
     for yaw in (0.0, 0.3, -0.4):
-        st = sense(occ, sem, empty_map_state(occ.shape), [ORIGIN[0] + 3.05, ORIGIN[1] + 4.05, yaw], ORIGIN, RES)
+        st = sense(
+            occ,
+            sem,
+            empty_map_state(occ.shape),
+            [ORIGIN[0] + 3.05, ORIGIN[1] + 4.05, yaw],
+            Q.Grid.host(ORIGIN, RES, occ.shape),
+        )
         o = np.asarray(st.occupancy)
         assert (o[:, :60] != UNKNOWN).sum() > 500
         assert np.all(o[:, 62:] == UNKNOWN), "cells behind the wall were seen"
@@ -145,7 +151,13 @@ def test_nothing_seen_through_walls():
     sem2 = np.where(occ2, 1, 0).astype(np.int8)
     sem2[18:22, 150:152] = DOOR  # 7.5 m ahead
     sem2[18:22, 185:187] = DOOR  # 11 m ahead
-    st = sense(occ2, sem2, empty_map_state(occ2.shape), [ORIGIN[0] + 7.55, ORIGIN[1] + 2.05, 0.0], ORIGIN, RES)
+    st = sense(
+        occ2,
+        sem2,
+        empty_map_state(occ2.shape),
+        [ORIGIN[0] + 7.55, ORIGIN[1] + 2.05, 0.0],
+        Q.Grid.host(ORIGIN, RES, occ2.shape),
+    )
     o = np.asarray(st.occupancy)
     assert np.all(o[:, 127:] == UNKNOWN) and o[20, 120] == FREE
     s = np.asarray(st.semantic)
@@ -158,29 +170,34 @@ def test_batched_sense_matches_single_and_jit():
     poses = np.c_[ORIGIN[0] + (free[:, 1] + 0.5) * RES, ORIGIN[1] + (free[:, 0] + 0.5) * RES, [0.1, 2.0, -1.0]]
     st0 = empty_map_state(occ.shape)
     batch = jax.tree.map(lambda x: jnp.stack([x] * 3), st0)
-    out = sense(occ, sem, batch, poses, ORIGIN, RES, SMALL)
+    out = sense(occ, sem, batch, poses, Q.Grid.host(ORIGIN, RES, occ.shape), SMALL)
     for i in range(3):
-        one = sense(occ, sem, st0, poses[i], ORIGIN, RES, SMALL)
+        one = sense(occ, sem, st0, poses[i], Q.Grid.host(ORIGIN, RES, occ.shape), SMALL)
         np.testing.assert_array_equal(np.asarray(out.occupancy[i]), np.asarray(one.occupancy))
         np.testing.assert_array_equal(np.asarray(out.semantic[i]), np.asarray(one.semantic))
     # Sensing twice from the same pose changes nothing; sensing accumulates.
-    again = sense(occ, sem, one, poses[2], ORIGIN, RES, SMALL)
+    again = sense(occ, sem, one, poses[2], Q.Grid.host(ORIGIN, RES, occ.shape), SMALL)
     np.testing.assert_array_equal(np.asarray(again.occupancy), np.asarray(one.occupancy))
 
 
 def test_bad_input():
     occ, sem = _random_world(0)
     st = empty_map_state(occ.shape)
+    grid = Q.Grid.host(ORIGIN, RES, occ.shape)
     with pytest.raises(ValueError, match="true_occupancy"):
-        sense(occ.astype(np.int32), sem, st, [0.0, 0.0, 0.0], ORIGIN, RES)
+        sense(occ.astype(np.int32), sem, st, [0.0, 0.0, 0.0], grid)
     with pytest.raises(ValueError, match="true_semantic"):
-        sense(occ, sem[:-1], st, [0.0, 0.0, 0.0], ORIGIN, RES)
+        sense(occ, sem[:-1], st, [0.0, 0.0, 0.0], grid)
     with pytest.raises(ValueError, match="pose"):
-        sense(occ, sem, st, [0.0, 0.0], ORIGIN, RES)
-    with pytest.raises(ValueError, match="origin"):
-        sense(occ, sem, st, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], RES)
+        sense(occ, sem, st, [0.0, 0.0], grid)
+    with pytest.raises(ValueError, match="^grid: expected a jaxsem.quadrics.Grid"):
+        sense(occ, sem, st, [0.0, 0.0, 0.0], ORIGIN, RES)  # pyright: ignore[reportArgumentType]
+    with pytest.raises(ValueError, match="grid: expected a finite \\(2,\\) origin"):
+        sense(occ, sem, st, [0.0, 0.0, 0.0], Q.Grid(np.zeros(3), np.asarray(RES), occ.shape))
     with pytest.raises(ValueError, match="resolution"):
-        sense(occ, sem, st, [0.0, 0.0, 0.0], ORIGIN, -0.1)
+        sense(occ, sem, st, [0.0, 0.0, 0.0], Q.Grid(ORIGIN, np.asarray(-0.1), occ.shape))
+    with pytest.raises(ValueError, match="grid: expected a grid of shape"):
+        sense(occ, sem, st, [0.0, 0.0, 0.0], Q.Grid.host(ORIGIN, RES, (5, 5)))
     with pytest.raises(ValueError, match="shape"):
         empty_map_state((5,))
 
@@ -188,7 +205,7 @@ def test_bad_input():
 def test_state_must_match_map():
     occ, sem = _random_world(0)
     with pytest.raises(ValueError, match="state.occupancy"):
-        sense(occ, sem, empty_map_state((10, 10)), [0.5, 0.5, 0.0], ORIGIN, RES)
+        sense(occ, sem, empty_map_state((10, 10)), [0.5, 0.5, 0.0], Q.Grid.host(ORIGIN, RES, occ.shape))
 
 
 def test_loose_arrays_where_a_grid_belongs_are_refused_naming_the_argument():

@@ -153,9 +153,7 @@ def test_train_from_a_directory_end_to_end_with_exact_resume(tmp_path):
     cfg = get_config("both", "tiny").replace(
         batch_size=4, num_steps=4, checkpoint_every=2, eval_every=0, num_eval=8, data="directory", data_dir=str(data)
     )
-    sizes = dict(
-        input_size=cfg.model.input_size, global_padding=cfg.model.global_padding, num_points=cfg.scene.num_points
-    )
+    sizes = cfg.data_sizes()
     batch_fn, n = volumon_batch_source(data, batch_size=4, seed=cfg.seed, **sizes)
     assert n >= 4
     ev = volumon_eval_batch(data, num=8, **sizes)

@@ -56,7 +56,7 @@ def bop_split_frames(scene: BopScene, split: str, below: int = LMO_TUNE_BELOW) -
 
 def read_rgb(path) -> np.ndarray:
     """An image file as (H, W, 3) uint8 RGB; ValueError naming the file when it cannot be read."""
-    import cv2  # deferred: cv2 is slow to import (~0.1 s) and only this function needs it
+    import cv2  # deferred: cv2 is slow to import and only this function needs it
 
     path = pathlib.Path(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None

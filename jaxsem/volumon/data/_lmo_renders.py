@@ -391,7 +391,7 @@ def _place_cluster(rng, items, radius, placed=None, tries=40, ring=(0.0, 1.0)):
 
 def _camera_effects(rng, rgb: np.ndarray) -> np.ndarray:
     """Blur, gain, gamma and sensor noise of a cheap RGB camera (uint8 in, uint8 out)."""
-    import cv2  # deferred: cv2 is slow to import (~0.1 s) and only this function needs it
+    import cv2  # deferred: cv2 is slow to import and only this function needs it
 
     img = rgb.astype(np.float32) / 255.0
     sigma = float(rng.uniform(0.0, 1.3))
