@@ -13,7 +13,7 @@ by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
 from __future__ import annotations
 
 import copy
-from typing import TYPE_CHECKING
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +21,6 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..models import LSDNet, lsd_distribution
-
-if TYPE_CHECKING:
-    from ..planning._grid import GridLike
 
 
 class LSDSampler:
@@ -66,7 +63,7 @@ class LSDSampler:
 
 
 def full_map_distribution(
-    sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, grid: GridLike, max_distance: float = 20.0
+    sampler: LSDSampler, state, xy, goal, goal_outdoors: bool, grid: Any, max_distance: float = 20.0
 ) -> np.ndarray:
     """The planner's full-map distribution (H, W) (sums to 1) at robot position ``xy``.
 
