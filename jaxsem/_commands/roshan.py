@@ -14,7 +14,7 @@ Examples::
     python infer/roshan.py --tum data/rgbd_dataset_freiburg1_desk --detections dets.jsonl \
         --frontend orb --out out/tum
     # one stretch of a BOP scene (LM-O's desk: jaxsem data fetch lmo), as a user's sequence
-    python infer/roshan.py --bop /tmp/realdata/lmo/test/000002 --split tune --stretch 0 \
+    python infer/roshan.py --bop DATA/lmo/test/000002 --split tune --stretch 0 \
         --frontend orb --out out/lmo
 
 Input layouts:
