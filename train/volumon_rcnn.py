@@ -5,7 +5,8 @@
 
 Renders ``--frames`` desk frames into ``--renders`` first (resumable chunks; needs
 ``jaxsem data fetch lmo`` and ``ycb``), plus 64 held-out frames of another seed, then trains in
-``--workdir`` (re-running resumes). ``--oracle`` trains the fully supervised oracle (3D labels in
+``--workdir`` (re-running resumes). The tuning photos from ``--val-from`` on are the held-out
+validation (scored every evaluation; the rendered held-out frames when there are none). ``--oracle`` trains the fully supervised oracle (3D labels in
 place of the dual loss) on the same data. The LM-O test split (frame ids 600 and above) is never
 read.
 """
@@ -33,6 +34,17 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=sc.positive_int, default=8)
     p.add_argument("--burn-in", type=int, default=2000)
     p.add_argument("--oracle", action="store_true", help="the fully supervised oracle (3D labels)")
+    p.add_argument(
+        "--backbone", choices=("mobilenet_v2", "plain_cnn"), default="mobilenet_v2", help="plain_cnn: the CPU preset"
+    )
+    p.add_argument("--cnn-width", type=sc.positive_int, default=16, help="plain_cnn's first width (default 16)")
+    p.add_argument(
+        "--val-from",
+        type=sc.nonnegative_int,
+        default=500,
+        help="tuning photos with this frame id or above are the held-out validation, not trained on (default 500)",
+    )
+    p.add_argument("--real-per-batch", type=sc.nonnegative_int, default=2, help="real photos in each batch")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     models = a.models or (a.lmo / "models" if a.lmo else None)
@@ -46,7 +58,10 @@ def main(argv=None) -> int:
     loss = rc.RCNNLossConfig(burn_in=a.burn_in)
     if a.oracle:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
-    config = rc.RCNNTrainConfig(loss=loss, batch_size=a.batch, num_steps=a.steps, seed=a.seed)
+    model = dataclasses.replace(rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width)
+    config = rc.RCNNTrainConfig(
+        model=model, loss=loss, batch_size=a.batch, real_per_batch=a.real_per_batch, num_steps=a.steps, seed=a.seed
+    )
     size = config.model.input_size
     ycb = a.ycb if a.ycb.is_dir() else None
     df.write_desk_frames(
@@ -57,7 +72,16 @@ def main(argv=None) -> int:
     )
     renders = df.load_frame_chunks(a.renders / "train")
     held = df.load_frame_chunks(a.renders / "heldout")
-    real = df.frame_arrays(df.bop_frames(a.lmo, "tune"), size) if a.lmo is not None else None
+    real = None
+    if a.lmo is not None:
+        tune = df.bop_frames(a.lmo, "tune")
+        fit = [f for f in tune if f["frame_id"] < a.val_from]
+        val = [f for f in tune if f["frame_id"] >= a.val_from]
+        if not fit:
+            p.error(f"--val-from: no tuning photo below frame id {a.val_from} is left to train on")
+        real = df.frame_arrays(fit, size)
+        if val:  # the real validation photos are the held-out figures that matter
+            held = df.frame_arrays(val, size)
     rc.train_rcnn(config, a.workdir, renders, real, held, stop_at=a.stop_at, log=print)
     return 0
 

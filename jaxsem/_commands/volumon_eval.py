@@ -19,6 +19,13 @@ same way; with --model lmo the fully supervised oracle shipped beside the LM-O m
 default). On a folder of rendered desk detections (``python -m jaxsem.volumon.data.make_lmo_renders``)
 the same keys (ADI there against the mesh extent's cuboid): the sim-to-real gap of the LM-O model.
 
+With ``--model lmo-rcnn`` (or an exported VoluMon R-CNN, or its training run) on a BOP scene the
+network finds the objects itself, from the photographs alone: the JSON holds ``detection``
+(``ap50`` over the classes, ``ap50_per_class``, ``recall50``), the 3D figures of its detections
+matched to an object at least --min-visible visible (box IoU >= 0.5), ``num_matched``,
+``num_truth``, ``ms_per_image`` (batch 1), ``baseline`` (known-size, the same boxes) and
+``parallel`` (the shipped LM-O VoluMon fed the same boxes and classes: thesis 5.3's design).
+
 Example (the tuning split of LM-O; the test split, ids >= 600, is held out)::
 
     jaxsem volumon eval --model lmo --data DATA/lmo/test/000002 --split tune --json tune.json
@@ -93,7 +100,8 @@ def add_model_arguments(p, workdir_type, workdir_help: str) -> None:
     p.add_argument(
         "--model",
         default=None,
-        help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model) or a path (a training run "
+        help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model, "
+        "'lmo-rcnn': the LM-O detect-and-lift network, BOP scenes only) or a path (a training run "
         "or a .npz); the same as --workdir for a path (default: 'object'; on a BOP scene, --data with "
         "scene_gt.json: 'lmo')",
     )
@@ -119,6 +127,40 @@ def resolve_model(text: str | None, workdir):
             "path to a training run or .npz"
         )
     raise sc.UsageError(f"--model: {text}: no such file or directory")
+
+
+RCNN_NAME = "lmo-rcnn"
+
+
+def _rcnn_source(text: str | None, workdir):
+    """``(is_rcnn, path)``: whether ``--model`` / ``--workdir`` name a VoluMon R-CNN (the shipped
+    one, path None; an export whose JSON or a run whose config.json configures anchors)."""
+    if text == RCNN_NAME:
+        return True, None
+    source = workdir if text is None else text
+    if source is None:
+        return False, None
+    path = pathlib.Path(source)
+    meta = path / "config.json" if path.is_dir() else path.with_suffix(".json")
+    try:
+        info = json.loads(meta.read_text())
+    except (OSError, ValueError):
+        return False, None
+    model = info.get("config", info).get("model", {}) if isinstance(info, dict) else {}
+    return isinstance(model, dict) and "anchor_sizes" in model, path
+
+
+def _rcnn_figures(args, path) -> dict:
+    """The detect-and-lift network's figures on a BOP scene (see the module docstring)."""
+    from jaxsem.volumon import load_pretrained
+    from jaxsem.volumon.rcnn import evaluate_scene, load_rcnn
+
+    loaded = load_rcnn(path)
+    parallel = load_pretrained(kind="lmo")
+    from tqdm.auto import tqdm
+
+    bar = lambda frames: tqdm(frames, desc="volumon rcnn eval", unit="photo")
+    return evaluate_scene(loaded, args.data, args.split, min_visible=args.min_visible, parallel=parallel, progress=bar)
 
 
 def _is_bop(path) -> bool:
@@ -269,6 +311,22 @@ def main(argv=None, prog: str | None = None) -> int:
                 raise sc.UsageError(f"{flag}: only with --data SCENE_DIR, a BOP scene folder with scene_gt.json")
     if bop and args.model is None and args.workdir is None:
         args.model = "lmo"  # a BOP scene's default: the model trained for real objects (and its oracle)
+    is_rcnn, rcnn_path = _rcnn_source(args.model, args.workdir)
+    if is_rcnn:
+        if not bop:
+            raise sc.UsageError(
+                "--model: the R-CNN is scored on a BOP scene only (--data SCENE_DIR with scene_gt.json)"
+            )
+        for flag, value in (("--oracle", args.oracle), ("--postopt", args.postopt)):
+            if value:
+                raise sc.UsageError(f"{flag}: not available with the R-CNN")
+        try:
+            result = _rcnn_figures(args, rcnn_path)
+        except ValueError as exc:
+            if args.debug:
+                raise
+            raise SystemExit(f"{prog or 'jaxsem volumon eval'}: {exc}")
+        return _write(args, result)
     path, kind = resolve_model(args.model, args.workdir)
     from jaxsem.volumon import evaluate_held_out, load_pretrained
 
@@ -292,6 +350,10 @@ def main(argv=None, prog: str | None = None) -> int:
             raise
         raise SystemExit(f"{prog or 'jaxsem volumon eval'}: {exc}")
     result = {"model": str(meta.get("name")), "model_step": meta.get("step"), **result}
+    return _write(args, result)
+
+
+def _write(args, result: dict) -> int:
     text = json.dumps(result, indent=1)
     if args.json:
         sc.atomic_write_text(args.json, text + "\n")

@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._expert import load_expert_dataset
+
 TRAIN_KEYS = ("occupancy", "semantic", "context", "path_mask")
 
 
@@ -46,8 +48,6 @@ def check_expert_data(data: dict, map_size: int, context_dim: int) -> int:
 
 def load_expert_data(paths) -> dict:
     """Loads shards (a folder, one path, or a list) into one dict (see the planning schema)."""
-    from ._expert import load_expert_dataset
-
     if isinstance(paths, (str, os.PathLike)) and not pathlib.Path(paths).is_dir():
         paths = [paths]
     return load_expert_dataset(paths)

@@ -13,13 +13,21 @@ zero-intercept regression slope of ``C_b`` on ``C_l`` and its R^2.
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+import pathlib
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import numpy as np
 
 from ..metrics import mean_sem, zero_intercept_slope
+from ..planning import NavConfig, sample_tasks
+from ._config import cpu_config
+from ._expert import ExpertConfig, write_expert_dataset
+from ._train import load_model, train_and_evaluate
 
 
 def trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
@@ -40,8 +48,6 @@ def trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
 
 def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = False, base=None) -> dict:
     """One (building, set, trial, N): every planner from the same start, yaw and key."""
-    from ..planning import NavConfig
-
     b, kind, t_i, task, n = job
     base = base or NavConfig()
     key = trial_key(seed, b.seed, kind, t_i, n)
@@ -132,8 +138,6 @@ def run_trials(
     nav_config: the :class:`~jaxsem.planning.NavConfig` the planners start from (``n_samples``
     and ``max_steps`` are set per job; default: ``NavConfig()``).
     """
-    from ..planning import sample_tasks
-
     for kind in sets:
         if kind not in ("II", "IO"):
             raise ValueError(f"sets: expected 'II' and/or 'IO', got {kind!r}")
@@ -164,7 +168,7 @@ def run_trials(
     stream = _RecordStream(records_path, list(planners)) if records_path is not None else None
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # deferred: tqdm is slow to import and only a shown bar needs it
 
         bar = tqdm(total=len(jobs), desc="table 3.1 trials", unit="task")
     lock = threading.Lock()
@@ -196,7 +200,6 @@ def run_trials(
                 with jax.default_device(devices[0]):
                     run_one(i, group)
     else:
-        from concurrent.futures import ThreadPoolExecutor
 
         def run_group(d_i):
             device = devices[d_i]
@@ -219,9 +222,6 @@ class _RecordStream:
     killed while writing) is ignored and rewritten by the resumed run."""
 
     def __init__(self, path, planners: list):
-        import json
-        import pathlib
-
         self.path = pathlib.Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.done: dict = {}
@@ -258,9 +258,6 @@ class _RecordStream:
         return self.done.get(self._job_key(job))
 
     def append(self, rec: dict) -> None:
-        import json
-        import os
-
         with self.lock, self.path.open("a") as f:
             f.write(json.dumps(rec) + "\n")
             f.flush()
@@ -269,9 +266,6 @@ class _RecordStream:
 
 def read_records(path) -> list:
     """The records of a :func:`run_trials` ``records_path`` file (a torn last line skipped)."""
-    import json
-    import pathlib
-
     out = []
     lines = pathlib.Path(path).read_text().splitlines()
     for i, line in enumerate(lines):
@@ -456,7 +450,7 @@ def plot_success(summary: dict, path) -> None:
     """Success rate against N for both planners and each set (figure 3-8), with binomial
     standard errors as error bars, saved as PNG; a variant both planners ran (``paired_X`` in
     the summary, e.g. the thesis' protocol) gets its own pair of dotted lines."""
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is slow to import and only the figures need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -525,16 +519,9 @@ def prepare_model(
     """``(model, params, info)``: loads ``checkpoint`` (a training workdir or an exported .npz,
     :func:`jaxsem.lsd.load_model`) or generates expert
     data on train-family buildings into ``workdir/data`` and trains there (resuming if present)."""
-    import pathlib
-
-    from ._config import cpu_config
-    from ._train import load_model, train_and_evaluate
-
     if checkpoint:
         model, params, cfg, _ = load_model(checkpoint)
         return model, params, {"checkpoint": str(checkpoint), "trained_here": False}
-    from ._expert import ExpertConfig, write_expert_dataset
-
     workdir = pathlib.Path(workdir)
     t0 = time.perf_counter()
     shards = write_expert_dataset(
@@ -580,7 +567,7 @@ def plot_navigation(
 
     world: a Building-like object; results: ``{name: NavResult}``; distribution: (H, W) or None.
     """
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is slow to import and only the figures need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

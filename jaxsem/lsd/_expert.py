@@ -311,7 +311,7 @@ def write_expert_dataset(
     ]
     bar = None
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # deferred: tqdm is slow to import and only a shown bar needs it
 
         bar = tqdm(total=len(jobs), desc=f"expert {family}", unit="building")
     if workers <= 1 or len(jobs) <= 1:

@@ -21,6 +21,8 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..models import LSDNet, lsd_distribution
+from ..planning import embed_local_distribution, local_inputs
+from ._expert import full_map_state
 
 
 class LSDSampler:
@@ -70,8 +72,6 @@ def full_map_distribution(
     state: :class:`jaxsem.planning.MapState`; xy, goal: (2,) world (x, y); goal_outdoors: the
     context flag; grid: the state's :class:`jaxsem.quadrics.Grid` (or a map holding one). Crops and context exactly as in the online loop.
     """
-    from ..planning import embed_local_distribution, local_inputs
-
     inputs = local_inputs(state, xy, goal, goal_outdoors, grid, sampler.model.config.map_size, max_distance)
     local = sampler(inputs)
     return np.asarray(embed_local_distribution(local, inputs.center_cell, state.occupancy.shape))
@@ -88,9 +88,6 @@ def full_map_sampler(sampler, world, max_distance: float = 20.0):
     world: the trial's world (a :class:`jaxsem.planning.Building`: ``occupancy``, ``semantic``,
     ``origin``, ``resolution``). For ``NavConfig.sampler_scale`` 1 (the window's centre cell is
     read as a cell of ``world``)."""
-    from ..planning import local_inputs
-    from ._expert import full_map_state
-
     state = full_map_state(world)
     origin = np.asarray(world.origin, np.float64)
     res = float(world.resolution)

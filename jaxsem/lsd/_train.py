@@ -44,7 +44,7 @@ import numpy as np
 import optax
 
 from .. import parallel
-from ..checkpoint import Checkpointer, CheckpointError
+from ..checkpoint import Checkpointer, CheckpointError, latest_step
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
 from ..training import LoadedModel, TrainingRun, config_json
 from ._config import TrainConfig
@@ -449,7 +449,7 @@ def save_distribution_figure(path, batch: dict, log_prob: np.ndarray, title: str
     green, window blue, exit sign red) and the expert path (magenta). Row 2: log10 of the
     predicted probability over the same map, the path on top, the goal direction as an arrow.
     """
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is slow to import and only the figures need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -755,6 +755,4 @@ def load_model(source=None) -> LoadedModel:
         model, params, config = load_model_file(source)
         return LoadedModel(model, params, config, {"name": str(source), "step": None})
     model, params, config = load_trained(source)
-    from ..checkpoint import latest_step
-
     return LoadedModel(model, params, config, {"name": str(source), "step": latest_step(source / "checkpoints")})

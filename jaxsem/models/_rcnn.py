@@ -2,7 +2,10 @@
 
 A two-stage detector in the style of Faster R-CNN with the VoluMon head of figure 5-8:
 
-- **backbone**: MobileNetV2 cut at stride 16 (its first 13 inverted residual blocks);
+- **backbone**: MobileNetV2 cut at stride 16 (its first 13 inverted residual blocks), the
+  thesis' choice, or a plain stride-16 CNN (``backbone="plain_cnn"``: pairs of full 3 x 3
+  convolutions, the CPU preset: XLA's CPU depthwise convolutions make MobileNetV2 several times
+  slower to train there, as for VoluMon's ``small_cnn``);
 - **region proposals**: a 3 x 3 conv over the features, objectness and box deltas for
   ``len(anchor_sizes) x len(aspect_ratios)`` anchors per cell; the top ``pre_nms`` by score go
   through fixed-shape non-maximum suppression (:func:`jaxsem.models.nms`) to ``proposals`` boxes;
@@ -48,6 +51,7 @@ from ._volumon import (
 )
 
 PARAM_RULES = ("class", "expectation")
+BACKBONES = ("mobilenet_v2", "plain_cnn")
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
 
@@ -59,7 +63,9 @@ class RCNNConfig:
     Attributes:
       num_classes: N object classes (class 0 of the logits is the background).
       input_size: ``(W, H)`` of the network's image; multiples of 16.
+      backbone: "mobilenet_v2" or "plain_cnn" (module docstring).
       width_multiplier: MobileNetV2 width.
+      cnn_width: channels of the first ``plain_cnn`` stage (then 2x, 4x, 8x).
       anchor_sizes: anchor side lengths in input pixels; aspect_ratios: height / width.
       pre_nms, proposals: proposals kept before and after the proposal NMS (``rpn_nms`` IoU).
       roi_size: RoI pooling cells per side; hidden: width of the RoI head's layers.
@@ -72,7 +78,9 @@ class RCNNConfig:
 
     num_classes: int = 8
     input_size: tuple = (320, 240)
+    backbone: str = "mobilenet_v2"
     width_multiplier: float = 0.5
+    cnn_width: int = 16
     anchor_sizes: tuple = (16.0, 32.0, 64.0, 128.0)
     aspect_ratios: tuple = (0.5, 1.0, 2.0)
     pre_nms: int = 300
@@ -95,6 +103,10 @@ class RCNNConfig:
         w, h = (int(x) for x in self.input_size)
         if w < 32 or h < 32 or w % 16 or h % 16:
             raise ValueError(f"input_size: expected (W, H) multiples of 16, at least 32, got {self.input_size}")
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone: expected one of {BACKBONES}, got {self.backbone!r}")
+        if int(self.cnn_width) < 1:
+            raise ValueError(f"cnn_width: expected >= 1, got {self.cnn_width}")
         if self.param_rule not in PARAM_RULES:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
@@ -230,9 +242,14 @@ class VoluMonRCNN(nn.Module):
         mean = jnp.array([0.485, 0.456, 0.406], images.dtype)
         std = jnp.array([0.229, 0.224, 0.225], images.dtype)
         x = (images - mean) / std
-        x = ConvBN(make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2, name="features_0")(x, train)
-        for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS]):
-            x = InvertedResidual(cin, cout, s, t, name=f"features_{i + 1}")(x, train)
+        if cfg.backbone == "plain_cnn":
+            for i, c in enumerate(int(cfg.cnn_width) * np.array([1, 2, 4, 8])):
+                x = ConvBN(int(c), kernel=3, stride=2, name=f"plain_{i}_0")(x, train)
+                x = ConvBN(int(c), kernel=3, stride=1, name=f"plain_{i}_1")(x, train)
+        else:
+            x = ConvBN(make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2, name="features_0")(x, train)
+            for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS]):
+                x = InvertedResidual(cin, cout, s, t, name=f"features_{i + 1}")(x, train)
         feats = x  # (B, H/16, W/16, C)
         B = feats.shape[0]
 

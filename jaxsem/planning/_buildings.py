@@ -529,7 +529,7 @@ def _outer_cell(region, box, axis, rng, semantic=None):
 
 def _label(mask, structure) -> tuple:
     """``(labels, count)`` of scipy's connected components, typed."""
-    import scipy.ndimage as ndi
+    import scipy.ndimage as ndi  # deferred: scipy is slow to import and only this step needs it
 
     out = ndi.label(mask, structure)
     return np.asarray(out[0]), int(out[1])  # type: ignore[index]
@@ -546,7 +546,7 @@ def generate_house(
     off every door), eroded by ``params.erode`` cells and roughened. ``Building.known`` is False
     on furniture interiors and on free islands cut off by the noise (both blocked).
     """
-    import scipy.ndimage as ndi
+    import scipy.ndimage as ndi  # deferred: scipy is slow to import and only this step needs it
 
     p = params if params is not None else HOUSE_PARAMS
     if not isinstance(p, HouseParams):

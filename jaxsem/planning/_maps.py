@@ -281,7 +281,7 @@ def grid_to_building(
 
 def _read_image(path: pathlib.Path) -> np.ndarray:
     """(H, W) uint8 grey levels of an image file (colour images are averaged)."""
-    import cv2
+    import cv2  # deferred: cv2 is slow to import and only image maps need it
 
     img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -294,7 +294,7 @@ def _read_image(path: pathlib.Path) -> np.ndarray:
 
 
 def _parse_yaml(path: pathlib.Path) -> dict:
-    import yaml
+    import yaml  # deferred: only ROS map files need it
 
     data = read_text_as(path, yaml.safe_load, (yaml.YAMLError,), "YAML file")
     if not isinstance(data, dict):

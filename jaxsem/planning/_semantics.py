@@ -299,7 +299,7 @@ def semantic_grid(occupancy, doors) -> np.ndarray:
 def plot_semantics(building, path, title: str = "") -> None:
     """A figure of a map's occupancy, footprint, doors, windows and exit signs (PNG at ``path``,
     written atomically)."""
-    import matplotlib
+    import matplotlib  # deferred: matplotlib is slow to import and only the figures need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

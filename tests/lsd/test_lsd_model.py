@@ -159,7 +159,7 @@ def test_resize_upsampling_has_no_stripes():
     spread = {}
     for up in ("transpose", "resize"):
         model, params = init_lsd(jax.random.PRNGKey(1), LSDConfig(upsample=up, **cfg))
-        out = model.apply({"params": params}, occ, occ, ctx)
+        out = jax.jit(model.apply)({"params": params}, occ, occ, ctx)
         inner = np.asarray(out.log_prob[0, 6:-6, 6:-6])
         spread[up] = _parity_spread(inner)
     assert spread["transpose"] > 1e-3
@@ -171,7 +171,7 @@ def test_log_range_bounds_the_spread():
     model, params = init_lsd(jax.random.PRNGKey(2), cfg)
     params = jax.tree_util.tree_map(lambda p: 50.0 * p, params)  # a wildly confident network
     occ = jnp.asarray(np.random.default_rng(0).integers(-1, 2, (2, 32, 32)), jnp.int8)
-    lp = np.asarray(model.apply({"params": params}, occ, occ, jnp.ones((2, 4), jnp.float32)).log_prob)
+    lp = np.asarray(jax.jit(model.apply)({"params": params}, occ, occ, jnp.ones((2, 4), jnp.float32)).log_prob)
     assert np.all(lp.max(axis=(1, 2)) - lp.min(axis=(1, 2)) <= 3.0 + 1e-5)
     with pytest.raises(ValueError, match="log_range"):
         LSDConfig(log_range=0.0)

@@ -22,7 +22,7 @@ CHILD = textwrap.dedent(
     from jaxsem import parallel
     from jaxsem.lsd import LSDSampler, run_trials
     from jaxsem.models import LSDConfig, init_lsd
-    from jaxsem.planning import building_family
+    from jaxsem.planning import generate_building
 
     model, params = init_lsd(jax.random.PRNGKey(3), LSDConfig(map_size=160, features=(4, 8), context_features=4))
     seen = {"inputs": [], "params": []}
@@ -42,7 +42,7 @@ CHILD = textwrap.dedent(
             return self.inner(inputs)
 
     lsd = Probe(LSDSampler(model, params))
-    buildings = building_family("test", 1, start=0)
+    buildings = [generate_building(0, "test")]
     # One planner and a few steps: every device compiles the loop's jitted pieces for itself,
     # which is most of the time.
     kw = dict(sets=("II",), ns=(40,), trials=5, seed=2, max_steps=4, progress=False,
