@@ -1,6 +1,8 @@
 """VoluMon R-CNN: box coding, anchors, the loss's finite gradients, fixed shapes under jit, the
 detection AP metric on a hand-counted case, and (slow) a detector that learns a few frames."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -22,7 +24,8 @@ from jaxsem.volumon.rcnn import RCNNLossConfig, make_rcnn_step, rcnn_batch, rcnn
 TINY = RCNNConfig(
     num_classes=3,
     input_size=(128, 96),
-    width_multiplier=0.35,
+    backbone="plain_cnn",
+    cnn_width=8,
     anchor_sizes=(16.0, 32.0, 48.0),
     pre_nms=100,
     proposals=16,
@@ -108,8 +111,20 @@ def test_forward_detect_and_loss_are_finite_fixed_shape_and_compile_once(compile
         )
         return rcnn_loss(out, batch, TINY, RCNNLossConfig(), 1.0)[0]
 
-    g = jax.grad(loss)(v["params"])
+    g = jax.jit(jax.grad(loss))(v["params"])
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(g))
+
+
+@pytest.mark.slow
+def test_the_thesis_backbone_gives_the_same_heads_and_finite_detections():
+    cfg = dataclasses.replace(TINY, backbone="mobilenet_v2", width_multiplier=0.35)
+    model, v = init_rcnn(jax.random.PRNGKey(0), cfg, 1)
+    _, v_plain = init_rcnn(jax.random.PRNGKey(0), TINY, 1)
+    heads = lambda p: {k for k in p if not k.startswith(("features_", "plain_"))}
+    assert heads(v["params"]) == heads(v_plain["params"]) and "features_13" in v["params"]
+    batch = rcnn_batch(_frames(1, 4), cfg, "abc", 3)
+    d = jax.jit(lambda vv, b: detect(model.apply(vv, b["image"], b["K"]), b["K"], cfg))(v, batch)
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(d))
 
 
 def test_config_and_batch_refuse_bad_input():
@@ -117,6 +132,8 @@ def test_config_and_batch_refuse_bad_input():
         RCNNConfig(input_size=(100, 96))
     with pytest.raises(ValueError, match="param_rule"):
         RCNNConfig(param_rule="mean")
+    with pytest.raises(ValueError, match="backbone"):
+        RCNNConfig(backbone="resnet")
     with pytest.raises(ValueError, match="max_objects"):
         rcnn_batch(_frames(6, 2), TINY, "abc", 0)
 

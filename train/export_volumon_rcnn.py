@@ -1,0 +1,85 @@
+"""Export a VoluMon R-CNN training run as a shipped model: weights, config and curves.
+
+    python train/export_volumon_rcnn.py --workdir runs/rcnn_plain --out jaxsem/volumon/pretrained/volumon_lmo_rcnn
+
+Writes ``OUT.npz`` (float32 variables), ``OUT.json`` (the training config, the step, the data and
+the last held-out figures of the run's ``metrics.jsonl``) and ``OUT_curves.png`` (the loss terms and
+the held-out AP50 and centre error against the step), each atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+from jaxsem import scripting as sc
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python train/export_volumon_rcnn.py", description=__doc__.split("\n")[0])
+    p.add_argument("--workdir", type=sc.existing_dir, required=True, help="the training run (train/volumon_rcnn.py)")
+    p.add_argument("--out", type=pathlib.Path, required=True, help="path stem of the exported model")
+    p.add_argument("--data", default="", help="a line saying what the run trained on (goes into the JSON)")
+    a = p.parse_args(argv)
+    metrics_path = a.workdir / "metrics.jsonl"
+    if not metrics_path.is_file():
+        p.error(f"--workdir: {a.workdir} holds no metrics.jsonl")
+    if not a.out.parent.is_dir():
+        p.error(f"--out: no folder {a.out.parent}")
+    rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line.strip()]
+
+    from jaxsem.volumon.rcnn import export_rcnn, load_rcnn
+
+    loaded = load_rcnn(a.workdir)
+    last = rows[-1] if rows else {}
+    meta = {
+        "name": a.out.name,
+        "step": loaded.meta["step"],
+        "seed": loaded.config.seed,
+        "data": a.data,
+        "heldout": {k.removeprefix("heldout_"): v for k, v in last.items() if k.startswith("heldout_")},
+        "heldout_step": last.get("step"),
+    }
+    export_rcnn(a.out, loaded.variables, loaded.config, meta)
+    _curves(rows, a.out.with_name(a.out.name + "_curves.png"))
+    print(json.dumps(meta, indent=1))
+    return 0
+
+
+def _curves(rows, path: pathlib.Path) -> None:
+    import matplotlib  # deferred: matplotlib is slow to import and only the figure needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [r["step"] for r in rows]
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.6))
+    for k in ("rpn_cls", "rpn_box", "cls", "box"):
+        ax[0].plot(steps, [r[k] for r in rows], label=k)
+    ax[0].set_yscale("log")
+    ax[0].set_title("detection terms (training batches)")
+    for k in ("dual", "size", "oracle"):
+        if rows and k in rows[0]:
+            ax[1].plot(steps, [r[k] for r in rows], label=k)
+    ax[1].set_yscale("log")
+    ax[1].set_title("VoluMon terms (count after the burn-in)")
+    ax[2].plot(steps, [r.get("heldout_ap50", float("nan")) for r in rows], label="AP50")
+    ax[2].plot(steps, [r.get("heldout_recall50", float("nan")) for r in rows], label="recall50")
+    ax2 = ax[2].twinx()
+    ax2.plot(steps, [r.get("heldout_median_center_error_m", float("nan")) for r in rows], "k--", label="centre (m)")
+    ax2.set_ylabel("median centre error (m)")
+    ax[2].set_title("held-out validation photos")
+    for a_ in ax:
+        a_.set_xlabel("step")
+        a_.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+if __name__ == "__main__":
+    sys.exit(sc.run_main(main))
