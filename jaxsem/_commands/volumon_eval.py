@@ -83,6 +83,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "oracle) as 'oracle' (default with --model lmo: the oracle shipped beside it)",
     )
     p.add_argument(
+        "--input-size",
+        type=_input_size,
+        default=None,
+        help="R-CNN only: run the network at this W,H (multiples of 16; default: the size it was trained at)",
+    )
+    p.add_argument(
         "--class-mapping",
         choices=("generic", "nearest"),
         default="generic",
@@ -90,6 +96,16 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "the model's classes) or 'nearest' (the model class nearest in size to the object's true extents)",
     )
     return p
+
+
+def _input_size(text: str) -> tuple:
+    try:
+        w, h = (int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected W,H (two integers), got {text!r}") from None
+    if w < 32 or h < 32 or w % 16 or h % 16:
+        raise argparse.ArgumentTypeError(f"expected W,H multiples of 16 and at least 32, got {text!r}")
+    return w, h
 
 
 def add_model_arguments(p, workdir_type, workdir_help: str) -> None:
@@ -153,9 +169,11 @@ def _rcnn_source(text: str | None, workdir):
 def _rcnn_figures(args, path) -> dict:
     """The detect-and-lift network's figures on a BOP scene (see the module docstring)."""
     from jaxsem.volumon import load_pretrained
-    from jaxsem.volumon.rcnn import evaluate_scene, load_rcnn
+    from jaxsem.volumon.rcnn import at_input_size, evaluate_scene, load_rcnn
 
     loaded = load_rcnn(path)
+    if args.input_size is not None:
+        loaded = at_input_size(loaded, args.input_size)
     parallel = load_pretrained(kind="lmo")
     from tqdm.auto import tqdm
 
@@ -312,6 +330,8 @@ def main(argv=None, prog: str | None = None) -> int:
     if bop and args.model is None and args.workdir is None:
         args.model = "lmo"  # a BOP scene's default: the model trained for real objects (and its oracle)
     is_rcnn, rcnn_path = _rcnn_source(args.model, args.workdir)
+    if args.input_size is not None and not is_rcnn:
+        raise sc.UsageError("--input-size: only with the R-CNN (--model lmo-rcnn or an R-CNN run)")
     if is_rcnn:
         if not bop:
             raise sc.UsageError(

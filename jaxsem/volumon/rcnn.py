@@ -32,6 +32,7 @@ __all__ = [
     "detect_image",
     "evaluate_detections",
     "evaluate_scene",
+    "at_input_size",
     "export_rcnn",
     "load_rcnn",
     "rcnn_config_from_dict",
@@ -438,6 +439,17 @@ def load_rcnn(path=None) -> LoadedModel:
             node = node.setdefault(part, {})
         node[leaf] = jnp.asarray(value)
     return LoadedModel(VoluMonRCNN(config.model), variables, config, meta)
+
+
+def at_input_size(loaded: LoadedModel, input_size) -> LoadedModel:
+    """The same network reading images of ``input_size`` ``(W, H)`` (multiples of 16): every
+    layer is size-agnostic (convolutions, RoI pooling to a fixed grid), only the anchors and the
+    feature map's shape change. Objects then appear at other pixel sizes than in training: the
+    trade of speed against accuracy, measured by ``jaxsem volumon eval --input-size``."""
+    W, H = (int(x) for x in input_size)
+    model_cfg = dataclasses.replace(loaded.config.model, input_size=(W, H))
+    config = dataclasses.replace(loaded.config, model=model_cfg)
+    return LoadedModel(VoluMonRCNN(model_cfg), loaded.variables, config, {**loaded.meta, "input_size": [W, H]})
 
 
 def _opt_like(config: RCNNTrainConfig, variables):

@@ -184,7 +184,7 @@ def test_export_load_and_the_detect_command_on_a_photo_of_another_size(tmp_path)
     import cv2
 
     from jaxsem import cli
-    from jaxsem.volumon.rcnn import RCNNTrainConfig, detect_image, export_rcnn, load_rcnn
+    from jaxsem.volumon.rcnn import RCNNTrainConfig, at_input_size, detect_image, export_rcnn, load_rcnn
 
     config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
     _, v = init_rcnn(jax.random.PRNGKey(1), TINY, 1)
@@ -218,3 +218,8 @@ def test_export_load_and_the_detect_command_on_a_photo_of_another_size(tmp_path)
     assert len(rows) == len(d["score"]) and (tmp_path / "out" / "detections.png").is_file()
     with pytest.raises(ValueError, match="image"):
         detect_image(loaded, photo["rgb"].astype(np.float32), K)
+    # the same weights at another input size: boxes still in the photograph's pixels
+    bigger = at_input_size(loaded, (192, 144))
+    assert bigger.config.model.input_size == (192, 144) and bigger.variables is loaded.variables
+    d2 = detect_image(bigger, photo["rgb"], K)
+    assert np.all(np.isfinite(d2["box"])) and np.all(d2["box"][:, 2] <= 256.0 + 1e-3)

@@ -69,3 +69,13 @@ def test_a_false_detection_costs_ap_and_a_lower_threshold_counts_the_hidden_can(
     assert r["num_truth"] == 4 and r["num_matched"] == 4 and r["detection"]["ap50"] == 1.0
     with pytest.raises(ValueError, match="min_visible"):
         _evaluate(monkeypatch, scene, {}, min_visible=2.0)
+
+
+def test_eval_command_scores_the_rcnn_on_a_bop_scene_only(run_cli, tmp_path):
+    status, _, err = run_cli(["volumon", "eval", "--model", "lmo-rcnn"])
+    assert status != 0 and "--model" in err.strip().splitlines()[-1] and "BOP scene" in err
+    scene = _scene(tmp_path)
+    status, _, err = run_cli(
+        ["volumon", "eval", "--model", "lmo-rcnn", "--data", str(scene), "--split", "tune", "--postopt", "3"]
+    )
+    assert status != 0 and "--postopt" in err.strip().splitlines()[-1]
