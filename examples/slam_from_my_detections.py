@@ -73,7 +73,7 @@ def main() -> dict:
 
     # 1. One map.
     est, info = slam.solve_batch(problem, init, config)
-    print(slam.result_message(info.result) or "successful", f"after {int(info.accepted)} iterations")
+    print(slam.result_message(info.result), f"after {int(info.accepted)} iterations")
     err = metrics.ellipsoid_errors(est.rotation, est.center, est.radii, R_true, TRUE_CENTERS, TRUE_RADII)
 
     # 2. The same problem through optimistix, with ROSHAN's solver.

@@ -57,7 +57,8 @@ def test_online_slam_on_my_frames_maps_every_car():
     # four cars passed at 4-4.5 m beside a 30 m drive, boxes with 2 px noise, 2 cm odometry noise
     assert max(result["position_m"]) < 0.6 and sorted(result["position_m"])[1] < 0.3
     budget = (RESULTS.max_steps_reached, RESULTS.iterations_reached)
-    assert result["message"] in ("", *(slam.result_message(code) for code in budget))
+    # converged, or stopped by a step budget (normal while frames arrive)
+    assert result["message"] in ("successful", *(slam.result_message(code) for code in budget))
 
 
 @pytest.mark.slow
