@@ -223,3 +223,16 @@ def test_export_load_and_the_detect_command_on_a_photo_of_another_size(tmp_path)
     assert bigger.config.model.input_size == (192, 144) and bigger.variables is loaded.variables
     d2 = detect_image(bigger, photo["rgb"], K)
     assert np.all(np.isfinite(d2["box"])) and np.all(d2["box"][:, 2] <= 256.0 + 1e-3)
+
+
+@pytest.mark.slow
+def test_the_shipped_lmo_model_loads_and_detects_on_a_photo_of_any_size():
+    from jaxsem.volumon.rcnn import detect_image, load_rcnn
+
+    loaded = load_rcnn()
+    assert loaded.meta["step"] > 0 and len(loaded.config.class_names) == loaded.config.model.num_classes == 8
+    photo = np.random.default_rng(0).integers(0, 255, (300, 400, 3), dtype=np.uint8)
+    d = detect_image(loaded, photo, np.array([[500.0, 0, 200], [0, 500, 150], [0, 0, 1]]))
+    for k in ("box", "score", "center", "radii"):
+        assert np.all(np.isfinite(d[k])), k
+    assert np.all(d["box"][:, 2] <= 400.0 + 1e-3) and set(d["class_name"]) <= set(loaded.config.class_names)
