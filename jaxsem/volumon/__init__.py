@@ -19,7 +19,8 @@ What a user calls, by job:
   :data:`PRETRAINED_DIR`, :data:`SHIPPED`.
 
 The data pipelines are :mod:`jaxsem.volumon.data`'s; the detect-and-lift network (VoluMon
-R-CNN, thesis 5.7) trains through :mod:`jaxsem.volumon.rcnn`. The building blocks (each loss term, the
+R-CNN, thesis 5.7) trains, loads (``rcnn.load_rcnn()``: the shipped LM-O model) and is scored
+through :mod:`jaxsem.volumon.rcnn`. The building blocks (each loss term, the
 device-side batches, the input crops, the presets, ...) stay importable from their private
 modules, e.g. ``jaxsem.volumon._losses``, for tests and benchmarks; ``ConfigMismatchError`` is
 :mod:`jaxsem.training`'s.
