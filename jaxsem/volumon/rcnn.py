@@ -211,6 +211,44 @@ def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
     return rng.choice(n, size=k, replace=n < k)
 
 
+#: Box IoU at which a detection of the right class finds its object. A detection that finds only
+#: an object less than ``min_visible`` visible is left out of the AP, neither right nor wrong
+#: (COCO's crowd rule).
+IOU_MATCH = 0.5
+
+
+def _same_class_iou(box, cls, tbox, tcls) -> np.ndarray:
+    if not len(box) or not len(tbox):
+        return np.full((len(box), len(tbox)), -1.0)
+    iou = np.asarray(box_iou(np.asarray(box, np.float64)[:, None], np.asarray(tbox, np.float64)[None]))
+    return np.where(np.asarray(cls)[:, None] == np.asarray(tcls)[None], iou, -1.0)
+
+
+def _greedy_match(iou: np.ndarray, score) -> dict:
+    """Truth index -> detection index: detections by descending score take their best free truth
+    at IoU >= 0.5 (the rule of :func:`jaxsem.metrics.average_precision`)."""
+    taken: dict[int, int] = {}
+    used = np.zeros(iou.shape[1], bool)
+    for d in np.argsort(-np.asarray(score), kind="stable"):
+        if not iou.shape[1]:
+            break
+        row = np.where(used, -1.0, iou[d])
+        t = int(np.argmax(row))
+        if row[t] >= IOU_MATCH:
+            taken[t], used[t] = int(d), True
+    return taken
+
+
+def _not_crowd(box, cls, tbox, tcls, ibox, icls) -> np.ndarray:
+    """(D,) bool: the detections that do not find only a less visible object (``ibox``, ``icls``;
+    the COCO crowd rule of :data:`IOU_MATCH`)."""
+    if not len(box) or not len(ibox):
+        return np.ones(len(box), bool)
+    hit_ign = _same_class_iou(box, cls, ibox, icls).max(1) >= IOU_MATCH
+    hit_true = _same_class_iou(box, cls, tbox, tcls).max(1, initial=-1.0) >= IOU_MATCH
+    return ~(hit_ign & ~hit_true)
+
+
 def evaluate_detections(
     model, variables, arrays: dict, config: RCNNConfig, batch: int = 8, min_visible: float = 0.5
 ) -> dict:
@@ -225,10 +263,6 @@ def evaluate_detections(
     n = arrays["image"].shape[0]
     dets, truth, centre_err = [], [], []
 
-    def same_class_iou(box, cid, tboxes, tcls):
-        iou = np.asarray(box_iou(box[:, None].astype(np.float64), tboxes[None].astype(np.float64)))
-        return np.where(cid[:, None] == tcls[None], iou, -1.0)
-
     for s in range(0, n, batch):
         idx = np.arange(s, min(s + batch, n))
         pad = np.concatenate([idx, np.full(batch - len(idx), idx[-1])])
@@ -241,23 +275,13 @@ def evaluate_detections(
             centre = np.asarray(d.ellipsoid.center[j])[ok]
             tv = b["box_valid"][j] & (vis[j] >= min_visible)
             ign = b["box_valid"][j] & ~tv
-            if ok.any() and ign.any():
-                hit_ign = same_class_iou(box, cid, b["boxes"][j][ign], b["class_id"][j][ign]).max(1) >= 0.5
-                hit_true = (
-                    same_class_iou(box, cid, b["boxes"][j][tv], b["class_id"][j][tv]).max(1) >= 0.5
-                    if tv.any()
-                    else np.zeros(len(box), bool)
-                )
-                keep = ~(hit_ign & ~hit_true)
-                box, cid, score, centre = box[keep], cid[keep], score[keep], centre[keep]
+            tbox, tcls = b["boxes"][j][tv], b["class_id"][j][tv]
+            keep = _not_crowd(box, cid, tbox, tcls, b["boxes"][j][ign], b["class_id"][j][ign])
+            box, cid, score, centre = box[keep], cid[keep], score[keep], centre[keep]
             dets.append((np.full(len(box), i), box, cid, score))
-            truth.append((np.full(tv.sum(), i), b["boxes"][j][tv], b["class_id"][j][tv]))
-            if len(box) and tv.any():
-                iou = same_class_iou(box, cid, b["boxes"][j][tv], b["class_id"][j][tv])
-                for t in range(iou.shape[1]):
-                    k = int(np.argmax(iou[:, t]))
-                    if iou[k, t] >= 0.5:
-                        centre_err.append(float(np.linalg.norm(centre[k] - b["gt_center"][j][tv][t])))
+            truth.append((np.full(tv.sum(), i), tbox, tcls))
+            for t, k in _greedy_match(_same_class_iou(box, cid, tbox, tcls), score).items():
+                centre_err.append(float(np.linalg.norm(centre[k] - b["gt_center"][j][tv][t])))
     cat = lambda parts, i: np.concatenate([p[i] for p in parts])
     ap, recall = metrics.average_precision(
         tuple(cat(dets, i) for i in range(4)), tuple(cat(truth, i) for i in range(3)), config.num_classes
@@ -499,33 +523,6 @@ def _detect_fn(model):
 
 # ----------------------------------------------------------------------------- a real scene
 
-#: Box IoU at which a detection of the right class finds its object. A detection that finds only
-#: an object less than ``min_visible`` visible is left out of the AP, neither right nor wrong
-#: (COCO's crowd rule).
-IOU_MATCH = 0.5
-
-
-def _same_class_iou(box, cls, tbox, tcls) -> np.ndarray:
-    if not len(box) or not len(tbox):
-        return np.full((len(box), len(tbox)), -1.0)
-    iou = np.asarray(box_iou(np.asarray(box, np.float64)[:, None], np.asarray(tbox, np.float64)[None]))
-    return np.where(np.asarray(cls)[:, None] == np.asarray(tcls)[None], iou, -1.0)
-
-
-def _greedy_match(iou: np.ndarray, score) -> dict:
-    """Truth index -> detection index: detections by descending score take their best free truth
-    at IoU >= 0.5 (the rule of :func:`jaxsem.metrics.average_precision`)."""
-    taken: dict[int, int] = {}
-    used = np.zeros(iou.shape[1], bool)
-    for d in np.argsort(-np.asarray(score), kind="stable"):
-        if not iou.shape[1]:
-            break
-        row = np.where(used, -1.0, iou[d])
-        t = int(np.argmax(row))
-        if row[t] >= IOU_MATCH:
-            taken[t], used[t] = int(d), True
-    return taken
-
 
 def evaluate_scene(
     loaded: LoadedModel,
@@ -578,15 +575,11 @@ def evaluate_scene(
         tbox = np.array([o.visible_box for o in counted]).reshape(-1, 4)
         tcls = np.array([names.index(o.class_name) for o in counted], np.int64)
         box, cls, score = d["box"], np.asarray(d["class_id"], np.int64), d["score"]
-        if ignored and len(box):
-            ibox = np.array([o.visible_box for o in ignored])
-            icls = np.array([names.index(o.class_name) for o in ignored], np.int64)
-            hit_ign = _same_class_iou(box, cls, ibox, icls).max(1) >= IOU_MATCH
-            iou_true = _same_class_iou(box, cls, tbox, tcls)
-            hit_true = iou_true.max(1) >= IOU_MATCH if iou_true.shape[1] else np.zeros(len(box), bool)
-            keep = np.flatnonzero(~(hit_ign & ~hit_true))
-            d = {k: (np.asarray(v)[keep] if k != "class_name" else [v[j] for j in keep]) for k, v in d.items()}
-            box, cls, score = d["box"], np.asarray(d["class_id"], np.int64), d["score"]
+        ibox = np.array([o.visible_box for o in ignored]).reshape(-1, 4)
+        icls = np.array([names.index(o.class_name) for o in ignored], np.int64)
+        keep = np.flatnonzero(_not_crowd(box, cls, tbox, tcls, ibox, icls))
+        d = {k: (np.asarray(v)[keep] if k != "class_name" else [v[j] for j in keep]) for k, v in d.items()}
+        box, cls, score = d["box"], np.asarray(d["class_id"], np.int64), d["score"]
         dets.append((np.full(len(box), i), box, cls, score))
         truth.append((np.full(len(tbox), i), tbox, tcls))
         pairs = _greedy_match(_same_class_iou(box, cls, tbox, tcls), score)
