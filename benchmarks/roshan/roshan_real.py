@@ -41,6 +41,7 @@ Run: ``python benchmarks/roshan/roshan_real.py --scene /tmp/realdata/lmo/test/00
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -312,6 +313,83 @@ def init_from(problem, base_init, seq, initial):
 
 
 # --------------------------------------------------------------------------------------------
+# From pixels: a detector's boxes, classes and ellipsoids, associated into tracks.
+
+
+def load_detector(name):
+    """The shipped detect-and-lift network (``lmo-rcnn``) or an exported one / training workdir."""
+    from jaxsem.volumon import rcnn
+
+    return rcnn.load_rcnn(None if name == "lmo-rcnn" else name)
+
+
+def detect_sequence(detector, seq):
+    """The network's detections of every frame of ``seq`` (camera-frame ellipsoids)."""
+    from jaxsem.volumon import rcnn
+
+    out = []
+    for t in range(len(seq.frames)):
+        d = rcnn.detect_image(detector, slam.load_image(seq, t), seq.K)
+        keep = np.array([c in seq.classes for c in d["class_name"]], bool)
+        out.append({k: ([c for c, ok in zip(v, keep) if ok] if k == "class_name" else v[keep]) for k, v in d.items()})
+    return out
+
+
+def match_tracks(stretch, seq_d, min_iou=0.5):
+    """Each track to the still object (spell) most of its boxes overlap (same class, box IoU
+    >= ``min_iou`` with the object's visible box in that frame; scoring only, the systems never
+    see it). Returns ``(truth objects keyed by track id, counts)``; of two tracks on one object
+    the one with more such boxes is scored, the other counts as a duplicate."""
+    spell_at = {(s.obj_id, t): s for s in stretch.spells for t in s.frames}
+    votes: dict = {}
+    views: dict = {}
+    for t, fr in enumerate(seq_d.frames):
+        objs = [(o, spell_at.get((o.obj_id, t))) for o in stretch.frames[t].objects]
+        objs = [(o, s) for o, s in objs if s is not None and np.all(np.isfinite(o.visible_box))]
+        for b, c, i in zip(fr.boxes, fr.classes, fr.ids):
+            views[i] = views.get(i, 0) + 1
+            if not objs:
+                continue
+            vb = np.array([o.visible_box for o, _ in objs], np.float64)
+            iou = np.asarray(quadrics.box_iou(jnp.asarray(b)[None], jnp.asarray(vb)))
+            iou = np.where([s.class_name == c for _, s in objs], iou, 0.0)
+            k = int(np.argmax(iou))
+            if iou[k] >= min_iou:
+                votes.setdefault(i, {}).setdefault(objs[k][1].id, 0)
+                votes[i][objs[k][1].id] += 1
+    best: dict = {}
+    for i, v in votes.items():
+        sid, n = max(v.items(), key=lambda kv: kv[1])
+        if 2 * n >= views[i] and (sid not in best or n > best[sid][1]):
+            best[sid] = (i, n)
+    by_spell = {s.id: s for s in stretch.spells}
+    truth = [
+        {
+            "id": i,
+            "class": by_spell[sid].class_name,
+            "center": by_spell[sid].center,
+            "radii": by_spell[sid].radii,
+            "rotation": by_spell[sid].rotation,
+            "spell": sid,
+        }
+        for sid, (i, _) in best.items()
+    ]
+    matched = {i for i, _ in best.values()}
+    obj_of = {s.id: s.obj_id for s in stretch.spells}
+    found_objects = {obj_of[sid] for sid in best}
+    covered = {sid for v in votes.values() for sid, n in v.items() if n >= 2}
+    counts = {
+        "tracks": len(views),
+        "matched": len(matched),
+        "duplicates": sum(1 for i, v in votes.items() if i not in matched and 2 * max(v.values()) >= views[i]),
+    }
+    counts["spurious"] = counts["tracks"] - counts["matched"] - counts["duplicates"]
+    # spells of an object found under another of its spells (it moved a little, one track kept it)
+    counts["merged_spells"] = sorted(sid for sid in covered - set(best) if obj_of[sid] in found_objects)
+    return truth, counts
+
+
+# --------------------------------------------------------------------------------------------
 # Item 7: texture-plane depth against the truth.
 
 
@@ -437,6 +515,24 @@ def parse_args(argv=None):
     p.add_argument("--figures", type=pathlib.Path, default=None, help="write the figures into this folder")
     p.add_argument("--no-volumon", action="store_true", help="skip the VoluMon-initialised system")
     p.add_argument("--yaw-starts", action="store_true", help="ROSHAN from four headings (jaxsem.slam.solve_yaw_starts)")
+    p.add_argument(
+        "--detector",
+        default=None,
+        help="map from pixels: this detect-and-lift network's boxes, classes and ellipsoids (lmo-rcnn: the "
+        "shipped one; or an exported .npz / a training workdir) replace the rendered boxes, associated "
+        "across frames by class and box overlap (jaxsem.slam.detected_sequence); roshan_volumon starts "
+        "from the network's ellipsoids",
+    )
+    p.add_argument("--min-score", type=sc.nonnegative_float, default=0.5, help="with --detector: least score kept")
+    p.add_argument(
+        "--min-iou", type=sc.positive_float, default=0.3, help="with --detector: least box overlap continuing a track"
+    )
+    p.add_argument(
+        "--box-sigma",
+        type=sc.positive_float,
+        default=None,
+        help="pixels, every system's box noise (default: the sequence's)",
+    )
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     args = p.parse_args(argv)
     if args.peer_python and not pathlib.Path(args.peer_python).exists():
@@ -452,7 +548,8 @@ def main(argv=None):
     if not stretches:
         raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split")
     table, factors = slam.user_class_table(vdata.bop_class_extents(scene), seed=args.prior_seed)
-    vol = None if args.no_volumon else VolumonInit()
+    detector = None if args.detector is None else load_detector(args.detector)
+    vol = None if args.no_volumon or detector is not None else VolumonInit()
     solve = jax.jit(solve_schur)
     solve_starts = jax.jit(lambda p, i, c: solve_yaw_starts(p, i, c)[:2])
     init_fn = jax.jit(slam.initialize)
@@ -463,6 +560,25 @@ def main(argv=None):
     figs = []
     for n, st in enumerate(stretches):
         seq, odo = slam.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n)
+        track_counts = None
+        if detector is not None:
+            objects = seq.truth["objects"]
+            seq_d = slam.detected_sequence(
+                seq, detect_sequence(detector, seq), min_iou=args.min_iou, min_score=args.min_score
+            )
+            truth, track_counts = match_tracks(st, seq_d)
+            found = {o["spell"] for o in truth}
+            track_counts["objects"] = len(objects)
+            merged = set(track_counts.pop("merged_spells"))
+            track_counts["merged"] = sum(1 for o in objects if o["id"] in merged)
+            track_counts["missed"] = sum(1 for o in objects if o["id"] not in found and o["id"] not in merged)
+            seq = dataclasses.replace(seq_d, truth={**seq.truth, "objects": truth}, noise=seq.noise)
+            if not seq.object_ids or not truth:
+                print(f"stretch {n}: no track matches an object ({track_counts}); skipped", flush=True)
+                stretch_info.append({"frames": [int(st.frame_ids[0]), int(st.frame_ids[-1])], "tracks": track_counts})
+                continue
+        if args.box_sigma is not None:
+            seq = dataclasses.replace(seq, noise={**seq.noise, "box_sigma": args.box_sigma})
         cfgs = configs(seq, args.silhouette_scale, args.upright_sigma)
         seq_t, records = front_end(seq)
         desk, desk_points = support_height(seq) if args.support == "features" else (float("nan"), 0)
@@ -470,9 +586,11 @@ def main(argv=None):
             cfgs["roshan"] = cfgs["roshan"].replace(
                 use_support=True, support_height=desk, support_sigma=args.support_sigma
             )
-        tex_rows += [
-            dict(r, stretch=n) for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
-        ]
+        if detector is None:
+            tex_rows += [
+                dict(r, stretch=n)
+                for r in texture_truth(seq, st, [r for r in records if r["depth"] is not None], scene)
+            ]
         feat = [r["points"] for r in records]
         weight = pose_prior_weights(
             np.stack([f.camera_T_world for f in seq.frames]),
@@ -488,12 +606,12 @@ def main(argv=None):
             ("roshan", pr, cfgs["roshan"], "headings" if args.yaw_starts else None),
             ("roshan_volumon", pr, cfgs["roshan"], "volumon"),
         ):
-            if init == "volumon" and vol is None:
+            if init == "volumon" and (args.no_volumon or (vol is None and detector is None)):
                 continue
             i0 = init_fn(prob, cfg)
             if init == "volumon":
-                assert vol is not None
-                i0 = init_from(prob, i0, seq, vol.initial(seq))
+                start = vol.initial(seq) if vol is not None else (seq.initial or {})
+                i0 = init_from(prob, i0, seq, start)
             run = solve_starts if init == "headings" else solve
             compiled = run.lower(prob, i0, cfg).compile()  # compiled once per system (cached), not timed
             # The first call of a fresh executable took 8-10 s where the next took 0.2-0.5 s
@@ -529,6 +647,7 @@ def main(argv=None):
                 "support_height_m": desk,
                 "support_points": desk_points,
                 "true_support_height_m": true_support_height(seq),
+                **({} if track_counts is None else {"tracks": track_counts}),
             }
         )
         seqs.append(seq)
@@ -617,9 +736,9 @@ def figures(folder, figs, scene):
     folder.mkdir(parents=True, exist_ok=True)
     st, seq, ests = max(figs, key=lambda f: len(f[1].object_ids))
     est = ests["roshan"]
-    ids = seq.object_ids
     truth = {o["id"]: o for o in seq.truth["objects"]}
-    J = len(ids)
+    slots = [j for j, i in enumerate(seq.object_ids) if i in truth]  # from pixels: the matched tracks
+    ids = [seq.object_ids[j] for j in slots]
     tR = np.stack([truth[i]["rotation"] for i in ids])
     tC = np.stack([truth[i]["center"] for i in ids])
     tr = np.stack([truth[i]["radii"] for i in ids])
@@ -630,7 +749,7 @@ def figures(folder, figs, scene):
         present = [j for j, i in enumerate(ids) if i in seq.frames[t].ids]
         for ellipsoid, color in (
             (quadrics.Ellipsoid(tR[present], tC[present], tr[present]), "lime"),
-            (jax.tree.map(lambda x: np.asarray(x)[:J][present], est.ellipsoid), "magenta"),
+            (jax.tree.map(lambda x: np.asarray(x)[slots][present], est.ellipsoid), "magenta"),
         ):
             slam.draw_overlay(
                 ax,
@@ -662,7 +781,7 @@ def figures(folder, figs, scene):
             e = ests[k]
             slam.draw_top_down(
                 ax,
-                jax.tree.map(lambda x: np.asarray(x)[:J], e.ellipsoid),
+                jax.tree.map(lambda x: np.asarray(x)[slots], e.ellipsoid),
                 color=col,
                 lw=1.2,
                 label=k,

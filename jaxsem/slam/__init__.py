@@ -17,7 +17,8 @@ What a user calls, by job:
 - the cost: :func:`residual_blocks`, :func:`total_cost` (the factors are :mod:`jaxsem.factors`'s);
 - sequences and the front end: :func:`load_sequence`, :func:`save_sequence`,
   :func:`load_tum_sequence`, :func:`load_image`, :func:`check_box`, :class:`FrontEndConfig`,
-  :func:`measure_texture`, :func:`map_to_json`;
+  :func:`measure_texture`, :func:`map_to_json`; a detector's output as tracks:
+  :func:`associate_detections`, :func:`detected_sequence`;
 - BOP sequences: :func:`find_stretches`, :func:`stretch_sequence`, :func:`user_class_table`;
 - figures: :func:`draw_top_down`, :func:`draw_overlay`, :func:`draw_camera_path`.
 
@@ -32,6 +33,10 @@ OpenCV front end's classes, ...) stay importable from their private modules, e.g
 ``jaxsem.slam._cost``, for tests and benchmarks.
 """
 
+from ._associate import (  # a detector's output into tracks
+    associate_detections as associate_detections,
+    detected_sequence as detected_sequence,
+)
 from ._batch import (
     roshan_solver as roshan_solver,
     solve_batch as solve_batch,
