@@ -13,6 +13,9 @@ Examples::
     # texture planes measured on its images by ROSHAN's front end
     python infer/roshan.py --tum data/rgbd_dataset_freiburg1_desk --detections dets.jsonl \
         --frontend orb --out out/tum
+    # posed photos only (sequence.json frames with "camera_T_world" and "image", no detections):
+    # the shipped detect-and-lift network finds, classifies and lifts the objects
+    python infer/roshan.py --sequence data/my_desk --detector lmo-rcnn --frontend orb --out out/desk
     # one stretch of a BOP scene (LM-O's desk: jaxsem data fetch lmo), as a user's sequence
     python infer/roshan.py --bop DATA/lmo/test/000002 --split tune --stretch 0 \
         --frontend orb --out out/lmo
@@ -57,6 +60,7 @@ The same command: ``jaxsem roshan`` (``python infer/roshan.py``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import time
@@ -110,6 +114,17 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         type=sc.existing_file,
         help="with --tum: a JSON-lines file, one line per image: "
         '{"frame": "rgb/<t>.png", "detections": [{"box": [...], "class": ..., "id": track id, "score": ...}]}',
+    )
+    p.add_argument(
+        "--detector",
+        default=None,
+        help="map from pixels: this detect-and-lift network reads every frame's image (lmo-rcnn: the "
+        "shipped LM-O one; or an exported .npz); its boxes and classes replace any in the input, "
+        "associated across frames by class, box overlap and viewing rays (jaxsem.slam.detected_sequence), "
+        "its ellipsoids start the map",
+    )
+    p.add_argument(
+        "--min-score", type=sc.nonnegative_float, default=0.5, help="with --detector: least detection score kept"
     )
     p.add_argument(
         "--split", choices=("tune", "test", "all"), default="all", help="with --bop: frame ids < 600, the rest, or all"
@@ -177,7 +192,51 @@ def parse_args(argv=None, prog: str | None = None):
         parser.error("--detections: goes with --tum (a TUM folder and its detections file, both or neither)")
     if args.frontend != "none" and args.simulate:
         parser.error("--frontend: needs images (--sequence, --tum or --bop), not --simulate")
+    if args.detector is not None:
+        if args.simulate or args.tum:
+            parser.error("--detector: reads the images of --sequence or --bop (not --simulate or --tum)")
+        if args.detector != "lmo-rcnn" and not pathlib.Path(args.detector).exists():
+            parser.error(f"--detector: expected lmo-rcnn or an exported model file, got {args.detector!r}")
+        if args.min_score > 1.0:
+            parser.error(f"--min-score: expected a score in [0, 1], got {args.min_score}")
     return args
+
+
+def _detected(args, sequence):
+    """``sequence`` with the detector's tracks (its boxes, classes and lifted ellipsoids) in place
+    of its own detections. Classes the sequence's table lacks get rows from the network's own
+    lifts (full extents the median of its detections', sigma 30 %)."""
+    import numpy as np
+
+    from .. import slam
+    from ..classes import DEFAULT_TABLE, ClassTable
+    from ..volumon import rcnn
+
+    loaded = rcnn.load_rcnn(None if args.detector == "lmo-rcnn" else args.detector)
+    dets = []
+    for t in range(len(sequence.frames)):
+        image = slam.load_image(sequence, t)
+        if image is None:
+            raise ValueError(f"frames[{t}].image: --detector reads every frame's image; this frame names none")
+        dets.append(rcnn.detect_image(loaded, image, sequence.K))
+        if not args.quiet:
+            print(f"detect {t + 1:4d}/{len(sequence.frames)}: {len(dets[-1]['box'])} detections", flush=True)
+    table = sequence.classes if sequence.classes is not None else DEFAULT_TABLE
+    rows = []
+    for name in sorted({c for d in dets for c in d["class_name"]} - set(table.names)):
+        radii = np.concatenate([d["radii"][[c == name for c in d["class_name"]]] for d in dets])
+        dims = 2.0 * np.median(radii, axis=0)
+        rows.append({"name": name, "dimensions": dims.tolist(), "sigma": (0.3 * dims).tolist()})
+    if rows:
+        table = ClassTable.from_dict(rows, base=table)
+    out = slam.detected_sequence(_replace_sequence(sequence, classes=table), dets, min_score=args.min_score)
+    if not out.object_ids:
+        raise ValueError(f"--detector: no object seen in three frames or more (min score {args.min_score})")
+    return out
+
+
+def _replace_sequence(sequence, **fields):
+    return dataclasses.replace(sequence, **fields)
 
 
 def _bop_sequence(args):
@@ -268,7 +327,11 @@ def main(argv=None, prog: str | None = None) -> int:
     elif args.bop:
         sequence = _bop_sequence(args)
     else:
-        sequence = slam.load_sequence(args.sequence, classes=_class_table(args))
+        sequence = slam.load_sequence(
+            args.sequence, classes=_class_table(args), require_detections=args.detector is None
+        )
+    if args.detector is not None:
+        sequence = _detected(args, sequence)
     if args.frontend != "none":
         sequence, _ = slam.measure_texture(sequence, slam.FrontEndConfig(matcher=args.frontend))
     config = solver_config(args, sim_cfg, sequence)

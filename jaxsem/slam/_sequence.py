@@ -101,7 +101,7 @@ def noise_model(sequence: Sequence, base=None):
     return NoiseModel(**values)
 
 
-def load_sequence(path, *, classes=None) -> Sequence:
+def load_sequence(path, *, classes=None, require_detections: bool = True) -> Sequence:
     """Reads a sequence directory (or its ``sequence.json``), validating every field.
 
     Layout: ``{"K": 3x3, "image_size": [width, height], "frames": [{"camera_T_world": 4x4,
@@ -117,6 +117,8 @@ def load_sequence(path, *, classes=None) -> Sequence:
         relative to the JSON file's directory.
       classes: the :class:`jaxsem.classes.ClassTable` the class names are read in (default: the
         built-in table), extended by the file's ``"classes"``; kept as ``sequence.classes``.
+      require_detections: False accepts frames with no detection at all (posed images a
+        detector will read: :func:`jaxsem.slam.detected_sequence`).
 
     Returns:
       :class:`Sequence`.
@@ -138,7 +140,7 @@ def load_sequence(path, *, classes=None) -> Sequence:
         raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
-    return _parse(data, str(file), file.parent, classes)
+    return _parse(data, str(file), file.parent, classes, require_detections)
 
 
 def _list(x):

@@ -122,7 +122,7 @@ def check_box(where, field, value, image_size):
     return b
 
 
-def _parse(data, where, root, table=None):
+def _parse(data, where, root, table=None, require_detections=True):
     if not isinstance(data, dict):
         _fail(where, "top level", f"expected a JSON object, got {type(data).__name__}")
     if data.get("classes") is not None:
@@ -208,7 +208,7 @@ def _parse(data, where, root, table=None):
                 image=image,
             )
         )
-    if not any(len(fr.ids) for fr in frames):
+    if require_detections and not any(len(fr.ids) for fr in frames):
         lacking = sum("detections" not in fr for fr in data["frames"])
         _fail(
             where,
