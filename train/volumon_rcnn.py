@@ -45,6 +45,12 @@ def main(argv=None) -> int:
         help="tuning photos with this frame id or above are the held-out validation, not trained on (default 500)",
     )
     p.add_argument("--real-per-batch", type=sc.nonnegative_int, default=2, help="real photos in each batch")
+    p.add_argument(
+        "--augment-real", action="store_true", help="zoom, shift and colour-jitter the real photos (data.augment_batch)"
+    )
+    p.add_argument(
+        "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
+    )
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     models = a.models or (a.lmo / "models" if a.lmo else None)
@@ -60,7 +66,14 @@ def main(argv=None) -> int:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
     model = dataclasses.replace(rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width)
     config = rc.RCNNTrainConfig(
-        model=model, loss=loss, batch_size=a.batch, real_per_batch=a.real_per_batch, num_steps=a.steps, seed=a.seed
+        model=model,
+        loss=loss,
+        batch_size=a.batch,
+        real_per_batch=a.real_per_batch,
+        num_steps=a.steps,
+        seed=a.seed,
+        augment_real=a.augment_real,
+        init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size
     ycb = a.ycb if a.ycb.is_dir() else None

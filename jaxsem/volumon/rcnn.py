@@ -64,6 +64,7 @@ from ._pretrained import PRETRAINED_DIR
 from ._scene_eval import class_rows, evaluate_scene_batch, known_size_ellipsoid, summarise_detections
 from .data import (
     LMO_CLASS_NAMES,
+    augment_batch,
     bop_class_extents,
     bop_eval_batch,
     frame_arrays,
@@ -189,6 +190,11 @@ class RCNNTrainConfig:
       eval_frames: held-out frames scored at each evaluation.
       seed: the initialisation and the batch order (a pure function of the step).
       class_names: the names of the model's classes (ids are their indices).
+      augment_real: each step's real photographs seen by other cameras
+        (:func:`jaxsem.volumon.data.augment_batch`: zoom and shift with the intrinsics to match,
+        colour jitter): a few dozen photos of one desk are otherwise learnt by heart.
+      init_from: start from this model's weights (a training workdir or an exported ``.npz``;
+        the same network) instead of a fresh initialisation; the optimiser starts afresh.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -204,6 +210,8 @@ class RCNNTrainConfig:
     seed: int = 0
     keep: int = 2
     class_names: tuple = LMO_CLASS_NAMES
+    augment_real: bool = False
+    init_from: str = ""
 
 
 def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
@@ -341,6 +349,14 @@ def train_rcnn(
     with run:
         if run.latest_step is not None:
             state = run.restore(state)
+        elif config.init_from:
+            start = load_rcnn(config.init_from).variables
+            same = jax.tree.structure(start) == jax.tree.structure(variables) and all(
+                a.shape == b.shape for a, b in zip(jax.tree.leaves(start), jax.tree.leaves(variables))
+            )
+            if not same:
+                raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
+            state = {**state, "params": start["params"], "batch_stats": start["batch_stats"]}
         run.begin()
         step_fn = make_rcnn_step(model, config.model, config.loss, tx)
         params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
@@ -355,6 +371,8 @@ def train_rcnn(
             if n_real:
                 assert real is not None
                 r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))
+                if config.augment_real:
+                    r = augment_batch(r, np.random.default_rng([config.seed, 2, step]))
                 b = {k: np.concatenate([b[k], r[k]]) for k in b}
             params, stats, opt, terms = step_fn(params, stats, opt, b, jnp.asarray(step))
             recent.append(terms)

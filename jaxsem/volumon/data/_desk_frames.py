@@ -121,6 +121,42 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     return batch
 
 
+def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4) -> dict:
+    """A :func:`frames_batch` batch seen by other cameras: each image zoomed by a factor drawn
+    log-uniformly in ``scale_range`` about a random point (out of the frame: grey), its
+    intrinsics changed to match, so the 3D labels (camera frame) stay true; boxes moved with the
+    pixels and clipped to the image, a label dropped when less than ``min_kept`` of its box stays
+    in view (its visible fraction scaled by what stays); brightness, contrast and colour balance
+    jittered. Stereo labels are dropped (the second view is not moved). ``rng`` a numpy
+    ``Generator``; the input is not changed."""
+    out = {k: np.array(v) for k, v in batch.items()}
+    n, H, W = out["image"].shape[:3]
+    lo, hi = np.log(scale_range[0]), np.log(scale_range[1])
+    for i in range(n):
+        s = float(np.exp(rng.uniform(lo, hi)))
+        tx = float(rng.uniform(min(0.0, W - s * W), max(0.0, W - s * W)))
+        ty = float(rng.uniform(min(0.0, H - s * H), max(0.0, H - s * H)))
+        M = np.array([[s, 0.0, tx], [0.0, s, ty]])
+        img = cv2.warpAffine(
+            out["image"][i], M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0.45,) * 3
+        )
+        gain = rng.uniform(0.75, 1.25) * rng.uniform(0.9, 1.1, size=3)
+        contrast = rng.uniform(0.75, 1.25)
+        mean = img.mean()
+        out["image"][i] = np.clip((img - mean) * contrast + mean * gain, 0.0, 1.0).astype(out["image"].dtype)
+        out["K"][i] = (np.array([[s, 0.0, tx], [0.0, s, ty], [0.0, 0.0, 1.0]]) @ out["K"][i]).astype(out["K"].dtype)
+        moved = out["boxes"][i] * s + np.array([tx, ty, tx, ty])
+        clipped = np.clip(moved, 0.0, [W, H, W, H])
+        area = lambda b: np.maximum(b[:, 2] - b[:, 0], 0.0) * np.maximum(b[:, 3] - b[:, 1], 0.0)
+        kept = area(clipped) / np.maximum(area(moved), 1e-9)
+        wide = np.minimum(clipped[:, 2] - clipped[:, 0], clipped[:, 3] - clipped[:, 1]) >= 4.0
+        out["boxes"][i] = clipped.astype(out["boxes"].dtype)
+        out["box_valid"][i] = out["box_valid"][i] & (kept >= min_kept) & wide
+        out["visible_fraction"][i] = out["visible_fraction"][i] * kept
+        out["stereo_valid"][i] = False
+    return out
+
+
 def bop_frames(scene_dir, split: str) -> list:
     """The photographs of one split of a BOP scene as frame dicts (visible boxes and classes; no
     stereo labels). ``split``: ``"tune"`` or ``"test"`` of :func:`load_bop_split`."""
