@@ -71,9 +71,7 @@ def _predicted_boxes(tracks, K, camera_T_world):
     for j, t in enumerate(tracks):
         if t["center"] is not None:
             R[j], c[j], r[j], has[j] = t["rotation"], t["center"], t["radii"], True
-    box, valid = _project()(
-        jnp.asarray(R), jnp.asarray(c), jnp.asarray(r), jnp.asarray(K, jnp.float64), jnp.asarray(camera_T_world)
-    )
+    box, valid = _project()(jnp.asarray(R), jnp.asarray(c), jnp.asarray(r), jnp.asarray(K), jnp.asarray(camera_T_world))
     return np.asarray(box)[:n], (np.asarray(valid) & has)[:n]
 
 
