@@ -4,7 +4,8 @@
 
 Writes ``OUT.npz`` (float32 variables), ``OUT.json`` (the training config, the step, the data and
 the last held-out figures of the run's ``metrics.jsonl``) and ``OUT_curves.png`` (the loss terms and
-the held-out AP50 and centre error against the step), each atomically.
+the held-out AP50 and centre error against the step), each atomically. A run started from another
+run's weights (``--init-from``) is drawn after that run's curves, its steps counted on from there.
 """
 
 from __future__ import annotations
@@ -42,13 +43,22 @@ def main(argv=None) -> int:
         "heldout": {k.removeprefix("heldout_"): v for k, v in last.items() if k.startswith("heldout_")},
         "heldout_step": last.get("step"),
     }
+    # a run started from another run's weights (init_from): its curves continue that run's
+    start = pathlib.Path(loaded.config.init_from) if loaded.config.init_from else None
+    offset = 0
+    if start is not None and (start / "metrics.jsonl").is_file():
+        before = [json.loads(x) for x in (start / "metrics.jsonl").read_text().splitlines() if x.strip()]
+        offset = int(before[-1]["step"]) if before else 0
+        rows = before + [{**r, "step": r["step"] + offset} for r in rows]
+        meta["steps_before"] = offset
+        meta["steps_total"] = offset + int(loaded.meta["step"])
     export_rcnn(a.out, loaded.variables, loaded.config, meta)
-    _curves(rows, a.out.with_name(a.out.name + "_curves.png"))
+    _curves(rows, a.out.with_name(a.out.name + "_curves.png"), offset)
     print(json.dumps(meta, indent=1))
     return 0
 
 
-def _curves(rows, path: pathlib.Path) -> None:
+def _curves(rows, path: pathlib.Path, restart: int = 0) -> None:
     import matplotlib  # deferred: matplotlib is slow to import and only the figure needs it
 
     matplotlib.use("Agg")
@@ -72,6 +82,8 @@ def _curves(rows, path: pathlib.Path) -> None:
     ax2.set_ylabel("median centre error (m)")
     ax[2].set_title("held-out validation photos")
     for a_ in ax:
+        if restart:
+            a_.axvline(restart, color="grey", lw=0.8, ls=":", label="restarted (init_from)")
         a_.set_xlabel("step")
         a_.legend(fontsize=7)
     fig.tight_layout()
