@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxsem import quadrics as q, slam
-from jaxsem.slam._sequence_types import Sequence, SequenceFrame
+from jaxsem.slam._sequence_types import Sequence, SequenceFrame  # layers: white-box
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 #: Four objects on a desk, two of one class side by side (world frame, metres).

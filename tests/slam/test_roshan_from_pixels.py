@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_associate import CENTERS, CLASSES, K, _detections, _poses
 
-from jaxsem._commands import roshan as roshan_command
+from jaxsem._commands import roshan as roshan_command  # layers: white-box
 from jaxsem.volumon import rcnn
 
 
