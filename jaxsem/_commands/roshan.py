@@ -229,14 +229,10 @@ def _detected(args, sequence):
         rows.append({"name": name, "dimensions": dims.tolist(), "sigma": (0.3 * dims).tolist()})
     if rows:
         table = ClassTable.from_dict(rows, base=table)
-    out = slam.detected_sequence(_replace_sequence(sequence, classes=table), dets, min_score=args.min_score)
+    out = slam.detected_sequence(dataclasses.replace(sequence, classes=table), dets, min_score=args.min_score)
     if not out.object_ids:
         raise ValueError(f"--detector: no object seen in three frames or more (min score {args.min_score})")
     return out
-
-
-def _replace_sequence(sequence, **fields):
-    return dataclasses.replace(sequence, **fields)
 
 
 def _bop_sequence(args):

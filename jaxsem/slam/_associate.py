@@ -37,16 +37,22 @@ _RAY_PRIOR = 0.05
 _RECENT = 2
 
 
+def _across_ray(lift):
+    """The projector onto the plane across a lift's viewing ray (camera centre through its
+    centre) and the ray's origin: ``P @ (x - origin)`` is how far ``x`` lies beside the ray."""
+    _, c, _, origin = lift
+    d = c - origin
+    d = d / max(float(np.linalg.norm(d)), 1e-9)
+    return np.eye(3) - np.outer(d, d), origin
+
+
 def _triangulate(lifts):
     """The point nearest to the rays from each camera centre through each lifted centre, held
     towards the lifted centres' mean with weight ``_RAY_PRIOR`` (a 3 x 3 solve; always regular)."""
-    mean = np.mean([x[1] for x in lifts], axis=0)
     A = _RAY_PRIOR * np.eye(3)
-    b = _RAY_PRIOR * mean
-    for _, c, _, origin in lifts:
-        d = c - origin
-        d = d / max(float(np.linalg.norm(d)), 1e-9)
-        P = np.eye(3) - np.outer(d, d)
+    b = _RAY_PRIOR * np.mean([x[1] for x in lifts], axis=0)
+    for lift in lifts:
+        P, origin = _across_ray(lift)
         A += P
         b += P @ origin
     return np.linalg.solve(A, b)
@@ -85,12 +91,7 @@ def _ray_agreement(track, lift) -> float:
         return 0.0
     rays = track["lifts"] + [lift]
     p = _triangulate(rays)
-    worst = 0.0
-    for _, c, _, origin in rays:
-        d = c - origin
-        d = d / max(float(np.linalg.norm(d)), 1e-9)
-        v = p - origin
-        worst = max(worst, float(np.linalg.norm(v - (v @ d) * d)))
+    worst = max(float(np.linalg.norm(P @ (p - origin))) for P, origin in map(_across_ray, rays))
     ahead = float((p - lift[3]) @ (lift[1] - lift[3]))
     scale = max(float(np.mean(track["radii"])), 1e-3)
     return max(0.0, 1.0 - worst / scale) if ahead > 0.0 else 0.0
@@ -168,6 +169,7 @@ def associate_detections(
         names = list(d.get("class_name", ()))
         score = np.asarray(d.get("score", np.ones(len(box))), np.float64).reshape(-1)
         world_T_camera = np.linalg.inv(poses[t])
+        lifts = [_lift(d, k, world_T_camera) for k in range(len(box))]
         pred, pred_ok = _predicted_boxes(tracks, K, poses[t])
         last = np.array([tr["box"] for tr in tracks]).reshape(-1, 4)
         recent = np.array([tr["frame"] >= t - _RECENT for tr in tracks], bool)
@@ -176,7 +178,6 @@ def associate_detections(
             same = np.array([[n == tr["class"] for tr in tracks] for n in names], bool)
             from_pred = np.where(pred_ok[None], np.asarray(q.box_iou(box[:, None], pred[None])), 0.0)
             from_last = np.where(recent[None], np.asarray(q.box_iou(box[:, None], last[None])), 0.0)
-            lifts = [_lift(d, k, world_T_camera) for k in range(len(box))]
             from_rays = np.array(
                 [[_ray_agreement(tr, x) if ok else 0.0 for tr, ok in zip(tracks, row)] for x, row in zip(lifts, same)]
             ).reshape(len(box), len(tracks))
@@ -197,9 +198,8 @@ def associate_detections(
         for k in np.flatnonzero(ids >= 0):
             tr = tracks[ids[k]]
             tr["box"], tr["frame"] = box[k], t
-            lift = _lift(d, k, world_T_camera)
-            if lift is not None:
-                tr["lifts"].append(lift)
+            if lifts[k] is not None:
+                tr["lifts"].append(lifts[k])
                 tr["rotation"] = tr["lifts"][0][0]
                 tr["center"] = _triangulate(tr["lifts"])
                 tr["radii"] = np.mean([x[2] for x in tr["lifts"]], axis=0)
