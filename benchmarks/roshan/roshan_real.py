@@ -81,7 +81,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxsem import metrics, quadrics, scripting as sc, slam  # noqa: E402
-from jaxsem.volumon import data as vdata  # noqa: E402
+from jaxsem.volumon import data as vdata, rcnn  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 SYSTEMS = ("baseline", "roshan", "roshan_volumon", "gtsam_quadrics")
@@ -330,17 +330,8 @@ def init_from(problem, base_init, seq, initial):
 # From pixels: a detector's boxes, classes and ellipsoids, associated into tracks.
 
 
-def load_detector(name):
-    """The shipped detect-and-lift network (``lmo-rcnn``) or an exported one / training workdir."""
-    from jaxsem.volumon import rcnn
-
-    return rcnn.load_rcnn(None if name == "lmo-rcnn" else name)
-
-
 def detect_sequence(detector, seq):
     """The network's detections of every frame of ``seq`` (camera-frame ellipsoids)."""
-    from jaxsem.volumon import rcnn
-
     out = []
     for t in range(len(seq.frames)):
         d = rcnn.detect_image(detector, slam.load_image(seq, t), seq.K)
@@ -534,7 +525,7 @@ def parse_args(argv=None):
         default=None,
         help="map from pixels: this detect-and-lift network's boxes, classes and ellipsoids (lmo-rcnn: the "
         "shipped one; or an exported .npz / a training workdir) replace the rendered boxes, associated "
-        "across frames by class and box overlap (jaxsem.slam.detected_sequence); roshan_volumon starts "
+        "across frames by class, box overlap and viewing rays (jaxsem.slam.detected_sequence); roshan_volumon starts "
         "from the network's ellipsoids",
     )
     p.add_argument("--min-score", type=sc.nonnegative_float, default=0.5, help="with --detector: least score kept")
@@ -562,7 +553,7 @@ def main(argv=None):
     if not stretches:
         raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split")
     table, factors = slam.user_class_table(vdata.bop_class_extents(scene), seed=args.prior_seed)
-    detector = None if args.detector is None else load_detector(args.detector)
+    detector = None if args.detector is None else rcnn.load_rcnn(args.detector)
     vol = None if args.no_volumon or detector is not None else VolumonInit()
     solve = jax.jit(solve_schur)
     solve_starts = jax.jit(lambda p, i, c: solve_yaw_starts(p, i, c)[:2])

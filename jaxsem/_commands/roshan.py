@@ -212,7 +212,7 @@ def _detected(args, sequence):
     from ..classes import DEFAULT_TABLE, ClassTable
     from ..volumon import rcnn
 
-    loaded = rcnn.load_rcnn(None if args.detector == "lmo-rcnn" else args.detector)
+    loaded = rcnn.load_rcnn(args.detector)
     dets = []
     for t in range(len(sequence.frames)):
         image = slam.load_image(sequence, t)

@@ -396,8 +396,10 @@ def train_rcnn(
 
 # ----------------------------------------------------------------------------- models on disk
 
-#: The shipped LM-O detect-and-lift model's file stem in ``jaxsem/volumon/pretrained``.
+#: The shipped LM-O detect-and-lift model's file stem in ``jaxsem/volumon/pretrained``, and the
+#: name the commands and :func:`load_rcnn` know it by.
 SHIPPED_RCNN = "volumon_lmo_rcnn"
+SHIPPED_RCNN_NAME = "lmo-rcnn"
 
 
 def _from_dict(cls, d: dict):
@@ -441,9 +443,13 @@ def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = No
 
 
 def load_rcnn(path=None) -> LoadedModel:
-    """The shipped LM-O detect-and-lift model (``path`` None), an exported ``.npz`` (with its
-    ``.json``), or a training workdir's latest checkpoint, as a :class:`jaxsem.training.LoadedModel`."""
-    p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz" if path is None else pathlib.Path(path)
+    """The shipped LM-O detect-and-lift model (``path`` None or ``"lmo-rcnn"``), an exported
+    ``.npz`` (with its ``.json``), or a training workdir's latest checkpoint, as a
+    :class:`jaxsem.training.LoadedModel`."""
+    if path is None or path == SHIPPED_RCNN_NAME:
+        p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz"
+    else:
+        p = pathlib.Path(path)
     if p.is_dir():
         cfg_path = p / "config.json"
         if not cfg_path.is_file():

@@ -230,6 +230,7 @@ def test_the_shipped_lmo_model_loads_and_detects_on_a_photo_of_any_size():
     from jaxsem.volumon.rcnn import detect_image, load_rcnn
 
     loaded = load_rcnn()
+    assert load_rcnn("lmo-rcnn").meta == loaded.meta  # the name the commands use
     assert loaded.meta["step"] > 0 and len(loaded.config.class_names) == loaded.config.model.num_classes == 8
     photo = np.random.default_rng(0).integers(0, 255, (300, 400, 3), dtype=np.uint8)
     d = detect_image(loaded, photo, np.array([[500.0, 0, 200], [0, 500, 150], [0, 0, 1]]))
