@@ -51,6 +51,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
+    p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     models = a.models or (a.lmo / "models" if a.lmo else None)
@@ -72,6 +73,7 @@ def main(argv=None) -> int:
         real_per_batch=a.real_per_batch,
         num_steps=a.steps,
         seed=a.seed,
+        learning_rate=a.learning_rate,
         augment_real=a.augment_real,
         init_from="" if a.init_from is None else str(a.init_from),
     )
