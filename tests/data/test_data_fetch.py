@@ -9,6 +9,7 @@ import zipfile
 import pytest
 
 from jaxsem import data as _fetch
+from jaxsem.data import _fetch as fetch_module  # layers: white-box
 
 
 @pytest.fixture
@@ -52,6 +53,7 @@ def test_wheel_keeps_only_the_data(tmp_path, tiny_sets):
     lines = []
     (target,) = _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lines.append)
     files = sorted(p.relative_to(target).as_posix() for p in target.rglob("*") if p.is_file())
+    files.remove(fetch_module.MANIFEST)  # the record of what the fetch wrote
     assert files == ["a.json", "models/obj.ply", "rgb/000001.png"]
     assert any("CC BY 4.0" in line for line in lines)
     # A complete folder is kept: no archive is needed the second time.
@@ -66,7 +68,7 @@ def test_sdist_pattern_filter(tmp_path, tiny_sets):
         {"demo-1.0/meshes/a.stl": b"s", "demo-1.0/meshes/b.stl": b"s", "demo-1.0/meshes/readme.md": b"r"},
     )
     (target,) = _fetch.fetch("sdist", tmp_path / "out", archive=sdist, log=lambda _: None)
-    assert sorted(p.name for p in target.iterdir()) == ["a.stl", "b.stl"]
+    assert sorted(p.name for p in target.iterdir()) == [fetch_module.MANIFEST, "a.stl", "b.stl"]
 
 
 def test_wrong_count_leaves_nothing(tmp_path, tiny_sets):
@@ -104,3 +106,95 @@ def test_unreachable_registry_is_one_line(tmp_path, monkeypatch, run_cli):
 def test_unknown_name_refused():
     with pytest.raises(ValueError, match="unknown data set"):
         _fetch.fetch("nope", "/tmp/x")
+
+
+def _scene_wheel(tmp_path):
+    return _wheel(
+        tmp_path / "demo-1.0-py3-none-any.whl",
+        {"pkg/data/scene/a.json": b"{}", "pkg/data/scene/rgb/1.png": b"png", "pkg/data/scene/b.ply": b"ply"},
+    )
+
+
+def test_refetch_keeps_a_users_file(tmp_path, tiny_sets):
+    wheel = _scene_wheel(tmp_path)
+    (target,) = _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    (target / "rgb" / "mine.png").write_bytes(b"my own")
+    lines = []
+    _fetch.fetch("wheel", tmp_path / "out", log=lines.append)  # no archive: nothing to download
+    assert (target / "rgb" / "mine.png").read_bytes() == b"my own"
+    assert any("kept" in line for line in lines)
+    assert any("did not write" in line for line in lines)
+
+
+def test_damaged_file_of_the_fetch_is_repaired(tmp_path, tiny_sets):
+    wheel = _scene_wheel(tmp_path)
+    (target,) = _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    (target / "rgb" / "1.png").write_bytes(b"pnX")  # same size, other content
+    (target / "b.ply").unlink()
+    (target / "notes.txt").write_text("mine")
+    lines = []
+    _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lines.append)
+    assert (target / "rgb" / "1.png").read_bytes() == b"png"
+    assert (target / "b.ply").read_bytes() == b"ply"
+    assert (target / "notes.txt").read_text() == "mine"
+    assert any("2 written" in line for line in lines)
+
+
+def test_damage_is_found_without_the_package(tmp_path, tiny_sets):
+    wheel = _scene_wheel(tmp_path)
+    (target,) = _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    (target / "a.json").write_bytes(b"[]")
+    # A damaged folder is not "complete": the fetch goes to the registry (here: a missing archive).
+    with pytest.raises(ValueError, match="no such file"):
+        _fetch.fetch("wheel", tmp_path / "out", archive=tmp_path / "gone.whl", log=lambda _: None)
+    assert (target / "a.json").read_bytes() == b"[]"  # nothing touched by the failed attempt
+
+
+def test_users_file_in_the_way_is_refused_untouched(tmp_path, tiny_sets):
+    wheel = _scene_wheel(tmp_path)
+    target = tmp_path / "out" / "scene"
+    target.mkdir(parents=True)
+    (target / "a.json").write_text('{"mine": 1}')  # a folder the fetch did not make
+    with pytest.raises(_fetch.FetchError, match="a.json.*not written by a fetch"):
+        _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    assert (target / "a.json").read_text() == '{"mine": 1}'
+    assert sorted(p.name for p in target.iterdir()) == ["a.json"]
+
+
+def test_existing_copy_without_manifest_is_adopted(tmp_path, tiny_sets):
+    wheel = _scene_wheel(tmp_path)
+    (target,) = _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    (target / fetch_module.MANIFEST).unlink()  # a copy made before manifests, or by hand
+    lines = []
+    _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lines.append)
+    assert any("3 files verified, 0 written" in line for line in lines)
+    assert (target / fetch_module.MANIFEST).is_file()
+
+
+def test_interrupted_fetch_leaves_no_staging(tmp_path, tiny_sets, monkeypatch):
+    wheel = _scene_wheel(tmp_path)
+
+    def stop(*_a, **_k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fetch_module, "_unpack", stop)
+    with pytest.raises(KeyboardInterrupt):
+        _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_staging_of_a_killed_fetch_is_swept(tmp_path, tiny_sets):
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    out = tmp_path / "out"
+    left = out / ".jaxsem-fetch-tmp-abc"
+    left.mkdir(parents=True)
+    (left / "owner").write_text(dead.stdout.strip())
+    (left / "staged").mkdir()
+    mine = out / ".jaxsem-fetch-tmp-mine"  # the same name but no owner file: not the fetch's
+    mine.mkdir()
+    _fetch.fetch("wheel", out, archive=_scene_wheel(tmp_path), log=lambda _: None)
+    assert not left.exists()
+    assert mine.is_dir()
