@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 import jax.numpy as jnp
 import numpy as np
@@ -18,8 +18,10 @@ from jax.core import Tracer
 
 __all__ = [
     "ROTATION_TOL",
+    "MAX_BOX_SCALE",
     "as_float_array",
     "batch_shape",
+    "check_box",
     "check_positive",
     "check_rigid",
     "check_rotation",
@@ -115,6 +117,38 @@ def check_rigid(name: str, transform) -> None:
 def check_positive(name: str, x) -> None:
     if is_concrete(x) and np.asarray(x).size and not bool(np.all(np.asarray(x) > 0)):
         raise ValueError(f"{name}: expected positive values, got min {float(np.min(np.asarray(x))):.3g}")
+
+
+MAX_BOX_SCALE = 10
+"""A box wider or taller than this many times the image is refused (e.g. ``[0, 0, 1e9, 1e9]``)."""
+
+
+def check_box(where: str, field: str, value, image_size) -> np.ndarray:
+    """``value`` as a box ``[u_min, v_min, u_max, v_max]`` that overlaps the ``(W, H)`` image and is
+    at most :data:`MAX_BOX_SCALE` times its size; else ``ValueError`` naming ``where`` and ``field``
+    (a file and its JSON field, or a command-line flag and its entry). The one box rule of the
+    package's readers: ``sequence.json``, TUM detections and the ``--boxes`` files."""
+
+    def fail(message: str) -> NoReturn:
+        raise ValueError(f"{where}: {field}: {message}")
+
+    try:
+        b = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        b = None
+    if b is None or not (b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]):
+        fail(
+            f"expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, v_max > v_min), got {value!r:.80}"
+        )
+    W, H = image_size
+    if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
+        fail(f"box {b.tolist()} lies outside the {W}x{H} image")
+    if b[2] - b[0] > MAX_BOX_SCALE * W or b[3] - b[1] > MAX_BOX_SCALE * H:
+        fail(
+            f"box {b.tolist()} is over {MAX_BOX_SCALE} times the {W}x{H} image (a detection's box lies "
+            "mostly in the image)"
+        )
+    return b
 
 
 def require_type(name: str, value, kind: type) -> Any:

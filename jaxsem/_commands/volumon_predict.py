@@ -36,6 +36,7 @@ import pathlib
 import numpy as np
 
 from jaxsem import scripting as sc
+from jaxsem._checks import check_box  # the one box rule (sequence.json's too)
 from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
@@ -77,8 +78,6 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
         raise sc.UsageError(
             f"{where}: expected a non-empty JSON list of [u_min, v_min, u_max, v_max], got {data!r:.80}"
         )
-    from jaxsem.slam import check_box  # the one box rule (sequence.json's too)
-
     boxes = []
     for i, entry in enumerate(data):
         field = f"[{i}]"

@@ -134,7 +134,7 @@ def roshan_objects(state) -> Ellipsoids:
     :class:`Ellipsoids` with planning semantic ids; slot ``j`` is association id ``j``.
     Objects not yet seen, or with a non-finite estimate, are invalid."""
 
-    est, pb = slam.online_estimate(state), slam.online_problem(state)
+    est, pb = slam.online_estimate(state), state.problem
     rot, ctr, rad = (np.asarray(a) for a in (est.rotation, est.center, est.radii))
     finite = np.isfinite(rot).all((-1, -2)) & np.isfinite(ctr).all(-1) & np.isfinite(rad).all(-1)
     valid = np.asarray(pb.object_mask) & finite

@@ -12,11 +12,11 @@ What a user calls, by job:
   :func:`roshan_solver` (the structured LM as an optimistix solver), :func:`result_message`
   (what a solver's result code means; ``throw=`` raises instead);
 - the online smoother and single-view start: :func:`online_init`, :func:`online_update`,
-  :func:`online_optimize`, :func:`online_estimate`, :func:`online_problem`,
+  :func:`online_optimize`, :func:`online_estimate` (the graph it holds is ``state.problem``),
   :func:`run_sequence` (it over a sequence), :func:`initialize`;
 - the cost: :func:`residual_blocks`, :func:`total_cost` (the factors are :mod:`jaxsem.factors`'s);
 - sequences and the front end: :func:`load_sequence`, :func:`save_sequence`,
-  :func:`load_tum_sequence`, :func:`load_image`, :func:`check_box`, :class:`FrontEndConfig`,
+  :func:`load_tum_sequence`, :func:`load_image`, :class:`FrontEndConfig`,
   :func:`measure_texture`, :func:`map_to_json`; a detector's output as tracks:
   :func:`associate_detections`, :func:`detected_sequence`;
 - BOP sequences: :func:`find_stretches`, :func:`stretch_sequence`, :func:`user_class_table`;
@@ -60,7 +60,6 @@ from ._online import (
     online_estimate as online_estimate,
     online_init as online_init,
     online_optimize as online_optimize,
-    online_problem as online_problem,
     online_update as online_update,
 )
 from ._problem import (
@@ -81,7 +80,6 @@ from ._sequence import (  # sequence directories (JSON layout)
     noise_model as noise_model,
     save_sequence as save_sequence,
 )
-from ._sequence_checks import check_box as check_box  # a detection box against its image
 from ._sequence_texture import measure_texture as measure_texture  # front end over a sequence
 from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every device
 from ._solver_config import SolverConfig as SolverConfig, baseline_config as baseline_config

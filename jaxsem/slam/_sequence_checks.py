@@ -11,6 +11,7 @@ from typing import NoReturn
 import numpy as np
 
 from .. import classes as _classes
+from .._checks import check_box
 from ._sequence_types import Sequence, SequenceFrame
 
 
@@ -89,37 +90,6 @@ def _assoc_id(where, field, value):
     if isinstance(value, int) and value < 0 or isinstance(value, str) and not value:
         _fail(where, field, f"expected an int >= 0 or a non-empty string, got {value!r}")
     return value
-
-
-MAX_BOX_SCALE = 10
-"""A box wider or taller than this many times the image is refused (e.g. ``[0, 0, 1e9, 1e9]``)."""
-
-
-def check_box(where, field, value, image_size):
-    """``value`` as a box ``[u_min, v_min, u_max, v_max]`` that overlaps the ``(W, H)`` image and is
-    at most :data:`MAX_BOX_SCALE` times its size; else ``ValueError`` naming ``where`` and ``field``."""
-    try:
-        b = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        b = None
-    if b is None or not (b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > b[0] and b[3] > b[1]):
-        _fail(
-            where,
-            field,
-            f"expected [u_min, v_min, u_max, v_max] (4 finite numbers, u_max > u_min, "
-            f"v_max > v_min), got {value!r:.80}",
-        )
-    W, H = image_size
-    if b[2] <= 0 or b[3] <= 0 or b[0] >= W or b[1] >= H:
-        _fail(where, field, f"box {b.tolist()} lies outside the {W}x{H} image")
-    if b[2] - b[0] > MAX_BOX_SCALE * W or b[3] - b[1] > MAX_BOX_SCALE * H:
-        _fail(
-            where,
-            field,
-            f"box {b.tolist()} is over {MAX_BOX_SCALE} times the {W}x{H} image (a detection's box lies "
-            "mostly in the image)",
-        )
-    return b
 
 
 def _parse(data, where, root, table=None, require_detections=True):

@@ -26,8 +26,9 @@ import pathlib
 
 import numpy as np
 
+from .._checks import check_box
 from ..quadrics import quaternion_xyzw_to_rotation
-from ._sequence_checks import _assoc_id, _class_name, check_box
+from ._sequence_checks import _assoc_id, _class_name
 from ._sequence_types import Sequence, SequenceFrame
 
 #: Intrinsics of the TUM RGB-D cameras (freiburg1, 2, 3; from the data set's web page).

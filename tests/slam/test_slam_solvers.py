@@ -156,7 +156,7 @@ def test_online_matches_batch_and_never_recompiles(compiles):
     assert c.count == 0  # one program serves every frame
     state = slam.online_optimize(state, 100)
     online = slam.online_estimate(state)
-    graph = slam.online_problem(state)
+    graph = state.problem
     assert int(graph.box_mask.sum()) == int(problem.box_mask.sum())
     c_online = float(slam.total_cost(graph, online, cfg))
     # The batch reference: a full solve of the same factors from the single-view initialisation.
