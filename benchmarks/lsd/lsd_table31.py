@@ -38,6 +38,7 @@ ABLATIONS = ("mix10", "euclid", "nogrow", "growuni", "outmass", "thesis")
 # train-family buildings 0-19 (benchmarks/lsd/lsd_outside_share.py, 2472 samples): 0.511 for an
 # indoor goal, 0.642 for an outdoor one (NavConfig.outside_mass).
 OUTSIDE_MASS = (0.511, 0.642)
+MACHINE = "2-core CPU (shared, noisy)"
 
 
 def _write(path: pathlib.Path, text: str) -> None:
@@ -177,7 +178,7 @@ def main(argv=None) -> int:
 
 
 def _merge(args, argv) -> int:
-    from jaxsem.lsd import plot_success, summarise
+    from jaxsem.lsd import summarise
     from jaxsem.lsd._experiment import format_table, merge_records  # layers: white-box
 
     runs, parts = [], []
@@ -206,33 +207,9 @@ def _merge(args, argv) -> int:
     summary = summarise(records)
     table = format_table(summary)
     print(table)
-    out, cmd, date = _run_header(args, argv)
-    _write(
-        out / f"{args.name}.json",
-        json.dumps(
-            {
-                "command": cmd,
-                "date": date,
-                "machine": "2-core CPU (shared, noisy)",
-                "parts": parts,
-                "model": parts[0]["model"] if parts else None,
-                "summary": summary,
-                "records": records,
-            },
-            indent=1,
-        ),
-    )
-    plot_success(summary, out / f"{args.name}.png")
+    model = parts[0]["model"] if parts else None
     md = [
-        f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)",
-        "",
-        f"Merged by: `{cmd}`",
-        "",
-        f"Date: {date}",
-        "",
-        "Machine: 2-core CPU (shared, noisy)",
-        "",
-        f"Model: {json.dumps(parts[0]['model'] if parts else None)}",
+        f"Model: {json.dumps(model)}",
         "",
         "Parts (each a run of this script; buildings and tasks as in its command; records of the "
         "same task joined planner-wise):",
@@ -241,7 +218,8 @@ def _merge(args, argv) -> int:
         "",
         *_md_tail(table, "Success", summary, args.name),
     ]
-    _write(out / f"{args.name}.md", "\n".join(md))
+    record = {"parts": parts, "model": model, "summary": summary, "records": records}
+    out = _write_results(args, argv, record, md, command_label="Merged by")
     print(f"wrote {out / (args.name + '.json')}, .md, .png")
     return 0
 
@@ -269,34 +247,35 @@ def _md_tail(table: str, label: str, summary: dict, name: str) -> list:
     ]
 
 
-def _run_header(args, argv):
-    """``(output folder (created), the command line, the date)`` of this run's files."""
+def _write_results(args, argv, record: dict, md: list | None, command_label: str = "Command") -> pathlib.Path:
+    """Writes ``<out>/<name>.json``: the command line, the date and the machine, then ``record``;
+    with ``md`` (the markdown's body) also the success plot of ``record["summary"]`` and
+    ``<out>/<name>.md``: the title, the command (led by ``command_label``), the date and the machine,
+    then ``md``. Returns the output folder (created)."""
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cmd = "python benchmarks/lsd/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    date = subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
-    return out, cmd, date
+    date = (
+        subprocess.run(["date", "-u"], capture_output=True, text=True, check=False).stdout.strip()
+        or datetime.datetime.now(datetime.timezone.utc).isoformat()
+    )
+    _write(
+        out / f"{args.name}.json", json.dumps({"command": cmd, "date": date, "machine": MACHINE, **record}, indent=1)
+    )
+    if md is not None:
+        from jaxsem.lsd import plot_success
+
+        plot_success(record["summary"], out / f"{args.name}.png")
+        title = f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)"
+        head = [title, "", f"{command_label}: `{cmd}`", "", f"Date: {date}", "", f"Machine: {MACHINE}", ""]
+        _write(out / f"{args.name}.md", "\n".join(head + md))
+    return out
 
 
 def _write_partial(args, argv, records, info, total) -> int:
     """An --only-ablations run: records only (no summary without 'uniform' and 'lsd')."""
-    out, cmd, date = _run_header(args, argv)
-    _write(
-        out / f"{args.name}.json",
-        json.dumps(
-            {
-                "command": cmd,
-                "date": date,
-                "machine": "2-core CPU (shared, noisy)",
-                "args": vars(args),
-                "model": info,
-                "summary": {},
-                "records": records,
-                "seconds": total,
-            },
-            indent=1,
-        ),
-    )
+    record = {"args": vars(args), "model": info, "summary": {}, "records": records, "seconds": total}
+    out = _write_results(args, argv, record, None)
     names = sorted({k for r in records for k, v in r.items() if isinstance(v, dict)})
     for name in names:
         for kind in args.sets:
@@ -310,7 +289,7 @@ def _run(args, argv) -> int:
     import dataclasses
 
     from jaxsem.cli import enable_compilation_cache
-    from jaxsem.lsd import LSDSampler, get_config, load_model, plot_success, run_trials, summarise
+    from jaxsem.lsd import LSDSampler, get_config, load_model, run_trials, summarise
     from jaxsem.lsd._experiment import ExperimentSetup, format_table, prepare_model  # layers: white-box
     from jaxsem.planning._buildings import building_family  # layers: white-box
 
@@ -371,40 +350,7 @@ def _run(args, argv) -> int:
     total = time.perf_counter() - t0
     devices = "1 (default device)" if mesh is None else f"{mesh.size} ({mesh.devices.flat[0].platform})"
     print(table)
-
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    cmd = "python benchmarks/lsd/lsd_table31.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    date = (
-        subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()
-        or datetime.datetime.now(datetime.timezone.utc).isoformat()
-    )
-    _write(
-        out / f"{args.name}.json",
-        json.dumps(
-            {
-                "command": cmd,
-                "date": date,
-                "machine": "2-core CPU (shared, noisy)",
-                "args": vars(args),
-                "model": info,
-                "summary": summary,
-                "records": records,
-                "seconds": total,
-            },
-            indent=1,
-        ),
-    )
-    plot_success(summary, out / f"{args.name}.png")
     md = [
-        f"## LSD planner: Table 3.1 / figure 3-8 (`{args.name}`)",
-        "",
-        f"Command: `{cmd}`",
-        "",
-        f"Date: {date}",
-        "",
-        "Machine: 2-core CPU (shared, noisy)",
-        "",
         f"Model: {json.dumps(info)}",
         "",
         f"Test buildings: {args.test_buildings} ({args.family} family, seeds {args.test_start}.."
@@ -414,7 +360,8 @@ def _run(args, argv) -> int:
         "",
         *_md_tail(table, "Success at each N", summary, args.name),
     ]
-    _write(out / f"{args.name}.md", "\n".join(md))
+    record = {"args": vars(args), "model": info, "summary": summary, "records": records, "seconds": total}
+    out = _write_results(args, argv, record, md)
     print(f"wrote {out / (args.name + '.json')}, .md, .png in {total / 60:.1f} min")
     return 0
 
