@@ -256,6 +256,66 @@ def _write_atomic(path: pathlib.Path, text: str) -> None:
     tmp.replace(path)
 
 
+def tree_digest(tree: Any) -> str:
+    """SHA-256 (hex, 16 characters) of a pytree's leaves: their dtypes, shapes and bytes, in order.
+    Files (``pathlib.Path`` leaves) count by their content. What a stamp records for inputs such
+    as a map or a model's parameters."""
+    import hashlib
+
+    import numpy as np
+
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(tree):
+        if isinstance(leaf, pathlib.PurePath):
+            with open(leaf, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+            continue
+        a = np.ascontiguousarray(np.asarray(leaf))
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
+    return h.hexdigest()[:16]
+
+
+def stamp_differences(made: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """``"field: made with A, now B"`` for every (nested, dotted) field in which two stamps differ."""
+    a = _flatten(json.loads(json.dumps(made, default=str)))
+    b = _flatten(json.loads(json.dumps(now, default=str)))
+    return [f"{k}: made with {a.get(k)!r}, now {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def check_stamp(path: str | os.PathLike, stamp: Mapping[str, Any], *, adopt: bool = False, hint: str = "") -> None:
+    """Guards a resumable output (a folder of chunks or shards that a rerun skips) against inputs
+    that changed: the first call writes ``stamp`` (the inputs and settings that make the output,
+    as JSON) to ``path``; a later call with a different stamp raises :class:`ConfigMismatchError`
+    naming each field that differs, so that no rerun mixes results made under other settings.
+
+    adopt: when ``path`` is missing but its folder already holds output (made before stamps were
+      kept), write the stamp rather than refuse. hint: what the user can do, appended to the error.
+    """
+    path = pathlib.Path(path)
+    if not path.exists():
+        if not adopt and path.parent.is_dir() and any(p.name != path.name for p in path.parent.iterdir()):
+            raise ConfigMismatchError(
+                f"{path.parent}: holds output with no record of the settings that made it ({path.name} is missing)"
+                + (f"; {hint}" if hint else "")
+            )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write_atomic(path, json.dumps(stamp, indent=1, sort_keys=True, default=str))
+        return
+    try:
+        made = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ConfigMismatchError(f"{path}: not a readable record of settings ({_short(exc)})") from None
+    if not isinstance(made, dict):
+        raise ConfigMismatchError(f"{path}: expected a JSON object of settings")
+    diff = stamp_differences(made, stamp)
+    if diff:
+        raise ConfigMismatchError(
+            f"{path.parent}: was made with other settings ({'; '.join(diff)})" + (f"; {hint}" if hint else "")
+        )
+
+
 def read_metrics(path: str | os.PathLike) -> list[dict[str, Any]]:
     """The rows of a ``metrics.jsonl`` (or of the workdir holding one); unreadable lines skipped."""
     path = pathlib.Path(path)

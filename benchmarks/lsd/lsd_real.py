@@ -153,6 +153,12 @@ def _parse(argv):
         "step limit and model): run only the variant rows and take uniform and LSD from its records",
     )
     p.add_argument("--json", required=True, help="output JSON (records stream beside it)")
+    p.add_argument(
+        "--fresh",
+        action="store_true",
+        help="start the records beside --json over (a rerun otherwise resumes from them, and refuses "
+        "records made under other flags or inputs)",
+    )
     p.add_argument("--figure", default=None, help="map semantics figure (default: <json stem>_map.png)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -257,6 +263,25 @@ def main(argv=None) -> int:
             raise
         print(f"lsd_real: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
+
+
+# Flags that only name outputs or say how to show progress, and the ones whose records are keyed
+# (more tasks, sets or N values extend a run); every other flag is part of the records' stamp.
+_UNSTAMPED = ("json", "figure", "no_progress", "debug", "fresh", "trials", "n", "sets")
+
+
+def _provenance(args) -> dict:
+    """The flags and inputs that make a trial, for the records' stamp: every flag but the
+    :data:`_UNSTAMPED`, the content of each map file and the checkpoint file."""
+    from jaxsem.training import tree_digest
+
+    flags = {"--" + k.replace("_", "-"): v for k, v in sorted(vars(args).items()) if k not in _UNSTAMPED}
+    files = [pathlib.Path(m) for m in args.map]
+    if args.annotations:
+        files.append(pathlib.Path(args.annotations))
+    if args.checkpoint and pathlib.Path(args.checkpoint).is_file():
+        files.append(pathlib.Path(args.checkpoint))
+    return {"flags": flags, "files": {str(f): tree_digest(f) for f in files if f.is_file()}}
 
 
 def load_run_map(args, path):
@@ -397,15 +422,17 @@ def _run(args, argv) -> int:
         keep_paths=True,
         nav_config=base,
         base=not (args.uniform_only or args.reuse_base),
+        provenance=_provenance(args),
+        fresh=args.fresh,
     )
     if args.reuse_base:  # the earlier run's uniform and LSD rows joined to this run's variants
         from jaxsem.lsd import read_records
-        from jaxsem.lsd._experiment import merge_records  # layers: white-box
+        from jaxsem.lsd._experiment import merge_records, records_stamp, write_records  # layers: white-box
 
         read_runs = _sibling("lsd_real_floor").read_runs
         earlier = read_records(read_runs([args.reuse_base], "lsd_real", flag="--reuse-base")[0][2])
         records = merge_records(records, [r for r in earlier if r["set"] in args.sets and r["n"] in args.n])
-        atomic_write_text(records_path, "".join(json.dumps(r) + "\n" for r in records))
+        write_records(records_path, records, records_stamp(records_path))
     if args.uniform_only:
         summary = {}
         for kind in args.sets:

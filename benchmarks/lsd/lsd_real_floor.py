@@ -207,6 +207,7 @@ def main(argv=None) -> int:
 
 
 def _run(args, runs, argv) -> int:
+    from jaxsem.lsd import read_records
     from jaxsem.scripting import atomic_write_text
 
     t0 = time.perf_counter()
@@ -223,7 +224,7 @@ def _run(args, runs, argv) -> int:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for f, run, records_path in runs:
-        records = [json.loads(x) for x in records_path.read_text().splitlines() if x.strip()]
+        records = read_records(records_path)
         records = [r for r in records if "uniform" in r and "lsd" in r]
         floors = _floors(load_run_maps(run, args.data), records)
         rows = _rows(records, floors)

@@ -49,13 +49,15 @@ def _check(args):
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
     from lsd_real_floor import read_runs
 
+    from jaxsem.lsd import read_records
+
     _, run, records = read_runs([args.json], "lsd_real_replay")[0]
     if args.panels < 1 or not args.window > 0:
         raise SystemExit("lsd_real_replay: --panels: expected >= 1 (and --window > 0)")
     out = pathlib.Path(args.out)
     if out.suffix.lower() != ".png" or (out.exists() and out.is_dir()):
         raise SystemExit(f"lsd_real_replay: --out: expected a .png file, got {args.out!r}")
-    rows = [json.loads(x) for x in records.read_text().splitlines() if x.strip()]
+    rows = read_records(records)
     ns = sorted({r["n"] for r in rows if r["set"] == args.set})
     if args.n is None and len(ns) > 1:
         raise SystemExit(f"lsd_real_replay: --n: the run has several budgets {ns}; name one")

@@ -66,6 +66,7 @@ def main(argv=None) -> int:
     if args.window < 1 or not 90.0 <= args.angle <= 180.0:
         raise SystemExit("lsd_real_uturns: --window: expected >= 1 and --angle in [90, 180]")
 
+    from jaxsem.lsd import read_records
     from jaxsem.scripting import atomic_write_text
 
     out = {"command": "python benchmarks/lsd/lsd_real_uturns.py " + " ".join(argv or sys.argv[1:]), "rows": []}
@@ -77,7 +78,7 @@ def main(argv=None) -> int:
     for f, records in runs:
         rows: dict = {}
         why: dict = {}
-        for r in map(json.loads, records.read_text().splitlines()):
+        for r in read_records(records):
             u, lsd = r["uniform"], r["lsd"]
             if not (u["success"] and lsd["success"]):
                 continue

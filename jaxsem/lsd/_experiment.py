@@ -25,6 +25,7 @@ import numpy as np
 
 from ..metrics import mean_sem, zero_intercept_slope
 from ..planning import NavConfig, sample_tasks
+from ..training import ConfigMismatchError, stamp_differences, tree_digest
 from ._config import cpu_config
 from ._expert import ExpertConfig, write_expert_dataset
 from ._train import load_model, train_and_evaluate
@@ -107,6 +108,8 @@ def run_trials(
     records_path=None,
     keep_paths: bool = False,
     nav_config=None,
+    provenance: dict | None = None,
+    fresh: bool = False,
 ) -> list:
     """Runs the planners on every (building, set, N, trial); returns a list of dict records.
 
@@ -137,6 +140,14 @@ def run_trials(
     planner's travelled path ((T, 2) world metres, mm-rounded) goes into its record.
     nav_config: the :class:`~jaxsem.planning.NavConfig` the planners start from (``n_samples``
     and ``max_steps`` are set per job; default: ``NavConfig()``).
+
+    The records file starts with a stamp of what makes a trial: the maps' contents, ``seed``,
+    ``max_steps``, ``keep_paths``, ``nav_config``, each planner's changes and its sampler's
+    parameters, and ``provenance`` (the caller's other inputs: a checkpoint's hash, the flags of
+    a command). A resume whose stamp differs raises :class:`~jaxsem.training.ConfigMismatchError`
+    naming each difference, so no table mixes trials made under other settings; ``fresh=True``
+    starts the file over (only a records file is overwritten). The number of tasks, the sets and
+    the N values may grow between runs: their records are keyed by task.
     """
     for kind in sets:
         if kind not in ("II", "IO"):
@@ -165,7 +176,18 @@ def run_trials(
             for t_i, task in enumerate(chosen):
                 for n in ns:
                     jobs.append((b, kind, t_i, task, int(n)))
-    stream = _RecordStream(records_path, list(planners)) if records_path is not None else None
+    stream = None
+    if records_path is not None:
+        stamp = {
+            "seed": int(seed),
+            "max_steps": int(max_steps),
+            "keep_paths": bool(keep_paths),
+            "nav_config": dataclasses.asdict(nav_config if nav_config is not None else NavConfig()),
+            "maps": [_map_digest(b) for b in buildings],
+            "planners": {name: {"sampler": _sampler_digest(sp), "changes": ch} for name, (sp, ch) in planners.items()},
+            "provenance": dict(provenance or {}),
+        }
+        stream = _RecordStream(records_path, list(planners), stamp, fresh=fresh)
     bar = None
     if progress:
         from tqdm import tqdm  # deferred: tqdm is slow to import and only a shown bar needs it
@@ -216,18 +238,60 @@ def run_trials(
     return records
 
 
-class _RecordStream:
-    """The JSON-lines record file of :func:`run_trials`: finished records read back by task,
-    new ones appended one line each (flushed and fsynced under a lock). A torn last line (a run
-    killed while writing) is ignored and rewritten by the resumed run."""
+def _map_digest(b) -> str:
+    known = getattr(b, "known", None)
+    return tree_digest(
+        (np.asarray(b.occupancy), np.asarray(b.semantic), np.asarray(b.origin), float(b.resolution), int(b.seed))
+        + ((np.asarray(known),) if known is not None else ())
+    )
 
-    def __init__(self, path, planners: list):
+
+def _sampler_digest(sampler) -> str | None:
+    """The sampler's identity for a stamp: its class, settings and parameters' hash (a plain
+    function: its qualified name; the caller's ``provenance`` names what it closes over)."""
+    if sampler is None:
+        return None
+    params = getattr(sampler, "params", None)
+    name = getattr(sampler, "__qualname__", type(sampler).__qualname__)
+    if params is None:
+        return name
+    extra = {k: getattr(sampler, k) for k in ("use_context", "uniform_mix") if hasattr(sampler, k)}
+    return f"{name} {tree_digest(params)} {json.dumps(extra, sort_keys=True)}"
+
+
+class _RecordStream:
+    """The JSON-lines record file of :func:`run_trials`: a stamp line first, then the finished
+    records, read back by task; new ones appended one line each (flushed and fsynced under a
+    lock). A torn last line (a run killed while writing) is ignored and rewritten by the resumed
+    run. A file whose stamp differs from this run's is refused (``fresh``: started over)."""
+
+    def __init__(self, path, planners: list, stamp: dict, fresh: bool = False):
         self.path = pathlib.Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.done: dict = {}
         self.lock = threading.Lock()
+        stamp = json.loads(json.dumps(stamp, default=str))
+        header = json.dumps({"stamp": stamp}) + "\n"
         if self.path.exists():
             lines = self.path.read_text().splitlines()
+            made = _stamp_of(lines[0]) if lines else None
+            if fresh:
+                if lines and made is None and not _is_record(lines[0]):
+                    raise ValueError(f"records_path: {self.path} is not a records file; not overwritten")
+                lines = []
+            elif lines and made is None:
+                raise ConfigMismatchError(
+                    f"records_path: {self.path} holds records with no stamp of the settings that made them;"
+                    " start over (--fresh) or write to another file"
+                )
+            elif lines:
+                diff = stamp_differences(made or {}, stamp)
+                if diff:
+                    raise ConfigMismatchError(
+                        f"records_path: {self.path} was made with other settings ({'; '.join(diff)});"
+                        " start over (--fresh) or write to another file"
+                    )
+                lines = lines[1:]
             good = []
             for i, line in enumerate(lines):
                 try:
@@ -239,8 +303,9 @@ class _RecordStream:
                 good.append(line)
                 if all(name in r for name in planners):
                     self.done[_record_key(r)] = r
-            if len(good) != len(lines):
-                self.path.write_text("".join(g + "\n" for g in good))
+            _atomic_text(self.path, header + "".join(g + "\n" for g in good))
+        else:
+            _atomic_text(self.path, header)
 
     @staticmethod
     def _job_key(job) -> tuple:
@@ -264,17 +329,54 @@ class _RecordStream:
             os.fsync(f.fileno())
 
 
+def _stamp_of(line: str) -> dict | None:
+    try:
+        r = json.loads(line)
+    except json.JSONDecodeError:
+        return None
+    return r["stamp"] if isinstance(r, dict) and set(r) == {"stamp"} and isinstance(r["stamp"], dict) else None
+
+
+def _is_record(line: str) -> bool:
+    try:
+        r = json.loads(line)
+    except json.JSONDecodeError:
+        return False
+    return isinstance(r, dict) and {"building", "set", "trial", "n"} <= set(r)
+
+
+def _atomic_text(path: pathlib.Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def read_records(path) -> list:
-    """The records of a :func:`run_trials` ``records_path`` file (a torn last line skipped)."""
+    """The records of a :func:`run_trials` ``records_path`` file (its stamp line and a torn last
+    line skipped); :func:`records_stamp` gives the stamp."""
     out = []
     lines = pathlib.Path(path).read_text().splitlines()
     for i, line in enumerate(lines):
+        if i == 0 and _stamp_of(line) is not None:
+            continue
         try:
             out.append(json.loads(line))
         except json.JSONDecodeError:
             if i != len(lines) - 1:
                 raise ValueError(f"path: {path} line {i + 1} is not a JSON record") from None
     return out
+
+
+def records_stamp(path) -> dict | None:
+    """The stamp a :func:`run_trials` records file starts with (None for a file without one)."""
+    with open(path) as f:
+        return _stamp_of(f.readline())
+
+
+def write_records(path, records: list, stamp: dict | None) -> None:
+    """Writes a records file atomically: ``stamp`` (from :func:`records_stamp`) then one line per record."""
+    head = json.dumps({"stamp": stamp}) + "\n" if stamp is not None else ""
+    _atomic_text(pathlib.Path(path), head + "".join(json.dumps(r) + "\n" for r in records))
 
 
 def _record_key(r: dict) -> tuple:

@@ -67,6 +67,7 @@ from ..planning import (
     local_inputs,
     task_pools,
 )
+from ..training import check_stamp
 
 SCHEMA_VERSION = 1
 SCHEMA_KEYS = (
@@ -279,7 +280,9 @@ def write_expert_dataset(
 ):
     """Generates one shard per building seed into ``out_dir`` (``expert_<family>_<seed>.npz``),
     in parallel over buildings (``workers`` processes, spawned), with a tqdm bar; also writes
-    ``schema.json``. Existing shards are kept (resume). Returns the list of shard paths.
+    ``schema.json``. Existing shards are kept (resume); ``stamp_<family>.json`` records the
+    family's config and resolution, and a call with others into the same folder is refused
+    (:func:`jaxsem.training.check_stamp`; more seeds extend it). Returns the list of shard paths.
     ``ChildProcessError`` (naming the unfinished seeds) when a worker process dies; the shards
     already written stay. ``job_fn``: the per-building job (tests), default the shard writer.
     ``worker_tasks``: buildings a worker process generates before a fresh one replaces it."""
@@ -299,6 +302,13 @@ def write_expert_dataset(
             indent=1,
         )
     )
+    check_stamp(
+        out / f"stamp_{family}.json",
+        {"what": "expert shards", "family": family, "config": dataclasses.asdict(config), "resolution": resolution,
+         "schema": SCHEMA_VERSION},
+        adopt=True,
+        hint="write to another folder",
+    )  # fmt: skip
     jobs = [
         (family, int(s), config, str(out), resolution)
         for s in seeds

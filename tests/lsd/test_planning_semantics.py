@@ -14,6 +14,7 @@ import pytest
 import scipy.ndimage as ndi
 
 from jaxsem import planning
+from jaxsem.lsd import read_records, run_trials
 from jaxsem.planning import DOOR, FREE, OCCUPIED, UNKNOWN, WINDOW
 from jaxsem.planning._maps import resample_occupancy  # layers: white-box
 from jaxsem.planning._semantics import (  # layers: white-box
@@ -22,6 +23,7 @@ from jaxsem.planning._semantics import (  # layers: white-box
     largest_open_region,
     read_annotations,
 )
+from jaxsem.training import ConfigMismatchError
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 RES = 0.1
@@ -224,7 +226,7 @@ def test_task_bounds_and_a_scanned_maps_seed():
 
 
 @pytest.mark.slow
-def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path, script):
+def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path, script, capsys):
     """The benchmark on a written gridmap at 0.05 m (resampled to 0.1 m): records stream as
     trials end, a rerun resumes without running them again, a torn last line is redone."""
     occ = np.kron(_two_rooms(0.9, gap_at=1.5), np.ones((2, 2), np.int8))  # 0.05 m cells
@@ -244,18 +246,26 @@ def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path, script):
     assert set(result["summary"]) == {"II-60"}
     records_file = pathlib.Path(result["records"])
     lines = records_file.read_text().splitlines()
-    assert len(lines) == 2
-    first = [json.loads(x) for x in lines]
+    assert len(lines) == 3  # the stamp, then one record per trial
+    first = read_records(records_file)
     for r in first:
         assert len(r["uniform"]["path"]) >= 2 and r["uniform"]["steps"] <= 30
     assert pathlib.Path(result["map_facts"]["figure"]).stat().st_size > 0
     # Resume: a torn last line is dropped and that trial alone runs again.
-    records_file.write_text(lines[0] + "\n" + lines[1][: len(lines[1]) // 2])
+    records_file.write_text("\n".join(lines[:2]) + "\n" + lines[2][: len(lines[2]) // 2])
     assert mod.main(argv) == 0
-    again = [json.loads(x) for x in records_file.read_text().splitlines()]
+    again = read_records(records_file)
     assert len(again) == 2 and again[0] == first[0]
     assert again[1]["uniform"]["success"] == first[1]["uniform"]["success"]
     assert again[1]["uniform"]["path"] == first[1]["uniform"]["path"]  # same key: same trial
+    # A rerun under another step limit does not reuse the 30-step records; --fresh starts over.
+    other = [("40" if a == "30" else a) for a in argv]
+    assert mod.main(other) == 2
+    assert "--max-steps" in capsys.readouterr().err
+    assert read_records(records_file) == again  # the refused run wrote nothing
+    assert mod.main(other + ["--fresh"]) == 0
+    assert all(r["uniform"]["steps"] <= 40 for r in read_records(records_file))
+    assert json.loads(out.read_text())["command"].endswith("--fresh")
 
 
 @pytest.mark.slow
@@ -332,8 +342,6 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
 
 
 def test_streamed_records_read_back_past_a_torn_tail(tmp_path):
-    from jaxsem.lsd import read_records
-
     f = tmp_path / "r.jsonl"
     f.write_text('{"a": 1}\n{"a": 2}\n{"a": ')
     assert read_records(f) == [{"a": 1}, {"a": 2}]
@@ -446,3 +454,38 @@ def test_a_floor_drawing_is_all_inside_but_its_largest_room_stands_in_for_outsid
     assert b.indoor[30, 150]
     with pytest.raises(ValueError, match="footprint"):
         planning.grid_to_building(planning.OccupancyGrid(occ, np.zeros(2), RES), footprint="yard")
+
+
+def _trials_on(path, b, **kw):
+    """run_trials on no tasks: only the records file's stamp is checked (nothing runs)."""
+    return run_trials([b], lambda x: x, sets=("II",), ns=(50,), tasks={(0, "II"): []}, records_path=path, **kw)
+
+
+def test_records_of_other_settings_are_refused_naming_them(tmp_path):
+    b = planning.generate_building(3)
+    f = tmp_path / "r.records.jsonl"
+    assert _trials_on(f, b, seed=1, max_steps=30, provenance={"--protocol": "thesis"}) == []
+    assert _trials_on(f, b, seed=1, max_steps=30, provenance={"--protocol": "thesis"}) == []  # same: resumes
+    with pytest.raises(ConfigMismatchError, match="max_steps: made with 30, now 40"):
+        _trials_on(f, b, seed=1, max_steps=40, provenance={"--protocol": "thesis"})
+    with pytest.raises(ConfigMismatchError, match="--protocol: made with 'thesis', now 'defaults'"):
+        _trials_on(f, b, seed=1, max_steps=30, provenance={"--protocol": "defaults"})
+    with pytest.raises(ConfigMismatchError, match="maps"):  # another map into the same file
+        _trials_on(f, planning.generate_building(4), seed=1, max_steps=30, provenance={"--protocol": "thesis"})
+    assert _trials_on(f, b, seed=1, max_steps=40, provenance={}, fresh=True) == []  # starts over
+    assert _trials_on(f, b, seed=1, max_steps=40) == []
+
+
+def test_records_without_a_stamp_are_refused_and_a_stranger_file_kept(tmp_path):
+    b = planning.generate_building(3)
+    old = tmp_path / "old.records.jsonl"
+    old.write_text(
+        json.dumps({"building": 3, "set": "II", "trial": 0, "n": 50, "start": [0, 0], "goal": [1, 1]}) + "\n"
+    )
+    with pytest.raises(ConfigMismatchError, match="no stamp"):
+        _trials_on(old, b)
+    mine = tmp_path / "notes.jsonl"
+    mine.write_text('{"my": "notes"}\n')
+    with pytest.raises(ValueError, match="not a records file"):
+        _trials_on(mine, b, fresh=True)
+    assert mine.read_text() == '{"my": "notes"}\n'
