@@ -98,15 +98,13 @@ class ShapePrior(NamedTuple):
 # here: the residual of section 4.3.4 is on the semi-axes).
 SHAPE_PRIORS: dict[str, ShapePrior] = {c.name: ShapePrior(c.radii, c.radii_sigma) for c in _classes.CLASSES}
 
-CLASS_NAMES: tuple[str, ...] = tuple(SHAPE_PRIORS)
+CLASS_NAMES: tuple[str, ...] = _classes.CLASS_NAMES
 
 
 def class_index(name: str) -> int:
-    """Index of class ``name`` in :data:`CLASS_NAMES`; ``ValueError`` listing the known classes."""
-    try:
-        return CLASS_NAMES.index(name)
-    except ValueError:
-        raise ValueError(f"class name: unknown class {name!r}; known classes are {list(CLASS_NAMES)}") from None
+    """Index of class ``name`` in :data:`CLASS_NAMES`; ``ValueError`` listing the known classes
+    (:func:`jaxsem.classes.index`: the shape table's rows are the class table's, in its order)."""
+    return _classes.index(name)
 
 
 def shape_prior(name: str) -> ShapePrior:
