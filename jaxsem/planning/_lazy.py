@@ -36,7 +36,7 @@ from ._edges import _edges, _edges_dense, _extent, _grid
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
-from ._roadmap_search import _NOT_FOUND, RoadmapPath
+from ._roadmap_search import _NOT_FOUND, RoadmapPath, _goal_entry, _trace_back
 
 #: Edge status codes.
 UNKNOWN, CLEAR, BLOCKED = 0, 1, 2
@@ -344,24 +344,14 @@ class _LazyEdges:
             dist, pred = scipy.sparse.csgraph.dijkstra(
                 csr, directed=True, indices=START, return_predecessors=True, limit=lim
             )
-            best, via = dist[GOAL], -1
-            if len(g_at):
-                through = dist[g_at] + g_red
-                i = int(np.argmin(through))
-                if through[i] < best:
-                    best, via = float(through[i]), int(g_at[i])
+            best, via = _goal_entry(dist, g_at, g_red)
             if not (np.isfinite(best) and best <= lim):
                 if lim >= limit:
                     return None
                 lim = min(limit, 3.0 * lim)
                 continue
             lim = min(limit, max(lim, 1.2 * best))
-            path = [GOAL] if via < 0 else [GOAL, via]
-            node = path[-1]
-            while node != START:
-                node = int(pred[node])
-                path.append(node)
-            path = glob[np.array(path[::-1])]
+            path = glob[_trace_back(pred, via)]
             u, v = path[:-1], path[1:]
             inner = (u >= _QUERY) & (v >= _QUERY)
             done, touched = self._certify(u[inner], v[inner], check_fn)

@@ -55,6 +55,29 @@ class _SampleGraph:
         self.M = M
 
 
+def _goal_entry(dist, goal_nodes, goal_weights) -> tuple[float, int]:
+    """``(distance, via)`` of the goal, which is only entered: straight (``via`` -1), or through
+    the one of its neighbours ``goal_nodes`` (weights ``goal_weights``) that is shortest in all,
+    given the start's distances ``dist``."""
+    best, via = dist[GOAL], -1
+    if len(goal_nodes):
+        through = dist[goal_nodes] + goal_weights
+        i = int(np.argmin(through))
+        if through[i] < best:
+            best, via = float(through[i]), int(goal_nodes[i])
+    return best, via
+
+
+def _trace_back(pred, via: int) -> np.ndarray:
+    """The node path START ... (via) GOAL of a Dijkstra from the start (predecessors ``pred``)."""
+    path = [GOAL] if via < 0 else [GOAL, via]
+    node = path[-1]
+    while node != START:
+        node = int(pred[node])
+        path.append(node)
+    return np.array(path[::-1])
+
+
 def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
     """Dijkstra from the start over the sample graph (undirected) plus the start's edges; the
     goal's edges are read off the distances (the goal is only entered, never left)."""
@@ -78,20 +101,10 @@ def _search(graph: _SampleGraph, roadmap: Roadmap) -> RoadmapPath:
         shape=(M, M),
     )
     dist, pred = scipy.sparse.csgraph.dijkstra(csr, directed=False, indices=START, return_predecessors=True)
-    best, via = dist[GOAL], -1
-    if len(g_dst):
-        through = dist[g_dst] + g_w
-        i = int(np.argmin(through))
-        if through[i] < best:
-            best, via = float(through[i]), int(g_dst[i])
+    best, via = _goal_entry(dist, g_dst, g_w)
     if not np.isfinite(best):
         return _NOT_FOUND
-    path = [GOAL] if via < 0 else [GOAL, via]
-    node = path[-1] if via >= 0 else GOAL
-    while node != START:
-        node = int(pred[node])
-        path.append(node)
-    path = np.array(path[::-1])
+    path = _trace_back(pred, via)
     pts = np.asarray(roadmap.points)[path]
     length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=-1)))
     return RoadmapPath(path, pts, float(best), length, True)
