@@ -56,7 +56,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="stop after this many steps past the latest checkpoint (a rerun resumes)",
     )
     p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sc.add_devices_argument(p)
     return p
 

@@ -181,7 +181,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--overlays", type=sc.nonnegative_int, default=4, help="number of frames to draw overlays for")
     p.add_argument("--float64", action="store_true", help="solve in float64")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress")
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     return p
 
 
