@@ -133,6 +133,16 @@ def detections(seq, frame, names=None):
     return np.array(boxes).reshape(-1, 4), found
 
 
+def check_rendered_depth(det, depth, mask, rtol, where) -> float:
+    """A detection's texture plane is measured (status ok) at the median rendered depth of its
+    object's pixels ``mask``, to ``rtol``; ``where`` (a tuple) names the case in a failure.
+    Returns that rendered depth."""
+    rendered = float(np.median(depth[mask]))
+    assert det.texture_status == "ok", (*where, det)
+    assert abs(det.texture_depth - rendered) < rtol * rendered, (*where, det.texture_depth, rendered)
+    return rendered
+
+
 def truth_estimates(seq, name_to_id):
     """Ground-truth ellipsoids (the boxes' inscribed ellipsoids) keyed by landmark id."""
     out = {}
@@ -191,11 +201,8 @@ def test_texture_depth_matches_rendered_front_surface(three):
     for f, dets in enumerate(per_frame[1:], start=1):
         for name in ("red", "blue"):
             det = dets[name]
-            mask = three["seg"][f] == three["ids"][name]
-            rendered = float(np.median(three["depth"][f][mask]))
-            assert det.texture_status == "ok", (f, name, det)
+            check_rendered_depth(det, three["depth"][f], three["seg"][f] == three["ids"][name], 0.02, (f, name))
             assert det.num_points >= 20
-            assert abs(det.texture_depth - rendered) < 0.02 * rendered, (f, name, det.texture_depth, rendered)
             # a face parallel to the image plane: the points agree to a few millimetres
             assert 0.0 <= det.texture_variance < 1e-3
             assert det.baseline == pytest.approx(0.15 * f, abs=1e-6)
@@ -217,9 +224,7 @@ def test_texture_depth_on_a_forward_path_with_jittered_boxes():
         out = frontend.process(seq["rgb"][f], seq["poses"][f], boxes)
         assert [d.landmark_id for d in out] == [0, 1]
         for name, det in zip(names, out[: (0 if f == 0 else 2)]):
-            rendered = float(np.median(seq["depth"][f][seq["seg"][f] == seq["ids"][name]]))
-            assert det.texture_status == "ok", (f, name, det)
-            assert abs(det.texture_depth - rendered) < 0.03 * rendered, (f, name, det.texture_depth, rendered)
+            check_rendered_depth(det, seq["depth"][f], seq["seg"][f] == seq["ids"][name], 0.03, (f, name))
 
 
 def test_on_the_library_renderer_in_a_cluttered_scene():
@@ -275,11 +280,9 @@ def test_on_the_library_renderer_in_a_cluttered_scene():
             continue
         for j, det in enumerate(out):
             obj = objects[j]
-            rendered = float(np.median(views["depth"][t][views["seg"][t] == j]))
+            rendered = check_rendered_depth(det, views["depth"][t], views["seg"][t] == j, 0.03, (t, obj.shape))
             tangent, valid = quadrics.texture_plane_depth(obj.rotation, obj.center, obj.extents / 2, poses[t])
             assert bool(valid)
-            assert det.texture_status == "ok", (t, obj.shape, det)
-            assert abs(det.texture_depth - rendered) < 0.03 * rendered, (t, obj.shape, det.texture_depth, rendered)
             # the points lie on the surface, behind (or on) the tangent plane of eq. 4.11
             assert det.texture_depth > float(tangent) - 0.01 * rendered
 
@@ -302,9 +305,7 @@ def test_partial_occlusion_keeps_ids_and_depths():
         out = frontend.process(seq["rgb"][f], seq["poses"][f], boxes)
         assert [d.landmark_id for d in out] == [0, 1]
         for name, det in zip(names, out[: (0 if f == 0 else 2)]):
-            rendered = float(np.median(seq["depth"][f][seq["seg"][f] == seq["ids"][name]]))
-            assert det.texture_status == "ok", (f, name, det)
-            assert abs(det.texture_depth - rendered) < 0.02 * rendered, (f, name, det.texture_depth, rendered)
+            check_rendered_depth(det, seq["depth"][f], seq["seg"][f] == seq["ids"][name], 0.02, (f, name))
     assert overlapped >= 3
 
 
