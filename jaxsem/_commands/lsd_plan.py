@@ -44,9 +44,23 @@ def _load_map(path):
     import numpy as np
 
     from jaxsem import quadrics as Q
+    from jaxsem._files import MAX_CELLS, npz_shapes
 
     if not pathlib.Path(path).exists():
         raise SystemExit(f"--map: no such file {path!r}")
+    try:  # the declared sizes first: nothing is inflated beyond the map budget
+        shapes = npz_shapes(path)
+    except ValueError as exc:
+        raise SystemExit(f"--map: {exc}") from None
+    occ_shape = shapes.get("occupancy", ())
+    if len(occ_shape) != 2 or int(np.prod(occ_shape)) > MAX_CELLS:
+        raise SystemExit(
+            f"--map: {path} declares occupancy of shape {occ_shape}; expected an (H, W) grid of at most "
+            f"{MAX_CELLS:,} cells"
+        )
+    for k in ("semantic", "indoor"):
+        if k in shapes and shapes[k] != occ_shape:
+            raise SystemExit(f"--map: {path} declares {k} of shape {shapes[k]}, occupancy of shape {occ_shape}")
     try:
         z = np.load(path)
     except Exception as exc:

@@ -189,9 +189,12 @@ def main(argv=None, prog: str | None = None) -> int:
             p.error("give --image and --boxes, or --split")
         import cv2
 
-        img = cv2.imread(str(a.image), cv2.IMREAD_COLOR)
-        if img is None:
-            raise sc.UsageError(f"--image: cannot read {a.image} as an image")
+        from jaxsem._files import read_image
+
+        try:
+            img = read_image(a.image, cv2.IMREAD_COLOR)
+        except ValueError as exc:
+            raise sc.UsageError(f"--image: {exc}") from None
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
         boxes = read_boxes(a.boxes, (img.shape[1], img.shape[0]))
     if a.train_steps is not None:

@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 
 from .. import quadrics as Q
+from .._files import read_image
 
 __all__ = [
     "FatAnnotation",
@@ -190,12 +191,13 @@ def _read_json(path: pathlib.Path) -> dict:
 
 
 def _read_image(path: pathlib.Path, flags: int) -> np.ndarray:
+    """An image's pixels, its header's size checked against the default pixel budget first."""
     if not path.is_file():
         raise FileNotFoundError(f"FAT file missing: {path}")
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise FatFormatError(f"{path}: cannot be decoded as an image (corrupt or not an image)")
-    return img
+    try:
+        return read_image(path, flags)
+    except ValueError as exc:
+        raise FatFormatError(str(exc)) from None
 
 
 def _get(d: dict, key: str, path, what: str = "field"):

@@ -17,6 +17,7 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
+from .._files import MAX_CELLS as MAX_CELLS
 
 # Semantic classes of the true world (int8). Walls, windows and exit signs are occupied cells;
 # doors are free cells (open doorways).

@@ -25,6 +25,12 @@ obstacles (a robot cannot plan through space no sensor has seen; the thesis' rea
 likewise closed), occupied cells are walls in the semantic grid, and the known (observed) area is
 the indoor region. Such a building has no rooms or exterior doors (empty arrays) and family
 ``"scanned"``.
+
+Every reader checks the size a file declares (an image's header, a gridmap's ``size_x, size_y``,
+the grid a resolution resamples to) against ``max_cells`` (default :data:`MAX_CELLS`) before it
+allocates a cell: a 1 MB PNG can declare 30000 x 30000 pixels, and a YAML's ``resolution: 1e-9``
+would resample its image over a billion-cell window. The refusal is a ``ValueError`` naming the
+file, its declared size and ``max_cells``.
 """
 
 from __future__ import annotations
@@ -32,19 +38,21 @@ from __future__ import annotations
 import dataclasses
 import gzip
 import math
-import os
 import pathlib
 import struct
+import zlib
 
 import numpy as np
 import scipy.ndimage
 
+from .._files import check_budget, read_image
 from ._buildings import Building, GridMap
-from ._grid import DEFAULT_RESOLUTION, FREE, OCCUPIED, UNKNOWN, read_text_as
+from ._grid import DEFAULT_RESOLUTION, FREE, MAX_CELLS, OCCUPIED, UNKNOWN, read_text_as
 from ._semantics import (
     apply_annotations,
     building_footprint,
     find_doors,
+    footprint_cells,
     largest_open_region,
     read_annotations,
     semantic_grid,
@@ -80,7 +88,12 @@ class OccupancyGrid(GridMap):
 
 
 def load_occupancy(
-    path, *, resolution: float | None = None, origin=None, hatch_px: float | None = None
+    path,
+    *,
+    resolution: float | None = None,
+    origin=None,
+    hatch_px: float | None = None,
+    max_cells: int = MAX_CELLS,
 ) -> OccupancyGrid:
     """Reads a ROS map_server YAML, an MRPT gridmap or a plain image (``resolution`` needed).
 
@@ -88,23 +101,27 @@ def load_occupancy(
     HM3D house drawings): light regions no wider than ``2 * hatch_px`` pixels anywhere (their
     largest inscribed circle has a radius of at most ``hatch_px``) lie between hatch lines and
     are occupied.
+    max_cells: the most cells (image pixels) a file may declare; checked on its header before
+        any cell is read (default :data:`MAX_CELLS`, 8192 x 8192).
 
     Raises:
       ValueError: naming the file and the field for a missing file, an unknown format, a bad or
-        missing field, a truncated cell array, or a plain image without ``resolution``.
+        missing field, a truncated cell array, a plain image without ``resolution``, or a declared
+        size over ``max_cells`` (then naming the size and ``max_cells``).
     """
+    max_cells = check_budget("max_cells", max_cells)
     path = pathlib.Path(path)
     if not path.is_file():
         raise ValueError(f"path: no such map file {str(path)!r}")
     name = path.name.lower()
     if name.endswith((".yaml", ".yml")):
-        grid = _read_ros_yaml(path)
+        grid = _read_ros_yaml(path, max_cells)
     elif name.endswith((".gridmap", ".gridmap.gz")):
-        grid = _read_mrpt_gridmap(path)
+        grid = _read_mrpt_gridmap(path, max_cells)
     elif name.endswith(_IMAGE_SUFFIXES):
         if resolution is None:
             raise ValueError(f"{path}: a plain image map needs resolution= (metres per pixel)")
-        occ = _read_image(path)
+        occ = _read_image(path, max_cells)
         dark = occ < 128
         if hatch_px is not None:
             if not (math.isfinite(hatch_px) and hatch_px > 0):
@@ -153,6 +170,7 @@ def load_map(
     footprint_gap: float = 2.0,
     hatch_px: float | None = None,
     footprint: str = "auto",
+    max_cells: int = MAX_CELLS,
 ) -> Building:
     """A :class:`Building` from a map file (see the module docstring for formats and rules).
 
@@ -167,10 +185,17 @@ def load_map(
         :func:`load_occupancy`; footprint: how the inside is told from the outside,
         :func:`building_footprint`'s ``method`` or ``"none"`` (the whole map is the building, e.g.
         a drawing of a house's floor).
+    max_cells: the most cells the file may declare, the resampled grid may have, and the
+        footprint's work may take (default :data:`MAX_CELLS`, 8192 x 8192).
+
+    Raises:
+      ValueError: naming the file (see :func:`load_occupancy`), also for a map smaller than one
+        cell of ``cell_size`` (a resolution off by orders of magnitude) or one over ``max_cells``
+        once resampled; naming the argument for a bad one (:func:`grid_to_building`).
     """
-    grid = load_occupancy(path, resolution=resolution, origin=origin, hatch_px=hatch_px)
+    grid = load_occupancy(path, resolution=resolution, origin=origin, hatch_px=hatch_px, max_cells=max_cells)
     if cell_size is not None:
-        grid = resample_occupancy(grid, cell_size)
+        grid = resample_occupancy(grid, cell_size, max_cells=max_cells)
     return grid_to_building(
         grid,
         unknown_is_obstacle=unknown_is_obstacle,
@@ -178,27 +203,48 @@ def load_map(
         annotations=annotations,
         footprint_gap=footprint_gap,
         footprint=footprint,
+        max_cells=max_cells,
     )
 
 
-def resample_occupancy(grid: OccupancyGrid, cell_size: float) -> OccupancyGrid:
+def resample_occupancy(grid: OccupancyGrid, cell_size: float, *, max_cells: int = MAX_CELLS) -> OccupancyGrid:
     """``grid`` on cells of ``cell_size`` metres over the same extent (the last row / column may
     reach past it; what lies past it is unknown). A new cell is occupied when any cell it overlaps
-    is, else unknown when any is, else free: walls stay closed and nothing unseen becomes free."""
+    is, else unknown when any is, else free: walls stay closed and nothing unseen becomes free.
+
+    Raises:
+      ValueError: naming the grid's file when its extent is smaller than one new cell (its
+        resolution is off by orders of magnitude: every cell would be one mixed cell) or the new
+        grid would have more than ``max_cells`` cells (a coarse map resampled finely).
+    """
     if not (math.isfinite(cell_size) and cell_size > 0):
         raise ValueError(f"cell_size: expected a positive number of metres per cell, got {cell_size}")
+    max_cells = check_budget("max_cells", max_cells)
     if abs(cell_size - grid.resolution) <= 1e-9 * cell_size:
         return grid
     occ = np.asarray(grid.occupancy)
-    rank = np.array([1, 0, 2], np.int8)[occ + 1]  # unknown 1, free 0, occupied 2
     ratio = cell_size / grid.resolution
+    h, w = occ.shape
+    source = grid.source or "grid"
+    if min(h, w) < ratio * (1 - 1e-9):
+        raise ValueError(
+            f"{source}: the map is {w} x {h} cells of {grid.resolution:g} m ({w * grid.resolution:.3g} x "
+            f"{h * grid.resolution:.3g} m), smaller than one cell of cell_size={cell_size:g} m; check its resolution"
+        )
+    shape_out = [max(int(math.ceil(n / ratio - 1e-9)), 1) for n in (h, w)]
+    if shape_out[0] * shape_out[1] > max_cells:
+        raise ValueError(
+            f"{source}: {w} x {h} cells of {grid.resolution:g} m resample to {shape_out[1]} x {shape_out[0]} = "
+            f"{shape_out[0] * shape_out[1]:,} cells of cell_size={cell_size:g} m, more than max_cells={max_cells:,}"
+        )
+    rank = np.array([1, 0, 2], np.int8)[occ + 1]  # unknown 1, free 0, occupied 2
 
     def pool(a, axis):
         n_src = a.shape[axis]
         n_out = max(int(math.ceil(n_src / ratio - 1e-9)), 1)
         lo = np.floor(np.arange(n_out) * ratio + 1e-9).astype(np.int64)
         hi = np.ceil((np.arange(n_out) + 1) * ratio - 1e-9).astype(np.int64) - 1
-        width = int((hi - lo).max()) + 1
+        width = int((hi - lo).max()) + 1  # at most ratio + 1 <= n_src + 1 (checked above)
         padded = np.concatenate([a, np.ones_like(np.take(a, [0], axis=axis)).repeat(width + 1, axis=axis)], axis=axis)
         out = np.take(padded, lo, axis=axis)
         for k in range(1, width):
@@ -219,27 +265,45 @@ def grid_to_building(
     annotations=None,
     footprint_gap: float = 2.0,
     footprint: str = "auto",
+    max_cells: int = MAX_CELLS,
 ) -> Building:
     """The planner's world of an :class:`OccupancyGrid`: occupied cells are walls, doors found
     from the occupancy (``doors``) are DOOR, the footprint (:func:`building_footprint`) is
     indoor; where less than ``MIN_OUTSIDE_AREA`` m^2 with half a metre of clearance lies outside
     it, the largest open region (:func:`largest_open_region`, 5 m across, else 4, 3, 2 or 1.5 m) is
     taken as the outside (``outside_is_outdoors=False``: its goals are indoors, and the LSD
-    network is told so). ``annotations`` (a JSON path or
-    its parsed dict) are applied last."""
+    network is told so). ``annotations`` (a JSON path or its dict, validated alike:
+    :func:`read_annotations`) are applied last. ``max_cells``: the footprint's work budget
+    (:func:`building_footprint`).
+
+    Raises:
+      ValueError: naming the argument (``footprint_gap`` not a finite number >= 0, ``footprint``,
+        ``annotations`` with an unknown key or a bad box), or naming the grid's file when no cell
+        of the result is free: a robot could not stand anywhere, so no start or goal exists (a
+        map whose free grey level was read as unknown or occupied: its thresholds or ``negate``).
+    """
     occ = np.asarray(grid.occupancy)
     res = float(grid.resolution)
-    if annotations is not None and not isinstance(annotations, dict):
+    max_cells = check_budget("max_cells", max_cells)
+    if not (isinstance(footprint_gap, (int, float, np.number)) and math.isfinite(footprint_gap) and footprint_gap >= 0):
+        raise ValueError(f"footprint_gap: expected a finite number of metres >= 0, got {footprint_gap!r}")
+    if footprint not in ("auto", "walls", "density", "none"):
+        raise ValueError(f"footprint: expected 'auto', 'walls', 'density' or 'none', got {footprint!r}")
+    if footprint != "none" and footprint_cells(occ.shape, footprint_gap, res) > max_cells:
+        raise ValueError(
+            f"{grid.source or 'grid'}: footprint_gap={footprint_gap:g} m at the map's {res:g} m per cell pads its "
+            f"{occ.shape[1]} x {occ.shape[0]} cells to {footprint_cells(occ.shape, footprint_gap, res):,}, more than "
+            f"max_cells={max_cells:,}; check the map's resolution"
+        )
+    if annotations is not None:
         annotations = read_annotations(annotations)
     door_mask = find_doors(occ, res) if doors else np.zeros(occ.shape, bool)
     semantic = semantic_grid(occ, door_mask)
-    if footprint not in ("auto", "walls", "density", "none"):
-        raise ValueError(f"footprint: expected 'auto', 'walls', 'density' or 'none', got {footprint!r}")
     free = occ == FREE
     if footprint == "none":
         indoor = np.ones(occ.shape, bool)
     else:
-        indoor = building_footprint(occ, res, gap=footprint_gap, method=footprint)
+        indoor = building_footprint(occ, res, gap=footprint_gap, method=footprint, max_cells=max_cells)
     if (free & indoor).sum() < 0.1 * max(int(free.sum()), 1):
         # No enclosing wall was found (a drawing of one floor's inside, open at the image's
         # edges): the whole map is the building.
@@ -265,6 +329,13 @@ def grid_to_building(
                 "exit sign box with no occupied cell)"
             )
     blocked = (occ == OCCUPIED) | ((occ == UNKNOWN) if unknown_is_obstacle else False)
+    if np.all(blocked):
+        unknown = int((occ == UNKNOWN).sum())
+        raise ValueError(
+            f"{grid.source or 'grid'}: no free cell in the map ({occ.size - unknown} occupied, {unknown} unknown"
+            f"{', blocked with unknown_is_obstacle=True' if unknown_is_obstacle and unknown else ''}): no start or "
+            "goal can be placed; check the map's thresholds and negate"
+        )
     return Building(
         occupancy=np.asarray(blocked, bool),
         semantic=semantic,
@@ -279,17 +350,16 @@ def grid_to_building(
 # ----------------------------------------------------------------------------------------------
 
 
-def _read_image(path: pathlib.Path) -> np.ndarray:
-    """(H, W) uint8 grey levels of an image file (colour images are averaged)."""
-    import cv2  # deferred: cv2 is slow to import and only image maps need it
-
-    img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
+def _read_image(path: pathlib.Path, max_cells: int) -> np.ndarray:
+    """(H, W) uint8 grey levels of an image file (colour images are averaged), after its header's
+    size has been checked against ``max_cells``."""
+    img = read_image(path, max_pixels=max_cells, argument="max_cells")
     if img.ndim == 3:
-        img = img[..., :3].mean(axis=-1)
+        img = img[..., :3].mean(axis=-1, dtype=np.float32)
     if img.dtype == np.uint16:
-        img = img / 257.0
+        img = img / np.float32(257.0)
+    if img.dtype == np.uint8:
+        return img
     return np.asarray(np.clip(np.round(img), 0, 255), np.uint8)
 
 
@@ -316,7 +386,7 @@ def _number(path, data, key, default=None) -> float:
     return value
 
 
-def _read_ros_yaml(path: pathlib.Path) -> OccupancyGrid:
+def _read_ros_yaml(path: pathlib.Path, max_cells: int) -> OccupancyGrid:
     data = _parse_yaml(path)
     if not isinstance(data.get("image"), str) or not data["image"]:
         raise ValueError(f"{path}: missing field 'image' (the map image's file name)")
@@ -351,7 +421,10 @@ def _read_ros_yaml(path: pathlib.Path) -> OccupancyGrid:
     mode = str(data.get("mode", "trinary"))
     if mode not in ("trinary", "scale", "raw"):
         raise ValueError(f"{path}: field 'mode' must be trinary, scale or raw, got {mode!r}")
-    pixels = _read_image(image).astype(np.float64)
+    try:
+        pixels = _read_image(image, max_cells).astype(np.float32)
+    except ValueError as exc:
+        raise ValueError(f"{path}: field 'image': {exc}") from None
     if mode == "raw":
         p = pixels / 100.0
         occ = np.where(pixels > 100, UNKNOWN, np.where(p >= 0.5, OCCUPIED, FREE))
@@ -361,33 +434,45 @@ def _read_ros_yaml(path: pathlib.Path) -> OccupancyGrid:
     return OccupancyGrid(occ.astype(np.int8)[::-1].copy(), np.asarray(origin[:2]), resolution, str(path))
 
 
-def _read_mrpt_gridmap(path: pathlib.Path) -> OccupancyGrid:
+def _read_mrpt_gridmap(path: pathlib.Path, max_cells: int) -> OccupancyGrid:
+    # The header first, then exactly the cells it declares (within the budget): a gzip stream
+    # is never decompressed past them (1 MB of .gz can hold gigabytes).
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
-        raw = gzip.open(path).read() if path.name.lower().endswith(".gz") else path.read_bytes()
-    except (OSError, EOFError) as exc:
+        with opener(path, "rb") as f:
+            head = f.read(1 + 127 + 30)
+            if not head or not head[0] & 0x80:
+                raise ValueError(f"{path}: not an MRPT serialised object (bad first byte)")
+            n = head[0] & 0x7F
+            name = head[1 : 1 + n].decode("ascii", "replace")
+            if name != "COccupancyGridMap2D":
+                raise ValueError(f"{path}: class {name!r}, expected COccupancyGridMap2D")
+            o = 1 + n
+            if len(head) < o + 30:
+                raise ValueError(f"{path}: truncated header")
+            version, bits = head[o], head[o + 1]
+            if version != 3:
+                raise ValueError(f"{path}: serialisation version {version}, only version 3 is supported")
+            if bits != 8:
+                raise ValueError(f"{path}: {bits} bits per cell, only 8 are supported")
+            size_x, size_y = struct.unpack_from("<II", head, o + 2)
+            x_min, x_max, y_min, y_max, resolution = struct.unpack_from("<5f", head, o + 10)
+            o += 30
+            if size_x == 0 or size_y == 0 or not (resolution > 0 and math.isfinite(resolution)):
+                raise ValueError(f"{path}: bad header (size {size_x} x {size_y}, resolution {resolution})")
+            if not (math.isfinite(x_min) and math.isfinite(y_min)):
+                raise ValueError(f"{path}: bad header: origin (x_min, y_min) = ({x_min}, {y_min}) must be finite")
+            if size_x * size_y > max_cells:
+                raise ValueError(
+                    f"{path}: declares {size_x} x {size_y} = {size_x * size_y:,} cells, more than "
+                    f"max_cells={max_cells:,}; pass a larger max_cells to read it"
+                )
+            raw = head[o:] + f.read(max(size_x * size_y - (len(head) - o), 0))
+    except (OSError, EOFError, zlib.error) as exc:
         raise ValueError(f"{path}: not a readable MRPT gridmap ({exc})") from None
-    if not raw or not raw[0] & 0x80:
-        raise ValueError(f"{path}: not an MRPT serialised object (bad first byte)")
-    n = raw[0] & 0x7F
-    name = raw[1 : 1 + n].decode("ascii", "replace")
-    if name != "COccupancyGridMap2D":
-        raise ValueError(f"{path}: class {name!r}, expected COccupancyGridMap2D")
-    o = 1 + n
-    if len(raw) < o + 30:
-        raise ValueError(f"{path}: truncated header")
-    version, bits = raw[o], raw[o + 1]
-    if version != 3:
-        raise ValueError(f"{path}: serialisation version {version}, only version 3 is supported")
-    if bits != 8:
-        raise ValueError(f"{path}: {bits} bits per cell, only 8 are supported")
-    size_x, size_y = struct.unpack_from("<II", raw, o + 2)
-    x_min, x_max, y_min, y_max, resolution = struct.unpack_from("<5f", raw, o + 10)
-    o += 30
-    if size_x == 0 or size_y == 0 or not (resolution > 0 and math.isfinite(resolution)):
-        raise ValueError(f"{path}: bad header (size {size_x} x {size_y}, resolution {resolution})")
-    if len(raw) < o + size_x * size_y:
-        raise ValueError(f"{path}: truncated cells ({len(raw) - o} bytes for {size_x} x {size_y})")
-    cells = np.frombuffer(raw, np.int8, size_x * size_y, o).reshape(size_y, size_x)
+    if len(raw) < size_x * size_y:
+        raise ValueError(f"{path}: truncated cells ({len(raw)} bytes for {size_x} x {size_y})")
+    cells = np.frombuffer(raw, np.int8, size_x * size_y).reshape(size_y, size_x)
     occ = np.where(cells < 0, OCCUPIED, np.where(cells > 0, FREE, UNKNOWN)).astype(np.int8)
     # x_max / y_max are implied by the size; the stored ones are rounded floats.
     del x_max, y_max

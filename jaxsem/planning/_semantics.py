@@ -33,13 +33,15 @@ from __future__ import annotations
 import json
 import math
 import pathlib
+from collections.abc import Mapping
 
 import numpy as np
 import scipy.ndimage as ndi
 
 from .. import quadrics as Q
 from .._checks import require_type
-from ._grid import DOOR, EXIT_SIGN, FREE, OCCUPIED, UNKNOWN, WALL, WINDOW, read_text_as
+from .._files import check_budget
+from ._grid import DOOR, EXIT_SIGN, FREE, MAX_CELLS, OCCUPIED, UNKNOWN, WALL, WINDOW, read_text_as
 
 DOOR_WIDTH = (0.6, 1.4)  # metres: the narrowest door a robot passes, the widest double door
 _EIGHT = np.ones((3, 3), bool)
@@ -154,7 +156,9 @@ def find_doors(
     return doors
 
 
-def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method: str = "auto") -> np.ndarray:
+def building_footprint(
+    occupancy, resolution: float, *, gap: float = 2.0, method: str = "auto", max_cells: int = MAX_CELLS
+) -> np.ndarray:
     """(H, W) bool: inside the building. occupancy: three-state grid; gap: the widest wall opening
     (metres) closed when separating inside from outside.
 
@@ -165,16 +169,32 @@ def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method
     part of the densely observed free space (at least 60 % free over ``gap`` x ``gap`` metres;
     walls included), closed over ``gap`` and with its holes filled: the fans' sparse tips are
     outside. 'auto': 'density' when the grid has unknown cells (a scan), else 'walls'.
+
+    max_cells: 'density' closes the gaps on the grid padded by ``gap / 2`` metres of cells on each
+    side; a padded grid over this budget is refused (a resolution off by orders of magnitude
+    turns 2 m into billions of cells).
     """
     occ = np.asarray(occupancy)
     if occ.ndim != 2:
         raise ValueError(f"occupancy: expected an (H, W) grid, got shape {occ.shape}")
     if method not in ("auto", "walls", "density"):
         raise ValueError(f"method: expected 'auto', 'walls' or 'density', got {method!r}")
+    if not (isinstance(gap, (int, float, np.number)) and math.isfinite(gap) and gap >= 0):
+        raise ValueError(f"gap: expected a finite number of metres >= 0, got {gap!r}")
+    if not (isinstance(resolution, (int, float, np.number)) and math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution: expected a positive number of metres per cell, got {resolution!r}")
+    max_cells = check_budget("max_cells", max_cells)
     walls = occ == OCCUPIED
     if method == "auto":
         method = "density" if (occ == UNKNOWN).any() else "walls"
     if method == "density":
+        radius = max(int(round(0.5 * gap / resolution)), 1)
+        padded_cells = footprint_cells(occ.shape, gap, resolution)
+        if padded_cells > max_cells:
+            raise ValueError(
+                f"gap: {gap:g} m at resolution {resolution:g} m per cell pads the {occ.shape[1]} x {occ.shape[0]} grid "
+                f"to {padded_cells:,} cells, more than max_cells={max_cells:,}; check the resolution"
+            )
         free = occ == FREE
         k = max(int(round(gap / resolution)) | 1, 3)
         dense = free & (ndi.uniform_filter(free.astype(np.float32), k) >= 0.6)
@@ -188,7 +208,6 @@ def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method
         # The density window rounds the building's corners off: they are given back (cells
         # within half a window of the dense part), then gaps are closed and holes filled.
         main = _edt(labels != int(np.argmax(area))) <= k // 2
-        radius = max(int(round(0.5 * gap / resolution)), 1)
         padded = np.pad(main, radius + 1)
         closed = ndi.binary_closing(padded, ndi.generate_binary_structure(2, 1), iterations=radius)
         return np.asarray(ndi.binary_fill_holes(closed), bool)[radius + 1 : -radius - 1, radius + 1 : -radius - 1]
@@ -206,6 +225,13 @@ def building_footprint(occupancy, resolution: float, *, gap: float = 2.0, method
     # reached cell, so the band never crosses a wall; it enters a closed doorway by under a metre.
     near = _edt(~reached) * resolution <= 0.5 * gap
     return ~((reached | near) & ~walls)
+
+
+def footprint_cells(shape, gap: float, resolution: float) -> int:
+    """Cells of the padded grid :func:`building_footprint` closes gaps on ('density'): the grid
+    with ``gap / 2`` metres of cells (at least one) and one more on each side."""
+    radius = max(int(round(0.5 * gap / resolution)), 1)
+    return (int(shape[0]) + 2 * radius + 2) * (int(shape[1]) + 2 * radius + 2)
 
 
 def largest_open_region(occupancy, resolution: float, *, across: float = 5.0) -> np.ndarray:
@@ -229,24 +255,40 @@ def largest_open_region(occupancy, resolution: float, *, across: float = 5.0) ->
 _ANNOTATION_KEYS = ("doors", "windows", "exit_signs", "outdoor", "indoor")
 
 
-def read_annotations(path) -> dict:
-    """The boxes of an annotation JSON file (see the module docstring), validated: a dict of
-    ``(K, 4)`` float arrays ``[x0, y0, x1, y1]`` (world metres) per key present."""
-    path = pathlib.Path(path)
-    data = read_text_as(path, json.loads, (json.JSONDecodeError,), "JSON annotation file")
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected an object with keys {', '.join(_ANNOTATION_KEYS)}")
-    unknown = sorted(set(data) - set(_ANNOTATION_KEYS))
+def read_annotations(source) -> dict:
+    """The boxes of an annotation JSON file, or of its already parsed dict (see the module
+    docstring), validated: a dict of ``(K, 4)`` float arrays ``[x0, y0, x1, y1]`` (world metres)
+    per key present.
+
+    Raises:
+      ValueError: naming the file (or ``annotations`` for a dict) and the field: an unknown key
+        (a misspelt ``"door"`` would otherwise mark nothing), a value that is not a list of
+        4-number boxes, a non-finite box or one with ``x1 < x0`` / ``y1 < y0``.
+    """
+    if isinstance(source, Mapping):
+        where, data = "annotations", source
+    else:
+        path = pathlib.Path(source)
+        where = str(path)
+        data = read_text_as(path, json.loads, (json.JSONDecodeError,), "JSON annotation file")
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}: expected an object with keys {', '.join(_ANNOTATION_KEYS)}")
+    unknown = sorted(str(k) for k in set(data) - set(_ANNOTATION_KEYS))
     if unknown:
-        raise ValueError(f"{path}: unknown field(s) {unknown}; expected {', '.join(_ANNOTATION_KEYS)}")
+        raise ValueError(f"{where}: unknown field(s) {unknown}; expected {', '.join(_ANNOTATION_KEYS)}")
     out = {}
     for key, boxes in data.items():
         try:
-            arr = np.asarray(boxes, float).reshape(-1, 4) if len(boxes) else np.zeros((0, 4))
+            arr = np.asarray(boxes, float)
+            arr = arr.reshape(-1, 4) if arr.size else np.zeros((0, 4))
         except (TypeError, ValueError):
-            raise ValueError(f"{path}: field {key!r} must be a list of [x0, y0, x1, y1] boxes in metres") from None
-        if not np.all(np.isfinite(arr)) or np.any(arr[:, 2] < arr[:, 0]) or np.any(arr[:, 3] < arr[:, 1]):
-            raise ValueError(f"{path}: field {key!r}: boxes must be finite with x0 <= x1 and y0 <= y1")
+            raise ValueError(f"{where}: field {key!r} must be a list of [x0, y0, x1, y1] boxes in metres") from None
+        bad = ~np.all(np.isfinite(arr), axis=1) | (arr[:, 2] < arr[:, 0]) | (arr[:, 3] < arr[:, 1])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(
+                f"{where}: field {key!r}[{i}]: boxes must be finite with x0 <= x1 and y0 <= y1, got {arr[i].tolist()}"
+            )
         out[key] = arr
     return out
 
@@ -260,8 +302,10 @@ def apply_annotations(occupancy, semantic, indoor, annotations: dict, grid):
     """Copies of (occupancy three-state, semantic, indoor) with the annotation boxes applied on
     ``grid`` (:class:`jaxsem.quadrics.Grid` of the maps' cells, e.g. a map's ``.grid``).
     Returns (occupancy, semantic, indoor, unused) where ``unused`` lists the boxes that touched
-    no cell they could mark (``"windows[2]"``)."""
+    no cell they could mark (``"windows[2]"``). ``annotations`` is checked as
+    :func:`read_annotations` checks it."""
     grid = require_type("grid", grid, Q.Grid)
+    annotations = read_annotations(annotations)
     occ, sem, ind = np.array(occupancy), np.array(semantic), np.array(indoor)
     if tuple(grid.shape) != occ.shape:
         raise ValueError(f"grid: expected the maps' shape {occ.shape}, got shape {tuple(grid.shape)}")

@@ -57,3 +57,21 @@ def test_short_run_writes_the_map_and_the_strip(tmp_path):
     )
     assert rc == 0 and out.stat().st_size > 0
     assert (tmp_path / "new" / "plan_over_time.png").stat().st_size > 0
+
+
+def test_a_map_declaring_more_cells_than_the_budget_is_refused_unread(tmp_path):
+    # An .npz whose occupancy header declares 60000 x 60000 cells over a few bytes of data: refused
+    # from the header (issue 45 item 4), naming the flag, the file and the declared shape.
+    import io
+    import zipfile
+
+    import numpy as np
+
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(head, {"descr": "|b1", "fortran_order": False, "shape": (60000, 60000)})
+    path = tmp_path / "claim.npz"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("occupancy.npy", head.getvalue() + bytes(16))
+    args = ["--map", str(path), "--start", "0", "0", "--goal", "1", "1", "--out", str(tmp_path / "p.png")]
+    with pytest.raises(SystemExit, match=r"--map: .*claim.npz declares occupancy of shape \(60000, 60000\)"):
+        _module().main([*args, "--run-dir", str(tmp_path / "run")])

@@ -13,6 +13,7 @@ import pathlib
 
 import numpy as np
 
+from ..._files import MAX_PIXELS, read_image
 from ...data import BopFrame, BopScene, fat_writer, load_bop_scene
 from .._inputs import prepare_inputs
 
@@ -54,15 +55,16 @@ def bop_split_frames(scene: BopScene, split: str, below: int = LMO_TUNE_BELOW) -
     return tuple(f for f in scene.frames if keep is None or keep(f.frame_id))
 
 
-def read_rgb(path) -> np.ndarray:
-    """An image file as (H, W, 3) uint8 RGB; ValueError naming the file when it cannot be read."""
+def read_rgb(path, *, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """An image file as (H, W, 3) uint8 RGB; ValueError naming the file when it cannot be read or
+    its header declares more than ``max_pixels`` pixels (default 8192 x 8192; checked before any
+    pixel is decoded)."""
     import cv2  # deferred: cv2 is slow to import and only this function needs it
 
     path = pathlib.Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
-    if img is None:
-        raise ValueError(f"{path}: cannot read the frame's image (missing or not an image)")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if not path.is_file():
+        raise ValueError(f"{path}: cannot read the frame's image (missing)")
+    return cv2.cvtColor(read_image(path, cv2.IMREAD_COLOR, max_pixels=max_pixels), cv2.COLOR_BGR2RGB)
 
 
 def _nearest_rotation(R) -> np.ndarray:
