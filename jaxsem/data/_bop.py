@@ -22,11 +22,12 @@ agree with a rasteriser to about the splat size on meshes with ~1 px vertex spac
 from __future__ import annotations
 
 import dataclasses
-import json
+import math
 import pathlib
 
 import numpy as np
 
+from .._files import MAX_PIXELS, check_budget, read_json
 from ..quadrics import EllipsoidView
 
 #: Linemod's object names (LM and LM-O share the ids).
@@ -167,6 +168,8 @@ def load_ply(path, scale: float = 1e-3) -> Mesh:
         if words[0] == "format":
             fmt = words[1]
         elif words[0] == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise ValueError(f"{path}: bad PLY header line {line!r} (expected 'element NAME COUNT')")
             elements.append([words[1], int(words[2]), []])
         elif words[0] == "property" and elements:
             elements[-1][2].append(words[1:])
@@ -233,13 +236,49 @@ def load_ply(path, scale: float = 1e-3) -> Mesh:
 # Scenes
 
 
-def _read_json(path: pathlib.Path):
-    try:
-        return json.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+def _read_json(path: pathlib.Path, kind: type = dict):
+    """A BOP JSON file whose top level must be ``kind`` (an object keyed by frame id)."""
+    data = read_json(path, "BOP JSON file")
+    if not isinstance(data, kind):
+        raise ValueError(f"{path}: expected a JSON {'object' if kind is dict else 'list'}, got {type(data).__name__}")
+    return data
+
+
+def _number(where: str, value, *, positive: bool = False) -> float:
+    """A finite number (> 0 when ``positive``) read from a file; ``ValueError`` naming ``where``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{where}: expected a finite number, got {value!r:.80}")
+    if positive and value <= 0:
+        raise ValueError(f"{where}: expected a positive number, got {value!r}")
+    return float(value)
+
+
+def _whole(where: str, value, *, low: int = 0) -> int:
+    """A whole number >= ``low`` read from a file (``3.0`` is accepted as 3); ``ValueError`` naming ``where``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value or value % 1 or value < low:
+        raise ValueError(f"{where}: expected a whole number >= {low}, got {value!r:.80}")
+    return int(value)
+
+
+def _image_size(where: str, width, height, max_pixels: int) -> tuple[int, int]:
+    """``(W, H)`` of a camera: positive whole numbers whose product is within ``max_pixels`` (the
+    visible boxes are rendered into a W x H buffer)."""
+    size = (_whole(f"{where}: width", width, low=1), _whole(f"{where}: height", height, low=1))
+    if size[0] * size[1] > max_pixels:
+        raise ValueError(
+            f"{where}: declares a {size[0]} x {size[1]} = {size[0] * size[1]:,} pixel image, more than "
+            f"max_pixels={max_pixels:,}"
+        )
+    return size
+
+
+def _intrinsics(where: str, K: np.ndarray) -> np.ndarray:
+    """``K`` checked: positive focal lengths, zero skew row and bottom row ``[0, 0, 1]``."""
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"{where}: focal lengths fx = K[0, 0] and fy = K[1, 1] must be positive, got {K.tolist()}")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise ValueError(f"{where}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+    return K
 
 
 def _matrix(where: str, value, shape) -> np.ndarray:
@@ -261,20 +300,21 @@ def _models_dir(scene: pathlib.Path, models_dir) -> pathlib.Path:
     raise ValueError(f"{scene}: no models/ folder found beside or above the scene (give models_dir=)")
 
 
-def _cameras(scene: pathlib.Path, frame_ids) -> dict:
-    """frame id -> (K, (W, H))."""
+def _cameras(scene: pathlib.Path, frame_ids, max_pixels: int) -> dict:
+    """frame id -> (K, (W, H)), every field checked (``ValueError`` naming the file and entry)."""
     per_frame = scene / "scene_camera.json"
     shared = [scene / "camera.json", scene.parent.parent / "camera.json", scene.parent.parent / "camera_uw.json"]
     default = None
     for path in shared:
         if path.is_file():
             cam = _read_json(path)
-            try:
-                K = np.array([[cam["fx"], 0.0, cam["cx"]], [0.0, cam["fy"], cam["cy"]], [0.0, 0.0, 1.0]], float)
-                size = (int(cam["width"]), int(cam["height"]))
-            except (KeyError, TypeError, ValueError) as exc:
-                raise ValueError(f"{path}: expected fx, fy, cx, cy, width, height ({exc})") from None
-            default = (K, size)
+            missing = [k for k in ("fx", "fy", "cx", "cy", "width", "height") if k not in cam]
+            if missing:
+                raise ValueError(f"{path}: expected fx, fy, cx, cy, width, height; missing {', '.join(missing)}")
+            fx, fy = (_number(f"{path}: {k}", cam[k], positive=True) for k in ("fx", "fy"))
+            cx, cy = (_number(f"{path}: {k}", cam[k]) for k in ("cx", "cy"))
+            K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+            default = (K, _image_size(str(path), cam["width"], cam["height"], max_pixels))
             break
     out = {}
     if per_frame.is_file():
@@ -286,8 +326,17 @@ def _cameras(scene: pathlib.Path, frame_ids) -> dict:
                     raise ValueError(f"{per_frame}: no entry for frame {fid}")
                 out[fid] = default
                 continue
-            K = _matrix(f"{per_frame}: {fid}.cam_K", entry.get("cam_K"), (3, 3))
-            size = default[1] if default else (int(round(2 * K[0, 2])), int(round(2 * K[1, 2])))
+            if not isinstance(entry, dict):
+                raise ValueError(f"{per_frame}: {fid}: expected an object with cam_K, got {entry!r:.80}")
+            K = _intrinsics(
+                f"{per_frame}: {fid}.cam_K", _matrix(f"{per_frame}: {fid}.cam_K", entry.get("cam_K"), (3, 3))
+            )
+            if default:
+                size = default[1]
+            else:  # no camera.json: the image is taken as centred on the principal point
+                size = _image_size(
+                    f"{per_frame}: {fid}.cam_K (2 cx, 2 cy)", round(2 * K[0, 2]), round(2 * K[1, 2]), max_pixels
+                )
             out[fid] = (K, size)
         return out
     if default is None:
@@ -295,18 +344,31 @@ def _cameras(scene: pathlib.Path, frame_ids) -> dict:
     return {fid: default for fid in frame_ids}
 
 
-def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = None, frame_filter=None) -> BopScene:
+def load_bop_scene(
+    scene_dir,
+    *,
+    models_dir=None,
+    class_names: dict | None = None,
+    frame_filter=None,
+    max_pixels: int = MAX_PIXELS,
+) -> BopScene:
     """Reads a BOP scene's labels (see the module docstring); no image is opened.
 
     class_names: object id -> name (default: Linemod's names for ids 1-15 when the path names
     ``lm`` / ``lmo`` / ``linemod``, else ``obj_XXXXXX``).
     frame_filter: optional ``frame id -> bool``; only the frames it accepts are read (their visible
     boxes rendered), e.g. ``lambda i: i < 600`` for LM-O's tuning split alone.
+    max_pixels: the largest image (width x height) a camera may declare (default 8192 x 8192):
+    without ``scene_gt_info.json`` the visible boxes are rendered into a buffer of that size.
 
     Raises:
-      ValueError: naming the file and the field (missing files, bad JSON, wrong matrix sizes,
-        objects without a mesh).
+      ValueError: naming the file and the entry (frame id, object index) and field: missing
+        files, bad JSON, a value of the wrong type (a number where a list of objects belongs, an
+        ``obj_id`` that is not a whole number), wrong matrix sizes, non-finite numbers, focal
+        lengths that are not positive, an image size that is not positive or is over
+        ``max_pixels``, a visible fraction outside [0, 1], objects without a mesh.
     """
+    max_pixels = check_budget("max_pixels", max_pixels)
     scene = pathlib.Path(scene_dir)
     if not scene.is_dir():
         raise ValueError(f"scene_dir: no such folder {str(scene)!r}")
@@ -314,14 +376,30 @@ def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = Non
     if not gt_path.is_file():
         raise ValueError(f"{scene}: no scene_gt.json (not a BOP scene folder)")
     gt = _read_json(gt_path)
-    if not isinstance(gt, dict):
-        raise ValueError(f"{gt_path}: expected an object keyed by frame id")
     try:
         frame_ids = sorted(int(k) for k in gt)
     except ValueError:
         raise ValueError(f"{gt_path}: frame ids must be integers, got {list(gt)[:5]}") from None
     if frame_filter is not None:
         frame_ids = [fid for fid in frame_ids if frame_filter(fid)]
+    # Every entry of the frames read is checked before any mesh is loaded.
+    poses_of: dict[int, list] = {}
+    for fid in frame_ids:
+        entries = gt[_key(gt, fid)]
+        if not isinstance(entries, list):
+            raise ValueError(f"{gt_path}: {fid}: expected a list of objects, got {entries!r:.80}")
+        poses = []
+        for i, e in enumerate(entries):
+            where = f"{gt_path}: {fid}[{i}]"
+            if not isinstance(e, dict):
+                raise ValueError(f"{where}: expected an object with obj_id, cam_R_m2c, cam_t_m2c, got {e!r:.80}")
+            if "obj_id" not in e:
+                raise ValueError(f"{where}.obj_id: missing")
+            oid = _whole(f"{where}.obj_id", e["obj_id"])
+            R = _matrix(f"{where}.cam_R_m2c", e.get("cam_R_m2c"), (3, 3))
+            t = _matrix(f"{where}.cam_t_m2c", e.get("cam_t_m2c"), (3,)) * 1e-3
+            poses.append((oid, R, t))
+        poses_of[fid] = poses
     info_path = scene / "scene_gt_info.json"
     info = _read_json(info_path) if info_path.is_file() else None
     if class_names is None:
@@ -330,39 +408,35 @@ def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = Non
             p.startswith("lmo_") or p.startswith("lm_") for p in parts
         )
         class_names = LINEMOD_NAMES if linemod else {}
+    cameras = _cameras(scene, frame_ids, max_pixels)
     models = _models_dir(scene, models_dir)
-    obj_ids = sorted({int(o.get("obj_id", -1)) for v in gt.values() for o in v if isinstance(o, dict)})
+    obj_ids = sorted({oid for poses in poses_of.values() for oid, _, _ in poses})
     meshes = {}
     for oid in obj_ids:
         path = models / f"obj_{oid:06d}.ply"
         if not path.is_file():
             raise ValueError(f"{gt_path}: object {oid} has no mesh {path}")
         meshes[oid] = load_ply(path)
-    cameras = _cameras(scene, frame_ids)
     image_dir = next((scene / d for d in ("rgb", "gray") if (scene / d).is_dir()), scene / "rgb")
     frames = []
     for fid in frame_ids:
-        entries = gt[str(fid)]
-        if not isinstance(entries, list):
-            raise ValueError(f"{gt_path}: {fid}: expected a list of objects")
+        poses = poses_of[fid]
         K, size = cameras[fid]
-        poses = []
-        for i, e in enumerate(entries):
-            where = f"{gt_path}: {fid}[{i}]"
-            if not isinstance(e, dict) or "obj_id" not in e:
-                raise ValueError(f"{where}.obj_id: missing")
-            R = _matrix(f"{where}.cam_R_m2c", e.get("cam_R_m2c"), (3, 3))
-            t = _matrix(f"{where}.cam_t_m2c", e.get("cam_t_m2c"), (3,)) * 1e-3
-            poses.append((int(e["obj_id"]), R, t))
         if info is not None:
-            rows = info.get(str(fid))
-            if not isinstance(rows, list) or len(rows) != len(entries):
-                raise ValueError(f"{info_path}: {fid}: expected {len(entries)} entries like scene_gt.json")
+            rows = info.get(_key(info, fid))
+            if not isinstance(rows, list) or len(rows) != len(poses):
+                raise ValueError(f"{info_path}: {fid}: expected a list of {len(poses)} entries like scene_gt.json")
             boxes, fracs = [], []
             for i, row in enumerate(rows):
-                x, y, w, h = _matrix(f"{info_path}: {fid}[{i}].bbox_visib", row.get("bbox_visib"), (4,))
+                where = f"{info_path}: {fid}[{i}]"
+                if not isinstance(row, dict):
+                    raise ValueError(f"{where}: expected an object with bbox_visib, got {row!r:.80}")
+                x, y, w, h = _matrix(f"{where}.bbox_visib", row.get("bbox_visib"), (4,))
                 boxes.append(np.array([x, y, x + w, y + h]) if w > 0 and h > 0 else np.full(4, np.nan))
-                fracs.append(float(row.get("visib_fract", 1.0)))
+                frac = _number(f"{where}.visib_fract", row.get("visib_fract", 1.0))
+                if not 0 <= frac <= 1:
+                    raise ValueError(f"{where}.visib_fract: expected a fraction in [0, 1], got {frac}")
+                fracs.append(frac)
         else:
             boxes, fracs = visible_boxes([(meshes[o], R, t) for o, R, t in poses], K, size)
         objects = []
@@ -390,6 +464,12 @@ def load_bop_scene(scene_dir, *, models_dir=None, class_names: dict | None = Non
         )
         frames.append(BopFrame(fid, K, size, image, tuple(objects)))
     return BopScene(scene, tuple(frames), meshes)
+
+
+def _key(table: dict, fid: int) -> str:
+    """The key of frame ``fid`` in a file keyed by frame id (``"3"``, or ``"03"`` as written)."""
+    key = str(fid)
+    return key if key in table else next((k for k in table if k.strip().isdigit() and int(k) == fid), key)
 
 
 def visible_boxes(objects, K, image_size, splat: int = 1):

@@ -287,3 +287,22 @@ def test_bad_input_gives_one_line_naming_it(case_id, files):
         if str(path).startswith(str(files / "out")) and path.exists():
             leftovers = [p for p in ([path] if path.is_file() else path.rglob("*")) if p.is_file()]
             assert not leftovers, f"partial outputs left behind: {leftovers[:5]}"
+
+
+def test_roshan_refuses_a_bop_camera_with_zero_focal_length(tmp_path, capsys):
+    # Issue 45 item 5: it ran to exit 0 with an empty map. Now exit 2, one line naming the file.
+    import json
+
+    from jaxsem import cli
+
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    pose = {"obj_id": 1, "cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 500]}
+    (scene / "scene_gt.json").write_text(json.dumps({"0": [pose]}))
+    camera = {"fx": 0.0, "fy": 500.0, "cx": 160.0, "cy": 120.0, "width": 320, "height": 240}
+    (scene / "camera.json").write_text(json.dumps(camera))
+    argv = ["roshan", "--bop", str(scene), "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "run")]
+    assert cli.main(argv) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "camera.json: fx: expected a positive number, got 0" in lines[0], lines
+    assert not (tmp_path / "out" / "map.json").exists()

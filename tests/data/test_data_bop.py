@@ -170,3 +170,75 @@ def test_real_lmo_scene_when_present():
     assert (len(test), sum(len(f.objects) for f in test)) == (103, 761)
     names = {o.class_name for f in scene.frames for o in f.objects}
     assert names == {"ape", "can", "cat", "driller", "duck", "eggbox", "glue", "holepuncher"}
+
+
+# Every field checked at the boundary (issue 45 items 4-5): (file, its content, words the error names).
+CAM = {"fx": 500.0, "fy": 500.0, "cx": 160.0, "cy": 120.0, "width": 320, "height": 240}
+POSE = {"cam_R_m2c": EYE, "cam_t_m2c": [0.0, 0.0, 500.0]}
+BAD_FIELDS = {
+    "fx-zero": ("camera.json", json.dumps({**CAM, "fx": 0}), ["camera.json", "fx", "positive"]),
+    "fy-negative": ("camera.json", json.dumps({**CAM, "fy": -500.0}), ["camera.json", "fy", "positive"]),
+    "fx-nan": ("camera.json", json.dumps({**CAM, "fx": float("nan")}), ["camera.json", "fx", "finite"]),
+    "cx-text": ("camera.json", json.dumps({**CAM, "cx": "160"}), ["camera.json", "cx"]),
+    "width-zero": ("camera.json", json.dumps({**CAM, "width": 0}), ["camera.json", "width"]),
+    "height-fraction": ("camera.json", json.dumps({**CAM, "height": 240.5}), ["camera.json", "height"]),
+    "size-over-budget": (
+        "camera.json",
+        json.dumps({**CAM, "width": 100000, "height": 100000}),
+        ["camera.json", "100000 x 100000", "max_pixels"],
+    ),
+    "gt-frame-number": ("scene_gt.json", '{"3": 5}', ["scene_gt.json", "3:", "list of objects"]),
+    "gt-list": ("scene_gt.json", "[1, 2]", ["scene_gt.json", "object", "list"]),
+    "gt-entry-list": ("scene_gt.json", '{"3": [[1, 2]]}', ["scene_gt.json", "3[0]", "object"]),
+    "obj-id-text": ("scene_gt.json", json.dumps({"3": [{"obj_id": "abc", **POSE}]}), ["3[0].obj_id", "'abc'"]),
+    "obj-id-negative": ("scene_gt.json", json.dumps({"3": [{"obj_id": -1, **POSE}]}), ["3[0].obj_id", "-1"]),
+    "gt-not-utf8": ("scene_gt.json", b'{"3": "\xff"}', ["scene_gt.json", "UTF-8"]),
+    "info-rows-numbers": ("scene_gt_info.json", '{"3": [1, 2], "7": [1, 2]}', ["scene_gt_info.json", "3[0]"]),
+    "info-fraction-text": (
+        "scene_gt_info.json",
+        json.dumps({k: [{"bbox_visib": [1, 1, 5, 5], "visib_fract": "most"}] * 2 for k in ("3", "7")}),
+        ["scene_gt_info.json", "3[0].visib_fract"],
+    ),
+    "info-fraction-over-one": (
+        "scene_gt_info.json",
+        json.dumps({k: [{"bbox_visib": [1, 1, 5, 5], "visib_fract": 1.5}] * 2 for k in ("3", "7")}),
+        ["scene_gt_info.json", "3[0].visib_fract", "[0, 1]"],
+    ),
+    "per-frame-camera-list": ("scene_camera.json", "[1]", ["scene_camera.json", "object"]),
+    "per-frame-k-zero-focal": (
+        "scene_camera.json",
+        json.dumps({k: {"cam_K": [0, 0, 160, 0, 500, 120, 0, 0, 1]} for k in ("3", "7")}),
+        ["scene_camera.json", "3.cam_K", "positive"],
+    ),
+    "per-frame-k-bottom-row": (
+        "scene_camera.json",
+        json.dumps({k: {"cam_K": [500, 0, 160, 0, 500, 120, 0, 0, 0]} for k in ("3", "7")}),
+        ["scene_camera.json", "3.cam_K", "[0, 0, 1]"],
+    ),
+    "ply-count-text": (
+        "models/obj_000001.ply",
+        "ply\nformat ascii 1.0\nelement vertex many\nend_header\n",
+        ["obj_000001.ply", "element vertex many"],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FIELDS))
+def test_bad_fields_are_refused_naming_the_file_and_entry(tmp_path, case):
+    name, content, words = BAD_FIELDS[case]
+    scene = _scene(tmp_path, GT)
+    target = scene / name
+    target.write_bytes(content) if isinstance(content, bytes) else target.write_text(content)
+    with pytest.raises(ValueError) as info:
+        data.load_bop_scene(scene)
+    for word in words:
+        assert word in str(info.value), str(info.value)
+
+
+def test_the_pixel_budget_is_an_argument(tmp_path):
+    scene = _scene(tmp_path, GT)
+    with pytest.raises(
+        ValueError, match=r"camera.json: declares a 320 x 240 = 76,800 pixel image, more than max_pixels"
+    ):
+        data.load_bop_scene(scene, max_pixels=320 * 240 - 1)
+    assert len(data.load_bop_scene(scene, max_pixels=320 * 240).frames) == 2
