@@ -22,7 +22,8 @@ A training run lives in a *workdir*::
   releases it, also when the run raised; a second run on the same workdir raises
   :class:`WorkdirLockedError` naming the folder and the holder (pid, host), and a lock left by a
   process that is gone (same host, ``kill -9``, a crash) is taken over with a one-line notice (in
-  a multi-host job, whose processes share the workdir, process 0 holds it);
+  a multi-host job, whose processes share the workdir, process 0 holds it); a lock file that holds
+  no lock record (garbage, not UTF-8) is refused naming it and left in place;
 - **corrupt checkpoints**: when the newest checkpoint cannot be read, :meth:`TrainingRun.restore`
   falls back to the newest readable one, saying so in one line that names the skipped checkpoint
   (moved aside to ``workdir/corrupt_checkpoints/``, so the run can save that step again);
@@ -60,6 +61,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from ._files import read_json
 from .checkpoint import Checkpointer, CheckpointError
 
 __all__ = [
@@ -69,6 +71,7 @@ __all__ = [
     "WorkdirLockedError",
     "config_json",
     "read_metrics",
+    "read_run_config",
 ]
 
 
@@ -151,15 +154,26 @@ class WorkdirLock:
         self.held = False
         self._text = ""
 
+    def _file_text(self) -> str:
+        """The lock file's content as text (bytes that are not UTF-8 escaped, never an error)."""
+        return self.path.read_bytes().decode("utf-8", "backslashreplace")
+
     def _read(self) -> tuple[dict[str, Any], str] | None:
         """The holder's record and the file's text; None when the file vanished. Retries briefly
-        while the file is empty (created, not written yet); garbage gives ``{"unreadable": ...}``."""
+        while the file is empty or unreadable (created, not written yet); then an empty file gives
+        ``{"empty": ""}`` (a holder killed between creating and writing it) and anything else
+        that is not a lock record (not UTF-8, not JSON, no pid) ``{"unreadable": ...}``."""
         text = ""
         for _ in range(10):
             try:
-                text = self.path.read_text()
+                text = self._file_text()
             except FileNotFoundError:
                 return None
+            except OSError as exc:
+                raise WorkdirLockedError(
+                    f"workdir {str(self.workdir)!r}: cannot read the lock file {str(self.path)!r} "
+                    f"({exc.strerror or exc})"
+                ) from None
             try:
                 info = json.loads(text)
                 if isinstance(info, dict) and isinstance(info.get("pid"), int):
@@ -167,7 +181,7 @@ class WorkdirLock:
             except ValueError:
                 pass
             time.sleep(0.05)
-        return {"unreadable": text[:80]}, text
+        return ({"empty": ""} if not text else {"unreadable": text[:80]}), text
 
     def acquire(self) -> WorkdirLock:
         """Takes the lock (see the class); returns self."""
@@ -190,7 +204,14 @@ class WorkdirLock:
                     continue  # released meanwhile: try again
                 info, text = got
                 if "unreadable" in info:
-                    holder, why = f"unreadable content {info['unreadable']!r}", "unreadable"
+                    # Not a record this class writes: whose it is cannot be known, so it is not
+                    # removed (an empty file is: the trace of a holder killed mid-creation).
+                    raise WorkdirLockedError(
+                        f"workdir {str(self.workdir)!r}: the lock file {str(self.path)!r} is not a training "
+                        f"run's lock record (content {info['unreadable']!r}); delete it if no run uses this workdir"
+                    )
+                if "empty" in info:
+                    holder, why = "an empty lock file", "its writer stopped before writing it"
                 else:
                     holder = f"pid {info['pid']} on host {info.get('host')}"
                     if info.get("started"):
@@ -207,7 +228,7 @@ class WorkdirLock:
                         )
                     why = "that process is gone"
                 try:  # stale: remove it, unless it changed meanwhile (then judge again)
-                    if self.path.read_text() != text:
+                    if self._file_text() != text:
                         continue
                     self.path.unlink()
                 except FileNotFoundError:
@@ -229,7 +250,7 @@ class WorkdirLock:
             return
         self.held = False
         try:
-            if self.path.read_text() == self._text:  # still ours (not taken over as stale)
+            if self._file_text() == self._text:  # still ours (not taken over as stale)
                 self.path.unlink()
         except FileNotFoundError:
             pass
@@ -314,6 +335,22 @@ def check_stamp(path: str | os.PathLike, stamp: Mapping[str, Any], *, adopt: boo
         raise ConfigMismatchError(
             f"{path.parent}: was made with other settings ({'; '.join(diff)})" + (f"; {hint}" if hint else "")
         )
+
+
+def read_run_config(workdir: str | os.PathLike) -> dict[str, Any]:
+    """The ``config.json`` of a training ``workdir`` as a dict.
+
+    Raises:
+      ValueError: naming the file when it is missing (not a training workdir), cannot be read,
+        is not UTF-8 or not JSON, or is not a JSON object.
+    """
+    path = pathlib.Path(workdir) / "config.json"
+    if not path.is_file():
+        raise ValueError(f"workdir: no config.json in {str(workdir)!r} (not a training workdir)")
+    config = read_json(path, "training run's config")
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: expected a JSON object of config fields, got {type(config).__name__}")
+    return config
 
 
 def read_metrics(path: str | os.PathLike) -> list[dict[str, Any]]:
@@ -420,11 +457,11 @@ class TrainingRun:
         if not path.exists() or self.force:
             return
         try:
-            old = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
+            old = read_json(path, "training run's config")
+        except ValueError as exc:
             raise ConfigMismatchError(
-                f"{path}: cannot read the run's config ({exc}); pass force=True / --force to overwrite"
-            ) from exc
+                f"cannot read the run's config: {exc}; pass force=True / --force to overwrite"
+            ) from None
         if self.normalise is not None and isinstance(old, dict):
             try:
                 old = json.loads(json.dumps(self.normalise(old), default=str))

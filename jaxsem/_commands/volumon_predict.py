@@ -202,7 +202,9 @@ def main(argv=None, prog: str | None = None) -> int:
             p.error("--train-steps needs --workdir (where the new model is trained)")
         train_and_evaluate(get_config("both", "fast").replace(num_steps=a.train_steps), a.workdir, progress=False)
     if a.workdir is not None and a.step is not None:
-        cfg = config_from_dict(json.loads((a.workdir / "config.json").read_text()))
+        from jaxsem.training import read_run_config
+
+        cfg = config_from_dict(read_run_config(a.workdir))
         model, variables, _ = load_trained(a.workdir, cfg, step=a.step)
     else:
         path, kind = resolve_model(a.model, a.workdir)

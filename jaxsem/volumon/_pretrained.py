@@ -18,9 +18,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._files import read_json
 from ..checkpoint import latest_step
 from ..quadrics import Ellipsoid
-from ..training import LoadedModel
+from ..training import LoadedModel, read_run_config
 from . import _inputs
 from ._configs import TrainConfig, config_from_dict
 from ._device_data import held_out_set
@@ -73,9 +74,7 @@ def export_pretrained(
     """
     workdir = pathlib.Path(workdir)
     cfg_path = workdir / "config.json"
-    if not cfg_path.exists():
-        raise ValueError(f"workdir: {workdir} has no config.json (not a training run)")
-    config = config_from_dict(json.loads(cfg_path.read_text()))
+    config = config_from_dict(read_run_config(workdir))
     _, variables, _ = load_trained(workdir, config, step=step)
 
     used = latest_step(workdir / "checkpoints") if step is None else int(step)
@@ -110,7 +109,7 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
         raise ValueError(f"kind: expected one of {sorted(SHIPPED)}, got {kind!r}")
     p = PRETRAINED_DIR / f"{SHIPPED[kind]}.npz" if path is None else pathlib.Path(path)
     if p.is_dir() and (p / "config.json").exists():
-        config = config_from_dict(json.loads((p / "config.json").read_text()))
+        config = config_from_dict(read_run_config(p))
         model, variables, _ = load_trained(p, config)
         return LoadedModel(model, variables, config, {"name": str(p), "step": latest_step(p / "checkpoints")})
     if p.is_dir():
@@ -121,7 +120,9 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
             f"model: no shipped model at {p} (expected {p.name} and {meta_path.name}), "
             "and not a training workdir with config.json"
         )
-    meta = json.loads(meta_path.read_text())
+    meta = read_json(meta_path, "model description")
+    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+        raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
     config = config_from_dict(meta["config"])
     with np.load(p) as z:
         variables = _unflatten({k: z[k] for k in z.files})

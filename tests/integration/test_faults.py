@@ -80,11 +80,23 @@ def test_a_stale_lock_is_taken_over_with_one_line(tmp_path):
     with WorkdirLock(tmp_path, notice=lines.append):
         pass
     assert len(lines) == 1 and "stale lock" in lines[0]
-    # an unreadable lock file (garbage) is taken over as well
-    (tmp_path / "train.lock").write_text("garbage")
+    # an empty lock file (its holder killed between creating and writing it) is taken over as well
+    (tmp_path / "train.lock").write_text("")
     with WorkdirLock(tmp_path, notice=lines.append):
         pass
-    assert "unreadable" in lines[-1]
+    assert "stale lock of an empty lock file" in lines[-1]
+
+
+@pytest.mark.parametrize("content", [b"garbage", b"\xff\xfe\x00lock", b'{"pid": "7"}'], ids=["text", "latin", "no-pid"])
+def test_a_lock_file_that_is_no_lock_record_is_refused_naming_it(tmp_path, content):
+    # Issue 45 item 7: a non-UTF-8 lock gave a decoding message naming neither the file nor the
+    # workdir. A file that is not a lock record is nobody's known lock: named, and left in place.
+    (tmp_path / "train.lock").write_bytes(content)
+    with pytest.raises(WorkdirLockedError) as info:
+        TrainingRun(tmp_path, CONFIG)
+    message = str(info.value)
+    assert str(tmp_path) in message and str(tmp_path / "train.lock") in message and "delete it" in message
+    assert (tmp_path / "train.lock").read_bytes() == content  # not ours to remove
 
 
 def test_a_live_holder_on_another_host_is_refused_with_a_hint(tmp_path):

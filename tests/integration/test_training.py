@@ -13,7 +13,7 @@ from jaxsem import (
     training as volumon_training,  # layers: white-box
     volumon,
 )
-from jaxsem.training import ConfigMismatchError, TrainingRun, config_json, read_metrics
+from jaxsem.training import ConfigMismatchError, TrainingRun, config_json, read_metrics, read_run_config
 from jaxsem.volumon._configs import PRESETS  # layers: white-box
 
 
@@ -101,6 +101,30 @@ def test_unreadable_config_json_is_refused_clearly(tmp_path):
         _toy_run(tmp_path, _Cfg(), 6)
 
 
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        (b'{"seed": }', ["not JSON", "line 1"]),
+        (b'{"seed": "\xe9"}', ["not UTF-8"]),
+        (b"[1, 2]", ["expected a JSON object"]),
+    ],
+    ids=["json", "latin", "list"],
+)
+def test_a_corrupt_config_json_is_named_by_every_reader(tmp_path, content, words):
+    # Issue 45 item 7: a corrupt config.json gave the bare "Expecting value: line 1 column 11".
+    (tmp_path / "config.json").write_bytes(content)
+    readers = [read_run_config, lsd.load_trained, volumon.load_trained, volumon.load_pretrained]
+    readers += [lambda w: volumon.export_pretrained(w, out_dir=tmp_path / "shipped"), lambda w: _toy_run(w, _Cfg(), 1)]
+    _toy_run(tmp_path / "fresh", _Cfg(), 1)  # checkpoints, so the resume reads the config
+    (tmp_path / "fresh" / "config.json").write_bytes(content)
+    for reader, workdir in zip(readers, [tmp_path] * 5 + [tmp_path / "fresh"]):
+        with pytest.raises(ValueError) as info:
+            reader(workdir)
+        assert str(workdir / "config.json") in str(info.value), str(info.value)
+        for word in words:
+            assert word in str(info.value), str(info.value)
+
+
 def test_volumon_and_lsd_share_the_contract():
     # One error type for a mismatched resume, one load_trained signature (workdir, config=None, *, step=None).
     assert volumon_training.ConfigMismatchError is lsd_training.ConfigMismatchError is ConfigMismatchError
@@ -144,3 +168,24 @@ def test_train_commands_take_a_config_file_and_name_a_missing_one(tmp_path, caps
     assert exc.value.code != 0
     assert "--size" in capsys.readouterr().err
     assert not (tmp_path / "w").exists()
+
+
+def test_stamp_guards_a_resumable_folder(tmp_path):
+    from jaxsem.training import ConfigMismatchError, check_stamp
+
+    out = tmp_path / "chunks"
+    check_stamp(out / "stamp.json", {"seed": 1, "config": {"size": [320, 240]}})  # written
+    check_stamp(out / "stamp.json", {"seed": 1, "config": {"size": (320, 240)}})  # the same (tuple = list)
+    with pytest.raises(ConfigMismatchError, match=r"config.size: made with \[320, 240\], now \[256, 192\]"):
+        check_stamp(out / "stamp.json", {"seed": 1, "config": {"size": [256, 192]}}, hint="another folder")
+    # A folder holding output without a stamp is refused, unless adopted.
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "chunk_0000.npz").write_bytes(b"x")
+    with pytest.raises(ConfigMismatchError, match="no record of the settings"):
+        check_stamp(old / "stamp.json", {"seed": 1})
+    check_stamp(old / "stamp.json", {"seed": 1}, adopt=True)
+    assert (old / "stamp.json").is_file()
+    (old / "stamp.json").write_text("{not json")
+    with pytest.raises(ConfigMismatchError, match="stamp.json: not a readable record"):
+        check_stamp(old / "stamp.json", {"seed": 1})
