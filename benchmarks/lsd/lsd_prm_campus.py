@@ -52,7 +52,7 @@ from jaxsem.planning._roadmap import default_radius  # layers: white-box
 HERE = pathlib.Path(__file__).resolve().parent
 BENCH = HERE.parent  # benchmarks/: the shared results folder and _harness
 RESULTS = BENCH / "results"
-MAP = "/tmp/realdata/mrpt/2006-MalagaCampus.gridmap.gz"
+MAP = "data/mrpt/2006-MalagaCampus.gridmap.gz"  # where `jaxsem data fetch maps --out data` puts it
 
 
 def build_ompl(out: pathlib.Path) -> pathlib.Path:

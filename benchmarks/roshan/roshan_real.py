@@ -44,7 +44,7 @@ each track is matched to the still object most of its boxes overlap (``match_tra
 stretch reports its tracks, the objects matched, merged (an object's spells kept by one track),
 missed, and the duplicate and spurious tracks.
 
-Run: ``python benchmarks/roshan/roshan_real.py --scene /tmp/realdata/lmo/test/000002 --split tune
+Run: ``python benchmarks/roshan/roshan_real.py --scene data/lmo/test/000002 --split tune
 --json out.json [--setting missed] [--figures DIR]``.
 """
 
@@ -481,8 +481,9 @@ def parse_args(argv=None):
     p.add_argument("--prior-seed", type=sc.nonnegative_int, default=27, help="seed of the class-size factors")
     p.add_argument(
         "--peer-python",
-        default="/tmp/gq/bin/python",
-        help="Python 3.10 with gtsam-quadrics and numpy<2 ('' to skip the peer)",
+        default=os.environ.get("JAXSEM_PEER_PYTHON", ""),
+        help="Python 3.10 with gtsam-quadrics and numpy<2 (default: $JAXSEM_PEER_PYTHON; empty: the peer "
+        "is not run and the results say so)",
     )
     p.add_argument(
         "--pose-priors",
@@ -542,6 +543,8 @@ def parse_args(argv=None):
     args = p.parse_args(argv)
     if args.peer_python and not pathlib.Path(args.peer_python).exists():
         p.error(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
+    if not args.peer_python:
+        print("gtsam_quadrics: not run (give --peer-python or set JAXSEM_PEER_PYTHON)", file=sys.stderr)
     return args
 
 

@@ -14,7 +14,7 @@ Systems: "QS factors" = ``slam.baseline_config(baseline_shape_weight=0.0)`` (Qua
 factor set: pose priors + boxes); "ROSHAN" = ``slam.SolverConfig()`` noise-matched. Both with
 the default GTSAM-like stopping (rtol = atol = 1e-5).
 
-Run: ``python benchmarks/roshan/roshan_vs_quadricslam.py --maps 4 --peer-python /tmp/gq/bin/python``.
+Run: ``python benchmarks/roshan/roshan_vs_quadricslam.py --maps 4 --peer-python PEER/bin/python`` (a venv with gtsam-quadrics).
 """
 
 from __future__ import annotations
@@ -241,8 +241,9 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument(
         "--peer-python",
-        default="/tmp/gq/bin/python",
-        help="Python 3.10 with gtsam-quadrics and numpy<2 ('' to skip the peer)",
+        default=os.environ.get("JAXSEM_PEER_PYTHON", ""),
+        help="Python 3.10 with gtsam-quadrics and numpy<2 (default: $JAXSEM_PEER_PYTHON; empty: the peer "
+        "is not run and the results say so)",
     )
     ap.add_argument(
         "--jaxls-maps",
@@ -262,6 +263,8 @@ def main(argv=None):
     peer = args.peer_python if args.peer_python and pathlib.Path(args.peer_python).exists() else ""
     if args.peer_python and not peer:
         sys.exit(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
+    if not peer:
+        print("gtsam_quadrics: not run (give --peer-python or set JAXSEM_PEER_PYTHON)", file=sys.stderr)
     rows = []
     for path in args.paths.split(","):
         for init in args.inits.split(","):

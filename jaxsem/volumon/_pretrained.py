@@ -61,6 +61,15 @@ def _unflatten(flat):
     return tree
 
 
+def _portable(config: dict) -> dict:
+    """The config as shipped: a data folder is recorded by its last two parts, never by the
+    training machine's absolute path."""
+    data_dir = config.get("data_dir")
+    if isinstance(data_dir, str) and pathlib.PurePath(data_dir).is_absolute():
+        config = {**config, "data_dir": pathlib.PurePath(*pathlib.PurePath(data_dir).parts[-2:]).as_posix()}
+    return config
+
+
 def export_pretrained(
     workdir,
     out_dir=PRETRAINED_DIR,
@@ -70,7 +79,8 @@ def export_pretrained(
 ) -> pathlib.Path:
     """Write the checkpoint of a training run (``workdir``) as a shippable ``name.npz`` + ``name.json``.
 
-    Atomic (written to temporary names, then renamed). Returns the ``.npz`` path.
+    Atomic (written to temporary names, then renamed); the JSON names no absolute path of this
+    machine. Returns the ``.npz`` path.
     """
     workdir = pathlib.Path(workdir)
     cfg_path = workdir / "config.json"
@@ -87,7 +97,7 @@ def export_pretrained(
     meta = {
         "name": name,
         "step": used,
-        "config": json.loads(cfg_path.read_text()),
+        "config": _portable(json.loads(cfg_path.read_text())),
         **(extra or {}),
     }
     tmp = out_dir / f"{name}.json.tmp"

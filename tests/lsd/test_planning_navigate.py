@@ -402,6 +402,29 @@ def test_a_dead_expert_worker_raises_naming_the_seed_instead_of_hanging(tmp_path
     assert not (tmp_path / "expert_train_00001.npz").exists()
 
 
+def _job_tiny_shard(job):
+    import pathlib
+
+    _, seed, _, out_dir, _ = job
+    path = pathlib.Path(out_dir) / f"expert_train_{seed:05d}.npz"
+    np.savez(path, building_seed=np.int64(seed))
+    return str(path), 1
+
+
+def test_expert_shards_of_other_settings_are_not_mixed(tmp_path):
+    """A rerun into the same folder resumes only under the same family settings; more seeds
+    extend it; another resolution is refused naming it, before any shard is written."""
+    from jaxsem.lsd import write_expert_dataset
+    from jaxsem.training import ConfigMismatchError
+
+    kw = dict(workers=1, progress=False, job_fn=_job_tiny_shard)
+    assert len(write_expert_dataset(tmp_path, "train", [0, 1], **kw)) == 2
+    assert len(write_expert_dataset(tmp_path, "train", [0, 1, 2], **kw)) == 3
+    with pytest.raises(ConfigMismatchError, match="resolution: made with 0.1, now 0.05"):
+        write_expert_dataset(tmp_path, "train", [0, 1, 2, 3], resolution=0.05, **kw)
+    assert not (tmp_path / "expert_train_00003.npz").exists()
+
+
 def _job_small_shard(job):
     """A per-building job for write_expert_dataset that runs a jitted function (as the real job
     does: the hang needed JAX in the workers) and writes a tiny shard."""

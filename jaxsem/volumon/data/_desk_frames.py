@@ -15,11 +15,13 @@ a training batch (images as float in [0, 1]).
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 
 import cv2
 import numpy as np
 
+from ...training import check_stamp
 from ._bop_eval import bop_split_frames, load_bop_split, read_rgb
 from ._lmo_renders import (
     LMO_CLASS_NAMES,
@@ -27,6 +29,7 @@ from ._lmo_renders import (
     DeskConfig,
     load_distractor_meshes,
     load_lmo_meshes,
+    mesh_listing,
     render_desk_frames,
 )
 
@@ -195,7 +198,8 @@ def write_desk_frames(
     """Render ``num_frames`` desk frames straight at ``image_size`` (the LM-O intrinsics scaled)
     and write their :func:`frame_arrays` as ``out_dir/frames_NNNN.npz`` chunks (seeds per chunk:
     an interrupted call resumes by skipping the chunks written; each is written atomically).
-    Returns the chunk paths."""
+    ``out_dir/stamp.json`` records the arguments: a call with others into the same folder is
+    refused (:func:`jaxsem.training.check_stamp`). Returns the chunk paths."""
     from tqdm.auto import tqdm
 
     out = pathlib.Path(out_dir)
@@ -204,6 +208,22 @@ def write_desk_frames(
     distractors = load_distractor_meshes(distractor_dir) if distractor_dir is not None else []
     W, H = (int(x) for x in image_size)
     K = np.diag([W / 640.0, H / 480.0, 1.0]) @ np.asarray(LMO_K, np.float64)
+    check_stamp(
+        out / "stamp.json",
+        {
+            "what": "desk frames",
+            "num_frames": int(num_frames),
+            "seed": int(seed),
+            "image_size": [W, H],
+            "chunk": int(chunk),
+            "max_objects": int(max_objects),
+            "config": dataclasses.asdict(config),
+            "models": mesh_listing(models_dir),
+            "distractors": mesh_listing(distractor_dir),
+        },
+        adopt=True,
+        hint="write to another folder",
+    )
     n_chunks = -(-int(num_frames) // int(chunk))
     paths = []
     bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc="desk frames")

@@ -40,6 +40,7 @@ import numpy as np
 
 from ... import quadrics as Q
 from ...data import LINEMOD_NAMES, Mesh, load_ply, mujoco_quaternion, mujoco_view
+from ...training import check_stamp
 from .._inputs import prepare_inputs
 from ._objects import _LightRig, _material, _mujoco, _random_lights
 
@@ -653,6 +654,13 @@ def detections_from_frames(
     return out
 
 
+def mesh_listing(folder) -> list | None:
+    """The mesh files of a folder as ``name:size`` (what a stamp records of the meshes a render used)."""
+    if folder is None:
+        return None
+    return sorted(f"{p.name}:{p.stat().st_size}" for p in pathlib.Path(folder).iterdir() if p.is_file())
+
+
 def write_desk_detections(
     out_dir,
     num_frames: int,
@@ -672,7 +680,9 @@ def write_desk_detections(
     """Render ``num_frames`` desk frames and write their detections (:func:`detections_from_frames`)
     as ``out_dir/chunk_NNNN.npz`` files of ``chunk`` frames each (frame seeds are per chunk, so an
     interrupted call resumes by skipping the chunks already written; each is written atomically)
-    and the first ``previews`` frames of chunk 0 as ``preview_K.jpg``. Returns the chunk paths.
+    and the first ``previews`` frames of chunk 0 as ``preview_K.jpg``. ``out_dir/stamp.json``
+    records the arguments: a call with others into the same folder is refused
+    (:func:`jaxsem.training.check_stamp`). Returns the chunk paths.
     """
     import cv2  # deferred: cv2 and tqdm.auto are slow to import; only the writer needs them
     from tqdm.auto import tqdm
@@ -681,6 +691,24 @@ def write_desk_detections(
     out.mkdir(parents=True, exist_ok=True)
     meshes = load_lmo_meshes(models_dir)
     distractors = load_distractor_meshes(distractor_dir) if distractor_dir is not None else []
+    check_stamp(
+        out / "stamp.json",
+        {
+            "what": "desk detections",
+            "num_frames": int(num_frames),
+            "seed": int(seed),
+            "chunk": int(chunk),
+            "input_size": int(input_size),
+            "global_padding": float(global_padding),
+            "num_points": int(num_points),
+            "min_visible": float(min_visible),
+            "config": dataclasses.asdict(config),
+            "models": mesh_listing(models_dir),
+            "distractors": mesh_listing(distractor_dir),
+        },
+        adopt=True,
+        hint="write to another folder",
+    )
     n_chunks = -(-int(num_frames) // int(chunk))
     paths = []
     bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc="desk renders")
