@@ -339,37 +339,30 @@ def evaluate(
     num = config.num_eval if num is None else num
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
     gt_keys = ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
+
+    def predicted(b) -> tuple[dict, dict]:
+        """The network's ellipsoids on batch ``b`` and its truth, as numpy."""
+        _, ell, _ = predict_batch(model, config, variables, b)
+        return jax.tree.map(np.asarray, ell._asdict()), {k: np.asarray(b[k]) for k in gt_keys}
+
     if batch is not None:
-        _, ell, _ = predict_batch(model, config, variables, batch)
-        return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), {k: np.asarray(batch[k]) for k in gt_keys})
+        return evaluate_predictions(*predicted(batch))
     if config.data == "directory":
         raise ValueError("batch: a run on a directory is evaluated on a given batch (no held-out stream of its own)")
     if config.data == "device":
-        b = held_out_set(
-            config.seed if seed is None else seed,
-            num,
-            config.scene,
-            config.model.input_size,
-            config.model.global_padding,
-            config.noisy,
-            batch_size=batch_size,
-        )
-        _, ell, _ = predict_batch(model, config, variables, b)
-        gt = {
-            k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")
-        }
-        return evaluate_predictions(jax.tree.map(np.asarray, ell._asdict()), gt)
+        seed = config.seed if seed is None else seed
+        size, padding = config.model.input_size, config.model.global_padding
+        b = held_out_set(seed, num, config.scene, size, padding, config.noisy, batch_size=batch_size)
+        return evaluate_predictions(*predicted(b))
     preds, gts = [], []
     for start in range(0, num, batch_size):
         idx = np.arange(start, min(num, start + batch_size))
         b = make_batch(
             config.seed, idx, config.scene, config.model.input_size, config.model.global_padding, split, config.noisy
         )
-        _, ell, _ = predict_batch(model, config, variables, b)
-        preds.append(jax.tree.map(np.asarray, ell._asdict()))
-        gts.append(
-            {k: np.asarray(b[k]) for k in ("gt_rotation", "gt_center", "gt_half_extents", "gt_shape_id", "sample_mask")}
-        )
+        pred, gt = predicted(b)
+        preds.append(pred)
+        gts.append(gt)
     cat = lambda xs: {k: np.concatenate([x[k] for x in xs]) for k in xs[0]}
     return evaluate_predictions(cat(preds), cat(gts))
 
