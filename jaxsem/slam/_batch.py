@@ -46,7 +46,7 @@ from ._cost import (
     total_cost,
 )
 from ._init import initialize
-from ._problem import SlamEstimate, SlamProblem
+from ._problem import SlamEstimate, SlamProblem, has_measurements
 from ._results import RESULTS
 from ._schur import (
     SchurLevenbergMarquardt,
@@ -186,7 +186,8 @@ def solve_batch(
     cost0 = total_cost(problem, init, config)
     cost = total_cost(problem, estimate, config)
     finite = _all_finite(estimate) & jnp.isfinite(cost) & _all_finite(problem) & jnp.isfinite(cost0)
-    result = RESULTS.where(finite, stats["result"], RESULTS.nonfinite)
+    result = RESULTS.where(has_measurements(problem), stats["result"], RESULTS.no_measurements)
+    result = RESULTS.where(finite, result, RESULTS.nonfinite)
     J = init.center.shape[0]
     info = SolveInfo(
         result=result,
@@ -423,6 +424,7 @@ def solve_schur(
     result = RESULTS.where(code_a == RESULTS.nonfinite, RESULTS.nonfinite, code)
     some_unfixable = jnp.any(unfixable & obj_used)
     result = RESULTS.where((result == RESULTS.successful) & some_unfixable, RESULTS.unfixable_objects, result)
+    result = RESULTS.where(has_measurements(problem), result, RESULTS.no_measurements)
     result = RESULTS.where(finite, result, RESULTS.nonfinite)
     info = SolveInfo(
         result=result,

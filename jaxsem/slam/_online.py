@@ -32,7 +32,7 @@ from .. import classes as _classes
 from ._batch import levenberg_marquardt
 from ._cost import class_table
 from ._init import box_init
-from ._problem import Capacity, Frame, SlamEstimate, SlamProblem
+from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, has_measurements
 from ._results import RESULTS
 from ._schur import _all_finite
 from ._solver_config import SolverConfig
@@ -49,7 +49,8 @@ class OnlineState(eqx.Module):
       result: :data:`jaxsem.slam._results.RESULTS` of this frame's update: ``successful`` when the
         frame needed no optimisation or its LM met the stopping rule with a finite state;
         ``iterations_reached`` when the ``iterations`` budget ran out first (normal online,
-        the next optimisation continues); a failure code otherwise.
+        the next optimisation continues); ``no_measurements`` while no frame has brought a
+        usable box; a failure code otherwise.
       config: :class:`SolverConfig`.
       optimize_every, iterations, window, max_detections: static ints.
     """
@@ -144,7 +145,7 @@ def online_init(
         frame_count=put(0, np.int32),
         box_count=put(0, np.int32),
         # A jax int32 code, not the enum's numpy constant: the second update hits the jit cache.
-        result=jax.tree_util.tree_map(lambda v: put(v, np.int32), RESULTS.successful),
+        result=jax.tree_util.tree_map(lambda v: put(v, np.int32), RESULTS.no_measurements),
         config=config,
         optimize_every=int(optimize_every),
         iterations=int(iterations),
@@ -288,7 +289,8 @@ def _online_step(state: OnlineState, frame: Frame, final, final_iterations) -> O
     state = jax.lax.cond(due, lambda s: _optimize(s, iterations, free), lambda s: s, state)
     # Never success on non-finite data: this frame, the held graph or the estimate.
     finite = (final | _all_finite(frame)) & _all_finite(state.problem) & _all_finite(state.estimate)
-    result = RESULTS.where(finite, state.result, RESULTS.nonfinite)
+    result = RESULTS.where(has_measurements(state.problem), state.result, RESULTS.no_measurements)
+    result = RESULTS.where(finite, result, RESULTS.nonfinite)
     return eqx.tree_at(lambda s: s.result, state, result)
 
 

@@ -238,8 +238,18 @@ def _np(name, x, shape_tail, dtype: type | np.dtype = float):
     return arr
 
 
+def has_measurements(problem: SlamProblem) -> jnp.ndarray:
+    """() bool: the problem holds at least one usable box (unmasked, of a real pose and a real
+    object). A solve of a problem without one has nothing to fit and reports
+    :attr:`jaxsem.slam.RESULTS.no_measurements`. Works under ``jit`` and ``vmap``."""
+    T, J = problem.pose_mask.shape[-1], problem.object_mask.shape[-1]
+    pose_ok = jnp.take(problem.pose_mask, jnp.clip(problem.box_pose, 0, T - 1), axis=-1)
+    obj_ok = jnp.take(problem.object_mask, jnp.clip(problem.box_object, 0, J - 1), axis=-1)
+    return jnp.any(problem.box_mask & pose_ok & obj_ok)
+
+
 def _check_boxes(name, box, mask, image_size=None):
-    """Raise on non-finite or inverted boxes among the unmasked ones."""
+    """Raise on non-finite, inverted or (given ``image_size``) off-image boxes among the unmasked ones."""
     bad_finite = mask & ~np.all(np.isfinite(box), axis=-1)
     if bad_finite.any():
         idx = np.flatnonzero(bad_finite)[:5].tolist()
@@ -251,6 +261,22 @@ def _check_boxes(name, box, mask, image_size=None):
             f"{name}: inverted or empty boxes at indices {idx} (first {box[inverted][0].tolist()}); "
             "expected [u_min, v_min, u_max, v_max] with u_max > u_min and v_max > v_min"
         )
+    if image_size is not None:
+        # A measured box lies on the image: it overlaps it, and no edge is more than one image
+        # size beyond it (a detector's boxes are clipped to the image; a box far outside is a
+        # unit mistake or garbage, and would dominate the cost).
+        W, H = float(image_size[0]), float(image_size[1])
+        u, v = box[..., 0::2], box[..., 1::2]
+        off = mask & (
+            (box[..., 0] >= W) | (box[..., 2] <= 0) | (box[..., 1] >= H) | (box[..., 3] <= 0)
+            | np.any((u < -W) | (u > 2 * W), -1) | np.any((v < -H) | (v > 2 * H), -1)
+        )  # fmt: skip
+        if off.any():
+            idx = np.flatnonzero(off)[:5].tolist()
+            raise ValueError(
+                f"{name}: boxes at indices {idx} lie off the {W:g} x {H:g} image (first {box[off][0].tolist()}); "
+                "expected pixel boxes that overlap the image"
+            )
 
 
 def make_problem(
@@ -299,7 +325,8 @@ def make_problem(
         prior on that pose). Default: none (every pose at the noise model's sigmas).
 
     Raises:
-      ValueError: wrong shapes, non-finite K or poses, NaN or inverted boxes, class names not
+      ValueError: wrong shapes, non-finite K or poses, NaN, inverted or off-image boxes (a box
+        must overlap the image and no edge be more than one image size outside it), class names not
         in the table, box indices that refer to poses or objects that do not exist (or are
         masked out: "detections for frames never posed"), non-positive image size.
     """
@@ -336,7 +363,7 @@ def make_problem(
             f"masks: expected pose_mask ({T},), box_mask ({M},), object_mask ({J},), got "
             f"{pose_mask.shape}, {box_mask.shape}, {object_mask.shape}"
         )
-    _check_boxes("box", box, box_mask)
+    _check_boxes("box", box, box_mask, image_size)
     bad_pose = box_mask & ((box_pose < 0) | (box_pose >= T))
     if bad_pose.any():
         raise ValueError(f"box_pose: indices must be in [0, {T}), got {box_pose[bad_pose][:5].tolist()}")
@@ -401,6 +428,8 @@ def make_problem(
             raise ValueError("pose_prior_weight: expected finite weights >= 0")
         pose_prior_weight = w
 
+    if capacity is None and M == 0:
+        capacity = (T, 1, J)  # one masked box: the arrays keep a row to index (no measurement, no cost)
     if capacity is not None:
         Tc, Mc, Jc = capacity
         if Tc < T or Mc < M or Jc < J:

@@ -6,7 +6,8 @@ code into a runtime error (``eqx.error_if``) carrying the code's message.
 
 Success is strict: the stopping rule was met on an accepted step *and* the final state and cost
 are finite. A solve that stops because no step lowers the cost any more (damping above its
-limit) is not reported as converged: that is :attr:`RESULTS.damping_limit`. Nor is a batch
+limit) is not reported as converged: that is :attr:`RESULTS.damping_limit`. Nor is a solve with
+no usable measurement (:attr:`RESULTS.no_measurements`), nor a batch
 solve that converged with objects the data could not fix (``SolveInfo.unfixable``): that is
 :attr:`RESULTS.unfixable_objects`, so "successful" always means every real object counts.
 """
@@ -32,7 +33,9 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
     ``SolverConfig.max_steps``), ``nonfinite`` and the codes below (``unfixable_objects`` from the
     batch Schur solver only: it replaces ``successful`` when any real object is flagged
     unfixable; the estimate of the other objects and the poses is the converged one;
-    ``iterations_reached`` from the online smoother only, whose budget is ``iterations``).
+    ``iterations_reached`` from the online smoother only, whose budget is ``iterations``;
+    ``no_measurements`` from every solver when the problem has no usable box, whatever the LM
+    did: a solve with nothing to fit is never ``successful``).
     """
 
     damping_limit = (
@@ -48,6 +51,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore[reportGeneralTypeIssues]
         "projection in one of their frames, or box edges far off after the rescue; "
         "`SolveInfo.unfixable`): they were left out of the joint solve and their estimates are "
         "not to be trusted."
+    )
+    no_measurements = (
+        "Nothing was solved: the problem holds no usable measurement (every box is masked out, "
+        "dropped by the front end, or refers to a masked pose or object), so the estimate is its "
+        "initialisation."
     )
     iterations_reached = (
         "The online smoother's step budget ran out before the stopping rule was met "

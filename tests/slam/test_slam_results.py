@@ -10,7 +10,7 @@ import pytest
 
 from jaxsem import factors as F, slam
 from jaxsem.slam._batch import solve_schur  # layers: white-box
-from jaxsem.slam._problem import bucket_capacity  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity, has_measurements  # layers: white-box
 from jaxsem.slam._results import RESULTS, result_code  # layers: white-box
 from jaxsem.slam._toy import frames_from_problem  # layers: white-box
 
@@ -128,3 +128,50 @@ def test_pose_priors_hold_under_plain_initialisation_forward():
     # Mahalanobis distance per pose (6 dof): 3 sigma per axis at most, as a norm.
     r = jnp.linalg.norm(w, axis=-1)
     assert float(jnp.max(r)) < 3.0 * np.sqrt(6.0), np.asarray(r)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["schur", "optimistix"])
+def test_a_problem_whose_boxes_were_all_dropped_is_not_success(method):
+    # Box noise of 2000 px: the simulator drops every box; the solve has nothing to fit.
+    problem, _ = slam.toy_map(1, num_objects=2, num_frames=4, path="orbit", box_noise=2000.0)
+    assert not bool(jnp.any(problem.box_mask))
+    _, info = slam.solve_batch(problem, config=slam.SolverConfig(max_steps=3), method=method)
+    assert not bool(info.success)
+    assert bool(info.result == RESULTS.no_measurements), slam.result_message(info.result)
+
+
+def test_usable_measurements_need_a_real_box_pose_and_object():
+    clean, _ = _small(num_frames=4)
+    assert bool(jax.jit(has_measurements)(clean))
+    no_box = eqx.tree_at(lambda p: p.box_mask, clean, jnp.zeros_like(clean.box_mask))
+    no_obj = eqx.tree_at(lambda p: p.object_mask, clean, jnp.zeros_like(clean.object_mask))
+    assert not bool(has_measurements(no_box)) and not bool(has_measurements(no_obj))
+    masked = eqx.tree_at(lambda p: p.pose_mask, clean, jnp.zeros_like(clean.pose_mask))
+    assert not bool(has_measurements(masked)) and bool(has_measurements(clean))
+
+
+def test_online_run_of_empty_frames_is_not_success():
+    problem, _ = _small(3, num_frames=4)
+    frames = frames_from_problem(problem, max_detections=2)
+    cap = slam.Capacity(max_poses=8, max_objects=2, max_boxes=16, max_detections=2)
+    state = slam.online_init(CFG, cap, problem.K, problem.image_size, optimize_every=2, iterations=3)
+    assert bool(state.result == RESULTS.no_measurements)  # nothing seen yet
+    for frame in frames:
+        empty = eqx.tree_at(lambda f: f.box_mask, frame, jnp.zeros_like(frame.box_mask))
+        state = slam.online_update(state, empty)
+        assert bool(state.result == RESULTS.no_measurements)
+    state = slam.online_optimize(state, 3)
+    assert bool(state.result == RESULTS.no_measurements)
+    state = slam.online_update(state, frames[0])  # a frame with boxes: something to fit
+    assert not bool(state.result == RESULTS.no_measurements)
+
+
+@pytest.mark.parametrize(
+    "box", [[0.0, 0.0, 1e30, 1e30], [700.0, 10.0, 800.0, 50.0], [-50.0, 10.0, -1.0, 50.0], [10.0, -2e3, 50.0, 40.0]]
+)
+def test_make_problem_refuses_a_box_off_the_image(box):
+    with pytest.raises(ValueError, match=r"box: boxes at indices \[0\] lie off the 640 x 480 image"):
+        slam.make_problem(np.eye(3) * [500, 500, 1], [640, 480], np.eye(4)[None], [box], [0], [0], ["car"])
+    # A box touching the border, or a few pixels over it (a truncated object), is a measurement.
+    slam.make_problem(np.eye(3) * [500, 500, 1], [640, 480], np.eye(4)[None], [[600.0, 0, 645, 40]], [0], [0], ["car"])
