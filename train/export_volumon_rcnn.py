@@ -43,22 +43,42 @@ def main(argv=None) -> int:
         "heldout": {k.removeprefix("heldout_"): v for k, v in last.items() if k.startswith("heldout_")},
         "heldout_step": last.get("step"),
     }
-    # a run started from another run's weights (init_from): its curves continue that run's
-    start = pathlib.Path(loaded.config.init_from) if loaded.config.init_from else None
-    offset = 0
-    if start is not None and (start / "metrics.jsonl").is_file():
-        before = [json.loads(x) for x in (start / "metrics.jsonl").read_text().splitlines() if x.strip()]
-        offset = int(before[-1]["step"]) if before else 0
+    # a run started from another run's weights (init_from, followed back through every stage):
+    # its curves continue those runs'
+    before, restarts = _stages(loaded.config.init_from)
+    offset = restarts[-1] if restarts else 0
+    if before:
         rows = before + [{**r, "step": r["step"] + offset} for r in rows]
         meta["steps_before"] = offset
         meta["steps_total"] = offset + int(loaded.meta["step"])
+        meta["stages"] = restarts
     export_rcnn(a.out, loaded.variables, loaded.config, meta)
-    _curves(rows, a.out.with_name(a.out.name + "_curves.png"), offset)
+    _curves(rows, a.out.with_name(a.out.name + "_curves.png"), restarts)
     print(json.dumps(meta, indent=1))
     return 0
 
 
-def _curves(rows, path: pathlib.Path, restart: int = 0) -> None:
+def _stages(init_from: str) -> tuple[list, list]:
+    """The metrics rows of the runs a run started from (oldest first, steps counted on across
+    them) and the step at which each later stage began."""
+    chain, path = [], pathlib.Path(init_from) if init_from else None
+    while path is not None and (path / "metrics.jsonl").is_file() and len(chain) < 16:
+        chain.append(path)
+        try:
+            parent = json.loads((path / "config.json").read_text()).get("init_from") or ""
+        except (OSError, ValueError, AttributeError):
+            parent = ""
+        path = pathlib.Path(parent) if parent else None
+    rows, restarts, offset = [], [], 0
+    for run in reversed(chain):
+        part = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
+        rows += [{**r, "step": r["step"] + offset} for r in part]
+        offset += int(part[-1]["step"]) if part else 0
+        restarts.append(offset)
+    return rows, restarts
+
+
+def _curves(rows, path: pathlib.Path, restarts: list) -> None:
     import matplotlib  # deferred: matplotlib is slow to import and only the figure needs it
 
     matplotlib.use("Agg")
@@ -82,8 +102,8 @@ def _curves(rows, path: pathlib.Path, restart: int = 0) -> None:
     ax2.set_ylabel("median centre error (m)")
     ax[2].set_title("held-out validation photos")
     for a_ in ax:
-        if restart:
-            a_.axvline(restart, color="grey", lw=0.8, ls=":", label="restarted (init_from)")
+        for k, restart in enumerate(restarts):
+            a_.axvline(restart, color="grey", lw=0.8, ls=":", label="next stage (init_from)" if k == 0 else None)
         a_.set_xlabel("step")
         a_.legend(fontsize=7)
     fig.tight_layout()

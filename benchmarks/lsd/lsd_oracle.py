@@ -37,10 +37,20 @@ def convert(data_dir: pathlib.Path, out_dir: pathlib.Path, progress: bool = True
     import numpy as np
 
     from jaxsem.lsd import with_full_map
+    from jaxsem.training import check_stamp
 
     shards = sorted(data_dir.glob("expert_*.npz"))
     out_dir.mkdir(parents=True, exist_ok=True)
-    todo = [p for p in shards if not (out_dir / p.name).exists()]
+    # The copies are skipped by name on a rerun: only when they were made from the same shards.
+    check_stamp(
+        out_dir / "stamp.json",
+        {"what": "full-map shards", "from": str(data_dir.resolve())},
+        adopt=True,
+        hint="give another output folder",
+    )
+    todo = [
+        p for p in shards if not (out_dir / p.name).exists() or os.path.getmtime(out_dir / p.name) < os.path.getmtime(p)
+    ]
     bar = None
     if progress:
         from tqdm import tqdm
