@@ -21,7 +21,6 @@ import pathlib
 import cv2
 import numpy as np
 
-from ...training import check_stamp
 from ._bop_eval import bop_split_frames, load_bop_split, read_rgb
 from ._lmo_renders import (
     LMO_CLASS_NAMES,
@@ -31,6 +30,7 @@ from ._lmo_renders import (
     load_lmo_meshes,
     mesh_listing,
     render_desk_frames,
+    write_desk_chunks,
 )
 
 #: Array keys of :func:`frame_arrays` (``image`` uint8, the rest float32 / int32 / bool).
@@ -200,54 +200,37 @@ def write_desk_frames(
     an interrupted call resumes by skipping the chunks written; each is written atomically).
     ``out_dir/stamp.json`` records the arguments: a call with others into the same folder is
     refused (:func:`jaxsem.training.check_stamp`). Returns the chunk paths."""
-    from tqdm.auto import tqdm
-
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshes = load_lmo_meshes(models_dir)
     distractors = load_distractor_meshes(distractor_dir) if distractor_dir is not None else []
     W, H = (int(x) for x in image_size)
     K = np.diag([W / 640.0, H / 480.0, 1.0]) @ np.asarray(LMO_K, np.float64)
-    check_stamp(
-        out / "stamp.json",
-        {
-            "what": "desk frames",
-            "num_frames": int(num_frames),
-            "seed": int(seed),
-            "image_size": [W, H],
-            "chunk": int(chunk),
-            "max_objects": int(max_objects),
-            "config": dataclasses.asdict(config),
-            "models": mesh_listing(models_dir),
-            "distractors": mesh_listing(distractor_dir),
-        },
-        adopt=True,
-        hint="write to another folder",
-    )
-    n_chunks = -(-int(num_frames) // int(chunk))
-    paths = []
-    bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc="desk frames")
-    for c in range(n_chunks):
-        path = out / f"frames_{c:04d}.npz"
-        n = min(int(chunk), int(num_frames) - c * int(chunk))
-        paths.append(path)
-        if path.exists():
-            bar.update(n)
-            continue
+    stamp = {
+        "what": "desk frames",
+        "num_frames": int(num_frames),
+        "seed": int(seed),
+        "image_size": [W, H],
+        "chunk": int(chunk),
+        "max_objects": int(max_objects),
+        "config": dataclasses.asdict(config),
+        "models": mesh_listing(models_dir),
+        "distractors": mesh_listing(distractor_dir),
+    }
 
-        def counted(c=c, n=n):
+    def chunk_arrays(c, n, tick):
+        def counted():
             for fr in render_desk_frames(
                 meshes, n, seed=int(seed) * 100003 + c, distractors=distractors, config=config, K=K, image_size=(W, H)
             ):
-                bar.update(1)
+                tick()
                 yield fr
 
-        arrays = frame_arrays(counted(), (W, H), max_objects=max_objects)
-        tmp = out / f"frames_{c:04d}.tmp.npz"
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(path)
-    bar.close()
-    return paths
+        return frame_arrays(counted(), (W, H), max_objects=max_objects)
+
+    return write_desk_chunks(
+        out, "frames", num_frames, chunk, stamp, chunk_arrays, desc="desk frames", progress=progress
+    )
 
 
 def load_frame_chunks(path) -> dict:

@@ -661,6 +661,36 @@ def mesh_listing(folder) -> list | None:
     return sorted(f"{p.name}:{p.stat().st_size}" for p in pathlib.Path(folder).iterdir() if p.is_file())
 
 
+def write_desk_chunks(
+    out: pathlib.Path, stem: str, num_frames: int, chunk: int, stamp: dict, chunk_arrays, *, desc: str, progress: bool
+) -> list:
+    """Writes ``num_frames`` rendered frames as ``out/<stem>_NNNN.npz`` files of ``chunk`` frames
+    each: ``chunk_arrays(c, n, tick)`` returns the arrays of chunk ``c`` (its ``n`` frames, seeded
+    per chunk) and calls ``tick()`` once a frame for the progress bar (``desc``). A chunk already
+    written is skipped, so an interrupted call resumes; each is written atomically.
+    ``out/stamp.json`` records ``stamp`` (what makes the chunks): a call with another stamp into
+    the same folder is refused (:func:`jaxsem.training.check_stamp`). Returns the chunk paths."""
+    from tqdm.auto import tqdm  # deferred: slow to import; only the writers need it
+
+    check_stamp(out / "stamp.json", stamp, adopt=True, hint="write to another folder")
+    n_chunks = -(-int(num_frames) // int(chunk))
+    paths = []
+    bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc=desc)
+    for c in range(n_chunks):
+        path = out / f"{stem}_{c:04d}.npz"
+        n = min(int(chunk), int(num_frames) - c * int(chunk))
+        paths.append(path)
+        if path.exists():
+            bar.update(n)
+            continue
+        arrays = chunk_arrays(c, n, lambda: bar.update(1))
+        tmp = out / f"{stem}_{c:04d}.tmp.npz"
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)
+    bar.close()
+    return paths
+
+
 def write_desk_detections(
     out_dir,
     num_frames: int,
@@ -684,51 +714,37 @@ def write_desk_detections(
     records the arguments: a call with others into the same folder is refused
     (:func:`jaxsem.training.check_stamp`). Returns the chunk paths.
     """
-    import cv2  # deferred: cv2 and tqdm.auto are slow to import; only the writer needs them
-    from tqdm.auto import tqdm
+    import cv2  # deferred: slow to import; only the writer needs it
 
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshes = load_lmo_meshes(models_dir)
     distractors = load_distractor_meshes(distractor_dir) if distractor_dir is not None else []
-    check_stamp(
-        out / "stamp.json",
-        {
-            "what": "desk detections",
-            "num_frames": int(num_frames),
-            "seed": int(seed),
-            "chunk": int(chunk),
-            "input_size": int(input_size),
-            "global_padding": float(global_padding),
-            "num_points": int(num_points),
-            "min_visible": float(min_visible),
-            "config": dataclasses.asdict(config),
-            "models": mesh_listing(models_dir),
-            "distractors": mesh_listing(distractor_dir),
-        },
-        adopt=True,
-        hint="write to another folder",
-    )
-    n_chunks = -(-int(num_frames) // int(chunk))
-    paths = []
-    bar = tqdm(total=int(num_frames), disable=not progress, unit="frame", desc="desk renders")
-    for c in range(n_chunks):
-        path = out / f"chunk_{c:04d}.npz"
-        n = min(int(chunk), int(num_frames) - c * int(chunk))
-        paths.append(path)
-        if path.exists():
-            bar.update(n)
-            continue
+    stamp = {
+        "what": "desk detections",
+        "num_frames": int(num_frames),
+        "seed": int(seed),
+        "chunk": int(chunk),
+        "input_size": int(input_size),
+        "global_padding": float(global_padding),
+        "num_points": int(num_points),
+        "min_visible": float(min_visible),
+        "config": dataclasses.asdict(config),
+        "models": mesh_listing(models_dir),
+        "distractors": mesh_listing(distractor_dir),
+    }
+
+    def chunk_arrays(c, n, tick):
         frames = render_desk_frames(meshes, n, seed=int(seed) * 100003 + c, distractors=distractors, config=config)
 
-        def counted(frames=frames, c=c):
+        def counted():
             for k, fr in enumerate(frames):
                 if c == 0 and k < previews:
                     cv2.imwrite(str(out / f"preview_{k}.jpg"), fr["rgb"][..., ::-1])
-                bar.update(1)
+                tick()
                 yield fr
 
-        det = detections_from_frames(
+        return detections_from_frames(
             counted(),
             input_size=input_size,
             global_padding=global_padding,
@@ -736,11 +752,10 @@ def write_desk_detections(
             min_visible=min_visible,
             seed=int(seed) * 100003 + c,
         )
-        tmp = out / f"chunk_{c:04d}.tmp.npz"
-        np.savez_compressed(tmp, **det)
-        tmp.replace(path)
-    bar.close()
-    return paths
+
+    return write_desk_chunks(
+        out, "chunk", num_frames, chunk, stamp, chunk_arrays, desc="desk renders", progress=progress
+    )
 
 
 def load_desk_detections(path) -> dict:
