@@ -56,7 +56,7 @@ import socket
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import jax
 import numpy as np
@@ -64,12 +64,15 @@ import numpy as np
 from ._files import read_json
 from .checkpoint import Checkpointer, CheckpointError
 
+_Config = TypeVar("_Config")
+
 __all__ = [
     "ConfigMismatchError",
     "TrainingRun",
     "WorkdirLock",
     "WorkdirLockedError",
     "config_json",
+    "load_run_config",
     "read_metrics",
     "read_run_config",
 ]
@@ -351,6 +354,17 @@ def read_run_config(workdir: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(config, dict):
         raise ValueError(f"{path}: expected a JSON object of config fields, got {type(config).__name__}")
     return config
+
+
+def load_run_config(workdir: str | os.PathLike, from_dict: Callable[[dict[str, Any]], _Config], kind: str) -> _Config:
+    """The config of a training ``workdir``: its ``config.json`` (:func:`read_run_config`) built
+    by ``from_dict`` (a method's ``config_from_dict``); a ``ValueError`` naming the file says it
+    is not ``kind`` (e.g. "an LSD TrainConfig") when ``from_dict`` refuses its fields."""
+    raw = read_run_config(workdir)
+    try:
+        return from_dict(raw)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ValueError(f"{pathlib.Path(workdir) / 'config.json'}: not {kind} ({exc})") from None
 
 
 def read_metrics(path: str | os.PathLike) -> list[dict[str, Any]]:

@@ -46,7 +46,7 @@ import optax
 from .. import parallel
 from ..checkpoint import Checkpointer, CheckpointError, latest_step
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
-from ..training import LoadedModel, TrainingRun, config_json, read_run_config
+from ..training import LoadedModel, TrainingRun, config_json, load_run_config
 from ._config import TrainConfig
 from ._data import (
     batch_indices,
@@ -422,11 +422,7 @@ def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None
     The same contract as :func:`jaxsem.volumon.load_trained`."""
     workdir = pathlib.Path(workdir)
     if config is None:
-        raw = read_run_config(workdir)
-        try:
-            config = config_from_dict(raw)
-        except (TypeError, ValueError, KeyError) as exc:
-            raise ValueError(f"{workdir / 'config.json'}: not an LSD TrainConfig ({exc})") from None
+        config = load_run_config(workdir, config_from_dict, "an LSD TrainConfig")
     dtype = jnp.float64 if config.dtype == "float64" else jnp.float32
     model, params = init_lsd(jax.random.PRNGKey(config.seed), config.model, dtype)
     ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=None)

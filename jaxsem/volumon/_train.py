@@ -37,7 +37,7 @@ import optax
 from .. import parallel
 from ..checkpoint import Checkpointer
 from ..models import VoluMonNet, box_features, expected_params, reconstruct, select_class_params
-from ..training import TrainingRun, config_json, read_run_config
+from ..training import TrainingRun, config_json, load_run_config
 from ._configs import TrainConfig, config_from_dict
 from ._device_data import augmentation_numbers, device_batch, held_out_set, train_key
 from ._eval import evaluate_predictions
@@ -545,11 +545,7 @@ def load_trained(workdir, config: TrainConfig | None = None, *, step: int | None
     """
     workdir = pathlib.Path(workdir)
     if config is None:
-        raw = read_run_config(workdir)
-        try:
-            config = config_from_dict(raw)
-        except (TypeError, ValueError, KeyError) as exc:
-            raise ValueError(f"{workdir / 'config.json'}: not a VoluMon TrainConfig ({exc})") from None
+        config = load_run_config(workdir, config_from_dict, "a VoluMon TrainConfig")
     state, model, _ = init_state(config)
     ckpt = Checkpointer(workdir / "checkpoints", max_to_keep=None)
     try:
