@@ -16,7 +16,7 @@ Where the code lives (``jaxsem/_geometry/``):
 - ``boxes.py``: ``box_area``, ``box_iou``: image boxes compared (one definition for every part).
 - ``ground.py``: ``ground_conic``, ``ground_bounds``, ``rasterize_footprint`` (top-down view).
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
-  ``look_at``, ``so3_exp``, ``skew``, ``yaw_rotation``, ``ray_rotation``, ``allocentric_rotation``.
+  ``look_at``, ``nearest_rotation``, ``so3_exp``, ``skew``, ``yaw_rotation``, ``ray_rotation``, ``allocentric_rotation``.
 - ``poses.py``: ``rigid_transform``, ``transform_points``, ``invert_pose``, ``project_points``,
   ``back_project``, ``single_view_ellipsoid``, ``depth_from_box_size``, ``relative_pose``,
   ``cuboid_corners``, ``stereo_right_T_left``.
@@ -35,7 +35,13 @@ Conventions (the only ones in jaxsem):
 - A camera is ``K`` (..., 3, 3) and ``camera_T_world`` (..., 4, 4), which maps world points into the
   camera frame (OpenCV axes: x right, y down, z forward). ``P = K [I | 0] camera_T_world`` and the
   projected dual conic is ``C* = P Q* P^T`` (eq. 4.9).
-- Image boxes are ``[u_min, v_min, u_max, v_max]`` in pixels (eq. 4.10).
+- Image boxes are ``[u_min, v_min, u_max, v_max]`` in continuous pixel coordinates (eq. 4.10),
+  OpenCV's, as ``K`` is: pixel (row ``i``, column ``j``) has its centre at ``(u, v) = (j, i)``,
+  so a ``W x H`` image covers ``[-0.5, W - 0.5] x [-0.5, H - 0.5]`` and the box of pixels
+  ``j0..j1`` runs from ``j0 - 0.5`` to ``j1 + 0.5`` (``u_max <= W - 0.5``, below the width).
+  Every box jaxsem makes (BOP visible boxes, rendered segmentations, detections) and every check
+  it runs (:func:`jaxsem.volumon.prepare_inputs`) uses it.
+- Rotations read from files are projected with :func:`nearest_rotation` (files keep a few digits).
 
 Every public function broadcasts leading batch axes numpy-style, works under ``jit``, ``vmap`` and
 ``grad`` in float32 and float64, and never returns NaN values or NaN gradients for finite inputs.
@@ -105,6 +111,7 @@ from ._geometry.poses import (
 from ._geometry.rotations import (
     allocentric_rotation as allocentric_rotation,
     look_at as look_at,
+    nearest_rotation as nearest_rotation,
     quaternion_to_rotation as quaternion_to_rotation,
     quaternion_wxyz_to_rotation as quaternion_wxyz_to_rotation,
     quaternion_xyzw_to_rotation as quaternion_xyzw_to_rotation,
@@ -171,6 +178,7 @@ __all__ = [
     "camera_frame",
     "half_extent",
     "look_at",
+    "nearest_rotation",
     "rigid_transform",
     "transform_points",
     "invert_pose",

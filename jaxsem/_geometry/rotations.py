@@ -166,6 +166,47 @@ _rotation_to_quaternion_compiled = _eager_compiled(_rotation_to_quaternion_wxyz,
 _rotation_to_quaternion_masked = _eager_compiled(_rotation_to_quaternion_masked_plain, static_argnums=(1,))
 
 
+# How far (entrywise) nearest_rotation's input may be from its result and still count as a
+# rotation written with few digits rather than a wrong matrix.
+_NEAREST_TOL = 0.1
+
+
+def nearest_rotation(matrix, *, with_valid: bool = False, xp: Any = jnp) -> Any:
+    """The proper rotation (..., 3, 3) nearest to ``matrix`` (..., 3, 3) in the Frobenius norm.
+
+    For rotations read from files, written with a few digits (a BOP ``cam_R_m2c`` is a few
+    thousandths from orthonormal, more than the core's rotation checks allow): the polar factor
+    ``U diag(1, 1, det(U V^T)) V^T`` of the SVD ``matrix = U S V^T``. A rotation is returned
+    unchanged (to rounding). A non-finite concrete ``matrix`` raises ``ValueError``.
+
+    A matrix far from any rotation (singular, a reflection, a scaled one) is still projected,
+    which hides the mistake: ``with_valid=True`` returns ``(rotation, valid)``, ``valid`` (...)
+    bool saying ``matrix`` was within the core's rotation tolerance of the result
+    (``|matrix - R| <= 1e-1`` entrywise) and had ``det > 0``. The result's gradient is not defined
+    at repeated singular values, as for any SVD.
+    """
+    xp = _namespace(xp)
+    M = _as_float_array("matrix", matrix, (3, 3), check_finite=True, xp=xp)
+    return _nearest_rotation_compiled(M, with_valid, xp)
+
+
+def _nearest_rotation(M, with_valid, xp):
+    finite = _finite(M, 2, xp)
+    M = _finite_or_zero(M, xp)
+    U, _, Vt = xp.linalg.svd(M)
+    d = xp.where(xp.linalg.det(xp.matmul(U, Vt)) < 0, -1.0, 1.0).astype(M.dtype)
+    ones = xp.ones(d.shape, M.dtype)
+    R = xp.matmul(U * xp.stack([ones, ones, d], -1)[..., None, :], Vt)
+    if not with_valid:
+        return R
+    det = xp.linalg.det(M)
+    close = xp.max(xp.abs(M - R), axis=(-2, -1)) <= _NEAREST_TOL
+    return R, finite & close & (det > 0)
+
+
+_nearest_rotation_compiled = _eager_compiled(_nearest_rotation, static_argnums=(1, 2))
+
+
 def random_rotation(key, shape: tuple = (), dtype=None):
     """Uniformly random rotations (..., 3, 3) from normalised Gaussian quaternions."""
     dtype = dtype or jnp.result_type(float)

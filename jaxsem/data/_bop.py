@@ -9,7 +9,8 @@ optional and not read here). Object meshes are ``models/obj_XXXXXX.ply`` in mill
 the scene folder or two levels up (the data set's ``models/``).
 
 :func:`load_bop_scene` reads the labels only (no image is opened): per frame and object, the
-object id and class name, its rotation object-to-camera, its ellipsoid in the camera frame
+object id and class name, its rotation object-to-camera (the proper rotation nearest to the
+file's ``cam_R_m2c``, written with a few digits), its ellipsoid in the camera frame
 (centre and semi-axes of the mesh's axis-aligned extent, metres: jaxsem's convention, radii =
 half the full dimensions), the visible box and the visible fraction. When
 ``scene_gt_info.json`` is absent they are computed from the meshes: every object of the frame is
@@ -28,7 +29,7 @@ import pathlib
 import numpy as np
 
 from .._files import MAX_PIXELS, check_budget, read_json
-from ..quadrics import EllipsoidView
+from ..quadrics import EllipsoidView, nearest_rotation
 
 #: Linemod's object names (LM and LM-O share the ids).
 LINEMOD_NAMES = {
@@ -75,8 +76,10 @@ class BopObject:
 
     rotation: (3, 3) object-to-camera; translation: (3,) the model origin in the camera frame;
     center, radii: the ellipsoid (centre of the mesh's extent, half extents along the object's
-    axes); visible_box: (4,) ``[u_min, v_min, u_max, v_max]`` of the visible pixels (NaN when
-    nothing is visible); visible_fraction: in [0, 1].
+    axes); visible_box: (4,) ``[u_min, v_min, u_max, v_max]`` of the visible pixels, edge to
+    edge in the core's pixel convention (pixel centres at whole coordinates: inside
+    ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``, what :func:`jaxsem.volumon.prepare_inputs` and
+    :func:`jaxsem.slam.make_problem` take), NaN when nothing is visible; visible_fraction: in [0, 1].
     """
 
     obj_id: int
@@ -291,6 +294,16 @@ def _matrix(where: str, value, shape) -> np.ndarray:
     return arr
 
 
+def _rotation(where: str, R: np.ndarray) -> np.ndarray:
+    """The proper rotation nearest to ``R`` as written (BOP writes a handful of digits: LM-O's
+    ``cam_R_m2c`` are up to 0.01 from orthonormal, over the core's 1e-3 rotation tolerance);
+    a matrix that is no rotation written with few digits (a reflection, a scale) is refused."""
+    rotation, ok = nearest_rotation(R, with_valid=True, xp=np)
+    if not bool(ok):
+        raise ValueError(f"{where}: expected a rotation matrix (orthonormal, det +1), got {R.round(4).tolist()}")
+    return np.asarray(rotation, np.float64)
+
+
 def _models_dir(scene: pathlib.Path, models_dir) -> pathlib.Path:
     if models_dir is not None:
         return pathlib.Path(models_dir)
@@ -396,7 +409,7 @@ def load_bop_scene(
             if "obj_id" not in e:
                 raise ValueError(f"{where}.obj_id: missing")
             oid = _whole(f"{where}.obj_id", e["obj_id"])
-            R = _matrix(f"{where}.cam_R_m2c", e.get("cam_R_m2c"), (3, 3))
+            R = _rotation(f"{where}.cam_R_m2c", _matrix(f"{where}.cam_R_m2c", e.get("cam_R_m2c"), (3, 3)))
             t = _matrix(f"{where}.cam_t_m2c", e.get("cam_t_m2c"), (3,)) * 1e-3
             poses.append((oid, R, t))
         poses_of[fid] = poses
@@ -432,10 +445,13 @@ def load_bop_scene(
                 if not isinstance(row, dict):
                     raise ValueError(f"{where}: expected an object with bbox_visib, got {row!r:.80}")
                 x, y, w, h = _matrix(f"{where}.bbox_visib", row.get("bbox_visib"), (4,))
-                boxes.append(np.array([x, y, x + w, y + h]) if w > 0 and h > 0 else np.full(4, np.nan))
                 frac = _number(f"{where}.visib_fract", row.get("visib_fract", 1.0))
                 if not 0 <= frac <= 1:
                     raise ValueError(f"{where}.visib_fract: expected a fraction in [0, 1], got {frac}")
+                # BOP's [x, y, w, h] are pixel indices: first pixel and last minus first (the
+                # BOP toolkit's calc_2d_bbox); an unseen object has negative entries.
+                seen = min(x, y, w, h) >= 0 and frac > 0
+                boxes.append(np.array([x - 0.5, y - 0.5, x + w + 0.5, y + h + 0.5]) if seen else np.full(4, np.nan))
                 fracs.append(frac)
         else:
             boxes, fracs = visible_boxes([(meshes[o], R, t) for o, R, t in poses], K, size)
@@ -475,9 +491,11 @@ def _key(table: dict, fid: int) -> str:
 def visible_boxes(objects, K, image_size, splat: int = 1):
     """``(boxes, fractions)`` of posed meshes ``[(mesh, R, t), ...]`` seen together through ``K``
     on a ``(W, H)`` image: a shared depth buffer of their vertices splatted to ``2 splat + 1``
-    pixels, so nearer objects hide farther ones. A box is ``[u_min, v_min, u_max + 1, v_max + 1]``
-    of the pixels an object keeps (NaN if none); its fraction is kept pixels over the pixels it
-    covers alone (inside the image)."""
+    pixels, so nearer objects hide farther ones. A box spans the pixels an object keeps, edge to
+    edge, in the core's pixel convention (:mod:`jaxsem.quadrics`: pixel centres at whole
+    coordinates, so pixels ``u_first..u_last`` give ``[u_first - 0.5, ..., u_last + 0.5, ...]``
+    and a box never leaves ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``); NaN if none. Its fraction is
+    kept pixels over the pixels it covers alone (inside the image)."""
     W, H = int(image_size[0]), int(image_size[1])
     depth = np.full(H * W, np.inf)
     owner = np.full(H * W, -1)
@@ -488,8 +506,9 @@ def visible_boxes(objects, K, image_size, splat: int = 1):
         z = p[:, 2]
         front = z > 1e-6
         p, z = p[front], z[front]
-        u = np.floor(K[0, 0] * p[:, 0] / z + K[0, 2]).astype(np.int64)
-        v = np.floor(K[1, 1] * p[:, 1] / z + K[1, 2]).astype(np.int64)
+        # The pixel whose centre is nearest (pixel centres at whole coordinates).
+        u = np.floor(K[0, 0] * p[:, 0] / z + K[0, 1] * p[:, 1] / z + K[0, 2] + 0.5).astype(np.int64)
+        v = np.floor(K[1, 1] * p[:, 1] / z + K[1, 2] + 0.5).astype(np.int64)
         idx, zz = [], []
         for du, dv in offsets:
             uu, vv = u + du, v + dv
@@ -515,6 +534,6 @@ def visible_boxes(objects, K, image_size, splat: int = 1):
             fractions.append(0.0)
             continue
         vv, uu = np.divmod(kept, W)
-        boxes.append(np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float))
+        boxes.append(np.array([uu.min() - 0.5, vv.min() - 0.5, uu.max() + 0.5, vv.max() + 0.5], float))
         fractions.append(len(kept) / max(len(idx), 1))
     return boxes, fractions

@@ -489,7 +489,7 @@ def stretch_sequence(
             if setting == "missed" and rng.uniform() < miss_rate:
                 continue
             b = b + box_sigma * rng.standard_normal(4)
-            b = np.clip(b, [0, 0, 0, 0], [W, H, W, H])
+            b = np.clip(b, -0.5, [W - 0.5, H - 0.5, W - 0.5, H - 0.5])  # the image, pixel centres at whole numbers
             if b[2] - b[0] < min_box_pixels or b[3] - b[1] < min_box_pixels:
                 continue
             boxes.append(b)

@@ -118,7 +118,8 @@ def test_scene_gt_info_is_used_when_present(tmp_path):
         "7": [{"bbox_visib": [1, 2, 3, 4], "visib_fract": 1.0}, {"bbox_visib": [5, 6, 7, 8], "visib_fract": 0.25}],
     }
     frame = data.load_bop_scene(_scene(tmp_path, GT, info)).frames[0]
-    np.testing.assert_allclose(frame.objects[0].visible_box, [10, 20, 40, 60])
+    # BOP's [x, y, w, h] are pixel indices (x + w the last pixel): edge to edge, centres at whole numbers
+    np.testing.assert_allclose(frame.objects[0].visible_box, [9.5, 19.5, 40.5, 60.5])
     assert frame.objects[0].visible_fraction == 0.5
     assert np.all(np.isnan(frame.objects[1].visible_box))
 
@@ -242,3 +243,94 @@ def test_the_pixel_budget_is_an_argument(tmp_path):
     ):
         data.load_bop_scene(scene, max_pixels=320 * 240 - 1)
     assert len(data.load_bop_scene(scene, max_pixels=320 * 240).frames) == 2
+
+
+# ----------------------------------------------------------------------------------------------
+# The reader's output passes the library's own checks: boxes in the core's pixel convention,
+# rotations projected to proper rotations, the README's real-data snippet on a scene of its own.
+
+
+def test_visible_box_runs_edge_to_edge_of_the_nearest_pixels():
+    # One vertex at u = 100.3, v = 50.6 (K above, z = 1): nearest pixel centres 100 and 51, a 3 x 3
+    # splat covers columns 99..101 and rows 50..52, whose outer edges are 98.5..101.5, 49.5..52.5.
+    mesh = data.Mesh(np.array([[(100.3 - 160.0) / 500.0, (50.6 - 120.0) / 500.0, 0.0]]))
+    boxes, fractions = data.visible_boxes([(mesh, np.eye(3), np.array([0.0, 0.0, 1.0]))], np.asarray(K), (320, 240))
+    np.testing.assert_allclose(boxes[0], [98.5, 49.5, 101.5, 52.5])
+    # At the right edge the last column is 319, so the box ends at 319.5 = W - 0.5.
+    mesh = data.Mesh(np.array([[(319.2 - 160.0) / 500.0, 0.0, 0.0]]))
+    boxes, _ = data.visible_boxes([(mesh, np.eye(3), np.array([0.0, 0.0, 1.0]))], np.asarray(K), (320, 240))
+    assert boxes[0][2] == 319.5
+
+
+def _rounded_rotation(seed, digits=3):
+    """A rotation written with ``digits`` decimals, as BOP files are: a little off orthonormal."""
+    a = np.random.default_rng(seed).normal(size=(3, 3))
+    Q, R = np.linalg.qr(a)
+    Q = Q * np.sign(np.diag(R))
+    Q = Q if np.linalg.det(Q) > 0 else -Q
+    return np.round(Q, digits) + np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.002]])
+
+
+def test_rotations_are_the_nearest_proper_rotation_of_the_file(tmp_path):
+    written = _rounded_rotation(0)
+    assert np.abs(written.T @ written - np.eye(3)).max() > 1e-3  # over the core's tolerance as written
+    gt = {"3": [{"obj_id": 1, "cam_R_m2c": written.ravel().tolist(), "cam_t_m2c": [0.0, 0.0, 500.0]}]}
+    obj = data.load_bop_scene(_scene(tmp_path, gt)).frames[0].objects[0]
+    np.testing.assert_allclose(obj.rotation.T @ obj.rotation, np.eye(3), atol=1e-12)
+    assert np.linalg.det(obj.rotation) == pytest.approx(1.0)
+    # the polar factor of the written matrix (independent: scipy-free, from the matrix square root)
+    w, V = np.linalg.eigh(written.T @ written)
+    polar = written @ V @ np.diag(w**-0.5) @ V.T
+    np.testing.assert_allclose(obj.rotation, polar, atol=1e-9)
+    q.dual_quadric(obj.rotation, obj.center, obj.radii)  # the core takes it (it checks rotations)
+
+
+@pytest.mark.parametrize("matrix", [-np.eye(3), 2 * np.eye(3), np.zeros((3, 3))], ids=["reflection", "scaled", "zeros"])
+def test_a_matrix_that_is_no_rotation_is_refused_naming_the_entry(tmp_path, matrix):
+    gt = {"3": [{"obj_id": 1, "cam_R_m2c": matrix.ravel().tolist(), "cam_t_m2c": [0.0, 0.0, 500.0]}]}
+    with pytest.raises(ValueError, match=r"scene_gt.json: 3\[0\].cam_R_m2c: expected a rotation"):
+        data.load_bop_scene(_scene(tmp_path, gt))
+
+
+def _readme_bop_lines():
+    """The README's real-BOP-scene lines (from its "A real BOP scene" comment to the next command)."""
+    readme = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+    lines = readme.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("# A real BOP scene"))
+    stop = next(i for i in range(start + 1, len(lines)) if lines[i].startswith("# jaxsem volumon eval"))
+    stretches = [line for line in lines if line.startswith("stretches = slam.find_stretches(")]
+    assert len(stretches) == 1
+    return lines[start:stop] + stretches
+
+
+def test_readme_real_data_snippet_runs_on_a_tiny_scene(tmp_path):
+    import jax.numpy as jnp
+    from PIL import Image
+
+    from jaxsem import slam, volumon
+
+    # A 640 x 480 LM-O-like scene: one object cut by the right edge of the image, one inside,
+    # rotations written with three decimals.
+    scene = tmp_path / "data" / "lmo" / "test" / "000002"
+    (scene / "models").mkdir(parents=True)
+    (scene / "rgb").mkdir()
+    _write_ply(scene / "models" / "obj_000001.ply", _box_points([30.0, 20.0, 10.0]))
+    _write_ply(scene / "models" / "obj_000005.ply", _box_points([15.0, 15.0, 15.0]))
+    cam = {"fx": 572.4, "fy": 573.6, "cx": 325.3, "cy": 242.0, "width": 640, "height": 480, "depth_scale": 1.0}
+    (scene / "camera.json").write_text(json.dumps(cam))
+    gt = {
+        str(f): [
+            {"obj_id": 1, "cam_R_m2c": _rounded_rotation(f).ravel().tolist(), "cam_t_m2c": [290.0, 0.0, 600.0]},
+            {"obj_id": 5, "cam_R_m2c": _rounded_rotation(f + 50).ravel().tolist(), "cam_t_m2c": [0.0, 0.0, 700.0]},
+        ]
+        for f in (3, 4)
+    }
+    (scene / "scene_gt.json").write_text(json.dumps(gt))
+    for f in (3, 4):
+        Image.fromarray(np.full((480, 640, 3), 90, np.uint8)).save(scene / "rgb" / f"{f:06d}.png")
+    code = "\n".join(_readme_bop_lines()).replace("data/lmo/test/000002", str(scene))
+    namespace = {"data": data, "slam": slam, "volumon": volumon, "q": q, "jnp": jnp, "np": np}
+    exec(compile(code, "README.md", "exec"), namespace)
+    seen = namespace["seen"]
+    assert len(seen) == 2 and seen[0].visible_box[2] == 640 - 0.5  # the cut object reaches the edge
+    assert namespace["local"].shape[0] == 2 and bool(namespace["valid"])

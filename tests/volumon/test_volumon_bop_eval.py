@@ -97,7 +97,8 @@ def _scene(tmp_path):
             # the exact box of the object's ellipsoid (its mesh), from the core's projection
             box, _ = Q.project_bbox(np.eye(3), np.asarray(t) / 1000, np.asarray(RADII_MM[o]) / 1000, K, np.eye(4))
             x0, y0, x1, y1 = np.asarray(box).tolist()
-            rows.append({"bbox_visib": [x0, y0, x1 - x0, y1 - y0], "visib_fract": frac})
+            # BOP writes the first pixel and last minus first; the reader adds the half pixels back
+            rows.append({"bbox_visib": [x0 + 0.5, y0 + 0.5, x1 - x0 - 1, y1 - y0 - 1], "visib_fract": frac})
         info[str(fid)] = rows
         cv2.imwrite(str(scene / "rgb" / f"{fid:06d}.png"), rng.integers(0, 255, (240, 320, 3), dtype=np.uint8))
     (scene / "scene_gt.json").write_text(json.dumps(gt))
