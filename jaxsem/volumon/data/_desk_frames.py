@@ -26,6 +26,7 @@ from ._lmo_renders import (
     LMO_CLASS_NAMES,
     LMO_K,
     DeskConfig,
+    concat_npz,
     load_distractor_meshes,
     load_lmo_meshes,
     mesh_listing,
@@ -239,8 +240,4 @@ def load_frame_chunks(path) -> dict:
     files = [f for f in sorted(path.glob("frames_[0-9]*.npz")) if ".tmp" not in f.name]
     if not files:
         raise ValueError(f"path: no frames_NNNN.npz chunks in {path}")
-    parts = []
-    for f in files:
-        with np.load(f) as z:
-            parts.append({k: z[k] for k in z.files})
-    return {k: np.concatenate([p[k] for p in parts]) for k in FRAME_KEYS}
+    return concat_npz(files, FRAME_KEYS)

@@ -765,11 +765,18 @@ def load_desk_detections(path) -> dict:
     files = [f for f in files if ".tmp" not in f.name]
     if not files:
         raise ValueError(f"path: no chunk_NNNN.npz detections in {path}")
+    return concat_npz(files)
+
+
+def concat_npz(files, keys=None) -> dict:
+    """The arrays of the ``.npz`` files ``files`` (chunks of :func:`write_desk_chunks`),
+    concatenated along their first axis in the files' order; ``keys``: which arrays, in this
+    order (default: the first file's)."""
     parts = []
     for f in files:
         with np.load(f) as z:
             parts.append({k: z[k] for k in z.files})
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return {k: np.concatenate([p[k] for p in parts]) for k in (parts[0] if keys is None else keys)}
 
 
 #: Keys of a training batch of desk detections (:data:`jaxsem.volumon._train.TRAIN_KEYS` and the truth for scoring).
