@@ -26,15 +26,25 @@ def _index_dtype(xp):
     return jnp.int32 if xp is jnp else np.int64
 
 
+def _check_pairs(name, x, what):
+    """A ValueError naming ``name`` unless its last axis holds pairs (a 3D point is a common slip:
+    it would otherwise broadcast against the (2,) origin with an opaque message)."""
+    if x.ndim < 1 or x.shape[-1] != 2:
+        raise ValueError(f"{name}: expected shape (..., 2), {what}, got shape {tuple(x.shape)}")
+
+
 def world_to_cell(xy, origin, resolution, xp=jnp):
     """World (x, y) (..., 2) -> integer cell (row, col) (..., 2): the cell the point lies in
     (floor; it may lie off the grid, see :func:`cell_in_grid`). int32 under jax, int64 under numpy.
+    A last axis other than 2 (a 3D point: drop its z first) raises ValueError naming ``xy``.
     """
     xp = _namespace(xp)
     xy = xp.asarray(xy)
+    _check_pairs("xy", xy, "world (x, y) points")
     if not xp.issubdtype(xy.dtype, xp.floating):
         xy = xy.astype(xp.result_type(float))
     origin = xp.asarray(origin, dtype=xy.dtype)
+    _check_pairs("origin", origin, "a world (x, y) corner")
     rc = xp.floor((xy - origin) / xp.asarray(resolution, dtype=xy.dtype)).astype(_index_dtype(xp))
     return rc[..., ::-1]
 
@@ -45,9 +55,11 @@ def cell_to_world(rc, origin, resolution, offset: float | jax.Array = 0.5, xp=jn
     The result has ``origin``'s floating dtype (float64 for a Python or int origin under x64)."""
     xp = _namespace(xp)
     origin = xp.asarray(origin)
+    _check_pairs("origin", origin, "a world (x, y) corner")
     if not xp.issubdtype(origin.dtype, xp.floating):
         origin = origin.astype(xp.result_type(float))
     rc = xp.asarray(rc)
+    _check_pairs("rc", rc, "(row, col) cells")
     offset = xp.asarray(offset, dtype=origin.dtype)
     return origin + (rc[..., ::-1].astype(origin.dtype) + offset) * xp.asarray(resolution, dtype=origin.dtype)
 

@@ -13,6 +13,7 @@ by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
 from __future__ import annotations
 
 import copy
+import math
 from typing import Any
 
 import jax
@@ -21,7 +22,7 @@ import numpy as np
 
 from .. import quadrics as Q
 from ..models import LSDNet, lsd_distribution
-from ..planning import embed_local_distribution, local_inputs
+from ..planning import DEFAULT_RESOLUTION, embed_local_distribution, local_inputs
 from ._expert import full_map_state
 
 
@@ -32,11 +33,26 @@ class LSDSampler:
     (stage one) distribution; uniform_mix: weight of a uniform distribution mixed into the
     network's (0 = the thesis' rule; a small value keeps every cell reachable by sampling even
     when the network is very confident). The forward pass is jitted once per input shape.
+    cell_size: metres per cell of the maps the network was trained on (``meta["cell_size"]`` of
+    :func:`jaxsem.lsd.load_model`; 0.1 m for every shipped model): :func:`jaxsem.planning.navigate`
+    refuses a map whose cells differ (its 160-cell window would cover other metres than in
+    training, and the network's distributions lose their edge) unless ``NavConfig.sampler_scale``
+    says which cells the sampler sees.
     """
 
-    def __init__(self, model: LSDNet, params, use_context: bool = True, uniform_mix: float = 0.0):
+    def __init__(
+        self,
+        model: LSDNet,
+        params,
+        use_context: bool = True,
+        uniform_mix: float = 0.0,
+        cell_size: float = DEFAULT_RESOLUTION,
+    ):
         if not 0.0 <= float(uniform_mix) < 1.0:
             raise ValueError(f"uniform_mix: expected in [0, 1), got {uniform_mix}")
+        if not (math.isfinite(float(cell_size)) and float(cell_size) > 0):
+            raise ValueError(f"cell_size: expected metres per cell > 0, got {cell_size}")
+        self.cell_size = float(cell_size)
         self.model, self.params = model, params
         self.use_context, self.uniform_mix = bool(use_context), float(uniform_mix)
         self._dtype = jax.tree_util.tree_leaves(params)[0].dtype

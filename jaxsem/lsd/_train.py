@@ -46,6 +46,7 @@ import optax
 from .. import parallel
 from ..checkpoint import Checkpointer, CheckpointError, latest_step
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
+from ..planning import DEFAULT_RESOLUTION
 from ..training import LoadedModel, TrainingRun, config_json, load_run_config
 from ._config import TrainConfig
 from ._data import (
@@ -673,19 +674,32 @@ def warm_start_params(params, source, name: str = "source"):
 # ----------------------------------------------------------------------------- single-file export
 
 
-def export_model(path, config: TrainConfig, params) -> pathlib.Path:
+def export_model(path, config: TrainConfig, params, *, cell_size: float = DEFAULT_RESOLUTION) -> pathlib.Path:
     """Writes the network config and parameters to one ``.npz`` file (no optimiser state).
 
-    Keys: ``config_json`` (the :class:`TrainConfig` as JSON) and one ``params/<layer>/<name>``
-    array per parameter. Read it back with :func:`load_model_file`.
+    Keys: ``config_json`` (the :class:`TrainConfig` as JSON), ``cell_size`` (metres per cell of
+    the maps it was trained on: the expert shards' ``resolution``, 0.1 m by default) and one
+    ``params/<layer>/<name>`` array per parameter. Read it back with :func:`load_model_file`.
     """
+    if not (np.isfinite(cell_size) and cell_size > 0):
+        raise ValueError(f"cell_size: expected metres per cell > 0, got {cell_size}")
     path = pathlib.Path(path)
     flat = {}
     for layer, leaves in params.items():
         for name, arr in leaves.items():
             flat[f"params/{layer}/{name}"] = np.asarray(arr)
-    np.savez_compressed(path, config_json=np.str_(json.dumps(config_to_dict(config))), **flat)
+    np.savez_compressed(
+        path, config_json=np.str_(json.dumps(config_to_dict(config))), cell_size=np.float64(cell_size), **flat
+    )
     return path
+
+
+def model_cell_size(path) -> float:
+    """Metres per cell of the maps the model in ``path`` (an exported ``.npz``) was trained on:
+    its ``cell_size`` key, or 0.1 m for a file written before the key existed (every shipped model
+    was trained on the generator's 0.1 m buildings)."""
+    with np.load(pathlib.Path(path)) as z:
+        return float(z["cell_size"]) if "cell_size" in z.files else DEFAULT_RESOLUTION
 
 
 def load_model_file(path):
@@ -742,7 +756,9 @@ def load_model(source=None) -> LoadedModel:
     :func:`jaxsem.volumon.load_pretrained` returns too) from a training workdir, an exported
     ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'house', 'campus', 'cpu'), or (None)
     the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent).
-    ``meta``: ``name`` (the file or folder) and ``step`` (a workdir's checkpoint; None for a file)."""
+    ``meta``: ``name`` (the file or folder), ``step`` (a workdir's checkpoint; None for a file) and
+    ``cell_size`` (metres per map cell it was trained on, :func:`model_cell_size`; 0.1 m for a
+    workdir): pass it on, ``LSDSampler(model, params, cell_size=meta["cell_size"])``."""
     if source is None:
         source = PRETRAINED if PRETRAINED.exists() else PRETRAINED_CPU
     if isinstance(source, str) and source in MODELS:
@@ -750,6 +766,8 @@ def load_model(source=None) -> LoadedModel:
     source = pathlib.Path(source)
     if source.suffix == ".npz":
         model, params, config = load_model_file(source)
-        return LoadedModel(model, params, config, {"name": str(source), "step": None})
+        meta = {"name": str(source), "step": None, "cell_size": model_cell_size(source)}
+        return LoadedModel(model, params, config, meta)
     model, params, config = load_trained(source)
-    return LoadedModel(model, params, config, {"name": str(source), "step": latest_step(source / "checkpoints")})
+    meta = {"name": str(source), "step": latest_step(source / "checkpoints"), "cell_size": DEFAULT_RESOLUTION}
+    return LoadedModel(model, params, config, meta)

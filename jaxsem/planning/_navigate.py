@@ -243,6 +243,30 @@ class NavResult:
     periodic_replans: int = 0
 
 
+def _check_sampler_cells(sampler, resolution: float, scale: int) -> None:
+    """Refuse a learned sampler on a map whose cells are not the ones it was trained on.
+
+    A sampler that says its training cell size (``sampler.cell_size``, as
+    :class:`jaxsem.lsd.LSDSampler` does) is checked when ``NavConfig.sampler_scale`` is 1: its
+    fixed window would then cover other metres than in training (on a 0.05 m map, half the
+    building), and its distributions lose the structure they learnt without any error. A
+    ValueError rather than a silent resample: the planner plans, checks collisions and measures
+    paths on the map it is given, and the two fixes (resample the map, or let the sampler see
+    coarser cells with ``sampler_scale``) are the user's choice. An explicit ``sampler_scale`` > 1
+    is taken as the user's choice of the sampler's cells (a variant).
+    """
+    cell = getattr(sampler, "cell_size", None)
+    if cell is None or scale != 1 or math.isclose(resolution, float(cell), rel_tol=1e-3):
+        return
+    ratio = float(cell) / resolution
+    hint = f" or NavConfig(sampler_scale={round(ratio)})" if ratio > 1.5 and abs(ratio - round(ratio)) < 1e-3 else ""
+    raise ValueError(
+        f"sampler: the network was trained on {float(cell):g} m cells, but world.resolution is {resolution:g} m; "
+        f"resample the map (planning.load_map(..., cell_size={float(cell):g}))"
+        f"{hint}"
+    )
+
+
 class Trial:
     """One navigation trial, advanced a step at a time (:func:`navigate` runs it to the end; the
     expert data generator interleaves its own queries between steps).
@@ -295,6 +319,7 @@ class Trial:
                 f"'sampler' or 'uniform', learned_radius_factor >= 1, outside_mass None or two "
                 f"shares in [0, 1), a finite unknown_weight > 0 and an int sampler_scale >= 1 expected, got {config}"
             )
+        _check_sampler_cells(sampler, self.resolution, config.sampler_scale)
         self.config = config
         self.sampler = sampler
         weight = config.edge_weight or ("euclidean" if sampler is None else "neglogp")

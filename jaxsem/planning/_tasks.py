@@ -8,6 +8,7 @@ The pools are free cells at least ``clearance`` metres from any obstacle, inside
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -66,7 +67,9 @@ def sample_tasks(
     clearance: metres from the nearest obstacle for start and goal (keeps them out of a laser
     map's thin slivers); graph: the map's :class:`SoftCostGraph` when one is already built;
     max_tries: candidate pairs drawn before giving up (default ``50 * count``). Fewer than
-    ``count`` tasks come back when the pools cannot give them (check ``len``).
+    ``count`` tasks come back when the pools cannot give them (check ``len``); none at all comes
+    with a ``UserWarning`` saying why (no free cell with that clearance, or how many pairs fell
+    outside the distance bounds or had no path), as an empty list is otherwise easy to miss.
     """
     if kind not in ("II", "IO"):
         raise ValueError(f"kind: expected 'II' or 'IO', got {kind!r}")
@@ -80,20 +83,38 @@ def sample_tasks(
     inside, outside = task_pools(building, clearance)
     pool = inside if kind == "II" else outside
     if len(inside) == 0 or len(pool) == 0:
+        where = "indoor" if len(inside) == 0 else "outdoor"
+        warnings.warn(
+            f"sample_tasks: no {kind} task: the map has no {where} free cell {clearance:g} m from an obstacle "
+            "(lower clearance, or check the map's inside / outside)",
+            stacklevel=2,
+        )
         return []
     graph = graph or SoftCostGraph(building.occupancy, building)
     tasks = []
-    for _ in range(50 * count if max_tries is None else int(max_tries)):
+    tries = 50 * count if max_tries is None else int(max_tries)
+    far, unreachable = 0, 0
+    for _ in range(tries):
         if len(tasks) == count:
             break
         s = building.cell_center(inside[rng.integers(len(inside))])
         g = building.cell_center(pool[rng.integers(len(pool))])
         d = np.linalg.norm(g - s)
         if d < min_distance or (max_distance is not None and d > max_distance):
+            far += 1
             continue
         p = graph.path(s, g)
         if not p.found:
+            unreachable += 1
             continue
         outdoors = kind == "IO" and bool(getattr(building, "outside_is_outdoors", True))
         tasks.append(Task(s, g, float(rng.uniform(-math.pi, math.pi)), outdoors, p.length, p.cost))
+    if count > 0 and not tasks:
+        bounds = f"[{min_distance:g}, {'inf' if max_distance is None else f'{max_distance:g}'}] m"
+        warnings.warn(
+            f"sample_tasks: no {kind} task in {tries} tries: {far} start-goal pairs outside the distance "
+            f"bounds {bounds} (min_distance, max_distance), {unreachable} with no path between them "
+            "(raise max_tries, or widen the bounds)",
+            stacklevel=2,
+        )
     return tasks

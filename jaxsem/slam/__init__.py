@@ -9,7 +9,8 @@ What a user calls, by job:
 - batch solvers: :func:`solve_batch` (structured Levenberg-Marquardt with the rescue of stranded
   objects; ``method="optimistix"``: differentiable by the implicit adjoint), :func:`solve_many`,
   :func:`solve_maps` (a batch of maps over every device), :class:`SchurLevenbergMarquardt` and
-  :func:`roshan_solver` (the structured LM as an optimistix solver), :func:`result_message`
+  :func:`roshan_solver` (the structured LM as an optimistix solver; its typed ``args`` and
+  residual function are ``jaxsem.slam._cost.RoshanArgs`` and ``roshan_residuals``), :func:`result_message`
   (what a solver's result code means; ``throw=`` raises instead);
 - the online smoother and single-view start: :func:`online_init`, :func:`online_update`,
   :func:`online_optimize`, :func:`online_estimate` (the graph it holds is ``state.problem``),

@@ -282,6 +282,49 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     return boxes, poses, shapes
 
 
+class RoshanArgs(NamedTuple):
+    """The ``args`` that :func:`jaxsem.slam.roshan_solver`'s solver and :func:`roshan_residuals`
+    take (``optx.least_squares(roshan_residuals, roshan_solver(config), init, args)``). A named
+    tuple, so it unpacks as the plain 4-tuple ``(problem, config, pose_free, obj_free)`` did.
+
+    Fields:
+      problem: the :class:`SlamProblem`.
+      config: the :class:`SolverConfig` (cost weights, stopping rule, damping).
+      pose_free: (T,) float, 1 where a pose is optimised and 0 where it is held (e.g. the poses
+        outside an online window); of the estimate's float dtype.
+      obj_free: (J,) bool, True where an object is optimised.
+    """
+
+    problem: SlamProblem
+    config: SolverConfig
+    pose_free: jax.Array
+    obj_free: jax.Array
+
+    @classmethod
+    def create(cls, problem: SlamProblem, config: SolverConfig, pose_free=None, obj_free=None) -> RoshanArgs:
+        """Checked arguments: ``pose_free`` defaults to every real pose (as :func:`jaxsem.slam.solve_batch`:
+        the pose priors fix the gauge), ``obj_free`` to every real object; a wrong shape raises
+        ValueError naming the field."""
+        T, J = problem.pose_mask.shape[-1], problem.object_mask.shape[-1]
+        dtype = problem.box.dtype
+        if pose_free is None:
+            pose_free = problem.pose_mask
+        if obj_free is None:
+            obj_free = problem.object_mask
+        pose_free, obj_free = jnp.asarray(pose_free, dtype), jnp.asarray(obj_free, bool)
+        for name, value, n in (("pose_free", pose_free, T), ("obj_free", obj_free, J)):
+            if value.shape != (n,):
+                raise ValueError(f"{name}: expected shape ({n},) for this problem, got {tuple(value.shape)}")
+        return cls(problem, config, pose_free, obj_free)
+
+
+def roshan_residuals(estimate: SlamEstimate, args: RoshanArgs) -> tuple[jax.Array, ...]:
+    """The residual function of :func:`jaxsem.slam.roshan_solver`'s least squares:
+    :func:`residual_blocks` of ``args.problem`` at ``estimate`` under ``args.config`` (the
+    ``pose_free`` / ``obj_free`` masks act in the solver's step, not here)."""
+    return residual_blocks(args[0], estimate, args[1])
+
+
 def total_cost(problem: SlamProblem, estimate: SlamEstimate, config: SolverConfig):
     """``0.5 * sum(r**2)`` over all factors (scalar): the quantity every solver minimises."""
     blocks = residual_blocks(problem, estimate, config)

@@ -293,7 +293,7 @@ def make_problem(
     pose_mask=None,
     box_mask=None,
     object_mask=None,
-    capacity: tuple[int, int, int] | None = None,
+    capacity: tuple[int, int, int] | Capacity | None = None,
     dtype=None,
     classes: _classes.ClassTable | None = None,
     odometry=None,
@@ -309,7 +309,10 @@ def make_problem(
       texture_depth: optional (M,) metres; entries that are NaN are treated as missing.
       texture_mask: optional (M,) bool (default: where ``texture_depth`` is finite and positive).
       pose_mask, box_mask, object_mask: optional masks (default all True).
-      capacity: optional ``(T_cap, M_cap, J_cap)`` to pad to (>= the data sizes).
+      capacity: optional sizes to pad to (>= the data sizes): a :class:`Capacity` (its
+        ``max_poses``, ``max_boxes``, ``max_objects``, by name: the online smoother's sizes give
+        the same batch problem), or a plain ``(poses, boxes, objects)`` tuple in that order, as
+        :func:`bucket_capacity` returns (note: not :class:`Capacity`'s field order).
       dtype: float dtype of the arrays (default: jax's default float).
       classes: the :class:`jaxsem.classes.ClassTable` of ``object_class`` (default: the built-in
         :data:`jaxsem.classes.DEFAULT_TABLE`); the problem keeps it (``problem.classes``) and
@@ -430,8 +433,12 @@ def make_problem(
 
     if capacity is None and M == 0:
         capacity = (T, 1, J)  # one masked box: the arrays keep a row to index (no measurement, no cost)
+    if isinstance(capacity, Capacity):  # by name: its field order is (poses, objects, boxes, ...)
+        capacity = (capacity.max_poses, capacity.max_boxes, capacity.max_objects)
     if capacity is not None:
-        Tc, Mc, Jc = capacity
+        if len(capacity) != 3:
+            raise ValueError(f"capacity: expected a Capacity or (poses, boxes, objects), got {capacity!r}")
+        Tc, Mc, Jc = (int(c) for c in capacity)
         if Tc < T or Mc < M or Jc < J:
             raise ValueError(f"capacity: {capacity} is smaller than the data sizes (T, M, J) = {(T, M, J)}")
         eye = np.broadcast_to(np.eye(4), (Tc - T, 4, 4))

@@ -236,6 +236,15 @@ def _host_batch(config: TrainConfig, batch: dict, step: int) -> dict:
             f"needs 3-D ground truth (loss.alpha_O = {config.loss.alpha_O}: the fully supervised oracle); "
             "train a weak variant ('both', 'dual') on 2-D labels"
         )
+    rows = {k: (np.shape(batch[k]) or (None,))[0] for k in TRAIN_KEYS}
+    wrong = {k: n for k, n in rows.items() if n != config.batch_size}
+    if wrong:
+        first = next(iter(wrong))
+        raise ValueError(
+            f"batch_fn: the batch of step {step} has {wrong[first]} rows in {first!r}, but config.batch_size is "
+            f"{config.batch_size} (every key needs that many rows: {wrong}); make batches of batch_size objects "
+            "(LabelBatch.concatenate) or set config.batch_size"
+        )
     out = {k: jnp.asarray(batch[k]) for k in TRAIN_KEYS}
     if config.augment:
         out["aug"] = jax.tree.map(jnp.asarray, augmentation_params(config.seed, step, config.batch_size))

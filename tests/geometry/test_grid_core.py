@@ -117,3 +117,22 @@ def test_box_to_cells_marks_the_cells_whose_interior_meets_the_box(x0, y0, w, h,
     assert r0 <= r1 and c0 <= c1
     grid = Q.Grid.create(origin=(ox, oy), resolution=res, shape=shape)
     assert grid.box_to_cells((x0, y0, x1, y1)) == (r0, r1, c0, c1)
+
+
+@pytest.mark.parametrize(
+    ("call", "word"),
+    [
+        (lambda g: g.world_to_cell(jnp.array([1.0, 2.0, 0.5])), "xy"),  # a 3D point
+        (lambda g: g.world_to_cell(jnp.ones((4, 3))), "xy"),
+        (lambda g: Q.world_to_cell(jnp.ones((4, 2)), jnp.zeros(3), 0.1), "origin"),
+        (lambda g: g.cell_to_world(jnp.array([1, 2, 3])), "rc"),
+        (lambda g: g.world_to_cell(jnp.float32(1.0)), "xy"),
+    ],
+    ids=["point-3d", "points-3d", "origin-3d", "cell-3", "scalar"],
+)
+def test_points_that_are_not_pairs_are_refused_naming_the_argument(call, word):
+    grid = Q.Grid.create((0.0, 0.0), 0.1, (10, 10))
+    with pytest.raises(ValueError, match=rf"{word}: expected shape \(\.\.\., 2\)"):
+        call(grid)
+    with pytest.raises(ValueError, match=rf"{word}: expected shape \(\.\.\., 2\)"):
+        jax.jit(call)(grid)  # static shapes: refused under jit too

@@ -205,6 +205,20 @@ def test_export_and_load_model_file_round_trip(run, tmp_path):
         assert m.config.map_size == 160 and c.model.context_dim == 4
 
 
+def test_the_model_file_carries_the_cell_size_it_was_trained_on(tmp_path):
+    from jaxsem import lsd
+
+    model, params, cfg, meta = lsd.load_model()
+    assert meta["cell_size"] == 0.1  # shipped models: the generator's 0.1 m buildings
+    assert LSDSampler(model, params).cell_size == 0.1
+    path = lsd.export_model(tmp_path / "fine.npz", cfg, params, cell_size=0.05)
+    assert lsd.load_model(path).meta["cell_size"] == 0.05
+    with pytest.raises(ValueError, match="cell_size"):
+        lsd.export_model(tmp_path / "bad.npz", cfg, params, cell_size=0.0)
+    with pytest.raises(ValueError, match="cell_size"):
+        LSDSampler(model, params, cell_size=float("nan"))
+
+
 def test_shipped_model_is_the_default():
     from jaxsem.lsd import PRETRAINED, load_model
     from jaxsem.lsd._train import load_model_file  # layers: white-box

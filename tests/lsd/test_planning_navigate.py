@@ -228,6 +228,27 @@ def test_navigate_bad_input():
             navigate(w, [2.0, 2.0], [10.0, 2.0], key, dataclasses.replace(CFG, unknown_weight=uw))
 
 
+class _CellSampler:
+    """A learned sampler's stand-in that says the cell size it was trained on."""
+
+    cell_size = 0.1
+
+    def __call__(self, inputs):
+        k = np.shape(inputs.occupancy)[-1]
+        return np.full((k, k), 1.0 / k**2)
+
+
+def test_a_sampler_on_cells_it_was_not_trained_on_is_refused():
+    fine = dataclasses.replace(_two_rooms(), resolution=0.05)  # the same rooms drawn at 0.05 m: 6 x 3 m
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match=r"sampler: the network was trained on 0.1 m cells, but world.resolution "
+                       r"is 0.05 m; .*cell_size=0.1.* or NavConfig\(sampler_scale=2\)"):  # fmt: skip
+        Trial(fine, [1.0, 1.0], [5.0, 1.0], key, CFG, sampler=_CellSampler())
+    # the same map with the sampler on 2 x 2 pooled cells (0.1 m), and the sampler's own cells, pass
+    Trial(fine, [1.0, 1.0], [5.0, 1.0], key, dataclasses.replace(CFG, sampler_scale=2), sampler=_CellSampler())
+    Trial(_two_rooms(), [2.0, 2.0], [10.0, 2.0], key, CFG, sampler=_CellSampler())
+
+
 def test_the_planners_roadmap_charges_unknown_cells_as_configured():
     w = _two_rooms()
     cfg = dataclasses.replace(CFG, unknown_weight=3.0)
@@ -304,6 +325,17 @@ def test_sample_tasks(building):
     assert all(np.array_equal(a.goal, b.goal) for a, b in zip(again, sample_tasks(building, "II", 4, 0, graph=graph)))
     with pytest.raises(ValueError, match="kind"):
         sample_tasks(building, "OO", 1, 0)
+
+
+def test_sample_tasks_says_why_none_came_back(building):
+    graph = SoftCostGraph(building.occupancy, building)
+    diagonal = float(np.hypot(*building.occupancy.shape)) * RES
+    # no pair can be farther apart than the map's diagonal
+    with pytest.warns(UserWarning, match=r"no II task in 20 tries: 20 start-goal pairs outside the distance bounds"):
+        assert sample_tasks(building, "II", 2, seed=0, graph=graph, min_distance=diagonal + 1, max_tries=20) == []
+    # no free cell is a kilometre from every obstacle
+    with pytest.warns(UserWarning, match=r"no indoor free cell 1000 m from an obstacle"):
+        assert sample_tasks(building, "IO", 2, seed=0, graph=graph, clearance=1000.0) == []
 
 
 @pytest.mark.slow

@@ -89,3 +89,12 @@ def test_a_weak_variant_trains_on_2d_labels_and_the_oracle_is_refused(image, tmp
     oracle = volumon.get_config("oracle", "tiny").replace(data="directory", batch_size=4, num_steps=2)
     with pytest.raises(ValueError, match="2-D labels only"):
         volumon.train_and_evaluate(oracle, tmp_path / "oracle", batch_fn=lambda step: batch, progress=False)
+
+
+def test_a_batch_with_fewer_rows_than_the_config_is_refused_naming_batch_size(image, tmp_path):
+    batch = _labels(image).as_train_batch()  # 2 rows
+    cfg = tiny_config().replace(data="directory", batch_size=32, num_steps=1)
+    with pytest.raises(
+        ValueError, match=r"batch_fn: the batch of step 0 has 2 rows in 'local', but config.batch_size is 32"
+    ):
+        volumon.train_and_evaluate(cfg, tmp_path / "run", batch_fn=lambda step: batch, progress=False)
