@@ -71,6 +71,7 @@ from jaxsem.slam._bop_slam import (  # layers: white-box
     pose_prior_weights,
 )
 from jaxsem.slam._multistart import solve_yaw_starts  # layers: white-box
+from jaxsem.slam._problem import bucket_capacity  # layers: white-box
 from jaxsem.slam._results import result_code  # layers: white-box
 from jaxsem.slam._sequence_texture import support_height  # layers: white-box
 from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
@@ -86,9 +87,6 @@ from jaxsem.volumon import data as vdata, rcnn  # noqa: E402
 HERE = pathlib.Path(__file__).resolve().parent
 SYSTEMS = ("baseline", "roshan", "roshan_volumon", "gtsam_quadrics")
 COLLAPSE_M = 0.10
-#: One padded size for every stretch: one compilation per system.
-CAPACITY = (48, 384, 48)
-
 #: The front end's settings for 640x480 real frames about 6 video frames apart (tuned on frames
 #: below 600 only): ORB descriptor matching between sightings instead of LK tracks (LK keeps
 #: 2-20 % of its tracks over the 10-40 deg, 10-80 cm between these frames), more and weaker ORB
@@ -180,6 +178,8 @@ def front_end(seq):
 
 
 def problem_of(seq, odometry, table, prior_weight=None):
+    """The stretch as a problem padded to its size bucket (:func:`jaxsem.slam._problem.bucket_capacity`,
+    as a user batches sequences): stretches of one bucket share a compilation."""
     slot = {i: j for j, i in enumerate(seq.object_ids)}
     boxes, pose_idx, obj, tex = [], [], [], []
     for t, fr in enumerate(seq.frames):
@@ -197,7 +197,7 @@ def problem_of(seq, odometry, table, prior_weight=None):
         np.asarray(obj),
         list(seq.object_classes),
         np.asarray(tex),
-        capacity=CAPACITY,
+        capacity=bucket_capacity(len(seq.frames), len(boxes), len(seq.object_ids)),
         classes=table,
         odometry=odometry,
         pose_prior_weight=prior_weight,
@@ -434,11 +434,22 @@ def texture_truth(seq, stretch, records, scene):
 # The peer.
 
 
+def _stack(arrays):
+    """One array of problems of different padded sizes: each padded along its first axis to the
+    largest, masks with False and values with copies of their last row (masked out: the peer
+    reads only the real rows)."""
+    n = max(len(x) for x in arrays)
+    pad = lambda x: np.pad(
+        x, [(0, n - len(x))] + [(0, 0)] * (x.ndim - 1), mode="edge" if x.dtype != bool else "constant"
+    )
+    return np.stack([pad(x) for x in arrays])
+
+
 def run_peer(peer_python, problems, inits, cfg):
     with tempfile.TemporaryDirectory() as tmp:
         src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
-        a = lambda name, tree: np.stack([np.asarray(getattr(x, name), np.float64) for x in tree])
-        b = lambda name: np.stack([np.asarray(getattr(p, name)) for p in problems])
+        a = lambda name, tree: _stack([np.asarray(getattr(x, name), np.float64) for x in tree])
+        b = lambda name: _stack([np.asarray(getattr(p, name)) for p in problems])
         np.savez(
             src,
             K=np.asarray(problems[0].K, np.float64),
@@ -455,7 +466,7 @@ def run_peer(peer_python, problems, inits, cfg):
             box_mask=b("box_mask"),
             odometry=a("odometry", problems),
             odometry_mask=b("odometry_mask"),
-            pose_prior_weight=np.stack([np.asarray(slam_cost.prior_weight(p), np.float64) for p in problems]),
+            pose_prior_weight=_stack([np.asarray(slam_cost.prior_weight(p), np.float64) for p in problems]),
             rot_sigma=float(cfg.noise.pose_rotation_sigma),
             trans_sigma=float(cfg.noise.pose_translation_sigma),
             odo_rot_sigma=float(cfg.noise.odometry_rotation_sigma),
@@ -664,7 +675,9 @@ def main(argv=None):
         print(
             f"stretch {n} ({st.frame_ids[0]}-{st.frame_ids[-1]}, {len(seq.object_ids)} objects): "
             + ", ".join(
-                f"{k} {per[k][-1]['position_m'] * 100:.1f} cm / {per[k][-1]['iou_3d']:.2f}" for k in per if per[k]
+                f"{k} {per[k][-1]['position_m'] * 100:.1f} cm / {per[k][-1]['iou_3d']:.2f} / {per[k][-1]['ms_per_map']:.0f} ms"
+                for k in per
+                if per[k]
             ),
             flush=True,
         )
@@ -674,11 +687,12 @@ def main(argv=None):
             e = score(seq, out["rotation"][n], out["center"][n], out["radii"][n])
             errs["gtsam_quadrics"].append(e)
             per["gtsam_quadrics"].append(stretch_row(e, 1e3 * float(out["time"][n])))
+            T, J = problems_b[n].pose_prior.shape[0], problems_b[n].object_class.shape[0]  # its own padding
             figs[n][2]["gtsam_quadrics"] = slam.SlamEstimate(
-                jnp.asarray(out["poses"][n]),
-                jnp.asarray(out["rotation"][n]),
-                jnp.asarray(out["center"][n]),
-                jnp.asarray(out["radii"][n]),
+                jnp.asarray(out["poses"][n][:T]),
+                jnp.asarray(out["rotation"][n][:J]),
+                jnp.asarray(out["center"][n][:J]),
+                jnp.asarray(out["radii"][n][:J]),
             )
     systems = {}
     for k in SYSTEMS:

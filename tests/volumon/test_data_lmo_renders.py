@@ -15,6 +15,7 @@ import pytest
 
 from jaxsem import data, quadrics as Q, volumon
 from jaxsem.data import Mesh
+from jaxsem.training import ConfigMismatchError
 from jaxsem.volumon import data as vdata
 from jaxsem.volumon._configs import LMO_CLASS_NAMES, tiny_config  # layers: white-box
 from jaxsem.volumon._train import TRAIN_KEYS, init_state  # layers: white-box
@@ -166,8 +167,11 @@ def test_write_desk_detections_resumes_and_batches_are_pure_functions_of_the_ste
     assert (desk_dir / "preview_0.jpg").is_file()
     stamp = chunks[0].stat().st_mtime_ns
     models = desk_dir.parent / "models"
-    vdata.write_desk_detections(desk_dir, 4, seed=0, models_dir=models, chunk=2, progress=False)
+    cfg = DeskConfig(objects=(3, 4), distractors=(0, 1), frames_per_scene=2, distance=(0.9, 1.1))
+    vdata.write_desk_detections(desk_dir, 4, seed=0, models_dir=models, chunk=2, config=cfg, progress=False)
     assert chunks[0].stat().st_mtime_ns == stamp  # written chunks are skipped
+    with pytest.raises(ConfigMismatchError, match="config.objects"):  # not under other settings
+        vdata.write_desk_detections(desk_dir, 4, seed=0, models_dir=models, chunk=2, progress=False)
     assert vdata.is_desk_detections(desk_dir) and not vdata.is_desk_detections(models)
     det = vdata.load_desk_detections(desk_dir)
     n = len(det["box_input"])
