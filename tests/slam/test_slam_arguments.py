@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsem import slam
-from jaxsem.slam._cost import RoshanArgs, roshan_residuals
+from jaxsem.slam._cost import RoshanArgs, roshan_residuals  # layers: white-box
 
 K = np.array([[400.0, 0.0, 160.0], [0.0, 400.0, 120.0], [0.0, 0.0, 1.0]])
 
