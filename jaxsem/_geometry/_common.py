@@ -166,8 +166,13 @@ def _ellipsoid_ok(rotation, center, radii, xp: Any = jnp):
 
 
 def _intrinsics_ok(K, xp: Any = jnp):
-    """(...) bool for ``K`` (..., 3, 3): finite, with positive focal lengths ``fx``, ``fy``."""
-    return _finite(K, 2, xp) & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)
+    """(...) bool for ``K`` (..., 3, 3): finite, with positive focal lengths ``fx``, ``fy`` and
+    the zeros and one of ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` (what the eager check asks;
+    the closed forms read only the top rows, so a wrong bottom row would otherwise pass)."""
+    tol = _check_tol(K.dtype)
+    fixed = [xp.abs(K[..., 1, 0]) <= tol, xp.abs(K[..., 2, 0]) <= tol, xp.abs(K[..., 2, 1]) <= tol]
+    fixed.append(xp.abs(K[..., 2, 2] - 1.0) <= tol)
+    return _all([_finite(K, 2, xp), K[..., 0, 0] > 0, K[..., 1, 1] > 0] + fixed)
 
 
 def _pose_ok(T, xp: Any = jnp):

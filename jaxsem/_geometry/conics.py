@@ -70,16 +70,25 @@ def dual_quadric(rotation, center, radii, *, xp: Any = jnp, with_valid: bool = F
 
     Returns:
       (..., 4, 4) ``[[R diag(r^2) R^T - t t^T, -t], [-t^T, -1]]``; with ``with_valid=True``
-      also the (...) mask of :func:`ellipsoid_valid` (a negated radius gives the same matrix as
-      the positive one: only the mask tells), the matrix finite for non-finite inputs.
+      also the (...) mask of :func:`ellipsoid_valid`.
+
+    Where the ellipsoid is not valid (possible only under ``jit``: concrete arguments are checked
+    eagerly) the matrix is all zeros: finite, and no ellipsoid's, so everything downstream
+    (:func:`project_dual_conic`, then :func:`conic_bbox`'s ``valid``) reads it as invalid. A
+    negated radius would otherwise give the very matrix of the positive one (only ``r^2``
+    enters), and a scaled rotation that of another ellipsoid.
     """
     xp = _namespace(xp)
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii, xp)
-    if not with_valid:
-        return _dual_quadric_compiled(rotation, center, radii, batch, xp)
+    Qs, valid = _dual_quadric_masked_compiled(rotation, center, radii, batch, xp)
+    return (Qs, valid) if with_valid else Qs
+
+
+def _dual_quadric_masked(rotation, center, radii, batch, xp):
     valid = xp.broadcast_to(_ellipsoid_ok(rotation, center, radii, xp), batch)
     z = functools.partial(_finite_or_zero, xp=xp)
-    return _dual_quadric(z(rotation), z(center), z(radii), batch, xp), valid
+    Qs = _dual_quadric(z(rotation), z(center), z(radii), batch, xp)
+    return xp.where(valid[..., None, None], Qs, xp.zeros((), Qs.dtype)), valid
 
 
 def _dual_quadric(rotation, center, radii, batch, xp):
@@ -94,7 +103,7 @@ def _dual_quadric(rotation, center, radii, batch, xp):
     return xp.concatenate([top, bottom[..., None, :]], axis=-2)
 
 
-_dual_quadric_compiled = _eager_compiled(_dual_quadric, static_argnums=(3, 4))
+_dual_quadric_masked_compiled = _eager_compiled(_dual_quadric_masked, static_argnums=(3, 4))
 
 
 def _inverse_square_radii(radii):
@@ -156,14 +165,20 @@ def project_dual_conic(dual_quadric, K, camera_T_world, *, xp: Any = jnp):
       xp: ``jax.numpy`` (default) or ``numpy`` (host code).
 
     Returns:
-      (..., 3, 3) dual conic in pixels.
+      (..., 3, 3) dual conic in pixels. Where the camera is not valid (:func:`camera_valid`;
+      possible only under ``jit``, concrete arguments are checked eagerly) it is all zeros,
+      which :func:`conic_bbox` reads as invalid, as it does the zero matrix :func:`dual_quadric`
+      gives for an invalid ellipsoid.
     """
     xp = _namespace(xp)
     Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True, xp=xp)
     K, pose = _camera_args(K, camera_T_world, xp=xp)
     _batch_shape(dual_quadric=Qs.shape[:-2], K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    P = _camera_matrix(K, pose, xp)
-    return xp.matmul(xp.matmul(P, Qs), xp.swapaxes(P, -1, -2))
+    ok = _intrinsics_ok(K, xp) & _pose_ok(pose, xp)
+    P = _camera_matrix(_finite_or_zero(K, xp), _finite_or_zero(pose, xp), xp)
+    C = xp.matmul(xp.matmul(P, Qs), xp.swapaxes(P, -1, -2))
+    ok = xp.broadcast_to(ok, C.shape[:-2])
+    return xp.where(ok[..., None, None], C, xp.zeros((), C.dtype))
 
 
 def conic_bbox(dual_conic, *, xp: Any = jnp):

@@ -14,6 +14,7 @@ import numpy as np
 from .._checks import (
     as_float_array as _as_float_array,
     batch_shape as _batch_shape,
+    check_positive as _check_positive,
     check_rotation as _check_rotation,
     is_concrete as _is_concrete,
 )
@@ -26,6 +27,7 @@ from ._common import (
     _matvec,
     _namespace,
     _pose_ok,
+    _radii_ok,
     _safe_norm,
 )
 
@@ -154,7 +156,7 @@ def project_points(
     return uv, z
 
 
-def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
+def back_project(uv, depth, K, camera_T_world, *, with_valid: bool = False, xp: Any = jnp) -> Any:
     """World points (..., 3) at camera depth ``depth`` (z, not range) on the rays through pixels ``uv``.
 
     The inverse of :func:`project_points`: ``project_points(back_project(uv, z, K, T), K, T)``
@@ -163,6 +165,10 @@ def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
     Args:
       uv: (..., 2) pixels; depth: (...) metres along the optical axis.
       K: (..., 3, 3) intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]``; camera_T_world: (..., 4, 4).
+      with_valid: also return a (...) bool mask, False (under ``jit``: concrete arguments are
+        checked eagerly) for non-finite ``uv`` or ``depth`` and for intrinsics or a pose
+        :func:`camera_valid` refuses; the formula reads only ``K``'s top rows, so without the
+        mask a wrong bottom row gives finite points that look right.
     """
     xp = _namespace(xp)
     uv = _as_float_array("uv", uv, (2,), check_finite=True, xp=xp)
@@ -176,6 +182,13 @@ def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
     dtypes = (uv.dtype, K.dtype, pose.dtype) if scalar_depth else (uv.dtype, depth.dtype, K.dtype, pose.dtype)
     dtype = xp.result_type(*dtypes, float)
     uv, depth, K, pose = uv.astype(dtype), depth.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    valid = None
+    if with_valid:  # the mask, and finite stand-ins where it is False (values and gradients)
+        ok_k, ok_pose = _intrinsics_ok(K, xp), _pose_ok(pose, xp)
+        valid = _finite(uv, 1, xp) & xp.isfinite(depth) & ok_k & ok_pose
+        uv, depth = _finite_or_zero(uv, xp), _finite_or_zero(depth, xp)
+        K = xp.where(ok_k[..., None, None], K, xp.eye(3, dtype=dtype))
+        pose = xp.where(ok_pose[..., None, None], pose, xp.eye(4, dtype=dtype))
     fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     fy, cy = K[..., 1, 1], K[..., 1, 2]
     y = (uv[..., 1] - cy) / fy
@@ -183,7 +196,10 @@ def back_project(uv, depth, K, camera_T_world, *, xp: Any = jnp):
     p_cam = xp.stack([x * depth, y * depth, xp.broadcast_to(depth, x.shape)], -1)
     # world p = R^T (p_cam - t)
     R = pose[..., :3, :3]
-    return _matvec(xp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
+    points = _matvec(xp.swapaxes(R, -1, -2), p_cam - pose[..., :3, 3])
+    if valid is None:
+        return points
+    return points, xp.broadcast_to(valid, points.shape[:-1])
 
 
 def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
@@ -243,14 +259,22 @@ def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=
     Returns:
       ``(depth (...), ok (...))``: depth in metres, at least 1.01 times the largest semi-axis
       beyond the camera (the camera outside the object); ``ok`` False where no side of the box
-      constrains (then ``depth`` is a finite placeholder: use a default). Jittable, finite
-      gradients.
+      constrains, or (under ``jit``) where an input is bad: a non-finite box, radii not positive,
+      intrinsics or a pose :func:`camera_valid` refuses (then ``depth`` is a finite placeholder:
+      use a default). Jittable, finite gradients.
     """
     box = _as_float_array("box", box, (4,))
-    radii = _as_float_array("radii", radii, (3,))
+    radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    _check_positive("radii", radii)
     K, pose = _camera_args(K, camera_T_world)
     dtype = jnp.result_type(box.dtype, radii.dtype, K.dtype, pose.dtype, float)
     box, radii, K, pose = box.astype(dtype), radii.astype(dtype), K.astype(dtype), pose.astype(dtype)
+    # Bad inputs (possible only under jit) read ok False, computed on finite stand-ins.
+    inputs_ok = [_finite(box, 1), _radii_ok(radii), _intrinsics_ok(K), _pose_ok(pose)]
+    box = jnp.where(inputs_ok[0][..., None], box, jnp.asarray([0.0, 0.0, 1.0, 1.0], dtype))
+    radii = jnp.where(inputs_ok[1][..., None], radii, jnp.ones((), dtype))
+    K = jnp.where(inputs_ok[2][..., None, None], K, jnp.eye(3, dtype=dtype))
+    pose = jnp.where(inputs_ok[3][..., None, None], pose, jnp.eye(4, dtype=dtype))
     R = pose[..., :3, :3]
     if rotation is not None:
         R = R @ jnp.asarray(rotation, dtype)
@@ -273,7 +297,7 @@ def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=
     # Least squares of sin(a / 2) = h / range over the constraining sides, in 1 / range.
     num = wu * sin_u * hx + wv * sin_v * hy
     den = wu * hx * hx + wv * hy * hy
-    ok = (den > 0) & (num > 0)
+    ok = (den > 0) & (num > 0) & inputs_ok[0] & inputs_ok[1] & inputs_ok[2] & inputs_ok[3]
     inv_range = jnp.where(ok, num / jnp.where(ok, den, 1.0), 1.0)
     rng = 1.0 / inv_range
     rng = jnp.maximum(rng, 1.01 * jnp.max(radii, axis=-1))

@@ -37,24 +37,35 @@ from ._common import (
 # Rotations.
 
 
-def quaternion_wxyz_to_rotation(quaternion_wxyz, *, xp: Any = jnp):
+def quaternion_wxyz_to_rotation(quaternion_wxyz, *, with_valid: bool = False, xp: Any = jnp) -> Any:
     """(..., 4) quaternion ``[w, x, y, z]`` (scalar first, jaxlie's order) -> (..., 3, 3) rotation.
 
     The quaternion is normalised here; a zero quaternion maps to the identity (a documented
     convention, e.g. for a network head before training). A non-finite concrete quaternion raises
     ``ValueError``; under ``jit`` a NaN propagates to the result (never a finite-looking matrix).
+    ``with_valid=True`` returns ``(rotation, valid)``, ``valid`` (...) bool False for a
+    quaternion with no direction (zero, or a squared norm below the dtype's smallest normal
+    number) or a non-finite one, whose rotation (the identity, or NaN) means nothing.
     """
     xp = _namespace(xp)
     q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True, xp=xp)
-    return _quaternion_wxyz_to_rotation_compiled(q, xp)
+    R = _quaternion_wxyz_to_rotation_compiled(q, xp)
+    return (R, _quaternion_ok(q, xp)) if with_valid else R
 
 
-def quaternion_xyzw_to_rotation(quaternion_xyzw, *, xp: Any = jnp):
+def quaternion_xyzw_to_rotation(quaternion_xyzw, *, with_valid: bool = False, xp: Any = jnp) -> Any:
     """(..., 4) quaternion ``[x, y, z, w]`` (scalar last: ROS, scipy, FAT's ``quaternion_xyzw``)
-    -> (..., 3, 3) rotation. Same rules as :func:`quaternion_wxyz_to_rotation`."""
+    -> (..., 3, 3) rotation. Same rules and ``with_valid`` as :func:`quaternion_wxyz_to_rotation`."""
     xp = _namespace(xp)
     q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True, xp=xp)
-    return _quaternion_xyzw_to_rotation_compiled(q, xp)
+    R = _quaternion_xyzw_to_rotation_compiled(q, xp)
+    return (R, _quaternion_ok(q, xp)) if with_valid else R
+
+
+def _quaternion_ok(q, xp):
+    """(...) bool: finite, with a squared norm above the dtype's smallest normal number."""
+    squared = q[..., 0] ** 2 + q[..., 1] ** 2 + q[..., 2] ** 2 + q[..., 3] ** 2
+    return _finite(q, 1, xp) & (squared > float(np.finfo(q.dtype).tiny))
 
 
 def _quaternion_wxyz_to_rotation(q, xp: Any = jnp):
@@ -227,7 +238,9 @@ def look_at(
     failure is a ``ValueError`` naming the argument. ``with_valid=True`` returns
     ``(camera_T_world, valid)``, with ``valid`` (...) bool saying the same under ``jit``; where
     it is False the pose is the camera at the origin (``eye`` where finite) looking along the
-    world +x axis, a finite rigid transform that means nothing.
+    world +x axis, a finite rigid transform that means nothing. Without ``with_valid``, a traced
+    ``eye == target`` gives a pose whose rotation block is zero: finite, clearly no rigid
+    transform, and refused by every mask downstream (:func:`camera_valid`, :func:`project_bbox`).
     """
     xp = _namespace(xp)
     eye = _as_float_array("eye", eye, (3,), xp=xp)

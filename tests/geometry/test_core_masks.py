@@ -21,10 +21,12 @@ def test_dual_quadric_flags_what_its_matrix_cannot_show():
     Q, ok = DUAL(R, C, RADII)
     assert bool(ok)
     np.testing.assert_allclose(Q, q.dual_quadric(R, C, RADII))
-    # A negated radius gives the very same matrix (only r^2 enters): the mask is the only witness.
+    # A negated radius would give the very same matrix (only r^2 enters): the matrix of an invalid
+    # ellipsoid is zero instead, so a conic made from it reads invalid too.
     Q_neg, ok_neg = DUAL(R, C, RADII * jnp.array([-1.0, 1, 1]))
-    np.testing.assert_allclose(Q_neg, Q)
+    np.testing.assert_array_equal(Q_neg, np.zeros((4, 4)))
     assert not bool(ok_neg)
+    np.testing.assert_array_equal(jax.jit(q.dual_quadric)(R, C, -RADII), np.zeros((4, 4)))  # no mask asked
     for bad in (
         (2.0 * R, C, RADII),  # not a rotation
         (R, C.at[0].set(jnp.nan), RADII),  # NaN centre

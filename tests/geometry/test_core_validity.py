@@ -48,6 +48,10 @@ BAD = {
     "focal_zero": ("K", _set(K0, (0, 0), 0.0)),
     "focal_negative": ("K", _set(K0, (1, 1), -520.0)),
     "intrinsics_nan": ("K", _set(K0, (0, 2), _NAN)),
+    "intrinsics_bottom_one_zero": ("K", _set(K0, (2, 2), 0.0)),
+    "intrinsics_bottom_row_zero": ("K", np.vstack([K0[:2], np.zeros((1, 3))])),
+    "intrinsics_lower_left": ("K", _set(K0, (2, 0), 0.3)),
+    "intrinsics_below_fx": ("K", _set(K0, (1, 0), 5.0)),
     "pose_scaled": ("camera_T_world", np.diag([3.0, 3.0, 3.0, 1.0])),
     "pose_reflection": ("camera_T_world", np.diag([1.0, -1.0, 1.0, 1.0])),
     "pose_last_row": ("camera_T_world", _set(T0, (3, 0), 0.5)),
@@ -81,6 +85,14 @@ def _raster(R, c, r, K, T):
     return grid.astype(c.dtype), valid
 
 
+def _back(R, c, r, K, T):
+    return q.back_project(jnp.asarray([300.0, 200.0], c.dtype), c[2], K, T, with_valid=True)
+
+
+def _depth_from_box(R, c, r, K, T):
+    return q.depth_from_box_size(jnp.asarray([300.0, 200.0, 340.0, 260.0], c.dtype), K, T, r)
+
+
 def _shape(R, c, r, K, T):
     return q.shape_bbox(R, c, r, q.SHAPE_CYLINDER, K, T)
 
@@ -94,11 +106,13 @@ FUNCTIONS = {
     ),
     "cylinder_bbox": (q.cylinder_bbox, {"rotation", "center", "radii", "K", "camera_T_world"}),
     "shape_bbox": (_shape, {"rotation", "center", "radii", "K", "camera_T_world"}),
-    # Through a conic only what changes the conic can show: a NaN, a zero radius (flat) or a
-    # pose that is not rigid may; a sign flip of the radii or a scaled rotation give a valid
-    # conic of another ellipsoid, which project_bbox catches.
-    "conic_chain": (_conic_chain, {"center_nan", "radii_nan", "rotation_nan", "intrinsics_nan", "pose_nan"}),
-    "conic_outline": (_outline, {"center_nan", "radii_nan", "rotation_nan", "intrinsics_nan", "pose_nan"}),
+    # dual_quadric and project_dual_conic have no mask of their own: a bad ellipsoid or camera
+    # gives the zero matrix, which conic_bbox reads as invalid (a sign flip of the radii would
+    # otherwise give the very conic of the positive ones).
+    "conic_chain": (_conic_chain, {"rotation", "center", "radii", "K", "camera_T_world"}),
+    "conic_outline": (_outline, {"rotation", "center", "radii", "K", "camera_T_world"}),
+    "back_project": (_back, {"K", "camera_T_world"}),
+    "depth_from_box_size": (_depth_from_box, {"radii", "K", "camera_T_world"}),
     "project_points": (_points, {"center", "K", "camera_T_world"}),
     "camera_frame": (_frame, {"rotation", "center", "camera_T_world"}),
     "rotation_to_quaternion": (_quaternion, {"rotation"}),
@@ -277,3 +291,63 @@ def test_float32_conic_route_jacfwd_is_finite():
     jac = jax.jit(jax.vmap(jax.jacfwd(scalar, argnums=(0, 1, 2, 3, 4))))(*views)
     for j in jac:
         assert bool(jnp.all(jnp.isfinite(j)))
+
+
+# --------------------------------------------------------------------------------------------
+# Bad inputs that looked valid under jit: none may come back finite with valid True. Each case
+# is evaluated over random good contexts (views, ellipsoids) with the bad value put in.
+
+_RNG = np.random.default_rng(45)
+_VIEWS = _valid_views(8, seed=45)
+_K_BOTTOM_ZERO = np.vstack([K0[:2], np.zeros((1, 3))])
+
+
+def _bbox_with(arg, value):
+    def f(R, c, r, K, T):
+        args = {"rotation": R, "center": c, "radii": r, "K": K, "camera_T_world": T}
+        args[arg] = jnp.broadcast_to(jnp.asarray(value, c.dtype), args[arg].shape)
+        return args
+
+    return f
+
+
+def _chain_of(args):
+    return _conic_chain(args["rotation"], args["center"], args["radii"], args["K"], args["camera_T_world"])
+
+
+LOOKED_VALID = {
+    "project_bbox-K-bottom-row-zero": lambda *v: q.project_bbox(**_bbox_with("K", _K_BOTTOM_ZERO)(*v)),
+    "conic_chain-K-bottom-row-zero": lambda *v: _chain_of(_bbox_with("K", _K_BOTTOM_ZERO)(*v)),
+    "camera_valid-K-bottom-row-zero": lambda R, c, r, K, T: (K, q.camera_valid(jnp.asarray(_K_BOTTOM_ZERO), T)),
+    "project_points-K-bottom-row-zero": lambda R, c, r, K, T: q.project_points(
+        c, jnp.asarray(_K_BOTTOM_ZERO, c.dtype), T, with_valid=True
+    )[::2],
+    "back_project-K-bottom-row-zero": lambda R, c, r, K, T: q.back_project(
+        jnp.asarray([300.0, 200.0], c.dtype), 2.0, jnp.asarray(_K_BOTTOM_ZERO, c.dtype), T, with_valid=True
+    ),
+    "conic_chain-negative-radii": lambda R, c, r, K, T: _conic_chain(R, c, -r, K, T),
+    "conic_chain-one-negative-radius": lambda R, c, r, K, T: _conic_chain(R, c, r * jnp.array([1.0, -1.0, 1.0]), K, T),
+    "conic_chain-scaled-rotation": lambda R, c, r, K, T: _conic_chain(2.0 * R, c, r, K, T),
+    "conic_outline-negative-radii": lambda R, c, r, K, T: _outline(R, c, -r, K, T),
+    "rasterize_footprint-nan-centre": lambda R, c, r, K, T: _raster(R, c.at[0].set(jnp.nan), r, K, T),
+    "look_at-eye-on-target": lambda R, c, r, K, T: q.look_at(c, c, with_valid=True),
+    "quaternion_wxyz-zero": lambda R, c, r, K, T: q.quaternion_wxyz_to_rotation(jnp.zeros(4, c.dtype), with_valid=True),
+    "quaternion_xyzw-zero": lambda R, c, r, K, T: q.quaternion_xyzw_to_rotation(jnp.zeros(4, c.dtype), with_valid=True),
+    "quaternion-nan": lambda R, c, r, K, T: q.quaternion_wxyz_to_rotation(
+        jnp.asarray([jnp.nan, 0.0, 0.0, 1.0], c.dtype), with_valid=True
+    ),
+    "nearest_rotation-reflection": lambda R, c, r, K, T: q.nearest_rotation(-R, with_valid=True),
+    "nearest_rotation-zeros": lambda R, c, r, K, T: q.nearest_rotation(0.0 * R, with_valid=True),
+    "depth_from_box_size-K-bottom-row-zero": lambda R, c, r, K, T: q.depth_from_box_size(
+        jnp.asarray([300.0, 200.0, 340.0, 260.0], c.dtype), jnp.asarray(_K_BOTTOM_ZERO, c.dtype), T, r
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(LOOKED_VALID))
+def test_bad_input_under_jit_never_comes_back_finite_and_valid(case):
+    f = jax.jit(jax.vmap(LOOKED_VALID[case]))
+    value, valid = f(*(jnp.asarray(x) for x in _VIEWS))
+    valid = np.asarray(valid).reshape(len(_VIEWS[0]), -1).all(-1)
+    finite = np.asarray(jnp.isfinite(value)).reshape(len(_VIEWS[0]), -1).all(-1)
+    assert not np.any(finite & valid), f"{case}: finite and valid in {int(np.sum(finite & valid))} of {len(valid)}"
