@@ -249,8 +249,8 @@ def _run(args) -> int:
         start, goal = np.asarray(args.start), np.asarray(args.goal)
     sampler = None
     if args.sampler != "uniform":
-        model, params, _, _ = load_model(args.checkpoint)
-        sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix)
+        model, params, _, meta = load_model(args.checkpoint)
+        sampler = LSDSampler(model, params, uniform_mix=args.uniform_mix, cell_size=meta["cell_size"])
     names = {"both": ["uniform", "lsd"], "lsd": ["lsd"], "uniform": ["uniform"]}[args.sampler]
     key = jax.random.PRNGKey(args.seed)
     cfg = sc.apply_config_flags(NAV_BASE, args, CONFIG_FLAGS)
