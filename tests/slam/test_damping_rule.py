@@ -1,0 +1,142 @@
+"""Issue 45 item 13: the Levenberg-Marquardt damping rule as a unit.
+
+A rule that never lowers lambda still converges on the suite's small problems (only more
+slowly), so the solver tests alone catch it by a hair. Here the rule itself: after an accepted
+trial (a finite step that lowers the cost) the damping goes down, after a rejected one it goes
+up, non-finite trials are rejected, the damping stays positive, and the search the solver runs
+(:class:`DampingSearch`) keeps the damping on its first step and fails past ``lambda_max``. And the
+damped step those trials take (:func:`damped_schur_step`) against the damped normal equations
+solved densely: a step damped on the wrong blocks still converges to the same optimum.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+from jaxsem.slam._cost import Normal  # layers: white-box
+from jaxsem.slam._schur import DampingSearch, damped_schur_step, damping_search  # layers: white-box
+
+LAMS = [1e-9, 1e-3, 1.0, 1e4]
+
+
+@pytest.mark.parametrize("lam", LAMS)
+def test_an_accepted_step_lowers_the_damping(lam):
+    for cost, new in ((10.0, 9.0), (1.0, 1.0 - 1e-12), (5.0, 0.0)):
+        accept, new_lam = damping_search(jnp.asarray(cost), jnp.asarray(new), jnp.asarray(lam), jnp.asarray(True))
+        assert bool(accept)
+        assert 0 < float(new_lam) < lam
+
+
+@pytest.mark.parametrize("lam", LAMS)
+def test_a_rejected_step_raises_the_damping(lam):
+    cases = [
+        (10.0, 11.0, True),  # higher cost
+        (10.0, 10.0, True),  # no decrease
+        (10.0, float("nan"), True),  # the trial's cost is NaN
+        (10.0, float("inf"), True),
+        (10.0, 1.0, False),  # lower, but the step itself was not finite
+    ]
+    for cost, new, finite in cases:
+        accept, new_lam = damping_search(jnp.asarray(cost), jnp.asarray(new), jnp.asarray(lam), jnp.asarray(finite))
+        assert not bool(accept), (cost, new, finite)
+        assert float(new_lam) > lam, (cost, new, finite)
+
+
+def test_the_damping_stays_positive_and_moves_both_ways():
+    """Accepting many steps never drives the damping to zero; alternating accepts and rejects
+    moves it down then up again (neither direction is a no-op)."""
+    lam = jnp.asarray(1e-3)
+    for _ in range(100):
+        _, lam = damping_search(jnp.asarray(2.0), jnp.asarray(1.0), lam, jnp.asarray(True))
+    assert float(lam) > 0
+    lam = jnp.asarray(1e-3)
+    seen = []
+    for accept in (True, False, True, False):
+        new = 1.0 if accept else 3.0
+        _, lam = damping_search(jnp.asarray(2.0), jnp.asarray(new), lam, jnp.asarray(True))
+        seen.append(float(lam))
+    assert seen[0] < 1e-3 < seen[1] and seen[2] < seen[1] and seen[3] > seen[2]
+
+
+def test_the_search_keeps_the_damping_on_its_first_step_and_fails_past_its_limit():
+    search = DampingSearch(lambda_init=1e-2, lambda_max=1e3)
+    state = search.init(jnp.zeros(3), None)
+    assert float(state.lam) == pytest.approx(1e-2)
+    cost = optx.FunctionInfo.Eval(jnp.asarray(2.0))
+    lower, higher = optx.FunctionInfo.Eval(jnp.asarray(1.0)), optx.FunctionInfo.Eval(jnp.asarray(3.0))
+    y = jnp.zeros(3)
+    # the first step is always accepted, at the initial damping
+    lam, accept, result, state = search.step(jnp.asarray(True), y, y, cost, higher, state)
+    assert bool(accept) and float(lam) == pytest.approx(1e-2) and result == optx.RESULTS.successful
+    # then the rule: down after an accepted trial, up after a rejected one
+    lam_down, accept, _, down = search.step(jnp.asarray(False), y, y, cost, lower, state)
+    assert bool(accept) and float(lam_down) < 1e-2 and float(down.lam) == float(lam_down)
+    lam_up, accept, _, up = search.step(jnp.asarray(False), y, y, cost, higher, state)
+    assert not bool(accept) and float(lam_up) > 1e-2 and float(up.lam) == float(lam_up)
+    # rejected until the damping passes lambda_max: then the search fails
+    results = []
+    for _ in range(8):
+        _, _, result, up = search.step(jnp.asarray(False), y, y, cost, higher, up)
+        results.append(result == optx.RESULTS.successful)
+        if not results[-1]:
+            break
+    assert not results[-1] and float(up.lam) > 1e3
+    assert all(results[:-1])
+    np.testing.assert_array_less(0.0, np.asarray(up.lam))
+
+
+def _structured_system(seed, odometry):
+    """Dense ``H = J^T J``, ``g = J^T r`` of a random Jacobian shaped like ROSHAN's (3 poses of 6
+    columns, then 2 objects of 9; rows on one pose, on one object, on a pose and an object, and
+    with ``odometry`` on consecutive poses), and the same system as block normal equations."""
+    rng = np.random.default_rng(seed)
+    T, J = 3, 2
+    pose = [np.arange(6 * t, 6 * t + 6) for t in range(T)]
+    obj = [np.arange(6 * T + 9 * j, 6 * T + 9 * j + 9) for j in range(J)]
+    groups = [[p] for p in pose] + [[o] for o in obj] + [[p, o] for p in pose for o in obj]
+    if odometry:
+        groups += [[pose[t], pose[t + 1]] for t in range(T - 1)]
+    rows = []
+    for cols in groups:
+        block = np.zeros((4, 6 * T + 9 * J))
+        for c in cols:
+            block[:, c] = rng.normal(size=(4, len(c)))
+        rows.append(block)
+    jac = np.concatenate(rows)
+    H, g = jac.T @ jac, jac.T @ rng.normal(size=jac.shape[0])
+    Hpp_next = None
+    if odometry:
+        Hpp_next = jnp.asarray(np.stack([H[np.ix_(pose[t], pose[t + 1])] for t in range(T - 1)] + [np.zeros((6, 6))]))
+    normal = Normal(
+        jnp.asarray(np.stack([H[np.ix_(p, p)] for p in pose])),
+        jnp.asarray(np.stack([H[np.ix_(o, o)] for o in obj])),
+        jnp.asarray(np.stack([np.stack([H[np.ix_(p, o)] for o in obj]) for p in pose])),
+        jnp.asarray(np.stack([g[p] for p in pose])),
+        jnp.asarray(np.stack([g[o] for o in obj])),
+        jnp.asarray(0.0),
+        Hpp_next,
+    )
+    return H, g, normal
+
+
+@pytest.mark.parametrize(
+    "odometry, pose_free, obj_free",
+    [(False, [1.0, 1.0, 1.0], [True, True]), (True, [1.0, 0.0, 1.0], [False, True])],
+)
+def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_free, obj_free):
+    """The Schur step (poses eliminated, per-block damping, held variables kept at zero) against
+    ``(H + lam (diag(H) + 1e-9)) x = -g`` solved densely over the free variables."""
+    H, g, normal = _structured_system(int(odometry), odometry)
+    lam = 0.3
+    dp, do = jax.jit(damped_schur_step)(normal, lam, jnp.asarray(pose_free), jnp.asarray(obj_free))
+    free = np.concatenate([np.repeat(np.asarray(pose_free) > 0, 6), np.repeat(obj_free, 9)])
+    damped = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(g)))
+    want = np.zeros(len(g))
+    want[free] = np.linalg.solve(damped[np.ix_(free, free)], -g[free])
+    got = np.concatenate([np.asarray(dp).ravel(), np.asarray(do).ravel()])
+    np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.max(np.abs(want)))
+    # the damping matters here: the undamped step is another one
+    undamped = np.linalg.solve(H[np.ix_(free, free)], -g[free])
+    assert np.max(np.abs(undamped - want[free])) > 1e-3 * np.max(np.abs(want))
