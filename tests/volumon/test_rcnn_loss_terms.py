@@ -1,0 +1,95 @@
+"""Issue 45 item 13: the detect-and-lift network's loss (``rcnn_loss``) with every weight on.
+
+Its VoluMon part (the stereo box term and the size consistency) is summed apart from
+:func:`jaxsem.volumon.volumon_loss`, and only slow tests ran it: a size term added with the
+wrong sign, or the right camera scored against the left label, went unseen. One jitted
+evaluation on a hand-made forward pass (random heads, the RoIs on the labelled boxes) checks
+the total against its weighted terms, with and without the VoluMon terms, and that each
+camera's label box moves the stereo term.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem.models._rcnn import RCNNConfig, RCNNOutput, anchors  # layers: white-box
+from jaxsem.volumon.rcnn import RCNNLossConfig, rcnn_batch, rcnn_loss
+
+TINY = RCNNConfig(
+    num_classes=3,
+    input_size=(128, 96),
+    backbone="plain_cnn",
+    cnn_width=8,
+    anchor_sizes=(16.0, 32.0, 48.0),
+    pre_nms=100,
+    proposals=16,
+    hidden=64,
+    max_detections=8,
+)
+# every weight on, none of them 1
+LOSS = RCNNLossConfig(rpn=0.7, classification=1.3, box=0.9, dual=1.7, size=2.3)
+_loss = jax.jit(rcnn_loss, static_argnums=(2, 3))  # one compile
+
+
+def _object(c, box, z):
+    box = np.asarray(box, float)
+    d = 120.0 * 0.06 / z  # the disparity of a rectified pair, 6 cm apart
+    return {
+        "class_name": "abc"[c],
+        "visible_box": box,
+        "box_left": box,
+        "box_right": box - [d, 0, d, 0],
+        "rotation": np.eye(3),
+        "center": np.array([0.0, 0.0, z]),
+        "radii": np.full(3, 0.05),
+    }
+
+
+@pytest.fixture(scope="module")
+def setup():
+    K = np.array([[120.0, 0, 64], [0, 120, 48], [0, 0, 1]])
+    image = np.zeros((96, 128, 3), np.uint8)
+    frames = [
+        {"rgb": image, "K": K, "objects": [_object(0, [20, 20, 50, 60], 0.8), _object(0, [70, 30, 100, 70], 1.0)]},
+        {"rgb": image, "K": K, "objects": [_object(1, [30, 10, 70, 50], 0.9), _object(1, [80, 40, 110, 80], 0.7)]},
+    ]
+    batch = rcnn_batch(frames, TINY, ["a", "b", "c"], 4)
+    rng = np.random.default_rng(0)
+    B, A, R, N = 2, len(anchors(TINY)), TINY.proposals, TINY.num_classes
+    rois = np.tile([[10.0, 10, 40, 40]], (B, R, 1)) + rng.uniform(0, 40, (B, R, 1))
+    rois[:, :4] = np.asarray(batch["boxes"])  # each labelled object has its RoI: all foreground
+    f32 = lambda x: jnp.asarray(x, jnp.float32)
+    out = RCNNOutput(
+        f32(rng.normal(size=(B, A))),
+        f32(rng.normal(size=(B, A, 4)) * 0.1),
+        f32(rois),
+        jnp.ones((B, R), bool),
+        f32(rng.normal(size=(B, R, N + 1))),
+        f32(rng.normal(size=(B, R, 4)) * 0.1),
+        f32(rng.normal(size=(B, R, N, 10)) * 0.3),
+    )
+    return out, batch
+
+
+@pytest.mark.parametrize("volumon_on", [0.0, 1.0])
+def test_the_total_is_the_weighted_sum_of_its_terms(setup, volumon_on):
+    out, batch = setup
+    total, t = _loss(out, batch, TINY, LOSS, jnp.float32(volumon_on))
+    assert min(float(t[k]) for k in ("rpn_cls", "rpn_box", "cls", "box", "dual")) > 1e-3
+    assert float(t["size"]) > LOSS.volumon.eps_v + 1e-3  # the two members of a class differ in size
+    detection = LOSS.rpn * (t["rpn_cls"] + t["rpn_box"]) + LOSS.classification * t["cls"] + LOSS.box * t["box"]
+    want = detection + volumon_on * (LOSS.dual * t["dual"] + LOSS.size * t["size"])
+    np.testing.assert_allclose(total, want, rtol=1e-6)
+    np.testing.assert_allclose(t["total"], total, rtol=1e-7)
+
+
+@pytest.mark.parametrize("camera", ["left", "right"])
+def test_each_cameras_label_moves_the_stereo_term(setup, camera):
+    out, batch = setup
+    _, t = _loss(out, batch, TINY, LOSS, jnp.float32(1.0))
+    key = f"box_{camera}"
+    moved = {**batch, key: batch[key] + jnp.asarray([5.0, 0.0, 5.0, 0.0], batch[key].dtype)}
+    _, t2 = _loss(out, moved, TINY, LOSS, jnp.float32(1.0))
+    assert abs(float(t2["dual"]) - float(t["dual"])) > 1e-3 * float(t["dual"])
+    np.testing.assert_allclose(t2["size"], t["size"], rtol=1e-7)  # the labels do not enter the size term
