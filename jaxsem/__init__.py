@@ -43,6 +43,13 @@ from .quadrics import (
 
 __version__ = "0.1.0"
 
+# JAX's persistent compilation cache for library calls too (``~/.cache/jaxsem/jax``,
+# ``$JAXSEM_CACHE_DIR``; ``JAXSEM_NO_COMPILATION_CACHE=1`` or a cache folder of the user's own
+# leaves JAX's setting alone): see :mod:`jaxsem._cache`.
+from ._cache import library_default as _library_cache
+
+_library_cache()
+
 _SUBPACKAGES = (
     "classes",
     "metrics",

@@ -19,19 +19,16 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
-import os
 import pathlib
 import shlex
 import sys
 from collections.abc import Callable, Sequence
 
-import jax
-
 from jaxsem import scripting as sc
+from jaxsem._cache import NO_CACHE_ENV as NO_CACHE_ENV, enable_compilation_cache as enable_compilation_cache
 from jaxsem.scripting import run_main
 
 DEMO_PARTS = ("geometry", "roshan", "volumon", "lsd")
-NO_CACHE_ENV = "JAXSEM_NO_COMPILATION_CACHE"
 
 # (words, module in jaxsem._commands, one line for `jaxsem --help`). The modules are imported only
 # when their command runs, so `jaxsem --help` stays fast.
@@ -86,29 +83,6 @@ GROUPS = {
     "volumon": "VoluMon: image + box -> 3D ellipsoid (train, predict, detect, eval, export)",
     "lsd": "LSD: learned sampling distributions for PRM planning (data, train, plan)",
 }
-
-
-def enable_compilation_cache(cache_dir: str | None = None, enabled: bool | None = None) -> str | None:
-    """Turns on JAX's persistent compilation cache (compile time is part of the user's wait);
-    returns its folder, or None when it is off.
-
-    The folder is ``cache_dir``, else ``$JAXSEM_CACHE_DIR``, else ``~/.cache/jaxsem/jax``.
-    ``enabled=False`` (``--no-compilation-cache``) turns it off instead, as does
-    ``JAXSEM_NO_COMPILATION_CACHE=1`` when ``enabled`` is None.
-    """
-    if enabled is None:
-        enabled = os.environ.get(NO_CACHE_ENV, "") not in ("1", "true", "yes")
-    if not enabled:
-        jax.config.update("jax_compilation_cache_dir", None)
-        return None
-    cache_dir = cache_dir or os.environ.get("JAXSEM_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "jaxsem" / "jax"))
-    try:
-        jax.config.update("jax_compilation_cache_dir", cache_dir)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
-    except Exception as exc:  # an old jax without the option: run uncached
-        print(f"jaxsem: compilation cache disabled ({exc})", file=sys.stderr)
-        return None
-    return cache_dir
 
 
 def command(name: str, prog: str | None = None) -> Callable[..., int]:

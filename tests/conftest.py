@@ -142,9 +142,9 @@ def run_cli(capsys):
         try:
             status = cli.main(argv)
         except SystemExit as exc:
-            if isinstance(exc.code, str):  # Python prints the message and exits 1
+            if isinstance(exc.code, str):  # a message about the input: exit status 2 (run_main's rule)
                 print(exc.code, file=sys.stderr)
-                status = 1
+                status = 2
             else:
                 status = exc.code or 0
         out, err = capsys.readouterr()

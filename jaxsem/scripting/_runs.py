@@ -225,11 +225,11 @@ def _exit_message(exc: BaseException) -> tuple[int, str | None]:
             return 0, None
         if isinstance(exc.code, int):
             return exc.code, None
-        return 1, " ".join(str(exc.code).split())
+        return 2, " ".join(str(exc.code).split())  # a command's message about its input: run_main's rule
     if isinstance(exc, KeyboardInterrupt):
         return 130, "interrupted"
     if isinstance(exc, _EXPECTED):
-        return 2, _one_line(exc)
+        return int(getattr(exc, "exit_status", 2)), _one_line(exc)
     return 1, f"{type(exc).__name__}: {_one_line(exc)}"
 
 

@@ -296,3 +296,18 @@ def test_every_subcommand_runs_to_the_end_and_records_it(tmp_path, run_cli):
     )
     assert summary["results"]["uniform"]["steps"] <= 20 and summary["figures"] == [str(o / "plan.png")]
     assert all(pathlib.Path(p).exists() for p in summary["figures"])
+
+
+def test_library_calls_use_the_compilation_cache_unless_told_not_to(tmp_path, monkeypatch):
+    from jaxsem._cache import library_default  # what `import jaxsem` runs
+
+    monkeypatch.setenv("JAXSEM_CACHE_DIR", str(tmp_path / "cache"))
+    jax.config.update("jax_compilation_cache_dir", None)
+    assert library_default() == str(tmp_path / "cache")
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "cache")
+    # A folder the user chose is kept; the environment switch leaves JAX's setting alone.
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "mine"))
+    assert library_default() == str(tmp_path / "mine")
+    jax.config.update("jax_compilation_cache_dir", None)
+    monkeypatch.setenv(cli.NO_CACHE_ENV, "1")
+    assert library_default() is None and jax.config.jax_compilation_cache_dir is None
