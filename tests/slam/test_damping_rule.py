@@ -6,7 +6,8 @@ trial (a finite step that lowers the cost) the damping goes down, after a reject
 up, non-finite trials are rejected, the damping stays positive, and the search the solver runs
 (:class:`DampingSearch`) keeps the damping on its first step and fails past ``lambda_max``. And the
 damped step those trials take (:func:`damped_schur_step`) against the damped normal equations
-solved densely: a step damped on the wrong blocks still converges to the same optimum.
+solved densely: a step damped on the wrong blocks still converges to the same optimum. Last, a
+whole solve: the damping it ends with follows from its accepted and rejected trial counts.
 """
 
 import jax
@@ -15,8 +16,9 @@ import numpy as np
 import optimistix as optx
 import pytest
 
+from jaxsem.slam import SchurLevenbergMarquardt
 from jaxsem.slam._cost import Normal  # layers: white-box
-from jaxsem.slam._schur import DampingSearch, damped_schur_step, damping_search  # layers: white-box
+from jaxsem.slam._schur import DampingSearch, SchurStructure, damped_schur_step, damping_search  # layers: white-box
 
 LAMS = [1e-9, 1e-3, 1.0, 1e4]
 
@@ -140,3 +142,38 @@ def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_fre
     # the damping matters here: the undamped step is another one
     undamped = np.linalg.solve(H[np.ix_(free, free)], -g[free])
     assert np.max(np.abs(undamped - want[free])) > 1e-3 * np.max(np.abs(want))
+
+
+def _planar(y, args):
+    """Three planar poses (x, y, theta) and two point landmarks: each landmark in each pose's
+    frame against its measurement, pose priors and a weak landmark prior."""
+    poses, landmarks = y
+    p = poses[args["pose"]]
+    c, s = jnp.cos(p[:, 2]), jnp.sin(p[:, 2])
+    d = landmarks[args["landmark"]] - p[:, :2]
+    local = jnp.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1)
+    return (local - args["z"]) / 0.05, (poses - args["prior"]) / 0.1, 0.01 * (landmarks - args["l0"])
+
+
+def test_the_solvers_damping_follows_its_accepted_and_rejected_trials():
+    """Over a whole solve the damping the solver ends with is the initial one times 0.3 per
+    accepted trial and 10 per rejected one (the counts the solver reports): the rule's update is
+    carried from one iteration to the next, not reset."""
+    rng = np.random.default_rng(0)
+    pose_i, landmark_i = (x.ravel() for x in np.meshgrid(np.arange(3), np.arange(2), indexing="ij"))
+    true_p = np.stack([np.arange(3.0), rng.normal(0, 0.3, 3), rng.normal(0, 0.2, 3)], -1)
+    true_l = np.array([[0.5, 2.0], [2.0, 3.0]])
+    c, s = np.cos(true_p[pose_i, 2]), np.sin(true_p[pose_i, 2])
+    d = true_l[landmark_i] - true_p[pose_i, :2]
+    z = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1) + rng.normal(0, 0.02, d.shape)
+    args = {"pose": pose_i, "landmark": landmark_i, "z": z, "prior": true_p + rng.normal(0, 0.05, true_p.shape)}
+    args["l0"] = true_l + [3.0, -2.0]  # far: a Gauss-Newton step overshoots
+    y0 = (jnp.asarray(args["prior"]), jnp.asarray(args["l0"]))
+    solver = SchurLevenbergMarquardt(
+        1e-12, 1e-14, lambda a: SchurStructure(jnp.asarray(a["pose"]), jnp.asarray(a["landmark"])), lambda_init=1e-4
+    )
+    sol = optx.least_squares(_planar, solver, y0, args, throw=False)
+    accepted, trials = int(sol.stats["accepted"]), int(sol.stats["trials"])
+    assert accepted >= 3 and trials > accepted  # some steps down and some up
+    want = 1e-4 * 0.3**accepted * 10.0 ** (trials - accepted)
+    np.testing.assert_allclose(sol.state.search_state.lam, want, rtol=1e-9)
