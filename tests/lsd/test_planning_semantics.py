@@ -285,7 +285,7 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     assert mod.main(run_argv) == 0
     result = json.loads(out.read_text())
     assert "success_lsd_blocked" in result["summary"]["II-60"]
-    records = [json.loads(x) for x in pathlib.Path(result["records"]).read_text().splitlines()]
+    records = read_records(result["records"])
     assert len(records) == 2
     for r in records:
         assert r["lsd_blocked"]["plans"] <= r["lsd"]["plans"]
@@ -314,7 +314,7 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
         *("--euclid", "--unknown-weight", "3", "--reuse-base", str(out)),
     ]
     assert mod.main([*argv2, "--json", str(more), "--no-progress"]) == 0
-    joined = [json.loads(x) for x in (tmp_path / "more.records.jsonl").read_text().splitlines()]
+    joined = read_records(tmp_path / "more.records.jsonl")
     rows = {"uniform", "lsd", "lsd_blocked", "lsd_euclid", "uniform_unk", "lsd_unk"}
     assert len(joined) == 2 and all(rows <= set(r) for r in joined)
     assert [r["lsd"] for r in joined] == [r["lsd"] for r in records]  # taken, not run again
