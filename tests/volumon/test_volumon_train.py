@@ -73,6 +73,24 @@ def test_box_outside_image_and_invisible_object_are_skipped():
         assert np.all(np.isfinite(np.asarray(b[k]))), k
 
 
+def test_each_stereo_label_is_the_object_seen_from_its_own_camera():
+    """Issue 45 item 13: ``box_left`` / ``box_right`` against the true object's box in each
+    camera, the right one written out by hand (``baseline`` along the left camera's +x); a label
+    made with the other camera's pose trains the dual loss on a wrong stereo pair. The batch of
+    the test above (the same arguments: no new compile)."""
+    scene = SceneConfig(height=48, width=64, focal=55.0, num_points=8, depth_range=(0.3, 0.32))
+    b = make_batch(0, np.arange(8), scene, input_size=32)
+    right = np.eye(4, dtype=np.float32)
+    right[0, 3] = -scene.baseline
+    args = (b["gt_rotation"], b["gt_center"], b["gt_half_extents"], b["gt_shape_id"], b["K"][0])
+    project = jax.jit(quadrics.shape_bbox)  # one compile for both cameras (eager: 5 times slower)
+    for key, pose in (("box_left", np.eye(4, dtype=np.float32)), ("box_right", right)):
+        want, _ = project(*args, pose)
+        np.testing.assert_allclose(b[key], want, atol=1e-3, err_msg=key)
+    shift = np.asarray(b["box_left"])[:, 0] - np.asarray(b["box_right"])[:, 0]  # about f b / z
+    np.testing.assert_allclose(shift, 55.0 * scene.baseline / np.asarray(b["gt_center"])[:, 2], rtol=0.3)
+
+
 def _ellipsoid_batch(n=6):
     scene = SceneConfig(height=48, width=64, focal=55.0, classes=(1, 2), num_points=64, depth_range=(0.45, 0.8))
     b = make_batch(5, np.arange(n), scene, input_size=32)
