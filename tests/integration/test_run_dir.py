@@ -299,7 +299,7 @@ def test_every_subcommand_runs_to_the_end_and_records_it(tmp_path, run_cli):
 
 
 def test_library_calls_use_the_compilation_cache_unless_told_not_to(tmp_path, monkeypatch):
-    from jaxsem._cache import library_default  # what `import jaxsem` runs
+    from jaxsem._cache import library_default  # layers: white-box (what `import jaxsem` runs)
 
     monkeypatch.setenv("JAXSEM_CACHE_DIR", str(tmp_path / "cache"))
     jax.config.update("jax_compilation_cache_dir", None)
