@@ -37,6 +37,9 @@ _PIL_LIMIT_LOCK = threading.Lock()
 #: 2**26 = 67,108,864 cells, 8192 x 8192 (819 m square at 0.1 m). The planner's grids and the
 #: semantics' work arrays are a few bytes per cell each, so a map within it fits a few GB.
 MAX_CELLS = 2**26
+#: Default element budget of an ``.npz`` read (a model's weights, a data shard): 2**30 array
+#: elements in all (1 GiB as bytes, 8 GiB as float64); the shipped models hold a few million.
+MAX_NPZ_ELEMENTS = 2**30
 #: Default byte budget of a JSON file (a BOP data set's largest ``scene_gt.json`` is tens of MB).
 MAX_JSON_BYTES = 2**28
 
@@ -126,6 +129,23 @@ def npz_shapes(path) -> dict[str, tuple[int, ...]]:
                     shapes[name[: -len(".npy")]] = tuple(int(n) for n in read(f)[0])
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
+    return shapes
+
+
+def check_npz(path, *, max_elements: int = MAX_NPZ_ELEMENTS, argument: str = "max_elements") -> dict:
+    """The declared shapes of an ``.npz`` (:func:`npz_shapes`), after checking that their elements
+    add up to at most ``max_elements``: ``ValueError`` naming the file, the largest array, the
+    total and the argument otherwise, before anything is inflated."""
+    budget = check_budget(argument, max_elements)
+    shapes = npz_shapes(path)
+    sizes = {k: int(np.prod(v, dtype=np.int64)) if v else 1 for k, v in shapes.items()}
+    total = sum(sizes.values())
+    if total > budget:
+        big = max(sizes, key=lambda k: sizes[k])
+        raise ValueError(
+            f"{path}: declares {total:,} array elements (the largest, {big!r}, {shapes[big]}), "
+            f"more than {argument}={budget:,}"
+        )
     return shapes
 
 

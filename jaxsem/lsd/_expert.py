@@ -51,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._atomic import atomic_save_npz
+from .._files import check_npz
 from ..planning import (
     CROP_SIZE,
     DEFAULT_RESOLUTION,
@@ -402,6 +403,7 @@ def _read_shard(p: pathlib.Path) -> dict:
             if f.read(4) != b"PK\x03\x04":
                 raise ValueError(f"{p}: not a readable expert shard (not an .npz archive)")
             f.seek(0)
+            check_npz(p)  # the declared sizes within budget before anything is inflated
             with np.load(f) as z:
                 missing = [k for k in keys if k not in z.files]
                 if missing:

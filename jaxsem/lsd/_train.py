@@ -44,6 +44,7 @@ import numpy as np
 import optax
 
 from .. import parallel
+from .._files import check_npz
 from ..checkpoint import Checkpointer, CheckpointError, latest_step
 from ..models import LSDConfig, LSDNet, init_lsd, lsd_nll, split_params
 from ..planning import DEFAULT_RESOLUTION
@@ -707,6 +708,7 @@ def load_model_file(path):
     path = pathlib.Path(path)
     if not path.exists():
         raise ValueError(f"path: no such model file {str(path)!r}")
+    check_npz(path)  # the declared sizes within budget before anything is inflated
     with np.load(path) as z:
         if "config_json" not in z:
             raise ValueError(f"path: {str(path)!r} is not an exported LSD model (no config_json)")

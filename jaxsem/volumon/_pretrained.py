@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._files import read_json
+from .._files import check_npz, read_json
 from ..checkpoint import latest_step
 from ..quadrics import Ellipsoid
 from ..training import LoadedModel, read_run_config
@@ -134,6 +134,7 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
     if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
         raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
     config = config_from_dict(meta["config"])
+    check_npz(p)  # the declared sizes within budget before anything is inflated
     with np.load(p) as z:
         variables = _unflatten({k: z[k] for k in z.files})
     model = _model_and_init(config.model, config.learning_rate)[0]  # the module only: nothing compiles

@@ -55,6 +55,7 @@ import numpy as np
 import optax
 
 from .. import metrics
+from .._files import check_npz, read_json
 from ..checkpoint import latest_step, restore_checkpoint
 from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
 from ..quadrics import box_iou
@@ -475,8 +476,11 @@ def load_rcnn(path=None) -> LoadedModel:
     meta_path = p.with_suffix(".json")
     if not p.is_file() or not meta_path.is_file():
         raise ValueError(f"model: no exported R-CNN at {p} (expected {p.name} and {meta_path.name})")
-    meta = json.loads(meta_path.read_text())
+    meta = read_json(meta_path, "model description")
+    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+        raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
     config = rcnn_config_from_dict(meta["config"])
+    check_npz(p)  # the declared sizes within budget before anything is inflated
     with np.load(p) as z:
         flat = {k: z[k] for k in z.files}
     variables: dict = {}
