@@ -242,7 +242,10 @@ def _run(args) -> int:
     if args.start is None or args.goal is None:
         if args.map:
             raise SystemExit("--start/--goal: required with --map")
-        task = sample_tasks(world, args.kind, 1, args.seed)[0]
+        tasks = sample_tasks(world, args.kind, 1, args.seed)
+        if not tasks:  # sample_tasks has warned why (no free cell, no pair within the bounds)
+            raise SystemExit(f"--building/--kind: no {args.kind} task found in this building; give --start and --goal")
+        task = tasks[0]
         start, goal, yaw = task.start, task.goal, task.yaw0
         print(f"task {args.kind}: start {start.round(2).tolist()} goal {goal.round(2).tolist()} C* {task.c_star:.1f} m")
     else:
