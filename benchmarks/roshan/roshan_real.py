@@ -686,7 +686,9 @@ def main(argv=None):
         for n, seq in enumerate(seqs):
             e = score(seq, out["rotation"][n], out["center"][n], out["radii"][n])
             errs["gtsam_quadrics"].append(e)
-            per["gtsam_quadrics"].append(stretch_row(e, 1e3 * float(out["time"][n])))
+            per["gtsam_quadrics"].append(
+                {**stretch_row(e, 1e3 * float(out["time"][n])), "steps": int(out["iterations"][n])}
+            )
             T, J = problems_b[n].pose_prior.shape[0], problems_b[n].object_class.shape[0]  # its own padding
             figs[n][2]["gtsam_quadrics"] = slam.SlamEstimate(
                 jnp.asarray(out["poses"][n][:T]),
