@@ -62,6 +62,7 @@ import jax
 import numpy as np
 
 from ._files import read_json
+from ._process import process_alive as _alive, process_start as _proc_start
 from .checkpoint import Checkpointer, CheckpointError
 
 _Config = TypeVar("_Config")
@@ -108,35 +109,6 @@ class WorkdirLockedError(ValueError):
 
 
 LOCK_NAME = "train.lock"
-
-
-def _proc_start(pid: int) -> int | None:
-    """The start time of process ``pid`` in clock ticks since boot (Linux ``/proc``), else None."""
-    try:
-        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
-        return int(stat.rsplit(")", 1)[1].split()[19])  # field 22; the name in (...) may hold spaces
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _alive(pid: int, proc_start: Any = None) -> bool:
-    """Whether process ``pid`` of this host is running (and is the one that wrote the lock, when
-    its start time was recorded: a reused pid is not the holder)."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # it exists, owned by another user
-    try:  # a zombie (exited, not yet reaped) holds nothing
-        if pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
-            return False
-    except (OSError, IndexError):
-        pass
-    now = _proc_start(pid)
-    return not (isinstance(proc_start, int) and now is not None and now != proc_start)
 
 
 class WorkdirLock:

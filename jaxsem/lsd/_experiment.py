@@ -23,6 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 import jax
 import numpy as np
 
+from .._atomic import atomic_write_text
 from ..metrics import mean_sem, zero_intercept_slope
 from ..planning import NavConfig, sample_tasks
 from ..training import ConfigMismatchError, stamp_differences, tree_digest
@@ -303,9 +304,9 @@ class _RecordStream:
                 good.append(line)
                 if all(name in r for name in planners):
                     self.done[_record_key(r)] = r
-            _atomic_text(self.path, header + "".join(g + "\n" for g in good))
+            atomic_write_text(self.path, header + "".join(g + "\n" for g in good), record=False)
         else:
-            _atomic_text(self.path, header)
+            atomic_write_text(self.path, header, record=False)
 
     @staticmethod
     def _job_key(job) -> tuple:
@@ -345,12 +346,6 @@ def _is_record(line: str) -> bool:
     return isinstance(r, dict) and {"building", "set", "trial", "n"} <= set(r)
 
 
-def _atomic_text(path: pathlib.Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def read_records(path) -> list:
     """The records of a :func:`run_trials` ``records_path`` file (its stamp line and a torn last
     line skipped); :func:`records_stamp` gives the stamp."""
@@ -376,7 +371,7 @@ def records_stamp(path) -> dict | None:
 def write_records(path, records: list, stamp: dict | None) -> None:
     """Writes a records file atomically: ``stamp`` (from :func:`records_stamp`) then one line per record."""
     head = json.dumps({"stamp": stamp}) + "\n" if stamp is not None else ""
-    _atomic_text(pathlib.Path(path), head + "".join(json.dumps(r) + "\n" for r in records))
+    atomic_write_text(path, head + "".join(json.dumps(r) + "\n" for r in records))
 
 
 def _record_key(r: dict) -> tuple:

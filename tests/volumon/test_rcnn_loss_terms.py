@@ -12,21 +12,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_rcnn import TINY  # the tiny network of the R-CNN tests
 
-from jaxsem.models._rcnn import RCNNConfig, RCNNOutput, anchors  # layers: white-box
+from jaxsem.models._rcnn import RCNNOutput, anchors  # layers: white-box
 from jaxsem.volumon.rcnn import RCNNLossConfig, rcnn_batch, rcnn_loss
 
-TINY = RCNNConfig(
-    num_classes=3,
-    input_size=(128, 96),
-    backbone="plain_cnn",
-    cnn_width=8,
-    anchor_sizes=(16.0, 32.0, 48.0),
-    pre_nms=100,
-    proposals=16,
-    hidden=64,
-    max_detections=8,
-)
 # every weight on, none of them 1
 LOSS = RCNNLossConfig(rpn=0.7, classification=1.3, box=0.9, dual=1.7, size=2.3)
 _loss = jax.jit(rcnn_loss, static_argnums=(2, 3))  # one compile
