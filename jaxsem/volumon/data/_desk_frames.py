@@ -125,9 +125,7 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     return batch
 
 
-def augment_batch(
-    batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4, keep_stereo: bool = False
-) -> dict:
+def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4, keep_stereo: bool = False) -> dict:
     """A :func:`frames_batch` batch seen by other cameras: each image zoomed by a factor drawn
     log-uniformly in ``scale_range`` about a random point (out of the frame: grey), its
     intrinsics changed to match, so the 3D labels (camera frame) stay true; boxes moved with the
