@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--augment-renders",
         action="store_true",
-        help="zoom, shift and colour-jitter the rendered frames too, their stereo boxes moved alike",
+        help="colour-jitter the rendered frames too (no zoom: the head reads depth from apparent size)",
     )
     p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"

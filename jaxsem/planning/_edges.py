@@ -40,15 +40,22 @@ def _edges(blocked, cost, a, b, grid, edge_samples, mask=None, subset=None, tabl
     """Clear flag and weight of segments a -> b (..., 2) on the ``grid`` of ``blocked`` (see the
     module docstring).
 
-    With ``cost=None`` (Euclidean weights) the rule is decided by :func:`_edges_clear` (the same
-    answer, most edges from a few dozen reads); with a cost grid every sample is read (the
-    weight needs them all). ``mask``: the edges worth checking (the rest may come back either
+    The rule is decided by :func:`_edges_clear` (the answer of :func:`_edges_dense`, most edges
+    from a few dozen reads); the weight is the length (``cost=None``) or the length times the
+    mean cost over every one of the rule's samples. ``mask``: the edges worth checking (the rest may come back either
     way; None: all); ``subset``, ``table``, ``chunk``: see :func:`_edges_clear`."""
+    clear = _edges_clear(blocked, a, b, grid, edge_samples, mask, subset=subset, table=table, chunk=chunk)
+    return clear, _weights(cost, a, b, grid, edge_samples)
+
+
+def _weights(cost, a, b, grid, edge_samples):
+    """Weights of segments a -> b (..., 2): the length (``cost=None``), or the length times the
+    mean of the cost grid over the edge rule's ``edge_samples`` points (every one is read)."""
     if cost is None:
-        clear = _edges_clear(blocked, a, b, grid, edge_samples, mask, subset=subset, table=table, chunk=chunk)
-        return clear, _length(a, b)
-    clear, er, ec = _edges_dense(blocked, a, b, grid, edge_samples)
-    return clear, _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
+        return _length(a, b)
+    t = jnp.arange(edge_samples, dtype=a.dtype) / (edge_samples - 1)
+    er, ec, _ = _cells(a[..., None, :] + t[:, None] * (b - a)[..., None, :], grid)
+    return _length(a, b) * jnp.mean(cost[er, ec], axis=-1)
 
 
 def _length(a, b):
@@ -273,7 +280,9 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
 
 @functools.partial(jax.jit, static_argnames=("edge_samples",))
 def _segments_clear(blocked, a, b, grid, *, edge_samples):
-    clear, _ = _edges(blocked, None, a, b, grid, edge_samples)
+    # A polyline has a few segments: every sample read (the same rule as the fast check) costs
+    # less than the fast check's clearance table over the whole map.
+    clear, _, _ = _edges_dense(blocked, a, b, grid, edge_samples)
     return jnp.all(clear)
 
 

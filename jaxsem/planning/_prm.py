@@ -21,6 +21,7 @@ from ._roadmap import (
     _connect_checked,
     _grow_exact,
     _initial_cap,
+    _strip_cap,
     _recheck_jit,
     default_radius,
     prm_star_k,
@@ -167,6 +168,9 @@ class PRM:
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
+        if distribution is not None and not uniform_samples:
+            weights = np.where(self.blocked, 0.0, distribution)
+            cap = max(cap, _strip_cap(weights, self.count + int(n), self.resolution, self.radius))
         # The lazy and eager grows take the same samples (the eager grow also weighs its edges).
         args = (self.roadmap, key, self._blocked_j, dist, self.grid, int(n), self.radius, cap)
         if self._lazy is not None:

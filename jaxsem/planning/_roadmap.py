@@ -71,7 +71,7 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
-from ._edges import _cells, _edge_samples, _edges, _extent, _grid, _subset, query_reach
+from ._edges import _cells, _edge_samples, _edges, _extent, _grid, _subset, _weights, query_reach
 from ._grid import OCCUPIED, GridLike, check_point, host_grid, static_grid
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _select
@@ -288,11 +288,13 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
     def rows(args):
         nw, nb, cd = args
         ot = points[jnp.minimum(nb, M - 1)]
-        clear, w = _edges(blocked, cost, nw[:, None, :], ot, grid, S, cd, table=table)
+        clear, w = _edges(blocked, None, nw[:, None, :], ot, grid, S, cd, table=table)
         ev = cd & clear
         w = jnp.where(ev, w, jnp.inf)
         if K > k:
-            return _clear_first(nb, ev, w, k, M)
+            nb, ev, w = _clear_first(nb, ev, w, k, M)
+        if cost is not None:  # the cost integral only on the links kept (it reads every sample)
+            w = jnp.where(ev, _weights(cost, nw[:, None, :], points[jnp.minimum(nb, M - 1)], grid, S), jnp.inf)
         return nb, ev, w
 
     if n <= 2 * _EDGE_ROWS:
@@ -525,6 +527,27 @@ def _initial_cap(n_total: int, shape, resolution, radius, free_cells: int | None
     cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
     buckets = max(1.0, cells * resolution**2 / radius**2)
     return 16 * max(1, int(math.ceil(2.0 * 3.0 * n_total / buckets / 16.0)))
+
+
+def _strip_cap(weights: np.ndarray, n_total: int, resolution: float, radius: float) -> int:
+    """Strip slots for ``n_total`` samples drawn from the cell ``weights`` (H, W) (host, >= 0):
+    the expected count of the fullest strip of 3 buckets plus four standard deviations, rounded
+    up to 16 times a power of two (few compiles). A distribution concentrated in a window (LSD's)
+    fills a few strips far past :func:`_initial_cap`'s uniform estimate, and each overflow reruns
+    the whole grow."""
+    H, W = weights.shape
+    total = float(weights.sum())
+    if not total > 0:
+        return 16
+    bucket = lambda count: np.minimum(((np.arange(count) + 0.5) * resolution / radius).astype(np.int64), 1 << 30)
+    by, bx = bucket(H), bucket(W)
+    rows = np.add.reduceat(weights, np.flatnonzero(np.diff(by, prepend=-1)), axis=0)
+    mass = np.add.reduceat(rows, np.flatnonzero(np.diff(bx, prepend=-1)), axis=1) / total
+    padded = np.pad(mass, ((0, 0), (1, 1)))
+    strips = padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]
+    e = float(n_total) * float(strips.max())
+    need = e + 4.0 * math.sqrt(e) + 8.0
+    return 16 * (1 << max(0, math.ceil(math.log2(max(need / 16.0, 1.0)))))
 
 
 def roadmap_grow(

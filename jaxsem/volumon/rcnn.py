@@ -196,9 +196,10 @@ class RCNNTrainConfig:
         colour jitter): a few dozen photos of one desk are otherwise learnt by heart.
       init_from: start from this model's weights (a training workdir or an exported ``.npz``;
         the same network) instead of a fresh initialisation; the optimiser starts afresh.
-      augment_renders: the rendered frames seen by other cameras as well, their stereo labels
-        moved alike (``augment_batch(keep_stereo=True)``): the lift learnt on renders then meets
-        the zoom and colour changes it will meet on photographs.
+      augment_renders: the rendered frames' brightness, contrast and colour jittered as the
+        photographs' are (their stereo labels kept), so the lift, learnt on renders alone, meets
+        the colour changes of photographs. No zoom: the head reads absolute depth from the
+        object's apparent size at the renders' one focal length, which a zoom would contradict.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -374,7 +375,7 @@ def train_rcnn(
                 renders, _indices(renders["image"].shape[0], config.batch_size - n_real, config.seed, step, 0)
             )
             if config.augment_renders:
-                b = augment_batch(b, np.random.default_rng([config.seed, 3, step]), keep_stereo=True)
+                b = augment_batch(b, np.random.default_rng([config.seed, 3, step]), (1.0, 1.0), keep_stereo=True)
             if n_real:
                 assert real is not None
                 r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))

@@ -1,0 +1,90 @@
+"""A PRM grown from a distribution concentrated in a window (LSD's) on a large map: the neighbour
+search's strips are sized from the distribution, so the grow runs once, and its roadmap is the
+one a search with every slot gives; the cost-weighted links keep their exact weights."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsem import quadrics as Q
+from jaxsem.planning import PRM, embed_local_distribution
+from jaxsem.planning import _roadmap  # layers: white-box
+from jaxsem.planning._sampling import sample_points  # layers: white-box
+
+SHAPE = (240, 320)
+RES = 0.1
+
+
+def _concentrated(seed, centre=(120, 200), k=40):
+    local = np.random.default_rng(seed).dirichlet(np.full(k * k, 0.5)).reshape(k, k)
+    return np.asarray(embed_local_distribution(jnp.asarray(local), jnp.asarray(centre), SHAPE))
+
+
+def _free_map():
+    occ = np.zeros(SHAPE, bool)
+    occ[:, 150:153] = True  # a wall with a door
+    occ[100:120, 150:153] = False
+    return occ
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_strip_cap_holds_the_fullest_strip(seed):
+    dist = _concentrated(seed)
+    radius, n = 1.5, 400
+    cap = _roadmap._strip_cap(dist, n, RES, radius)
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    gx = int(np.ceil(SHAPE[1] * RES / radius))
+    for draw in range(5):
+        pts = np.asarray(sample_points(jax.random.PRNGKey(100 * seed + draw), jnp.asarray(dist), n, grid))
+        b = np.floor(pts / radius).astype(int)
+        counts = np.zeros((b[:, 1].max() + 1, gx + 2), int)
+        np.add.at(counts, (b[:, 1], b[:, 0] + 1), 1)
+        strips = counts[:, :-2] + counts[:, 1:-1] + counts[:, 2:]  # brute force: every 3 x-adjacent buckets
+        assert strips.max() <= cap
+    assert cap % 16 == 0 and cap <= 2 * 16 * max(1, n // 8)
+
+
+def test_concentrated_grow_runs_once_and_matches_a_full_search(monkeypatch):
+    occ = _free_map()
+    dist = _concentrated(3)
+    calls = []
+    real = _roadmap._grow_jit
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs["cap"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_roadmap, "_grow_jit", counted)
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    prm = PRM(occ, grid, capacity=6000, radius=1.5, weight="neglogp", sectors=8)
+    prm.grow(jax.random.PRNGKey(7), 1200, dist)
+    assert len(calls) == 1  # no strip overflowed: no second grow
+    # The same roadmap as a search with a slot for every vertex (no strips at all).
+    full = PRM(occ, grid, capacity=6000, radius=1.5, weight="neglogp", sectors=8)
+    full._cap = 6000  # every vertex a candidate of every query: the brute-force search
+    full.grow(jax.random.PRNGKey(7), 1200, dist)
+    a, b = prm.roadmap, full.roadmap
+    np.testing.assert_array_equal(np.asarray(a.neighbors), np.asarray(b.neighbors))
+    np.testing.assert_array_equal(np.asarray(a.edge_valid), np.asarray(b.edge_valid))
+    np.testing.assert_array_equal(np.asarray(a.edge_weight), np.asarray(b.edge_weight))
+
+
+def test_cost_weights_are_the_mean_cost_along_each_link():
+    occ = _free_map()
+    dist = _concentrated(4)
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    prm = PRM(occ, grid, capacity=800, radius=1.5, weight="neglogp", sectors=8)
+    prm.grow(jax.random.PRNGKey(2), 600, dist)
+    rm = prm.roadmap
+    pts, nb, ev, w = (np.asarray(x) for x in (rm.points, rm.neighbors, rm.edge_valid, rm.edge_weight))
+    cost = -np.log(np.maximum(dist / dist.sum(), 1e-30))
+    S = int(np.ceil(1.5 / (0.5 * RES))) + 1
+    rows, cols = np.nonzero(ev)
+    assert len(rows) > 500
+    for i, j in zip(rows[::37], cols[::37]):  # an independent integral: dense samples on the host
+        a, b = pts[i], pts[nb[i, j]]
+        t = np.linspace(0.0, 1.0, S)[:, None]
+        cells = np.floor((a + t * (b - a)) / RES).astype(int)
+        want = np.linalg.norm(b - a) * cost[cells[:, 1], cells[:, 0]].mean()
+        np.testing.assert_allclose(w[i, j], want, rtol=1e-9)
