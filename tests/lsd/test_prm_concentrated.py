@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxsem.planning._roadmap as _roadmap  # layers: white-box
 from jaxsem import quadrics as Q
 from jaxsem.planning import PRM, embed_local_distribution
-from jaxsem.planning import _roadmap  # layers: white-box
 from jaxsem.planning._sampling import sample_points  # layers: white-box
 
 SHAPE = (240, 320)
