@@ -84,7 +84,7 @@ def grid_graph(occ, res):
     return scipy.sparse.csr_matrix((w, (src, dst)), shape=(H * W, H * W))
 
 
-def sample_queries(b, count, seed, clearance=0.3, min_dist=20.0):
+def sample_queries(b, count, seed, clearance=0.3, min_dist=20.0, max_dist=float("inf")):
     occ, res = b.occupancy, b.resolution
     H, W = occ.shape
     ok = scipy.ndimage.distance_transform_edt(~np.pad(occ, 1, constant_values=True))[1:-1, 1:-1] * res >= clearance
@@ -95,7 +95,7 @@ def sample_queries(b, count, seed, clearance=0.3, min_dist=20.0):
     while len(out) < count:
         s, t = cells[rng.integers(len(cells))], cells[rng.integers(len(cells))]
         ps, pt = b.origin + (s[::-1] + 0.5) * res, b.origin + (t[::-1] + 0.5) * res
-        if np.linalg.norm(ps - pt) < min_dist:
+        if not min_dist <= np.linalg.norm(ps - pt) <= max_dist:
             continue
         d = scipy.sparse.csgraph.dijkstra(g, directed=False, indices=int(s[0] * W + s[1]), limit=np.inf)
         c = d[t[0] * W + t[1]]

@@ -23,18 +23,35 @@ def sample_points(key, distribution, n: int, grid: Q.Grid, cdf=None):
     """``n`` world points (n, 2): a cell drawn with probability ``distribution`` (H, W) (need
     not be normalised, must be >= 0), then a uniform point inside the cell of ``grid`` (a
     :class:`jaxsem.quadrics.Grid` of ``distribution``'s shape; the points take its origin's
-    dtype). ``cdf``: its :func:`_cdf` when the caller keeps it (the same draws, without the scan
-    over the map). Jittable."""
+    dtype). ``cdf``: its :func:`_cdf` when the caller keeps it. Without it the same inverse-CDF
+    search runs in two levels (rows, then inside the row), which reads the map once instead of
+    scanning it; a draw may then land in the next cell where rounding of the running sums
+    differs at a cell boundary (a cell without weight is never drawn). Jittable."""
     grid = require_type("grid", grid, Q.Grid)
     if tuple(grid.shape) != tuple(distribution.shape):
         raise ValueError(f"grid: expected the distribution's shape {tuple(distribution.shape)}, got {grid.shape}")
     H, W = distribution.shape
     dtype = grid.origin.dtype
     k_cell, k_in = jax.random.split(key)
-    cdf = _cdf(distribution, dtype) if cdf is None else cdf
-    u = jax.random.uniform(k_cell, (n,), dtype) * cdf[-1]
-    flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
-    return _in_cells(k_in, flat, grid)
+    if cdf is not None:
+        u = jax.random.uniform(k_cell, (n,), dtype) * cdf[-1]
+        flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
+        return _in_cells(k_in, flat, grid)
+    # The same search in two levels (the rows' running masses, then the running mass inside each
+    # draw's row): n x W sums instead of a scan over every cell of the map.
+    w = distribution.astype(dtype)
+    row = jnp.sum(w, axis=1)
+    rows_cdf = jax.lax.associative_scan(jnp.add, row)
+    u = jax.random.uniform(k_cell, (n,), dtype) * rows_cdf[-1]
+    r = jnp.clip(jnp.searchsorted(rows_cdf, u, side="right"), 0, H - 1)
+    before = jnp.where(r > 0, rows_cdf[jnp.maximum(r - 1, 0)], 0.0)
+    wr = w[r]  # (n, W)
+    inside = jax.lax.associative_scan(jnp.add, wr, axis=1)
+    # Rounding may put the target past the row's own running total: then the row's last cell
+    # with weight (the row has some: its running mass passed u).
+    last = (W - 1 - jnp.argmax(wr[:, ::-1] > 0, axis=1)).astype(r.dtype)
+    c = jnp.minimum(jnp.sum(inside <= (u - before)[:, None], axis=1, dtype=r.dtype), last)
+    return _in_cells(k_in, r * W + c, grid)
 
 
 def _in_cells(k_in, flat, grid):

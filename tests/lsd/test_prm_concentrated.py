@@ -88,3 +88,21 @@ def test_cost_weights_are_the_mean_cost_along_each_link():
         cells = np.floor((a + t * (b - a)) / RES).astype(int)
         want = np.linalg.norm(b - a) * cost[cells[:, 1], cells[:, 0]].mean()
         np.testing.assert_allclose(w[i, j], want, rtol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_draws_are_the_flat_inverse_cdf_search(seed):
+    # The reference: the cell where the running mass over the flattened map first exceeds each
+    # draw's u (numpy, float64), with the jitter of the same key.
+    rng = np.random.default_rng(seed)
+    dist = rng.random((37, 53)) * (rng.random((37, 53)) < 0.3)  # many zero cells
+    grid = Q.Grid.create((1.0, -2.0), 0.25, dist.shape)
+    key = jax.random.PRNGKey(seed)
+    pts = np.asarray(sample_points(key, jnp.asarray(dist), 2000, grid))
+    k_cell, _ = jax.random.split(key)
+    u = np.asarray(jax.random.uniform(k_cell, (2000,), jnp.float64)) * dist.sum()
+    cells = np.minimum(np.searchsorted(np.cumsum(dist.reshape(-1)), u, side="right"), dist.size - 1)
+    got = np.floor((pts - np.array([1.0, -2.0])) / 0.25).astype(int)
+    got = got[:, 1] * dist.shape[1] + got[:, 0]
+    assert np.mean(got == cells) > 0.999  # rounding may move a draw that falls on a cell boundary
+    assert np.all(dist.reshape(-1)[got] > 0)  # never a cell without weight
