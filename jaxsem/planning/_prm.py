@@ -30,6 +30,12 @@ from ._roadmap import (
 from ._roadmap_search import RoadmapPath, _SampleGraph, _search
 
 
+#: Roadmaps up to this many vertices search neighbours by brute force when their samples come from
+#: a distribution: a search over every vertex costs little at this size, and the strips' slots,
+#: sized to each distribution, would compile a program per size.
+_BRUTE_FORCE_MAX = 4096
+
+
 class PRM:
     """A roadmap on a partial map that is built once, grown, rechecked and queried many times.
 
@@ -169,8 +175,11 @@ class PRM:
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
         if distribution is not None and not uniform_samples:
-            weights = np.where(self.blocked, 0.0, distribution)
-            cap = max(cap, _strip_cap(weights, self.count + int(n), self.resolution, self.radius))
+            if self.capacity + _QUERY <= _BRUTE_FORCE_MAX:
+                cap = self.capacity  # every vertex a candidate: one program whatever the distribution
+            else:
+                weights = np.where(self.blocked, 0.0, distribution)
+                cap = max(cap, _strip_cap(weights, self.count + int(n), self.resolution, self.radius))
         # The lazy and eager grows take the same samples (the eager grow also weighs its edges).
         args = (self.roadmap, key, self._blocked_j, dist, self.grid, int(n), self.radius, cap)
         if self._lazy is not None:

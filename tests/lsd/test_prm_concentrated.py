@@ -106,3 +106,21 @@ def test_draws_are_the_flat_inverse_cdf_search(seed):
     got = got[:, 1] * dist.shape[1] + got[:, 0]
     assert np.mean(got == cells) > 0.999  # rounding may move a draw that falls on a cell boundary
     assert np.all(dist.reshape(-1)[got] > 0)  # never a cell without weight
+
+
+def test_small_roadmaps_from_any_distribution_share_one_search(monkeypatch):
+    # navigate's roadmaps (1,500 vertices): whatever the window's distribution, the neighbour
+    # search is the brute-force one, so its program is compiled once, not once per strip size.
+    caps = []
+    real = _roadmap._grow_jit
+
+    def counted(*args, **kwargs):
+        caps.append(kwargs["cap"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_roadmap, "_grow_jit", counted)
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    for seed, centre in ((5, (120, 200)), (6, (60, 40))):
+        prm = PRM(_free_map(), grid, capacity=1500, radius=1.5, weight="neglogp", sectors=8)
+        prm.grow(jax.random.PRNGKey(seed), 500, _concentrated(seed, centre))
+    assert caps == [None, None]
