@@ -29,7 +29,6 @@ from ._roadmap import (
 )
 from ._roadmap_search import RoadmapPath, _SampleGraph, _search
 
-
 #: Roadmaps up to this many vertices search neighbours by brute force when their samples come from
 #: a distribution: a search over every vertex costs little at this size, and the strips' slots,
 #: sized to each distribution, would compile a program per size.
