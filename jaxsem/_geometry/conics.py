@@ -168,7 +168,11 @@ def project_dual_conic(dual_quadric, K, camera_T_world, *, xp: Any = jnp):
       (..., 3, 3) dual conic in pixels. Where the camera is not valid (:func:`camera_valid`;
       possible only under ``jit``, concrete arguments are checked eagerly) it is all zeros,
       which :func:`conic_bbox` reads as invalid, as it does the zero matrix :func:`dual_quadric`
-      gives for an invalid ellipsoid.
+      gives for an invalid ellipsoid. It is all zeros too where the quadric's centre is not in
+      front of the camera: an ellipsoid behind the camera has the very conic of its mirror image
+      in front (only the square of its depth enters), which :func:`conic_bbox` could not tell
+      apart. The centre's depth is read off ``Q*`` itself (``-(T Q*)[2, 3] / Q*[3, 3]``, for
+      ``Q*`` in jaxsem's normalisation or any positive multiple of it).
     """
     xp = _namespace(xp)
     Qs = _as_float_array("dual_quadric", dual_quadric, (4, 4), check_finite=True, xp=xp)
@@ -177,7 +181,11 @@ def project_dual_conic(dual_quadric, K, camera_T_world, *, xp: Any = jnp):
     ok = _intrinsics_ok(K, xp) & _pose_ok(pose, xp)
     P = _camera_matrix(_finite_or_zero(K, xp), _finite_or_zero(pose, xp), xp)
     C = xp.matmul(xp.matmul(P, Qs), xp.swapaxes(P, -1, -2))
-    ok = xp.broadcast_to(ok, C.shape[:-2])
+    # (T Q*)[2, 3] = -s t_z and Q*[3, 3] = -s for Q* = s [[.., -t], [-t^T, -1]], s > 0: their
+    # product has the sign of the centre's depth t_z (the last row of a rigid T is e4).
+    z_row = _finite_or_zero(pose, xp)[..., 2, :]
+    front = xp.sum(z_row * Qs[..., :, 3], axis=-1) * Qs[..., 3, 3] > 0
+    ok = xp.broadcast_to(ok & front, C.shape[:-2])
     return xp.where(ok[..., None, None], C, xp.zeros((), C.dtype))
 
 
@@ -195,8 +203,9 @@ def conic_bbox(dual_conic, *, xp: Any = jnp):
       box: (..., 4) ``[u_min, v_min, u_max, v_max]``, finite everywhere.
       valid: (...) bool, False where the conic is not a real ellipse (``C33 >= 0`` or
         ``det C* >= 0``: camera inside the ellipsoid, or the image plane cutting it). A dual conic
-        alone cannot tell an ellipsoid in front of the camera from its mirror image behind it;
-        :func:`project_bbox` checks the depth as well.
+        alone cannot tell an ellipsoid in front of the camera from its mirror image behind it:
+        :func:`project_dual_conic` checks the depth (the zero conic behind the camera) and so
+        does :func:`project_bbox`.
     """
     xp = _namespace(xp)
     C = _as_float_array("dual_conic", dual_conic, (3, 3), check_finite=True, xp=xp)

@@ -37,6 +37,13 @@ def world_to_cell(xy, origin, resolution, xp=jnp):
     """World (x, y) (..., 2) -> integer cell (row, col) (..., 2): the cell the point lies in
     (floor; it may lie off the grid, see :func:`cell_in_grid`). int32 under jax, int64 under numpy.
     A last axis other than 2 (a 3D point: drop its z first) raises ValueError naming ``xy``.
+
+    A coordinate that has no cell (non-finite ``xy`` or ``origin``, a ``resolution`` not positive
+    and finite: possible under ``jit``, where nothing raises) gets the index ``-2**30`` (int32;
+    ``-2**62`` in int64), off every grid, so :func:`cell_in_grid` reads False for it; an integer
+    cast of NaN would otherwise give whatever the backend makes of it (0 on XLA's CPU: a cell on
+    the grid). Indices are clipped to ``+-2**30`` (``+-2**62``), far beyond any grid, so that
+    the cast never overflows.
     """
     xp = _namespace(xp)
     xy = xp.asarray(xy)
@@ -45,8 +52,12 @@ def world_to_cell(xy, origin, resolution, xp=jnp):
         xy = xy.astype(xp.result_type(float))
     origin = xp.asarray(origin, dtype=xy.dtype)
     _check_pairs("origin", origin, "a world (x, y) corner")
-    rc = xp.floor((xy - origin) / xp.asarray(resolution, dtype=xy.dtype)).astype(_index_dtype(xp))
-    return rc[..., ::-1]
+    resolution = xp.asarray(resolution, dtype=xy.dtype)
+    cell = xp.floor((xy - origin) / resolution)
+    big = float(2**30 if xp is jnp else 2**62)  # exact in float32 / float64
+    placed = xp.isfinite(cell) & (resolution > 0)
+    cell = xp.where(placed, xp.clip(cell, -big, big), -big)
+    return cell.astype(_index_dtype(xp))[..., ::-1]
 
 
 def cell_to_world(rc, origin, resolution, offset: float | jax.Array = 0.5, xp=jnp):

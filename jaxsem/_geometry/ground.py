@@ -17,6 +17,7 @@ from .._checks import (
 from ._common import (
     _ellipsoid_args,
     _ellipsoid_ok,
+    _finite,
     _finite_or_zero,
     _matmul3,
     safe_sqrt,
@@ -44,14 +45,25 @@ def ground_conic(rotation, center, radii, *, xp: Any = jnp):
     return Qs[..., idx[:, None], idx[None, :]]
 
 
-def ground_bounds(rotation, center, radii):
-    """Footprint extent ``[x_min, y_min, x_max, y_max]`` (..., 4) of an ellipsoid seen from above."""
+def ground_bounds(rotation, center, radii, *, with_valid: bool = False) -> Any:  # a tuple with with_valid=True
+    """Footprint extent ``[x_min, y_min, x_max, y_max]`` (..., 4) of an ellipsoid seen from above.
+
+    ``with_valid=True`` also returns the (...) mask of :func:`ellipsoid_valid`: only the squares
+    of the radii enter, so under ``jit`` (concrete arguments are checked eagerly) a negated radius
+    would give the bounds of its magnitude, and a scaled rotation those of another ellipsoid.
+    Where the mask is False the bounds are finite (non-finite entries are read as 0).
+    """
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    valid = None
+    if with_valid:
+        valid = jnp.broadcast_to(_ellipsoid_ok(rotation, center, radii), batch)
+        rotation, center, radii = (_finite_or_zero(x) for x in (rotation, center, radii))
     shape = _matmul3(rotation * jnp.square(radii)[..., None, :], jnp.swapaxes(rotation, -1, -2))
     hx = safe_sqrt(shape[..., 0, 0])
     hy = safe_sqrt(shape[..., 1, 1])
     cx, cy = center[..., 0], center[..., 1]
-    return jnp.broadcast_to(jnp.stack([cx - hx, cy - hy, cx + hx, cy + hy], -1), batch + (4,))
+    bounds = jnp.broadcast_to(jnp.stack([cx - hx, cy - hy, cx + hx, cy + hy], -1), batch + (4,))
+    return bounds if valid is None else (bounds, valid)
 
 
 def rasterize_footprint(
@@ -77,7 +89,9 @@ def rasterize_footprint(
     Returns:
       (H, W) int32 grid; with ``with_valid=True`` also ``valid`` (...) bool, False for an
       ellipsoid that is not a proper one (a non-finite centre or radius, a radius <= 0, a
-      rotation that is not one; whatever ``mask`` says). Such an ellipsoid is never drawn.
+      rotation that is not one; whatever ``mask`` says), and for every ellipsoid when the grid
+      is not one (a non-finite ``origin``, a ``resolution`` not positive and finite). Such an
+      ellipsoid is never drawn.
 
     A bad ellipsoid is not dropped silently: eagerly it raises ``ValueError`` naming the
     argument (as everywhere in the core); under ``jit`` it is left out of the grid and
@@ -100,7 +114,11 @@ def rasterize_footprint(
     rotation = jnp.broadcast_to(rotation, batch + (3, 3))
     center = jnp.broadcast_to(center, batch + (3,))
     radii = jnp.broadcast_to(radii, batch + (3,))
-    valid = _ellipsoid_ok(rotation, center, radii)  # under jit; eagerly checked above
+    # Under jit (eagerly checked above): a bad ellipsoid, or a grid no ellipsoid can be drawn on.
+    grid_ok = _finite(origin, 1) & (res > 0) & (res < jnp.inf)
+    valid = _ellipsoid_ok(rotation, center, radii) & grid_ok
+    origin = jnp.where(grid_ok, origin, jnp.zeros_like(origin))
+    resolution = jnp.where(grid_ok, res, jnp.ones_like(res))  # keeps a Python number's weak type
     rot = _finite_or_zero(rotation).reshape(-1, 3, 3)
     ctr = _finite_or_zero(center).reshape(-1, 3)
     rad = _finite_or_zero(radii).reshape(-1, 3)

@@ -28,6 +28,7 @@ from ._common import (
     _namespace,
     _pose_ok,
     _radii_ok,
+    _rotation_ok,
     _safe_norm,
 )
 
@@ -202,7 +203,7 @@ def back_project(uv, depth, K, camera_T_world, *, with_valid: bool = False, xp: 
     return points, xp.broadcast_to(valid, points.shape[:-1])
 
 
-def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
+def single_view_ellipsoid(box, K, camera_T_world, depth, radii, *, with_valid: bool = False) -> Any:
     """Single-view initialisation of an ellipsoid from one box (thesis section 4.3.5).
 
     The centre lies on the ray through the box centre at camera depth ``depth`` (z, not range),
@@ -214,17 +215,34 @@ def single_view_ellipsoid(box, K, camera_T_world, depth, radii):
       box: (..., 4) ``[u_min, v_min, u_max, v_max]``; K: (..., 3, 3); camera_T_world: (..., 4, 4);
       depth: (...) metres; radii: (..., 3) semi-axes.
 
+      with_valid: also return a (...) bool mask (below).
+
     Returns:
-      rotation (..., 3, 3), center (..., 3), radii (..., 3), broadcast to one batch shape.
+      rotation (..., 3, 3), center (..., 3), radii (..., 3), broadcast to one batch shape; with
+      ``with_valid=True`` also ``valid`` (...) bool, False where an input is one the eager checks
+      refuse or :func:`back_project`'s mask does (a non-finite box or depth, radii not positive,
+      intrinsics or a pose :func:`camera_valid` refuses) or the depth is not positive (no
+      ellipsoid in front of the camera). Concrete bad input raises ``ValueError`` naming the
+      argument; under ``jit`` the outputs are then finite stand-ins that mean nothing.
     """
     box = _as_float_array("box", box, (4,), check_finite=True)
     radii = _as_float_array("radii", radii, (3,), check_finite=True)
+    _check_positive("radii", radii)
     uv = 0.5 * (box[..., :2] + box[..., 2:])
-    center = back_project(uv, depth, K, camera_T_world)
+    valid = None
+    if not with_valid:
+        center = back_project(uv, depth, K, camera_T_world)
+    else:
+        center, valid = back_project(uv, depth, K, camera_T_world, with_valid=True)
+        valid = valid & (jnp.asarray(depth) > 0) & _radii_ok(radii)
+        radii = _finite_or_zero(radii)
     batch = _batch_shape(center=center.shape[:-1], radii=radii.shape[:-1])
     center = jnp.broadcast_to(center, batch + (3,))
     rotation = jnp.broadcast_to(jnp.eye(3, dtype=center.dtype), batch + (3, 3))
-    return rotation, center, jnp.broadcast_to(radii.astype(center.dtype), batch + (3,))
+    radii = jnp.broadcast_to(radii.astype(center.dtype), batch + (3,))
+    if valid is None:
+        return rotation, center, radii
+    return rotation, center, radii, jnp.broadcast_to(valid, batch)
 
 
 def relative_pose(camera_T_world_a, camera_T_world_b, *, xp: Any = jnp):
@@ -260,8 +278,9 @@ def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=
       ``(depth (...), ok (...))``: depth in metres, at least 1.01 times the largest semi-axis
       beyond the camera (the camera outside the object); ``ok`` False where no side of the box
       constrains, or (under ``jit``) where an input is bad: a non-finite box, radii not positive,
-      intrinsics or a pose :func:`camera_valid` refuses (then ``depth`` is a finite placeholder:
-      use a default). Jittable, finite gradients.
+      intrinsics or a pose :func:`camera_valid` refuses, a ``rotation`` that is not a proper one
+      (then ``depth`` is a finite placeholder: use a default). Concrete bad input raises
+      ``ValueError`` naming the argument. Jittable, finite gradients.
     """
     box = _as_float_array("box", box, (4,))
     radii = _as_float_array("radii", radii, (3,), check_finite=True)
@@ -277,7 +296,11 @@ def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=
     pose = jnp.where(inputs_ok[3][..., None, None], pose, jnp.eye(4, dtype=dtype))
     R = pose[..., :3, :3]
     if rotation is not None:
-        R = R @ jnp.asarray(rotation, dtype)
+        rotation = _as_float_array("rotation", rotation, (3, 3), check_finite=True).astype(dtype)
+        _check_rotation("rotation", rotation)
+        rotation_ok = _rotation_ok(rotation)  # under jit: a scaled rotation scales the half-extents
+        inputs_ok.append(rotation_ok)
+        R = R @ jnp.where(rotation_ok[..., None, None], rotation, jnp.eye(3, dtype=dtype))
     # Half-extent of the ellipsoid along camera axis i: sqrt(sum_k (R_co[i, k] r_k)^2).
     half = _safe_norm(R * radii[..., None, :], jnp, axis=-1)  # (..., 3)
     fx, s, cx = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
@@ -297,7 +320,9 @@ def depth_from_box_size(box, K, camera_T_world, radii, rotation=None, edge_mask=
     # Least squares of sin(a / 2) = h / range over the constraining sides, in 1 / range.
     num = wu * sin_u * hx + wv * sin_v * hy
     den = wu * hx * hx + wv * hy * hy
-    ok = (den > 0) & (num > 0) & inputs_ok[0] & inputs_ok[1] & inputs_ok[2] & inputs_ok[3]
+    ok = (den > 0) & (num > 0)
+    for input_ok in inputs_ok:
+        ok = ok & input_ok
     inv_range = jnp.where(ok, num / jnp.where(ok, den, 1.0), 1.0)
     rng = 1.0 / inv_range
     rng = jnp.maximum(rng, 1.01 * jnp.max(radii, axis=-1))

@@ -45,12 +45,13 @@ def quaternion_wxyz_to_rotation(quaternion_wxyz, *, with_valid: bool = False, xp
     ``ValueError``; under ``jit`` a NaN propagates to the result (never a finite-looking matrix).
     ``with_valid=True`` returns ``(rotation, valid)``, ``valid`` (...) bool False for a
     quaternion with no direction (zero, or a squared norm below the dtype's smallest normal
-    number) or a non-finite one, whose rotation (the identity, or NaN) means nothing.
+    number) or a non-finite one; its rotation is then the identity (finite, and meaning nothing).
     """
     xp = _namespace(xp)
     q = _as_float_array("quaternion_wxyz", quaternion_wxyz, (4,), check_finite=True, xp=xp)
-    R = _quaternion_wxyz_to_rotation_compiled(q, xp)
-    return (R, _quaternion_ok(q, xp)) if with_valid else R
+    if with_valid:
+        return _quaternion_masked(q, 0, xp)
+    return _quaternion_wxyz_to_rotation_compiled(q, xp)
 
 
 def quaternion_xyzw_to_rotation(quaternion_xyzw, *, with_valid: bool = False, xp: Any = jnp) -> Any:
@@ -58,8 +59,21 @@ def quaternion_xyzw_to_rotation(quaternion_xyzw, *, with_valid: bool = False, xp
     -> (..., 3, 3) rotation. Same rules and ``with_valid`` as :func:`quaternion_wxyz_to_rotation`."""
     xp = _namespace(xp)
     q = _as_float_array("quaternion_xyzw", quaternion_xyzw, (4,), check_finite=True, xp=xp)
-    R = _quaternion_xyzw_to_rotation_compiled(q, xp)
-    return (R, _quaternion_ok(q, xp)) if with_valid else R
+    if with_valid:
+        return _quaternion_masked(q, 3, xp)
+    return _quaternion_xyzw_to_rotation_compiled(q, xp)
+
+
+def _quaternion_masked(q, scalar_index, xp):
+    """``(rotation, valid)`` of a quaternion whose scalar part is at ``scalar_index`` (0 or 3):
+    where ``valid`` is False the rotation is the identity, finite in value and gradient (the
+    quaternion is replaced before the arithmetic, not after)."""
+    valid = _quaternion_ok(q, xp)
+    identity = xp.asarray([1.0, 0.0, 0.0, 0.0] if scalar_index == 0 else [0.0, 0.0, 0.0, 1.0], q.dtype)
+    q = xp.where(valid[..., None], q, identity)
+    if scalar_index == 3:
+        q = xp.roll(q, 1, axis=-1)
+    return _quaternion_wxyz_to_rotation(q, xp), valid
 
 
 def _quaternion_ok(q, xp):

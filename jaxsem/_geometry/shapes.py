@@ -15,8 +15,10 @@ from .._checks import (
 )
 from ._common import (
     _ellipsoid_args,
+    _ellipsoid_ok,
     _finite_or_zero,
     _matvec,
+    _radii_ok,
     safe_div,
     safe_norm,
     safe_sqrt,
@@ -73,18 +75,24 @@ def ray_entry_range(points, rotation, center, radii, shape):
     Returns:
       ``(s_entry (..., J), hit (..., J) bool)``: the range (m) at which the ray enters the object,
       and whether it does in front of the camera. Where ``hit`` is False ``s_entry`` is finite and
-      meaningless; values and gradients are finite everywhere.
+      meaningless; values and gradients are finite everywhere. Under ``jit`` an object the eager
+      checks refuse (a rotation that is not one, a non-finite centre, radii not positive: only
+      their squares or magnitudes enter, so a negated radius would draw the same object) is hit
+      by no ray.
     """
     points = _as_float_array("points", points, (3,), check_finite=True)
     if points.ndim < 2:
         raise ValueError(f"points: expected shape (..., N, 3), got shape {tuple(points.shape)}")
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     _batch_shape(points=points.shape[:-2], ellipsoid=batch)
+    ok = _ellipsoid_ok(rotation, center, radii)[..., None]  # the inputs, under jit
+    rotation, center, radii = (_finite_or_zero(x) for x in (rotation, center, radii))
     rng = safe_norm(points)
     u = jnp.einsum("...ji,...nj->...ni", rotation, safe_div(points, rng[..., None]))  # ray, object frame
     o = -jnp.einsum("...ji,...j->...i", rotation, center)[..., None, :]  # camera centre, object frame
     s, hit, _ = ray_cast_local(o, u, radii[..., None, :], jnp.asarray(shape)[..., None])
-    return s, hit
+    hit = hit & ok
+    return jnp.where(hit, s, 0.0), hit
 
 
 def ray_cast_local(origin, direction, radii, shape):
@@ -104,7 +112,9 @@ def ray_cast_local(origin, direction, radii, shape):
     Returns:
       ``(s, hit, normal)``: ``s`` (...) the ray parameter of the entry, 0 where ``hit`` (...) is
       False; ``normal`` (..., 3) the outward unit normal there (meaningless where no hit). Values
-      are finite everywhere and the gradients of ``s`` too.
+      are finite everywhere and the gradients of ``s`` too. Radii that are not all positive and
+      finite describe no object: no ray hits it (a negated radius would otherwise draw the
+      object of its magnitude).
     """
     o, d, h = (jnp.asarray(x) for x in (origin, direction, radii))
     # cuboid: slab test; the entry face is the axis of the latest entering slab
@@ -156,7 +166,7 @@ def ray_cast_local(origin, direction, radii, shape):
     shape = jnp.asarray(shape)
     is_cub, is_cyl = shape == SHAPE_CUBOID, shape == SHAPE_CYLINDER
     s = jnp.where(is_cub, s_cub, jnp.where(is_cyl, s_cyl, s_ell))
-    hit = jnp.where(is_cub, hit_cub, jnp.where(is_cyl, hit_cyl, hit_ell))
+    hit = jnp.where(is_cub, hit_cub, jnp.where(is_cyl, hit_cyl, hit_ell)) & _radii_ok(h)
     normal = jnp.where(is_cub[..., None], n_cub, jnp.where(is_cyl[..., None], n_cyl, n_ell))
     return jnp.where(hit, s, 0.0), hit, normal
 
