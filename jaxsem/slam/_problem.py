@@ -248,6 +248,14 @@ def has_measurements(problem: SlamProblem) -> jnp.ndarray:
     return jnp.any(problem.box_mask & pose_ok & obj_ok)
 
 
+def _image_size(image_size):
+    """``image_size`` as a checked (2,) float array ``[width, height] > 0``."""
+    image_size = _np("image_size", image_size, (2,))
+    if image_size.shape != (2,) or not np.all(image_size > 0):
+        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+    return image_size
+
+
 def _check_boxes(name, box, mask, image_size=None):
     """Raise on non-finite, inverted or (given ``image_size``) off-image boxes among the unmasked ones."""
     bad_finite = mask & ~np.all(np.isfinite(box), axis=-1)
@@ -338,9 +346,7 @@ def make_problem(
     K = _np("K", K, (3, 3))
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
-    image_size = _np("image_size", image_size, (2,))
-    if image_size.shape != (2,) or not np.all(image_size > 0):
-        raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+    image_size = _image_size(image_size)
     pose_prior = _np("pose_prior", pose_prior, (4, 4))
     if pose_prior.ndim != 3:
         raise ValueError(f"pose_prior: expected shape (T, 4, 4), got {pose_prior.shape}")
@@ -498,6 +504,7 @@ def make_frame(
     init_radii=None,
     init_mask=None,
     classes: _classes.ClassTable | None = None,
+    image_size=None,
 ) -> Frame:
     """Validated :class:`Frame` padded to ``max_detections`` from numpy-like inputs.
 
@@ -512,9 +519,13 @@ def make_frame(
         when the ellipsoids are given). Rows left out may hold NaN; they are replaced.
       classes: the :class:`jaxsem.classes.ClassTable` of ``box_class`` (default: the built-in
         table); use the same table as the smoother's (:func:`jaxsem.slam.online_init`).
+      image_size: optional (2,) ``[width, height]`` in pixels; given, a box that lies off the
+        image raises as in :func:`make_problem` (it must overlap the image, no edge more than
+        one image size outside it).
 
     NaN or inverted boxes are dropped with a ``warnings.warn`` (a detector glitch should not
-    stop an online system); wrong shapes, unknown class names and out-of-range ids raise.
+    stop an online system); wrong shapes, unknown class names, out-of-range ids and (given
+    ``image_size``) boxes off the image raise.
     """
     table = _classes.as_table(classes)
     dtype = dtype or jnp.result_type(float)
@@ -532,6 +543,8 @@ def make_frame(
     if np.any(object_id < 0) or (max_objects is not None and np.any(object_id >= max_objects)):
         raise ValueError(f"object_id: ids must be in [0, {max_objects}), got {object_id.tolist()}")
     ok = np.all(np.isfinite(box), axis=-1) & (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
+    if image_size is not None:  # the kept boxes (NaN and inverted ones are dropped below)
+        _check_boxes("box", box, ok, _image_size(image_size))
     if not ok.all():
         warnings.warn(
             f"box: dropped {int((~ok).sum())} NaN or inverted detections (indices {np.flatnonzero(~ok).tolist()})",

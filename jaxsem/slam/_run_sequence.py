@@ -154,6 +154,7 @@ def run_sequence(
             max_objects=capacity.max_objects,
             dtype=state.problem.K.dtype,
             classes=sequence.classes,
+            image_size=sequence.image_size,
         )
         start = time.perf_counter()
         if step is None:  # counted in the first frame's time

@@ -146,6 +146,7 @@ def frames_from_problem(problem, max_detections: int = 16):
                 np.where(tm[sel], td[sel], np.nan),
                 max_detections=max_detections,
                 dtype=problem.K.dtype,
+                image_size=np.asarray(problem.image_size),
             )
         )
     return out

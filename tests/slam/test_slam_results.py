@@ -175,3 +175,15 @@ def test_make_problem_refuses_a_box_off_the_image(box):
         slam.make_problem(np.eye(3) * [500, 500, 1], [640, 480], np.eye(4)[None], [box], [0], [0], ["car"])
     # A box touching the border, or a few pixels over it (a truncated object), is a measurement.
     slam.make_problem(np.eye(3) * [500, 500, 1], [640, 480], np.eye(4)[None], [[600.0, 0, 645, 40]], [0], [0], ["car"])
+
+
+@pytest.mark.parametrize("box", [[700.0, 10.0, 800.0, 50.0], [10.0, -2e3, 50.0, 40.0]])
+def test_make_frame_refuses_a_box_off_the_image_as_make_problem_does(box):
+    with pytest.raises(ValueError, match=r"box: boxes at indices \[1\] lie off the 640 x 480 image"):
+        slam.make_frame(np.eye(4), [[10.0, 10, 50, 40], box], ["car", "car"], [0, 1], image_size=[640, 480])
+    # Without an image size there is nothing to check against; a truncated box is a measurement.
+    slam.make_frame(np.eye(4), [[10.0, 10, 50, 40], box], ["car", "car"], [0, 1])
+    frame = slam.make_frame(np.eye(4), [[600.0, 0, 645, 40]], ["car"], [0], image_size=[640, 480])
+    assert frame.box_mask.tolist()[0]
+    with pytest.raises(ValueError, match="image_size"):
+        slam.make_frame(np.eye(4), [[10.0, 10, 50, 40]], ["car"], [0], image_size=[640, 0])
