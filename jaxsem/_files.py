@@ -12,9 +12,10 @@ Two ways a file can hurt a reader that trusts it, handled once for every reader:
   error gives a pixel count but no width and height) is lifted for the header read alone, under a
   lock, and applied again by :func:`image_size` itself: a size over twice it (PIL's error
   threshold) is refused even within the budget, so a process that lowered it stays protected.
-- **text**: :func:`read_json` gives one ``ValueError`` naming the file for a file that cannot be
-  read, is larger than its byte budget, is not UTF-8 or is not JSON (never the parser's bare
-  "Expecting value: line 1 column 11").
+- **text**: :func:`read_text` and :func:`read_json` give one ``ValueError`` naming the file for
+  a file that cannot be read, is larger than its byte budget (its size and the budget in the
+  message), is not UTF-8 or (``read_json``) is not JSON (never the parser's bare "Expecting
+  value: line 1 column 11").
 
 This module imports nothing else of the package.
 """
@@ -42,6 +43,9 @@ MAX_CELLS = 2**26
 MAX_NPZ_ELEMENTS = 2**30
 #: Default byte budget of a JSON file (a BOP data set's largest ``scene_gt.json`` is tens of MB).
 MAX_JSON_BYTES = 2**28
+#: Default byte budget of a text file (a TUM sequence's ``groundtruth.txt`` of a long sequence, a
+#: detections list: a few MB).
+MAX_TEXT_BYTES = 2**28
 
 
 def check_budget(name: str, value) -> int:
@@ -149,20 +153,32 @@ def check_npz(path, *, max_elements: int = MAX_NPZ_ELEMENTS, argument: str = "ma
     return shapes
 
 
-def read_json(path, what: str = "JSON file", *, max_bytes: int = MAX_JSON_BYTES):
-    """The parsed content of a JSON file; one ``ValueError`` naming the file (and ``what`` it
-    should be) when it cannot be read, is over ``max_bytes``, is not UTF-8 or is not JSON."""
+def read_text(path, what: str = "text file", *, max_bytes: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of a file; one ``ValueError`` naming the file (and ``what`` it should be)
+    when it cannot be read, is over ``max_bytes`` (the message gives its size and the budget:
+    the size is read before any byte is, so a huge file is refused without being loaded) or is
+    not UTF-8."""
     path = pathlib.Path(path)
+    budget = check_budget("max_bytes", max_bytes)
     try:
         size = path.stat().st_size
-        if size > max_bytes:
-            raise ValueError(f"{path}: {size:,} bytes, more than the {max_bytes:,} a {what} may hold")
+        if size > budget:
+            raise ValueError(f"{path}: {size:,} bytes, more than the max_bytes={budget:,} a {what} may hold")
         raw = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     try:
-        return json.loads(raw.decode("utf-8"))
+        return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not a readable {what} (not UTF-8 text: byte {exc.start})") from None
+
+
+def read_json(path, what: str = "JSON file", *, max_bytes: int = MAX_JSON_BYTES):
+    """The parsed content of a JSON file; one ``ValueError`` naming the file (and ``what`` it
+    should be) when it cannot be read, is over ``max_bytes``, is not UTF-8 or is not JSON
+    (the text read by :func:`read_text`)."""
+    text = read_text(path, what, max_bytes=max_bytes)
+    try:
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not a readable {what} (not JSON: {exc.msg} at line {exc.lineno})") from None

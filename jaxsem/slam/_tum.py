@@ -27,6 +27,7 @@ import pathlib
 import numpy as np
 
 from .._checks import check_box
+from .._files import read_text
 from ..quadrics import quaternion_xyzw_to_rotation
 from ._sequence_checks import _assoc_id, _class_name
 from ._sequence_types import Sequence, SequenceFrame
@@ -43,7 +44,7 @@ def _read_list(path: pathlib.Path, columns: int) -> list[list[str]]:
     if not path.is_file():
         raise ValueError(f"{path}: no such file (a TUM RGB-D sequence folder has rgb.txt and groundtruth.txt)")
     rows = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(read_text(path, "TUM list").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -120,7 +121,7 @@ def load_tum_sequence(
         raise ValueError(f"{detections}: no such detections file")
     frames = []
     skipped = 0
-    for n, line in enumerate(detections.read_text().splitlines(), 1):
+    for n, line in enumerate(read_text(detections, "detections file").splitlines(), 1):
         if not line.strip():
             continue
         where = f"{detections}: line {n}"
