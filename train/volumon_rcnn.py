@@ -54,6 +54,11 @@ def main(argv=None) -> int:
         help="colour-jitter the rendered frames too (no zoom: the head reads depth from apparent size)",
     )
     p.add_argument(
+        "--lift-stride8",
+        action="store_true",
+        help="the VoluMon head also reads the RoIs from the stride-8 features (plain_cnn; a branch that starts at zero)",
+    )
+    p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
@@ -70,7 +75,9 @@ def main(argv=None) -> int:
     loss = rc.RCNNLossConfig(burn_in=a.burn_in)
     if a.oracle:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
-    model = dataclasses.replace(rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width)
+    model = dataclasses.replace(
+        rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width, lift_stride8=a.lift_stride8
+    )
     config = rc.RCNNTrainConfig(
         model=model,
         loss=loss,

@@ -51,6 +51,7 @@ from ._volumon import (
 )
 
 PARAM_RULES = ("class", "expectation")
+_LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
@@ -74,6 +75,10 @@ class RCNNConfig:
         or "expectation" (eq. 5.18 in both).
       rotation_init: the VoluMon head's initial allocentric rotation (``ROTATION_INITS``).
       reconstruction: constants of eq. 5.7 (:class:`ReconstructionConfig`).
+      lift_stride8: the VoluMon head also reads each RoI pooled from the ``plain_cnn``'s stride-8
+        features (twice the cells of the stride-16 map the detector reads: a 40-pixel object is 5
+        cells, not 2.5), added to its first layer through a branch that starts at zero, so a model
+        trained without it starts from the very same outputs.
     """
 
     num_classes: int = 8
@@ -96,6 +101,7 @@ class RCNNConfig:
     reconstruction: ReconstructionConfig = ReconstructionConfig(
         alpha_y=0.05, eps_s=0.01, depth_mode="absolute", min_depth=0.2, max_depth=2.5
     )
+    lift_stride8: bool = False
 
     def __post_init__(self):
         if int(self.num_classes) < 1:
@@ -107,6 +113,8 @@ class RCNNConfig:
             raise ValueError(f"backbone: expected one of {BACKBONES}, got {self.backbone!r}")
         if int(self.cnn_width) < 1:
             raise ValueError(f"cnn_width: expected >= 1, got {self.cnn_width}")
+        if self.lift_stride8 and self.backbone != "plain_cnn":
+            raise ValueError("lift_stride8: needs backbone='plain_cnn' (its stride-8 stage)")
         if self.param_rule not in PARAM_RULES:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
@@ -242,10 +250,13 @@ class VoluMonRCNN(nn.Module):
         mean = jnp.array([0.485, 0.456, 0.406], images.dtype)
         std = jnp.array([0.229, 0.224, 0.225], images.dtype)
         x = (images - mean) / std
+        fine = None
         if cfg.backbone == "plain_cnn":
             for i, c in enumerate(int(cfg.cnn_width) * np.array([1, 2, 4, 8])):
                 x = ConvBN(int(c), kernel=3, stride=2, name=f"plain_{i}_0")(x, train)
                 x = ConvBN(int(c), kernel=3, stride=1, name=f"plain_{i}_1")(x, train)
+                if i == 2:
+                    fine = x  # stride 8
         else:
             x = ConvBN(make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2, name="features_0")(x, train)
             for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS]):
@@ -281,7 +292,14 @@ class VoluMonRCNN(nn.Module):
         class_logits = nn.Dense(n + 1, name="cls_out")(h)
         box_deltas = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")(h)
         bf = box_features(rois, K[:, None]).astype(h.dtype)
-        v = nn.relu(nn.Dense(cfg.hidden, name="volumon_fc0")(jnp.concatenate([h, bf], -1)))
+        v = nn.Dense(cfg.hidden, name="volumon_fc0")(jnp.concatenate([h, bf], -1))
+        if cfg.lift_stride8 and fine is not None:
+            p8 = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 8, 2))(fine, rois)
+            p8 = p8.reshape(p8.shape[:2] + (-1,))
+            # Scaled down: Adam moves every weight of a wide new layer by about the step size at
+            # once, which unscaled would throw the trained head far off in its first steps.
+            v = v + _LIFT8_SCALE * nn.Dense(cfg.hidden, kernel_init=nn.initializers.zeros, name="lift8_fc")(p8)
+        v = nn.relu(v)
         tiny = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
         local = nn.Dense(
             9 * n,

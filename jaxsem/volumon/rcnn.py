@@ -356,11 +356,8 @@ def train_rcnn(
         if run.latest_step is not None:
             state = run.restore(state)
         elif config.init_from:
-            start = load_rcnn(config.init_from).variables
-            same = jax.tree.structure(start) == jax.tree.structure(variables) and all(
-                a.shape == b.shape for a, b in zip(jax.tree.leaves(start), jax.tree.leaves(variables))
-            )
-            if not same:
+            start = _adopt(load_rcnn(config.init_from).variables, variables)
+            if start is None:
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
             state = {**state, "params": start["params"], "batch_stats": start["batch_stats"]}
         run.begin()
@@ -400,6 +397,27 @@ def train_rcnn(
                     done, {"params": params, "batch_stats": stats, "opt_state": opt, "step": np.asarray(done, np.int64)}
                 )
         return model, {"params": params, "batch_stats": stats}, run.metrics()
+
+
+def _adopt(start, fresh):
+    """``fresh`` (a network's initial variables, nested dicts) with every entry that ``start``
+    also holds taken from ``start``; None when ``start`` is not a part of the same network (an
+    entry ``fresh`` lacks, or a shape that differs). Entries only ``fresh`` holds (a branch added
+    to a trained network, such as ``lift_stride8``'s) keep their initial values."""
+    if not isinstance(fresh, dict) and not hasattr(fresh, "keys"):
+        return start if getattr(start, "shape", None) == getattr(fresh, "shape", None) else None
+    if not hasattr(start, "keys") or set(start) - set(fresh):
+        return None
+    out = {}
+    for key in fresh:
+        if key not in start:
+            out[key] = fresh[key]
+            continue
+        sub = _adopt(start[key], fresh[key])
+        if sub is None:
+            return None
+        out[key] = sub
+    return out
 
 
 # ----------------------------------------------------------------------------- models on disk
