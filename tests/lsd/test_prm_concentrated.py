@@ -45,17 +45,24 @@ def test_strip_cap_holds_the_fullest_strip(seed):
     assert cap % 16 == 0 and cap <= 2 * 16 * max(1, n // 8)
 
 
-def test_concentrated_grow_runs_once_and_matches_a_full_search(monkeypatch):
-    occ = _free_map()
-    dist = _concentrated(3)
-    calls = []
+@pytest.fixture
+def grow_caps(monkeypatch):
+    """The strip slots (``cap``) of every jitted grow, in call order."""
+    caps = []
     real = _roadmap._grow_jit
 
     def counted(*args, **kwargs):
-        calls.append(kwargs["cap"])
+        caps.append(kwargs["cap"])
         return real(*args, **kwargs)
 
     monkeypatch.setattr(_roadmap, "_grow_jit", counted)
+    return caps
+
+
+def test_concentrated_grow_runs_once_and_matches_a_full_search(grow_caps):
+    occ = _free_map()
+    dist = _concentrated(3)
+    calls = grow_caps
     grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
     prm = PRM(occ, grid, capacity=6000, radius=1.5, weight="neglogp", sectors=8)
     prm.grow(jax.random.PRNGKey(7), 1200, dist)
@@ -108,17 +115,10 @@ def test_draws_are_the_flat_inverse_cdf_search(seed):
     assert np.all(dist.reshape(-1)[got] > 0)  # never a cell without weight
 
 
-def test_small_roadmaps_from_any_distribution_share_one_search(monkeypatch):
+def test_small_roadmaps_from_any_distribution_share_one_search(grow_caps):
     # navigate's roadmaps (1,500 vertices): whatever the window's distribution, the neighbour
     # search is the brute-force one, so its program is compiled once, not once per strip size.
-    caps = []
-    real = _roadmap._grow_jit
-
-    def counted(*args, **kwargs):
-        caps.append(kwargs["cap"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(_roadmap, "_grow_jit", counted)
+    caps = grow_caps
     grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
     for seed, centre in ((5, (120, 200)), (6, (60, 40))):
         prm = PRM(_free_map(), grid, capacity=1500, radius=1.5, weight="neglogp", sectors=8)
