@@ -59,6 +59,7 @@ def grow_caps(monkeypatch):
     return caps
 
 
+@pytest.mark.slow
 def test_concentrated_grow_runs_once_and_matches_a_full_search(grow_caps):
     occ = _free_map()
     dist = _concentrated(3)

@@ -17,6 +17,7 @@ def _batch():
     return rcnn_batch(_frames(2, 0), TINY, ("a", "b", "c"), 4)
 
 
+@pytest.mark.slow
 def test_grown_network_starts_from_the_trained_outputs_and_its_branch_learns():
     b = _batch()
     _, trained = init_rcnn(jax.random.PRNGKey(1), TINY, 2)
@@ -40,6 +41,7 @@ def test_grown_network_starts_from_the_trained_outputs_and_its_branch_learns():
     assert bool(jnp.all(jnp.isfinite(g))) and float(jnp.max(jnp.abs(g))) > 0
 
 
+@pytest.mark.slow
 def test_a_different_network_is_no_start():
     _, fresh = init_rcnn(jax.random.PRNGKey(0), dataclasses.replace(TINY, lift_stride8=True), 1)
     _, wider = init_rcnn(jax.random.PRNGKey(0), dataclasses.replace(TINY, hidden=32), 1)
