@@ -51,8 +51,8 @@ from ._volumon import (
 )
 
 PARAM_RULES = ("class", "expectation")
-_LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 BACKBONES = ("mobilenet_v2", "plain_cnn")
+_LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
 

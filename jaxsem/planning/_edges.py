@@ -41,9 +41,9 @@ def _edges(blocked, cost, a, b, grid, edge_samples, mask=None, subset=None, tabl
     module docstring).
 
     The rule is decided by :func:`_edges_clear` (the answer of :func:`_edges_dense`, most edges
-    from a few dozen reads); the weight is the length (``cost=None``) or the length times the
-    mean cost over every one of the rule's samples. ``mask``: the edges worth checking (the rest may come back either
-    way; None: all); ``subset``, ``table``, ``chunk``: see :func:`_edges_clear`."""
+    from a few dozen reads), the weight :func:`_weights`'s. ``mask``: the edges worth checking
+    (the rest may come back either way; None: all); ``subset``, ``table``, ``chunk``: see
+    :func:`_edges_clear`."""
     clear = _edges_clear(blocked, a, b, grid, edge_samples, mask, subset=subset, table=table, chunk=chunk)
     return clear, _weights(cost, a, b, grid, edge_samples)
 

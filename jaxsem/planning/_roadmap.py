@@ -539,7 +539,7 @@ def _strip_cap(weights: np.ndarray, n_total: int, resolution: float, radius: flo
     total = float(weights.sum())
     if not total > 0:
         return 16
-    bucket = lambda count: np.minimum(((np.arange(count) + 0.5) * resolution / radius).astype(np.int64), 1 << 30)
+    bucket = lambda count: ((np.arange(count) + 0.5) * resolution / radius).astype(np.int64)  # cell centres
     by, bx = bucket(H), bucket(W)
     rows = np.add.reduceat(weights, np.flatnonzero(np.diff(by, prepend=-1)), axis=0)
     mass = np.add.reduceat(rows, np.flatnonzero(np.diff(bx, prepend=-1)), axis=1) / total

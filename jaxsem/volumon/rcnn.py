@@ -70,6 +70,7 @@ from .data import (
     bop_eval_batch,
     frame_arrays,
     frames_batch,
+    jitter_batch,
     load_bop_split,
     read_rgb,
 )
@@ -197,8 +198,8 @@ class RCNNTrainConfig:
       init_from: start from this model's weights (a training workdir or an exported ``.npz``;
         the same network) instead of a fresh initialisation; the optimiser starts afresh.
       augment_renders: the rendered frames' brightness, contrast and colour jittered as the
-        photographs' are (their stereo labels kept), so the lift, learnt on renders alone, meets
-        the colour changes of photographs. No zoom: the head reads absolute depth from the
+        photographs' are (:func:`jaxsem.volumon.data.jitter_batch`; labels kept), so the lift,
+        learnt on renders alone, meets the colour changes of photographs. No zoom: the head reads absolute depth from the
         object's apparent size at the renders' one focal length, which a zoom would contradict.
     """
 
@@ -372,7 +373,7 @@ def train_rcnn(
                 renders, _indices(renders["image"].shape[0], config.batch_size - n_real, config.seed, step, 0)
             )
             if config.augment_renders:
-                b = augment_batch(b, np.random.default_rng([config.seed, 3, step]), (1.0, 1.0), keep_stereo=True)
+                b = jitter_batch(b, np.random.default_rng([config.seed, 3, step]))
             if n_real:
                 assert real is not None
                 r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))
@@ -404,7 +405,7 @@ def _adopt(start, fresh):
     also holds taken from ``start``; None when ``start`` is not a part of the same network (an
     entry ``fresh`` lacks, or a shape that differs). Entries only ``fresh`` holds (a branch added
     to a trained network, such as ``lift_stride8``'s) keep their initial values."""
-    if not isinstance(fresh, dict) and not hasattr(fresh, "keys"):
+    if not hasattr(fresh, "keys"):
         return start if getattr(start, "shape", None) == getattr(fresh, "shape", None) else None
     if not hasattr(start, "keys") or set(start) - set(fresh):
         return None

@@ -125,18 +125,31 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     return batch
 
 
-def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4, keep_stereo: bool = False) -> dict:
+def _jitter(img, rng):
+    """``img`` with its brightness, contrast and colour balance jittered (values kept in [0, 1])."""
+    gain = rng.uniform(0.75, 1.25) * rng.uniform(0.9, 1.1, size=3)
+    contrast = rng.uniform(0.75, 1.25)
+    mean = img.mean()
+    return np.clip((img - mean) * contrast + mean * gain, 0.0, 1.0)
+
+
+def jitter_batch(batch: dict, rng) -> dict:
+    """A :func:`frames_batch` batch with each image's brightness, contrast and colour balance
+    jittered as :func:`augment_batch` does, and nothing else changed (labels, stereo labels and
+    intrinsics stay true). ``rng`` a numpy ``Generator``; the input is not changed."""
+    out = dict(batch)
+    out["image"] = np.stack([_jitter(img, rng) for img in batch["image"]]).astype(batch["image"].dtype)
+    return out
+
+
+def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 0.4) -> dict:
     """A :func:`frames_batch` batch seen by other cameras: each image zoomed by a factor drawn
     log-uniformly in ``scale_range`` about a random point (out of the frame: grey), its
     intrinsics changed to match, so the 3D labels (camera frame) stay true; boxes moved with the
     pixels and clipped to the image, a label dropped when less than ``min_kept`` of its box stays
     in view (its visible fraction scaled by what stays); brightness, contrast and colour balance
-    jittered. ``rng`` a numpy ``Generator``; the input is not changed.
-
-    Stereo labels are dropped unless ``keep_stereo``: then both amodal boxes move with the same
-    pixel map as the image. The dual loss projects into both cameras with the one ``K`` of the
-    batch, so a pair zoomed alike is a true pair of a rig whose two cameras both zoomed (the
-    rendered desks; not clipped, amodal boxes may leave the image)."""
+    jittered. Stereo labels are dropped (the second view is not moved). ``rng`` a numpy
+    ``Generator``; the input is not changed."""
     out = {k: np.array(v) for k, v in batch.items()}
     n, H, W = out["image"].shape[:3]
     lo, hi = np.log(scale_range[0]), np.log(scale_range[1])
@@ -148,10 +161,7 @@ def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 
         img = cv2.warpAffine(
             out["image"][i], M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0.45,) * 3
         )
-        gain = rng.uniform(0.75, 1.25) * rng.uniform(0.9, 1.1, size=3)
-        contrast = rng.uniform(0.75, 1.25)
-        mean = img.mean()
-        out["image"][i] = np.clip((img - mean) * contrast + mean * gain, 0.0, 1.0).astype(out["image"].dtype)
+        out["image"][i] = _jitter(img, rng).astype(out["image"].dtype)
         out["K"][i] = (np.array([[s, 0.0, tx], [0.0, s, ty], [0.0, 0.0, 1.0]]) @ out["K"][i]).astype(out["K"].dtype)
         moved = out["boxes"][i] * s + np.array([tx, ty, tx, ty])
         clipped = np.clip(moved, 0.0, [W, H, W, H])
@@ -161,13 +171,7 @@ def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 
         out["boxes"][i] = clipped.astype(out["boxes"].dtype)
         out["box_valid"][i] = out["box_valid"][i] & (kept >= min_kept) & wide
         out["visible_fraction"][i] = out["visible_fraction"][i] * kept
-        if keep_stereo:
-            shift = np.array([tx, ty, tx, ty])
-            for key in ("box_left", "box_right"):
-                out[key][i] = (out[key][i] * s + shift).astype(out[key].dtype)
-            out["stereo_valid"][i] = out["stereo_valid"][i] & out["box_valid"][i]
-        else:
-            out["stereo_valid"][i] = False
+        out["stereo_valid"][i] = False
     return out
 
 
