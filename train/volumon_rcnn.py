@@ -54,6 +54,11 @@ def main(argv=None) -> int:
         help="colour-jitter the rendered frames too (no zoom: the head reads depth from apparent size)",
     )
     p.add_argument(
+        "--multiview-real",
+        action="store_true",
+        help="pair the real photos for the dual loss (data.multiview_frames: a second photo of the same desk)",
+    )
+    p.add_argument(
         "--lift-stride8",
         action="store_true",
         help="the VoluMon head also reads the RoIs from the stride-8 features (plain_cnn; a branch that starts at zero)",
@@ -88,6 +93,7 @@ def main(argv=None) -> int:
         learning_rate=a.learning_rate,
         augment_real=a.augment_real,
         augment_renders=a.augment_renders,
+        multiview_real=a.multiview_real,
         init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size
@@ -107,6 +113,8 @@ def main(argv=None) -> int:
         val = [f for f in tune if f["frame_id"] >= a.val_from]
         if not fit:
             p.error(f"--val-from: no tuning photo below frame id {a.val_from} is left to train on")
+        if a.multiview_real:  # each split paired within itself: no label crosses into validation
+            fit = df.multiview_frames(fit)
         real = df.frame_arrays(fit, size)
         if val:  # the real validation photos are the held-out figures that matter
             held = df.frame_arrays(val, size)

@@ -201,6 +201,10 @@ class RCNNTrainConfig:
         photographs' are (:func:`jaxsem.volumon.data.jitter_batch`; labels kept), so the lift,
         learnt on renders alone, meets the colour changes of photographs. No zoom: the head reads absolute depth from the
         object's apparent size at the renders' one focal length, which a zoom would contradict.
+      multiview_real: the real photographs carry dual-loss labels from a second photograph of
+        the same scene (:func:`jaxsem.volumon.data.multiview_frames`), so the lift learns depth on
+        real pixels too, not only on renders. The caller pairs the frames; the flag records it,
+        so a resume with other data is refused.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -219,6 +223,7 @@ class RCNNTrainConfig:
     augment_real: bool = False
     init_from: str = ""
     augment_renders: bool = False
+    multiview_real: bool = False
 
 
 def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:

@@ -39,7 +39,6 @@ def _batch(n=6, W=320, H=240):
 def test_boxes_and_intrinsics_follow_the_pixels():
     batch = _batch()
     out = df.augment_batch(batch, np.random.default_rng(1), scale_range=(0.8, 1.25))
-    assert not out["stereo_valid"].any()
     checked = 0
     for i in range(len(out["image"])):
         if not out["box_valid"][i, 0]:
@@ -54,6 +53,37 @@ def test_boxes_and_intrinsics_follow_the_pixels():
         checked += 1
     assert checked >= 3
     assert np.all(batch["box_valid"][:, 0])  # the input is untouched
+
+
+def test_stereo_boxes_follow_both_cameras():
+    """A second camera (moved and turned) sees each labelled point where its moved box says,
+    through the zoomed intrinsics: the dual loss's labels stay true."""
+    batch = _batch()
+    n = len(batch["image"])
+    c, s = np.cos(0.2), np.sin(0.2)
+    rtl = np.array([[c, 0, s, -0.25], [0, 1, 0, 0.02], [-s, 0, c, 0.05], [0, 0, 0, 1]], np.float32)
+    batch["right_T_left"] = np.tile(rtl, (n, 1, 1))
+    half = np.array([-20.0, -15.0, 20.0, 15.0], np.float32)
+
+    def seen(K, T, X):
+        p = K @ (T[:3, :3] @ X + T[:3, 3])
+        return p[:2] / p[2]
+
+    batch["box_left"] = np.zeros_like(batch["boxes"])
+    batch["box_right"] = np.zeros_like(batch["boxes"])
+    for i in range(n):
+        for key, T in (("box_left", np.eye(4)), ("box_right", rtl)):
+            batch[key][i, 0] = np.tile(seen(batch["K"][i], T, batch["gt_center"][i, 0]), 2) + half
+    out = df.augment_batch(batch, np.random.default_rng(4), scale_range=(0.75, 1.33))
+    assert out["stereo_valid"][:, 0].all()
+    np.testing.assert_array_equal(out["right_T_left"], batch["right_T_left"])
+    zooms = []
+    for i in range(n):
+        for key, T in (("box_left", np.eye(4)), ("box_right", rtl)):
+            box = out[key][i, 0]
+            np.testing.assert_allclose((box[:2] + box[2:]) / 2, seen(out["K"][i], T, out["gt_center"][i, 0]), atol=1e-3)
+        zooms.append((box[2] - box[0]) / 40.0)
+    assert np.ptp(zooms) > 0.1  # the cameras did zoom
 
 
 def test_a_box_zoomed_out_of_view_is_no_label():

@@ -11,7 +11,8 @@ writers and renders, the batch sources for training and the BOP evaluation batch
 - Whole frames for the detect-and-lift network (:mod:`jaxsem.volumon.rcnn`): :func:`write_desk_frames`,
   :func:`load_frame_chunks`, :func:`bop_frames` (real photographs), :func:`frame_arrays`,
   :func:`frames_batch`, :func:`augment_batch` (the same frames seen by other cameras),
-  :func:`jitter_batch` (their colours only).
+  :func:`jitter_batch` (their colours only), :func:`multiview_frames` (photographs paired for the
+  dual loss).
 - Real BOP scenes: :func:`load_bop_split`, :func:`bop_eval_batch`, :func:`bop_class_extents`,
   :func:`read_rgb`; the LM-O classes :data:`LMO_CLASS_NAMES`, :data:`LMO_CLASS_SHAPES`,
   :data:`LMO_OBJECT_IDS`, :func:`detections_from_frames`, :func:`is_desk_detections`,
@@ -41,6 +42,7 @@ from ._desk_frames import (
     frames_batch as frames_batch,
     jitter_batch as jitter_batch,
     load_frame_chunks as load_frame_chunks,
+    multiview_frames as multiview_frames,
     write_desk_frames as write_desk_frames,
 )
 from ._lmo_renders import (

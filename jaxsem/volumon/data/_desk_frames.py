@@ -52,15 +52,18 @@ def frame_arrays(
     """Frames as fixed-shape arrays at ``image_size`` ``(W, H)`` (keys :data:`FRAME_KEYS`).
 
     Objects with no visible box or below ``min_visible`` visible fraction are not labels. An
-    object without ``box_right`` has no stereo label (``stereo_valid`` False). ``ValueError``
+    object without ``box_right`` has no stereo label (``stereo_valid`` False). The second view
+    is a stereo rig ``baseline`` metres to the right unless the frame gives its own
+    ``right_T_left`` (:func:`multiview_frames`). ``ValueError``
     naming ``max_objects`` when a frame holds more labels, ``class_names`` for an unknown class."""
     W, H = (int(x) for x in image_size)
     names = list(class_names)
     G = int(max_objects)
     out: dict = {k: [] for k in FRAME_KEYS}
-    rtl = np.eye(4)
-    rtl[0, 3] = -float(baseline)
+    rig = np.eye(4)
+    rig[0, 3] = -float(baseline)
     for fr in frames:
+        rtl = np.asarray(fr.get("right_T_left", rig), np.float64)
         h0, w0 = fr["rgb"].shape[:2]
         sx, sy = W / w0, H / h0
         scale = np.array([sx, sy, sx, sy])
@@ -148,8 +151,9 @@ def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 
     intrinsics changed to match, so the 3D labels (camera frame) stay true; boxes moved with the
     pixels and clipped to the image, a label dropped when less than ``min_kept`` of its box stays
     in view (its visible fraction scaled by what stays); brightness, contrast and colour balance
-    jittered. Stereo labels are dropped (the second view is not moved). ``rng`` a numpy
-    ``Generator``; the input is not changed."""
+    jittered. Stereo boxes move by the same zoom and shift, unclipped: both views' cameras change
+    alike, so ``right_T_left`` and the dual loss stay true. ``rng`` a numpy ``Generator``; the
+    input is not changed."""
     out = {k: np.array(v) for k, v in batch.items()}
     n, H, W = out["image"].shape[:3]
     lo, hi = np.log(scale_range[0]), np.log(scale_range[1])
@@ -171,7 +175,9 @@ def augment_batch(batch: dict, rng, scale_range=(0.75, 1.33), min_kept: float = 
         out["boxes"][i] = clipped.astype(out["boxes"].dtype)
         out["box_valid"][i] = out["box_valid"][i] & (kept >= min_kept) & wide
         out["visible_fraction"][i] = out["visible_fraction"][i] * kept
-        out["stereo_valid"][i] = False
+        shift = np.array([tx, ty, tx, ty])
+        for key in ("box_left", "box_right") if "box_left" in out else ():
+            out[key][i] = (out[key][i] * s + shift).astype(out[key].dtype)
     return out
 
 
@@ -195,6 +201,100 @@ def bop_frames(scene_dir, split: str) -> list:
         ]
         frames.append({"rgb": read_rgb(f.image_path), "K": f.K, "objects": objects, "frame_id": f.frame_id})
     return frames
+
+
+def _camera_motion(a: dict, b: dict, tol_m: float, tol_deg: float):
+    """``(b_T_a, static)``: the camera motion from frame ``a`` to frame ``b`` that the most of their
+    shared objects agree on (each object's pose in both frames gives one candidate; an object agrees
+    when the candidate moves its centre within ``tol_m`` and its axes within ``tol_deg``), and the
+    names of the objects that stayed put under it. ``(None, ())`` when no two objects agree."""
+    pa = {o["class_name"]: o for o in a["objects"]}
+    pb = {o["class_name"]: o for o in b["objects"]}
+    shared = sorted(set(pa) & set(pb))
+    pose = lambda o: np.block([[np.asarray(o["rotation"]), np.asarray(o["center"])[:, None]], [np.zeros((1, 3)), 1.0]])
+    best, best_in = None, ()
+    for k in shared:
+        cand = pose(pb[k]) @ np.linalg.inv(pose(pa[k]))
+        inliers = []
+        for m in shared:
+            moved = cand @ pose(pa[m])
+            near = np.linalg.norm(moved[:3, 3] - np.asarray(pb[m]["center"])) <= tol_m
+            cos = (np.trace(moved[:3, :3].T @ np.asarray(pb[m]["rotation"])) - 1.0) / 2.0
+            if near and np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= tol_deg:
+                inliers.append(m)
+        if len(inliers) > len(best_in):
+            best, best_in = cand, tuple(inliers)
+    if len(best_in) < 2:
+        return None, ()
+    return best, best_in
+
+
+def multiview_frames(
+    frames,
+    baseline=(0.1, 0.5),
+    min_visible: float = 0.95,
+    border: float = 2.0,
+    tol_m: float = 0.01,
+    tol_deg: float = 3.0,
+) -> list:
+    """Photographs of one scene as stereo pairs for the dual loss: each frame gets a second view
+    among ``frames`` (the camera moved between ``baseline`` metres), and each object seen whole in
+    both (at least ``min_visible`` visible, its box at least ``border`` pixels inside both images,
+    and not moved between them) gets ``box_left`` / ``box_right``, its boxes in the two views.
+
+    The dual loss needs the whole object's box in both views; the visible box is that box when
+    the object is neither hidden nor cut by the image edge. The camera motion is the one the
+    scene's static objects agree on (:func:`_camera_motion`), what a user's odometry or SLAM gives;
+    an object that moved is left without a stereo label. The partner is the frame that labels the
+    most objects, then the one whose baseline is nearest the middle of the range. Only ``frames``
+    are partners: pass one split at a time, so no label crosses a split. Returns new frame dicts
+    (the input is not changed) with ``right_T_left`` (4, 4) where a partner was found and
+    ``partner_id``; frames without one are returned unchanged."""
+    lo, hi = (float(x) for x in baseline)
+    if not 0.0 <= lo < hi:
+        raise ValueError(f"baseline: expected 0 <= low < high metres, got {baseline!r}")
+    frames = list(frames)
+
+    def whole(o, shape) -> bool:
+        box = np.asarray(o["visible_box"], np.float64)
+        H, W = shape[:2]
+        inside = box[0] >= border and box[1] >= border and box[2] <= W - border and box[3] <= H - border
+        return bool(np.all(np.isfinite(box)) and inside and float(o.get("visible_fraction", 1.0)) >= min_visible)
+
+    out = []
+    for a in frames:
+        best = None
+        for b in frames:
+            if b is a:
+                continue
+            motion, static = _camera_motion(a, b, tol_m, tol_deg)
+            if motion is None:
+                continue
+            dist = float(np.linalg.norm(np.linalg.inv(motion)[:3, 3]))
+            if not lo <= dist <= hi:
+                continue
+            in_b = {o["class_name"]: o for o in b["objects"] if whole(o, b["rgb"].shape)}
+            pairs = {
+                o["class_name"]: in_b[o["class_name"]]["visible_box"]
+                for o in a["objects"]
+                if o["class_name"] in static and o["class_name"] in in_b and whole(o, a["rgb"].shape)
+            }
+            key = (len(pairs), -abs(dist - (lo + hi) / 2.0))
+            if pairs and (best is None or key > best[0]):
+                best = (key, b, motion, pairs)
+        if best is None:
+            out.append(a)
+            continue
+        _, b, motion, pairs = best
+        objects = []
+        for o in a["objects"]:
+            o = dict(o)
+            if o["class_name"] in pairs:
+                o["box_left"] = np.asarray(o["visible_box"], np.float64)
+                o["box_right"] = np.asarray(pairs[o["class_name"]], np.float64)
+            objects.append(o)
+        out.append({**a, "objects": objects, "right_T_left": motion, "partner_id": b.get("frame_id")})
+    return out
 
 
 def write_desk_frames(
