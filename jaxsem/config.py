@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Generic, TypeVar
 
 from ._atomic import atomic_write_text
+from ._files import read_text
 
 __all__ = [
     "Presets",
@@ -225,10 +226,10 @@ def save(config, path: str | pathlib.Path) -> pathlib.Path:
 def load(cls: type[C], path: str | pathlib.Path, *, base: C | None = None) -> C:
     """Reads a JSON config file written by :func:`save` (or by hand: any subset of the fields)."""
     path = pathlib.Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such config file")
     try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such config file") from None
+        data = json.loads(read_text(path, "config file"))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(data, dict):

@@ -37,6 +37,7 @@ import numpy as np
 
 from jaxsem import scripting as sc
 from jaxsem._checks import check_box  # the one box rule (sequence.json's too)
+from jaxsem._files import read_text
 from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
@@ -67,11 +68,13 @@ def read_boxes(path: pathlib.Path, image_size: tuple[int, int]) -> np.ndarray:
     file and the entry."""
     where = f"--boxes {path}"
     try:
-        data = json.loads(path.read_text())
+        text = read_text(path, "box file")
+    except ValueError as exc:
+        raise sc.UsageError(f"--boxes {exc}") from None
+    try:
+        data = json.loads(text)
     except ValueError as exc:
         raise sc.UsageError(f"{where}: not valid JSON ({exc})") from None
-    except OSError as exc:
-        raise sc.UsageError(f"{where}: cannot read it ({exc.strerror or exc})") from None
     if isinstance(data, dict) or (isinstance(data, list) and data and not isinstance(data[0], (list, dict))):
         data = [data]  # one box
     if not isinstance(data, list) or not data:

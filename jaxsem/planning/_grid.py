@@ -17,7 +17,7 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
-from .._files import MAX_CELLS as MAX_CELLS
+from .._files import MAX_CELLS as MAX_CELLS, read_text
 
 # Semantic classes of the true world (int8). Walls, windows and exit signs are occupied cells;
 # doors are free cells (open doorways).
@@ -125,10 +125,12 @@ def host_grid(name: str, grid: GridLike, shape=None) -> Q.Grid:
 def read_text_as(path: pathlib.Path, parse: Callable[[str], Any], errors: tuple, what: str) -> Any:
     """``parse`` of the text file at ``path``; a one-line ``ValueError`` ("not a readable
     ``what``") when it cannot be read, decoded or parsed (``errors``: the parser's own
-    exceptions), the check every map and annotation file goes through first."""
+    exceptions), the check every map and annotation file goes through first. The file's size is
+    bounded (:func:`jaxsem._files.read_text`) before it is read."""
+    text = read_text(path, what)
     try:
-        return parse(path.read_text())
-    except (OSError, UnicodeDecodeError, *errors) as exc:
+        return parse(text)
+    except errors as exc:
         raise ValueError(f"{path}: not a readable {what} ({exc})") from None
 
 

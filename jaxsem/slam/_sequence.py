@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 
 from .. import classes as _classes, factors
-from .._files import MAX_PIXELS, image_size as _image_size
+from .._files import MAX_PIXELS, image_size as _image_size, read_text
 from ._sequence_checks import _parse
 from ._sequence_types import (
     FORMAT_TAG,
@@ -136,11 +136,9 @@ def load_sequence(path, *, classes=None, require_detections: bool = True) -> Seq
             f"{file}: no such file (expected a sequence directory holding {SEQUENCE_FILE}, or the JSON file itself)"
         )
     try:
-        data = json.loads(file.read_text())
+        data = json.loads(read_text(file, "sequence file"))  # bounded; names the file when unreadable
     except json.JSONDecodeError as exc:
         raise ValueError(f"{file}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{file}: not a UTF-8 text file ({exc.reason})") from None
     return _parse(data, str(file), file.parent, classes, require_detections)
 
 

@@ -486,7 +486,7 @@ def load_rcnn(path=None) -> LoadedModel:
         cfg_path = p / "config.json"
         if not cfg_path.is_file():
             raise ValueError(f"model: {p} is not a training workdir (no config.json)")
-        config = rcnn_config_from_dict(json.loads(cfg_path.read_text()))
+        config = rcnn_config_from_dict(read_json(cfg_path, "training config"))
         model, init = init_rcnn(jax.random.PRNGKey(0), config.model, 1)
         variables = dict(init)
         step = latest_step(p / "checkpoints")
