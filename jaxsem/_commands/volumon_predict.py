@@ -37,8 +37,8 @@ import numpy as np
 
 from jaxsem import scripting as sc
 from jaxsem._checks import check_box  # the one box rule (sequence.json's too)
-from jaxsem._files import read_text
 from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
+from jaxsem._files import read_text
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
 # and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
