@@ -135,7 +135,8 @@ def _tridiagonal_solve(D, C, B):
 
 
 def damped_schur_step(n: Normal, lam, pose_free, obj_free):
-    """Solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by eliminating the pose blocks.
+    """Solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by eliminating the pose blocks (when every
+    pose is held, as in the batch solver's rescue phase, by one small solve per landmark).
 
     The pose-pose part is block-diagonal, or block-tridiagonal when ``n.Hpp_next`` is given
     (odometry between consecutive poses): then ``Hpp^-1`` is applied by a block-tridiagonal
@@ -150,25 +151,47 @@ def damped_schur_step(n: Normal, lam, pose_free, obj_free):
       is not positive definite (the search then rejects the step).
     """
     dtype = n.Hpp.dtype
-    dpn, dln = n.Hpp.shape[-1], n.Hoo.shape[-1]
-    J = n.Hpo.shape[1]
-    eye_p, eye_l = jnp.eye(dpn, dtype=dtype), jnp.eye(dln, dtype=dtype)
-    small = jnp.asarray(1e-9, dtype)
     pose_free = jnp.asarray(pose_free, dtype)
     obj_free = jnp.asarray(obj_free, bool)
-
-    def damp(H, eye, used):
-        d = jnp.diagonal(H, axis1=-2, axis2=-1)
-        H = H + lam * (d[..., None] * eye + small * eye)
-        # Unused / held variables: identity rows keep the system regular; their rhs is zero.
-        return jnp.where(used[:, None, None], H, eye)
-
     pose_used = pose_free > 0
-    Hpp = damp(n.Hpp, eye_p, pose_used)
-    Hoo = damp(n.Hoo, eye_l, obj_free)
+    Hoo = _damp(n.Hoo, lam, obj_free)
+    go = n.go * obj_free[:, None].astype(dtype)
+
+    def objects_only():
+        # Every pose held: the system is block-diagonal in the landmarks (one small solve each).
+        chol = jnp.linalg.cholesky(Hoo)
+        y = jax.scipy.linalg.solve_triangular(chol, -go[..., None], lower=True)
+        do = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")[..., 0]
+        return jnp.zeros_like(n.gp), do * obj_free[:, None].astype(dtype)
+
+    def joint():
+        return _joint_step(n, lam, pose_free, obj_free, Hoo, go)
+
+    # Skipping the pose elimination when no pose is free (a rescue phase) is the same solution
+    # at a fraction of the cost; under vmap the cond runs both branches and selects.
+    return jax.lax.cond(jnp.any(pose_used), joint, objects_only)
+
+
+def _damp(H, lam, used):
+    """Marquardt's damping of diagonal blocks ``H`` (N, n, n): ``H + lam (diag(H) + 1e-9)``;
+    the blocks of unused / held variables become the identity (their rhs is zero), which keeps
+    the system regular."""
+    eye = jnp.eye(H.shape[-1], dtype=H.dtype)
+    d = jnp.diagonal(H, axis1=-2, axis2=-1)
+    H = H + lam * (d[..., None] * eye + jnp.asarray(1e-9, H.dtype) * eye)
+    return jnp.where(used[:, None, None], H, eye)
+
+
+def _joint_step(n: Normal, lam, pose_free, obj_free, Hoo, go):
+    """:func:`damped_schur_step` with some pose free: the pose blocks eliminated (``Hoo`` and
+    ``go`` already damped and masked)."""
+    dtype = n.Hpp.dtype
+    dpn, dln = n.Hpp.shape[-1], n.Hoo.shape[-1]
+    J = n.Hpo.shape[1]
+    pose_used = pose_free > 0
+    Hpp = _damp(n.Hpp, lam, pose_used)
     Hpo = n.Hpo * pose_free[:, None, None, None] * obj_free[None, :, None, None].astype(dtype)
     gp = n.gp * pose_free[:, None]
-    go = n.go * obj_free[:, None].astype(dtype)
     if n.Hpp_next is not None:
         # Odometry: block-tridiagonal pose part. One solve gives A = Hpp^-1 Hpo and y = Hpp^-1 gp;
         # then dp = Hpp^-1 (-gp - Hpo do) = -y - A do.

@@ -125,7 +125,13 @@ def _structured_system(seed, odometry):
 
 @pytest.mark.parametrize(
     "odometry, pose_free, obj_free",
-    [(False, [1.0, 1.0, 1.0], [True, True]), (True, [1.0, 0.0, 1.0], [False, True])],
+    [
+        (False, [1.0, 1.0, 1.0], [True, True]),
+        (True, [1.0, 0.0, 1.0], [False, True]),
+        # every pose held (the rescue phase): the step skips the pose elimination
+        (False, [0.0, 0.0, 0.0], [True, True]),
+        (True, [0.0, 0.0, 0.0], [True, False]),
+    ],
 )
 def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_free, obj_free):
     """The Schur step (poses eliminated, per-block damping, held variables kept at zero) against
@@ -139,6 +145,11 @@ def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_fre
     want[free] = np.linalg.solve(damped[np.ix_(free, free)], -g[free])
     got = np.concatenate([np.asarray(dp).ravel(), np.asarray(do).ravel()])
     np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.max(np.abs(want)))
+    # vmapped (the cond selects between both branches) it is the same step
+    both = jax.vmap(damped_schur_step, in_axes=(None, None, 0, None))(
+        normal, lam, jnp.asarray([pose_free, pose_free]), jnp.asarray(obj_free)
+    )
+    np.testing.assert_allclose(np.asarray(both[1][1]), np.asarray(do), rtol=1e-12, atol=1e-14)
     # the damping matters here: the undamped step is another one
     undamped = np.linalg.solve(H[np.ix_(free, free)], -g[free])
     assert np.max(np.abs(undamped - want[free])) > 1e-3 * np.max(np.abs(want))
