@@ -88,7 +88,7 @@ def _grow_lazy(
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
     origin_j = jnp.asarray(grid.origin, roadmap.points.dtype)
-    rm, ok_new = _sample_lazy_jit(
+    rm, _, ok_new, _ = _sample_lazy_jit(
         roadmap,
         key,
         blocked,

@@ -173,8 +173,9 @@ def _empty_roadmap(M: int, k: int, dtype) -> Roadmap:
 
 def _sample_into(rm, key, blocked, distribution, grid, *, n, uniform_samples, aids):
     """``n`` new samples written into the roadmap's points and valid flags (``grid``: the map's,
-    leaves of the points' dtype). Returns (points, valid, new points, their valid flags, first
-    slot)."""
+    leaves of the points' dtype), no edge: the first half of the eager grow, and jitted alone
+    the lazy grow's device half. Returns (the roadmap with the samples, the new points, their
+    valid flags, their first slot)."""
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
     weights = _sampling_weights(blocked, None if uniform_samples else distribution)
@@ -190,7 +191,7 @@ def _sample_into(rm, key, blocked, distribution, grid, *, n, uniform_samples, ai
     z = jnp.zeros((), jnp.int32)
     points = jax.lax.dynamic_update_slice(rm.points, new.astype(dtype), (s0, z))
     valid = jax.lax.dynamic_update_slice(rm.valid, ok_new, (s0,))
-    return points, valid, new, ok_new, s0
+    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), new, ok_new, s0
 
 
 def _density(points, distribution, grid, sectors):
@@ -239,7 +240,7 @@ def _grow_impl(
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
     z = jnp.zeros((), jnp.int32)
-    points, valid, new, ok_new, s0 = _sample_into(
+    sampled, new, ok_new, s0 = _sample_into(
         rm,
         key,
         blocked,
@@ -249,8 +250,9 @@ def _grow_impl(
         uniform_samples=uniform_samples,
         aids=aids,
     )
+    points = sampled.points
     slots = s0 + jnp.arange(n, dtype=jnp.int32)
-    db_ok = valid & (jnp.arange(M) >= _QUERY)
+    db_ok = sampled.valid & (jnp.arange(M) >= _QUERY)
     # Direction-first policy (sectors > 0): the first k *clear* links among 2k candidates.
     keep = 2 * k if sectors else k
     density = _density(points, distribution, grid, sectors)
@@ -261,14 +263,11 @@ def _grow_impl(
     table = None if aids is None else aids.table
     S = edge_samples
     nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k)
-    return Roadmap(
-        points,
-        valid,
-        jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
-        jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
-        jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), (s0, z)),
-        rm.num_samples + n,
-        rm.overflow | ovf,
+    return sampled._replace(
+        neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
+        edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
+        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), (s0, z)),
+        overflow=rm.overflow | ovf,
     )
 
 
@@ -316,23 +315,7 @@ _grow_jit = functools.partial(
 )(_grow_impl)
 
 
-def _sample_lazy_impl(rm, key, blocked, distribution, grid, *, n, uniform_samples=False, aids=None):
-    """The lazy grow's device half: the eager grow's ``n`` samples written into the roadmap (no
-    edge). Returns (roadmap, the new samples' valid flags)."""
-    points, valid, _, ok_new, _ = _sample_into(
-        rm,
-        key,
-        blocked,
-        distribution,
-        grid,
-        n=n,
-        uniform_samples=uniform_samples,
-        aids=aids,
-    )
-    return rm._replace(points=points, valid=valid, num_samples=rm.num_samples + n), ok_new
-
-
-_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("grid", "n", "uniform_samples"))(_sample_lazy_impl)
+_sample_lazy_jit = functools.partial(jax.jit, static_argnames=("grid", "n", "uniform_samples"))(_sample_into)
 
 
 def _recheck_impl(rm, blocked, grid, distribution=None, factor=None, *, edge_samples, neglogp=False):
