@@ -258,10 +258,9 @@ class ObjectMapSampler:
 
 
 def run(args) -> dict:
-    import jax
-
     from jaxsem import mapping
     from jaxsem.lsd import LSDSampler, load_model
+    from jaxsem.lsd._experiment import nav_record, trial_key  # layers: white-box
     from jaxsem.mapping import BuildingRenderer
     from jaxsem.metrics import mean_sem
     from jaxsem.planning import DOOR, NavConfig, Trial, sample_tasks
@@ -285,19 +284,7 @@ def run(args) -> dict:
         for kind in args.sets:
             for t_i, task in enumerate(sample_tasks(b, kind, args.trials, args.seed)):
                 for n in args.n:
-                    key = jax.random.PRNGKey(
-                        int(
-                            np.random.default_rng(
-                                [
-                                    args.seed,
-                                    int(b.seed),
-                                    ("II", "IO").index(kind),
-                                    t_i,
-                                    n,
-                                ]
-                            ).integers(2**31)
-                        )
-                    )
+                    key = trial_key(args.seed, b.seed, kind, t_i, n)
                     rec = {
                         "building": int(b.seed),
                         "set": kind,
@@ -343,15 +330,7 @@ def run(args) -> dict:
                         while trial.step():
                             if mapper is not None and trial.steps % args.observe_every == 0:
                                 mapper.observe(trial.xy, trial.yaw)
-                        res = trial.result()
-                        rec[name] = {
-                            "success": bool(res.success),
-                            "cost": float(res.cost),
-                            "reason": res.reason,
-                            "steps": int(res.steps),
-                            "plans": int(res.plans),
-                            "seconds": time.perf_counter() - t0,
-                        }
+                        rec[name] = nav_record(trial.result(), time.perf_counter() - t0)
                         if isinstance(sampler, ObjectMapSampler):
                             rec[name]["mapped_objects"] = int(np.asarray(sampler.state.valid).sum())
                         if mapper is not None:

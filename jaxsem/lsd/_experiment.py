@@ -48,6 +48,26 @@ def trial_key(seed: int, building_seed: int, kind: str, t_i: int, n: int):
     )
 
 
+def nav_record(res, seconds: float, *, replans: bool = False) -> dict:
+    """The JSON record of one planner's trial (a :class:`~jaxsem.planning.NavResult`): success,
+    distance travelled, why it stopped, steps, plans and the wall time ``seconds``; with
+    ``replans`` also the roadmap growths and the replans by cause. The trial runner and the
+    pipeline benchmark write their records with it, so the two files read alike."""
+    rec = {
+        "success": bool(res.success),
+        "cost": float(res.cost),
+        "reason": res.reason,
+        "steps": int(res.steps),
+        "plans": int(res.plans),
+    }
+    if replans:
+        rec["grown"] = int(res.grown)
+        rec["replans_blocked"] = int(res.blocked_replans)
+        rec["replans_periodic"] = int(res.periodic_replans)
+    rec["seconds"] = seconds
+    return rec
+
+
 def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = False, base=None) -> dict:
     """One (building, set, trial, N): every planner from the same start, yaw and key."""
     b, kind, t_i, task, n = job
@@ -66,17 +86,7 @@ def _run_job(job, planners: dict, seed: int, max_steps: int, keep_paths: bool = 
         cfg = dataclasses.replace(base, n_samples=n, max_steps=max_steps, **changes)
         t0 = time.perf_counter()
         res = task.navigate(b, key, cfg, smp)
-        rec[name] = {
-            "success": bool(res.success),
-            "cost": float(res.cost),
-            "reason": res.reason,
-            "steps": int(res.steps),
-            "plans": int(res.plans),
-            "grown": int(res.grown),
-            "replans_blocked": int(res.blocked_replans),
-            "replans_periodic": int(res.periodic_replans),
-            "seconds": time.perf_counter() - t0,
-        }
+        rec[name] = nav_record(res, time.perf_counter() - t0, replans=True)
         if keep_paths:
             rec[name]["path"] = np.round(np.asarray(res.path, np.float64), 3).tolist()
     return rec
