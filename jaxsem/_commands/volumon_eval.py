@@ -69,12 +69,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="BOP scene only, required there: 'tune' (frame ids below 600: LM-O's tuning split), 'test' (ids 600 "
         "and above, held out) or 'all'",
     )
-    p.add_argument(
-        "--min-visible",
-        type=sc.probability,
-        default=0.5,
-        help="BOP scene or desk renders only: score objects at least this fraction visible",
-    )
+    add_min_visible_argument(p, "BOP scene or desk renders only")
     p.add_argument(
         "--oracle",
         type=sc.existing_path,
@@ -88,13 +83,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="R-CNN only: run the network at this W,H (multiples of 16; default: the size it was trained at)",
     )
-    p.add_argument(
-        "--class-mapping",
-        choices=("generic", "nearest"),
-        default="generic",
-        help="BOP scene only: how a class the model lacks is scored: 'generic' (the class head's expectation over "
-        "the model's classes) or 'nearest' (the model class nearest in size to the object's true extents)",
-    )
+    add_class_mapping_argument(p, "BOP scene only")
     return p
 
 
@@ -120,6 +109,26 @@ def add_model_arguments(p, workdir_type, workdir_help: str) -> None:
         "'lmo-rcnn': the LM-O detect-and-lift network, BOP scenes only) or a path (a training run "
         "or a .npz); the same as --workdir for a path (default: 'object'; on a BOP scene, --data with "
         "scene_gt.json: 'lmo')",
+    )
+
+
+def add_min_visible_argument(p, scope: str) -> None:
+    """``--min-visible`` of the VoluMon commands that read a scene's objects (``scope``: when it
+    applies): the visible fraction an object needs to be read."""
+    p.add_argument(
+        "--min-visible", type=sc.probability, default=0.5, help=f"{scope}: objects at least this fraction visible"
+    )
+
+
+def add_class_mapping_argument(p, scope: str) -> None:
+    """``--class-mapping`` of the VoluMon commands that read a BOP scene (``scope``: when it
+    applies): the modes of ``jaxsem.volumon.class_rows`` for an object of a class the model lacks."""
+    p.add_argument(
+        "--class-mapping",
+        choices=("generic", "nearest"),
+        default="generic",
+        help=f"{scope}: how a class the model lacks is read: 'generic' (the class head's expectation over the "
+        "model's classes) or 'nearest' (the model class nearest in size to the object's true extents)",
     )
 
 

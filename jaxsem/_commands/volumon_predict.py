@@ -37,7 +37,12 @@ import numpy as np
 
 from jaxsem import scripting as sc
 from jaxsem._checks import check_box  # the one box rule (sequence.json's too)
-from jaxsem._commands.volumon_eval import add_model_arguments, resolve_model
+from jaxsem._commands.volumon_eval import (
+    add_class_mapping_argument,
+    add_min_visible_argument,
+    add_model_arguments,
+    resolve_model,
+)
 from jaxsem._files import read_text
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
@@ -137,19 +142,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="a BOP scene folder (scene_gt.json, rgb/, models): predict on the visible boxes of --frame",
     )
     p.add_argument("--frame", type=sc.nonnegative_int, default=None, help="frame id of the --data BOP scene")
-    p.add_argument(
-        "--min-visible",
-        type=sc.probability,
-        default=0.5,
-        help="--data: objects at least this fraction visible",
-    )
-    p.add_argument(
-        "--class-mapping",
-        choices=("generic", "nearest"),
-        default="generic",
-        help="--data: a class the model lacks uses the class head's expectation ('generic') or the model class "
-        "nearest in size ('nearest')",
-    )
+    add_min_visible_argument(p, "--data")
+    add_class_mapping_argument(p, "--data")
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder (ellipsoids.json, overlay_*.png)")
     return p
 
