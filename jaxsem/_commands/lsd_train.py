@@ -55,7 +55,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         default=None,
         help="stop after this many steps past the latest checkpoint (a rerun resumes)",
     )
-    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+    sc.add_force_argument(p)
     sc.add_devices_argument(p)
     return p
 

@@ -76,7 +76,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help=f"config preset ({', '.join(SIZES)}; fast: the shipped model's CPU preset) or a JSON file of "
         "TrainConfig fields over the default",
     )
-    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+    sc.add_force_argument(p)
     p.add_argument(
         "--stop-after", type=sc.positive_int, default=None, help="stop after this many steps of this call (a chunk)"
     )

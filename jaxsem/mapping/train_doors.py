@@ -45,7 +45,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     from ..volumon import TrainConfig  # deferred: jaxsem.volumon is heavy; keeps this script's --help fast
 
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
-    p.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+    sc.add_force_argument(p)
     p.add_argument("--score", type=sc.existing_dir, default=None, help="score the latest checkpoint on this directory")
     p.add_argument("--export", action="store_true", help="export the latest checkpoint as the shipped door model")
     p.add_argument("--out", type=sc.output_dir, default=None, help="--export folder (default: the package's)")

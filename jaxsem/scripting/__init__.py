@@ -36,7 +36,7 @@ What a command calls, by job:
   :func:`nonnegative_float`, :func:`finite_float`, :func:`probability`,
   :func:`positive_probability`, :func:`int_list`, :func:`existing_file`, :func:`existing_dir`,
   :func:`existing_path`, :func:`output_file`, :func:`output_dir`, :func:`add_devices_argument`,
-  :func:`devices_mesh`;
+  :func:`add_force_argument`, :func:`devices_mesh`;
 - config flags: :class:`ConfigFlag`, :func:`add_config_flags`, :func:`apply_config_flags`;
 - atomic outputs: :func:`atomic_write_text`, :func:`atomic_write_bytes`, :func:`atomic_savefig`,
   :func:`atomic_save_npz`, :func:`save_step_figure`;
@@ -57,6 +57,7 @@ from .._atomic import (
 )
 from ._arguments import (
     add_devices_argument as add_devices_argument,
+    add_force_argument as add_force_argument,
     devices_mesh as devices_mesh,
     existing_dir as existing_dir,
     existing_file as existing_file,

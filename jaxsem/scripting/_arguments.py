@@ -101,6 +101,12 @@ def add_devices_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_force_argument(parser: argparse.ArgumentParser) -> None:
+    """The training commands' ``--force``: resume a workdir whose saved config differs from the
+    one asked for (their trainers' ``force``)."""
+    parser.add_argument("--force", action="store_true", help="resume even if the config differs from the workdir's")
+
+
 def devices_mesh(devices, batch_size: int):
     """The data mesh of a parsed ``--devices`` (None without it), after joining a multi-host run;
     :class:`UsageError` naming ``--devices`` or ``--batch-size`` when it cannot be used."""
