@@ -89,15 +89,17 @@ def test_the_search_keeps_the_damping_on_its_first_step_and_fails_past_its_limit
     np.testing.assert_array_less(0.0, np.asarray(up.lam))
 
 
-def _structured_system(seed, odometry):
-    """Dense ``H = J^T J``, ``g = J^T r`` of a random Jacobian shaped like ROSHAN's (3 poses of 6
-    columns, then 2 objects of 9; rows on one pose, on one object, on a pose and an object, and
-    with ``odometry`` on consecutive poses), and the same system as block normal equations."""
+def _structured_system(seed, odometry, T=3, J=2, pairs=None):
+    """Dense ``H = J^T J``, ``g = J^T r`` of a random Jacobian shaped like ROSHAN's (``T`` poses of
+    6 columns, then ``J`` objects of 9; rows on one pose, on one object, on a pose and an object
+    (every pose with every object, or the ``(pose, object)`` ``pairs``), and with ``odometry`` on
+    consecutive poses), and the same system as block normal equations."""
     rng = np.random.default_rng(seed)
-    T, J = 3, 2
     pose = [np.arange(6 * t, 6 * t + 6) for t in range(T)]
     obj = [np.arange(6 * T + 9 * j, 6 * T + 9 * j + 9) for j in range(J)]
-    groups = [[p] for p in pose] + [[o] for o in obj] + [[p, o] for p in pose for o in obj]
+    if pairs is None:
+        pairs = [(t, j) for t in range(T) for j in range(J)]
+    groups = [[p] for p in pose] + [[o] for o in obj] + [[pose[t], obj[j]] for t, j in pairs]
     if odometry:
         groups += [[pose[t], pose[t + 1]] for t in range(T - 1)]
     rows = []
@@ -153,6 +155,27 @@ def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_fre
     # the damping matters here: the undamped step is another one
     undamped = np.linalg.solve(H[np.ix_(free, free)], -g[free])
     assert np.max(np.abs(undamped - want[free])) > 1e-3 * np.max(np.abs(want))
+
+
+@pytest.mark.parametrize("odometry", [False, True])
+def test_the_schur_step_from_the_pairs_blocks_equals_the_dense_one(odometry):
+    """A long, sparse system (12 poses, 3 objects, 5 pose-object rows, one pair twice): the step
+    that builds the reduced system from the rows' blocks solves the same damped system."""
+    pairs = [(0, 0), (3, 1), (3, 1), (7, 2), (11, 0)]
+    H, g, normal = _structured_system(5, odometry, T=12, J=3, pairs=pairs)
+    pose_free, obj_free = np.ones(12), np.array([True, True, True])
+    pose_free[5] = 0.0
+    index = tuple(jnp.asarray(np.array(pairs)[:, k]) for k in range(2))
+    lam = 0.01
+    dp, do = jax.jit(damped_schur_step)(normal, lam, jnp.asarray(pose_free), jnp.asarray(obj_free), index)
+    free = np.concatenate([np.repeat(pose_free > 0, 6), np.repeat(obj_free, 9)])
+    damped = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(g)))
+    want = np.zeros(len(g))
+    want[free] = np.linalg.solve(damped[np.ix_(free, free)], -g[free])
+    got = np.concatenate([np.asarray(dp).ravel(), np.asarray(do).ravel()])
+    np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.max(np.abs(want)))
+    dense = jax.jit(damped_schur_step)(normal, lam, jnp.asarray(pose_free), jnp.asarray(obj_free))
+    np.testing.assert_allclose(np.asarray(dense[1]), np.asarray(do), rtol=1e-10, atol=1e-12)
 
 
 def _planar(y, args):
