@@ -31,7 +31,9 @@ between factors carrying the rest. ROSHAN never sees an object pose. Systems, al
 Scored with ``jaxsem.metrics`` (``ellipsoid_errors``: symmetric objects handled by sorting axes;
 ``iou_3d_boxes`` of the ellipsoids' bounding boxes against the mesh extents) over every spell;
 medians over objects. A ``collapse`` is an object more than 10 cm off. The online smoother
-(``jaxsem.slam.run_sequence``, ROSHAN config, pose priors only) gives the per-frame times.
+(``jaxsem.slam.run_sequence``, ROSHAN config, pose priors only) gives the per-frame times. Each
+jaxsem system's ``programs`` is the number of programs its batch solve compiled over the stretches
+(distinct argument signatures: stretches padded to one size bucket share one).
 Item 7 of issue 27: per detection with a texture measurement, its depth against the true
 ellipsoid's texture plane and the mesh's nearest and mean front-surface depth.
 
@@ -434,6 +436,14 @@ def texture_truth(seq, stretch, records, scene):
 # The peer.
 
 
+def program_signature(*args):
+    """What selects a compiled program of a jitted function called on ``args``: the tree structure
+    (static fields included) and every leaf's shape and dtype. Calls with one signature share one
+    compilation, so the number of distinct signatures is the number of programs compiled."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    return tree, tuple((np.shape(x), str(jnp.result_type(x))) for x in leaves)
+
+
 def _stack(arrays):
     """One array of problems of different padded sizes: each padded along its first axis to the
     largest, masks with False and values with copies of their last row (masked out: the peer
@@ -574,6 +584,7 @@ def main(argv=None):
     init_fn = jax.jit(slam.initialize)
     per = {k: [] for k in SYSTEMS}
     errs = {k: [] for k in SYSTEMS}
+    programs = {k: set() for k in SYSTEMS}
     online_ms, tex_rows, stretch_info = [], [], []
     problems_b, inits_b, seqs = [], [], []
     figs = []
@@ -633,6 +644,7 @@ def main(argv=None):
                 start = vol.initial(seq) if vol is not None else (seq.initial or {})
                 i0 = init_from(prob, i0, seq, start)
             run = solve_starts if init == "headings" else solve
+            programs[name].add(program_signature(prob, i0, cfg))
             compiled = run.lower(prob, i0, cfg).compile()  # compiled once per system (cached), not timed
             # The first call of a fresh executable took 8-10 s where the next took 0.2-0.5 s
             # (stop 26): warm up, then the median of --repeats timed calls.
@@ -703,6 +715,7 @@ def main(argv=None):
         systems[k] = {
             **summary(errs[k]),
             "ms_per_map": float(np.median([r["ms_per_map"] for r in per[k]])),
+            **({"programs": len(programs[k])} if programs[k] else {}),
             "per_stretch": per[k],
         }
     result = {
