@@ -30,6 +30,7 @@ __all__ = [
     "RCNNTrainConfig",
     "SHIPPED_RCNN",
     "detect_image",
+    "centre_errors",
     "evaluate_detections",
     "evaluate_scene",
     "at_input_size",
@@ -269,19 +270,30 @@ def _not_crowd(box, cls, tbox, tcls, ibox, icls) -> np.ndarray:
     return ~(hit_ign & ~hit_true)
 
 
+def centre_errors(center, true_center) -> tuple[float, float, float]:
+    """``(centre error, |log(|c| / |c_true|)|, ray error)`` of one estimated centre (camera frame,
+    metres): the distance, how far off the distance from the camera is (a ratio, as a log), and
+    the distance left once the estimate slides along its ray to the true distance."""
+    c, g = np.asarray(center, np.float64), np.asarray(true_center, np.float64)
+    dc, dg = max(float(np.linalg.norm(c)), 1e-9), max(float(np.linalg.norm(g)), 1e-9)
+    return float(np.linalg.norm(c - g)), abs(float(np.log(dc / dg))), float(np.linalg.norm(c * (dg / dc) - g))
+
+
 def evaluate_detections(
     model, variables, arrays: dict, config: RCNNConfig, batch: int = 8, min_visible: float = 0.5
 ) -> dict:
     """Detection AP50 (mean over classes with truth) and the 3D errors of the detections matched
     to a true object at IoU >= 0.5 (median centre error, translation AUC out of 10 at 10 cm) on
-    the frames of :func:`jaxsem.volumon.data.frame_arrays`.
+    the frames of :func:`jaxsem.volumon.data.frame_arrays`. The centre error split in two:
+    ``median_depth_log_error`` (median ``|log(|c| / |c_true|)|``, the distance along the ray) and
+    ``median_ray_error_m`` (the centre moved along its ray to the true distance: the direction).
 
     The truth is the objects at least ``min_visible`` visible; a detection of a less visible
     object (same class, IoU >= 0.5 with it and with no counted object) is neither right nor wrong
     and is left out, as the crowd regions of COCO."""
     fwd = jax.jit(lambda v, img, K: detect(model.apply(v, img, K), K, config))
     n = arrays["image"].shape[0]
-    dets, truth, centre_err = [], [], []
+    dets, truth, centre_err, depth_err, ray_err = [], [], [], [], []
 
     for s in range(0, n, batch):
         idx = np.arange(s, min(s + batch, n))
@@ -301,7 +313,9 @@ def evaluate_detections(
             dets.append((np.full(len(box), i), box, cid, score))
             truth.append((np.full(tv.sum(), i), tbox, tcls))
             for t, k in _greedy_match(_same_class_iou(box, cid, tbox, tcls), score).items():
-                centre_err.append(float(np.linalg.norm(centre[k] - b["gt_center"][j][tv][t])))
+                errs_k = centre_errors(centre[k], b["gt_center"][j][tv][t])
+                for out, e in zip((centre_err, depth_err, ray_err), errs_k):
+                    out.append(e)
     cat = lambda parts, i: np.concatenate([p[i] for p in parts])
     ap, recall = metrics.average_precision(
         tuple(cat(dets, i) for i in range(4)), tuple(cat(truth, i) for i in range(3)), config.num_classes
@@ -314,6 +328,8 @@ def evaluate_detections(
         "num_matched": int(len(errs)),
         "median_center_error_m": float(np.median(errs)) if len(errs) else float("nan"),
         "trans_auc": float(metrics.auc_pass_rate(jnp.asarray(errs), 0.1)) if len(errs) else 0.0,
+        "median_depth_log_error": float(np.median(depth_err)) if len(errs) else float("nan"),
+        "median_ray_error_m": float(np.median(ray_err)) if len(errs) else float("nan"),
     }
 
 

@@ -79,3 +79,19 @@ def test_eval_command_scores_the_rcnn_on_a_bop_scene_only(run_cli, tmp_path):
         ["volumon", "eval", "--model", "lmo-rcnn", "--data", str(scene), "--split", "tune", "--postopt", "3"]
     )
     assert status != 0 and "--postopt" in err.strip().splitlines()[-1]
+
+
+def test_centre_miss_split_into_distance_and_direction():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        g = rng.uniform([-0.3, -0.3, 0.5], [0.3, 0.3, 1.5])
+        s = rng.uniform(0.7, 1.4)
+        err, depth, ray = rcnn.centre_errors(g * s, g)  # on the true ray, another distance
+        assert err == pytest.approx(abs(s - 1) * np.linalg.norm(g)) and depth == pytest.approx(abs(np.log(s)))
+        assert ray == pytest.approx(0.0, abs=1e-12)
+        a = rng.uniform(0.01, 0.2)  # turned about the camera: the same distance, another ray
+        c, si = np.cos(a), np.sin(a)
+        turned = np.array([[c, 0, si], [0, 1, 0], [-si, 0, c]]) @ g
+        err, depth, ray = rcnn.centre_errors(turned, g)
+        assert depth == pytest.approx(0.0, abs=1e-12) and ray == pytest.approx(err)
+        assert err == pytest.approx(2 * np.hypot(g[0], g[2]) * np.sin(a / 2))  # the chord about y
