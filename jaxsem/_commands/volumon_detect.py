@@ -31,7 +31,10 @@ def build_parser(prog: str | None = None):
     p.add_argument("--K", type=intrinsics, required=True, help="fx,fy,cx,cy of the photograph")
     p.add_argument("--out", type=sc.output_dir, required=True, help="folder for detections.json and detections.png")
     p.add_argument(
-        "--min-score", type=float, default=0.3, help="detections below this score are left out (default 0.3)"
+        "--min-score",
+        type=sc.probability,
+        default=0.3,
+        help="detections below this score (in [0, 1]) are left out (default 0.3)",
     )
     return p
 

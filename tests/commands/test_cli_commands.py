@@ -179,3 +179,14 @@ def test_bench_without_a_source_checkout_says_so(tmp_path, monkeypatch, run_cli)
     lines = err.strip().splitlines()
     assert status == 2 and len(lines) == 1
     assert "site-packages/benchmarks" in lines[0] and "source checkout" in lines[0]
+
+
+@pytest.mark.parametrize("score", ["2", "-0.1", "nan"])
+def test_volumon_detect_refuses_a_score_outside_zero_one(score, capsys):
+    from jaxsem._commands.volumon_detect import build_parser
+
+    with pytest.raises(SystemExit) as info:
+        build_parser("jaxsem volumon detect").parse_args(
+            ["--image", __file__, "--K", "500,500,320,240", "--out", "o", "--min-score", score]
+        )
+    assert info.value.code == 2 and "--min-score" in capsys.readouterr().err
