@@ -135,12 +135,17 @@ def _tridiagonal_solve(D, C, B):
 
 
 def damped_schur_step(n: Normal, lam, pose_free, obj_free, pairs=None):
-    """Solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by eliminating the pose blocks (when every
-    pose is held, as in the batch solver's rescue phase, by one small solve per landmark).
+    """Solves ``(H + lam * (diag(H) + 1e-9)) x = -g`` by block elimination (a Schur complement).
+
+    Which blocks are eliminated follows the shapes (static), so that the dense system factored is
+    the smaller one: the pose blocks when ``T dp > L dl`` (the reduced ``(L dl)^2`` landmark system
+    is factored), else the landmark blocks, block-diagonal, which leaves the ``(T dp)^2`` pose
+    system. When every pose is held (the batch solver's rescue phase) it is one small solve per
+    landmark.
 
     The pose-pose part is block-diagonal, or block-tridiagonal when ``n.Hpp_next`` is given
-    (odometry between consecutive poses): then ``Hpp^-1`` is applied by a block-tridiagonal
-    solve (:func:`_tridiagonal_solve`) instead of per-pose inverses.
+    (odometry between consecutive poses): eliminating the poses then applies ``Hpp^-1`` by a
+    block-tridiagonal solve (:func:`_tridiagonal_solve`) instead of per-pose inverses.
 
     Args:
       n: :class:`~jaxsem.slam._cost.Normal` at the current estimate.
@@ -170,6 +175,9 @@ def damped_schur_step(n: Normal, lam, pose_free, obj_free, pairs=None):
         return jnp.zeros_like(n.gp), do * obj_free[:, None].astype(dtype)
 
     def joint():
+        # Eliminate the side with the larger system, factor the smaller one (static shapes).
+        if n.Hpp.shape[0] * n.Hpp.shape[-1] <= n.Hoo.shape[0] * n.Hoo.shape[-1]:
+            return _landmarks_eliminated_step(n, lam, pose_free, obj_free, Hoo, go)
         return _joint_step(n, lam, pose_free, obj_free, Hoo, go, pairs)
 
     # Skipping the pose elimination when no pose is free (a rescue phase) is the same solution
@@ -187,9 +195,38 @@ def _damp(H, lam, used):
     return jnp.where(used[:, None, None], H, eye)
 
 
+def _landmarks_eliminated_step(n: Normal, lam, pose_free, obj_free, Hoo, go):
+    """:func:`damped_schur_step` with some pose free when the poses' system is the smaller one
+    (``T dp <= L dl``): the landmark blocks, block-diagonal, are eliminated instead, and the
+    dense (T dp)^2 reduced pose system (block-tridiagonal pose part included) is factored.
+    ``Hoo`` and ``go`` are already damped and masked."""
+    dtype = n.Hpp.dtype
+    T, dpn = n.Hpp.shape[0], n.Hpp.shape[-1]
+    pose_used = pose_free > 0
+    Hpp = _damp(n.Hpp, lam, pose_used)
+    Hpo = n.Hpo * pose_free[:, None, None, None] * obj_free[None, :, None, None].astype(dtype)
+    gp = n.gp * pose_free[:, None]
+    Hoo_inv = jnp.linalg.inv(Hoo)
+    B = jnp.einsum("tjab,jbc->tjac", Hpo, Hoo_inv)  # Hpo Hoo^-1, (T, J, dp, dl)
+    # Hpp - Hpo Hoo^-1 Hpo^T, the (t, s) blocks laid out as (T dp, T dp).
+    S = -jnp.einsum("tjac,sjbc->tasb", B, Hpo)
+    S = S + jnp.einsum("tab,ts->tasb", Hpp, jnp.eye(T, dtype=dtype))
+    if n.Hpp_next is not None:
+        used = pose_used.astype(dtype)
+        C = n.Hpp_next * (used * jnp.roll(used, -1))[:, None, None]
+        C = C.at[-1].set(0.0)
+        upper = jnp.einsum("tab,ts->tasb", C, jnp.eye(T, k=1, dtype=dtype))  # block (t, t + 1)
+        S = S + upper + jnp.transpose(upper, (2, 3, 0, 1))
+    rhs = -gp + jnp.einsum("tjab,jb->ta", B, go)
+    chol = jax.scipy.linalg.cho_factor(S.reshape(T * dpn, T * dpn), lower=True)
+    dp = jax.scipy.linalg.cho_solve(chol, rhs.reshape(-1)).reshape(T, dpn)
+    do = -jnp.einsum("jab,jb->ja", Hoo_inv, go + jnp.einsum("tjab,ta->jb", Hpo, dp))
+    return dp * pose_free[:, None], do * obj_free[:, None].astype(dtype)
+
+
 def _joint_step(n: Normal, lam, pose_free, obj_free, Hoo, go, pairs):
-    """:func:`damped_schur_step` with some pose free: the pose blocks eliminated (``Hoo`` and
-    ``go`` already damped and masked)."""
+    """:func:`damped_schur_step` with some pose free when the landmarks' system is the smaller
+    one: the pose blocks eliminated (``Hoo`` and ``go`` already damped and masked)."""
     dtype = n.Hpp.dtype
     dpn, dln = n.Hpp.shape[-1], n.Hoo.shape[-1]
     T, J = n.Hpo.shape[:2]

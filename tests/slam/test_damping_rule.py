@@ -128,17 +128,21 @@ def _structured_system(seed, odometry, T=3, J=2, pairs=None):
 @pytest.mark.parametrize(
     "odometry, pose_free, obj_free",
     [
+        # 3 poses and 2 objects: 18 pose columns against 18 object ones, the objects eliminated
         (False, [1.0, 1.0, 1.0], [True, True]),
         (True, [1.0, 0.0, 1.0], [False, True]),
-        # every pose held (the rescue phase): the step skips the pose elimination
+        # every pose held (the rescue phase): one small solve per object
         (False, [0.0, 0.0, 0.0], [True, True]),
         (True, [0.0, 0.0, 0.0], [True, False]),
+        # 4 poses: 24 pose columns against 18, the poses eliminated
+        (False, [1.0, 1.0, 0.0, 1.0], [True, True]),
+        (True, [1.0, 0.0, 1.0, 1.0], [True, False]),
     ],
 )
 def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_free, obj_free):
-    """The Schur step (poses eliminated, per-block damping, held variables kept at zero) against
-    ``(H + lam (diag(H) + 1e-9)) x = -g`` solved densely over the free variables."""
-    H, g, normal = _structured_system(int(odometry), odometry)
+    """The Schur step (poses or objects eliminated, per-block damping, held variables kept at
+    zero) against ``(H + lam (diag(H) + 1e-9)) x = -g`` solved densely over the free variables."""
+    H, g, normal = _structured_system(int(odometry), odometry, T=len(pose_free))
     lam = 0.3
     dp, do = jax.jit(damped_schur_step)(normal, lam, jnp.asarray(pose_free), jnp.asarray(obj_free))
     free = np.concatenate([np.repeat(np.asarray(pose_free) > 0, 6), np.repeat(obj_free, 9)])
