@@ -183,7 +183,7 @@ def test_bench_without_a_source_checkout_says_so(tmp_path, monkeypatch, run_cli)
 
 @pytest.mark.parametrize("score", ["2", "-0.1", "nan"])
 def test_volumon_detect_refuses_a_score_outside_zero_one(score, capsys):
-    from jaxsem._commands.volumon_detect import build_parser
+    from jaxsem._commands.volumon_detect import build_parser  # layers: white-box
 
     with pytest.raises(SystemExit) as info:
         build_parser("jaxsem volumon detect").parse_args(

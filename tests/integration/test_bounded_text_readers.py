@@ -10,8 +10,8 @@ import pytest
 
 import jaxsem.planning._semantics as _semantics  # layers: white-box
 from jaxsem import config as cfg, planning, slam
-from jaxsem._commands.volumon_predict import read_boxes
-from jaxsem._files import MAX_JSON_BYTES, MAX_TEXT_BYTES
+from jaxsem._commands.volumon_predict import read_boxes  # layers: white-box
+from jaxsem._files import MAX_JSON_BYTES, MAX_TEXT_BYTES  # layers: white-box
 from jaxsem.scripting import UsageError
 from jaxsem.volumon import rcnn
 

@@ -8,7 +8,7 @@ import pytest
 
 from jaxsem.quadrics import project_bbox
 from jaxsem.volumon import data as df
-from jaxsem.volumon._losses import LossConfig, dual_loss_per_sample
+from jaxsem.volumon._losses import LossConfig, dual_loss_per_sample  # layers: white-box
 
 K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
 NAMES = ("ape", "can", "cat", "duck")
