@@ -21,6 +21,7 @@ import pathlib
 import cv2
 import numpy as np
 
+from ... import metrics
 from ._bop_eval import bop_split_frames, load_bop_split, read_rgb
 from ._lmo_renders import (
     LMO_CLASS_NAMES,
@@ -211,22 +212,29 @@ def _camera_motion(a: dict, b: dict, tol_m: float, tol_deg: float):
     pa = {o["class_name"]: o for o in a["objects"]}
     pb = {o["class_name"]: o for o in b["objects"]}
     shared = sorted(set(pa) & set(pb))
-    pose = lambda o: np.block([[np.asarray(o["rotation"]), np.asarray(o["center"])[:, None]], [np.zeros((1, 3)), 1.0]])
-    best, best_in = None, ()
-    for k in shared:
-        cand = pose(pb[k]) @ np.linalg.inv(pose(pa[k]))
-        inliers = []
-        for m in shared:
-            moved = cand @ pose(pa[m])
-            near = np.linalg.norm(moved[:3, 3] - np.asarray(pb[m]["center"])) <= tol_m
-            cos = (np.trace(moved[:3, :3].T @ np.asarray(pb[m]["rotation"])) - 1.0) / 2.0
-            if near and np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= tol_deg:
-                inliers.append(m)
-        if len(inliers) > len(best_in):
-            best, best_in = cand, tuple(inliers)
-    if len(best_in) < 2:
+    if len(shared) < 2:
         return None, ()
-    return best, best_in
+
+    def poses(table):
+        T = np.tile(np.eye(4), (len(shared), 1, 1))
+        T[:, :3, :3] = [np.asarray(table[k]["rotation"]) for k in shared]
+        T[:, :3, 3] = [np.asarray(table[k]["center"]) for k in shared]
+        return T
+
+    Ta, Tb = poses(pa), poses(pb)
+    cand = Tb @ np.linalg.inv(Ta)  # (M, 4, 4): one motion per shared object
+    moved = cand[:, None] @ Ta[None]  # (M, M, 4, 4): every object moved by every candidate
+    near = np.linalg.norm(moved[..., :3, 3] - Tb[None, :, :3, 3], axis=-1) <= tol_m
+    turn = np.degrees(
+        np.asarray(
+            metrics.rotation_angle(moved[..., :3, :3], np.broadcast_to(Tb[None, :, :3, :3], moved[..., :3, :3].shape))
+        )
+    )
+    agree = near & (turn <= tol_deg)
+    best = int(np.argmax(agree.sum(1)))
+    if agree[best].sum() < 2:
+        return None, ()
+    return cand[best], tuple(k for k, ok in zip(shared, agree[best]) if ok)
 
 
 def multiview_frames(
