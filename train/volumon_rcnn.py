@@ -66,6 +66,15 @@ def main(argv=None) -> int:
     p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
+    p.add_argument(
+        "--distill-from",
+        default=None,
+        help="a VoluMon teacher ('lmo': the shipped LM-O model, or a model path) whose ellipsoids on the real "
+        "photos' 2D labels the lift learns from (rc.teacher_labels)",
+    )
+    p.add_argument(
+        "--distill-weight", type=sc.positive_float, default=0.01, help="the distillation term's weight (default 0.01)"
+    )
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
@@ -74,12 +83,18 @@ def main(argv=None) -> int:
         p.error(f"--models: no LM-O meshes folder {models} (give --lmo or --models)")
     if a.lmo is not None and not (a.lmo / "scene_gt.json").is_file():
         p.error(f"--lmo: {a.lmo} holds no scene_gt.json (jaxsem data fetch lmo --out data)")
+    if a.distill_from is not None and a.lmo is None:
+        p.error("--distill-from: needs --lmo (the teacher labels the real photographs)")
+    if a.distill_from not in (None, "lmo") and not pathlib.Path(a.distill_from).exists():
+        p.error(f"--distill-from: expected 'lmo' or a VoluMon model path, got {a.distill_from}")
 
     from jaxsem.volumon import data as df, rcnn as rc
 
     loss = rc.RCNNLossConfig(burn_in=a.burn_in)
     if a.oracle:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
+    if a.distill_from is not None:
+        loss = dataclasses.replace(loss, distill=a.distill_weight)
     model = dataclasses.replace(
         rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width, lift_stride8=a.lift_stride8
     )
@@ -94,6 +109,7 @@ def main(argv=None) -> int:
         augment_real=a.augment_real,
         augment_renders=a.augment_renders,
         multiview_real=a.multiview_real,
+        distill_from=a.distill_from or "",
         init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size
@@ -115,6 +131,11 @@ def main(argv=None) -> int:
             p.error(f"--val-from: no tuning photo below frame id {a.val_from} is left to train on")
         if a.multiview_real:  # each split paired within itself: no label crosses into validation
             fit = df.multiview_frames(fit)
+        if a.distill_from is not None:
+            from jaxsem.volumon import load_pretrained
+
+            path = None if a.distill_from == "lmo" else a.distill_from
+            fit = rc.teacher_labels(fit, load_pretrained(path, kind="lmo"))
         real = df.frame_arrays(fit, size)
         if val:  # the real validation photos are the held-out figures that matter
             held = df.frame_arrays(val, size)

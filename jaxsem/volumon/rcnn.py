@@ -20,7 +20,17 @@ image padded with ``box_valid`` False:
 - ``box_left``, ``box_right`` (B, G, 4) amodal stereo boxes, ``stereo_valid`` (B, G), and
   ``right_T_left`` (B, 4, 4): the dual loss's labels (``stereo_valid`` False: no dual term);
 - optional, never read by the weak losses: ``gt_rotation``, ``gt_center``, ``gt_half_extents``
-  (B, G, ...) for the fully supervised oracle and for scoring.
+  (B, G, ...) for the fully supervised oracle and for scoring;
+- optional: ``teacher_rotation``, ``teacher_center``, ``teacher_half_extents``, ``teacher_valid``
+  (B, G, ...): another network's ellipsoids for the labels (:func:`teacher_labels`), which the
+  distillation term pulls the lift towards.
+
+Distillation: the separate VoluMon network reads each object's crop at its own resolution and was
+trained on rendered desks with the thesis' weak losses (boxes and depth points, no 3D label, no
+photograph); on photographs it lifts better than the R-CNN's RoI features do. Its ellipsoids on
+the real photographs' 2D labels (visible box and class) are targets for the R-CNN's lift there, so
+the one network learns from the photographs what the weak terms teach only on renders. Nothing of
+the photographs' 3D truth is read.
 """
 
 from __future__ import annotations
@@ -40,6 +50,7 @@ __all__ = [
     "make_rcnn_step",
     "rcnn_batch",
     "rcnn_loss",
+    "teacher_labels",
     "train_rcnn",
 ]
 
@@ -86,6 +97,8 @@ class RCNNLossConfig:
       dual, size: weights of VoluMon's dual box loss and intra-class size consistency (the
         thesis' only two terms for R-CNN).
       oracle: weight of the fully supervised 3D loss (the oracle run; 0 in a weak run).
+      distill: weight of the same loss against a teacher network's ellipsoids, on the labels that
+        carry one (``teacher_valid``; :func:`teacher_labels`); 0: no distillation.
       burn_in: steps with the detection terms alone.
       fg_iou: a RoI is an object's at IoU >= fg_iou; rpn_pos / rpn_neg: an anchor is positive at
         IoU >= rpn_pos (or the best anchor of an object), negative below rpn_neg.
@@ -98,6 +111,7 @@ class RCNNLossConfig:
     dual: float = 1.0
     size: float = 1.0
     oracle: float = 0.0
+    distill: float = 0.0
     burn_in: int = 500
     fg_iou: float = 0.5
     rpn_pos: float = 0.7
@@ -141,6 +155,13 @@ def rcnn_loss(output: RCNNOutput, batch: dict, config: RCNNConfig, loss: RCNNLos
         )
         terms["oracle"] = _mean_where(oracle, fg)
         volumon = volumon + loss.oracle * terms["oracle"]
+    if loss.distill > 0 and "teacher_valid" in batch:
+        taught = fg & take(batch["teacher_valid"])
+        distill = oracle_loss_per_sample(
+            ell, take(batch["teacher_rotation"]), take(batch["teacher_center"]), take(batch["teacher_half_extents"])
+        )
+        terms["distill"] = _mean_where(distill, taught)
+        volumon = volumon + loss.distill * terms["distill"]
     total = total + volumon_on * volumon
     terms["total"] = total
     return total, terms
@@ -206,6 +227,8 @@ class RCNNTrainConfig:
         the same scene (:func:`jaxsem.volumon.data.multiview_frames`), so the lift learns depth on
         real pixels too, not only on renders. The caller pairs the frames; the flag records it,
         so a resume with other data is refused.
+      distill_from: the teacher whose ellipsoids label the real photographs (:func:`teacher_labels`;
+        ``loss.distill`` weighs them); recorded so a resume with another teacher is refused.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -225,6 +248,64 @@ class RCNNTrainConfig:
     init_from: str = ""
     augment_renders: bool = False
     multiview_real: bool = False
+    distill_from: str = ""
+
+
+def teacher_labels(frames, teacher: LoadedModel, batch: int = 256) -> list:
+    """``frames`` (frame dicts: ``rgb``, ``K``, ``objects`` with ``visible_box`` and
+    ``class_name``) with a teacher VoluMon network's ellipsoid for each labelled object: each
+    object gains ``teacher`` (``rotation`` object-to-camera, ``center``, ``radii``; metres, the
+    camera frame of ``K``), made from the 2D label alone (the visible box and the class's row of
+    the teacher's class head; the class head's expectation for a class it does not have).
+
+    ``teacher``: :func:`jaxsem.volumon.load_pretrained` (e.g. ``kind="lmo"``). Objects without a
+    finite visible box are left without. The input frames are not changed."""
+    from ._pretrained import prepare_inputs
+    from ._train import make_predict_fn
+
+    predict = make_predict_fn(teacher.model, teacher.config)
+    cfg = teacher.config.model
+    rows_local, rows_global, rows_box, rows_K, rows_cls, where = [], [], [], [], [], []
+    out = []
+    for fi, fr in enumerate(frames):
+        objs = [dict(o) for o in fr["objects"]]
+        out.append({**fr, "objects": objs})
+        labelled = [i for i, o in enumerate(objs) if np.all(np.isfinite(np.asarray(o["visible_box"], np.float64)))]
+        if not labelled:
+            continue
+        boxes = np.array([objs[i]["visible_box"] for i in labelled], np.float64)
+        local, glob = prepare_inputs(np.asarray(fr["rgb"]), boxes, config=cfg)
+        rows_local.append(local)
+        rows_global.append(glob)
+        rows_box.append(boxes)
+        rows_K.append(np.broadcast_to(np.asarray(fr["K"], np.float64), (len(labelled), 3, 3)))
+        rows_cls.append([objs[i]["class_name"] for i in labelled])
+        where += [(fi, i) for i in labelled]
+    if not where:
+        return out
+    cls, _ = class_rows(np.concatenate(rows_cls), teacher.config)
+    cat = lambda parts: np.concatenate(parts).astype(np.float32)
+    local, glob, box, K = cat(rows_local), cat(rows_global), cat(rows_box), cat(rows_K)
+    n, step = len(where), int(batch)
+    pad = -n % step
+    idx = np.concatenate([np.arange(n), np.full(pad, n - 1)])
+    R, c, r = [], [], []
+    for s in range(0, n + pad, step):
+        j = idx[s : s + step]
+        rows = np.asarray(cls)[j]
+        known = jnp.asarray(np.maximum(rows, 0), jnp.int32)
+        _, ell, _ = predict(teacher.variables, local[j], glob[j], box[j], K[j], known)
+        if np.any(rows < 0):
+            _, ell_mean, _ = predict(teacher.variables, local[j], glob[j], box[j], K[j], None)
+            pick = jnp.asarray(rows >= 0)
+            ell = jax.tree.map(lambda a, b: jnp.where(pick.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), ell, ell_mean)
+        R.append(np.asarray(ell.rotation))
+        c.append(np.asarray(ell.center))
+        r.append(np.asarray(ell.radii))
+    R, c, r = (np.concatenate(x)[:n].astype(np.float64) for x in (R, c, r))
+    for k, (fi, i) in enumerate(where):
+        out[fi]["objects"][i]["teacher"] = {"rotation": R[k], "center": c[k], "radii": r[k]}
+    return out
 
 
 def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:

@@ -18,7 +18,7 @@ from jaxsem.models._rcnn import RCNNOutput, anchors  # layers: white-box
 from jaxsem.volumon.rcnn import RCNNLossConfig, rcnn_batch, rcnn_loss
 
 # every weight on, none of them 1
-LOSS = RCNNLossConfig(rpn=0.7, classification=1.3, box=0.9, dual=1.7, size=2.3)
+LOSS = RCNNLossConfig(rpn=0.7, classification=1.3, box=0.9, dual=1.7, size=2.3, distill=0.03)
 _loss = jax.jit(rcnn_loss, static_argnums=(2, 3))  # one compile
 
 
@@ -83,3 +83,53 @@ def test_each_cameras_label_moves_the_stereo_term(setup, camera):
     _, t2 = _loss(out, moved, TINY, LOSS, jnp.float32(1.0))
     assert abs(float(t2["dual"]) - float(t["dual"])) > 1e-3 * float(t["dual"])
     np.testing.assert_allclose(t2["size"], t["size"], rtol=1e-7)  # the labels do not enter the size term
+
+
+DISTILL = LOSS  # one config, one compile
+
+
+@pytest.fixture(scope="module")
+def taught(setup):
+    """The setup's batch with a teacher's ellipsoid on three of its four labels (the first
+    frame's second object has none)."""
+    out, batch = setup
+    rng = np.random.default_rng(1)
+    valid = np.array([[True, False, False, False], [True, True, False, False]])
+    q = np.linalg.qr(rng.normal(size=(2, 4, 3, 3)))[0]
+    extra = {
+        "teacher_rotation": jnp.asarray(q, jnp.float32),
+        "teacher_center": jnp.asarray(rng.uniform([-0.1, -0.1, 0.6], [0.1, 0.1, 1.2], (2, 4, 3)), jnp.float32),
+        "teacher_half_extents": jnp.asarray(rng.uniform(0.02, 0.08, (2, 4, 3)), jnp.float32),
+        "teacher_valid": jnp.asarray(valid),
+    }
+    return out, {**batch, **extra}
+
+
+def test_the_distillation_term_adds_with_its_weight(taught):
+    out, batch = taught
+    total, t = _loss(out, batch, TINY, DISTILL, jnp.float32(1.0))
+    assert float(t["distill"]) > 1.0
+    detection = DISTILL.rpn * (t["rpn_cls"] + t["rpn_box"]) + DISTILL.classification * t["cls"] + DISTILL.box * t["box"]
+    weak = DISTILL.dual * t["dual"] + DISTILL.size * t["size"]
+    np.testing.assert_allclose(total, detection + weak + DISTILL.distill * t["distill"], rtol=1e-6)
+    burn_in, _ = _loss(out, batch, TINY, DISTILL, jnp.float32(0.0))  # no VoluMon term in the burn-in
+    np.testing.assert_allclose(burn_in, detection, rtol=1e-6)
+
+
+def test_only_labels_with_a_teacher_move_the_distillation_term(taught):
+    out, batch = taught
+    _, t = _loss(out, batch, TINY, DISTILL, jnp.float32(1.0))
+    for frame, label, moves in ((0, 1, False), (1, 0, True), (0, 0, True)):
+        c = np.array(batch["teacher_center"])
+        c[frame, label, 2] += 0.3
+        _, t2 = _loss(out, {**batch, "teacher_center": jnp.asarray(c)}, TINY, DISTILL, jnp.float32(1.0))
+        changed = abs(float(t2["distill"]) - float(t["distill"])) > 1e-4 * float(t["distill"])
+        assert changed == moves, (frame, label)
+        np.testing.assert_allclose(t2["dual"], t["dual"], rtol=1e-7)
+
+
+def test_no_teacher_anywhere_leaves_no_distillation_term(setup):
+    out, batch = setup  # rcnn_batch of frames without teachers: teacher_valid all False
+    assert not np.any(np.asarray(batch["teacher_valid"]))
+    _, t = _loss(out, batch, TINY, DISTILL, jnp.float32(1.0))
+    assert float(t["distill"]) == 0.0

@@ -41,6 +41,26 @@ FRAME_KEYS = (
     "visible_fraction", "gt_rotation", "gt_center", "gt_half_extents",
 )  # fmt: skip
 
+#: Optional array keys: a teacher network's ellipsoid for each label (camera frame), where the
+#: frame's objects carry one (``teacher``: ``rotation``, ``center``, ``radii``); ``teacher_valid``
+#: False elsewhere. Arrays without them (older render chunks) get them empty from
+#: :func:`with_teacher_keys`.
+TEACHER_KEYS = ("teacher_rotation", "teacher_center", "teacher_half_extents", "teacher_valid")
+
+
+def with_teacher_keys(arrays: dict) -> dict:
+    """``arrays`` (of :func:`frame_arrays`) with the :data:`TEACHER_KEYS` added, empty, where absent."""
+    if all(k in arrays for k in TEACHER_KEYS):
+        return arrays
+    n, G = arrays["box_valid"].shape
+    empty = {
+        "teacher_rotation": np.tile(np.eye(3, dtype=np.float32), (n, G, 1, 1)),
+        "teacher_center": np.zeros((n, G, 3), np.float32),
+        "teacher_half_extents": np.ones((n, G, 3), np.float32),
+        "teacher_valid": np.zeros((n, G), bool),
+    }
+    return {**arrays, **{k: v for k, v in empty.items() if k not in arrays}}
+
 
 def frame_arrays(
     frames,
@@ -50,7 +70,8 @@ def frame_arrays(
     baseline: float = 0.06,
     min_visible: float = 0.0,
 ) -> dict:
-    """Frames as fixed-shape arrays at ``image_size`` ``(W, H)`` (keys :data:`FRAME_KEYS`).
+    """Frames as fixed-shape arrays at ``image_size`` ``(W, H)`` (keys :data:`FRAME_KEYS` and
+    :data:`TEACHER_KEYS`).
 
     Objects with no visible box or below ``min_visible`` visible fraction are not labels. An
     object without ``box_right`` has no stereo label (``stereo_valid`` False). The second view
@@ -60,7 +81,7 @@ def frame_arrays(
     W, H = (int(x) for x in image_size)
     names = list(class_names)
     G = int(max_objects)
-    out: dict = {k: [] for k in FRAME_KEYS}
+    out: dict = {k: [] for k in FRAME_KEYS + TEACHER_KEYS}
     rig = np.eye(4)
     rig[0, 3] = -float(baseline)
     for fr in frames:
@@ -110,6 +131,15 @@ def frame_arrays(
         out["gt_rotation"].append(R)
         out["gt_center"].append(rows("center", (3,)))
         out["gt_half_extents"].append(rows("radii", (3,), 1.0))
+        taught = [o.get("teacher") for o in objs]
+        tR, tc, tr = np.tile(np.eye(3), (G, 1, 1)), np.zeros((G, 3)), np.ones((G, 3))
+        for i, t in enumerate(taught):
+            if t is not None:
+                tR[i], tc[i], tr[i] = t["rotation"], t["center"], t["radii"]
+        out["teacher_rotation"].append(tR)
+        out["teacher_center"].append(tc)
+        out["teacher_half_extents"].append(tr)
+        out["teacher_valid"].append(np.array([t is not None for t in taught] + [False] * (G - n)))
     if not out["image"]:
         raise ValueError("frames: expected at least one frame")
     arrays = {k: np.stack(v) for k, v in out.items()}
@@ -124,7 +154,7 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     """The frames ``idx`` (all by default) of :func:`frame_arrays` as a training batch: images
     float32 in [0, 1]."""
     idx = slice(None) if idx is None else np.asarray(idx)
-    batch = {k: arrays[k][idx] for k in FRAME_KEYS}
+    batch = {k: arrays[k][idx] for k in FRAME_KEYS + TEACHER_KEYS if k in arrays}
     batch["image"] = batch["image"].astype(np.float32) / 255.0
     return batch
 
@@ -362,4 +392,5 @@ def load_frame_chunks(path) -> dict:
     files = [f for f in sorted(path.glob("frames_[0-9]*.npz")) if ".tmp" not in f.name]
     if not files:
         raise ValueError(f"path: no frames_NNNN.npz chunks in {path}")
-    return concat_npz(files, FRAME_KEYS)
+    arrays = concat_npz(files, FRAME_KEYS)
+    return with_teacher_keys(arrays)
