@@ -193,18 +193,7 @@ def evaluate_scene_batch(model, variables, config, batch: Mapping, class_rows, r
     predict = make_predict_fn(model, config)
     f32 = lambda k: jnp.asarray(batch[k], jnp.float32)
     args = (variables, f32("local"), f32("global"), f32("box_input"), f32("K"))
-    known = jnp.asarray(np.maximum(rows, 0), jnp.int32)
-
-    def run():
-        _, ell_rows, _ = predict(*args, known)
-        if np.all(rows >= 0):
-            return ell_rows
-        _, ell_mean, _ = predict(*args, None)
-        if np.all(rows < 0):
-            return ell_mean
-        pick = jnp.asarray(rows >= 0)
-        return jax.tree.map(lambda a, b: jnp.where(pick.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), ell_rows, ell_mean)
-
+    run = lambda: predict_by_rows(predict, args, rows)
     ell = jax.block_until_ready(run())  # warm-up (compiles)
     times = []
     for _ in range(int(repeats)):
@@ -216,6 +205,21 @@ def evaluate_scene_batch(model, variables, config, batch: Mapping, class_rows, r
     out["network_ms_per_detection"] = 1000.0 * float(np.median(times)) / max(B, 1)
     out["pred"] = pred
     return out
+
+
+def predict_by_rows(predict, args, rows):
+    """The ellipsoids of :func:`jaxsem.volumon.make_predict_fn`'s ``predict(*args, class_id)``
+    with each detection's class row ``rows`` (B,), or the class head's expectation where the row
+    is -1 (both passes run only when both kinds of row are present)."""
+    rows = np.asarray(rows, np.int64)
+    _, ell_rows, _ = predict(*args, jnp.asarray(np.maximum(rows, 0), jnp.int32))
+    if np.all(rows >= 0):
+        return ell_rows
+    _, ell_mean, _ = predict(*args, None)
+    if np.all(rows < 0):
+        return ell_mean
+    pick = jnp.asarray(rows >= 0)
+    return jax.tree.map(lambda a, b: jnp.where(pick.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), ell_rows, ell_mean)
 
 
 #: ``class_mapping`` modes of :func:`class_rows` for objects whose class the model does not have.

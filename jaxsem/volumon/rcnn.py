@@ -74,7 +74,13 @@ from ..quadrics import box_iou
 from ..training import LoadedModel, TrainingRun, config_json
 from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
 from ._pretrained import PRETRAINED_DIR
-from ._scene_eval import class_rows, evaluate_scene_batch, known_size_ellipsoid, summarise_detections
+from ._scene_eval import (
+    class_rows,
+    evaluate_scene_batch,
+    known_size_ellipsoid,
+    predict_by_rows,
+    summarise_detections,
+)
 from .data import (
     LMO_CLASS_NAMES,
     augment_batch,
@@ -292,13 +298,7 @@ def teacher_labels(frames, teacher: LoadedModel, batch: int = 256) -> list:
     R, c, r = [], [], []
     for s in range(0, n + pad, step):
         j = idx[s : s + step]
-        rows = np.asarray(cls)[j]
-        known = jnp.asarray(np.maximum(rows, 0), jnp.int32)
-        _, ell, _ = predict(teacher.variables, local[j], glob[j], box[j], K[j], known)
-        if np.any(rows < 0):
-            _, ell_mean, _ = predict(teacher.variables, local[j], glob[j], box[j], K[j], None)
-            pick = jnp.asarray(rows >= 0)
-            ell = jax.tree.map(lambda a, b: jnp.where(pick.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), ell, ell_mean)
+        ell = predict_by_rows(predict, (teacher.variables, local[j], glob[j], box[j], K[j]), np.asarray(cls)[j])
         R.append(np.asarray(ell.rotation))
         c.append(np.asarray(ell.center))
         r.append(np.asarray(ell.radii))
