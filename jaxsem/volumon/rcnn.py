@@ -656,11 +656,15 @@ def detect_image(loaded: LoadedModel, image, K) -> dict:
     d = jax.device_get(_detect_fn(loaded.model)(loaded.variables, b["image"], b["K"]))
     ok = np.asarray(d.valid[0])
     W, H = (int(x) for x in cfg.input_size)
-    back = np.array([image.shape[1] / W, image.shape[0] / H] * 2)
+    h0, w0 = image.shape[:2]
+    back = np.array([w0 / W, h0 / H] * 2)
+    # Within the photograph on the library's box convention (pixel centres at integers, the
+    # image from -0.5 to size - 0.5), so the boxes are valid input for the separate VoluMon network.
+    box = np.clip(np.asarray(d.box[0])[ok] * back, -0.5, np.array([w0, h0, w0, h0]) - 0.5)
     names = list(loaded.config.class_names)
     cid = np.asarray(d.class_id[0])[ok]
     return {
-        "box": np.asarray(d.box[0])[ok] * back,
+        "box": box,
         "class_id": cid,
         "class_name": [names[int(c)] for c in cid],
         "score": np.asarray(d.score[0])[ok],
