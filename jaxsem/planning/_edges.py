@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as Q
-from ._grid import GridLike, _grid, host_grid
+from ._grid import OCCUPIED, GridLike, _grid, host_grid
 
 
 def _edge_samples(radius: float, resolution: float) -> int:
@@ -291,7 +291,10 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
 @functools.partial(jax.jit, static_argnames=("edge_samples",))
 def _segments_clear(blocked, a, b, grid, *, edge_samples):
     # A polyline has a few segments: every sample read (the same rule as the fast check) costs
-    # less than the fast check's clearance table over the whole map.
+    # less than the fast check's clearance table over the whole map. An int8 partial map is
+    # read as its OCCUPIED cells (only where the samples fall).
+    if blocked.dtype != jnp.bool_:
+        blocked = blocked == OCCUPIED
     clear, _, _ = _edges_dense(blocked, a, b, grid, edge_samples)
     return jnp.all(clear)
 
@@ -302,10 +305,22 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -
     length (segments up to ``radius``: the roadmap's; longer ones, a query's start or goal
     edges: :func:`query_reach`'s), same precision ``dtype``, so a plan the PRM found clear is
     never judged blocked on the same map (a looser or stricter second test made robots stand
-    still, replanning the same path). ``grid``: the :class:`jaxsem.quadrics.Grid` of ``blocked``
-    (or a map holding one)."""
-    blocked = np.asarray(blocked)
-    grid = host_grid("grid", grid, blocked.shape)
+    still, replanning the same path). ``blocked`` may also be an int8 partial map (its OCCUPIED
+    cells block, as in the PRM); a JAX array stays on the device (the navigation loop checks
+    its plan every step against a map of millions of cells: no copy of it is made).
+    ``grid``: the :class:`jaxsem.quadrics.Grid` of ``blocked`` (or a map holding one)."""
+    if isinstance(blocked, jax.Array):
+        blocked_j = blocked
+    else:
+        blocked = np.asarray(blocked)
+        blocked_j = jnp.asarray(blocked)
+    if blocked_j.ndim != 2 or blocked_j.dtype not in (jnp.bool_, jnp.int8):
+        raise ValueError(
+            f"blocked: expected a (H, W) bool grid or int8 partial map, got shape {tuple(blocked_j.shape)} "
+            f"dtype {blocked_j.dtype}"
+        )
+    shape = tuple(blocked_j.shape)
+    grid = host_grid("grid", grid, shape)
     resolution = float(grid.resolution)
     pts = np.asarray(points, np.float64)
     if len(pts) < 2:
@@ -314,8 +329,7 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -
     a, b = pts[:-1], pts[1:]
     length = np.linalg.norm(b - a, axis=1)
     short = length <= radius * (1 + 1e-6)
-    reach = query_reach(blocked.shape, resolution)
-    blocked_j = jnp.asarray(blocked)
+    reach = query_reach(shape, resolution)
     grid_j = _grid(grid, dtype)
     for sel, r in ((short, radius), (~short, max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9)))))):
         if not sel.any():

@@ -70,7 +70,7 @@ from ._grid import (
 from ._prm import PRM
 from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
 from ._sampling import embed_local_distribution
-from ._sensors import SensorConfig, _check_resolution, _sense_jit, _sense_sizes
+from ._sensors import SensorConfig, _check_resolution, _sense_in_place, _sense_jit, _sense_sizes
 
 CROP_SIZE = 160
 CONTEXT_SIZE = 4
@@ -273,6 +273,12 @@ class Trial:
 
     world: anything with ``occupancy`` (H, W) bool, ``semantic`` (H, W) int8, ``indoor`` (H, W)
     bool, ``origin`` (2,), ``resolution`` (e.g. a :class:`~jaxsem.planning.Building`).
+
+    ``state`` (the partial maps) is a new :class:`MapState` after every look; from the second
+    look on, the sensing step updates the trial's own arrays in place (the previous ones are
+    given up: copying millions of cells at every step cost more than sensing), so read the
+    current ``trial.state`` rather than one kept from an earlier step (``np.array`` of it is a
+    copy that stays). A ``state`` given to the trial is not changed.
     """
 
     def __init__(
@@ -352,6 +358,7 @@ class Trial:
         self.distributions: list = []
         self.prm: PRM | None = None
         self.radius = self.connection_radius(config, occ.shape, self.resolution, sampler is not None)
+        self._owns_state = False
         self._sense()
 
     @staticmethod
@@ -373,7 +380,11 @@ class Trial:
 
     def _sense(self):
         pose = jnp.asarray([self.xy[0], self.xy[1], self.yaw], jnp.result_type(float))
-        self.state = _sense_jit(
+        # The first look writes new maps (the state given may be the caller's); later ones
+        # update the trial's own maps in place.
+        sense = _sense_in_place if self._owns_state else _sense_jit
+        self._owns_state = True
+        self.state = sense(
             self._occ_j,
             self._sem_j,
             self.state,
@@ -404,9 +415,10 @@ class Trial:
             self.config.max_context_distance,
         )
 
-    def _clear(self, points, blocked) -> bool:
-        # The PRM's own edge check, so a plan it found clear is clear here on the same map.
-        return polyline_clear(points, blocked, self.grid, self.radius)
+    def _clear(self, points) -> bool:
+        # The PRM's own edge check, so a plan it found clear is clear here on the same map (read
+        # on the device: no copy of the map).
+        return polyline_clear(points, self.state.occupancy, self.grid, self.radius)
 
     def _new_prm(self, known) -> PRM:
         cfg = self.config
@@ -485,8 +497,8 @@ class Trial:
 
     def _in_known_obstacle(self) -> bool:
         rc = Q.world_to_cell(self.xy, self.origin, self.resolution, xp=np)
-        occ = np.asarray(self.state.occupancy)
-        return bool(Q.cell_in_grid(rc, occ.shape, xp=np) and occ[rc[0], rc[1]] == OCCUPIED)
+        occ = self.state.occupancy  # one cell read on the device (no host view: see _sense)
+        return bool(Q.cell_in_grid(rc, occ.shape, xp=np) and int(occ[int(rc[0]), int(rc[1])]) == OCCUPIED)
 
     def _finish(self, success, reason):
         self.done, self.success, self.reason = True, success, reason
@@ -502,7 +514,6 @@ class Trial:
         if self.steps >= cfg.max_steps:
             self._finish(False, "max_steps")
             return False
-        blocked = None
         if self.plan is not None:
             # Face the next waypoint and look before moving (so the move itself is always seen).
             nxt = self.plan[1] if len(self.plan) > 1 else self.goal
@@ -510,7 +521,6 @@ class Trial:
             if np.hypot(*d) > 1e-9:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
-            blocked = np.asarray(self.state.occupancy) == OCCUPIED
         if self._in_known_obstacle():
             # The robot stands in a cell its map now knows to be occupied (it moved through
             # unknown space that was not free), known from an earlier look or from this step's:
@@ -519,7 +529,7 @@ class Trial:
             self._finish(False, "collision")
             return False
         replan = self.plan is None  # the first plan, or a first leg the turn showed blocked
-        if not replan and not self._clear(self.plan, blocked):
+        if not replan and not self._clear(self.plan):
             replan, self.blocked_replans = True, self.blocked_replans + 1
         elif not replan and self.since_plan >= cfg.replan_every:
             replan, self.periodic_replans = True, self.periodic_replans + 1
@@ -532,8 +542,7 @@ class Trial:
             if np.hypot(*d) > 1e-9:
                 self.yaw = math.atan2(d[1], d[0])
                 self._sense()
-                blocked = np.asarray(self.state.occupancy) == OCCUPIED
-                if not self._clear(self.plan[:2], blocked):
+                if not self._clear(self.plan[:2]):
                     # The first leg is blocked by what the turn revealed; replan next step.
                     self.plan = None
                     self.steps += 1
@@ -557,7 +566,7 @@ class Trial:
                         self.xy = plan[0].copy()
                         self.yaw = math.atan2(d[1], d[0])
                         self._sense()
-                        if not self._clear(plan[:2], np.asarray(self.state.occupancy) == OCCUPIED):
+                        if not self._clear(plan[:2]):
                             break
             else:
                 plan = plan.copy()

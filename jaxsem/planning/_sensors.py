@@ -150,12 +150,22 @@ def _check_true_maps(true_occupancy, true_semantic):
             )
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "config", "half", "n_s"))
-def _sense_jit(true_occupancy, true_semantic, state, pose, grid, config, *, half, n_s):
+def _sense_impl(true_occupancy, true_semantic, state, pose, grid, config, *, half, n_s):
     if pose.ndim > 1:  # a batch of robots, each with its own state
         fn = lambda s, p: _sense_one(true_occupancy, true_semantic, s, p, grid, config, half, n_s)
         return jax.vmap(fn)(state, pose)
     return _sense_one(true_occupancy, true_semantic, state, pose, grid, config, half, n_s)
+
+
+_sense_jit = functools.partial(jax.jit, static_argnames=("grid", "config", "half", "n_s"))(_sense_impl)
+
+#: :func:`_sense_jit` that updates ``state`` in place (its buffers are donated, so the caller
+#: must own them and not read them again): the navigation loop's, where a copy of the whole
+#: partial map at every step cost more than the sensing. A buffer that numpy still views is
+#: copied instead (JAX does not donate it).
+_sense_in_place = functools.partial(
+    jax.jit, static_argnames=("grid", "config", "half", "n_s"), donate_argnames=("state",)
+)(_sense_impl)
 
 
 def _sense_one(true_occupancy, true_semantic, state, pose, grid, config, half, n_s):

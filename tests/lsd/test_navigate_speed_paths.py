@@ -8,9 +8,25 @@ import numpy as np
 import pytest
 
 import jaxsem.planning._edges as _edges  # layers: white-box
+import jaxsem.planning._navigate as _navigate  # layers: white-box
 import jaxsem.planning._roadmap as _roadmap  # layers: white-box
 from jaxsem import quadrics as Q
-from jaxsem.planning import PRM, embed_local_distribution
+from jaxsem.planning import (
+    CROP_SIZE,
+    FREE,
+    OCCUPIED,
+    PRM,
+    UNKNOWN,
+    NavConfig,
+    SensorConfig,
+    embed_local_distribution,
+    empty_map_state,
+    generate_building,
+    navigate,
+    sample_tasks,
+)
+from jaxsem.planning._grid import static_grid  # layers: white-box
+from jaxsem.planning._sensors import _sense_in_place, _sense_jit, _sense_sizes  # layers: white-box
 
 SHAPE = (240, 320)
 RES = 0.1
@@ -67,3 +83,84 @@ def test_brute_force_over_the_filled_slots_is_the_full_search(monkeypatch):
     for name in ("points", "valid", "neighbors", "edge_valid", "edge_weight"):
         np.testing.assert_array_equal(np.asarray(getattr(fast, name)), np.asarray(getattr(full, name)), err_msg=name)
     assert int(np.sum(np.asarray(fast.edge_valid))) > 1000
+
+
+def _partial_map(seed, shape=(90, 130)):
+    rng = np.random.default_rng(seed)
+    occ = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], np.int8), size=shape, p=[0.5, 0.498, 0.002])
+    occ[40:45, 20:110] = OCCUPIED  # a wall most lines cross
+    return occ
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_plan_check_on_the_devices_partial_map_is_the_bool_check(seed):
+    occ = _partial_map(seed)
+    grid = Q.Grid.host((-1.0, 2.0), RES, occ.shape)
+    rng = np.random.default_rng(10 + seed)
+    answers = []
+    for _ in range(16):
+        steps = rng.normal(0.0, 1.0, (int(rng.integers(2, 5)), 2))
+        pts = np.array([-1.0, 2.0]) + np.clip(np.array([6.5, 4.5]) + np.cumsum(steps, 0), 0.0, 12.9)
+        want = _edges.polyline_clear(pts, occ == OCCUPIED, grid, 1.5)
+        assert _edges.polyline_clear(pts, jnp.asarray(occ), grid, 1.5) == want
+        assert _edges.polyline_clear(pts, occ, grid, 1.5) == want  # an int8 map on the host too
+        answers.append(want)
+    assert 0 < sum(answers) < len(answers)  # both answers occur
+
+
+def test_sensing_in_place_is_sensing_and_leaves_a_given_state_alone():
+    b = generate_building(3, "train")
+    occ_true, sem_true = jnp.asarray(b.occupancy), jnp.asarray(b.semantic, jnp.int8)
+    grid = static_grid(b.grid)
+    sizes = _sense_sizes(b.grid, SensorConfig())
+    start = empty_map_state(b.occupancy.shape)
+    keep = np.array(start.occupancy)
+    xy = b.cell_center(np.argwhere(~b.occupancy)[len(np.argwhere(~b.occupancy)) // 2])
+    state_a = _sense_jit(occ_true, sem_true, start, jnp.asarray([*xy, 0.3]), grid, SensorConfig(), **sizes)
+    state_b = _sense_jit(occ_true, sem_true, start, jnp.asarray([*xy, 0.3]), grid, SensorConfig(), **sizes)
+    for yaw in (1.2, 2.9, -1.0):
+        pose = jnp.asarray([*xy, yaw])
+        state_a = _sense_jit(occ_true, sem_true, state_a, pose, grid, SensorConfig(), **sizes)
+        state_b = _sense_in_place(occ_true, sem_true, state_b, pose, grid, SensorConfig(), **sizes)
+        np.testing.assert_array_equal(np.asarray(state_a.occupancy), np.asarray(state_b.occupancy))
+        np.testing.assert_array_equal(np.asarray(state_a.semantic), np.asarray(state_b.semantic))
+    np.testing.assert_array_equal(np.asarray(start.occupancy), keep)
+
+
+def _window_sampler(inputs):
+    """A concentrated stand-in for the network: a Gaussian ridge along the goal's heading."""
+    ctx = np.asarray(inputs.context)
+    rr, cc = np.mgrid[0:CROP_SIZE, 0:CROP_SIZE] - CROP_SIZE // 2
+    along = cc * ctx[0] + rr * ctx[1]
+    across = -cc * ctx[1] + rr * ctx[0]
+    p = np.exp(-0.5 * (across / 8.0) ** 2) * (along > -10) + 1e-4
+    return jnp.asarray(p / p.sum(), jnp.float32)
+
+
+@pytest.mark.slow  # compiles the loop twice on a generated building (about a minute)
+def test_fast_loop_drives_the_old_loops_paths(monkeypatch):
+    # The same trials with the old mechanisms (a full copy of the maps at every look, the
+    # brute-force search over every slot, fused grid reads): identical paths, step for step.
+    b = generate_building(5, "train")
+    tasks = sample_tasks(b, "II", 3, 4, min_distance=8.0)
+    cfg = NavConfig(n_samples=300, max_steps=400)
+
+    def drive():
+        out = []
+        for i, t in enumerate(tasks):
+            for smp in (_window_sampler, None):
+                r = navigate(b, t.start, t.goal, jax.random.PRNGKey(i), cfg, sampler=smp)
+                out.append((r.path, r.success, r.plans, r.searches))
+        return out
+
+    fast = drive()
+    monkeypatch.setattr(_navigate, "_sense_in_place", _sense_jit)
+    monkeypatch.setattr(_roadmap, "_active_slots", lambda M, filled: M)
+    monkeypatch.setattr(_edges, "_read", lambda values, rows, cols: values[rows, cols])
+    jax.clear_caches()
+    old = drive()
+    jax.clear_caches()
+    for (pa, sa, na, qa), (pb, sb, nb, qb) in zip(fast, old):
+        np.testing.assert_array_equal(pa, pb)
+        assert (sa, na, qa) == (sb, nb, qb)
+    assert any(s for _, s, _, _ in fast)
