@@ -1118,20 +1118,30 @@ def test_a_large_grow_keeps_the_first_k_clear_of_the_direction_rule():
 
 
 def _half_known_map():
-    """The 10 x 6 m walled room (int8 partial map): the left half known free, the right unknown."""
-    known = np.full((60, 100), UNKNOWN, np.int8)
-    known[:, :50] = 0  # FREE
+    """The 10 x 6 m walled room (int8 partial map) with a 4 x 3 m block in it: the lower half
+    (y < 3 m) known free, the upper half unknown. All the unknown-weight tests grow their
+    roadmaps on this one map with the same ``N`` and ``RADIUS``, so they share the compiled grows
+    (with and without the unknown cells' weights): each different map's free-cell count is a
+    different strip size, i.e. another compile of the grow (about 10 s each)."""
+    known = np.zeros((60, 100), np.int8)  # FREE
+    known[30:, :] = UNKNOWN
     known[[0, -1], :] = OCCUPIED
     known[:, [0, -1]] = OCCUPIED
+    known[12:42, 30:70] = OCCUPIED
     return known
 
 
-def _unknown_share(a, b, unknown, samples=2000):
-    """Share of a segment's length over unknown cells, by dense sampling (the reference)."""
+def _unknown_share(a, b, unknown, samples=2000, rows=512):
+    """Share of each segment's length (a, b: (E, 2)) over unknown cells, by dense sampling (the
+    reference; numpy, ``rows`` segments at a time)."""
     t = (np.arange(samples) + 0.5) / samples
-    pts = a[None] + t[:, None] * (b - a)[None]
-    cell = np.floor((pts - ORIGIN) / RES).astype(int)
-    return unknown[cell[:, 1], cell[:, 0]].mean()
+    out = np.empty(len(a))
+    for i in range(0, len(a), rows):
+        p, q = a[i : i + rows], b[i : i + rows]
+        pts = p[:, None] + t[None, :, None] * (q - p)[:, None]
+        cell = np.floor((pts - ORIGIN) / RES).astype(int)
+        out[i : i + rows] = unknown[cell[..., 1], cell[..., 0]].mean(-1)
+    return out
 
 
 def _edge_list(rm):
@@ -1156,7 +1166,7 @@ def test_unknown_weight_charges_metres_through_unknown_cells():
         a, b, w = _edge_list(prm.roadmap)
         length = np.linalg.norm(b - a, axis=1)
         unit = 1.0 if dist is None else np.log(known.size)  # -log p of a uniform distribution
-        share = np.array([_unknown_share(p, q, unknown) for p, q in zip(a, b)])
+        share = _unknown_share(a, b, unknown)
         # The PRM reads 31 points per edge (half a cell apart at the radius): the share is
         # theirs, within about one point's worth of the dense one.
         err = np.abs(w - unit * length * (1 + 2 * share))
@@ -1179,13 +1189,9 @@ def test_unknown_weight_reweighs_edges_when_cells_become_known():
 
 
 def test_unknown_weight_takes_the_route_seen_free():
-    # A 4 x 3 m block in the room; the way over it is 0.7 m shorter but all unknown, the way
+    # The 4 x 3 m block in the room: the way over it is 0.7 m shorter but all unknown, the way
     # under it known free. The thesis' weights go over, unknown cells charged 4x go under.
-    known = np.zeros((60, 100), np.int8)
-    known[30:, :] = UNKNOWN
-    known[[0, -1], :] = OCCUPIED
-    known[:, [0, -1]] = OCCUPIED
-    known[12:42, 30:70] = OCCUPIED
+    known = _half_known_map()
     start, goal = np.array([1.0, 3.0]), np.array([9.0, 3.0])
     ys = {}
     for uw in (1.0, 4.0):
