@@ -57,6 +57,9 @@ def _two_rooms():
 
 
 CFG = NavConfig(n_samples=400, radius=1.5, max_steps=600)
+# CFG with unknown cells charged 3x in the edge weights: the fast tests of the uniform planner
+# both use it, so they share the compiled grow and query (about 17 s of compiling per setting).
+CFG_UNKNOWN_3X = dataclasses.replace(CFG, unknown_weight=3.0)
 
 
 @pytest.mark.slow
@@ -251,7 +254,7 @@ def test_a_sampler_on_cells_it_was_not_trained_on_is_refused():
 
 def test_the_planners_roadmap_charges_unknown_cells_as_configured():
     w = _two_rooms()
-    cfg = dataclasses.replace(CFG, unknown_weight=3.0)
+    cfg = CFG_UNKNOWN_3X
     trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), cfg)
     for _ in range(3):
         trial.step()
@@ -388,12 +391,14 @@ def test_a_look_that_finds_the_robot_in_a_wall_ends_the_trial_as_a_collision():
     # the look a step takes before it replans revealed the robot's own cell as occupied, and the
     # roadmap query then refused the start ("start: ... lies in an occupied cell"), which ended
     # the whole run. The look's finding is the same collision as the start-of-step check.
+    # (The edge weights play no part here: CFG_UNKNOWN_3X shares the compiled roadmap with
+    # test_the_planners_roadmap_charges_unknown_cells_as_configured.)
     from jaxsem.planning import Trial
 
     w = _two_rooms()
-    trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), CFG, yaw0=0.0)
+    trial = Trial(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(0), CFG_UNKNOWN_3X, yaw0=0.0)
     assert trial.step()
-    trial.since_plan = CFG.replan_every  # this step looks, then replans
+    trial.since_plan = CFG_UNKNOWN_3X.replan_every  # this step looks, then replans
     real_sense = trial._sense
 
     def sense_and_find_the_wall():  # the look marks the robot's own cell occupied
