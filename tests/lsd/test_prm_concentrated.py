@@ -82,8 +82,10 @@ def test_cost_weights_are_the_mean_cost_along_each_link():
     occ = _free_map()
     dist = _concentrated(4)
     grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
-    prm = PRM(occ, grid, capacity=800, radius=1.5, weight="neglogp", sectors=8)
-    prm.grow(jax.random.PRNGKey(2), 600, dist)
+    # The sizes of test_small_roadmaps_from_any_distribution_share_one_search's roadmaps (1,500
+    # vertices, grown by 500): the two tests share one compiled grow (about 10 s each).
+    prm = PRM(occ, grid, capacity=1500, radius=1.5, weight="neglogp", sectors=8)
+    prm.grow(jax.random.PRNGKey(2), 500, dist)
     rm = prm.roadmap
     pts, nb, ev, w = (np.asarray(x) for x in (rm.points, rm.neighbors, rm.edge_valid, rm.edge_weight))
     cost = -np.log(np.maximum(dist / dist.sum(), 1e-30))
