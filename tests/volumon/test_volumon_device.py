@@ -111,15 +111,20 @@ def test_shape_distance_finite_at_centre_and_float32():
         [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.2, 0.3], [0.0, 0.0, 0.3]],
         jnp.float32,
     )
+    # Jitted with the shape code an argument: one compile for the three shapes (run op by op, the
+    # distance and its gradient compiled some 140 small programs).
+    value_and_grad = jax.jit(
+        lambda p, s: (shape_distance(p, R, t, r, s), jax.grad(lambda q: jnp.sum(shape_distance(q, R, t, r, s)))(p))
+    )
+    d = {}
     for shape in (0, 1, 2):
-        d = shape_distance(pts, R, t, r, jnp.int32(shape))
-        g = jax.grad(lambda p, s=shape: jnp.sum(shape_distance(p, R, t, r, jnp.int32(s))))(pts)
-        assert d.dtype == jnp.float32
-        assert np.all(np.isfinite(np.asarray(d))) and np.all(np.isfinite(np.asarray(g)))
-        np.testing.assert_allclose(float(d[0]), -1.0, atol=1e-3)
-        np.testing.assert_allclose(float(d[3]), 0.0, atol=1e-3)  # on every shape (a pole / cap / face)
-    assert float(shape_distance(pts[2:3], R, t, r, jnp.int32(0))[0]) < 0.2  # corner: on the cuboid
-    assert float(shape_distance(pts[2:3], R, t, r, jnp.int32(1))[0]) > 1.5  # far outside the ellipsoid
+        d[shape], g = value_and_grad(pts, jnp.int32(shape))
+        assert d[shape].dtype == jnp.float32
+        assert np.all(np.isfinite(np.asarray(d[shape]))) and np.all(np.isfinite(np.asarray(g)))
+        np.testing.assert_allclose(float(d[shape][0]), -1.0, atol=1e-3)
+        np.testing.assert_allclose(float(d[shape][3]), 0.0, atol=1e-3)  # on every shape (a pole / cap / face)
+    assert float(d[0][2]) < 0.2  # corner: on the cuboid
+    assert float(d[1][2]) > 1.5  # far outside the ellipsoid
 
 
 def test_size_metric_definition():
