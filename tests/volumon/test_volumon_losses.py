@@ -233,6 +233,14 @@ def _inside(local, half, shape):
     return (np.sum((local[..., :2] / half[:2]) ** 2, -1) <= 1) & (np.abs(local[..., 2]) <= half[2])
 
 
+# The ray casts compared with ray marching below run jitted (one compile per input shape; the
+# shape code is an argument, so the three shapes share it): run op by op they compiled some two
+# hundred small programs. Their eager checks of concrete input are tested in
+# test_ray_entry_range_finite_gradients_in_degenerate_rays.
+_ray_cast_local = jax.jit(quadrics.ray_cast_local)
+_ray_entry_range = jax.jit(quadrics.ray_entry_range)
+
+
 @pytest.mark.parametrize("shape", [0, 1, 2])
 def test_ray_entry_range_matches_ray_marching(shape):
 
@@ -240,7 +248,7 @@ def test_ray_entry_range_matches_ray_marching(shape):
     rng = np.random.default_rng(shape)
     # rays towards points scattered around each object (some miss), at the range of each object
     targets = np.asarray(ell.center)[:, None, :] + rng.normal(scale=0.08, size=(6, 40, 3))
-    s, hit = quadrics.ray_entry_range(jnp.asarray(targets), ell.rotation, ell.center, ell.radii, jnp.full((6,), shape))
+    s, hit = _ray_entry_range(jnp.asarray(targets), ell.rotation, ell.center, ell.radii, jnp.full((6,), shape))
     s, hit = np.asarray(s), np.asarray(hit)
     steps = np.linspace(0.0, 2.5, 25001)  # 0.1 mm marching
     for i in range(6):
@@ -269,7 +277,7 @@ def test_ray_cast_local_entry_and_normal(shape):
     uv = rng.normal(scale=0.08, size=(200, 2)) + t[:2] / t[2]
     rays = np.concatenate([uv, np.ones((200, 1))], -1)
     o, d = np.broadcast_to(-t @ R, rays.shape), rays @ R
-    s, hit, normal = (np.asarray(x) for x in quadrics.ray_cast_local(o, d, half, shape))
+    s, hit, normal = (np.asarray(x) for x in _ray_cast_local(o, d, half, shape))
     steps = np.linspace(0.0, 1.2, 24001)  # 0.05 mm marching
     for j in range(200):
         inside = _inside(o[j] + steps[:, None] * d[j], half, shape)
@@ -285,9 +293,7 @@ def test_ray_cast_local_entry_and_normal(shape):
     assert np.all(np.sum(n * d[hit], -1) < 0)
     assert not _inside(p + 1e-3 * n, half, shape).any()
     # ray_entry_range is this ray cast along unit rays: the range, not the z-depth
-    s_range, hit_range = quadrics.ray_entry_range(
-        jnp.asarray(rays[None]), R[None], t[None], half[None], np.array([shape])
-    )
+    s_range, hit_range = _ray_entry_range(jnp.asarray(rays[None]), R[None], t[None], half[None], np.array([shape]))
     np.testing.assert_array_equal(np.asarray(hit_range)[0], hit)
     np.testing.assert_allclose(np.asarray(s_range)[0], s * np.linalg.norm(rays, axis=-1), rtol=1e-5)
 
