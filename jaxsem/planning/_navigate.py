@@ -145,6 +145,11 @@ def _unpooled(dist, scale: int, shape):
     return full / jnp.sum(full)
 
 
+#: :func:`embed_local_distribution` in one compiled call (op by op, each of its steps is a pass
+#: over the whole map).
+_embed_jit = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
+
+
 def local_inputs(
     state: MapState,
     xy,
@@ -449,10 +454,10 @@ class Trial:
             q = None if cfg.outside_mass is None else float(cfg.outside_mass[int(self.goal_outdoors)])
             s = cfg.sampler_scale
             if s == 1:
-                dist = embed_local_distribution(local, inputs.center_cell, known.shape, q)
+                dist = _embed_jit(local, inputs.center_cell, known.shape, q)
             else:
                 pooled = (-(-known.shape[0] // s), -(-known.shape[1] // s))
-                dist = _unpooled(embed_local_distribution(local, inputs.center_cell, pooled, q), s, known.shape)
+                dist = _unpooled(_embed_jit(local, inputs.center_cell, pooled, q), s, known.shape)
             self.last_distribution = dist
             if self.keep_distributions and len(self.distributions) < self.keep_distributions:
                 self.distributions.append(

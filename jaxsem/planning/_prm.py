@@ -257,6 +257,7 @@ class PRM:
             sectors=self.sectors,
             setup=self._setup,
             factor=self._factor,
+            checked=True,  # grow checked it
         )
         if self._lazy is not None:
             return self._lazy.search(self.roadmap, self._check_fn(), self.radius)

@@ -724,15 +724,18 @@ def _connect_checked(
     sectors,
     setup=None,
     factor=None,
+    checked=False,
 ):
     """:func:`roadmap_connect` on a checked ``blocked`` grid (numpy), its device copy and its
     host ``grid`` (:func:`host_grid`); ``setup``: the map's :class:`_MapSetup` (None: the table
-    is made inside)."""
+    is made inside); ``checked``: the distribution passed its checks already (a :class:`PRM`'s,
+    checked when it grew: a second pass over a map of millions of cells is skipped)."""
     start = check_point("start", start, blocked, grid)
     goal = check_point("goal", goal, blocked, grid)
     if weight == "neglogp" and distribution is None:
         raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
-    distribution = _check_distribution(distribution, blocked.shape)
+    if not checked:
+        distribution = _check_distribution(distribution, blocked.shape)
     dtype = roadmap.points.dtype
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
     start_j, goal_j = jnp.asarray(start, dtype), jnp.asarray(goal, dtype)

@@ -144,23 +144,45 @@ def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
         if not 0.0 <= float(outside_mass) < 1.0:
             raise ValueError(f"outside_mass: expected None or a share in [0, 1), got {outside_mass}")
     fill = jnp.min(local)
-    big = jnp.full((H + 2 * pad_r, W + 2 * pad_c), fill, local.dtype)
-    r0 = jnp.asarray(center_cell[0], jnp.int32) - h // 2 + pad_r
-    c0 = jnp.asarray(center_cell[1], jnp.int32) - w // 2 + pad_c
-    # Clamp only so that dynamic_update_slice never shifts the window (the pad covers +-h, w).
-    r0 = jnp.clip(r0, 0, H + 2 * pad_r - h)
-    c0 = jnp.clip(c0, 0, W + 2 * pad_c - w)
-    big = jax.lax.dynamic_update_slice(big, local, (r0, c0))
-    full = big[pad_r : pad_r + H, pad_c : pad_c + W]
-    if outside_mass is None:
+    if H >= h and W >= w:
+        # The map holds a whole window: place the window's on-map part directly, without a
+        # padded copy of the map (the same cells: the window's values, the rest ``fill``).
+        full = _placed(local, center_cell, (H, W), fill)
+        window = None if outside_mass is None else _placed(jnp.ones((h, w), bool), center_cell, (H, W), False)
+    else:
+        big = jnp.full((H + 2 * pad_r, W + 2 * pad_c), fill, local.dtype)
+        r0 = jnp.asarray(center_cell[0], jnp.int32) - h // 2 + pad_r
+        c0 = jnp.asarray(center_cell[1], jnp.int32) - w // 2 + pad_c
+        # Clamp only so that dynamic_update_slice never shifts the window (the pad covers +-h, w).
+        r0 = jnp.clip(r0, 0, H + 2 * pad_r - h)
+        c0 = jnp.clip(c0, 0, W + 2 * pad_c - w)
+        big = jax.lax.dynamic_update_slice(big, local, (r0, c0))
+        full = big[pad_r : pad_r + H, pad_c : pad_c + W]
+        window = jnp.zeros((H + 2 * pad_r, W + 2 * pad_c), bool)
+        window = jax.lax.dynamic_update_slice(window, jnp.ones((h, w), bool), (r0, c0))[
+            pad_r : pad_r + H, pad_c : pad_c + W
+        ]
+    if outside_mass is None or window is None:
         return full / jnp.sum(full)
-    window = jnp.zeros((H + 2 * pad_r, W + 2 * pad_c), bool)
-    window = jax.lax.dynamic_update_slice(window, jnp.ones((h, w), bool), (r0, c0))[
-        pad_r : pad_r + H, pad_c : pad_c + W
-    ]
     q = jnp.asarray(outside_mass, local.dtype)
     n_out = jnp.sum(~window)
     q = jnp.where(n_out > 0, q, 0.0)
     inner = jnp.where(window, full, 0.0)
     inner = inner / jnp.maximum(jnp.sum(inner), jnp.finfo(local.dtype).tiny)
     return jnp.where(window, (1.0 - q) * inner, q / jnp.maximum(n_out, 1).astype(local.dtype))
+
+
+def _placed(local, center_cell, shape, fill):
+    """An (H, W) grid of ``fill`` with the (h, w) window ``local`` centred on ``center_cell``
+    (its cell [h // 2, w // 2] there); the window's cells off the map are dropped (H >= h,
+    W >= w). dynamic_update_slice moves an update that sticks out back onto the grid, so the
+    window is first shifted by as much the other way, its vacated cells ``fill``."""
+    h, w = local.shape
+    H, W = shape
+    r0 = jnp.asarray(center_cell[0], jnp.int32) - h // 2
+    c0 = jnp.asarray(center_cell[1], jnp.int32) - w // 2
+    r0c, c0c = jnp.clip(r0, 0, H - h), jnp.clip(c0, 0, W - w)
+    padded = jnp.pad(local, ((h, h), (w, w)), constant_values=fill)
+    # Map cell (r0c + i, c0c + j) is window cell (r0c - r0 + i, c0c - c0 + j): padded row h + that.
+    block = jax.lax.dynamic_slice(padded, (jnp.clip(h + r0c - r0, 0, 2 * h), jnp.clip(w + c0c - c0, 0, 2 * w)), (h, w))
+    return jax.lax.dynamic_update_slice(jnp.full(shape, fill, local.dtype), block, (r0c, c0c))

@@ -164,3 +164,34 @@ def test_fast_loop_drives_the_old_loops_paths(monkeypatch):
         np.testing.assert_array_equal(pa, pb)
         assert (sa, na, qa) == (sb, nb, qb)
     assert any(s for _, s, _, _ in fast)
+
+
+def _embed_reference(local, centre, shape, q=None):
+    """numpy: the window's cells where they fall on the map, the window's minimum elsewhere."""
+    h, w = local.shape
+    full = np.full(shape, local.min(), np.float64)
+    window = np.zeros(shape, bool)
+    for i in range(h):
+        for j in range(w):
+            r, c = centre[0] - h // 2 + i, centre[1] - w // 2 + j
+            if 0 <= r < shape[0] and 0 <= c < shape[1]:
+                full[r, c], window[r, c] = local[i, j], True
+    if q is None:
+        return full / full.sum()
+    inner = np.where(window, full, 0.0)
+    inner = inner / max(inner.sum(), np.finfo(np.float32).tiny)  # a window off the map: none
+    n_out = (~window).sum()
+    return np.where(window, (1.0 - q) * inner, q / max(n_out, 1)) if n_out else inner
+
+
+@pytest.mark.parametrize("shape", [(40, 50), (12, 9)])
+@pytest.mark.parametrize("q", [None, 0.3])
+def test_embedded_window_against_a_cell_by_cell_reference(shape, q):
+    rng = np.random.default_rng(len(shape) + shape[0])
+    local = rng.random((16, 16)) + 0.01
+    embed = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
+    for centre in [(20, 25), (0, 0), (3, 48), (39, 1), (-5, 30), (45, 60), (8, 8), (32, 42), (-30, -30)]:
+        got = np.asarray(embed(jnp.asarray(local, jnp.float32), jnp.asarray(centre), shape, q))
+        want = _embed_reference(local.astype(np.float32).astype(np.float64), centre, shape, q)
+        np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-12, err_msg=str(centre))
+        assert np.all(np.isfinite(got))
