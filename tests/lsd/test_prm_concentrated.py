@@ -15,6 +15,10 @@ from jaxsem.planning._sampling import sample_points  # layers: white-box
 SHAPE = (240, 320)
 RES = 0.1
 
+# The draws below run jitted (one compile per map shape and count): run op by op, the sampler's
+# scans compiled over a hundred small programs per test.
+_sample_points = jax.jit(sample_points, static_argnums=2)
+
 
 def _concentrated(seed, centre=(120, 200), k=40):
     local = np.random.default_rng(seed).dirichlet(np.full(k * k, 0.5)).reshape(k, k)
@@ -36,7 +40,7 @@ def test_strip_cap_holds_the_fullest_strip(seed):
     grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
     gx = int(np.ceil(SHAPE[1] * RES / radius))
     for draw in range(5):
-        pts = np.asarray(sample_points(jax.random.PRNGKey(100 * seed + draw), jnp.asarray(dist), n, grid))
+        pts = np.asarray(_sample_points(jax.random.PRNGKey(100 * seed + draw), jnp.asarray(dist), n, grid))
         b = np.floor(pts / radius).astype(int)
         counts = np.zeros((b[:, 1].max() + 1, gx + 2), int)
         np.add.at(counts, (b[:, 1], b[:, 0] + 1), 1)
@@ -108,7 +112,7 @@ def test_draws_are_the_flat_inverse_cdf_search(seed):
     dist = rng.random((37, 53)) * (rng.random((37, 53)) < 0.3)  # many zero cells
     grid = Q.Grid.create((1.0, -2.0), 0.25, dist.shape)
     key = jax.random.PRNGKey(seed)
-    pts = np.asarray(sample_points(key, jnp.asarray(dist), 2000, grid))
+    pts = np.asarray(_sample_points(key, jnp.asarray(dist), 2000, grid))
     k_cell, _ = jax.random.split(key)
     u = np.asarray(jax.random.uniform(k_cell, (2000,), jnp.float64)) * dist.sum()
     cells = np.minimum(np.searchsorted(np.cumsum(dist.reshape(-1)), u, side="right"), dist.size - 1)
