@@ -282,6 +282,7 @@ def box_residual(
     degenerate_residual: ArrayLike = 1000.0,
     loss: str = "l2",
     robust_scale: ArrayLike = 2.0,
+    projection=None,
 ):
     """ROSHAN box factor (section 4.3.2) with barriers for degenerate geometry.
 
@@ -297,12 +298,19 @@ def box_residual(
         ``c + barrier_weight * (min_depth - near)`` per edge, so stepping into invalid geometry
         never lowers a factor's cost and the way out is always downhill.
       loss, robust_scale: robust reweighting of the edge residuals (:func:`robust_residual`).
+      projection: optional ``(box (..., 4), valid (...))`` to use in place of
+        :func:`jaxsem.quadrics.project_bbox` of these inputs. A solver that linearises the factor
+        passes the box's first-order model built from
+        :func:`jaxsem.quadrics.project_bbox_jacobian` (its derivative then comes from that closed
+        form, not from differentiating the projection again).
 
     Returns:
       (..., 6): 4 whitened edge residuals (zero where the measured edge is at the border), the
       near-depth barrier and the camera-inside barrier. Zero at the truth for exact boxes.
     """
-    pred, valid = project_bbox(rotation, center, radii, K, camera_T_world)
+    if projection is None:
+        projection = project_bbox(rotation, center, radii, K, camera_T_world)
+    pred, valid = projection
     box = jnp.asarray(box, pred.dtype)
     sigma = jnp.asarray(box_sigma, pred.dtype)
     e = robust_residual((pred - box) / sigma, loss, robust_scale)
@@ -315,7 +323,10 @@ def box_residual(
     edges = jnp.where(edge_mask(box, image_size, border_margin), edges, 0.0)
     # Camera centre in the world: -R^T t; inside the ellipsoid when x^T Q x < 0.
     R = camera_T_world[..., :3, :3]
-    cam = -jnp.sum(R * camera_T_world[..., :3, 3:4], axis=-2)
+    t = camera_T_world[..., :3, 3:4]
+    cam = -(
+        R[..., 0, :] * t[..., 0, :] + R[..., 1, :] * t[..., 1, :] + R[..., 2, :] * t[..., 2, :]
+    )  # no size-3 reduction
     alg = algebraic_distance(cam[..., None, :], rotation, center, radii)[..., 0]
     depth_barrier = barrier_weight * deficit
     inside_barrier = barrier_weight * jnp.maximum(-alg, 0.0)

@@ -64,6 +64,7 @@ from ._geometry._common import (
 )
 from ._geometry.bbox import (
     project_bbox as project_bbox,
+    project_bbox_jacobian as project_bbox_jacobian,
     project_bbox_reference as project_bbox_reference,
 )
 from ._geometry.boxes import box_area as box_area, box_iou as box_iou
@@ -158,6 +159,7 @@ __all__ = [
     "cylinder_bbox",
     "conic_outline",
     "project_bbox",
+    "project_bbox_jacobian",
     "project_bbox_reference",
     "texture_plane_depth",
     "algebraic_distance",

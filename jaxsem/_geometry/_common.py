@@ -221,6 +221,8 @@ def safe_norm(x, axis=-1, keepdims: bool = False):
 
 
 def _safe_norm(x, xp, axis=-1, keepdims: bool = False):
+    if x.shape[axis] == 3 and not keepdims and axis in (-1, x.ndim - 1):
+        return _safe_sqrt(_sum3(xp.square(x)), xp)  # term by term, as _matvec_terms
     return _safe_sqrt(xp.sum(xp.square(x), axis=axis, keepdims=keepdims), xp)
 
 
@@ -230,8 +232,25 @@ def _matvec(m, v):
     return (m * v[..., None, :]).sum(axis=-1)
 
 
+def _matvec_terms(m, v):
+    """:func:`_matvec` as broadcasted products summed term by term: elementwise loops only. On
+    XLA:CPU a reduction over the size-3 axis becomes a slow reduction kernel of its own, most of
+    all inside forward-mode Jacobians (a solver's linearisation). Used on those hot paths."""
+    return m[..., :, 0] * v[..., None, 0] + m[..., :, 1] * v[..., None, 1] + m[..., :, 2] * v[..., None, 2]
+
+
 def _matmul3(a, b):
-    return (a[..., :, :, None] * b[..., None, :, :]).sum(axis=-2)
+    """(..., n, 3) @ (..., 3, k) summed term by term, as :func:`_matvec_terms`."""
+    return (
+        a[..., :, 0, None] * b[..., None, 0, :]
+        + a[..., :, 1, None] * b[..., None, 1, :]
+        + a[..., :, 2, None] * b[..., None, 2, :]
+    )
+
+
+def _sum3(x):
+    """``x.sum(-1)`` of a (..., 3) array term by term, as :func:`_matvec_terms`."""
+    return x[..., 0] + x[..., 1] + x[..., 2]
 
 
 def _cross(a, b, xp: Any = jnp):

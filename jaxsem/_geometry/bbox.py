@@ -1,5 +1,5 @@
 """The exact image box of an ellipsoid, :func:`project_bbox` (eq. 4.5, 4.9-4.10, 5.10), with its
-custom JVP.
+custom JVP, and its Jacobians in closed form, :func:`project_bbox_jacobian`.
 
 Re-exported by :mod:`jaxsem.quadrics`.
 """
@@ -149,24 +149,8 @@ def _bbox_sensitivities(R, c, r, K, T, valid):
     lift = lambda x: jnp.broadcast_to(x[..., None, None], shape)
     is_u = jnp.broadcast_to(jnp.asarray([[True], [False]]), (2, 9))
     q = _bbox_axis(R, c, r, K, T, valid, lift, is_u)
-    ra, r3, alpha, tz, wa, cr = q["ra"], q["r3"], q["alpha"], q["tz"], q["wa"], q["cr"]
-    num, sq, den, V, pos = q["num"], q["sq"], q["den"], q["V"], q["pos"]
-    zero = jnp.zeros_like(tz)
-    # Partial derivatives of num, disc and den with respect to the entries of x.
-    d_num = r3 + ra + [-tz, -alpha, zero]
-    r3_x_cr, cr_x_ra = _cross3(r3, cr), _cross3(cr, ra)  # d|ra x r3|^2 = 2 (r3 x cr) dra + 2 (cr x ra) dr3
-    d_disc = (
-        [2.0 * (tz * wa[k] - r3_x_cr[k]) for k in range(3)]
-        + [2.0 * (-alpha * wa[k] - cr_x_ra[k]) for k in range(3)]
-        + [-2.0 * _dot3(wa, r3), 2.0 * _dot3(wa, ra), zero]
-    )
-    fb = q["fallback"]  # where not valid, den = -max(tz^2, 1); jnp.maximum splits a tie evenly
-    d_fb = jnp.where(fb > 1.0, 1.0, jnp.where(fb == 1.0, 0.5, 0.0))
-    d_den = (
-        [zero] * 3
-        + [jnp.where(V, 2.0 * r3[k], 0.0) for k in range(3)]
-        + [zero, -2.0 * tz * jnp.where(V, 1.0, d_fb), zero]
-    )
+    num, sq, den, pos = q["num"], q["sq"], q["den"], q["pos"]
+    d_num, d_disc, d_den = _bbox_partials(q)
     m = jnp.broadcast_to(jnp.arange(9), (2, 9))
 
     def pick(values):
@@ -182,6 +166,29 @@ def _bbox_sensitivities(R, c, r, K, T, valid):
     lower = dn + ds - (num + sq) / den * dq + c0
     upper = dn - ds - (num - sq) / den * dq + c0
     return lower, upper, den
+
+
+def _bbox_partials(q):
+    """Partial derivatives of num, disc and den (see the notation above) with respect to the
+    entries of ``x = (ra_0, ra_1, ra_2, r3_0, r3_1, r3_2, alpha, tz, c0)``: three lists of 9
+    arrays, from :func:`_bbox_axis`'s quantities ``q``."""
+    ra, r3, alpha, tz, wa, cr, V = q["ra"], q["r3"], q["alpha"], q["tz"], q["wa"], q["cr"], q["V"]
+    zero = jnp.zeros_like(tz)
+    d_num = r3 + ra + [-tz, -alpha, zero]
+    r3_x_cr, cr_x_ra = _cross3(r3, cr), _cross3(cr, ra)  # d|ra x r3|^2 = 2 (r3 x cr) dra + 2 (cr x ra) dr3
+    d_disc = (
+        [2.0 * (tz * wa[k] - r3_x_cr[k]) for k in range(3)]
+        + [2.0 * (-alpha * wa[k] - cr_x_ra[k]) for k in range(3)]
+        + [-2.0 * _dot3(wa, r3), 2.0 * _dot3(wa, ra), zero]
+    )
+    fb = q["fallback"]  # where not valid, den = -max(tz^2, 1); jnp.maximum splits a tie evenly
+    d_fb = jnp.where(fb > 1.0, 1.0, jnp.where(fb == 1.0, 0.5, 0.0))
+    d_den = (
+        [zero] * 3
+        + [jnp.where(V, 2.0 * r3[k], 0.0) for k in range(3)]
+        + [zero, -2.0 * tz * jnp.where(V, 1.0, d_fb), zero]
+    )
+    return d_num, d_disc, d_den
 
 
 def _bbox_primitive_tangents(R, c, r, K, T, dR, dc, dr, dK, dT):
@@ -264,6 +271,97 @@ def _project_bbox_jvp(primals, tangents):
     dx = _bbox_primitive_tangents(*primals, *tangents) / den
     dbox = jnp.concatenate([jnp.sum(lower * dx, -1), jnp.sum(upper * dx, -1)], -1)
     return (box, valid), (keep(dbox, 1), np.zeros(valid.shape, jax.dtypes.float0))
+
+
+def _project_bbox_jacobian_plain(R, c, r, K, T):
+    """:func:`project_bbox_jacobian` on inputs that share one batch shape."""
+    box, valid = _project_bbox_plain(R, c, r, K, T)
+    # One lane per edge, [u_min, v_min, u_max, v_max]; S_i = d edge / d x_i (x as in
+    # _bbox_sensitivities), each a (..., 4) array: a Jacobian needs every entry, so the entries
+    # are not spread over lanes as in the JVP rule.
+    shape = R.shape[:-2] + (4,)
+    lift = lambda x: jnp.broadcast_to(x[..., None], shape)
+    is_u = jnp.asarray(_BOX_COL_IS_U)
+    q = _bbox_axis(R, c, r, K, T, valid, lift, is_u)
+    d_num, d_disc, d_den = _bbox_partials(q)
+    sign = jnp.asarray(_BOX_COL_SIGN, R.dtype)
+    num, sq, den, pos = q["num"], q["sq"], q["den"], q["pos"]
+    half_inv_sq = jnp.where(pos, 0.5 / jnp.where(pos, sq, 1.0), 0.0)  # d sqrt(disc) / d disc
+    edge_off = (num + sign * sq) / den  # the edge minus c0
+    S = [(d_num[i] + sign * half_inv_sq * d_disc[i] - edge_off * d_den[i]) / den for i in range(8)]
+    zero = jnp.zeros((), R.dtype)
+    a0 = jnp.where(is_u, lift(K[..., 0, 0]), zero)
+    a1 = jnp.where(is_u, lift(K[..., 0, 1]), lift(K[..., 1, 1]))
+    # The lane's image row h = a W and the depth row h3 = e3 W (world axes), and their object-frame
+    # twins p = R^T h, p3 = R^T h3, so that x = (r * p, r * p3, h . c + h_t, h3 . c + h3_t, c0).
+    h = [a0 * lift(T[..., 0, i]) + a1 * lift(T[..., 1, i]) for i in range(3)]
+    h3 = [lift(T[..., 2, i]) for i in range(3)]
+    col = [[lift(R[..., i, k]) for i in range(3)] for k in range(3)]
+    p = [_dot3(h, col[k]) for k in range(3)]
+    p3 = [_dot3(h3, col[k]) for k in range(3)]
+    rr = [lift(r[..., k]) for k in range(3)]
+    ch = [lift(c[..., i]) for i in range(3)]
+    # Chain rule through x. With u_k = S_k r_k, w_k = S_(3+k) r_k (d edge / d ra_k, d r3_k times r_k):
+    #   R <- R (I + [dw]x):  d p_k = (e_k x p) . dw           -> d edge / d dw = u x p + w x p3
+    #   c <- c + dc:          d alpha = h . dc, d tz = h3 . dc  -> S_6 h + S_7 h3
+    #   r <- r + dr:          d ra_k = p_k dr_k                 -> S_k p_k + S_(3+k) p3_k
+    #   T <- T (I + [v, w]^): d h = h x w, d h_t = h . v        -> v: S_6 h + S_7 h3,
+    #                         w: (R u) x h + (R w) x h3 + c x (S_6 h + S_7 h3)
+    u = [S[k] * rr[k] for k in range(3)]
+    w = [S[3 + k] * rr[k] for k in range(3)]
+    d_w = [a + b for a, b in zip(_cross3(u, p), _cross3(w, p3))]
+    d_c = [S[6] * h[i] + S[7] * h3[i] for i in range(3)]
+    d_r = [S[k] * p[k] + S[3 + k] * p3[k] for k in range(3)]
+    Ru = [col[0][i] * u[0] + col[1][i] * u[1] + col[2][i] * u[2] for i in range(3)]
+    Rw = [col[0][i] * w[0] + col[1][i] * w[1] + col[2][i] * w[2] for i in range(3)]
+    d_om = [a + b + e for a, b, e in zip(_cross3(Ru, h), _cross3(Rw, h3), _cross3(ch, d_c))]
+    # Items with a non-finite input get zero derivatives, as in the JVP rule.
+    entries = [R[..., i, j] for i in range(3) for j in range(3)] + [T[..., i, j] for i in range(3) for j in range(4)]
+    entries += [c[..., i] for i in range(3)] + [r[..., i] for i in range(3)]
+    entries += [K[..., 0, 0], K[..., 0, 1], K[..., 0, 2], K[..., 1, 1], K[..., 1, 2]]
+    finite = jnp.isfinite(sum(entries[1:], entries[0]))[..., None, None]
+    keep = lambda x: jnp.where(finite, x, jnp.zeros((), x.dtype))
+    d_object = keep(jnp.stack(d_w + d_c + d_r, -1))
+    d_pose = keep(jnp.stack(d_c + d_om, -1))
+    return box, valid, d_object, d_pose
+
+
+def project_bbox_jacobian(rotation, center, radii, K, camera_T_world):
+    """:func:`project_bbox` and its Jacobians with respect to the object's 9 parameters and the
+    camera pose, in closed form (the chain rule through the quantities of eq. 4.10).
+
+    A least-squares solver that linearises many box factors needs these 4 x 15 blocks; forward-
+    mode autodiff gets them column by column (one pass per parameter, each through every
+    operation of the box), this in one elementwise pass from the same sensitivities as the JVP
+    rule of :func:`project_bbox` (so the two agree to rounding).
+
+    Args:
+      rotation, center, radii, K, camera_T_world: as :func:`project_bbox` (batch axes broadcast).
+
+    Returns:
+      box: (..., 4) and valid: (...), as :func:`project_bbox`.
+      d_object: (..., 4, 9) ``d box / d [dw, dc, dr]`` for the object perturbed as
+        ``rotation @ SO3.exp(dw)`` (a rotation in the object's own frame), ``center + dc`` and
+        ``radii + dr``.
+      d_pose: (..., 4, 6) ``d box / d [v, w]`` for the camera perturbed as
+        ``camera_T_world @ SE3.exp([v, w])`` (right perturbation, jaxlie's tangent order).
+
+      Finite everywhere; zero for items with a non-finite input.
+    """
+    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
+    K, pose = _camera_args(K, camera_T_world)
+    batch = _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
+    return _project_bbox_jacobian_compiled(rotation, center, radii, K, pose, batch)
+
+
+def _project_bbox_jacobian_cast(rotation, center, radii, K, pose, batch):
+    dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
+    cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
+    args = cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
+    return _project_bbox_jacobian_plain(*args)
+
+
+_project_bbox_jacobian_compiled = _eager_compiled(_project_bbox_jacobian_cast, static_argnums=(5,))
 
 
 def project_bbox(rotation, center, radii, K, camera_T_world):

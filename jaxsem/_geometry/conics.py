@@ -30,6 +30,7 @@ from ._common import (
     _intrinsics_ok,
     _matmul3,
     _matvec,
+    _matvec_terms,
     _namespace,
     _pose_ok,
     _rotation_ok,
@@ -390,7 +391,7 @@ def camera_frame(rotation, center, camera_T_world, *, with_valid: bool = False) 
 
 def _camera_frame(rotation, center, camera_T_world):
     R_cw = camera_T_world[..., :3, :3]
-    return _matmul3(R_cw, rotation), _matvec(R_cw, center) + camera_T_world[..., :3, 3]
+    return _matmul3(R_cw, rotation), _matvec_terms(R_cw, center) + camera_T_world[..., :3, 3]
 
 
 # --------------------------------------------------------------------------------------------

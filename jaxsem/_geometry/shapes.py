@@ -18,7 +18,9 @@ from ._common import (
     _ellipsoid_ok,
     _finite_or_zero,
     _matvec,
+    _matvec_terms,
     _radii_ok,
+    _sum3,
     safe_div,
     safe_norm,
     safe_sqrt,
@@ -51,12 +53,12 @@ def algebraic_distance(points, rotation, center, radii):
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     _batch_shape(points=points.shape[:-2], ellipsoid=batch)
     dtype = jnp.result_type(points.dtype, rotation.dtype)
-    local = _matvec(
+    local = _matvec_terms(
         jnp.swapaxes(rotation, -1, -2)[..., None, :, :].astype(dtype),
         points.astype(dtype) - center[..., None, :].astype(dtype),
     )
     inv_sq = _inverse_square_radii(radii.astype(dtype))[..., None, :]
-    return jnp.sum(local * local * inv_sq, axis=-1) - 1.0
+    return _sum3(local * local * inv_sq) - 1.0
 
 
 def ray_entry_range(points, rotation, center, radii, shape):

@@ -132,12 +132,16 @@ def box_rows(
     K,
     image_size,
     config: SolverConfig,
+    projection=None,
 ):
     """(7,) whitened residual rows of one box factor as every jaxsem solver sees them (unbatched;
     vmap over boxes): the six box rows of :func:`jaxsem.factors.box_residual` with the config's
     noise, barriers and robust loss, then the texture-plane row (zero when the config or
     ``texture_mask`` leaves it out); all zero where ``box_mask`` is False. Public so that other
-    solvers (the jaxls anchor in ``benchmarks/``) minimise exactly jaxsem's cost."""
+    solvers (the jaxls anchor in ``benchmarks/``) minimise exactly jaxsem's cost.
+
+    ``projection``: optional ``(box, valid)`` standing in for the projection of the ellipsoid with
+    its radii times ``config.silhouette_scale`` (see :func:`jaxsem.factors.box_residual`)."""
     n = config.noise
     r = F.box_residual(
         pose,
@@ -154,6 +158,7 @@ def box_rows(
         degenerate_residual=config.degenerate_residual,
         loss=config.box_loss,
         robust_scale=config.robust_scale,
+        projection=projection,
     )
     if config.use_texture:
         t = F.texture_residual(
@@ -373,11 +378,18 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     # forward-mode columns instead of 15. The chain rule gives the pose and object columns:
     #   pose @ (I + dp^) @ W = camera_T_object @ (I + (Ad(W^-1) dp)^)       -> J_p = J_xi Ad(W^-1)
     #   pose @ [R (I + dw^), c + dc] = camera_T_object @ (I + [R^T dc, dw]^) -> J_w, J_c below.
+    # The box itself enters as its first-order model from the closed-form Jacobian (the camera
+    # at camera_T_object sees the object at the origin, unrotated): its columns cost one
+    # elementwise pass, and forward mode only runs through the barriers, the texture plane and
+    # the robust loss.
     eye3 = jnp.eye(3, dtype=dtype)
     zero3 = jnp.zeros(3, dtype)
+    scale = jnp.asarray(config.silhouette_scale, dtype)
 
-    def box_fn(xi, ds, rel, r, box, td, tm, bm):
+    def box_fn(xi, ds, rel, r, box, td, tm, bm, box0, valid0, J_rel, J_radii):
         r2 = F.radii_from_param(F.param_from_radii(r) + ds)
+        # Products summed by hand: a batched matrix-vector product becomes a slow dot on the CPU.
+        pred = box0 + jnp.sum(J_rel * xi, -1) + jnp.sum(J_radii * ((r2 - r) * scale), -1)
         out = box_rows(
             first_order_pose(rel, xi),
             eye3,
@@ -390,6 +402,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
             problem.K,
             problem.image_size,
             config,
+            projection=(pred, valid0),
         )
         return out, out
 
@@ -403,19 +416,25 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         -2,
     )
     rel = pose_b @ W
+    r_b = est.radii[bo]
+    box0, valid0, J_obj, J_rel = Q.project_bbox_jacobian(eye3, zero3, r_b * scale, problem.K, rel)
     z6, z3 = jnp.zeros(6, dtype), jnp.zeros(3, dtype)
     (Jxi, Jds), rb = jax.vmap(
         jax.jacfwd(box_fn, argnums=(0, 1), has_aux=True),
-        in_axes=(None, None, 0, 0, 0, 0, 0, 0),
+        in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),
     )(
         z6,
         z3,
         rel,
-        est.radii[bo],
+        r_b,
         problem.box,
         problem.texture_depth,
         problem.texture_mask,
         problem.box_mask,
+        box0,
+        valid0,
+        J_rel,
+        J_obj[..., 6:9],
     )
     # Ad(W^-1) for [v, omega] tangents: W^-1 = (R^T, -R^T c); Ad(R', t') = [[R', t'^ R'], [0, R']].
     Rt = jnp.swapaxes(R_o, -1, -2)
