@@ -230,16 +230,15 @@ def _grow_impl(
     uniform_samples=False,
     aids: _MapAids | None = None,
     factor=None,
-    active: int | None = None,
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
     none), then their links checked. ``grid``: the map's (:func:`static_grid` under jit);
     ``edge_samples`` (:func:`_edge_samples` of the radius) and ``extent`` (:func:`_extent`): the
-    sizes its resolution sets, static. ``active`` (static, brute force only): the slots that can
-    hold a vertex once the batch is in (:func:`_active_slots`; None: all ``M``); the search reads
-    only those, the same candidates in the same order, since the slots past them are empty.
-    Returns the grown roadmap."""
+    sizes its resolution sets, static. A brute-force search (``cap=None``) of a batch that leaves
+    the roadmap within its first :data:`_ACTIVE_STEP` slots reads only those (the same
+    candidates in the same order: the slots past them are empty), chosen inside the program
+    (one program whatever the count). Returns the grown roadmap."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
@@ -261,15 +260,22 @@ def _grow_impl(
     keep = 2 * k if sectors else k
     density = _density(points, distribution, grid, sectors)
     origin = grid.origin
-    if cap is None and active is not None and active < M:
-        # Brute force over the filled prefix only: the empty slots past it are never candidates.
-        dens = None if density is None else density[:active]
-        nbr, ovf = _knn(
-            points[:active] - origin, db_ok[:active], new - origin, slots, k, radius, extent, None, sectors, keep, dens
-        )
-        nbr = jnp.where(nbr >= active, M, nbr)
+    search = functools.partial(_knn, k=k, radius=radius, extent=extent, cap=cap, sectors=sectors, keep=keep)
+    A = _ACTIVE_STEP
+    if cap is None and n + _QUERY <= A < M:
+        # Brute force over the first A slots while the roadmap fits in them (a fresh roadmap of
+        # navigate's: 502 of 1,502 slots): the empty slots past them are never candidates.
+        def prefix(_):
+            dens = None if density is None else density[:A]
+            nb, ov = search(points[:A] - origin, db_ok[:A], new - origin, slots, density=dens)
+            return jnp.where(nb >= A, M, nb), ov
+
+        def every(_):
+            return search(points - origin, db_ok, new - origin, slots, density=density)
+
+        nbr, ovf = jax.lax.cond(s0 + n <= A, prefix, every, None)
     else:
-        nbr, ovf = _knn(points - origin, db_ok, new - origin, slots, k, radius, extent, cap, sectors, keep, density)
+        nbr, ovf = search(points - origin, db_ok, new - origin, slots, density=density)
     cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
@@ -333,19 +339,13 @@ _grow_jit = functools.partial(
         "neglogp",
         "sectors",
         "uniform_samples",
-        "active",
     ),
 )(_grow_impl)
 
 
-#: The brute-force search reads the filled slots rounded up to this many (few programs).
+#: A brute-force neighbour search of a roadmap whose vertices all lie in its first this many
+#: slots reads only those (:func:`_grow_impl`).
 _ACTIVE_STEP = 512
-
-
-def _active_slots(M: int, filled: int) -> int:
-    """The slots a brute-force neighbour search reads when ``filled`` slots (query slots
-    included) hold vertices: ``filled`` rounded up to :data:`_ACTIVE_STEP`, at most ``M``."""
-    return min(M, -(-int(filled) // _ACTIVE_STEP) * _ACTIVE_STEP)
 
 
 _sample_lazy_jit = functools.partial(jax.jit, static_argnames=("grid", "n", "uniform_samples"))(_sample_into)
@@ -638,7 +638,6 @@ def _grow_exact(
     overflows. Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
-    active = _active_slots(M, _QUERY + int(roadmap.num_samples) + int(n))
     while True:
         out = _grow_jit(
             roadmap,
@@ -656,7 +655,6 @@ def _grow_exact(
             uniform_samples=uniform_samples,
             aids=aids,
             factor=factor,
-            active=active if 3 * cap >= M else None,
         )
         if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap

@@ -57,17 +57,11 @@ def test_read_is_the_grid_indexing(seed):
     np.testing.assert_array_equal(np.asarray(got), flags[rows, cols])
 
 
-@pytest.mark.parametrize(
-    "filled,M,want", [(2, 1502, 512), (502, 1502, 512), (513, 1502, 1024), (1502, 1502, 1502), (30, 20, 20)]
-)
-def test_active_slots(filled, M, want):
-    assert _roadmap._active_slots(M, filled) == want
-
-
 @pytest.mark.slow  # two grows compiled twice (about 20 s)
 def test_brute_force_over_the_filled_slots_is_the_full_search(monkeypatch):
     # navigate's roadmap (capacity 1,500: brute force), grown twice from a concentrated
-    # distribution with cost weights: the same roadmap as a search over every slot.
+    # distribution with cost weights (the first grow within the first 512 slots, the second
+    # past them): the same roadmap as a search over every slot.
     grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
     occ, dist = _walled_map(), _concentrated(5)
 
@@ -78,8 +72,10 @@ def test_brute_force_over_the_filled_slots_is_the_full_search(monkeypatch):
         return prm.roadmap
 
     fast = grown()
-    monkeypatch.setattr(_roadmap, "_active_slots", lambda M, filled: M)
+    monkeypatch.setattr(_roadmap, "_ACTIVE_STEP", 10**9)  # never the prefix: every slot
+    jax.clear_caches()
     full = grown()
+    jax.clear_caches()
     for name in ("points", "valid", "neighbors", "edge_valid", "edge_weight"):
         np.testing.assert_array_equal(np.asarray(getattr(fast, name)), np.asarray(getattr(full, name)), err_msg=name)
     assert int(np.sum(np.asarray(fast.edge_valid))) > 1000
@@ -155,7 +151,7 @@ def test_fast_loop_drives_the_old_loops_paths(monkeypatch):
 
     fast = drive()
     monkeypatch.setattr(_navigate, "_sense_in_place", _sense_jit)
-    monkeypatch.setattr(_roadmap, "_active_slots", lambda M, filled: M)
+    monkeypatch.setattr(_roadmap, "_ACTIVE_STEP", 10**9)
     monkeypatch.setattr(_edges, "_read", lambda values, rows, cols: values[rows, cols])
     jax.clear_caches()
     old = drive()
