@@ -329,17 +329,7 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 
 _grow_jit = functools.partial(
     jax.jit,
-    static_argnames=(
-        "grid",
-        "n",
-        "radius",
-        "edge_samples",
-        "extent",
-        "cap",
-        "neglogp",
-        "sectors",
-        "uniform_samples",
-    ),
+    static_argnames=("grid", "n", "radius", "edge_samples", "extent", "cap", "neglogp", "sectors", "uniform_samples"),
 )(_grow_impl)
 
 
