@@ -12,7 +12,8 @@ Where the code lives (``jaxsem/_geometry/``):
 - ``conics.py``: ``dual_quadric``, ``primal_quadric``, ``camera_matrix``, ``project_dual_conic``,
   ``conic_bbox``, ``cylinder_bbox``, ``conic_outline``, ``camera_frame``, ``texture_plane_depth``,
   ``camera_depth``, ``half_extent``.
-- ``bbox.py``: ``project_bbox``, the fused closed-form box with its custom JVP.
+- ``bbox.py``: ``project_bbox``, the fused closed-form box with its custom JVP, and
+  ``project_bbox_jacobian``, its Jacobians with respect to the object and the camera in closed form.
 - ``boxes.py``: ``box_area``, ``box_iou``: image boxes compared (one definition for every part).
 - ``ground.py``: ``ground_conic``, ``ground_bounds``, ``rasterize_footprint`` (top-down view).
 - ``rotations.py``: quaternion conversions (``wxyz`` / ``xyzw`` in the name), ``random_rotation``,
