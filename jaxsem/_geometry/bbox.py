@@ -348,20 +348,33 @@ def project_bbox_jacobian(rotation, center, radii, K, camera_T_world):
 
       Finite everywhere; zero for items with a non-finite input.
     """
+    return _checked_call(_project_bbox_jacobian_compiled, rotation, center, radii, K, camera_T_world)
+
+
+def _checked_call(compiled, rotation, center, radii, K, camera_T_world):
+    """``compiled`` (a :func:`_cast_to_batch` kernel) on the checked, broadcast arguments of a
+    box projection: the one argument path of :func:`project_bbox` and its Jacobian."""
     rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
     K, pose = _camera_args(K, camera_T_world)
     batch = _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    return _project_bbox_jacobian_compiled(rotation, center, radii, K, pose, batch)
+    return compiled(rotation, center, radii, K, pose, batch)
 
 
-def _project_bbox_jacobian_cast(rotation, center, radii, K, pose, batch):
-    dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
-    cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
-    args = cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
-    return _project_bbox_jacobian_plain(*args)
+def _cast_to_batch(kernel):
+    """``kernel(rotation, center, radii, K, pose)`` on arguments cast to one dtype and broadcast
+    to ``batch`` (the last, static, argument of the returned function)."""
+
+    def cast_and_call(rotation, center, radii, K, pose, batch):
+        dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
+        cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
+        return kernel(
+            cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
+        )
+
+    return cast_and_call
 
 
-_project_bbox_jacobian_compiled = _eager_compiled(_project_bbox_jacobian_cast, static_argnums=(5,))
+_project_bbox_jacobian_compiled = _eager_compiled(_cast_to_batch(_project_bbox_jacobian_plain), static_argnums=(5,))
 
 
 def project_bbox(rotation, center, radii, K, camera_T_world):
@@ -389,17 +402,7 @@ def project_bbox(rotation, center, radii, K, camera_T_world):
     "project_bbox: a fused private path" in this module); the tests check that the two agree,
     gradients included. Its custom JVP serves both ``jvp``/``jacfwd`` and ``grad``/``jacrev``.
     """
-    rotation, center, radii, batch = _ellipsoid_args(rotation, center, radii)
-    K, pose = _camera_args(K, camera_T_world)
-    batch = _batch_shape(ellipsoid=batch, K=K.shape[:-2], camera_T_world=pose.shape[:-2])
-    return _project_bbox_compiled(rotation, center, radii, K, pose, batch)
+    return _checked_call(_project_bbox_compiled, rotation, center, radii, K, camera_T_world)
 
 
-def _project_bbox_cast(rotation, center, radii, K, pose, batch):
-    dtype = jnp.result_type(rotation.dtype, K.dtype, pose.dtype)
-    cast = lambda x, trailing: jnp.broadcast_to(x.astype(dtype), batch + trailing)
-    args = cast(rotation, (3, 3)), cast(center, (3,)), cast(radii, (3,)), cast(K, (3, 3)), cast(pose, (4, 4))
-    return _project_bbox(*args)
-
-
-_project_bbox_compiled = _eager_compiled(_project_bbox_cast, static_argnums=(5,))
+_project_bbox_compiled = _eager_compiled(_cast_to_batch(_project_bbox), static_argnums=(5,))
