@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_prm_concentrated import RES, SHAPE, _concentrated, _free_map  # the same maps and draws
 
 import jaxsem.planning._edges as _edges  # layers: white-box
 import jaxsem.planning._navigate as _navigate  # layers: white-box
@@ -28,19 +29,9 @@ from jaxsem.planning import (
 from jaxsem.planning._grid import static_grid  # layers: white-box
 from jaxsem.planning._sensors import _sense_in_place, _sense_jit, _sense_sizes  # layers: white-box
 
-SHAPE = (240, 320)
-RES = 0.1
-
-
-def _concentrated(seed, centre=(120, 200), k=40):
-    local = np.random.default_rng(seed).dirichlet(np.full(k * k, 0.5)).reshape(k, k)
-    return np.asarray(embed_local_distribution(jnp.asarray(local), jnp.asarray(centre), SHAPE))
-
 
 def _walled_map():
-    occ = np.zeros(SHAPE, bool)
-    occ[:, 150:153] = True  # a wall with a door
-    occ[100:120, 150:153] = False
+    occ = _free_map()  # a wall with a door
     occ[30:60, 200:260] = True  # a block
     return occ
 
