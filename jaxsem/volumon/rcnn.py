@@ -73,7 +73,7 @@ from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss
 from ..quadrics import box_iou
 from ..training import LoadedModel, TrainingRun, config_json
 from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
-from ._pretrained import PRETRAINED_DIR
+from ._pretrained import PRETRAINED_DIR, prepare_inputs
 from ._scene_eval import (
     class_rows,
     evaluate_scene_batch,
@@ -81,6 +81,7 @@ from ._scene_eval import (
     predict_by_rows,
     summarise_detections,
 )
+from ._train import make_predict_fn
 from .data import (
     LMO_CLASS_NAMES,
     augment_batch,
@@ -266,9 +267,6 @@ def teacher_labels(frames, teacher: LoadedModel, batch: int = 256) -> list:
 
     ``teacher``: :func:`jaxsem.volumon.load_pretrained` (e.g. ``kind="lmo"``). Objects without a
     finite visible box are left without. The input frames are not changed."""
-    from ._pretrained import prepare_inputs
-    from ._train import make_predict_fn
-
     predict = make_predict_fn(teacher.model, teacher.config)
     cfg = teacher.config.model
     rows_local, rows_global, rows_box, rows_K, rows_cls, where = [], [], [], [], [], []
