@@ -212,6 +212,8 @@ def detect(key, ellipsoid: Ellipsoid, object_mask, camera: Camera, config: SimCo
 
 
 def _detect(pool: _Pool, rotation, center, radii, object_mask, camera_T_world, K, config):
+    """The detections of :func:`simulate_detections`: a dict keyed by :class:`SimulatedMap`'s
+    measurement fields (``boxes`` ... ``true_boxes``), so a map takes them by name."""
     W, H = float(config.image_width), float(config.image_height)
     R = rotation[None]
     c = center[None]
