@@ -37,6 +37,18 @@ def main(argv=None) -> int:
     p.add_argument(
         "--backbone", choices=("mobilenet_v2", "plain_cnn"), default="mobilenet_v2", help="plain_cnn: the CPU preset"
     )
+    p.add_argument(
+        "--input-size",
+        type=sc.image_size,
+        default=None,
+        help="W,H of the network's images (default 320,240); the renders folder must hold frames of this size",
+    )
+    p.add_argument(
+        "--anchor-scale",
+        type=sc.positive_float,
+        default=1.0,
+        help="multiply the anchor sizes by this (match a larger --input-size: 1.5 at 480,360)",
+    )
     p.add_argument("--cnn-width", type=sc.positive_int, default=16, help="plain_cnn's first width (default 16)")
     p.add_argument(
         "--val-from",
@@ -95,8 +107,14 @@ def main(argv=None) -> int:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
     if a.distill_from is not None:
         loss = dataclasses.replace(loss, distill=a.distill_weight)
+    model = rc.RCNNTrainConfig().model
     model = dataclasses.replace(
-        rc.RCNNTrainConfig().model, backbone=a.backbone, cnn_width=a.cnn_width, lift_stride8=a.lift_stride8
+        model,
+        backbone=a.backbone,
+        cnn_width=a.cnn_width,
+        lift_stride8=a.lift_stride8,
+        input_size=a.input_size or model.input_size,
+        anchor_sizes=tuple(a.anchor_scale * float(s) for s in model.anchor_sizes),
     )
     config = rc.RCNNTrainConfig(
         model=model,

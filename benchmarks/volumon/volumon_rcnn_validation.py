@@ -37,19 +37,15 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=sc.existing_dir, required=True, help="the LM-O scene folder (scene_gt.json)")
     p.add_argument("--models", nargs="+", required=True, help="lmo-rcnn, exported .npz files or training workdirs")
     p.add_argument("--frames", nargs=2, type=sc.nonnegative_int, default=[300, 600], metavar=("LO", "HI"))
-    p.add_argument("--input-size", default=None, help="W,H the networks read (default: each model's own)")
+    p.add_argument(
+        "--input-size", type=sc.image_size, default=None, help="W,H the networks read (default: each model's own)"
+    )
     output_arguments(p, "volumon_rcnn_validation")
     a = p.parse_args(argv)
     lo, hi = a.frames
     if not lo < hi <= 600:
         p.error(f"--frames: expected LO < HI <= 600 (the tuning split), got {lo} {hi}")
-    size = None
-    if a.input_size is not None:
-        try:
-            size = tuple(int(x) for x in a.input_size.split(","))
-            assert len(size) == 2 and min(size) > 0 and size[0] % 16 == 0 and size[1] % 16 == 0
-        except (ValueError, AssertionError):
-            p.error(f"--input-size: expected W,H, multiples of 16, got {a.input_size!r}")
+    size = a.input_size
     for m in a.models:
         if m != "lmo-rcnn" and not pathlib.Path(m).exists():
             p.error(f"--models: no model {m}")

@@ -79,22 +79,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--input-size",
-        type=_input_size,
+        type=sc.image_size,
         default=None,
         help="R-CNN only: run the network at this W,H (multiples of 16; default: the size it was trained at)",
     )
     add_class_mapping_argument(p, "BOP scene only")
     return p
-
-
-def _input_size(text: str) -> tuple:
-    try:
-        w, h = (int(x) for x in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected W,H (two integers), got {text!r}") from None
-    if w < 32 or h < 32 or w % 16 or h % 16:
-        raise argparse.ArgumentTypeError(f"expected W,H multiples of 16 and at least 32, got {text!r}")
-    return w, h
 
 
 def add_model_arguments(p, workdir_type, workdir_help: str) -> None:

@@ -34,7 +34,7 @@ What a command calls, by job:
 - errors and the entry point: :class:`UsageError`, :func:`run_main`, :class:`HelpFormatter`;
 - checked flags: :func:`positive_int`, :func:`nonnegative_int`, :func:`positive_float`,
   :func:`nonnegative_float`, :func:`finite_float`, :func:`probability`,
-  :func:`positive_probability`, :func:`int_list`, :func:`existing_file`, :func:`existing_dir`,
+  :func:`positive_probability`, :func:`int_list`, :func:`image_size`, :func:`existing_file`, :func:`existing_dir`,
   :func:`existing_path`, :func:`output_file`, :func:`output_dir`, :func:`add_devices_argument`,
   :func:`add_force_argument`, :func:`devices_mesh`;
 - config flags: :class:`ConfigFlag`, :func:`add_config_flags`, :func:`apply_config_flags`;
@@ -63,6 +63,7 @@ from ._arguments import (
     existing_file as existing_file,
     existing_path as existing_path,
     finite_float as finite_float,
+    image_size as image_size,
     int_list as int_list,
     nonnegative_float as nonnegative_float,
     nonnegative_int as nonnegative_int,

@@ -63,6 +63,17 @@ def int_list(text: str) -> list[int]:
     return [_number(p, int) for p in parts]
 
 
+def image_size(text: str) -> tuple[int, int]:
+    """A network's image size ``W,H``: two integers, multiples of 16 and at least 32 each."""
+    try:
+        w, h = (int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected W,H (two integers), got {text!r}") from None
+    if w < 32 or h < 32 or w % 16 or h % 16:
+        raise argparse.ArgumentTypeError(f"expected W,H multiples of 16 and at least 32, got {text!r}")
+    return w, h
+
+
 def _existing(text: str, what: str, is_kind: Callable[[pathlib.Path], bool] | None = None) -> pathlib.Path:
     """``text`` as a path that exists (``no such <what>`` otherwise) and, given ``is_kind``,
     is of that kind (``not a <what>``): the one check behind the ``existing_*`` types."""

@@ -70,6 +70,9 @@ def test_run_main_passes_status_and_unexpected_failures():
         (sc.probability, "1.5"),
         (sc.probability, "nan"),
         (sc.int_list, ","),
+        (sc.image_size, "480,360"),
+        (sc.image_size, "320"),
+        (sc.image_size, "16,16"),
         (sc.existing_file, "/definitely/not/here"),
         (sc.existing_dir, "/definitely/not/here"),
     ],
@@ -81,6 +84,10 @@ def test_flag_types_refuse_bad_values_naming_the_flag(kind, text, capsys):
         parser.parse_args(["--flag", text])
     assert exit_info.value.code == 2
     assert "--flag" in capsys.readouterr().err
+
+
+def test_image_size_reads_width_then_height():
+    assert sc.image_size("448,336") == (448, 336)
 
 
 def test_output_paths_refuse_files_and_directories(tmp_path):
