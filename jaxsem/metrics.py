@@ -222,25 +222,30 @@ def box_volume_intersection(rotation_a, center_a, half_extents_a, rotation_b, ce
     return _batched(_intersection_volume, args)
 
 
-def _box_args(Ra, ca, ha, Rb, cb, hb):
-    Ra = _as_float_array("rotation_a", Ra, (3, 3), check_finite=True)
-    Rb = _as_float_array("rotation_b", Rb, (3, 3), check_finite=True)
-    ca = _as_float_array("center_a", ca, (3,), check_finite=True)
-    cb = _as_float_array("center_b", cb, (3,), check_finite=True)
-    ha = jnp.abs(_as_float_array("half_extents_a", ha, (3,), check_finite=True))
-    hb = jnp.abs(_as_float_array("half_extents_b", hb, (3,), check_finite=True))
-    batch = _batch_shape(
-        rotation_a=Ra.shape[:-2],
-        center_a=ca.shape[:-1],
-        half_extents_a=ha.shape[:-1],
-        rotation_b=Rb.shape[:-2],
-        center_b=cb.shape[:-1],
-        half_extents_b=hb.shape[:-1],
-    )
-    dtype = jnp.result_type(Ra, ca, ha, Rb, cb, hb)
-    out = []
-    for x, tail in ((Ra, (3, 3)), (ca, (3,)), (ha, (3,)), (Rb, (3, 3)), (cb, (3,)), (hb, (3,))):
-        out.append(jnp.broadcast_to(x.astype(dtype), batch + tail).reshape((-1,) + tail))
+#: The arguments of the oriented-box functions, in their order, with their trailing shapes.
+_BOX_ARGS = (
+    ("rotation_a", (3, 3)),
+    ("center_a", (3,)),
+    ("half_extents_a", (3,)),
+    ("rotation_b", (3, 3)),
+    ("center_b", (3,)),
+    ("half_extents_b", (3,)),
+)
+
+
+def _box_args(*values):
+    """The six box arguments (:data:`_BOX_ARGS`) as finite float arrays (half extents made
+    positive), cast to one dtype and flattened over their broadcast batch; and that batch. One
+    table gives each argument's name (for the error) and trailing shape."""
+    arrays = []
+    for (name, tail), x in zip(_BOX_ARGS, values):
+        x = _as_float_array(name, x, tail, check_finite=True)
+        arrays.append(jnp.abs(x) if name.startswith("half_extents") else x)
+    batch = _batch_shape(**{name: x.shape[: x.ndim - len(tail)] for (name, tail), x in zip(_BOX_ARGS, arrays)})
+    dtype = jnp.result_type(*arrays)
+    out = [
+        jnp.broadcast_to(x.astype(dtype), batch + tail).reshape((-1,) + tail) for (_, tail), x in zip(_BOX_ARGS, arrays)
+    ]
     return out, batch
 
 
