@@ -3,13 +3,15 @@
 Used by the geometry core (:mod:`jaxsem.quadrics`) and every other module that takes arrays from
 a user: each failure is a ``ValueError`` naming the argument, its shape or value, and what was
 expected. Only concrete values are checked; under ``jit`` the values are tracers and validity is
-carried by masks and result codes instead. This module imports nothing else of the package.
+carried by masks and result codes instead. The config dataclasses check their fields' ranges with
+:func:`check_fields`. This module imports nothing else of the package.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NoReturn
 
 import jax.numpy as jnp
@@ -22,10 +24,15 @@ __all__ = [
     "as_float_array",
     "batch_shape",
     "check_box",
+    "check_fields",
     "check_positive",
     "check_rigid",
     "check_rotation",
+    "finite_nonnegative",
+    "int_at_least",
     "is_concrete",
+    "nonnegative",
+    "positive",
     "require_type",
 ]
 
@@ -163,3 +170,34 @@ def require_type(name: str, value, kind: type) -> Any:
         f"{name}: expected a jaxsem.quadrics.{kind.__name__}, got {type(value).__name__}; "
         f"build one as quadrics.{kind.__name__}({fields})"
     )
+
+
+def check_fields(config, names: Iterable[str], expected: str, ok: Callable[[Any], bool], *, prefix: str = "") -> None:
+    """The range check of a config dataclass's ``__post_init__``: each field of ``config`` named in
+    ``names`` must pass ``ok``, else a ``ValueError`` naming the first that does not, as
+    ``"{prefix}{name}: expected {expected}, got {value!r}"``. The predicates below are the ones
+    several configs share."""
+    for name in names:
+        value = getattr(config, name)
+        if not ok(value):
+            raise ValueError(f"{prefix}{name}: expected {expected}, got {value!r}")
+
+
+def int_at_least(low: int) -> Callable[[Any], bool]:
+    """``ok`` of :func:`check_fields`: a Python or numpy int that is at least ``low``."""
+    return lambda value: isinstance(value, (int, np.integer)) and bool(value >= low)
+
+
+def finite_nonnegative(value) -> bool:
+    """``ok`` of :func:`check_fields`: a finite Python number (or numpy float) >= 0."""
+    return isinstance(value, (int, float)) and math.isfinite(value) and bool(value >= 0)
+
+
+def positive(value) -> bool:
+    """``ok`` of :func:`check_fields`: a value whose ``float`` is > 0 (NaN is not)."""
+    return float(value) > 0
+
+
+def nonnegative(value) -> bool:
+    """``ok`` of :func:`check_fields`: a value whose ``float`` is >= 0 (NaN is not)."""
+    return float(value) >= 0

@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import check_fields, positive
 from ..quadrics import Ellipsoid, back_project, quaternion_to_rotation, ray_rotation
 from ._mobilenet import MobileNetV2
 
@@ -76,9 +77,9 @@ class ReconstructionConfig:
     def __post_init__(self):
         if self.depth_mode not in ("disparity", "absolute"):
             raise ValueError(f"depth_mode: expected 'disparity' or 'absolute', got {self.depth_mode!r}")
-        for name in ("alpha_y", "eps_s", "baseline_focal", "alpha_delta", "max_depth"):
-            if not float(getattr(self, name)) > 0:
-                raise ValueError(f"{name}: expected a positive number, got {getattr(self, name)!r}")
+        check_fields(
+            self, ("alpha_y", "eps_s", "baseline_focal", "alpha_delta", "max_depth"), "a positive number", positive
+        )
         if not 0 <= self.min_depth < self.max_depth:
             raise ValueError(
                 f"min_depth, max_depth: expected 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}"

@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from .. import classes as _classes, quadrics
+from .._checks import check_fields, finite_nonnegative
 from ..data import BopFrame, BopScene
 from ..quadrics import EllipsoidView
 from ._sequence_types import Sequence, SequenceFrame
@@ -327,10 +328,8 @@ class OdometryModel:
     drift_rotation_deg: float = 0.02
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"OdometryModel.{f.name}: expected a finite number >= 0, got {v!r}")
+        names = [f.name for f in dataclasses.fields(self)]
+        check_fields(self, names, "a finite number >= 0", finite_nonnegative, prefix="OdometryModel.")
 
 
 def _exp_se3(xi) -> np.ndarray:

@@ -11,6 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .._checks import check_fields, finite_nonnegative, int_at_least
 from ..quadrics import EllipsoidView
 
 # Reasons attached to each detection's texture measurement (``AssociatedDetection.texture_status``).
@@ -114,19 +115,13 @@ class FrontEndConfig:
     match_ratio: float = 0.8
 
     def __post_init__(self):
+        prefix = "FrontEndConfig."
         positive_ints = ("max_features", "orb_levels", "lk_levels", "min_points", "max_histograms")
-        for name in positive_ints:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, np.integer)) and value >= 1):
-                raise ValueError(f"FrontEndConfig.{name}: expected an integer >= 1, got {value!r}")
-        for name in ("orb_fast_threshold", "max_missed_frames"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, np.integer)) and value >= 0):
-                raise ValueError(f"FrontEndConfig.{name}: expected an integer >= 0, got {value!r}")
-        for name in ("orb_patch_size", "lk_window"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, np.integer)) and value >= 3):
-                raise ValueError(f"FrontEndConfig.{name}: expected an integer >= 3, got {value!r}")
+        check_fields(self, positive_ints, "an integer >= 1", int_at_least(1), prefix=prefix)
+        check_fields(
+            self, ("orb_fast_threshold", "max_missed_frames"), "an integer >= 0", int_at_least(0), prefix=prefix
+        )
+        check_fields(self, ("orb_patch_size", "lk_window"), "an integer >= 3", int_at_least(3), prefix=prefix)
         positive = (
             "max_forward_backward_error",
             "max_reprojection_error",
@@ -136,14 +131,14 @@ class FrontEndConfig:
             "min_depth",
             "gate_pixels",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and value > 0 and not math.isnan(value)):
-                raise ValueError(f"FrontEndConfig.{name}: expected a number > 0, got {value!r}")
-        for name in ("min_baseline", "box_tolerance"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"FrontEndConfig.{name}: expected a finite number >= 0, got {value!r}")
+        check_fields(
+            self,
+            positive,
+            "a number > 0",
+            lambda v: isinstance(v, (int, float)) and v > 0 and not math.isnan(v),
+            prefix=prefix,
+        )
+        check_fields(self, ("min_baseline", "box_tolerance"), "a finite number >= 0", finite_nonnegative, prefix=prefix)
         if not (isinstance(self.box_shrink, (int, float)) and 0 <= self.box_shrink < 0.5):
             raise ValueError(f"FrontEndConfig.box_shrink: expected 0 <= value < 0.5, got {self.box_shrink!r}")
         if not (isinstance(self.redetect_fraction, (int, float)) and 0 <= self.redetect_fraction <= 1):

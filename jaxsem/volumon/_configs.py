@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from .._checks import check_fields
 from ..config import Presets
 from ..models import ReconstructionConfig, VoluMonConfig
 from ._losses import LossConfig
@@ -87,9 +88,8 @@ class TrainConfig:
             )
         if self.class_mode not in ("true", "expectation"):
             raise ValueError(f"class_mode: expected 'true' or 'expectation', got {self.class_mode!r}")
-        for name in ("num_train", "batch_size", "num_steps", "checkpoint_every", "keep_checkpoints", "log_every"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name}: expected a positive int, got {getattr(self, name)!r}")
+        counts = ("num_train", "batch_size", "num_steps", "checkpoint_every", "keep_checkpoints", "log_every")
+        check_fields(self, counts, "a positive int", lambda v: int(v) >= 1)
         if not self.learning_rate > 0:
             raise ValueError(f"learning_rate: expected > 0, got {self.learning_rate}")
         if self.class_names and len(self.class_names) != self.model.num_classes:

@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from .._checks import check_fields, nonnegative, positive
 from ..quadrics import (
     SHAPE_CUBOID as SHAPE_CUBOID,
     SHAPE_CYLINDER as SHAPE_CYLINDER,
@@ -119,7 +120,7 @@ class LossConfig:
     alpha_V: float = 0.0
 
     def __post_init__(self):
-        for name in (
+        weights = (
             "alpha_P",
             "alpha_D",
             "alpha_S",
@@ -130,14 +131,11 @@ class LossConfig:
             "primal_size_power",
             "alpha_O",
             "alpha_V",
-        ):
-            if not float(getattr(self, name)) >= 0:
-                raise ValueError(f"{name}: expected a non-negative number, got {getattr(self, name)!r}")
+        )
+        check_fields(self, weights, "a non-negative number", nonnegative)
         if self.primal_distance not in ("algebraic", "radial", "ray"):
             raise ValueError(f"primal_distance: expected 'algebraic', 'radial' or 'ray', got {self.primal_distance!r}")
-        for name in ("length_unit", "pixel_scale"):
-            if not float(getattr(self, name)) > 0:
-                raise ValueError(f"{name}: expected a positive number, got {getattr(self, name)!r}")
+        check_fields(self, ("length_unit", "pixel_scale"), "a positive number", positive)
 
 
 def _masked_mean(values, mask):

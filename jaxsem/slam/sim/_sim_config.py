@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ... import classes as _classes
+from ..._checks import check_fields, int_at_least
 from ...quadrics import Camera, EllipsoidView
 
 PATHS = ("orbit", "forward", "views")
@@ -118,10 +119,9 @@ class SimConfig:
             raise ValueError(f"path: expected one of {PATHS}, got {self.path!r}")
         if self.init_mode not in INIT_MODES:
             raise ValueError(f"init_mode: expected one of {INIT_MODES}, got {self.init_mode!r}")
-        for name in ("num_objects", "num_frames", "image_width", "image_height"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name}: expected a positive int, got {value!r}")
+        check_fields(
+            self, ("num_objects", "num_frames", "image_width", "image_height"), "a positive int", int_at_least(1)
+        )
         if self.min_objects is not None and not 1 <= self.min_objects <= self.num_objects:
             raise ValueError(
                 f"min_objects: expected an int in [1, num_objects={self.num_objects}], got {self.min_objects!r}"
@@ -129,7 +129,7 @@ class SimConfig:
         if not isinstance(self.classes, tuple) or not self.classes:
             raise ValueError(f"classes: expected a non-empty tuple of names, got {self.classes!r}")
         class_table(self.classes)  # unknown names raise here, at construction
-        for name in (
+        positive_fields = (
             "focal",
             "patch_size",
             "orbit_radius",
@@ -138,11 +138,9 @@ class SimConfig:
             "view_distance_min",
             "view_distance_max",
             "max_depth",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: expected a finite positive number, got {value!r}")
-        for name in (
+        )
+        check_fields(self, positive_fields, "a finite positive number", lambda v: math.isfinite(v) and v > 0)
+        nonnegative_fields = (
             "box_noise_px",
             "border_margin_px",
             "min_box_px",
@@ -157,10 +155,8 @@ class SimConfig:
             "object_gap",
             "corridor_half_width",
             "yaw_range",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+        )
+        check_fields(self, nonnegative_fields, "a finite number >= 0", lambda v: math.isfinite(v) and v >= 0)
         if not 0 <= self.min_visible_fraction <= 1:
             raise ValueError(f"min_visible_fraction: expected a value in [0, 1], got {self.min_visible_fraction!r}")
         if self.init_radii is not None and not self.init_radii > 0:
