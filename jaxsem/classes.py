@@ -334,13 +334,27 @@ class ClassTable:
     def from_json(cls, path: str | os.PathLike, *, base: ClassTable | None = None) -> ClassTable:
         """A table from a JSON file of :meth:`to_dict`'s layout; with ``base`` (e.g.
         :data:`DEFAULT_TABLE`) the file's rows are added after the base's. Errors name the
-        file, the row and the field."""
+        file, the row and the field; a file that cannot be read, is over 16 MiB
+        (checked before a byte is read), is not UTF-8 or not JSON is refused naming it."""
         try:
-            with open(path) as f:
-                data = json.load(f)
+            size = os.stat(path).st_size
+            if size > _MAX_TABLE_BYTES:
+                raise ValueError(f"{path}: {size:,} bytes, more than a class table's {_MAX_TABLE_BYTES:,}")
+            with open(path, "rb") as f:
+                text = f.read().decode("utf-8")
+            data = json.loads(text)
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read the class table ({exc.strerror or exc})") from None
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{path}: not a readable class table (not UTF-8 text: byte {exc.start})") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
         return cls.from_dict(data, base=base, where=f"{path}: classes")
+
+
+#: The largest class-table file :meth:`ClassTable.from_json` reads: 16 MiB, thousands of times a
+#: table of hundreds of classes (a few hundred bytes each).
+_MAX_TABLE_BYTES = 2**24
 
 
 #: The built-in table: the rows of :data:`CLASSES`, in their order.

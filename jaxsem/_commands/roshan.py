@@ -191,6 +191,13 @@ def parse_args(argv=None, prog: str | None = None):
         parser.error("--detections: goes with --tum (a TUM folder and its detections file, both or neither)")
     if args.frontend != "none" and args.simulate:
         parser.error("--frontend: needs images (--sequence, --tum or --bop), not --simulate")
+    if args.classes is not None and args.simulate:
+        # a simulated flight's cars use the built-in table: the file would go unread
+        parser.error(
+            f"--classes: {args.classes} applies to --sequence, --tum or --bop; --simulate uses the built-in classes"
+        )
+    if args.write_sequence is not None and not args.simulate:
+        parser.error("--write-sequence: saves a simulated flight (--simulate); the input is already a sequence")
     if args.detector is not None:
         if args.simulate or args.tum:
             parser.error("--detector: reads the images of --sequence or --bop (not --simulate or --tum)")

@@ -24,6 +24,7 @@ import jax
 import numpy as np
 
 from .._atomic import atomic_write_text
+from .._files import read_text
 from ..metrics import mean_sem, zero_intercept_slope
 from ..planning import NavConfig, sample_tasks
 from ..training import ConfigMismatchError, stamp_differences, tree_digest
@@ -284,7 +285,7 @@ class _RecordStream:
         stamp = json.loads(json.dumps(stamp, default=str))
         header = json.dumps({"stamp": stamp}) + "\n"
         if self.path.exists():
-            lines = self.path.read_text().splitlines()
+            lines = read_text(self.path, "records file").splitlines()
             made = _stamp_of(lines[0]) if lines else None
             if fresh:
                 if lines and made is None and not _is_record(lines[0]):
@@ -360,7 +361,7 @@ def read_records(path) -> list:
     """The records of a :func:`run_trials` ``records_path`` file (its stamp line and a torn last
     line skipped); :func:`records_stamp` gives the stamp."""
     out = []
-    lines = pathlib.Path(path).read_text().splitlines()
+    lines = read_text(path, "records file").splitlines()
     for i, line in enumerate(lines):
         if i == 0 and _stamp_of(line) is not None:
             continue
@@ -374,8 +375,12 @@ def read_records(path) -> list:
 
 def records_stamp(path) -> dict | None:
     """The stamp a :func:`run_trials` records file starts with (None for a file without one)."""
-    with open(path) as f:
-        return _stamp_of(f.readline())
+    with open(path, "rb") as f:
+        head = f.readline()
+    try:
+        return _stamp_of(head.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a readable records file (not UTF-8 text)") from None
 
 
 def write_records(path, records: list, stamp: dict | None) -> None:

@@ -98,13 +98,18 @@ def roshan_init(K, image_size, capacity, config=None, *, optimize_every: int = 2
     )
 
 
-def roshan_frame(camera_T_world, box, semantic_class, object_id, texture_depth=None, *, max_detections: int):
+def roshan_frame(
+    camera_T_world, box, semantic_class, object_id, texture_depth=None, *, max_detections: int, image_size=None
+):
     """One :class:`jaxsem.slam.Frame` for :func:`roshan_init` 's smoother.
 
     camera_T_world: (4, 4) known camera pose; box: (N, 4) pixel boxes; semantic_class: (N,)
     planning ids in :data:`ROSHAN_CLASSES`; object_id: (N,) association ids (e.g. the renderer's
     object index); texture_depth: optional (N,) metres of the object's near surface (NaN: none);
-    max_detections: the smoother's ``Capacity.max_detections`` (extra detections: ValueError).
+    max_detections: the smoother's ``Capacity.max_detections`` (extra detections: ValueError);
+    image_size: optional ``[width, height]`` of the image (the ``roshan_init`` one); given, a box
+    off the image raises ``ValueError`` (:func:`jaxsem.slam.make_frame`) before it reaches the
+    smoother.
     """
 
     box = np.asarray(box, np.float64).reshape(-1, 4)
@@ -115,6 +120,7 @@ def roshan_frame(camera_T_world, box, semantic_class, object_id, texture_depth=N
         object_id,
         texture_depth,
         max_detections=max_detections,
+        image_size=image_size,
     )
     cls = np.zeros(max_detections, np.int32)
     cls[: box.shape[0]] = _roshan_index(semantic_class)

@@ -123,7 +123,7 @@ class FrontEnd:
             dets = fe.process(image, pose, boxes, classes, landmark_estimates=est)
             # dets[i].landmark_id, .texture_depth, .texture_variance, .texture_status ...
             frame = to_frame(dets, pose, max_detections=cap.max_detections,
-                             max_objects=cap.max_objects)
+                             max_objects=cap.max_objects, image_size=(width, height))
             state = online_update(state, frame)
 
     Args:
@@ -504,7 +504,15 @@ class FrontEnd:
         lm.anchor_pose = np.concatenate([lm.anchor_pose, np.broadcast_to(pose, (new.shape[0], 4, 4))])
 
 
-def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_objects: int | None = None, dtype=None):
+def to_frame(
+    detections,
+    camera_T_world,
+    *,
+    max_detections: int = 16,
+    max_objects: int | None = None,
+    dtype=None,
+    image_size=None,
+):
     """Converts one frame of :meth:`FrontEnd.process` output into the online smoother's ``Frame``.
 
     Args:
@@ -513,6 +521,9 @@ def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_object
       max_detections: padded number of detections of the smoother (``Capacity.max_detections``).
       max_objects: the smoother's object capacity; landmark ids must be below it.
       dtype: float dtype of the frame's arrays.
+      image_size: ``(width, height)`` of the frame's image; given, a box off the image is refused
+        (as :func:`jaxsem.slam.make_frame`) instead of reaching the smoother, where a box far
+        outside the image pulls its object along a ray it was never seen on.
 
     Returns:
       :class:`jaxsem.slam.Frame` with ``object_id = landmark_id``, ``box_class = class_id``
@@ -523,7 +534,7 @@ def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_object
 
     Raises:
       ValueError: from :func:`jaxsem.slam.make_frame` (too many detections, ids beyond
-        ``max_objects``, unknown class names).
+        ``max_objects``, unknown class names, given ``image_size`` a box off the image).
     """
     n = len(detections)
     box = np.array([d.box for d in detections], dtype=np.float64).reshape(n, 4)
@@ -540,4 +551,5 @@ def to_frame(detections, camera_T_world, *, max_detections: int = 16, max_object
         max_detections=max_detections,
         max_objects=max_objects,
         dtype=dtype,
+        image_size=image_size,
     )

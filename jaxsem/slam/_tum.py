@@ -40,7 +40,10 @@ TUM_INTRINSICS = {
 }
 
 
-def _read_list(path: pathlib.Path, columns: int) -> list[list[str]]:
+def _read_list(path: pathlib.Path, columns: int, numeric: int = 1) -> list[list[str]]:
+    """The rows of a TUM list file (``#`` comments and blank lines skipped), each with at least
+    ``columns`` fields of which the first ``numeric`` are numbers; ``ValueError`` naming the
+    file, the line and the field otherwise."""
     if not path.is_file():
         raise ValueError(f"{path}: no such file (a TUM RGB-D sequence folder has rgb.txt and groundtruth.txt)")
     rows = []
@@ -51,10 +54,12 @@ def _read_list(path: pathlib.Path, columns: int) -> list[list[str]]:
         words = line.split()
         if len(words) < columns:
             raise ValueError(f"{path}: line {n}: expected {columns} fields, got {len(words)}: {line[:80]!r}")
-        try:
-            float(words[0])
-        except ValueError:
-            raise ValueError(f"{path}: line {n}: timestamp {words[0]!r} is not a number") from None
+        for k, word in enumerate(words[:numeric]):
+            try:
+                float(word)
+            except ValueError:
+                what = "timestamp" if k == 0 else f"field {k + 1}"
+                raise ValueError(f"{path}: line {n}: {what} {word[:40]!r} is not a number") from None
         rows.append(words)
     if not rows:
         raise ValueError(f"{path}: no entries")
@@ -110,7 +115,7 @@ def load_tum_sequence(
         raise ValueError(f"K: expected finite (3, 3) intrinsics with fx, fy > 0, got {K.tolist()}")
     size = (int(image_size[0]), int(image_size[1]))
     rgb = _read_list(root / "rgb.txt", 2)
-    gt = _read_list(root / "groundtruth.txt", 8)
+    gt = _read_list(root / "groundtruth.txt", 8, numeric=8)
     gt_t = np.array([float(r[0]) for r in gt])
     order = np.argsort(gt_t)
     gt_t, gt = gt_t[order], [gt[i] for i in order]

@@ -306,3 +306,23 @@ def test_roshan_refuses_a_bop_camera_with_zero_focal_length(tmp_path, capsys):
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(lines) == 1 and "camera.json: fx: expected a positive number, got 0" in lines[0], lines
     assert not (tmp_path / "out" / "map.json").exists()
+
+
+@pytest.mark.parametrize(
+    "extra, flag",
+    [
+        (["--simulate", "forward", "--classes", "mine.json"], "--classes"),  # the file would go unread
+        (["--sequence", "seq", "--write-sequence", "copy"], "--write-sequence"),  # nothing simulated to save
+    ],
+    ids=["classes-with-simulate", "write-sequence-without-simulate"],
+)
+def test_roshan_refuses_a_flag_its_input_would_ignore(extra, flag, tmp_path, capsys):
+    from jaxsem import cli
+
+    (tmp_path / "mine.json").write_text('{"classes": []}')
+    extra = [str(tmp_path / a) if a.endswith(".json") else a for a in extra]
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["roshan", *extra, "--out", str(tmp_path / "out")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].startswith(f"jaxsem roshan: error: {flag}:")
+    assert not (tmp_path / "out").exists()

@@ -77,6 +77,20 @@ def test_user_class_table_round_trip_and_default_unchanged(tmp_path):
     assert bigger.index("mug") == table.index("mug") and bigger.get("mug").dimensions == (0.2, 0.2, 0.2)
 
 
+def test_class_file_not_utf8_or_too_large_is_named(tmp_path, monkeypatch):
+    # Was the codec's bare "'utf-8' codec can't decode byte 0xe9", naming no file.
+    path = tmp_path / "mine.json"
+    path.write_bytes(b'{"classes": [{"name": "caf\xe9"}]}')
+    with pytest.raises(ValueError, match=r"mine\.json: not a readable class table \(not UTF-8 text: byte 26\)"):
+        classes.ClassTable.from_json(path)
+    path.write_text('{"classes": []}')
+    monkeypatch.setattr(classes, "_MAX_TABLE_BYTES", 8)
+    with pytest.raises(ValueError, match=r"mine\.json: 15 bytes, more than a class table's 8"):
+        classes.ClassTable.from_json(path)
+    with pytest.raises(ValueError, match=r"nope\.json: cannot read the class table"):
+        classes.ClassTable.from_json(tmp_path / "nope.json")
+
+
 def test_class_json_mistakes_name_file_row_and_field(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text('{"classes": [{"name": "mug", "dimensions": [0.1, 0.1, 0.1]}]}')

@@ -100,6 +100,16 @@ def test_roshan_priors_and_bad_class():
         mapping.roshan_frame(np.eye(4), [[0, 0, 10, 10]], [planning.WALL], [0], max_detections=2)
 
 
+def test_roshan_frame_refuses_an_off_image_box_given_the_image_size():
+    box, door = [[2000, 10, 2100, 60]], [planning.DOOR]
+    frame = mapping.roshan_frame(np.eye(4), box, door, [0], max_detections=2)  # no size: not checked
+    assert np.asarray(frame.box_mask).tolist() == [True, False]
+    with pytest.raises(ValueError, match="box"):
+        mapping.roshan_frame(np.eye(4), box, door, [0], max_detections=2, image_size=(320, 240))
+    inside = mapping.roshan_frame(np.eye(4), [[10, 10, 60, 60]], door, [0], max_detections=2, image_size=(320, 240))
+    assert np.asarray(inside.box_mask).tolist() == [True, False]
+
+
 def _pipeline():
     spec = importlib.util.spec_from_file_location("pipeline_bench", ROOT / "benchmarks" / "pipeline.py")
     assert spec is not None and spec.loader is not None

@@ -19,7 +19,7 @@ import pytest
 import jaxsem.slam._frontend_vision as fe_mod  # layers: white-box (the projection cache, one test)
 from jaxsem.slam import FrontEndConfig
 from jaxsem.slam._frontend import FrontEnd, to_frame  # layers: white-box
-from jaxsem.slam._frontend_types import LandmarkEstimates  # layers: white-box
+from jaxsem.slam._frontend_types import AssociatedDetection, LandmarkEstimates  # layers: white-box
 from jaxsem.slam._frontend_vision import triangulate_points  # layers: white-box
 
 mujoco = pytest.importorskip("mujoco")
@@ -778,3 +778,22 @@ def test_prediction_cache_pads_to_capacity():
     assert [predict(n) for n in (3, 8)] == [first, first]  # same bucket: no new compilation
     assert predict(9) <= first + 1  # the next bucket compiles at most once
     assert predict(16) == predict(12)
+
+
+def test_to_frame_refuses_an_off_image_box_given_the_image_size():
+    # A box beside a 640 x 480 image passes without the size (the smoother cannot tell), and is
+    # refused, naming the box, once the frame knows its image.
+    def detection(box):
+        return AssociatedDetection(
+            index=0, box=np.asarray(box, float), class_id=0, landmark_id=0, is_new=True, texture_depth=None,
+            texture_variance=None, texture_status="new_landmark", num_points=0, baseline=0.0, correlation=None,
+            centroid_distance=None,
+        )  # fmt: skip
+
+    pose = np.eye(4)
+    inside = to_frame([detection([10, 20, 50, 60])], pose, max_detections=2, image_size=(640, 480))
+    assert np.asarray(inside.box_mask).tolist() == [True, False]
+    beside = [detection([2000, 20, 2100, 60])]
+    assert np.asarray(to_frame(beside, pose, max_detections=2).box_mask)[0]
+    with pytest.raises(ValueError, match="box"):
+        to_frame(beside, pose, max_detections=2, image_size=(640, 480))

@@ -97,6 +97,13 @@ def test_bad_ground_truth_and_camera(tmp_path):
         slam.load_tum_sequence(other, tmp_path / "dets.jsonl")
 
 
+def test_ground_truth_with_a_word_for_a_number_is_named(tmp_path):
+    # Was "could not convert string to float: 'a'", naming neither the file nor the line.
+    root = _folder(tmp_path, ["# ground truth", "10.004 1 2 3 0 0 0 1", "10.040 1 a 3 0 0 0 1"])
+    with pytest.raises(ValueError, match=r"groundtruth\.txt: line 3: field 3 'a' is not a number"):
+        slam.load_tum_sequence(root, _detections(tmp_path, [{"frame": "rgb/10.000.png", "detections": [DET]}]))
+
+
 def test_roshan_command_needs_detections_with_tum(tmp_path, run_cli):
     root = _folder(tmp_path)
     status, _, err = run_cli(["roshan", "--tum", str(root), "--out", str(tmp_path / "o")])

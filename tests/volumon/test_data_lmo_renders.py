@@ -21,6 +21,7 @@ from jaxsem.volumon._configs import LMO_CLASS_NAMES, tiny_config  # layers: whit
 from jaxsem.volumon._train import TRAIN_KEYS, init_state  # layers: white-box
 from jaxsem.volumon.data import LMO_OBJECT_IDS, DeskConfig
 from jaxsem.volumon.data._bop_eval import LMO_TUNE_BELOW  # layers: white-box
+from jaxsem.volumon.data._lmo_renders import concat_npz  # layers: white-box
 
 SIZE = (128, 96)
 K_SMALL = np.array([[114.5, 0.0, 64.0], [0.0, 114.7, 48.0], [0.0, 0.0, 1.0]])  # LM-O's field of view at 128 x 96
@@ -265,3 +266,29 @@ def test_shipped_lmo_model_beats_the_known_size_baseline_on_tuning_frames_when_p
     base = volumon.summarise_detections({"rotation": R, "center": c, "radii": r}, b)
     assert net["num"] == base["num"] > 50
     assert net["trans_auc"] > base["trans_auc"] and net["iou_auc"] > base["iou_auc"]
+
+
+def test_desk_chunk_reads_check_each_file_before_inflating(tmp_path):
+    # A rendered desk-frame chunk is a file a user may copy or truncate: one whose header declares
+    # more elements than the budget, one that is not a zip, and one of another kind (an array
+    # missing) are each refused naming the file, before any array is inflated.
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    keys = ("image", "K", "boxes")
+    np.savez(frames / "frames_0000.npz", **{k: np.zeros((2, 3), np.float32) for k in keys})
+    np.savez(frames / "frames_0001.npz", **{k: np.zeros((1, 3), np.float32) for k in keys})
+    files = sorted(frames.glob("*.npz"))
+    assert concat_npz(files, keys)["image"].shape == (3, 3)
+    with pytest.raises(ValueError, match=r"frames_0000\.npz: declares 18 array elements.*max_elements=4"):
+        concat_npz(files, keys, max_elements=4)
+    np.savez(frames / "frames_0002.npz", image=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match=r"frames_0002\.npz: .*no array 'K'"):
+        concat_npz(sorted(frames.glob("*.npz")), keys)
+    (frames / "frames_0002.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match=r"frames_0002\.npz: not a readable \.npz"):
+        concat_npz(sorted(frames.glob("*.npz")), keys)
+    with pytest.raises(ValueError, match=r"frames_0000\.npz: .*no array 'class_id'"):
+        vdata.load_frame_chunks(frames)  # the reader the R-CNN training uses, with its keys
+    np.savez(frames / "frames_0002.npz", **{k: np.zeros((1, 4), np.float32) for k in keys})
+    with pytest.raises(ValueError, match=r"frames_0002\.npz: array 'image' has shape \(1, 4\)"):
+        concat_npz(sorted(frames.glob("*.npz")), keys)

@@ -35,10 +35,12 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
+import zipfile
 
 import numpy as np
 
 from ... import quadrics as Q
+from ..._files import MAX_NPZ_ELEMENTS, check_npz
 from ...data import LINEMOD_NAMES, Mesh, load_ply, mujoco_quaternion, mujoco_view
 from ...training import check_stamp
 from .._inputs import prepare_inputs
@@ -768,15 +770,36 @@ def load_desk_detections(path) -> dict:
     return concat_npz(files)
 
 
-def concat_npz(files, keys=None) -> dict:
+def concat_npz(files, keys=None, *, max_elements: int = MAX_NPZ_ELEMENTS) -> dict:
     """The arrays of the ``.npz`` files ``files`` (chunks of :func:`write_desk_chunks`),
     concatenated along their first axis in the files' order; ``keys``: which arrays, in this
-    order (default: the first file's)."""
-    parts = []
+    order (default: the first file's).
+
+    Each file's declared array sizes are checked against ``max_elements`` before anything is
+    inflated (:func:`jaxsem._files.check_npz`: a few kB of deflated zeros can declare gigabytes),
+    and its arrays against ``keys`` and the other chunks (same trailing shape), so a damaged or
+    foreign chunk is refused with a ``ValueError`` naming it rather than a shape error later.
+    """
+    parts: list[dict] = []
+    first: dict | None = None
     for f in files:
-        with np.load(f) as z:
-            parts.append({k: z[k] for k in z.files})
-    return {k: np.concatenate([p[k] for p in parts]) for k in (parts[0] if keys is None else keys)}
+        shapes = check_npz(f, max_elements=max_elements)
+        wanted = list(keys) if keys is not None else list(shapes) if first is None else list(first)
+        missing = [k for k in wanted if k not in shapes]
+        if missing:
+            raise ValueError(f"{f}: not a chunk of this folder's kind: no array {', '.join(map(repr, missing))}")
+        if first is None:
+            first = {k: shapes[k][1:] for k in wanted}
+        odd = [k for k in wanted if not shapes[k] or shapes[k][1:] != first[k]]
+        if odd:
+            k = odd[0]
+            raise ValueError(f"{f}: array {k!r} has shape {shapes[k]}, the first chunk's rows are {first[k]}")
+        try:
+            with np.load(f) as z:
+                parts.append({k: z[k] for k in wanted})
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{f}: not a readable .npz chunk ({exc})") from None
+    return {k: np.concatenate([p[k] for p in parts]) for k in (first or {})}
 
 
 #: Keys of a training batch of desk detections (:data:`jaxsem.volumon._train.TRAIN_KEYS` and the truth for scoring).
