@@ -37,17 +37,9 @@ def main(argv=None) -> int:
     p.add_argument(
         "--backbone", choices=("mobilenet_v2", "plain_cnn"), default="mobilenet_v2", help="plain_cnn: the CPU preset"
     )
+    p.add_argument("--input-size", type=sc.image_size, default=None, help="W,H of the images (default 320,240)")
     p.add_argument(
-        "--input-size",
-        type=sc.image_size,
-        default=None,
-        help="W,H of the network's images (default 320,240); the renders folder must hold frames of this size",
-    )
-    p.add_argument(
-        "--anchor-scale",
-        type=sc.positive_float,
-        default=1.0,
-        help="multiply the anchor sizes by this (match a larger --input-size: 1.5 at 480,360)",
+        "--anchor-scale", type=sc.positive_float, default=1.0, help="anchor sizes times this (1.4 at 448,336)"
     )
     p.add_argument("--cnn-width", type=sc.positive_int, default=16, help="plain_cnn's first width (default 16)")
     p.add_argument(
