@@ -17,6 +17,23 @@ single detection (section 4.3.5).
 Every ``optimize_every`` frames the graph is relinearised and ``iterations`` steps of the
 structured (Schur) Levenberg-Marquardt of :func:`jaxsem.slam._batch.solve_schur` are run over the poses
 of the last ``window`` frames (older poses held fixed) and all objects.
+
+Pose factors. By default every frame's ``pose_prior`` is an absolute prior at the noise model's
+sigmas (``prior_weights`` all ones, no odometry). Integrated odometry drifts away from such priors,
+which then pin the map to the drift; the batch solve reads it instead as a prior on the first
+pose and between factors along the chain. ``online_init(..., odometry=True, prior_weights=
+[[w_t, w_r], [0, 0]])`` builds the same graph online: a between factor
+(:func:`jaxsem.slam._cost.odometry_rows`, the batch solve's) from each frame to the next whose
+mean is the relative motion of their pose priors, ``prior_t @ inv(prior_t+1)``, an absolute prior
+on the first frame only (row 0 of ``prior_weights``; row 1 weighs every later frame, 0 = none),
+and each new pose started where the odometry carries the previous pose's current estimate (not at
+its absolute prior). The object factors (boxes, texture planes, shape, upright and support priors)
+are the batch solve's, from the same config. When the pose ring wraps, the pose that becomes the
+oldest is anchored at its current estimate with row 0's weights (the dropped frames' information,
+approximately); the between factor across the ring's end (slot ``max_poses - 1`` to slot 0) enters
+the cost and the gradient exactly but its off-diagonal Hessian block is left out of the step (the
+Schur step's pose part is block-tridiagonal, not cyclic), so those steps are approximate Gauss-Newton
+steps that the damping rule still only accepts when they lower the cost.
 """
 
 from __future__ import annotations
@@ -29,8 +46,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import classes as _classes
+from ..quadrics import invert_pose
 from ._batch import levenberg_marquardt
-from ._cost import class_table
+from ._cost import class_table, prior_weight
 from ._init import box_init
 from ._problem import Capacity, Frame, SlamEstimate, SlamProblem, has_measurements
 from ._results import RESULTS
@@ -52,7 +70,11 @@ class OnlineState(eqx.Module):
         the next optimisation continues); ``no_measurements`` while no frame has brought a
         usable box; a failure code otherwise.
       config: :class:`SolverConfig`.
+      prior_weights: (2, 2) ``[translation, rotation]`` multipliers of the whitened absolute
+        pose-prior rows: row 0 for the first frame (and the oldest kept pose once the ring wraps
+        with odometry), row 1 for every later frame (0 = no absolute prior).
       optimize_every, iterations, window, max_detections: static ints.
+      odometry: static bool, between factors from each frame to the next (module docstring).
     """
 
     problem: SlamProblem
@@ -62,10 +84,12 @@ class OnlineState(eqx.Module):
     box_count: jnp.ndarray
     result: RESULTS
     config: SolverConfig
+    prior_weights: jnp.ndarray
     optimize_every: int = eqx.field(static=True)
     iterations: int = eqx.field(static=True)
     window: int = eqx.field(static=True)
     max_detections: int = eqx.field(static=True)
+    odometry: bool = eqx.field(static=True, default=False)
 
 
 def online_init(
@@ -79,6 +103,8 @@ def online_init(
     window: int | None = None,
     dtype=None,
     classes=None,
+    odometry: bool = False,
+    prior_weights=None,
 ) -> OnlineState:
     """Empty smoother.
 
@@ -91,6 +117,18 @@ def online_init(
       window: number of most recent frames whose poses are optimised (default: all kept).
       classes: the :class:`jaxsem.classes.ClassTable` of the frames' ``box_class`` (default: the
         built-in table; build frames with ``make_frame(..., classes=...)`` of the same table).
+      odometry: add a between factor from each frame to the next, measured as the relative
+        motion of their ``pose_prior`` (integrated odometry), at the config's odometry sigmas.
+      prior_weights: (2, 2) finite, >= 0: ``[translation, rotation]`` multipliers of the absolute
+        pose priors, row 0 for the first frame, row 1 for the others (default: all ones, an
+        absolute prior on every frame). With ``odometry``, e.g. ``[[w_t, w_r], [0, 0]]``: a prior
+        on the first frame only, as the batch solve's ``pose_prior_weight`` of
+        :func:`jaxsem.slam.pose_prior_weights` ``"first"``. A value, not a static setting: other
+        weights reuse the compiled step.
+
+    Raises:
+      ValueError: a bad size, ``K``, ``image_size`` or ``prior_weights`` (naming it); no gauge
+        (``prior_weights[0]`` zero in translation or rotation).
     """
     if optimize_every < 1 or iterations < 1:
         raise ValueError(f"optimize_every, iterations: expected >= 1, got {optimize_every}, {iterations}")
@@ -104,6 +142,13 @@ def online_init(
     image_size = np.asarray(image_size, float)
     if image_size.shape != (2,) or not np.all(image_size > 0):
         raise ValueError(f"image_size: expected [width, height] > 0, got {image_size.tolist()}")
+    weights = np.ones((2, 2)) if prior_weights is None else np.asarray(prior_weights, float)
+    if weights.shape != (2, 2) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
+        raise ValueError(f"prior_weights: expected a finite (2, 2) array >= 0, got {weights.tolist()}")
+    if not np.all(weights[0] > 0):
+        raise ValueError(
+            f"prior_weights: row 0 (the first frame) must be > 0 to fix the gauge, got {weights[0].tolist()}"
+        )
     # Concrete, non-weak float leaves: the jitted update returns the same avals it was given,
     # so the second call hits the compilation cache. Everything is built on the host and put on
     # the device as is (eager jnp ops would each compile a small program: seconds in a CLI run).
@@ -131,6 +176,9 @@ def online_init(
         object_class=put(np.zeros(J), np.int32),
         object_mask=put(np.zeros(J), bool),
         classes=None if classes is None else _classes.as_table(classes),
+        odometry=eye4 if odometry else None,
+        odometry_mask=put(np.zeros(P), bool) if odometry else None,
+        pose_prior_weight=put(np.broadcast_to(weights[1], (P, 2))),
     )
     estimate = SlamEstimate(
         camera_T_world=eye4,
@@ -147,10 +195,12 @@ def online_init(
         # A jax int32 code, not the enum's numpy constant: the second update hits the jit cache.
         result=jax.tree_util.tree_map(lambda v: put(v, np.int32), RESULTS.no_measurements),
         config=config,
+        prior_weights=put(weights),
         optimize_every=int(optimize_every),
         iterations=int(iterations),
         window=int(P if window is None else window),
         max_detections=int(D),
+        odometry=bool(odometry),
     )
 
 
@@ -176,6 +226,41 @@ def _optimize(state: OnlineState, iterations, free) -> OnlineState:
     return eqx.tree_at(lambda s: (s.estimate, s.result), state, (est, result))
 
 
+def _pose_chain(state: OnlineState, slot, prior):
+    """Pose factors and the new pose's start when frame ``state.frame_count`` enters ``slot``.
+
+    Returns ``(pose_prior (P, 4, 4), weight (P, 2), odometry, odometry_mask, start (4, 4),
+    cam (P, 4, 4))``: the frame's prior at its row of ``state.prior_weights`` (row 0 for the
+    first frame); with odometry, the between factor from the previous slot to this one (its mean
+    the pose priors' relative motion), none from the slot's old pose to the next, the new pose
+    started at the previous pose's estimate moved by that motion, and, once the ring wraps, the
+    oldest kept pose anchored at its estimate with row 0's weights (the module docstring)."""
+    pb, est = state.problem, state.estimate
+    P = pb.pose_prior.shape[0]
+    first = state.frame_count == 0
+    weight_row = jnp.where(first, state.prior_weights[0], state.prior_weights[1])
+    pose_prior = pb.pose_prior.at[slot].set(prior)
+    weight = prior_weight(pb).at[slot].set(weight_row)
+    cam = est.camera_T_world
+    if not state.odometry or pb.odometry is None or pb.odometry_mask is None:
+        return pose_prior, weight, pb.odometry, pb.odometry_mask, prior, cam
+    prev = (slot - 1) % P
+    # camera_prev_T_camera_new from the two integrated poses (both camera_T_world).
+    motion = pb.pose_prior[prev] @ invert_pose(prior)
+    odometry = pb.odometry.at[prev].set(jnp.where(first, pb.odometry[prev], motion))
+    odometry_mask = pb.odometry_mask.at[slot].set(False).at[prev].set(~first)
+    start = jnp.where(first, prior, invert_pose(motion) @ est.camera_T_world[prev])
+    # Wrapped: frame t - P + 1 (the next slot) is now the oldest pose, its chain to the dropped
+    # frames is gone; it keeps the gauge at its current estimate.
+    oldest = (slot + 1) % P
+    wrapped = state.frame_count >= P
+    pose_prior = pose_prior.at[oldest].set(jnp.where(wrapped, cam[oldest], pose_prior[oldest]))
+    weight = weight.at[oldest].set(
+        jnp.where(wrapped, jnp.maximum(weight[oldest], state.prior_weights[0]), weight[oldest])
+    )
+    return pose_prior, weight, odometry, odometry_mask, start, cam
+
+
 def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     pb, est, cfg = state.problem, state.estimate, state.config
     P = pb.pose_prior.shape[0]
@@ -187,9 +272,9 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     stale = pb.box_mask & (pb.box_pose == slot)
     box_mask = pb.box_mask & ~stale
     prior = jnp.asarray(frame.pose_prior, dtype)
-    pose_prior = pb.pose_prior.at[slot].set(prior)
+    pose_prior, weight, odometry, odometry_mask, start, cam = _pose_chain(state, slot, prior)
     pose_mask = pb.pose_mask.at[slot].set(True)
-    cam = est.camera_T_world.at[slot].set(prior)
+    cam = cam.at[slot].set(start)
     pose_frame = state.pose_frame.at[slot].set(state.frame_count)
 
     # New objects: initialised from their (first) detection in this frame.
@@ -199,7 +284,7 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
     mean, _ = class_table(cfg, dtype, pb)
     tex_ok = frame.texture_mask & det if cfg.use_texture else jnp.zeros_like(det)
     det_box, det_depth = frame.box.astype(dtype), frame.texture_depth.astype(dtype)
-    R0, c0, r0 = box_init(cfg, prior, det_box, pb.K, mean[frame.box_class], det_depth, tex_ok, pb.image_size)
+    R0, c0, r0 = box_init(cfg, start, det_box, pb.K, mean[frame.box_class], det_depth, tex_ok, pb.image_size)
     # A detection that carries an initial ellipsoid (Frame.init_*) starts its new object there.
     given = frame.init_mask & is_new
     R0 = jnp.where(given[:, None, None], frame.init_rotation.astype(dtype), R0)
@@ -237,6 +322,9 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         object_class=object_class,
         object_mask=object_mask,
         classes=pb.classes,
+        odometry=odometry,
+        odometry_mask=odometry_mask,
+        pose_prior_weight=weight,
     )
     estimate = SlamEstimate(cam, rotation, center, radii)
     return OnlineState(
@@ -247,10 +335,12 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         box_count=state.box_count + jnp.sum(det, dtype=jnp.int32),
         result=RESULTS.successful,  # pyright: ignore[reportArgumentType]
         config=cfg,
+        prior_weights=state.prior_weights,
         optimize_every=state.optimize_every,
         iterations=state.iterations,
         window=state.window,
         max_detections=state.max_detections,
+        odometry=state.odometry,
     )
 
 

@@ -83,6 +83,8 @@ def run_sequence(
     window: int | None = None,
     callback: Callable[[int, Any, float], None] | None = None,
     dtype=None,
+    odometry: bool = False,
+    prior_weights=None,
 ) -> SequenceResult:
     """Runs the online smoother (:func:`online_init`, then :func:`online_update` per frame).
 
@@ -100,7 +102,10 @@ def run_sequence(
         every object and the largest frame. The default follows the sequence, so each sequence
         of another size compiles its own program (several seconds on a CPU);
         to run many sequences, pass one capacity that holds them all.
-      optimize_every, iterations, window: as :func:`jaxsem.slam.online_init`.
+      optimize_every, iterations, window, odometry, prior_weights: as
+        :func:`jaxsem.slam.online_init` (``odometry=True, prior_weights=[[w_t, w_r], [0, 0]]``:
+        the frames' poses read as integrated odometry, between factors along the chain and a
+        prior on the first pose only, as the batch solve of such a sequence).
       callback: called after every frame as ``callback(index, state, seconds)``.
       dtype: float dtype (default: jax's default float).
 
@@ -128,7 +133,13 @@ def run_sequence(
         window=window,
         dtype=dtype,
         classes=sequence.classes,
+        odometry=odometry,
+        prior_weights=prior_weights,
     )
+    # Committed to the device, as the step's outputs are: the traced program's call
+    # (_aot.exported) compiles again for an argument that differs only in that.
+    device = jax.devices()[0]
+    state = jax.device_put(state, device)
     T, P = len(sequence.frames), capacity.max_poses
     poses = np.zeros((T, 4, 4))
     seconds = np.zeros(T)
@@ -143,7 +154,8 @@ def run_sequence(
     for t, fr in enumerate(sequence.frames):
         due = [i for i in fr.ids if i in pending]
         if due:  # user-given initial ellipsoids go in just before the object's first detection
-            state = _seed_objects(state, [(slot[i], fr.classes[fr.ids.index(i)], pending.pop(i)) for i in due])
+            seeds = [(slot[i], fr.classes[fr.ids.index(i)], pending.pop(i)) for i in due]
+            state = jax.device_put(_seed_objects(state, seeds), device)
         frame = make_frame(
             fr.camera_T_world,
             fr.boxes,
