@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import pathlib
 import subprocess
@@ -102,6 +103,34 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
     return info
 
 
+def _check(ap: argparse.ArgumentParser, args) -> None:
+    """Every flag checked before the data phase (minutes of CPU work that a bad ``--init-from`` or
+    ``--set`` would otherwise waste before the trainer refuses it): ``ap.error`` (exit 2, one
+    line naming the flag) on the first bad one."""
+    for flag, value, low in (
+        ("--workers", args.workers, 1),
+        ("--house", args.house, 0),
+        ("--train", args.train, 0),
+        ("--house-samples", args.house_samples, 1),
+        ("--train-samples", args.train_samples, 1),
+    ):
+        if value < low:
+            ap.error(f"{flag}: expected a whole number >= {low}, got {value}")
+    if not 0 < args.data_deadline < args.deadline < math.inf:
+        ap.error(
+            f"--data-deadline, --deadline: expected 0 < --data-deadline < --deadline (finite seconds), "
+            f"got {args.data_deadline} and {args.deadline}"
+        )
+    if not pathlib.Path(args.init_from).is_file():
+        ap.error(f"--init-from: no such model file {args.init_from!r}")
+    for item in args.set:
+        if "=" not in item or not item.split("=", 1)[0].strip():
+            ap.error(f"--set: expected name=value, got {item!r}")
+    for flag, value in (("--root", args.root), ("--out", args.out)):
+        if pathlib.Path(value).exists() and not pathlib.Path(value).is_dir():
+            ap.error(f"{flag}: {value} exists and is not a folder")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", required=True, help="data and workdir (resumes)")
@@ -120,6 +149,7 @@ def main(argv=None) -> int:
     ap.add_argument("--oracle", action="store_true", help="also train the full-map oracle beside it")
     ap.add_argument("--set", action="append", default=[], help="extra TrainConfig overrides (name=value)")
     args = ap.parse_args(argv)
+    _check(ap, args)
     root, out = pathlib.Path(args.root), pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     data_info = make_data(args, root / "data", root / "data_full" if args.oracle else None)

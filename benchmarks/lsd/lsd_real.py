@@ -193,8 +193,12 @@ def _check(args):
         raise SystemExit(f"lsd_real: --trials: expected >= 1, got {args.trials}")
     if any(n < 1 for n in args.n):
         raise SystemExit(f"lsd_real: --n: expected sample budgets >= 1, got {args.n}")
-    if not (0 <= args.min_distance < args.max_distance):
-        raise SystemExit("lsd_real: --max-distance: must exceed --min-distance")
+    if not (0 <= args.min_distance < args.max_distance) or not math.isfinite(args.max_distance):
+        raise SystemExit("lsd_real: --max-distance: must be finite and exceed --min-distance (>= 0)")
+    if not (math.isfinite(args.clearance) and args.clearance >= 0):
+        raise SystemExit(f"lsd_real: --clearance: expected metres >= 0, got {args.clearance}")
+    if args.max_steps < 1:
+        raise SystemExit(f"lsd_real: --max-steps: expected >= 1, got {args.max_steps}")
     if args.hatch_px is not None and not (math.isfinite(args.hatch_px) and args.hatch_px > 0):
         raise SystemExit(f"lsd_real: --hatch-px: expected pixels > 0, got {args.hatch_px}")
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
@@ -210,6 +214,9 @@ def _check(args):
     out = pathlib.Path(args.json)
     if out.exists() and out.is_dir():
         raise SystemExit(f"lsd_real: --json: {args.json!r} is a folder")
+    above = next((p for p in out.absolute().parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise SystemExit(f"lsd_real: --json: {str(above)!r} is a file, so {args.json!r} cannot be written")
     if args.reuse_base is not None:
         _check_reuse(args)
 
@@ -261,7 +268,7 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:
         if args.debug:
             raise
-        print(f"lsd_real: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"lsd_real: {type(exc).__name__}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
 
 
@@ -325,7 +332,10 @@ def run_planners(args, world=None) -> tuple:
     from jaxsem.lsd import LSDSampler, full_map_sampler, load_model
     from jaxsem.planning import NavConfig
 
-    model, params, _, _ = load_model(args.checkpoint)
+    try:
+        model, params, _, _ = load_model(args.checkpoint)
+    except ValueError as exc:
+        raise ValueError(f"--checkpoint: {exc}") from None
     sampler = LSDSampler(model, params)
     base = NavConfig(reuse_roadmap=False, max_growth=0) if args.protocol == "thesis" else NavConfig()
     variants = {"lsd_nosem": (_zeroed_semantics(sampler), {})} if args.nosem else {}
@@ -471,4 +481,6 @@ def _run(args, argv) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from jaxsem.scripting import run_main  # the one exit-status rule: bad flags exit 2
+
+    sys.exit(run_main(main))

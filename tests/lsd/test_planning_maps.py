@@ -138,6 +138,17 @@ def test_bad_gridmaps_are_named(tmp_path, blob, word):
     assert "bad.gridmap" in str(info.value)
 
 
+def test_a_yaml_syntax_slip_is_one_line_naming_the_file(tmp_path):
+    # The YAML parser's message spans lines (it draws a caret under the column); a command's last
+    # line of output was "^)", naming nothing.
+    (tmp_path / "m.yaml").write_text("image: [room.pgm\nresolution: : :\n")
+    with pytest.raises(ValueError) as exc:
+        planning.load_map(tmp_path / "m.yaml")
+    assert "\n" not in str(exc.value) and str(exc.value).startswith(
+        f"{tmp_path / 'm.yaml'}: not a readable YAML file ("
+    )
+
+
 def test_unknown_suffix_and_missing_file(tmp_path):
     with pytest.raises(ValueError, match="no such map file"):
         planning.load_occupancy(tmp_path / "nope.yaml")

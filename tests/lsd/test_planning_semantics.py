@@ -7,6 +7,8 @@ import json
 import os
 import pathlib
 import struct
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -489,3 +491,26 @@ def test_records_without_a_stamp_are_refused_and_a_stranger_file_kept(tmp_path):
     with pytest.raises(ValueError, match="not a records file"):
         _trials_on(mine, b, fresh=True)
     assert mine.read_text() == '{"my": "notes"}\n'
+
+
+def test_real_map_command_flags_exit_2_naming_them(tmp_path, script):
+    # Run as a script its flag errors exit 2 (bad usage; they exited 1) and NaN or impossible
+    # values are named by their flag before any map is read.
+    mod = script("benchmarks/lsd/lsd_real.py")
+    path = tmp_path / "m.gridmap.gz"
+    _write_gridmap(path, _two_rooms(0.9), 0.1)
+    (tmp_path / "a_file").write_text("x")
+    base = ["--map", str(path), "--json", str(tmp_path / "o.json")]
+    for extra, flag in (
+        (["--clearance", "nan"], "--clearance"),
+        (["--max-distance", "inf"], "--max-distance"),
+        (["--max-steps", "0"], "--max-steps"),
+        (["--json", str(tmp_path / "a_file" / "o.json")], "--json"),
+    ):
+        with pytest.raises(SystemExit, match=f"lsd_real: {flag}:"):
+            mod.main(base + extra)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks/lsd/lsd_real.py"), *base, "--trials", "0"],
+        capture_output=True, text=True, check=False, env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1].startswith("lsd_real: --trials:"), proc.stderr
