@@ -299,10 +299,10 @@ def check_stamp(path: str | os.PathLike, stamp: Mapping[str, Any], *, adopt: boo
         path.parent.mkdir(parents=True, exist_ok=True)
         _write_atomic(path, json.dumps(stamp, indent=1, sort_keys=True, default=str))
         return
-    try:
-        made = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ConfigMismatchError(f"{path}: not a readable record of settings ({_short(exc)})") from None
+    try:  # bounded, and one line naming the file for a stamp that is not UTF-8 or not JSON
+        made = read_json(path, "record of settings")
+    except ValueError as exc:
+        raise ConfigMismatchError(str(exc)) from None
     if not isinstance(made, dict):
         raise ConfigMismatchError(f"{path}: expected a JSON object of settings")
     diff = stamp_differences(made, stamp)

@@ -189,3 +189,8 @@ def test_stamp_guards_a_resumable_folder(tmp_path):
     (old / "stamp.json").write_text("{not json")
     with pytest.raises(ConfigMismatchError, match="stamp.json: not a readable record"):
         check_stamp(old / "stamp.json", {"seed": 1})
+    (old / "stamp.json").write_bytes(b'{"seed": "\xff"}')  # not UTF-8: named, not the codec's words
+    with pytest.raises(
+        ConfigMismatchError, match=r"stamp\.json: not a readable record of settings \(not UTF-8 text: byte 10\)"
+    ):
+        check_stamp(old / "stamp.json", {"seed": 1})
