@@ -205,6 +205,9 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
         raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
     if not 0.0 <= args.uniform_mix < 1.0:
         raise SystemExit(f"--uniform-mix: expected in [0, 1), got {args.uniform_mix}")
+    if (args.start is None) != (args.goal is None):  # one alone would be dropped for a sampled task
+        given, missing = ("--start", "--goal") if args.goal is None else ("--goal", "--start")
+        raise SystemExit(f"{missing}: needed with {given} (give both, or neither for a sampled --kind task)")
     return args
 
 

@@ -35,6 +35,16 @@ def test_bad_flags_name_the_flag(tmp_path):
         mod.main(["--out", str(tmp_path / "a_file" / "plan.png")])
 
 
+@pytest.mark.parametrize(
+    "given, missing", [(["--start", "1", "1"], "--goal"), (["--goal", "5", "5"], "--start")], ids=["start", "goal"]
+)
+def test_start_or_goal_alone_is_refused(given, missing, tmp_path):
+    # One alone ran a sampled task to exit 0, the given point dropped without a word.
+    with pytest.raises(SystemExit, match=f"^{missing}: needed with"):
+        _module().main([*given, "--out", str(tmp_path / "p.png")])
+    assert not (tmp_path / "p.png").exists()
+
+
 @pytest.mark.slow
 def test_short_run_writes_the_map_and_the_strip(tmp_path):
     out = tmp_path / "new" / "plan.png"  # regression: the figure's folder is made (it failed after the run)
