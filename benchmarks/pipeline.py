@@ -156,7 +156,9 @@ class DetectionMapper:
                     d = depth[(seg == k) & (depth > 0)]
                     if d.size:
                         tex[i] = np.percentile(d, 5)
-            frame = mapping.roshan_frame(T, det.box, det.class_id, det.object_index, tex, max_detections=self.max_det)
+            frame = mapping.roshan_frame(
+                T, det.box, det.class_id, det.object_index, tex, max_detections=self.max_det, image_size=(WIDTH, HEIGHT)
+            )
             self.state = slam.online_update(self.state, frame)
 
     def _doors_from_volumon(self, rgb, det, inside, T, ell, idx, valid):

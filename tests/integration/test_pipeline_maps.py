@@ -52,7 +52,9 @@ def test_roshan_map_from_rendered_boxes_lands_on_the_door(building, scene):
         assert k in det.object_index
         i = det.object_index == k
         tex = [np.percentile(out["depth"][(out["seg"] == k) & (out["depth"] > 0)], 5)]
-        frame = mapping.roshan_frame(T, det.box[i], det.class_id[i], det.object_index[i], tex, max_detections=4)
+        frame = mapping.roshan_frame(
+            T, det.box[i], det.class_id[i], det.object_index[i], tex, max_detections=4, image_size=(W, H)
+        )
         state = slam.online_update(state, frame)
     ell = mapping.roshan_objects(state)
     assert np.asarray(ell.valid).tolist() == [j == k for j in range(len(objects))]
