@@ -253,12 +253,13 @@ def _foreign(target: pathlib.Path, recorded: dict) -> list[str]:
 def _merge(staged: pathlib.Path, target: pathlib.Path, files: dict, recorded: dict) -> list[str]:
     """Moves into ``target`` the staged files that are missing there or that the fetch wrote and
     that changed; a file of the same name that the fetch did not write is refused before anything
-    moves. Returns the files written."""
+    moves (a ``ValueError`` naming ``--out`` and the file: the user's state, so bad input, exit 2).
+    Returns the files written."""
     todo = []
     for rel, want in files.items():
         dst = target / rel
         if dst.is_dir():
-            raise FetchError(f"{dst}: a folder stands where the data file belongs (not written by a fetch)")
+            raise ValueError(f"--out: {dst}: a folder stands where the data file belongs (not written by a fetch)")
         if not dst.exists():
             todo.append(rel)
         elif _digest(dst) == want:
@@ -266,8 +267,9 @@ def _merge(staged: pathlib.Path, target: pathlib.Path, files: dict, recorded: di
         elif rel in recorded:
             todo.append(rel)  # the fetch's own file, damaged: repaired
         else:
-            raise FetchError(
-                f"{dst}: differs from {rel} in the package and was not written by a fetch; move it away and fetch again"
+            raise ValueError(  # the user's file, in the way: bad input (exit 2), never overwritten
+                f"--out: {dst}: differs from {rel} in the package and was not written by a fetch; move it away "
+                "and fetch again"
             )
     for rel in todo:
         dst = target / rel

@@ -169,8 +169,9 @@ def test_users_file_in_the_way_is_refused_untouched(tmp_path, tiny_sets):
     target = tmp_path / "out" / "scene"
     target.mkdir(parents=True)
     (target / "a.json").write_text('{"mine": 1}')  # a folder the fetch did not make
-    with pytest.raises(_fetch.FetchError, match="a.json.*not written by a fetch"):
+    with pytest.raises(ValueError, match="--out: .*a.json.*not written by a fetch") as exc:
         _fetch.fetch("wheel", tmp_path / "out", archive=wheel, log=lambda _: None)
+    assert not isinstance(exc.value, _fetch.FetchError)  # the user's file in the way: exit 2
     assert (target / "a.json").read_text() == '{"mine": 1}'
     assert sorted(p.name for p in target.iterdir()) == ["a.json"]
 
