@@ -1,10 +1,13 @@
 """Export a VoluMon R-CNN training run as a shipped model: weights, config and curves.
 
     python train/export_volumon_rcnn.py --workdir runs/rcnn_plain --out jaxsem/volumon/pretrained/volumon_lmo_rcnn
+    python train/export_volumon_rcnn.py --workdir runs/rcnn_448 --average-steps 2000,2500,3000 --out ...
 
 Writes ``OUT.npz`` (float32 variables), ``OUT.json`` (the training config, the step, the data and
 the last held-out figures of the run's ``metrics.jsonl``) and ``OUT_curves.png`` (the loss terms and
-the held-out AP50 and centre error against the step), each atomically. A run started from another
+the held-out AP50 and centre error against the step), each atomically. ``--average-steps`` exports
+the parameter average of those checkpoints of the run (``jaxsem.volumon.rcnn.average_models``)
+instead of its latest one. A run started from another
 run's weights (``--init-from``) is drawn after that run's curves, its steps counted on from there.
 """
 
@@ -22,6 +25,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python train/export_volumon_rcnn.py", description=__doc__.split("\n")[0])
     p.add_argument("--workdir", type=sc.existing_dir, required=True, help="the training run (train/volumon_rcnn.py)")
     p.add_argument("--out", type=pathlib.Path, required=True, help="path stem of the exported model")
+    p.add_argument(
+        "--average-steps", type=sc.int_list, default=None, help="average these checkpoints (e.g. 2000,2500,3000)"
+    )
     p.add_argument("--data", default="", help="a line saying what the run trained on (goes into the JSON)")
     a = p.parse_args(argv)
     metrics_path = a.workdir / "metrics.jsonl"
@@ -31,18 +37,30 @@ def main(argv=None) -> int:
         p.error(f"--out: no folder {a.out.parent}")
     rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line.strip()]
 
-    from jaxsem.volumon.rcnn import export_rcnn, load_rcnn
+    from jaxsem.volumon.rcnn import average_models, export_rcnn, load_rcnn
 
-    loaded = load_rcnn(a.workdir)
+    if a.average_steps:
+        missing = [s for s in a.average_steps if not (a.workdir / "checkpoints" / str(s)).is_dir()]
+        if missing:
+            p.error(f"--average-steps: no checkpoint {missing[0]} under {a.workdir / 'checkpoints'}")
+        loaded = average_models(load_rcnn(a.workdir, step=s) for s in a.average_steps)
+        loaded = loaded._replace(meta={**loaded.meta, "step": max(a.average_steps)})
+    else:
+        loaded = load_rcnn(a.workdir)
     last = rows[-1] if rows else {}
     meta = {
         "name": a.out.name,
         "step": loaded.meta["step"],
         "seed": loaded.config.seed,
         "data": a.data,
-        "heldout": {k.removeprefix("heldout_"): v for k, v in last.items() if k.startswith("heldout_")},
+        # an average's own validation figures are not in the run's log: only the last checkpoint's
+        "heldout_last_checkpoint" if a.average_steps else "heldout": {
+            k.removeprefix("heldout_"): v for k, v in last.items() if k.startswith("heldout_")
+        },
         "heldout_step": last.get("step"),
     }
+    if a.average_steps:
+        meta["averaged_steps"] = sorted(a.average_steps)
     # a run started from another run's weights (init_from, followed back through every stage):
     # its curves continue those runs'
     before, restarts = _stages(loaded.config.init_from)

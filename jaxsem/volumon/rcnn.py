@@ -44,6 +44,7 @@ __all__ = [
     "evaluate_detections",
     "evaluate_scene",
     "at_input_size",
+    "average_models",
     "export_rcnn",
     "load_rcnn",
     "rcnn_config_from_dict",
@@ -569,24 +570,27 @@ def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = No
     return npz
 
 
-def load_rcnn(path=None) -> LoadedModel:
+def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
     """The shipped LM-O detect-and-lift model (``path`` None or ``"lmo-rcnn"``), an exported
-    ``.npz`` (with its ``.json``), or a training workdir's latest checkpoint, as a
-    :class:`jaxsem.training.LoadedModel`."""
+    ``.npz`` (with its ``.json``), or a training workdir's checkpoint (``step``, default the
+    latest), as a :class:`jaxsem.training.LoadedModel`."""
     if path is None or path == SHIPPED_RCNN_NAME:
         p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz"
     else:
         p = pathlib.Path(path)
+    if step is not None and not p.is_dir():
+        raise ValueError(f"step: only a training workdir has checkpoint steps, got {p}")
     if p.is_dir():
         cfg_path = p / "config.json"
         if not cfg_path.is_file():
             raise ValueError(f"model: {p} is not a training workdir (no config.json)")
         config = rcnn_config_from_dict(read_json(cfg_path, "training config"))
-        model, init = init_rcnn(jax.random.PRNGKey(0), config.model, 1)
-        variables = dict(init)
-        step = latest_step(p / "checkpoints")
-        if step is None:
-            raise ValueError(f"model: no checkpoint under {p / 'checkpoints'}")
+        # the variables' shapes only (nothing is compiled): the checkpoint brings the values
+        model = VoluMonRCNN(config.model)
+        variables = dict(jax.eval_shape(lambda k: init_rcnn(k, config.model, 1)[1], jax.random.PRNGKey(0)))
+        step = latest_step(p / "checkpoints") if step is None else int(step)
+        if step is None or not (p / "checkpoints" / str(step)).is_dir():
+            raise ValueError(f"model: no checkpoint {'' if step is None else step} under {p / 'checkpoints'}")
         like = {"params": variables["params"], "batch_stats": variables["batch_stats"]}
         state = restore_checkpoint(
             p / "checkpoints",
@@ -619,6 +623,26 @@ def load_rcnn(path=None) -> LoadedModel:
     return LoadedModel(VoluMonRCNN(config.model), variables, config, meta)
 
 
+def average_models(models) -> LoadedModel:
+    """The parameter average of checkpoints of one network (weights and batch statistics, in
+    float64 then cast back): the first model with the mean of all their variables. Averaging
+    the last checkpoints of a run evens out the step-to-step swing of the weights."""
+    models = list(models)
+    if not models:
+        raise ValueError("models: expected at least one model to average")
+    first = models[0]
+    shapes = jax.tree.map(np.shape, first.variables)
+    for m in models[1:]:
+        if m.config.model != first.config.model or jax.tree.map(np.shape, m.variables) != shapes:
+            raise ValueError("models: expected checkpoints of one network (the same config and variable shapes)")
+    mean = jax.tree.map(
+        lambda *xs: np.asarray(sum(np.asarray(x, np.float64) for x in xs) / len(xs), np.asarray(xs[0]).dtype),
+        *[m.variables for m in models],
+    )
+    steps = [m.meta.get("step") for m in models]
+    return LoadedModel(first.model, mean, first.config, {**first.meta, "averaged_steps": steps})
+
+
 def at_input_size(loaded: LoadedModel, input_size) -> LoadedModel:
     """The same network reading images of ``input_size`` ``(W, H)`` (multiples of 16): every
     layer is size-agnostic (convolutions, RoI pooling to a fixed grid), only the anchors and the
@@ -631,8 +655,9 @@ def at_input_size(loaded: LoadedModel, input_size) -> LoadedModel:
 
 
 def _opt_like(config: RCNNTrainConfig, variables):
+    """The optimiser state's structure for ``variables`` (shapes only: traced, never run)."""
     tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
-    return tx.init(variables["params"])
+    return jax.eval_shape(tx.init, variables["params"])
 
 
 def detect_image(loaded: LoadedModel, image, K) -> dict:
