@@ -14,7 +14,11 @@ turns, repeat after repeat, in one run:
   sectors, default radius), constructed + ``grow(N)`` + first ``query``; ``jaxsem_reuse``: each
   later query on that roadmap. ``--lazy``: also the defaults with ``lazy=True`` (Lazy PRM: the
   grow checks no edge, a query checks those its shortest path needs; the same roadmap and
-  shortest paths), in its own rows. ``--fast-k K``: also a faster configuration (k = K, the default
+  shortest paths), in its own rows. ``jaxsem_batch``: ``PRM.query_many`` of ``--batch`` queries
+  (the tasks repeated) in one call on that roadmap, per query (each batch first on a fresh
+  roadmap of the same seed, so a lazy roadmap has checked nothing beyond its first query; its
+  paths' lengths are compared with the single queries', ``batch_differ`` in the JSON rows).
+  ``--fast-k K``: also a faster configuration (k = K, the default
   radius times ``--fast-radius-factor``), timed in the same run and reported in its own rows
   beside the defaults (never in their place).
 
@@ -123,6 +127,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tasks", type=int, default=6)
     ap.add_argument("--seed", type=int, default=1000, help="query and roadmap seed (tuning: < 1000)")
+    ap.add_argument("--batch", type=int, default=64, help="queries in one PRM.query_many call (0: none)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--name", default="lsd_prm_campus")
     ap.add_argument(
@@ -159,6 +164,8 @@ def main(argv=None) -> int:
     for n in args.n:
         t = {"ompl_grid": [], **{c: [] for c in configs}, **{f"{c}_reuse": [] for c in configs}}
         t.update({f"{c}_first": [] for c in configs})
+        t.update({f"{c}_batch": [] for c in configs})
+        differ = dict.fromkeys(configs, 0)  # batch paths whose length is not the single query's
         found = {"ompl_grid": [], **{c: [] for c in configs}}
         ratio = {"ompl_grid": [], **{c: [] for c in configs}}
         kw = {"jaxsem": {}, "jaxsem_lazy": {"lazy": True}}
@@ -175,9 +182,25 @@ def main(argv=None) -> int:
             p0 = prm.query(tasks[0][0], tasks[0][1])
             return time.perf_counter() - t0, prm, p0
 
+        B = args.batch
+        b_starts = np.array([tasks[i % len(tasks)][0] for i in range(B)])
+        b_goals = np.array([tasks[i % len(tasks)][1] for i in range(B)])
+
+        def batch_run(seed, c):
+            """Per-query seconds of one query_many of B queries on a fresh roadmap (after its
+            first query, as the single queries' roadmap), and the paths."""
+            _, prm, _ = jaxsem_run(seed, c)
+            t0 = time.perf_counter()
+            paths = prm.query_many(b_starts, b_goals)
+            return (time.perf_counter() - t0) / B, paths
+
         for c in configs:  # warm-up (compilation): a first build on a new map, then one on the same map
             jaxsem_run(args.seed + 999, c, fresh=True)
-            jaxsem_run(args.seed + 999, c)
+            _, prm, _ = jaxsem_run(args.seed + 999, c)
+            for s, g, _ in tasks[1:]:
+                prm.query(s, g)
+            if B:
+                batch_run(args.seed + 999, c)
         for rep in range(args.repeats):
             seed = args.seed + rep
             o = run_ompl(exe, b, n, seed, tasks)
@@ -192,6 +215,7 @@ def main(argv=None) -> int:
                 t[f"{c}_first"].append(dt)
                 dt, prm, p0 = jaxsem_run(seed, c)
                 t[c].append(dt)
+                lengths = {}
                 msg += f", {c} {t[f'{c}_first'][-1] * 1e3:.0f} (first build) / {dt * 1e3:.0f} ms"
                 for ti, (s, g, cstar) in enumerate(tasks):
                     if ti == 0:
@@ -215,10 +239,18 @@ def main(argv=None) -> int:
                             "jaxsem": bool(p.found) and p.length,
                         }
                     )
+                    lengths[ti] = p.length if p.found else np.inf
+                if B:
+                    dt, paths = batch_run(seed, c)
+                    t[f"{c}_batch"].append(dt)
+                    want = np.array([lengths[i % len(tasks)] for i in range(B)])
+                    differ[c] += int(np.sum(np.where(paths.found, paths.length, np.inf) != want))
+                    msg += f", batch {dt * 1e3:.2f} ms/query"
             print(msg, flush=True)
         for c in configs:
             both = np.array(found["ompl_grid"]) & np.array(found[c])
             med = {k: float(np.median(t[k])) * 1e3 for k in ("ompl_grid", c, f"{c}_reuse", f"{c}_first")}
+            med[f"{c}_batch"] = float(np.median(t[f"{c}_batch"])) * 1e3 if t[f"{c}_batch"] else float("nan")
             rows.append(
                 {
                     "n": n,
@@ -235,14 +267,18 @@ def main(argv=None) -> int:
                         "jaxsem": med[c],
                         "jaxsem_reuse": med[f"{c}_reuse"],
                         "jaxsem_first": med[f"{c}_first"],
+                        "jaxsem_batch": med[f"{c}_batch"],
                     },
+                    "batch": B,
+                    "batch_differ": differ[c],
                 }
             )
     table = [
         "| N | queries | found OMPL | found jaxsem | length / C* OMPL (both found) | jaxsem | OMPL C++ grid checker: "
         "build + query (ms) | jaxsem first build on a new map + query (ms) | / OMPL | jaxsem build + query, "
-        "same map again (ms) | / OMPL | jaxsem per query, reused (ms) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "same map again (ms) | / OMPL | jaxsem per query, reused (ms) | jaxsem per query, batch of "
+        f"{args.batch} in one call (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         m = r["ms"]
@@ -251,7 +287,7 @@ def main(argv=None) -> int:
             f"| {label} | {r['queries']} | {r['found_ompl']} | {r['found_jaxsem']} | {r['len_ompl']:.3f} | "
             f"{r['len_jaxsem']:.3f} | {m['ompl_grid']:.0f} | {m['jaxsem_first']:.0f} | "
             f"{m['jaxsem_first'] / m['ompl_grid']:.2f} | {m['jaxsem']:.0f} | {m['jaxsem'] / m['ompl_grid']:.2f} | "
-            f"{m['jaxsem_reuse']:.1f} |"
+            f"{m['jaxsem_reuse']:.1f} | {m['jaxsem_batch']:.2f} |"
         )
     print("\n".join(table))
     date = subprocess.run(["date", "-u"], capture_output=True, text=True).stdout.strip()

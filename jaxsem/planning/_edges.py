@@ -288,6 +288,41 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
     return (todo & ok[jnp.clip(place, 0, E + F - 1)]).reshape(shape)
 
 
+def _coarse(blocked, fa, fb, grid, edge_samples, todo, *, subset, table):
+    """The first pass of :func:`_edges_clear` over every edge a -> b (E, 2) at once (the same
+    expressions, the same values): ``hit`` (E,), a subset sample in a blocked or off-map cell,
+    and ``unc`` (E, C - 1), the intervals between subset samples that the table does not vouch
+    for, on the edges ``todo`` (E,) not hit. An edge is clear when it is not hit and every
+    sample of its uncovered intervals passes (:func:`_intervals_clear`). For a few edges (a
+    query's) this pass and a host list of the uncovered intervals cost far less than the work
+    lists' loops, whose every step compacts every interval."""
+    dtype = fa.dtype
+    S = int(edge_samples)
+    pick, _ = _subset(S, subset)
+    t_all = jnp.arange(S, dtype=dtype) / (S - 1)  # the rule's own parameters (_edges_dense)
+    t_pick = t_all[pick]
+    gap_t = jnp.asarray(np.diff(pick) / (S - 1), dtype)
+    along = fa[:, None, :] + t_pick[:, None] * (fb - fa)[:, None, :]  # (E, C, 2)
+    er, ec, eon = _cells(along, grid)
+    hit = jnp.any(~eon | _read(blocked, er, ec), axis=-1)
+    lo = (_read(table, er >> _BASE, ec >> _BASE).astype(dtype) - 1e-3) * grid.resolution.astype(dtype)
+    lo = jnp.where(eon, lo, -1.0)
+    covered = lo[:, :-1] + lo[:, 1:] > _length(fa, fb)[:, None] * gap_t
+    return hit, ~covered & ~hit[:, None] & todo[:, None]
+
+
+def _intervals_clear(blocked, fa, fb, edge, interval, grid, edge_samples, *, subset):
+    """The rule's samples of the intervals ``interval`` (U,) of the edges ``edge`` (U,) (indices
+    into a -> b (E, 2), :func:`_coarse`'s intervals), read as the inner loop of
+    :func:`_edges_clear` reads them: (U,) each interval clear."""
+    S = int(edge_samples)
+    pick, G = _subset(S, subset)
+    t_all = jnp.arange(S, dtype=fa.dtype) / (S - 1)
+    idx = jnp.minimum(jnp.asarray(pick[:-1], jnp.int32)[interval][:, None] + jnp.arange(G + 1, dtype=jnp.int32), S - 1)
+    pa, pb = fa[edge], fb[edge]
+    return _samples_clear(blocked, pa[:, None, :] + t_all[idx][..., None] * (pb - pa)[:, None, :], grid)
+
+
 @functools.partial(jax.jit, static_argnames=("edge_samples",))
 def _segments_clear(blocked, a, b, grid, *, edge_samples):
     # A polyline has a few segments: every sample read (the same rule as the fast check) costs

@@ -228,16 +228,25 @@ class _LazyEdges:
 
     def search(self, roadmap: Roadmap, check_fn, radius: float) -> RoadmapPath:
         """Shortest path of the eager roadmap from the start to the goal of ``roadmap`` (its
-        rows 0 and 1 linked and checked), checking only the edges the search needs.
+        rows 0 and 1 linked and checked), checking only the edges the search needs."""
+        return self.search_rows(
+            np.asarray(roadmap.points),
+            np.asarray(roadmap.neighbors[:_QUERY]),
+            np.asarray(roadmap.edge_valid[:_QUERY]),
+            np.asarray(roadmap.edge_weight[:_QUERY]),
+            check_fn,
+            radius,
+        )
+
+    def search_rows(self, pts, nq, okq, wq, check_fn, radius: float) -> RoadmapPath:
+        """:meth:`search` from the host points ``pts`` (M, 2) (slots 0 and 1: the start and
+        goal) and the query rows ``nq``, ``okq``, ``wq`` (2, k).
 
         The search runs over the samples inside an ellipse with the start and goal as foci (a
         path through a sample outside it is longer than the ellipse's bound, since edges are
         straight segments), widened while the path found is longer than its bound or none is
         found; ``radius`` sets the first bound's slack."""
-        pts = np.asarray(roadmap.points)
-        nq = np.asarray(roadmap.neighbors[:_QUERY])
-        okq = np.asarray(roadmap.edge_valid[:_QUERY])
-        wq = np.maximum(np.asarray(roadmap.edge_weight[:_QUERY], np.float64), 1e-12)
+        wq = np.maximum(np.asarray(wq, np.float64), 1e-12)
         s_dst, s_w = nq[0][okq[0]], wq[0][okq[0]]
         g_dst, g_w = nq[1][okq[1]], wq[1][okq[1]]
         if len(s_dst) == 0 or (len(g_dst) == 0 and GOAL not in s_dst):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._edges import _edge_samples
-from ._grid import UNKNOWN, GridLike, host_grid, static_grid
+from ._grid import UNKNOWN, GridLike, check_point, host_grid, static_grid
 from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
@@ -18,16 +18,18 @@ from ._roadmap import (
     _blocked_from,
     _check_distribution,
     _check_sectors,
-    _connect_checked,
     _grow_exact,
     _initial_cap,
+    _links_checked,
+    _query_table,
     _recheck_jit,
     _strip_cap,
+    _with_query_jit,
     default_radius,
     prm_star_k,
     roadmap_init,
 )
-from ._roadmap_search import RoadmapPath, _SampleGraph, _search
+from ._roadmap_search import RoadmapPath, RoadmapPaths, _SampleGraph, _search_rows
 
 #: Roadmaps up to this many vertices search neighbours by brute force when their samples come from
 #: a distribution: a search over every vertex costs little at this size, and the strips' slots,
@@ -49,12 +51,13 @@ class PRM:
     whose nearest come first (module docstring); lazy: check no edge when growing, only those
     a query's shortest path needs (Lazy PRM, :mod:`jaxsem.planning._lazy`; the same roadmap and
     the same shortest paths as the eager PRM, Euclidean weights only; checked edges are kept for
-    later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`; the pytree is
+    later queries). Methods: :meth:`grow`, :meth:`update_map`, :meth:`query`, :meth:`query_many` (a
+    batch of queries in one call); the pytree is
     :attr:`roadmap` (with ``lazy``, its samples' edges are empty: :meth:`checked_roadmap` checks
     them all and returns the eager roadmap). The per-map setup (uniform sampling's free-cell words;
-    the edge check's clearance table, made on first use: a lazy PRM's queries need it only
-    around their start and goal until :meth:`checked_roadmap` or :meth:`update_map` checks many
-    edges) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
+    the edge check's clearance table, made on first use: a lazy PRM's first query needs it only
+    around its start and goal; a second query, a batch, :meth:`checked_roadmap` or
+    :meth:`update_map` make the whole map's, which later queries share) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
     map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
 
     unknown_weight: what a metre through an unknown cell costs against one through a known free
@@ -97,6 +100,9 @@ class PRM:
         self.grid = host_grid("grid", grid, blocked.shape)
         if weight not in ("euclidean", "neglogp"):
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
+        self._pending = None
+        self._points: np.ndarray | None = None
+        self._queries = 0
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._factor = self._factor_grid()
@@ -136,6 +142,21 @@ class PRM:
         return jnp.where(jnp.asarray(self._unknown), self.unknown_weight, 1.0).astype(self.roadmap.points.dtype)
 
     @property
+    def roadmap(self) -> Roadmap:
+        """The roadmap pytree, its rows 0 and 1 the latest query's (written on first read after
+        a query: a query itself keeps its rows on the host)."""
+        if self._pending is not None:
+            self._roadmap = _with_query_jit(self._roadmap, *self._pending)
+            self._pending = None
+        return self._roadmap
+
+    @roadmap.setter
+    def roadmap(self, value: Roadmap) -> None:
+        self._roadmap = value
+        self._pending = None
+        self._points = None
+
+    @property
     def origin(self) -> np.ndarray:
         """(2,) float64 world (x, y) of cell [0, 0]'s corner (:attr:`grid`'s)."""
         return np.asarray(self.grid.origin, np.float64)
@@ -148,11 +169,11 @@ class PRM:
     @property
     def count(self) -> int:
         """Samples in the roadmap."""
-        return int(self.roadmap.num_samples)
+        return int(self._roadmap.num_samples)
 
     @property
     def capacity(self) -> int:
-        return int(self.roadmap.points.shape[0]) - _QUERY
+        return int(self._roadmap.points.shape[0]) - _QUERY
 
     def grow(self, key, n: int, distribution=None, *, uniform_samples: bool = False) -> int:
         """Adds ``n`` samples from ``distribution`` ((H, W) cell weights; None: uniform over the
@@ -244,10 +265,39 @@ class PRM:
 
     def query(self, start, goal) -> RoadmapPath:
         """Shortest roadmap path from ``start`` to ``goal`` (world (2,), not known occupied)."""
-        self.roadmap = _connect_checked(
-            self.roadmap,
-            start,
-            goal,
+        start = check_point("start", start, self.blocked, self.grid)
+        goal = check_point("goal", goal, self.blocked, self.grid)
+        return self._query(start[None], goal[None])[0]
+
+    def query_many(self, starts, goals) -> RoadmapPaths:
+        """Shortest roadmap paths of ``Q`` queries on this roadmap in one call: ``starts``,
+        ``goals`` (Q, 2) world points, not known occupied. Every query's start and goal links
+        are made and checked in one compiled call (a query's fixed cost paid once), then each
+        is searched on the host; the paths are those of ``Q`` calls of :meth:`query` in order
+        (with ``lazy``, the edges each search checks serve the next). Afterwards
+        :attr:`roadmap`'s rows 0 and 1 are the last query's. Returns a padded
+        :class:`RoadmapPaths` (``.path(i)``: query ``i``'s :class:`RoadmapPath`)."""
+        starts_a, goals_a = _points_batch("starts", starts), _points_batch("goals", goals)
+        if starts_a.shape != goals_a.shape:
+            raise ValueError(f"goals: expected the shape of starts {starts_a.shape}, got shape {goals_a.shape}")
+        for name, pts in (("starts", starts_a), ("goals", goals_a)):
+            for i, p in enumerate(pts):
+                check_point(f"{name}[{i}]", p, self.blocked, self.grid)
+        return RoadmapPaths.stack(self._query(starts_a, goals_a))
+
+    def _query(self, starts: np.ndarray, goals: np.ndarray) -> list[RoadmapPath]:
+        """Links the queries (Q, 2) (checked points) in one call, then searches each in turn."""
+        rm = self._roadmap
+        if self._lazy is not None and not self._setup.has_table and len(starts) == 1 and self._queries == 0:
+            # A lazy PRM's first query reads the table only around its start and goal; later
+            # queries share the map's (made once).
+            table = _query_table(rm, starts[0], goals[0], self._setup, self.grid, self.sectors)
+        else:
+            table = self._setup.table()
+        q, nbr, ev, w = _links_checked(
+            rm,
+            starts,
+            goals,
             self.blocked,
             self._blocked_j,
             self.grid,
@@ -255,23 +305,34 @@ class PRM:
             distribution=self.distribution,
             weight=self.weight,
             sectors=self.sectors,
-            setup=self._setup,
+            table=table,
             factor=self._factor,
-            checked=True,  # grow checked it
         )
-        if self._lazy is not None:
-            return self._lazy.search(self.roadmap, self._check_fn(), self.radius)
-        if self._graph is None:
-            self._graph = _SampleGraph(self.roadmap)
-        return _search(self._graph, self.roadmap)
+        self._queries += len(q)
+        if self._points is None:
+            self._points = np.array(rm.points)
+        if self._lazy is None and self._graph is None:
+            self._graph = _SampleGraph(rm)
+        out = []
+        for i in range(len(q)):
+            if self._lazy is not None:
+                self._points[:_QUERY] = q[i]
+                out.append(self._lazy.search_rows(self._points, nbr[i], ev[i], w[i], self._check_fn(), self.radius))
+            else:
+                assert self._graph is not None  # made above
+                out.append(_search_rows(self._graph, q[i], nbr[i], ev[i], w[i]))
+        self._pending = (q[-1], nbr[-1], ev[-1], w[-1])
+        return out
 
     def _check_fn(self, chunk: int | None = None):
         assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand
         kw = {} if chunk is None else {"chunk": chunk}
+        if self._points is None:
+            self._points = np.array(self._roadmap.points)
         # A query's calls read every sample (no table); many edges at once read the table.
         return _checker(
             self._blocked_j,
-            np.asarray(self.roadmap.points),
+            self._points,
             self._lazy.cand,
             static_grid(self.grid),
             None if chunk is None or chunk <= _CHUNK else self._setup.table(),
@@ -294,3 +355,14 @@ class PRM:
             edge_valid=jnp.asarray(ev).at[:_QUERY].set(rm.edge_valid[:_QUERY]),
             edge_weight=jnp.asarray(w).at[:_QUERY].set(rm.edge_weight[:_QUERY]),
         )
+
+
+def _points_batch(name: str, pts) -> np.ndarray:
+    """``pts`` as (Q, 2) float64 world points, Q >= 1, else ValueError naming ``name``."""
+    try:
+        arr = np.asarray(pts, np.float64)
+    except Exception as exc:
+        raise ValueError(f"{name}: cannot be converted to a float array ({exc})") from None
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
+        raise ValueError(f"{name}: expected world points (Q, 2) with Q >= 1, got shape {arr.shape}")
+    return arr

@@ -71,7 +71,19 @@ import numpy as np
 from jax.core import Tracer
 
 from .. import quadrics as Q
-from ._edges import _cells, _edge_samples, _edges, _extent, _grid, _subset, _weights, query_reach
+from ._edges import (
+    _cells,
+    _coarse,
+    _edge_samples,
+    _edges,
+    _edges_dense,
+    _extent,
+    _grid,
+    _intervals_clear,
+    _subset,
+    _weights,
+    query_reach,
+)
 from ._grid import OCCUPIED, GridLike, check_point, host_grid, static_grid
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _select
@@ -397,6 +409,67 @@ def _query_candidates_jit(rm, start, goal, *, sectors):
     return _query_candidates(rm, start, goal, sectors)[3]
 
 
+def _query_links(
+    rm,
+    start,
+    goal,
+    blocked,
+    distribution,
+    grid,
+    *,
+    radius,
+    edge_samples,
+    long_samples,
+    neglogp,
+    sectors=0,
+    aids=None,
+    factor=None,
+):
+    """The links of queries (Q, 2) ``start`` and ``goal`` to the roadmap ``rm`` (module
+    docstring), each query on its own: (q (Q, 2, 2) start and goal, neighbors (Q, 2, k),
+    edge_valid, edge_weight), the rows 0 and 1 :func:`_connect_impl` writes. Every query's
+    edges are checked in one work list, so a batch costs about one query's fixed part."""
+    M, k = rm.neighbors.shape
+    Qn = start.shape[0]
+    dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
+    keep = 2 * k if sectors else k
+    nbr = jax.vmap(lambda s, g: _query_candidates(rm, s, g, sectors)[3])(start, goal)  # (Q, 2, keep)
+    q = jnp.stack([start, goal], 1).astype(dtype)  # (Q, 2, 2)
+    # The candidates' points as each query's roadmap holds them (its goal in slot 1).
+    other = jnp.where((nbr == GOAL)[..., None], q[:, None, 1:2, :], rm.points[jnp.minimum(nbr, M - 1)])
+    cost = _edge_cost(distribution, factor, neglogp)
+    # Each edge is checked with the samples polyline_clear uses for a segment of its length:
+    # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
+    short = jnp.sum((other - q[:, :, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    cand = nbr < M
+    s_short = edge_samples
+    table = None if aids is None else aids.table
+    clear_s, w_s = _edges(blocked, cost, q[:, :, None, :], other, grid, s_short, cand & short, table=table)
+    # Long edges: the rule's samples over the query reach, a subset about one per 4 cells of an
+    # edge 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
+    s_long = long_samples
+    sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
+    clear_l, w_l = _edges(
+        blocked,
+        cost,
+        q[:, :, None, :],
+        other,
+        grid,
+        s_long,
+        cand & ~short,
+        sub,
+        table=table,
+        chunk=_LONG_CHUNK,
+    )
+    clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
+    ev = (nbr < M) & clear
+    w = jnp.where(ev, w, jnp.inf).astype(dtype)
+    if keep > k:
+        nbr, ev, w = (x.reshape(Qn, 2, k) for x in _clear_first(*(x.reshape(2 * Qn, keep) for x in (nbr, ev, w)), k, M))
+    return q, nbr, ev, w
+
+
 def _connect_impl(
     rm,
     start,
@@ -415,48 +488,40 @@ def _connect_impl(
 ):
     """A query's start and goal linked (module docstring) on ``grid`` (:func:`static_grid` under
     jit); ``edge_samples``, ``long_samples``: :func:`_query_samples` of the radius (static)."""
-    M, k = rm.neighbors.shape
-    dtype = rm.points.dtype
-    grid = _grid(grid, dtype)
-    keep = 2 * k if sectors else k
-    points, valid, q, nbr = _query_candidates(rm, start, goal, sectors)
-    other = points[jnp.minimum(nbr, M - 1)]
-    cost = _edge_cost(distribution, factor, neglogp)
-    # Each edge is checked with the samples polyline_clear uses for a segment of its length:
-    # the roadmap's own for edges up to ``radius``, the query reach's for longer ones.
-    short = jnp.sum((other - q[:, None, :]) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
-    cand = nbr < M
-    s_short = edge_samples
-    table = None if aids is None else aids.table
-    clear_s, w_s = _edges(blocked, cost, q[:, None, :], other, grid, s_short, cand & short, table=table)
-    # Long edges: the rule's samples over the query reach, a subset about one per 4 cells of an
-    # edge 16 x the radius (longer edges get sparser subsets, so more intervals read densely).
-    s_long = long_samples
-    sub = min(s_long, 16 * (_subset(s_short)[0].size - 1) + 1)
-    clear_l, w_l = _edges(
+    q, nbr, ev, w = _query_links(
+        rm,
+        start[None],
+        goal[None],
         blocked,
-        cost,
-        q[:, None, :],
-        other,
+        distribution,
         grid,
-        s_long,
-        cand & ~short,
-        sub,
-        table=table,
-        chunk=_LONG_CHUNK,
+        radius=radius,
+        edge_samples=edge_samples,
+        long_samples=long_samples,
+        neglogp=neglogp,
+        sectors=sectors,
+        aids=aids,
+        factor=factor,
     )
-    clear, w = jnp.where(short, clear_s, clear_l), jnp.where(short, w_s, w_l)
-    ev = (nbr < M) & clear
-    w = jnp.where(ev, w, jnp.inf).astype(dtype)
-    if keep > k:
-        nbr, ev, w = _clear_first(nbr, ev, w, k, M)
+    return _with_query(rm, q[0], nbr[0], ev[0], w[0])
+
+
+def _with_query(rm, q, nbr, ev, w):
+    """``rm`` with the query rows 0 and 1: points ``q`` (2, 2) and links (2, k)."""
     return rm._replace(
-        points=points,
-        valid=valid,
+        points=rm.points.at[:_QUERY].set(q),
+        valid=rm.valid.at[:_QUERY].set(True),
         neighbors=rm.neighbors.at[:_QUERY].set(nbr),
         edge_valid=rm.edge_valid.at[:_QUERY].set(ev),
         edge_weight=rm.edge_weight.at[:_QUERY].set(w),
     )
+
+
+_with_query_jit = jax.jit(_with_query)
+
+_links_jit = functools.partial(
+    jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "neglogp", "sectors")
+)(_query_links)
 
 
 _connect_jit = functools.partial(
@@ -698,6 +763,27 @@ def roadmap_connect(
     )
 
 
+def _query_table(roadmap, start, goal, setup, grid, sectors):
+    """The clearance table a query's links read: the map's own when ``setup`` has made it, else
+    one only where the query's edges run (the box of each end and its candidates)."""
+    if setup.has_table:
+        return setup.table()
+    dtype = roadmap.points.dtype
+    nbr = np.asarray(
+        _query_candidates_jit(roadmap, jnp.asarray(start, dtype), jnp.asarray(goal, dtype), sectors=sectors)
+    )
+    pts = np.asarray(roadmap.points, np.float64)
+    ends = np.stack([start, goal]).astype(np.float64)
+    boxes = []
+    for i in range(2):
+        c = nbr[i][nbr[i] < len(pts)]
+        xy = np.concatenate([ends[i : i + 1], np.where((c == GOAL)[:, None], ends[1], pts[c])])
+        cell = Q.world_to_cell(xy, grid.origin, float(grid.resolution), xp=np)
+        lo, hi = cell.min(0) - 1, cell.max(0) + 2
+        boxes.append((lo[0], hi[0], lo[1], hi[1]))
+    return setup.query_table(boxes)
+
+
 def _connect_checked(
     roadmap,
     start,
@@ -728,21 +814,8 @@ def _connect_checked(
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
     start_j, goal_j = jnp.asarray(start, dtype), jnp.asarray(goal, dtype)
     aids = None
-    if setup is not None and setup.has_table:
-        aids = _MapAids(setup.table(), None, None, None)
-    elif setup is not None:
-        # The table only where the query's edges run: the box of each end and its candidates.
-        nbr = np.asarray(_query_candidates_jit(roadmap, start_j, goal_j, sectors=sectors))
-        pts = np.asarray(roadmap.points, np.float64)
-        ends = np.stack([start, goal]).astype(np.float64)
-        boxes = []
-        for i in range(2):
-            c = nbr[i][nbr[i] < len(pts)]
-            xy = np.concatenate([ends[i : i + 1], np.where((c == GOAL)[:, None], ends[1], pts[c])])
-            cell = Q.world_to_cell(xy, grid.origin, float(grid.resolution), xp=np)
-            lo, hi = cell.min(0) - 1, cell.max(0) + 2
-            boxes.append((lo[0], hi[0], lo[1], hi[1]))
-        aids = _MapAids(setup.query_table(boxes), None, None, None)
+    if setup is not None:
+        aids = _MapAids(_query_table(roadmap, start, goal, setup, grid, sectors), None, None, None)
     return _connect_jit(
         roadmap,
         start_j,
@@ -757,6 +830,148 @@ def _connect_checked(
         aids=aids,
         factor=factor,
     )
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "neglogp", "sectors"))
+def _links_coarse(
+    rm, start, goal, blocked, distribution, grid, table, factor, *, radius, edge_samples, long_samples, neglogp, sectors
+):
+    """The device part of :func:`_links_checked`: queries' (Q, 2) candidates in preference
+    order (Q, 2, keep), their points (start and goal (Q, 2, 2), other ends (Q, 2, keep, 2)),
+    weights, the short edges' clear flags (every sample read: the rule's answer), and the long
+    edges' first pass (:func:`~jaxsem.planning._edges._coarse`: hit (E,), uncovered intervals
+    (E, C - 1) over the flat (Q * 2 * keep) edges)."""
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
+    nbr = jax.vmap(lambda s, g: _query_candidates(rm, s, g, sectors)[3])(start, goal)  # (Q, 2, keep)
+    q = jnp.stack([start, goal], 1).astype(dtype)  # (Q, 2, 2)
+    other = jnp.where((nbr == GOAL)[..., None], q[:, None, 1:2, :], rm.points[jnp.minimum(nbr, M - 1)])
+    a = jnp.broadcast_to(q[:, :, None, :], other.shape)
+    short = jnp.sum((other - a) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
+    cand = nbr < M
+    cost = _edge_cost(distribution, factor, neglogp)
+    w = jnp.where(short, _weights(cost, a, other, grid, edge_samples), _weights(cost, a, other, grid, long_samples))
+    clear_s, _, _ = _edges_dense(blocked, a, other, grid, edge_samples)
+    fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
+    hit, unc = _coarse(
+        blocked,
+        fa,
+        fb,
+        grid,
+        long_samples,
+        (cand & ~short).reshape(-1),
+        subset=_long_subset(edge_samples, long_samples),
+        table=table,
+    )
+    return q, nbr, short, cand & short & clear_s, w, fa, fb, hit, unc
+
+
+def _long_subset(edge_samples: int, long_samples: int) -> int:
+    """The subset a query's long edges read first (:func:`_connect_impl`'s)."""
+    return min(long_samples, 16 * (_subset(edge_samples)[0].size - 1) + 1)
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "long_samples", "subset"))
+def _intervals_jit(blocked, fa, fb, edge, interval, grid, *, long_samples, subset):
+    return _intervals_clear(blocked, fa, fb, edge, interval, _grid(grid, fa.dtype), long_samples, subset=subset)
+
+
+#: Uncovered intervals of long query edges read per call: one query's (a few hundred), and a
+#: batch's (thousands), a wider call at a time.
+_INTERVALS, _INTERVALS_WIDE = 1024, 8192
+
+
+def _clear_first_np(nbr, ev, w, k: int, none: int):
+    """:func:`_clear_first` on the host (the same selection)."""
+    Qr, K = nbr.shape
+    pos = np.cumsum(ev, axis=1) - 1
+    sel = ev & (pos < k)
+    rows = np.broadcast_to(np.arange(Qr)[:, None], (Qr, K))
+    out_n = np.full((Qr, k), none, nbr.dtype)
+    out_w = np.full((Qr, k), np.inf, w.dtype)
+    out_e = np.zeros((Qr, k), bool)
+    out_n[rows[sel], pos[sel]] = nbr[sel]
+    out_w[rows[sel], pos[sel]] = w[sel]
+    out_e[rows[sel], pos[sel]] = True
+    return out_n, out_e, out_w
+
+
+def _links_checked(
+    roadmap,
+    starts,
+    goals,
+    blocked,
+    blocked_j,
+    grid,
+    *,
+    radius,
+    distribution,
+    weight,
+    sectors,
+    table,
+    factor=None,
+):
+    """:func:`_query_links` of queries ``starts``, ``goals`` (Q, 2) (float64, checked) on a
+    checked ``blocked`` grid (numpy), its device copy and its host ``grid``, the distribution
+    already checked (a :class:`PRM`'s); ``table``: a clearance table for the queries' edges.
+    The same links, made in two compiled calls with the host between them: the first reads
+    every short edge's samples and the long edges' subsets, the host lists the long edges'
+    uncovered intervals (a few hundred per query), the second reads those (padded to a power
+    of two: one program per size). Returns (q, neighbors, edge_valid, edge_weight) on the host,
+    each (Q, 2, ...)."""
+    if weight == "neglogp" and distribution is None:
+        raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
+    dtype = roadmap.points.dtype
+    dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    samples = _query_samples(float(radius), grid)
+    grid_s = static_grid(grid)
+    q, nbr, short, clear_s, w, fa, fb, hit, unc = _links_coarse(
+        roadmap,
+        jnp.asarray(starts, dtype),
+        jnp.asarray(goals, dtype),
+        blocked_j,
+        dist,
+        grid_s,
+        table,
+        factor,
+        radius=float(radius),
+        **samples,
+        neglogp=weight == "neglogp",
+        sectors=sectors,
+    )
+    nbr, short, clear_s, w, hit, unc = (np.asarray(x) for x in (nbr, short, clear_s, w, hit, unc))
+    M, k = roadmap.neighbors.shape
+    edge, interval = np.nonzero(unc)
+    bad = np.zeros(hit.shape, bool)
+    # Fixed widths (one program each): a query's few hundred intervals in one call, a batch's
+    # in calls of the wider one.
+    U = _INTERVALS if len(starts) == 1 or len(edge) <= _INTERVALS else _INTERVALS_WIDE
+    for i in range(0, len(edge), U):
+        e, iv = edge[i : i + U], interval[i : i + U]
+        pad = U - len(e)
+        ok = _intervals_jit(
+            blocked_j,
+            fa,
+            fb,
+            jnp.asarray(np.concatenate([e, np.full(pad, e[0])]).astype(np.int32)),
+            jnp.asarray(np.concatenate([iv, np.full(pad, iv[0])]).astype(np.int32)),
+            grid_s,
+            long_samples=samples["long_samples"],
+            subset=_long_subset(samples["edge_samples"], samples["long_samples"]),
+        )
+        np.logical_or.at(bad, e, ~np.asarray(ok)[: len(e)])
+    cand = nbr < M
+    clear_l = (cand & ~short).reshape(-1) & ~hit & ~bad
+    ev = np.where(short, clear_s, clear_l.reshape(nbr.shape)) & cand
+    w = np.where(ev, w, np.inf).astype(w.dtype)
+    Qn, _, keep = nbr.shape
+    if keep > k:
+        nbr, ev, w = (
+            x.reshape(Qn, 2, k)
+            for x in _clear_first_np(nbr.reshape(-1, keep), ev.reshape(-1, keep), w.reshape(-1, keep), k, M)
+        )
+    return np.asarray(q), nbr, ev, w
 
 
 def build_roadmap(

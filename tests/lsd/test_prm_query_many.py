@@ -1,0 +1,145 @@
+"""PRM queries: a batch of queries in one call (``PRM.query_many``) gives the paths of one
+``query`` call each, eager and lazy; a query gives the roadmap's shortest path as the pure
+pipeline (``roadmap_connect``, then a full undirected Dijkstra) finds it; a second batch of the
+same shape compiles nothing."""
+
+import jax
+import numpy as np
+import pytest
+import scipy.sparse
+import scipy.sparse.csgraph
+
+import jaxsem.planning._roadmap as _roadmap  # layers: white-box (compile counts)
+from jaxsem import quadrics as Q
+from jaxsem.planning import PRM
+from jaxsem.planning._roadmap import roadmap_connect  # layers: white-box
+
+RES = 0.1
+ORIGIN = np.array([0.0, 0.0])
+SHAPE = (60, 100)
+CAPACITY, RADIUS, QUERIES = 400, 1.0, 6
+
+
+def _grid():
+    return Q.Grid.host(ORIGIN, RES, SHAPE)
+
+
+def _blocks(seed):
+    """A map with random wall blocks (the PRM tests' kind)."""
+    rng = np.random.default_rng(seed)
+    occ = np.zeros(SHAPE, bool)
+    for _ in range(25):
+        r, c = rng.integers(0, SHAPE[0] - 3), rng.integers(0, SHAPE[1] - 3)
+        occ[r : r + rng.integers(1, 8), c : c + rng.integers(1, 4)] = True
+    return occ
+
+
+def _ends(occ, seed, count=QUERIES):
+    free = np.argwhere(~occ)
+    rng = np.random.default_rng(seed)
+    pick = free[rng.integers(len(free), size=(count, 2))]
+    pts = ORIGIN + (pick[..., ::-1] + 0.5) * RES  # (count, 2, 2) world
+    return pts[:, 0], pts[:, 1]
+
+
+def _prm(occ, lazy, seed):
+    prm = PRM(occ, _grid(), capacity=CAPACITY, radius=RADIUS, lazy=lazy)
+    prm.grow(jax.random.PRNGKey(seed), CAPACITY)
+    return prm
+
+
+def _full_dijkstra(rm):
+    """Shortest START -> GOAL path over every edge of ``rm`` as an undirected graph."""
+    nbr, ok, w = (np.asarray(x) for x in (rm.neighbors, rm.edge_valid, rm.edge_weight))
+    M = nbr.shape[0]
+    src = np.repeat(np.arange(M), nbr.shape[1])[ok.ravel()]
+    # No (row, column) pair repeats (a row lists a vertex once): nothing is summed.
+    g = scipy.sparse.csr_matrix((np.maximum(w[ok].astype(np.float64), 1e-12), (src, nbr[ok])), shape=(M, M))
+    dist = scipy.sparse.csgraph.dijkstra(g, directed=False, indices=0)
+    return dist[1]
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_a_batch_gives_the_paths_of_one_query_each(lazy):
+    for seed in (0, 1):
+        occ = _blocks(seed)
+        starts, goals = _ends(occ, 10 + seed)
+        one, many = _prm(occ, lazy, seed), _prm(occ, lazy, seed)
+        paths = many.query_many(starts, goals)
+        assert paths.vertices.shape[0] == QUERIES and paths.found.shape == (QUERIES,)
+        for i, (s, g) in enumerate(zip(starts, goals)):
+            p, b = one.query(s, g), paths.path(i)
+            assert p.found == b.found == bool(paths.found[i])
+            np.testing.assert_array_equal(b.vertices, p.vertices)
+            np.testing.assert_array_equal(b.points, p.points)
+            assert b.cost == p.cost and b.length == p.length
+            n = int(paths.size[i])
+            assert (paths.vertices[i, n:] == -1).all() and np.isnan(paths.points[i, n:]).all()
+        assert paths.found.any()
+        # The roadmap's query rows are the last query's, as after that query alone.
+        for field in ("points", "neighbors", "edge_valid", "edge_weight"):
+            np.testing.assert_array_equal(
+                np.asarray(getattr(many.roadmap, field))[:2], np.asarray(getattr(one.roadmap, field))[:2]
+            )
+
+
+def test_query_is_the_pure_pipelines_shortest_path():
+    """The PRM's links (two compiled calls and the host) equal ``roadmap_connect``'s bit for
+    bit, and its limited Dijkstra finds the cost of a full undirected search over every edge."""
+    for seed in (2, 3, 4):
+        occ = _blocks(seed)
+        prm = _prm(occ, False, seed)
+        starts, goals = _ends(occ, 20 + seed)
+        found = 0
+        for s, g in zip(starts, goals):
+            p = prm.query(s, g)
+            ref = roadmap_connect(prm.roadmap, s, g, occ, _grid(), radius=RADIUS)
+            for field in ("points", "neighbors", "edge_valid", "edge_weight"):
+                np.testing.assert_array_equal(
+                    np.asarray(getattr(prm.roadmap, field))[:2], np.asarray(getattr(ref, field))[:2]
+                )
+            cost = _full_dijkstra(ref)
+            assert p.found == np.isfinite(cost)
+            if p.found:
+                found += 1
+                np.testing.assert_allclose(p.cost, cost, rtol=1e-9)
+                np.testing.assert_allclose(p.length, p.cost, rtol=1e-5)  # Euclidean weights
+                assert p.vertices[0] == 0 and p.vertices[-1] == 1
+        assert found >= 3
+
+
+def test_a_second_batch_compiles_nothing():
+    occ = _blocks(5)
+    prm = _prm(occ, False, 5)
+    starts, goals = _ends(occ, 30)
+    prm.query_many(starts, goals)
+    sizes = (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size())
+    s2, g2 = _ends(occ, 31)
+    prm.query_many(s2, g2)
+    prm.query(s2[0], g2[0])
+    prm.query(s2[1], g2[1])
+    assert (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size()) <= (
+        sizes[0] + 1,  # the single query's shape, once
+        sizes[1] + 1,
+    )
+    before = (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size())
+    prm.query_many(s2, g2)
+    prm.query(starts[1], goals[1])
+    assert (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size()) == before
+
+
+def test_query_many_bad_input():
+    occ = _blocks(6)
+    prm = _prm(occ, False, 6)
+    starts, goals = _ends(occ, 40, 3)
+    with pytest.raises(ValueError, match="starts"):
+        prm.query_many(starts[0], goals)
+    with pytest.raises(ValueError, match="goals"):
+        prm.query_many(starts, goals[:2])
+    with pytest.raises(ValueError, match="starts"):
+        prm.query_many(np.zeros((0, 2)), np.zeros((0, 2)))
+    blocked = ORIGIN + (np.argwhere(occ)[0][::-1] + 0.5) * RES
+    with pytest.raises(ValueError, match=r"goals\[1\]"):
+        prm.query_many(starts, np.stack([goals[0], blocked, goals[2]]))
+    with pytest.raises(ValueError, match="starts"):
+        prm.query_many([[np.nan, 1.0]], [[1.0, 1.0]])
