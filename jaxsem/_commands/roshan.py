@@ -66,6 +66,7 @@ import pathlib
 import time
 
 from jaxsem import scripting as sc
+from jaxsem._commands.volumon_eval import SHIPPED_NAMES
 from jaxsem.slam import SolverConfig
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
@@ -203,8 +204,10 @@ def parse_args(argv=None, prog: str | None = None):
     if args.detector is not None:
         if args.simulate or args.tum:
             parser.error("--detector: reads the images of --sequence or --bop (not --simulate or --tum)")
-        if args.detector != "lmo-rcnn" and not pathlib.Path(args.detector).exists():
-            parser.error(f"--detector: expected lmo-rcnn or an exported model file, got {args.detector!r}")
+        if args.detector not in SHIPPED_NAMES and not pathlib.Path(args.detector).exists():
+            parser.error(
+                f"--detector: expected {' or '.join(SHIPPED_NAMES)} or an exported model file, got {args.detector!r}"
+            )
         if args.min_score > 1.0:
             parser.error(f"--min-score: expected a score in [0, 1], got {args.min_score}")
     return args

@@ -16,17 +16,20 @@ import json
 import pathlib
 
 from jaxsem import scripting as sc
+from jaxsem._commands.volumon_eval import SHIPPED_NAMES
 from jaxsem._commands.volumon_predict import intrinsics
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
 # and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
 
-SHIPPED_NAMES = ("lmo-rcnn",)
-
 
 def build_parser(prog: str | None = None):
     p = sc.command_parser(prog, __doc__)
-    p.add_argument("--model", default="lmo-rcnn", help="'lmo-rcnn' (shipped), an exported .npz or a training workdir")
+    p.add_argument(
+        "--model",
+        default="lmo-rcnn",
+        help="'lmo-rcnn' or 'lmo-rcnn-448' (shipped), an exported .npz or a training workdir",
+    )
     p.add_argument("--image", type=sc.existing_file, required=True, help="the photograph (PNG or JPEG)")
     p.add_argument("--K", type=intrinsics, required=True, help="fx,fy,cx,cy of the photograph")
     p.add_argument("--out", type=sc.output_dir, required=True, help="folder for detections.json and detections.png")

@@ -144,14 +144,15 @@ def resolve_model(text: str | None, workdir):
     raise sc.UsageError(f"--model: {text}: no such file or directory")
 
 
-RCNN_NAME = "lmo-rcnn"
+#: The shipped R-CNNs' names (jaxsem.volumon.rcnn.SHIPPED_RCNNS, kept here so that --help stays light).
+SHIPPED_NAMES = ("lmo-rcnn", "lmo-rcnn-448")
 
 
 def _rcnn_source(text: str | None, workdir):
-    """``(is_rcnn, path)``: whether ``--model`` / ``--workdir`` name a VoluMon R-CNN (the shipped
-    one, path None; an export whose JSON or a run whose config.json configures anchors)."""
-    if text == RCNN_NAME:
-        return True, None
+    """``(is_rcnn, path)``: whether ``--model`` / ``--workdir`` name a VoluMon R-CNN (a shipped
+    one by name; an export whose JSON or a run whose config.json configures anchors)."""
+    if text in SHIPPED_NAMES:
+        return True, text
     source = workdir if text is None else text
     if source is None:
         return False, None

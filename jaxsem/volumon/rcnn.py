@@ -39,6 +39,7 @@ __all__ = [
     "RCNNLossConfig",
     "RCNNTrainConfig",
     "SHIPPED_RCNN",
+    "SHIPPED_RCNNS",
     "detect_image",
     "centre_errors",
     "evaluate_detections",
@@ -528,6 +529,9 @@ def _adopt(start, fresh):
 #: name the commands and :func:`load_rcnn` know it by.
 SHIPPED_RCNN = "volumon_lmo_rcnn"
 SHIPPED_RCNN_NAME = "lmo-rcnn"
+#: Every shipped R-CNN by name: the default (320 x 240) and the one trained at 448 x 336 (better
+#: ellipsoids and boxes for the separate network, fewer detections; the model card has the trade).
+SHIPPED_RCNNS = {SHIPPED_RCNN_NAME: SHIPPED_RCNN, "lmo-rcnn-448": "volumon_lmo_rcnn_448"}
 
 
 def _from_dict(cls, d: dict):
@@ -571,11 +575,14 @@ def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = No
 
 
 def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
-    """The shipped LM-O detect-and-lift model (``path`` None or ``"lmo-rcnn"``), an exported
+    """A shipped LM-O detect-and-lift model (``path`` None or ``"lmo-rcnn"``: the default; or
+    another name of :data:`SHIPPED_RCNNS`), an exported
     ``.npz`` (with its ``.json``), or a training workdir's checkpoint (``step``, default the
     latest), as a :class:`jaxsem.training.LoadedModel`."""
-    if path is None or path == SHIPPED_RCNN_NAME:
+    if path is None:
         p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz"
+    elif isinstance(path, str) and path in SHIPPED_RCNNS:
+        p = PRETRAINED_DIR / f"{SHIPPED_RCNNS[path]}.npz"
     else:
         p = pathlib.Path(path)
     if step is not None and not p.is_dir():

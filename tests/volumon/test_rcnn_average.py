@@ -8,10 +8,17 @@ import numpy as np
 import pytest
 from test_rcnn import TINY
 
+from jaxsem._commands.volumon_eval import SHIPPED_NAMES
 from jaxsem.checkpoint import save_checkpoint
 from jaxsem.models import init_rcnn
 from jaxsem.training import config_json
-from jaxsem.volumon.rcnn import RCNNTrainConfig, _opt_like, average_models, load_rcnn  # layers: white-box
+from jaxsem.volumon.rcnn import (  # layers: white-box
+    SHIPPED_RCNNS,
+    RCNNTrainConfig,
+    _opt_like,
+    average_models,
+    load_rcnn,
+)
 
 # one compiled init (eager flax init compiles each op on its own)
 _init = jax.jit(lambda key: dict(init_rcnn(key, TINY, 1)[1]))
@@ -67,3 +74,13 @@ def test_a_missing_step_or_mixed_networks_are_refused(tmp_path):
     other = one._replace(variables=jax.tree.map(lambda x: np.zeros((1,) + np.shape(x)), one.variables))
     with pytest.raises(ValueError, match="models"):
         average_models([one, other])
+
+
+def test_every_shipped_rcnn_name_loads_and_the_commands_know_it():
+    assert set(SHIPPED_NAMES) == set(SHIPPED_RCNNS)
+    for name in SHIPPED_RCNNS:
+        loaded = load_rcnn(name)
+        W, H = loaded.config.model.input_size
+        assert loaded.meta["step"] > 0 and W % 16 == 0 and H % 16 == 0
+        assert len(loaded.config.class_names) == loaded.config.model.num_classes == 8
+    assert load_rcnn("lmo-rcnn-448").config.model.input_size == (448, 336)
