@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_rcnn import TINY
 
-from jaxsem._commands.volumon_eval import SHIPPED_NAMES
+from jaxsem._commands.volumon_eval import SHIPPED_NAMES  # layers: white-box
 from jaxsem.checkpoint import save_checkpoint
 from jaxsem.models import init_rcnn
 from jaxsem.training import config_json
