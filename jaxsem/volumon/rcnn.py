@@ -596,8 +596,10 @@ def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
         model = VoluMonRCNN(config.model)
         variables = dict(jax.eval_shape(lambda k: init_rcnn(k, config.model, 1)[1], jax.random.PRNGKey(0)))
         step = latest_step(p / "checkpoints") if step is None else int(step)
-        if step is None or not (p / "checkpoints" / str(step)).is_dir():
-            raise ValueError(f"model: no checkpoint {'' if step is None else step} under {p / 'checkpoints'}")
+        if step is None:
+            raise ValueError(f"model: no checkpoint under {p / 'checkpoints'}")
+        if not (p / "checkpoints" / str(step)).is_dir():
+            raise ValueError(f"step: no checkpoint {step} under {p / 'checkpoints'}")
         like = {"params": variables["params"], "batch_stats": variables["batch_stats"]}
         state = restore_checkpoint(
             p / "checkpoints",

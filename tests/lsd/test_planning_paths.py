@@ -1153,6 +1153,7 @@ def _edge_list(rm):
     return pts[i], pts[nbr[i, j]], w[i, j]
 
 
+@pytest.mark.slow  # over 10 s of compiles: the fast suite keeps its margin
 def test_unknown_weight_charges_metres_through_unknown_cells():
     known = _half_known_map()
     unknown = known == UNKNOWN

@@ -151,6 +151,7 @@ def test_usable_measurements_need_a_real_box_pose_and_object():
     assert not bool(has_measurements(masked)) and bool(has_measurements(clean))
 
 
+@pytest.mark.slow  # over 10 s of compiles: the fast suite keeps its margin
 def test_online_run_of_empty_frames_is_not_success():
     problem, _ = _small(3, num_frames=4)
     frames = frames_from_problem(problem, max_detections=2)

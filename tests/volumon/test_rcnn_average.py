@@ -64,7 +64,7 @@ def test_a_run_loads_by_step_and_averages_its_checkpoints(tmp_path):
 
 def test_a_missing_step_or_mixed_networks_are_refused(tmp_path):
     _workdir(tmp_path, [10])
-    with pytest.raises(ValueError, match="no checkpoint 30"):
+    with pytest.raises(ValueError, match="step: no checkpoint 30"):
         load_rcnn(tmp_path, step=30)
     with pytest.raises(ValueError, match="step"):
         load_rcnn("lmo-rcnn", step=10)
