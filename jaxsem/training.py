@@ -59,9 +59,10 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple, TypeVar
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from ._files import read_json
+from ._files import check_npz, read_json
 from ._process import process_alive as _alive, process_start as _proc_start
 from .checkpoint import Checkpointer, CheckpointError
 
@@ -74,6 +75,7 @@ __all__ = [
     "WorkdirLockedError",
     "config_json",
     "load_run_config",
+    "read_exported",
     "read_metrics",
     "read_run_config",
 ]
@@ -337,6 +339,35 @@ def load_run_config(workdir: str | os.PathLike, from_dict: Callable[[dict[str, A
         return from_dict(raw)
     except (TypeError, ValueError, KeyError) as exc:
         raise ValueError(f"{pathlib.Path(workdir) / 'config.json'}: not {kind} ({exc})") from None
+
+
+def read_exported(
+    path: pathlib.Path, from_dict: Callable[[dict[str, Any]], _Config]
+) -> tuple[_Config, dict[str, Any], dict[str, Any]]:
+    """``(config, variables, meta)`` of an exported model: ``path`` (a ``.npz`` of the variables,
+    each leaf under its ``"a/b/c"`` tree path) and the ``.json`` beside it (``meta``, whose
+    ``config`` entry ``from_dict`` builds). The archive's declared sizes are checked before
+    anything is inflated; the variables come back as the nested tree of jax arrays.
+
+    Raises:
+      ValueError: naming the JSON file when it is not an object with a ``config`` object, or
+        naming the archive when its sizes are over budget.
+    """
+    meta_path = path.with_suffix(".json")
+    meta = read_json(meta_path, "model description")
+    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+        raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
+    config = from_dict(meta["config"])
+    check_npz(path)
+    variables: dict[str, Any] = {}
+    with np.load(path) as z:
+        for name in z.files:
+            node = variables
+            *parents, leaf = name.split("/")
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = jnp.asarray(z[name])
+    return config, variables, meta
 
 
 def read_metrics(path: str | os.PathLike) -> list[dict[str, Any]]:

@@ -18,10 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._files import check_npz, read_json
 from ..checkpoint import latest_step
 from ..quadrics import Ellipsoid
-from ..training import LoadedModel, read_run_config
+from ..training import LoadedModel, read_exported, read_run_config
 from . import _inputs
 from ._configs import TrainConfig, config_from_dict
 from ._device_data import held_out_set
@@ -48,17 +47,6 @@ def _flatten(tree, prefix=""):
         else:
             out[name] = np.asarray(v, np.float32)
     return out
-
-
-def _unflatten(flat):
-    tree: dict = {}
-    for name, v in flat.items():
-        node = tree
-        parts = name.split("/")
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-        node[parts[-1]] = jnp.asarray(v)
-    return tree
 
 
 def _portable(config: dict) -> dict:
@@ -130,13 +118,7 @@ def load_pretrained(path=None, *, kind: str = "object") -> LoadedModel:
             f"model: no shipped model at {p} (expected {p.name} and {meta_path.name}), "
             "and not a training workdir with config.json"
         )
-    meta = read_json(meta_path, "model description")
-    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
-        raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
-    config = config_from_dict(meta["config"])
-    check_npz(p)  # the declared sizes within budget before anything is inflated
-    with np.load(p) as z:
-        variables = _unflatten({k: z[k] for k in z.files})
+    config, variables, meta = read_exported(p, config_from_dict)
     model = _model_and_init(config.model, config.learning_rate)[0]  # the module only: nothing compiles
     return LoadedModel(model, variables, config, meta)
 
