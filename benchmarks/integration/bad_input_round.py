@@ -368,25 +368,25 @@ def cases() -> list[Case]:
     def scene(name):
         return f"{d}/bop_{name}/test/000001"
 
-    for name, names in (
-        ("fx_zero", ["camera.json", "fx"]),
-        ("fx_neg", ["camera.json", "fx"]),
-        ("width_zero", ["camera.json", "width"]),
-        ("cy_missing", ["camera.json", "cy"]),
-        ("cam_latin1", ["camera.json"]),
-        ("cam_list", ["camera.json"]),
-        ("gt_number", ["scene_gt.json"]),
-        ("gt_list", ["scene_gt.json"]),
-        ("gt_objid_str", ["scene_gt.json"]),
-        ("gt_frame_str", ["scene_gt.json"]),
-        ("gt_reflection", ["scene_gt.json"]),
-        ("gt_t_short", ["scene_gt.json"]),
-        ("gt_not_json", ["scene_gt.json"]),
-        ("info_fract", ["scene_gt_info.json"]),
-        ("info_count", ["scene_gt_info.json"]),
-        ("info_bbox_str", ["scene_gt_info.json"]),
-    ):
-        add(f"bop-{name.replace('_', '-')}", _jx(*bop, scene(name)), names)
+    # each broken scene's error names its broken file, and the field for the camera's numbers
+    broken_scenes = {
+        "camera.json": ("fx_zero", "fx_neg", "width_zero", "cy_missing", "cam_latin1", "cam_list"),
+        "scene_gt.json": (
+            "gt_number",
+            "gt_list",
+            "gt_objid_str",
+            "gt_frame_str",
+            "gt_reflection",
+            "gt_t_short",
+            "gt_not_json",
+        ),
+        "scene_gt_info.json": ("info_fract", "info_count", "info_bbox_str"),
+    }
+    camera_fields = {"fx_zero": "fx", "fx_neg": "fx", "width_zero": "width", "cy_missing": "cy"}
+    for file, names in broken_scenes.items():
+        for name in names:
+            field = [camera_fields[name]] if name in camera_fields else []
+            add(f"bop-{name.replace('_', '-')}", _jx(*bop, scene(name)), [file, *field])
     add("bop-stretch-out-of-range", _jx(*bop, scene("good"), "--stretch", "99"), ["--stretch"])
     add("bop-eval-fx-zero", _jx("volumon", "eval", "--data", scene("fx_zero"), "--split", "all"), ["camera.json"])
     add("bop-eval-info-fract", _jx("volumon", "eval", "--data", scene("info_fract"), "--split", "all"), ["scene_gt_info.json"])  # fmt: skip
@@ -466,40 +466,37 @@ def cases() -> list[Case]:
     add("fetch-from-garbage-deb", _jx("data", "fetch", "maps", "--out", f"{o}/f7", "--from", f"{d}/garbage.deb"), ["garbage.deb"])  # fmt: skip
     add("fetch-unknown-set", _jx("data", "fetch", "everything", "--out", f"{o}/f8"), ["everything"])
     # --- lsd_real: maps, annotations, flags, records
-    for name, names in (
-        ("tiny_res.yaml", ["tiny_res.yaml"]),
-        ("neg_res.yaml", ["neg_res.yaml"]),
-        ("no_image.yaml", ["no_image.yaml"]),
-        ("gone_image.yaml", ["gone_image.yaml"]),
-        ("yaw.yaml", ["yaw.yaml"]),
-        ("negate.yaml", ["negate.yaml"]),
-        ("thresh.yaml", ["thresh.yaml"]),
-        ("origin_nan.yaml", ["origin_nan.yaml"]),
-        ("garbage.yaml", ["garbage.yaml"]),
-        ("list.yaml", ["list.yaml"]),
-        ("huge_image.yaml", ["huge.pgm", "huge_image.yaml"]),
-        ("mode.yaml", ["mode.yaml"]),
-        ("latin1.yaml", ["latin1.yaml"]),
-        ("nan_origin.gridmap", ["nan_origin.gridmap"]),
-        ("bad_first.gridmap", ["bad_first.gridmap"]),
-        ("truncated.gridmap", ["truncated.gridmap"]),
-        ("huge.gridmap", ["huge.gridmap"]),
-        ("zero_res.gridmap", ["zero_res.gridmap"]),
-        ("occupied.gridmap", ["occupied.gridmap"]),
-        ("garbage.gridmap.gz", ["garbage.gridmap.gz"]),
-        ("short.gridmap.gz", ["short.gridmap.gz"]),
-        ("map.txt", ["map.txt"]),
+    # each map's error names its file; the huge image's also names the image its YAML points at
+    also_named = {"huge_image.yaml": ["huge.pgm"]}
+    for name in (
+        "tiny_res.yaml",
+        "neg_res.yaml",
+        "no_image.yaml",
+        "gone_image.yaml",
+        "yaw.yaml",
+        "negate.yaml",
+        "thresh.yaml",
+        "origin_nan.yaml",
+        "garbage.yaml",
+        "list.yaml",
+        "huge_image.yaml",
+        "mode.yaml",
+        "latin1.yaml",
+        "nan_origin.gridmap",
+        "bad_first.gridmap",
+        "truncated.gridmap",
+        "huge.gridmap",
+        "zero_res.gridmap",
+        "occupied.gridmap",
+        "garbage.gridmap.gz",
+        "short.gridmap.gz",
+        "map.txt",
     ):
         stem = name.replace(".", "-").replace("_", "-")
-        add(f"map-{stem}", _script(lsd_real, "--map", f"{m}/{name}", "--json", f"{o}/lr.json", *small), names)
-    for name, names in (
-        ("huge.png", ["huge.png"]),
-        ("huge.pgm", ["huge.pgm"]),
-        ("truncated.pgm", ["truncated.pgm"]),
-        ("black.png", ["black.png"]),
-    ):
+        add(f"map-{stem}", _script(lsd_real, "--map", f"{m}/{name}", "--json", f"{o}/lr.json", *small), [*also_named.get(name, []), name])  # fmt: skip
+    for name in ("huge.png", "huge.pgm", "truncated.pgm", "black.png"):
         stem = name.replace(".", "-")
-        add(f"map-{stem}", _script(lsd_real, "--map", f"{m}/{name}", "--resolution", "0.1", "--json", f"{o}/lr.json", *small), names)  # fmt: skip
+        add(f"map-{stem}", _script(lsd_real, "--map", f"{m}/{name}", "--resolution", "0.1", "--json", f"{o}/lr.json", *small), [name])  # fmt: skip
     add("map-image-no-resolution", _script(lsd_real, "--map", f"{m}/room.png", "--json", f"{o}/lr.json", *small), ["--resolution", "room.png"])  # fmt: skip
     add("map-resolution-negative", _script(lsd_real, "--map", f"{m}/room.png", "--resolution", "-1", "--json", f"{o}/lr.json", *small), ["--resolution"])  # fmt: skip
     for name in ("ann_garbage.json", "ann_misspelt.json", "ann_nan.json"):
