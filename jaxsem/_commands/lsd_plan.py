@@ -138,18 +138,17 @@ def plot_over_time(world, snapshots, path, goal, out, panels: int = 6, title: st
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
-    p.add_argument("--map", default=None, help="npz map file (None: a generated building)")
+    p.add_argument("--map", help="npz map file (None: a generated building)")
     p.add_argument("--family", default="test", choices=("train", "test", "house", "campus"), help="building family")
     p.add_argument("--building", type=int, default=0, help="building seed")
     p.add_argument(
         "--start",
         type=float,
         nargs=2,
-        default=None,
         metavar=("X", "Y"),
         help="start (m)",
     )
-    p.add_argument("--goal", type=float, nargs=2, default=None, metavar=("X", "Y"), help="goal (m)")
+    p.add_argument("--goal", type=float, nargs=2, metavar=("X", "Y"), help="goal (m)")
     p.add_argument(
         "--kind",
         default="IO",
@@ -158,7 +157,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint",
-        default=None,
         help="LSD training workdir or exported .npz (None: the shipped model)",
     )
     p.add_argument(

@@ -52,7 +52,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--chunk-steps",
         type=sc.positive_int,
-        default=None,
         help="stop after this many steps past the latest checkpoint (a rerun resumes)",
     )
     sc.add_force_argument(p)

@@ -118,7 +118,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--detector",
-        default=None,
         help="map from pixels: this detect-and-lift network reads every frame's image (lmo-rcnn: the "
         "shipped LM-O one; or an exported .npz); its boxes and classes replace any in the input, "
         "associated across frames by class, box overlap and viewing rays (jaxsem.slam.detected_sequence), "
@@ -152,7 +151,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--write-sequence",
         type=pathlib.Path,
-        default=None,
         help="also save the simulated sequence as a sequence directory here",
     )
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder")
@@ -175,7 +173,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--pose-sigma",
         type=str,
-        default=None,
         help="pose prior sigmas 'metres,degrees'",
     )
     sc.add_config_flags(p, SolverConfig, CONFIG_FLAGS[2:])

@@ -49,7 +49,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p = sc.command_parser(prog, __doc__)
     p.add_argument("--seed", type=int, default=1, help="held-out seed (a stream no training seed uses)")
     p.add_argument("--num", type=sc.positive_int, default=256, help="number of detections")
-    p.add_argument("--json", type=sc.output_file, default=None, help="write the figures here (atomically)")
+    p.add_argument("--json", type=sc.output_file, help="write the figures here (atomically)")
     add_model_arguments(
         p, sc.existing_path, "a training run (config.json + checkpoints/) or a .npz model (default: the shipped model)"
     )
@@ -57,7 +57,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--data",
         type=sc.existing_dir,
-        default=None,
         help="score the objects of a FAT-layout or make_synthetic directory (the first --num), or of a BOP scene "
         "folder (with scene_gt.json: every object of --split at least --min-visible visible) instead of "
         "synthetic held-out detections",
@@ -65,7 +64,6 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--split",
         choices=SPLITS,
-        default=None,
         help="BOP scene only, required there: 'tune' (frame ids below 600: LM-O's tuning split), 'test' (ids 600 "
         "and above, held out) or 'all'",
     )
@@ -73,14 +71,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--oracle",
         type=sc.existing_path,
-        default=None,
         help="BOP scene or desk renders only: also score this model (a training run or .npz: the fully supervised "
         "oracle) as 'oracle' (default with --model lmo: the oracle shipped beside it)",
     )
     p.add_argument(
         "--input-size",
         type=sc.image_size,
-        default=None,
         help="R-CNN only: run the network at this W,H (multiples of 16; default: the size it was trained at)",
     )
     add_class_mapping_argument(p, "BOP scene only")
@@ -91,10 +87,9 @@ def add_model_arguments(p, workdir_type, workdir_help: str) -> None:
     """The model-source flags of the VoluMon commands, ``--workdir`` (of ``workdir_type``, a
     command's own meaning in ``workdir_help``) and ``--model``, read back together with
     :func:`resolve_model`."""
-    p.add_argument("--workdir", type=workdir_type, default=None, help=workdir_help)
+    p.add_argument("--workdir", type=workdir_type, help=workdir_help)
     p.add_argument(
         "--model",
-        default=None,
         help="a shipped model by name ('object': the default tabletop model, 'door', 'lmo': the LM-O model, "
         "'lmo-rcnn': the LM-O detect-and-lift network, BOP scenes only) or a path (a training run "
         "or a .npz); the same as --workdir for a path (default: 'object'; on a BOP scene, --data with "

@@ -29,11 +29,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--workdir", type=sc.existing_dir, required=True, help="the training run (train/volumon.py --workdir)"
     )
-    p.add_argument("--step", type=int, default=None, help="checkpoint step to export (default: the latest)")
+    p.add_argument("--step", type=int, help="checkpoint step to export (default: the latest)")
     p.add_argument(
         "--out",
         type=sc.output_dir,
-        default=None,
         help="folder for the model files (default: the package's pretrained folder)",
     )
     return p

@@ -118,15 +118,14 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--train-steps",
         type=sc.positive_int,
-        default=None,
         help="train from scratch for this many steps into --workdir first (fast preset)",
     )
     p.add_argument("--seed", type=int, default=1, help="held-out seed of --split test")
-    p.add_argument("--step", type=int, default=None, help="checkpoint step (default latest)")
+    p.add_argument("--step", type=int, help="checkpoint step (default latest)")
     p.add_argument("--image", type=sc.existing_file, help="image file (RGB)")
     p.add_argument("--boxes", type=sc.existing_file, help="JSON file: list of [u_min, v_min, u_max, v_max]")
-    p.add_argument("--K", type=intrinsics, default=None, help="fx,fy,cx,cy (default: the training camera)")
-    p.add_argument("--split", choices=("train", "test"), default=None, help="use the synthetic split instead")
+    p.add_argument("--K", type=intrinsics, help="fx,fy,cx,cy (default: the training camera)")
+    p.add_argument("--split", choices=("train", "test"), help="use the synthetic split instead")
     p.add_argument("--num", type=sc.positive_int, default=8, help="detections from --split")
     p.add_argument(
         "--class-id",
@@ -138,10 +137,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     p.add_argument(
         "--data",
         type=sc.existing_dir,
-        default=None,
         help="a BOP scene folder (scene_gt.json, rgb/, models): predict on the visible boxes of --frame",
     )
-    p.add_argument("--frame", type=sc.nonnegative_int, default=None, help="frame id of the --data BOP scene")
+    p.add_argument("--frame", type=sc.nonnegative_int, help="frame id of the --data BOP scene")
     add_min_visible_argument(p, "--data")
     add_class_mapping_argument(p, "--data")
     p.add_argument("--out", type=sc.output_dir, required=True, help="output folder (ellipsoids.json, overlay_*.png)")

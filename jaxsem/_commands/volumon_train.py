@@ -77,26 +77,21 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         "TrainConfig fields over the default",
     )
     sc.add_force_argument(p)
-    p.add_argument(
-        "--stop-after", type=sc.positive_int, default=None, help="stop after this many steps of this call (a chunk)"
-    )
+    p.add_argument("--stop-after", type=sc.positive_int, help="stop after this many steps of this call (a chunk)")
     sc.add_config_flags(p, TrainConfig, CONFIG_FLAGS)
     p.add_argument(
         "--data",
         type=sc.existing_dir,
-        default=None,
         help="train on a FAT-layout or make_synthetic directory (read by jaxsem.data) instead of the on-device "
         "generator (default: the generator)",
     )
     p.add_argument(
         "--eval-data",
         type=sc.existing_dir,
-        default=None,
         help="with --data: directory whose objects the periodic evaluation scores (default: --data itself, a fit check)",
     )
     p.add_argument(
         "--init-from",
-        default=None,
         metavar="MODEL",
         help="warm start a fresh run from a trained model of the same network ('object': the shipped object "
         "model, or a model path): every layer copied, each new class row from the source class of its shape "
