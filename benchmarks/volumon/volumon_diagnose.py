@@ -294,7 +294,7 @@ def main(argv=None) -> int:
     p.add_argument("--num-eval", type=int, default=128)
     p.add_argument("--seed", type=int, default=0, help="training seed (held-out curves use its eval stream)")
     p.add_argument("--size", default="fast")
-    p.add_argument("--batch-size", type=int, default=None, help="default: the preset's (32)")
+    p.add_argument("--batch-size", type=int, help="default: the preset's (32)")
     p.add_argument("--runs", nargs="+", default=list(PRESET_RUNS), choices=list(RUNS))
     p.add_argument("--workdir", type=pathlib.Path, default=pathlib.Path("runs/volumon_diagnose"))
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).resolve().parents[1] / "results")

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[101, 202, 303])
     p.add_argument("--num", type=int, default=256)
     p.add_argument("--postopt", type=int, default=50)
-    p.add_argument("--workdir", default=None, help="a training run instead of the shipped model")
+    p.add_argument("--workdir", help="a training run instead of the shipped model")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).resolve().parents[1] / "results")
     p.add_argument("--tag", default="volumon_heldout")
     p.add_argument(
@@ -46,17 +46,15 @@ def main(argv=None) -> int:
     p.add_argument(
         "--data",
         type=pathlib.Path,
-        default=None,
         help="score the objects of this FAT-layout directory (its first --num) instead of synthetic seeds",
     )
     p.add_argument(
         "--examples",
         type=pathlib.Path,
-        default=None,
         help="with --data: draw the first frames of its first scene with the true cuboids and the model's "
         "ellipsoids into this PNG",
     )
-    p.add_argument("--title", default=None, help="the markdown section's heading (default: one naming the set)")
+    p.add_argument("--title", help="the markdown section's heading (default: one naming the set)")
     a = p.parse_args(argv)
     if a.data is not None and not a.data.is_dir():
         p.error(f"--data: {a.data} is not a directory")

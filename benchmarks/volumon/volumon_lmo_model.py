@@ -113,7 +113,7 @@ def main(argv=None) -> int:
         "--renders", required=True, help="held-out desk renders (python -m jaxsem.volumon.data.make_lmo_renders)"
     )
     p.add_argument("--model", default="lmo", help="the model (default: the shipped LM-O model)")
-    p.add_argument("--oracle", default=None, help="the oracle (default: the one shipped beside --model lmo)")
+    p.add_argument("--oracle", help="the oracle (default: the one shipped beside --model lmo)")
     p.add_argument("--workdirs", nargs="*", default=(), help="training runs whose curves to plot")
     p.add_argument("--curves", default=str(BENCH.parent / "jaxsem/volumon/pretrained/volumon_lmo_curves.png"))
     p.add_argument("--out", default=str(BENCH / "results" / "volumon_lmo_model"))

@@ -39,9 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=sc.existing_dir, required=True, help="the LM-O scene folder (scene_gt.json)")
     p.add_argument("--models", nargs="+", required=True, help="lmo-rcnn, exported .npz files or training workdirs")
     p.add_argument("--frames", nargs=2, type=sc.nonnegative_int, default=[300, 600], metavar=("LO", "HI"))
-    p.add_argument(
-        "--input-size", type=sc.image_size, default=None, help="W,H the networks read (default: each model's own)"
-    )
+    p.add_argument("--input-size", type=sc.image_size, help="W,H the networks read (default: each model's own)")
     output_arguments(p, "volumon_rcnn_validation")
     a = p.parse_args(argv)
     lo, hi = a.frames

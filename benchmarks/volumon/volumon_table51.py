@@ -72,7 +72,7 @@ def main():
     p.add_argument("--variants", nargs="+", default=list(NAMES), choices=list(NAMES))
     p.add_argument("--repeats", type=int, default=5, help="timing repeats (median)")
     p.add_argument("--skip-thesis-net", action="store_true", help="skip timing the 224x224 width-1.0 network")
-    p.add_argument("--workdir", type=pathlib.Path, default=None, help="training runs (default: a temp dir)")
+    p.add_argument("--workdir", type=pathlib.Path, help="training runs (default: a temp dir)")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path(__file__).resolve().parents[1] / "results")
     p.add_argument("--tag", default="volumon_table51", help="name of the result files (<tag>.json, <tag>.md)")
     a = p.parse_args()
