@@ -13,7 +13,14 @@ from jaxsem import (
     training as volumon_training,  # layers: white-box
     volumon,
 )
-from jaxsem.training import ConfigMismatchError, TrainingRun, config_json, read_metrics, read_run_config
+from jaxsem.training import (
+    ConfigMismatchError,
+    TrainingRun,
+    config_json,
+    read_exported,
+    read_metrics,
+    read_run_config,
+)
 from jaxsem.volumon._configs import PRESETS  # layers: white-box
 
 
@@ -194,3 +201,15 @@ def test_stamp_guards_a_resumable_folder(tmp_path):
         ConfigMismatchError, match=r"stamp\.json: not a readable record of settings \(not UTF-8 text: byte 10\)"
     ):
         check_stamp(old / "stamp.json", {"seed": 1})
+
+
+def test_an_exported_model_reads_back_as_its_tree_config_and_meta(tmp_path):
+    path = tmp_path / "model.npz"
+    np.savez(path, **{"params/dense/kernel": np.ones((2, 3), np.float32), "batch_stats/mean": np.zeros(3, np.float32)})
+    path.with_suffix(".json").write_text(json.dumps({"name": "m", "config": {"lr": 0.5}}))
+    config, variables, meta = read_exported(path, lambda d: _Cfg(**d))
+    assert config == _Cfg(lr=0.5) and meta["name"] == "m"
+    assert variables["params"]["dense"]["kernel"].shape == (2, 3) and variables["batch_stats"]["mean"].shape == (3,)
+    path.with_suffix(".json").write_text(json.dumps(["not", "an", "object"]))
+    with pytest.raises(ValueError, match="model.json: expected a JSON object with the model's 'config'"):
+        read_exported(path, lambda d: _Cfg(**d))
