@@ -69,11 +69,11 @@ import numpy as np
 import optax
 
 from .. import metrics
-from .._files import check_npz, read_json
+from .._files import read_json
 from ..checkpoint import latest_step, restore_checkpoint
 from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
 from ..quadrics import box_iou
-from ..training import LoadedModel, TrainingRun, config_json
+from ..training import LoadedModel, TrainingRun, config_json, read_exported
 from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
 from ._pretrained import PRETRAINED_DIR, prepare_inputs
 from ._scene_eval import (
@@ -615,20 +615,7 @@ def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
     meta_path = p.with_suffix(".json")
     if not p.is_file() or not meta_path.is_file():
         raise ValueError(f"model: no exported R-CNN at {p} (expected {p.name} and {meta_path.name})")
-    meta = read_json(meta_path, "model description")
-    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
-        raise ValueError(f"{meta_path}: expected a JSON object with the model's 'config'")
-    config = rcnn_config_from_dict(meta["config"])
-    check_npz(p)  # the declared sizes within budget before anything is inflated
-    with np.load(p) as z:
-        flat = {k: z[k] for k in z.files}
-    variables: dict = {}
-    for key, value in flat.items():
-        node = variables
-        *parents, leaf = key.split("/")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = jnp.asarray(value)
+    config, variables, meta = read_exported(p, rcnn_config_from_dict)
     return LoadedModel(VoluMonRCNN(config.model), variables, config, meta)
 
 
