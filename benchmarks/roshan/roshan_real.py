@@ -33,7 +33,8 @@ Scored with ``jaxsem.metrics`` (``ellipsoid_errors``: symmetric objects handled 
 medians over objects. A ``collapse`` is an object more than 10 cm off. The online smoother
 (``jaxsem.slam.run_sequence``, ROSHAN config, pose priors only) gives the per-frame times. Each
 jaxsem system's ``programs`` is the number of programs its batch solve compiled over the stretches
-(distinct argument signatures: stretches padded to one size bucket share one).
+(distinct argument signatures: stretches padded to one capacity share one; the split's stretches
+are padded to at most ``--max-programs`` capacities, ``jaxsem.slam.bucket_capacities``).
 Item 7 of issue 27: per detection with a texture measurement, its depth against the true
 ellipsoid's texture plane and the mesh's nearest and mean front-surface depth.
 
@@ -73,7 +74,7 @@ from jaxsem.slam._bop_slam import (  # layers: white-box
     pose_prior_weights,
 )
 from jaxsem.slam._multistart import solve_yaw_starts  # layers: white-box
-from jaxsem.slam._problem import bucket_capacity  # layers: white-box
+from jaxsem.slam._problem import bucket_capacities, bucket_capacity  # layers: white-box
 from jaxsem.slam._results import result_code  # layers: white-box
 from jaxsem.slam._sequence_texture import support_height  # layers: white-box
 from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
@@ -179,9 +180,15 @@ def front_end(seq):
     return seq_t, records
 
 
-def problem_of(seq, odometry, table, prior_weight=None):
-    """The stretch as a problem padded to its size bucket (:func:`jaxsem.slam._problem.bucket_capacity`,
-    as a user batches sequences): stretches of one bucket share a compilation."""
+def stretch_size(seq):
+    """``(poses, boxes, objects)`` of a stretch: what its padded capacity is chosen from."""
+    return len(seq.frames), sum(len(fr.boxes) for fr in seq.frames), len(seq.object_ids)
+
+
+def problem_of(seq, odometry, table, prior_weight=None, capacity=None):
+    """The stretch as a problem padded to ``capacity`` (default its own size bucket,
+    :func:`jaxsem.slam._problem.bucket_capacity`, as a user batches sequences): stretches of one
+    capacity share a compilation."""
     slot = {i: j for j, i in enumerate(seq.object_ids)}
     boxes, pose_idx, obj, tex = [], [], [], []
     for t, fr in enumerate(seq.frames):
@@ -199,7 +206,7 @@ def problem_of(seq, odometry, table, prior_weight=None):
         np.asarray(obj),
         list(seq.object_classes),
         np.asarray(tex),
-        capacity=bucket_capacity(len(seq.frames), len(boxes), len(seq.object_ids)),
+        capacity=capacity or bucket_capacity(len(seq.frames), len(boxes), len(seq.object_ids)),
         classes=table,
         odometry=odometry,
         pose_prior_weight=prior_weight,
@@ -561,6 +568,13 @@ def parse_args(argv=None):
     p.add_argument(
         "--seed", type=sc.nonnegative_int, default=0, help="odometry and box noise seed (stretch i uses seed + i)"
     )
+    p.add_argument(
+        "--max-programs",
+        type=sc.positive_int,
+        default=2,
+        help="the most padded capacities (compiled programs per solver) over the split's stretches "
+        "(jaxsem.slam.bucket_capacities; not with --detector, whose stretches keep their own buckets)",
+    )
     p.add_argument("--prior-seed", type=sc.nonnegative_int, default=27, help="seed of the class-size factors")
     p.add_argument(
         "--peer-python",
@@ -673,8 +687,18 @@ def main(argv=None):
     online_ms, tex_rows, stretch_info = [], [], []
     problems_b, inits_b, seqs = [], [], []
     figs = []
+    made = [
+        slam.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n) for n, st in enumerate(stretches)
+    ]
+    # Every stretch padded to one of at most --max-programs capacities (a user's sequence of
+    # stretches compiles that many programs); detector tracks keep each stretch's own bucket.
+    caps = (
+        bucket_capacities([stretch_size(seq) for seq, _ in made], args.max_programs)
+        if detector is None
+        else [None] * len(made)
+    )
     for n, st in enumerate(stretches):
-        seq, odo = slam.stretch_sequence(st, table, setting=args.setting, seed=args.seed + n)
+        seq, odo = made[n]
         track_counts = None
         if detector is not None:
             objects = seq.truth["objects"]
@@ -714,8 +738,8 @@ def main(argv=None):
             prior_translation=seq.noise["pose_translation_sigma"],
             prior_rotation_deg=seq.noise["pose_rotation_sigma_deg"],
         )
-        pb = problem_of(seq, odo, table, weight)
-        pr = problem_of(seq_t, odo, table, weight)
+        pb = problem_of(seq, odo, table, weight, caps[n])
+        pr = problem_of(seq_t, odo, table, weight, caps[n])
         ests = {}
         for name, prob, cfg, init in (
             ("baseline", pb, cfgs["baseline"], None),
@@ -790,8 +814,14 @@ def main(argv=None):
             f" per frame {per['roshan_online'][-1]['per_frame_position_m'] * 100:.1f})",
             flush=True,
         )
+    out, peer_failed = None, None
     if args.peer_python:
-        out = run_peer(args.peer_python, problems_b, inits_b, configs(seqs[0])["baseline"])
+        try:
+            out = run_peer(args.peer_python, problems_b, inits_b, configs(seqs[0])["baseline"])
+        except subprocess.CalledProcessError as exc:  # e.g. its wheel's instructions not on this CPU
+            peer_failed = str(exc)
+            print(f"gtsam_quadrics: failed, not reported ({exc})", file=sys.stderr)
+    if out is not None:
         for n, seq in enumerate(seqs):
             e = score(seq, out["rotation"][n], out["center"][n], out["radii"][n])
             errs["gtsam_quadrics"].append(e)
@@ -827,6 +857,7 @@ def main(argv=None):
         "setting": args.setting,
         "pose_priors": args.pose_priors,
         "systems": systems,
+        **({"gtsam_quadrics_failed": peer_failed} if peer_failed else {}),
         "online_ms_median": float(np.median(online_ms)),
         "online_ms_p95": float(np.percentile(online_ms, 95)),
         "stretches": stretch_info,

@@ -4,7 +4,8 @@ What a user calls, by job:
 
 - problems (padded to capacity with masks, equinox pytrees): :class:`SlamProblem`,
   :class:`SlamEstimate`, :class:`Frame`, :class:`Capacity`, :func:`make_frame`,
-  :func:`make_problem`, :func:`stack_problems`, :func:`toy_map`; the solver's settings
+  :func:`make_problem`, :func:`stack_problems`, :func:`toy_map`; :func:`bucket_capacities` (the
+  padded sizes for many problems, at most a given number of compiled programs over them all); the solver's settings
   :class:`SolverConfig`, :func:`baseline_config` (the thesis' baseline), :func:`noise_model`;
 - batch solvers: :func:`solve_batch` (structured Levenberg-Marquardt with the rescue of stranded
   objects; ``method="optimistix"``: differentiable by the implicit adjoint), :func:`solve_many`,
@@ -68,6 +69,7 @@ from ._problem import (
     Frame as Frame,
     SlamEstimate as SlamEstimate,
     SlamProblem as SlamProblem,
+    bucket_capacities as bucket_capacities,
     make_frame as make_frame,
     make_problem as make_problem,
     stack_problems as stack_problems,

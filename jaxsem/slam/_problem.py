@@ -622,21 +622,84 @@ def bucket_capacity(num_poses: int, num_boxes: int, num_objects: int, *, minimum
     Problems in one bucket share one compilation of every solver (pass it as
     ``make_problem(..., capacity=...)``).
 
-    Boxes and objects are rounded up to a power of two (a bucket wastes at most half its slots).
-    Poses are rounded up to a power of two or three halves of one (8, 12, 16, 24, 32, 48, 64, ...;
-    at most a third wasted): the Schur step's pose work grows with the square of the pose slots,
-    so a 34-pose stretch in 48 slots solves markedly faster than in 64, for one more bucket."""
+    Each size is rounded up to a power of two or three halves of one (8, 12, 16, 24, 32, 48, 64,
+    ...; at most a third of the slots wasted): the Schur step's pose work grows with the cube of
+    the pose slots and the linearisation's with the box slots, so a 34-pose stretch in 48 slots
+    (or 165 boxes in 192) solves markedly faster than in 64 (256), for twice the buckets of
+    powers of two (:func:`bucket_capacities` caps the number over many problems)."""
     sizes = (num_poses, num_boxes, num_objects)
     if any(int(n) < 0 for n in sizes):
         raise ValueError(f"bucket_capacity: sizes must be >= 0, got {sizes}")
-    up = lambda n: max(int(minimum), 1 << max(int(n) - 1, 0).bit_length())
 
-    def up_poses(n):
-        two = up(n)
+    def up(n):
+        two = max(int(minimum), 1 << max(int(n) - 1, 0).bit_length())
         three_halves = 3 * two // 4  # 3 * 2^(k - 2): between the powers two / 2 and two
         return three_halves if two >= 8 and three_halves >= max(int(n), int(minimum)) else two
 
-    return up_poses(num_poses), up(num_boxes), up(num_objects)
+    return up(num_poses), up(num_boxes), up(num_objects)
+
+
+def _padded_work(capacity) -> int:
+    """A solve's work at a padded capacity ``(T, M, J)``, up to a constant: the Schur step's dense
+    pose system (``T^3`` and the ``T^2 J`` of forming it) and the per-box linearisation."""
+    T, M, J = capacity
+    return T * T * (6 * T + 9 * J) + 200 * M
+
+
+def bucket_capacities(sizes, max_programs: int = 2, *, minimum: int = 8) -> list[tuple[int, int, int]]:
+    """Padded capacities for many problems (the stretches of a user's sequences) such that at most
+    ``max_programs`` distinct capacities, hence compiled programs of each solver, serve them all.
+
+    Each problem's own bucket is :func:`bucket_capacity`; problems ordered by their pose bucket
+    are split into at most ``max_programs`` runs, each padded to the largest bucket of its run
+    (element-wise), choosing the split of least total padded work (the Schur step's pose work
+    grows with the cube of the pose slots, so a short stretch joins the small group rather than
+    the long ones joining the big one). With ``max_programs`` at least the number of distinct
+    buckets every problem keeps its own.
+
+    Args:
+      sizes: ``(num_poses, num_boxes, num_objects)`` per problem.
+      max_programs: the most distinct capacities (>= 1).
+
+    Returns:
+      One ``(T, M, J)`` per problem, in the order given (pass each as ``make_problem(...,
+      capacity=...)``).
+    """
+    if int(max_programs) < 1:
+        raise ValueError(f"max_programs: expected an int >= 1, got {max_programs}")
+    own = [bucket_capacity(*map(int, s), minimum=minimum) for s in sizes]
+    if not own:
+        return []
+    distinct = sorted(set(own))
+    if len(distinct) <= max_programs:
+        return own
+    order = sorted(range(len(own)), key=lambda i: own[i])
+    n, k = len(order), int(max_programs)
+
+    def cap(a, b) -> tuple[int, int, int]:  # the bucket of order[a:b]
+        run = [own[order[i]] for i in range(a, b)]
+        return max(c[0] for c in run), max(c[1] for c in run), max(c[2] for c in run)
+
+    def work(a, b):
+        return (b - a) * _padded_work(cap(a, b))
+
+    # best[g][b]: least work of order[:b] in g runs, and where its last run starts
+    inf = float("inf")
+    best = [[(inf, 0)] * (n + 1) for _ in range(k + 1)]
+    best[0][0] = (0.0, 0)
+    for g in range(1, k + 1):
+        for b in range(1, n + 1):
+            best[g][b] = min(((best[g - 1][a][0] + work(a, b), a) for a in range(b)), default=(inf, 0))
+    g = min(range(1, k + 1), key=lambda g: best[g][n][0])
+    out: list[tuple[int, int, int]] = [(0, 0, 0)] * n
+    b = n
+    while b > 0:
+        a = best[g][b][1]
+        c = cap(a, b)
+        for i in range(a, b):
+            out[order[i]] = c
+        b, g = a, g - 1
+    return out
 
 
 def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
