@@ -240,13 +240,7 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
         clear, unc = carry
         ids = jax.lax.dynamic_slice(order, (i * F,), (F,))
         j = jnp.minimum(ids, E - 1)
-        pa, pb = fa[j], fb[j]
-        along = pa[:, None, :] + t_pick[:, None] * (pb - pa)[:, None, :]  # (F, C, 2)
-        er, ec, eon = _cells(along, grid)
-        hit = jnp.any(~eon | _read(blocked, er, ec), axis=-1)
-        lo = (_read(table, er >> _BASE, ec >> _BASE).astype(dtype) - 1e-3) * grid.resolution.astype(dtype)
-        lo = jnp.where(eon, lo, -1.0)
-        covered = lo[:, :-1] + lo[:, 1:] > _length(pa, pb)[:, None] * gap_t
+        hit, covered = _subset_pass(blocked, table, fa[j], fb[j], grid, t_pick, gap_t)
         live = (ids < E)[:, None]
         clear = jax.lax.dynamic_update_slice(clear, ~hit, (i * F,))
         unc = jax.lax.dynamic_update_slice(unc, ~covered & ~hit[:, None] & live, (i * F, 0))
@@ -302,13 +296,21 @@ def _coarse(blocked, fa, fb, grid, edge_samples, todo, *, subset, table):
     t_all = jnp.arange(S, dtype=dtype) / (S - 1)  # the rule's own parameters (_edges_dense)
     t_pick = t_all[pick]
     gap_t = jnp.asarray(np.diff(pick) / (S - 1), dtype)
-    along = fa[:, None, :] + t_pick[:, None] * (fb - fa)[:, None, :]  # (E, C, 2)
+    hit, covered = _subset_pass(blocked, table, fa, fb, grid, t_pick, gap_t)
+    return hit, ~covered & ~hit[:, None] & todo[:, None]
+
+
+def _subset_pass(blocked, table, pa, pb, grid, t_pick, gap_t):
+    """The subset samples ``t_pick`` (C,) of edges pa -> pb (E, 2): ``hit`` (E,), one in a
+    blocked or off-map cell, and ``covered`` (E, C - 1), the intervals between them (``gap_t``
+    long, in edge parameter) whose ends' clearances (``table``) vouch for every cell between."""
+    dtype = pa.dtype
+    along = pa[:, None, :] + t_pick[:, None] * (pb - pa)[:, None, :]  # (E, C, 2)
     er, ec, eon = _cells(along, grid)
     hit = jnp.any(~eon | _read(blocked, er, ec), axis=-1)
     lo = (_read(table, er >> _BASE, ec >> _BASE).astype(dtype) - 1e-3) * grid.resolution.astype(dtype)
     lo = jnp.where(eon, lo, -1.0)
-    covered = lo[:, :-1] + lo[:, 1:] > _length(fa, fb)[:, None] * gap_t
-    return hit, ~covered & ~hit[:, None] & todo[:, None]
+    return hit, lo[:, :-1] + lo[:, 1:] > _length(pa, pb)[:, None] * gap_t
 
 
 def _intervals_clear(blocked, fa, fb, edge, interval, grid, edge_samples, *, subset):
@@ -334,7 +336,7 @@ def _segments_clear(blocked, a, b, grid, *, edge_samples):
     return jnp.all(clear)
 
 
-def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -> bool:
+def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, reach: float | None = None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
     check on the bool grid ``blocked``: the same samples as the PRM used for an edge of that
     length (segments up to ``radius``: the roadmap's; longer ones, a query's start or goal
@@ -343,7 +345,8 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -
     still, replanning the same path). ``blocked`` may also be an int8 partial map (its OCCUPIED
     cells block, as in the PRM); a JAX array stays on the device (the navigation loop checks
     its plan every step against a map of millions of cells: no copy of it is made).
-    ``grid``: the :class:`jaxsem.quadrics.Grid` of ``blocked`` (or a map holding one)."""
+    ``grid``: the :class:`jaxsem.quadrics.Grid` of ``blocked`` (or a map holding one);
+    ``reach``: the PRM's (:class:`~jaxsem.planning.PRM`; None: :func:`query_reach` of the grid)."""
     if isinstance(blocked, jax.Array):
         blocked_j = blocked
     else:
@@ -364,7 +367,7 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None) -
     a, b = pts[:-1], pts[1:]
     length = np.linalg.norm(b - a, axis=1)
     short = length <= radius * (1 + 1e-6)
-    reach = query_reach(shape, resolution)
+    reach = query_reach(shape, resolution) if reach is None else float(reach)
     grid_j = _grid(grid, dtype)
     for sel, r in ((short, radius), (~short, max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9)))))):
         if not sel.any():

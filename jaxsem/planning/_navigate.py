@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as Q
-from ._edges import polyline_clear
+from ._edges import polyline_clear, query_reach
 from ._grid import (
     FREE,
     NONE,
@@ -150,6 +150,29 @@ def _unpooled(dist, scale: int, shape):
 _embed_jit = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
 
 
+def bucket_shape(shape, bucket: int) -> tuple[int, int]:
+    """``shape`` (H, W) with each side rounded up to a multiple of ``bucket`` cells: the shape
+    the navigation loop's compiled steps see (:attr:`NavConfig.shape_bucket`)."""
+    b = max(1, int(bucket))
+    return (-(-int(shape[0]) // b) * b, -(-int(shape[1]) // b) * b)
+
+
+def _padded(x, shape, fill) -> jax.Array:
+    """``x`` (H, W) padded at the bottom and right to ``shape`` with ``fill`` (on the host: an
+    eager pad compiles a program per shape) on the device; a JAX ``x`` itself when it has
+    ``shape``."""
+    H, W = x.shape[-2:]
+    if (H, W) == tuple(shape):
+        return jax.device_put(x)
+    return jax.device_put(np.pad(np.asarray(x), ((0, shape[0] - H), (0, shape[1] - W)), constant_values=fill))
+
+
+def _unpadded(x, shape):
+    """The leading ``shape`` (H, W) of a padded grid ``x``, through the host as :func:`_padded`
+    (``device_put``: ``jnp.asarray`` of a host array compiles a copy per shape)."""
+    return jax.device_put(np.ascontiguousarray(np.asarray(x)[: shape[0], : shape[1]]))
+
+
 def local_inputs(
     state: MapState,
     xy,
@@ -216,6 +239,12 @@ class NavConfig:
     # unknown space)
     unknown_weight: float = 1.0
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
+    # The loop's compiled steps see the map padded at the bottom and right to a multiple of this
+    # many cells a side (the padding: known occupied, sensed as walls, no sampling mass), so maps
+    # of different shapes in one bucket (and the same origin, resolution and radius) share one
+    # compile; the trial's paths, maps and distributions are those of the unpadded map. 1: no
+    # padding. A pooled sampler (sampler_scale > 1) sees the unpadded map.
+    shape_bucket: int = 256
     sensor: SensorConfig = SensorConfig()
     max_context_distance: float = 20.0
 
@@ -324,11 +353,13 @@ class Trial:
             )
             or not 0.0 < config.unknown_weight < math.inf
             or not (isinstance(config.sampler_scale, int) and config.sampler_scale >= 1)
+            or not (isinstance(config.shape_bucket, int) and config.shape_bucket >= 1)
         ):
             raise ValueError(
                 f"config: n_samples, max_steps >= 1, step_length > 0, max_growth >= 0, growth "
                 f"'sampler' or 'uniform', learned_radius_factor >= 1, outside_mass None or two "
-                f"shares in [0, 1), a finite unknown_weight > 0 and an int sampler_scale >= 1 expected, got {config}"
+                f"shares in [0, 1), a finite unknown_weight > 0, an int sampler_scale >= 1 and an int "
+                f"shape_bucket >= 1 expected, got {config}"
             )
         _check_sampler_cells(sampler, self.resolution, config.sampler_scale)
         self.config = config
@@ -337,14 +368,29 @@ class Trial:
         if weight not in ("euclidean", "neglogp") or (weight == "neglogp" and sampler is None):
             raise ValueError(f"config.edge_weight: {weight!r} not usable with sampler={sampler!r}")
         self.weight = weight
-        self._occ_j = jnp.asarray(occ)
-        self._sem_j = jnp.asarray(sem, jnp.int8)
-        self._grid_s = static_grid(self.grid)
+        # The compiled steps run on the map padded to its size bucket (NavConfig.shape_bucket).
+        self.shape = (int(occ.shape[0]), int(occ.shape[1]))
+        bucket = config.shape_bucket if config.sampler_scale == 1 else 1
+        self._shape_p = bucket_shape(self.shape, bucket)
+        self._pad = self._shape_p != self.shape
+        self._grid_p = Q.Grid.host(self.origin, self.resolution, self._shape_p)
+        self._on_map = np.asarray(self.shape, np.int32)
+        self._reach = query_reach(self.shape, self.resolution)
+        self._occ_j = _padded(occ, self._shape_p, True)
+        self._sem_j = _padded(np.asarray(sem, np.int8), self._shape_p, NONE)
+        self._grid_s = static_grid(self._grid_p)
         self._sense_sizes = _sense_sizes(self.grid, config.sensor)
         self.key = key
         self.xy = self.start.copy()
         self.yaw = float(yaw0)
-        self.state = state if state is not None else empty_map_state(occ.shape)
+        if state is None and self._pad:  # built on the host (see _padded)
+            unknown = _padded(np.full(occ.shape, UNKNOWN, np.int8), self._shape_p, OCCUPIED)
+            self._state = MapState(unknown, jax.device_put(np.full(self._shape_p, NONE, np.int8)))
+        else:
+            state = state if state is not None else empty_map_state(occ.shape)
+            self._state = MapState(
+                _padded(state.occupancy, self._shape_p, OCCUPIED), _padded(state.semantic, self._shape_p, NONE)
+            )
         self.path = [self.xy.copy()]
         self.cost = 0.0
         self.steps = 0
@@ -354,7 +400,7 @@ class Trial:
         self.done = False
         self.success = False
         self.reason = ""
-        self.last_distribution = None
+        self._last_distribution = None
         self.grown = 0
         self.searches = 0
         self.blocked_replans = 0
@@ -365,6 +411,31 @@ class Trial:
         self.radius = self.connection_radius(config, occ.shape, self.resolution, sampler is not None)
         self._owns_state = False
         self._sense()
+
+    @property
+    def state(self) -> MapState:
+        """The partial maps now (the map's shape; a view of the trial's own arrays when the map
+        needs no padding, else a copy)."""
+        st = self._state
+        if not self._pad:
+            return st
+        return MapState(_unpadded(st.occupancy, self.shape), _unpadded(st.semantic, self.shape))
+
+    @state.setter
+    def state(self, value: MapState) -> None:
+        # The trial's sensing updates its own arrays in place: a state set from outside is
+        # copied by the next look instead.
+        self._state = MapState(
+            _padded(value.occupancy, self._shape_p, OCCUPIED), _padded(value.semantic, self._shape_p, NONE)
+        )
+        self._owns_state = False
+
+    @property
+    def last_distribution(self):
+        """The latest replan's (H, W) sampling distribution over the map (None before an LSD
+        replan)."""
+        d = self._last_distribution
+        return d if d is None or not self._pad else _unpadded(d, self.shape)
 
     @staticmethod
     def connection_radius(config: NavConfig, shape, resolution: float, learned: bool) -> float:
@@ -389,10 +460,10 @@ class Trial:
         # update the trial's own maps in place.
         sense = _sense_in_place if self._owns_state else _sense_jit
         self._owns_state = True
-        self.state = sense(
+        self._state = sense(
             self._occ_j,
             self._sem_j,
-            self.state,
+            self._state,
             pose,
             self._grid_s,
             self.config.sensor,
@@ -403,13 +474,13 @@ class Trial:
         """What the learned sampler sees now (its cells ``config.sampler_scale`` map cells wide;
         ``center_cell`` in those cells)."""
         s = self.config.sampler_scale
-        state = self.state if s == 1 else _pooled_state(self.state, s)
+        state = self._state if s == 1 else _pooled_state(self._state, s)
         return local_inputs(
             state,
             self.xy,
             self.goal,
             self.goal_outdoors,
-            self.grid
+            self._grid_p
             if s == 1
             else Q.Grid(
                 self.origin,
@@ -423,24 +494,25 @@ class Trial:
     def _clear(self, points) -> bool:
         # The PRM's own edge check, so a plan it found clear is clear here on the same map (read
         # on the device: no copy of the map).
-        return polyline_clear(points, self.state.occupancy, self.grid, self.radius)
+        return polyline_clear(points, self._state.occupancy, self._grid_p, self.radius, reach=self._reach)
 
     def _new_prm(self, known) -> PRM:
         cfg = self.config
         return PRM(
             known,
-            self.grid,
+            self._grid_p,
             capacity=cfg.n_samples * (1 + cfg.max_growth),
             k=cfg.k if cfg.k is not None else prm_star_k(cfg.n_samples),
             radius=self.radius,
             weight=self.weight,
             sectors=cfg.sectors,
             unknown_weight=cfg.unknown_weight,
+            reach=self._reach,
         )
 
     def _replan(self) -> bool:
         cfg = self.config
-        known = np.asarray(self.state.occupancy)
+        known = np.asarray(self._state.occupancy)
         dist = None
         if self.sampler is not None:
             inputs = self.local_inputs()
@@ -454,11 +526,12 @@ class Trial:
             q = None if cfg.outside_mass is None else float(cfg.outside_mass[int(self.goal_outdoors)])
             s = cfg.sampler_scale
             if s == 1:
-                dist = _embed_jit(local, inputs.center_cell, known.shape, q)
+                on_map = self._on_map if self._pad else None
+                dist = _embed_jit(local, inputs.center_cell, known.shape, q, on_map)
             else:
                 pooled = (-(-known.shape[0] // s), -(-known.shape[1] // s))
                 dist = _unpooled(_embed_jit(local, inputs.center_cell, pooled, q), s, known.shape)
-            self.last_distribution = dist
+            self._last_distribution = dist
             if self.keep_distributions and len(self.distributions) < self.keep_distributions:
                 self.distributions.append(
                     (
@@ -502,7 +575,7 @@ class Trial:
 
     def _in_known_obstacle(self) -> bool:
         rc = Q.world_to_cell(self.xy, self.origin, self.resolution, xp=np)
-        occ = self.state.occupancy  # one cell read on the device (no host view: see _sense)
+        occ = self._state.occupancy  # one cell read on the device (no host view: see _sense)
         return bool(Q.cell_in_grid(rc, occ.shape, xp=np) and int(occ[int(rc[0]), int(rc[1])]) == OCCUPIED)
 
     def _finish(self, success, reason):
@@ -587,7 +660,8 @@ class Trial:
         return True
 
     def result(self) -> NavResult:
-        dist = None if self.last_distribution is None else np.asarray(self.last_distribution)
+        last = self.last_distribution
+        dist = None if last is None else np.asarray(last)
         return NavResult(
             np.array(self.path),
             float(self.cost),

@@ -66,6 +66,11 @@ class PRM:
     one through unknown space; the edges' weights follow :meth:`update_map`. Needs an int8
     partial map (a bool grid has no unknown cells) and an eager roadmap (weights read every
     sample of an edge, so ``lazy`` gains nothing).
+
+    reach: the length (m) over which a query's start and goal links longer than ``radius`` are
+    sampled (None: the map's diagonal rounded up to a power of two). A caller that pads its map
+    (the navigation loop pads every map to a size bucket, so one compiled program serves maps of
+    several shapes) passes its unpadded map's, so the links are checked as on that map.
     """
 
     def __init__(
@@ -80,6 +85,7 @@ class PRM:
         sectors: int = DEFAULT_SECTORS,
         lazy: bool = False,
         unknown_weight: float = 1.0,
+        reach: float | None = None,
     ):
         blocked = _blocked_from("known_map", known_map)
         if not isinstance(lazy, bool):
@@ -114,6 +120,9 @@ class PRM:
             if radius is not None
             else default_radius(capacity, blocked.shape, self.resolution, weight, free_cells=self._free_cells)
         )
+        if reach is not None and not (isinstance(reach, (int, float, np.floating)) and 0 < reach < np.inf):
+            raise ValueError(f"reach: expected None or a finite length > 0 (m), got {reach!r}")
+        self.reach = None if reach is None else float(reach)
         self.weight = weight
         self.distribution = None
         self._cap: int | None = None
@@ -307,6 +316,7 @@ class PRM:
             sectors=self.sectors,
             table=table,
             factor=self._factor,
+            reach=self.reach,
         )
         self._queries += len(q)
         if self._points is None:

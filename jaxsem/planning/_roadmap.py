@@ -529,13 +529,14 @@ _connect_jit = functools.partial(
 )(_connect_impl)
 
 
-def _query_samples(radius: float, grid) -> dict:
+def _query_samples(radius: float, grid, reach: float | None = None) -> dict:
     """The static sample counts of :func:`_connect_impl` on a host ``grid``: a short edge's (up
-    to ``radius``) and a long one's (over :func:`query_reach`)."""
+    to ``radius``) and a long one's (over ``reach``; None: :func:`query_reach` of the grid)."""
     res = float(grid.resolution)
+    reach = query_reach(grid.shape, res) if reach is None else float(reach)
     return {
         "edge_samples": _edge_samples(radius, res),
-        "long_samples": _edge_samples(query_reach(grid.shape, res), res),
+        "long_samples": _edge_samples(reach, res),
     }
 
 
@@ -594,10 +595,13 @@ def _check_sectors(sectors) -> int:
 
 def _initial_cap(n_total: int, shape, resolution, radius, free_cells: int | None = None) -> int:
     """Strip slots for uniform samples: 2 x the mean load of a strip of 3 buckets (over the
-    ``free_cells`` samples land in; None: the whole map), a multiple of 16 (few compiles)."""
+    ``free_cells`` samples land in; None: the whole map), rounded up to 16 times 1, 2, 3, 4, 6,
+    8, 12, ... (a power of two or 1.5 times one): maps of similar free area share one compile."""
     cells = shape[0] * shape[1] if free_cells is None else max(1, int(free_cells))
     buckets = max(1.0, cells * resolution**2 / radius**2)
-    return 16 * max(1, int(math.ceil(2.0 * 3.0 * n_total / buckets / 16.0)))
+    units = max(1, int(math.ceil(2.0 * 3.0 * n_total / buckets / 16.0)))
+    p = 1 << (units.bit_length() - 1)  # the power of two at or below
+    return 16 * (p if units == p else 3 * p // 2 if units <= 3 * p // 2 and p > 1 else 2 * p)
 
 
 def _strip_cap(weights: np.ndarray, n_total: int, resolution: float, radius: float) -> int:
@@ -911,10 +915,12 @@ def _links_checked(
     sectors,
     table,
     factor=None,
+    reach=None,
 ):
     """:func:`_query_links` of queries ``starts``, ``goals`` (Q, 2) (float64, checked) on a
     checked ``blocked`` grid (numpy), its device copy and its host ``grid``, the distribution
-    already checked (a :class:`PRM`'s); ``table``: a clearance table for the queries' edges.
+    already checked (a :class:`PRM`'s); ``table``: a clearance table for the queries' edges;
+    ``reach``: the long edges' length rule (:func:`_query_samples`).
     The same links, made in two compiled calls with the host between them: the first reads
     every short edge's samples and the long edges' subsets, the host lists the long edges'
     uncovered intervals (a few hundred per query), the second reads those (padded to a power
@@ -924,7 +930,7 @@ def _links_checked(
         raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     dtype = roadmap.points.dtype
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
-    samples = _query_samples(float(radius), grid)
+    samples = _query_samples(float(radius), grid, reach)
     grid_s = static_grid(grid)
     q, nbr, short, clear_s, w, fa, fb, hit, unc = _links_coarse(
         roadmap,

@@ -124,7 +124,7 @@ def _sampling_weights(blocked, distribution):
     return jnp.where(jnp.sum(w) > 0, w, jnp.ones_like(w))
 
 
-def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
+def embed_local_distribution(local, center_cell, full_shape, outside_mass=None, on_map=None):
     """Embeds a robot-centred local distribution into the full map (thesis section 3.2.5).
 
     local: (h, w) probabilities (e.g. the network's 160 x 160 softmax), centred on the robot's
@@ -135,6 +135,11 @@ def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
     outside_mass: None (the thesis' rule above) or a share ``q`` in [0, 1) (a variant): the
     cells outside the window share ``q`` equally and the window's on-map cells keep the rest in
     their own proportions (when the window covers the whole map, the window alone, renormalised).
+
+    on_map: None (every cell of ``full_shape`` is the map's) or (2,) ints (rows, cols), maybe
+    traced: the map fills only those leading rows and columns of a padded ``full_shape`` (the
+    navigation loop pads maps to a size bucket so that one compiled program serves several
+    shapes); the padding gets no mass and is not counted among the cells outside the window.
     """
     local = jnp.asarray(local)
     h, w = local.shape
@@ -162,14 +167,21 @@ def embed_local_distribution(local, center_cell, full_shape, outside_mass=None):
         window = jax.lax.dynamic_update_slice(window, jnp.ones((h, w), bool), (r0, c0))[
             pad_r : pad_r + H, pad_c : pad_c + W
         ]
+    on = None
+    if on_map is not None:
+        lim = jnp.asarray(on_map, jnp.int32)
+        on = (jnp.arange(H, dtype=jnp.int32)[:, None] < lim[0]) & (jnp.arange(W, dtype=jnp.int32)[None, :] < lim[1])
+        full = jnp.where(on, full, 0.0)
     if outside_mass is None or window is None:
         return full / jnp.sum(full)
     q = jnp.asarray(outside_mass, local.dtype)
-    n_out = jnp.sum(~window)
+    outside = ~window if on is None else ~window & on
+    n_out = jnp.sum(outside)
     q = jnp.where(n_out > 0, q, 0.0)
     inner = jnp.where(window, full, 0.0)
     inner = inner / jnp.maximum(jnp.sum(inner), jnp.finfo(local.dtype).tiny)
-    return jnp.where(window, (1.0 - q) * inner, q / jnp.maximum(n_out, 1).astype(local.dtype))
+    out = jnp.where(window, (1.0 - q) * inner, q / jnp.maximum(n_out, 1).astype(local.dtype))
+    return out if on is None else jnp.where(on, out, 0.0)
 
 
 def _placed(local, center_cell, shape, fill):
