@@ -32,8 +32,10 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
+from jax.core import Tracer
 
 from ..quadrics import back_project, invert_pose
+from . import _aot
 from ._cost import (
     Delta,
     Normal,
@@ -175,9 +177,17 @@ def solve_batch(
     Returns:
       (estimate, info): the solved :class:`SlamEstimate` (radii positive) and :class:`SolveInfo`.
       With ``throw=False`` it never raises on failure; read ``info.result`` / ``info.success``.
+
+    Called outside a trace with ``init`` given, the Schur solve's traced program is kept on disk
+    next to JAX's persistent compilation cache (:mod:`jaxsem.slam._aot`; on for library calls,
+    ``JAXSEM_NO_COMPILATION_CACHE=1`` or ``jaxsem._cache.enable_compilation_cache`` with
+    ``enabled=False`` turns both off): a new process loads it and the compiled executable
+    instead of tracing and compiling the solver again.
     """
     if method == "schur":
-        return solve_schur(problem, init, config, throw=throw)
+        if throw or init is None:
+            return solve_schur(problem, init, config, throw=throw)
+        return _stored("solve_schur", solve_schur, problem, init, config)
     if method != "optimistix":
         raise ValueError(f"method: expected 'schur' or 'optimistix', got {method!r}")
     init = _cast(problem, initialize(problem, config) if init is None else init)
@@ -204,6 +214,25 @@ def solve_batch(
 
 # --------------------------------------------------------------------------------------------
 # Structured Levenberg-Marquardt: descent + search over _cost.linearize.
+
+
+_STORED: dict = {}  # (name, argument tree, avals) -> the callable of :func:`_aot.exported`
+
+
+def _stored(name: str, fn, problem: SlamProblem, init: SlamEstimate, config: SolverConfig):
+    """``fn(problem, init, config)`` (a jitted solve returning ``(estimate like init, SolveInfo)``)
+    through its traced program kept on disk (:func:`jaxsem.slam._aot.exported`), so that a new
+    process skips tracing the solver (most of a warm first call) when JAX's persistent
+    compilation cache is on; the plain jitted call inside a trace, or when the cache is off."""
+    leaves, tree = jax.tree_util.tree_flatten((problem, init, config))
+    if _aot.cache_folder() is None or any(isinstance(x, Tracer) for x in leaves):
+        return fn(problem, init, config)  # fn is jitted
+    key = (name, tree, tuple(_aot._aval(x) for x in leaves))
+    if key not in _STORED:
+        z = jnp.zeros(())
+        info = SolveInfo(RESULTS.successful, z, z, z, z, z, z, z)  # pyright: ignore[reportArgumentType]
+        _STORED[key] = _aot.exported(name, fn, (problem, init, config), (init, info))
+    return _STORED[key](problem, init, config)
 
 
 def _apply(est: SlamEstimate, dp, do) -> SlamEstimate:
@@ -498,4 +527,5 @@ def solve_many(
             f"problems, inits: expected every leaf batched along one leading axis, got leading sizes {sorted(map(str, sizes))}"
         )
     chosen = default_strategy() if strategy == "auto" else strategy
-    return _solve_many(problems, inits, config, chosen, method)
+    many = functools.partial(_solve_many, strategy=chosen, method=method)
+    return _stored(f"solve_many_{chosen}_{method}", many, problems, inits, config)

@@ -85,3 +85,15 @@ def test_twenty_stretches_compile_the_batch_solve_twice():
         _, info = solve(p, init(p, CFG), CFG)
         assert np.isfinite(float(info.cost))
     assert solve._cache_size() <= 2  # pyright: ignore[reportAttributeAccessIssue]
+
+
+@pytest.mark.slow
+def test_batch_solve_kept_on_disk_gives_the_same_answer(tmp_path):
+    problem, _ = slam.toy_map(0, num_objects=3, num_frames=6)
+    init = slam.initialize(problem, CFG)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path))  # conftest turns it off after
+    est, info = slam.solve_batch(problem, init, CFG)
+    assert list((tmp_path / "jaxsem-exports").glob("solve_schur-*.jaxexport"))
+    ref, ref_info = solve_schur(problem, init, CFG)
+    np.testing.assert_allclose(np.asarray(est.center), np.asarray(ref.center), rtol=0, atol=1e-12)
+    assert int(info.steps) == int(ref_info.steps) and bool(info.result == ref_info.result)
