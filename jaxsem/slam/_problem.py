@@ -680,16 +680,20 @@ def bucket_capacities(sizes, max_programs: int = 2, *, minimum: int = 8) -> list
         run = [own[order[i]] for i in range(a, b)]
         return max(c[0] for c in run), max(c[1] for c in run), max(c[2] for c in run)
 
-    def work(a, b):
-        return (b - a) * _padded_work(cap(a, b))
-
-    # best[g][b]: least work of order[:b] in g runs, and where its last run starts
+    # best[g][b]: least work of order[:b] in g runs, and where its last run starts; the last
+    # run's bucket grows as its start moves back (a running maximum: O(k n^2) in all)
     inf = float("inf")
     best = [[(inf, 0)] * (n + 1) for _ in range(k + 1)]
     best[0][0] = (0.0, 0)
-    for g in range(1, k + 1):
-        for b in range(1, n + 1):
-            best[g][b] = min(((best[g - 1][a][0] + work(a, b), a) for a in range(b)), default=(inf, 0))
+    for b in range(1, n + 1):
+        runs = []  # (a, work of order[a:b]) for a = b - 1 down to 0
+        T = M = J = 0
+        for a in range(b - 1, -1, -1):
+            c = own[order[a]]
+            T, M, J = max(T, c[0]), max(M, c[1]), max(J, c[2])
+            runs.append((a, (b - a) * _padded_work((T, M, J))))
+        for g in range(1, k + 1):
+            best[g][b] = min(((best[g - 1][a][0] + w, a) for a, w in runs), default=(inf, 0))
     g = min(range(1, k + 1), key=lambda g: best[g][n][0])
     out: list[tuple[int, int, int]] = [(0, 0, 0)] * n
     b = n
