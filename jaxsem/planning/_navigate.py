@@ -150,11 +150,27 @@ def _unpooled(dist, scale: int, shape):
 _embed_jit = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
 
 
+def _bucket_side(n: int, bucket: int) -> int:
+    """``n`` rounded up to the next rung of the ladder 32, 48, 64, 96, 128, 192, ... below
+    ``bucket`` (each rung 4/3 or 3/2 of the last: at most half again as many cells), to ``bucket``
+    itself, or, at or above ``bucket``, to a multiple of it."""
+    if bucket <= 1:
+        return n
+    if n >= bucket:
+        return -(-n // bucket) * bucket
+    rung = 32
+    while rung < n and rung < bucket:
+        rung = rung * 3 // 2 if rung & (rung - 1) == 0 else rung * 4 // 3
+    return min(max(rung, n), bucket)
+
+
 def bucket_shape(shape, bucket: int) -> tuple[int, int]:
-    """``shape`` (H, W) with each side rounded up to a multiple of ``bucket`` cells: the shape
-    the navigation loop's compiled steps see (:attr:`NavConfig.shape_bucket`)."""
+    """``shape`` (H, W) with each side rounded up to its size bucket: the shape the navigation
+    loop's compiled steps see (:attr:`NavConfig.shape_bucket`). A side below ``bucket`` cells goes
+    to the next of 32, 48, 64, 96, 128, 192, ... (so a small map is not padded to a large one's
+    size), a longer one to a multiple of ``bucket``."""
     b = max(1, int(bucket))
-    return (-(-int(shape[0]) // b) * b, -(-int(shape[1]) // b) * b)
+    return (_bucket_side(int(shape[0]), b), _bucket_side(int(shape[1]), b))
 
 
 def _padded(x, shape, fill) -> jax.Array:
@@ -239,8 +255,9 @@ class NavConfig:
     # unknown space)
     unknown_weight: float = 1.0
     reuse_roadmap: bool = True  # uniform sampler: keep the roadmap across replans
-    # The loop's compiled steps see the map padded at the bottom and right to a multiple of this
-    # many cells a side (the padding: known occupied, sensed as walls, no sampling mass), so maps
+    # The loop's compiled steps see the map padded at the bottom and right to its size bucket:
+    # a side below this many cells to the next of 32, 48, 64, 96, 128, 192, ..., a longer one to a
+    # multiple of it (the padding: known occupied, sensed as walls, no sampling mass), so maps
     # of different shapes in one bucket (and the same origin, resolution and radius) share one
     # compile; the trial's paths, maps and distributions are those of the unpadded map. 1: no
     # padding. A pooled sampler (sampler_scale > 1) sees the unpadded map.

@@ -7,8 +7,10 @@ from types import SimpleNamespace
 import jax
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from jaxsem.planning import OCCUPIED, NavConfig, Trial, navigate
+from jaxsem.planning._navigate import bucket_shape  # layers: white-box
 
 RES = 0.1
 CFG = NavConfig(n_samples=200, radius=1.5, max_steps=200)
@@ -38,16 +40,16 @@ def _run(world, sampler):
 @pytest.mark.slow  # two planners' whole loops compiled
 def test_two_map_shapes_in_one_bucket_share_every_compile(compiles):
     # (The suite runs without JAX's persistent cache: every program new to the process compiles.)
-    a, b = _room(60, 120), _room(75, 101)
+    a, b = _room(60, 120), _room(62, 114)  # both in the (64, 128) bucket
     for sampler in (None, _window_sampler):
         assert _run(a, sampler).success
         with compiles() as c:
             res = _run(b, sampler)
         assert res.success
         assert c.count == 0
-        assert res.final_state.occupancy.shape == (75, 101)
+        assert res.final_state.occupancy.shape == (62, 114)
         if sampler is not None:
-            assert res.last_distribution is not None and res.last_distribution.shape == (75, 101)
+            assert res.last_distribution is not None and res.last_distribution.shape == (62, 114)
             np.testing.assert_allclose(res.last_distribution.sum(), 1.0, rtol=1e-5)
 
 
@@ -66,3 +68,21 @@ def test_a_padded_trial_drives_the_unpadded_path():
         assert trial.state.occupancy.shape == (60, 120)
         paths.append(trial.result().path)
     np.testing.assert_array_equal(paths[0], paths[1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 3000), st.integers(1, 3000), st.sampled_from([1, 16, 100, 256]))
+def test_a_bucket_holds_its_map_without_padding_a_small_map_to_a_large_ones_size(h, w, bucket):
+    bh, bw = bucket_shape((h, w), bucket)
+    for n, b in ((h, bh), (w, bw)):
+        assert b >= n
+        if bucket == 1:
+            assert b == n
+        elif n >= bucket:
+            assert b % bucket == 0 and b - n < bucket
+        else:  # a small side grows by at most half again, or to the smallest rung
+            assert b <= max(32, (3 * n) // 2 + 1) and b <= bucket
+    assert bucket_shape((bh, bw), bucket) == (bh, bw)  # a bucket is its own bucket
+    # few buckets: every side from 1 to 3000 falls in one of a handful of sizes
+    sizes = {bucket_shape((n, n), bucket)[0] for n in range(1, 3001)}
+    assert bucket == 1 or len(sizes) <= 8 + 3000 // bucket
