@@ -2,7 +2,8 @@
 that the choices between R-CNN runs are made on.
 
     python benchmarks/volumon/volumon_rcnn_validation.py --data DATA/lmo/test/000002 \
-        --models lmo-rcnn runs/rcnn_augr runs/rcnn_lift8 [--frames 300 600] [--input-size 320,240]
+        --models lmo-rcnn runs/rcnn_augr runs/rcnn_lift8 [--frames 300 600] [--input-size 320,240] \
+        [--lift-at refined proposal]
 
 Each model (``lmo-rcnn``, an exported ``.npz`` or a training workdir's latest checkpoint) detects
 the photographs with frame ids in ``[--frames LO HI)`` (at most 600: the test split is never
@@ -40,6 +41,12 @@ def main(argv=None) -> int:
     p.add_argument("--models", nargs="+", required=True, help="lmo-rcnn, exported .npz files or training workdirs")
     p.add_argument("--frames", nargs=2, type=sc.nonnegative_int, default=[300, 600], metavar=("LO", "HI"))
     p.add_argument("--input-size", type=sc.image_size, help="W,H the networks read (default: each model's own)")
+    p.add_argument(
+        "--lift-at",
+        nargs="+",
+        choices=("refined", "proposal"),
+        help="score each model with each of these lift rules (default: each model's own)",
+    )
     output_arguments(p, "volumon_rcnn_validation")
     a = p.parse_args(argv)
     lo, hi = a.frames
@@ -57,13 +64,16 @@ def main(argv=None) -> int:
         p.error(f"--frames: no tuning photo with an id in [{lo}, {hi})")
     rows = {}
     for m in a.models:
-        loaded = rc.load_rcnn(m)
+        base = rc.load_rcnn(m)
         if size is not None:
-            loaded = rc.at_input_size(loaded, size)
-        cfg = loaded.config.model
-        r = rc.evaluate_detections(loaded.model, loaded.variables, df.frame_arrays(frames, cfg.input_size), cfg)
-        rows[m] = {k: r[k] for k in (*KEYS, "median_ray_error_m")} | {"step": loaded.meta.get("step")}
-        print(m, {k: round(v, 4) if isinstance(v, float) else v for k, v in rows[m].items()}, flush=True)
+            base = rc.configured(base, input_size=tuple(size))
+        for rule in a.lift_at or [None]:
+            loaded = base if rule is None else rc.configured(base, lift_at=rule)
+            cfg = loaded.config.model
+            r = rc.evaluate_detections(loaded.model, loaded.variables, df.frame_arrays(frames, cfg.input_size), cfg)
+            name = m if rule is None else f"{m} ({rule})"
+            rows[name] = {k: r[k] for k in (*KEYS, "median_ray_error_m")} | {"step": loaded.meta.get("step")}
+            print(name, {k: round(v, 4) if isinstance(v, float) else v for k, v in rows[name].items()}, flush=True)
     command = "python benchmarks/volumon/volumon_rcnn_validation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md = header("# VoluMon R-CNN models on tuning photos", command, utc_now(), machine())
     md += [f"Photos {lo}-{hi - 1} ({len(frames)}), objects at least half visible.", ""]

@@ -79,6 +79,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         type=sc.image_size,
         help="R-CNN only: run the network at this W,H (multiples of 16; default: the size it was trained at)",
     )
+    p.add_argument(
+        "--lift-at",
+        choices=("refined", "proposal"),
+        help="R-CNN only: the box whose features the lift reads, each RoI's refined box or the RoI itself "
+        "(default: the model's own setting)",
+    )
     add_class_mapping_argument(p, "BOP scene only")
     return p
 
@@ -164,11 +170,13 @@ def _rcnn_source(text: str | None, workdir):
 def _rcnn_figures(args, path) -> dict:
     """The detect-and-lift network's figures on a BOP scene (see the module docstring)."""
     from jaxsem.volumon import load_pretrained
-    from jaxsem.volumon.rcnn import at_input_size, evaluate_scene, load_rcnn
+    from jaxsem.volumon.rcnn import configured, evaluate_scene, load_rcnn
 
     loaded = load_rcnn(path)
     if args.input_size is not None:
-        loaded = at_input_size(loaded, args.input_size)
+        loaded = configured(loaded, input_size=tuple(args.input_size))
+    if args.lift_at is not None:
+        loaded = configured(loaded, lift_at=args.lift_at)
     parallel = load_pretrained(kind="lmo")
     from tqdm.auto import tqdm
 
@@ -325,8 +333,9 @@ def main(argv=None, prog: str | None = None) -> int:
     if bop and args.model is None and args.workdir is None:
         args.model = "lmo"  # a BOP scene's default: the model trained for real objects (and its oracle)
     is_rcnn, rcnn_path = _rcnn_source(args.model, args.workdir)
-    if args.input_size is not None and not is_rcnn:
-        raise sc.UsageError("--input-size: only with the R-CNN (--model lmo-rcnn or an R-CNN run)")
+    for flag, value in (("--input-size", args.input_size), ("--lift-at", args.lift_at)):
+        if value is not None and not is_rcnn:
+            raise sc.UsageError(f"{flag}: only with the R-CNN (--model lmo-rcnn or an R-CNN run)")
     if is_rcnn:
         if not bop:
             raise sc.UsageError(

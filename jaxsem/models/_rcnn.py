@@ -14,7 +14,9 @@ A two-stage detector in the style of Faster R-CNN with the VoluMon head of figur
 - **heads** on the RoI feature: class logits (background + N classes), class-agnostic box deltas,
   and the ``N x 10`` VoluMon free parameters (with the RoI's box features, as the VoluMon network
   reads its box), which :func:`reconstruct` turns into an ellipsoid given the detected box and the
-  intrinsics (eq. 5.17).
+  intrinsics (eq. 5.17). Outside training the VoluMon head reads by default the features
+  pooled a second time at each RoI's refined box, the box it is reconstructed in
+  (``RCNNConfig.lift_at``).
 
 The free parameters of a detection are the row of its class (*VoluMon R-CNN Multi-Class*) or the
 expectation under the predicted class probabilities (eq. 5.18, *Multi-Class Expectation*):
@@ -51,6 +53,7 @@ from ._volumon import (
 )
 
 PARAM_RULES = ("class", "expectation")
+LIFT_AT = ("refined", "proposal")
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
@@ -79,6 +82,10 @@ class RCNNConfig:
         features (twice the cells of the stride-16 map the detector reads: a 40-pixel object is 5
         cells, not 2.5), added to its first layer through a branch that starts at zero, so a model
         trained without it starts from the very same outputs.
+      lift_at: the box whose pooled features the VoluMon head reads outside training: "refined"
+        (each RoI's box after the head's regression, pooled a second time: the box the
+        ellipsoid is reconstructed in, as Mask R-CNN's mask head reads the detected boxes) or
+        "proposal" (the RoI itself, as in training).
     """
 
     num_classes: int = 8
@@ -102,6 +109,7 @@ class RCNNConfig:
         alpha_y=0.05, eps_s=0.01, depth_mode="absolute", min_depth=0.2, max_depth=2.5
     )
     lift_stride8: bool = False
+    lift_at: str = "refined"
 
     def __post_init__(self):
         if int(self.num_classes) < 1:
@@ -115,6 +123,8 @@ class RCNNConfig:
             raise ValueError(f"cnn_width: expected >= 1, got {self.cnn_width}")
         if self.lift_stride8 and self.backbone != "plain_cnn":
             raise ValueError("lift_stride8: needs backbone='plain_cnn' (its stride-8 stage)")
+        if self.lift_at not in LIFT_AT:
+            raise ValueError(f"lift_at: expected one of {LIFT_AT}, got {self.lift_at!r}")
         if self.param_rule not in PARAM_RULES:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
@@ -198,7 +208,9 @@ class RCNNOutput(NamedTuple):
     """What one forward pass gives (per image, batch leading).
 
     rpn_logits (B, A), rpn_deltas (B, A, 4): over the anchors; rois (B, R, 4) and roi_valid (B, R):
-    the RoIs the heads read; class_logits (B, R, N + 1); box_deltas (B, R, 4); phi (B, R, N, 10).
+    the RoIs the heads read; class_logits (B, R, N + 1); box_deltas (B, R, 4); phi (B, R, N, 10),
+    read at the RoIs in training and, by default, at their refined boxes outside it
+    (``RCNNConfig.lift_at``).
     """
 
     rpn_logits: jax.Array
@@ -285,30 +297,49 @@ class VoluMonRCNN(nn.Module):
             roi_valid = jnp.concatenate([roi_valid, extra_valid], 1)
         rois = jax.lax.stop_gradient(rois)
 
-        pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, rois)
-        h = pooled.reshape(pooled.shape[:2] + (-1,))
-        h = nn.relu(nn.Dense(cfg.hidden, name="roi_fc0")(h))
-        h = nn.relu(nn.Dense(cfg.hidden, name="roi_fc1")(h))
-        class_logits = nn.Dense(n + 1, name="cls_out")(h)
-        box_deltas = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")(h)
-        bf = box_features(rois, K[:, None]).astype(h.dtype)
-        v = nn.Dense(cfg.hidden, name="volumon_fc0")(jnp.concatenate([h, bf], -1))
-        if cfg.lift_stride8 and fine is not None:
-            p8 = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 8, 2))(fine, rois)
-            p8 = p8.reshape(p8.shape[:2] + (-1,))
-            # Scaled down: Adam moves every weight of a wide new layer by about the step size at
-            # once, which unscaled would throw the trained head far off in its first steps.
-            v = v + _LIFT8_SCALE * nn.Dense(cfg.hidden, kernel_init=nn.initializers.zeros, name="lift8_fc")(p8)
-        v = nn.relu(v)
+        fc0 = nn.Dense(cfg.hidden, name="roi_fc0")
+        fc1 = nn.Dense(cfg.hidden, name="roi_fc1")
+        cls_out = nn.Dense(n + 1, name="cls_out")
+        box_out = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")
+        lift0 = nn.Dense(cfg.hidden, name="volumon_fc0")
+        lift8 = nn.Dense(cfg.hidden, kernel_init=nn.initializers.zeros, name="lift8_fc") if cfg.lift_stride8 else None
         tiny = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
-        local = nn.Dense(
+        local_out = nn.Dense(
             9 * n,
             kernel_init=tiny,
             bias_init=_head_bias_init(n, "local", ROTATION_INITS[cfg.rotation_init]),
             name="phi_local",
-        )(v).reshape(v.shape[:-1] + (n, 9))
-        z = nn.Dense(n, kernel_init=tiny, name="phi_depth")(v)
-        phi = jnp.concatenate([local, z[..., None]], -1)
+        )
+        depth_out = nn.Dense(n, kernel_init=tiny, name="phi_depth")
+
+        def roi_feature(boxes):
+            pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, boxes)
+            h = pooled.reshape(pooled.shape[:2] + (-1,))
+            return nn.relu(fc1(nn.relu(fc0(h))))
+
+        def lift(h, boxes):
+            bf = box_features(boxes, K[:, None]).astype(h.dtype)
+            v = lift0(jnp.concatenate([h, bf], -1))
+            if lift8 is not None and fine is not None:
+                p8 = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 8, 2))(fine, boxes)
+                # Scaled down: Adam moves every weight of a wide new layer by about the step size
+                # at once, which unscaled would throw the trained head far off in its first steps.
+                v = v + _LIFT8_SCALE * lift8(p8.reshape(p8.shape[:2] + (-1,)))
+            v = nn.relu(v)
+            local = local_out(v).reshape(v.shape[:-1] + (n, 9))
+            return jnp.concatenate([local, depth_out(v)[..., None]], -1)
+
+        h = roi_feature(rois)
+        class_logits = cls_out(h)
+        box_deltas = box_out(h)
+        if cfg.lift_at == "refined" and not train:
+            # At test time the lift reads the features at the box it reconstructs in: each RoI's
+            # box refined by the head, pooled again (as Mask R-CNN's mask head reads the detected
+            # boxes). Training reads the RoIs themselves, which its losses reconstruct in.
+            refined = jax.lax.stop_gradient(_clip(decode_boxes(rois, box_deltas, HEAD_WEIGHTS), (W, H)))
+            phi = lift(roi_feature(refined), refined)
+        else:
+            phi = lift(h, rois)
         return RCNNOutput(rpn_logits, rpn_deltas, rois, roi_valid, class_logits, box_deltas, phi)
 
 

@@ -45,6 +45,7 @@ __all__ = [
     "evaluate_detections",
     "evaluate_scene",
     "at_input_size",
+    "configured",
     "average_models",
     "export_rcnn",
     "load_rcnn",
@@ -639,15 +640,29 @@ def average_models(models) -> LoadedModel:
     return LoadedModel(first.model, mean, first.config, {**first.meta, "averaged_steps": steps})
 
 
+#: The settings of :class:`RCNNConfig` that a trained network's weights do not depend on.
+TEST_TIME_SETTINGS = ("input_size", "lift_at", "score_threshold", "det_nms", "max_detections")
+
+
+def configured(loaded: LoadedModel, **settings) -> LoadedModel:
+    """The same network under other test-time settings (``TEST_TIME_SETTINGS``), e.g.
+    ``lift_at="proposal"`` or ``input_size=(W, H)`` (:func:`at_input_size`)."""
+    bad = sorted(set(settings) - set(TEST_TIME_SETTINGS))
+    if bad:
+        raise ValueError(f"settings: {bad} are not test-time settings of a trained network {TEST_TIME_SETTINGS}")
+    model_cfg = dataclasses.replace(loaded.config.model, **settings)
+    config = dataclasses.replace(loaded.config, model=model_cfg)
+    meta = {**loaded.meta, **{k: list(v) if isinstance(v, tuple) else v for k, v in settings.items()}}
+    return LoadedModel(VoluMonRCNN(model_cfg), loaded.variables, config, meta)
+
+
 def at_input_size(loaded: LoadedModel, input_size) -> LoadedModel:
     """The same network reading images of ``input_size`` ``(W, H)`` (multiples of 16): every
     layer is size-agnostic (convolutions, RoI pooling to a fixed grid), only the anchors and the
     feature map's shape change. Objects then appear at other pixel sizes than in training: the
     trade of speed against accuracy, measured by ``jaxsem volumon eval --input-size``."""
     W, H = (int(x) for x in input_size)
-    model_cfg = dataclasses.replace(loaded.config.model, input_size=(W, H))
-    config = dataclasses.replace(loaded.config, model=model_cfg)
-    return LoadedModel(VoluMonRCNN(model_cfg), loaded.variables, config, {**loaded.meta, "input_size": [W, H]})
+    return configured(loaded, input_size=(W, H))
 
 
 def _opt_like(config: RCNNTrainConfig, variables):
