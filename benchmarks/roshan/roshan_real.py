@@ -630,6 +630,7 @@ def parse_args(argv=None):
     p.add_argument(
         "--min-iou", type=sc.positive_float, default=0.3, help="with --detector: least box overlap continuing a track"
     )
+    p.add_argument("--min-views", type=sc.positive_int, default=3, help="with --detector: least detections of a track")
     p.add_argument(
         "--box-sigma",
         type=sc.positive_float,
@@ -703,7 +704,11 @@ def main(argv=None):
         if detector is not None:
             objects = seq.truth["objects"]
             seq_d = slam.detected_sequence(
-                seq, detect_sequence(detector, seq), min_iou=args.min_iou, min_score=args.min_score
+                seq,
+                detect_sequence(detector, seq),
+                min_iou=args.min_iou,
+                min_score=args.min_score,
+                min_views=args.min_views,
             )
             truth, track_counts = match_tracks(st, seq_d)
             found = {o["spell"] for o in truth}
