@@ -20,9 +20,11 @@ Strict settings for the whole suite (issue 23 item 6), optimistix-style:
   harder to read without catching a bug; the dtype rule above is the one that does.
 """
 
+import atexit
 import gc
 import os
 import pathlib
+import shutil
 import sys
 import tempfile
 
@@ -38,7 +40,17 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # Commands run by the tests write their run directories (config.json, summary.json) here, not in
 # the checkout's runs/.
-os.environ.setdefault("JAXSEM_RUNS_DIR", tempfile.mkdtemp(prefix="jaxsem_test_runs_"))
+_made_here = []  # the temporary folders this process made, removed when it exits
+
+
+def _temporary(name: str, prefix: str) -> None:
+    if name not in os.environ:
+        os.environ[name] = tempfile.mkdtemp(prefix=prefix)
+        _made_here.append(os.environ[name])
+
+
+atexit.register(lambda: [shutil.rmtree(d, ignore_errors=True) for d in _made_here])
+_temporary("JAXSEM_RUNS_DIR", "jaxsem_test_runs_")
 # LLVM's optimisation level 0 for the compiled CPU code: the suite is compile-bound, and this
 # makes the fast suite about a fifth quicker (the slow one, more of it long runs, a little). It
 # changes how the machine code is optimised, not the programs XLA builds, and the suite passes
@@ -47,12 +59,12 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --xla_back
 # Commands run in-process turn JAX's persistent compilation cache on: give the session its own
 # folder (never the user's ~/.cache/jaxsem, which other processes may be writing), and
 # _restore_compilation_cache below turns it off again after each test.
-os.environ.setdefault("JAXSEM_CACHE_DIR", tempfile.mkdtemp(prefix="jaxsem_test_cache_"))
+_temporary("JAXSEM_CACHE_DIR", "jaxsem_test_cache_")
 # ... and commands run by the tests (in-process or as subprocesses) leave it off unless a test asks
 # for it (tests/integration/test_run_dir.py deletes this variable to test the default).
 os.environ["JAXSEM_NO_COMPILATION_CACHE"] = "1"
 
-import jax
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", None)
