@@ -124,12 +124,12 @@ def _window_sampler(inputs):
     return jnp.asarray(p / p.sum(), jnp.float32)
 
 
-@pytest.mark.slow  # compiles the loop twice on a generated building (about a minute)
+@pytest.mark.slow  # compiles the loop twice on a generated building (minutes)
 def test_fast_loop_drives_the_old_loops_paths(monkeypatch):
     # The same trials with the old mechanisms (a full copy of the maps at every look, the
     # brute-force search over every slot, fused grid reads): identical paths, step for step.
     b = generate_building(5, "train")
-    tasks = sample_tasks(b, "II", 3, 4, min_distance=8.0)
+    tasks = sample_tasks(b, "II", 2, 4, min_distance=8.0)
     cfg = NavConfig(n_samples=300, max_steps=400)
 
     def drive():
