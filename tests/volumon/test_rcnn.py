@@ -167,7 +167,9 @@ def test_detector_learns_a_few_frames_to_ap_one(optax_promotion):
     for i in range(400):
         params, stats, opt, terms = step(params, stats, opt, batch, jnp.asarray(i))
     assert all(np.isfinite(float(x)) for x in terms.values())
-    d = detect(model.apply({"params": params, "batch_stats": stats}, batch["image"], batch["K"]), batch["K"], TINY)
+    d = jax.jit(lambda vv, img, K: detect(model.apply(vv, img, K), K, TINY))(
+        {"params": params, "batch_stats": stats}, batch["image"], batch["K"]
+    )
     ok = np.asarray(d.valid)
     img = np.nonzero(ok)[0]
     dets = (img, np.asarray(d.box)[ok], np.asarray(d.class_id)[ok], np.asarray(d.score)[ok])
