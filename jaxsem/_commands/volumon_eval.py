@@ -172,11 +172,8 @@ def _rcnn_figures(args, path) -> dict:
     from jaxsem.volumon import load_pretrained
     from jaxsem.volumon.rcnn import configured, evaluate_scene, load_rcnn
 
-    loaded = load_rcnn(path)
-    if args.input_size is not None:
-        loaded = configured(loaded, input_size=tuple(args.input_size))
-    if args.lift_at is not None:
-        loaded = configured(loaded, lift_at=args.lift_at)
+    settings = {"input_size": args.input_size and tuple(args.input_size), "lift_at": args.lift_at}
+    loaded = configured(load_rcnn(path), **{k: v for k, v in settings.items() if v is not None})
     parallel = load_pretrained(kind="lmo")
     from tqdm.auto import tqdm
 

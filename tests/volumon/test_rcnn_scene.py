@@ -95,3 +95,21 @@ def test_centre_miss_split_into_distance_and_direction():
         err, depth, ray = rcnn.centre_errors(turned, g)
         assert depth == pytest.approx(0.0, abs=1e-12) and ray == pytest.approx(err)
         assert err == pytest.approx(2 * np.hypot(g[0], g[2]) * np.sin(a / 2))  # the chord about y
+
+
+def test_eval_command_hands_the_rcnn_its_test_time_settings(run_cli, tmp_path, monkeypatch):
+    scene = _scene(tmp_path)
+    run = ["volumon", "eval", "--data", str(scene), "--split", "tune"]
+    status, _, err = run_cli(run + ["--model", "lmo", "--lift-at", "proposal"])
+    assert status == 2 and "--lift-at: only with the R-CNN" in err.strip().splitlines()[-1]
+    seen = []
+
+    def scored(loaded, *args, **kwargs):
+        seen.append(loaded.config.model)
+        raise SystemExit(0)  # the settings are what is checked, not the scoring
+
+    monkeypatch.setattr(rcnn, "evaluate_scene", scored)
+    run = run + ["--model", "lmo-rcnn"]
+    run_cli(run + ["--lift-at", "proposal", "--input-size", "256,192", "--json", str(tmp_path / "a.json")])
+    run_cli(run + ["--json", str(tmp_path / "b.json")])
+    assert [(c.lift_at, tuple(c.input_size)) for c in seen] == [("proposal", (256, 192)), ("refined", (320, 240))]
