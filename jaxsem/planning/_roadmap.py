@@ -470,39 +470,11 @@ def _query_links(
     return q, nbr, ev, w
 
 
-def _connect_impl(
-    rm,
-    start,
-    goal,
-    blocked,
-    distribution,
-    grid,
-    *,
-    radius,
-    edge_samples,
-    long_samples,
-    neglogp,
-    sectors=0,
-    aids=None,
-    factor=None,
-):
+def _connect_impl(rm, start, goal, blocked, distribution, grid, **links):
     """A query's start and goal linked (module docstring) on ``grid`` (:func:`static_grid` under
-    jit); ``edge_samples``, ``long_samples``: :func:`_query_samples` of the radius (static)."""
-    q, nbr, ev, w = _query_links(
-        rm,
-        start[None],
-        goal[None],
-        blocked,
-        distribution,
-        grid,
-        radius=radius,
-        edge_samples=edge_samples,
-        long_samples=long_samples,
-        neglogp=neglogp,
-        sectors=sectors,
-        aids=aids,
-        factor=factor,
-    )
+    jit): :func:`_query_links` of the one query (``links``: its keywords; ``edge_samples``,
+    ``long_samples``: :func:`_query_samples` of the radius, static), written into rows 0 and 1."""
+    q, nbr, ev, w = _query_links(rm, start[None], goal[None], blocked, distribution, grid, **links)
     return _with_query(rm, q[0], nbr[0], ev[0], w[0])
 
 
