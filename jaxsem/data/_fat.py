@@ -95,7 +95,30 @@ def right_T_left(baseline: float = FAT_BASELINE) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True)
-class FatAnnotation:
+class _FatLabels:
+    """The labels of one stereo frame that both :class:`FatAnnotation` and :class:`FatFrame` hold
+    (each documents them); a frame carries these of its annotation."""
+
+    path: pathlib.Path
+    K: np.ndarray
+    baseline: float
+    right_T_left: np.ndarray
+    class_names: tuple
+    boxes_left: np.ndarray
+    boxes_right: np.ndarray
+    has_right_box: np.ndarray
+    rotation: np.ndarray
+    center: np.ndarray
+    dimensions: np.ndarray
+    visibility: np.ndarray
+
+    @property
+    def num_objects(self) -> int:
+        return len(self.class_names)
+
+
+@dataclasses.dataclass(frozen=True)
+class FatAnnotation(_FatLabels):
     """The labels of one stereo frame (no images). ``n`` objects, jaxsem conventions.
 
     Attributes:
@@ -111,29 +134,13 @@ class FatAnnotation:
       visibility: (n,) the exporter's visible fraction (1 where absent).
     """
 
-    path: pathlib.Path
-    K: np.ndarray
-    baseline: float
-    right_T_left: np.ndarray
-    class_names: tuple
-    boxes_left: np.ndarray
-    boxes_right: np.ndarray
-    has_right_box: np.ndarray
-    rotation: np.ndarray
-    center: np.ndarray
-    dimensions: np.ndarray
     has_right: np.ndarray
     rotation_right: np.ndarray
     center_right: np.ndarray
-    visibility: np.ndarray
-
-    @property
-    def num_objects(self) -> int:
-        return len(self.class_names)
 
 
 @dataclasses.dataclass(frozen=True)
-class FatFrame:
+class FatFrame(_FatLabels):
     """One stereo frame in jaxsem conventions. ``n`` objects, image ``H x W``.
 
     Attributes:
@@ -152,32 +159,15 @@ class FatFrame:
         ``shape``), from ``_object_settings.json``.
     """
 
-    path: pathlib.Path
     image: np.ndarray
     right_image: np.ndarray | None
     depth: np.ndarray
     seg: np.ndarray
-    K: np.ndarray
-    baseline: float
-    right_T_left: np.ndarray
-    class_names: tuple
     segmentation_ids: np.ndarray
-    boxes_left: np.ndarray
-    boxes_right: np.ndarray
-    has_right_box: np.ndarray
-    rotation: np.ndarray
-    center: np.ndarray
-    dimensions: np.ndarray
-    visibility: np.ndarray
     extra: tuple = ()
 
-    @property
-    def num_objects(self) -> int:
-        return len(self.class_names)
 
-
-_ANNOTATION_FIELDS = frozenset(f.name for f in dataclasses.fields(FatAnnotation))
-_FRAME_FIELDS = frozenset(f.name for f in dataclasses.fields(FatFrame))
+_LABEL_FIELDS = tuple(f.name for f in dataclasses.fields(_FatLabels))
 
 
 def _read_json(path: pathlib.Path) -> dict:
@@ -468,8 +458,7 @@ class FatSequence(Sequence[FatFrame]):
         seg = np.full(raw_seg.shape, -1, np.int32)
         for i, sid in enumerate(seg_ids):
             seg[raw_seg == sid] = i
-        # The frame carries every label of its annotation that it has a field for.
-        labels = {name: getattr(ann, name) for name in _FRAME_FIELDS & _ANNOTATION_FIELDS}
+        labels = {name: getattr(ann, name) for name in _LABEL_FIELDS}
         return FatFrame(
             **labels,
             image=image,
