@@ -5,6 +5,7 @@ visible surface, and an end-to-end run on a tiny BOP scene the test writes (slow
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -323,12 +324,15 @@ def test_heading_starts_keep_per_object_the_start_with_the_lowest_cost():
     # a small toy map: the heading starts end no worse than the single start on the total cost
     problem, _ = slam.toy_map(0, num_objects=3, num_frames=10)
     config = slam.SolverConfig()
-    init = slam.initialize(problem, config)
+    # the initialisation and the cost jitted (op by op they compiled some hundreds of small
+    # programs); solve_yaw_starts's final joint solve reuses the compiled single solve
+    init = jax.jit(slam.initialize)(problem, config)
     single, _ = solve_schur(problem, init, config)
     est, info, start = solve_yaw_starts(problem, init, config, yaws_deg=(0.0, 90.0))
     J = problem.object_class.shape[0]
     assert start.shape == (J,) and set(np.asarray(start).tolist()) <= {0, 1}
-    cost = lambda e: float(slam.total_cost(problem, e, config))
+    total_cost = jax.jit(lambda e: slam.total_cost(problem, e, config))
+    cost = lambda e: float(total_cost(e))
     assert np.isfinite(cost(est)) and cost(est) <= cost(single) * 1.05
     with pytest.raises(ValueError, match="yaws_deg"):
         solve_yaw_starts(problem, init, config, yaws_deg=())
