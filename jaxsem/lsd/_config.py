@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from .._checks import check_fields
 from ..config import Presets
 from ..models import LSDConfig
 
@@ -62,12 +63,8 @@ class TrainConfig:
     init_from: str = ""
 
     def __post_init__(self):
-        for name in ("stage1_steps", "stage2_steps"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
-        for name in ("batch_size", "eval_every", "checkpoint_every", "keep"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        check_fields(self, ("stage1_steps", "stage2_steps"), ">= 0", lambda v: v >= 0)
+        check_fields(self, ("batch_size", "eval_every", "checkpoint_every", "keep"), ">= 1", lambda v: v >= 1)
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction: expected in [0, 1), got {self.val_fraction}")
         if self.lr_schedule not in ("constant", "cosine"):

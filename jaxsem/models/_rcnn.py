@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._checks import check_fields
 from ..quadrics import Ellipsoid, box_iou
 from ._detect import nms, roi_align
 from ._mobilenet import ConvBN, InvertedResidual, block_layout, make_divisible
@@ -129,9 +130,9 @@ class RCNNConfig:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
             raise ValueError(f"rotation_init: expected one of {tuple(ROTATION_INITS)}, got {self.rotation_init!r}")
-        for name in ("pre_nms", "proposals", "roi_size", "hidden", "max_detections"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        check_fields(
+            self, ("pre_nms", "proposals", "roi_size", "hidden", "max_detections"), ">= 1", lambda v: int(v) >= 1
+        )
         if (
             not self.anchor_sizes
             or not self.aspect_ratios

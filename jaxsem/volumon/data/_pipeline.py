@@ -41,6 +41,7 @@ from collections.abc import Iterator, Sequence
 import cv2
 import numpy as np
 
+from ..._checks import check_fields
 from ...data import FatFrame, FatSequence
 
 __all__ = [
@@ -95,12 +96,10 @@ class PipelineConfig:
     def __post_init__(self):
         if not 0 < self.image_scale <= 1:
             raise ValueError(f"PipelineConfig.image_scale: expected in (0, 1], got {self.image_scale}")
-        for name in ("patch_size", "global_size", "n_points", "max_points_per_object"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"PipelineConfig.{name}: expected a positive integer, got {getattr(self, name)}")
-        for name in ("global_margin", "global_margin_px", "box_noise", "hue_jitter", "saturation_jitter", "erode_mask"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"PipelineConfig.{name}: expected >= 0, got {getattr(self, name)}")
+        counts = ("patch_size", "global_size", "n_points", "max_points_per_object")
+        check_fields(self, counts, "a positive integer", lambda v: int(v) >= 1, prefix="PipelineConfig.")
+        margins = ("global_margin", "global_margin_px", "box_noise", "hue_jitter", "saturation_jitter", "erode_mask")
+        check_fields(self, margins, ">= 0", lambda v: v >= 0, prefix="PipelineConfig.")
         if not 0 <= self.erase_prob <= 1:
             raise ValueError(f"PipelineConfig.erase_prob: expected in [0, 1], got {self.erase_prob}")
         lo, hi = self.erase_scale
