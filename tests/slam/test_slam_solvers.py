@@ -158,7 +158,7 @@ def test_online_matches_batch_and_never_recompiles(compiles):
     online = slam.online_estimate(state)
     graph = state.problem
     assert int(graph.box_mask.sum()) == int(problem.box_mask.sum())
-    c_online = float(slam.total_cost(graph, online, cfg))
+    c_online = float(jax.jit(slam.total_cost)(graph, online, cfg))  # op by op: hundreds of small compiles
     # The batch reference: a full solve of the same factors from the single-view initialisation.
     est, info = jax.jit(lambda p: solve_schur(p, slam.initialize(p, cfg), cfg))(graph)
     c_batch = float(info.cost)
