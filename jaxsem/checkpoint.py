@@ -43,6 +43,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
@@ -122,6 +123,22 @@ def _abstract(target: Any) -> Any:
     return jax.tree.map(leaf, target)
 
 
+def _like(restored: Any, target: Any) -> Any:
+    """``restored`` as the kind of array ``target`` is: orbax hands back arrays committed to a
+    device and never weak-typed, and ``jit`` keys its programs on both, so a resumed run would
+    compile its step again for a state that differs only in that. An uncommitted target gets an
+    uncommitted array, a weak-typed scalar (a Python number in the state) a weak-typed one; every
+    other leaf is returned as orbax restored it."""
+    if not isinstance(target, jax.Array) or target.committed:
+        return restored
+    value = np.asarray(restored)
+    if target.weak_type and target.ndim == 0:
+        weak = jnp.asarray(value.item())  # a Python scalar: weak-typed, the default dtype of its kind
+        if weak.dtype == target.dtype:
+            return weak
+    return jnp.asarray(value, dtype=target.dtype)
+
+
 class Checkpointer:
     """Save / restore a pytree train state under ``directory/<step>/``.
 
@@ -184,7 +201,9 @@ class Checkpointer:
         return bool(saved)
 
     def restore(self, target: Any, step: int | None = None) -> Any:
-        """Restore ``step`` (default: the latest) into the structure of ``target``.
+        """Restore ``step`` (default: the latest) into the structure of ``target`` (its leaves as
+        ``target``'s are: uncommitted and weak-typed where they are, so a jitted step does not compile
+        again for the restored state).
 
         Raises:
           CheckpointError: no checkpoint in the directory, the step is absent, or the stored
@@ -204,12 +223,13 @@ class Checkpointer:
             )
         try:
             with quiet_orbax():
-                return self._manager.restore(step, args=ocp.args.StandardRestore(_abstract(target)))
+                restored = self._manager.restore(step, args=ocp.args.StandardRestore(_abstract(target)))
         except Exception as exc:  # orbax raises many types (ValueError, KeyError, OSError, ...)
             raise CheckpointError(
                 f"could not restore checkpoint {str(path)!r} (corrupt, or its tree does not match the "
                 f"target): {type(exc).__name__}: {exc}"
             ) from exc
+        return jax.tree.map(_like, restored, target)
 
     def wait_until_finished(self) -> None:
         self._manager.wait_until_finished()

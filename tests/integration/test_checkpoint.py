@@ -92,3 +92,25 @@ def test_bad_arguments(tmp_path):
     with pytest.raises(CheckpointError, match="file"):
         Checkpointer(f)
     shutil.rmtree(tmp_path / "ck", ignore_errors=True)
+
+
+def test_a_restored_state_runs_the_jitted_step_it_was_saved_from_without_compiling(tmp_path, compiles):
+    # A train state as a fresh run holds it: uncommitted arrays, and a Python number (weak-typed).
+    params = {"w": jnp.ones((3,), jnp.float32)}
+    state = {
+        "params": params,
+        "opt": optax.adam(1e-3).init(params),
+        "step": jnp.asarray(0, jnp.int32),
+        "lr": jnp.asarray(1e-3),
+    }
+    step = jax.jit(lambda s: jax.tree.map(lambda x: x + 1, s))
+    state = step(state)
+    with Checkpointer(tmp_path / "ck") as ckpt:
+        ckpt.save(1, state)
+        restored = ckpt.restore(state)
+    _assert_tree_equal(restored, state)
+    for a, b in zip(jax.tree.leaves(restored), jax.tree.leaves(state)):
+        assert (a.dtype, a.weak_type, a.committed) == (b.dtype, b.weak_type, b.committed)
+    with compiles() as c:
+        jax.block_until_ready(step(restored))
+    assert c.count == 0
