@@ -40,6 +40,10 @@ __all__ = ["cache_folder", "exported"]
 
 _FOLDER = "jaxsem-exports"
 _KEEP = 16  # programs kept per name (each about 150 kB for the online step)
+#: Programs already loaded in this process, by file: a second call of :func:`exported` for the same
+#: program reuses its jitted call instead of reading, lowering and fetching the executable again.
+_LOADED: dict[str, Callable] = {}
+_LOADED_MAX = 64
 
 
 def cache_folder() -> pathlib.Path | None:
@@ -127,17 +131,22 @@ def exported(name: str, fn: Callable, args: tuple, out_like: Any, folder: pathli
         leaves, tree = jax.tree_util.tree_flatten(tuple(args))
         out_tree = jax.tree_util.tree_structure(out_like)
         path = folder / f"{name}-{_key(name, leaves, tree)}.jaxexport"
-        exp = None
-        if path.exists():
-            try:  # JAX's own format (flatbuffers): loading runs no code, unlike a pickle
-                exp = jax.export.deserialize(bytearray(path.read_bytes()))
-            except Exception:
-                path.unlink(missing_ok=True)
-        if exp is None:
-            exp = _export(fn, leaves, tree)
-            _save(path, bytes(exp.serialize()))
-            _evict(folder, name, keep=_KEEP)
-        call = jax.jit(exp.call)
+        call = _LOADED.get(str(path))
+        if call is None:
+            exp = None
+            if path.exists():
+                try:  # JAX's own format (flatbuffers): loading runs no code, unlike a pickle
+                    exp = jax.export.deserialize(bytearray(path.read_bytes()))
+                except Exception:
+                    path.unlink(missing_ok=True)
+            if exp is None:
+                exp = _export(fn, leaves, tree)
+                _save(path, bytes(exp.serialize()))
+                _evict(folder, name, keep=_KEEP)
+            call = jax.jit(exp.call)
+            if len(_LOADED) >= _LOADED_MAX:
+                _LOADED.pop(next(iter(_LOADED)))
+            _LOADED[str(path)] = call
     except Exception:
         return plain
 

@@ -84,6 +84,7 @@ def test_exported_program_is_saved_reloaded_and_identical(tmp_path, monkeypatch)
         raise AssertionError("traced again although the program was on disk")
 
     monkeypatch.setattr(_aot, "_export", no_trace)
+    monkeypatch.setattr(_aot, "_LOADED", {})  # a fresh process: nothing loaded yet
     again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     plain = jax.jit(_toy_step)
     for final in (np.asarray(False), np.asarray(True)):
@@ -93,17 +94,31 @@ def test_exported_program_is_saved_reloaded_and_identical(tmp_path, monkeypatch)
         assert isinstance(again(state, frame, final), _Toy)
 
 
-def test_exported_falls_back_on_a_bad_file_or_another_static_configuration(tmp_path):
+def test_exported_falls_back_on_a_bad_file_or_another_static_configuration(tmp_path, monkeypatch):
     state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
     _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     (path,) = tmp_path.iterdir()
     path.write_bytes(b"not a serialised program")
+    monkeypatch.setattr(_aot, "_LOADED", {})  # a fresh process reads the bad file
     again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
     assert _leaves_equal(jax.jit(_toy_step)(state, frame, flag), again(state, frame, flag))
     other = _Toy(state.x, state.n, 3)  # another static field: another tree, the plain jit path
     assert _leaves_equal(jax.jit(_toy_step)(other, frame, flag), again(other, frame, flag))
     # Without a folder (JAX's persistent cache off) it is jax.jit itself.
     assert _aot.cache_folder() is None or _aot.cache_folder().name == "jaxsem-exports"
+
+
+def test_a_second_load_in_one_process_reuses_the_loaded_program(tmp_path, compiles):
+    # run_sequence asks for its step on every call: the second time in a process, nothing is read,
+    # lowered or compiled again.
+    state, frame, flag = _Toy(jnp.arange(3.0), jnp.asarray(0, jnp.int32), 2), jnp.ones(3), np.asarray(False)
+    first = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+    jax.block_until_ready(first(state, frame, flag))
+    with compiles() as c:
+        again = _aot.exported("toy", _toy_step, (state, frame, flag), state, folder=tmp_path)
+        out = jax.block_until_ready(again(state, frame, flag))
+    assert c.count == 0
+    assert _leaves_equal(jax.jit(_toy_step)(state, frame, flag), out)
 
 
 def test_exported_keeps_only_the_newest_programs(tmp_path, monkeypatch):
