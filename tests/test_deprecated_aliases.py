@@ -51,3 +51,24 @@ def test_the_project_never_imports_the_old_paths():
             if old.search(path.read_text()):
                 offenders.append(str(path.relative_to(root)))
     assert offenders == []
+
+
+def test_load_image_left_the_slam_face_for_the_sequence_method(tmp_path):
+    import cv2
+    import numpy as np
+
+    from jaxsem import slam
+    from jaxsem.slam._sequence_types import Sequence, SequenceFrame
+
+    rgb = np.zeros((6, 8, 3), np.uint8)
+    rgb[..., 0] = 200  # red, so a channel order mix-up shows
+    cv2.imwrite(str(tmp_path / "f.png"), rgb[..., ::-1])
+    frame = SequenceFrame(np.eye(4), np.zeros((0, 4)), (), (), np.zeros(0), image="f.png")
+    seq = Sequence(np.eye(3), (8, 6), (frame,), root=tmp_path)
+    assert "load_image" not in dir(slam)
+    with pytest.warns(DeprecationWarning, match=re.escape("sequence.image(t)")):
+        old = slam.load_image
+    np.testing.assert_array_equal(old(seq, 0), seq.image(0))
+    np.testing.assert_array_equal(seq.image(0), rgb)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        slam.no_such_name

@@ -298,7 +298,7 @@ class VolumonInit:
             new = [k for k, i in enumerate(fr.ids) if i not in done]
             if not new:
                 continue
-            img = slam.load_image(seq, t)
+            img = seq.image(t)
             W, H = seq.image_size
             boxes = np.clip(fr.boxes[new], -0.5, [W - 0.5, H - 0.5, W - 0.5, H - 0.5])
             local, glob = self.prepare(
@@ -343,7 +343,7 @@ def detect_sequence(detector, seq):
     """The network's detections of every frame of ``seq`` (camera-frame ellipsoids)."""
     out = []
     for t in range(len(seq.frames)):
-        d = rcnn.detect_image(detector, slam.load_image(seq, t), seq.K)
+        d = rcnn.detect_image(detector, seq.image(t), seq.K)
         keep = np.array([c in seq.classes for c in d["class_name"]], bool)
         out.append({k: ([c for c, ok in zip(v, keep) if ok] if k == "class_name" else v[keep]) for k, v in d.items()})
     return out
@@ -923,7 +923,7 @@ def figures(folder, figs, scene):
     picks = np.linspace(0, len(seq.frames) - 1, 3).round().astype(int)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, t in zip(axes, picks):
-        img = slam.load_image(seq, int(t))
+        img = seq.image(int(t))
         present = [j for j, i in enumerate(ids) if i in seq.frames[t].ids]
         for ellipsoid, color in (
             (quadrics.Ellipsoid(tR[present], tC[present], tr[present]), "lime"),

@@ -223,7 +223,7 @@ def _detected(args, sequence):
     loaded = rcnn.load_rcnn(args.detector)
     dets = []
     for t in range(len(sequence.frames)):
-        image = slam.load_image(sequence, t)
+        image = sequence.image(t)
         if image is None:
             raise ValueError(f"frames[{t}].image: --detector reads every frame's image; this frame names none")
         dets.append(rcnn.detect_image(loaded, image, sequence.K))
@@ -356,7 +356,7 @@ def main(argv=None, prog: str | None = None) -> int:
         if path is not None and not cv2.haveImageReader(str(path)):
             raise ValueError(f"frames[{t}].image: cannot read image file {str(path)!r} (not an image format)")
     picks = np.unique(np.linspace(0, n - 1, max(args.overlays, 0)).round().astype(int)) if args.overlays else []
-    images = {int(t): slam.load_image(sequence, int(t)) for t in picks}
+    images = {int(t): sequence.image(int(t)) for t in picks}
 
     def progress(t, state, seconds):
         if not args.quiet:

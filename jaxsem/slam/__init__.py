@@ -18,7 +18,7 @@ What a user calls, by job:
   :func:`run_sequence` (it over a sequence), :func:`initialize`;
 - the cost: :func:`residual_blocks`, :func:`total_cost` (the factors are :mod:`jaxsem.factors`'s);
 - sequences and the front end: :func:`load_sequence`, :func:`save_sequence`,
-  :func:`load_tum_sequence`, :func:`load_image`, :class:`FrontEndConfig`,
+  :func:`load_tum_sequence` (a frame's image: ``sequence.image(t)``), :class:`FrontEndConfig`,
   :func:`measure_texture`, :func:`map_to_json`; a detector's output as tracks:
   :func:`associate_detections`, :func:`detected_sequence`;
 - BOP sequences: :func:`find_stretches`, :func:`stretch_sequence`, :func:`user_class_table`;
@@ -27,13 +27,15 @@ What a user calls, by job:
 A problem keeps the class table it was built with (``make_problem(..., classes=ClassTable)``,
 :class:`jaxsem.classes.ClassTable`); odometry between consecutive poses is
 ``make_problem(..., odometry=...)`` (between factors, :func:`jaxsem.factors.between_residual`;
-the batch solvers handle it, the online smoother does not yet). Objects without a depth
+the batch solvers and ``online_init(..., odometry=True)`` handle it). Objects without a depth
 measurement start where their class size matches their box (``SolverConfig.depth_from_box``).
 
 The building blocks (the Schur solver's pieces, the cost's rows, retractions, result codes, the
 OpenCV front end's classes, ...) stay importable from their private modules, e.g.
 ``jaxsem.slam._cost``, for tests and benchmarks.
 """
+
+import warnings as _warnings
 
 from ._associate import (  # a detector's output into tracks
     associate_detections as associate_detections,
@@ -78,7 +80,7 @@ from ._results import result_message as result_message
 from ._run_sequence import run_sequence as run_sequence  # the online smoother over a sequence
 from ._schur import SchurLevenbergMarquardt as SchurLevenbergMarquardt
 from ._sequence import (  # sequence directories (JSON layout)
-    load_image as load_image,
+    load_image as _load_image,
     load_sequence as load_sequence,
     noise_model as noise_model,
     save_sequence as save_sequence,
@@ -88,3 +90,16 @@ from ._solve_maps import solve_maps as solve_maps  # a batch of maps over every 
 from ._solver_config import SolverConfig as SolverConfig, baseline_config as baseline_config
 from ._toy import toy_map as toy_map
 from ._tum import load_tum_sequence as load_tum_sequence
+
+
+def __getattr__(name: str):
+    # Names that left the face, for one release.
+    if name == "load_image":
+        _warnings.warn(
+            "jaxsem.slam.load_image(sequence, t) is now the method sequence.image(t); "
+            "the old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return _load_image
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

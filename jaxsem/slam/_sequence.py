@@ -65,11 +65,10 @@ import json
 import math
 import pathlib
 
-import cv2
 import numpy as np
 
 from .. import classes as _classes, factors
-from .._files import MAX_PIXELS, image_size as _image_size, read_text
+from .._files import MAX_PIXELS, read_text
 from ._sequence_checks import _parse
 from ._sequence_types import (
     FORMAT_TAG,
@@ -210,28 +209,8 @@ def save_sequence(sequence: Sequence, directory) -> pathlib.Path:
 
 
 def load_image(sequence: Sequence, index: int, *, max_pixels: int = MAX_PIXELS):
-    """RGB image (H, W, 3) uint8 of frame ``index``, or None when the frame names none.
-
-    Raises ValueError naming the file when it cannot be read, its header declares more than
-    ``max_pixels`` pixels (default 8192 x 8192) or a size that is not ``image_size``: both
-    checked before any pixel is decoded.
-    """
-    path = sequence.image_path(index)
-    if path is None:
-        return None
-    try:
-        width, height = _image_size(path, max_pixels=max_pixels)
-    except ValueError as exc:
-        raise ValueError(f"frames[{index}].image: {exc}") from None
-    if (width, height) != tuple(sequence.image_size):
-        raise ValueError(
-            f"frames[{index}].image: {str(path)!r} is {width}x{height}, expected "
-            f"image_size {sequence.image_size[0]}x{sequence.image_size[1]}"
-        )
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ValueError(f"frames[{index}].image: cannot read image file {str(path)!r}")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    """Deprecated: ``sequence.image(index)`` (:meth:`Sequence.image`)."""
+    return sequence.image(index, max_pixels=max_pixels)
 
 
 def sequence_from_simulation(sim_map, image_size) -> Sequence:

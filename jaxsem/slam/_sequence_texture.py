@@ -10,7 +10,6 @@ import numpy as np
 
 from ._frontend import FrontEnd
 from ._frontend_vision import triangulate_points
-from ._sequence import load_image
 from ._sequence_types import Sequence
 
 __all__ = ["measure_texture", "support_height"]
@@ -38,9 +37,7 @@ def measure_texture(sequence: Sequence, config=None):
         bad = [i for i in fr.ids if not isinstance(i, (int, np.integer)) or isinstance(i, bool) or i < 0]
         if bad:
             raise ValueError(f"frames[{t}].ids: the front end needs non-negative int ids, got {bad[0]!r}")
-        dets = fe.process(
-            load_image(sequence, t), fr.camera_T_world, fr.boxes, list(fr.classes), track_ids=list(fr.ids)
-        )
+        dets = fe.process(sequence.image(t), fr.camera_T_world, fr.boxes, list(fr.classes), track_ids=list(fr.ids))
         depth = np.array([np.nan if d.texture_depth is None else d.texture_depth for d in dets], np.float64)
         frames.append(dataclasses.replace(fr, texture_depth=depth.reshape(len(fr.ids))))
         out.append(dets)
@@ -94,7 +91,7 @@ def support_height(
     orb = cv2.ORB.create(nfeatures=int(max_features), fastThreshold=7)
     feats = []
     for t, fr in enumerate(sequence.frames):
-        img = load_image(sequence, t)
+        img = sequence.image(t)
         if img is None:
             raise ValueError(f"frames[{t}].image: support_height needs every frame's image")
         mask = np.full((H, W), 255, np.uint8)

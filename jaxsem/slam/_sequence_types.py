@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from .._files import MAX_PIXELS, image_size as _image_size, read_image as _read_image
+
 SEQUENCE_FILE = "sequence.json"
 FORMAT_TAG = "jaxsem.roshan.sequence/1"
 
@@ -89,3 +91,28 @@ class Sequence:
         if name is None:
             return None
         return (self.root or pathlib.Path(".")) / name
+
+    def image(self, index: int, *, max_pixels: int = MAX_PIXELS) -> np.ndarray | None:
+        """RGB image (H, W, 3) uint8 of frame ``index``, or None when the frame names none.
+
+        Raises ValueError naming the file when it cannot be read, its header declares more than
+        ``max_pixels`` pixels (default 8192 x 8192) or a size that is not ``image_size``: both
+        checked before any pixel is decoded.
+        """
+        path = self.image_path(index)
+        if path is None:
+            return None
+        try:
+            width, height = _image_size(path, max_pixels=max_pixels)
+        except ValueError as exc:
+            raise ValueError(f"frames[{index}].image: {exc}") from None
+        if (width, height) != tuple(self.image_size):
+            raise ValueError(
+                f"frames[{index}].image: {str(path)!r} is {width}x{height}, expected "
+                f"image_size {self.image_size[0]}x{self.image_size[1]}"
+            )
+        try:
+            bgr = _read_image(path, 1, max_pixels=max_pixels)  # 1: cv2.IMREAD_COLOR
+        except ValueError:
+            raise ValueError(f"frames[{index}].image: cannot read image file {str(path)!r}") from None
+        return np.ascontiguousarray(bgr[..., ::-1])
