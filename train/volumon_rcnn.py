@@ -79,6 +79,15 @@ def main(argv=None) -> int:
     p.add_argument(
         "--distill-weight", type=sc.positive_float, default=0.01, help="the distillation term's weight (default 0.01)"
     )
+    p.add_argument(
+        "--primal",
+        type=sc.positive_float,
+        default=None,
+        help="weight of VoluMon's primal loss on the renders' depth points (ray distance; rc.RCNNLossConfig.primal)",
+    )
+    p.add_argument(
+        "--points", type=sc.positive_int, default=64, help="depth points stored per rendered label with --primal"
+    )
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
@@ -99,6 +108,10 @@ def main(argv=None) -> int:
         loss = dataclasses.replace(loss, dual=0.0, size=0.0, oracle=1.0)
     if a.distill_from is not None:
         loss = dataclasses.replace(loss, distill=a.distill_weight)
+    if a.primal is not None:
+        volumon = dataclasses.replace(loss.volumon, primal_distance="ray")
+        loss = dataclasses.replace(loss, primal=a.primal, volumon=volumon)
+    points = a.points if a.primal is not None else 0
     model = rc.RCNNTrainConfig().model
     model = dataclasses.replace(
         model,
@@ -125,7 +138,13 @@ def main(argv=None) -> int:
     size = config.model.input_size
     ycb = a.ycb if a.ycb.is_dir() else None
     df.write_desk_frames(
-        a.renders / "train", a.frames, seed=1000 + a.seed, models_dir=models, distractor_dir=ycb, image_size=size
+        a.renders / "train",
+        a.frames,
+        seed=1000 + a.seed,
+        models_dir=models,
+        distractor_dir=ycb,
+        image_size=size,
+        num_points=points,
     )
     df.write_desk_frames(
         a.renders / "heldout", 64, seed=999_999, models_dir=models, distractor_dir=ycb, image_size=size

@@ -149,13 +149,16 @@ def noise_model(seq) -> NoiseModel:
     return slam.noise_model(seq, NoiseModel(texture_sigma=TEXTURE_SIGMA))
 
 
-def configs(seq, silhouette_scale=None, upright_sigma_deg=None):
+def configs(seq, silhouette_scale=None, upright_sigma_deg=None, texture_plane_fraction=None):
     noise = noise_model(seq)
     scale = SILHOUETTE_SCALE if silhouette_scale is None else silhouette_scale
     tilt = np.radians(UPRIGHT_SIGMA_DEG if upright_sigma_deg is None else upright_sigma_deg)
+    roshan = dict(ROSHAN)
+    if texture_plane_fraction is not None:
+        roshan["texture_plane_fraction"] = texture_plane_fraction
     return {
         "baseline": slam.baseline_config(noise=noise, **SHARED),
-        "roshan": slam.SolverConfig(noise=noise, **SHARED, **ROSHAN, silhouette_scale=scale, upright_sigma=tilt),
+        "roshan": slam.SolverConfig(noise=noise, **SHARED, **roshan, silhouette_scale=scale, upright_sigma=tilt),
     }
 
 
@@ -233,6 +236,7 @@ def score(seq, rotation, center, radii):
     iou = np.asarray(jax.jit(metrics.iou_3d_boxes)(R, c, r, TR, TC, TRd))
     out = {k: np.asarray(v, np.float64) for k, v in e.items()}
     out["iou"] = iou
+    out["offset"] = np.where(ok[:, None], c - TC, np.nan)  # signed, world frame
     out["ids"] = ids
     return out
 
@@ -254,6 +258,8 @@ def summary(errs):
         "orientation_deg": float(np.median(np.concatenate([e["orientation"] for e in errs]))),
         "iou_3d": float(np.median(np.concatenate([e["iou"] for e in errs]))),
         "collapses": int(np.sum(~(pos <= COLLAPSE_M))),
+        # the median signed error of the centres along the world's x, y, z (z: the desk's normal)
+        "center_offset_m": [float(v) for v in np.nanmedian(np.concatenate([e["offset"] for e in errs]), axis=0)],
         "objects": int(len(pos)),
     }
 
@@ -613,6 +619,13 @@ def parse_args(argv=None):
         help="degrees, ROSHAN's upright prior's tilt sigma (jaxsem.slam.SolverConfig.upright_sigma)",
     )
     p.add_argument(
+        "--texture-plane-fraction",
+        type=float,
+        default=ROSHAN["texture_plane_fraction"],
+        help="ROSHAN's texture factor: where the measured plane sits between the centre (0) and the "
+        "camera-facing tangent plane (1) (jaxsem.slam.SolverConfig.texture_plane_fraction)",
+    )
+    p.add_argument(
         "--support-sigma", type=sc.positive_float, default=SUPPORT_SIGMA, help="metres, the support prior's sigma"
     )
     p.add_argument(
@@ -727,7 +740,7 @@ def main(argv=None):
         box_sigma = args.box_sigma if args.box_sigma is not None or detector is None else DETECTOR_BOX_SIGMA
         if box_sigma is not None:
             seq = dataclasses.replace(seq, noise={**seq.noise, "box_sigma": box_sigma})
-        cfgs = configs(seq, args.silhouette_scale, args.upright_sigma)
+        cfgs = configs(seq, args.silhouette_scale, args.upright_sigma, args.texture_plane_fraction)
         seq_t, records = front_end(seq)
         desk, desk_points = support_height(seq) if args.support == "features" else (float("nan"), 0)
         if np.isfinite(desk):

@@ -75,7 +75,13 @@ from ..checkpoint import latest_step, restore_checkpoint
 from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
 from ..quadrics import box_iou
 from ..training import LoadedModel, TrainingRun, config_json, read_exported
-from ._losses import LossConfig, dual_loss_per_sample, oracle_loss_per_sample, size_variance_loss
+from ._losses import (
+    LossConfig,
+    dual_loss_per_sample,
+    oracle_loss_per_sample,
+    primal_loss_per_sample,
+    size_variance_loss,
+)
 from ._pretrained import PRETRAINED_DIR, prepare_inputs
 from ._scene_eval import (
     class_rows,
@@ -109,6 +115,10 @@ class RCNNLossConfig:
       oracle: weight of the fully supervised 3D loss (the oracle run; 0 in a weak run).
       distill: weight of the same loss against a teacher network's ellipsoids, on the labels that
         carry one (``teacher_valid``; :func:`teacher_labels`); 0: no distillation.
+      primal: weight of VoluMon's primal loss (eq. 5.12-5.13, ``volumon.primal_distance``) on the
+        labels that carry depth points (``point_mask``: rendered frames stored with
+        ``num_points``; photographs carry none): the separate network's "both" losses, which
+        the thesis names as what its R-CNN lacked. 0: the thesis' R-CNN terms only.
       burn_in: steps with the detection terms alone.
       fg_iou: a RoI is an object's at IoU >= fg_iou; rpn_pos / rpn_neg: an anchor is positive at
         IoU >= rpn_pos (or the best anchor of an object), negative below rpn_neg.
@@ -122,6 +132,7 @@ class RCNNLossConfig:
     size: float = 1.0
     oracle: float = 0.0
     distill: float = 0.0
+    primal: float = 0.0
     burn_in: int = 500
     fg_iou: float = 0.5
     rpn_pos: float = 0.7
@@ -172,6 +183,10 @@ def rcnn_loss(output: RCNNOutput, batch: dict, config: RCNNConfig, loss: RCNNLos
         )
         terms["distill"] = _mean_where(distill, taught)
         volumon = volumon + loss.distill * terms["distill"]
+    if loss.primal > 0 and "point_mask" in batch:
+        primal, has = primal_loss_per_sample(ell, take(batch["points"]), take(batch["point_mask"]), loss.volumon)
+        terms["primal"] = _mean_where(primal, fg & has)
+        volumon = volumon + loss.primal * terms["primal"]
     total = total + volumon_on * volumon
     terms["total"] = total
     return total, terms
@@ -482,7 +497,9 @@ def train_rcnn(
                 r = frames_batch(real, _indices(real["image"].shape[0], n_real, config.seed, step, 1))
                 if config.augment_real:
                     r = augment_batch(r, np.random.default_rng([config.seed, 2, step]))
-                b = {k: np.concatenate([b[k], r[k]]) for k in b}
+                # a key the photographs lack (the renders' depth points) is empty for them
+                blank = lambda k: np.zeros((len(r["image"]), *b[k].shape[1:]), b[k].dtype)
+                b = {k: np.concatenate([b[k], r[k] if k in r else blank(k)]) for k in b}
             params, stats, opt, terms = step_fn(params, stats, opt, b, jnp.asarray(step))
             recent.append(terms)
             recent = recent[-50:]

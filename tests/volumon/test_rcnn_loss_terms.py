@@ -133,3 +133,47 @@ def test_no_teacher_anywhere_leaves_no_distillation_term(setup):
     assert not np.any(np.asarray(batch["teacher_valid"]))
     _, t = _loss(out, batch, TINY, DISTILL, jnp.float32(1.0))
     assert float(t["distill"]) == 0.0
+
+
+PRIMAL = RCNNLossConfig(rpn=0.7, classification=1.3, box=0.9, dual=1.7, size=2.3, distill=0.03, primal=0.4)
+
+
+@pytest.fixture(scope="module")
+def pointed(setup):
+    """The setup's batch with depth points on three of its four labels (the first frame's second
+    object has none), and the last two points of every label masked out."""
+    out, batch = setup
+    rng = np.random.default_rng(2)
+    P = 6
+    pts = rng.uniform([-0.1, -0.1, 0.6], [0.1, 0.1, 1.1], (2, 4, P, 3))
+    mask = np.zeros((2, 4, P), bool)
+    mask[0, 0, :4] = mask[1, 0, :4] = mask[1, 1, :4] = True
+    return out, {**batch, "points": jnp.asarray(pts, jnp.float32), "point_mask": jnp.asarray(mask)}
+
+
+def test_the_primal_term_adds_with_its_weight(pointed):
+    out, batch = pointed
+    total, t = _loss(out, batch, TINY, PRIMAL, jnp.float32(1.0))
+    assert float(t["primal"]) > 1e-3
+    detection = PRIMAL.rpn * (t["rpn_cls"] + t["rpn_box"]) + PRIMAL.classification * t["cls"] + PRIMAL.box * t["box"]
+    weak = PRIMAL.dual * t["dual"] + PRIMAL.size * t["size"]
+    np.testing.assert_allclose(total, detection + weak + PRIMAL.primal * t["primal"], rtol=1e-6)
+    burn_in, _ = _loss(out, batch, TINY, PRIMAL, jnp.float32(0.0))
+    np.testing.assert_allclose(burn_in, detection, rtol=1e-6)
+
+
+def test_only_the_marked_points_of_labels_move_the_primal_term(pointed):
+    out, batch = pointed
+    _, t = _loss(out, batch, TINY, PRIMAL, jnp.float32(1.0))
+    for frame, label, point, moves in ((0, 1, 0, False), (0, 0, 5, False), (0, 0, 1, True), (1, 1, 3, True)):
+        p = np.array(batch["points"])
+        p[frame, label, point] += [0.05, -0.03, 0.2]
+        _, t2 = _loss(out, {**batch, "points": jnp.asarray(p)}, TINY, PRIMAL, jnp.float32(1.0))
+        changed = abs(float(t2["primal"]) - float(t["primal"])) > 1e-5 * float(t["primal"])
+        assert changed == moves, (frame, label, point)
+
+
+def test_no_points_anywhere_leaves_no_primal_term(pointed):
+    out, batch = pointed
+    _, t = _loss(out, {**batch, "point_mask": jnp.zeros_like(batch["point_mask"])}, TINY, PRIMAL, jnp.float32(1.0))
+    assert float(t["primal"]) == 0.0

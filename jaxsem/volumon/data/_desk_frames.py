@@ -34,6 +34,7 @@ from ._lmo_renders import (
     render_desk_frames,
     write_desk_chunks,
 )
+from ._pipeline import mask_depth_points
 
 #: Array keys of :func:`frame_arrays` (``image`` uint8, the rest float32 / int32 / bool).
 FRAME_KEYS = (
@@ -46,6 +47,39 @@ FRAME_KEYS = (
 #: False elsewhere. Arrays without them (older render chunks) get them empty from
 #: :func:`with_teacher_keys`.
 TEACHER_KEYS = ("teacher_rotation", "teacher_center", "teacher_half_extents", "teacher_valid")
+
+
+#: Optional array keys: up to P depth points of each label's visible surface (camera frame,
+#: metres; ``point_mask`` marks the real ones), where a frame carries its rendered ``depth`` and
+#: ``seg`` (:func:`jaxsem.volumon.data.render_desk_frames`): what VoluMon's primal loss reads. A
+#: photograph's labels have none (``point_mask`` all False).
+POINT_KEYS = ("points", "point_mask")
+
+
+def with_point_keys(arrays: dict, num_points: int) -> dict:
+    """``arrays`` (of :func:`frame_arrays`) with the :data:`POINT_KEYS` added, empty (``num_points``
+    of them per label), where absent."""
+    if all(k in arrays for k in POINT_KEYS):
+        return arrays
+    n, G = arrays["box_valid"].shape
+    P = int(num_points)
+    return {**arrays, "points": np.zeros((n, G, P, 3), np.float32), "point_mask": np.zeros((n, G, P), bool)}
+
+
+def _label_points(fr: dict, obj: dict, num_points: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``num_points`` depth points (camera frame) of ``obj``'s visible pixels in a rendered
+    frame, drawn without replacement; zeros and a False mask where the frame has no depth."""
+    pts = np.zeros((num_points, 3), np.float32)
+    mask = np.zeros(num_points, bool)
+    if "depth" not in fr or "seg" not in fr or "obj_id" not in obj:
+        return pts, mask
+    # eroded by a pixel: the silhouette's pixels mix the object's depth with the background's
+    found = mask_depth_points(fr["depth"], np.asarray(fr["seg"]) == int(obj["obj_id"]), fr["K"], erode=1)
+    if len(found) > num_points:
+        found = found[rng.choice(len(found), num_points, replace=False)]
+    pts[: len(found)] = found
+    mask[: len(found)] = True
+    return pts, mask
 
 
 def with_teacher_keys(arrays: dict) -> dict:
@@ -69,9 +103,11 @@ def frame_arrays(
     max_objects: int = 8,
     baseline: float = 0.06,
     min_visible: float = 0.0,
+    num_points: int = 0,
 ) -> dict:
     """Frames as fixed-shape arrays at ``image_size`` ``(W, H)`` (keys :data:`FRAME_KEYS` and
-    :data:`TEACHER_KEYS`).
+    :data:`TEACHER_KEYS`; with ``num_points`` > 0 also :data:`POINT_KEYS`, up to that many depth
+    points per label, drawn with a generator seeded by the frame's place in ``frames``).
 
     Objects with no visible box or below ``min_visible`` visible fraction are not labels. An
     object without ``box_right`` has no stereo label (``stereo_valid`` False). The second view
@@ -81,7 +117,10 @@ def frame_arrays(
     W, H = (int(x) for x in image_size)
     names = list(class_names)
     G = int(max_objects)
-    out: dict = {k: [] for k in FRAME_KEYS + TEACHER_KEYS}
+    P = int(num_points)
+    if P < 0:
+        raise ValueError(f"num_points: expected >= 0, got {num_points}")
+    out: dict = {k: [] for k in FRAME_KEYS + TEACHER_KEYS + (POINT_KEYS if P else ())}
     rig = np.eye(4)
     rig[0, 3] = -float(baseline)
     for fr in frames:
@@ -140,6 +179,13 @@ def frame_arrays(
         out["teacher_center"].append(tc)
         out["teacher_half_extents"].append(tr)
         out["teacher_valid"].append(np.array([t is not None for t in taught] + [False] * (G - n)))
+        if P:
+            rng = np.random.default_rng([len(out["image"]), 0x9E1])
+            pts, pmask = np.zeros((G, P, 3)), np.zeros((G, P), bool)
+            for i, o in enumerate(objs):
+                pts[i], pmask[i] = _label_points(fr, o, P, rng)
+            out["points"].append(pts)
+            out["point_mask"].append(pmask)
     if not out["image"]:
         raise ValueError("frames: expected at least one frame")
     arrays = {k: np.stack(v) for k, v in out.items()}
@@ -154,7 +200,7 @@ def frames_batch(arrays: dict, idx=None) -> dict:
     """The frames ``idx`` (all by default) of :func:`frame_arrays` as a training batch: images
     float32 in [0, 1]."""
     idx = slice(None) if idx is None else np.asarray(idx)
-    batch = {k: arrays[k][idx] for k in FRAME_KEYS + TEACHER_KEYS if k in arrays}
+    batch = {k: arrays[k][idx] for k in FRAME_KEYS + TEACHER_KEYS + POINT_KEYS if k in arrays}
     batch["image"] = batch["image"].astype(np.float32) / 255.0
     return batch
 
@@ -347,12 +393,14 @@ def write_desk_frames(
     max_objects: int = 8,
     config: DeskConfig = DeskConfig(),
     progress: bool = True,
+    num_points: int = 0,
 ) -> list:
     """Render ``num_frames`` desk frames straight at ``image_size`` (the LM-O intrinsics scaled)
     and write their :func:`frame_arrays` as ``out_dir/frames_NNNN.npz`` chunks (seeds per chunk:
     an interrupted call resumes by skipping the chunks written; each is written atomically).
     ``out_dir/stamp.json`` records the arguments: a call with others into the same folder is
-    refused (:func:`jaxsem.training.check_stamp`). Returns the chunk paths."""
+    refused (:func:`jaxsem.training.check_stamp`). ``num_points`` > 0 also stores that many depth
+    points per label (:data:`POINT_KEYS`). Returns the chunk paths."""
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshes = load_lmo_meshes(models_dir)
@@ -369,6 +417,7 @@ def write_desk_frames(
         "config": dataclasses.asdict(config),
         "models": mesh_listing(models_dir),
         "distractors": mesh_listing(distractor_dir),
+        **({"num_points": int(num_points)} if num_points else {}),
     }
 
     def chunk_arrays(c, n, tick):
@@ -379,7 +428,7 @@ def write_desk_frames(
                 tick()
                 yield fr
 
-        return frame_arrays(counted(), (W, H), max_objects=max_objects)
+        return frame_arrays(counted(), (W, H), max_objects=max_objects, num_points=num_points)
 
     return write_desk_chunks(
         out, "frames", num_frames, chunk, stamp, chunk_arrays, desc="desk frames", progress=progress
@@ -392,5 +441,7 @@ def load_frame_chunks(path) -> dict:
     files = [f for f in sorted(path.glob("frames_[0-9]*.npz")) if ".tmp" not in f.name]
     if not files:
         raise ValueError(f"path: no frames_NNNN.npz chunks in {path}")
-    arrays = concat_npz(files, FRAME_KEYS)
+    with np.load(files[0]) as first:
+        points = POINT_KEYS if all(k in first.files for k in POINT_KEYS) else ()
+    arrays = concat_npz(files, FRAME_KEYS + points)
     return with_teacher_keys(arrays)
