@@ -69,12 +69,16 @@ def my_detections(seed: int, frames: int = 12):
 def main() -> dict:
     config = slam.SolverConfig(max_steps=300)  # trials over all phases, rescue included
     problem, R_true = my_detections(0)
-    init = slam.initialize(problem, config)
+    # The small steps around the solves are jitted too: run op by op, the initialisation and the
+    # cost each compile a hundred or more tiny programs (seconds each time).
+    initialize = jax.jit(slam.initialize)
+    total_cost = jax.jit(slam.total_cost)
+    init = initialize(problem, config)
 
     # 1. One map.
     est, info = slam.solve_batch(problem, init, config)
     print(slam.result_message(info.result), f"after {int(info.accepted)} iterations")
-    err = metrics.ellipsoid_errors(est.rotation, est.center, est.radii, R_true, TRUE_CENTERS, TRUE_RADII)
+    err = jax.jit(metrics.ellipsoid_errors)(est.rotation, est.center, est.radii, R_true, TRUE_CENTERS, TRUE_RADII)
 
     # 2. The same problem through optimistix, with ROSHAN's solver.
     pose_free = problem.pose_mask.astype(problem.pose_prior.dtype)
@@ -86,12 +90,12 @@ def main() -> dict:
         throw=False,
         max_steps=config.max_steps,
     )
-    optx_cost = float(slam.total_cost(problem, sol.value, config))
+    optx_cost = float(total_cost(problem, sol.value, config))
 
     # 3. Three maps in one program.
     maps = [my_detections(s)[0] for s in (1, 2, 3)]
     problems = slam.stack_problems(maps)
-    inits = jax.vmap(lambda p: slam.initialize(p, config))(problems)
+    inits = jax.jit(jax.vmap(slam.initialize, in_axes=(0, None)))(problems, config)
     ests, infos = slam.solve_many(problems, inits, config)
     many_pos = [float(jnp.mean(jnp.linalg.norm(ests.center[k] - TRUE_CENTERS, axis=-1))) for k in range(3)]
     solo = slam.solve_batch(maps[1], jax.tree_util.tree_map(lambda x: x[1], inits), config)[0]
