@@ -79,12 +79,8 @@ def main(argv=None) -> int:
     p.add_argument(
         "--distill-weight", type=sc.positive_float, default=0.01, help="the distillation term's weight (default 0.01)"
     )
-    p.add_argument(
-        "--primal",
-        type=sc.positive_float,
-        default=None,
-        help="weight of VoluMon's primal loss on the renders' depth points (ray distance; rc.RCNNLossConfig.primal)",
-    )
+    primal_help = "weight of VoluMon's primal loss on the renders' depth points (ray distance; RCNNLossConfig.primal)"
+    p.add_argument("--primal", type=sc.positive_float, default=None, help=primal_help)
     p.add_argument(
         "--points", type=sc.positive_int, default=64, help="depth points stored per rendered label with --primal"
     )
