@@ -105,7 +105,8 @@ TRAINING = COMMON + textwrap.dedent(
     gauge = lambda p: {k: ({n: w for n, w in v.items() if n != "bias"} if k.endswith("_out") else v)
                        for k, v in p.items()}
     out["lsd_params"] = rel(gauge(b.params), gauge(a.params))
-    log_prob = lambda p: a.model.apply({"params": p}, occ, sem, ctx, deterministic=True).log_prob
+    # jitted: op by op the network's forward pass compiled some 100 small programs
+    log_prob = jax.jit(lambda p: a.model.apply({"params": p}, occ, sem, ctx, deterministic=True).log_prob)
     out["lsd_log_prob"] = rel(log_prob(b.params), log_prob(a.params))
     out["lsd_train_nll"] = rel([h["train_nll"] for h in b.history], [h["train_nll"] for h in a.history])
     out["lsd_rows"] = [len(a.history), len(b.history)]
