@@ -64,6 +64,12 @@ def _problem(seed, noise=0.02):
 
 
 SOLVER = slam.SchurLevenbergMarquardt(rtol=1e-10, atol=1e-12, structure=_structure)
+# The two vmapped-against-solo ROSHAN tests share their solo program (some 20 s of compiles):
+# default config, Forward toy maps padded to one capacity; initialisation jitted (op by op it
+# compiles some hundred small programs).
+FORWARD_CAP = (30, 128, 5)
+SOLVE_SOLO = jax.jit(lambda p, i: solve_schur(p, i, slam.SolverConfig()))
+INIT = jax.jit(slam.initialize)
 
 
 def _cost(y, args):
@@ -218,12 +224,12 @@ def test_vmapped_roshan_maps_equal_their_solo_solves():
     # from its unbatched twin, 1e-16 relative; on maps whose solve is sensitive, chiefly through
     # the rescue phase's thresholds and its loose 1e-2 tolerance, or that run out of steps,
     # that rounding moves the answer: the issue's 900..905 pair were both step-budget stops.)
-    cfg = slam.SolverConfig(max_steps=200)
-    maps = [slam.toy_map(s, num_objects=3, num_frames=12, capacity=(12, 48, 3))[0] for s in (1, 5)]
-    inits = [slam.initialize(p, cfg) for p in maps]
+    cfg = slam.SolverConfig()
+    maps = [slam.toy_map(s, num_objects=3, num_frames=12, capacity=FORWARD_CAP)[0] for s in (1, 5)]
+    inits = [INIT(p, cfg) for p in maps]
     problems = slam.stack_problems(maps)
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
-    solve = jax.jit(lambda p, i: solve_schur(p, i, cfg))
+    solve = SOLVE_SOLO
     est_v, info_v = jax.jit(jax.vmap(lambda p, i: solve_schur(p, i, cfg)))(problems, stacked)
     steps = []
     for k, (p, i) in enumerate(zip(maps, inits)):
@@ -276,11 +282,11 @@ def test_the_issues_float64_forward_maps_vmapped_equal_their_solo_solves():
     # (cost 77.9); elsewhere both were cut. Such a member is allowed once, cut on one side.
     cfg = slam.SolverConfig()
     seeds = range(900, 906)
-    maps = [slam.toy_map(s, capacity=(30, 128, 5))[0] for s in seeds]
+    maps = [slam.toy_map(s, capacity=FORWARD_CAP)[0] for s in seeds]
     assert maps[0].pose_prior.dtype == jnp.float64
-    inits = [slam.initialize(p, cfg) for p in maps]
+    inits = [INIT(p, cfg) for p in maps]
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *inits)
-    solve = jax.jit(lambda p, i: solve_schur(p, i, cfg))
+    solve = SOLVE_SOLO
     est_v, info_v = jax.jit(jax.vmap(lambda p, i: solve_schur(p, i, cfg)))(slam.stack_problems(maps), stacked)
     steps, converged, split = [], 0, []
     cut = int(result_code(RESULTS.max_steps_reached))
