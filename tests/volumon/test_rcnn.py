@@ -13,6 +13,7 @@ from hypothesis import given, settings, strategies as st
 from jaxsem import metrics
 from jaxsem.models._rcnn import (  # layers: white-box
     RCNNConfig,
+    VoluMonRCNN,
     anchors,
     decode_boxes,
     detect,
@@ -32,6 +33,16 @@ TINY = RCNNConfig(
     hidden=64,
     max_detections=8,
 )
+
+
+# init_rcnn's variables through one jitted program per config (flax's init op by op compiled some
+# 300 small programs, 10-20 s, per call); the dummy batch of one, as the variables' shapes do not
+# depend on it.
+_INIT = jax.jit(lambda key, cfg: init_rcnn(key, cfg, 1)[1], static_argnums=1)
+
+
+def _init(key, cfg=TINY):
+    return VoluMonRCNN(cfg), _INIT(key, cfg)
 
 
 def _frames(n, seed, W=128, H=96):
@@ -90,7 +101,7 @@ def test_anchors_tile_the_feature_map_at_stride_16():
 
 @pytest.mark.slow
 def test_forward_detect_and_loss_are_finite_fixed_shape_and_compile_once(compiles):
-    model, v = init_rcnn(jax.random.PRNGKey(0), TINY, 2)
+    model, v = _init(jax.random.PRNGKey(0))
     batch = rcnn_batch(_frames(2, 1), TINY, "abc", 3)
     f = jax.jit(lambda vv, b: detect(model.apply(vv, b["image"], b["K"]), b["K"], TINY))
     d = f(v, batch)
@@ -118,8 +129,8 @@ def test_forward_detect_and_loss_are_finite_fixed_shape_and_compile_once(compile
 @pytest.mark.slow
 def test_the_thesis_backbone_gives_the_same_heads_and_finite_detections():
     cfg = dataclasses.replace(TINY, backbone="mobilenet_v2", width_multiplier=0.35)
-    model, v = init_rcnn(jax.random.PRNGKey(0), cfg, 1)
-    _, v_plain = init_rcnn(jax.random.PRNGKey(0), TINY, 1)
+    model, v = _init(jax.random.PRNGKey(0), cfg)
+    _, v_plain = _init(jax.random.PRNGKey(0))
     heads = lambda p: {k for k in p if not k.startswith(("features_", "plain_"))}
     assert heads(v["params"]) == heads(v_plain["params"]) and "features_13" in v["params"]
     batch = rcnn_batch(_frames(1, 4), cfg, "abc", 3)
@@ -160,7 +171,7 @@ def test_average_precision_on_a_hand_counted_case():
 def test_detector_learns_a_few_frames_to_ap_one(optax_promotion):
     frames = _frames(4, 0)
     batch = rcnn_batch(frames, TINY, "abc", 3)
-    model, v = init_rcnn(jax.random.PRNGKey(0), TINY, 4)
+    model, v = _init(jax.random.PRNGKey(0))
     tx = optax.adam(1e-3)
     params, stats, opt = v["params"], v["batch_stats"], tx.init(v["params"])
     step = make_rcnn_step(model, TINY, RCNNLossConfig(burn_in=200), tx)
@@ -189,7 +200,7 @@ def test_export_load_and_the_detect_command_on_a_photo_of_another_size(tmp_path)
     from jaxsem.volumon.rcnn import RCNNTrainConfig, at_input_size, detect_image, export_rcnn, load_rcnn
 
     config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
-    _, v = init_rcnn(jax.random.PRNGKey(1), TINY, 1)
+    _, v = _init(jax.random.PRNGKey(1))
     npz = export_rcnn(tmp_path / "m", v, config, {"steps": 0})
     loaded = load_rcnn(npz)
     assert loaded.config == config
