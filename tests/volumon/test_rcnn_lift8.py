@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 from test_rcnn import TINY, _frames
 
-from jaxsem.models._rcnn import RCNNConfig, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, init_rcnn  # layers: white-box
 from jaxsem.volumon.rcnn import _adopt, rcnn_batch  # layers: white-box
+
+# init_rcnn's variables through one jitted program per config and batch, and the forward passes
+# and the gradient below jitted (op by op flax compiled hundreds of small programs each)
+_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
+
+
+def _init(key, cfg, n):
+    return VoluMonRCNN(cfg), _INIT(key, cfg, n)
 
 
 def _batch():
@@ -20,16 +28,16 @@ def _batch():
 @pytest.mark.slow
 def test_grown_network_starts_from_the_trained_outputs_and_its_branch_learns():
     b = _batch()
-    _, trained = init_rcnn(jax.random.PRNGKey(1), TINY, 2)
+    _, trained = _init(jax.random.PRNGKey(1), TINY, 2)
     # A "trained" network: perturb every weight so that nothing sits at its initial value.
     trained = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), trained)
     grown_cfg = dataclasses.replace(TINY, lift_stride8=True)
-    model8, fresh = init_rcnn(jax.random.PRNGKey(2), grown_cfg, 2)
+    model8, fresh = _init(jax.random.PRNGKey(2), grown_cfg, 2)
     start = _adopt(trained, fresh)
     assert start is not None and "lift8_fc" in start["params"]
-    plain = init_rcnn(jax.random.PRNGKey(3), TINY, 2)[0]
-    a = plain.apply(trained, b["image"], b["K"])
-    c = model8.apply(start, b["image"], b["K"])
+    plain = VoluMonRCNN(TINY)
+    a = jax.jit(plain.apply)(trained, b["image"], b["K"])
+    c = jax.jit(model8.apply)(start, b["image"], b["K"])
     np.testing.assert_array_equal(np.asarray(a.phi), np.asarray(c.phi))
     np.testing.assert_array_equal(np.asarray(a.class_logits), np.asarray(c.class_logits))
 
@@ -37,17 +45,17 @@ def test_grown_network_starts_from_the_trained_outputs_and_its_branch_learns():
         out = model8.apply({**start, "params": p}, b["image"], b["K"])
         return jnp.sum(jnp.where(out.roi_valid[..., None], out.phi[..., 9], 0.0))
 
-    g = jax.grad(depth_sum)(start["params"])["lift8_fc"]["kernel"]
+    g = jax.jit(jax.grad(depth_sum))(start["params"])["lift8_fc"]["kernel"]
     assert bool(jnp.all(jnp.isfinite(g))) and float(jnp.max(jnp.abs(g))) > 0
 
 
 @pytest.mark.slow
 def test_a_different_network_is_no_start():
-    _, fresh = init_rcnn(jax.random.PRNGKey(0), dataclasses.replace(TINY, lift_stride8=True), 1)
-    _, wider = init_rcnn(jax.random.PRNGKey(0), dataclasses.replace(TINY, hidden=32), 1)
+    _, fresh = _init(jax.random.PRNGKey(0), dataclasses.replace(TINY, lift_stride8=True), 1)
+    _, wider = _init(jax.random.PRNGKey(0), dataclasses.replace(TINY, hidden=32), 1)
     assert _adopt(wider, fresh) is None
-    _, grown = init_rcnn(jax.random.PRNGKey(0), dataclasses.replace(TINY, lift_stride8=True), 1)
-    _, plain = init_rcnn(jax.random.PRNGKey(0), TINY, 1)
+    _, grown = _init(jax.random.PRNGKey(0), dataclasses.replace(TINY, lift_stride8=True), 1)
+    _, plain = _init(jax.random.PRNGKey(0), TINY, 1)
     assert _adopt(grown, plain) is None  # a start holding a branch the network lacks
 
 
