@@ -68,6 +68,12 @@ def main(argv=None) -> int:
         help="the VoluMon head also reads the RoIs from the stride-8 features (plain_cnn; a branch that starts at zero)",
     )
     p.add_argument(
+        "--lift-crop",
+        type=sc.nonnegative_int,
+        default=0,
+        help="pixels per side of an image crop the VoluMon head also reads at each RoI (a branch that starts at zero)",
+    )
+    p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
     p.add_argument(
@@ -114,6 +120,7 @@ def main(argv=None) -> int:
         backbone=a.backbone,
         cnn_width=a.cnn_width,
         lift_stride8=a.lift_stride8,
+        lift_crop=a.lift_crop,
         input_size=a.input_size or model.input_size,
         anchor_sizes=tuple(a.anchor_scale * float(s) for s in model.anchor_sizes),
     )

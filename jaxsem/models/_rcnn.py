@@ -83,6 +83,10 @@ class RCNNConfig:
         features (twice the cells of the stride-16 map the detector reads: a 40-pixel object is 5
         cells, not 2.5), added to its first layer through a branch that starts at zero, so a model
         trained without it starts from the very same outputs.
+      lift_crop: pixels per side of an image crop the VoluMon head also reads at each RoI (0:
+        none): the object's own pixels at the input's resolution, as the separate VoluMon network
+        reads its crop, through three strided convolutions and a branch that starts at zero (a
+        model trained without it starts from the very same outputs). A multiple of 8.
       lift_at: the box whose pooled features the VoluMon head reads outside training: "refined"
         (each RoI's box after the head's regression, pooled a second time: the box the
         ellipsoid is reconstructed in, as Mask R-CNN's mask head reads the detected boxes) or
@@ -110,6 +114,7 @@ class RCNNConfig:
         alpha_y=0.05, eps_s=0.01, depth_mode="absolute", min_depth=0.2, max_depth=2.5
     )
     lift_stride8: bool = False
+    lift_crop: int = 0
     lift_at: str = "refined"
 
     def __post_init__(self):
@@ -124,6 +129,8 @@ class RCNNConfig:
             raise ValueError(f"cnn_width: expected >= 1, got {self.cnn_width}")
         if self.lift_stride8 and self.backbone != "plain_cnn":
             raise ValueError("lift_stride8: needs backbone='plain_cnn' (its stride-8 stage)")
+        if int(self.lift_crop) < 0 or int(self.lift_crop) % 8:
+            raise ValueError(f"lift_crop: expected 0 or a positive multiple of 8, got {self.lift_crop}")
         if self.lift_at not in LIFT_AT:
             raise ValueError(f"lift_at: expected one of {LIFT_AT}, got {self.lift_at!r}")
         if self.param_rule not in PARAM_RULES:
@@ -263,6 +270,7 @@ class VoluMonRCNN(nn.Module):
         mean = jnp.array([0.485, 0.456, 0.406], images.dtype)
         std = jnp.array([0.229, 0.224, 0.225], images.dtype)
         x = (images - mean) / std
+        pixels = x  # what lift_crop reads
         fine = None
         if cfg.backbone == "plain_cnn":
             for i, c in enumerate(int(cfg.cnn_width) * np.array([1, 2, 4, 8])):
@@ -304,6 +312,11 @@ class VoluMonRCNN(nn.Module):
         box_out = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")
         lift0 = nn.Dense(cfg.hidden, name="volumon_fc0")
         lift8 = nn.Dense(cfg.hidden, kernel_init=nn.initializers.zeros, name="lift8_fc") if cfg.lift_stride8 else None
+        S = int(cfg.lift_crop)
+        crop_convs = [
+            nn.Conv(c, (3, 3), strides=2, padding="SAME", name=f"crop_conv{i}") for i, c in enumerate((16, 32, 64))
+        ]
+        crop_fc = nn.Dense(cfg.hidden, kernel_init=nn.initializers.zeros, name="crop_fc") if S else None
         tiny = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
         local_out = nn.Dense(
             9 * n,
@@ -326,6 +339,13 @@ class VoluMonRCNN(nn.Module):
                 # Scaled down: Adam moves every weight of a wide new layer by about the step size
                 # at once, which unscaled would throw the trained head far off in its first steps.
                 v = v + _LIFT8_SCALE * lift8(p8.reshape(p8.shape[:2] + (-1,)))
+            if crop_fc is not None:
+                c = jax.vmap(lambda im, b: roi_align(im, b, (S, S), 1.0, 2))(pixels, boxes)  # (B, R, S, S, 3)
+                c = c.reshape((-1, S, S, 3))
+                for conv in crop_convs:
+                    c = nn.relu(conv(c))
+                c = c.reshape(v.shape[:-1] + (-1,))
+                v = v + _LIFT8_SCALE * crop_fc(c)  # scaled as lift8's branch, for the same reason
             v = nn.relu(v)
             local = local_out(v).reshape(v.shape[:-1] + (n, 9))
             return jnp.concatenate([local, depth_out(v)[..., None]], -1)
