@@ -109,6 +109,8 @@ def test_class_json_mistakes_name_file_row_and_field(tmp_path):
 
 @pytest.mark.slow
 def test_problem_keeps_its_table_and_solver_uses_its_prior():
+    import jax
+
     from jaxsem import slam
 
     table = classes.DEFAULT_TABLE.with_class("mug", **MUG)
@@ -122,12 +124,14 @@ def test_problem_keeps_its_table_and_solver_uses_its_prior():
     later = table.with_class("mug", (0.5, 0.5, 0.5), (0.05, 0.05, 0.05), replace=True)
     assert problem.classes != later  # a later table does not reach into the problem
     cfg = slam.SolverConfig()
-    est = slam.initialize(problem, cfg)
+    # jitted: op by op the initialisation and the residuals compiled some hundreds of programs
+    est = jax.jit(slam.initialize)(problem, cfg)
     np.testing.assert_allclose(est.radii[0], np.array(MUG["dimensions"]) / 2)
-    shapes = slam.residual_blocks(problem, est, cfg)[2]
+    residual_blocks = jax.jit(slam.residual_blocks)
+    shapes = residual_blocks(problem, est, cfg)[2]
     np.testing.assert_allclose(shapes, 0.0, atol=1e-12)
     est_big = slam.SlamEstimate(est.camera_T_world, est.rotation, est.center, est.radii * 2)
-    assert float(np.abs(slam.residual_blocks(problem, est_big, cfg)[2]).max()) > 1.0
+    assert float(np.abs(residual_blocks(problem, est_big, cfg)[2]).max()) > 1.0
     # Frames of the online smoother resolve names in the same table.
     frame = slam.make_frame(np.eye(4), [[300.0, 200.0, 340.0, 260.0]], ["mug"], [0], classes=table)
     assert int(frame.box_class[0]) == table.index("mug")

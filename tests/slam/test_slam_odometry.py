@@ -242,7 +242,9 @@ def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
         pose_prior_weight=w,
     )
     cfg = _cfg()
-    est = slam.initialize(problem, cfg)
+    # jitted: op by op the initialisation, the residuals and the cost compiled hundreds of programs
+    est = jax.jit(slam.initialize)(problem, cfg)
+    residual_blocks, total_cost = jax.jit(slam.residual_blocks), jax.jit(slam.total_cost)
     # poses off their priors, so every prior row is non-zero
     est = slam.SlamEstimate(
         jnp.asarray(
@@ -252,15 +254,15 @@ def test_pose_prior_weight_scales_each_poses_prior_and_zero_drops_it():
         est.center,
         est.radii,
     )
-    plain = np.asarray(slam.residual_blocks(problem, est, cfg)[1])
-    rows = np.asarray(slam.residual_blocks(weighted, est, cfg)[1])
+    plain = np.asarray(residual_blocks(problem, est, cfg)[1])
+    rows = np.asarray(residual_blocks(weighted, est, cfg)[1])
     assert np.all(np.abs(plain) > 0)
     np.testing.assert_allclose(rows, plain * np.repeat(w, 3, axis=1), rtol=1e-12)
     # the structured solvers' linearisation sees the same weighted cost
     free = weighted.pose_mask.astype(jnp.float64)
     n = jax.jit(linearize)(weighted, est, cfg, free)
-    np.testing.assert_allclose(n.cost, slam.total_cost(weighted, est, cfg), rtol=1e-10)
-    assert float(slam.total_cost(weighted, est, cfg)) != pytest.approx(float(slam.total_cost(problem, est, cfg)))
+    np.testing.assert_allclose(n.cost, total_cost(weighted, est, cfg), rtol=1e-10)
+    assert float(total_cost(weighted, est, cfg)) != pytest.approx(float(total_cost(problem, est, cfg)))
     for bad in (np.ones(T + 1), -np.ones(T), np.full(T, np.nan)):
         with pytest.raises(ValueError, match="pose_prior_weight"):
             _same_boxes(problem, pose_prior_weight=bad)
