@@ -58,7 +58,7 @@ def test_load_image_left_the_slam_face_for_the_sequence_method(tmp_path):
     import numpy as np
 
     from jaxsem import slam
-    from jaxsem.slam._sequence_types import Sequence, SequenceFrame
+    from jaxsem.slam._sequence_types import Sequence, SequenceFrame  # layers: white-box
 
     rgb = np.zeros((6, 8, 3), np.uint8)
     rgb[..., 0] = 200  # red, so a channel order mix-up shows
