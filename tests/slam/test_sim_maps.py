@@ -333,9 +333,11 @@ def test_online_reinitialisation_follows_the_batch_rule_and_the_silhouette_scale
     obj, mask = np.asarray(problem.box_object), np.asarray(problem.box_mask)
     last = np.array([idx[(obj == j) & mask].max() for j in range(2)])
     only_last = eqx.tree_at(lambda p: p.box_mask, problem, jnp.asarray(np.isin(idx, last) & mask))
-    batch = slam.initialize(only_last, cfg)
+    # jitted, the config an argument (op by op both compiled some hundreds of small programs;
+    # the two scales share the programs)
+    batch = jax.jit(slam.initialize)(only_last, cfg)
     stranded = slam.SlamEstimate(batch.camera_T_world, batch.rotation, batch.center + 1e4, batch.radii)
-    online, lost = _reinitialise(problem, stranded, problem.box_mask, cfg, batch.radii, 0.0)
+    online, lost = jax.jit(_reinitialise)(problem, stranded, problem.box_mask, cfg, batch.radii, 0.0)
     assert bool(jnp.all(lost))
     for a, b in ((online.rotation, batch.rotation), (online.center, batch.center), (online.radii, batch.radii)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
