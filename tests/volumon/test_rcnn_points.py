@@ -64,3 +64,19 @@ def test_a_photograph_has_no_points_and_batches_carry_them():
 def test_a_negative_point_count_is_refused():
     with pytest.raises(ValueError, match="num_points"):
         frame_arrays([_frame()], (64, 48), ["a"], max_objects=2, num_points=-1)
+
+
+def test_stored_chunks_bring_their_points_back_and_older_chunks_none(tmp_path):
+    from jaxsem.volumon.data import load_frame_chunks
+
+    with_points = frame_arrays([_frame(), _frame()], (64, 48), ["a"], max_objects=2, num_points=8)
+    for i in range(2):
+        np.savez(tmp_path / f"frames_{i:04d}.npz", **{k: v[i : i + 1] for k, v in with_points.items()})
+    back = load_frame_chunks(tmp_path)
+    np.testing.assert_array_equal(back["points"], with_points["points"])
+    np.testing.assert_array_equal(back["point_mask"], with_points["point_mask"])
+    older = tmp_path / "older"
+    older.mkdir()
+    plain = frame_arrays([_frame()], (64, 48), ["a"], max_objects=2)
+    np.savez(older / "frames_0000.npz", **plain)
+    assert "points" not in load_frame_chunks(older)

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ... import metrics
+from ..._files import npz_shapes
 from ._bop_eval import bop_split_frames, load_bop_split, read_rgb
 from ._lmo_renders import (
     LMO_CLASS_NAMES,
@@ -441,7 +442,7 @@ def load_frame_chunks(path) -> dict:
     files = [f for f in sorted(path.glob("frames_[0-9]*.npz")) if ".tmp" not in f.name]
     if not files:
         raise ValueError(f"path: no frames_NNNN.npz chunks in {path}")
-    with np.load(files[0]) as first:
-        points = POINT_KEYS if all(k in first.files for k in POINT_KEYS) else ()
+    first = npz_shapes(files[0])  # the array headers only: whether the chunks carry depth points
+    points = POINT_KEYS if all(k in first for k in POINT_KEYS) else ()
     arrays = concat_npz(files, FRAME_KEYS + points)
     return with_teacher_keys(arrays)
