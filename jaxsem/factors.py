@@ -283,6 +283,7 @@ def box_residual(
     loss: str = "l2",
     robust_scale: ArrayLike = 2.0,
     projection=None,
+    outward_scale: ArrayLike = 1.0,
 ):
     """ROSHAN box factor (section 4.3.2) with barriers for degenerate geometry.
 
@@ -303,6 +304,11 @@ def box_residual(
         passes the box's first-order model built from
         :func:`jaxsem.quadrics.project_bbox_jacobian` (its derivative then comes from that closed
         form, not from differentiating the projection again).
+      outward_scale: the sigma of an edge error is ``outward_scale`` times ``box_sigma`` where the
+        predicted edge lies outside the measured box (left of its left edge, above its top ...):
+        a measured box is the *visible* part of the object, and an occluder can only cut edges
+        inwards, so a projection reaching past a measured edge is likelier than one falling
+        short of it. 1.0: symmetric (the thesis' factor). The residual stays continuous at zero.
 
     Returns:
       (..., 6): 4 whitened edge residuals (zero where the measured edge is at the border), the
@@ -313,8 +319,12 @@ def box_residual(
     pred, valid = projection
     box = jnp.asarray(box, pred.dtype)
     sigma = jnp.asarray(box_sigma, pred.dtype)
-    e = robust_residual((pred - box) / sigma, loss, robust_scale)
     cap = degenerate_residual / sigma
+    d = pred - box
+    # Edges [x0, y0, x1, y1]: outside the box is d < 0 for the first two, d > 0 for the others.
+    outward = jnp.concatenate([d[..., :2] < 0, d[..., 2:] > 0], axis=-1)
+    sigma = jnp.where(outward, sigma * jnp.asarray(outward_scale, pred.dtype), sigma)
+    e = robust_residual(d / sigma, loss, robust_scale)
     e = cap * jnp.tanh(e / cap)
     near, _ = texture_plane_depth(rotation, center, radii, camera_T_world)
     deficit = jnp.maximum(min_depth - near, 0.0)

@@ -149,13 +149,15 @@ def noise_model(seq) -> NoiseModel:
     return slam.noise_model(seq, NoiseModel(texture_sigma=TEXTURE_SIGMA))
 
 
-def configs(seq, silhouette_scale=None, upright_sigma_deg=None, texture_plane_fraction=None):
+def configs(seq, silhouette_scale=None, upright_sigma_deg=None, texture_plane_fraction=None, box_outward_scale=None):
     noise = noise_model(seq)
     scale = SILHOUETTE_SCALE if silhouette_scale is None else silhouette_scale
     tilt = np.radians(UPRIGHT_SIGMA_DEG if upright_sigma_deg is None else upright_sigma_deg)
     roshan = dict(ROSHAN)
     if texture_plane_fraction is not None:
         roshan["texture_plane_fraction"] = texture_plane_fraction
+    if box_outward_scale is not None:
+        roshan["box_outward_scale"] = box_outward_scale
     return {
         "baseline": slam.baseline_config(noise=noise, **SHARED),
         "roshan": slam.SolverConfig(noise=noise, **SHARED, **roshan, silhouette_scale=scale, upright_sigma=tilt),
@@ -626,6 +628,13 @@ def parse_args(argv=None):
         "camera-facing tangent plane (1) (jaxsem.slam.SolverConfig.texture_plane_fraction)",
     )
     p.add_argument(
+        "--box-outward-scale",
+        type=sc.positive_float,
+        default=ROSHAN.get("box_outward_scale", 1.0),
+        help="ROSHAN's box factor: the box sigma times this where the projected edge lies outside the "
+        "measured box, the side occluders cut (jaxsem.slam.SolverConfig.box_outward_scale; 1.0: symmetric)",
+    )
+    p.add_argument(
         "--support-sigma", type=sc.positive_float, default=SUPPORT_SIGMA, help="metres, the support prior's sigma"
     )
     p.add_argument(
@@ -740,7 +749,9 @@ def main(argv=None):
         box_sigma = args.box_sigma if args.box_sigma is not None or detector is None else DETECTOR_BOX_SIGMA
         if box_sigma is not None:
             seq = dataclasses.replace(seq, noise={**seq.noise, "box_sigma": box_sigma})
-        cfgs = configs(seq, args.silhouette_scale, args.upright_sigma, args.texture_plane_fraction)
+        cfgs = configs(
+            seq, args.silhouette_scale, args.upright_sigma, args.texture_plane_fraction, args.box_outward_scale
+        )
         seq_t, records = front_end(seq)
         desk, desk_points = support_height(seq) if args.support == "features" else (float("nan"), 0)
         if np.isfinite(desk):

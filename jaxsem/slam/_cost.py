@@ -159,6 +159,7 @@ def box_rows(
         loss=config.box_loss,
         robust_scale=config.robust_scale,
         projection=projection,
+        outward_scale=config.box_outward_scale,
     )
     if config.use_texture:
         t = F.texture_residual(

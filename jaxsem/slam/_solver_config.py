@@ -74,6 +74,7 @@ class _CostFactors(eqx.Module):
     robust_scale: float | jnp.ndarray = eqx.field(default=2.0, converter=_scalar)
     texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+    box_outward_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
 
 
 class _CostGuards(eqx.Module):
@@ -183,6 +184,10 @@ class SolverConfig(_CostGuards, _InitRescue, _Stopping, _InitStart, _CostFactors
         box factor and the single-view start project the ellipsoid with radii scaled by it, so
         the estimate stays the object's extent ellipsoid (what the shape prior and the metrics
         describe).
+      box_outward_scale: the box sigma, times this, where the projected edge lies outside the
+        measured box (:func:`jaxsem.factors.box_residual`'s ``outward_scale``): a measured box
+        is the object's visible part, which occluders only cut inwards. 1.0: symmetric, the
+        thesis' factor.
       default_depth: metres, single-view initialisation depth without a texture plane when
         ``depth_from_box`` is False, or when the box cannot give one (every edge at the border).
       depth_from_box: static; without a texture plane, a single-view initialisation places the

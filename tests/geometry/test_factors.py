@@ -128,6 +128,36 @@ def test_border_edges_are_dropped_exactly():
     np.testing.assert_array_equal(np.asarray(m2), [False, True, True, False])
 
 
+def test_an_occluder_cut_edge_costs_less_than_the_same_gap_outwards():
+    """A measured box is the visible part: with ``outward_scale`` k, a measured edge short of the
+    projection (cut inwards, as an occluder would) costs k^2 less than the same gap the other way;
+    k = 1 is the default, symmetric factor; the residual is continuous at the truth with finite
+    gradients there."""
+    pose, R, c, r = _scene(1)
+    box, valid = Q.project_bbox(R, c, r, K, pose)
+    assert bool(valid)
+
+    @jax.jit
+    def edges(meas, k, cc):
+        return F.box_residual(pose, R, cc, r, meas, K, IMAGE, outward_scale=k)[:4]
+
+    gap = 6.0
+    for i, inward in enumerate([1.0, 1.0, -1.0, -1.0]):  # the direction that shrinks the box
+        step = jnp.zeros(4).at[i].set(gap * inward)
+        for k in (1.0, 3.0):
+            cut = edges(box + step, k, c)  # the measured edge moved into the box
+            grown = edges(box - step, k, c)  # ... and out of it
+            np.testing.assert_allclose(float(jnp.sum(cut**2)) * k**2, float(jnp.sum(grown**2)), rtol=1e-3)
+            assert float(jnp.sum(grown**2)) > 1.0
+    np.testing.assert_allclose(
+        edges(box + 2.0, 1.0, c), F.box_residual(pose, R, c, r, box + 2.0, K, IMAGE)[:4], rtol=0, atol=0
+    )
+    for tiny in (1e-9, -1e-9):
+        assert float(jnp.max(jnp.abs(edges(box + tiny, 4.0, c)))) < 1e-8
+    g = jax.jacfwd(lambda cc: edges(box, 4.0, cc))(c)
+    assert bool(jnp.all(jnp.isfinite(g))) and float(jnp.max(jnp.abs(g))) > 1.0
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["inside", "behind", "straddling"])
 def test_degenerate_geometry_is_finite_and_points_back_to_validity(case):
