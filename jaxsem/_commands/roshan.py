@@ -79,6 +79,7 @@ CONFIG_FLAGS = (
     sc.ConfigFlag("noise.texture_sigma", type=sc.positive_float),
     sc.ConfigFlag("default_depth", type=sc.positive_float),
     sc.ConfigFlag("texture_plane_fraction", type=sc.nonnegative_float),
+    sc.ConfigFlag("box_outward_scale", type=sc.positive_float),
 )
 
 
