@@ -74,6 +74,13 @@ def main(argv=None) -> int:
         help="pixels per side of an image crop the VoluMon head also reads at each RoI (a branch that starts at zero)",
     )
     p.add_argument(
+        "--train-only",
+        choices=("all", "lift"),
+        default="all",
+        help="lift: only the VoluMon head learns; the detector (backbone, proposals, box and class heads, "
+        "batch-norm statistics) stays --init-from's",
+    )
+    p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
     p.add_argument(
@@ -98,6 +105,8 @@ def main(argv=None) -> int:
         p.error(f"--models: no LM-O meshes folder {models} (give --lmo or --models)")
     if a.lmo is not None and not (a.lmo / "scene_gt.json").is_file():
         p.error(f"--lmo: {a.lmo} holds no scene_gt.json (jaxsem data fetch lmo --out data)")
+    if a.train_only == "lift" and a.init_from is None:
+        p.error("--train-only: 'lift' keeps a trained detector; give it with --init-from")
     if a.distill_from is not None and a.lmo is None:
         p.error("--distill-from: needs --lmo (the teacher labels the real photographs)")
     if a.distill_from not in (None, "lmo") and not pathlib.Path(a.distill_from).exists():
@@ -136,6 +145,7 @@ def main(argv=None) -> int:
         augment_renders=a.augment_renders,
         multiview_real=a.multiview_real,
         distill_from=a.distill_from or "",
+        train_only="" if a.train_only == "all" else a.train_only,
         init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size

@@ -198,9 +198,10 @@ def rcnn_batch(frames, config: RCNNConfig, class_names, max_objects: int, baseli
     return frames_batch(frame_arrays(frames, config.input_size, class_names, max_objects, baseline))
 
 
-def make_rcnn_step(model, config: RCNNConfig, loss: RCNNLossConfig, tx):
+def make_rcnn_step(model, config: RCNNConfig, loss: RCNNLossConfig, tx, freeze_stats: bool = False):
     """A jitted SGD step ``(params, batch_stats, opt_state, batch, step) -> (params, batch_stats,
-    opt_state, terms)``; the VoluMon terms count from ``loss.burn_in`` on."""
+    opt_state, terms)``; the VoluMon terms count from ``loss.burn_in`` on. ``freeze_stats``: the
+    batch-norm statistics are returned as given (a frozen backbone)."""
 
     def loss_fn(params, batch_stats, batch, step):
         out, updates = model.apply(
@@ -222,7 +223,7 @@ def make_rcnn_step(model, config: RCNNConfig, loss: RCNNLossConfig, tx):
         with jax.numpy_dtype_promotion("standard"):  # optax's bias correction mixes int32 and float
             updates, opt_state = tx.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
-        return params, stats, opt_state, terms
+        return params, batch_stats if freeze_stats else stats, opt_state, terms
 
     return step_fn
 
@@ -254,6 +255,11 @@ class RCNNTrainConfig:
         so a resume with other data is refused.
       distill_from: the teacher whose ellipsoids label the real photographs (:func:`teacher_labels`;
         ``loss.distill`` weighs them); recorded so a resume with another teacher is refused.
+      train_only: "" (every layer) or "lift": only the VoluMon head's layers (:data:`LIFT_LAYERS`)
+        learn; the backbone, the proposal stage, the box and class heads and the batch-norm
+        statistics stay as ``init_from`` gave them, so the detections stay exactly the
+        starting network's while its lift learns (e.g. a new lift branch grown on a shipped
+        detector).
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -274,6 +280,21 @@ class RCNNTrainConfig:
     augment_renders: bool = False
     multiview_real: bool = False
     distill_from: str = ""
+    train_only: str = ""
+
+
+#: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
+LIFT_LAYERS = ("volumon_fc0", "lift8_fc", "crop_", "phi_local", "phi_depth")
+
+
+def _optimizer(config: RCNNTrainConfig):
+    """Adam behind a global-norm clip; with ``train_only="lift"`` every layer outside
+    :data:`LIFT_LAYERS` gets a zero update (its Adam state is kept, never used)."""
+    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+    if config.train_only == "lift":
+        labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "frozen") for k in params}
+        tx = optax.multi_transform({"lift": tx, "frozen": optax.set_to_zero()}, labels)
+    return tx
 
 
 def teacher_labels(frames, teacher: LoadedModel, batch: int = 256) -> list:
@@ -456,8 +477,12 @@ def train_rcnn(
     for name, arr in (("renders", renders), ("real", real), ("held_out", held_out)):
         if arr is not None and tuple(arr["image"].shape[1:3]) != (H, W):
             raise ValueError(f"{name}: images of {arr['image'].shape[1:3]} (H, W), the model reads {(H, W)}")
+    if config.train_only not in ("", "lift"):
+        raise ValueError(f"train_only: expected '' or 'lift', got {config.train_only!r}")
+    if config.train_only and not config.init_from:
+        raise ValueError("train_only: 'lift' keeps a trained detector, so config.init_from must name one")
     model, variables = init_rcnn(jax.random.PRNGKey(config.seed), config.model, config.batch_size)
-    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+    tx = _optimizer(config)
     state = {
         "params": variables["params"],
         "batch_stats": variables["batch_stats"],
@@ -480,7 +505,7 @@ def train_rcnn(
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
             state = {**state, "params": start["params"], "batch_stats": start["batch_stats"]}
         run.begin()
-        step_fn = make_rcnn_step(model, config.model, config.loss, tx)
+        step_fn = make_rcnn_step(model, config.model, config.loss, tx, freeze_stats=config.train_only == "lift")
         params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
         n_real = 0 if real is None else min(config.real_per_batch, config.batch_size - 1)
         last = config.num_steps if stop_at is None else min(int(stop_at), config.num_steps)
@@ -684,8 +709,7 @@ def at_input_size(loaded: LoadedModel, input_size) -> LoadedModel:
 
 def _opt_like(config: RCNNTrainConfig, variables):
     """The optimiser state's structure for ``variables`` (shapes only: traced, never run)."""
-    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
-    return jax.eval_shape(tx.init, variables["params"])
+    return jax.eval_shape(_optimizer(config).init, variables["params"])
 
 
 def detect_image(loaded: LoadedModel, image, K) -> dict:

@@ -1,0 +1,57 @@
+"""Training the lift alone on a trained detector: the detector's layers and batch-norm
+statistics stay bit for bit, the lift's layers move; a run that would freeze an untrained
+detector is refused."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_rcnn import TINY, _frames
+
+from jaxsem.models._rcnn import init_rcnn  # layers: white-box
+from jaxsem.volumon.rcnn import (  # layers: white-box
+    LIFT_LAYERS,
+    RCNNLossConfig,
+    RCNNTrainConfig,
+    _optimizer,
+    make_rcnn_step,
+    rcnn_batch,
+    train_rcnn,
+)
+
+CROP = dataclasses.replace(TINY, lift_crop=16)
+
+
+@pytest.mark.slow
+def test_lift_only_steps_move_the_lift_and_nothing_else(optax_promotion):
+    b = rcnn_batch(_frames(2, 0), CROP, ("a", "b", "c"), 4)
+    model, v = init_rcnn(jax.random.PRNGKey(0), CROP, 2)
+    config = RCNNTrainConfig(model=CROP, train_only="lift", init_from="trained", class_names=("a", "b", "c"))
+    tx = _optimizer(config)
+    params, stats, opt = v["params"], v["batch_stats"], tx.init(v["params"])
+    step = make_rcnn_step(model, CROP, RCNNLossConfig(burn_in=0), tx, freeze_stats=True)
+    for i in range(3):
+        params, stats, opt, terms = step(params, stats, opt, b, jnp.asarray(i))
+    assert all(np.isfinite(float(x)) for x in terms.values())
+    moved = {
+        k
+        for k in params
+        if any(bool(jnp.any(a != c)) for a, c in zip(jax.tree.leaves(params[k]), jax.tree.leaves(v["params"][k])))
+    }
+    lift = {k for k in params if k.startswith(LIFT_LAYERS)}
+    assert "crop_fc" in lift and "phi_depth" in lift and "volumon_fc0" in lift
+    assert moved and moved <= lift, moved - lift
+    for a, c in zip(jax.tree.leaves(stats), jax.tree.leaves(v["batch_stats"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+
+
+def test_lift_only_needs_a_trained_detector(tmp_path):
+    frames = {"image": np.zeros((1, 96, 128, 3), np.float32)}
+    with pytest.raises(ValueError, match="init_from"):
+        train_rcnn(RCNNTrainConfig(model=TINY, train_only="lift", class_names=("a", "b", "c")), tmp_path, frames)
+    with pytest.raises(ValueError, match="train_only"):
+        train_rcnn(
+            RCNNTrainConfig(model=TINY, train_only="head", init_from="x", class_names=("a", "b", "c")), tmp_path, frames
+        )
