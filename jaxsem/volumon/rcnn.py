@@ -259,7 +259,7 @@ class RCNNTrainConfig:
         learn; the backbone, the proposal stage, the box and class heads and the batch-norm
         statistics stay as ``init_from`` gave them, so the detections stay exactly the
         starting network's while its lift learns (e.g. a new lift branch grown on a shipped
-        detector).
+        detector). Training steps still normalise by each batch's statistics, as in every run.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -288,8 +288,9 @@ LIFT_LAYERS = ("volumon_fc0", "lift8_fc", "crop_", "phi_local", "phi_depth")
 
 
 def _optimizer(config: RCNNTrainConfig):
-    """Adam behind a global-norm clip; with ``train_only="lift"`` every layer outside
-    :data:`LIFT_LAYERS` gets a zero update (its Adam state is kept, never used)."""
+    """Adam behind a global-norm clip; with ``train_only="lift"`` only the layers in
+    :data:`LIFT_LAYERS` get Adam (clipped by their own norm) and every other layer a zero update
+    and no optimiser state."""
     tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
     if config.train_only == "lift":
         labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "frozen") for k in params}
