@@ -81,6 +81,12 @@ def main(argv=None) -> int:
         "batch-norm statistics) stays --init-from's",
     )
     p.add_argument(
+        "--detector-lr-scale",
+        type=sc.positive_float,
+        default=1.0,
+        help="the detector's layers (all but the VoluMon head's) learn at the rate times this (default 1)",
+    )
+    p.add_argument(
         "--init-from", type=sc.existing_path, default=None, help="start from this model (a workdir or an exported .npz)"
     )
     p.add_argument(
@@ -107,6 +113,10 @@ def main(argv=None) -> int:
         p.error(f"--lmo: {a.lmo} holds no scene_gt.json (jaxsem data fetch lmo --out data)")
     if a.train_only == "lift" and a.init_from is None:
         p.error("--train-only: 'lift' keeps a trained detector; give it with --init-from")
+    if a.detector_lr_scale > 1.0:
+        p.error(f"--detector-lr-scale: expected a number in (0, 1], got {a.detector_lr_scale}")
+    if a.train_only == "lift" and a.detector_lr_scale != 1.0:
+        p.error("--detector-lr-scale: --train-only lift already freezes the detector")
     if a.distill_from is not None and a.lmo is None:
         p.error("--distill-from: needs --lmo (the teacher labels the real photographs)")
     if a.distill_from not in (None, "lmo") and not pathlib.Path(a.distill_from).exists():
@@ -146,6 +156,7 @@ def main(argv=None) -> int:
         multiview_real=a.multiview_real,
         distill_from=a.distill_from or "",
         train_only="" if a.train_only == "all" else a.train_only,
+        detector_lr_scale=a.detector_lr_scale,
         init_from="" if a.init_from is None else str(a.init_from),
     )
     size = config.model.input_size

@@ -260,6 +260,9 @@ class RCNNTrainConfig:
         statistics stay as ``init_from`` gave them, so the detections stay exactly the
         starting network's while its lift learns (e.g. a new lift branch grown on a shipped
         detector). Training steps still normalise by each batch's statistics, as in every run.
+      detector_lr_scale: every layer outside :data:`LIFT_LAYERS` learns at ``learning_rate``
+        times this (an Adam of its own): below 1, the shared features move for the lift while
+        the boxes and classes of a trained ``init_from`` drift less. 1 trains every layer alike.
     """
 
     model: RCNNConfig = RCNNConfig()
@@ -281,6 +284,7 @@ class RCNNTrainConfig:
     multiview_real: bool = False
     distill_from: str = ""
     train_only: str = ""
+    detector_lr_scale: float = 1.0
 
 
 #: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
@@ -290,12 +294,19 @@ LIFT_LAYERS = ("volumon_fc0", "lift8_fc", "crop_", "phi_local", "phi_depth")
 def _optimizer(config: RCNNTrainConfig):
     """Adam behind a global-norm clip; with ``train_only="lift"`` only the layers in
     :data:`LIFT_LAYERS` get Adam (clipped by their own norm) and every other layer a zero update
-    and no optimiser state."""
-    tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+    and no optimiser state; with ``detector_lr_scale`` below 1 the other layers get an Adam of
+    their own at the scaled rate, behind the one clip of the whole gradient."""
+    labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "detector") for k in params}
     if config.train_only == "lift":
-        labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "frozen") for k in params}
-        tx = optax.multi_transform({"lift": tx, "frozen": optax.set_to_zero()}, labels)
-    return tx
+        tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
+        return optax.multi_transform({"lift": tx, "detector": optax.set_to_zero()}, labels)
+    if config.detector_lr_scale != 1.0:
+        rates = {
+            "lift": optax.adam(config.learning_rate),
+            "detector": optax.adam(config.learning_rate * config.detector_lr_scale),
+        }
+        return optax.chain(optax.clip_by_global_norm(config.clip), optax.multi_transform(rates, labels))
+    return optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
 
 
 def teacher_labels(frames, teacher: LoadedModel, batch: int = 256) -> list:
@@ -480,6 +491,10 @@ def train_rcnn(
             raise ValueError(f"{name}: images of {arr['image'].shape[1:3]} (H, W), the model reads {(H, W)}")
     if config.train_only not in ("", "lift"):
         raise ValueError(f"train_only: expected '' or 'lift', got {config.train_only!r}")
+    if not (0.0 < config.detector_lr_scale <= 1.0):
+        raise ValueError(f"detector_lr_scale: expected a number in (0, 1], got {config.detector_lr_scale!r}")
+    if config.train_only and config.detector_lr_scale != 1.0:
+        raise ValueError("detector_lr_scale: train_only='lift' already freezes the detector; leave the scale at 1")
     if config.train_only and not config.init_from:
         raise ValueError("train_only: 'lift' keeps a trained detector, so config.init_from must name one")
     model, variables = init_rcnn(jax.random.PRNGKey(config.seed), config.model, config.batch_size)

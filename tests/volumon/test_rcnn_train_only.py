@@ -55,3 +55,31 @@ def test_lift_only_needs_a_trained_detector(tmp_path):
         train_rcnn(
             RCNNTrainConfig(model=TINY, train_only="head", init_from="x", class_names=("a", "b", "c")), tmp_path, frames
         )
+
+
+def test_a_scaled_detector_rate_slows_only_the_detector_layers(optax_promotion):
+    # Adam's first step moves each weight by about its rate, whatever the gradient's size.
+    params = {"volumon_fc0": {"kernel": jnp.ones((3, 2))}, "rpn_conv": {"kernel": jnp.ones((4,))}}
+    grads = {"volumon_fc0": {"kernel": jnp.full((3, 2), 0.003)}, "rpn_conv": {"kernel": jnp.full((4,), -0.002)}}
+    for scale in (0.1, 0.5, 1.0):
+        tx = _optimizer(RCNNTrainConfig(model=TINY, learning_rate=1e-2, detector_lr_scale=scale))
+        updates, _ = tx.update(grads, tx.init(params), params)
+        np.testing.assert_allclose(np.abs(updates["volumon_fc0"]["kernel"]), 1e-2, rtol=1e-4)
+        np.testing.assert_allclose(np.abs(updates["rpn_conv"]["kernel"]), 1e-2 * scale, rtol=1e-4)
+
+
+def test_a_detector_rate_outside_zero_to_one_is_refused(tmp_path):
+    frames = {"image": np.zeros((1, 96, 128, 3), np.float32)}
+    for scale in (0.0, -0.5, 2.0):
+        with pytest.raises(ValueError, match="detector_lr_scale"):
+            train_rcnn(
+                RCNNTrainConfig(model=TINY, detector_lr_scale=scale, class_names=("a", "b", "c")), tmp_path, frames
+            )
+    with pytest.raises(ValueError, match="detector_lr_scale"):
+        train_rcnn(
+            RCNNTrainConfig(
+                model=TINY, train_only="lift", init_from="x", detector_lr_scale=0.1, class_names=("a", "b", "c")
+            ),
+            tmp_path,
+            frames,
+        )
