@@ -301,11 +301,10 @@ def _optimizer(config: RCNNTrainConfig):
         tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
         return optax.multi_transform({"lift": tx, "detector": optax.set_to_zero()}, labels)
     if config.detector_lr_scale != 1.0:
-        rates = {
-            "lift": optax.adam(config.learning_rate),
-            "detector": optax.adam(config.learning_rate * config.detector_lr_scale),
-        }
-        return optax.chain(optax.clip_by_global_norm(config.clip), optax.multi_transform(rates, labels))
+        lift, detector = optax.adam(config.learning_rate), optax.adam(config.learning_rate * config.detector_lr_scale)
+        return optax.chain(
+            optax.clip_by_global_norm(config.clip), optax.multi_transform({"lift": lift, "detector": detector}, labels)
+        )
     return optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
 
 
