@@ -195,10 +195,11 @@ def stretch_size(seq):
     return len(seq.frames), sum(len(fr.boxes) for fr in seq.frames), len(seq.object_ids)
 
 
-def problem_of(seq, odometry, table, prior_weight=None, capacity=None):
+def problem_of(seq, odometry, table, prior_weight=None, capacity=None, box_cut=None):
     """The stretch as a problem padded to ``capacity`` (default its own size bucket,
     :func:`jaxsem.slam._problem.bucket_capacity`, as a user batches sequences): stretches of one
-    capacity share a compilation."""
+    capacity share a compilation. ``box_cut``: ``make_problem``'s (``"overlapped"``: only the
+    edges inside another box of the frame read one-sided)."""
     slot = {i: j for j, i in enumerate(seq.object_ids)}
     boxes, pose_idx, obj, tex = [], [], [], []
     for t, fr in enumerate(seq.frames):
@@ -220,6 +221,7 @@ def problem_of(seq, odometry, table, prior_weight=None, capacity=None):
         classes=table,
         odometry=odometry,
         pose_prior_weight=prior_weight,
+        box_cut=box_cut,
         dtype=jnp.float64,
     )
 
@@ -640,6 +642,13 @@ def parse_args(argv=None):
         "measured box, the side occluders cut (jaxsem.slam.SolverConfig.box_outward_scale; 1.0: symmetric)",
     )
     p.add_argument(
+        "--box-cut",
+        choices=("all", "overlapped"),
+        default="all",
+        help="which box edges --box-outward-scale reads one-sided: all, or only those inside another box of "
+        "the same frame (jaxsem.slam.make_problem's box_cut)",
+    )
+    p.add_argument(
         "--support-sigma", type=sc.positive_float, default=SUPPORT_SIGMA, help="metres, the support prior's sigma"
     )
     p.add_argument(
@@ -775,8 +784,9 @@ def main(argv=None):
             prior_translation=seq.noise["pose_translation_sigma"],
             prior_rotation_deg=seq.noise["pose_rotation_sigma_deg"],
         )
-        pb = problem_of(seq, odo, table, weight, caps[n])
-        pr = problem_of(seq_t, odo, table, weight, caps[n])
+        cut = None if args.box_cut == "all" else args.box_cut
+        pb = problem_of(seq, odo, table, weight, caps[n], cut)
+        pr = problem_of(seq_t, odo, table, weight, caps[n], cut)
         ests = {}
         for name, prob, cfg, init in (
             ("baseline", pb, cfgs["baseline"], None),

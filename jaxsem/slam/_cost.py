@@ -133,6 +133,7 @@ def box_rows(
     image_size,
     config: SolverConfig,
     projection=None,
+    cut=None,
 ):
     """(7,) whitened residual rows of one box factor as every jaxsem solver sees them (unbatched;
     vmap over boxes): the six box rows of :func:`jaxsem.factors.box_residual` with the config's
@@ -141,8 +142,13 @@ def box_rows(
     solvers (the jaxls anchor in ``benchmarks/``) minimise exactly jaxsem's cost.
 
     ``projection``: optional ``(box, valid)`` standing in for the projection of the ellipsoid with
-    its radii times ``config.silhouette_scale`` (see :func:`jaxsem.factors.box_residual`)."""
+    its radii times ``config.silhouette_scale`` (see :func:`jaxsem.factors.box_residual`).
+    ``cut``: optional (4,) bool, the edges an occluder may have cut (``SlamProblem.box_cut``):
+    ``config.box_outward_scale`` applies to those only (default: to every edge)."""
     n = config.noise
+    outward = jnp.asarray(config.box_outward_scale, radii.dtype)
+    if cut is not None:
+        outward = jnp.where(cut, outward, jnp.ones((), radii.dtype))
     r = F.box_residual(
         pose,
         rotation,
@@ -159,7 +165,7 @@ def box_rows(
         loss=config.box_loss,
         robust_scale=config.robust_scale,
         projection=projection,
-        outward_scale=config.box_outward_scale,
+        outward_scale=outward,
     )
     if config.use_texture:
         t = F.texture_residual(
@@ -256,7 +262,7 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
     dtype = estimate.center.dtype
     mean, sigma = class_table(config, dtype, problem)
     bp, bo = problem.box_pose, problem.box_object
-    boxes = jax.vmap(box_rows, in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, None, None))(
+    boxes = jax.vmap(box_rows, in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, None, None, None, 0))(
         estimate.camera_T_world[bp],
         estimate.rotation[bo],
         estimate.center[bo],
@@ -268,6 +274,8 @@ def residual_blocks(problem: SlamProblem, estimate: SlamEstimate, config: Solver
         problem.K,
         problem.image_size,
         config,
+        None,
+        problem.box_cut,
     )
     poses = jax.vmap(pose_rows, in_axes=(0, 0, 0, None, 0))(
         estimate.camera_T_world, problem.pose_prior, problem.pose_mask, config, prior_weight(problem)
@@ -387,7 +395,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     zero3 = jnp.zeros(3, dtype)
     scale = jnp.asarray(config.silhouette_scale, dtype)
 
-    def box_fn(xi, ds, rel, r, box, td, tm, bm, box0, valid0, J_rel, J_radii):
+    def box_fn(xi, ds, rel, r, box, td, tm, bm, box0, valid0, J_rel, J_radii, cut):
         r2 = F.radii_from_param(F.param_from_radii(r) + ds)
         # Products summed by hand: a batched matrix-vector product becomes a slow dot on the CPU.
         pred = box0 + jnp.sum(J_rel * xi, -1) + jnp.sum(J_radii * ((r2 - r) * scale), -1)
@@ -404,6 +412,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
             problem.image_size,
             config,
             projection=(pred, valid0),
+            cut=cut,
         )
         return out, out
 
@@ -422,7 +431,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
     z6, z3 = jnp.zeros(6, dtype), jnp.zeros(3, dtype)
     (Jxi, Jds), rb = jax.vmap(
         jax.jacfwd(box_fn, argnums=(0, 1), has_aux=True),
-        in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),
+        in_axes=(None, None, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),
     )(
         z6,
         z3,
@@ -436,6 +445,7 @@ def linearize(problem: SlamProblem, est: SlamEstimate, config: SolverConfig, pos
         valid0,
         J_rel,
         J_obj[..., 6:9],
+        problem.box_cut,
     )
     # Ad(W^-1) for [v, omega] tangents: W^-1 = (R^T, -R^T c); Ad(R', t') = [[R', t'^ R'], [0, R']].
     Rt = jnp.swapaxes(R_o, -1, -2)

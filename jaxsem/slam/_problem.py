@@ -77,6 +77,11 @@ class SlamProblem(eqx.Module):
         path (a prior on the first pose and looser ones further on, or none: the between factors
         then carry the chain). ``None`` (the default): every real pose at the noise model's
         sigmas.
+      box_cut: optional (M, 4) bool, per edge ``[u_min, v_min, u_max, v_max]`` of each box: True
+        where an occluder may have cut that edge (e.g. :func:`overlapped_edges`: the edge lies
+        inside another box of the same frame). ``SolverConfig.box_outward_scale`` then reads only
+        those edges one-sided and the others symmetrically; ``None`` (the default): every edge
+        may have been cut.
     """
 
     K: jnp.ndarray
@@ -95,6 +100,7 @@ class SlamProblem(eqx.Module):
     odometry: jnp.ndarray | None = None
     odometry_mask: jnp.ndarray | None = None
     pose_prior_weight: jnp.ndarray | None = None
+    box_cut: jnp.ndarray | None = None
 
     @property
     def num_poses(self) -> int:
@@ -307,6 +313,7 @@ def make_problem(
     odometry=None,
     odometry_mask=None,
     pose_prior_weight=None,
+    box_cut=None,
 ) -> SlamProblem:
     """Validated :class:`SlamProblem` from numpy-like inputs, optionally padded to capacity.
 
@@ -334,6 +341,10 @@ def make_problem(
       pose_prior_weight: optional (T,) or (T, 2) ``[translation, rotation]`` multipliers of the
         pose priors' whitened rows (:attr:`SlamProblem.pose_prior_weight`; finite, >= 0; 0 = no
         prior on that pose). Default: none (every pose at the noise model's sigmas).
+      box_cut: optional (M, 4) bool, the edges an occluder may have cut
+        (:attr:`SlamProblem.box_cut`), or ``"overlapped"``: the edges that lie inside another
+        real box of the same frame (:func:`overlapped_edges`). Default: none (every edge may have
+        been cut).
 
     Raises:
       ValueError: wrong shapes, non-finite K or poses, NaN, inverted or off-image boxes (a box
@@ -436,6 +447,14 @@ def make_problem(
         if not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ValueError("pose_prior_weight: expected finite weights >= 0")
         pose_prior_weight = w
+    if isinstance(box_cut, str):
+        if box_cut != "overlapped":
+            raise ValueError(f"box_cut: expected an (M, 4) bool array or 'overlapped', got {box_cut!r}")
+        box_cut = overlapped_edges(box, box_pose, box_mask)
+    if box_cut is not None:
+        box_cut = _np("box_cut", box_cut, None, bool)
+        if box_cut.shape != (M, 4):
+            raise ValueError(f"box_cut: expected shape ({M}, 4) (one flag per box edge), got {box_cut.shape}")
 
     if capacity is None and M == 0:
         capacity = (T, 1, J)  # one masked box: the arrays keep a row to index (no measurement, no cost)
@@ -465,6 +484,8 @@ def make_problem(
             odometry_mask = np.concatenate([odometry_mask, np.zeros(Tc - T, bool)])
         if pose_prior_weight is not None:
             pose_prior_weight = np.concatenate([pose_prior_weight, np.ones((Tc - T, 2))])
+        if box_cut is not None:
+            box_cut = np.concatenate([box_cut, np.zeros((Mc - M, 4), bool)])
     # Padded / masked boxes get a harmless finite value so nothing downstream sees NaN.
     box = np.where(box_mask[:, None], box, np.array([0.0, 0.0, 1.0, 1.0]))
     f = lambda a: jnp.asarray(a, dtype)
@@ -486,7 +507,45 @@ def make_problem(
         odometry=None if odometry is None else f(odometry),
         odometry_mask=None if odometry_mask is None else jnp.asarray(odometry_mask),
         pose_prior_weight=None if pose_prior_weight is None else f(pose_prior_weight),
+        box_cut=None if box_cut is None else jnp.asarray(box_cut & box_mask[:, None]),
     )
+
+
+def overlapped_edges(box, box_pose, box_mask=None, margin: float = 0.0) -> np.ndarray:
+    """(M, 4) bool: which edges ``[u_min, v_min, u_max, v_max]`` of each box lie inside another
+    real box of the same frame (within ``margin`` pixels), the edges an occluder in that frame
+    may have cut. An edge counts when its line meets the other box's interior over some length
+    (a box that merely touches a corner does not cut it). For :func:`make_problem`'s
+    ``box_cut``.
+
+    Args:
+      box: (M, 4) boxes in pixels; box_pose: (M,) frame index of each; box_mask: optional (M,)
+        bool, the real boxes (default all). margin: pixels the other box is grown by.
+    """
+    box = _np("box", box, (4,))
+    if box.ndim != 2:
+        raise ValueError(f"box: expected shape (M, 4), got {box.shape}")
+    M = box.shape[0]
+    box_pose = _np("box_pose", box_pose, None, dtype=np.int64).reshape(-1)
+    if box_pose.shape != (M,):
+        raise ValueError(f"box_pose: expected shape ({M},) to match box, got {box_pose.shape}")
+    box_mask = np.ones(M, bool) if box_mask is None else _np("box_mask", box_mask, None, bool).reshape(-1)
+    if box_mask.shape != (M,):
+        raise ValueError(f"box_mask: expected shape ({M},) to match box, got {box_mask.shape}")
+    out = np.zeros((M, 4), bool)
+    real = np.flatnonzero(box_mask)
+    for t in np.unique(box_pose[real]):
+        idx = real[box_pose[real] == t]  # the boxes of one frame: a few, so pairs are cheap
+        b = box[idx]
+        o = b + np.array([-margin, -margin, margin, margin])  # the others, grown
+        for e, (pos, lo, hi, axis) in enumerate(((0, 1, 3, 0), (1, 0, 2, 1), (2, 1, 3, 0), (3, 0, 2, 1))):
+            line = b[:, pos][:, None]
+            across = (o[None, :, axis] < line) & (line < o[None, :, axis + 2])
+            span = np.minimum(b[:, hi][:, None], o[None, :, hi]) - np.maximum(b[:, lo][:, None], o[None, :, lo])
+            hit = across & (span > 0)
+            np.fill_diagonal(hit, False)
+            out[idx, e] = hit.any(axis=1)
+    return out
 
 
 def make_frame(
@@ -729,6 +788,7 @@ def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
         most = int(jnp.max(jnp.sum(mask, axis=-1))) if mask.size else 0
         if most > max_boxes:
             raise ValueError(f"max_boxes: {max_boxes} is below the {most} real boxes of a problem")
+    names = _BOX_FIELDS + (("box_cut",) if problem.box_cut is not None else ())
     M = mask.shape[-1]
     order = jnp.argsort(~mask, axis=-1, stable=True)
     if max_boxes <= M:
@@ -736,14 +796,14 @@ def compact_boxes(problem: SlamProblem, max_boxes: int) -> SlamProblem:
         take = lambda x: jnp.take_along_axis(
             x, order.reshape(order.shape + (1,) * (x.ndim - mask.ndim)), axis=mask.ndim - 1
         )
-        fields = [take(getattr(problem, n)) for n in _BOX_FIELDS]
+        fields = [take(getattr(problem, n)) for n in names]
     else:
         pad = max_boxes - M
         grow = lambda x: jnp.concatenate(
             [x, jnp.zeros(x.shape[: mask.ndim - 1] + (pad,) + x.shape[mask.ndim :], x.dtype)], mask.ndim - 1
         )
-        fields = [grow(getattr(problem, n)) for n in _BOX_FIELDS]
-    return eqx.tree_at(lambda p: tuple(getattr(p, n) for n in _BOX_FIELDS), problem, tuple(fields))
+        fields = [grow(getattr(problem, n)) for n in names]
+    return eqx.tree_at(lambda p: tuple(getattr(p, n) for n in names), problem, tuple(fields))
 
 
 _BOX_FIELDS = ("box", "box_pose", "box_object", "box_mask", "texture_depth", "texture_mask")

@@ -187,7 +187,8 @@ class SolverConfig(_CostGuards, _InitRescue, _Stopping, _InitStart, _CostFactors
       box_outward_scale: the box sigma, times this, where the projected edge lies outside the
         measured box (:func:`jaxsem.factors.box_residual`'s ``outward_scale``): a measured box
         is the object's visible part, which occluders only cut inwards. 1.0: symmetric, the
-        thesis' factor.
+        thesis' factor. Where the problem says which edges an occluder may have cut
+        (``SlamProblem.box_cut``), only those.
       default_depth: metres, single-view initialisation depth without a texture plane when
         ``depth_from_box`` is False, or when the box cannot give one (every edge at the border).
       depth_from_box: static; without a texture plane, a single-view initialisation places the
