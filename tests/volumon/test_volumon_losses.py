@@ -12,6 +12,8 @@ from jaxsem.volumon import LossConfig, make_batch, volumon_loss
 from jaxsem.volumon._losses import box_error, dual_loss, primal_loss, size_variance_loss  # layers: white-box
 from jaxsem.volumon._synthetic import SceneConfig  # layers: white-box
 
+_primal_loss = jax.jit(primal_loss, static_argnames="config")
+
 K = jnp.array([[110.0, 0, 63.5], [0, 110.0, 47.5], [0, 0, 1]])
 
 
@@ -93,7 +95,7 @@ def test_primal_loss_zero_on_surface_and_formula(power):
     ell = _random_ellipsoids(2, 4)
     pts = quadrics.surface_points(jax.random.PRNGKey(0), *ell, 50)
     mask = jnp.ones(pts.shape[:-1], bool)
-    assert float(primal_loss(ell, pts, mask)) < 1e-20
+    assert float(_primal_loss(ell, pts, mask)) < 1e-20
     # independent reference: eq. 5.12 with the primal quadric matrix, sizes in cm; the default
     # weight is Solina and Bajcsy's (sqrt(d0 d1 d2) x^T Q x)^2, 0.5 the literal eq. 5.12
     off = pts * 1.1
@@ -106,7 +108,7 @@ def test_primal_loss_zero_on_surface_and_formula(power):
         q = np.einsum("ni,ij,nj->n", X, Q[k], X)
         d = 2 * np.asarray(ell.radii[k]) / cfg.length_unit
         ref.append(np.prod(d) ** p * np.mean(q**2))
-    np.testing.assert_allclose(primal_loss(ell, off, mask, config=cfg), np.mean(ref), rtol=1e-8)
+    np.testing.assert_allclose(_primal_loss(ell, off, mask, config=cfg), np.mean(ref), rtol=1e-8)
 
 
 def test_primal_size_weight_does_not_favour_large_ellipsoids():
@@ -130,6 +132,7 @@ def test_primal_size_weight_does_not_favour_large_ellipsoids():
 
 
 def test_primal_loss_masks_and_empty_masks():
+    primal_loss = _primal_loss  # compiled whole: one program per shape, not one per operation
     ell = _random_ellipsoids(3, 3)
     pts = quadrics.surface_points(jax.random.PRNGKey(1), *ell, 10) * 1.2
     mask = np.ones((3, 10), bool)
@@ -345,8 +348,8 @@ def test_ray_primal_distance_sees_the_extent_along_the_view_ray():
     losses = {}
     for mode in ("radial", "ray"):
         cfg = LossConfig(primal_distance=mode, length_unit=1.0)
-        assert float(primal_loss(truth, pts, mask, config=cfg)) < 1e-10
-        losses[mode] = float(primal_loss(inflated, pts, mask, config=cfg))
+        assert float(_primal_loss(truth, pts, mask, config=cfg)) < 1e-10
+        losses[mode] = float(_primal_loss(inflated, pts, mask, config=cfg))
     # along its ray every visible point lies at least ~excess/2 behind the inflated front surface
     assert np.sqrt(losses["ray"]) > 0.5 * excess
     assert losses["ray"] > 4 * losses["radial"]
