@@ -57,10 +57,20 @@ _temporary("JAXSEM_RUNS_DIR", "jaxsem_test_runs_")
 # as fast. Together they make the fast suite about two fifths quicker (the slow one, more of it
 # long runs, less). They change how the machine code is generated, not the programs XLA builds,
 # and the suite passes under the defaults too; XLA_FLAGS set outside the suite win.
-os.environ.setdefault(
-    "XLA_FLAGS",
-    "--xla_cpu_multi_thread_eigen=true --xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false",
-)
+# The emitters are switched for the fast suite only (``pytest_configure`` below, before any
+# backend starts): the slow suite keeps XLA's own, under which it was last run whole.
+_OWN_FLAGS = "XLA_FLAGS" not in os.environ
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --xla_backend_optimization_level=0")
+_FAST_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
+
+
+def pytest_configure(config):
+    marks = config.getoption("markexpr", "") or ""
+    fast_only = "not slow" in marks
+    if _OWN_FLAGS and fast_only and _FAST_EMITTERS not in os.environ["XLA_FLAGS"]:
+        os.environ["XLA_FLAGS"] += " " + _FAST_EMITTERS
+
+
 # Commands run in-process turn JAX's persistent compilation cache on: give the session its own
 # folder (never the user's ~/.cache/jaxsem, which other processes may be writing), and
 # _restore_compilation_cache below turns it off again after each test.
