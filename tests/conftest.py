@@ -54,11 +54,11 @@ _temporary("JAXSEM_RUNS_DIR", "jaxsem_test_runs_")
 # LLVM's optimisation level 0 for the compiled CPU code, and XLA's older elemental emitters in
 # place of its fusion emitters: the suite is compile-bound (most of a test's time is XLA's backend
 # compiling small programs), and at level 0 the older emitters compile such programs about twice
-# as fast. Together they make the fast suite about two fifths quicker (the slow one, more of it
-# long runs, less). They change how the machine code is generated, not the programs XLA builds,
-# and the suite passes under the defaults too; XLA_FLAGS set outside the suite win.
-# The emitters are switched for the fast suite only (``pytest_configure`` below, before any
-# backend starts): the slow suite keeps XLA's own, under which it was last run whole.
+# as fast. Together they make the fast suite about two fifths quicker. They change how the
+# machine code is generated, not the programs XLA builds, and the fast suite passes under the
+# defaults too; XLA_FLAGS set outside the suite win. The emitters are switched for the fast
+# suite only (``pytest_configure`` below, before any backend starts): sharded programs on four
+# host devices came out differently under them, and the slow suite keeps XLA's own.
 _OWN_FLAGS = "XLA_FLAGS" not in os.environ
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --xla_backend_optimization_level=0")
 _FAST_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
@@ -231,7 +231,7 @@ def four_cpu_child():
         env = dict(os.environ)
         # The child compiles with XLA's own emitters: under the elemental ones the sharded programs
         # stray from the one-device program beyond these tests' tolerances (1.6 against 1e-8).
-        flags = env.get("XLA_FLAGS", "").replace("--xla_cpu_use_fusion_emitters=false", "")
+        flags = env.get("XLA_FLAGS", "").replace(_FAST_EMITTERS, "")
         env["XLA_FLAGS"] = " ".join(flags.split() + ["--xla_force_host_platform_device_count=4"])
         env.setdefault("JAX_PLATFORMS", "cpu")
         proc = subprocess.run(
