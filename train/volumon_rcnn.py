@@ -75,10 +75,11 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--train-only",
-        choices=("all", "lift"),
+        choices=("all", "lift", "heads"),
         default="all",
         help="lift: only the VoluMon head learns; the detector (backbone, proposals, box and class heads, "
-        "batch-norm statistics) stays --init-from's",
+        "batch-norm statistics) stays --init-from's. heads: only the proposal stage and the box and class "
+        "outputs learn; the RoI features and the lift stay --init-from's",
     )
     p.add_argument(
         "--detector-lr-scale",
@@ -111,12 +112,12 @@ def main(argv=None) -> int:
         p.error(f"--models: no LM-O meshes folder {models} (give --lmo or --models)")
     if a.lmo is not None and not (a.lmo / "scene_gt.json").is_file():
         p.error(f"--lmo: {a.lmo} holds no scene_gt.json (jaxsem data fetch lmo --out data)")
-    if a.train_only == "lift" and a.init_from is None:
-        p.error("--train-only: 'lift' keeps a trained detector; give it with --init-from")
+    if a.train_only != "all" and a.init_from is None:
+        p.error(f"--train-only: '{a.train_only}' keeps trained layers; give them with --init-from")
     if a.detector_lr_scale > 1.0:
         p.error(f"--detector-lr-scale: expected a number in (0, 1], got {a.detector_lr_scale}")
-    if a.train_only == "lift" and a.detector_lr_scale != 1.0:
-        p.error("--detector-lr-scale: --train-only lift already freezes the detector")
+    if a.train_only != "all" and a.detector_lr_scale != 1.0:
+        p.error("--detector-lr-scale: --train-only already sets which layers learn")
     if a.distill_from is not None and a.lmo is None:
         p.error("--distill-from: needs --lmo (the teacher labels the real photographs)")
     if a.distill_from not in (None, "lmo") and not pathlib.Path(a.distill_from).exists():

@@ -255,11 +255,14 @@ class RCNNTrainConfig:
         so a resume with other data is refused.
       distill_from: the teacher whose ellipsoids label the real photographs (:func:`teacher_labels`;
         ``loss.distill`` weighs them); recorded so a resume with another teacher is refused.
-      train_only: "" (every layer) or "lift": only the VoluMon head's layers (:data:`LIFT_LAYERS`)
-        learn; the backbone, the proposal stage, the box and class heads and the batch-norm
-        statistics stay as ``init_from`` gave them, so the detections stay exactly the
-        starting network's while its lift learns (e.g. a new lift branch grown on a shipped
-        detector). Training steps still normalise by each batch's statistics, as in every run.
+      train_only: "" (every layer), "lift" or "heads". "lift": only the VoluMon head's layers
+        (:data:`LIFT_LAYERS`) learn; the backbone, the proposal stage, the box and class heads
+        and the batch-norm statistics stay as ``init_from`` gave them, so the detections stay
+        exactly the starting network's while its lift learns (e.g. a new lift branch grown on a
+        shipped detector). "heads": only the proposal stage and the box and class outputs
+        (:data:`HEAD_LAYERS`) learn, so the RoI features and the lift stay ``init_from``'s while
+        the detections adapt to them (e.g. a lift-tuned network's detector recovered). Training
+        steps still normalise by each batch's statistics, as in every run.
       detector_lr_scale: every layer outside :data:`LIFT_LAYERS` learns at ``learning_rate``
         times this (an Adam of its own): below 1, the shared features move for the lift while
         the boxes and classes of a trained ``init_from`` drift less. 1 trains every layer alike.
@@ -289,17 +292,25 @@ class RCNNTrainConfig:
 
 #: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
 LIFT_LAYERS = ("volumon_fc0", "lift8_fc", "crop_", "phi_local", "phi_depth")
+#: The detector's outputs (proposal stage, class and box heads; not the RoI features the lift
+#: reads): what ``RCNNTrainConfig.train_only="heads"`` trains.
+HEAD_LAYERS = ("rpn_", "cls_out", "box_out")
+_TRAINED = {"lift": LIFT_LAYERS, "heads": HEAD_LAYERS}
 
 
 def _optimizer(config: RCNNTrainConfig):
-    """Adam behind a global-norm clip; with ``train_only="lift"`` only the layers in
-    :data:`LIFT_LAYERS` get Adam (clipped by their own norm) and every other layer a zero update
-    and no optimiser state; with ``detector_lr_scale`` below 1 the other layers get an Adam of
+    """Adam behind a global-norm clip; with ``train_only`` "lift" or "heads" only the layers in
+    :data:`LIFT_LAYERS` or :data:`HEAD_LAYERS` get Adam (clipped by their own norm) and every
+    other layer a zero update and no optimiser state; with ``detector_lr_scale`` below 1 the other layers get an Adam of
     their own at the scaled rate, behind the one clip of the whole gradient."""
-    labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "detector") for k in params}
-    if config.train_only == "lift":
+    if config.train_only:
+        trained = _TRAINED[config.train_only]
         tx = optax.chain(optax.clip_by_global_norm(config.clip), optax.adam(config.learning_rate))
-        return optax.multi_transform({"lift": tx, "detector": optax.set_to_zero()}, labels)
+        # The labels name the optimiser state's branches: "lift" and "detector" as runs saved before.
+        on, off = ("lift", "detector") if config.train_only == "lift" else ("heads", "frozen")
+        moving = lambda params: {k: (on if k.startswith(trained) else off) for k in params}
+        return optax.multi_transform({on: tx, off: optax.set_to_zero()}, moving)
+    labels = lambda params: {k: ("lift" if k.startswith(LIFT_LAYERS) else "detector") for k in params}
     if config.detector_lr_scale != 1.0:
         lift, detector = optax.adam(config.learning_rate), optax.adam(config.learning_rate * config.detector_lr_scale)
         return optax.chain(
@@ -488,14 +499,14 @@ def train_rcnn(
     for name, arr in (("renders", renders), ("real", real), ("held_out", held_out)):
         if arr is not None and tuple(arr["image"].shape[1:3]) != (H, W):
             raise ValueError(f"{name}: images of {arr['image'].shape[1:3]} (H, W), the model reads {(H, W)}")
-    if config.train_only not in ("", "lift"):
-        raise ValueError(f"train_only: expected '' or 'lift', got {config.train_only!r}")
+    if config.train_only not in ("", *_TRAINED):
+        raise ValueError(f"train_only: expected '', 'lift' or 'heads', got {config.train_only!r}")
     if not (0.0 < config.detector_lr_scale <= 1.0):
         raise ValueError(f"detector_lr_scale: expected a number in (0, 1], got {config.detector_lr_scale!r}")
     if config.train_only and config.detector_lr_scale != 1.0:
-        raise ValueError("detector_lr_scale: train_only='lift' already freezes the detector; leave the scale at 1")
+        raise ValueError("detector_lr_scale: train_only already sets which layers learn; leave the scale at 1")
     if config.train_only and not config.init_from:
-        raise ValueError("train_only: 'lift' keeps a trained detector, so config.init_from must name one")
+        raise ValueError(f"train_only: {config.train_only!r} keeps trained layers, so config.init_from must name them")
     model, variables = init_rcnn(jax.random.PRNGKey(config.seed), config.model, config.batch_size)
     tx = _optimizer(config)
     state = {
@@ -520,7 +531,7 @@ def train_rcnn(
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
             state = {**state, "params": start["params"], "batch_stats": start["batch_stats"]}
         run.begin()
-        step_fn = make_rcnn_step(model, config.model, config.loss, tx, freeze_stats=config.train_only == "lift")
+        step_fn = make_rcnn_step(model, config.model, config.loss, tx, freeze_stats=bool(config.train_only))
         params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
         n_real = 0 if real is None else min(config.real_per_batch, config.batch_size - 1)
         last = config.num_steps if stop_at is None else min(int(stop_at), config.num_steps)

@@ -12,6 +12,7 @@ from test_rcnn import TINY, _frames
 
 from jaxsem.models._rcnn import init_rcnn  # layers: white-box
 from jaxsem.volumon.rcnn import (  # layers: white-box
+    HEAD_LAYERS,
     LIFT_LAYERS,
     RCNNLossConfig,
     RCNNTrainConfig,
@@ -25,10 +26,11 @@ CROP = dataclasses.replace(TINY, lift_crop=16)
 
 
 @pytest.mark.slow
-def test_lift_only_steps_move_the_lift_and_nothing_else(optax_promotion):
+@pytest.mark.parametrize("only", ["lift", "heads"])
+def test_train_only_steps_move_their_layers_and_nothing_else(optax_promotion, only):
     b = rcnn_batch(_frames(2, 0), CROP, ("a", "b", "c"), 4)
     model, v = init_rcnn(jax.random.PRNGKey(0), CROP, 2)
-    config = RCNNTrainConfig(model=CROP, train_only="lift", init_from="trained", class_names=("a", "b", "c"))
+    config = RCNNTrainConfig(model=CROP, train_only=only, init_from="trained", class_names=("a", "b", "c"))
     tx = _optimizer(config)
     params, stats, opt = v["params"], v["batch_stats"], tx.init(v["params"])
     step = make_rcnn_step(model, CROP, RCNNLossConfig(burn_in=0), tx, freeze_stats=True)
@@ -41,8 +43,14 @@ def test_lift_only_steps_move_the_lift_and_nothing_else(optax_promotion):
         if any(bool(jnp.any(a != c)) for a, c in zip(jax.tree.leaves(params[k]), jax.tree.leaves(v["params"][k])))
     }
     lift = {k for k in params if k.startswith(LIFT_LAYERS)}
+    heads = {k for k in params if k.startswith(HEAD_LAYERS)}
     assert "crop_fc" in lift and "phi_depth" in lift and "volumon_fc0" in lift
-    assert moved and moved <= lift, moved - lift
+    assert {"rpn_conv", "rpn_cls", "rpn_box", "cls_out", "box_out"} <= heads and not heads & lift
+    trained = lift if only == "lift" else heads
+    assert moved and moved <= trained, moved - trained
+    if only == "heads":
+        assert {"cls_out", "box_out"} <= moved  # the RoI features and the backbone stay
+        assert "roi_fc0" not in moved and "roi_fc1" not in moved
     for a, c in zip(jax.tree.leaves(stats), jax.tree.leaves(v["batch_stats"])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
 
