@@ -4,7 +4,9 @@ Reads a map in any format of ``jaxsem.planning.load_map`` (ROS map_server YAML, 
 ``.gridmap(.gz)``, a plain image with ``--resolution``), resamples it to the planner's 0.1 m
 cells, finds its doors and its footprint (``--annotations`` adds hand-drawn ones), writes a figure
 of what it found, samples Inside-Inside and Inside-Outside tasks with distance and clearance
-bounds, and runs both planners from the same start, yaw and key on every task and every N:
+bounds (``--tasks thesis``: 8-40 m, the thesis' buildings' size; ``--tasks map``: 8 m to the map's
+extent, for maps people cross end to end), and runs both planners from the same start, yaw and key
+on every task and every N:
 
 - ``--protocol thesis``: a fresh roadmap at every replan, the first roadmap without a path ends
   the trial (thesis 3.3.3; ``NavConfig(reuse_roadmap=False, max_growth=0)`` for both planners);
@@ -76,12 +78,20 @@ def _parse(argv):
     p.add_argument("--sets", nargs="+", default=["II", "IO"], choices=["II", "IO"])
     p.add_argument("--protocol", choices=["thesis", "defaults"], default="thesis")
     p.add_argument("--seed", type=int, default=1000, help="task seed (< 1000: tuning seeds)")
+    p.add_argument(
+        "--tasks",
+        choices=["thesis", "map"],
+        default="thesis",
+        help="thesis: start and goal at most --max-distance apart (40 m: the thesis' buildings' size); "
+        "map: up to the map's extent (its diagonal), the bound for maps people cross end to end",
+    )
     p.add_argument("--min-distance", type=float, default=8.0, help="metres between start and goal, at least")
     p.add_argument(
         "--max-distance",
         type=float,
-        default=40.0,
-        help="metres between start and goal, at most (the thesis' buildings are about 40 m across)",
+        default=None,
+        help="metres between start and goal, at most, with --tasks thesis (default 40: the thesis' buildings "
+        "are about 40 m across)",
     )
     p.add_argument("--clearance", type=float, default=0.3, help="metres from obstacles for start and goal")
     p.add_argument("--max-steps", type=int, default=10_000, help="step limit per trial (thesis: 10000)")
@@ -162,7 +172,26 @@ def _parse(argv):
     p.add_argument("--figure", default=None, help="map semantics figure (default: <json stem>_map.png)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.tasks == "map" and args.max_distance is not None:
+        raise SystemExit(
+            "lsd_real: --max-distance: --tasks map draws tasks up to the map's extent; give one or the other"
+        )
+    if args.tasks == "thesis" and args.max_distance is None:
+        args.max_distance = THESIS_MAX_DISTANCE
+    return args
+
+
+#: The thesis' task bound (m): its buildings are about 40 m across.
+THESIS_MAX_DISTANCE = 40.0
+
+
+def task_max_distance(args, b) -> float:
+    """The run's bound on the start-to-goal distance (m) on map ``b``: ``--max-distance`` under
+    ``--tasks thesis``, the map's diagonal under ``--tasks map``."""
+    if args.tasks == "map":
+        return float(math.hypot(b.shape[0] * b.resolution, b.shape[1] * b.resolution))
+    return float(args.max_distance)
 
 
 def _sibling(name: str):
@@ -193,7 +222,10 @@ def _check(args):
         raise SystemExit(f"lsd_real: --trials: expected >= 1, got {args.trials}")
     if any(n < 1 for n in args.n):
         raise SystemExit(f"lsd_real: --n: expected sample budgets >= 1, got {args.n}")
-    if not (0 <= args.min_distance < args.max_distance) or not math.isfinite(args.max_distance):
+    if args.tasks == "map":
+        if not (math.isfinite(args.min_distance) and args.min_distance >= 0):
+            raise SystemExit(f"lsd_real: --min-distance: expected metres >= 0, got {args.min_distance}")
+    elif not (0 <= args.min_distance < args.max_distance) or not math.isfinite(args.max_distance):
         raise SystemExit("lsd_real: --max-distance: must be finite and exceed --min-distance (>= 0)")
     if not (math.isfinite(args.clearance) and args.clearance >= 0):
         raise SystemExit(f"lsd_real: --clearance: expected metres >= 0, got {args.clearance}")
@@ -225,7 +257,7 @@ def _check(args):
 VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale", "oracle")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
-    "trials", "seed", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
+    "trials", "seed", "tasks", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
     "goal_flag", "resolution", "annotations", "hatch_px", "footprint",
 )  # fmt: skip
 
@@ -317,7 +349,7 @@ def run_tasks(args, b, kind: str, graph=None) -> list:
         min_distance=args.min_distance,
         clearance=args.clearance,
         graph=graph,
-        max_distance=args.max_distance,
+        max_distance=task_max_distance(args, b),
     )
     if args.goal_flag == "io":
         tasks = [t._replace(goal_outdoors=kind == "IO") for t in tasks]
@@ -466,7 +498,10 @@ def _run(args, argv) -> int:
         "map_facts": facts[0] if len(facts) == 1 else facts,
         "task_bounds": {
             "min_distance": args.min_distance,
-            "max_distance": args.max_distance,
+            "tasks": args.tasks,
+            "max_distance": [task_max_distance(args, b) for b in buildings]
+            if len(buildings) > 1
+            else task_max_distance(args, buildings[0]),
             "clearance": args.clearance,
         },
         "seconds": time.perf_counter() - t1,

@@ -493,6 +493,27 @@ def test_records_without_a_stamp_are_refused_and_a_stranger_file_kept(tmp_path):
     assert mine.read_text() == '{"my": "notes"}\n'
 
 
+def test_real_map_tasks_thesis_or_map_wide(tmp_path, script):
+    # --tasks thesis bounds start-to-goal at 40 m unless told; --tasks map at the map's diagonal,
+    # and refuses a --max-distance beside it (which bound would it be?).
+    mod = script("benchmarks/lsd/lsd_real.py")
+    path = tmp_path / "m.gridmap.gz"
+    _write_gridmap(path, _two_rooms(0.9), 0.1)
+    base = ["--map", str(path), "--json", str(tmp_path / "o.json")]
+    thesis = mod._parse(base)
+    wide = mod._parse(base + ["--tasks", "map", "--min-distance", "6", "--trials", "5", "--clearance", "0.2"])
+    b = mod.load_run_map(wide, str(path))
+    assert mod.task_max_distance(thesis, b) == 40.0
+    assert mod.task_max_distance(mod._parse(base + ["--max-distance", "9"]), b) == 9.0
+    diagonal = mod.task_max_distance(wide, b)
+    assert 10.4 <= diagonal <= 11.5  # the 10.4 x 4.4 m map's
+    tasks = mod.run_tasks(wide, b, "II")
+    assert len(tasks) == 5
+    assert all(6.0 <= np.linalg.norm(t.goal - t.start) <= diagonal for t in tasks)
+    with pytest.raises(SystemExit, match="--max-distance"):
+        mod._parse(base + ["--tasks", "map", "--max-distance", "30"])
+
+
 def test_real_map_command_flags_exit_2_naming_them(tmp_path, script):
     # Run as a script its flag errors exit 2 (bad usage; they exited 1) and NaN or impossible
     # values are named by their flag before any map is read.
