@@ -44,33 +44,34 @@ def _sphere_directions(n: int) -> np.ndarray:
 
 
 def _cuboid_unit_points(n: int, half) -> np.ndarray:
-    """Deterministic area-weighted points on a cuboid of half extents ``half`` (B, 3) -> (B, n, 3)."""
+    """Deterministic area-weighted points on a cuboid of half extents ``half`` (B, 3) -> (B, n, 3).
+    Every row reads the same draws, so a row's points depend on its own extents alone (not on
+    its place in the batch)."""
     rng = np.random.default_rng(12345)
     half = np.asarray(half, np.float64)
     areas = np.stack([half[:, 1] * half[:, 2], half[:, 0] * half[:, 2], half[:, 0] * half[:, 1]], -1)
-    u = rng.uniform(-1, 1, size=(half.shape[0], n, 3))
-    sign = np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0)
+    u = rng.uniform(-1, 1, size=(1, n, 3))
+    sign = np.where(rng.uniform(size=(1, n)) < 0.5, -1.0, 1.0)
     c = np.cumsum(areas / areas.sum(-1, keepdims=True), -1)
-    axis = (rng.uniform(size=(half.shape[0], n))[..., None] > c[:, None, :]).sum(-1)
+    axis = (rng.uniform(size=(1, n))[..., None] > c[:, None, :]).sum(-1)
     onehot = np.eye(3)[axis]
     u = u * (1 - onehot) + onehot * sign[..., None]
     return u * half[:, None, :]
 
 
 def _cylinder_unit_points(n: int, half) -> np.ndarray:
-    """Deterministic area-weighted points on elliptic cylinders (axis z) of half extents (B, 3) -> (B, n, 3)."""
+    """Deterministic area-weighted points on elliptic cylinders (axis z) of half extents (B, 3) ->
+    (B, n, 3); every row reads the same draws (as :func:`_cuboid_unit_points`)."""
     rng = np.random.default_rng(54321)
     half = np.asarray(half, np.float64)
     a, b, c = half[:, 0], half[:, 1], half[:, 2]
     side = 2 * np.pi * np.sqrt(0.5 * (a * a + b * b)) * 2 * c  # Ramanujan-free approximation of the side area
     caps = 2 * np.pi * a * b
     p_side = side / (side + caps)
-    theta = rng.uniform(0, 2 * np.pi, (half.shape[0], n))
-    on_side = rng.uniform(size=(half.shape[0], n)) < p_side[:, None]
-    rad = np.where(on_side, 1.0, np.sqrt(rng.uniform(size=(half.shape[0], n))))
-    z = np.where(
-        on_side, rng.uniform(-1, 1, (half.shape[0], n)), np.where(rng.uniform(size=(half.shape[0], n)) < 0.5, -1.0, 1.0)
-    )
+    theta = rng.uniform(0, 2 * np.pi, (1, n))
+    on_side = rng.uniform(size=(1, n)) < p_side[:, None]
+    rad = np.where(on_side, 1.0, np.sqrt(rng.uniform(size=(1, n))))
+    z = np.where(on_side, rng.uniform(-1, 1, (1, n)), np.where(rng.uniform(size=(1, n)) < 0.5, -1.0, 1.0))
     return np.stack([rad * np.cos(theta), rad * np.sin(theta), z], -1) * half[:, None, :]
 
 
@@ -148,7 +149,13 @@ def detection_errors(pred, gt):
         true_pts = sel(gt["gt_points"]).astype(np.float64)
     else:
         true_pts = np.einsum("bij,bnj->bni", sel(gt["gt_rotation"]), local) + sel(gt["gt_center"])[:, None, :]
-    f = lambda x: jnp.asarray(x, jnp.float32)
+    n = len(gt_h)
+    if n == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    # The batch is padded (with copies of its first row) to a power of two of at least 16, so
+    # scoring sets of other sizes reuses one compiled program per size class.
+    rows = np.concatenate([np.arange(n), np.zeros(max(16, 1 << (n - 1).bit_length()) - n, np.int64)])
+    f = lambda x: jnp.asarray(np.asarray(x)[rows], jnp.float32)
     trans, adi, iou = _errors(
         f(sel(pred["rotation"])),
         f(sel(pred["center"])),
@@ -156,7 +163,7 @@ def detection_errors(pred, gt):
         f(sel(gt["gt_rotation"])),
         f(sel(gt["gt_center"])),
         f(true_pts),
-        f(_sphere_directions(NUM_PRED_POINTS)),
+        jnp.asarray(_sphere_directions(NUM_PRED_POINTS), jnp.float32),
         f(gt_h),
     )
-    return np.asarray(trans), np.asarray(adi), np.asarray(iou)
+    return np.asarray(trans)[:n], np.asarray(adi)[:n], np.asarray(iou)[:n]

@@ -213,3 +213,41 @@ def test_held_out_set_is_deterministic_and_disjoint_from_training():
     assert not np.allclose(np.asarray(a["gt_center"]), np.asarray(c["gt_center"]))
     with pytest.raises(ValueError, match="num"):
         held_out_set(5, 0, SCENE, 32)
+
+
+def test_per_detection_scores_of_any_count_are_each_rows_own_and_share_one_program(compiles):
+    # Scoring is per detection: a set's errors are its rows' errors alone, whatever the set's size,
+    # and sets of other sizes (up to 16) reuse one compiled program.
+    from jaxsem.volumon._eval import detection_errors  # layers: white-box
+
+    rng = np.random.default_rng(0)
+
+    def sample(n):
+        R = np.linalg.qr(rng.normal(size=(n, 3, 3)))[0]
+        R *= np.sign(np.linalg.det(R))[:, None, None]
+        pred = {
+            "rotation": R,
+            "center": rng.normal(size=(n, 3)) * 0.1 + [0, 0, 1],
+            "radii": rng.uniform(0.02, 0.1, (n, 3)),
+        }
+        gt = {
+            "gt_rotation": R[::-1].copy(),
+            "gt_center": pred["center"] + rng.normal(size=(n, 3)) * 0.01,
+            "gt_half_extents": rng.uniform(0.02, 0.1, (n, 3)),
+            "gt_shape_id": rng.integers(0, 3, n),
+        }
+        return pred, gt
+
+    pred, gt = sample(5)
+    whole = detection_errors(pred, gt)
+    for i in range(5):
+        one = detection_errors({k: v[i : i + 1] for k, v in pred.items()}, {k: v[i : i + 1] for k, v in gt.items()})
+        for a, b in zip(whole, one):
+            np.testing.assert_allclose(a[i], b[0], rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(whole[0], np.linalg.norm(pred["center"] - gt["gt_center"], axis=-1), rtol=1e-5)
+    with compiles() as c:
+        for n in (3, 11, 16):
+            p, g = sample(n)
+            assert all(len(x) == n and np.all(np.isfinite(x)) for x in detection_errors(p, g))
+    assert c.count == 0
+    assert all(len(x) == 0 for x in detection_errors(*sample(0)))
