@@ -173,7 +173,23 @@ def test_a_coarser_sampler_sees_pooled_maps_and_its_distribution_covers_their_ce
     peak = np.argwhere(dist == dist.max())
     r, c = 2 * (r0 + 3), 2 * (c0 - 5)
     assert sorted(map(tuple, peak)) == [(r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1)]
-    res = navigate(w, [2.0, 2.0], [10.0, 2.0], jax.random.PRNGKey(2), cfg, sampler=sampler)
+
+
+@pytest.mark.slow
+def test_a_coarser_sampler_navigates_to_the_goal():
+    # The whole loop under sampler_scale=2 (its own compiled programs): the pooled crops and the
+    # distribution spread back over the blocks carry the robot through the doorway.
+    one_hot = np.zeros((CROP_SIZE, CROP_SIZE))
+    one_hot[CROP_SIZE // 2 + 3, CROP_SIZE // 2 - 5] = 1.0
+    cfg = dataclasses.replace(CFG, sampler_scale=2)
+    res = navigate(
+        _two_rooms(),
+        [2.0, 2.0],
+        [10.0, 2.0],
+        jax.random.PRNGKey(2),
+        cfg,
+        sampler=lambda _: one_hot * 0.9 + 0.1 / one_hot.size,
+    )
     assert res.success, res.reason
 
 
