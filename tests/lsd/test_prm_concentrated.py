@@ -131,3 +131,37 @@ def test_small_roadmaps_from_any_distribution_share_one_search(grow_caps):
         prm = PRM(_free_map(), grid, capacity=1500, radius=1.5, weight="neglogp", sectors=8)
         prm.grow(jax.random.PRNGKey(seed), 500, _concentrated(seed, centre))
     assert caps == [None, None]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n", [1000, 5000])
+def test_each_vertex_links_its_k_nearest_under_a_gaussian_blob(n):
+    # sectors=0 on an obstacle-free map, every sample from a 12-cell Gaussian blob: each row holds
+    # min(k, neighbours within the radius) links, none farther than the k-th nearest by brute
+    # force (up to float32 rounding of the squared distance: near-ties may go either way).
+    occ = np.zeros(SHAPE, bool)
+    yy, xx = np.mgrid[: SHAPE[0], : SHAPE[1]]
+    dist = np.exp(-0.5 * ((yy - 120.0) ** 2 + (xx - 200.0) ** 2) / 12.0**2)
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    for seed in range(2):
+        prm = PRM(occ, grid, capacity=n, sectors=0)
+        prm.grow(jax.random.PRNGKey(seed), n, dist / dist.sum())
+        rm = prm.roadmap
+        pts = np.asarray(rm.points, np.float64)
+        ids = np.flatnonzero(np.asarray(rm.valid) & (np.arange(len(pts)) >= _roadmap._QUERY))
+        nb, ev = np.asarray(rm.neighbors), np.asarray(rm.edge_valid)
+        k = nb.shape[1]
+        assert len(ids) == n
+        where = np.full(len(pts), -1)
+        where[ids] = np.arange(n)
+        for chunk in np.array_split(ids, 8):
+            d2 = np.sum((pts[chunk, None, :] - pts[None, ids, :]) ** 2, -1)
+            d2[np.arange(len(chunk)), where[chunk]] = np.inf
+            within = d2 <= prm.radius**2 * (1 + 1e-5)
+            want = np.minimum(k, within.sum(1))
+            kth = np.sort(d2, 1)[np.arange(len(chunk)), np.maximum(want - 1, 0)]
+            for i, r in enumerate(chunk):
+                row = nb[r][ev[r]]
+                assert abs(len(row) - want[i]) <= 1, (r, len(row), want[i])  # a neighbour on the radius: either way
+                if len(row):
+                    assert d2[i, where[row]].max() <= kth[i] * (1 + 1e-5), r
