@@ -152,7 +152,7 @@ def test_the_damped_schur_step_solves_the_damped_dense_system(odometry, pose_fre
     got = np.concatenate([np.asarray(dp).ravel(), np.asarray(do).ravel()])
     np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.max(np.abs(want)))
     # vmapped (the cond selects between both branches) it is the same step
-    both = jax.vmap(damped_schur_step, in_axes=(None, None, 0, None))(
+    both = jax.jit(jax.vmap(damped_schur_step, in_axes=(None, None, 0, None)))(
         normal, lam, jnp.asarray([pose_free, pose_free]), jnp.asarray(obj_free)
     )
     np.testing.assert_allclose(np.asarray(both[1][1]), np.asarray(do), rtol=1e-12, atol=1e-14)

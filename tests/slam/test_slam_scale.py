@@ -23,6 +23,10 @@ def _yaw(deg):
     return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
 
 
+# Jitted: run op by op the start compiled well over a hundred small programs per call.
+_initialize = jax.jit(slam.initialize, static_argnums=1)
+
+
 def _start_depths(eye, target, objects, config=slam.SolverConfig()):
     """True and initial camera depths of ``objects`` [(class, centre, yaw deg)] seen from one camera
     (boxes: the true ellipsoids' projections, each object its class-mean size)."""
@@ -36,7 +40,7 @@ def _start_depths(eye, target, objects, config=slam.SolverConfig()):
         truth.append(float(Q.camera_depth(np.asarray(centre, float), pose)))
     n = len(objects)
     problem = slam.make_problem(K, SIZE, pose[None], boxes, [0] * n, list(range(n)), [o[0] for o in objects])
-    init = slam.initialize(problem, config)
+    init = _initialize(problem, config)
     return np.array(truth), np.asarray(Q.camera_depth(init.center, pose))
 
 
