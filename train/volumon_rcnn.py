@@ -74,6 +74,13 @@ def main(argv=None) -> int:
         help="pixels per side of an image crop the VoluMon head also reads at each RoI (a branch that starts at zero)",
     )
     p.add_argument(
+        "--lift-features",
+        choices=("shared", "own"),
+        default="shared",
+        help="own: the VoluMon head reads RoI layers of its own (started as copies of --init-from's "
+        "detector's), so the lift's features can learn while the detector's stay",
+    )
+    p.add_argument(
         "--train-only",
         choices=("all", "lift", "heads"),
         default="all",
@@ -141,6 +148,7 @@ def main(argv=None) -> int:
         cnn_width=a.cnn_width,
         lift_stride8=a.lift_stride8,
         lift_crop=a.lift_crop,
+        lift_features=a.lift_features,
         input_size=a.input_size or model.input_size,
         anchor_sizes=tuple(a.anchor_scale * float(s) for s in model.anchor_sizes),
     )

@@ -55,6 +55,7 @@ from ._volumon import (
 
 PARAM_RULES = ("class", "expectation")
 LIFT_AT = ("refined", "proposal")
+LIFT_FEATURES = ("shared", "own")
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
@@ -91,6 +92,11 @@ class RCNNConfig:
         (each RoI's box after the head's regression, pooled a second time: the box the
         ellipsoid is reconstructed in, as Mask R-CNN's mask head reads the detected boxes) or
         "proposal" (the RoI itself, as in training).
+      lift_features: the RoI features the VoluMon head reads: "shared" (the box and class heads'
+        two layers over the pooled RoI) or "own" (two layers of its own over the same pooled
+        RoI, ``volumon_roi0`` and ``volumon_roi1``), so the lift's features can learn while the
+        detector's stay; a network adopted from a "shared" one starts them as copies of the
+        detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the very same outputs.
     """
 
     num_classes: int = 8
@@ -116,6 +122,7 @@ class RCNNConfig:
     lift_stride8: bool = False
     lift_crop: int = 0
     lift_at: str = "refined"
+    lift_features: str = "shared"
 
     def __post_init__(self):
         if int(self.num_classes) < 1:
@@ -133,6 +140,8 @@ class RCNNConfig:
             raise ValueError(f"lift_crop: expected 0 or a positive multiple of 8, got {self.lift_crop}")
         if self.lift_at not in LIFT_AT:
             raise ValueError(f"lift_at: expected one of {LIFT_AT}, got {self.lift_at!r}")
+        if self.lift_features not in LIFT_FEATURES:
+            raise ValueError(f"lift_features: expected one of {LIFT_FEATURES}, got {self.lift_features!r}")
         if self.param_rule not in PARAM_RULES:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
@@ -308,6 +317,9 @@ class VoluMonRCNN(nn.Module):
 
         fc0 = nn.Dense(cfg.hidden, name="roi_fc0")
         fc1 = nn.Dense(cfg.hidden, name="roi_fc1")
+        own = cfg.lift_features == "own"
+        own0 = nn.Dense(cfg.hidden, name="volumon_roi0") if own else None
+        own1 = nn.Dense(cfg.hidden, name="volumon_roi1") if own else None
         cls_out = nn.Dense(n + 1, name="cls_out")
         box_out = nn.Dense(4, kernel_init=nn.initializers.normal(0.001), name="box_out")
         lift0 = nn.Dense(cfg.hidden, name="volumon_fc0")
@@ -327,9 +339,11 @@ class VoluMonRCNN(nn.Module):
         depth_out = nn.Dense(n, kernel_init=tiny, name="phi_depth")
 
         def roi_feature(boxes):
+            """(the detector's features, the lift's) of RoIs ``boxes``: the same unless ``own``."""
             pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, boxes)
             h = pooled.reshape(pooled.shape[:2] + (-1,))
-            return nn.relu(fc1(nn.relu(fc0(h))))
+            det = nn.relu(fc1(nn.relu(fc0(h))))
+            return det, (nn.relu(own1(nn.relu(own0(h)))) if own else det)
 
         def lift(h, boxes):
             bf = box_features(boxes, K[:, None]).astype(h.dtype)
@@ -350,7 +364,7 @@ class VoluMonRCNN(nn.Module):
             local = local_out(v).reshape(v.shape[:-1] + (n, 9))
             return jnp.concatenate([local, depth_out(v)[..., None]], -1)
 
-        h = roi_feature(rois)
+        h, h_lift = roi_feature(rois)
         class_logits = cls_out(h)
         box_deltas = box_out(h)
         if cfg.lift_at == "refined" and not train:
@@ -358,9 +372,9 @@ class VoluMonRCNN(nn.Module):
             # box refined by the head, pooled again (as Mask R-CNN's mask head reads the detected
             # boxes). Training reads the RoIs themselves, which its losses reconstruct in.
             refined = jax.lax.stop_gradient(_clip(decode_boxes(rois, box_deltas, HEAD_WEIGHTS), (W, H)))
-            phi = lift(roi_feature(refined), refined)
+            phi = lift(roi_feature(refined)[1], refined)
         else:
-            phi = lift(h, rois)
+            phi = lift(h_lift, rois)
         return RCNNOutput(rpn_logits, rpn_deltas, rois, roi_valid, class_logits, box_deltas, phi)
 
 

@@ -291,7 +291,7 @@ class RCNNTrainConfig:
 
 
 #: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
-LIFT_LAYERS = ("volumon_fc0", "lift8_fc", "crop_", "phi_local", "phi_depth")
+LIFT_LAYERS = ("volumon_fc0", "volumon_roi", "lift8_fc", "crop_", "phi_local", "phi_depth")
 #: The detector's outputs (proposal stage, class and box heads; not the RoI features the lift
 #: reads): what ``RCNNTrainConfig.train_only="heads"`` trains.
 HEAD_LAYERS = ("rpn_", "cls_out", "box_out")
@@ -526,10 +526,12 @@ def train_rcnn(
         if run.latest_step is not None:
             state = run.restore(state)
         elif config.init_from:
-            start = _adopt(load_rcnn(config.init_from).variables, variables)
+            loaded = load_rcnn(config.init_from).variables
+            start = _adopt(loaded, variables)
             if start is None:
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
-            state = {**state, "params": start["params"], "batch_stats": start["batch_stats"]}
+            params = _own_lift_features(start["params"], loaded["params"])
+            state = {**state, "params": params, "batch_stats": start["batch_stats"]}
         run.begin()
         step_fn = make_rcnn_step(model, config.model, config.loss, tx, freeze_stats=bool(config.train_only))
         params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
@@ -590,6 +592,15 @@ def _adopt(start, fresh):
             return None
         out[key] = sub
     return out
+
+
+def _own_lift_features(params, start_params):
+    """``params`` (a ``lift_features="own"`` network's, nested dicts) with its lift's own RoI
+    layers copied from the detector's where ``start_params`` has none of its own (a network
+    trained with shared features): the adopted network's outputs are the very same."""
+    if "volumon_roi0" in start_params or "volumon_roi0" not in params:
+        return params
+    return {**params, "volumon_roi0": params["roi_fc0"], "volumon_roi1": params["roi_fc1"]}
 
 
 # ----------------------------------------------------------------------------- models on disk

@@ -1,0 +1,60 @@
+"""The lift's own RoI layers: a network trained with shared features grows them as copies and
+starts from its very own outputs; trained alone, they move while the detector's layers stay."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_rcnn import TINY, _frames
+
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, init_rcnn  # layers: white-box
+from jaxsem.volumon.rcnn import (  # layers: white-box
+    RCNNLossConfig,
+    RCNNTrainConfig,
+    _adopt,
+    _optimizer,
+    _own_lift_features,
+    make_rcnn_step,
+    rcnn_batch,
+)
+
+_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
+OWN = dataclasses.replace(TINY, lift_features="own")
+
+
+@pytest.mark.slow
+def test_own_lift_features_start_as_the_detectors_and_learn_alone(optax_promotion):
+    b = rcnn_batch(_frames(2, 0), TINY, ("a", "b", "c"), 4)
+    trained = _INIT(jax.random.PRNGKey(1), TINY, 2)
+    trained = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), trained)
+    start = _adopt(trained, _INIT(jax.random.PRNGKey(2), OWN, 2))
+    assert start is not None and "volumon_roi0" in start["params"]
+    start = {**start, "params": _own_lift_features(start["params"], trained["params"])}
+    for lift_at in ("refined", "proposal"):
+        a = jax.jit(VoluMonRCNN(dataclasses.replace(TINY, lift_at=lift_at)).apply)(trained, b["image"], b["K"])
+        c = jax.jit(VoluMonRCNN(dataclasses.replace(OWN, lift_at=lift_at)).apply)(start, b["image"], b["K"])
+        for x, y in zip(a, c):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # Trained alone, the lift's own layers move and the detector's RoI layers stay.
+    model = VoluMonRCNN(OWN)
+    tx = _optimizer(RCNNTrainConfig(model=OWN, train_only="lift", init_from="trained", class_names=("a", "b", "c")))
+    params, stats, opt = start["params"], start["batch_stats"], tx.init(start["params"])
+    step = make_rcnn_step(model, OWN, RCNNLossConfig(burn_in=0), tx, freeze_stats=True)
+    for i in range(3):
+        params, stats, opt, _ = step(params, stats, opt, b, jnp.asarray(i))
+    moved = lambda k: any(
+        bool(jnp.any(x != y)) for x, y in zip(jax.tree.leaves(params[k]), jax.tree.leaves(start["params"][k]))
+    )
+    assert moved("volumon_roi0") and moved("volumon_roi1")
+    assert not moved("roi_fc0") and not moved("roi_fc1") and not moved("cls_out")
+
+
+def test_own_features_copy_only_into_a_network_that_lacks_them():
+    p = {"roi_fc0": {"kernel": np.ones(2)}, "roi_fc1": {"kernel": np.zeros(2)}, "volumon_roi0": 0, "volumon_roi1": 0}
+    grown = _own_lift_features(p, {"roi_fc0": 1, "roi_fc1": 1})
+    assert grown["volumon_roi0"] is p["roi_fc0"] and grown["volumon_roi1"] is p["roi_fc1"]
+    assert _own_lift_features(p, {"volumon_roi0": 1}) is p  # trained with its own: kept
+    with pytest.raises(ValueError, match="lift_features"):
+        RCNNConfig(lift_features="mine")
