@@ -343,7 +343,9 @@ class VoluMonRCNN(nn.Module):
             pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, boxes)
             h = pooled.reshape(pooled.shape[:2] + (-1,))
             det = nn.relu(fc1(nn.relu(fc0(h))))
-            return det, (nn.relu(own1(nn.relu(own0(h)))) if own else det)
+            if own0 is None or own1 is None:
+                return det, det
+            return det, nn.relu(own1(nn.relu(own0(h))))
 
         def lift(h, boxes):
             bf = box_features(boxes, K[:, None]).astype(h.dtype)
