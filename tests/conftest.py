@@ -54,18 +54,21 @@ _temporary("JAXSEM_RUNS_DIR", "jaxsem_test_runs_")
 # LLVM's optimisation level 0 for the compiled CPU code, and XLA's older elemental emitters in
 # place of its fusion emitters: the suite is compile-bound (most of a test's time is XLA's backend
 # compiling small programs), and at level 0 the older emitters compile such programs about twice
-# as fast. Together they make the suite about two fifths quicker. They change how the machine
-# code is generated, not the programs XLA builds, and the suite passes under the defaults too;
-# XLA_FLAGS set outside the suite win. Child processes that shard programs over four host
-# devices keep XLA's own emitters (``four_cpu_child``): sharded programs came out differently
-# under the elemental ones.
+# as fast. Together they make the fast suite about two fifths quicker. They change how the
+# machine code is generated, not the programs XLA builds, and the fast suite passes under the
+# defaults too; XLA_FLAGS set outside the suite win. The emitters are switched for the fast
+# suite only (``pytest_configure`` below, before any backend starts): sharded programs on four
+# host devices came out differently under them, and the slow suite keeps XLA's own.
 _OWN_FLAGS = "XLA_FLAGS" not in os.environ
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true --xla_backend_optimization_level=0")
 _FAST_EMITTERS = "--xla_cpu_use_fusion_emitters=false"
 
 
-if _OWN_FLAGS:
-    os.environ["XLA_FLAGS"] += " " + _FAST_EMITTERS
+def pytest_configure(config):
+    marks = config.getoption("markexpr", "") or ""
+    fast_only = "not slow" in marks
+    if _OWN_FLAGS and fast_only and _FAST_EMITTERS not in os.environ["XLA_FLAGS"]:
+        os.environ["XLA_FLAGS"] += " " + _FAST_EMITTERS
 
 
 # Commands run in-process turn JAX's persistent compilation cache on: give the session its own
