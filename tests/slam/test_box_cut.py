@@ -15,6 +15,10 @@ from jaxsem import slam
 from jaxsem.slam._cost import linearize, residual_blocks  # layers: white-box
 from jaxsem.slam._problem import compact_boxes, overlapped_edges  # layers: white-box
 
+# Jitted (the solver's configuration static): run op by op they compiled some 300 small programs.
+_residual_blocks = jax.jit(residual_blocks, static_argnums=2)
+_linearize = jax.jit(linearize, static_argnums=2)
+
 
 def _edge_points(b, e, n=2001):
     """Points along edge e of box b, ends left out (a corner touch is no cut)."""
@@ -79,7 +83,7 @@ def test_one_sided_reading_applies_to_the_flagged_edges_only():
     one_sided = cfg.replace(box_outward_scale=4.0)
     none_cut, _, _ = _problem(np.zeros((M, 4), bool))
     all_cut, _, _ = _problem(np.ones((M, 4), bool))
-    rows = lambda p, c: np.asarray(residual_blocks(p, est, c)[0])
+    rows = lambda p, c: np.asarray(_residual_blocks(p, est, c)[0])
     np.testing.assert_array_equal(rows(none_cut, one_sided), rows(plain, cfg))
     np.testing.assert_array_equal(rows(all_cut, one_sided), rows(plain, one_sided))
     assert not np.allclose(rows(plain, one_sided), rows(plain, cfg))  # the scale does act here
@@ -96,10 +100,10 @@ def test_the_linearised_cost_reads_the_same_flags():
     problem, _, _ = _problem(rng.uniform(size=(M, 4)) < 0.5)
     est = _off(truth)
     cfg = slam.SolverConfig().replace(box_outward_scale=4.0)
-    want = 0.5 * sum(float(jnp.sum(jnp.square(b))) for b in residual_blocks(problem, est, cfg))
-    got = float(linearize(problem, est, cfg, jnp.ones(problem.num_poses)).cost)
+    want = 0.5 * sum(float(jnp.sum(jnp.square(b))) for b in _residual_blocks(problem, est, cfg))
+    got = float(_linearize(problem, est, cfg, jnp.ones(problem.num_poses)).cost)
     assert got == pytest.approx(want, rel=1e-10)
-    assert got != pytest.approx(float(linearize(plain, est, cfg, jnp.ones(plain.num_poses)).cost), rel=1e-6)
+    assert got != pytest.approx(float(_linearize(plain, est, cfg, jnp.ones(plain.num_poses)).cost), rel=1e-6)
 
 
 def test_box_cut_pads_compacts_and_is_checked():
