@@ -378,10 +378,22 @@ def _indices(n: int, k: int, seed: int, step: int, stream: int) -> np.ndarray:
 IOU_MATCH = 0.5
 
 
+@jax.jit
+def _pairwise_iou(a, b):
+    return box_iou(a[:, None], b[None])
+
+
+def _padded(boxes) -> np.ndarray:
+    """``boxes`` (n, 4) as float64, padded with empty boxes to a multiple of 16 rows (the
+    pairwise IoU compiles once per size class, not once per frame's count)."""
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    return np.concatenate([boxes, np.zeros((-len(boxes) % 16, 4))])
+
+
 def _same_class_iou(box, cls, tbox, tcls) -> np.ndarray:
     if not len(box) or not len(tbox):
         return np.full((len(box), len(tbox)), -1.0)
-    iou = np.asarray(box_iou(np.asarray(box, np.float64)[:, None], np.asarray(tbox, np.float64)[None]))
+    iou = np.asarray(_pairwise_iou(_padded(box), _padded(tbox)))[: len(box), : len(tbox)]
     return np.where(np.asarray(cls)[:, None] == np.asarray(tcls)[None], iou, -1.0)
 
 
