@@ -13,6 +13,7 @@
 """
 
 import ast
+import functools
 import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -36,8 +37,14 @@ SHARED_DATA = {"data"}
 OUTER = {"sim", "demos", "cli", "_commands"}
 
 
-def _imports(path: pathlib.Path):
-    """Absolute dotted jaxsem module names imported by ``path`` (relative imports resolved)."""
+@functools.cache
+def _imports(path: pathlib.Path) -> tuple:
+    """(line, absolute dotted jaxsem module name) imported by ``path`` (relative imports
+    resolved); parsed once per session, as every test here reads every file."""
+    return tuple(_parse_imports(path))
+
+
+def _parse_imports(path: pathlib.Path):
     rel = path.relative_to(ROOT)
     package = list(rel.parts[:-1]) if rel.parts[0] == "jaxsem" else []
     if rel.name == "__init__.py":
