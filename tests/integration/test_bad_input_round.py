@@ -3,9 +3,12 @@ case as a subprocess and writes the table with its totals."""
 
 import pathlib
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow
 def test_the_round_writes_its_table(tmp_path, script):
     mod = script("benchmarks/integration/bad_input_round.py")
     ids = [c.id for c in mod.cases()]

@@ -268,6 +268,7 @@ def test_a_sampler_on_cells_it_was_not_trained_on_is_refused():
     Trial(_two_rooms(), [2.0, 2.0], [10.0, 2.0], key, CFG, sampler=_CellSampler())
 
 
+@pytest.mark.slow
 def test_the_planners_roadmap_charges_unknown_cells_as_configured():
     w = _two_rooms()
     cfg = CFG_UNKNOWN_3X

@@ -1084,6 +1084,7 @@ def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     assert learned.radius >= 1.9 * uniform.radius
 
 
+@pytest.mark.slow
 def test_a_large_grow_keeps_the_first_k_clear_of_the_direction_rule():
     """A grow of more vertices than the neighbour search and the edge check take at a time (both
     work through blocks of rows): every vertex's list is, in order, the first k of its 2k
@@ -1190,6 +1191,7 @@ def test_unknown_weight_reweighs_edges_when_cells_become_known():
     np.testing.assert_allclose(w, np.linalg.norm(b - a, axis=1), rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_unknown_weight_takes_the_route_seen_free():
     # The 4 x 3 m block in the room: the way over it is 0.7 m shorter but all unknown, the way
     # under it known free. The thesis' weights go over, unknown cells charged 4x go under.

@@ -42,6 +42,7 @@ def _workdir(tmp_path, steps):
     return saved
 
 
+@pytest.mark.slow
 def test_a_run_loads_by_step_and_averages_its_checkpoints(tmp_path):
     saved = _workdir(tmp_path, [10, 20])
     latest, first = load_rcnn(tmp_path), load_rcnn(tmp_path, step=10)

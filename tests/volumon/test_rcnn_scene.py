@@ -58,6 +58,7 @@ def test_exact_boxes_score_ap_one_and_the_centres_offset(monkeypatch, tmp_path):
     assert "parallel" not in r and r["ms_per_image"] >= 0
 
 
+@pytest.mark.slow
 def test_a_false_detection_costs_ap_and_a_lower_threshold_counts_the_hidden_can(monkeypatch, tmp_path):
     scene = _scene(tmp_path)
     # a can where there is none, scored above the true can of frame 3: can AP 1/2 (precision 1/2
