@@ -282,7 +282,6 @@ def test_ground_extents_and_raster(cases):
     np.testing.assert_allclose(conic_box, bounds, atol=1e-8)
 
 
-@pytest.mark.slow
 def test_rasterize_footprint_against_column_test():
     rng = np.random.default_rng(3)
     R = np.asarray(q.random_rotation(jax.random.PRNGKey(3), (4,)))

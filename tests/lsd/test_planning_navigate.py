@@ -446,7 +446,6 @@ def _job_that_dies_on_seed_1(job):
     return str(path), 1
 
 
-@pytest.mark.slow
 def test_a_dead_expert_worker_raises_naming_the_seed_instead_of_hanging(tmp_path):
     """Regression: under multiprocessing.Pool a worker that died left its building unfinished and
     the command waiting forever (240 buildings: 2 missing, no error, at 0 % CPU)."""

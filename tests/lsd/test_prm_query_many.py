@@ -59,7 +59,6 @@ def _full_dijkstra(rm):
     return dist[1]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("lazy", [False, True])
 def test_a_batch_gives_the_paths_of_one_query_each(lazy):
     for seed in (0, 1):

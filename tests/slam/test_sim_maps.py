@@ -320,7 +320,6 @@ def test_sim_imports_without_mujoco_and_rendering_says_what_to_install():
     assert "jaxsem[sim]" in out.stdout
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("scale", [1.0, 1.6])
 def test_online_reinitialisation_follows_the_batch_rule_and_the_silhouette_scale(scale):
     """An object the online protocol re-initialises from its latest box lands where the batch

@@ -129,7 +129,6 @@ def test_support_height_finds_a_textured_desk_at_its_height(tmp_path):
         support_height(seq, band=0.0)
 
 
-@pytest.mark.slow
 def test_single_view_start_places_the_silhouette_ellipsoid_on_the_box():
     problem, _ = slam.toy_map(3, num_objects=3, num_frames=4)
     init = jax.jit(slam.initialize)

@@ -30,7 +30,6 @@ def _mask_box(mask):
     return np.array([xs.min() - 0.5, ys.min() - 0.5, xs.max() + 0.5, ys.max() + 0.5])
 
 
-@pytest.mark.slow
 def test_layout_and_round_trip(dataset):
     root, train, test = dataset
     assert [d.name for d in train] == ["scene_000", "scene_001"] and len(test) == 1

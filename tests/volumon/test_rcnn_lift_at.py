@@ -61,7 +61,6 @@ def _apply(model, v, batch, *extra, train=False):
     return jax.jit(run)(v, batch["image"], batch["K"], *extra)
 
 
-@pytest.mark.slow
 def test_the_refined_lift_is_the_proposal_lift_read_at_the_refined_boxes(setup):
     model_r, model_p, v, batch = setup
     out_r = _apply(model_r, v, batch)

@@ -59,7 +59,6 @@ def test_data_order_is_a_function_of_step():
     np.testing.assert_array_equal(batch_indices(cfg, 3), batch_indices(cfg, 3))
 
 
-@pytest.mark.slow
 def test_box_outside_image_and_invisible_object_are_skipped():
     scene = SceneConfig(height=48, width=64, focal=55.0, num_points=8, depth_range=(0.3, 0.32))
     b = make_batch(0, np.arange(8), scene, input_size=32)
