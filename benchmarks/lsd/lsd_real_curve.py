@@ -1,7 +1,7 @@
 """Figure 3-8 on a real map: success against N for both planners, from ``lsd_real.py`` results.
 
-Several result files of the same map, tasks and protocol (different ``--n``, or a
-``--uniform-only`` run at a large N) are pooled by (set, N):
+Several result files of the same map and protocol (different ``--n``, a ``--uniform-only`` run at
+a large N, or other task seeds) are pooled by (set, N), their trials together:
 
     python benchmarks/lsd/lsd_real_curve.py --json benchmarks/results/lsd_real_campus_thesis_*_s1000.json \\
         --title "campus, thesis protocol" --out benchmarks/results/lsd_real_campus_curve.png
@@ -31,7 +31,10 @@ def main(argv=None) -> int:
             key = (row["set"], int(row["n"]))
             for planner in ("uniform", "lsd"):
                 if f"success_{planner}" in row:
-                    rows.setdefault(key, {})[planner] = (row[f"success_{planner}"], row["trials"])
+                    # Files of other task seeds at the same (set, N) pool their trials.
+                    done, trials = rows.setdefault(key, {}).get(planner, (0.0, 0))
+                    t = int(row["trials"])
+                    rows[key][planner] = ((done * trials + row[f"success_{planner}"] * t) / (trials + t), trials + t)
 
     import matplotlib
 
