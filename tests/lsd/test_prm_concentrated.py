@@ -157,11 +157,13 @@ def test_each_vertex_links_its_k_nearest_under_a_gaussian_blob(n):
         for chunk in np.array_split(ids, 8):
             d2 = np.sum((pts[chunk, None, :] - pts[None, ids, :]) ** 2, -1)
             d2[np.arange(len(chunk)), where[chunk]] = np.inf
-            within = d2 <= prm.radius**2 * (1 + 1e-5)
-            want = np.minimum(k, within.sum(1))
+            # A neighbour within rounding of the radius may count either way: the row's size lies
+            # between the counts strictly inside and just outside it.
+            want = np.minimum(k, (d2 <= prm.radius**2 * (1 + 1e-5)).sum(1))
+            least = np.minimum(k, (d2 <= prm.radius**2 * (1 - 1e-5)).sum(1))
             kth = np.sort(d2, 1)[np.arange(len(chunk)), np.maximum(want - 1, 0)]
             for i, r in enumerate(chunk):
                 row = nb[r][ev[r]]
-                assert abs(len(row) - want[i]) <= 1, (r, len(row), want[i])  # a neighbour on the radius: either way
+                assert least[i] <= len(row) <= want[i], (r, len(row), least[i], want[i])
                 if len(row):
                     assert d2[i, where[row]].max() <= kth[i] * (1 + 1e-5), r
