@@ -38,6 +38,7 @@ steps that the damping rule still only accepts when they lower the cost.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import equinox as eqx
@@ -326,21 +327,15 @@ def _insert(state: OnlineState, frame: Frame) -> OnlineState:
         odometry_mask=odometry_mask,
         pose_prior_weight=weight,
     )
-    estimate = SlamEstimate(cam, rotation, center, radii)
-    return OnlineState(
+    # The settings (config, prior weights, the static ints) carry over unchanged.
+    return dataclasses.replace(
+        state,
         problem=problem,
-        estimate=estimate,
+        estimate=SlamEstimate(cam, rotation, center, radii),
         pose_frame=pose_frame,
         frame_count=state.frame_count + 1,
         box_count=state.box_count + jnp.sum(det, dtype=jnp.int32),
-        result=RESULTS.successful,  # pyright: ignore[reportArgumentType]
-        config=cfg,
-        prior_weights=state.prior_weights,
-        optimize_every=state.optimize_every,
-        iterations=state.iterations,
-        window=state.window,
-        max_detections=state.max_detections,
-        odometry=state.odometry,
+        result=RESULTS.successful,
     )
 
 
