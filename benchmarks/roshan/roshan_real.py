@@ -60,7 +60,6 @@ import pathlib
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 
 import jax
@@ -88,6 +87,9 @@ from jaxsem import metrics, quadrics, scripting as sc, slam  # noqa: E402
 from jaxsem.volumon import data as vdata, rcnn  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import _peer_client  # noqa: E402
+
 SYSTEMS = ("baseline", "roshan", "roshan_volumon", "gtsam_quadrics", "roshan_online")
 COLLAPSE_M = 0.10
 #: The front end's settings for 640x480 real frames about 6 video frames apart (tuned on frames
@@ -478,35 +480,31 @@ def _stack(arrays):
 
 
 def run_peer(peer_python, problems, inits, cfg):
-    with tempfile.TemporaryDirectory() as tmp:
-        src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
-        a = lambda name, tree: _stack([np.asarray(getattr(x, name), np.float64) for x in tree])
-        b = lambda name: _stack([np.asarray(getattr(p, name)) for p in problems])
-        np.savez(
-            src,
-            K=np.asarray(problems[0].K, np.float64),
-            pose_prior=a("pose_prior", problems),
-            pose_mask=b("pose_mask"),
-            init_pose=a("camera_T_world", inits),
-            init_rotation=a("rotation", inits),
-            init_center=a("center", inits),
-            init_radii=a("radii", inits),
-            object_mask=b("object_mask"),
-            box=a("box", problems),
-            box_pose=b("box_pose"),
-            box_object=b("box_object"),
-            box_mask=b("box_mask"),
-            odometry=a("odometry", problems),
-            odometry_mask=b("odometry_mask"),
-            pose_prior_weight=_stack([np.asarray(slam_cost.prior_weight(p), np.float64) for p in problems]),
-            rot_sigma=float(cfg.noise.pose_rotation_sigma),
-            trans_sigma=float(cfg.noise.pose_translation_sigma),
-            odo_rot_sigma=float(cfg.noise.odometry_rotation_sigma),
-            odo_trans_sigma=float(cfg.noise.odometry_translation_sigma),
-            box_sigma=float(cfg.noise.box_sigma),
-        )
-        subprocess.run([peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True)
-        return dict(np.load(dst))
+    a = lambda name, tree: _stack([np.asarray(getattr(x, name), np.float64) for x in tree])
+    b = lambda name: _stack([np.asarray(getattr(p, name)) for p in problems])
+    return _peer_client.solve(
+        peer_python,
+        K=np.asarray(problems[0].K, np.float64),
+        pose_prior=a("pose_prior", problems),
+        pose_mask=b("pose_mask"),
+        init_pose=a("camera_T_world", inits),
+        init_rotation=a("rotation", inits),
+        init_center=a("center", inits),
+        init_radii=a("radii", inits),
+        object_mask=b("object_mask"),
+        box=a("box", problems),
+        box_pose=b("box_pose"),
+        box_object=b("box_object"),
+        box_mask=b("box_mask"),
+        odometry=a("odometry", problems),
+        odometry_mask=b("odometry_mask"),
+        pose_prior_weight=_stack([np.asarray(slam_cost.prior_weight(p), np.float64) for p in problems]),
+        rot_sigma=float(cfg.noise.pose_rotation_sigma),
+        trans_sigma=float(cfg.noise.pose_translation_sigma),
+        odo_rot_sigma=float(cfg.noise.odometry_rotation_sigma),
+        odo_trans_sigma=float(cfg.noise.odometry_translation_sigma),
+        box_sigma=float(cfg.noise.box_sigma),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -594,12 +592,7 @@ def parse_args(argv=None):
         "(jaxsem.slam.bucket_capacities; not with --detector, whose stretches keep their own buckets)",
     )
     p.add_argument("--prior-seed", type=sc.nonnegative_int, default=27, help="seed of the class-size factors")
-    p.add_argument(
-        "--peer-python",
-        default=os.environ.get("JAXSEM_PEER_PYTHON", ""),
-        help="Python 3.10 with gtsam-quadrics and numpy<2 (default: $JAXSEM_PEER_PYTHON; empty: the peer "
-        "is not run and the results say so)",
-    )
+    _peer_client.add_peer_flag(p)
     p.add_argument(
         "--pose-priors",
         choices=POSE_PRIOR_MODES,
@@ -701,10 +694,7 @@ def parse_args(argv=None):
     )
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     args = p.parse_args(argv)
-    if args.peer_python and not pathlib.Path(args.peer_python).exists():
-        p.error(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
-    if not args.peer_python:
-        print("gtsam_quadrics: not run (give --peer-python or set JAXSEM_PEER_PYTHON)", file=sys.stderr)
+    _peer_client.check_peer_flag(args.peer_python, p.error)
     return args
 
 

@@ -26,7 +26,6 @@ import pathlib
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 
 import jax
@@ -45,6 +44,7 @@ from jaxsem.slam import sim  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import _jaxls_anchor as jaxls_anchor  # noqa: E402
+import _peer_client  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 BENCH = HERE.parent  # benchmarks/: the shared results folder and _harness
@@ -179,29 +179,25 @@ def run_block(path, init_name, args, peer_python):
             )
         )
     if peer_python:
-        with tempfile.TemporaryDirectory() as tmp:
-            src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
-            a = lambda x: np.asarray(x, np.float64)
-            np.savez(
-                src,
-                K=a(problems.K[0]),
-                pose_prior=a(problems.pose_prior),
-                pose_mask=np.asarray(problems.pose_mask),
-                init_pose=a(inits.camera_T_world),
-                init_rotation=a(inits.rotation),
-                init_center=a(inits.center),
-                init_radii=a(inits.radii),
-                object_mask=np.asarray(problems.object_mask),
-                box=a(problems.box),
-                box_pose=np.asarray(problems.box_pose),
-                box_object=np.asarray(problems.box_object),
-                box_mask=np.asarray(problems.box_mask),
-                rot_sigma=float(qs.noise.pose_rotation_sigma),
-                trans_sigma=float(qs.noise.pose_translation_sigma),
-                box_sigma=float(qs.noise.box_sigma),
-            )
-            subprocess.run([peer_python, str(HERE / "_quadricslam_peer.py"), src, dst], check=True)
-            out = dict(np.load(dst))
+        a = lambda x: np.asarray(x, np.float64)
+        out = _peer_client.solve(
+            peer_python,
+            K=a(problems.K[0]),
+            pose_prior=a(problems.pose_prior),
+            pose_mask=np.asarray(problems.pose_mask),
+            init_pose=a(inits.camera_T_world),
+            init_rotation=a(inits.rotation),
+            init_center=a(inits.center),
+            init_radii=a(inits.radii),
+            object_mask=np.asarray(problems.object_mask),
+            box=a(problems.box),
+            box_pose=np.asarray(problems.box_pose),
+            box_object=np.asarray(problems.box_object),
+            box_mask=np.asarray(problems.box_mask),
+            rot_sigma=float(qs.noise.pose_rotation_sigma),
+            trans_sigma=float(qs.noise.pose_translation_sigma),
+            box_sigma=float(qs.noise.box_sigma),
+        )
         est = slam.SlamEstimate(
             jnp.asarray(out["poses"]),
             jnp.asarray(out["rotation"]),
@@ -239,12 +235,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1000, help="report seeds (tuning used 100)")
     ap.add_argument("--max-steps", type=int, default=100)
     ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument(
-        "--peer-python",
-        default=os.environ.get("JAXSEM_PEER_PYTHON", ""),
-        help="Python 3.10 with gtsam-quadrics and numpy<2 (default: $JAXSEM_PEER_PYTHON; empty: the peer "
-        "is not run and the results say so)",
-    )
+    _peer_client.add_peer_flag(ap)
     ap.add_argument(
         "--jaxls-maps",
         type=int,
@@ -260,11 +251,8 @@ def main(argv=None):
     if args.rewrite_md:
         write_md(json.loads((BENCH / "results" / "roshan_vs_quadricslam.json").read_text()))
         return
-    peer = args.peer_python if args.peer_python and pathlib.Path(args.peer_python).exists() else ""
-    if args.peer_python and not peer:
-        sys.exit(f"--peer-python: {args.peer_python} does not exist (pass '' to skip the peer)")
-    if not peer:
-        print("gtsam_quadrics: not run (give --peer-python or set JAXSEM_PEER_PYTHON)", file=sys.stderr)
+    _peer_client.check_peer_flag(args.peer_python, sys.exit)
+    peer = args.peer_python
     rows = []
     for path in args.paths.split(","):
         for init in args.inits.split(","):
