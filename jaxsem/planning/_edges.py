@@ -336,6 +336,10 @@ def _segments_clear(blocked, a, b, grid, *, edge_samples):
     return jnp.all(clear)
 
 
+#: The fewest segments of each kind :func:`polyline_clear` checks in one call (the rest padding).
+_LEAST_SHORT, _LEAST_LONG = 16, 2
+
+
 def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, reach: float | None = None) -> bool:
     """True when every segment of the polyline ``points`` (K, 2) passes the roadmap's own edge
     check on the bool grid ``blocked``: the same samples as the PRM used for an edge of that
@@ -369,11 +373,14 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, r
     short = length <= radius * (1 + 1e-6)
     reach = query_reach(shape, resolution) if reach is None else float(reach)
     grid_j = _grid(grid, dtype)
-    for sel, r in ((short, radius), (~short, max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9)))))):
+    long_reach = max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9))))
+    for sel, r, least in ((short, radius, _LEAST_SHORT), (~short, long_reach, _LEAST_LONG)):
         if not sel.any():
             continue
         aa, bb = a[sel], b[sel]
-        m = 1 << max(0, (len(aa) - 1).bit_length())  # pad to a power of two: few compiles
+        # Padded to a power of two, at least ``least``: a plan's segments of either kind share a
+        # few programs (a plan holds tens of short ones, its start and goal links the long ones).
+        m = max(least, 1 << max(0, (len(aa) - 1).bit_length()))
         aa = np.concatenate([aa, np.repeat(bb[-1:], m - len(aa), 0)])
         bb = np.concatenate([bb, np.repeat(bb[-1:], m - len(bb), 0)])
         ok = _segments_clear(

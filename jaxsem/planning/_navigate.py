@@ -259,7 +259,8 @@ class NavConfig:
     # a side below this many cells to the next of 32, 48, 64, 96, 128, 192, ..., a longer one to a
     # multiple of it (the padding: known occupied, sensed as walls, no sampling mass), so maps
     # of different shapes in one bucket (and the same origin, resolution and radius) share one
-    # compile; the trial's paths, maps and distributions are those of the unpadded map. 1: no
+    # compile; the trial's paths, maps and distributions are those of the unpadded map (long
+    # query edges and plan segments checked over the bucket's reach). 1: no
     # padding. A pooled sampler (sampler_scale > 1) sees the unpadded map.
     shape_bucket: int = 256
     sensor: SensorConfig = SensorConfig()
@@ -392,7 +393,10 @@ class Trial:
         self._pad = self._shape_p != self.shape
         self._grid_p = Q.Grid.host(self.origin, self.resolution, self._shape_p)
         self._on_map = np.asarray(self.shape, np.int32)
-        self._reach = query_reach(self.shape, self.resolution)
+        # Long query edges and plan segments are sampled over the bucket's reach, not the map's:
+        # the sample counts are static, so maps of one bucket share those programs too (a longer
+        # reach only samples the same edges more densely).
+        self._reach = query_reach(self._shape_p, self.resolution)
         self._occ_j = _padded(occ, self._shape_p, True)
         self._sem_j = _padded(np.asarray(sem, np.int8), self._shape_p, NONE)
         self._grid_s = static_grid(self._grid_p)
