@@ -337,7 +337,7 @@ def _segments_clear(blocked, a, b, grid, *, edge_samples):
 
 
 #: The fewest segments of each kind :func:`polyline_clear` checks in one call (the rest padding).
-_LEAST_SHORT, _LEAST_LONG = 16, 2
+_LEAST_SHORT, _LEAST_LONG = 8, 2
 
 
 def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, reach: float | None = None) -> bool:
