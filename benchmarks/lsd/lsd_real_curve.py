@@ -51,6 +51,9 @@ def main(argv=None) -> int:
                 for n, (s, t) in pts:
                     ax.annotate(f"{t}", (n, 100 * s), fontsize=6, xytext=(2, 2), textcoords="offset points")
         ax.set_xscale("log")
+        ns = sorted({n for (k, n) in rows if k == kind})
+        ax.set_xticks(ns, [str(n) for n in ns])  # the budgets run, not log-scale decades
+        ax.minorticks_off()
         ax.set_ylim(0, 105)
         ax.set_xlabel("samples N")
         ax.set_ylabel("success (%)")
