@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import quadrics as Q
-from ._grid import OCCUPIED, GridLike, _grid, host_grid
+from ._grid import OCCUPIED, GridLike, _grid, host_grid, static_grid
 
 
 def _edge_samples(radius: float, resolution: float) -> int:
@@ -372,7 +372,7 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, r
     length = np.linalg.norm(b - a, axis=1)
     short = length <= radius * (1 + 1e-6)
     reach = query_reach(shape, resolution) if reach is None else float(reach)
-    grid_j = _grid(grid, dtype)
+    grid_j = _device_grid(static_grid(grid), jnp.dtype(dtype))
     long_reach = max(reach, 2.0 ** math.ceil(math.log2(max(length.max(), 1e-9))))
     for sel, r, least in ((short, radius, _LEAST_SHORT), (~short, long_reach, _LEAST_LONG)):
         if not sel.any():
@@ -383,16 +383,24 @@ def polyline_clear(points, blocked, grid: GridLike, radius: float, dtype=None, r
         m = max(least, 1 << max(0, (len(aa) - 1).bit_length()))
         aa = np.concatenate([aa, np.repeat(bb[-1:], m - len(aa), 0)])
         bb = np.concatenate([bb, np.repeat(bb[-1:], m - len(bb), 0)])
+        # numpy arrays of the step's dtype go in as they are: no conversion dispatched per step.
         ok = _segments_clear(
             blocked_j,
-            jnp.asarray(aa, dtype),
-            jnp.asarray(bb, dtype),
+            np.asarray(aa, dtype),
+            np.asarray(bb, dtype),
             grid_j,
             edge_samples=_edge_samples(r, resolution),
         )
         if not bool(ok):
             return False
     return True
+
+
+@functools.lru_cache(maxsize=16)
+def _device_grid(grid: Q.Grid, dtype) -> Q.Grid:
+    """:func:`_grid` of a :func:`static_grid`, kept: the navigation loop checks its plan on the
+    same grid every step."""
+    return _grid(grid, dtype)
 
 
 def query_reach(shape, resolution: float) -> float:
