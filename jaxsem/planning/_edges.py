@@ -59,11 +59,12 @@ def _weights(cost, a, b, grid, edge_samples):
 
 
 def _read(values, rows, cols):
-    """``values[rows, cols]`` of a 2-D grid (indices on the grid) through one flat index made
-    apart from the read: fused into the gather, XLA's CPU recomputes the index arithmetic
-    element by element (5x slower on an edge's hundreds of samples). The same values. ``take``'s
-    default mode (the indices are on the grid: nothing is filled); its "clip" mode is as slow
-    as the fused read."""
+    """``values[rows, cols]`` of a 2-D grid (indices on the grid) through one flat index.
+    ``take``'s default mode (the indices are on the grid: nothing is filled); its "clip" mode
+    was slower. The optimisation barrier asks XLA to make the index apart from the read, but
+    XLA's CPU pipeline removes barriers before fusion (jax 0.10): the compiled read still
+    computes each index inside the gather. The values are the same either way; a separate
+    program for the indices was measured slower inside the grow (``lsd/HISTORY.md``)."""
     flat = jax.lax.optimization_barrier(rows * values.shape[1] + cols)
     return jnp.take(values.reshape(-1), flat)
 
