@@ -63,8 +63,9 @@ def _read(values, rows, cols):
     ``take``'s default mode (the indices are on the grid: nothing is filled); its "clip" mode
     was slower. The optimisation barrier asks XLA to make the index apart from the read, but
     XLA's CPU pipeline removes barriers before fusion (jax 0.10): the compiled read still
-    computes each index inside the gather. The values are the same either way; a separate
-    program for the indices was measured slower inside the grow (``lsd/HISTORY.md``)."""
+    computes each index inside the gather. The values are the same either way; indices made by
+    a program of their own cost more than they save in the grow (the list is written to memory
+    and read back)."""
     flat = jax.lax.optimization_barrier(rows * values.shape[1] + cols)
     return jnp.take(values.reshape(-1), flat)
 
