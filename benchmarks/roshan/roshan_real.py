@@ -687,8 +687,8 @@ def parse_args(argv=None):
         "--online-iterations",
         type=sc.positive_int,
         default=4,
-        help="LM trial steps per online optimisation (tuning split, every 5 frames: 3 left stretch 1 stuck at 13-22 cm "
-        "per frame, 10 follows the batch within 1.3x)",
+        help="LM trial steps per online optimisation (with --online-every; tuning split, every 5 frames: 3 left "
+        "stretch 1 stuck at 13-22 cm per frame, 10 followed the batch within 1.3x; every 3 frames, 4 within 1.2x)",
     )
     p.add_argument(
         "--online-final-iterations",
