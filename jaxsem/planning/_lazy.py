@@ -114,7 +114,7 @@ def _grow_lazy(
                 _knn_some_jit(
                     rm.points,
                     rm.valid,
-                    jnp.asarray(padded[i : i + _RANK_CHUNK]),
+                    padded[i : i + _RANK_CHUNK],
                     order,
                     sorted_bid,
                     dist,
@@ -459,9 +459,9 @@ def _checker(blocked_j, points, cand, grid, table, edge_samples: int, chunk: int
             mask = np.arange(chunk) < m
             ok = _pairs_clear(
                 blocked_j,
-                jnp.asarray(a),
-                jnp.asarray(b),
-                jnp.asarray(mask),
+                a,  # numpy into the jitted rule: no conversion call of its own per chunk
+                b,
+                mask,
                 grid,
                 table,
                 edge_samples=edge_samples,

@@ -745,9 +745,7 @@ def _query_table(roadmap, start, goal, setup, grid, sectors):
     if setup.has_table:
         return setup.table()
     dtype = roadmap.points.dtype
-    nbr = np.asarray(
-        _query_candidates_jit(roadmap, jnp.asarray(start, dtype), jnp.asarray(goal, dtype), sectors=sectors)
-    )
+    nbr = np.asarray(_query_candidates_jit(roadmap, np.asarray(start, dtype), np.asarray(goal, dtype), sectors=sectors))
     pts = np.asarray(roadmap.points, np.float64)
     ends = np.stack([start, goal]).astype(np.float64)
     boxes = []
@@ -788,7 +786,7 @@ def _connect_checked(
         distribution = _check_distribution(distribution, blocked.shape)
     dtype = roadmap.points.dtype
     dist = None if distribution is None else jnp.asarray(distribution, dtype)
-    start_j, goal_j = jnp.asarray(start, dtype), jnp.asarray(goal, dtype)
+    start_j, goal_j = np.asarray(start, dtype), np.asarray(goal, dtype)
     aids = None
     if setup is not None:
         aids = _MapAids(_query_table(roadmap, start, goal, setup, grid, sectors), None, None, None)
@@ -906,8 +904,8 @@ def _links_checked(
     grid_s = static_grid(grid)
     q, nbr, short, clear_s, w, fa, fb, hit, unc = _links_coarse(
         roadmap,
-        jnp.asarray(starts, dtype),
-        jnp.asarray(goals, dtype),
+        np.asarray(starts, dtype),  # numpy into the jitted call: no dispatch of its own
+        np.asarray(goals, dtype),
         blocked_j,
         dist,
         grid_s,
@@ -932,8 +930,8 @@ def _links_checked(
             blocked_j,
             fa,
             fb,
-            jnp.asarray(np.concatenate([e, np.full(pad, e[0])]).astype(np.int32)),
-            jnp.asarray(np.concatenate([iv, np.full(pad, iv[0])]).astype(np.int32)),
+            np.concatenate([e, np.full(pad, e[0])]).astype(np.int32),
+            np.concatenate([iv, np.full(pad, iv[0])]).astype(np.int32),
             grid_s,
             long_samples=samples["long_samples"],
             subset=_long_subset(samples["edge_samples"], samples["long_samples"]),
