@@ -150,6 +150,13 @@ def _unpooled(dist, scale: int, shape):
 _embed_jit = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
 
 
+@jax.jit
+def _cell_at(grid, row, col):
+    """One cell of a device grid (a jitted read: indexing the array from the host dispatches
+    several operations per read)."""
+    return grid[row, col]
+
+
 def _bucket_side(n: int, bucket: int) -> int:
     """``n`` rounded up to the next rung of the ladder 32, 48, 64, 96, 128, 192, ... below
     ``bucket`` (each rung 4/3 or 3/2 of the last: at most half again as many cells), to ``bucket``
@@ -597,7 +604,9 @@ class Trial:
     def _in_known_obstacle(self) -> bool:
         rc = Q.world_to_cell(self.xy, self.origin, self.resolution, xp=np)
         occ = self._state.occupancy  # one cell read on the device (no host view: see _sense)
-        return bool(Q.cell_in_grid(rc, occ.shape, xp=np) and int(occ[int(rc[0]), int(rc[1])]) == OCCUPIED)
+        if not Q.cell_in_grid(rc, occ.shape, xp=np):
+            return False
+        return int(_cell_at(occ, np.int32(rc[0]), np.int32(rc[1]))) == OCCUPIED
 
     def _finish(self, success, reason):
         self.done, self.success, self.reason = True, success, reason

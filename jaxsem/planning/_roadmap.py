@@ -530,15 +530,25 @@ def _blocked_from(name, known_map):
     )
 
 
+@jax.jit
+def _weights_ok(d):
+    """Finite, non-negative and a positive sum: one pass over a device grid."""
+    return jnp.all(jnp.isfinite(d) & (d >= 0)) & (jnp.sum(d) > 0)
+
+
 def _check_distribution(distribution, shape):
     if distribution is None or isinstance(distribution, Tracer):
         return distribution
-    d = np.asarray(distribution)
+    d = distribution if isinstance(distribution, jax.Array) else np.asarray(distribution)
     if d.shape != tuple(shape):
         raise ValueError(f"distribution: expected shape {tuple(shape)} (the map's), got shape {d.shape}")
     if not np.issubdtype(d.dtype, np.floating):
         raise ValueError(f"distribution: expected a float grid, got dtype {d.dtype}")
-    if not (np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0):
+    if isinstance(d, jax.Array):
+        ok = bool(_weights_ok(d))
+    else:
+        ok = bool(np.all(np.isfinite(d)) and np.all(d >= 0) and d.sum() > 0)
+    if not ok:
         raise ValueError("distribution: expected finite, non-negative weights with a positive sum")
     return distribution
 
