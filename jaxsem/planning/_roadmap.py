@@ -242,6 +242,7 @@ def _grow_impl(
     uniform_samples=False,
     aids: _MapAids | None = None,
     factor=None,
+    cost=None,
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
@@ -250,7 +251,9 @@ def _grow_impl(
     sizes its resolution sets, static. A brute-force search (``cap=None``) of a batch that leaves
     the roadmap within its first :data:`_ACTIVE_STEP` slots reads only those (the same
     candidates in the same order: the slots past them are empty), chosen inside the program
-    (one program whatever the count). Returns the grown roadmap."""
+    (one program whatever the count). ``cost``: the cell cost the edge weights integrate,
+    :func:`_edge_cost` of ``distribution`` and ``factor`` made beforehand (None: made here).
+    Returns the grown roadmap."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
@@ -288,7 +291,8 @@ def _grow_impl(
         nbr, ovf = jax.lax.cond(s0 + n <= A, prefix, every, None)
     else:
         nbr, ovf = search(points - origin, db_ok, new - origin, slots, density=density)
-    cost = _edge_cost(distribution, factor, neglogp)
+    if cost is None:
+        cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = edge_samples
@@ -337,6 +341,13 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 
     out = jax.lax.map(rows, (split(new, 0), split(nbr, M), split(cand, False)))
     return tuple(x.reshape(blocks * _EDGE_ROWS, -1)[:n] for x in out)
+
+
+#: :func:`_edge_cost` as a program of its own. Inside the grow's program XLA fuses the cost's
+#: ``-log`` into the weights' gather and computes it again for every sample read (the links'
+#: samples cross each cell several times, and the gather is the grow's costliest step), where
+#: made apart it is computed once per cell; the values read are the same.
+_edge_cost_jit = jax.jit(_edge_cost, static_argnums=2)
 
 
 _grow_jit = functools.partial(
@@ -679,6 +690,7 @@ def _grow_exact(
     overflows. Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
+    cost = None if dist is None and factor is None else _edge_cost_jit(dist, factor, neglogp)
     while True:
         out = _grow_jit(
             roadmap,
@@ -696,6 +708,7 @@ def _grow_exact(
             uniform_samples=uniform_samples,
             aids=aids,
             factor=factor,
+            cost=cost,
         )
         if 3 * cap >= M or before or not bool(out.overflow):
             return out, cap

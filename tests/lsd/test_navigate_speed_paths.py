@@ -182,3 +182,29 @@ def test_embedded_window_against_a_cell_by_cell_reference(shape, q):
         want = _embed_reference(local.astype(np.float32).astype(np.float64), centre, shape, q)
         np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-12, err_msg=str(centre))
         assert np.all(np.isfinite(got))
+
+
+def test_cost_grid_made_apart_gives_the_grow_made_inside(monkeypatch):
+    # The grow reads its -log p cost grid made by a program of its own (XLA would otherwise
+    # compute the log again at every sample it gathers): the same roadmap, weight for weight,
+    # as the grow that makes the grid inside its own program.
+    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
+    occ, dist = _walled_map(), _concentrated(7)
+
+    def grown():
+        prm = PRM(occ, grid, capacity=600, radius=3.0, weight="neglogp", sectors=8)
+        prm.grow(jax.random.PRNGKey(5), 300, dist)
+        return prm.roadmap
+
+    apart = grown()
+    monkeypatch.setattr(_roadmap, "_edge_cost_jit", lambda *args: None)  # made inside the grow
+    inside = grown()
+    for name in ("points", "neighbors", "edge_valid", "edge_weight"):
+        np.testing.assert_array_equal(np.asarray(getattr(apart, name)), np.asarray(getattr(inside, name)), err_msg=name)
+    w = np.asarray(apart.edge_weight)[np.asarray(apart.edge_valid)]
+    d = np.asarray(apart.points)
+    assert w.size > 500 and np.all(np.isfinite(w))
+    # -log p weights, not lengths: the cost integral is read (a length-only weight fails this)
+    nb = np.minimum(np.asarray(apart.neighbors), len(d) - 1)
+    lengths = np.linalg.norm(d[nb] - d[:, None], axis=-1)[np.asarray(apart.edge_valid)]
+    assert np.median(w / lengths) > 2.0
