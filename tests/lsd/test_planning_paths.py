@@ -533,6 +533,21 @@ def test_embed_local_distribution():
     )
 
 
+@pytest.mark.parametrize("on_device", [False, True])
+@pytest.mark.parametrize("bad", ["nan", "negative", "zero", "inf"])
+def test_bad_distribution_weights_are_refused_on_the_host_and_on_the_device(bad, on_device):
+    occ = _one_route_map()
+    dist = np.ones(occ.shape)
+    if bad == "zero":
+        dist[:] = 0.0
+    else:
+        dist[2, 3] = {"nan": np.nan, "negative": -1.0, "inf": np.inf}[bad]
+    grow = lambda d: PRM(occ, grid_of(occ), capacity=20).grow(jax.random.PRNGKey(0), 10, d)
+    with pytest.raises(ValueError, match="distribution: expected finite"):
+        grow(jnp.asarray(dist) if on_device else dist)
+    assert grow(jnp.asarray(np.ones(occ.shape)) if on_device else np.ones(occ.shape)) == 10
+
+
 def test_prm_bad_input():
     occ = _one_route_map()
     key = jax.random.PRNGKey(0)
