@@ -690,7 +690,7 @@ def _grow_exact(
     overflows. Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
-    cost = None if dist is None and factor is None else _edge_cost_jit(dist, factor, neglogp)
+    cost = _edge_cost_jit(dist, factor, neglogp) if neglogp or factor is not None else None  # None: no cost
     while True:
         out = _grow_jit(
             roadmap,

@@ -48,19 +48,24 @@ def test_read_is_the_grid_indexing(seed):
     np.testing.assert_array_equal(np.asarray(got), flags[rows, cols])
 
 
+def _neglogp_roadmap(dist, capacity, grows):
+    """navigate's kind of roadmap on the walled map: cost weights, 8 sectors, grown by
+    ``grows`` ((key, count) pairs) from ``dist``."""
+    prm = PRM(
+        _walled_map(), Q.Grid.create((0.0, 0.0), RES, SHAPE), capacity=capacity, radius=3.0, weight="neglogp", sectors=8
+    )
+    for key, count in grows:
+        prm.grow(jax.random.PRNGKey(key), count, dist)
+    return prm.roadmap
+
+
 @pytest.mark.slow  # two grows compiled twice (about 20 s)
 def test_brute_force_over_the_filled_slots_is_the_full_search(monkeypatch):
     # navigate's roadmap (capacity 1,500: brute force), grown twice from a concentrated
     # distribution with cost weights (the first grow within the first 512 slots, the second
     # past them): the same roadmap as a search over every slot.
-    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
-    occ, dist = _walled_map(), _concentrated(5)
-
-    def grown():
-        prm = PRM(occ, grid, capacity=1500, radius=3.0, weight="neglogp", sectors=8)
-        prm.grow(jax.random.PRNGKey(3), 500, dist)
-        prm.grow(jax.random.PRNGKey(4), 500, dist)
-        return prm.roadmap
+    dist = _concentrated(5)
+    grown = lambda: _neglogp_roadmap(dist, 1500, [(3, 500), (4, 500)])
 
     fast = grown()
     monkeypatch.setattr(_roadmap, "_ACTIVE_STEP", 10**9)  # never the prefix: every slot
@@ -188,13 +193,8 @@ def test_cost_grid_made_apart_gives_the_grow_made_inside(monkeypatch):
     # The grow reads its -log p cost grid made by a program of its own (XLA would otherwise
     # compute the log again at every sample it gathers): the same roadmap, weight for weight,
     # as the grow that makes the grid inside its own program.
-    grid = Q.Grid.create((0.0, 0.0), RES, SHAPE)
-    occ, dist = _walled_map(), _concentrated(7)
-
-    def grown():
-        prm = PRM(occ, grid, capacity=600, radius=3.0, weight="neglogp", sectors=8)
-        prm.grow(jax.random.PRNGKey(5), 300, dist)
-        return prm.roadmap
+    dist = _concentrated(7)
+    grown = lambda: _neglogp_roadmap(dist, 600, [(5, 300)])
 
     apart = grown()
     monkeypatch.setattr(_roadmap, "_edge_cost_jit", lambda *args: None)  # made inside the grow
