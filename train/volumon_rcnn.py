@@ -75,10 +75,11 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lift-features",
-        choices=("shared", "own"),
+        choices=("shared", "own", "backbone"),
         default="shared",
         help="own: the VoluMon head reads RoI layers of its own (started as copies of --init-from's "
-        "detector's), so the lift's features can learn while the detector's stay",
+        "detector's), so the lift's features can learn while the detector's stay; backbone: the "
+        "backbone's last stage (stride 8 to 16) of its own too",
     )
     p.add_argument(
         "--train-only",

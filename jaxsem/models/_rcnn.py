@@ -30,6 +30,7 @@ intrinsics are scaled to it by the caller (:func:`jaxsem.volumon.rcnn_inputs`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -55,10 +56,11 @@ from ._volumon import (
 
 PARAM_RULES = ("class", "expectation")
 LIFT_AT = ("refined", "proposal")
-LIFT_FEATURES = ("shared", "own")
+LIFT_FEATURES = ("shared", "own", "backbone")
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
+_STRIDE8_BLOCKS = 6  # ... and the first 6 at stride 8
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
 
 
@@ -95,8 +97,11 @@ class RCNNConfig:
       lift_features: the RoI features the VoluMon head reads: "shared" (the box and class heads'
         two layers over the pooled RoI) or "own" (two layers of its own over the same pooled
         RoI, ``volumon_roi0`` and ``volumon_roi1``), so the lift's features can learn while the
-        detector's stay; a network adopted from a "shared" one starts them as copies of the
-        detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the very same outputs.
+        detector's stay; or "backbone" (those two layers and the backbone's last stage too, the
+        stride-8 to stride-16 one, as layers of its own named ``volumon_`` and the detector's
+        name: the lift pools its RoIs from a stride-16 map of its own). A network adopted from
+        one without them starts them as copies of the detector's
+        (``jaxsem.volumon.rcnn.train_rcnn``), with the very same outputs.
     """
 
     num_classes: int = 8
@@ -280,18 +285,33 @@ class VoluMonRCNN(nn.Module):
         std = jnp.array([0.229, 0.224, 0.225], images.dtype)
         x = (images - mean) / std
         pixels = x  # what lift_crop reads
-        fine = None
+        # the backbone's layers in order, as (name, layer maker); from ``split`` on, its last
+        # stage (stride 8 to 16), which ``lift_features="backbone"`` gives the lift a copy of
         if cfg.backbone == "plain_cnn":
-            for i, c in enumerate(int(cfg.cnn_width) * np.array([1, 2, 4, 8])):
-                x = ConvBN(int(c), kernel=3, stride=2, name=f"plain_{i}_0")(x, train)
-                x = ConvBN(int(c), kernel=3, stride=1, name=f"plain_{i}_1")(x, train)
-                if i == 2:
-                    fine = x  # stride 8
+            layers = [
+                (f"plain_{i}_{j}", functools.partial(ConvBN, int(c), kernel=3, stride=stride))
+                for i, c in enumerate(int(cfg.cnn_width) * np.array([1, 2, 4, 8]))
+                for j, stride in enumerate((2, 1))
+            ]
+            split = 6
         else:
-            x = ConvBN(make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2, name="features_0")(x, train)
-            for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS]):
-                x = InvertedResidual(cin, cout, s, t, name=f"features_{i + 1}")(x, train)
+            first = functools.partial(ConvBN, make_divisible(32 * cfg.width_multiplier), kernel=3, stride=2)
+            layers = [("features_0", first)] + [
+                (f"features_{i + 1}", functools.partial(InvertedResidual, cin, cout, s, t))
+                for i, (cin, cout, s, t) in enumerate(block_layout(cfg.width_multiplier)[:_STRIDE16_BLOCKS])
+            ]
+            split = 1 + _STRIDE8_BLOCKS
+        for name, make in layers[:split]:
+            x = make(name=name)(x, train)
+        fine = x  # (B, H/8, W/8, C)
+        for name, make in layers[split:]:
+            x = make(name=name)(x, train)
         feats = x  # (B, H/16, W/16, C)
+        lift_feats = feats
+        if cfg.lift_features == "backbone":
+            lift_feats = fine
+            for name, make in layers[split:]:
+                lift_feats = make(name=f"volumon_{name}")(lift_feats, train)
         B = feats.shape[0]
 
         r = nn.relu(nn.Conv(cfg.hidden, (3, 3), padding="SAME", name="rpn_conv")(feats))
@@ -317,7 +337,7 @@ class VoluMonRCNN(nn.Module):
 
         fc0 = nn.Dense(cfg.hidden, name="roi_fc0")
         fc1 = nn.Dense(cfg.hidden, name="roi_fc1")
-        own = cfg.lift_features == "own"
+        own = cfg.lift_features in ("own", "backbone")
         own0 = nn.Dense(cfg.hidden, name="volumon_roi0") if own else None
         own1 = nn.Dense(cfg.hidden, name="volumon_roi1") if own else None
         cls_out = nn.Dense(n + 1, name="cls_out")
@@ -340,11 +360,15 @@ class VoluMonRCNN(nn.Module):
 
         def roi_feature(boxes):
             """(the detector's features, the lift's) of RoIs ``boxes``: the same unless ``own``."""
-            pooled = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))(feats, boxes)
+            pool = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 16, 2))
+            pooled = pool(feats, boxes)
             h = pooled.reshape(pooled.shape[:2] + (-1,))
             det = nn.relu(fc1(nn.relu(fc0(h))))
             if own0 is None or own1 is None:
                 return det, det
+            if lift_feats is not feats:
+                pooled = pool(lift_feats, boxes)
+                h = pooled.reshape(pooled.shape[:2] + (-1,))
             return det, nn.relu(own1(nn.relu(own0(h))))
 
         def lift(h, boxes):

@@ -291,7 +291,7 @@ class RCNNTrainConfig:
 
 
 #: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
-LIFT_LAYERS = ("volumon_fc0", "volumon_roi", "lift8_fc", "crop_", "phi_local", "phi_depth")
+LIFT_LAYERS = ("volumon_", "lift8_fc", "crop_", "phi_local", "phi_depth")
 #: The detector's outputs (proposal stage, class and box heads; not the RoI features the lift
 #: reads): what ``RCNNTrainConfig.train_only="heads"`` trains.
 HEAD_LAYERS = ("rpn_", "cls_out", "box_out")
@@ -543,7 +543,8 @@ def train_rcnn(
             if start is None:
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
             params = _own_lift_features(start["params"], loaded["params"])
-            state = {**state, "params": params, "batch_stats": start["batch_stats"]}
+            stats = _own_lift_features(start["batch_stats"], loaded["batch_stats"])
+            state = {**state, "params": params, "batch_stats": stats}
         run.begin()
         step_fn = make_rcnn_step(model, config.model, config.loss, tx, freeze_stats=bool(config.train_only))
         params, stats, opt = state["params"], state["batch_stats"], state["opt_state"]
@@ -606,13 +607,16 @@ def _adopt(start, fresh):
     return out
 
 
-def _own_lift_features(params, start_params):
-    """``params`` (a ``lift_features="own"`` network's, nested dicts) with its lift's own RoI
-    layers copied from the detector's where ``start_params`` has none of its own (a network
-    trained with shared features): the adopted network's outputs are the very same."""
-    if "volumon_roi0" in start_params or "volumon_roi0" not in params:
-        return params
-    return {**params, "volumon_roi0": params["roi_fc0"], "volumon_roi1": params["roi_fc1"]}
+def _own_lift_features(tree, start_tree):
+    """``tree`` (one collection, ``params`` or ``batch_stats``, of a network whose lift has
+    layers of its own: ``lift_features`` "own" or "backbone"; nested dicts) with each of the
+    lift's own layers that ``start_tree`` (the adopted network's) lacks copied from the
+    detector's layer it doubles: the adopted network's outputs are the very same. ``tree``
+    itself when there is nothing to copy."""
+    doubles = {"volumon_roi0": "roi_fc0", "volumon_roi1": "roi_fc1"}
+    doubles.update({k: k[len("volumon_") :] for k in tree if k.startswith("volumon_") and k[len("volumon_") :] in tree})
+    copies = {mine: tree[theirs] for mine, theirs in doubles.items() if mine in tree and mine not in start_tree}
+    return {**tree, **copies} if copies else tree
 
 
 # ----------------------------------------------------------------------------- models on disk
