@@ -1,6 +1,7 @@
 """``slam.solve_many``: a batch of maps in one program; with ``strategy="map"`` every map gets
-exactly the answer it gets solved alone, including maps cut by the step budget (where a vmapped
-loop's batched kernels may move the answer)."""
+the answer it gets solved alone (the same steps and outcome, the values to float64 rounding: XLA
+compiles the map's body and the solo solve apart), including maps cut by the step budget (where a
+vmapped loop's batched kernels may move the answer)."""
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +23,7 @@ def batch():
 
 
 @pytest.mark.slow
-def test_map_strategy_equals_solo_solves_exactly(batch):
+def test_map_strategy_equals_solo_solves(batch):
     maps, inits, problems, stacked = batch
     # Called from a user's jit with a traced tolerance (CFG's first): one solver compile serves
     # the comparison below and the no-recompile check after it.
@@ -33,9 +34,9 @@ def test_map_strategy_equals_solo_solves_exactly(batch):
         est, info = solo(p, i)
         assert int(info_m.steps[k]) == int(info.steps)
         assert int(info_m.result._value[k]) == int(info.result._value)  # pyright: ignore[reportAttributeAccessIssue]
-        np.testing.assert_allclose(info_m.cost[k], info.cost, rtol=1e-12)
-        np.testing.assert_allclose(est_m.center[k], est.center, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(est_m.radii[k], est.radii, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(info_m.cost[k], info.cost, rtol=1e-8)
+        np.testing.assert_allclose(est_m.center[k], est.center, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(est_m.radii[k], est.radii, rtol=0, atol=1e-8)
     # A second call with another tolerance compiles nothing.
     size = user._cache_size()
     user(problems, stacked, jnp.asarray(1e-4))

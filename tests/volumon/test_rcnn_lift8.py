@@ -38,8 +38,9 @@ def test_grown_network_starts_from_the_trained_outputs_and_its_branch_learns():
     plain = VoluMonRCNN(TINY)
     a = jax.jit(plain.apply)(trained, b["image"], b["K"])
     c = jax.jit(model8.apply)(start, b["image"], b["K"])
-    np.testing.assert_array_equal(np.asarray(a.phi), np.asarray(c.phi))
-    np.testing.assert_array_equal(np.asarray(a.class_logits), np.asarray(c.class_logits))
+    # the same to float32 rounding: two programs that XLA compiles apart need not round alike
+    np.testing.assert_allclose(np.asarray(a.phi), np.asarray(c.phi), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(a.class_logits), np.asarray(c.class_logits), rtol=1e-5, atol=1e-6)
 
     def depth_sum(p):
         out = model8.apply({**start, "params": p}, b["image"], b["K"])

@@ -26,7 +26,8 @@ def test_grown_network_starts_from_the_trained_outputs_and_its_crop_branch_learn
     a = jax.jit(VoluMonRCNN(TINY).apply)(trained, b["image"], b["K"])
     grown = VoluMonRCNN(CROP)
     c = jax.jit(grown.apply)(start, b["image"], b["K"])
-    np.testing.assert_array_equal(np.asarray(a.phi), np.asarray(c.phi))
+    # the same to float32 rounding: two programs that XLA compiles apart need not round alike
+    np.testing.assert_allclose(np.asarray(a.phi), np.asarray(c.phi), rtol=1e-5, atol=1e-6)
 
     def depth_sum(p, image):
         out = grown.apply({**start, "params": p}, image, b["K"])
