@@ -7,7 +7,8 @@ Writes ``OUT.npz`` (float32 variables), ``OUT.json`` (the training config, the s
 the last held-out figures of the run's ``metrics.jsonl``) and ``OUT_curves.png`` (the loss terms and
 the held-out AP50 and centre error against the step), each atomically. ``--average-steps`` exports
 the parameter average of those checkpoints of the run (``jaxsem.volumon.rcnn.average_models``)
-instead of its latest one. A run started from another
+instead of its latest one; ``--detector`` grafts the run's lift onto another network's detector
+(``jaxsem.volumon.rcnn.graft_lift``). A run started from another
 run's weights (``--init-from``) is drawn after that run's curves, its steps counted on from there.
 """
 
@@ -29,6 +30,12 @@ def main(argv=None) -> int:
         "--average-steps", type=sc.int_list, default=None, help="average these checkpoints (e.g. 2000,2500,3000)"
     )
     p.add_argument("--data", default="", help="a line saying what the run trained on (goes into the JSON)")
+    p.add_argument(
+        "--detector",
+        default=None,
+        help="graft the run's lift onto this detector (a shipped name or an exported .npz; "
+        "jaxsem.volumon.rcnn.graft_lift): its boxes and classes, the run's ellipsoids",
+    )
     a = p.parse_args(argv)
     metrics_path = a.workdir / "metrics.jsonl"
     if not metrics_path.is_file():
@@ -37,7 +44,10 @@ def main(argv=None) -> int:
         p.error(f"--out: no folder {a.out.parent}")
     rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line.strip()]
 
-    from jaxsem.volumon.rcnn import average_models, export_rcnn, load_rcnn
+    from jaxsem.volumon.rcnn import SHIPPED_RCNNS, average_models, export_rcnn, graft_lift, load_rcnn
+
+    if a.detector is not None and a.detector not in SHIPPED_RCNNS and not pathlib.Path(a.detector).is_file():
+        p.error(f"--detector: no model {a.detector}")
 
     if a.average_steps:
         missing = [s for s in a.average_steps if not (a.workdir / "checkpoints" / str(s)).is_dir()]
@@ -47,6 +57,11 @@ def main(argv=None) -> int:
         loaded = loaded._replace(meta={**loaded.meta, "step": max(a.average_steps)})
     else:
         loaded = load_rcnn(a.workdir)
+    if a.detector is not None:
+        try:
+            loaded = graft_lift(load_rcnn(a.detector), loaded)
+        except ValueError as exc:
+            p.error(f"--detector: {exc}")
     last = rows[-1] if rows else {}
     meta = {
         "name": a.out.name,
@@ -61,6 +76,8 @@ def main(argv=None) -> int:
     }
     if a.average_steps:
         meta["averaged_steps"] = sorted(a.average_steps)
+    if "grafted" in loaded.meta:
+        meta["grafted"] = {**loaded.meta["grafted"], "detector": a.detector}
     # a run started from another run's weights (init_from, followed back through every stage):
     # its curves continue those runs'
     before, restarts = _stages(loaded.config.init_from)

@@ -75,11 +75,11 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lift-features",
-        choices=("shared", "own", "backbone"),
+        choices=("shared", "own", "stage", "backbone"),
         default="shared",
         help="own: the VoluMon head reads RoI layers of its own (started as copies of --init-from's "
-        "detector's), so the lift's features can learn while the detector's stay; backbone: the "
-        "backbone's last stage (stride 8 to 16) of its own too",
+        "detector's), so the lift's features can learn while the detector's stay; stage: the "
+        "backbone's last stage (stride 8 to 16) of its own too; backbone: a whole backbone of its own",
     )
     p.add_argument(
         "--train-only",

@@ -56,7 +56,7 @@ from ._volumon import (
 
 PARAM_RULES = ("class", "expectation")
 LIFT_AT = ("refined", "proposal")
-LIFT_FEATURES = ("shared", "own", "backbone")
+LIFT_FEATURES = ("shared", "own", "stage", "backbone")
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
@@ -97,11 +97,12 @@ class RCNNConfig:
       lift_features: the RoI features the VoluMon head reads: "shared" (the box and class heads'
         two layers over the pooled RoI) or "own" (two layers of its own over the same pooled
         RoI, ``volumon_roi0`` and ``volumon_roi1``), so the lift's features can learn while the
-        detector's stay; or "backbone" (those two layers and the backbone's last stage too, the
-        stride-8 to stride-16 one, as layers of its own named ``volumon_`` and the detector's
-        name: the lift pools its RoIs from a stride-16 map of its own). A network adopted from
-        one without them starts them as copies of the detector's
-        (``jaxsem.volumon.rcnn.train_rcnn``), with the very same outputs.
+        detector's stay; "stage" (those two layers and the backbone's last stage too, the
+        stride-8 to stride-16 one, fed from the shared stride-8 features) or "backbone" (those two
+        layers and a whole backbone of its own, fed from the image): the lift's own layers are
+        named ``volumon_`` and the detector's layer's name, and the lift pools its RoIs from a
+        stride-16 map of its own. A network adopted from one without them starts them as copies
+        of the detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the same outputs.
     """
 
     num_classes: int = 8
@@ -286,7 +287,7 @@ class VoluMonRCNN(nn.Module):
         x = (images - mean) / std
         pixels = x  # what lift_crop reads
         # the backbone's layers in order, as (name, layer maker); from ``split`` on, its last
-        # stage (stride 8 to 16), which ``lift_features="backbone"`` gives the lift a copy of
+        # stage (stride 8 to 16)
         if cfg.backbone == "plain_cnn":
             layers = [
                 (f"plain_{i}_{j}", functools.partial(ConvBN, int(c), kernel=3, stride=stride))
@@ -308,9 +309,10 @@ class VoluMonRCNN(nn.Module):
             x = make(name=name)(x, train)
         feats = x  # (B, H/16, W/16, C)
         lift_feats = feats
-        if cfg.lift_features == "backbone":
-            lift_feats = fine
-            for name, make in layers[split:]:
+        if cfg.lift_features in ("stage", "backbone"):  # the lift's own copy of the backbone's end
+            start = split if cfg.lift_features == "stage" else 0
+            lift_feats = fine if start else pixels
+            for name, make in layers[start:]:
                 lift_feats = make(name=f"volumon_{name}")(lift_feats, train)
         B = feats.shape[0]
 
@@ -337,7 +339,7 @@ class VoluMonRCNN(nn.Module):
 
         fc0 = nn.Dense(cfg.hidden, name="roi_fc0")
         fc1 = nn.Dense(cfg.hidden, name="roi_fc1")
-        own = cfg.lift_features in ("own", "backbone")
+        own = cfg.lift_features != "shared"
         own0 = nn.Dense(cfg.hidden, name="volumon_roi0") if own else None
         own1 = nn.Dense(cfg.hidden, name="volumon_roi1") if own else None
         cls_out = nn.Dense(n + 1, name="cls_out")

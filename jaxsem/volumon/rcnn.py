@@ -47,6 +47,7 @@ __all__ = [
     "at_input_size",
     "configured",
     "average_models",
+    "graft_lift",
     "export_rcnn",
     "load_rcnn",
     "rcnn_config_from_dict",
@@ -609,7 +610,7 @@ def _adopt(start, fresh):
 
 def _own_lift_features(tree, start_tree):
     """``tree`` (one collection, ``params`` or ``batch_stats``, of a network whose lift has
-    layers of its own: ``lift_features`` "own" or "backbone"; nested dicts) with each of the
+    layers of its own: ``lift_features`` "own", "stage" or "backbone"; nested dicts) with each of the
     lift's own layers that ``start_tree`` (the adopted network's) lacks copied from the
     detector's layer it doubles: the adopted network's outputs are the very same. ``tree``
     itself when there is nothing to copy."""
@@ -733,6 +734,57 @@ def average_models(models) -> LoadedModel:
     )
     steps = [m.meta.get("step") for m in models]
     return LoadedModel(first.model, mean, first.config, {**first.meta, "averaged_steps": steps})
+
+
+#: The settings of :class:`RCNNConfig` that only the lift's weights depend on: a lift grafted on a
+#: detector (:func:`graft_lift`) brings its own.
+LIFT_SETTINGS = ("lift_stride8", "lift_crop", "lift_features", "param_rule", "rotation_init", "reconstruction")
+
+
+def graft_lift(detector: LoadedModel, lifter: LoadedModel) -> LoadedModel:
+    """One network with ``detector``'s boxes and classes and ``lifter``'s ellipsoids.
+
+    The result (``lift_features="backbone"``) runs ``detector``'s backbone, proposal stage and
+    box and class heads, and beside them a backbone and RoI layers of the lift's own holding
+    ``lifter``'s, under ``lifter``'s VoluMon head. A lift trained with every layer of a network
+    learning reads features that its detection got worse for; grafted, it keeps those features
+    while the detections are ``detector``'s. Both are networks whose lift reads the detector's
+    features (``lift_features="shared"``) and that agree on every setting outside
+    :data:`LIFT_SETTINGS` and the test-time ones; the lift's settings and training config are
+    ``lifter``'s, ``lift_at`` is ``detector``'s."""
+    dc, lc = detector.config.model, lifter.config.model
+    for name, c in (("detector", dc), ("lifter", lc)):
+        if c.lift_features != "shared":
+            raise ValueError(
+                f"{name}: expected a network whose lift reads the detector's features, got {c.lift_features!r}"
+            )
+    keep = {k: getattr(lc, k) for k in LIFT_SETTINGS + TEST_TIME_SETTINGS}
+    if dataclasses.replace(dc, **keep) != lc:
+        raise ValueError("lifter: expected the detector's network (the same settings outside the lift's)")
+    model_cfg = dataclasses.replace(lc, lift_features="backbone", lift_at=dc.lift_at)
+    fresh = jax.eval_shape(lambda k: init_rcnn(k, model_cfg, 1)[1], jax.random.PRNGKey(0))
+    doubles = {"volumon_roi0": "roi_fc0", "volumon_roi1": "roi_fc1"}
+
+    def source(layer):
+        """(the network, its layer) that ``layer`` of the grafted network takes its values from"""
+        if layer in doubles:
+            return lifter, doubles[layer]
+        if layer.startswith("volumon_") and layer[len("volumon_") :] in fresh["params"]:
+            return lifter, layer[len("volumon_") :]
+        return (lifter if layer.startswith(LIFT_LAYERS) else detector), layer
+
+    variables = {}
+    for collection in ("params", "batch_stats"):
+        variables[collection] = {}
+        for layer, like in fresh[collection].items():
+            net, name = source(layer)
+            value = net.variables[collection].get(name)
+            if value is None or jax.tree.map(np.shape, value) != jax.tree.map(np.shape, like):
+                raise ValueError(f"detector, lifter: no {collection} {name!r} of the grafted network's shape")
+            variables[collection][layer] = value
+    config = dataclasses.replace(lifter.config, model=model_cfg)
+    meta = {**lifter.meta, "grafted": {"detector": detector.meta.get("name"), "lift": lifter.meta.get("name")}}
+    return LoadedModel(VoluMonRCNN(model_cfg), variables, config, meta)
 
 
 #: The settings of :class:`RCNNConfig` that a trained network's weights do not depend on.
