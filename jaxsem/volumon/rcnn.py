@@ -608,15 +608,24 @@ def _adopt(start, fresh):
     return out
 
 
+def _doubled_layer(layer: str, layers) -> str | None:
+    """The detector's layer that the lift's own ``layer`` doubles (``volumon_roi0`` -> ``roi_fc0``,
+    ``volumon_plain_3_0`` -> ``plain_3_0``), if ``layers`` (a network's layer names) hold it;
+    else None (a layer that is the lift's alone, or one of the detector's)."""
+    name = {"volumon_roi0": "roi_fc0", "volumon_roi1": "roi_fc1"}.get(layer)
+    if name is None and layer.startswith("volumon_"):
+        name = layer[len("volumon_") :]
+    return name if name is not None and name in layers else None
+
+
 def _own_lift_features(tree, start_tree):
     """``tree`` (one collection, ``params`` or ``batch_stats``, of a network whose lift has
     layers of its own: ``lift_features`` "own", "stage" or "backbone"; nested dicts) with each of the
     lift's own layers that ``start_tree`` (the adopted network's) lacks copied from the
     detector's layer it doubles: the adopted network's outputs are the very same. ``tree``
     itself when there is nothing to copy."""
-    doubles = {"volumon_roi0": "roi_fc0", "volumon_roi1": "roi_fc1"}
-    doubles.update({k: k[len("volumon_") :] for k in tree if k.startswith("volumon_") and k[len("volumon_") :] in tree})
-    copies = {mine: tree[theirs] for mine, theirs in doubles.items() if mine in tree and mine not in start_tree}
+    doubles = {k: _doubled_layer(k, tree) for k in tree if k not in start_tree}
+    copies = {mine: tree[theirs] for mine, theirs in doubles.items() if theirs is not None}
     return {**tree, **copies} if copies else tree
 
 
@@ -763,14 +772,13 @@ def graft_lift(detector: LoadedModel, lifter: LoadedModel) -> LoadedModel:
         raise ValueError("lifter: expected the detector's network (the same settings outside the lift's)")
     model_cfg = dataclasses.replace(lc, lift_features="backbone", lift_at=dc.lift_at)
     fresh = jax.eval_shape(lambda k: init_rcnn(k, model_cfg, 1)[1], jax.random.PRNGKey(0))
-    doubles = {"volumon_roi0": "roi_fc0", "volumon_roi1": "roi_fc1"}
 
     def source(layer):
-        """(the network, its layer) that ``layer`` of the grafted network takes its values from"""
-        if layer in doubles:
-            return lifter, doubles[layer]
-        if layer.startswith("volumon_") and layer[len("volumon_") :] in fresh["params"]:
-            return lifter, layer[len("volumon_") :]
+        """(the network, its layer) that ``layer`` of the grafted network takes its values from:
+        the lift's own doubles of the detector's layers hold the lifter's (shared) ones"""
+        doubled = _doubled_layer(layer, fresh["params"])
+        if doubled is not None:
+            return lifter, doubled
         return (lifter if layer.startswith(LIFT_LAYERS) else detector), layer
 
     variables = {}
