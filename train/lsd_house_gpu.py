@@ -9,7 +9,10 @@ the final model, a compact copy of the last checkpoint and the learning curve:
         --train 60 --train-samples 120 --workers 14 --data-deadline 200 --deadline 500
 
 ``--family campus`` swaps the house family for the long university buildings of the ``campus``
-family (``--house`` then counts campus buildings; the model is ``lsd_campus.npz``).
+family (``--house`` then counts campus buildings; the model is ``lsd_campus.npz``). Several
+families (``--family house campus``) draw ``--house`` buildings of each, taken in turn, for one
+model of every kind of map (``lsd_mixed.npz``); start it from the model that already knows the
+hardest family (``--init-from``).
 
 Shards are named ``expert_<family>_<seed>.npz`` (as ``jaxsem lsd data`` writes them) and each is a
 function of its family and seed, so a shorter run's shards are a prefix of a longer run's. Jobs
@@ -64,6 +67,18 @@ def _job(args):
     return str(path), int(len(data["context"]))
 
 
+def job_list(args, out: str, full: str) -> list[tuple]:
+    """The shard jobs in the order they run: ``ratio`` buildings of the new families in turn, then
+    one train building, so that a run stopped at its data deadline keeps the mix."""
+    house = [(f, s, args.house_samples, out, full) for s in range(args.house) for f in args.family]
+    train = [("train", s, args.train_samples, out, full) for s in range(args.train)]
+    jobs, ratio = [], max(1, round(len(house) / max(1, len(train))))
+    while house or train:
+        jobs += house[:ratio] + train[:1]
+        house, train = house[ratio:], train[1:]
+    return jobs
+
+
 def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> dict:
     import multiprocessing as mp
 
@@ -71,12 +86,7 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
     if full_dir is not None:
         full_dir.mkdir(parents=True, exist_ok=True)
     full = str(full_dir) if full_dir is not None else ""
-    house = [(args.family, s, args.house_samples, str(data_dir), full) for s in range(args.house)]
-    train = [("train", s, args.train_samples, str(data_dir), full) for s in range(args.train)]
-    jobs, ratio = [], max(1, round(len(house) / max(1, len(train))))
-    while house or train:  # interleave: `ratio` houses, then one train building
-        jobs += house[:ratio] + train[:1]
-        house, train = house[ratio:], train[1:]
+    jobs = job_list(args, str(data_dir), full)
     done, t = [], time.time()
     ctx = mp.get_context("spawn")
     with ctx.Pool(args.workers, initializer=_worker_env, maxtasksperchild=16) as pool:
@@ -97,10 +107,15 @@ def make_data(args, data_dir: pathlib.Path, full_dir: pathlib.Path | None) -> di
         for p in d.glob(".expert_*.tmp") if d is not None else ():
             p.unlink()
     shards = sorted(str(p) for p in data_dir.glob("expert_*.npz"))
-    fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in (args.family, "train")}
+    fam = {f: sum(1 for s in shards if f"expert_{f}_" in s) for f in (*args.family, "train")}
     info = {"shards": len(shards), "by_family": fam, "seconds": round(time.time() - t, 1), "jobs": len(jobs)}
     print("data:", info, flush=True)
     return info
+
+
+def _model_name(families: list[str]) -> str:
+    """The exported model's name: the one new family's, or ``mixed`` for several."""
+    return families[0] if len(set(families)) == 1 else "mixed"
 
 
 def _check(ap: argparse.ArgumentParser, args) -> None:
@@ -116,6 +131,8 @@ def _check(ap: argparse.ArgumentParser, args) -> None:
     ):
         if value < low:
             ap.error(f"{flag}: expected a whole number >= {low}, got {value}")
+    if len(set(args.family)) != len(args.family):
+        ap.error(f"--family: each family once, got {' '.join(args.family)}")
     if not 0 < args.data_deadline < args.deadline < math.inf:
         ap.error(
             f"--data-deadline, --deadline: expected 0 < --data-deadline < --deadline (finite seconds), "
@@ -135,8 +152,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", required=True, help="data and workdir (resumes)")
     ap.add_argument("--out", required=True, help="where the model, checkpoint and curve go")
-    ap.add_argument("--family", default="house", choices=("house", "campus"), help="the new building family")
-    ap.add_argument("--house", type=int, default=180, help="buildings of --family")
+    ap.add_argument(
+        "--family", nargs="+", default=["house"], choices=("house", "campus"), help="the new building families"
+    )
+    ap.add_argument("--house", type=int, default=180, help="buildings of each --family")
     ap.add_argument("--house-samples", type=int, default=160, help="expert samples per --family building")
     ap.add_argument("--train", type=int, default=60)
     ap.add_argument("--train-samples", type=int, default=120)
@@ -193,7 +212,7 @@ def main(argv=None) -> int:
         suffix = "" if name == "house" else "_oracle"
         try:
             _, params, config = lsd.load_trained(workdir)
-            lsd.export_model(out / f"lsd_{args.family}{suffix}.npz", config, params)
+            lsd.export_model(out / f"lsd_{_model_name(args.family)}{suffix}.npz", config, params)
             rows = [json.loads(x) for x in (workdir / "metrics.jsonl").read_text().splitlines() if x.strip()]
         except Exception as e:  # report and go on: the other run's files still come back
             print(f"export {name}: {e!r}", flush=True)

@@ -15,8 +15,9 @@ import pytest
         (["--init-from", "nowhere.npz"], "--init-from: no such model file 'nowhere.npz'"),
         (["--set", "batch_size"], "--set: expected name=value, got 'batch_size'"),
         (["--out", "A_FILE"], "--out:"),
+        (["--family", "house", "house"], "--family: each family once, got house house"),
     ],
-    ids=["workers", "samples", "deadline-nan", "deadlines-swapped", "init-from", "set", "out-file"],
+    ids=["workers", "samples", "deadline-nan", "deadlines-swapped", "init-from", "set", "out-file", "family-twice"],
 )
 def test_bad_flags_exit_2_before_any_work(extra, words, tmp_path, capsys, script):
     mod = script("train/lsd_house_gpu.py")
@@ -28,3 +29,22 @@ def test_bad_flags_exit_2_before_any_work(extra, words, tmp_path, capsys, script
     assert exc.value.code == 2
     assert words in capsys.readouterr().err.splitlines()[-1]
     assert not (tmp_path / "root").exists()
+
+
+def test_several_families_take_turns_with_the_train_family(script):
+    """The mixed model's jobs: each new family in turn, then a train building, so that a run
+    stopped at its data deadline keeps the mix; the model is named ``mixed``."""
+    mod = script("train/lsd_house_gpu.py")
+    args = mod.argparse.Namespace(family=["house", "campus"], house=3, train=3, house_samples=7, train_samples=5)
+    jobs = mod.job_list(args, "out", "")
+    assert [(f, s, n) for f, s, n, *_ in jobs[:4]] == [
+        ("house", 0, 7),
+        ("campus", 0, 7),
+        ("train", 0, 5),
+        ("house", 1, 7),
+    ]
+    assert sorted((f, s) for f, s, *_ in jobs) == sorted(
+        [(f, s) for f in ("house", "campus", "train") for s in range(3)]
+    )
+    assert mod._model_name(["house", "campus"]) == "mixed"
+    assert mod._model_name(["campus"]) == "campus"
