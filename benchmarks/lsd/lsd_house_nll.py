@@ -8,7 +8,12 @@ differences per sample with their standard error.
     python benchmarks/lsd/lsd_house_nll.py --oracle OUT/lsd_house_oracle.npz --json benchmarks/results/lsd_house_nll.json
 
 ``--family campus --model OUT/lsd_campus.npz`` scores a campus fine-tune the same way, on
-``campus`` family seeds from 1000 (its fine-tune used seeds below 100).
+``campus`` family seeds from 1000 (its fine-tune used seeds below 100). Several families
+(``--family house campus``) score each family's shipped model on every family; ``--extra
+NAME=MODEL`` adds a model to every set with its paired difference to each of the others (one
+model for every map against the specialised ones):
+
+    python benchmarks/lsd/lsd_house_nll.py --family house campus --extra mixed=OUT/lsd_mixed.npz --json OUT.json
 """
 
 from __future__ import annotations
@@ -33,25 +38,37 @@ def per_sample_nll(model, params, data):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--family", default="house", choices=("house", "campus"), help="the fine-tune's building family")
-    p.add_argument("--model", default=None, help="its model (.npz or shipped name; default: the family's name)")
+    p.add_argument(
+        "--family", nargs="+", default=["house"], choices=("house", "campus"), help="the fine-tunes' building families"
+    )
+    p.add_argument("--model", default=None, help="the one family's model (.npz or shipped name; default: its name)")
+    p.add_argument("--extra", action="append", default=[], help="NAME=MODEL: another model scored on every set")
     p.add_argument("--house-seeds", "--family-seeds", type=int, nargs="+", default=[1000, 1001, 1002])
     p.add_argument("--test-seeds", type=int, nargs="+", default=[600])
     p.add_argument("--samples", type=int, default=100, help="expert samples per building")
     p.add_argument("--oracle", default=None, help="the full-map oracle model (.npz), optional")
     p.add_argument("--json", required=True)
     args = p.parse_args(argv)
+    if args.model and len(args.family) > 1:
+        p.error("--model: one --family only (several families use their shipped models)")
+    extra = {}
+    for item in args.extra:
+        name, _, path = item.partition("=")
+        if not name or not path or name in ("shipped", "oracle", *args.family):
+            p.error(f"--extra: expected NAME=MODEL with a new name, got {item!r}")
+        extra[name] = path
 
     import numpy as np
 
     from jaxsem import lsd, planning
     from jaxsem.scripting import atomic_write_text
 
-    fam = args.family
-    models = {"shipped": lsd.load_model("default"), fam: lsd.load_model(args.model or fam)}
+    models = {"shipped": lsd.load_model("default")}
+    models |= {f: lsd.load_model(args.model or f) for f in args.family}
+    models |= {name: lsd.load_model(path) for name, path in extra.items()}
     cfg = lsd.ExpertConfig(samples_per_building=args.samples)
     result = {"command": "python benchmarks/lsd/lsd_house_nll.py " + " ".join(argv or sys.argv[1:]), "sets": {}}
-    for family, seeds in ((fam, args.house_seeds), ("test", args.test_seeds)):
+    for family, seeds in (*((f, args.house_seeds) for f in args.family), ("test", args.test_seeds)):
         shards = []
         for s in seeds:
             b = planning.generate_building(s, family)
@@ -72,7 +89,9 @@ def main(argv=None) -> int:
         row = {"buildings": seeds, "samples": int(has.sum()), "uniform": float(np.log(160 * 160))}
         for name, v in scores.items():
             row[name] = float(v[has].mean())
-        for a, b_ in (("shipped", fam), (fam, "oracle")):
+        pairs = [("shipped", f) for f in args.family] + [(f, "oracle") for f in args.family]
+        pairs += [(x, m) for x in extra for m in scores if m != x]
+        for a, b_ in pairs:
             if a in scores and b_ in scores:
                 d = scores[a][has] - scores[b_][has]
                 row[f"{a}_minus_{b_}"] = [float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))]
