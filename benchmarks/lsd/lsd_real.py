@@ -21,7 +21,9 @@ one that keeps its route until the route is blocked, as the reused uniform roadm
 ``--unknown-weight W`` two (uniform and LSD) whose edge weights charge a metre through unknown
 cells W times one through known free cells (a variant of both planners, compared pairwise),
 ``--lsd-scale S`` one whose network sees the partial maps pooled S x S (a window S times wider),
-``--oracle MODEL`` the fully supervised oracle network fed the true map's crops (a diagnostic).
+``--oracle MODEL`` the fully supervised oracle network fed the true map's crops (a diagnostic),
+``--other MODEL`` another LSD model on the same tasks, paired task by task with ``--checkpoint``'s
+(``summary[row]["other_vs_lsd"]``: which model to ship).
 ``--reuse-base RUN`` runs only the variant rows and takes uniform and LSD from an earlier run of
 the same tasks (their records are joined, so every reader of the records sees all rows).
 Records stream to ``<json stem>.records.jsonl`` as trials end (paths included) and a rerun of the
@@ -144,6 +146,13 @@ def _parse(argv):
         "variant row lsd_oracle: how far a network that saw the building around it would get)",
     )
     p.add_argument(
+        "--other",
+        default=None,
+        metavar="MODEL",
+        help="add another LSD model (exported .npz or a shipped name) on the same tasks, under the same "
+        "protocol (variant row lsd_other, paired with --checkpoint's model in other_vs_lsd)",
+    )
+    p.add_argument(
         "--goal-flag",
         choices=["map", "io"],
         default="map",
@@ -239,6 +248,13 @@ def _check(args):
         raise SystemExit(f"lsd_real: --unknown-weight: expected a finite number > 0, got {args.unknown_weight}")
     if args.oracle is not None and not pathlib.Path(args.oracle).is_file():
         raise SystemExit(f"lsd_real: --oracle: no such file {args.oracle!r}")
+    if args.other is not None:
+        from jaxsem.lsd import load_model
+
+        try:
+            load_model(args.other)
+        except ValueError as exc:
+            raise SystemExit(f"lsd_real: --other: {exc}") from None
     if args.oracle is not None and len(args.map) > 1:
         raise SystemExit("lsd_real: --oracle: needs a single --map (it reads that map's true crops)")
     if args.lsd_scale is not None and args.lsd_scale < 1:
@@ -254,7 +270,7 @@ def _check(args):
 
 
 # The flags that each add a variant row (run_planners).
-VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale", "oracle")
+VARIANT_FLAGS = ("nosem", "euclid", "replan_when_blocked", "outmass", "unknown_weight", "lsd_scale", "oracle", "other")
 # The flags that decide a run's tasks and its uniform and LSD rows: --reuse-base needs them equal.
 SAME_TASK_FLAGS = (
     "trials", "seed", "tasks", "min_distance", "max_distance", "clearance", "protocol", "max_steps", "checkpoint",
@@ -318,8 +334,9 @@ def _provenance(args) -> dict:
     files = [pathlib.Path(m) for m in args.map]
     if args.annotations:
         files.append(pathlib.Path(args.annotations))
-    if args.checkpoint and pathlib.Path(args.checkpoint).is_file():
-        files.append(pathlib.Path(args.checkpoint))
+    for model in (args.checkpoint, args.other):
+        if model and pathlib.Path(model).is_file():
+            files.append(pathlib.Path(model))
     return {"flags": flags, "files": {str(f): tree_digest(f) for f in files if f.is_file()}}
 
 
@@ -387,9 +404,44 @@ def run_planners(args, world=None) -> tuple:
             raise ValueError("world: --oracle needs the run's map")
         oracle, oracle_params, _, _ = load_model(args.oracle)
         variants["lsd_oracle"] = (full_map_sampler(LSDSampler(oracle, oracle_params), world), {})
+    if args.other is not None:
+        other, other_params, _, _ = load_model(args.other)  # checked by _check
+        variants["lsd_other"] = (LSDSampler(other, other_params), {})
     if args.uniform_only:
         variants = {"uniform": (None, {})}
     return sampler, base, variants or None
+
+
+def _other_vs_lsd(summary: dict, records: list) -> str:
+    """``--other`` paired with ``--checkpoint``'s model, task by task: written into each summary
+    row as ``other_vs_lsd`` (success of both, other-only and LSD-only tasks, and the mean C/C* of
+    each on the tasks both solved); returns the lines of a table."""
+    import numpy as np
+
+    lines = ["", "| set | N | tasks | success LSD | success other | other-only / LSD-only | C/C* LSD | C/C* other |"]
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for key, row in summary.items():
+        rs = [r for r in records if f"{r['set']}-{r['n']}" == key and "lsd_other" in r]
+        a = np.array([r["lsd"]["success"] for r in rs], bool)
+        b = np.array([r["lsd_other"]["success"] for r in rs], bool)
+        both = a & b
+        ca = [r["lsd"]["cost"] / r["c_star"] for r, m in zip(rs, both) if m]
+        cb = [r["lsd_other"]["cost"] / r["c_star"] for r, m in zip(rs, both) if m]
+        pair = {
+            "tasks": len(rs),
+            "success_lsd": float(a.mean()) if len(rs) else float("nan"),
+            "success_other": float(b.mean()) if len(rs) else float("nan"),
+            "other_only": int((b & ~a).sum()),
+            "lsd_only": int((a & ~b).sum()),
+            "c_lsd": float(np.mean(ca)) if ca else float("nan"),
+            "c_other": float(np.mean(cb)) if cb else float("nan"),
+        }
+        row["other_vs_lsd"] = pair
+        lines.append(
+            f"| {row['set']} | {row['n']} | {pair['tasks']} | {pair['success_lsd']:.1%} | {pair['success_other']:.1%} "
+            f"| {pair['other_only']} / {pair['lsd_only']} | {pair['c_lsd']:.2f} | {pair['c_other']:.2f} |"
+        )
+    return "\n".join(lines)
 
 
 def _zeroed_semantics(sampler):
@@ -486,6 +538,8 @@ def _run(args, argv) -> int:
     else:
         summary = summarise(records)
         table = format_table(summary)
+        if args.other is not None:
+            table += "\n" + _other_vs_lsd(summary, records)
     print(table)
     result = {
         "benchmark": "lsd_real",

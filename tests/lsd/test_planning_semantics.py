@@ -271,6 +271,30 @@ def test_real_map_trial_end_to_end_streams_and_resumes(tmp_path, script, capsys)
 
 
 @pytest.mark.slow
+def test_real_map_other_model_paired_on_the_same_tasks(tmp_path, script):
+    """``--other`` runs a second LSD model on the same tasks; with the same model as
+    ``--checkpoint`` it drives the same trials, so the pairing finds no task only one solved."""
+    path = tmp_path / "rooms.gridmap.gz"
+    _write_gridmap(path, _two_rooms(0.9, gap_at=1.5), 0.1)
+    mod = script("benchmarks/lsd/lsd_real.py")
+    out = tmp_path / "r.json"
+    run_argv = [
+        "--map", str(path), "--trials", "2", "--n", "60", "--sets", "II", "--protocol", "thesis",
+        "--seed", "1", "--min-distance", "3", "--max-distance", "9", "--max-steps", "40",
+        "--checkpoint", "default", "--other", "default", "--json", str(out), "--no-progress",
+    ]  # fmt: skip
+    assert mod.main(run_argv) == 0
+    row = json.loads(out.read_text())["summary"]["II-60"]
+    records = read_records(out.with_name("r.records.jsonl"))
+    assert len(records) == 2
+    for r in records:
+        assert r["lsd_other"]["success"] == r["lsd"]["success"] and r["lsd_other"]["path"] == r["lsd"]["path"]
+    pair = row["other_vs_lsd"]
+    assert pair["tasks"] == 2 and pair["other_only"] == pair["lsd_only"] == 0
+    assert pair["success_other"] == pair["success_lsd"] == row["success_lsd"]
+
+
+@pytest.mark.slow
 def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     """``--replan-when-blocked`` adds an LSD row on the same tasks whose route is kept until it
     is blocked: it never draws more roadmaps than the default LSD, which draws one every 20 steps."""
@@ -364,6 +388,8 @@ def test_real_map_command_names_bad_flags(tmp_path, capsys, script):
         mod.main(["--map", str(path), "--unknown-weight", "0", "--json", str(tmp_path / "o.json")])
     with pytest.raises(SystemExit, match="--oracle"):
         mod.main(["--map", str(path), "--oracle", str(tmp_path / "none.npz"), "--json", str(tmp_path / "o.json")])
+    with pytest.raises(SystemExit, match="lsd_real: --other: .*'hous'"):
+        mod.main(["--map", str(path), "--other", "hous", "--json", str(tmp_path / "o.json")])
     assert not (tmp_path / "o.json").exists()
 
 
