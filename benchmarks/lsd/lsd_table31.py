@@ -13,6 +13,8 @@ roadmap), 'growuni' (LSD whose failed roadmaps grow with uniform samples, NavCon
 with 'outmass' adds the two together; 'thesis' (both planners under the thesis' protocol of
 section 3.3.3 as written: a fresh roadmap of N samples at every replan, the uniform one too, and
 the first roadmap without a path ends the trial: NavConfig.reuse_roadmap=False, max_growth=0).
+--other MODEL runs a second LSD model on the same tasks beside the first (rows 'lsd_other' and,
+with 'thesis', 'lsd_other_thesis'), paired with it task by task (which model to ship).
 --only-ablations runs just the ablation planners (merge with a run of the same tasks:
 --merge A.json B.json joins records of the same task planner-wise). --devices N|all deals the
 trials over devices (jaxsem.lsd.run_trials(mesh=...)). Writes <out>/<name>.{json,md,png}.
@@ -67,6 +69,13 @@ def _check(args) -> None:
             raise SystemExit(f"--ablations: expected some of {', '.join(ABLATIONS)}, got {a!r}")
     if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
         raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
+    if args.other is not None:
+        from jaxsem.lsd import load_model
+
+        try:
+            load_model(args.other)
+        except ValueError as exc:
+            raise SystemExit(f"--other: {exc}") from None
 
 
 def _mesh(devices):
@@ -91,6 +100,12 @@ def main(argv=None) -> int:
         "--checkpoint",
         default=None,
         help="LSD training workdir or exported .npz (None: the shipped model)",
+    )
+    p.add_argument(
+        "--other",
+        default=None,
+        metavar="MODEL",
+        help="a second LSD model (exported .npz or a shipped name) on the same tasks, paired with the first",
     )
     p.add_argument(
         "--train",
@@ -281,6 +296,13 @@ def _write_partial(args, argv, records, info, total) -> int:
         for kind in args.sets:
             x = [r[name]["success"] for r in records if r["set"] == kind]
             print(f"{name} {kind}: {sum(x)} / {len(x)} successes")
+    for a, b in (("lsd_other_thesis", "lsd_thesis"),):
+        if a in names and b in names:
+            for kind in args.sets:
+                rs = [r for r in records if r["set"] == kind]
+                only_a = sum(r[a]["success"] and not r[b]["success"] for r in rs)
+                only_b = sum(r[b]["success"] and not r[a]["success"] for r in rs)
+                print(f"{a} vs {b} {kind}: {only_a} / {only_b} tasks only one solved, of {len(rs)}")
     print(f"wrote {out / (args.name + '.json')} (records only: --merge it with a full run) in {total / 60:.1f} min")
     return 0
 
@@ -329,6 +351,13 @@ def _run(args, argv) -> int:
     if "thesis" in args.ablations:  # LSD never reuses a roadmap: its thesis row is nogrow
         variants["uniform_thesis"] = (None, {"max_growth": 0, "reuse_roadmap": False})
         variants["lsd_thesis"] = (sampler, {"max_growth": 0})
+    if args.other is not None:
+        other, other_params, _, _ = load_model(args.other)
+        other_sampler = LSDSampler(other, other_params, uniform_mix=args.uniform_mix)
+        if not args.only_ablations:
+            variants["lsd_other"] = (other_sampler, {})
+        if "thesis" in args.ablations:
+            variants["lsd_other_thesis"] = (other_sampler, {"max_growth": 0})
     buildings = building_family(args.family, args.test_buildings, start=args.test_start)
     records = run_trials(
         buildings,

@@ -145,3 +145,21 @@ def test_thesis_ablation_runs_both_planners_without_reuse_or_growth(tmp_path, sc
     assert r["uniform_thesis"]["steps"] >= 40 and r["uniform_thesis"]["plans"] >= 3
     assert "paired_thesis" in out["summary"]["II-100"]
     assert "| II | 100 | thesis |" in (tmp_path / "th.md").read_text()
+
+
+@pytest.mark.slow
+def test_other_model_runs_beside_the_first_on_the_same_tasks(tmp_path, script, capsys):
+    """``--other`` with the same model as ``--checkpoint`` drives every trial as the first does,
+    under the defaults and the thesis' protocol, and the pairing finds no task only one solved."""
+    mod = script("benchmarks/lsd/lsd_table31.py")
+    args = ["--checkpoint", str(PRETRAINED_CPU), "--other", str(PRETRAINED_CPU), "--out", str(tmp_path)]
+    args += ["--test-buildings", "1", "--trials", "1", "--n", "100", "--sets", "II", "--max-steps", "60"]
+    args += ["--no-progress", "--ablations", "thesis", "--name", "other"]
+    assert mod.main(args) == 0
+    (r,) = json.loads((tmp_path / "other.json").read_text())["records"]
+    for a, b in (("lsd_other", "lsd"), ("lsd_other_thesis", "lsd_thesis")):
+        assert (r[a]["success"], r[a]["steps"], r[a]["plans"]) == (r[b]["success"], r[b]["steps"], r[b]["plans"])
+    assert mod.main([*args, "--only-ablations", "--name", "only"]) == 0
+    assert "lsd_other_thesis vs lsd_thesis II: 0 / 0 tasks only one solved, of 1" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="--other:"):
+        mod.main([*args[:2], "--other", str(tmp_path / "none.npz"), *args[4:]])
