@@ -249,12 +249,7 @@ def _check(args):
     if args.oracle is not None and not pathlib.Path(args.oracle).is_file():
         raise SystemExit(f"lsd_real: --oracle: no such file {args.oracle!r}")
     if args.other is not None:
-        from jaxsem.lsd import load_model
-
-        try:
-            load_model(args.other)
-        except ValueError as exc:
-            raise SystemExit(f"lsd_real: --other: {exc}") from None
+        _sibling("lsd_table31").check_model("--other", args.other, "lsd_real: ")
     if args.oracle is not None and len(args.map) > 1:
         raise SystemExit("lsd_real: --oracle: needs a single --map (it reads that map's true crops)")
     if args.lsd_scale is not None and args.lsd_scale < 1:

@@ -70,12 +70,18 @@ def _check(args) -> None:
     if args.checkpoint and not pathlib.Path(args.checkpoint).exists():
         raise SystemExit(f"--checkpoint: no such file or folder {args.checkpoint!r}")
     if args.other is not None:
-        from jaxsem.lsd import load_model
+        check_model("--other", args.other)
 
-        try:
-            load_model(args.other)
-        except ValueError as exc:
-            raise SystemExit(f"--other: {exc}") from None
+
+def check_model(flag: str, source: str, prog: str = "") -> None:
+    """An LSD model flag (exported .npz, workdir or shipped name) loads, or SystemExit naming
+    ``flag`` (``prog``: the script's name in front, as lsd_real.py words its errors)."""
+    from jaxsem.lsd import load_model
+
+    try:
+        load_model(source)
+    except ValueError as exc:
+        raise SystemExit(f"{prog}{flag}: {exc}") from None
 
 
 def _mesh(devices):
