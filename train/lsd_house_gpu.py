@@ -169,7 +169,8 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], help="extra TrainConfig overrides (name=value)")
     args = ap.parse_args(argv)
     _check(ap, args)
-    root, out = pathlib.Path(args.root), pathlib.Path(args.out)
+    # absolute: the trainers run with `root` as their working directory (below)
+    root, out = pathlib.Path(args.root).resolve(), pathlib.Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     data_info = make_data(args, root / "data", root / "data_full" if args.oracle else None)
 

@@ -2,6 +2,8 @@
 naming it (``--workers 0`` was a traceback from the process pool; a missing ``--init-from`` was
 found only after minutes of shard generation)."""
 
+import pathlib
+
 import pytest
 
 
@@ -48,3 +50,29 @@ def test_several_families_take_turns_with_the_train_family(script):
     )
     assert mod._model_name(["house", "campus"]) == "mixed"
     assert mod._model_name(["campus"]) == "campus"
+
+
+def test_trainers_get_absolute_paths_under_a_relative_root(tmp_path, monkeypatch, script):
+    """The trainers run with ``--root`` as their working directory: a relative ``--root`` handed
+    on as it was named pointed them at ``root/root/data`` (no such folder, exit 2)."""
+    mod = script("train/lsd_house_gpu.py")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "model.npz").write_bytes(b"x")
+    monkeypatch.setattr(mod, "make_data", lambda args, data, full: {"shards": 0})
+    seen = []
+
+    class _Proc:
+        def __init__(self, cmd, env=None, cwd=None):
+            seen.append((cmd, cwd))
+
+        def wait(self, timeout=None):
+            return 0
+
+    monkeypatch.setattr(mod.subprocess, "Popen", _Proc)
+    argv = ["--root", "rel", "--out", "out", "--init-from", "model.npz", "--data-deadline", "1", "--deadline", "2"]
+    assert mod.main(argv + ["--oracle"]) == 0
+    assert len(seen) == 2
+    for cmd, cwd in seen:
+        folders = [cmd[i + 1] for i, a in enumerate(cmd) if a in ("--data", "--workdir", "--run-dir")]
+        assert len(folders) == 3 and all(pathlib.Path(f).is_absolute() for f in folders)
+        assert pathlib.Path(cwd) == tmp_path / "rel"
