@@ -24,7 +24,10 @@ network finds the objects itself, from the photographs alone: the JSON holds ``d
 (``ap50`` over the classes, ``ap50_per_class``, ``recall50``), the 3D figures of its detections
 matched to an object at least --min-visible visible (box IoU >= 0.5), ``num_matched``,
 ``num_truth``, ``ms_per_image`` (batch 1), ``baseline`` (known-size, the same boxes) and
-``parallel`` (the shipped LM-O VoluMon fed the same boxes and classes: thesis 5.3's design).
+``parallel`` (the shipped LM-O VoluMon fed the same boxes and classes: thesis 5.3's design);
+``--truth-boxes`` adds ``on_true_boxes``: the network's lift, the separate network and the baseline
+on every true object's visible box and class, a figure of the lift that does not move with the
+detector.
 
 Example (the tuning split of LM-O; the test split, ids >= 600, is held out)::
 
@@ -84,6 +87,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         choices=("refined", "proposal"),
         help="R-CNN only: the box whose features the lift reads, each RoI's refined box or the RoI itself "
         "(default: the model's own setting)",
+    )
+    p.add_argument(
+        "--truth-boxes",
+        action="store_true",
+        default=None,
+        help="R-CNN only: also score its lift, the separate network and the baseline on every true object's visible "
+        "box and class (on_true_boxes: the lift's figure apart from the detector)",
     )
     add_class_mapping_argument(p, "BOP scene only")
     return p
@@ -178,7 +188,15 @@ def _rcnn_figures(args, path) -> dict:
     from tqdm.auto import tqdm
 
     bar = lambda frames: tqdm(frames, desc="volumon rcnn eval", unit="photo")
-    return evaluate_scene(loaded, args.data, args.split, min_visible=args.min_visible, parallel=parallel, progress=bar)
+    return evaluate_scene(
+        loaded,
+        args.data,
+        args.split,
+        min_visible=args.min_visible,
+        parallel=parallel,
+        progress=bar,
+        truth_boxes=bool(args.truth_boxes),
+    )
 
 
 def _is_bop(path) -> bool:
@@ -330,7 +348,11 @@ def main(argv=None, prog: str | None = None) -> int:
     if bop and args.model is None and args.workdir is None:
         args.model = "lmo"  # a BOP scene's default: the model trained for real objects (and its oracle)
     is_rcnn, rcnn_path = _rcnn_source(args.model, args.workdir)
-    for flag, value in (("--input-size", args.input_size), ("--lift-at", args.lift_at)):
+    for flag, value in (
+        ("--input-size", args.input_size),
+        ("--lift-at", args.lift_at),
+        ("--truth-boxes", args.truth_boxes),
+    ):
         if value is not None and not is_rcnn:
             raise sc.UsageError(f"{flag}: only with the R-CNN (--model lmo-rcnn or an R-CNN run)")
     if is_rcnn:

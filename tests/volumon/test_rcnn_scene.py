@@ -38,10 +38,10 @@ def _stand_in(scene_dir, extra):
     return detect
 
 
-def _evaluate(monkeypatch, scene_dir, extra, min_visible=0.5):
+def _evaluate(monkeypatch, scene_dir, extra, min_visible=0.5, **kw):
     monkeypatch.setattr(rcnn, "detect_image", _stand_in(scene_dir, extra))
     loaded = LoadedModel(None, None, rcnn.RCNNTrainConfig(), {"name": "stand-in"})
-    return rcnn.evaluate_scene(loaded, scene_dir, "tune", min_visible=min_visible, warmup=0)
+    return rcnn.evaluate_scene(loaded, scene_dir, "tune", min_visible=min_visible, warmup=0, **kw)
 
 
 def test_exact_boxes_score_ap_one_and_the_centres_offset(monkeypatch, tmp_path):
@@ -114,3 +114,13 @@ def test_eval_command_hands_the_rcnn_its_test_time_settings(run_cli, tmp_path, m
     run_cli(run + ["--lift-at", "proposal", "--input-size", "256,192", "--json", str(tmp_path / "a.json")])
     run_cli(run + ["--json", str(tmp_path / "b.json")])
     assert [(c.lift_at, tuple(c.input_size)) for c in seen] == [("proposal", (256, 192)), ("refined", (320, 240))]
+
+
+def test_truth_boxes_flag_is_for_the_rcnn_only(run_cli, tmp_path):
+    scene = _scene(tmp_path)
+    status, _, err = run_cli(
+        ["volumon", "eval", "--model", "lmo", "--data", str(scene), "--split", "tune", "--truth-boxes"]
+    )
+    assert status != 0 and err.strip().splitlines()[-1].endswith(
+        "--truth-boxes: only with the R-CNN (--model lmo-rcnn or an R-CNN run)"
+    )
