@@ -10,7 +10,9 @@ the photographs with frame ids in ``[--frames LO HI)`` (at most 600: the test sp
 read) and is scored by ``jaxsem.volumon.rcnn.evaluate_detections``: AP50, the matched objects'
 median centre error and translation AUC, and the centre error split into distance
 (``median_depth_log_error``) and direction (``median_ray_error_m``). Writes
-``--out/--name`` ``.json`` / ``.md``.
+``--out/--name`` ``.json`` / ``.md``. ``--truth-boxes`` also scores each lift on every true
+visible box and class, beside the separate LM-O VoluMon and the known-size baseline on the same
+boxes (``jaxsem.volumon.rcnn.evaluate_scene(truth_boxes=True)``): the lift apart from its detector.
 
 The photographs below 500 are the shipped model's real training photos (detection labels and
 size consistency only; no 3D signal), 500-599 its held-out ones: 300-599 spans both, far enough
@@ -31,6 +33,7 @@ sys.path.insert(0, str(HERE.parent))
 from _harness import header, machine, output_arguments, utc_now, write_results  # noqa: E402
 
 KEYS = ("ap50", "recall50", "num_matched", "median_center_error_m", "trans_auc", "median_depth_log_error")
+TRUTH_KEYS = ("median_center_error_m", "trans_auc", "median_size_rel_error")
 
 
 def main(argv=None) -> int:
@@ -47,6 +50,12 @@ def main(argv=None) -> int:
         choices=("refined", "proposal"),
         help="score each model with each of these lift rules (default: each model's own)",
     )
+    p.add_argument(
+        "--truth-boxes",
+        action="store_true",
+        help="also score each lift on every true visible box and class (rcnn.evaluate_scene(truth_boxes=True)), "
+        "beside the separate LM-O VoluMon on the same boxes: the lift apart from the detector",
+    )
     output_arguments(p, "volumon_rcnn_validation")
     a = p.parse_args(argv)
     lo, hi = a.frames
@@ -62,7 +71,12 @@ def main(argv=None) -> int:
     frames = [f for f in df.bop_frames(a.data, "tune") if lo <= f["frame_id"] < hi]
     if not frames:
         p.error(f"--frames: no tuning photo with an id in [{lo}, {hi})")
-    rows = {}
+    rows, truth_rows = {}, {}
+    parallel = None
+    if a.truth_boxes:
+        from jaxsem.volumon import load_pretrained
+
+        parallel = load_pretrained(kind="lmo")
     for m in a.models:
         base = rc.load_rcnn(m)
         if size is not None:
@@ -73,6 +87,15 @@ def main(argv=None) -> int:
             r = rc.evaluate_detections(loaded.model, loaded.variables, df.frame_arrays(frames, cfg.input_size), cfg)
             name = m if rule is None else f"{m} ({rule})"
             rows[name] = {k: r[k] for k in (*KEYS, "median_ray_error_m")} | {"step": loaded.meta.get("step")}
+            if a.truth_boxes:
+                t = rc.evaluate_scene(
+                    loaded, a.data, "tune", frame_range=(lo, hi), truth_boxes=True, parallel=parallel, warmup=0
+                )["on_true_boxes"]
+                rows[name]["on_true_boxes"] = {k: t[k] for k in TRUTH_KEYS} | {"num_objects": t["num_objects"]}
+                if parallel is not None:
+                    truth_rows = {"parallel": {k: t["parallel"][k] for k in TRUTH_KEYS}}
+                    truth_rows["baseline"] = {k: t["baseline"][k] for k in TRUTH_KEYS}
+                    parallel = None  # the same boxes for every model: scored once
             print(name, {k: round(v, 4) if isinstance(v, float) else v for k, v in rows[name].items()}, flush=True)
     command = "python benchmarks/volumon/volumon_rcnn_validation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md = header("# VoluMon R-CNN models on tuning photos", command, utc_now(), machine())
@@ -84,7 +107,17 @@ def main(argv=None) -> int:
             f"{100 * r['median_center_error_m']:.1f} cm | {r['trans_auc']:.2f} | {r['median_depth_log_error']:.3f} | "
             f"{100 * r['median_ray_error_m']:.1f} cm |"
         )
-    write_results(a.out, a.name, {"frames": [lo, hi], "num_photos": len(frames), "models": rows}, md)
+    if a.truth_boxes:
+        md += ["", "On every true visible box and class (objects at least half visible):", ""]
+        md += ["| lift | centre | trans AUC | size |", "|---|---|---|---|"]
+        lifts = {m: r["on_true_boxes"] for m, r in rows.items()} | truth_rows
+        for m, r in lifts.items():
+            md.append(
+                f"| {m} | {100 * r['median_center_error_m']:.1f} cm | {r['trans_auc']:.2f} | "
+                f"{r['median_size_rel_error']:.3f} |"
+            )
+    out = {"frames": [lo, hi], "num_photos": len(frames), "models": rows, "on_true_boxes": truth_rows}
+    write_results(a.out, a.name, out, md)
     return 0
 
 

@@ -937,6 +937,7 @@ def evaluate_scene(
     warmup: int = 2,
     progress=None,
     truth_boxes: bool = False,
+    frame_range: tuple[int, int] | None = None,
 ) -> dict:
     """The figures of ``jaxsem volumon eval --model lmo-rcnn`` on one split of a BOP scene.
 
@@ -950,6 +951,7 @@ def evaluate_scene(
       truth_boxes: also score the lift on every true object's visible box and class
         (:func:`lift_boxes`), beside the separate network and the baseline on the same boxes, under
         ``on_true_boxes``: a figure of the lift that does not move with the detector.
+      frame_range: ``(lo, hi)``: only the split's photographs with ids in ``[lo, hi)``.
 
     Returns a dict: ``detection`` (``ap50``, ``ap50_per_class``, ``recall50``), the 3D figures of
     the network's matched detections (``median_center_error_m``, ``trans_auc``,
@@ -962,8 +964,12 @@ def evaluate_scene(
     if not 0.0 <= min_visible <= 1.0:
         raise ValueError(f"min_visible: expected a fraction in [0, 1], got {min_visible}")
     scene = load_bop_split(scene_dir, split)
+    if frame_range is not None:
+        lo, hi = (int(x) for x in frame_range)
+        scene = dataclasses.replace(scene, frames=tuple(f for f in scene.frames if lo <= f.frame_id < hi))
     if not scene.frames:
-        raise ValueError(f"split: {scene_dir} has no frame in the {split!r} split")
+        where = "" if frame_range is None else f" with an id in {list(frame_range)}"
+        raise ValueError(f"split: {scene_dir} has no frame{where} in the {split!r} split")
     names = list(loaded.config.class_names)
     dets, truth, matched_frames, times = [], [], [], []
     preds: dict[str, list] = {"rotation": [], "center": [], "radii": []}

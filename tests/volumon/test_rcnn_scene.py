@@ -124,3 +124,11 @@ def test_truth_boxes_flag_is_for_the_rcnn_only(run_cli, tmp_path):
     assert status != 0 and err.strip().splitlines()[-1].endswith(
         "--truth-boxes: only with the R-CNN (--model lmo-rcnn or an R-CNN run)"
     )
+
+
+def test_frame_range_keeps_the_photographs_within_it(monkeypatch, tmp_path):
+    scene = _scene(tmp_path)
+    r = _evaluate(monkeypatch, scene, {}, frame_range=(0, 5))  # frame 3 only: its ape and can
+    assert r["frames"] == 1 and r["num_truth"] == 2 and r["frame_ids"] == [3, 3]
+    with pytest.raises(ValueError, match=r"no frame with an id in \[8, 9\]"):
+        _evaluate(monkeypatch, scene, {}, frame_range=(8, 9))
