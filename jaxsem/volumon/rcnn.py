@@ -826,18 +826,24 @@ def _opt_like(config: RCNNTrainConfig, variables):
     return jax.eval_shape(_optimizer(config).init, variables["params"])
 
 
-def detect_image(loaded: LoadedModel, image, K) -> dict:
-    """Detections of one photograph of any size: ``image`` (H, W, 3) uint8 RGB, ``K`` (3, 3) its
-    intrinsics. The network reads it resized to its ``input_size``; boxes come back in the
-    photograph's pixels, ellipsoids in its camera frame (metres). Returns numpy arrays of the
-    valid detections: ``box`` (D, 4), ``class_id`` (D,), ``class_name`` (list), ``score`` (D,),
-    ``probabilities`` (D, N), ``rotation`` (D, 3, 3), ``center`` (D, 3), ``radii`` (D, 3)."""
+def _checked_photo(image, K):
+    """``(image, K)`` as numpy uint8 (H, W, 3) and float64 (3, 3), or ValueError naming the argument."""
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image: expected (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
     K = np.asarray(K, np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"K: expected a (3, 3) pinhole matrix with positive focal lengths, got {K.tolist()}")
+    return image, K
+
+
+def detect_image(loaded: LoadedModel, image, K) -> dict:
+    """Detections of one photograph of any size: ``image`` (H, W, 3) uint8 RGB, ``K`` (3, 3) its
+    intrinsics. The network reads it resized to its ``input_size``; boxes come back in the
+    photograph's pixels, ellipsoids in its camera frame (metres). Returns numpy arrays of the
+    valid detections: ``box`` (D, 4), ``class_id`` (D,), ``class_name`` (list), ``score`` (D,),
+    ``probabilities`` (D, N), ``rotation`` (D, 3, 3), ``center`` (D, 3), ``radii`` (D, 3)."""
+    image, K = _checked_photo(image, K)
     cfg: RCNNConfig = loaded.config.model
     frame = {"rgb": image, "K": K, "objects": []}
     arrays = frame_arrays([frame], cfg.input_size, max_objects=1)
@@ -873,12 +879,7 @@ def lift_boxes(loaded: LoadedModel, image, K, boxes, class_ids) -> dict:
     classes this scores the lift apart from the detector: the same boxes for every network.
     Returns numpy ``rotation`` (G, 3, 3), ``center`` (G, 3), ``radii`` (G, 3) in the photograph's
     camera frame."""
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise ValueError(f"image: expected (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
-    K = np.asarray(K, np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"K: expected a (3, 3) pinhole matrix with positive focal lengths, got {K.tolist()}")
+    image, K = _checked_photo(image, K)
     boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
     class_ids = np.asarray(class_ids).reshape(-1)
     n_cls = len(loaded.config.class_names)
