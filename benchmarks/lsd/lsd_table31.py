@@ -302,13 +302,13 @@ def _write_partial(args, argv, records, info, total) -> int:
         for kind in args.sets:
             x = [r[name]["success"] for r in records if r["set"] == kind]
             print(f"{name} {kind}: {sum(x)} / {len(x)} successes")
-    for a, b in (("lsd_other_thesis", "lsd_thesis"),):
-        if a in names and b in names:
-            for kind in args.sets:
-                rs = [r for r in records if r["set"] == kind]
-                only_a = sum(r[a]["success"] and not r[b]["success"] for r in rs)
-                only_b = sum(r[b]["success"] and not r[a]["success"] for r in rs)
-                print(f"{a} vs {b} {kind}: {only_a} / {only_b} tasks only one solved, of {len(rs)}")
+    a, b = "lsd_other_thesis", "lsd_thesis"  # --other beside the first model, task by task
+    if a in names and b in names:
+        for kind in args.sets:
+            rs = [r for r in records if r["set"] == kind]
+            only_a = sum(r[a]["success"] and not r[b]["success"] for r in rs)
+            only_b = sum(r[b]["success"] and not r[a]["success"] for r in rs)
+            print(f"{a} vs {b} {kind}: {only_a} / {only_b} tasks only one solved, of {len(rs)}")
     print(f"wrote {out / (args.name + '.json')} (records only: --merge it with a full run) in {total / 60:.1f} min")
     return 0
 
