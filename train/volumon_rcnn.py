@@ -75,11 +75,12 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lift-features",
-        choices=("shared", "own", "stage", "backbone"),
+        choices=("shared", "own", "stage", "backbone", "volumon"),
         default="shared",
         help="own: the VoluMon head reads RoI layers of its own (started as copies of --init-from's "
         "detector's), so the lift's features can learn while the detector's stay; stage: the "
-        "backbone's last stage (stride 8 to 16) of its own too; backbone: a whole backbone of its own",
+        "backbone's last stage (stride 8 to 16) of its own too; backbone: a whole backbone of its own; "
+        "volumon: the separate VoluMon network's two crops and branches (the old lift's layers are not adopted)",
     )
     p.add_argument(
         "--train-only",

@@ -56,12 +56,33 @@ from ._volumon import (
 
 PARAM_RULES = ("class", "expectation")
 LIFT_AT = ("refined", "proposal")
-LIFT_FEATURES = ("shared", "own", "stage", "backbone")
+LIFT_FEATURES = ("shared", "own", "stage", "backbone", "volumon")
+_OWN_LIFT_FEATURES = ("own", "stage", "backbone")  # the lift's own RoI layers over pooled features
+#: The "volumon" lift's crops: pixels per side and its encoders' first width, as the shipped LM-O
+#: VoluMon network's (``input_size`` 48, ``small_cnn`` of width 24).
+VOLUMON_LIFT_INPUT = 48
+VOLUMON_LIFT_WIDTH = 24
+_VOLUMON_LIFT_PADDING = 0.1  # the global crop's box padding, as VoluMon's ``global_padding``
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
 _STRIDE8_BLOCKS = 6  # ... and the first 6 at stride 8
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
+
+
+class _CropEncoder(nn.Module):
+    """Four strided 3 x 3 convolutions with group norm and ReLU, then the mean over the cells: the
+    shape of VoluMon's ``small_cnn``, with group norm in place of batch norm so that a lift trained
+    alone on a frozen detector (whose batch statistics stay) normalises alike in training and use."""
+
+    width: int
+
+    @nn.compact
+    def __call__(self, x):
+        for i, c in enumerate((self.width, 2 * self.width, 4 * self.width, 4 * self.width)):
+            x = nn.Conv(c, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)), use_bias=False, name=f"conv{i}")(x)
+            x = nn.relu(nn.GroupNorm(num_groups=min(8, c), name=f"norm{i}")(x))
+        return jnp.mean(x, axis=(-3, -2))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,7 +123,13 @@ class RCNNConfig:
         layers and a whole backbone of its own, fed from the image): the lift's own layers are
         named ``volumon_`` and the detector's layer's name, and the lift pools its RoIs from a
         stride-16 map of its own. A network adopted from one without them starts them as copies
-        of the detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the same outputs.
+        of the detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the same outputs. "volumon":
+        the separate VoluMon network's inputs and branches inside this one: each RoI's crop of the
+        image and the whole image with everything outside the RoI (padded by a tenth) blanked, both
+        :data:`VOLUMON_LIFT_INPUT` pixels a side, each read by four strided convolutions of its
+        own; the first branch gives the rotation, size and offset, the second the depth, both with
+        the RoI's box features (the detector's RoI features are not read). It takes neither
+        ``lift_crop`` nor ``lift_stride8``.
     """
 
     num_classes: int = 8
@@ -148,6 +175,10 @@ class RCNNConfig:
             raise ValueError(f"lift_at: expected one of {LIFT_AT}, got {self.lift_at!r}")
         if self.lift_features not in LIFT_FEATURES:
             raise ValueError(f"lift_features: expected one of {LIFT_FEATURES}, got {self.lift_features!r}")
+        if self.lift_features == "volumon" and (self.lift_crop or self.lift_stride8):
+            raise ValueError(
+                "lift_features: 'volumon' reads crops of its own; leave lift_crop at 0 and lift_stride8 off"
+            )
         if self.param_rule not in PARAM_RULES:
             raise ValueError(f"param_rule: expected one of {PARAM_RULES}, got {self.param_rule!r}")
         if self.rotation_init not in ROTATION_INITS:
@@ -339,7 +370,7 @@ class VoluMonRCNN(nn.Module):
 
         fc0 = nn.Dense(cfg.hidden, name="roi_fc0")
         fc1 = nn.Dense(cfg.hidden, name="roi_fc1")
-        own = cfg.lift_features != "shared"
+        own = cfg.lift_features in _OWN_LIFT_FEATURES
         own0 = nn.Dense(cfg.hidden, name="volumon_roi0") if own else None
         own1 = nn.Dense(cfg.hidden, name="volumon_roi1") if own else None
         cls_out = nn.Dense(n + 1, name="cls_out")
@@ -373,8 +404,40 @@ class VoluMonRCNN(nn.Module):
                 h = pooled.reshape(pooled.shape[:2] + (-1,))
             return det, nn.relu(own1(nn.relu(own0(h))))
 
+        vol = cfg.lift_features == "volumon"
+        vol_local = _CropEncoder(VOLUMON_LIFT_WIDTH, name="volumon_local_cnn") if vol else None
+        vol_global = _CropEncoder(VOLUMON_LIFT_WIDTH, name="volumon_global_cnn") if vol else None
+        vol_local_fc = nn.Dense(cfg.hidden, name="volumon_local_fc") if vol else None
+        vol_global_fc = nn.Dense(cfg.hidden, name="volumon_global_fc") if vol else None
+
+        def volumon_lift(boxes, bf):
+            """The free parameters from the separate VoluMon network's two inputs (``lift_features``)."""
+            S = VOLUMON_LIFT_INPUT
+            assert vol_local is not None and vol_global is not None
+            assert vol_local_fc is not None and vol_global_fc is not None
+            Bn, R = boxes.shape[:2]
+            crops = jax.vmap(lambda im, b: roi_align(im, b, (S, S), 1.0, 1))(pixels, boxes)
+            whole = jnp.asarray([[0.0, 0.0, W, H]], pixels.dtype)
+            thumb = jax.vmap(lambda im: roi_align(im, whole, (S, S), 1.0, 1)[0])(pixels)  # (B, S, S, 3)
+            u = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (W / S)  # the small image's pixel centres
+            v = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (H / S)
+            pad = _VOLUMON_LIFT_PADDING * (boxes[..., 2:] - boxes[..., :2])
+            lo, hi = boxes[..., :2] - pad, boxes[..., 2:] + pad  # (B, R, 2)
+            in_u = (u >= lo[..., :1]) & (u <= hi[..., :1])  # (B, R, S)
+            in_v = (v >= lo[..., 1:]) & (v <= hi[..., 1:])
+            inside = in_v[..., :, None] & in_u[..., None, :]  # (B, R, S, S)
+            masked = jnp.where(inside[..., None], thumb[:, None], 0.0)
+            fl = vol_local(crops.reshape((-1, S, S, 3))).reshape((Bn, R, -1))
+            fg = vol_global(masked.reshape((-1, S, S, 3))).reshape((Bn, R, -1))
+            hl = nn.relu(vol_local_fc(jnp.concatenate([fl, bf.astype(fl.dtype)], -1)))
+            hg = nn.relu(vol_global_fc(jnp.concatenate([fg, bf.astype(fg.dtype)], -1)))
+            local = local_out(hl).reshape(hl.shape[:-1] + (n, 9))
+            return jnp.concatenate([local, depth_out(hg)[..., None]], -1)
+
         def lift(h, boxes):
             bf = box_features(boxes, K[:, None]).astype(h.dtype)
+            if vol:
+                return volumon_lift(boxes, bf)
             v = lift0(jnp.concatenate([h, bf], -1))
             if lift8 is not None and fine is not None:
                 p8 = jax.vmap(lambda f, b: roi_align(f, b, (cfg.roi_size, cfg.roi_size), 1.0 / 8, 2))(fine, boxes)
@@ -395,7 +458,23 @@ class VoluMonRCNN(nn.Module):
         h, h_lift = roi_feature(rois)
         class_logits = cls_out(h)
         box_deltas = box_out(h)
-        if cfg.lift_at == "refined" and not train:
+        if vol and not train:
+            # The volumon lift reads two image crops per RoI, more than the detector's heads cost:
+            # outside training it lifts only the RoIs that :func:`detect` keeps and the caller's
+            # extra RoIs; the other rows of ``phi`` are zeros.
+            read = rois
+            if cfg.lift_at == "refined":
+                read = jax.lax.stop_gradient(_clip(decode_boxes(rois, box_deltas, HEAD_WEIGHTS), (W, H)))
+            rows = _detection_rows(rois, roi_valid, class_logits, box_deltas, cfg)[0]
+            if extra_rois is not None:
+                R = rois.shape[1]
+                extra = jnp.arange(R - extra_rois.shape[1], R, dtype=rows.dtype)
+                rows = jnp.concatenate([rows, jnp.broadcast_to(extra, (B, extra.shape[0]))], 1)
+            picked = jnp.take_along_axis(read, rows[..., None], axis=1)
+            lifted = volumon_lift(picked, box_features(picked, K[:, None]))
+            phi = jnp.zeros(rois.shape[:2] + lifted.shape[2:], lifted.dtype)
+            phi = phi.at[jnp.arange(B)[:, None], rows].set(lifted)
+        elif cfg.lift_at == "refined" and not train:
             # At test time the lift reads the features at the box it reconstructs in: each RoI's
             # box refined by the head, pooled again (as Mask R-CNN's mask head reads the detected
             # boxes). Training reads the RoIs themselves, which its losses reconstruct in.
@@ -426,20 +505,29 @@ def free_params(phi, class_logits, class_id, rule: str):
     return select_class_params(phi, class_id)
 
 
+def _detection_rows(rois, roi_valid, class_logits, box_deltas, cfg: RCNNConfig):
+    """Which RoIs become detections: ``(rows, valid, refined boxes, class, score, object-class
+    probabilities)``, ``rows`` (B, max_detections) by class-aware NMS of each RoI's most probable
+    object class at its refined box."""
+    W, H = (int(x) for x in cfg.input_size)
+    obj = jax.nn.softmax(class_logits, -1)[..., 1:]
+    cls = jnp.argmax(obj, -1)
+    score = jnp.max(obj, -1)
+    boxes = _clip(decode_boxes(rois, box_deltas, HEAD_WEIGHTS), (W, H))
+    ok = roi_valid & jnp.all(boxes[..., 2:] - boxes[..., :2] >= 1.0, -1)
+    score = jnp.where(ok, score, -1.0)
+    offset = (cls.astype(boxes.dtype) * 2.0 * (W + H))[..., None]  # separate the classes for one NMS
+    keep, valid = nms(boxes + offset, score, cfg.max_detections, cfg.det_nms, cfg.score_threshold)
+    return keep, valid, boxes, cls, score, obj
+
+
 def detect(output: RCNNOutput, K, config: RCNNConfig) -> Detections:
     """Detections from one forward pass: per RoI its most probable object class, the box refined by
     the head, class-aware NMS, the ``max_detections`` best; each with its ellipsoid (eq. 5.17)."""
     cfg = config
-    W, H = (int(x) for x in cfg.input_size)
-    probs = jax.nn.softmax(output.class_logits, -1)
-    obj = probs[..., 1:]
-    cls = jnp.argmax(obj, -1)
-    score = jnp.max(obj, -1)
-    boxes = _clip(decode_boxes(output.rois, output.box_deltas, HEAD_WEIGHTS), (W, H))
-    ok = output.roi_valid & jnp.all(boxes[..., 2:] - boxes[..., :2] >= 1.0, -1)
-    score = jnp.where(ok, score, -1.0)
-    offset = (cls.astype(boxes.dtype) * 2.0 * (W + H))[..., None]  # separate the classes for one NMS
-    keep, valid = nms(boxes + offset, score, cfg.max_detections, cfg.det_nms, cfg.score_threshold)
+    keep, valid, boxes, cls, score, obj = _detection_rows(
+        output.rois, output.roi_valid, output.class_logits, output.box_deltas, cfg
+    )
     take = lambda x: jnp.take_along_axis(x, keep.reshape(keep.shape + (1,) * (x.ndim - 2)), axis=1)
     box, cid, sc, p = take(boxes), jnp.take_along_axis(cls, keep, 1), jnp.take_along_axis(score, keep, 1), take(obj)
     phi = free_params(take(output.phi), take(output.class_logits), cid, cfg.param_rule)

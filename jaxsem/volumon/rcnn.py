@@ -541,6 +541,8 @@ def train_rcnn(
             state = run.restore(state)
         elif config.init_from:
             loaded = load_rcnn(config.init_from).variables
+            if config.model.lift_features == "volumon":  # a lift of another design: its old layers go
+                loaded = _without_missing_lift(loaded, variables)
             start = _adopt(loaded, variables)
             if start is None:
                 raise ValueError(f"init_from: {config.init_from} is not the same network as config.model")
@@ -607,6 +609,15 @@ def _adopt(start, fresh):
             return None
         out[key] = sub
     return out
+
+
+def _without_missing_lift(start, fresh):
+    """``start`` (variables) without the lift's layers that ``fresh`` lacks: a network whose lift
+    is of another design (``lift_features="volumon"``) adopts the detector and the output heads."""
+    return {
+        c: {k: v for k, v in tree.items() if k in fresh.get(c, {}) or not k.startswith(LIFT_LAYERS)}
+        for c, tree in start.items()
+    }
 
 
 def _doubled_layer(layer: str, layers) -> str | None:
