@@ -163,7 +163,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data-deadline", type=float, default=200.0, help="seconds after start")
     ap.add_argument("--deadline", type=float, default=500.0, help="seconds after start: training stops")
     ap.add_argument(
-        "--init-from", default=str(pathlib.Path(__file__).resolve().parents[1] / "jaxsem/lsd/pretrained.npz")
+        "--init-from",
+        default=str(pathlib.Path(__file__).resolve().parents[1] / "jaxsem/lsd/pretrained_generated.npz"),
+        help="the weights the fine-tunes start from (default: the generated-building model, as every shipped fine-tune)",
     )
     ap.add_argument("--oracle", action="store_true", help="also train the full-map oracle beside it")
     ap.add_argument("--set", action="append", default=[], help="extra TrainConfig overrides (name=value)")

@@ -100,7 +100,7 @@ def _parse(argv):
     p.add_argument(
         "--checkpoint",
         default=None,
-        help="LSD workdir, exported .npz or a shipped model by name (default, house, campus; None: the default)",
+        help="LSD workdir, exported .npz or a shipped model by name (default, generated, house, campus; None: the default)",
     )
     p.add_argument("--nosem", action="store_true", help="add LSD with the semantic input zeroed")
     p.add_argument(

@@ -734,10 +734,15 @@ def load_model_file(path):
 #: 300 + 150 steps, unbounded output). Kept for comparison; not the default.
 PRETRAINED_CPU = pathlib.Path(__file__).resolve().parent / "pretrained_cpu.npz"
 
-#: The shipped model, the default of every LSD entry point (``train/lsd.py --config scale``:
-#: bounded output range; buildings, steps, curves and held-out results in ``MODEL_CARD.md``
-#: next to it).
+#: The shipped model, the default of every LSD entry point: one model for every kind of map, the
+#: generated-building model fine-tuned on the house, campus and train building families in equal
+#: parts (``train/lsd_house_gpu.py --family house campus``; data, steps, curves and held-out
+#: results in ``MODEL_CARD.md`` next to it).
 PRETRAINED = pathlib.Path(__file__).resolve().parent / "pretrained.npz"
+
+#: The generated-building model (``train/lsd.py --config scale``: the train family's grids of
+#: rooms, bounded output range; ``MODEL_CARD.md``), from which the others are fine-tuned.
+PRETRAINED_GENERATED = pathlib.Path(__file__).resolve().parent / "pretrained_generated.npz"
 
 
 #: The house model: the shipped model fine-tuned on the ``house`` building family mixed with the
@@ -750,13 +755,19 @@ PRETRAINED_HOUSE = pathlib.Path(__file__).resolve().parent / "pretrained_house.n
 PRETRAINED_CAMPUS = pathlib.Path(__file__).resolve().parent / "pretrained_campus.npz"
 
 #: Shipped models by name (:func:`load_model`).
-MODELS = {"default": PRETRAINED, "house": PRETRAINED_HOUSE, "campus": PRETRAINED_CAMPUS, "cpu": PRETRAINED_CPU}
+MODELS = {
+    "default": PRETRAINED,
+    "generated": PRETRAINED_GENERATED,
+    "house": PRETRAINED_HOUSE,
+    "campus": PRETRAINED_CAMPUS,
+    "cpu": PRETRAINED_CPU,
+}
 
 
 def load_model(source=None) -> LoadedModel:
     """``(model, params, config, meta)`` (a :class:`jaxsem.training.LoadedModel`, the shape
     :func:`jaxsem.volumon.load_pretrained` returns too) from a training workdir, an exported
-    ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'house', 'campus', 'cpu'), or (None)
+    ``.npz`` file, a shipped model's name (:data:`MODELS`: 'default', 'generated', 'house', 'campus', 'cpu'), or (None)
     the shipped model :data:`PRETRAINED` (:data:`PRETRAINED_CPU` if that file is absent).
     ``meta``: ``name`` (the file or folder), ``step`` (a workdir's checkpoint; None for a file) and
     ``cell_size`` (metres per map cell it was trained on, :func:`model_cell_size`; 0.1 m for a

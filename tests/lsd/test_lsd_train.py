@@ -229,6 +229,21 @@ def test_shipped_model_is_the_default():
     assert cfg == cfg_file and cfg.model.log_range == 8.0 and model.config.map_size == 160
 
 
+def test_the_generated_building_model_loads_by_name_beside_the_default():
+    import jax
+
+    from jaxsem import lsd
+
+    _, params, config, meta = lsd.load_model("generated")
+    _, default_params, default_config, _ = lsd.load_model("default")
+    assert meta["name"].endswith("pretrained_generated.npz")
+    assert config.model == default_config.model  # the default is its fine-tune: the same network
+    leaves = [np.asarray(x) for x in jax.tree_util.tree_leaves(params)]
+    other = [np.asarray(x) for x in jax.tree_util.tree_leaves(default_params)]
+    assert all(np.isfinite(x).all() for x in leaves)
+    assert any(not np.array_equal(a, b) for a, b in zip(leaves, other))
+
+
 def test_new_networks_resize_and_old_configs_load_as_transposed(tmp_path):
     """A new LSDConfig upsamples without stripes; a config saved before the field existed (the
     first bundled model's) still describes, and loads, its transposed network."""
