@@ -47,6 +47,7 @@ from ._mobilenet import ConvBN, InvertedResidual, block_layout, make_divisible
 from ._volumon import (
     ROTATION_INITS,
     ReconstructionConfig,
+    SmallCNN,
     _head_bias_init,
     box_features,
     expected_params,
@@ -68,21 +69,6 @@ _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
 _STRIDE16_BLOCKS = 13  # MobileNetV2's first 13 inverted residual blocks end at stride 16
 _STRIDE8_BLOCKS = 6  # ... and the first 6 at stride 8
 _MAX_LOG_SCALE = math.log(1000.0 / 16)
-
-
-class _CropEncoder(nn.Module):
-    """Four strided 3 x 3 convolutions with group norm and ReLU, then the mean over the cells: the
-    shape of VoluMon's ``small_cnn``, with group norm in place of batch norm so that a lift trained
-    alone on a frozen detector (whose batch statistics stay) normalises alike in training and use."""
-
-    width: int
-
-    @nn.compact
-    def __call__(self, x):
-        for i, c in enumerate((self.width, 2 * self.width, 4 * self.width, 4 * self.width)):
-            x = nn.Conv(c, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)), use_bias=False, name=f"conv{i}")(x)
-            x = nn.relu(nn.GroupNorm(num_groups=min(8, c), name=f"norm{i}")(x))
-        return jnp.mean(x, axis=(-3, -2))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -405,8 +391,8 @@ class VoluMonRCNN(nn.Module):
             return det, nn.relu(own1(nn.relu(own0(h))))
 
         vol = cfg.lift_features == "volumon"
-        vol_local = _CropEncoder(VOLUMON_LIFT_WIDTH, name="volumon_local_cnn") if vol else None
-        vol_global = _CropEncoder(VOLUMON_LIFT_WIDTH, name="volumon_global_cnn") if vol else None
+        vol_local = SmallCNN(VOLUMON_LIFT_WIDTH, "group", name="volumon_local_cnn") if vol else None
+        vol_global = SmallCNN(VOLUMON_LIFT_WIDTH, "group", name="volumon_global_cnn") if vol else None
         vol_local_fc = nn.Dense(cfg.hidden, name="volumon_local_fc") if vol else None
         vol_global_fc = nn.Dense(cfg.hidden, name="volumon_global_fc") if vol else None
 
@@ -418,6 +404,8 @@ class VoluMonRCNN(nn.Module):
             Bn, R = boxes.shape[:2]
             crops = jax.vmap(lambda im, b: roi_align(im, b, (S, S), 1.0, 1))(pixels, boxes)
             whole = jnp.asarray([[0.0, 0.0, W, H]], pixels.dtype)
+            # VoluMon's masked_global_image blanks the full image per box, then shrinks it; here the
+            # image is shrunk once and each box's mask applied to the thumbnail (no full-size copy per RoI).
             thumb = jax.vmap(lambda im: roi_align(im, whole, (S, S), 1.0, 1)[0])(pixels)  # (B, S, S, 3)
             u = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (W / S)  # the small image's pixel centres
             v = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (H / S)

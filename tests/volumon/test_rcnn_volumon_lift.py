@@ -10,6 +10,7 @@ import pytest
 from test_rcnn import TINY
 
 from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, _detection_rows, init_rcnn  # layers: white-box
+from jaxsem.models._volumon import SmallCNN  # layers: white-box
 from jaxsem.volumon.rcnn import LIFT_LAYERS, _adopt, _without_missing_lift  # layers: white-box
 
 VOL = dataclasses.replace(TINY, lift_features="volumon", lift_at="proposal")
@@ -98,3 +99,5 @@ def test_the_volumon_lift_takes_no_other_crop_branch():
         RCNNConfig(lift_features="volumon", lift_crop=16)
     with pytest.raises(ValueError, match="lift_features"):
         RCNNConfig(backbone="plain_cnn", lift_features="volumon", lift_stride8=True)
+    with pytest.raises(ValueError, match="norm"):
+        SmallCNN(8, "layer").init(jax.random.PRNGKey(0), jnp.zeros((1, 16, 16, 3)))
