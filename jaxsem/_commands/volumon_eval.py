@@ -155,8 +155,9 @@ def resolve_model(text: str | None, workdir):
     raise sc.UsageError(f"--model: {text}: no such file or directory")
 
 
-#: The shipped R-CNNs' names (jaxsem.volumon.rcnn.SHIPPED_RCNNS, kept here so that --help stays light).
-SHIPPED_NAMES = ("lmo-rcnn", "lmo-rcnn-448")
+#: The shipped R-CNNs' names (jaxsem.volumon.rcnn.SHIPPED_RCNNS and ADOPTED_RCNNS, kept here so
+#: that --help stays light).
+SHIPPED_NAMES = ("lmo-rcnn", "lmo-rcnn-448", "lmo-rcnn-448-volumon")
 
 
 def _rcnn_source(text: str | None, workdir):

@@ -47,7 +47,8 @@ from ._mobilenet import ConvBN, InvertedResidual, block_layout, make_divisible
 from ._volumon import (
     ROTATION_INITS,
     ReconstructionConfig,
-    SmallCNN,
+    VoluMonConfig,
+    VoluMonNet,
     _head_bias_init,
     box_features,
     expected_params,
@@ -59,10 +60,11 @@ PARAM_RULES = ("class", "expectation")
 LIFT_AT = ("refined", "proposal")
 LIFT_FEATURES = ("shared", "own", "stage", "backbone", "volumon")
 _OWN_LIFT_FEATURES = ("own", "stage", "backbone")  # the lift's own RoI layers over pooled features
-#: The "volumon" lift's crops: pixels per side and its encoders' first width, as the shipped LM-O
-#: VoluMon network's (``input_size`` 48, ``small_cnn`` of width 24).
+#: The "volumon" lift's crops: pixels per side, its encoders' first width and its heads' layers, as
+#: the shipped LM-O VoluMon network's (``input_size`` 48, ``small_cnn`` of width 24, ``hidden`` 128).
 VOLUMON_LIFT_INPUT = 48
 VOLUMON_LIFT_WIDTH = 24
+VOLUMON_LIFT_HIDDEN = (128,)
 _VOLUMON_LIFT_PADDING = 0.1  # the global crop's box padding, as VoluMon's ``global_padding``
 BACKBONES = ("mobilenet_v2", "plain_cnn")
 _LIFT8_SCALE = 0.02  # lift_stride8's branch output multiplier (see VoluMonRCNN)
@@ -110,11 +112,13 @@ class RCNNConfig:
         named ``volumon_`` and the detector's layer's name, and the lift pools its RoIs from a
         stride-16 map of its own. A network adopted from one without them starts them as copies
         of the detector's (``jaxsem.volumon.rcnn.train_rcnn``), with the same outputs. "volumon":
-        the separate VoluMon network's inputs and branches inside this one: each RoI's crop of the
-        image and the whole image with everything outside the RoI (padded by a tenth) blanked, both
-        :data:`VOLUMON_LIFT_INPUT` pixels a side, each read by four strided convolutions of its
-        own; the first branch gives the rotation, size and offset, the second the depth, both with
-        the RoI's box features (the detector's RoI features are not read). It takes neither
+        the separate VoluMon network (:class:`VoluMonNet`, the shipped LM-O model's sizes) inside
+        this one, named ``volumon_net``: each RoI's crop of the image and the whole image with
+        everything outside the RoI (padded by a tenth) blanked, both :data:`VOLUMON_LIFT_INPUT`
+        pixels a side, each read by a small CNN of its own; the first branch gives the rotation,
+        size and offset, the second the depth, both with the RoI's box features (the detector's RoI
+        features are not read); its batch statistics are never updated. Its weights can be a
+        trained separate network's (``jaxsem.volumon.rcnn.adopt_separate_lift``). It takes neither
         ``lift_crop`` nor ``lift_stride8``.
     """
 
@@ -184,6 +188,21 @@ class RCNNConfig:
     def feature_shape(self) -> tuple:
         w, h = (int(x) for x in self.input_size)
         return h // 16, w // 16
+
+    @property
+    def volumon_lift(self) -> VoluMonConfig:
+        """The separate VoluMon network that ``lift_features="volumon"`` holds (``volumon_net``):
+        the shipped LM-O model's sizes over these classes and rotation start."""
+        return VoluMonConfig(
+            input_size=VOLUMON_LIFT_INPUT,
+            hidden=VOLUMON_LIFT_HIDDEN,
+            num_classes=int(self.num_classes),
+            global_padding=_VOLUMON_LIFT_PADDING,
+            backbone="small_cnn",
+            cnn_width=VOLUMON_LIFT_WIDTH,
+            box_input=True,
+            rotation_init=self.rotation_init,
+        )
 
     @property
     def anchors_per_cell(self) -> int:
@@ -391,22 +410,21 @@ class VoluMonRCNN(nn.Module):
             return det, nn.relu(own1(nn.relu(own0(h))))
 
         vol = cfg.lift_features == "volumon"
-        vol_local = SmallCNN(VOLUMON_LIFT_WIDTH, "group", name="volumon_local_cnn") if vol else None
-        vol_global = SmallCNN(VOLUMON_LIFT_WIDTH, "group", name="volumon_global_cnn") if vol else None
-        vol_local_fc = nn.Dense(cfg.hidden, name="volumon_local_fc") if vol else None
-        vol_global_fc = nn.Dense(cfg.hidden, name="volumon_global_fc") if vol else None
+        vol_net = None
+        if vol:
+            vol_net = VoluMonNet(cfg.volumon_lift, name="volumon_net")
 
         def volumon_lift(boxes, bf):
             """The free parameters from the separate VoluMon network's two inputs (``lift_features``)."""
             S = VOLUMON_LIFT_INPUT
-            assert vol_local is not None and vol_global is not None
-            assert vol_local_fc is not None and vol_global_fc is not None
+            assert vol_net is not None
             Bn, R = boxes.shape[:2]
-            crops = jax.vmap(lambda im, b: roi_align(im, b, (S, S), 1.0, 1))(pixels, boxes)
-            whole = jnp.asarray([[0.0, 0.0, W, H]], pixels.dtype)
+            # VoluMon's inputs are the [0, 1] image (it normalises them itself), blanked to black
+            crops = jax.vmap(lambda im, b: roi_align(im, b, (S, S), 1.0, 1))(images, boxes)
+            whole = jnp.asarray([[0.0, 0.0, W, H]], images.dtype)
             # VoluMon's masked_global_image blanks the full image per box, then shrinks it; here the
             # image is shrunk once and each box's mask applied to the thumbnail (no full-size copy per RoI).
-            thumb = jax.vmap(lambda im: roi_align(im, whole, (S, S), 1.0, 1)[0])(pixels)  # (B, S, S, 3)
+            thumb = jax.vmap(lambda im: roi_align(im, whole, (S, S), 1.0, 1)[0])(images)  # (B, S, S, 3)
             u = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (W / S)  # the small image's pixel centres
             v = (jnp.arange(S, dtype=boxes.dtype) + 0.5) * (H / S)
             pad = _VOLUMON_LIFT_PADDING * (boxes[..., 2:] - boxes[..., :2])
@@ -415,12 +433,15 @@ class VoluMonRCNN(nn.Module):
             in_v = (v >= lo[..., 1:]) & (v <= hi[..., 1:])
             inside = in_v[..., :, None] & in_u[..., None, :]  # (B, R, S, S)
             masked = jnp.where(inside[..., None], thumb[:, None], 0.0)
-            fl = vol_local(crops.reshape((-1, S, S, 3))).reshape((Bn, R, -1))
-            fg = vol_global(masked.reshape((-1, S, S, 3))).reshape((Bn, R, -1))
-            hl = nn.relu(vol_local_fc(jnp.concatenate([fl, bf.astype(fl.dtype)], -1)))
-            hg = nn.relu(vol_global_fc(jnp.concatenate([fg, bf.astype(fg.dtype)], -1)))
-            local = local_out(hl).reshape(hl.shape[:-1] + (n, 9))
-            return jnp.concatenate([local, depth_out(hg)[..., None]], -1)
+            # batch statistics stay as adopted (or initialised): a lift trained beside a frozen
+            # detector normalises alike in training and use
+            out = vol_net(
+                crops.reshape((-1, S, S, 3)),
+                masked.reshape((-1, S, S, 3)),
+                train=False,
+                box_feats=bf.reshape((-1, bf.shape[-1])),
+            )
+            return out.phi.reshape((Bn, R) + out.phi.shape[1:])
 
         def lift(h, boxes):
             bf = box_features(boxes, K[:, None]).astype(h.dtype)

@@ -202,25 +202,15 @@ class VoluMonConfig:
 
 
 class SmallCNN(nn.Module):
-    """Four strided 3x3 conv + norm + ReLU layers and global pooling (test-sized backbone).
-
-    ``norm``: "batch" (batch norm, VoluMon's) or "group" (group norm of up to 8 groups: no running
-    statistics, so a branch trained beside frozen batch statistics normalises alike in training
-    and use; the R-CNN's ``lift_features="volumon"``)."""
+    """Four strided 3x3 conv + batch norm + ReLU layers and global pooling (test-sized backbone)."""
 
     width: int = 16
-    norm: str = "batch"
 
     @nn.compact
     def __call__(self, x, train: bool = False):
-        if self.norm not in ("batch", "group"):
-            raise ValueError(f"norm: expected 'batch' or 'group', got {self.norm!r}")
         for i, c in enumerate((self.width, 2 * self.width, 4 * self.width, 4 * self.width)):
             x = nn.Conv(c, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)), use_bias=False, name=f"conv{i}")(x)
-            if self.norm == "group":
-                x = nn.GroupNorm(num_groups=min(8, c), name=f"norm{i}")(x)
-            else:
-                x = nn.BatchNorm(use_running_average=not train, momentum=0.9, name=f"bn{i}")(x)
+            x = nn.BatchNorm(use_running_average=not train, momentum=0.9, name=f"bn{i}")(x)
             x = nn.relu(x)
         return jnp.mean(x, axis=(-3, -2))
 

@@ -40,6 +40,7 @@ __all__ = [
     "RCNNTrainConfig",
     "SHIPPED_RCNN",
     "SHIPPED_RCNNS",
+    "ADOPTED_RCNNS",
     "detect_image",
     "lift_boxes",
     "centre_errors",
@@ -49,6 +50,7 @@ __all__ = [
     "configured",
     "average_models",
     "graft_lift",
+    "adopt_separate_lift",
     "export_rcnn",
     "load_rcnn",
     "rcnn_config_from_dict",
@@ -74,7 +76,16 @@ import optax
 from .. import metrics
 from .._files import read_json
 from ..checkpoint import latest_step, restore_checkpoint
-from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
+from ..models import (
+    RCNNConfig,
+    RCNNOutput,
+    VoluMonRCNN,
+    detect,
+    detection_loss,
+    free_params,
+    init_rcnn,
+    reconstruct,
+)
 from ..quadrics import box_iou
 from ..training import LoadedModel, TrainingRun, config_json, read_exported
 from ._losses import (
@@ -84,7 +95,7 @@ from ._losses import (
     primal_loss_per_sample,
     size_variance_loss,
 )
-from ._pretrained import PRETRAINED_DIR, prepare_inputs
+from ._pretrained import PRETRAINED_DIR, load_pretrained, prepare_inputs
 from ._scene_eval import (
     class_rows,
     evaluate_scene_batch,
@@ -650,6 +661,11 @@ SHIPPED_RCNN_NAME = "lmo-rcnn"
 #: Every shipped R-CNN by name: the default (320 x 240) and the one trained at 448 x 336 (better
 #: ellipsoids and boxes for the separate network, fewer detections; the model card has the trade).
 SHIPPED_RCNNS = {SHIPPED_RCNN_NAME: SHIPPED_RCNN, "lmo-rcnn-448": "volumon_lmo_rcnn_448"}
+#: Shipped networks put together at load time (:func:`adopt_separate_lift`), by name: (the shipped
+#: R-CNN whose detector it runs, the shipped VoluMon ``kind`` it lifts with). No file of their own:
+#: their weights are those two models'. Not trained from 2D labels only (the separate LM-O network
+#: learnt from rendered depth points too; the model card has it).
+ADOPTED_RCNNS = {"lmo-rcnn-448-volumon": ("lmo-rcnn-448", "lmo")}
 
 
 def _from_dict(cls, d: dict):
@@ -694,9 +710,15 @@ def export_rcnn(path, variables, config: RCNNTrainConfig, meta: dict | None = No
 
 def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
     """A shipped LM-O detect-and-lift model (``path`` None or ``"lmo-rcnn"``: the default; or
-    another name of :data:`SHIPPED_RCNNS`), an exported
+    another name of :data:`SHIPPED_RCNNS` or :data:`ADOPTED_RCNNS`), an exported
     ``.npz`` (with its ``.json``), or a training workdir's checkpoint (``step``, default the
     latest), as a :class:`jaxsem.training.LoadedModel`."""
+    if isinstance(path, str) and path in ADOPTED_RCNNS:
+        if step is not None:
+            raise ValueError(f"step: only a training workdir has checkpoint steps, got {path}")
+        detector, kind = ADOPTED_RCNNS[path]
+        one = adopt_separate_lift(load_rcnn(detector), load_pretrained(kind=kind))
+        return one._replace(meta={**one.meta, "name": path})
     if path is None:
         p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz"
     elif isinstance(path, str) and path in SHIPPED_RCNNS:
@@ -804,6 +826,57 @@ def graft_lift(detector: LoadedModel, lifter: LoadedModel) -> LoadedModel:
             variables[collection][layer] = value
     config = dataclasses.replace(lifter.config, model=model_cfg)
     meta = {**lifter.meta, "grafted": {"detector": detector.meta.get("name"), "lift": lifter.meta.get("name")}}
+    return LoadedModel(VoluMonRCNN(model_cfg), variables, config, meta)
+
+
+def adopt_separate_lift(detector: LoadedModel, separate: LoadedModel) -> LoadedModel:
+    """One network with ``detector``'s boxes and classes and the separate VoluMon network
+    ``separate``'s ellipsoids (the parallel design of thesis 5.3 as one network).
+
+    The result (``lift_features="volumon"``) runs ``detector``'s backbone, proposal stage and box
+    and class heads, and lifts each detection with ``separate``'s weights, its reconstruction
+    constants and rotation start, reading its two inputs cut from the network's own image. The
+    separate network must be the "volumon" lift's design (``small_cnn`` of
+    :data:`jaxsem.models._rcnn.VOLUMON_LIFT_WIDTH`, input and hidden sizes as the shipped LM-O
+    model, box features as input) over ``detector``'s classes in the same order. Its training
+    signal comes with it: the shipped LM-O model learnt from rendered depth points as well as
+    boxes, so a network adopted from it is not trained from 2D labels only."""
+    dc = detector.config.model
+    sc = separate.config.model
+    want = dc.volumon_lift
+    for name in ("backbone", "cnn_width", "input_size", "hidden", "box_input", "num_classes", "global_padding"):
+        got, expected = getattr(sc, name, None), getattr(want, name)
+        if got != expected:
+            raise ValueError(f"separate: expected a VoluMon network with {name}={expected!r}, got {got!r}")
+    d_names = list(getattr(detector.config, "class_names", ()))
+    s_names = list(getattr(separate.config, "class_names", ()))
+    if d_names != s_names:
+        raise ValueError(f"separate: expected the detector's classes in its order {d_names}, got {s_names}")
+    model_cfg = dataclasses.replace(
+        dc,
+        lift_features="volumon",
+        lift_crop=0,
+        lift_stride8=False,
+        reconstruction=separate.config.recon,
+        rotation_init=sc.rotation_init,
+    )
+    fresh = jax.eval_shape(lambda k: init_rcnn(k, model_cfg, 1)[1], jax.random.PRNGKey(0))
+    variables = {}
+    for collection in ("params", "batch_stats"):
+        variables[collection] = {}
+        for layer, like in fresh[collection].items():
+            if layer == "volumon_net":
+                value = separate.variables.get(collection)
+            else:
+                value = detector.variables[collection].get(layer)
+            if value is None or jax.tree.map(np.shape, value) != jax.tree.map(np.shape, like):
+                raise ValueError(f"detector, separate: no {collection} {layer!r} of the adopted network's shape")
+            variables[collection][layer] = value
+    config = dataclasses.replace(detector.config, model=model_cfg)
+    meta = {
+        **detector.meta,
+        "adopted_lift": {"detector": detector.meta.get("name"), "separate": separate.meta.get("name")},
+    }
     return LoadedModel(VoluMonRCNN(model_cfg), variables, config, meta)
 
 

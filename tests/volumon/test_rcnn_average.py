@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 from test_rcnn import TINY
 
+from jaxsem import volumon
 from jaxsem._commands.volumon_eval import SHIPPED_NAMES  # layers: white-box
 from jaxsem.checkpoint import save_checkpoint
 from jaxsem.models import init_rcnn
 from jaxsem.training import config_json
 from jaxsem.volumon.rcnn import (  # layers: white-box
+    ADOPTED_RCNNS,
     SHIPPED_RCNNS,
     RCNNTrainConfig,
     _opt_like,
@@ -78,10 +80,19 @@ def test_a_missing_step_or_mixed_networks_are_refused(tmp_path):
 
 
 def test_every_shipped_rcnn_name_loads_and_the_commands_know_it():
-    assert set(SHIPPED_NAMES) == set(SHIPPED_RCNNS)
-    for name in SHIPPED_RCNNS:
+    assert set(SHIPPED_NAMES) == set(SHIPPED_RCNNS) | set(ADOPTED_RCNNS)
+    for name in SHIPPED_NAMES:
         loaded = load_rcnn(name)
         W, H = loaded.config.model.input_size
         assert loaded.meta["step"] > 0 and W % 16 == 0 and H % 16 == 0
         assert len(loaded.config.class_names) == loaded.config.model.num_classes == 8
     assert load_rcnn("lmo-rcnn-448").config.model.input_size == (448, 336)
+    # put together from two shipped models: the 448 detector's weights and the LM-O VoluMon's
+    one, det, sep = load_rcnn("lmo-rcnn-448-volumon"), load_rcnn("lmo-rcnn-448"), volumon.load_pretrained(kind="lmo")
+    assert one.config.model.lift_features == "volumon" and one.config.model.reconstruction == sep.config.recon
+    np.testing.assert_array_equal(
+        one.variables["params"]["cls_out"]["kernel"], det.variables["params"]["cls_out"]["kernel"]
+    )
+    np.testing.assert_array_equal(
+        one.variables["params"]["volumon_net"]["global_out"]["kernel"], sep.variables["params"]["global_out"]["kernel"]
+    )

@@ -1,5 +1,6 @@
-"""The "volumon" lift: the separate VoluMon network's two inputs cut inside the one network. It
-reads only each RoI's padded surroundings, learns, and adopts a trained detector as it is."""
+"""The "volumon" lift: the separate VoluMon network inside the one network, reading its two
+inputs cut from the network's image. It reads only each RoI's padded surroundings, learns, adopts
+a trained detector as it is, and an adopted separate network lifts a box as it does alone."""
 
 import dataclasses
 
@@ -10,7 +11,6 @@ import pytest
 from test_rcnn import TINY
 
 from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, _detection_rows, init_rcnn  # layers: white-box
-from jaxsem.models._volumon import SmallCNN  # layers: white-box
 from jaxsem.volumon.rcnn import LIFT_LAYERS, _adopt, _without_missing_lift  # layers: white-box
 
 VOL = dataclasses.replace(TINY, lift_features="volumon", lift_at="proposal")
@@ -50,8 +50,9 @@ def test_the_lift_learns_with_finite_gradients_in_both_branches():
         return jnp.sum(phi[..., 9]) + jnp.sum(phi[..., :9])
 
     g = jax.jit(jax.grad(depth_and_rest))(variables["params"])
-    for layer in ("volumon_local_cnn", "volumon_global_cnn", "volumon_local_fc", "volumon_global_fc"):
-        leaves = jax.tree.leaves(g[layer])
+    net = g["volumon_net"]
+    for layer in ("local_backbone", "global_backbone", "local_fc0", "global_fc0", "local_out", "global_out"):
+        leaves = jax.tree.leaves(net[layer])
         assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves)
         assert max(float(jnp.max(jnp.abs(x))) for x in leaves) > 0, layer
 
@@ -99,5 +100,69 @@ def test_the_volumon_lift_takes_no_other_crop_branch():
         RCNNConfig(lift_features="volumon", lift_crop=16)
     with pytest.raises(ValueError, match="lift_features"):
         RCNNConfig(backbone="plain_cnn", lift_features="volumon", lift_stride8=True)
-    with pytest.raises(ValueError, match="norm"):
-        SmallCNN(8, "layer").init(jax.random.PRNGKey(0), jnp.zeros((1, 16, 16, 3)))
+
+
+def _separate_network(seed: int, config=VOL):
+    """A stand-in trained separate VoluMon network of the lift's design (weights moved off their
+    start so that every layer matters) and its loader's form."""
+    from jaxsem.models import ReconstructionConfig, init_volumon
+    from jaxsem.training import LoadedModel
+    from jaxsem.volumon import TrainConfig
+
+    model, variables = init_volumon(jax.random.PRNGKey(seed), config.volumon_lift)
+    rng = np.random.default_rng(seed)
+    variables = jax.tree.map(lambda x: x + 0.05 * jnp.asarray(rng.standard_normal(x.shape), x.dtype), variables)
+    variables = {
+        **variables,
+        "batch_stats": jax.tree.map(lambda x: jnp.abs(x) + 0.5, variables["batch_stats"]),
+    }
+    recon = ReconstructionConfig(alpha_y=0.1, eps_s=0.03, depth_mode="disparity", baseline_focal=6.6)
+    config = TrainConfig(model=config.volumon_lift, recon=recon, class_names=("a", "b", "c"))
+    return LoadedModel(model, variables, config, {"name": "stand-in"})
+
+
+def _detector(seed: int):
+    from jaxsem.training import LoadedModel
+    from jaxsem.volumon.rcnn import RCNNTrainConfig
+
+    config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
+    return LoadedModel(VoluMonRCNN(TINY), _INIT(jax.random.PRNGKey(seed), TINY, 1), config, {"name": "tiny"})
+
+
+def test_an_adopted_separate_network_lifts_a_box_as_it_does_alone():
+    from jaxsem.models import box_features
+    from jaxsem.volumon import prepare_inputs
+    from jaxsem.volumon.rcnn import adopt_separate_lift
+
+    separate, detector = _separate_network(6), _detector(7)
+    one = adopt_separate_lift(detector, separate)
+    assert one.config.model.reconstruction == separate.config.recon
+    rng = np.random.default_rng(8)
+    image = rng.uniform(0, 1, (96, 128, 3)).astype(np.float32)
+    # one network, the box given as its own RoI (pixel centres at integer + 0.5) ...
+    out = one.model.apply(one.variables, jnp.asarray(image[None]), _K, _BOX)
+    ours = np.asarray(out.phi[0, -1])
+    # ... and the separate network alone on the same pixels (pixel centres at integers)
+    box = np.asarray(_BOX[0]) - 0.5
+    K = np.asarray(_K[0]).copy()
+    K[:2, 2] -= 0.5
+    local, whole = prepare_inputs(image, box, config=separate.config)
+    alone = separate.model.apply(separate.variables, local, whole, box_feats=box_features(jnp.asarray(box), K))
+    np.testing.assert_allclose(ours, np.asarray(alone.phi[0]), rtol=1e-3, atol=1e-3)
+    # the detector is the detector's (to float rounding: the given RoI joins the batch of RoIs)
+    base = detector.model.apply(detector.variables, jnp.asarray(image[None]), _K)
+    np.testing.assert_allclose(np.asarray(out.class_logits[:, :-1]), np.asarray(base.class_logits), atol=1e-6)
+
+
+def test_adopting_a_separate_network_of_another_design_or_classes_is_refused():
+    from jaxsem.volumon.rcnn import adopt_separate_lift
+
+    separate, detector = _separate_network(9), _detector(10)
+    other = separate._replace(config=dataclasses.replace(separate.config, class_names=("a", "c", "b")))
+    with pytest.raises(ValueError, match="classes"):
+        adopt_separate_lift(detector, other)
+    wide = separate._replace(
+        config=dataclasses.replace(separate.config, model=dataclasses.replace(separate.config.model, input_size=64))
+    )
+    with pytest.raises(ValueError, match="input_size"):
+        adopt_separate_lift(detector, wide)
