@@ -157,7 +157,7 @@ def resolve_model(text: str | None, workdir):
 
 #: The shipped R-CNNs' names (jaxsem.volumon.rcnn.SHIPPED_RCNNS and ADOPTED_RCNNS, kept here so
 #: that --help stays light).
-SHIPPED_NAMES = ("lmo-rcnn", "lmo-rcnn-448", "lmo-rcnn-448-volumon")
+SHIPPED_NAMES = ("lmo-rcnn", "lmo-rcnn-448", "lmo-rcnn-volumon", "lmo-rcnn-448-volumon")
 
 
 def _rcnn_source(text: str | None, workdir):

@@ -665,7 +665,7 @@ SHIPPED_RCNNS = {SHIPPED_RCNN_NAME: SHIPPED_RCNN, "lmo-rcnn-448": "volumon_lmo_r
 #: R-CNN whose detector it runs, the shipped VoluMon ``kind`` it lifts with). No file of their own:
 #: their weights are those two models'. Not trained from 2D labels only (the separate LM-O network
 #: learnt from rendered depth points too; the model card has it).
-ADOPTED_RCNNS = {"lmo-rcnn-448-volumon": ("lmo-rcnn-448", "lmo")}
+ADOPTED_RCNNS = {"lmo-rcnn-volumon": (SHIPPED_RCNN_NAME, "lmo"), "lmo-rcnn-448-volumon": ("lmo-rcnn-448", "lmo")}
 
 
 def _from_dict(cls, d: dict):
