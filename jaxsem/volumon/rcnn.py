@@ -76,16 +76,7 @@ import optax
 from .. import metrics
 from .._files import read_json
 from ..checkpoint import latest_step, restore_checkpoint
-from ..models import (
-    RCNNConfig,
-    RCNNOutput,
-    VoluMonRCNN,
-    detect,
-    detection_loss,
-    free_params,
-    init_rcnn,
-    reconstruct,
-)
+from ..models import RCNNConfig, RCNNOutput, VoluMonRCNN, detect, detection_loss, free_params, init_rcnn, reconstruct
 from ..quadrics import box_iou
 from ..training import LoadedModel, TrainingRun, config_json, read_exported
 from ._losses import (
@@ -836,9 +827,9 @@ def adopt_separate_lift(detector: LoadedModel, separate: LoadedModel) -> LoadedM
     The result (``lift_features="volumon"``) runs ``detector``'s backbone, proposal stage and box
     and class heads, and lifts each detection with ``separate``'s weights, its reconstruction
     constants and rotation start, reading its two inputs cut from the network's own image. The
-    separate network must be the "volumon" lift's design (``small_cnn`` of
-    :data:`jaxsem.models._rcnn.VOLUMON_LIFT_WIDTH`, input and hidden sizes as the shipped LM-O
-    model, box features as input) over ``detector``'s classes in the same order. Its training
+    separate network must be the "volumon" lift's design (``RCNNConfig.volumon_lift``: the
+    shipped LM-O model's backbone, input and hidden sizes, box features as input) over
+    ``detector``'s classes in the same order. Its training
     signal comes with it: the shipped LM-O model learnt from rendered depth points as well as
     boxes, so a network adopted from it is not trained from 2D labels only."""
     dc = detector.config.model
