@@ -653,10 +653,15 @@ SHIPPED_RCNN_NAME = "lmo-rcnn"
 #: ellipsoids and boxes for the separate network, fewer detections; the model card has the trade).
 SHIPPED_RCNNS = {SHIPPED_RCNN_NAME: SHIPPED_RCNN, "lmo-rcnn-448": "volumon_lmo_rcnn_448"}
 #: Shipped networks put together at load time (:func:`adopt_separate_lift`), by name: (the shipped
-#: R-CNN whose detector it runs, the shipped VoluMon ``kind`` it lifts with). No file of their own:
-#: their weights are those two models'. Not trained from 2D labels only (the separate LM-O network
-#: learnt from rendered depth points too; the model card has it).
-ADOPTED_RCNNS = {"lmo-rcnn-volumon": (SHIPPED_RCNN_NAME, "lmo"), "lmo-rcnn-448-volumon": ("lmo-rcnn-448", "lmo")}
+#: R-CNN whose detector it runs, the shipped VoluMon ``kind`` it lifts with, the ``(W, H)`` it reads
+#: or None for the detector's own). No file of their own: their weights are those two models'. Not
+#: trained from 2D labels only (the separate LM-O network learnt from rendered depth points too; the
+#: model card has it). The 320 x 240 detector is read at 384 x 288: its lift's crops gain resolution
+#: for about the same detections (chosen on the tuning photos; the model card).
+ADOPTED_RCNNS = {
+    "lmo-rcnn-volumon": (SHIPPED_RCNN_NAME, "lmo", (384, 288)),
+    "lmo-rcnn-448-volumon": ("lmo-rcnn-448", "lmo", None),
+}
 
 
 def _from_dict(cls, d: dict):
@@ -707,8 +712,10 @@ def load_rcnn(path=None, step: int | None = None) -> LoadedModel:
     if isinstance(path, str) and path in ADOPTED_RCNNS:
         if step is not None:
             raise ValueError(f"step: only a training workdir has checkpoint steps, got {path}")
-        detector, kind = ADOPTED_RCNNS[path]
+        detector, kind, size = ADOPTED_RCNNS[path]
         one = adopt_separate_lift(load_rcnn(detector), load_pretrained(kind=kind))
+        if size is not None:
+            one = at_input_size(one, size)
         return one._replace(meta={**one.meta, "name": path})
     if path is None:
         p = PRETRAINED_DIR / f"{SHIPPED_RCNN}.npz"

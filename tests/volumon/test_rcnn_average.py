@@ -90,6 +90,7 @@ def test_every_shipped_rcnn_name_loads_and_the_commands_know_it():
     # put together from two shipped models: the 448 detector's weights and the LM-O VoluMon's
     one, det, sep = load_rcnn("lmo-rcnn-448-volumon"), load_rcnn("lmo-rcnn-448"), volumon.load_pretrained(kind="lmo")
     assert one.config.model.lift_features == "volumon" and one.config.model.reconstruction == sep.config.recon
+    assert load_rcnn("lmo-rcnn-volumon").config.model.input_size == (384, 288)  # its reading size
     np.testing.assert_array_equal(
         one.variables["params"]["cls_out"]["kernel"], det.variables["params"]["cls_out"]["kernel"]
     )
