@@ -24,16 +24,16 @@ def main(argv=None) -> int:
     p.add_argument("--separate", default="lmo", help="'lmo' (the shipped LM-O VoluMon), an exported .npz or a workdir")
     p.add_argument("--out", type=pathlib.Path, required=True, help="path stem of the adopted model")
     a = p.parse_args(argv)
-    if not a.out.parent.is_dir():
-        p.error(f"--out: no folder {a.out.parent}")
 
     from jaxsem import volumon
-    from jaxsem.volumon.rcnn import SHIPPED_RCNNS, adopt_separate_lift, export_rcnn, load_rcnn
+    from jaxsem.volumon.rcnn import ADOPTED_RCNNS, SHIPPED_RCNNS, adopt_separate_lift, export_rcnn, load_rcnn
 
-    if a.detector not in SHIPPED_RCNNS and not pathlib.Path(a.detector).exists():
+    if a.detector not in SHIPPED_RCNNS and a.detector not in ADOPTED_RCNNS and not pathlib.Path(a.detector).exists():
         p.error(f"--detector: no model {a.detector}")
     if a.separate != "lmo" and not pathlib.Path(a.separate).exists():
         p.error(f"--separate: no model {a.separate}")
+    if not a.out.parent.is_dir():
+        p.error(f"--out: no folder {a.out.parent}")
     try:
         detector = load_rcnn(a.detector)
     except ValueError as exc:

@@ -25,7 +25,7 @@ import argparse
 import pathlib
 import sys
 
-from jaxsem.volumon.rcnn import SHIPPED_RCNNS
+from jaxsem.volumon.rcnn import ADOPTED_RCNNS, SHIPPED_RCNNS
 
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
         p.error(f"--frames: expected LO < HI <= 600 (the tuning split), got {lo} {hi}")
     size = a.input_size
     for m in a.models:
-        if m not in SHIPPED_RCNNS and not pathlib.Path(m).exists():
+        if m not in SHIPPED_RCNNS and m not in ADOPTED_RCNNS and not pathlib.Path(m).exists():
             p.error(f"--models: no model {m}")
 
     from jaxsem.volumon import data as df, rcnn as rc

@@ -167,6 +167,16 @@ def _cases(d):
             ["train/lsd.py", "--data", str(d / "empty_dir"), "--workdir", str(out / "tl3"), "--batch-size", "0"],
             ["--batch-size"],
         ),
+        (
+            "adopt-lift-detector",
+            ["train/adopt_volumon_lift.py", "--detector", str(d / "nope.npz"), "--out", str(out / "adopted")],
+            ["--detector", "nope.npz"],
+        ),
+        (
+            "adopt-lift-out",
+            ["train/adopt_volumon_lift.py", "--detector", "lmo-rcnn", "--out", str(d / "nodir" / "adopted")],
+            ["--out", "nodir"],
+        ),
         ("jaxsem-demo-parts", ["-m", "jaxsem.cli", "demo", "--parts", "bogus", "--out", str(out / "demo")], ["bogus"]),
         ("jaxsem-eval-range", ["-m", "jaxsem.cli", "volumon", "eval", "--num", "0"], ["--num"]),
         ("jaxsem-eval-workdir", ["-m", "jaxsem.cli", "volumon", "eval", "--workdir", str(d / "nope")], ["nope"]),
