@@ -782,6 +782,21 @@ def average_models(models) -> LoadedModel:
 LIFT_SETTINGS = ("lift_stride8", "lift_crop", "lift_features", "param_rule", "rotation_init", "reconstruction")
 
 
+def _assembled(fresh, pick, names: str, kind: str) -> dict:
+    """The variables of a network put together from others: for each layer of ``fresh`` (its
+    variables' shapes), ``pick(collection, layer)`` gives ``(source name, value)``; a value missing
+    or of another shape is refused, naming ``names`` (the arguments it came from)."""
+    variables = {}
+    for collection in ("params", "batch_stats"):
+        variables[collection] = {}
+        for layer, like in fresh[collection].items():
+            name, value = pick(collection, layer)
+            if value is None or jax.tree.map(np.shape, value) != jax.tree.map(np.shape, like):
+                raise ValueError(f"{names}: no {collection} {name!r} of the {kind} network's shape")
+            variables[collection][layer] = value
+    return variables
+
+
 def graft_lift(detector: LoadedModel, lifter: LoadedModel) -> LoadedModel:
     """One network with ``detector``'s boxes and classes and ``lifter``'s ellipsoids.
 
@@ -813,15 +828,11 @@ def graft_lift(detector: LoadedModel, lifter: LoadedModel) -> LoadedModel:
             return lifter, doubled
         return (lifter if layer.startswith(LIFT_LAYERS) else detector), layer
 
-    variables = {}
-    for collection in ("params", "batch_stats"):
-        variables[collection] = {}
-        for layer, like in fresh[collection].items():
-            net, name = source(layer)
-            value = net.variables[collection].get(name)
-            if value is None or jax.tree.map(np.shape, value) != jax.tree.map(np.shape, like):
-                raise ValueError(f"detector, lifter: no {collection} {name!r} of the grafted network's shape")
-            variables[collection][layer] = value
+    def pick(collection, layer):
+        net, name = source(layer)
+        return name, net.variables[collection].get(name)
+
+    variables = _assembled(fresh, pick, "detector, lifter", "grafted")
     config = dataclasses.replace(lifter.config, model=model_cfg)
     meta = {**lifter.meta, "grafted": {"detector": detector.meta.get("name"), "lift": lifter.meta.get("name")}}
     return LoadedModel(VoluMonRCNN(model_cfg), variables, config, meta)
@@ -859,17 +870,13 @@ def adopt_separate_lift(detector: LoadedModel, separate: LoadedModel) -> LoadedM
         rotation_init=sc.rotation_init,
     )
     fresh = jax.eval_shape(lambda k: init_rcnn(k, model_cfg, 1)[1], jax.random.PRNGKey(0))
-    variables = {}
-    for collection in ("params", "batch_stats"):
-        variables[collection] = {}
-        for layer, like in fresh[collection].items():
-            if layer == "volumon_net":
-                value = separate.variables.get(collection)
-            else:
-                value = detector.variables[collection].get(layer)
-            if value is None or jax.tree.map(np.shape, value) != jax.tree.map(np.shape, like):
-                raise ValueError(f"detector, separate: no {collection} {layer!r} of the adopted network's shape")
-            variables[collection][layer] = value
+
+    def pick(collection, layer):
+        if layer == "volumon_net":  # the separate network's whole tree is the lift's layer
+            return layer, separate.variables.get(collection)
+        return layer, detector.variables[collection].get(layer)
+
+    variables = _assembled(fresh, pick, "detector, separate", "adopted")
     config = dataclasses.replace(detector.config, model=model_cfg)
     meta = {
         **detector.meta,

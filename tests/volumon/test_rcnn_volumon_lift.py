@@ -10,8 +10,17 @@ import numpy as np
 import pytest
 from test_rcnn import TINY
 
+from jaxsem.models import ReconstructionConfig, box_features, init_volumon
 from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, _detection_rows, init_rcnn  # layers: white-box
-from jaxsem.volumon.rcnn import LIFT_LAYERS, _adopt, _without_missing_lift  # layers: white-box
+from jaxsem.training import LoadedModel
+from jaxsem.volumon import TrainConfig, prepare_inputs
+from jaxsem.volumon.rcnn import (  # layers: white-box
+    LIFT_LAYERS,
+    RCNNTrainConfig,
+    _adopt,
+    _without_missing_lift,
+    adopt_separate_lift,
+)
 
 VOL = dataclasses.replace(TINY, lift_features="volumon", lift_at="proposal")
 _INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
@@ -105,10 +114,6 @@ def test_the_volumon_lift_takes_no_other_crop_branch():
 def _separate_network(seed: int, config=VOL):
     """A stand-in trained separate VoluMon network of the lift's design (weights moved off their
     start so that every layer matters) and its loader's form."""
-    from jaxsem.models import ReconstructionConfig, init_volumon
-    from jaxsem.training import LoadedModel
-    from jaxsem.volumon import TrainConfig
-
     model, variables = init_volumon(jax.random.PRNGKey(seed), config.volumon_lift)
     rng = np.random.default_rng(seed)
     variables = jax.tree.map(lambda x: x + 0.05 * jnp.asarray(rng.standard_normal(x.shape), x.dtype), variables)
@@ -122,18 +127,11 @@ def _separate_network(seed: int, config=VOL):
 
 
 def _detector(seed: int):
-    from jaxsem.training import LoadedModel
-    from jaxsem.volumon.rcnn import RCNNTrainConfig
-
     config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
     return LoadedModel(VoluMonRCNN(TINY), _INIT(jax.random.PRNGKey(seed), TINY, 1), config, {"name": "tiny"})
 
 
 def test_an_adopted_separate_network_lifts_a_box_as_it_does_alone():
-    from jaxsem.models import box_features
-    from jaxsem.volumon import prepare_inputs
-    from jaxsem.volumon.rcnn import adopt_separate_lift
-
     separate, detector = _separate_network(6), _detector(7)
     one = adopt_separate_lift(detector, separate)
     assert one.config.model.reconstruction == separate.config.recon
@@ -155,8 +153,6 @@ def test_an_adopted_separate_network_lifts_a_box_as_it_does_alone():
 
 
 def test_adopting_a_separate_network_of_another_design_or_classes_is_refused():
-    from jaxsem.volumon.rcnn import adopt_separate_lift
-
     separate, detector = _separate_network(9), _detector(10)
     other = separate._replace(config=dataclasses.replace(separate.config, class_names=("a", "c", "b")))
     with pytest.raises(ValueError, match="classes"):
