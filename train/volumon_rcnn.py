@@ -5,7 +5,7 @@
 
 Renders ``--frames`` desk frames into ``--renders`` first (resumable chunks; needs
 ``jaxsem data fetch lmo`` and ``ycb``), plus 64 held-out frames of another seed, then trains in
-``--workdir`` (re-running resumes). The tuning photos from ``--val-from`` on are the held-out
+``--workdir`` (re-running resumes). The tuning photos from ``--val-from`` (to ``--val-to``) are the held-out
 validation (scored every evaluation; the rendered held-out frames when there are none). ``--oracle`` trains the fully supervised oracle (3D labels in
 place of the dual loss) on the same data. The LM-O test split (frame ids 600 and above) is never
 read.
@@ -47,6 +47,13 @@ def main(argv=None) -> int:
         type=sc.nonnegative_int,
         default=500,
         help="tuning photos with this frame id or above are the held-out validation, not trained on (default 500)",
+    )
+    p.add_argument(
+        "--val-to",
+        type=sc.positive_int,
+        default=None,
+        help="the held-out validation ends below this frame id; tuning photos from here on are trained on again "
+        "(a fold of cross-validation; default: where the tuning photos end)",
     )
     p.add_argument("--real-per-batch", type=sc.nonnegative_int, default=2, help="real photos in each batch")
     p.add_argument(
@@ -121,6 +128,9 @@ def main(argv=None) -> int:
         p.error(f"--models: no LM-O meshes folder {models} (give --lmo or --models)")
     if a.lmo is not None and not (a.lmo / "scene_gt.json").is_file():
         p.error(f"--lmo: {a.lmo} holds no scene_gt.json (jaxsem data fetch lmo --out data)")
+    if a.val_to is not None and a.val_to <= a.val_from:
+        p.error(f"--val-to: expected a frame id above --val-from ({a.val_from}), got {a.val_to}")
+    val_to = max(a.val_from, 600) if a.val_to is None else a.val_to
     if a.train_only != "all" and a.init_from is None:
         p.error(f"--train-only: '{a.train_only}' keeps trained layers; give them with --init-from")
     if a.detector_lr_scale > 1.0:
@@ -189,10 +199,11 @@ def main(argv=None) -> int:
     real = None
     if a.lmo is not None:
         tune = df.bop_frames(a.lmo, "tune")
-        fit = [f for f in tune if f["frame_id"] < a.val_from]
-        val = [f for f in tune if f["frame_id"] >= a.val_from]
+        held_out = [a.val_from <= f["frame_id"] < val_to for f in tune]
+        fit = [f for f, h in zip(tune, held_out) if not h]
+        val = [f for f, h in zip(tune, held_out) if h]
         if not fit:
-            p.error(f"--val-from: no tuning photo below frame id {a.val_from} is left to train on")
+            p.error(f"--val-from: no tuning photo outside frame ids {a.val_from}-{val_to - 1} is left to train on")
         if a.multiview_real:  # each split paired within itself: no label crosses into validation
             fit = df.multiview_frames(fit)
         if a.distill_from is not None:

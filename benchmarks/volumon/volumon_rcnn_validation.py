@@ -13,6 +13,9 @@ median centre error and translation AUC, and the centre error split into distanc
 ``--out/--name`` ``.json`` / ``.md``. ``--truth-boxes`` also scores each lift on every true
 visible box and class, beside the separate LM-O VoluMon and the known-size baseline on the same
 boxes (``jaxsem.volumon.rcnn.evaluate_scene(truth_boxes=True)``): the lift apart from its detector.
+``--folds MODEL:LO-HI ...`` adds one row for the folds of a cross-validation scored as one set
+(``jaxsem.volumon.rcnn.evaluate_folds``): each fold's model on the photos ``[LO, HI)`` its run held
+out; their ranges together should be ``--frames``, so that the row compares with the others.
 
 The photographs below 500 are the shipped model's real training photos (detection labels and
 size consistency only; no 3D signal), 500-599 its held-out ones: 300-599 spans both, far enough
@@ -42,6 +45,14 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--data", type=sc.existing_dir, required=True, help="the LM-O scene folder (scene_gt.json)")
     p.add_argument("--models", nargs="+", required=True, help="lmo-rcnn, exported .npz files or training workdirs")
+    p.add_argument(
+        "--folds",
+        nargs="+",
+        action="append",
+        default=[],
+        metavar="MODEL:LO-HI",
+        help="a pooled row: each fold's model on the photos it held out, scored as one set (repeat for more rows)",
+    )
     p.add_argument("--frames", nargs=2, type=sc.nonnegative_int, default=[300, 600], metavar=("LO", "HI"))
     p.add_argument("--input-size", type=sc.image_size, help="W,H the networks read (default: each model's own)")
     p.add_argument(
@@ -65,6 +76,22 @@ def main(argv=None) -> int:
     for m in a.models:
         if m not in SHIPPED_RCNNS and m not in ADOPTED_RCNNS and not pathlib.Path(m).exists():
             p.error(f"--models: no model {m}")
+
+    pooled = []
+    for group in a.folds:
+        folds = []
+        for spec in group:
+            path, _, span = spec.rpartition(":")
+            lo_hi = span.split("-")
+            if not path or len(lo_hi) != 2 or not all(x.isdigit() for x in lo_hi):
+                p.error(f"--folds: expected MODEL:LO-HI, got {spec}")
+            f_lo, f_hi = map(int, lo_hi)
+            if not lo <= f_lo < f_hi <= hi:
+                p.error(f"--folds: {spec} lies outside --frames {lo} {hi}")
+            if path not in SHIPPED_RCNNS and path not in ADOPTED_RCNNS and not pathlib.Path(path).exists():
+                p.error(f"--folds: no model {path}")
+            folds.append((path, f_lo, f_hi))
+        pooled.append(folds)
 
     from jaxsem.volumon import data as df, rcnn as rc
 
@@ -97,6 +124,19 @@ def main(argv=None) -> int:
                     truth_rows["baseline"] = {k: t["baseline"][k] for k in TRUTH_KEYS}
                     parallel = None  # the same boxes for every model: scored once
             print(name, {k: round(v, 4) if isinstance(v, float) else v for k, v in rows[name].items()}, flush=True)
+    for folds in pooled:
+        parts, cfg = [], None
+        for path, f_lo, f_hi in folds:
+            loaded = rc.load_rcnn(path)
+            if size is not None:
+                loaded = rc.configured(loaded, input_size=tuple(size))
+            cfg = loaded.config.model
+            mine = [f for f in frames if f_lo <= f["frame_id"] < f_hi]
+            parts.append((loaded.model, loaded.variables, df.frame_arrays(mine, cfg.input_size)))
+        r = rc.evaluate_folds(parts, cfg)
+        name = "folds: " + " + ".join(f"{m} on {f_lo}-{f_hi - 1}" for m, f_lo, f_hi in folds)
+        rows[name] = {k: r[k] for k in (*KEYS, "median_ray_error_m")} | {"step": "-"}
+        print(name, {k: round(v, 4) if isinstance(v, float) else v for k, v in rows[name].items()}, flush=True)
     command = "python benchmarks/volumon/volumon_rcnn_validation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md = header("# VoluMon R-CNN models on tuning photos", command, utc_now(), machine())
     md += [f"Photos {lo}-{hi - 1} ({len(frames)}), objects at least half visible.", ""]

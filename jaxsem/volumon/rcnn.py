@@ -45,6 +45,7 @@ __all__ = [
     "lift_boxes",
     "centre_errors",
     "evaluate_detections",
+    "evaluate_folds",
     "evaluate_scene",
     "at_input_size",
     "configured",
@@ -447,31 +448,44 @@ def evaluate_detections(
     The truth is the objects at least ``min_visible`` visible; a detection of a less visible
     object (same class, IoU >= 0.5 with it and with no counted object) is neither right nor wrong
     and is left out, as the crowd regions of COCO."""
-    fwd = jax.jit(lambda v, img, K: detect(model.apply(v, img, K), K, config))
-    n = arrays["image"].shape[0]
-    dets, truth, centre_err, depth_err, ray_err = [], [], [], [], []
+    return evaluate_folds([(model, variables, arrays)], config, batch=batch, min_visible=min_visible)
 
-    for s in range(0, n, batch):
-        idx = np.arange(s, min(s + batch, n))
-        pad = np.concatenate([idx, np.full(batch - len(idx), idx[-1])])
-        b = frames_batch(arrays, pad)
-        d = jax.device_get(fwd(variables, b["image"], b["K"]))
-        vis = arrays["visible_fraction"][pad]
-        for j, i in enumerate(idx):
-            ok = np.asarray(d.valid[j])
-            box, cid, score = d.box[j][ok], d.class_id[j][ok], d.score[j][ok]
-            centre = np.asarray(d.ellipsoid.center[j])[ok]
-            tv = b["box_valid"][j] & (vis[j] >= min_visible)
-            ign = b["box_valid"][j] & ~tv
-            tbox, tcls = b["boxes"][j][tv], b["class_id"][j][tv]
-            keep = _not_crowd(box, cid, tbox, tcls, b["boxes"][j][ign], b["class_id"][j][ign])
-            box, cid, score, centre = box[keep], cid[keep], score[keep], centre[keep]
-            dets.append((np.full(len(box), i), box, cid, score))
-            truth.append((np.full(tv.sum(), i), tbox, tcls))
-            for t, k in _greedy_match(_same_class_iou(box, cid, tbox, tcls), score).items():
-                errs_k = centre_errors(centre[k], b["gt_center"][j][tv][t])
-                for out, e in zip((centre_err, depth_err, ray_err), errs_k):
-                    out.append(e)
+
+def evaluate_folds(folds, config: RCNNConfig, batch: int = 8, min_visible: float = 0.5) -> dict:
+    """:func:`evaluate_detections` over the folds of a cross-validation scored as one set: each
+    ``(model, variables, arrays)`` detects its own frames (the ones its run held out), and AP50
+    and the matched errors are computed over all of them together, so that a recipe is judged on
+    every held-out photo at once rather than on each fold's few. The folds' models share
+    ``config`` (classes, input size)."""
+    if not folds:
+        raise ValueError("folds: expected at least one (model, variables, arrays)")
+    dets, truth, centre_err, depth_err, ray_err = [], [], [], [], []
+    offset = 0
+    for model, variables, arrays in folds:
+        fwd = jax.jit(lambda v, img, K, model=model: detect(model.apply(v, img, K), K, config))
+        n = arrays["image"].shape[0]
+        for s in range(0, n, batch):
+            idx = np.arange(s, min(s + batch, n))
+            pad = np.concatenate([idx, np.full(batch - len(idx), idx[-1])])
+            b = frames_batch(arrays, pad)
+            d = jax.device_get(fwd(variables, b["image"], b["K"]))
+            vis = arrays["visible_fraction"][pad]
+            for j, i in enumerate(idx):
+                ok = np.asarray(d.valid[j])
+                box, cid, score = d.box[j][ok], d.class_id[j][ok], d.score[j][ok]
+                centre = np.asarray(d.ellipsoid.center[j])[ok]
+                tv = b["box_valid"][j] & (vis[j] >= min_visible)
+                ign = b["box_valid"][j] & ~tv
+                tbox, tcls = b["boxes"][j][tv], b["class_id"][j][tv]
+                keep = _not_crowd(box, cid, tbox, tcls, b["boxes"][j][ign], b["class_id"][j][ign])
+                box, cid, score, centre = box[keep], cid[keep], score[keep], centre[keep]
+                dets.append((np.full(len(box), offset + i), box, cid, score))
+                truth.append((np.full(tv.sum(), offset + i), tbox, tcls))
+                for t, k in _greedy_match(_same_class_iou(box, cid, tbox, tcls), score).items():
+                    errs_k = centre_errors(centre[k], b["gt_center"][j][tv][t])
+                    for out, e in zip((centre_err, depth_err, ray_err), errs_k):
+                        out.append(e)
+        offset += n
     cat = lambda parts, i: np.concatenate([p[i] for p in parts])
     ap, recall = metrics.average_precision(
         tuple(cat(dets, i) for i in range(4)), tuple(cat(truth, i) for i in range(3)), config.num_classes
