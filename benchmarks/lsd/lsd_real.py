@@ -273,6 +273,21 @@ SAME_TASK_FLAGS = (
 )  # fmt: skip
 
 
+def _model_behind(checkpoint):
+    """What ``--checkpoint`` loads, so that two spellings of one model compare equal (None and
+    'default'; a shipped name and its file): a file's content digest, or a workdir's folder and
+    latest step."""
+    from jaxsem.lsd import load_model
+    from jaxsem.training import tree_digest
+
+    try:
+        meta = load_model(checkpoint).meta
+    except (OSError, ValueError, KeyError) as exc:
+        raise SystemExit(f"lsd_real: --checkpoint: {checkpoint!r}: {exc}") from None
+    path = pathlib.Path(meta["name"])
+    return ("file", tree_digest(path)) if path.is_file() else ("workdir", str(path.resolve()), meta["step"])
+
+
 def _check_reuse(args) -> None:
     """``--reuse-base``: the earlier run exists, has records, drew the same tasks and ran uniform
     and LSD on every set and N asked; this run adds variant rows only."""
@@ -283,7 +298,13 @@ def _check_reuse(args) -> None:
         )
     base = run_args(run["command"])
     for name in SAME_TASK_FLAGS:
-        if getattr(base, name) != getattr(args, name):
+        if name == "checkpoint":  # the model behind the flag, however it is named
+            if _model_behind(base.checkpoint) != _model_behind(args.checkpoint):
+                raise SystemExit(
+                    f"lsd_real: --reuse-base: --checkpoint {args.checkpoint!r} is another model than "
+                    f"{base.checkpoint!r} in {args.reuse_base!r}"
+                )
+        elif getattr(base, name) != getattr(args, name):
             flag = "--" + name.replace("_", "-")
             raise SystemExit(
                 f"lsd_real: --reuse-base: {flag} is {getattr(args, name)!r} here but {getattr(base, name)!r} in {args.reuse_base!r}"

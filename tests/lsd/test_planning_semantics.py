@@ -333,11 +333,12 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     assert got["replans_blocked"] == rec["replans_blocked"] and fig.stat().st_size > 0
     assert [e["reason"] for e in got["replans"]][0] == "first plan"
     assert sum(e["reason"] == "blocked" for e in got["replans"]) == rec["replans_blocked"]
-    # A variant added later on the same tasks runs alone; uniform and LSD come from the earlier run.
+    # A variant added later on the same tasks runs alone; uniform and LSD come from the earlier run,
+    # whose model is the same one however it is named (no --checkpoint there, 'default' here).
     more = tmp_path / "more.json"
     argv2 = [
         *run_argv[: run_argv.index("--replan-when-blocked")],
-        *("--euclid", "--unknown-weight", "3", "--reuse-base", str(out)),
+        *("--euclid", "--unknown-weight", "3", "--reuse-base", str(out), "--checkpoint", "default"),
     ]
     assert mod.main([*argv2, "--json", str(more), "--no-progress"]) == 0
     joined = read_records(tmp_path / "more.records.jsonl")
@@ -349,6 +350,9 @@ def test_real_map_variant_that_replans_only_when_blocked(tmp_path, script):
     bad = [*argv2, "--seed", "2", "--json", str(tmp_path / "bad.json")]
     with pytest.raises(SystemExit, match="--seed is 2 here but 1"):
         mod.main(bad)
+    other = [*argv2, "--checkpoint", "generated", "--json", str(tmp_path / "bad.json")]
+    with pytest.raises(SystemExit, match="--checkpoint 'generated' is another model"):
+        mod.main(other)
     with pytest.raises(SystemExit, match="name at least one variant"):
         mod.main(
             [
