@@ -241,7 +241,8 @@ class RCNNTrainConfig:
       model, loss: :class:`RCNNConfig`, :class:`RCNNLossConfig`.
       batch_size: frames per step, of which ``real_per_batch`` real photographs (when given).
       learning_rate, clip: Adam's step size and the gradient's global-norm clip.
-      num_steps, checkpoint_every, eval_every: the run's length and its rhythm.
+      num_steps, checkpoint_every, eval_every: the run's length and its rhythm (0: checkpoint or
+        evaluate only at the end of each chunk).
       eval_frames: held-out frames scored at each evaluation.
       seed: the initialisation and the batch order (a pure function of the step).
       class_names: the names of the model's classes (ids are their indices).
@@ -503,6 +504,11 @@ def evaluate_folds(folds, config: RCNNConfig, batch: int = 8, min_visible: float
     }
 
 
+#: Fields of :class:`RCNNTrainConfig` that may change between the chunks of one run: its length
+#: and rhythm, not what it learns from or how.
+RESUMABLE_FIELDS = ("num_steps", "checkpoint_every", "eval_every", "eval_frames", "keep")
+
+
 def train_rcnn(
     config: RCNNTrainConfig,
     workdir,
@@ -549,6 +555,7 @@ def train_rcnn(
         workdir,
         config_json(config),
         keep=config.keep,
+        resumable=RESUMABLE_FIELDS,
         normalise=lambda old: config_json(rcnn_config_from_dict(old)),
         log=log,
     )
@@ -592,14 +599,14 @@ def train_rcnn(
             done = step + 1
             if done % 25 == 0:
                 run.postfix({k: float(np.mean([float(t[k]) for t in recent])) for k in ("total", "cls", "dual")})
-            if done % config.eval_every == 0 or done == last:
+            if (config.eval_every and done % config.eval_every == 0) or done == last:
                 row = {"step": done, **{k: float(np.mean([float(t[k]) for t in recent])) for k in recent[-1]}}
                 if held_out is not None:
                     ev = evaluate_detections(model, {"params": params, "batch_stats": stats}, held_out, config.model)
                     row.update({f"heldout_{k}": v for k, v in ev.items()})
                 run.log_metrics(row)
                 run.write(f"step {done}: " + ", ".join(f"{k} {v:.3g}" for k, v in row.items() if isinstance(v, float)))
-            if done % config.checkpoint_every == 0 or done == last:
+            if (config.checkpoint_every and done % config.checkpoint_every == 0) or done == last:
                 run.save(
                     done, {"params": params, "batch_stats": stats, "opt_state": opt, "step": np.asarray(done, np.int64)}
                 )

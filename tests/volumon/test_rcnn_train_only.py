@@ -91,3 +91,20 @@ def test_a_detector_rate_outside_zero_to_one_is_refused(tmp_path):
             tmp_path,
             frames,
         )
+
+
+@pytest.mark.slow
+def test_a_run_resumes_for_more_steps_and_refuses_another_recipe(tmp_path, optax_promotion):
+    from jaxsem.training import ConfigMismatchError
+    from jaxsem.volumon.data import frame_arrays
+
+    renders = frame_arrays(_frames(4, 0), TINY.input_size, ("a", "b", "c"), 4)
+    base = RCNNTrainConfig(
+        model=TINY, batch_size=2, num_steps=2, checkpoint_every=1, eval_every=0, class_names=("a", "b", "c")
+    )
+    _, _, rows = train_rcnn(base, tmp_path, renders, progress=False)
+    longer = dataclasses.replace(base, num_steps=3, checkpoint_every=2, keep=3)
+    _, _, rows = train_rcnn(longer, tmp_path, renders, progress=False)
+    assert sorted(int(p.name) for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit())[-1] == 3
+    with pytest.raises(ConfigMismatchError, match="learning_rate"):
+        train_rcnn(dataclasses.replace(longer, num_steps=4, learning_rate=5e-4), tmp_path, renders, progress=False)
