@@ -2,7 +2,8 @@
 
 The network is :class:`jaxsem.models.VoluMonRCNN`; this module trains and scores it:
 :class:`RCNNTrainConfig`, :class:`RCNNLossConfig`, :func:`train_rcnn`, :func:`rcnn_loss`,
-:func:`make_rcnn_step`, :func:`rcnn_batch`, :func:`evaluate_detections`; on the photographs of
+:func:`make_rcnn_step`, :func:`rcnn_batch`, :func:`evaluate_detections` (and over the folds of a
+cross-validation, :func:`evaluate_folds`); on the photographs of
 a real scene :func:`evaluate_scene` (detection, the 3D figures of the matched detections, the
 parallel design of thesis 5.3 and the known-size baseline on the same boxes).
 
