@@ -104,10 +104,13 @@ def main(argv=None) -> int:
         from jaxsem.volumon import load_pretrained
 
         parallel = load_pretrained(kind="lmo")
+
+    def load(m):
+        loaded = rc.load_rcnn(m)
+        return loaded if size is None else rc.configured(loaded, input_size=tuple(size))
+
     for m in a.models:
-        base = rc.load_rcnn(m)
-        if size is not None:
-            base = rc.configured(base, input_size=tuple(size))
+        base = load(m)
         for rule in a.lift_at or [None]:
             loaded = base if rule is None else rc.configured(base, lift_at=rule)
             cfg = loaded.config.model
@@ -127,9 +130,7 @@ def main(argv=None) -> int:
     for folds in pooled:
         parts, cfg = [], None
         for path, f_lo, f_hi in folds:
-            loaded = rc.load_rcnn(path)
-            if size is not None:
-                loaded = rc.configured(loaded, input_size=tuple(size))
+            loaded = load(path)
             cfg = loaded.config.model
             mine = [f for f in frames if f_lo <= f["frame_id"] < f_hi]
             parts.append((loaded.model, loaded.variables, df.frame_arrays(mine, cfg.input_size)))

@@ -102,9 +102,11 @@ def test_a_run_resumes_for_more_steps_and_refuses_another_recipe(tmp_path, optax
     base = RCNNTrainConfig(
         model=TINY, batch_size=2, num_steps=2, checkpoint_every=1, eval_every=0, class_names=("a", "b", "c")
     )
-    _, _, rows = train_rcnn(base, tmp_path, renders, progress=False)
+    train_rcnn(base, tmp_path, renders, progress=False)
+    lines: list = []
     longer = dataclasses.replace(base, num_steps=3, checkpoint_every=2, keep=3)
-    _, _, rows = train_rcnn(longer, tmp_path, renders, progress=False)
-    assert sorted(int(p.name) for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit())[-1] == 3
+    _, _, rows = train_rcnn(longer, tmp_path, renders, progress=False, log=lines.append)
+    assert any("resumed from step 2" in line for line in lines)  # continued, not started again
+    assert [r["step"] for r in rows] == [2, 3]
     with pytest.raises(ConfigMismatchError, match="learning_rate"):
         train_rcnn(dataclasses.replace(longer, num_steps=4, learning_rate=5e-4), tmp_path, renders, progress=False)
