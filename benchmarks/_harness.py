@@ -105,3 +105,25 @@ def write_results(out, name: str, record: Mapping[str, Any], md: list[str], json
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=json_default))
     (out / f"{name}.md").write_text("\n".join(md))
     return out
+
+
+def fold_specs(specs, lo: int, hi: int, *, flag: str, error: Callable[[str], Any], exists: Callable[[str], bool]):
+    """``MODEL:LO-HI`` strings as ``[(model, lo, hi), ...]``: the folds of a cross-validation, each
+    model on the frame ids ``[LO, HI)`` its run held out. Each range must lie inside ``[lo, hi)``,
+    no two may overlap and each model must exist (``exists``); ``error`` gets one line naming
+    ``flag`` otherwise (an ``argparse`` parser's ``error``)."""
+    folds = []
+    for spec in specs:
+        path, _, span = spec.rpartition(":")
+        lo_hi = span.split("-")
+        if not path or len(lo_hi) != 2 or not all(x.isdigit() for x in lo_hi):
+            error(f"{flag}: expected MODEL:LO-HI, got {spec}")
+        f_lo, f_hi = map(int, lo_hi)
+        if not lo <= f_lo < f_hi <= hi:
+            error(f"{flag}: {spec} lies outside the frames {lo}-{hi - 1}")
+        if any(f_lo < b and a < f_hi for _, a, b in folds):
+            error(f"{flag}: {spec} overlaps another fold")
+        if not exists(path):
+            error(f"{flag}: no model {path}")
+        folds.append((path, f_lo, f_hi))
+    return folds

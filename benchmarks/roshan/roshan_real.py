@@ -77,6 +77,7 @@ from jaxsem.slam._problem import bucket_capacities, bucket_capacity  # layers: w
 from jaxsem.slam._results import result_code  # layers: white-box
 from jaxsem.slam._sequence_texture import support_height  # layers: white-box
 from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
+from jaxsem.volumon.data._bop_eval import LMO_TUNE_BELOW  # layers: white-box
 
 jax.config.update("jax_enable_x64", True)
 
@@ -89,6 +90,9 @@ from jaxsem.volumon import data as vdata, rcnn  # noqa: E402
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 import _peer_client  # noqa: E402
+
+sys.path.insert(0, str(HERE.parent))
+import _harness  # noqa: E402
 
 SYSTEMS = ("baseline", "roshan", "roshan_volumon", "gtsam_quadrics", "roshan_online")
 COLLAPSE_M = 0.10
@@ -156,7 +160,14 @@ def noise_model(seq) -> NoiseModel:
     return slam.noise_model(seq, NoiseModel(texture_sigma=TEXTURE_SIGMA))
 
 
-def configs(seq, silhouette_scale=None, upright_sigma_deg=None, texture_plane_fraction=None, box_outward_scale=None):
+def configs(
+    seq,
+    silhouette_scale=None,
+    upright_sigma_deg=None,
+    texture_plane_fraction=None,
+    box_outward_scale=None,
+    box_loss=None,
+):
     noise = noise_model(seq)
     scale = SILHOUETTE_SCALE if silhouette_scale is None else silhouette_scale
     tilt = np.radians(UPRIGHT_SIGMA_DEG if upright_sigma_deg is None else upright_sigma_deg)
@@ -165,6 +176,8 @@ def configs(seq, silhouette_scale=None, upright_sigma_deg=None, texture_plane_fr
         roshan["texture_plane_fraction"] = texture_plane_fraction
     if box_outward_scale is not None:
         roshan["box_outward_scale"] = box_outward_scale
+    if box_loss is not None:
+        roshan["box_loss"] = box_loss
     return {
         "baseline": slam.baseline_config(noise=noise, **SHARED),
         "roshan": slam.SolverConfig(noise=noise, **SHARED, **roshan, silhouette_scale=scale, upright_sigma=tilt),
@@ -249,6 +262,7 @@ def score(seq, rotation, center, radii):
     out["iou"] = iou
     out["offset"] = np.where(ok[:, None], c - TC, np.nan)  # signed, world frame
     out["ids"] = ids
+    out["classes"] = [o["class"] for o in tr]
     return out
 
 
@@ -283,6 +297,11 @@ def stretch_row(e, ms, info=None):
         "iou_3d": float(np.median(e["iou"])),
         "collapses": int(np.sum(~(e["position"] <= COLLAPSE_M))),
         "ms_per_map": ms,
+        # each scored object: which one, and how far off (a collapse is readable here)
+        "per_object": [
+            {"id": int(i), "class": c, "position_m": float(p), "iou_3d": float(u), "orientation_deg": float(o)}
+            for i, c, p, u, o in zip(e["ids"], e["classes"], e["position"], e["iou"], e["orientation"])
+        ],
     }
     if info is not None:
         row["result"] = slam.result_message(info.result) if hasattr(slam, "result_message") else None
@@ -356,11 +375,17 @@ def init_from(problem, base_init, seq, initial):
 # From pixels: a detector's boxes, classes and ellipsoids, associated into tracks.
 
 
-def detect_sequence(detector, seq):
-    """The network's detections of every frame of ``seq`` (camera-frame ellipsoids)."""
+def detect_sequence(detector, seq, frame_ids=None):
+    """The network's detections of every frame of ``seq`` (camera-frame ellipsoids). ``detector``
+    is one loaded network, or folds ``[(network, lo, hi), ...]``: each frame (BOP id from
+    ``frame_ids``) is read by the fold whose run held it out."""
     out = []
     for t in range(len(seq.frames)):
-        d = rcnn.detect_image(detector, seq.image(t), seq.K)
+        if isinstance(detector, list):
+            detector_t = next(m for m, lo, hi in detector if lo <= frame_ids[t] < hi)
+        else:
+            detector_t = detector
+        d = rcnn.detect_image(detector_t, seq.image(t), seq.K)
         keep = np.array([c in seq.classes for c in d["class_name"]], bool)
         out.append({k: ([c for c, ok in zip(v, keep) if ok] if k == "class_name" else v[keep]) for k, v in d.items()})
     return out
@@ -658,11 +683,33 @@ def parse_args(argv=None):
         "across frames by class, box overlap and viewing rays (jaxsem.slam.detected_sequence); roshan_volumon starts "
         "from the network's ellipsoids",
     )
+    p.add_argument(
+        "--detector-folds",
+        nargs="+",
+        default=None,
+        metavar="MODEL:LO-HI",
+        help="map from pixels on the tuning split with the folds of a cross-validation: each photo read by the "
+        "network whose run held out the ids [LO, HI) (with --frames inside their union)",
+    )
+    p.add_argument(
+        "--frames",
+        nargs=2,
+        type=sc.nonnegative_int,
+        default=None,
+        metavar=("LO", "HI"),
+        help="only the split's photos with ids in [LO, HI) (stretches cut there)",
+    )
     p.add_argument("--min-score", type=sc.nonnegative_float, default=0.5, help="with --detector: least score kept")
     p.add_argument(
         "--min-iou", type=sc.positive_float, default=0.3, help="with --detector: least box overlap continuing a track"
     )
     p.add_argument("--min-views", type=sc.positive_int, default=3, help="with --detector: least detections of a track")
+    p.add_argument(
+        "--box-loss",
+        choices=("l2", "huber", "cauchy"),
+        default=None,
+        help="ROSHAN's loss on the box factors (default l2; robust_scale sigmas for the others)",
+    )
     p.add_argument(
         "--box-sigma",
         type=sc.positive_float,
@@ -699,18 +746,47 @@ def parse_args(argv=None):
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     args = p.parse_args(argv)
     _peer_client.check_peer_flag(args.peer_python, p.error)
+    split_lo, split_hi = (0, LMO_TUNE_BELOW) if args.split == "tune" else (LMO_TUNE_BELOW, 10**9)
+    if args.frames is not None and not split_lo <= args.frames[0] < args.frames[1] <= split_hi:
+        p.error(
+            f"--frames: expected LO < HI inside the {args.split} split's ids [{split_lo}, {split_hi}), got {args.frames}"
+        )
+    if args.detector_folds is not None:
+        if args.detector is not None:
+            p.error("--detector-folds: give either --detector or --detector-folds")
+        if args.split != "tune":
+            p.error("--detector-folds: folds hold out tuning photos (--split tune)")
+        lo, hi = args.frames or (split_lo, split_hi)
+        args.detector_folds = _harness.fold_specs(
+            args.detector_folds, lo, hi, flag="--detector-folds", error=p.error, exists=_model_exists
+        )
+        covered = sorted((a, b) for _, a, b in args.detector_folds)
+        if covered[0][0] != lo or covered[-1][1] != hi or any(b != a2 for (_, b), (a2, _) in zip(covered, covered[1:])):
+            p.error(f"--detector-folds: the folds must cover the frames {lo}-{hi - 1} (set --frames)")
+    elif args.detector is not None and not _model_exists(args.detector):
+        p.error(f"--detector: no model {args.detector}")
     return args
+
+
+def _model_exists(name):
+    return name in rcnn.SHIPPED_RCNNS or name in rcnn.ADOPTED_RCNNS or pathlib.Path(name).exists()
 
 
 def main(argv=None):
     args = parse_args(argv)
     t_start = time.perf_counter()
     scene = vdata.load_bop_split(args.scene, args.split)
-    stretches = slam.find_stretches(scene)
+    frames = None
+    if args.frames is not None:
+        frames = [f for f in scene.frames if args.frames[0] <= f.frame_id < args.frames[1]]
+    stretches = slam.find_stretches(scene, frames)
     if not stretches:
-        raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split")
+        raise ValueError(f"--scene: no stretch with three objects still in the {args.split} split's photos")
     table, factors = slam.user_class_table(vdata.bop_class_extents(scene), seed=args.prior_seed)
-    detector = None if args.detector is None else rcnn.load_rcnn(args.detector)
+    if args.detector_folds is not None:
+        detector = [(rcnn.load_rcnn(m), lo, hi) for m, lo, hi in args.detector_folds]
+    else:
+        detector = None if args.detector is None else rcnn.load_rcnn(args.detector)
     vol = None if args.no_volumon or detector is not None else VolumonInit()
     solve = jax.jit(solve_schur)
     solve_starts = jax.jit(lambda p, i, c: solve_yaw_starts(p, i, c)[:2])
@@ -738,7 +814,7 @@ def main(argv=None):
             objects = seq.truth["objects"]
             seq_d = slam.detected_sequence(
                 seq,
-                detect_sequence(detector, seq),
+                detect_sequence(detector, seq, st.frame_ids),
                 min_iou=args.min_iou,
                 min_score=args.min_score,
                 min_views=args.min_views,
@@ -758,7 +834,12 @@ def main(argv=None):
         if box_sigma is not None:
             seq = dataclasses.replace(seq, noise={**seq.noise, "box_sigma": box_sigma})
         cfgs = configs(
-            seq, args.silhouette_scale, args.upright_sigma, args.texture_plane_fraction, args.box_outward_scale
+            seq,
+            args.silhouette_scale,
+            args.upright_sigma,
+            args.texture_plane_fraction,
+            args.box_outward_scale,
+            args.box_loss,
         )
         seq_t, records = front_end(seq)
         desk, desk_points = support_height(seq) if args.support == "features" else (float("nan"), 0)

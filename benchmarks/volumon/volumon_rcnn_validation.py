@@ -33,7 +33,7 @@ from jaxsem.volumon.rcnn import ADOPTED_RCNNS, SHIPPED_RCNNS
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from _harness import header, machine, output_arguments, utc_now, write_results  # noqa: E402
+from _harness import fold_specs, header, machine, output_arguments, utc_now, write_results  # noqa: E402
 
 KEYS = ("ap50", "recall50", "num_matched", "median_center_error_m", "trans_auc", "median_depth_log_error")
 TRUTH_KEYS = ("median_center_error_m", "trans_auc", "median_size_rel_error")
@@ -77,21 +77,10 @@ def main(argv=None) -> int:
         if m not in SHIPPED_RCNNS and m not in ADOPTED_RCNNS and not pathlib.Path(m).exists():
             p.error(f"--models: no model {m}")
 
-    pooled = []
-    for group in a.folds:
-        folds = []
-        for spec in group:
-            path, _, span = spec.rpartition(":")
-            lo_hi = span.split("-")
-            if not path or len(lo_hi) != 2 or not all(x.isdigit() for x in lo_hi):
-                p.error(f"--folds: expected MODEL:LO-HI, got {spec}")
-            f_lo, f_hi = map(int, lo_hi)
-            if not lo <= f_lo < f_hi <= hi:
-                p.error(f"--folds: {spec} lies outside --frames {lo} {hi}")
-            if path not in SHIPPED_RCNNS and path not in ADOPTED_RCNNS and not pathlib.Path(path).exists():
-                p.error(f"--folds: no model {path}")
-            folds.append((path, f_lo, f_hi))
-        pooled.append(folds)
+    def exists(m):
+        return m in SHIPPED_RCNNS or m in ADOPTED_RCNNS or pathlib.Path(m).exists()
+
+    pooled = [fold_specs(group, lo, hi, flag="--folds", error=p.error, exists=exists) for group in a.folds]
 
     from jaxsem.volumon import data as df, rcnn as rc
 

@@ -200,6 +200,18 @@ def _cases(d):
             + ["--folds", "lmo-rcnn:300", "--out", str(out / "val")],
             ["--folds", "lmo-rcnn:300"],
         ),
+        (
+            "roshan-real-folds-gap",
+            ["benchmarks/roshan/roshan_real.py", "--scene", str(d / "bop"), "--split", "tune", "--json"]
+            + [str(out / "rr.json"), "--frames", "300", "600", "--detector-folds", "lmo-rcnn:300-500"],
+            ["--detector-folds", "cover"],
+        ),
+        (
+            "roshan-real-frames-split",
+            ["benchmarks/roshan/roshan_real.py", "--scene", str(d / "bop"), "--split", "test", "--json"]
+            + [str(out / "rr.json"), "--frames", "300", "500", "--detector", "lmo-rcnn"],
+            ["--frames", "test"],
+        ),
         ("jaxsem-demo-parts", ["-m", "jaxsem.cli", "demo", "--parts", "bogus", "--out", str(out / "demo")], ["bogus"]),
         ("jaxsem-eval-range", ["-m", "jaxsem.cli", "volumon", "eval", "--num", "0"], ["--num"]),
         ("jaxsem-eval-workdir", ["-m", "jaxsem.cli", "volumon", "eval", "--workdir", str(d / "nope")], ["nope"]),
