@@ -207,6 +207,13 @@ def _cases(d):
             ["--detector-folds", "cover"],
         ),
         (
+            "roshan-real-folds-overlap",
+            ["benchmarks/roshan/roshan_real.py", "--scene", str(d / "bop"), "--split", "tune", "--json"]
+            + [str(out / "rr.json"), "--frames", "300", "600", "--detector-folds"]
+            + ["lmo-rcnn:300-500", "lmo-rcnn:450-600"],
+            ["--detector-folds", "overlaps"],
+        ),
+        (
             "roshan-real-frames-split",
             ["benchmarks/roshan/roshan_real.py", "--scene", str(d / "bop"), "--split", "test", "--json"]
             + [str(out / "rr.json"), "--frames", "300", "500", "--detector", "lmo-rcnn"],
