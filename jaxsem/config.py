@@ -73,6 +73,9 @@ def _replace(config, **changes):
 
         if isinstance(config, eqx.Module):
             names = list(changes)
+            static = {f.name for f in dataclasses.fields(config) if f.metadata.get("static", False)}
+            if static.intersection(names):  # not leaves of the pytree: construct it anew
+                return dataclasses.replace(config, **changes)
             return eqx.tree_at(
                 lambda c: [getattr(c, n) for n in names],
                 config,

@@ -77,7 +77,11 @@ from jaxsem.slam._multistart import solve_yaw_starts  # layers: white-box
 from jaxsem.slam._problem import bucket_capacities, bucket_capacity  # layers: white-box
 from jaxsem.slam._results import result_code  # layers: white-box
 from jaxsem.slam._sequence_texture import support_height  # layers: white-box
-from jaxsem.slam._solver_config import NoiseModel  # layers: white-box
+from jaxsem.slam._solver_config import (  # layers: white-box
+    DETECTOR_BOX_LOSS,
+    DETECTOR_BOX_SIGMA,
+    NoiseModel,
+)
 from jaxsem.volumon.data._bop_eval import LMO_TUNE_BELOW  # layers: white-box
 
 jax.config.update("jax_enable_x64", True)
@@ -154,7 +158,7 @@ UPRIGHT_SIGMA_DEG = 2.0
 #: trained on are off by about 4 px an edge (median; the rendered boxes' noise is 2 px). Tuning
 #: split, ROSHAN position / IoU at 2, 4, 8, 12, 16 px: 1.94 cm / 0.505, 1.67 / 0.556,
 #: 1.64 / 0.572, 1.62 / 0.562, 1.56 / 0.557 (the other systems gain as much from it).
-DETECTOR_BOX_SIGMA = 8.0
+# (DETECTOR_BOX_SIGMA, imported above: jaxsem.slam.SolverConfig.for_detector's default.)
 #: With --detector, ROSHAN's loss on the box factors (jaxsem.slam.SolverConfig.box_loss, robust
 #: scale 2 sigmas: 16 px). A third of a detector's tracks match no annotated object and some hold
 #: another object's boxes; under L2 each such box pulls its ellipsoid and the poses. Chosen on
@@ -162,7 +166,7 @@ DETECTOR_BOX_SIGMA = 8.0
 #: photos 300-499 by a fold that held them out), noise seeds 1-3, mean of six runs' position /
 #: IoU / orientation: L2 1.256 cm / 0.586 / 13.4 deg, Huber 1.231 / 0.586 / 12.8, Cauchy
 #: 1.170 / 0.586 / 11.5 (no collapse in any run). The rendered boxes' loss stays L2.
-DETECTOR_BOX_LOSS = "cauchy"
+# (DETECTOR_BOX_LOSS, imported above, as DETECTOR_BOX_SIGMA.)
 
 
 def noise_model(seq) -> NoiseModel:

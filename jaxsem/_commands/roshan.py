@@ -41,7 +41,8 @@ Input layouts:
 "car", "id": association id, "texture_depth": optional metres}]}], "initial": optional
 [{"id", "center", "radii", "rotation"}] (world-frame initial ellipsoids used instead of the
 single-view initialisation), "noise": optional {"box_sigma": px, "texture_sigma": m, "pose_translation_sigma": m,
-"pose_rotation_sigma_deg": deg} (any subset; --box-sigma etc. override it), "truth": optional}``.
+"pose_rotation_sigma_deg": deg} (any subset; --box-sigma etc. override it; with ``--detector`` the
+box sigma is the detector's), "truth": optional}``.
 Bad input exits with one line naming the file and the JSON field, before the solve: a sequence
 with no detection at all, a box outside the image or over 10 times its size, an unreadable image
 of an overlay frame.
@@ -67,10 +68,19 @@ import time
 
 from jaxsem import scripting as sc
 from jaxsem._commands.volumon_eval import SHIPPED_NAMES
+from jaxsem.factors import ROBUST_LOSSES
 from jaxsem.slam import SolverConfig
 
 # Imports inside the functions below are deliberate: `jaxsem <command> --help` imports this module
 # and must stay fast, so jax, the method's package and matplotlib load only when the command runs.
+
+
+def _loss_name(text: str) -> str:
+    """A robust loss's name (jaxsem.factors.ROBUST_LOSSES), checked while parsing."""
+    if text not in ROBUST_LOSSES:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(ROBUST_LOSSES)}, got {text!r}")
+    return text
+
 
 # Convenience flags for SolverConfig fields (help from the dataclass; the sequence's "noise" and
 # the simulator's noise come first, these flags override them).
@@ -80,6 +90,7 @@ CONFIG_FLAGS = (
     sc.ConfigFlag("default_depth", type=sc.positive_float),
     sc.ConfigFlag("texture_plane_fraction", type=sc.nonnegative_float),
     sc.ConfigFlag("box_outward_scale", type=sc.positive_float),
+    sc.ConfigFlag("box_loss", type=_loss_name),
 )
 
 
@@ -122,7 +133,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         help="map from pixels: this detect-and-lift network reads every frame's image (lmo-rcnn: the "
         "shipped LM-O one; or an exported .npz); its boxes and classes replace any in the input, "
         "associated across frames by class, box overlap and viewing rays (jaxsem.slam.detected_sequence), "
-        "its ellipsoids start the map",
+        "its ellipsoids start the map; the box factors then take a detector's noise, sigma "
+        "and loss (jaxsem.slam.SolverConfig.for_detector; --box-sigma and --box-loss override)",
     )
     p.add_argument(
         "--min-score", type=sc.nonnegative_float, default=0.5, help="with --detector: least detection score kept"
@@ -281,6 +293,8 @@ def solver_config(args, sim_cfg=None, sequence=None):
         cfg = slam.SolverConfig()
     if sequence is not None and sequence.noise:
         cfg = _replace(cfg, noise=slam.noise_model(sequence, cfg.noise))
+    if getattr(args, "detector", None) is not None:  # the network's boxes, not the input's
+        cfg = cfg.for_detector(robust=not args.baseline)
     cfg = sc.apply_config_flags(cfg, args, CONFIG_FLAGS)
     noise = {}
     if args.pose_sigma is not None:  # two fields in one flag, set here

@@ -7,6 +7,8 @@ weight or tolerance never recompiles.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from typing import Any
 
 import equinox as eqx
@@ -15,7 +17,23 @@ import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-__all__ = ["CostModel", "InitConfig", "NoiseModel", "SolverConfig", "StoppingRule", "baseline_config"]
+from ..factors import ROBUST_LOSSES
+
+__all__ = [
+    "DETECTOR_BOX_LOSS",
+    "DETECTOR_BOX_SIGMA",
+    "CostModel",
+    "InitConfig",
+    "NoiseModel",
+    "SolverConfig",
+    "StoppingRule",
+    "baseline_config",
+]
+
+#: :meth:`SolverConfig.for_detector`'s box sigma (pixels per edge) for a learned detector's boxes.
+DETECTOR_BOX_SIGMA = 8.0
+#: :meth:`SolverConfig.for_detector`'s loss on ROSHAN's box factors for a learned detector's boxes.
+DETECTOR_BOX_LOSS = "cauchy"
 
 
 def _scalar(x: Any) -> Any:
@@ -75,6 +93,11 @@ class _CostFactors(eqx.Module):
     texture_plane_fraction: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     silhouette_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
     box_outward_scale: float | jnp.ndarray = eqx.field(default=1.0, converter=_scalar)
+
+    def __check_init__(self):
+        for name in ("box_loss", "texture_loss", "shape_loss", "pose_loss"):
+            if getattr(self, name) not in ROBUST_LOSSES:
+                raise ValueError(f"{name}: expected one of {list(ROBUST_LOSSES)}, got {getattr(self, name)!r}")
 
 
 class _CostGuards(eqx.Module):
@@ -239,6 +262,22 @@ class SolverConfig(_CostGuards, _InitRescue, _Stopping, _InitStart, _CostFactors
             raise ValueError(f"SolverConfig: unknown fields {sorted(unknown)}")
         values.update(changes)
         return SolverConfig(**values)
+
+    def for_detector(self, *, box_sigma: float = DETECTOR_BOX_SIGMA, robust: bool = True) -> SolverConfig:
+        """This config for boxes from a learned detector (:mod:`jaxsem.volumon.rcnn`) rather than
+        annotated or rendered ones: the box factors' sigma ``box_sigma`` pixels and, when
+        ``robust``, their loss :data:`DETECTOR_BOX_LOSS` (robust scale ``robust_scale`` sigmas).
+        A network's boxes on photos it never saw are off by a few pixels an edge, several times
+        an annotated box, and some of its tracks hold another object's boxes; the robust loss
+        keeps those from pulling the map and the poses. The defaults were chosen on the LM-O
+        tuning photos (``benchmarks/roshan/HISTORY.md``). The thesis' baseline keeps its L2 box
+        factors: ``baseline_config().for_detector(robust=False)``."""
+        if isinstance(box_sigma, bool) or not (
+            isinstance(box_sigma, (int, float)) and math.isfinite(box_sigma) and box_sigma > 0
+        ):
+            raise ValueError(f"box_sigma: expected a positive number of pixels, got {box_sigma!r}")
+        noise = dataclasses.replace(self.noise, box_sigma=float(box_sigma))
+        return self.replace(noise=noise, box_loss=DETECTOR_BOX_LOSS if robust else self.box_loss)
 
     @classmethod
     def from_parts(

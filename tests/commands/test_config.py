@@ -30,6 +30,11 @@ class Train:
 class Solver(eqx.Module):
     max_steps: int = 50
     rtol: float = 1e-5
+    loss: str = eqx.field(static=True, default="l2")
+
+    def __check_init__(self):
+        if self.loss not in ("l2", "cauchy"):
+            raise ValueError(f"loss: expected l2 or cauchy, got {self.loss!r}")
 
 
 class Sim(NamedTuple):
@@ -71,6 +76,11 @@ def test_bad_overrides_name_the_field(change, match):
 
 def test_equinox_and_namedtuple_configs():
     assert cfg.override(Solver(), ["max_steps=9"]).max_steps == 9
+    # a static field is no leaf of the pytree: it is set all the same, the config's checks run
+    changed = cfg.override(Solver(), ["loss=cauchy", "rtol=1e-3"])
+    assert (changed.loss, changed.rtol, changed.max_steps) == ("cauchy", 1e-3, 50)
+    with pytest.raises(ValueError, match="loss: expected"):
+        cfg.override(Solver(), ["loss=tukey"])
     assert cfg.override(Sim(), {"noise": "1.5"}) == Sim(60, 1.5)
 
 
