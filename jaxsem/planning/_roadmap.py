@@ -309,6 +309,11 @@ def _grow_impl(
 #: cache).
 _EDGE_ROWS = 1024
 
+#: Work-list width of a grow's link checks. A row holds 2k candidate slots of which
+#: a fresh roadmap fills about a third, and every step of a work list reads its whole width: at
+#: 8192 the last step of a 500-vertex grow read mostly padding (``benchmarks/lsd/HISTORY.md``).
+_GROW_CHUNK = 2048
+
 
 def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int):
     """The links of each new vertex (n, 2) to its candidates ``nbr`` (n, K) among ``points``
@@ -321,7 +326,7 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
     def rows(args):
         nw, nb, cd = args
         ot = points[jnp.minimum(nb, M - 1)]
-        clear, w = _edges(blocked, None, nw[:, None, :], ot, grid, S, cd, table=table)
+        clear, w = _edges(blocked, None, nw[:, None, :], ot, grid, S, cd, table=table, chunk=_GROW_CHUNK)
         ev = cd & clear
         w = jnp.where(ev, w, jnp.inf)
         if K > k:

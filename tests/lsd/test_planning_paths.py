@@ -1085,6 +1085,27 @@ def test_a_query_table_on_windows_gives_the_edge_checks_answers():
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
 
 
+@pytest.mark.parametrize("chunk", [64, 300, 2048, 8192])
+def test_the_edge_check_answers_alike_at_any_work_list_width(chunk):
+    """The work lists' static width sets only how many edges a step reads: masked edges, several
+    steps and a part-filled last one give the dense rule's answers at every width."""
+    from jaxsem.planning._edges import _edges_clear, _edges_dense, _grid  # layers: white-box
+
+    occ = _blocks(5, shape=(150, 260), n=80)
+    rng = np.random.default_rng(chunk)
+    a = rng.random((700, 2)) * [12.0, 7.0]
+    b = a + rng.normal(0.0, 2.0, (700, 2))
+    mask = rng.random(700) < 0.6
+    grid = _grid(grid_of(occ), jnp.float32)
+    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
+    want = np.asarray(_edges_dense(jnp.asarray(occ), a, b, grid, 61)[0]) & mask
+    got = jax.jit(lambda blocked: _edges_clear(blocked, a, b, grid, 61, jnp.asarray(mask), chunk=chunk))(
+        jnp.asarray(occ)
+    )
+    assert 0 < int(want.sum()) < int(mask.sum())
+    np.testing.assert_array_equal(np.asarray(got), want)
+
+
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
     a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the
