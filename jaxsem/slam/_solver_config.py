@@ -266,17 +266,21 @@ class SolverConfig(_CostGuards, _InitRescue, _Stopping, _InitStart, _CostFactors
     def for_detector(self, *, box_sigma: float = DETECTOR_BOX_SIGMA, robust: bool = True) -> SolverConfig:
         """This config for boxes from a learned detector (:mod:`jaxsem.volumon.rcnn`) rather than
         annotated or rendered ones: the box factors' sigma ``box_sigma`` pixels and, when
-        ``robust``, their loss :data:`DETECTOR_BOX_LOSS` (robust scale ``robust_scale`` sigmas).
+        ``robust``, their loss Cauchy (:data:`DETECTOR_BOX_LOSS`; robust scale ``robust_scale`` sigmas).
         A network's boxes on photos it never saw are off by a few pixels an edge, several times
         an annotated box, and some of its tracks hold another object's boxes; the robust loss
         keeps those from pulling the map and the poses. The defaults were chosen on the LM-O
         tuning photos (``benchmarks/roshan/HISTORY.md``). The thesis' baseline keeps its L2 box
         factors: ``baseline_config().for_detector(robust=False)``."""
-        if isinstance(box_sigma, bool) or not (
-            isinstance(box_sigma, (int, float)) and math.isfinite(box_sigma) and box_sigma > 0
-        ):
-            raise ValueError(f"box_sigma: expected a positive number of pixels, got {box_sigma!r}")
-        noise = dataclasses.replace(self.noise, box_sigma=float(box_sigma))
+        if not isinstance(box_sigma, Tracer):  # a traced sigma (a vmapped config) is taken as it is
+            try:
+                value = float(box_sigma) if np.ndim(box_sigma) == 0 and not isinstance(box_sigma, (bool, str)) else None
+            except (TypeError, ValueError):
+                value = None
+            if value is None or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"box_sigma: expected a positive number of pixels, got {box_sigma!r}")
+            box_sigma = value
+        noise = dataclasses.replace(self.noise, box_sigma=box_sigma)
         return self.replace(noise=noise, box_loss=DETECTOR_BOX_LOSS if robust else self.box_loss)
 
     @classmethod

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -23,11 +24,14 @@ def test_for_detector_changes_the_box_factors_only():
     kept = ("use_support", "max_steps", "texture_loss", "shape_loss", "robust_scale", "use_texture")
     assert all(getattr(cfg, k) == getattr(base, k) for k in kept)
     assert float(cfg.noise.texture_sigma) == float(base.noise.texture_sigma)
+    assert float(base.for_detector(box_sigma=np.float32(6.0)).noise.box_sigma) == 6.0
+    batched = jax.vmap(lambda s: base.for_detector(box_sigma=s).noise.box_sigma)(jnp.array([4.0, 9.0]))
+    np.testing.assert_array_equal(np.asarray(batched), [4.0, 9.0])
     plain = slam.baseline_config().for_detector(box_sigma=5.0, robust=False)
     assert plain.box_loss == "l2" and float(plain.noise.box_sigma) == 5.0 and not plain.use_texture
 
 
-@pytest.mark.parametrize("sigma", [0.0, -2.0, float("nan"), float("inf"), True])
+@pytest.mark.parametrize("sigma", [0.0, -2.0, float("nan"), float("inf"), True, "8", np.ones(2)])
 def test_for_detector_refuses_a_bad_sigma(sigma):
     with pytest.raises(ValueError, match="box_sigma"):
         slam.SolverConfig().for_detector(box_sigma=sigma)
