@@ -718,6 +718,13 @@ def parse_args(argv=None):
     )
     p.add_argument("--min-views", type=sc.positive_int, default=3, help="with --detector: least detections of a track")
     p.add_argument(
+        "--merge-tracks",
+        type=sc.nonnegative_float,
+        default=None,
+        help="with --detector: join tracks of one class never in one frame whose centres lie within this many "
+        "semi-axes (jaxsem.slam.associate_detections' merge; default: the library's)",
+    )
+    p.add_argument(
         "--box-loss",
         choices=("l2", "huber", "cauchy"),
         default=None,
@@ -832,6 +839,7 @@ def main(argv=None):
                 min_iou=args.min_iou,
                 min_score=args.min_score,
                 min_views=args.min_views,
+                **({} if args.merge_tracks is None else {"merge": args.merge_tracks}),
             )
             truth, track_counts = match_tracks(st, seq_d)
             found = {o["spell"] for o in truth}

@@ -110,7 +110,7 @@ def _lift(det, k, world_T_camera):
     return U @ Vt, world_T_camera[:3, :3] @ c + world_T_camera[:3, 3], r, world_T_camera[:3, 3]
 
 
-def _check(camera_T_world, detections, min_iou, min_views, min_score):
+def _check(camera_T_world, detections, min_iou, min_views, min_score, merge=0.0):
     poses = np.asarray(camera_T_world, np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or not np.all(np.isfinite(poses)):
         raise ValueError(f"camera_T_world: expected finite (T, 4, 4) poses, got shape {poses.shape}")
@@ -118,6 +118,8 @@ def _check(camera_T_world, detections, min_iou, min_views, min_score):
         raise ValueError(f"detections: one entry per frame expected ({len(poses)}), got {len(detections)}")
     if not 0.0 < float(min_iou) <= 1.0:
         raise ValueError(f"min_iou: expected a value in (0, 1], got {min_iou}")
+    if not (np.isfinite(float(merge)) and float(merge) >= 0.0):
+        raise ValueError(f"merge: expected a non-negative number of semi-axes, got {merge}")
     if int(min_views) < 1:
         raise ValueError(f"min_views: expected at least 1, got {min_views}")
     if not 0.0 <= float(min_score) <= 1.0:
@@ -131,6 +133,56 @@ def _check(camera_T_world, detections, min_iou, min_views, min_score):
     return poses
 
 
+def _merge_tracks(tracks: list, raw_ids: list, merge: float) -> list:
+    """Joins the tracks that are one object seen twice (:func:`associate_detections`' ``merge``):
+    closest pairs first, a joined track taking the frames, views and lifts of both and a centre
+    triangulated from all its rays. ``tracks`` is changed in place (a joined-away track keeps 0
+    views); returns ``raw_ids`` with every detection of a joined-away track under the track it
+    joined."""
+    frames = [set() for _ in tracks]
+    for t, ids in enumerate(raw_ids):
+        for j in ids[ids >= 0]:
+            frames[int(j)].add(t)
+
+    def gap(a, b):
+        ta, tb = tracks[a], tracks[b]
+        if ta["class"] != tb["class"] or ta["center"] is None or tb["center"] is None:
+            return np.inf
+        size = 0.5 * (float(np.mean(ta["radii"])) + float(np.mean(tb["radii"])))
+        return float(np.linalg.norm(ta["center"] - tb["center"])) / max(size, 1e-9)
+
+    pairs = []  # (gap, a, b) within reach, found per class on arrays
+    lifted = [j for j, tr in enumerate(tracks) if tr["center"] is not None]
+    for name in {tracks[j]["class"] for j in lifted}:
+        js = np.array([j for j in lifted if tracks[j]["class"] == name])
+        c = np.stack([tracks[j]["center"] for j in js])
+        r = np.array([float(np.mean(tracks[j]["radii"])) for j in js])
+        g = np.linalg.norm(c[:, None] - c[None], axis=-1) / np.maximum(0.5 * (r[:, None] + r[None]), 1e-9)
+        a, b = np.nonzero(np.triu(g <= merge, k=1))
+        pairs += [(float(g[i, k]), int(js[i]), int(js[k])) for i, k in zip(a, b)]
+    into = list(range(len(tracks)))
+
+    def root(j):
+        while into[j] != j:
+            j = into[j]
+        return j
+
+    for _, a, b in sorted(pairs):
+        a, b = root(a), root(b)
+        if a == b or frames[a] & frames[b] or gap(a, b) > merge:
+            continue  # seen together in one frame (two objects), or apart once joined to others
+        a, b = min(a, b), max(a, b)  # the earlier track keeps its id and its first lift
+        ta, tb = tracks[a], tracks[b]
+        ta["lifts"] = ta["lifts"] + tb["lifts"]
+        ta["center"] = _triangulate(ta["lifts"])
+        ta["radii"] = np.mean([x[2] for x in ta["lifts"]], axis=0)
+        ta["views"] += tb["views"]
+        tb["views"] = 0
+        frames[a] |= frames[b]
+        into[b] = a
+    return [np.array([root(int(j)) if j >= 0 else -1 for j in ids], np.int64) for ids in raw_ids]
+
+
 def associate_detections(
     K,
     camera_T_world,
@@ -139,6 +191,7 @@ def associate_detections(
     min_iou: float = 0.3,
     min_views: int = 3,
     min_score: float = 0.5,
+    merge: float = 0.0,
 ) -> tuple[list, dict]:
     """Track ids for a detector's per-frame output (module docstring).
 
@@ -151,6 +204,9 @@ def associate_detections(
       min_iou: least box overlap for a detection to continue a track.
       min_views: least detections of a kept track.
       min_score: detections scored below this are ignored.
+      merge: after the last frame, two tracks of one class that never share a frame and whose
+        centres lie within ``merge`` times their mean semi-axis of each other are one object seen
+        twice (a track broken by an occlusion or a turn), joined into one; 0 joins none.
 
     Returns:
       ``(ids, tracks)``: ``ids[t]`` (D_t,) int track id per detection of frame t, -1 where it was
@@ -160,7 +216,7 @@ def associate_detections(
     Raises:
       ValueError: poses, detections or thresholds malformed (naming the argument).
     """
-    poses = _check(camera_T_world, detections, min_iou, min_views, min_score)
+    poses = _check(camera_T_world, detections, min_iou, min_views, min_score, merge)
     K = np.asarray(K, np.float64)
     tracks: list[dict] = []
     raw_ids = []
@@ -205,6 +261,8 @@ def associate_detections(
                 tr["radii"] = np.mean([x[2] for x in tr["lifts"]], axis=0)
             tr["views"] = tr.get("views", 0) + 1
         raw_ids.append(ids)
+    if merge > 0:
+        raw_ids = _merge_tracks(tracks, raw_ids, float(merge))
     kept = [j for j, tr in enumerate(tracks) if tr["views"] >= int(min_views)]
     renumber = {j: n for n, j in enumerate(kept)}
     ids_out = [np.array([renumber.get(int(j), -1) for j in ids], np.int64) for ids in raw_ids]
