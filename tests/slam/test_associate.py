@@ -161,3 +161,40 @@ def test_detected_sequence_holds_the_tracks_and_their_ellipsoids():
     other = ClassTable.from_dict([{"name": "mug", "dimensions": [0.1, 0.1, 0.1], "sigma": [0.03] * 3}])
     with pytest.raises(ValueError, match="class table"):
         slam.detected_sequence(_sequence(poses, other), dets)
+
+
+def _broken_tracks(seed=3, lateral=0.004):
+    """Lifts at the true depth but a few millimetres beside their rays, and a threshold few frame
+    pairs reach: the objects' tracks break into many of a view or two."""
+    poses = _poses(n=6)
+    dets, truth = _detections(poses, depth_scale=1.0, seed=seed)
+    rng = np.random.default_rng(seed)
+    for d in dets:
+        d["center"] = d["center"] + rng.normal(0.0, lateral, d["center"].shape)
+    return poses, dets, truth
+
+
+@pytest.mark.parametrize("merge", [1.0, 20.0])
+def test_tracks_of_one_object_are_joined_and_two_objects_seen_together_never(merge):
+    poses, dets, truth = _broken_tracks()
+    _, apart = slam.associate_detections(K, poses, dets, min_iou=0.99, min_views=1)
+    assert len(apart) > 3 * len(CENTERS)  # broken into many
+    ids, tracks = slam.associate_detections(K, poses, dets, min_iou=0.99, merge=merge)
+    # Both mugs (six semi-axes apart, seen together in every frame) stay two even at merge=20.
+    assert len(tracks) == len(CENTERS)
+    track_of = {}
+    for i, order in zip(ids, truth):
+        for j, k in zip(i, order):
+            assert track_of.setdefault(int(k), int(j)) == int(j)
+    for k, j in track_of.items():
+        assert tracks[j]["class"] == CLASSES[k]
+        assert tracks[j]["views"] == len(poses)
+        assert np.linalg.norm(tracks[j]["center"] - CENTERS[k]) < 0.01
+
+
+def test_no_track_is_joined_without_merge_and_a_bad_merge_is_named():
+    poses, dets, _ = _broken_tracks()
+    _, tracks = slam.associate_detections(K, poses, dets, min_iou=0.99)
+    assert len(tracks) < len(CENTERS)  # most pieces below min_views
+    with pytest.raises(ValueError, match="merge"):
+        slam.associate_detections(K, poses, dets, merge=-1.0)
