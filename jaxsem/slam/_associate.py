@@ -118,8 +118,12 @@ def _check(camera_T_world, detections, min_iou, min_views, min_score, merge=0.0)
         raise ValueError(f"detections: one entry per frame expected ({len(poses)}), got {len(detections)}")
     if not 0.0 < float(min_iou) <= 1.0:
         raise ValueError(f"min_iou: expected a value in (0, 1], got {min_iou}")
-    if not (np.isfinite(float(merge)) and float(merge) >= 0.0):
-        raise ValueError(f"merge: expected a non-negative number of semi-axes, got {merge}")
+    try:
+        ok = bool(np.isfinite(float(merge)) and float(merge) >= 0.0)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"merge: expected a non-negative number of semi-axes, got {merge!r}")
     if int(min_views) < 1:
         raise ValueError(f"min_views: expected at least 1, got {min_views}")
     if not 0.0 <= float(min_score) <= 1.0:

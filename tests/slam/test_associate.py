@@ -196,5 +196,6 @@ def test_no_track_is_joined_without_merge_and_a_bad_merge_is_named():
     poses, dets, _ = _broken_tracks()
     _, tracks = slam.associate_detections(K, poses, dets, min_iou=0.99)
     assert len(tracks) < len(CENTERS)  # most pieces below min_views
-    with pytest.raises(ValueError, match="merge"):
-        slam.associate_detections(K, poses, dets, merge=-1.0)
+    for bad in (-1.0, float("nan"), "far"):
+        with pytest.raises(ValueError, match="merge"):
+            slam.associate_detections(K, poses, dets, merge=bad)
