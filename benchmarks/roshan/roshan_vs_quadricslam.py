@@ -244,12 +244,15 @@ def main(argv=None):
     )
     ap.add_argument("--paths", default="orbit,forward")
     ap.add_argument("--inits", default="plain,single-view")
-    ap.add_argument(
-        "--rewrite-md", action="store_true", help="only rewrite the markdown from results/roshan_vs_quadricslam.json"
-    )
+    ap.add_argument("--rewrite-md", action="store_true", help="only rewrite the markdown from OUT/NAME.json")
+    _harness.output_arguments(ap, "roshan_vs_quadricslam")
     args = ap.parse_args(argv)
+    res = pathlib.Path(args.out)
     if args.rewrite_md:
-        write_md(json.loads((BENCH / "results" / "roshan_vs_quadricslam.json").read_text()))
+        saved = res / f"{args.name}.json"
+        if not saved.is_file():
+            ap.error(f"--rewrite-md: no {saved} (see --out, --name)")
+        write_md(json.loads(saved.read_text()), res, args.name)
         return
     _peer_client.check_peer_flag(args.peer_python, sys.exit)
     peer = args.peer_python
@@ -265,15 +268,14 @@ def main(argv=None):
         "machine": f"{platform.machine()} 2-core CPU, shared (load average {os.getloadavg()[0]:.0f} at the end)",
         "rows": rows,
     }
-    res = BENCH / "results"
-    res.mkdir(exist_ok=True)
-    tmp = res / "roshan_vs_quadricslam.json.tmp"
+    res.mkdir(parents=True, exist_ok=True)
+    tmp = res / f"{args.name}.json.tmp"
     tmp.write_text(json.dumps(out, indent=2, default=float))
-    tmp.replace(res / "roshan_vs_quadricslam.json")
-    write_md(out)
+    tmp.replace(res / f"{args.name}.json")
+    write_md(out, res, args.name)
 
 
-def write_md(out):
+def write_md(out, res: pathlib.Path, name: str):
     """The markdown table of a run's JSON (``--rewrite-md`` redoes it from the saved JSON)."""
     rows = out["rows"]
     lines = [
@@ -290,15 +292,14 @@ def write_md(out):
         )
     table = "\n".join(lines)
     print(table)
-    res = BENCH / "results"
     md_notes = NOTES
     md = (
         f"## ROSHAN solvers vs gtsam_quadrics (QuadricSLAM) on the same instances\n\nCommand: `{out['command']}`  \n"
         f"Date: {out['date']}  \nMachine: {out['machine']}\n\n{table}\n\n{md_notes}\n"
     )
-    tmp = res / "roshan_vs_quadricslam.md.tmp"
+    tmp = res / f"{name}.md.tmp"
     tmp.write_text(md)
-    tmp.replace(res / "roshan_vs_quadricslam.md")
+    tmp.replace(res / f"{name}.md")
 
 
 if __name__ == "__main__":

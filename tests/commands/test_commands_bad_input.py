@@ -214,6 +214,11 @@ def _cases(d):
             ["--detector-folds", "overlaps"],
         ),
         (
+            "roshan-vs-quadricslam-rewrite-missing",
+            ["benchmarks/roshan/roshan_vs_quadricslam.py", "--rewrite-md", "--out", str(out / "none"), "--name", "x"],
+            ["--rewrite-md", "x.json"],
+        ),
+        (
             "roshan-real-frames-split",
             ["benchmarks/roshan/roshan_real.py", "--scene", str(d / "bop"), "--split", "test", "--json"]
             + [str(out / "rr.json"), "--frames", "300", "500", "--detector", "lmo-rcnn"],
