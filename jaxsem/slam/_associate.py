@@ -155,15 +155,11 @@ def _merge_tracks(tracks: list, raw_ids: list, merge: float) -> list:
         size = 0.5 * (float(np.mean(ta["radii"])) + float(np.mean(tb["radii"])))
         return float(np.linalg.norm(ta["center"] - tb["center"])) / max(size, 1e-9)
 
-    pairs = []  # (gap, a, b) within reach, found per class on arrays
-    lifted = [j for j, tr in enumerate(tracks) if tr["center"] is not None]
-    for name in {tracks[j]["class"] for j in lifted}:
-        js = np.array([j for j in lifted if tracks[j]["class"] == name])
-        c = np.stack([tracks[j]["center"] for j in js])
-        r = np.array([float(np.mean(tracks[j]["radii"])) for j in js])
-        g = np.linalg.norm(c[:, None] - c[None], axis=-1) / np.maximum(0.5 * (r[:, None] + r[None]), 1e-9)
-        a, b = np.nonzero(np.triu(g <= merge, k=1))
-        pairs += [(float(g[i, k]), int(js[i]), int(js[k])) for i, k in zip(a, b)]
+    by_class: dict = {}
+    for j, tr in enumerate(tracks):
+        if tr["center"] is not None:
+            by_class.setdefault(tr["class"], []).append(j)
+    pairs = [(gap(a, b), a, b) for js in by_class.values() for n, a in enumerate(js) for b in js[n + 1 :]]
     into = list(range(len(tracks)))
 
     def root(j):
@@ -171,7 +167,7 @@ def _merge_tracks(tracks: list, raw_ids: list, merge: float) -> list:
             j = into[j]
         return j
 
-    for _, a, b in sorted(pairs):
+    for _, a, b in sorted(p for p in pairs if p[0] <= merge):
         a, b = root(a), root(b)
         if a == b or frames[a] & frames[b] or gap(a, b) > merge:
             continue  # seen together in one frame (two objects), or apart once joined to others
