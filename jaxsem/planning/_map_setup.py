@@ -63,7 +63,7 @@ class _MapSetup:
     while it grows, and its query's start and goal edges need the table only around them
     (:meth:`query_table`), so a first lazy build on a new map does without the whole table."""
 
-    def __init__(self, blocked: np.ndarray, dtype):
+    def __init__(self, blocked: np.ndarray, dtype, near: _MapSetup | None = None):
         self.blocked = np.array(blocked, bool)
         self.dtype = np.dtype(dtype)
         self.blocked_j = _aligned(self.blocked)
@@ -75,6 +75,12 @@ class _MapSetup:
         else:  # nothing free (sampling falls back to every cell) or counts past float32's integers
             self._cdf = _uniform_cdf_jit(self.blocked_j, self.dtype)
         self._table: jax.Array | None = None
+        self._table_np: np.ndarray | None = None
+        # A map of the same shape seen lately whose table is made (a robot's map between two
+        # looks differs in a window): that table is updated there instead of made anew, if
+        # this map's is needed. Held until then only (never a chain of maps).
+        same = near is not None and near._table_np is not None and near.blocked.shape == self.blocked.shape
+        self._near = near if same else None
 
     @property
     def has_table(self) -> bool:
@@ -84,7 +90,13 @@ class _MapSetup:
         """The clearance table of the whole map (:func:`_clearance_table_np`: the jitted
         table's values), made on the first call."""
         if self._table is None:
-            self._table = _aligned(_clearance_table_np(self.blocked))
+            near = self._near
+            if near is not None and near._table_np is not None:  # (set with its table)
+                self._table_np = _table_update(near._table_np, near.blocked, self.blocked)
+            else:
+                self._table_np = _clearance_table_np(self.blocked)
+            self._table = _aligned(self._table_np)
+            self._near = None
         return self._table
 
     def aids(self, table: bool) -> _MapAids:
@@ -121,6 +133,39 @@ class _MapSetup:
         return jax.device_put(out)
 
 
+#: Cells past a changed cell whose clearance-table entries can change: a level-``_TOP`` block's
+#: 3 x 3 neighbourhood reaches ``2 * 2**_TOP - 1`` cells past a cell of its middle block, and
+#: the 8-neighbour dilation one more.
+_TABLE_REACH = 2 * (1 << _TOP) + 1
+
+
+def _table_update(table: np.ndarray, old: np.ndarray, blocked: np.ndarray) -> np.ndarray:
+    """:func:`_clearance_table_np` of ``blocked`` from ``table``, that of ``old`` (same shape):
+    the entries within :data:`_TABLE_REACH` cells of a changed cell are made again, from a
+    window of the map reaching as far again past them (aligned to top-level blocks, so its
+    blocks are the map's; the cells it leaves out count as blocked there, which can lower only
+    entries beyond the ones kept). The same values as making it anew."""
+    diff = old != blocked
+    rows, cols = np.flatnonzero(diff.any(axis=1)), np.flatnonzero(diff.any(axis=0))
+    if len(rows) == 0:
+        return table
+    H, W = blocked.shape
+    top, b = 1 << _TOP, 1 << _BASE
+    lo = lambda x: max(0, x) // top * top
+    hi = lambda x, n: min(-(-n // top) * top, -(-x // top) * top)
+    # Entries to remake (cells [r0, r1) x [c0, c1)), and the window they are made from.
+    r0, r1 = lo(rows[0] - _TABLE_REACH), hi(rows[-1] + 1 + _TABLE_REACH, H)
+    c0, c1 = lo(cols[0] - _TABLE_REACH), hi(cols[-1] + 1 + _TABLE_REACH, W)
+    wr0, wr1 = lo(r0 - _TABLE_REACH), hi(r1 + _TABLE_REACH, H)
+    wc0, wc1 = lo(c0 - _TABLE_REACH), hi(c1 + _TABLE_REACH, W)
+    sub = _clearance_table_np(blocked[wr0 : min(wr1, H), wc0 : min(wc1, W)])
+    out = table.copy()
+    out[r0 // b : r1 // b, c0 // b : c1 // b] = sub[
+        (r0 - wr0) // b : (r1 - wr0) // b, (c0 - wc0) // b : (c1 - wc0) // b
+    ]
+    return out
+
+
 #: Per-map setup of the latest maps, newest first. A user who builds several roadmaps on one
 #: map (or a map that comes back) makes it once.
 _AIDS_CACHE: list[_MapSetup] = []
@@ -143,7 +188,8 @@ def _map_setup(blocked: np.ndarray, dtype) -> _MapSetup:
         if setup.dtype == dt and setup.blocked.shape == blocked.shape and np.array_equal(setup.blocked, blocked):
             _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
             return setup
-    setup = _MapSetup(blocked, dt)
+    near = next((x for x in _AIDS_CACHE if x.blocked.shape == blocked.shape and x.has_table), None)
+    setup = _MapSetup(blocked, dt, near)
     _AIDS_CACHE.insert(0, setup)
     del _AIDS_CACHE[_AIDS_CACHE_SIZE:]
     return setup

@@ -104,6 +104,10 @@ def _select_ranked(d2, diff, k: int, sectors: int, keep: int, sparser=None):
 #: Widest candidate rows ranked by counting (:func:`_select_ranked`); wider ones use top_k.
 _RANKED_MAX = 128
 
+#: Widths a brute-force candidate row is narrowed to when its candidates within the radius fit
+#: (:func:`_knn_rows`): the narrowest that holds every row of a block.
+_NARROW = (32, 64, _RANKED_MAX)
+
 
 #: Query rows searched at a time: the candidate arrays of a block (rows x 3 strips x slots)
 #: stay in cache, where all rows at once do not (``benchmarks/lsd/HISTORY.md``, "PRM on the
@@ -201,25 +205,65 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
         slot = start[..., None] + j  # (Q, 3, cap)
         ok = (j < count[..., None]).reshape(Q, -1)
         cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
+    want = keep or k
+    ranked = functools.partial(
+        _rank_rows, db, queries, q_self, k=k, radius=radius, sectors=sectors, want=want, density=density
+    )
+    if grid is not None:
+        # Keep the candidates within the radius (about pi/3 of a strip's): at most ``cap`` of
+        # them, a row with more is an overflow too (rerun with more slots).
+        idx, most = ranked(cand, ok, width=cap)
+        return idx, overflow | (most > cap)
+    if M <= _RANKED_MAX or want > _RANKED_MAX:
+        return ranked(cand, ok, width=None)[0], overflow
+
+    # Brute force over more slots than rank by counting: a row usually holds far fewer
+    # candidates within the radius. They rank by counting (the same candidates in the same
+    # order) in a row of the narrowest width of _NARROW that holds the block's fullest row
+    # (counting costs the width squared); a block with a row of more than _RANKED_MAX ranks
+    # the whole width by top_k (an order of magnitude dearer on the CPU). Each branch makes
+    # its candidates from the inputs: handed wide arrays made outside, a branch costs more.
+    def brute(width):
+        slots = jnp.broadcast_to(jnp.arange(M)[None, :], (Q, M))
+        return ranked(slots, jnp.broadcast_to(db_ok[None, :], (Q, M)), width=width)[0]
+
+    # The fullest row's count, over-counted at the border: the ranking's own distances may
+    # round otherwise (fused differently), and a width that holds more costs only time.
+    d2 = jnp.sum((db[None, :, :] - queries[:, None, :]) ** 2, -1)
+    near = d2 <= radius**2 * (1 + _BORDER)
+    inr = db_ok[None, :] & (jnp.arange(M, dtype=q_self.dtype)[None, :] != q_self[:, None]) & near
+    most = jnp.max(jnp.sum(inr, axis=1, dtype=jnp.int32))
+    widths = list(_NARROW)
+    branch = jnp.sum(most > jnp.asarray(widths, jnp.int32))
+    idx = jax.lax.switch(branch, [functools.partial(brute, w) for w in widths] + [functools.partial(brute, None)])
+    return idx, overflow
+
+
+def _rank_rows(db, queries, q_self, cand, ok, *, k, radius, sectors, want, density, width):
+    """The chosen candidates (Q, want) (``M``: none) among the slots ``cand`` (Q, C) where ``ok``
+    of each query row, and the fullest row's count of candidates within the radius. ``width``:
+    first move each row's candidates within the radius to its first ``width`` columns (in
+    order; a row with more loses the rest: the caller checks the count); None: rank the C
+    slots as they are."""
+    M = db.shape[0]
+    Q = queries.shape[0]
     ok = ok & (cand != q_self.astype(cand.dtype)[:, None])
     diff = db[cand] - queries[:, None, :]
     d2 = jnp.sum(diff**2, -1)
     d2 = jnp.where(ok & (d2 <= radius**2), d2, jnp.inf)
-    want = keep or k
     sparser = None
     if density is not None:  # (M,) sampling density of db points; queries are db[q_self]
         sparser = density[cand] <= density[jnp.maximum(q_self, 0)][:, None] * 1.001
-    if grid is not None:
-        # Keep the candidates within the radius (about pi/3 of a strip's): at most ``cap`` of
-        # them, a row with more is an overflow too (rerun with more slots).
+    most = jnp.zeros((), jnp.int32)
+    if width is not None:
         inr = jnp.isfinite(d2)
         pos = jax.lax.associative_scan(jnp.add, inr.astype(jnp.int32), axis=1) - 1
-        overflow = overflow | (jnp.max(pos[:, -1]) >= cap)
+        most = jnp.max(pos[:, -1]) + 1
         rows = jnp.broadcast_to(jnp.arange(Q)[:, None], inr.shape)
         C0 = cand.shape[1]
         col = (
-            jnp.full((Q, cap), C0, jnp.int32)
-            .at[rows, jnp.where(inr, pos, cap)]
+            jnp.full((Q, width), C0, jnp.int32)
+            .at[rows, jnp.where(inr, pos, width)]
             .set(jnp.broadcast_to(jnp.arange(C0, dtype=jnp.int32)[None, :], inr.shape), mode="drop")
         )
         live = col < C0
@@ -239,7 +283,7 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
     idx = jnp.where(fin, jnp.take_along_axis(cand, pos, axis=1), M)
     if kk < want:
         idx = jnp.concatenate([idx, jnp.full((Q, want - kk), M, idx.dtype)], 1)
-    return idx.astype(jnp.int32), overflow
+    return idx.astype(jnp.int32), most
 
 
 def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: int | None = None, sectors: int = 0):

@@ -774,6 +774,38 @@ def test_knn_sectors_match_brute_force(kind):
         np.testing.assert_allclose(got, ref[valid], rtol=1e-9)
 
 
+@pytest.mark.parametrize(
+    "spread,fullest", [(3.0, (1, 32)), (2.2, (32, 32)), (1.6, (33, 64)), (1.2, (65, 128)), (0.9, (129, 299))]
+)
+def test_brute_force_rows_rank_alike_at_every_width(spread, fullest, monkeypatch):
+    """A brute-force search narrows each block's rows to the fewest columns that hold its
+    candidates within the radius before ranking them: at every width (the fullest row's count
+    in ``fullest``: each width, one at its edge, and one past them all) the same neighbours in
+    the same order as ranking the whole width, with the direction sectors and a sampling
+    density, and the sector rule's distances."""
+    from jaxsem.planning import _neighbours  # layers: white-box (the search's branches)
+
+    rng = np.random.default_rng(int(spread * 10))
+    M, k, radius = 300, 10, 1.0
+    pts = np.clip(np.array([6.0, 3.5]) + rng.normal(0.0, spread, (M, 2)), 0.01, [11.99, 6.99])
+    valid = rng.random(M) > 0.05
+    density = jnp.asarray(rng.uniform(0.5, 1.5, M), jnp.float32)
+    args = (jnp.asarray(pts, jnp.float32), jnp.asarray(valid), jnp.asarray(pts, jnp.float32), jnp.arange(M))
+    kw = dict(k=k, radius=radius, extent=(12.0, 7.0), cap=None, sectors=4, keep=2 * k)
+    got = np.asarray(jax.jit(lambda *a: _neighbours._knn(*a, **kw, density=density)[0])(*args))
+    monkeypatch.setattr(_neighbours, "_NARROW", ())  # every block ranked over the whole width
+    want = np.asarray(jax.jit(lambda *a: _neighbours._knn(*a, **kw, density=density)[0])(*args))
+    np.testing.assert_array_equal(got, want)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    d[:, ~valid] = np.inf
+    np.fill_diagonal(d, np.inf)
+    assert fullest[0] <= np.max(np.sum(d <= radius, axis=1)) <= fullest[1]
+    # Without the density the first k are the direction-first rule's (distances, sorted).
+    got = np.asarray(jax.jit(lambda *a: _neighbours._knn(*a, **kw)[0])(*args))[:, :k]
+    ref = _brute_sector_knn(pts.astype(np.float32).astype(np.float64), valid, k, radius, 4, np.arange(M))
+    np.testing.assert_allclose(_sorted_dists(pts, pts, got)[valid], ref[valid], rtol=1e-5, atol=1e-5)
+
+
 def _cluster_behind_wall():
     """10 x 6 m: a wall at x = 4 m with a 1 m door; a learned-like distribution, e^5 denser in a
     3 x 3 m patch left of the wall than elsewhere (an LSD window and the world around it: the
@@ -1000,6 +1032,32 @@ def test_host_clearance_table_equals_the_jitted_one():
     maps += [rng.random(shape) < p for shape in [(60, 80), (33, 65)] for p in (0.0, 0.002, 0.02, 0.3)]
     for occ in maps:
         np.testing.assert_array_equal(_clearance_table_np(occ), np.asarray(table(jnp.asarray(occ))))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.sampled_from([(300, 260), (257, 97), (64, 500)]),
+    st.lists(st.tuples(st.floats(0, 1), st.floats(0, 1), st.integers(1, 40), st.integers(1, 40)), max_size=3),
+)
+def test_a_map_seen_again_with_changes_updates_its_clearance_table(seed, shape, changes):
+    """A robot's map changes between two looks in a few windows: the clearance table of the
+    newer map is remade only around them, from the older map's; its values are the table made
+    anew (changes anywhere: the middle, the edges, corners, several at once, none)."""
+    from jaxsem.planning._edges import _clearance_table_np  # layers: white-box
+    from jaxsem.planning._map_setup import _MapSetup, _table_update  # layers: white-box
+
+    rng = np.random.default_rng(seed)
+    old = rng.random(shape) < rng.choice([0.0, 0.001, 0.01, 0.05])
+    new = old.copy()
+    for fr, fc, h, w in changes:
+        r, c = int(fr * (shape[0] - 1)), int(fc * (shape[1] - 1))
+        new[r : r + h, c : c + w] = rng.random(new[r : r + h, c : c + w].shape) < 0.5
+    want = _clearance_table_np(new)
+    np.testing.assert_array_equal(_table_update(_clearance_table_np(old), old, new), want)
+    first = _MapSetup(old, np.float32)
+    first.table()
+    np.testing.assert_array_equal(np.asarray(_MapSetup(new, np.float32, first).table()), want)
 
 
 def test_the_per_map_setup_is_kept_by_content():
