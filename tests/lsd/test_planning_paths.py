@@ -1164,6 +1164,43 @@ def test_the_edge_check_answers_alike_at_any_work_list_width(chunk):
     np.testing.assert_array_equal(np.asarray(got), want)
 
 
+@settings(max_examples=12, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_edges_the_sparse_discs_settle_are_clear_under_the_dense_rule(seed):
+    """Long edges over open ground with a few thin walls: the edge check settles most of them
+    from the clearance discs of a sparse subset of samples alone, and those are clear under the
+    dense rule; every answer, settled or not, is the dense rule's."""
+    from jaxsem.planning._edges import _edges_clear, _edges_dense, _grid  # layers: white-box
+
+    rng = np.random.default_rng(seed)
+    occ = np.zeros((300, 400), bool)
+    for _ in range(rng.integers(2, 7)):  # thin walls, some diagonal
+        r, c = rng.integers(20, 280), rng.integers(20, 380)
+        dr, dc = rng.choice([-1, 0, 1]), rng.choice([0, 1])
+        for i in range(rng.integers(20, 120)):
+            occ[np.clip(r + dr * i, 0, 299), np.clip(c + dc * i + (dr == 0) * i, 0, 399)] = True
+    a = rng.random((600, 2)) * [40.0, 30.0]
+    b = np.clip(a + rng.normal(0.0, 6.0, (600, 2)), 0.0, [39.99, 29.99])
+    grid = _grid(grid_of(occ), jnp.float32)
+    a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
+    S = 301  # 15 m at half a cell
+    want = np.asarray(_edges_dense(jnp.asarray(occ), a, b, grid, S)[0])
+    got = np.asarray(jax.jit(lambda blocked: _edges_clear(blocked, a, b, grid, S))(jnp.asarray(occ)))
+    np.testing.assert_array_equal(got, want)
+    assert 0 < want.sum() < len(want)
+    # The sparse discs alone settle a share of the edges (the path above is exercised), and
+    # settle nothing the dense rule calls blocked.
+    from jaxsem.planning._edges import _SPARSE_STEP, _clearance_table, _covered_whole, _subset
+
+    pick, _ = _subset(S)
+    sp = np.append(pick[::_SPARSE_STEP], S - 1) if pick[::_SPARSE_STEP][-1] != S - 1 else pick[::_SPARSE_STEP]
+    t = jnp.asarray(sp / (S - 1), jnp.float32)
+    gap = jnp.asarray(np.diff(sp) / (S - 1), jnp.float32)
+    settled = np.asarray(_covered_whole(_clearance_table(jnp.asarray(occ)), a, b, grid, t, gap))
+    assert 0.2 < settled.mean() < 0.98
+    assert np.all(want[settled])
+
+
 def test_a_one_shot_learned_roadmap_links_like_the_navigation_loop():
     """Regression (issue 23, friction 5): ``PRM(weight='neglogp')`` took the uniform radius, so
     a one-shot LSD roadmap on a user's grid left its few samples outside the window unlinked; the
