@@ -108,6 +108,9 @@ _RANKED_MAX = 128
 #: (:func:`_knn_rows`): the narrowest that holds every row of a block.
 _NARROW = (32, 64, _RANKED_MAX)
 
+#: Rows of a brute-force search ranked together, sorted by their candidates within the radius.
+_SORTED_ROWS = 128
+
 
 #: Query rows searched at a time: the candidate arrays of a block (rows x 3 strips x slots)
 #: stay in cache, where all rows at once do not (``benchmarks/lsd/HISTORY.md``, "PRM on the
@@ -206,36 +209,49 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
         ok = (j < count[..., None]).reshape(Q, -1)
         cand = order[jnp.clip(slot, 0, M - 1)].reshape(Q, -1)
     want = keep or k
-    ranked = functools.partial(
-        _rank_rows, db, queries, q_self, k=k, radius=radius, sectors=sectors, want=want, density=density
-    )
+    kw = dict(k=k, radius=radius, sectors=sectors, want=want, density=density)
     if grid is not None:
         # Keep the candidates within the radius (about pi/3 of a strip's): at most ``cap`` of
         # them, a row with more is an overflow too (rerun with more slots).
-        idx, most = ranked(cand, ok, width=cap)
+        idx, most = _rank_rows(db, queries, q_self, cand, ok, width=cap, **kw)
         return idx, overflow | (most > cap)
     if M <= _RANKED_MAX or want > _RANKED_MAX:
-        return ranked(cand, ok, width=None)[0], overflow
+        return _rank_rows(db, queries, q_self, cand, ok, width=None, **kw)[0], overflow
 
     # Brute force over more slots than rank by counting: a row usually holds far fewer
     # candidates within the radius. They rank by counting (the same candidates in the same
-    # order) in a row of the narrowest width of _NARROW that holds the block's fullest row
-    # (counting costs the width squared); a block with a row of more than _RANKED_MAX ranks
-    # the whole width by top_k (an order of magnitude dearer on the CPU). Each branch makes
-    # its candidates from the inputs: handed wide arrays made outside, a branch costs more.
-    def brute(width):
-        slots = jnp.broadcast_to(jnp.arange(M)[None, :], (Q, M))
-        return ranked(slots, jnp.broadcast_to(db_ok[None, :], (Q, M)), width=width)[0]
+    # order) in a row of the narrowest width of _NARROW that holds the fullest row of its
+    # block (counting costs the width squared); a block with a row of more than _RANKED_MAX
+    # ranks the whole width by top_k (an order of magnitude dearer on the CPU). The rows go
+    # in blocks of _SORTED_ROWS sorted by their counts, so a dense cluster's few full rows
+    # set the width of their own block only. Each branch makes its candidates from its
+    # inputs: handed wide arrays made outside, a branch costs more.
+    def brute(width, qb, sb):
+        slots = jnp.broadcast_to(jnp.arange(M)[None, :], (qb.shape[0], M))
+        ok_b = jnp.broadcast_to(db_ok[None, :], slots.shape)
+        return _rank_rows(db, qb, sb, slots, ok_b, width=width, **kw)[0]
 
-    # The fullest row's count, over-counted at the border: the ranking's own distances may
-    # round otherwise (fused differently), and a width that holds more costs only time.
+    # Each row's count, over-counted at the border: the ranking's own distances may round
+    # otherwise (fused differently), and a width that holds more costs only time.
     d2 = jnp.sum((db[None, :, :] - queries[:, None, :]) ** 2, -1)
     near = d2 <= radius**2 * (1 + _BORDER)
     inr = db_ok[None, :] & (jnp.arange(M, dtype=q_self.dtype)[None, :] != q_self[:, None]) & near
-    most = jnp.max(jnp.sum(inr, axis=1, dtype=jnp.int32))
-    widths = list(_NARROW)
-    branch = jnp.sum(most > jnp.asarray(widths, jnp.int32))
-    idx = jax.lax.switch(branch, [functools.partial(brute, w) for w in widths] + [functools.partial(brute, None)])
+    counts = jnp.sum(inr, axis=1, dtype=jnp.int32)
+    widths = jnp.asarray(_NARROW, jnp.int32)
+    branches = [functools.partial(brute, w) for w in _NARROW] + [functools.partial(brute, None)]
+
+    def block(args):
+        qb, sb, cb = args
+        return jax.lax.switch(jnp.sum(jnp.max(cb) > widths), branches, qb, sb)
+
+    B = _SORTED_ROWS
+    if Q <= B:
+        return block((queries, q_self, counts)), overflow
+    order = jnp.argsort(counts)
+    n_blocks = -(-Q // B)
+    pad = jnp.concatenate([order, jnp.broadcast_to(order[-1:], (n_blocks * B - Q,))]).reshape(n_blocks, B)
+    got = jax.lax.map(block, (queries[pad], q_self[pad], counts[pad]))
+    idx = jnp.zeros((Q, want), got.dtype).at[order].set(got.reshape(n_blocks * B, want)[:Q])
     return idx, overflow
 
 

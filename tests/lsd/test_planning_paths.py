@@ -778,11 +778,11 @@ def test_knn_sectors_match_brute_force(kind):
     "spread,fullest", [(3.0, (1, 32)), (2.2, (32, 32)), (1.6, (33, 64)), (1.2, (65, 128)), (0.9, (129, 299))]
 )
 def test_brute_force_rows_rank_alike_at_every_width(spread, fullest, monkeypatch):
-    """A brute-force search narrows each block's rows to the fewest columns that hold its
-    candidates within the radius before ranking them: at every width (the fullest row's count
-    in ``fullest``: each width, one at its edge, and one past them all) the same neighbours in
-    the same order as ranking the whole width, with the direction sectors and a sampling
-    density, and the sector rule's distances."""
+    """A brute-force search ranks its rows in blocks sorted by their counts of candidates within
+    the radius, each block narrowed to the fewest columns that hold its fullest row's: at every
+    width (the fullest row's count in ``fullest``: each width, one at its edge, and one past
+    them all) the same neighbours in the same order as ranking the whole width, with the
+    direction sectors and a sampling density, and the sector rule's distances."""
     from jaxsem.planning import _neighbours  # layers: white-box (the search's branches)
 
     rng = np.random.default_rng(int(spread * 10))
