@@ -18,6 +18,7 @@ from ._roadmap import (
     _blocked_from,
     _check_distribution,
     _check_sectors,
+    _edge_cost_jit,
     _grow_exact,
     _initial_cap,
     _links_checked,
@@ -112,6 +113,7 @@ class PRM:
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
         self._factor = self._factor_grid()
+        self._cost = None  # the cell cost the weights integrate, made once per distribution and map
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -218,6 +220,8 @@ class PRM:
             )
             self._lazy.add_rows(s0, cand)
         else:
+            if distribution is not None and distribution is not self.distribution:
+                self.distribution, self._cost = distribution, None
             self.roadmap, self._cap = _grow_exact(
                 *args,
                 self.weight == "neglogp",
@@ -225,6 +229,7 @@ class PRM:
                 bool(uniform_samples),
                 self._setup.aids(table=True),
                 factor=self._factor,
+                cost=self._edge_cost(dist),
             )
         if distribution is not None:
             self.distribution = distribution
@@ -251,6 +256,7 @@ class PRM:
         self.blocked = blocked
         self._unknown = unknown
         self._factor = self._factor_grid()
+        self._cost = None
         self._setup = _map_setup(blocked, self.roadmap.points.dtype)
         self._blocked_j = self._setup.blocked_j
         self._free_cells = int(blocked.size - np.count_nonzero(blocked))
@@ -317,6 +323,7 @@ class PRM:
             table=table,
             factor=self._factor,
             reach=self.reach,
+            cost=self._edge_cost(),
         )
         self._queries += len(q)
         if self._points is None:
@@ -333,6 +340,20 @@ class PRM:
                 out.append(_search_rows(self._graph, q[i], nbr[i], ev[i], w[i]))
         self._pending = (q[-1], nbr[-1], ev[-1], w[-1])
         return out
+
+    def _edge_cost(self, dist=None):
+        """The cell cost the edge weights integrate (``-log p`` of the latest distribution under
+        ``weight='neglogp'``, times the unknown cells' factor; None: lengths), made once per
+        distribution and map: a grow and the queries after it read the same grid. ``dist``:
+        that distribution on the device when the caller has it."""
+        neglogp = self.weight == "neglogp"
+        if self._cost is None and (neglogp or self._factor is not None):
+            if dist is None and self.distribution is not None:
+                dist = jnp.asarray(self.distribution, self.roadmap.points.dtype)
+            if neglogp and dist is None:
+                return None  # no distribution yet: the caller refuses (weight='neglogp' needs one)
+            self._cost = _edge_cost_jit(dist, self._factor, neglogp)
+        return self._cost
 
     def _check_fn(self, chunk: int | None = None):
         assert self._lazy is not None  # internal: only the lazy PRM checks edges on demand

@@ -690,12 +690,15 @@ def _grow_exact(
     uniform_samples=False,
     aids=None,
     factor=None,
+    cost=None,
 ):
     """Grows with ``cap`` strip slots on the host ``grid``, rerunning with 4x more while a strip
-    overflows. Returns (roadmap, the cap that sufficed)."""
+    overflows (``cost``: :func:`_edge_cost_jit` of ``dist`` and ``factor`` when the caller keeps
+    it; None: made here). Returns (roadmap, the cap that sufficed)."""
     M = roadmap.points.shape[0]
     before = bool(roadmap.overflow)
-    cost = _edge_cost_jit(dist, factor, neglogp) if neglogp or factor is not None else None  # None: no cost
+    if cost is None and (neglogp or factor is not None):
+        cost = _edge_cost_jit(dist, factor, neglogp)  # None otherwise: the weights are lengths
     while True:
         out = _grow_jit(
             roadmap,
@@ -834,15 +837,14 @@ def _connect_checked(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "neglogp", "sectors"))
-def _links_coarse(
-    rm, start, goal, blocked, distribution, grid, table, factor, *, radius, edge_samples, long_samples, neglogp, sectors
-):
+@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
+def _links_coarse(rm, start, goal, blocked, cost, grid, table, *, radius, edge_samples, long_samples, sectors):
     """The device part of :func:`_links_checked`: queries' (Q, 2) candidates in preference
     order (Q, 2, keep), their points (start and goal (Q, 2, 2), other ends (Q, 2, keep, 2)),
     weights, the short edges' clear flags (every sample read: the rule's answer), and the long
     edges' first pass (:func:`~jaxsem.planning._edges._coarse`: hit (E,), uncovered intervals
-    (E, C - 1) over the flat (Q * 2 * keep) edges)."""
+    (E, C - 1) over the flat (Q * 2 * keep) edges). ``cost``: the cell cost the weights
+    integrate (:func:`_edge_cost`, made once per distribution by the caller; None: lengths)."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
@@ -852,7 +854,6 @@ def _links_coarse(
     a = jnp.broadcast_to(q[:, :, None, :], other.shape)
     short = jnp.sum((other - a) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
     cand = nbr < M
-    cost = _edge_cost(distribution, factor, neglogp)
     w = jnp.where(short, _weights(cost, a, other, grid, edge_samples), _weights(cost, a, other, grid, long_samples))
     clear_s, _, _ = _edges_dense(blocked, a, other, grid, edge_samples)
     fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
@@ -914,11 +915,14 @@ def _links_checked(
     table,
     factor=None,
     reach=None,
+    cost=None,
 ):
     """:func:`_query_links` of queries ``starts``, ``goals`` (Q, 2) (float64, checked) on a
     checked ``blocked`` grid (numpy), its device copy and its host ``grid``, the distribution
     already checked (a :class:`PRM`'s); ``table``: a clearance table for the queries' edges;
-    ``reach``: the long edges' length rule (:func:`_query_samples`).
+    ``reach``: the long edges' length rule (:func:`_query_samples`); ``cost``: the cell cost of
+    ``distribution`` and ``factor`` (:func:`_edge_cost_jit`) when the caller keeps it (None:
+    made here).
     The same links, made in two compiled calls with the host between them: the first reads
     every short edge's samples and the long edges' subsets, the host lists the long edges'
     uncovered intervals (a few hundred per query), the second reads those (padded to a power
@@ -927,7 +931,10 @@ def _links_checked(
     if weight == "neglogp" and distribution is None:
         raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     dtype = roadmap.points.dtype
-    dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    neglogp = weight == "neglogp"
+    if cost is None and (neglogp or factor is not None):
+        dist = None if distribution is None else jnp.asarray(distribution, dtype)
+        cost = _edge_cost_jit(dist, factor, neglogp)
     samples = _query_samples(float(radius), grid, reach)
     grid_s = static_grid(grid)
     q, nbr, short, clear_s, w, fa, fb, hit, unc = _links_coarse(
@@ -935,13 +942,11 @@ def _links_checked(
         np.asarray(starts, dtype),  # numpy into the jitted call: no dispatch of its own
         np.asarray(goals, dtype),
         blocked_j,
-        dist,
+        cost,
         grid_s,
         table,
-        factor,
         radius=float(radius),
         **samples,
-        neglogp=weight == "neglogp",
         sectors=sectors,
     )
     nbr, short, clear_s, w, hit, unc = (np.asarray(x) for x in (nbr, short, clear_s, w, hit, unc))
