@@ -213,7 +213,10 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
     rule sample between them and every side cell of their diagonal steps is free. Only the
     intervals between subset samples that are not covered so (an edge grazing a wall: usually
     one or two of a dozen) read the rule's samples in between, with their diagonal side cells;
-    one of them blocked rejects the edge. The answer is the full rule's, sample for sample.
+    one of them blocked rejects the edge. Long edges (subsets of ``_SPARSE_FROM`` samples and
+    more) first try the discs of every ``_SPARSE_STEP``-th subset sample alone: an edge they
+    cover end to end is clear without a work list (:func:`_covered_whole`). The answer is the
+    full rule's, sample for sample.
     ``table``: :func:`_clearance_table` of ``blocked`` when the caller keeps it (None: made here).
     ``chunk``: the work lists' static width (edges, then intervals, per loop step); every step
     reads the whole width, so a few edges with many samples each (a query's long edges: a few
