@@ -130,11 +130,15 @@ def _knn(
     sectors: int = 0,
     keep: int | None = None,
     density=None,
+    narrow: bool = True,
 ):
     """k nearest ``db_ok`` points of ``db`` (M, 2) within ``radius`` of each query (Q, 2),
     excluding index ``q_self`` (Q,) (-1: none). Returns ((Q, k) indices, ``M`` where fewer;
     overflow). ``cap=None``: brute force. Local coordinates in [0, extent). Rows are searched
-    ``_ROWS`` at a time (each row's answer depends only on the row)."""
+    ``_ROWS`` at a time (each row's answer depends only on the row). ``narrow``: a brute-force
+    search ranks wide rows in the narrowest width that holds their candidates, chosen by a
+    switch (:func:`_knn_rows`); a vmapped caller passes False (under ``vmap`` a switch runs
+    every branch), ranking the whole width (the same answers)."""
     M = db.shape[0]
     Q = queries.shape[0]
     grid = None
@@ -151,6 +155,7 @@ def _knn(
         keep=keep,
         density=density,
         grid=grid,
+        narrow=narrow,
     )
     if Q <= _ROWS:
         return rows(queries, q_self)
@@ -183,7 +188,7 @@ def _bucket(p, radius: float, gx: int, gy: int):
     return jnp.clip(b[:, 0], 0, gx - 1), jnp.clip(b[:, 1], 0, gy - 1)
 
 
-def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid):
+def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, density, grid, narrow=True):
     """:func:`_knn` on one block of query rows; ``grid``: (gx, gy, bucket order, sorted bucket
     ids) of the bucketed search, None for brute force."""
     M = db.shape[0]
@@ -215,7 +220,7 @@ def _knn_rows(db, db_ok, queries, q_self, *, k, radius, cap, sectors, keep, dens
         # them, a row with more is an overflow too (rerun with more slots).
         idx, most = _rank_rows(db, queries, q_self, cand, ok, width=cap, **kw)
         return idx, overflow | (most > cap)
-    if M <= _RANKED_MAX or want > _RANKED_MAX:
+    if M <= _RANKED_MAX or want > _RANKED_MAX or not narrow:
         return _rank_rows(db, queries, q_self, cand, ok, width=None, **kw)[0], overflow
 
     # Brute force over more slots than rank by counting: a row usually holds far fewer

@@ -243,6 +243,7 @@ def _grow_impl(
     aids: _MapAids | None = None,
     factor=None,
     cost=None,
+    narrow=True,
 ):
     """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
     vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
@@ -253,7 +254,8 @@ def _grow_impl(
     candidates in the same order: the slots past them are empty), chosen inside the program
     (one program whatever the count). ``cost``: the cell cost the edge weights integrate,
     :func:`_edge_cost` of ``distribution`` and ``factor`` made beforehand (None: made here).
-    Returns the grown roadmap."""
+    ``narrow``: the neighbour search picks its row width by a switch (:func:`_knn`; False in
+    a program that is vmapped, where a switch runs every branch). Returns the grown roadmap."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
@@ -275,7 +277,9 @@ def _grow_impl(
     keep = 2 * k if sectors else k
     density = _density(points, distribution, grid, sectors)
     origin = grid.origin
-    search = functools.partial(_knn, k=k, radius=radius, extent=extent, cap=cap, sectors=sectors, keep=keep)
+    search = functools.partial(
+        _knn, k=k, radius=radius, extent=extent, cap=cap, sectors=sectors, keep=keep, narrow=narrow
+    )
     A = _ACTIVE_STEP
     if cap is None and n + _QUERY <= A < M:
         # Brute force over the first A slots while the roadmap fits in them (a fresh roadmap of
@@ -1092,6 +1096,7 @@ def make_roadmap_builder(
             cap=bucket_cap,
             neglogp=weight == "neglogp",
             sectors=sectors,
+            narrow=False,  # vmapped: a switch would run every branch
         )
         return _connect_impl(
             rm,

@@ -710,6 +710,56 @@ def test_roadmap_builder_vmaps_over_trials():
         np.testing.assert_allclose(np.asarray(batch.edge_weight[i]), np.asarray(one.edge_weight), rtol=1e-9)
 
 
+def _switch_sizes(jaxpr) -> list[int]:
+    """Branch counts of every cond/switch in a closed jaxpr, nested ones included."""
+    out = []
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "cond":
+            out.append(len(eqn.params["branches"]))
+        for v in eqn.params.values():
+            for sub in v if isinstance(v, (tuple, list)) else [v]:
+                inner = getattr(sub, "jaxpr", None)
+                if inner is not None and hasattr(inner, "eqns"):
+                    out += _switch_sizes(inner)
+                elif hasattr(sub, "eqns"):
+                    out += _switch_sizes(sub)
+    return out
+
+
+def test_the_vmappable_builder_searches_neighbours_without_a_switch():
+    """The host PRM's brute-force search picks its row width by a switch among four rankings;
+    under ``vmap`` a switch runs every branch, so the vmappable builder ranks the whole width."""
+    from jaxsem.planning import make_roadmap_builder
+    from jaxsem.planning._grid import static_grid  # layers: white-box (the grow's program)
+    from jaxsem.planning._roadmap import _grow_impl, roadmap_init  # layers: white-box
+
+    occ = np.zeros((120, 160), bool)
+    build = make_roadmap_builder(300, occ.shape, RES, radius=4.0, weight="neglogp", uniform=False)
+    args = (jax.random.PRNGKey(0), jnp.asarray(occ), jnp.ones(occ.shape), jnp.ones(2), jnp.full(2, 5.0), jnp.zeros(2))
+    built = jax.make_jaxpr(build)(*args)
+    grid = static_grid(grid_of(occ))
+
+    def host_grow(key, blocked, dist):
+        return _grow_impl(
+            roadmap_init(300, 12),
+            key,
+            blocked,
+            dist,
+            grid,
+            n=300,
+            radius=4.0,
+            edge_samples=81,
+            extent=(16.0, 12.0),
+            cap=None,
+            neglogp=True,
+            sectors=8,
+        )
+
+    grown = jax.make_jaxpr(host_grow)(*args[:2], jnp.ones(occ.shape))
+    assert 4 in _switch_sizes(grown.jaxpr)
+    assert 4 not in _switch_sizes(built.jaxpr)
+
+
 @pytest.mark.slow
 def test_found_paths_pass_the_navigation_check():
     """Regression (issue 11): the loop re-checked plans with a second, stricter segment test, so a
