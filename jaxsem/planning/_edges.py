@@ -240,9 +240,8 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
     # Long edges: a sparser subset's discs first (table reads only, no work lists). In open
     # space they cover most edges whole, and only the rest go through the work lists below;
     # on short edges the work lists cost little and the extra reads do not pay.
-    sparse = pick[::_SPARSE_STEP]
-    sparse = sparse if sparse[-1] == S - 1 else np.append(sparse, S - 1)
     if C >= _SPARSE_FROM:
+        sparse = _sparse_subset(pick)
         t_sp = t_all[sparse]
         gap_sp = jnp.asarray(np.diff(sparse) / (S - 1), dtype)
         settled = _covered_whole(table, fa, fb, grid, t_sp, gap_sp) & want
@@ -304,6 +303,13 @@ def _edges_clear(blocked, a, b, grid, edge_samples, mask=None, *, subset=None, t
 #: 6.5 m and more on 0.1 m cells; ``benchmarks/lsd/HISTORY.md``): an edge whose discs there
 #: overlap end to end is clear.
 _SPARSE_STEP, _SPARSE_FROM = 4, 17
+
+
+def _sparse_subset(pick: np.ndarray) -> np.ndarray:
+    """The samples of the sparse first pass: every ``_SPARSE_STEP``-th of the subset ``pick``
+    (:func:`_subset`), and its last (the edge's end)."""
+    sparse = pick[::_SPARSE_STEP]
+    return sparse if sparse[-1] == pick[-1] else np.append(sparse, pick[-1])
 
 
 def _covered_whole(table, pa, pb, grid, t, gap_t):

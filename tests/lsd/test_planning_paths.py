@@ -1240,10 +1240,9 @@ def test_edges_the_sparse_discs_settle_are_clear_under_the_dense_rule(seed):
     assert 0 < want.sum() < len(want)
     # The sparse discs alone settle a share of the edges (the path above is exercised), and
     # settle nothing the dense rule calls blocked.
-    from jaxsem.planning._edges import _SPARSE_STEP, _clearance_table, _covered_whole, _subset  # layers: white-box
+    from jaxsem.planning._edges import _clearance_table, _covered_whole, _sparse_subset, _subset  # layers: white-box
 
-    pick, _ = _subset(S)
-    sp = np.append(pick[::_SPARSE_STEP], S - 1) if pick[::_SPARSE_STEP][-1] != S - 1 else pick[::_SPARSE_STEP]
+    sp = _sparse_subset(_subset(S)[0])
     t = jnp.asarray(sp / (S - 1), jnp.float32)
     gap = jnp.asarray(np.diff(sp) / (S - 1), jnp.float32)
     settled = np.asarray(_covered_whole(_clearance_table(jnp.asarray(occ)), a, b, grid, t, gap))
