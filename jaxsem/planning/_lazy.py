@@ -15,11 +15,9 @@ fewer than ``k`` clear (slots below ``k`` need only their own check). The possib
 every edge of the eager roadmap, so a shortest path over them whose edges are all in the
 roadmap is a shortest path of the eager roadmap (same cost; equal-cost ties may pick another).
 
-The search is Dijkstra on the host (scipy) over weights reduced by the distance to the goal
-(``w(u, v) - h(u) + h(v)``, h: Euclidean distance to the goal, an admissible and consistent
-bound): Dijkstra on them is A*, and its ``limit`` then stops it at the ellipse of nodes that
-can lie on a path no longer than the limit, a fraction of the roadmap, instead of settling
-every node at every iteration.
+The search is the compiled A* of :mod:`jaxsem.planning._astar` over every candidate edge, the
+graph made once per grow and the edges' flags read in place: a check that drops an edge costs the
+next search nothing to learn, and each search stops at the goal.
 """
 
 from __future__ import annotations
@@ -29,14 +27,13 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
+from ._astar import SearchGraph, astar_path, edge_lengths, search_graph
 from ._edges import _edges, _edges_dense, _extent, _grid
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, GOAL, START, Roadmap, _density, _sample_lazy_jit
-from ._roadmap_search import _NOT_FOUND, RoadmapPath, _goal_entry, _trace_back
+from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
+from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
 UNKNOWN, CLEAR, BLOCKED = 0, 1, 2
@@ -154,8 +151,8 @@ class _LazyEdges:
 
     cand: (M, K) int32 each vertex's candidates in preference order (``M``: none; rows 0 and 1,
     the query slots, have none); status: (M, K) int8 UNKNOWN / CLEAR / BLOCKED (BLOCKED where
-    there is no candidate); k: links kept per vertex. The search graph (symmetric CSR over the
-    candidate entries, each entry stored in both directions) is rebuilt after a grow.
+    there is no candidate); possible: (M, K) bool (module docstring); k: links kept per vertex.
+    The search graph (:meth:`_search_graph`) is made again after a grow.
     """
 
     def __init__(self, M: int, K: int, k: int):
@@ -226,7 +223,7 @@ class _LazyEdges:
 
     # ------------------------------------------------------------------ query
 
-    def search(self, roadmap: Roadmap, check_fn, radius: float) -> RoadmapPath:
+    def search(self, roadmap: Roadmap, check_fn) -> RoadmapPath:
         """Shortest path of the eager roadmap from the start to the goal of ``roadmap`` (its
         rows 0 and 1 linked and checked), checking only the edges the search needs."""
         return self.search_rows(
@@ -235,147 +232,39 @@ class _LazyEdges:
             np.asarray(roadmap.edge_valid[:_QUERY]),
             np.asarray(roadmap.edge_weight[:_QUERY]),
             check_fn,
-            radius,
         )
 
-    def search_rows(self, pts, nq, okq, wq, check_fn, radius: float) -> RoadmapPath:
+    def search_rows(self, pts, nq, okq, wq, check_fn) -> RoadmapPath:
         """:meth:`search` from the host points ``pts`` (M, 2) (slots 0 and 1: the start and
-        goal) and the query rows ``nq``, ``okq``, ``wq`` (2, k).
-
-        The search runs over the samples inside an ellipse with the start and goal as foci (a
-        path through a sample outside it is longer than the ellipse's bound, since edges are
-        straight segments), widened while the path found is longer than its bound or none is
-        found; ``radius`` sets the first bound's slack."""
-        wq = np.maximum(np.asarray(wq, np.float64), 1e-12)
-        s_dst, s_w = nq[0][okq[0]], wq[0][okq[0]]
-        g_dst, g_w = nq[1][okq[1]], wq[1][okq[1]]
-        if len(s_dst) == 0 or (len(g_dst) == 0 and GOAL not in s_dst):
+        goal) and the query rows ``nq``, ``okq``, ``wq`` (2, k): A* over the possible edges,
+        the path's deciding edges checked, again until the path found is all in the roadmap."""
+        edges = _query_edges(nq, okq, wq)
+        if edges is None:
             return _NOT_FOUND
-        p64 = pts.astype(np.float64)
-        hg = np.linalg.norm(p64 - p64[GOAL], axis=1)
-        ell = np.linalg.norm(p64 - p64[START], axis=1) + hg
-        ell[:_QUERY] = 0.0
-        D = hg[START]
-        top = float(ell.max())
-        bound = min(top, 1.2 * D + 2.0 * radius)
+        graph = self._search_graph(pts)
         while True:
-            found = self._search_within(ell <= bound, pts, hg, s_dst, s_w, g_dst, g_w, bound - D, check_fn)
-            # Exact once its cost is within the bound (with slack for float32 weights).
-            if found is not None and found[1] <= bound * (1 - 1e-6) or bound >= top:
-                break
-            bound = top if 1.5 * bound >= top else 1.5 * bound
-        if found is None:
-            return _NOT_FOUND
-        path, cost = found
-        p = pts[path]
-        length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=-1)))
-        return RoadmapPath(path, p, cost, length, True)
-
-    def _search_within(self, inside, pts, hg, s_dst, s_w, g_dst, g_w, limit, check_fn):
-        """The lazy loop over the samples where ``inside`` (M,) (module docstring). Returns
-        (global path, cost) or None. Weights are reduced by ``hg``, the distance to the goal, and
-        Dijkstra stops past ``limit`` (reduced)."""
-        M, K = self.M, self.K
-        inside = inside.copy()
-        inside[:_QUERY] = False
-        rows = np.flatnonzero(inside)
-        R = len(rows)
-        loc = np.full(M + 1, -1, np.int64)
-        loc[rows] = np.arange(_QUERY, R + _QUERY)
-        loc[START], loc[GOAL] = START, GOAL
-        glob = np.concatenate([[START, GOAL], rows])
-        blk = self.cand[rows]  # (R, K)
-        tgt = loc[blk]
-        tgt[blk < _QUERY] = -1
-        live = (tgt >= 0).reshape(-1)
-        lf = np.flatnonzero(live)  # block entries in the subgraph, row-major
-        src = (lf // K + _QUERY).astype(np.int32)
-        dst = tgt.reshape(-1)[lf].astype(np.int32)
-        a = pts[glob[src]]
-        d = pts[glob[dst]] - a
-        # The eager grow's weights (_length in the roadmap's dtype), then float64.
-        tiny = np.asarray(1e-30, pts.dtype)
-        w = np.maximum(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + tiny).astype(np.float64), 1e-12)
-        dh = hg[glob[dst]] - hg[glob[src]]
-        red_f, red_r = np.maximum(w + dh, 0.0), np.maximum(w - dh, 0.0)  # >= 0 up to rounding
-        Nn = R + _QUERY
-        # The start's edges (row 0), the samples' own entries, then the entries that list them.
-        s_keep = loc[s_dst] >= 0
-        s_to = loc[s_dst][s_keep].astype(np.int32)
-        s_red = np.maximum(s_w[s_keep] + hg[s_dst[s_keep]] - hg[START], 0.0)
-        cnt_f = np.bincount(src, minlength=Nn)
-        cnt_f[START] = len(s_to)
-        ip_f = np.zeros(Nn + 1, np.int64)
-        np.cumsum(cnt_f, out=ip_f[1:])
-        ids = np.arange(len(lf), dtype=np.float64)
-        own = scipy.sparse.csr_matrix(
-            (np.concatenate([np.zeros(len(s_to)), ids]), np.concatenate([s_to, dst]), ip_f), shape=(Nn, Nn)
-        )
-        rev = own.tocsc()  # column-major: the entries that list each node, entry ids as data
-        rev_e = rev.data.astype(np.int64)
-        rev_ip = rev.indptr.astype(np.int64)
-        rev_src = rev.indices  # the row that lists the node: START for the start's entries
-        keep_r = rev_src != START  # the start is only left
-        rev_e, rev_src = rev_e[keep_r], rev_src[keep_r]
-        rev_col = np.repeat(np.arange(Nn), np.diff(rev_ip))[keep_r]
-        cnt_r = np.bincount(rev_col, minlength=Nn)
-        ip = np.zeros(Nn + 1, np.int64)
-        np.cumsum(cnt_f + cnt_r, out=ip[1:])
-        E = int(ip[-1])
-        indices = np.empty(E, np.int32)
-        base = np.empty(E, np.float64)
-        # Start entries.
-        indices[: len(s_to)] = s_to
-        base[: len(s_to)] = s_red
-        pos_f = np.arange(len(lf)) + len(s_to) - ip_f[src] + ip[src]
-        ip_r = np.zeros(Nn + 1, np.int64)
-        np.cumsum(cnt_r, out=ip_r[1:])
-        pos_r = np.arange(len(rev_e)) - ip_r[rev_col] + ip[rev_col] + cnt_f[rev_col]
-        indices[pos_f], base[pos_f] = dst, red_f
-        indices[pos_r], base[pos_r] = rev_src, red_r[rev_e]
-        at_f = np.full(R * K, -1, np.int64)
-        at_r = np.full(R * K, -1, np.int64)
-        at_f[lf] = pos_f
-        at_r[lf[rev_e]] = pos_r
-        data = base.copy()
-        imp = ~self.possible[rows].reshape(-1)[lf]
-        data[pos_f[imp]] = np.inf
-        data[at_r[lf[imp]][at_r[lf[imp]] >= 0]] = np.inf
-        g_keep = loc[g_dst] >= 0
-        g_at = loc[g_dst][g_keep]
-        g_red = g_w[g_keep] - hg[g_dst[g_keep]]  # entering the goal (h(goal) = 0)
-        ip32 = ip.astype(np.int32)
-        # A* in the reduced weights: explore only nodes with g + h <= D + lim; start narrow and
-        # widen (a failed narrow search costs little), never past the ellipse's own limit.
-        lim = min(limit, max(0.05 * hg[START], 1e-9))
-        while True:
-            csr = scipy.sparse.csr_matrix((data, indices, ip32), shape=(Nn, Nn))
-            dist, pred = scipy.sparse.csgraph.dijkstra(
-                csr, directed=True, indices=START, return_predecessors=True, limit=lim
-            )
-            best, via = _goal_entry(dist, g_at, g_red)
-            if not (np.isfinite(best) and best <= lim):
-                if lim >= limit:
-                    return None
-                lim = min(limit, 3.0 * lim)
-                continue
-            lim = min(limit, max(lim, 1.2 * best))
-            path = glob[_trace_back(pred, via)]
+            cost, path = astar_path(graph, pts[:_QUERY], *edges)
+            if not len(path):
+                return _NOT_FOUND
             u, v = path[:-1], path[1:]
             inner = (u >= _QUERY) & (v >= _QUERY)
-            done, touched = self._certify(u[inner], v[inner], check_fn)
+            done, _ = self._certify(u[inner], v[inner], check_fn)
             if done:
-                return path, float(best + hg[START])
-            # Some edge of the path is not in the roadmap: refresh the entries of the rows
-            # whose checks changed what is possible.
-            t = touched[loc[touched] >= 0]
-            f = ((loc[t] - _QUERY)[:, None] * K + np.arange(K)[None, :]).reshape(-1)
-            ok = self.possible[t].reshape(-1)
-            pf, pr = at_f[f], at_r[f]
-            m = pf >= 0
-            data[pf[m]] = np.where(ok[m], base[pf[m]], np.inf)
-            m = pr >= 0
-            data[pr[m]] = np.where(ok[m], base[pr[m]], np.inf)
+                p = pts[path]
+                length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=-1)))
+                return RoadmapPath(path, p, cost, length, True)
+
+    def _search_graph(self, pts) -> SearchGraph:
+        """The candidate edges as a search graph over :attr:`possible` (read in place), made
+        once per grow from the samples' points (rows from 2 of ``pts``), weighed as the eager
+        grow weighs its edges (the length in the points' dtype, then float64)."""
+        if self._graph is None:
+            entries = (self.cand >= _QUERY) & (self.cand < self.M)
+            entries[:_QUERY] = False
+            w = np.maximum(edge_lengths(self.cand, entries, pts), 1e-12)
+            # Euclidean weights: the heuristic's ratio is 1 (astar_path shaves it for rounding).
+            self._graph = search_graph(self.cand, self.possible, w, pts, entries, ratio=1.0)
+        return self._graph
 
     def _certify(self, u, v, check_fn):
         """Checks what decides the sample edges (u, v) of a path. Returns (True if all are in

@@ -334,7 +334,7 @@ class PRM:
         for i in range(len(q)):
             if self._lazy is not None:
                 self._points[:_QUERY] = q[i]
-                out.append(self._lazy.search_rows(self._points, nbr[i], ev[i], w[i], self._check_fn(), self.radius))
+                out.append(self._lazy.search_rows(self._points, nbr[i], ev[i], w[i], self._check_fn()))
             else:
                 assert self._graph is not None  # made above
                 out.append(_search_rows(self._graph, q[i], nbr[i], ev[i], w[i]))

@@ -1,7 +1,7 @@
 """PRM queries: a batch of queries in one call (``PRM.query_many``) gives the paths of one
 ``query`` call each, eager and lazy; a query gives the roadmap's shortest path as the pure
 pipeline (``roadmap_connect``, then a full undirected Dijkstra) finds it; a second batch of the
-same shape compiles nothing."""
+same shape compiles nothing, and the host search compiles once."""
 
 import jax
 import numpy as np
@@ -9,6 +9,7 @@ import pytest
 import scipy.sparse
 import scipy.sparse.csgraph
 
+import jaxsem.planning._astar_kernels as _kernels  # layers: white-box (compile counts)
 import jaxsem.planning._roadmap as _roadmap  # layers: white-box (compile counts)
 from jaxsem import quadrics as Q
 from jaxsem.planning import PRM
@@ -85,7 +86,7 @@ def test_a_batch_gives_the_paths_of_one_query_each(lazy):
 
 def test_query_is_the_pure_pipelines_shortest_path():
     """The PRM's links (two compiled calls and the host) equal ``roadmap_connect``'s bit for
-    bit, and its limited Dijkstra finds the cost of a full undirected search over every edge."""
+    bit, and its A* finds the cost of a full undirected search over every edge."""
     for seed in (2, 3, 4):
         occ = _blocks(seed)
         prm = _prm(occ, False, seed)
@@ -126,6 +127,28 @@ def test_a_second_batch_compiles_nothing():
     prm.query_many(s2, g2)
     prm.query(starts[1], goals[1])
     assert (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size()) == before
+
+
+def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
+    """The search's numba kernels see one set of argument types whatever the roadmap: a new
+    roadmap, eager or lazy, compiles nothing more (a numba compile costs seconds)."""
+
+    def signatures():
+        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar, _kernels.lengths))
+
+    def queries(seed):
+        for lazy in (False, True):
+            occ = _blocks(seed)
+            starts, goals = _ends(occ, 50 + seed, 3)
+            prm = _prm(occ, lazy, seed)
+            prm.query_many(starts, goals)
+            prm.query(starts[0], goals[0])
+
+    queries(7)
+    before = signatures()
+    assert before[:2] >= (1, 1)
+    queries(8)
+    assert signatures() == before
 
 
 def test_query_many_bad_input():

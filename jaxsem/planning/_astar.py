@@ -1,0 +1,118 @@
+"""Compiled A* over a roadmap's sample edges (host, numba): the search of every roadmap query,
+eager and lazy.
+
+A roadmap's edges are its rows: vertex ``r`` lists up to ``K`` neighbours ``nbr[r]`` with weights
+``w[r]`` and a flag ``usable[r]`` (an eager roadmap: the edge is valid; a lazy one: the edge may
+still be in the roadmap). Edges are undirected, so a vertex's edges are its own row and the
+entries of other rows that name it; :class:`SearchGraph` keeps both in one CSR (made once per
+roadmap, in linear time), each edge with the index of its flag, which the search reads in
+place: a lazy search that learns an edge is blocked only flips its flag.
+
+The start (slot 0) is given as its edges, the goal (slot 1) as the edges that enter it; the goal is
+only entered, never left. The heuristic is ``c * |x - goal|`` with ``c`` the smallest ratio of
+weight to straight-line length over every edge the search may use, shaved by 1e-6 for the
+rounding of float32 weights: admissible and consistent, so the first time the cheapest open
+vertex's estimate reaches the best goal entry found, that entry is the shortest path (the
+search stops there, at the ellipse-like region a path can cross, not the whole roadmap).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import numpy as np
+
+#: Relative shave of the heuristic's ratio: weights are float32, lengths float64.
+_SHAVE = 1e-6
+
+
+@functools.cache
+def _kernels():
+    """The compiled kernels (numba is imported, and the kernels loaded from numba's cache or
+    compiled, on first use: ``import jaxsem`` does not pay for them)."""
+    from . import _astar_kernels as k
+
+    return k.adjacency, k.astar, k.lengths
+
+
+class SearchGraph(NamedTuple):
+    """A roadmap's sample edges for :func:`astar_path`, both ways, in CSR form by vertex: ptr
+    (M + 1,), adj (E,) int32 the other end, wt (E,) float64 the weight, eid (E,) the entry's
+    index into ``usable`` (M * K,) bool, read at each search (a lazy roadmap updates it in
+    place); points (M, 2) float64 (px, py: its columns); ratio: the smallest weight / length
+    over the entries (the heuristic's factor before the query's own edges)."""
+
+    ptr: np.ndarray
+    adj: np.ndarray
+    wt: np.ndarray
+    eid: np.ndarray
+    usable: np.ndarray
+    points: np.ndarray
+    px: np.ndarray
+    py: np.ndarray
+    ratio: float
+
+
+def search_graph(nbr, usable, w, points, entries, ratio: float | None = None) -> SearchGraph:
+    """A :class:`SearchGraph` of the rows ``nbr`` (M, K) int32 with weights ``w`` (M, K) (float64,
+    positive) and vertex ``points`` (M, 2). ``entries`` (M, K) bool: the entries that are
+    edges, now or later (each names a vertex 2 <= v < M); ``usable`` (M, K) bool, C-ordered,
+    kept by reference (flattened as a view): those that may be used now. ``ratio``: the
+    smallest weight / length when the caller knows it (1 for lengths), else measured here."""
+    entries = np.asarray(entries, bool)
+    if not (usable.dtype == np.bool_ and usable.flags.c_contiguous and usable.shape == nbr.shape):
+        raise ValueError(f"usable: expected a C-ordered bool array of shape {nbr.shape}")
+    adjacency, _, _ = _kernels()
+    p = np.asarray(points, np.float64)
+    px, py = p[:, 0].copy(), p[:, 1].copy()
+    w = np.ascontiguousarray(w, np.float64)
+    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, px, py)
+    if ratio is None:
+        ratio = float(measured) if np.isfinite(measured) else 1.0
+    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, px, py, ratio)
+
+
+def edge_lengths(nbr, entries, points) -> np.ndarray:
+    """(M, K) float64 lengths of the entries ``entries`` of ``nbr`` (M, K) between ``points``
+    (M, 2), computed in the points' dtype as the roadmap computes an edge's length (inf
+    elsewhere): a lazy roadmap's weights, equal to those the eager grow gives its edges."""
+    _, _, lengths = _kernels()
+    return lengths(np.ascontiguousarray(nbr, np.int32), np.asarray(entries, bool), np.ascontiguousarray(points))
+
+
+def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np.ndarray]:
+    """Shortest path from the start to the goal (``q``: (2, 2) their points) over ``graph`` plus
+    the start's edges ``s_dst``, ``s_w`` and the goal's ``g_dst``, ``g_w`` (the goal is only
+    entered). Returns (cost, vertex path START ... GOAL), or (inf, empty) if there is none."""
+    q = np.asarray(q, np.float64)
+    s_dst = np.asarray(s_dst, np.int64)
+    g_dst = np.asarray(g_dst, np.int64)
+    s_w = np.asarray(s_w, np.float64)
+    g_w = np.asarray(g_w, np.float64)
+    ratio = graph.ratio
+    for dst, wt, at in ((s_dst, s_w, q[0]), (g_dst, g_w, q[1])):
+        other = np.where((dst == 1)[:, None], q[1], graph.points[np.clip(dst, 0, len(graph.points) - 1)])
+        length = np.hypot(other[:, 0] - at[0], other[:, 1] - at[1])
+        pos = length > 0
+        if pos.any():
+            ratio = min(ratio, float(np.min(wt[pos] / length[pos])))
+    c = max(ratio, 0.0) * (1.0 - _SHAVE)
+    _, astar, _ = _kernels()
+    cost, path = astar(
+        graph.ptr,
+        graph.adj,
+        graph.wt,
+        graph.eid,
+        graph.usable,
+        graph.px,
+        graph.py,
+        c,
+        s_dst,
+        s_w,
+        g_dst,
+        g_w,
+        float(q[1, 0]),
+        float(q[1, 1]),
+    )
+    return float(cost), path

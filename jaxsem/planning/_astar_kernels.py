@@ -1,0 +1,166 @@
+"""The compiled kernels of :mod:`jaxsem.planning._astar` (numba, cached on disk by numba: a
+module of their own, imported on first use, so that ``import jaxsem`` does not import numba)."""
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def adjacency(nbr, keep, w, px, py):
+    """Every kept entry (r, s) of ``nbr`` as an edge both ways, in CSR form by vertex: (ptr
+    (M + 1,), the other end, the weight, the entry id r * K + s) (a counting sort), and the
+    smallest weight / length over them (inf if none has a length)."""
+    R, K = nbr.shape
+    M = px.shape[0]
+    ptr = np.zeros(M + 1, np.int64)
+    ratio = np.inf
+    for r in range(R):
+        for s in range(K):
+            if keep[r, s]:
+                c = nbr[r, s]
+                ptr[r + 1] += 1
+                ptr[c + 1] += 1
+                length = np.sqrt((px[c] - px[r]) ** 2 + (py[c] - py[r]) ** 2)
+                if length > 0:
+                    ratio = min(ratio, w[r, s] / length)
+    for i in range(M):
+        ptr[i + 1] += ptr[i]
+    E = ptr[M]
+    adj = np.empty(E, np.int32)
+    wt = np.empty(E, np.float64)
+    eid = np.empty(E, np.int64)
+    fill = ptr[:M].copy()
+    for r in range(R):
+        for s in range(K):
+            if keep[r, s]:
+                c = np.int64(nbr[r, s])
+                for a, b in ((np.int64(r), c), (c, np.int64(r))):
+                    at = fill[a]
+                    adj[at] = b
+                    wt[at] = w[r, s]
+                    eid[at] = r * K + s
+                    fill[a] += 1
+    return ptr, adj, wt, eid, ratio
+
+
+@numba.njit(cache=True, nogil=True)
+def lengths(nbr, keep, p):
+    """(R, K) float64: each kept entry's length in the dtype of the points ``p`` (M, 2),
+    ``sqrt(dx * dx + dy * dy + 1e-30)`` as the roadmap's own weights are computed; inf
+    elsewhere."""
+    R, K = nbr.shape
+    tiny = p.dtype.type(1e-30)
+    out = np.full((R, K), np.inf)
+    for r in range(R):
+        for s in range(K):
+            if keep[r, s]:
+                c = nbr[r, s]
+                dx = p[c, 0] - p[r, 0]
+                dy = p[c, 1] - p[r, 1]
+                out[r, s] = np.float64(np.sqrt(dx * dx + dy * dy + tiny))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def push(hf, hn, size, f, v):
+    if size == hf.shape[0]:
+        hf2 = np.empty(2 * size, np.float64)
+        hn2 = np.empty(2 * size, np.int64)
+        hf2[:size] = hf
+        hn2[:size] = hn
+        hf, hn = hf2, hn2
+    j = size
+    while j > 0:
+        p = (j - 1) >> 1
+        if hf[p] <= f:
+            break
+        hf[j] = hf[p]
+        hn[j] = hn[p]
+        j = p
+    hf[j] = f
+    hn[j] = v
+    return hf, hn, size + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
+    """(cost, path START ... GOAL) of the shortest path; (inf, empty) if none."""
+    M = px.shape[0]
+    g = np.full(M, np.inf)
+    pred = np.full(M, -1, np.int64)
+    closed = np.zeros(M, np.bool_)
+    enter = np.full(M, np.inf)
+    for i in range(g_dst.shape[0]):
+        if g_w[i] < enter[g_dst[i]]:
+            enter[g_dst[i]] = g_w[i]
+    hf = np.empty(64, np.float64)
+    hn = np.empty(64, np.int64)
+    size = 0
+    best = np.inf
+    via = -2  # -2: none; -1: the start's own edge to the goal; else the vertex entering it
+    for i in range(s_dst.shape[0]):
+        v = s_dst[i]
+        if v == 1:
+            if s_w[i] < best:
+                best = s_w[i]
+                via = -1
+        elif 2 <= v < M and s_w[i] < g[v]:
+            g[v] = s_w[i]
+            pred[v] = 0
+            hf, hn, size = push(hf, hn, size, s_w[i] + c * np.sqrt((px[v] - gx) ** 2 + (py[v] - gy) ** 2), v)
+    while size > 0:
+        f = hf[0]
+        u = hn[0]
+        size -= 1
+        lf = hf[size]
+        ln = hn[size]
+        j = 0
+        while True:
+            ch = 2 * j + 1
+            if ch >= size:
+                break
+            if ch + 1 < size and hf[ch + 1] < hf[ch]:
+                ch += 1
+            if hf[ch] >= lf:
+                break
+            hf[j] = hf[ch]
+            hn[j] = hn[ch]
+            j = ch
+        hf[j] = lf
+        hn[j] = ln
+        if f >= best:
+            break
+        if closed[u]:
+            continue
+        closed[u] = True
+        gu = g[u]
+        if gu + enter[u] < best:
+            best = gu + enter[u]
+            via = u
+        for e in range(ptr[u], ptr[u + 1]):
+            v = adj[e]
+            if usable[eid[e]] and not closed[v]:
+                nd = gu + wt[e]
+                if nd < g[v]:
+                    g[v] = nd
+                    pred[v] = u
+                    dx = px[v] - gx
+                    dy = py[v] - gy
+                    hf, hn, size = push(hf, hn, size, nd + c * np.sqrt(dx * dx + dy * dy), v)
+    if via == -2:
+        return np.inf, np.zeros(0, np.int64)
+    n = 2
+    node = via
+    while node > 0:
+        n += 1
+        node = pred[node]
+    path = np.empty(n, np.int64)
+    path[0] = 0
+    path[n - 1] = 1
+    node = via
+    i = n - 2
+    while node > 0:
+        path[i] = node
+        i -= 1
+        node = pred[node]
+    return best, path
