@@ -33,7 +33,7 @@ def _kernels():
     compiled, on first use: ``import jaxsem`` does not pay for them)."""
     from . import _astar_kernels as k
 
-    return k.adjacency, k.astar, k.lengths
+    return k.adjacency, k.astar
 
 
 class SearchGraph(NamedTuple):
@@ -55,30 +55,27 @@ class SearchGraph(NamedTuple):
 
 
 def search_graph(nbr, usable, w, points, entries, ratio: float | None = None) -> SearchGraph:
-    """A :class:`SearchGraph` of the rows ``nbr`` (M, K) int32 with weights ``w`` (M, K) (float64,
-    positive) and vertex ``points`` (M, 2). ``entries`` (M, K) bool: the entries that are
-    edges, now or later (each names a vertex 2 <= v < M); ``usable`` (M, K) bool, C-ordered,
-    kept by reference (flattened as a view): those that may be used now. ``ratio``: the
-    smallest weight / length when the caller knows it (1 for lengths), else measured here."""
+    """A :class:`SearchGraph` of the rows ``nbr`` (M, K) int32 and vertex ``points`` (M, 2).
+    ``entries`` (M, K) bool: the entries that are edges, now or later (each names a vertex
+    2 <= v < M); ``usable`` (M, K) bool, C-ordered, kept by reference (flattened as a view):
+    those that may be used now. ``w`` (M, K): the weights (float64, positive), or None: the
+    entries' lengths in the points' dtype, as the roadmap computes an edge's length (then the
+    heuristic's ratio is 1). ``ratio``: the smallest weight / length when the caller knows it,
+    else measured here."""
     entries = np.asarray(entries, bool)
     if not (usable.dtype == np.bool_ and usable.flags.c_contiguous and usable.shape == nbr.shape):
         raise ValueError(f"usable: expected a C-ordered bool array of shape {nbr.shape}")
-    adjacency, _, _ = _kernels()
-    p = np.asarray(points, np.float64)
-    px, py = p[:, 0].copy(), p[:, 1].copy()
-    w = np.ascontiguousarray(w, np.float64)
-    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, px, py)
-    if ratio is None:
+    adjacency, _ = _kernels()
+    points = np.ascontiguousarray(points)
+    lengths = w is None
+    w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(w, np.float64)
+    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, points, lengths)
+    if lengths:
+        ratio = 1.0
+    elif ratio is None:
         ratio = float(measured) if np.isfinite(measured) else 1.0
-    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, px, py, ratio)
-
-
-def edge_lengths(nbr, entries, points) -> np.ndarray:
-    """(M, K) float64 lengths of the entries ``entries`` of ``nbr`` (M, K) between ``points``
-    (M, 2), computed in the points' dtype as the roadmap computes an edge's length (inf
-    elsewhere): a lazy roadmap's weights, equal to those the eager grow gives its edges."""
-    _, _, lengths = _kernels()
-    return lengths(np.ascontiguousarray(nbr, np.int32), np.asarray(entries, bool), np.ascontiguousarray(points))
+    p = points.astype(np.float64)
+    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, p[:, 0].copy(), p[:, 1].copy(), ratio)
 
 
 def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np.ndarray]:
@@ -98,7 +95,7 @@ def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np
         if pos.any():
             ratio = min(ratio, float(np.min(wt[pos] / length[pos])))
     c = max(ratio, 0.0) * (1.0 - _SHAVE)
-    _, astar, _ = _kernels()
+    _, astar = _kernels()
     cost, path = astar(
         graph.ptr,
         graph.adj,

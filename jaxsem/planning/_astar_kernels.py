@@ -6,12 +6,23 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
-def adjacency(nbr, keep, w, px, py):
+def entry_length(p, r, c):
+    """The length of the edge between points ``p[r]`` and ``p[c]`` in their dtype, as the
+    roadmap computes an edge's (``sqrt(dx * dx + dy * dy + 1e-30)``), as float64."""
+    dx = p[c, 0] - p[r, 0]
+    dy = p[c, 1] - p[r, 1]
+    return np.float64(np.sqrt(dx * dx + dy * dy + p.dtype.type(1e-30)))
+
+
+@numba.njit(cache=True, nogil=True)
+def adjacency(nbr, keep, w, p, use_lengths):
     """Every kept entry (r, s) of ``nbr`` as an edge both ways, in CSR form by vertex: (ptr
     (M + 1,), the other end, the weight, the entry id r * K + s) (a counting sort), and the
-    smallest weight / length over them (inf if none has a length)."""
+    smallest weight / length over them (inf if none has a length). Weights: ``w[r, s]``, or
+    with ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12; ``w`` is
+    not read)."""
     R, K = nbr.shape
-    M = px.shape[0]
+    M = p.shape[0]
     ptr = np.zeros(M + 1, np.int64)
     ratio = np.inf
     for r in range(R):
@@ -20,45 +31,31 @@ def adjacency(nbr, keep, w, px, py):
                 c = nbr[r, s]
                 ptr[r + 1] += 1
                 ptr[c + 1] += 1
-                length = np.sqrt((px[c] - px[r]) ** 2 + (py[c] - py[r]) ** 2)
-                if length > 0:
-                    ratio = min(ratio, w[r, s] / length)
+                if not use_lengths:
+                    dx = np.float64(p[c, 0]) - np.float64(p[r, 0])
+                    dy = np.float64(p[c, 1]) - np.float64(p[r, 1])
+                    length = np.sqrt(dx * dx + dy * dy)
+                    if length > 0:
+                        ratio = min(ratio, w[r, s] / length)
     for i in range(M):
         ptr[i + 1] += ptr[i]
     E = ptr[M]
     adj = np.empty(E, np.int32)
     wt = np.empty(E, np.float64)
-    eid = np.empty(E, np.int64)
+    eid = np.empty(E, np.int32)
     fill = ptr[:M].copy()
     for r in range(R):
         for s in range(K):
             if keep[r, s]:
                 c = np.int64(nbr[r, s])
+                x = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
                 for a, b in ((np.int64(r), c), (c, np.int64(r))):
                     at = fill[a]
                     adj[at] = b
-                    wt[at] = w[r, s]
+                    wt[at] = x
                     eid[at] = r * K + s
                     fill[a] += 1
     return ptr, adj, wt, eid, ratio
-
-
-@numba.njit(cache=True, nogil=True)
-def lengths(nbr, keep, p):
-    """(R, K) float64: each kept entry's length in the dtype of the points ``p`` (M, 2),
-    ``sqrt(dx * dx + dy * dy + 1e-30)`` as the roadmap's own weights are computed; inf
-    elsewhere."""
-    R, K = nbr.shape
-    tiny = p.dtype.type(1e-30)
-    out = np.full((R, K), np.inf)
-    for r in range(R):
-        for s in range(K):
-            if keep[r, s]:
-                c = nbr[r, s]
-                dx = p[c, 0] - p[r, 0]
-                dy = p[c, 1] - p[r, 1]
-                out[r, s] = np.float64(np.sqrt(dx * dx + dy * dy + tiny))
-    return out
 
 
 @numba.njit(cache=True, nogil=True)

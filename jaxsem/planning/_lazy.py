@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._astar import SearchGraph, astar_path, edge_lengths, search_graph
+from ._astar import SearchGraph, astar_path, search_graph
 from ._edges import _edges, _edges_dense, _extent, _grid
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
@@ -261,9 +261,8 @@ class _LazyEdges:
         if self._graph is None:
             entries = (self.cand >= _QUERY) & (self.cand < self.M)
             entries[:_QUERY] = False
-            w = np.maximum(edge_lengths(self.cand, entries, pts), 1e-12)
-            # Euclidean weights: the heuristic's ratio is 1 (astar_path shaves it for rounding).
-            self._graph = search_graph(self.cand, self.possible, w, pts, entries, ratio=1.0)
+            # Weighed by their lengths: the heuristic's ratio is 1 (astar_path shaves it).
+            self._graph = search_graph(self.cand, self.possible, None, pts, entries)
         return self._graph
 
     def _certify(self, u, v, check_fn):

@@ -134,7 +134,7 @@ def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
     roadmap, eager or lazy, compiles nothing more (a numba compile costs seconds)."""
 
     def signatures():
-        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar, _kernels.lengths))
+        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar))
 
     def queries(seed):
         for lazy in (False, True):
