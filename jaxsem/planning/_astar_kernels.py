@@ -60,6 +60,8 @@ def adjacency(nbr, keep, w, p, use_lengths):
 
 @numba.njit(cache=True, nogil=True)
 def push(hf, hn, size, f, v):
+    """Adds vertex ``v`` with key ``f`` to the binary min-heap (keys ``hf``, vertices ``hn``, the
+    first ``size`` in use; doubled when full). Returns (hf, hn, size)."""
     if size == hf.shape[0]:
         hf2 = np.empty(2 * size, np.float64)
         hn2 = np.empty(2 * size, np.int64)
@@ -80,8 +82,42 @@ def push(hf, hn, size, f, v):
 
 
 @numba.njit(cache=True, nogil=True)
+def to_goal(px, py, v, gx, gy):
+    """The straight-line distance from vertex ``v`` to the goal (gx, gy)."""
+    dx = px[v] - gx
+    dy = py[v] - gy
+    return np.sqrt(dx * dx + dy * dy)
+
+
+@numba.njit(cache=True, nogil=True)
+def pop(hf, hn, size):
+    """Removes the heap's smallest key. Returns (key, vertex, size)."""
+    f = hf[0]
+    u = hn[0]
+    size -= 1
+    last_f = hf[size]
+    last_n = hn[size]
+    j = 0
+    while 2 * j + 1 < size:
+        ch = 2 * j + 1
+        if ch + 1 < size and hf[ch + 1] < hf[ch]:
+            ch += 1
+        if hf[ch] >= last_f:
+            break
+        hf[j] = hf[ch]
+        hn[j] = hn[ch]
+        j = ch
+    hf[j] = last_f
+    hn[j] = last_n
+    return f, u, size
+
+
+@numba.njit(cache=True, nogil=True)
 def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
-    """(cost, path START ... GOAL) of the shortest path; (inf, empty) if none."""
+    """(cost, path START ... GOAL) of the shortest path over the CSR ``ptr``, ``adj``, ``wt``
+    (entries whose flag ``usable[eid]`` is set) plus the start's edges ``s_dst``, ``s_w`` and the
+    goal's entries ``g_dst``, ``g_w``, by A* with the heuristic ``c * |x - (gx, gy)|``;
+    (inf, empty) if there is none."""
     M = px.shape[0]
     g = np.full(M, np.inf)
     pred = np.full(M, -1, np.int64)
@@ -104,27 +140,9 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
         elif 2 <= v < M and s_w[i] < g[v]:
             g[v] = s_w[i]
             pred[v] = 0
-            hf, hn, size = push(hf, hn, size, s_w[i] + c * np.sqrt((px[v] - gx) ** 2 + (py[v] - gy) ** 2), v)
+            hf, hn, size = push(hf, hn, size, s_w[i] + c * to_goal(px, py, v, gx, gy), v)
     while size > 0:
-        f = hf[0]
-        u = hn[0]
-        size -= 1
-        lf = hf[size]
-        ln = hn[size]
-        j = 0
-        while True:
-            ch = 2 * j + 1
-            if ch >= size:
-                break
-            if ch + 1 < size and hf[ch + 1] < hf[ch]:
-                ch += 1
-            if hf[ch] >= lf:
-                break
-            hf[j] = hf[ch]
-            hn[j] = hn[ch]
-            j = ch
-        hf[j] = lf
-        hn[j] = ln
+        f, u, size = pop(hf, hn, size)
         if f >= best:
             break
         if closed[u]:
@@ -141,9 +159,7 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
                 if nd < g[v]:
                     g[v] = nd
                     pred[v] = u
-                    dx = px[v] - gx
-                    dy = py[v] - gy
-                    hf, hn, size = push(hf, hn, size, nd + c * np.sqrt(dx * dx + dy * dy), v)
+                    hf, hn, size = push(hf, hn, size, nd + c * to_goal(px, py, v, gx, gy), v)
     if via == -2:
         return np.inf, np.zeros(0, np.int64)
     n = 2
