@@ -32,8 +32,8 @@ window its few samples are too far apart for the uniform radius, which ended mos
 trials with 'no_plan' (``benchmarks/lsd/lsd_diagnose_finding.md``).
 
 Where the loop runs: sensing, crops, sampling, neighbour search and edge checks are jitted JAX
-(and vmappable: ``sense`` and the roadmap builder take batches); the graph search is scipy's
-Dijkstra on the host, and so is the control flow of a trial, which is why trials run one after
+(and vmappable: ``sense`` and the roadmap builder take batches); the graph search is a compiled
+A* on the host, and so is the control flow of a trial, which is why trials run one after
 another (:func:`navigate`) rather than under ``vmap``; :func:`jaxsem.lsd.run_trials` with a
 ``mesh`` deals whole trials over devices instead (one host thread per device). Per step the host
 work is a few milliseconds; see ``benchmarks/lsd/lsd_speed.py``.

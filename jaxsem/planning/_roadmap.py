@@ -52,9 +52,9 @@ consecutive samples, so a valid edge touches no known-occupied cell. Edge weight
 length, or the integral of ``-log p`` along the edge (mean over the samples times the length,
 thesis eq. 3.3) with ``weight='neglogp'``.
 
-Search (:func:`roadmap_shortest_path`, :meth:`PRM.query`) is scipy's Dijkstra on the host; the
-PRM keeps the roadmap's edge list in CSR form, so a query only adds its start's and goal's
-edges (a few milliseconds at 5000 vertices). ``PRM(lazy=True)`` checks no edge when growing and
+Search (:func:`roadmap_shortest_path`, :meth:`PRM.query`) is a compiled A* on the host
+(:mod:`jaxsem.planning._astar`); the PRM keeps the roadmap's edges in CSR form, so a query only
+adds its start's and goal's edges. ``PRM(lazy=True)`` checks no edge when growing and
 only those a query's shortest path needs (:mod:`jaxsem.planning._lazy`): the same roadmap and
 shortest paths, cheaper to build and query once, dearer per reused query.
 """

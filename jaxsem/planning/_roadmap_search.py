@@ -138,8 +138,8 @@ def _search_rows(graph: _SampleGraph, q, nq, okq, wq) -> RoadmapPath:
 
 
 def roadmap_shortest_path(roadmap: Roadmap, source: int = START, target: int = GOAL) -> RoadmapPath:
-    """Shortest path on the roadmap by scipy Dijkstra (host). Default: start (0) to goal (1);
-    other slots search the whole undirected edge list."""
+    """Shortest path on the roadmap (host). Default: start (0) to goal (1), by the queries'
+    A*; between other slots, scipy's Dijkstra over the whole undirected edge list."""
     if (source, target) == (START, GOAL):
         return _search(_SampleGraph(roadmap), roadmap)
     pts = np.asarray(roadmap.points)
