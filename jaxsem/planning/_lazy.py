@@ -223,19 +223,9 @@ class _LazyEdges:
 
     # ------------------------------------------------------------------ query
 
-    def search(self, roadmap: Roadmap, check_fn) -> RoadmapPath:
-        """Shortest path of the eager roadmap from the start to the goal of ``roadmap`` (its
-        rows 0 and 1 linked and checked), checking only the edges the search needs."""
-        return self.search_rows(
-            np.asarray(roadmap.points),
-            np.asarray(roadmap.neighbors[:_QUERY]),
-            np.asarray(roadmap.edge_valid[:_QUERY]),
-            np.asarray(roadmap.edge_weight[:_QUERY]),
-            check_fn,
-        )
-
     def search_rows(self, pts, nq, okq, wq, check_fn) -> RoadmapPath:
-        """:meth:`search` from the host points ``pts`` (M, 2) (slots 0 and 1: the start and
+        """Shortest path of the eager roadmap from the start to the goal, checking only the edges
+        the search needs: from the host points ``pts`` (M, 2) (slots 0 and 1: the start and
         goal) and the query rows ``nq``, ``okq``, ``wq`` (2, k): A* over the possible edges,
         the path's deciding edges checked, again until the path found is all in the roadmap."""
         edges = _query_edges(nq, okq, wq)
