@@ -77,12 +77,15 @@ def _length(a, b):
 
 def _edges_dense(blocked, a, b, grid, edge_samples):
     """The edge rule read at every one of the ``edge_samples`` points (module docstring)."""
-    dtype = a.dtype
-    t = jnp.arange(edge_samples, dtype=dtype) / (edge_samples - 1)
-    along = a[..., None, :] + t[:, None] * (b - a)[..., None, :]  # (..., S, 2)
-    er, ec, eon = _cells(along, grid)
+    er, ec, eon = _cells(_along(a, b, edge_samples), grid)
     clear = _cells_clear(blocked, er, ec, eon)
     return clear, er, ec
+
+
+def _along(a, b, edge_samples: int):
+    """The rule's ``edge_samples`` samples (..., S, 2) of segments a -> b (..., 2)."""
+    t = jnp.arange(edge_samples, dtype=a.dtype) / (edge_samples - 1)
+    return a[..., None, :] + t[:, None] * (b - a)[..., None, :]
 
 
 def _samples_clear(blocked, along, grid):
@@ -452,3 +455,91 @@ def query_reach(shape, resolution: float) -> float:
     :func:`polyline_clear`)."""
     diag = math.hypot(shape[0] * resolution, shape[1] * resolution)
     return 2.0 ** math.ceil(math.log2(max(diag, resolution)))
+
+
+#: The probe of :func:`_host_rule`: edges over a few kilometres (float32 samples a few
+#: hundredths of a millimetre apart), an origin and a resolution that are not powers of two.
+_PROBE_GRID = Q.Grid.host((-1234.5, 987.6), 0.05, (1 << 16, 1 << 16))
+_PROBE_SAMPLES, _PROBE_EDGES = 257, 64
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
+def _rule_cells(a, b, grid, *, edge_samples):
+    """The cells (..., S, 2), not clipped, of the samples :func:`_edges_dense` reads."""
+    grid = _grid(grid, a.dtype)
+    return Q.world_to_cell(_along(a, b, edge_samples), grid.origin, grid.resolution)
+
+
+@functools.cache
+def _host_rule():
+    """``(edges_clear, fused, recip)``: the compiled host edge rule and the arithmetic that
+    makes its float32 samples fall in the cells the device's rule reads, or None when none of
+    the four ways agrees with the device on the probe (callers then use the device's rule).
+
+    A float32 sample may fall on either side of a cell border depending on whether ``a + t *
+    (b - a)`` is rounded once or twice and on whether the division by the resolution became a
+    multiplication by its reciprocal; the compiled rule's choice is its compiler's. The probe
+    draws edges whose cells differ between the ways, reads the device's cells for them, and
+    keeps the way that matches every one."""
+    from . import _edges_kernels as k
+
+    g = _PROBE_GRID
+    S = _PROBE_SAMPLES
+    origin = np.asarray(g.origin, np.float32)
+    res = np.float32(g.resolution)
+    inv = np.float32(1) / res
+    rng = np.random.default_rng(0)
+    a = (origin + rng.uniform(0, 3000, (4096, 2))).astype(np.float32)
+    b = (a + rng.normal(0, 50, (4096, 2))).astype(np.float32)
+    ways = [(f, r) for f in (True, False) for r in (True, False)]
+    cells = [k.sample_cells(a, b, S, origin, inv, res, f, r) for f, r in ways]
+    # Edges that tell each pair of ways apart, a few per pair.
+    pick = []
+    for i in range(len(ways)):
+        for j in range(i + 1, len(ways)):
+            d = np.any((cells[i][0] != cells[j][0]) | (cells[i][1] != cells[j][1]), axis=1)
+            pick.extend(np.flatnonzero(d)[:8])
+    n = _PROBE_EDGES
+    pick = np.concatenate([np.unique(np.asarray(pick, np.int64)), np.arange(n)])[:n]  # fixed width
+    rc = np.asarray(_rule_cells(a[pick], b[pick], static_grid(g), edge_samples=S))
+    for (f, r), (rows, cols) in zip(ways, cells):
+        if np.array_equal(rows[pick], rc[..., 0]) and np.array_equal(cols[pick], rc[..., 1]):
+            return k.edges_clear, f, r
+    return None
+
+
+def _host_edges(dtype) -> bool:
+    """Whether the edges of points of ``dtype`` are checked on the host: float32 points (a
+    float64 sample's single rounding is not emulated), where :func:`_host_rule` matched the
+    device's arithmetic."""
+    return np.dtype(dtype) == np.float32 and _host_rule() is not None
+
+
+def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=None, k=None):
+    """The edge rule of :func:`_edges_dense` on the host for float32 edges ``a`` -> ``b``
+    (E, 2) with ``samples`` (E,) samples each (:func:`_edge_samples`), on the numpy bool grid
+    ``blocked`` of the host ``grid``: (E,) bool, False where ``want`` (E,) is not set. The same
+    answers as the device's rule, read from the start of each edge and skipping what the
+    clearance ``table`` (:func:`_clearance_table`, numpy; None: none) vouches for. ``row``,
+    ``k``: the edges come in rows of ``row`` in preference order, of which the caller keeps the
+    first ``k`` clear ones: the rest are not read (False). Only where :func:`_host_edges`."""
+    rule = _host_rule()
+    assert rule is not None  # internal: callers check _host_edges first
+    kernel, fused, recip = rule
+    res = np.float32(grid.resolution)
+    return kernel(
+        np.ascontiguousarray(blocked, bool),
+        np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32),
+        _BASE,
+        np.ascontiguousarray(a, np.float32),
+        np.ascontiguousarray(b, np.float32),
+        np.ascontiguousarray(samples, np.int64),
+        np.ascontiguousarray(want, bool),
+        np.asarray(grid.origin, np.float32),
+        np.float32(1) / res,
+        res,
+        fused,
+        recip,
+        max(1, len(a)) if row is None else int(row),
+        max(1, len(a)) if k is None else int(k),
+    )

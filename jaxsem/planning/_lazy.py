@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._astar import SearchGraph, astar_path, search_graph
-from ._edges import _edges, _edges_dense, _extent, _grid
+from ._edges import _edges, _edges_clear_host, _edges_dense, _extent, _grid, _host_edges
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
@@ -318,14 +318,25 @@ class _LazyEdges:
         return nbr, ev, w
 
 
-def _checker(blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK):
+def _checker(blocked, blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK):
     """``check(rows, slots) -> clear`` (numpy bool) for the edges from ``points[rows]`` to
-    their candidates on ``grid`` (a :func:`~jaxsem.planning._grid.static_grid`),
-    ``chunk`` edges per call of the jitted rule (one compiled shape)."""
+    their candidates on ``grid`` (a :func:`~jaxsem.planning._grid.static_grid`) of the numpy
+    bool grid ``blocked`` (``blocked_j``: its device copy): by the host's compiled rule where it
+    matches the device's arithmetic (:func:`~jaxsem.planning._edges._edges_clear_host`), else
+    ``chunk`` edges per call of the jitted rule (one compiled shape). ``table``: the clearance
+    table (None: every sample read)."""
     pts = np.asarray(points)
     dtype = pts.dtype
+    host = _host_edges(dtype)
+    table_np = None if table is None or not host else np.asarray(table)
 
     def check(rows, slots):
+        if host:
+            n = np.full(len(rows), edge_samples, np.int64)
+            out = _edges_clear_host(
+                blocked, pts[rows], pts[cand[rows, slots]], n, np.ones(len(rows), bool), grid, table_np
+            )
+            return np.asarray(out)
         out = np.zeros(len(rows), bool)
         for s in range(0, len(rows), chunk):
             r, sl = rows[s : s + chunk], slots[s : s + chunk]

@@ -362,6 +362,7 @@ class PRM:
             self._points = np.array(self._roadmap.points)
         # A query's calls read every sample (no table); many edges at once read the table.
         return _checker(
+            self.blocked,
             self._blocked_j,
             self._points,
             self._lazy.cand,

@@ -76,9 +76,11 @@ from ._edges import (
     _coarse,
     _edge_samples,
     _edges,
+    _edges_clear_host,
     _edges_dense,
     _extent,
     _grid,
+    _host_edges,
     _intervals_clear,
     _subset,
     _weights,
@@ -841,15 +843,12 @@ def _connect_checked(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
-def _links_coarse(rm, start, goal, blocked, cost, grid, table, *, radius, edge_samples, long_samples, sectors):
-    """The device part of :func:`_links_checked`: queries' (Q, 2) candidates in preference
-    order (Q, 2, keep), their points (start and goal (Q, 2, 2), other ends (Q, 2, keep, 2)),
-    weights, the short edges' clear flags (every sample read: the rule's answer), and the long
-    edges' first pass (:func:`~jaxsem.planning._edges._coarse`: hit (E,), uncovered intervals
-    (E, C - 1) over the flat (Q * 2 * keep) edges). ``cost``: the cell cost the weights
-    integrate (:func:`_edge_cost`, made once per distribution by the caller; None: lengths)."""
-    M, k = rm.neighbors.shape
+def _links_ends(rm, start, goal, cost, grid, *, radius, edge_samples, long_samples, sectors):
+    """Queries' (Q, 2) candidates in preference order (Q, 2, keep), their points (start and
+    goal (Q, 2, 2), the edges' ends a, other (Q, 2, keep, 2)), which edges are short (up to
+    ``radius``), which name a candidate, and the weights (``cost``: the cell cost the weights
+    integrate, :func:`_edge_cost`, made once per distribution by the caller; None: lengths)."""
+    M, _ = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
     nbr = jax.vmap(lambda s, g: _query_candidates(rm, s, g, sectors)[3])(start, goal)  # (Q, 2, keep)
@@ -857,8 +856,47 @@ def _links_coarse(rm, start, goal, blocked, cost, grid, table, *, radius, edge_s
     other = jnp.where((nbr == GOAL)[..., None], q[:, None, 1:2, :], rm.points[jnp.minimum(nbr, M - 1)])
     a = jnp.broadcast_to(q[:, :, None, :], other.shape)
     short = jnp.sum((other - a) ** 2, -1) <= (radius * (1 + 1e-6)) ** 2
-    cand = nbr < M
     w = jnp.where(short, _weights(cost, a, other, grid, edge_samples), _weights(cost, a, other, grid, long_samples))
+    return q, nbr, a, other, short, nbr < M, w
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
+def _links_ends_jit(rm, start, goal, cost, grid, *, radius, edge_samples, long_samples, sectors):
+    """The device part of :func:`_links_checked` when the host checks the edges: candidates,
+    ends (flat (Q * 2 * keep, 2)), short flags and weights (:func:`_links_ends`)."""
+    q, nbr, a, other, short, cand, w = _links_ends(
+        rm,
+        start,
+        goal,
+        cost,
+        grid,
+        radius=radius,
+        edge_samples=edge_samples,
+        long_samples=long_samples,
+        sectors=sectors,
+    )
+    return q, nbr, short, cand, w, a.reshape(-1, 2), other.reshape(-1, 2)
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
+def _links_coarse(rm, start, goal, blocked, cost, grid, table, *, radius, edge_samples, long_samples, sectors):
+    """The device part of :func:`_links_checked` when the device checks the edges: the
+    candidates, ends and weights of :func:`_links_ends`, the short edges' clear flags (every
+    sample read: the rule's answer), and the long edges' first pass
+    (:func:`~jaxsem.planning._edges._coarse`: hit (E,), uncovered intervals (E, C - 1) over the
+    flat (Q * 2 * keep) edges)."""
+    q, nbr, a, other, short, cand, w = _links_ends(
+        rm,
+        start,
+        goal,
+        cost,
+        grid,
+        radius=radius,
+        edge_samples=edge_samples,
+        long_samples=long_samples,
+        sectors=sectors,
+    )
+    grid = _grid(grid, rm.points.dtype)
     clear_s, _, _ = _edges_dense(blocked, a, other, grid, edge_samples)
     fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
     hit, unc = _coarse(
@@ -927,11 +965,11 @@ def _links_checked(
     ``reach``: the long edges' length rule (:func:`_query_samples`); ``cost``: the cell cost of
     ``distribution`` and ``factor`` (:func:`_edge_cost_jit`) when the caller keeps it (None:
     made here).
-    The same links, made in two compiled calls with the host between them: the first reads
-    every short edge's samples and the long edges' subsets, the host lists the long edges'
-    uncovered intervals (a few hundred per query), the second reads those (padded to a power
-    of two: one program per size). Returns (q, neighbors, edge_valid, edge_weight) on the host,
-    each (Q, 2, ...)."""
+    The candidates and weights come from one compiled call; the edges are checked by the host's
+    compiled rule (:func:`~jaxsem.planning._edges._edges_clear_host`: most query edges are
+    blocked within a few cells of their start, and it stops there) where its float32
+    arithmetic is the device's, else by the device (:func:`_links_device`). Returns (q,
+    neighbors, edge_valid, edge_weight) on the host, each (Q, 2, ...)."""
     if weight == "neglogp" and distribution is None:
         raise ValueError("distribution: weight='neglogp' needs a distribution, got None")
     dtype = roadmap.points.dtype
@@ -941,20 +979,65 @@ def _links_checked(
         cost = _edge_cost_jit(dist, factor, neglogp)
     samples = _query_samples(float(radius), grid, reach)
     grid_s = static_grid(grid)
+    M, k = roadmap.neighbors.shape
+    starts_d, goals_d = np.asarray(starts, dtype), np.asarray(goals, dtype)  # numpy into the jitted calls
+    if _host_edges(dtype):
+        q, nbr, short, cand, w, fa, fb = (
+            np.asarray(x)
+            for x in _links_ends_jit(
+                roadmap, starts_d, goals_d, cost, grid_s, radius=float(radius), **samples, sectors=sectors
+            )
+        )
+        n = np.where(short, samples["edge_samples"], samples["long_samples"]).reshape(-1)
+        # Each end keeps its first k clear candidates (_clear_first_np): the rest go unread.
+        keep_k = (nbr.shape[-1], k) if nbr.shape[-1] > k else (None, None)
+        clear = _edges_clear_host(
+            blocked, fa, fb, n, cand.reshape(-1), grid, np.asarray(table), row=keep_k[0], k=keep_k[1]
+        )
+        ev = clear.reshape(nbr.shape)
+    else:
+        q, nbr, w, ev = _links_device(
+            roadmap,
+            starts_d,
+            goals_d,
+            blocked_j,
+            cost,
+            grid_s,
+            table,
+            radius=float(radius),
+            samples=samples,
+            sectors=sectors,
+        )
+    w = np.where(ev, w, np.inf).astype(w.dtype)
+    Qn, _, keep = nbr.shape
+    if keep > k:
+        nbr, ev, w = (
+            x.reshape(Qn, 2, k)
+            for x in _clear_first_np(nbr.reshape(-1, keep), ev.reshape(-1, keep), w.reshape(-1, keep), k, M)
+        )
+    return np.asarray(q), nbr, ev, w
+
+
+def _links_device(roadmap, starts, goals, blocked_j, cost, grid_s, table, *, radius, samples, sectors):
+    """The links of :func:`_links_checked` checked by the device's rule, in two compiled calls
+    with the host between them: the first reads every short edge's samples and the long edges'
+    subsets, the host lists the long edges' uncovered intervals (a few hundred per query), the
+    second reads those (padded to a power of two: one program per size). Returns (q, neighbors,
+    weights, edge_valid) on the host, each (Q, 2, ...)."""
     q, nbr, short, clear_s, w, fa, fb, hit, unc = _links_coarse(
         roadmap,
-        np.asarray(starts, dtype),  # numpy into the jitted call: no dispatch of its own
-        np.asarray(goals, dtype),
+        starts,
+        goals,
         blocked_j,
         cost,
         grid_s,
         table,
-        radius=float(radius),
+        radius=radius,
         **samples,
         sectors=sectors,
     )
     nbr, short, clear_s, w, hit, unc = (np.asarray(x) for x in (nbr, short, clear_s, w, hit, unc))
-    M, k = roadmap.neighbors.shape
+    M, _ = roadmap.neighbors.shape
     edge, interval = np.nonzero(unc)
     bad = np.zeros(hit.shape, bool)
     # Fixed widths (one program each): a query's few hundred intervals in one call, a batch's
@@ -976,15 +1059,7 @@ def _links_checked(
         np.logical_or.at(bad, e, ~np.asarray(ok)[: len(e)])
     cand = nbr < M
     clear_l = (cand & ~short).reshape(-1) & ~hit & ~bad
-    ev = np.where(short, clear_s, clear_l.reshape(nbr.shape)) & cand
-    w = np.where(ev, w, np.inf).astype(w.dtype)
-    Qn, _, keep = nbr.shape
-    if keep > k:
-        nbr, ev, w = (
-            x.reshape(Qn, 2, k)
-            for x in _clear_first_np(nbr.reshape(-1, keep), ev.reshape(-1, keep), w.reshape(-1, keep), k, M)
-        )
-    return np.asarray(q), nbr, ev, w
+    return q, nbr, w, np.where(short, clear_s, clear_l.reshape(nbr.shape)) & cand
 
 
 def build_roadmap(

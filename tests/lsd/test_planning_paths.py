@@ -609,14 +609,21 @@ def _assert_same_roadmap(eager, lazy):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sectors,k", [(8, None), (8, 6), (0, 6)])
-def test_lazy_prm_returns_the_eager_prms_paths(sectors, k, monkeypatch):
+@pytest.mark.parametrize("sectors,k,x64", [(8, None, True), (8, 6, True), (0, 6, True), (8, 6, False)])
+def test_lazy_prm_returns_the_eager_prms_paths(sectors, k, x64, monkeypatch):
     """Lazy PRM (check only what the query's shortest path needs) against the eager PRM on the
     same samples: every query finds the same shortest cost (the lazy search's answer is a
     shortest path of the eager roadmap), a second identical query checks nothing new, and once
     every edge is checked the lazy roadmap is the eager one edge for edge (candidates, the
     first-k-clear rule, weights). k = 6 with 8 sectors: rows hold more candidates than k, so later slots
-    only count once the slots before them are checked."""
+    only count once the slots before them are checked. In float32 (``x64`` False) the lazy PRM's
+    edges and both PRMs' query links are checked by the host's rule, the eager grow's by the
+    device's."""
+    with jax.enable_x64(x64):
+        _lazy_returns_the_eager_paths(sectors, k, monkeypatch)
+
+
+def _lazy_returns_the_eager_paths(sectors, k, monkeypatch):
     from jaxsem.planning import _map_setup  # layers: white-box
 
     occ = _blocks(3, shape=(60, 100), n=25)

@@ -1,7 +1,7 @@
 """PRM queries: a batch of queries in one call (``PRM.query_many``) gives the paths of one
 ``query`` call each, eager and lazy; a query gives the roadmap's shortest path as the pure
 pipeline (``roadmap_connect``, then a full undirected Dijkstra) finds it; a second batch of the
-same shape compiles nothing, and the host search compiles once."""
+same shape compiles nothing, and the host search and edge check compile once."""
 
 import jax
 import numpy as np
@@ -10,6 +10,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 import jaxsem.planning._astar_kernels as _kernels  # layers: white-box (compile counts)
+import jaxsem.planning._edges_kernels as _edge_kernels  # layers: white-box (compile counts)
 import jaxsem.planning._roadmap as _roadmap  # layers: white-box (compile counts)
 from jaxsem import quadrics as Q
 from jaxsem.planning import PRM
@@ -109,44 +110,55 @@ def test_query_is_the_pure_pipelines_shortest_path():
         assert found >= 3
 
 
-def test_a_second_batch_compiles_nothing():
+@pytest.mark.parametrize("x64", [True, False])  # float64: the device checks the links; float32: the host
+def test_a_second_batch_compiles_nothing(x64):
+    with jax.enable_x64(x64):
+        _second_batch_compiles_nothing()
+
+
+def _second_batch_compiles_nothing():
     occ = _blocks(5)
     prm = _prm(occ, False, 5)
     starts, goals = _ends(occ, 30)
+
+    def sizes():
+        jitted = (_roadmap._links_ends_jit, _roadmap._links_coarse, _roadmap._intervals_jit)
+        return tuple(f._cache_size() for f in jitted) + (len(_edge_kernels.edges_clear.signatures),)
+
     prm.query_many(starts, goals)
-    sizes = (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size())
+    first = sizes()
     s2, g2 = _ends(occ, 31)
     prm.query_many(s2, g2)
     prm.query(s2[0], g2[0])
     prm.query(s2[1], g2[1])
-    assert (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size()) <= (
-        sizes[0] + 1,  # the single query's shape, once
-        sizes[1] + 1,
-    )
-    before = (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size())
+    # The single query's shape, once.
+    assert all(b <= a + 1 for a, b in zip(first, sizes(), strict=True))
+    before = sizes()
     prm.query_many(s2, g2)
     prm.query(starts[1], goals[1])
-    assert (_roadmap._links_coarse._cache_size(), _roadmap._intervals_jit._cache_size()) == before
+    assert sizes() == before
 
 
 def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
-    """The search's numba kernels see one set of argument types whatever the roadmap: a new
-    roadmap, eager or lazy, compiles nothing more (a numba compile costs seconds)."""
+    """The search's and the edge check's numba kernels see one set of argument types whatever
+    the roadmap: a new roadmap, eager or lazy, compiles nothing more (a numba compile costs
+    seconds)."""
 
     def signatures():
-        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar))
+        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar, _edge_kernels.edges_clear))
 
     def queries(seed):
         for lazy in (False, True):
             occ = _blocks(seed)
             starts, goals = _ends(occ, 50 + seed, 3)
-            prm = _prm(occ, lazy, seed)
-            prm.query_many(starts, goals)
-            prm.query(starts[0], goals[0])
+            with jax.enable_x64(False):  # float32: the edges are checked on the host
+                prm = _prm(occ, lazy, seed)
+                prm.query_many(starts, goals)
+                prm.query(starts[0], goals[0])
 
     queries(7)
     before = signatures()
-    assert before[:2] >= (1, 1)
+    assert min(before) >= 1
     queries(8)
     assert signatures() == before
 

@@ -1,0 +1,146 @@
+"""The compiled host kernels of :mod:`jaxsem.planning._edges` (numba, cached on disk by numba: a
+module of their own, imported on first use, so that ``import jaxsem`` does not import numba).
+
+They read the edge rule's samples as the compiled rule computes them, in float32: the sample
+``a + t * (b - a)`` (``t = k / (S - 1)``) either fused (one rounding, as XLA's CPU code does on a
+processor with fused multiply-add) or not, and its cell ``floor((p - origin) * inv)`` (``inv``
+the float32 reciprocal of the resolution, as XLA folds a division by a constant) or
+``floor((p - origin) / resolution)``. Which of the four the device's rule uses is measured, not
+assumed (:func:`jaxsem.planning._edges._host_rule`).
+"""
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _along(t, d, a, fused):
+    """``a + t * d`` in float32: one rounding when ``fused`` (the product of two float32 is exact
+    in float64), else two."""
+    if fused:
+        return np.float32(np.float64(t) * np.float64(d) + np.float64(a))
+    return np.float32(t * d) + a
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell(p, o, inv, res, recip):
+    """The float32 cell coordinate of world coordinate ``p`` (floored by the caller)."""
+    if recip:
+        return np.floor(np.float32(p - o) * inv)
+    return np.floor(np.float32(p - o) / res)
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_cells(a, b, S, origin, inv, res, fused, recip):
+    """Rows and columns (E, S) int64 of the ``S`` samples of each edge ``a`` -> ``b`` (E, 2)
+    float32 (off the grid as they fall: nothing clipped)."""
+    E = a.shape[0]
+    rows = np.empty((E, S), np.int64)
+    cols = np.empty((E, S), np.int64)
+    denom = np.float32(S - 1)
+    for e in range(E):
+        dx = b[e, 0] - a[e, 0]
+        dy = b[e, 1] - a[e, 1]
+        for k in range(S):
+            t = np.float32(k) / denom
+            cols[e, k] = np.int64(_cell(_along(t, dx, a[e, 0], fused), origin[0], inv, res, recip))
+            rows[e, k] = np.int64(_cell(_along(t, dy, a[e, 1], fused), origin[1], inv, res, recip))
+    return rows, cols
+
+
+@numba.njit(cache=True, nogil=True)
+def edges_clear(blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip, row, k):
+    """The edge rule on edges ``a`` -> ``b`` (E, 2) float32 with ``samples`` (E,) samples each,
+    on the bool grid ``blocked`` (H, W): (E,) clear flags (False where ``want`` is not set).
+    The edges come in rows of ``row`` (a query end's candidates in preference order); in each
+    row, the edges after its ``k``-th clear one are not read (False: a caller keeping the first
+    ``k`` clear ones drops them anyway).
+
+    ``table``: clearance lower bounds in cells, one per block of ``2**base`` x ``2**base``
+    cells (shape (0, 0): none); see :func:`edge_clear`."""
+    E = a.shape[0]
+    H, W = blocked.shape
+    out = np.zeros(E, np.bool_)
+    for r0 in range(0, E, row):
+        found = 0
+        for e in range(r0, min(r0 + row, E)):
+            if found >= k:
+                break
+            if want[e]:
+                out[e] = edge_clear(
+                    blocked, table, base, a[e, 0], a[e, 1], b[e, 0], b[e, 1], samples[e], origin, inv, res, fused, recip
+                )
+                found += out[e]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
+    """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
+    ``blocked`` (H, W).
+
+    An edge is clear when every sample lies in a free cell on the grid and, where two consecutive
+    samples differ in both row and column, both side cells of that step are free. Read from the
+    start, it stops at its first blocked read. ``table`` lets the walk skip the samples within a
+    sample's clearance disc: no cell there is blocked or next to a blocked cell, so those samples
+    and their steps' side cells are free (the skip stays a sample short of the disc's edge,
+    which also covers the float32 samples' rounding). The answer is the rule's, read at every
+    sample."""
+    H, W = blocked.shape
+    TH, TW = table.shape
+    ox, oy = origin[0], origin[1]
+    dx = bx - ax
+    dy = by - ay
+    denom = np.float32(S - 1)
+    step = np.sqrt(np.float64(dx) ** 2 + np.float64(dy) ** 2) / max(S - 1, 1)
+    prev = False
+    pr = 0
+    pc = 0
+    k = 0
+    while k < S:
+        t = np.float32(k) / denom
+        c = np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip))
+        r = np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip))
+        if r < 0 or r >= H or c < 0 or c >= W or blocked[r, c]:
+            return False
+        if prev and r != pr and c != pc and (blocked[pr, c] or blocked[r, pc]):
+            return False
+        pr, pc, prev = r, c, True
+        m = 0
+        if TH > 0 and step > 0:
+            tr, tc = r >> base, c >> base
+            if tr < TH and tc < TW and table[tr, tc] > 0:
+                m = np.int64((np.float64(table[tr, tc]) - 0.01) * np.float64(res) / step) - 1
+        if m > 1:
+            # Samples k + 1 .. k + m lie inside the disc; the step into k + m leaves a cell
+            # whose neighbours are free, so it needs no side read.
+            k += m
+            prev = False
+            continue
+        # Each coordinate's cell is monotone in k (every operation rounds monotonically): the
+        # samples up to the last one in this cell add nothing. Gallop to the first one past it.
+        lo = k
+        hi = k + 1
+        run = 1
+        while hi < S and _same(hi, denom, dx, dy, ax, ay, ox, oy, inv, res, fused, recip, r, c):
+            lo = hi
+            run *= 2
+            hi = k + run
+        hi = min(hi, S)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if _same(mid, denom, dx, dy, ax, ay, ox, oy, inv, res, fused, recip, r, c):
+                lo = mid
+            else:
+                hi = mid
+        k = hi
+    return True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _same(k, denom, dx, dy, ax, ay, ox, oy, inv, res, fused, recip, r, c):
+    """Whether sample ``k`` lies in cell (r, c)."""
+    t = np.float32(k) / denom
+    if np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip)) != c:
+        return False
+    return np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip)) == r
