@@ -5,8 +5,10 @@ diagonal step, most edges decided from a few reads through a clearance table (se
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
+import os
 
 import jax
 import jax.numpy as jnp
@@ -472,9 +474,9 @@ def _rule_cells(a, b, grid, *, edge_samples):
 
 @functools.cache
 def _host_rule():
-    """``(edges_clear, fused, recip)``: the compiled host edge rule and the arithmetic that
-    makes its float32 samples fall in the cells the device's rule reads, or None when none of
-    the four ways agrees with the device on the probe (callers then use the device's rule).
+    """``(edges_clear, fused, recip)``: the compiled host edge rule and the arithmetic that makes
+    its float32 samples fall in the cells the device's rule reads, or None when none of the four
+    ways agrees with the device on the probe (callers then use the device's rule).
 
     A float32 sample may fall on either side of a cell border depending on whether ``a + t *
     (b - a)`` is rounded once or twice and on whether the division by the resolution became a
@@ -527,7 +529,8 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
     assert rule is not None  # internal: callers check _host_edges first
     kernel, fused, recip = rule
     res = np.float32(grid.resolution)
-    return kernel(
+    row = 1 if row is None else int(row)  # each edge a row of its own: every wanted one read
+    args = (
         np.ascontiguousarray(blocked, bool),
         np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32),
         _BASE,
@@ -535,11 +538,45 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
         np.ascontiguousarray(b, np.float32),
         np.ascontiguousarray(samples, np.int64),
         np.ascontiguousarray(want, bool),
+    )
+    rest = (
         np.asarray(grid.origin, np.float32),
         np.float32(1) / res,
         res,
         fused,
         recip,
-        max(1, len(a)) if row is None else int(row),
-        max(1, len(a)) if k is None else int(k),
+        row,
+        1 if k is None else int(k),
     )
+    E = len(args[3])
+    workers = _workers()
+    if E < _THREADS_FROM or workers == 1:
+        return kernel(*args, *rest)
+    # Blocks of whole rows on threads (the kernel releases the GIL).
+    rows = -(-E // row)
+    cut = [min(E, rows * i // workers * row) for i in range(workers + 1)]
+    blk, tab, base, aa, bb, ss, ww = args
+
+    def run(c0: int, c1: int) -> np.ndarray:
+        return kernel(blk, tab, base, aa[c0:c1], bb[c0:c1], ss[c0:c1], ww[c0:c1], *rest)
+
+    jobs = [(c0, c1, _pool().submit(run, c0, c1)) for c0, c1 in zip(cut[:-1], cut[1:], strict=True) if c1 > c0]
+    out = np.empty(E, bool)
+    for c0, c1, job in jobs:
+        out[c0:c1] = job.result()
+    return out
+
+
+#: Edges from which the host rule spreads its rows over threads (a grow's thousands; a query's
+#: hundred read on one: waking threads costs more than they save).
+_THREADS_FROM = 4096
+
+
+def _workers() -> int:
+    """Threads for the host rule: the processors this process may use, at most 8."""
+    return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
+@functools.cache
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    return concurrent.futures.ThreadPoolExecutor(_workers(), thread_name_prefix="jaxsem-edges")

@@ -52,26 +52,49 @@ def sample_cells(a, b, S, origin, inv, res, fused, recip):
 def edges_clear(blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip, row, k):
     """The edge rule on edges ``a`` -> ``b`` (E, 2) float32 with ``samples`` (E,) samples each,
     on the bool grid ``blocked`` (H, W): (E,) clear flags (False where ``want`` is not set).
-    The edges come in rows of ``row`` (a query end's candidates in preference order); in each
+    The edges come in rows of ``row`` (a vertex's candidates in preference order); in each
     row, the edges after its ``k``-th clear one are not read (False: a caller keeping the first
     ``k`` clear ones drops them anyway).
 
     ``table``: clearance lower bounds in cells, one per block of ``2**base`` x ``2**base``
-    cells (shape (0, 0): none); see :func:`edge_clear`."""
+    cells (shape (0, 0): none); see :func:`edge_clear`. It releases the GIL: callers run
+    blocks of rows on threads of their own."""
     E = a.shape[0]
-    H, W = blocked.shape
     out = np.zeros(E, np.bool_)
-    for r0 in range(0, E, row):
-        found = 0
-        for e in range(r0, min(r0 + row, E)):
-            if found >= k:
-                break
-            if want[e]:
-                out[e] = edge_clear(
-                    blocked, table, base, a[e, 0], a[e, 1], b[e, 0], b[e, 1], samples[e], origin, inv, res, fused, recip
-                )
-                found += out[e]
+    for ri in range(-(-E // row)):
+        _row(
+            out,
+            ri * row,
+            min(ri * row + row, E),
+            k,
+            blocked,
+            table,
+            base,
+            a,
+            b,
+            samples,
+            want,
+            origin,
+            inv,
+            res,
+            fused,
+            recip,
+        )
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _row(out, e0, e1, k, blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip):
+    """The edges ``e0 .. e1`` of one row into ``out``, until ``k`` are clear."""
+    found = 0
+    for e in range(e0, e1):
+        if found >= k:
+            break
+        if want[e]:
+            out[e] = edge_clear(
+                blocked, table, base, a[e, 0], a[e, 1], b[e, 0], b[e, 1], samples[e], origin, inv, res, fused, recip
+            )
+            found += out[e]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -117,8 +140,12 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
             k += m
             prev = False
             continue
+        if step * 4 > res:
+            k += 1  # a few samples a cell (the roadmap's own edges): read the next one
+            continue
         # Each coordinate's cell is monotone in k (every operation rounds monotonically): the
-        # samples up to the last one in this cell add nothing. Gallop to the first one past it.
+        # samples up to the last one in this cell add nothing. Gallop to the first one past it
+        # (a query's long edges: hundreds of samples a cell).
         lo = k
         hi = k + 1
         run = 1

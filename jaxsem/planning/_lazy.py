@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._astar import SearchGraph, astar_path, search_graph
-from ._edges import _edges, _edges_clear_host, _edges_dense, _extent, _grid, _host_edges
+from ._edges import _edge_samples, _edges, _edges_clear_host, _edges_dense, _extent, _grid, _host_edges
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
+from ._roadmap import _QUERY, Roadmap, _clear_first_np, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
@@ -131,6 +131,42 @@ def _grow_lazy(
         cand[need] = np.concatenate([np.asarray(nb) for nb, _ in parts])[: len(some)]
     cand[~np.asarray(ok_new)] = M
     return (rm, cand), cap
+
+
+def _grow_checked_host(
+    roadmap, key, blocked, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids, table
+) -> tuple[Roadmap, int]:
+    """The eager grow with its edges checked on the host (Euclidean weights, float32 points:
+    :func:`~jaxsem.planning._edges._host_edges`): the lazy grow's samples and candidates (the
+    eager grow's), each new vertex's candidates read in preference order until ``k`` are clear
+    (the rule compiled on the host, the edges after the ``k``-th clear one unread), the first
+    ``k`` clear ones kept and weighed by their lengths: the eager grow's edges and weights
+    (:meth:`_LazyEdges.links`' rule). ``blocked``: the numpy grid of ``blocked_j``; ``table``:
+    its clearance table (numpy). Returns (roadmap, the cap that sufficed)."""
+    M, k = roadmap.neighbors.shape
+    s0 = _QUERY + int(roadmap.num_samples)
+    (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
+    pts = np.asarray(rm.points)
+    K = cand.shape[1]
+    a = np.repeat(pts[s0 : s0 + n], K, axis=0)
+    b = pts[np.minimum(cand, M - 1)].reshape(-1, 2)
+    samples = np.full(len(a), _edge_samples(radius, float(grid.resolution)), np.int64)
+    clear = _edges_clear_host(blocked, a, b, samples, (cand < M).reshape(-1), grid, table, row=K, k=k)
+    d = b - a
+    length = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + np.asarray(1e-30, pts.dtype))
+    nbr, ev, w = _clear_first_np(cand, clear.reshape(n, K), length.reshape(n, K), k, M)
+    return _set_rows_jit(rm, np.int32(s0), nbr, ev, w.astype(pts.dtype)), cap
+
+
+@jax.jit
+def _set_rows_jit(rm: Roadmap, s0, nbr, ev, w) -> Roadmap:
+    """``rm`` with rows ``s0 ..`` of its links replaced (one compiled call per row count)."""
+    at = (s0, jnp.int32(0))
+    return rm._replace(
+        neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, at),
+        edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, at),
+        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w, at),
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "edge_samples", "dense"))

@@ -7,9 +7,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ._edges import _edge_samples
+from ._edges import _edge_samples, _host_edges
 from ._grid import UNKNOWN, GridLike, check_point, host_grid, static_grid
-from ._lazy import _CHUNK, _checker, _grow_lazy, _LazyEdges
+from ._lazy import _CHUNK, _checker, _grow_checked_host, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
     _QUERY,
@@ -60,6 +60,13 @@ class PRM:
     around its start and goal; a second query, a batch, :meth:`checked_roadmap` or
     :meth:`update_map` make the whole map's, which later queries share) is kept for the latest two maps, matched cell for cell, so several roadmaps on one
     map make it once (:func:`~jaxsem.planning.clear_map_cache` forgets it).
+
+    Where the edges are checked: on the device, or, for float32 points (JAX's default), on the
+    host by the same rule compiled with numba (:mod:`jaxsem.planning._edges_kernels`), whose
+    float32 samples are probed once per process to fall in the device's cells: a query's links
+    and a lazy roadmap's edges always, an eager grow's with Euclidean weights (the first ``k``
+    clear candidates of each vertex, read in order over numba's threads). The roadmap and the
+    paths are the same either way.
 
     unknown_weight: what a metre through an unknown cell costs against one through a known free
     cell (1: the same, the thesis' rule). Above 1 the planner stays optimistic about unknown
@@ -219,6 +226,19 @@ class PRM:
                 *args, self.sectors, bool(uniform_samples), self._setup.aids(table=False)
             )
             self._lazy.add_rows(s0, cand)
+        elif self.weight == "euclidean" and self._factor is None and _host_edges(dtype):
+            # Lengths as weights: the edges checked on the host, the same roadmap.
+            if distribution is not None and distribution is not self.distribution:
+                self.distribution, self._cost = distribution, None
+            self.roadmap, self._cap = _grow_checked_host(
+                *args[:2],
+                self.blocked,
+                *args[2:],
+                self.sectors,
+                bool(uniform_samples),
+                self._setup.aids(table=False),
+                np.asarray(self._setup.table()),
+            )
         else:
             if distribution is not None and distribution is not self.distribution:
                 self.distribution, self._cost = distribution, None

@@ -106,7 +106,7 @@ def test_long_edges_in_open_space_are_skipped_through_not_misread():
     np.testing.assert_array_equal(got, want)
 
 
-def _blocks(seed, shape=(60, 100)):
+def _blocks(seed, shape=(60, 100)):  # the PRM tests' kind of map
     rng = np.random.default_rng(seed)
     occ = np.zeros(shape, bool)
     for _ in range(25):
@@ -146,6 +146,42 @@ def test_queries_checked_on_the_host_or_the_device_find_the_same_paths(lazy, mon
     assert runs[0] == runs[1]
     assert any(np.isfinite(c) for c, _ in runs[0])
     assert calls  # the first run's links were checked on the host
+
+
+def _edge_set(rm):
+    """(row, neighbour, weight) of every edge of the samples' rows (the slots may differ)."""
+    ev = np.asarray(rm.edge_valid)[2:]
+    rows = np.nonzero(ev)[0] + 2
+    nbr, w = np.asarray(rm.neighbors)[2:][ev], np.asarray(rm.edge_weight)[2:][ev]
+    return sorted(zip(rows.tolist(), nbr.tolist(), w.tolist(), strict=True))
+
+
+@pytest.mark.parametrize("sectors,k", [(8, None), (0, 6), (8, 6)])
+def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypatch, float32):
+    """Two grows (the second's rows among the first's vertices) with the edges checked on the
+    host, then on the device: the same vertices, edges and weights, bit for bit."""
+    import jaxsem.planning._prm as _prm  # layers: white-box
+
+    occ = _blocks(21, shape=(80, 120))
+    grid = Q.Grid.host((-3.7, 1.3), 0.1, occ.shape)
+    maps, calls = [], []
+    monkeypatch.setattr(_prm, "_grow_checked_host", _counted(_prm._grow_checked_host, calls))
+    for host in (True, False):
+        if not host:
+            assert len(calls) == 2  # both grows checked on the host
+            monkeypatch.setattr(_prm, "_host_edges", lambda dtype: False)
+        prm = PRM(occ, grid, capacity=900, k=k, sectors=sectors)
+        prm.grow(jax.random.PRNGKey(8), 500)
+        prm.grow(jax.random.PRNGKey(9), 400)
+        assert prm.roadmap.points.dtype == np.float32
+        maps.append(prm.roadmap)
+    host, device = maps
+    for field in ("points", "valid"):
+        np.testing.assert_array_equal(np.asarray(getattr(host, field)), np.asarray(getattr(device, field)))
+    edges = _edge_set(host)
+    assert len(edges) > 1000
+    assert edges == _edge_set(device)
+    assert len(calls) == 2
 
 
 def _counted(f, calls):
