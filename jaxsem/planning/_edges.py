@@ -567,6 +567,36 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
     return out
 
 
+def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, table):
+    """Each row of ``cand`` (n, K) (the candidates of vertices ``s0 ..`` in preference order,
+    ``len(pts)`` where none) read on the host until ``k`` edges from the vertex are clear (the
+    rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
+    eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
+    lengths). Blocks of rows on threads. Only where :func:`_host_edges`."""
+    rule = _host_rule()
+    assert rule is not None  # internal: callers check _host_edges first
+    _, fused, recip = rule
+    from . import _edges_kernels
+
+    res = np.float32(grid.resolution)
+    pts = np.ascontiguousarray(pts, np.float32)
+    cand = np.ascontiguousarray(cand, np.int32)
+    common = (np.ascontiguousarray(blocked, bool), np.ascontiguousarray(table, np.int32), _BASE, pts)
+    rest = (int(k), int(samples), np.asarray(grid.origin, np.float32), np.float32(1) / res, res, fused, recip)
+    n = len(cand)
+    workers = 1 if n * cand.shape[1] < _THREADS_FROM else _workers()
+    cut = [n * i // workers for i in range(workers + 1)]
+
+    def run(r0: int, r1: int):
+        return _edges_kernels.first_clear(*common, cand[r0:r1], s0 + r0, *rest)
+
+    if workers == 1:
+        return run(0, n)
+    jobs = [_pool().submit(run, r0, r1) for r0, r1 in zip(cut[:-1], cut[1:], strict=True)]
+    parts = [job.result() for job in jobs]
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
 #: Edges from which the host rule spreads its rows over threads (a grow's thousands; a query's
 #: hundred read on one: waking threads costs more than they save).
 _THREADS_FROM = 4096
@@ -578,5 +608,11 @@ def _workers() -> int:
 
 
 @functools.cache
-def _pool() -> concurrent.futures.ThreadPoolExecutor:
+def _pool_of(pid: int) -> concurrent.futures.ThreadPoolExecutor:
+    del pid  # the key: a forked child makes its own (its parent's threads are not in it)
     return concurrent.futures.ThreadPoolExecutor(_workers(), thread_name_prefix="jaxsem-edges")
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    """This process's thread pool for the host rule's blocks of rows."""
+    return _pool_of(os.getpid())

@@ -83,6 +83,40 @@ def edges_clear(blocked, table, base, a, b, samples, want, origin, inv, res, fus
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def first_clear(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fused, recip):
+    """Each row ``i`` of ``cand`` (n, K) (vertex ``s0 + i``'s candidates in preference order,
+    ``M = len(pts)`` where none) read in order until ``k`` edges from the vertex are clear (the
+    rule with ``S`` samples; see :func:`edges_clear`): (neighbours (n, k) int32, ``M`` past the
+    last, valid (n, k), weights (n, k): the edges' lengths in the points' dtype, as the roadmap
+    weighs an edge, inf past the last). It releases the GIL: callers run blocks of rows on
+    threads of their own."""
+    n, K = cand.shape
+    M = pts.shape[0]
+    nbr = np.full((n, k), M, np.int32)
+    ok = np.zeros((n, k), np.bool_)
+    w = np.full((n, k), np.inf, pts.dtype)
+    tiny = pts.dtype.type(1e-30)
+    for i in range(n):
+        ax, ay = pts[s0 + i, 0], pts[s0 + i, 1]
+        found = 0
+        for j in range(K):
+            if found >= k:
+                break
+            c = cand[i, j]
+            if c >= M:
+                continue
+            bx, by = pts[c, 0], pts[c, 1]
+            if edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
+                dx = bx - ax
+                dy = by - ay
+                nbr[i, found] = c
+                ok[i, found] = True
+                w[i, found] = np.sqrt(dx * dx + dy * dy + tiny)
+                found += 1
+    return nbr, ok, w
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _row(out, e0, e1, k, blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip):
     """The edges ``e0 .. e1`` of one row into ``out``, until ``k`` are clear."""

@@ -29,10 +29,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._astar import SearchGraph, astar_path, search_graph
-from ._edges import _edge_samples, _edges, _edges_clear_host, _edges_dense, _extent, _grid, _host_edges
+from ._edges import (
+    _edge_samples,
+    _edges,
+    _edges_clear_host,
+    _edges_dense,
+    _extent,
+    _first_clear_host,
+    _grid,
+    _host_edges,
+)
 from ._grid import static_grid
 from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, Roadmap, _clear_first_np, _density, _sample_lazy_jit
+from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
@@ -143,19 +152,12 @@ def _grow_checked_host(
     ``k`` clear ones kept and weighed by their lengths: the eager grow's edges and weights
     (:meth:`_LazyEdges.links`' rule). ``blocked``: the numpy grid of ``blocked_j``; ``table``:
     its clearance table (numpy). Returns (roadmap, the cap that sufficed)."""
-    M, k = roadmap.neighbors.shape
+    k = roadmap.neighbors.shape[1]
     s0 = _QUERY + int(roadmap.num_samples)
     (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
-    pts = np.asarray(rm.points)
-    K = cand.shape[1]
-    a = np.repeat(pts[s0 : s0 + n], K, axis=0)
-    b = pts[np.minimum(cand, M - 1)].reshape(-1, 2)
-    samples = np.full(len(a), _edge_samples(radius, float(grid.resolution)), np.int64)
-    clear = _edges_clear_host(blocked, a, b, samples, (cand < M).reshape(-1), grid, table, row=K, k=k)
-    d = b - a
-    length = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + np.asarray(1e-30, pts.dtype))
-    nbr, ev, w = _clear_first_np(cand, clear.reshape(n, K), length.reshape(n, K), k, M)
-    return _set_rows_jit(rm, np.int32(s0), nbr, ev, w.astype(pts.dtype)), cap
+    samples = _edge_samples(radius, float(grid.resolution))
+    nbr, ev, w = _first_clear_host(blocked, np.asarray(rm.points), cand, s0, k, samples, grid, table)
+    return _set_rows_jit(rm, np.int32(s0), nbr, ev, w), cap
 
 
 @jax.jit
