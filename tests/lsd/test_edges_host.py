@@ -156,7 +156,7 @@ def _edge_set(rm):
     return sorted(zip(rows.tolist(), nbr.tolist(), w.tolist(), strict=True))
 
 
-@pytest.mark.parametrize("sectors,k", [(8, None), (0, 6), (8, 6)])
+@pytest.mark.parametrize("sectors,k", [(8, None), (0, 6)])  # rows of 2k candidates in order; of k
 def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypatch, float32):
     """Two grows (the second's rows among the first's vertices) with the edges checked on the
     host, then on the device: the same vertices, edges and weights, bit for bit."""
@@ -170,9 +170,9 @@ def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypat
         if not host:
             assert len(calls) == 2  # both grows checked on the host
             monkeypatch.setattr(_prm, "_host_edges", lambda dtype: False)
-        prm = PRM(occ, grid, capacity=900, k=k, sectors=sectors)
-        prm.grow(jax.random.PRNGKey(8), 500)
-        prm.grow(jax.random.PRNGKey(9), 400)
+        prm = PRM(occ, grid, capacity=700, k=k, sectors=sectors)
+        prm.grow(jax.random.PRNGKey(8), 400)
+        prm.grow(jax.random.PRNGKey(9), 300)
         assert prm.roadmap.points.dtype == np.float32
         maps.append(prm.roadmap)
     host, device = maps
