@@ -16,7 +16,9 @@ import numpy as np
 @numba.njit(cache=True, nogil=True, inline="always")
 def _along(t, d, a, fused):
     """``a + t * d`` in float32: one rounding when ``fused`` (the product of two float32 is exact
-    in float64), else two."""
+    in float64; the sum's rounding to float64 before float32 differs from a fused multiply-add
+    only where it lands exactly halfway between two float32, about once in 2**28 samples, and
+    then by one unit in the last place), else two."""
     if fused:
         return np.float32(np.float64(t) * np.float64(d) + np.float64(a))
     return np.float32(t * d) + a
