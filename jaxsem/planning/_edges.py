@@ -474,7 +474,7 @@ def _rule_cells(a, b, grid, *, edge_samples):
 
 @functools.cache
 def _host_rule():
-    """``(edges_clear, fused, recip)``: the compiled host edge rule and the arithmetic that makes
+    """``(kernels, fused, recip)``: the compiled host edge rule's module and the arithmetic that makes
     its float32 samples fall in the cells the device's rule reads, or None when none of the four
     ways agrees with the device on the probe (callers then use the device's rule).
 
@@ -506,7 +506,7 @@ def _host_rule():
     rc = np.asarray(_rule_cells(a[pick], b[pick], static_grid(g), edge_samples=S))
     for (f, r), (rows, cols) in zip(ways, cells):
         if np.array_equal(rows[pick], rc[..., 0]) and np.array_equal(cols[pick], rc[..., 1]):
-            return k.edges_clear, f, r
+            return k, f, r
     return None
 
 
@@ -525,46 +525,19 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
     clearance ``table`` (:func:`_clearance_table`, numpy; None: none) vouches for. ``row``,
     ``k``: the edges come in rows of ``row`` in preference order, of which the caller keeps the
     first ``k`` clear ones: the rest are not read (False). Only where :func:`_host_edges`."""
-    rule = _host_rule()
-    assert rule is not None  # internal: callers check _host_edges first
-    kernel, fused, recip = rule
-    res = np.float32(grid.resolution)
+    kernels, consts = _host_call(grid)
     row = 1 if row is None else int(row)  # each edge a row of its own: every wanted one read
-    args = (
-        np.ascontiguousarray(blocked, bool),
-        np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32),
-        _BASE,
-        np.ascontiguousarray(a, np.float32),
-        np.ascontiguousarray(b, np.float32),
-        np.ascontiguousarray(samples, np.int64),
-        np.ascontiguousarray(want, bool),
-    )
-    rest = (
-        np.asarray(grid.origin, np.float32),
-        np.float32(1) / res,
-        res,
-        fused,
-        recip,
-        row,
-        1 if k is None else int(k),
-    )
-    E = len(args[3])
-    workers = _workers()
-    if E < _THREADS_FROM or workers == 1:
-        return kernel(*args, *rest)
-    # Blocks of whole rows on threads (the kernel releases the GIL).
-    rows = -(-E // row)
-    cut = [min(E, rows * i // workers * row) for i in range(workers + 1)]
-    blk, tab, base, aa, bb, ss, ww = args
+    k = 1 if k is None else int(k)
+    grids = _host_grids(blocked, table)
+    a, b = np.ascontiguousarray(a, np.float32), np.ascontiguousarray(b, np.float32)
+    samples, want = np.ascontiguousarray(samples, np.int64), np.ascontiguousarray(want, bool)
+    E = len(a)
 
-    def run(c0: int, c1: int) -> np.ndarray:
-        return kernel(blk, tab, base, aa[c0:c1], bb[c0:c1], ss[c0:c1], ww[c0:c1], *rest)
+    def run(r0: int, r1: int) -> np.ndarray:
+        e0, e1 = r0 * row, min(E, r1 * row)
+        return kernels.edges_clear(*grids, a[e0:e1], b[e0:e1], samples[e0:e1], want[e0:e1], *consts, row, k)
 
-    jobs = [(c0, c1, _pool().submit(run, c0, c1)) for c0, c1 in zip(cut[:-1], cut[1:], strict=True) if c1 > c0]
-    out = np.empty(E, bool)
-    for c0, c1, job in jobs:
-        out[c0:c1] = job.result()
-    return out
+    return np.concatenate(_in_blocks(-(-E // row), E, run))
 
 
 def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, table):
@@ -572,29 +545,48 @@ def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, t
     ``len(pts)`` where none) read on the host until ``k`` edges from the vertex are clear (the
     rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
     eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
-    lengths). Blocks of rows on threads. Only where :func:`_host_edges`."""
+    lengths). Only where :func:`_host_edges`."""
+    kernels, (origin, inv, res, fused, recip) = _host_call(grid)
+    grids = _host_grids(blocked, table)
+    pts = np.ascontiguousarray(pts, np.float32)
+    cand = np.ascontiguousarray(cand, np.int32)
+
+    def run(r0: int, r1: int):
+        return kernels.first_clear(
+            *grids, pts, cand[r0:r1], s0 + r0, int(k), int(samples), origin, inv, res, fused, recip
+        )
+
+    parts = _in_blocks(len(cand), cand.size, run)
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+def _host_call(grid):
+    """The host rule's kernels module and its constants on the host ``grid``: (origin, the
+    float32 reciprocal of the resolution, the resolution, fused, recip) (:func:`_host_rule`)."""
     rule = _host_rule()
     assert rule is not None  # internal: callers check _host_edges first
     _, fused, recip = rule
     from . import _edges_kernels
 
     res = np.float32(grid.resolution)
-    pts = np.ascontiguousarray(pts, np.float32)
-    cand = np.ascontiguousarray(cand, np.int32)
-    common = (np.ascontiguousarray(blocked, bool), np.ascontiguousarray(table, np.int32), _BASE, pts)
-    rest = (int(k), int(samples), np.asarray(grid.origin, np.float32), np.float32(1) / res, res, fused, recip)
-    n = len(cand)
-    workers = 1 if n * cand.shape[1] < _THREADS_FROM else _workers()
-    cut = [n * i // workers for i in range(workers + 1)]
+    return _edges_kernels, (np.asarray(grid.origin, np.float32), np.float32(1) / res, res, fused, recip)
 
-    def run(r0: int, r1: int):
-        return _edges_kernels.first_clear(*common, cand[r0:r1], s0 + r0, *rest)
 
-    if workers == 1:
-        return run(0, n)
-    jobs = [_pool().submit(run, r0, r1) for r0, r1 in zip(cut[:-1], cut[1:], strict=True)]
-    parts = [job.result() for job in jobs]
-    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+def _host_grids(blocked, table):
+    """(blocked, table, its block level) as the kernels read them (table None: none)."""
+    tab = np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32)
+    return np.ascontiguousarray(blocked, bool), tab, _BASE
+
+
+def _in_blocks(rows: int, edges: int, run) -> list:
+    """``run(r0, r1)`` over ``rows`` rows: in one call, or, from :data:`_THREADS_FROM` ``edges``,
+    in blocks of rows on threads (the kernels release the GIL). Returns the results in order."""
+    workers = _workers() if edges >= _THREADS_FROM else 1
+    cut = [rows * i // workers for i in range(workers + 1)]
+    blocks = [(r0, r1) for r0, r1 in zip(cut[:-1], cut[1:], strict=True) if r1 > r0] or [(0, 0)]
+    if len(blocks) == 1:
+        return [run(*blocks[0])]
+    return [job.result() for job in [_pool().submit(run, r0, r1) for r0, r1 in blocks]]
 
 
 #: Edges from which the host rule spreads its rows over threads (a grow's thousands; a query's

@@ -12,6 +12,8 @@ assumed (:func:`jaxsem.planning._edges._host_rule`).
 import numba
 import numpy as np
 
+from ._astar_kernels import entry_length
+
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _along(t, d, a, fused):
@@ -98,7 +100,6 @@ def first_clear(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fus
     nbr = np.full((n, k), M, np.int32)
     ok = np.zeros((n, k), np.bool_)
     w = np.full((n, k), np.inf, pts.dtype)
-    tiny = pts.dtype.type(1e-30)
     for i in range(n):
         ax, ay = pts[s0 + i, 0], pts[s0 + i, 1]
         found = 0
@@ -110,11 +111,9 @@ def first_clear(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fus
                 continue
             bx, by = pts[c, 0], pts[c, 1]
             if edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
-                dx = bx - ax
-                dy = by - ay
                 nbr[i, found] = c
                 ok[i, found] = True
-                w[i, found] = np.sqrt(dx * dx + dy * dy + tiny)
+                w[i, found] = entry_length(pts, s0 + i, c)  # float64 of a float32: exact back
                 found += 1
     return nbr, ok, w
 

@@ -860,22 +860,8 @@ def _links_ends(rm, start, goal, cost, grid, *, radius, edge_samples, long_sampl
     return q, nbr, a, other, short, nbr < M, w
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
-def _links_ends_jit(rm, start, goal, cost, grid, *, radius, edge_samples, long_samples, sectors):
-    """The device part of :func:`_links_checked` when the host checks the edges: candidates,
-    ends (flat (Q * 2 * keep, 2)), short flags and weights (:func:`_links_ends`)."""
-    q, nbr, a, other, short, cand, w = _links_ends(
-        rm,
-        start,
-        goal,
-        cost,
-        grid,
-        radius=radius,
-        edge_samples=edge_samples,
-        long_samples=long_samples,
-        sectors=sectors,
-    )
-    return q, nbr, short, cand, w, a.reshape(-1, 2), other.reshape(-1, 2)
+#: The device part of :func:`_links_checked` when the host checks the edges (:func:`_links_ends`).
+_links_ends_jit = jax.jit(_links_ends, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
@@ -982,12 +968,13 @@ def _links_checked(
     M, k = roadmap.neighbors.shape
     starts_d, goals_d = np.asarray(starts, dtype), np.asarray(goals, dtype)  # numpy into the jitted calls
     if _host_edges(dtype):
-        q, nbr, short, cand, w, fa, fb = (
+        q, nbr, a, other, short, cand, w = (
             np.asarray(x)
             for x in _links_ends_jit(
                 roadmap, starts_d, goals_d, cost, grid_s, radius=float(radius), **samples, sectors=sectors
             )
         )
+        fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
         n = np.where(short, samples["edge_samples"], samples["long_samples"]).reshape(-1)
         # Each end keeps its first k clear candidates (_clear_first_np): the rest go unread.
         keep_k = (nbr.shape[-1], k) if nbr.shape[-1] > k else (None, None)

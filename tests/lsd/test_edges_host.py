@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
+from test_prm_query_many import _blocks  # the PRM tests' maps of random wall blocks
 
 import jaxsem.planning._edges as _edges  # layers: white-box
 import jaxsem.planning._roadmap as _roadmap  # layers: white-box
@@ -106,15 +107,6 @@ def test_long_edges_in_open_space_are_skipped_through_not_misread():
     np.testing.assert_array_equal(got, want)
 
 
-def _blocks(seed, shape=(60, 100)):  # the PRM tests' kind of map
-    rng = np.random.default_rng(seed)
-    occ = np.zeros(shape, bool)
-    for _ in range(25):
-        r, c = rng.integers(0, shape[0] - 3), rng.integers(0, shape[1] - 3)
-        occ[r : r + rng.integers(1, 8), c : c + rng.integers(1, 4)] = True
-    return occ
-
-
 @pytest.fixture
 def float32():
     """The roadmap in float32, a user's default (the suite runs under x64, where the roadmap is
@@ -162,7 +154,7 @@ def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypat
     host, then on the device: the same vertices, edges and weights, bit for bit."""
     import jaxsem.planning._prm as _prm  # layers: white-box
 
-    occ = _blocks(21, shape=(80, 120))
+    occ = _blocks(21)
     grid = Q.Grid.host((-3.7, 1.3), 0.1, occ.shape)
     maps, calls = [], []
     monkeypatch.setattr(_prm, "_grow_checked_host", _counted(_prm._grow_checked_host, calls))

@@ -145,7 +145,8 @@ def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
     seconds)."""
 
     def signatures():
-        return tuple(len(f.signatures) for f in (_kernels.adjacency, _kernels.astar, _edge_kernels.edges_clear))
+        kernels = (_kernels.adjacency, _kernels.astar, _edge_kernels.edges_clear, _edge_kernels.first_clear)
+        return tuple(len(f.signatures) for f in kernels)
 
     def queries(seed):
         for lazy in (False, True):
