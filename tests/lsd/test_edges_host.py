@@ -148,7 +148,8 @@ def _edge_set(rm):
     return sorted(zip(rows.tolist(), nbr.tolist(), w.tolist(), strict=True))
 
 
-@pytest.mark.parametrize("sectors,k", [(8, None), (0, 6)])  # rows of 2k candidates in order; of k
+# Rows of 2k candidates in order (the defaults); rows of k (slow: a second set of compiles).
+@pytest.mark.parametrize("sectors,k", [(8, None), pytest.param(0, 6, marks=pytest.mark.slow)])
 def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypatch, float32):
     """Two grows (the second's rows among the first's vertices) with the edges checked on the
     host, then on the device: the same vertices, edges and weights, bit for bit."""
