@@ -54,14 +54,18 @@ class SearchGraph(NamedTuple):
     ratio: float
 
 
-def search_graph(nbr, usable, w, points, entries, ratio: float | None = None) -> SearchGraph:
+def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *, fixed: bool = False) -> SearchGraph:
     """A :class:`SearchGraph` of the rows ``nbr`` (M, K) int32 and vertex ``points`` (M, 2).
     ``entries`` (M, K) bool: the entries that are edges, now or later (each names a vertex
     2 <= v < M); ``usable`` (M, K) bool, C-ordered, kept by reference (flattened as a view):
     those that may be used now. ``w`` (M, K): the weights (float64, positive), or None: the
     entries' lengths in the points' dtype, as the roadmap computes an edge's length (then the
     heuristic's ratio is 1). ``ratio``: the smallest weight / length when the caller knows it,
-    else measured here."""
+    else measured here. ``fixed``: ``usable`` is ``entries`` and never changes (an eager
+    roadmap), so of a vertex's entries to one other end with one weight (an edge both its ends
+    chose) one is kept: the searches' answers are the same, and they read half as many."""
+    if fixed and not np.array_equal(usable, entries):
+        raise ValueError("usable: with fixed=True expected the entries themselves")
     entries = np.asarray(entries, bool)
     if not (usable.dtype == np.bool_ and usable.flags.c_contiguous and usable.shape == nbr.shape):
         raise ValueError(f"usable: expected a C-ordered bool array of shape {nbr.shape}")
@@ -69,7 +73,7 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None) ->
     points = np.ascontiguousarray(points)
     lengths = w is None
     w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(w, np.float64)
-    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, points, lengths)
+    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, points, lengths, fixed)
     if lengths:
         ratio = 1.0
     elif ratio is None:

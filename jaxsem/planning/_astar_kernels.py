@@ -15,12 +15,14 @@ def entry_length(p, r, c):
 
 
 @numba.njit(cache=True, nogil=True)
-def adjacency(nbr, keep, w, p, use_lengths):
+def adjacency(nbr, keep, w, p, use_lengths, once):
     """Every kept entry (r, s) of ``nbr`` as an edge both ways, in CSR form by vertex: (ptr
     (M + 1,), the other end, the weight, the entry id r * K + s) (a counting sort), and the
     smallest weight / length over them (inf if none has a length). Weights: ``w[r, s]``, or
     with ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12; ``w`` is
-    not read)."""
+    not read). ``once``: of a vertex's entries to one other end with one weight (an edge both
+    its ends chose) only the first stays; a search that never skips an entry reads the same
+    (the second relaxes nothing the first did not)."""
     R, K = nbr.shape
     M = p.shape[0]
     ptr = np.zeros(M + 1, np.int64)
@@ -55,19 +57,40 @@ def adjacency(nbr, keep, w, p, use_lengths):
                     wt[at] = x
                     eid[at] = r * K + s
                     fill[a] += 1
-    return ptr, adj, wt, eid, ratio
+    if once:
+        ptr, E = _first_of_each(ptr, adj, wt, eid)
+    return ptr, adj[:E], wt[:E], eid[:E], ratio
 
 
 @numba.njit(cache=True, nogil=True)
+def _first_of_each(ptr, adj, wt, eid):
+    """Compacts the CSR in place, keeping each vertex's first entry of every (other end, weight).
+    Returns (the new ptr, the entries kept)."""
+    M = ptr.shape[0] - 1
+    last = np.full(M, -1, np.int64)  # the vertex whose list last named each end
+    first = np.zeros(M, np.int64)  # where that entry went
+    out = np.zeros(M + 1, np.int64)
+    j = 0
+    for a in range(M):
+        for e in range(ptr[a], ptr[a + 1]):
+            b = adj[e]
+            if last[b] == a and wt[first[b]] == wt[e]:
+                continue
+            last[b] = a
+            first[b] = j
+            adj[j] = b
+            wt[j] = wt[e]
+            eid[j] = eid[e]
+            j += 1
+        out[a + 1] = j
+    return out, j
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def push(hf, hn, size, f, v):
     """Adds vertex ``v`` with key ``f`` to the binary min-heap (keys ``hf``, vertices ``hn``, the
-    first ``size`` in use; doubled when full). Returns (hf, hn, size)."""
-    if size == hf.shape[0]:
-        hf2 = np.empty(2 * size, np.float64)
-        hn2 = np.empty(2 * size, np.int64)
-        hf2[:size] = hf
-        hn2[:size] = hn
-        hf, hn = hf2, hn2
+    first ``size`` in use; the caller leaves room). Returns the new size. Only sizes go in and
+    out: a heap function that hands its arrays back costs the search two to three times more."""
     j = size
     while j > 0:
         p = (j - 1) >> 1
@@ -78,7 +101,7 @@ def push(hf, hn, size, f, v):
         j = p
     hf[j] = f
     hn[j] = v
-    return hf, hn, size + 1
+    return size + 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -89,7 +112,7 @@ def to_goal(px, py, v, gx, gy):
     return np.sqrt(dx * dx + dy * dy)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def pop(hf, hn, size):
     """Removes the heap's smallest key. Returns (key, vertex, size)."""
     f = hf[0]
@@ -126,8 +149,11 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
     for i in range(g_dst.shape[0]):
         if g_w[i] < enter[g_dst[i]]:
             enter[g_dst[i]] = g_w[i]
-    hf = np.empty(64, np.float64)
-    hn = np.empty(64, np.int64)
+    # Every push follows a relaxation that lowered a vertex's cost, and each entry relaxes at
+    # most once (its vertex is closed once): the heap never holds more than this.
+    room = adj.shape[0] + s_dst.shape[0] + 1
+    hf = np.empty(room, np.float64)
+    hn = np.empty(room, np.int64)
     size = 0
     best = np.inf
     via = -2  # -2: none; -1: the start's own edge to the goal; else the vertex entering it
@@ -140,7 +166,7 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
         elif 2 <= v < M and s_w[i] < g[v]:
             g[v] = s_w[i]
             pred[v] = 0
-            hf, hn, size = push(hf, hn, size, s_w[i] + c * to_goal(px, py, v, gx, gy), v)
+            size = push(hf, hn, size, s_w[i] + c * to_goal(px, py, v, gx, gy), v)
     while size > 0:
         f, u, size = pop(hf, hn, size)
         if f >= best:
@@ -159,7 +185,7 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
                 if nd < g[v]:
                     g[v] = nd
                     pred[v] = u
-                    hf, hn, size = push(hf, hn, size, nd + c * to_goal(px, py, v, gx, gy), v)
+                    size = push(hf, hn, size, nd + c * to_goal(px, py, v, gx, gy), v)
     if via == -2:
         return np.inf, np.zeros(0, np.int64)
     n = 2

@@ -88,7 +88,7 @@ from ._edges import (
 )
 from ._grid import OCCUPIED, GridLike, check_point, host_grid, static_grid
 from ._map_setup import _MapAids
-from ._neighbours import _knn, _select
+from ._neighbours import _knn, _per_sector, _select
 from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_points
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
@@ -864,6 +864,102 @@ def _links_ends(rm, start, goal, cost, grid, *, radius, edge_samples, long_sampl
 _links_ends_jit = jax.jit(_links_ends, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
 
 
+def _links_ends_host(points, valid, starts, goals, k: int, *, radius, sectors, choice):
+    """:func:`_links_ends` with lengths as weights, on the host: the same candidates, ends,
+    flags and weights (numpy) for float32 ``points`` (M, 2), ``valid`` (M,), ``starts``,
+    ``goals`` (Q, 2), from the compiled choice ``choice`` (:func:`_host_choice`). None where a
+    sample on a sector border could change a query's candidates (the device decides those)."""
+    kernels, mode = choice
+    M = points.shape[0]
+    keep = 2 * k if sectors else k
+    m = _per_sector(k, sectors) if sectors else 0
+    starts, goals = np.ascontiguousarray(starts, np.float32), np.ascontiguousarray(goals, np.float32)
+    nbr, d2, unsure = kernels.query_candidates(points, valid, starts, goals, m, int(sectors), keep, mode)
+    if unsure.any():
+        return None
+    q = np.stack([starts, goals], 1)  # (Q, 2, 2)
+    other = np.where((nbr == GOAL)[..., None], q[:, None, 1:2, :], points[np.minimum(nbr, M - 1)])
+    a = np.broadcast_to(q[:, :, None, :], other.shape)
+    # The device's float32 arithmetic: the squared length the choice read, the radius' square
+    # rounded once, the length sqrt(d2 + 1e-30) (each step correctly rounded, as XLA's).
+    short = d2 <= np.float32((radius * (1 + 1e-6)) ** 2)
+    w = np.sqrt(d2 + np.float32(1e-30))
+    return q, nbr, a, other, short, nbr < M, w
+
+
+@functools.cache
+def _host_choice():
+    """``(kernels, mode)``: the compiled host choice of a query's candidates
+    (:mod:`jaxsem.planning._neighbours_kernels`) and the rounding of its squared distances that
+    gives the device's choice (:func:`_links_ends_jit`), or None when none does on the probe
+    (callers then ask the device).
+
+    Whether XLA rounds ``dx * dx + dy * dy`` after each operation or fuses a product into the
+    sum is its compiler's choice. The probe places pairs of samples whose squared distances from
+    their query tie under one rounding and not under another, each pair alone in a sector of
+    its query (so its nearer one is the sector's reserved candidate), reads the device's
+    choice, and keeps the rounding that gives it."""
+    from . import _neighbours_kernels as kern
+
+    rng = np.random.default_rng(0)
+    n, k = 24, 16  # 8 sectors of one reserved candidate each
+    qs = np.stack([100.0 + 8.0 * np.arange(n), np.zeros(n)], 1).astype(np.float32)
+    goals = (qs + np.array([-500.0, -900.0], np.float32)).astype(np.float32)
+    pairs = []
+    for i in range(n):
+        # Offsets in the sector from 0.2 to 0.6 rad, on a thin ring: many squared distances tie.
+        ang = rng.uniform(0.2, 0.6, 4096)
+        rad = 1.0 + rng.uniform(0.0, 2e-5, 4096)
+        p = (qs[i] + np.stack([rad * np.cos(ang), rad * np.sin(ang)], 1)).astype(np.float32)
+        d = p - qs[i]
+        dx, dy = d[:, 0].astype(np.float64), d[:, 1].astype(np.float64)
+        fx, fy = (d[:, 0] * d[:, 0]).astype(np.float64), (d[:, 1] * d[:, 1]).astype(np.float64)  # float32 products
+        ways = [(fx + fy).astype(np.float32), (dx * dx + fy).astype(np.float32), (dy * dy + fx).astype(np.float32)]
+        # A pair tied under way i % 3 that neither other way ties.
+        w0 = ways[i % 3]
+        _, first, counts = np.unique(w0, return_index=True, return_counts=True)
+        found = None
+        for f in first[counts > 1]:
+            for j in np.flatnonzero(w0 == w0[f]):
+                if j != f and all(w[j] != w[f] for t, w in enumerate(ways) if t != i % 3):
+                    found = (f, j)
+                    break
+            if found:
+                break
+        if found is None:
+            return None
+        pairs.append(p[list(found)])
+    M = 2 + 2 * n
+    points = np.zeros((M, 2), np.float32)
+    points[2:] = np.concatenate(pairs)
+    valid = np.ones(M, bool)
+    valid[:2] = False
+    outs = [kern.query_candidates(points, valid, qs, goals, 1, 8, 2 * k, mode) for mode in range(3)]
+    if any(o[2].any() for o in outs) or any(
+        np.array_equal(outs[i][0], outs[j][0]) for i in range(3) for j in range(i + 1, 3)
+    ):
+        return None  # the probe tells nothing (cannot happen with the fixed draw)
+    rm = Roadmap(
+        points=jnp.asarray(points),
+        valid=jnp.asarray(valid),
+        neighbors=jnp.full((M, k), M, jnp.int32),
+        edge_valid=jnp.zeros((M, k), bool),
+        edge_weight=jnp.full((M, k), jnp.inf, jnp.float32),
+        num_samples=jnp.asarray(M - 2, jnp.int32),
+        overflow=jnp.zeros((), bool),
+    )
+    grid = Q.Grid.host((0.0, -1024.0), 1.0, (2048, 2048))
+    device = np.asarray(
+        _links_ends_jit(rm, qs, goals, None, static_grid(grid), radius=4.0, edge_samples=9, long_samples=9, sectors=8)[
+            1
+        ]
+    )
+    for mode, out in enumerate(outs):
+        if np.array_equal(out[0], device):
+            return kern, mode
+    return None
+
+
 @functools.partial(jax.jit, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
 def _links_coarse(rm, start, goal, blocked, cost, grid, table, *, radius, edge_samples, long_samples, sectors):
     """The device part of :func:`_links_checked` when the device checks the edges: the
@@ -968,12 +1064,21 @@ def _links_checked(
     M, k = roadmap.neighbors.shape
     starts_d, goals_d = np.asarray(starts, dtype), np.asarray(goals, dtype)  # numpy into the jitted calls
     if _host_edges(dtype):
-        q, nbr, a, other, short, cand, w = (
-            np.asarray(x)
-            for x in _links_ends_jit(
-                roadmap, starts_d, goals_d, cost, grid_s, radius=float(radius), **samples, sectors=sectors
+        ends = None
+        choice = _host_choice() if cost is None else None
+        if choice is not None:
+            pts, valid = roadmap.points, roadmap.valid
+            ends = _links_ends_host(
+                np.asarray(pts), np.asarray(valid), starts_d, goals_d, k, radius=radius, sectors=sectors, choice=choice
             )
-        )
+        if ends is None:
+            ends = (
+                np.asarray(x)
+                for x in _links_ends_jit(
+                    roadmap, starts_d, goals_d, cost, grid_s, radius=float(radius), **samples, sectors=sectors
+                )
+            )
+        q, nbr, a, other, short, cand, w = ends
         fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
         n = np.where(short, samples["edge_samples"], samples["long_samples"]).reshape(-1)
         # Each end keeps its first k clear candidates (_clear_first_np): the rest go unread.

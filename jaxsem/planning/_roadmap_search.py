@@ -94,7 +94,7 @@ class _SampleGraph:
         ok[:_QUERY] = False
         # float64 weights, tiny ones clamped (a zero weight would make a path's cost ambiguous).
         w = np.where(ok, np.maximum(np.asarray(roadmap.edge_weight, np.float64), 1e-12), np.inf)
-        self.graph = search_graph(nbr, ok, w, np.asarray(roadmap.points), ok)
+        self.graph = search_graph(nbr, ok, w, np.asarray(roadmap.points), ok, fixed=True)
         self.points = np.asarray(roadmap.points)
 
 

@@ -2,6 +2,7 @@
 same edges written as a plain undirected edge list)."""
 
 import numpy as np
+import pytest
 import scipy.sparse
 import scipy.sparse.csgraph
 from hypothesis import given, settings, strategies as st
@@ -122,3 +123,63 @@ def test_a_straight_start_to_goal_edge_and_no_edges():
     assert cost == 1.0 and path.tolist() == [0, 1]
     cost, path = astar_path(graph, q, np.array([2]), np.array([1.0]), np.zeros(0, int), np.zeros(0))
     assert cost == np.inf and path.shape == (0,)
+
+
+def mutual_roadmap(rng, M, K, *, stretch):
+    """A roadmap whose rows often name each other (an edge both its ends chose) with one weight
+    per edge, as an eager roadmap's: its entries are its edges, fixed."""
+    pts, nbr, usable, w = random_roadmap(rng, M, K, p_use=1.0, stretch=0.0)
+    for r in range(2, M):  # copy some of each row's entries into the rows they name
+        for s in range(K):
+            c = nbr[r, s]
+            if c < M and rng.random() < 0.6:
+                free = np.flatnonzero(~usable[c])
+                if len(free):
+                    nbr[c, free[0]] = r
+                    usable[c, free[0]] = c != r
+    d = pts[np.minimum(nbr, M - 1)].astype(np.float64) - pts[:, None, :]
+    # One weight per edge, whichever end names it (a stretch drawn per unordered pair).
+    lo, hi = np.minimum(nbr, np.arange(M)[:, None]), np.maximum(nbr, np.arange(M)[:, None])
+    pair = (lo * 7919 + hi * 104729) % 1000 / 1000
+    w = np.maximum(np.hypot(d[..., 0], d[..., 1]) * (1 + stretch * pair), 1e-12)
+    return pts, nbr, usable, np.where(usable, w, np.inf)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10**6),
+    M=st.integers(3, 60),
+    K=st.integers(1, 6),
+    stretch=st.sampled_from([0.0, 0.5]),
+    n_s=st.integers(1, 4),
+    n_g=st.integers(1, 4),
+)
+def test_a_fixed_graph_keeps_an_edge_once_and_searches_the_same(seed, M, K, stretch, n_s, n_g):
+    """``fixed=True`` (an eager roadmap) drops the second entry of an edge both ends chose: fewer
+    entries, the same costs and paths, vertex for vertex."""
+    rng = np.random.default_rng(seed)
+    pts, nbr, usable, w = mutual_roadmap(rng, M, K, stretch=stretch)
+    q = rng.uniform(0, 10, (2, 2))
+    s_dst = rng.integers(2, M, n_s)
+    g_dst = rng.integers(2, M, n_g)
+    s_w = np.hypot(*(pts[s_dst] - q[0]).T) + 1e-9
+    g_w = np.hypot(*(pts[g_dst] - q[1]).T) + 1e-9
+    both = search_graph(nbr, usable, w, pts, usable)
+    once = search_graph(nbr, usable, w, pts, usable, fixed=True)
+    r, s = np.nonzero(usable)
+    edges = {(min(a, b), max(a, b)) for a, b in zip(r, nbr[r, s], strict=True)}
+    assert len(once.adj) == 2 * len(edges) <= len(both.adj)
+    for _ in range(3):
+        got = astar_path(once, q, s_dst, s_w, g_dst, g_w)
+        want = astar_path(both, q, s_dst, s_w, g_dst, g_w)
+        assert got[0] == want[0] and got[1].tolist() == want[1].tolist()
+        g_dst = rng.integers(2, M, n_g)
+
+
+def test_a_fixed_graph_refuses_flags_that_are_not_its_entries():
+    pts = np.zeros((4, 2), np.float32)
+    nbr = np.full((4, 1), 4, np.int32)
+    nbr[2, 0] = 3
+    entries = nbr < 4
+    with pytest.raises(ValueError, match="usable"):
+        search_graph(nbr, np.zeros_like(entries), np.ones((4, 1)), pts, entries, fixed=True)
