@@ -21,6 +21,9 @@ import numpy as np
 #: Relative width of the band around a sector border within which a direction counts as on it.
 _BORDER = 1e-4
 
+#: The eighth sector of a direction by (dy < 0, dx < 0, |dx| > |dy|), bits high to low.
+_OCTANT = np.array([5, 4, 6, 7, 2, 3, 1, 0], np.int64)
+
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _d2(dx, dy, mode):
@@ -45,16 +48,8 @@ def _sector(dx, dy, S):
         hi = max(ax, ay)
         lo = min(ax, ay)
         near = hi == 0 or lo < _BORDER * hi or hi - lo < _BORDER * hi
-        if dy < 0:
-            if dx < 0:
-                s = 0 if ax > ay else 1
-            else:
-                s = 2 if ay > ax else 3
-        elif dx > 0:
-            s = 4 if ax > ay else 5
-        else:
-            s = 6 if ay > ax else 7
-        return s, near
+        # By the signs and which of |dx|, |dy| is larger (no branch: directions are random).
+        return _OCTANT[(dy < 0) * 4 + (dx < 0) * 2 + (ax > ay)], near
     v = (math.atan2(np.float64(dy), np.float64(dx)) + math.pi) * S / (2 * math.pi)
     s = min(max(np.int64(math.floor(v)), 0), S - 1)
     return s, abs(v - math.floor(v + 0.5)) < _BORDER

@@ -887,6 +887,15 @@ def _links_ends_host(points, valid, starts, goals, k: int, *, radius, sectors, c
     return q, nbr, a, other, short, nbr < M, w
 
 
+def _unlinked(points, valid, k: int) -> Roadmap:
+    """A roadmap of the samples ``points`` (M, 2) (slots 0 and 1 the query's) and their flags,
+    with room for ``k`` links each and none made: what a query's choice reads."""
+    M = len(points)
+    return _empty_roadmap(M, int(k), np.dtype(points.dtype))._replace(
+        points=jnp.asarray(points), valid=jnp.asarray(valid), num_samples=jnp.asarray(M - _QUERY, jnp.int32)
+    )
+
+
 @functools.cache
 def _host_choice():
     """``(kernels, mode)``: the compiled host choice of a query's candidates
@@ -939,15 +948,7 @@ def _host_choice():
         np.array_equal(outs[i][0], outs[j][0]) for i in range(3) for j in range(i + 1, 3)
     ):
         return None  # the probe tells nothing (cannot happen with the fixed draw)
-    rm = Roadmap(
-        points=jnp.asarray(points),
-        valid=jnp.asarray(valid),
-        neighbors=jnp.full((M, k), M, jnp.int32),
-        edge_valid=jnp.zeros((M, k), bool),
-        edge_weight=jnp.full((M, k), jnp.inf, jnp.float32),
-        num_samples=jnp.asarray(M - 2, jnp.int32),
-        overflow=jnp.zeros((), bool),
-    )
+    rm = _unlinked(points, valid, k)
     grid = Q.Grid.host((0.0, -1024.0), 1.0, (2048, 2048))
     device = np.asarray(
         _links_ends_jit(rm, qs, goals, None, static_grid(grid), radius=4.0, edge_samples=9, long_samples=9, sectors=8)[

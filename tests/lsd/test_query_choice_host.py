@@ -4,7 +4,6 @@ roadmaps, sector counts and ``k``, with exact ties of distance; a sample on a se
 leaves the choice to the device."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -24,21 +23,8 @@ def float32():
         yield
 
 
-def _roadmap_of(points, valid, k):
-    M = len(points)
-    return _roadmap.Roadmap(
-        points=jnp.asarray(points),
-        valid=jnp.asarray(valid),
-        neighbors=jnp.full((M, k), M, jnp.int32),
-        edge_valid=jnp.zeros((M, k), bool),
-        edge_weight=jnp.full((M, k), jnp.inf, jnp.float32),
-        num_samples=jnp.asarray(M - 2, jnp.int32),
-        overflow=jnp.zeros((), bool),
-    )
-
-
 def _both(points, valid, starts, goals, k, sectors, radius=2.0):
-    rm = _roadmap_of(points, valid, k)
+    rm = _roadmap._unlinked(points, valid, k)
     want = _roadmap._links_ends_jit(
         rm, starts, goals, None, static_grid(GRID), radius=radius, edge_samples=41, long_samples=321, sectors=sectors
     )
