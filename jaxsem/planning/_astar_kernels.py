@@ -86,22 +86,33 @@ def _first_of_each(ptr, adj, wt, eid):
     return out, j
 
 
+#: ``where`` of a vertex never queued / closed (else its slot in the heap).
+_NEW, _CLOSED = -1, -2
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
-def push(hf, hn, size, f, v):
-    """Adds vertex ``v`` with key ``f`` to the binary min-heap (keys ``hf``, vertices ``hn``, the
-    first ``size`` in use; the caller leaves room). Returns the new size. Only sizes go in and
-    out: a heap function that hands its arrays back costs the search two to three times more."""
-    j = size
+def push(hf, hn, where, size, f, v):
+    """Gives vertex ``v`` the key ``f`` in the binary min-heap (keys ``hf``, vertices ``hn``, the
+    first ``size`` in use; ``where[v]``: v's slot, :data:`_NEW` if not queued): added, or moved
+    up when queued with a larger key (a vertex is queued once, so the heap never holds more
+    than the vertices). Returns the new size. Only sizes go in and out: a heap function that
+    hands its arrays back costs the search two to three times more."""
+    j = where[v]
+    if j < 0:
+        j = size
+        size += 1
     while j > 0:
         p = (j - 1) >> 1
         if hf[p] <= f:
             break
         hf[j] = hf[p]
         hn[j] = hn[p]
+        where[hn[j]] = j
         j = p
     hf[j] = f
     hn[j] = v
-    return size + 1
+    where[v] = j
+    return size
 
 
 @numba.njit(cache=True, nogil=True)
@@ -113,11 +124,15 @@ def to_goal(px, py, v, gx, gy):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def pop(hf, hn, size):
-    """Removes the heap's smallest key. Returns (key, vertex, size)."""
+def pop(hf, hn, where, size):
+    """Removes the heap's smallest key; its vertex is marked :data:`_CLOSED`. Returns (key,
+    vertex, size)."""
     f = hf[0]
     u = hn[0]
+    where[u] = _CLOSED
     size -= 1
+    if size == 0:
+        return f, u, size
     last_f = hf[size]
     last_n = hn[size]
     j = 0
@@ -129,9 +144,11 @@ def pop(hf, hn, size):
             break
         hf[j] = hf[ch]
         hn[j] = hn[ch]
+        where[hn[j]] = j
         j = ch
     hf[j] = last_f
     hn[j] = last_n
+    where[last_n] = j
     return f, u, size
 
 
@@ -144,16 +161,13 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
     M = px.shape[0]
     g = np.full(M, np.inf)
     pred = np.full(M, -1, np.int64)
-    closed = np.zeros(M, np.bool_)
+    where = np.full(M, _NEW, np.int64)
     enter = np.full(M, np.inf)
     for i in range(g_dst.shape[0]):
         if g_w[i] < enter[g_dst[i]]:
             enter[g_dst[i]] = g_w[i]
-    # Every push follows a relaxation that lowered a vertex's cost, and each entry relaxes at
-    # most once (its vertex is closed once): the heap never holds more than this.
-    room = adj.shape[0] + s_dst.shape[0] + 1
-    hf = np.empty(room, np.float64)
-    hn = np.empty(room, np.int64)
+    hf = np.empty(M, np.float64)
+    hn = np.empty(M, np.int64)
     size = 0
     best = np.inf
     via = -2  # -2: none; -1: the start's own edge to the goal; else the vertex entering it
@@ -166,26 +180,21 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
         elif 2 <= v < M and s_w[i] < g[v]:
             g[v] = s_w[i]
             pred[v] = 0
-            size = push(hf, hn, size, s_w[i] + c * to_goal(px, py, v, gx, gy), v)
-    while size > 0:
-        f, u, size = pop(hf, hn, size)
-        if f >= best:
-            break
-        if closed[u]:
-            continue
-        closed[u] = True
+            size = push(hf, hn, where, size, s_w[i] + c * to_goal(px, py, v, gx, gy), v)
+    while size > 0 and hf[0] < best:
+        _, u, size = pop(hf, hn, where, size)
         gu = g[u]
         if gu + enter[u] < best:
             best = gu + enter[u]
             via = u
         for e in range(ptr[u], ptr[u + 1]):
             v = adj[e]
-            if usable[eid[e]] and not closed[v]:
+            if where[v] != _CLOSED and usable[eid[e]]:
                 nd = gu + wt[e]
                 if nd < g[v]:
                     g[v] = nd
                     pred[v] = u
-                    size = push(hf, hn, size, nd + c * to_goal(px, py, v, gx, gy), v)
+                    size = push(hf, hn, where, size, nd + c * to_goal(px, py, v, gx, gy), v)
     if via == -2:
         return np.inf, np.zeros(0, np.int64)
     n = 2
