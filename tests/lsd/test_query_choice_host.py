@@ -43,11 +43,11 @@ def _assert_same(got, want):
         np.testing.assert_array_equal(g, w, err_msg=name)
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(
     seed=st.integers(0, 10**6),
-    M=st.integers(3, 300),
-    k=st.integers(1, 12),
+    M=st.sampled_from([3, 300]),  # few shapes: each is a device program (fewer samples: flags)
+    k=st.sampled_from([1, 6, 12]),
     sectors=st.sampled_from([0, 1, 3, 8, 8, 11]),
     lattice=st.booleans(),
 )
@@ -67,7 +67,7 @@ def _check_random(seed, M, k, sectors, lattice):
     else:
         points = rng.uniform(0, 10, (M, 2)).astype(np.float32)
         ends = rng.uniform(0, 10, (3, 2, 2)).astype(np.float32)
-    valid = rng.random(M) < 0.85
+    valid = rng.random(M) < rng.uniform(0.05, 0.95)
     got, want = _both(points, valid, ends[:, 0], ends[:, 1], k, sectors)
     if sectors in (0, 1, 8) or lattice:
         # No direction within the border band: eight sectors (and none or one) are decided by
