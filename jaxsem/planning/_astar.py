@@ -64,7 +64,7 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
     else measured here. ``fixed``: ``usable`` is ``entries`` and never changes (an eager
     roadmap), so of a vertex's entries to one other end with one weight (an edge both its ends
     chose) one is kept: the searches' answers are the same, and they read half as many."""
-    if fixed and not np.array_equal(usable, entries):
+    if fixed and usable is not entries and not np.array_equal(usable, entries):
         raise ValueError("usable: with fixed=True expected the entries themselves")
     entries = np.asarray(entries, bool)
     if not (usable.dtype == np.bool_ and usable.flags.c_contiguous and usable.shape == nbr.shape):
