@@ -40,8 +40,14 @@ class SearchGraph(NamedTuple):
     """A roadmap's sample edges for :func:`astar_path`, both ways, in CSR form by vertex: ptr
     (M + 1,), adj (E,) int32 the other end, wt (E,) float64 the weight, eid (E,) the entry's
     index into ``usable`` (M * K,) bool, read at each search (a lazy roadmap updates it in
-    place); points (M, 2) float64 (px, py: its columns); ratio: the smallest weight / length
-    over the entries (the heuristic's factor before the query's own edges)."""
+    place); points (M, 2) float64; ratio: the smallest weight / length over the entries (the
+    heuristic's factor before the query's own edges).
+
+    The search numbers the vertices in Z-order of their points (``order``: search id -> slot,
+    ``rank``: slot -> search id; the query's slots 0 and 1 keep theirs): a search reads each
+    vertex's cost, state and point where it reads its neighbours', in the same cache lines (on
+    a roadmap of 20,000 samples the search took two thirds of the time in slot order). ptr,
+    adj and px, py (the points' columns) are in search ids; eid, points are the roadmap's."""
 
     ptr: np.ndarray
     adj: np.ndarray
@@ -52,6 +58,27 @@ class SearchGraph(NamedTuple):
     px: np.ndarray
     py: np.ndarray
     ratio: float
+    order: np.ndarray
+    rank: np.ndarray
+
+
+def _z_order(points) -> np.ndarray:
+    """Slot ids (M,) sorted by the Z-order (Morton) code of their points on a 1024 x 1024 grid
+    over the samples' box, slots 0 and 1 (the query's) first: neighbours in the plane get
+    nearby ids."""
+    p = np.nan_to_num(np.asarray(points, np.float64))
+    M = len(p)
+    if M <= 2:
+        return np.arange(M)
+    lo, hi = p[2:].min(0), p[2:].max(0)
+    span = max(float(np.max(hi - lo)), 1e-300)
+    cells = np.clip((p - lo) / span * 1023.0, 0, 1023).astype(np.int64)
+    code = np.zeros(M, np.int64)
+    for bit in range(10):
+        code |= ((cells[:, 0] >> bit) & 1) << (2 * bit)
+        code |= ((cells[:, 1] >> bit) & 1) << (2 * bit + 1)
+    code[:2] = -1
+    return np.argsort(code, kind="stable")
 
 
 def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *, fixed: bool = False) -> SearchGraph:
@@ -71,15 +98,25 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
         raise ValueError(f"usable: expected a C-ordered bool array of shape {nbr.shape}")
     adjacency, _ = _kernels()
     points = np.ascontiguousarray(points)
+    M, K = nbr.shape
+    order = _z_order(points)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(M)
+    # The rows in search ids: row i is slot order[i]'s, naming search ids.
+    nb = np.asarray(nbr, np.int64)
+    nb = np.where(nb < M, rank[np.clip(nb, 0, M - 1)], nb)[order].astype(np.int32)
     lengths = w is None
-    w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(w, np.float64)
-    ptr, adj, wt, eid, measured = adjacency(np.ascontiguousarray(nbr, np.int32), entries, w, points, lengths, fixed)
+    w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(np.asarray(w, np.float64)[order])
+    pts = np.ascontiguousarray(points[order])
+    ptr, adj, wt, eid, measured = adjacency(nb, np.ascontiguousarray(entries[order]), w, pts, lengths, fixed)
+    eid = (order[eid // K] * K + eid % K).astype(eid.dtype)  # the entries' ids in the roadmap's rows
     if lengths:
         ratio = 1.0
     elif ratio is None:
         ratio = float(measured) if np.isfinite(measured) else 1.0
     p = points.astype(np.float64)
-    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, p[:, 0].copy(), p[:, 1].copy(), ratio)
+    px, py = p[order, 0].copy(), p[order, 1].copy()
+    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, px, py, ratio, order, rank)
 
 
 def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np.ndarray]:
@@ -100,6 +137,7 @@ def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np
             ratio = min(ratio, float(np.min(wt[pos] / length[pos])))
     c = max(ratio, 0.0) * (1.0 - _SHAVE)
     _, astar = _kernels()
+    M = len(graph.rank)
     cost, path = astar(
         graph.ptr,
         graph.adj,
@@ -109,11 +147,11 @@ def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np
         graph.px,
         graph.py,
         c,
-        s_dst,
+        np.where(s_dst < M, graph.rank[np.clip(s_dst, 0, M - 1)], s_dst),
         s_w,
-        g_dst,
+        np.where(g_dst < M, graph.rank[np.clip(g_dst, 0, M - 1)], g_dst),
         g_w,
         float(q[1, 0]),
         float(q[1, 1]),
     )
-    return float(cost), path
+    return float(cost), graph.order[path]

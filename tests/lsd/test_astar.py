@@ -7,7 +7,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 from hypothesis import given, settings, strategies as st
 
-from jaxsem.planning._astar import astar_path, search_graph  # layers: white-box
+from jaxsem.planning._astar import _z_order, astar_path, search_graph  # layers: white-box
 
 
 def random_roadmap(rng, M, K, *, p_use, stretch):
@@ -183,3 +183,21 @@ def test_a_fixed_graph_refuses_flags_that_are_not_its_entries():
     entries = nbr < 4
     with pytest.raises(ValueError, match="usable"):
         search_graph(nbr, np.zeros_like(entries), np.ones((4, 1)), pts, entries, fixed=True)
+
+
+@pytest.mark.parametrize("M", [1, 2, 3, 50])
+def test_the_search_numbers_vertices_by_place_keeping_the_query_slots(M):
+    """The search's own numbering: a permutation that keeps slots 0 and 1, for any count and for
+    samples all at one point; on a lattice, vertices a step apart get ids closer than at random."""
+    rng = np.random.default_rng(M)
+    for pts in (rng.uniform(0, 10, (M, 2)), np.ones((M, 2))):
+        order = _z_order(pts)
+        assert sorted(order.tolist()) == list(range(M))
+        assert order[: min(M, 2)].tolist() == list(range(min(M, 2)))
+    g = np.stack(np.meshgrid(np.arange(32), np.arange(32)), -1).reshape(-1, 2).astype(float)
+    shuffled = np.concatenate([np.zeros((2, 2)), g[rng.permutation(len(g))]])
+    rank = np.argsort(_z_order(shuffled))
+    right = np.flatnonzero(shuffled[:, 0] < 31)[2:]  # each sample with a right-hand neighbour
+    step = {tuple(p): i for i, p in enumerate(shuffled[2:], 2)}
+    gaps = [abs(rank[i] - rank[step[(shuffled[i, 0] + 1, shuffled[i, 1])]]) for i in right]
+    assert np.median(gaps) <= 4  # slot order: about a third of 1,024 apart
