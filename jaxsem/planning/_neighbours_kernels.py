@@ -41,7 +41,9 @@ def _d2(dx, dy, mode):
 def _sector(dx, dy, S):
     """The sector ``floor((atan2(dy, dx) + pi) * S / (2 pi))`` (at most ``S - 1``) of a direction,
     and whether it lies within :data:`_BORDER` of a sector border (then either side may be the
-    device's). Eight sectors (the default) by comparisons alone."""
+    device's). Eight sectors (the default) by comparisons alone; one sector has no border."""
+    if S == 1:
+        return 0, False
     if S == 8:
         ax = abs(np.float64(dx))
         ay = abs(np.float64(dy))

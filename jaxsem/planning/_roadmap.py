@@ -865,10 +865,11 @@ _links_ends_jit = jax.jit(_links_ends, static_argnames=("grid", "radius", "edge_
 
 
 def _links_ends_host(points, valid, starts, goals, k: int, *, radius, sectors, choice):
-    """:func:`_links_ends` with lengths as weights, on the host: the same candidates, ends,
-    flags and weights (numpy) for float32 ``points`` (M, 2), ``valid`` (M,), ``starts``,
-    ``goals`` (Q, 2), from the compiled choice ``choice`` (:func:`_host_choice`). None where a
-    sample on a sector border could change a query's candidates (the device decides those)."""
+    """:func:`_links_ends` with lengths as weights, on the host: the same candidates, ends and
+    flags, and the weights to a unit in the last place (numpy), for float32 ``points`` (M, 2),
+    ``valid`` (M,), ``starts``, ``goals`` (Q, 2), from the compiled choice ``choice``
+    (:func:`_host_choice`). None where a sample on a sector border could change a query's
+    candidates (the device decides those)."""
     kernels, mode = choice
     M = points.shape[0]
     keep = 2 * k if sectors else k
@@ -880,8 +881,10 @@ def _links_ends_host(points, valid, starts, goals, k: int, *, radius, sectors, c
     q = np.stack([starts, goals], 1)  # (Q, 2, 2)
     other = np.where((nbr == GOAL)[..., None], q[:, None, 1:2, :], points[np.minimum(nbr, M - 1)])
     a = np.broadcast_to(q[:, :, None, :], other.shape)
-    # The device's float32 arithmetic: the squared length the choice read, the radius' square
-    # rounded once, the length sqrt(d2 + 1e-30) (each step correctly rounded, as XLA's).
+    # The squared length the choice read and the radius' square rounded once, as the device
+    # compares them; the length sqrt(d2 + 1e-30) rounded after each operation, as the host's own
+    # edges' (entry_length): a device program that fuses a product into the sum (XLA decides
+    # per program) reads some lengths one unit in the last place apart.
     short = d2 <= np.float32((radius * (1 + 1e-6)) ** 2)
     w = np.sqrt(d2 + np.float32(1e-30))
     return q, nbr, a, other, short, nbr < M, w
