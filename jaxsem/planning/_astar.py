@@ -45,9 +45,9 @@ class SearchGraph(NamedTuple):
 
     The search numbers the vertices in Z-order of their points (``order``: search id -> slot,
     ``rank``: slot -> search id; the query's slots 0 and 1 keep theirs): a search reads each
-    vertex's cost, state and point where it reads its neighbours', in the same cache lines (on
-    a roadmap of 20,000 samples the search took two thirds of the time in slot order). ptr,
-    adj and px, py (the points' columns) are in search ids; eid, points are the roadmap's."""
+    vertex's cost, state and point where it reads its neighbours', in the same cache lines
+    (slot order is the order samples were drawn: neighbours anywhere). ptr, adj and px, py (the
+    points' columns) are in search ids; eid, points are the roadmap's."""
 
     ptr: np.ndarray
     adj: np.ndarray

@@ -6,7 +6,7 @@ It chooses what the device's brute-force choice chooses (``_query_candidates`` o
 :mod:`jaxsem.planning._roadmap`: squared distances in float32, the direction-first policy of
 :func:`jaxsem.planning._neighbours._select`, ties to the lower slot) in one pass over the
 samples instead of a program over every sample and sector. Two things are the device's own: how
-its float32 squared distance rounds (measured, :func:`jaxsem.planning._neighbours._host_choice`)
+its float32 squared distance rounds (measured, :func:`jaxsem.planning._roadmap._host_choice`)
 and its ``arctan2``, whose last bits no host function repeats. A sample whose direction lies
 within a hair of a sector border (far wider than any ``arctan2``'s error) could fall on either
 side; where such a sample could change the choice the kernel says so and the caller asks the
