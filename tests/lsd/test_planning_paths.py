@@ -1,5 +1,6 @@
 """Soft-cost shortest paths (vs a pure-Python Dijkstra) and the PRM."""
 
+import functools
 import heapq
 import math
 
@@ -1221,13 +1222,23 @@ def test_the_edge_check_answers_alike_at_any_work_list_width(chunk):
     np.testing.assert_array_equal(np.asarray(got), want)
 
 
+@functools.partial(jax.jit, static_argnames=("grid", "samples"))
+def _edges_clear_jit(blocked, a, b, *, grid, samples):
+    """The edge rule under ``jit`` with the grid's numbers compile-time constants, compiled once
+    for every example of one shape (a closure over the edges would compile per example)."""
+    from jaxsem.planning._edges import _edges_clear, _grid  # layers: white-box
+
+    return _edges_clear(blocked, a, b, _grid(grid, a.dtype), samples)
+
+
 @settings(max_examples=12, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_edges_the_sparse_discs_settle_are_clear_under_the_dense_rule(seed):
     """Long edges over open ground with a few thin walls: the edge check settles most of them
     from the clearance discs of a sparse subset of samples alone, and those are clear under the
     dense rule; every answer, settled or not, is the dense rule's."""
-    from jaxsem.planning._edges import _edges_clear, _edges_dense, _grid  # layers: white-box
+    from jaxsem.planning._edges import _edges_dense, _grid  # layers: white-box
+    from jaxsem.planning._grid import static_grid  # layers: white-box
 
     rng = np.random.default_rng(seed)
     occ = np.zeros((300, 400), bool)
@@ -1242,7 +1253,7 @@ def test_edges_the_sparse_discs_settle_are_clear_under_the_dense_rule(seed):
     a, b = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
     S = 301  # 15 m at half a cell
     want = np.asarray(_edges_dense(jnp.asarray(occ), a, b, grid, S)[0])
-    got = np.asarray(jax.jit(lambda blocked: _edges_clear(blocked, a, b, grid, S))(jnp.asarray(occ)))
+    got = np.asarray(_edges_clear_jit(jnp.asarray(occ), a, b, grid=static_grid(grid_of(occ)), samples=S))
     np.testing.assert_array_equal(got, want)
     assert 0 < want.sum() < len(want)
     # The sparse discs alone settle a share of the edges (the path above is exercised), and

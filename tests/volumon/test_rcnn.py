@@ -36,9 +36,10 @@ TINY = RCNNConfig(
 
 
 # init_rcnn's variables through one jitted program per config (flax's init op by op compiled some
-# 300 small programs, 10-20 s, per call); the dummy batch of one, as the variables' shapes do not
-# depend on it.
-_INIT = jax.jit(lambda key, cfg: init_rcnn(key, cfg, 1)[1], static_argnums=1)
+# 300 small programs, 10-20 s, per call); the dummy batch of one, as the variables do not depend
+# on it. The other test modules import this one, so a config's program is compiled once a session.
+INIT = jax.jit(lambda key, cfg: init_rcnn(key, cfg, 1)[1], static_argnums=1)
+_INIT = INIT
 
 
 def _init(key, cfg=TINY):

@@ -6,12 +6,11 @@ import json
 import jax
 import numpy as np
 import pytest
-from test_rcnn import TINY
+from test_rcnn import INIT, TINY
 
 from jaxsem import volumon
 from jaxsem._commands.volumon_eval import SHIPPED_NAMES  # layers: white-box
 from jaxsem.checkpoint import save_checkpoint
-from jaxsem.models import init_rcnn
 from jaxsem.training import config_json
 from jaxsem.volumon.rcnn import (  # layers: white-box
     ADOPTED_RCNNS,
@@ -22,8 +21,9 @@ from jaxsem.volumon.rcnn import (  # layers: white-box
     load_rcnn,
 )
 
-# one compiled init (eager flax init compiles each op on its own)
-_init = jax.jit(lambda key: dict(init_rcnn(key, TINY, 1)[1]))
+
+def _init(key):
+    return dict(INIT(key, TINY))
 
 
 def _workdir(tmp_path, steps):

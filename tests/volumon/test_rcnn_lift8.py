@@ -7,18 +7,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_rcnn import TINY, _frames
+from test_rcnn import INIT, TINY, _frames
 
-from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN  # layers: white-box
 from jaxsem.volumon.rcnn import _adopt, rcnn_batch  # layers: white-box
-
-# init_rcnn's variables through one jitted program per config and batch, and the forward passes
-# and the gradient below jitted (op by op flax compiled hundreds of small programs each)
-_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
 
 
 def _init(key, cfg, n):
-    return VoluMonRCNN(cfg), _INIT(key, cfg, n)
+    return VoluMonRCNN(cfg), INIT(key, cfg)
 
 
 def _batch():

@@ -8,17 +8,17 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
-from test_rcnn import TINY, _frames
+from test_rcnn import INIT, TINY, _frames
 from test_rcnn_scene import _evaluate
 from test_volumon_bop_eval import _scene  # the small written BOP scene
 
-from jaxsem.models._rcnn import VoluMonRCNN, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import VoluMonRCNN  # layers: white-box
 from jaxsem.training import LoadedModel
 from jaxsem.volumon import rcnn
 
 
 def _loaded(cfg=TINY):
-    _, v = init_rcnn(jax.random.PRNGKey(3), cfg, 1)
+    v = INIT(jax.random.PRNGKey(3), cfg)
     config = rcnn.RCNNTrainConfig(model=cfg, class_names=("a", "b", "c"))
     return LoadedModel(VoluMonRCNN(cfg), v, config, {"name": "tiny"})
 

@@ -7,21 +7,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_rcnn import TINY, _frames
+from test_rcnn import INIT, TINY, _frames
 
-from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN  # layers: white-box
 from jaxsem.volumon.rcnn import _adopt, rcnn_batch  # layers: white-box
 
-_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
 CROP = dataclasses.replace(TINY, lift_crop=16)
 
 
 @pytest.mark.slow
 def test_grown_network_starts_from_the_trained_outputs_and_its_crop_branch_learns():
     b = rcnn_batch(_frames(2, 0), TINY, ("a", "b", "c"), 4)
-    trained = _INIT(jax.random.PRNGKey(1), TINY, 2)
+    trained = INIT(jax.random.PRNGKey(1), TINY)
     trained = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), trained)
-    start = _adopt(trained, _INIT(jax.random.PRNGKey(2), CROP, 2))
+    start = _adopt(trained, INIT(jax.random.PRNGKey(2), CROP))
     assert start is not None and "crop_fc" in start["params"] and "crop_conv0" in start["params"]
     a = jax.jit(VoluMonRCNN(TINY).apply)(trained, b["image"], b["K"])
     grown = VoluMonRCNN(CROP)

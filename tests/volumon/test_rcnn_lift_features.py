@@ -8,9 +8,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_rcnn import TINY, _frames
+from test_rcnn import INIT, TINY, _frames
 
-from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN  # layers: white-box
 from jaxsem.volumon.rcnn import (  # layers: white-box
     RCNNLossConfig,
     RCNNTrainConfig,
@@ -21,7 +21,6 @@ from jaxsem.volumon.rcnn import (  # layers: white-box
     rcnn_batch,
 )
 
-_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
 OWN = dataclasses.replace(TINY, lift_features="own")
 
 
@@ -30,9 +29,9 @@ OWN = dataclasses.replace(TINY, lift_features="own")
 def test_own_lift_features_start_as_the_detectors_and_learn_alone(features, optax_promotion):
     own = dataclasses.replace(TINY, lift_features=features)
     b = rcnn_batch(_frames(2, 0), TINY, ("a", "b", "c"), 4)
-    trained = _INIT(jax.random.PRNGKey(1), TINY, 2)
+    trained = INIT(jax.random.PRNGKey(1), TINY)
     trained = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), trained)
-    start = _adopt(trained, _INIT(jax.random.PRNGKey(2), own, 2))
+    start = _adopt(trained, INIT(jax.random.PRNGKey(2), own))
     assert start is not None and "volumon_roi0" in start["params"]
     start = {k: _own_lift_features(start[k], trained[k]) for k in ("params", "batch_stats")}
     for lift_at in ("refined", "proposal"):

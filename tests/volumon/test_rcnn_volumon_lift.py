@@ -8,10 +8,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_rcnn import TINY
+from test_rcnn import INIT, TINY
 
 from jaxsem.models import ReconstructionConfig, box_features, init_volumon
-from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, _detection_rows, init_rcnn  # layers: white-box
+from jaxsem.models._rcnn import RCNNConfig, VoluMonRCNN, _detection_rows  # layers: white-box
 from jaxsem.training import LoadedModel
 from jaxsem.volumon import TrainConfig, prepare_inputs
 from jaxsem.volumon.rcnn import (  # layers: white-box
@@ -23,7 +23,6 @@ from jaxsem.volumon.rcnn import (  # layers: white-box
 )
 
 VOL = dataclasses.replace(TINY, lift_features="volumon", lift_at="proposal")
-_INIT = jax.jit(lambda key, cfg, n: init_rcnn(key, cfg, n)[1], static_argnums=(1, 2))
 _K = jnp.array([[[120.0, 0.0, 64.0], [0.0, 120.0, 48.0], [0.0, 0.0, 1.0]]])
 _BOX = jnp.array([[[40.0, 30.0, 70.0, 60.0]]])  # (1, 1, 4): one given RoI of a 128 x 96 image
 
@@ -34,7 +33,7 @@ def _phi_at_box(variables, image):
 
 
 def test_the_lift_reads_only_the_padded_box_and_its_surroundings():
-    variables = _INIT(jax.random.PRNGKey(0), VOL, 1)
+    variables = INIT(jax.random.PRNGKey(0), VOL)
     rng = np.random.default_rng(0)
     image = jnp.asarray(rng.uniform(0, 1, (1, 96, 128, 3)), jnp.float32)
     far = np.ones((96, 128), bool)
@@ -51,7 +50,7 @@ def test_the_lift_reads_only_the_padded_box_and_its_surroundings():
 
 
 def test_the_lift_learns_with_finite_gradients_in_both_branches():
-    variables = _INIT(jax.random.PRNGKey(1), VOL, 1)
+    variables = INIT(jax.random.PRNGKey(1), VOL)
     image = jnp.asarray(np.random.default_rng(1).uniform(0, 1, (1, 96, 128, 3)), jnp.float32)
 
     def depth_and_rest(p):
@@ -67,8 +66,8 @@ def test_the_lift_learns_with_finite_gradients_in_both_branches():
 
 
 def test_adopting_a_trained_network_keeps_its_detector_and_output_heads():
-    trained = _INIT(jax.random.PRNGKey(2), TINY, 1)
-    fresh = _INIT(jax.random.PRNGKey(3), VOL, 1)
+    trained = INIT(jax.random.PRNGKey(2), TINY)
+    fresh = INIT(jax.random.PRNGKey(3), VOL)
     assert _adopt(trained, fresh) is None  # the old lift's first layer has no place in the new network
     start = _adopt(_without_missing_lift(trained, fresh), fresh)
     assert start is not None
@@ -79,14 +78,14 @@ def test_adopting_a_trained_network_keeps_its_detector_and_output_heads():
         else:
             assert layer.startswith(LIFT_LAYERS), layer  # only the old lift's own layers are dropped
     image = jnp.asarray(np.random.default_rng(4).uniform(0, 1, (1, 96, 128, 3)), jnp.float32)
-    a = VoluMonRCNN(TINY).apply(trained, image, _K)
-    b = VoluMonRCNN(VOL).apply(start, image, _K)
+    a = jax.jit(VoluMonRCNN(TINY).apply)(trained, image, _K)
+    b = jax.jit(VoluMonRCNN(VOL).apply)(start, image, _K)
     np.testing.assert_allclose(np.asarray(a.class_logits), np.asarray(b.class_logits), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(a.rois), np.asarray(b.rois), rtol=1e-5, atol=1e-4)
 
 
 def test_outside_training_it_lifts_the_detections_alike_and_leaves_other_rows_empty():
-    variables = _INIT(jax.random.PRNGKey(5), VOL, 1)
+    variables = INIT(jax.random.PRNGKey(5), VOL)
     variables = jax.tree.map(
         lambda x: x + 0.05 * jnp.cos(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), variables
     )
@@ -128,7 +127,7 @@ def _separate_network(seed: int, config=VOL):
 
 def _detector(seed: int):
     config = RCNNTrainConfig(model=TINY, class_names=("a", "b", "c"))
-    return LoadedModel(VoluMonRCNN(TINY), _INIT(jax.random.PRNGKey(seed), TINY, 1), config, {"name": "tiny"})
+    return LoadedModel(VoluMonRCNN(TINY), INIT(jax.random.PRNGKey(seed), TINY), config, {"name": "tiny"})
 
 
 def test_an_adopted_separate_network_lifts_a_box_as_it_does_alone():
@@ -138,17 +137,17 @@ def test_an_adopted_separate_network_lifts_a_box_as_it_does_alone():
     rng = np.random.default_rng(8)
     image = rng.uniform(0, 1, (96, 128, 3)).astype(np.float32)
     # one network, the box given as its own RoI (pixel centres at integer + 0.5) ...
-    out = one.model.apply(one.variables, jnp.asarray(image[None]), _K, _BOX)
+    out = jax.jit(one.model.apply)(one.variables, jnp.asarray(image[None]), _K, _BOX)
     ours = np.asarray(out.phi[0, -1])
     # ... and the separate network alone on the same pixels (pixel centres at integers)
     box = np.asarray(_BOX[0]) - 0.5
     K = np.asarray(_K[0]).copy()
     K[:2, 2] -= 0.5
     local, whole = prepare_inputs(image, box, config=separate.config)
-    alone = separate.model.apply(separate.variables, local, whole, box_feats=box_features(jnp.asarray(box), K))
+    alone = jax.jit(separate.model.apply)(separate.variables, local, whole, box_feats=box_features(jnp.asarray(box), K))
     np.testing.assert_allclose(ours, np.asarray(alone.phi[0]), rtol=1e-3, atol=1e-3)
     # the detector is the detector's (to float rounding: the given RoI joins the batch of RoIs)
-    base = detector.model.apply(detector.variables, jnp.asarray(image[None]), _K)
+    base = jax.jit(detector.model.apply)(detector.variables, jnp.asarray(image[None]), _K)
     np.testing.assert_allclose(np.asarray(out.class_logits[:, :-1]), np.asarray(base.class_logits), atol=1e-6)
 
 
