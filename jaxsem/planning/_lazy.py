@@ -88,7 +88,8 @@ def _grow_lazy(
     samples (on the device), each new vertex's candidates (n, K) (``M`` where none or where the
     vertex is not valid): the eager grow's set, in its order where the order decides a link.
     Rows with at most k candidates keep every clear one whatever the order, so the host finds
-    their sets (:func:`_candidates_host`); the device ranks the others with the eager search.
+    their sets (:func:`_candidates_host`); the host ranks the others as the eager search does
+    where no rounding or sector border could change their order, the device the rest.
     ``grid``: the map's host grid (:func:`~jaxsem.planning._grid.host_grid`).
     Returns ((roadmap with the new points and no new edges, candidates), the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
@@ -109,7 +110,9 @@ def _grow_lazy(
     rows = np.arange(s0, s0 + n)
     extent = _extent(grid)
     keep = 2 * k if sectors else k
-    cand, need, cap = _candidates_host(pts - np.asarray(origin_j), db_ok, rows, k, radius, extent, keep, cap)
+    # The host ranks a row as the device does unless the samples' densities play a part.
+    host_rank = sectors if dist is None or not sectors else None
+    cand, need, cap = _candidates_host(pts - np.asarray(origin_j), db_ok, rows, k, radius, extent, keep, cap, host_rank)
     if need.any():
         some = rows[need].astype(np.int32)
         padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])

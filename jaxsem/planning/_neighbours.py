@@ -11,7 +11,8 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.spatial
+
+from ._edges import _in_blocks
 
 
 def _per_sector(k: int, sectors: int) -> int:
@@ -326,10 +327,11 @@ def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: 
 _BORDER = 1e-5
 
 
-def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, cap: int):
-    """The lazy grow's neighbour search on the host (a k-d tree), for the rows where the order of
-    the candidates decides nothing: a row with at most ``k`` candidates keeps every clear one,
-    whatever the order, so it needs only its candidate set, which is :func:`_knn`'s exactly.
+def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, cap: int, sectors: int | None = None):
+    """The lazy grow's neighbour search on the host (compiled, buckets of the radius:
+    :mod:`jaxsem.planning._neighbours_kernels`), for the rows where the order of the candidates
+    decides nothing: a row with at most ``k`` candidates keeps every clear one, whatever the
+    order, so it needs only its candidate set, which is :func:`_knn`'s exactly.
 
     db: (M, 2) local coordinates (numpy, the roadmap's dtype); db_ok: (M,) bool usable points; rows: (n,)
     the query rows' indices into ``db`` (their own points). A candidate of row ``q`` is a usable
@@ -340,66 +342,62 @@ def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, 
     search would start with (brute force once 3 x cap reaches M); returned as the slots it ends
     with after its overflow reruns (x4 while a strip or a row holds more), so the device search
     of the ``need`` rows takes the same path, with the same candidate order, as a search of
-    every row. Returns (cand (n, keep) int32, ``M`` where none and in
-    every ``need`` row; need (n,) bool; the cap)."""
+    every row. ``sectors`` (not None: the grow's own, its samples' densities playing no part):
+    the rows with more than ``k`` candidates are ranked here too, the device's order
+    (:func:`~jaxsem.planning._neighbours_kernels.rank_rows`), but for those whose order a
+    rounding or a sector border could change. Returns (cand (n, keep) int32, ``M`` where none
+    and in every ``need`` row, in index order in a row of at most ``k``; need (n,) bool; the
+    cap)."""
     M = db.shape[0]
     n = len(rows)
-    ids = np.flatnonzero(db_ok).astype(np.int32)
-    cand = np.full((n, keep), M, np.int32)
-    if n == 0 or len(ids) < 2:
-        return cand, np.zeros(n, bool), cap
+    rows = np.asarray(rows, np.int64)
+    db_ok = np.asarray(db_ok, bool)
+    if n == 0 or np.count_nonzero(db_ok) < 2:
+        return np.full((n, keep), M, np.int32), np.zeros(n, bool), cap
+    from . import _neighbours_kernels as kern
+
     db = np.asarray(db)
-    tree = scipy.spatial.KDTree(db[ids].astype(np.float64), balanced_tree=False, compact_nodes=False)
-    pairs = tree.query_pairs(radius * (1.0 + 1e-4), output_type="ndarray").astype(np.int32)
-    a, b = ids[pairs[:, 0]], ids[pairs[:, 1]]
     x, y = np.ascontiguousarray(db[:, 0]), np.ascontiguousarray(db[:, 1])
-    dx, dy = x[b] - x[a], y[b] - y[a]
-    d2 = (dx * dx + dy * dy).astype(np.float64)
     r2 = float(db.dtype.type(radius**2))
-    inside = d2 <= r2 * (1.0 + _BORDER)
-    a, b, border = a[inside], b[inside], d2[inside] > r2 * (1.0 - _BORDER)
-    loc = np.full(M, -1, np.int32)
-    loc[rows] = np.arange(n, dtype=np.int32)
-    # Both directions of each pair, kept where the row is a query row.
-    src = np.concatenate([loc[a], loc[b]])
-    dst = np.concatenate([b, a])
-    brd = np.concatenate([border, border])
-    q = src >= 0
-    if not q.all():
-        src, dst, brd = src[q], dst[q], brd[q]
-    count = np.bincount(src, minlength=n)
-    need = count > k
-    need[src[brd]] = True
-    if 3 * cap < M:
-        # The device search's overflow reruns: strips of 3 buckets, and rows, holding more than cap.
-        gx = max(1, int(math.ceil(extent[0] / radius)))
-        gy = max(1, int(math.ceil(extent[1] / radius)))
-        cell = np.floor(db / db.dtype.type(radius)).astype(np.int64)
-        bx, by = np.clip(cell[:, 0], 0, gx - 1), np.clip(cell[:, 1], 0, gy - 1)
-        grid = np.zeros((gy + 2, gx + 2), np.int64)
-        np.add.at(grid, (by[ids] + 1, bx[ids] + 1), 1)
-        strips = grid[:, :-2] + grid[:, 1:-1] + grid[:, 2:]  # (gy + 2, gx): 3 buckets from x - 1
-        qx, qy = bx[rows], by[rows]
-        most = max(int(strips[qy[:, None] + np.arange(3)[None, :], qx[:, None]].max()), int(count.max()))
-        while most > cap and 3 * cap < M:
-            cap *= 4
-    ok = ~need[src]
-    src, dst = src[ok], dst[ok]
-    order = _grouped(src)
-    src, dst = src[order], dst[order]
-    start = np.zeros(n + 1, np.int32)
-    np.cumsum(np.bincount(src, minlength=n), out=start[1:])
-    # Entry i of row r goes to column i - start[r]: flat place r * keep + i - start[r].
-    np.put(cand, (src * keep - start[src]) + np.arange(len(src), dtype=np.int32), dst)
-    return cand, need, cap
+    side = float(radius) * (1.0 + 1e-3)  # a bucket a hair wider than the radius: 3 x 3 hold every candidate
+    grid = kern.buckets(x, y, db_ok, side)
+
+    def run(r0: int, r1: int):
+        return kern.row_candidates(
+            x, y, db_ok, rows[r0:r1], *grid, side, r2 * (1.0 - _BORDER), r2 * (1.0 + _BORDER), keep
+        )
+
+    parts = _in_blocks(n, n * keep, run)  # blocks of rows on threads (the kernel releases the GIL)
+    cand, count, border = (np.concatenate([p[i] for p in parts]) for i in range(3))
+    need = (count > k) | border
+    cand[need] = M
+    many = np.flatnonzero((count > k) & ~border)
+    if sectors is not None and len(many):
+        m = _per_sector(k, sectors) if sectors else 0
+        ranked, unsure = kern.rank_rows(x, y, db_ok, rows[many], *grid, side, r2, keep, m, int(sectors))
+        cand[many] = ranked
+        need[many] = unsure
+        cand[many[unsure]] = M
+    return cand, need, _strip_cap(db, db_ok, rows, count, radius, extent, cap)
 
 
-def _grouped(keys):
-    """An order of the non-negative int ``keys`` (below 2**32) that groups equal ones: a stable
-    radix sort over 16-bit digits (numpy's stable sort of uint16 is a counting sort, ~7x faster
-    than its sort of wider ints)."""
-    keys = np.asarray(keys)
-    order = np.argsort((keys & 0xFFFF).astype(np.uint16), kind="stable")
-    if keys.size and int(keys.max()) > 0xFFFF:
-        order = order[np.argsort((keys[order] >> 16).astype(np.uint16), kind="stable")]
-    return order
+def _strip_cap(db, db_ok, rows, count, radius: float, extent, cap: int) -> int:
+    """The strip slots the device's bucketed search of ``rows`` ends with (:func:`_candidates_host`):
+    ``cap`` times 4 while a strip of 3 buckets around a row, or a row's ``count`` of candidates,
+    holds more (the device's buckets: ``floor(db / radius)`` in the points' dtype, clipped)."""
+    M = db.shape[0]
+    if not 3 * cap < M:
+        return cap
+    gx = max(1, int(math.ceil(extent[0] / radius)))
+    gy = max(1, int(math.ceil(extent[1] / radius)))
+    cell = np.floor(db / db.dtype.type(radius)).astype(np.int64)
+    bx, by = np.clip(cell[:, 0], 0, gx - 1), np.clip(cell[:, 1], 0, gy - 1)
+    ids = np.flatnonzero(db_ok)
+    grid = np.bincount((by[ids] + 1) * (gx + 2) + bx[ids] + 1, minlength=(gy + 2) * (gx + 2))
+    grid = grid.reshape(gy + 2, gx + 2)
+    strips = grid[:, :-2] + grid[:, 1:-1] + grid[:, 2:]  # (gy + 2, gx): 3 buckets from x - 1
+    qx, qy = bx[rows], by[rows]
+    most = max(int(strips[qy[:, None] + np.arange(3)[None, :], qx[:, None]].max()), int(count.max()))
+    while most > cap and 3 * cap < M:
+        cap *= 4
+    return cap

@@ -1,8 +1,9 @@
-"""The compiled host kernel of a query's candidates (:mod:`jaxsem.planning._neighbours`; numba,
-cached on disk by numba: a module of its own, imported on first use, so that ``import jaxsem``
-does not import numba).
+"""The compiled host kernels of the roadmap's neighbour search (:mod:`jaxsem.planning._neighbours`;
+numba, cached on disk by numba: a module of its own, imported on first use, so that ``import
+jaxsem`` does not import numba): a grow's candidate sets (:func:`row_candidates`) and a query's
+choice (:func:`query_candidates`).
 
-It chooses what the device's brute-force choice chooses (``_query_candidates`` of
+The query's kernel chooses what the device's brute-force choice chooses (``_query_candidates`` of
 :mod:`jaxsem.planning._roadmap`: squared distances in float32, the direction-first policy of
 :func:`jaxsem.planning._neighbours._select`, ties to the lower slot) in one pass over the
 samples instead of a program over every sample and sector. Two things are the device's own: how
@@ -157,3 +158,196 @@ def query_candidates(points, valid, starts, goals, m, sectors, keep, mode):
                 nbr[qi, end, i] = ti[i]
                 dist[qi, end, i] = d2[ti[i]]
     return nbr, dist, unsure
+
+
+@numba.njit(cache=True, nogil=True)
+def buckets(x, y, ok, side):
+    """The usable points (``ok``) of ``x``, ``y`` (M,) in square buckets of ``side``
+    (float64, off the points' rounding: a bucket holds what it holds, and a caller reading the
+    3 x 3 buckets around a point reads every point within ``side`` of it): (gx, gy, start
+    (gx * gy + 1,), the points bucket by bucket (in index order within each))."""
+    M = x.shape[0]
+    gx = 1
+    gy = 1
+    for j in range(M):
+        if ok[j]:
+            gx = max(gx, np.int64(math.floor(np.float64(x[j]) / side)) + 1)
+            gy = max(gy, np.int64(math.floor(np.float64(y[j]) / side)) + 1)
+    bid = np.full(M, -1, np.int64)
+    start = np.zeros(gx * gy + 1, np.int64)
+    for j in range(M):
+        if ok[j]:
+            bx = min(max(np.int64(math.floor(np.float64(x[j]) / side)), 0), gx - 1)
+            by = min(max(np.int64(math.floor(np.float64(y[j]) / side)), 0), gy - 1)
+            bid[j] = by * gx + bx
+            start[bid[j] + 1] += 1
+    for b in range(gx * gy):
+        start[b + 1] += start[b]
+    items = np.empty(start[gx * gy], np.int32)
+    fill = start[:-1].copy()
+    for j in range(M):
+        if bid[j] >= 0:
+            items[fill[bid[j]]] = j
+            fill[bid[j]] += 1
+    return gx, gy, start, items
+
+
+@numba.njit(cache=True, nogil=True)
+def row_candidates(x, y, ok, rows, gx, gy, start, items, side, lo2, hi2, keep):
+    """The candidates of the points ``rows`` (n,) among the usable points bucketed by
+    :func:`buckets`: the usable points ``j`` other than the row's own with the squared distance
+    ``dx * dx + dy * dy`` in the points' dtype (rounded after each operation) at most ``hi2`` (a
+    hair over the radius' square), as (cand (n, keep) int32, ``M`` past the last, the first ``keep`` in
+    index order; count (n,) of them; border (n,): one lies above ``lo2``, where another rounding
+    might leave it out). A row whose own point is not usable has none."""
+    M = x.shape[0]
+    n = rows.shape[0]
+    sx = x[items]  # the points' coordinates in bucket order: each row reads them in sequence
+    sy = y[items]
+    cand = np.full((n, keep), M, np.int32)
+    count = np.zeros(n, np.int64)
+    border = np.zeros(n, np.bool_)
+    for i in range(n):
+        q = rows[i]
+        if not ok[q]:
+            continue
+        qx, qy = x[q], y[q]
+        bx = min(max(np.int64(math.floor(np.float64(qx) / side)), 0), gx - 1)
+        by = min(max(np.int64(math.floor(np.float64(qy) / side)), 0), gy - 1)
+        c = 0
+        for ry in range(max(by - 1, 0), min(by + 2, gy)):
+            b0 = ry * gx + max(bx - 1, 0)
+            b1 = ry * gx + min(bx + 1, gx - 1)
+            for t in range(start[b0], start[b1 + 1]):  # the 3 buckets of a row are contiguous
+                dx = sx[t] - qx
+                dy = sy[t] - qy
+                d = dx * dx + dy * dy  # in the points' dtype, as numba keeps float32 float32
+                if d <= hi2:
+                    j = items[t]
+                    if j == q:
+                        continue
+                    if d > lo2:
+                        border[i] = True
+                    if c < keep:
+                        cand[i, c] = j
+                    c += 1
+        count[i] = c
+    return cand, count, border
+
+
+#: Relative gap below which two squared distances or keys of a row count as tied: the device's
+#: rounding of ``dx * dx + dy * dy`` (a product may be fused into the sum) and of ``d2 + span``
+#: moves each by a few units in the last place, so closer values could come in either order.
+_TIE = 16.0 * 2.0**-23
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _ties(v):
+    """Whether two of the sorted values ``v`` lie within :data:`_TIE` of each other."""
+    for i in range(1, v.shape[0]):
+        if v[i] - v[i - 1] <= _TIE * max(abs(np.float64(v[i])), abs(np.float64(v[i - 1]))):
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
+    """The device's ranked candidates of the points ``rows`` (n,) (:func:`_select` of
+    :mod:`jaxsem.planning._neighbours` over their candidates within the radius, ``r2`` its
+    square: with ``sectors``, the ``m`` nearest of each direction sector first, then the rest by
+    ``d2 + span``; without, by ``d2``), bucketed as :func:`buckets`: (cand (n, keep) int32 in
+    preference order, ``M`` past the last; unsure (n,)). The device breaks exact ties by its
+    own slot order, and rounds the keys its own way: a row whose squared distances or keys come
+    within :data:`_TIE` of each other, or with a candidate on a sector border that could be
+    reserved on either side, is unsure (the caller asks the device). Rows must have no candidate
+    within a hair of the radius (their sets are the device's)."""
+    M = x.shape[0]
+    n = rows.shape[0]
+    sx = x[items]
+    sy = y[items]
+    cand = np.full((n, keep), M, np.int32)
+    unsure = np.zeros(n, np.bool_)
+    S = max(sectors, 1)
+    mm = max(m, 1)
+    bd = np.empty((S, mm), x.dtype)
+    bi = np.empty((S, mm), np.int64)
+    cnt = np.zeros(S, np.int64)
+    cap = 64
+    ids = np.empty(cap, np.int64)
+    d2 = np.empty(cap, x.dtype)
+    sec = np.empty(cap, np.int64)
+    near = np.empty(cap, np.bool_)
+    for i in range(n):
+        q = rows[i]
+        if not ok[q]:
+            continue
+        qx, qy = x[q], y[q]
+        bx = min(max(np.int64(math.floor(np.float64(qx) / side)), 0), gx - 1)
+        by = min(max(np.int64(math.floor(np.float64(qy) / side)), 0), gy - 1)
+        c = 0
+        cnt[:] = 0
+        for ry in range(max(by - 1, 0), min(by + 2, gy)):
+            b0 = ry * gx + max(bx - 1, 0)
+            b1 = ry * gx + min(bx + 1, gx - 1)
+            for t in range(start[b0], start[b1 + 1]):
+                dx = sx[t] - qx
+                dy = sy[t] - qy
+                d = dx * dx + dy * dy
+                if d <= r2:
+                    j = items[t]
+                    if j == q:
+                        continue
+                    if c == cap:  # grow the row's buffers
+                        cap *= 2
+                        ids2 = np.empty(cap, np.int64)
+                        d22 = np.empty(cap, x.dtype)
+                        sec2 = np.empty(cap, np.int64)
+                        near2 = np.empty(cap, np.bool_)
+                        ids2[:c] = ids[:c]
+                        d22[:c] = d2[:c]
+                        sec2[:c] = sec[:c]
+                        near2[:c] = near[:c]
+                        ids, d2, sec, near = ids2, d22, sec2, near2
+                    ids[c] = j
+                    d2[c] = d
+                    if sectors:
+                        s, nr = _sector(dx, dy, sectors)
+                        sec[c] = s
+                        near[c] = nr
+                        cnt[s] = _insert(bd[s], bi[s], cnt[s], m, d, c)
+                    c += 1
+        if c == 0:
+            continue
+        if _ties(np.sort(d2[:c])):
+            unsure[i] = True
+            continue
+        key = d2[:c].copy()
+        if sectors:
+            top = d2[0]
+            for a in range(c):
+                top = max(top, d2[a])
+            span = top + x.dtype.type(1.0)
+            prio = np.zeros(c, np.bool_)
+            for s in range(S):
+                for a in range(cnt[s]):
+                    prio[bi[s, a]] = True
+            for a in range(c):
+                if near[a]:
+                    dxa = x[ids[a]] - qx
+                    dya = y[ids[a]] - qy
+                    v = math.atan2(np.float64(dya), np.float64(dxa)) + math.pi
+                    b = np.int64(math.floor(v * S / (2 * math.pi) + 0.5))
+                    for s in ((b - 1) % S, b % S):
+                        if cnt[s] < m or d2[a] <= bd[s, m - 1]:
+                            unsure[i] = True
+                if not prio[a]:
+                    key[a] = d2[a] + span
+            if unsure[i]:
+                continue
+        order = np.argsort(key)
+        if _ties(key[order]):
+            unsure[i] = True
+            continue
+        for a in range(min(keep, c)):
+            cand[i, a] = ids[order[a]]
+    return cand, unsure
