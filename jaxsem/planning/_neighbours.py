@@ -374,7 +374,13 @@ def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, 
     many = np.flatnonzero((count > k) & ~border)
     if sectors is not None and len(many):
         m = _per_sector(k, sectors) if sectors else 0
-        ranked, unsure = kern.rank_rows(x, y, db_ok, rows[many], *grid, side, r2, keep, m, int(sectors))
+        todo = rows[many]
+
+        def rank(r0: int, r1: int):
+            return kern.rank_rows(x, y, db_ok, todo[r0:r1], *grid, side, r2, keep, m, int(sectors))
+
+        parts = _in_blocks(len(todo), len(todo) * keep, rank)
+        ranked, unsure = (np.concatenate([p[i] for p in parts]) for i in range(2))
         cand[many] = ranked
         need[many] = unsure
         cand[many[unsure]] = M
