@@ -546,18 +546,25 @@ def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, t
     rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
     eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
     lengths). Only where :func:`_host_edges`."""
-    kernels, (origin, inv, res, fused, recip) = _host_call(grid)
+    kernels, consts = _host_call(grid)
     grids = _host_grids(blocked, table)
     pts = np.ascontiguousarray(pts, np.float32)
     cand = np.ascontiguousarray(cand, np.int32)
+    n, M = len(cand), len(pts)
+    # An edge between two new vertices is read once where its reversal reads the same: a first
+    # pass over every row, then a second (:func:`first_clear_pairs`).
+    state = np.zeros(cand.shape, np.uint8)
+    out = (np.full((n, k), M, np.int32), np.zeros((n, k), bool), np.full((n, k), np.inf, np.float32))
+    # The first pass reads more of the earlier rows' edges: each thread takes every W-th run of
+    # 64 rows, not one contiguous block.
+    perm = np.argsort((np.arange(n) // 64) % _workers(), kind="stable")
+    for res in (None, out):
 
-    def run(r0: int, r1: int):
-        return kernels.first_clear(
-            *grids, pts, cand[r0:r1], s0 + r0, int(k), int(samples), origin, inv, res, fused, recip
-        )
+        def run(r0: int, r1: int, res=res):
+            kernels.first_clear_pairs(*grids, pts, cand, s0, int(k), int(samples), *consts, perm[r0:r1], state, res)
 
-    parts = _in_blocks(len(cand), cand.size, run)
-    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+        _in_blocks(n, cand.size, run)
+    return out
 
 
 def _host_call(grid):

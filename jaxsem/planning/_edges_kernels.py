@@ -87,21 +87,32 @@ def edges_clear(blocked, table, base, a, b, samples, want, origin, inv, res, fus
     return out
 
 
+#: :func:`first_clear_pairs`' states of an edge: read, clear, and the reversed edge's answer too.
+_READ, _CLEAR, _BOTH = 1, 2, 4
+
+
 @numba.njit(cache=True, nogil=True)
-def first_clear(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fused, recip):
-    """Each row ``i`` of ``cand`` (n, K) (vertex ``s0 + i``'s candidates in preference order,
-    ``M = len(pts)`` where none) read in order until ``k`` edges from the vertex are clear (the
-    rule with ``S`` samples; see :func:`edges_clear`): (neighbours (n, k) int32, ``M`` past the
-    last, valid (n, k), weights (n, k): the edges' lengths in the points' dtype, as the roadmap
-    weighs an edge, inf past the last). It releases the GIL: callers run blocks of rows on
-    threads of their own."""
+def first_clear_pairs(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fused, recip, rows, state, out):
+    """Each row ``i`` in ``rows`` (int64) of ``cand`` (n, K) (vertex ``s0 + i``'s candidates in
+    preference order, ``M = len(pts)`` where none) read in order until ``k`` edges from the
+    vertex are clear (the rule with ``S`` samples; see :func:`edges_clear`), in two passes over
+    every row, each edge between two of these rows read once where its reversal would read the
+    same (:func:`_walk`).
+
+    ``state`` (n, K) uint8, zeros before the first pass; ``out``: None in the first pass, which
+    reads each row's edges to vertices earlier than its own vertex's (and to vertices outside
+    ``s0 .. s0 + n``) until ``k`` of them are clear, noting for each whether the reversed edge
+    is sure to agree. The second pass (``out`` = (neighbours (n, k) int32, ``M`` past the last;
+    valid (n, k); weights (n, k): the edges' lengths in the points' dtype, as the roadmap weighs
+    an edge, inf past the last), filled in rows ``rows``) reads each row in order until ``k`` are clear, taking an edge's answer
+    from the first pass, from the other end's row where that row read the reversal surely, or
+    else reading it. Every pass of a row reads only ``state``'s rows written by earlier passes:
+    blocks of rows may run on threads of their own, the passes one after the other."""
     n, K = cand.shape
     M = pts.shape[0]
-    nbr = np.full((n, k), M, np.int32)
-    ok = np.zeros((n, k), np.bool_)
-    w = np.full((n, k), np.inf, pts.dtype)
-    for i in range(n):
-        ax, ay = pts[s0 + i, 0], pts[s0 + i, 1]
+    for i in rows:
+        v = s0 + i
+        ax, ay = pts[v, 0], pts[v, 1]
         found = 0
         for j in range(K):
             if found >= k:
@@ -109,13 +120,49 @@ def first_clear(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fus
             c = cand[i, j]
             if c >= M:
                 continue
-            bx, by = pts[c, 0], pts[c, 1]
-            if edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
-                nbr[i, found] = c
-                ok[i, found] = True
-                w[i, found] = entry_length(pts, s0 + i, c)  # float64 of a float32: exact back
-                found += 1
-    return nbr, ok, w
+            mine = not (s0 <= c < v)  # the first pass' edges: the other end is not an earlier new row
+            if out is None:
+                if not mine:
+                    continue
+                clear, sure = _walk(
+                    blocked,
+                    table,
+                    base,
+                    ax,
+                    ay,
+                    pts[c, 0],
+                    pts[c, 1],
+                    S,
+                    origin,
+                    inv,
+                    res,
+                    fused,
+                    recip,
+                    s0 <= c < s0 + n,
+                )
+                state[i, j] = _READ | (_CLEAR if clear else 0) | (_BOTH if sure else 0)
+            else:
+                st = state[i, j]
+                if not st & _READ:
+                    st = 0
+                    if not mine:
+                        other = c - s0
+                        for jj in range(K):
+                            if cand[other, jj] == v:
+                                st = state[other, jj]
+                                break
+                    if not (st & _READ and st & _BOTH):
+                        clear = edge_clear(
+                            blocked, table, base, ax, ay, pts[c, 0], pts[c, 1], S, origin, inv, res, fused, recip
+                        )
+                        st = _READ | (_CLEAR if clear else 0)
+                clear = bool(st & _CLEAR)
+                if clear:
+                    nbr, ok, w = out
+                    nbr[i, found] = c
+                    ok[i, found] = True
+                    w[i, found] = entry_length(pts, v, c)
+            found += clear
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -135,7 +182,15 @@ def _row(out, e0, e1, k, blocked, table, base, a, b, samples, want, origin, inv,
 @numba.njit(cache=True, nogil=True)
 def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
     """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
-    ``blocked`` (H, W).
+    ``blocked`` (H, W): see :func:`_walk`."""
+    return _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip, False)[0]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+    """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
+    ``blocked`` (H, W), and (with ``both``) whether the reversed edge (bx, by) -> (ax, ay) has
+    the same answer for sure: (clear, sure).
 
     An edge is clear when every sample lies in a free cell on the grid and, where two consecutive
     samples differ in both row and column, both side cells of that step are free. Read from the
@@ -143,7 +198,14 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
     sample's clearance disc: no cell there is blocked or next to a blocked cell, so those samples
     and their steps' side cells are free (the skip stays a sample short of the disc's edge,
     which also covers the float32 samples' rounding). The answer is the rule's, read at every
-    sample."""
+    sample.
+
+    The reversed edge's sample ``S - 1 - i`` is this one's sample ``i`` but for its rounding:
+    where every sample read here lies in the cell the reversed edge's own arithmetic puts it in
+    (the skipped ones lie inside clearance discs either way), the reversed edge reads the same
+    cells and steps, so its answer is this one's; a blocked answer needs only its blocking
+    samples to agree. Reads that gallop through a cell (long edges) are not compared: unsure."""
+    sure = both
     H, W = blocked.shape
     TH, TW = table.shape
     ox, oy = origin[0], origin[1]
@@ -152,6 +214,7 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
     denom = np.float32(S - 1)
     step = np.sqrt(np.float64(dx) ** 2 + np.float64(dy) ** 2) / max(S - 1, 1)
     prev = False
+    psame = True
     pr = 0
     pc = 0
     k = 0
@@ -159,11 +222,17 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
         t = np.float32(k) / denom
         c = np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip))
         r = np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip))
+        same = True
+        if both:
+            u = np.float32(S - 1 - k) / denom  # the reversed edge's sample at this one
+            same = np.int64(_cell(_along(u, -dx, bx, fused), ox, inv, res, recip)) == c
+            same = same and np.int64(_cell(_along(u, -dy, by, fused), oy, inv, res, recip)) == r
         if r < 0 or r >= H or c < 0 or c >= W or blocked[r, c]:
-            return False
+            return False, same
         if prev and r != pr and c != pc and (blocked[pr, c] or blocked[r, pc]):
-            return False
-        pr, pc, prev = r, c, True
+            return False, same and psame
+        pr, pc, prev, psame = r, c, True, same
+        sure = sure and same
         m = 0
         if TH > 0 and step > 0:
             tr, tc = r >> base, c >> base
@@ -181,6 +250,7 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
         # Each coordinate's cell is monotone in k (every operation rounds monotonically): the
         # samples up to the last one in this cell add nothing. Gallop to the first one past it
         # (a query's long edges: hundreds of samples a cell).
+        sure = False
         lo = k
         hi = k + 1
         run = 1
@@ -196,7 +266,7 @@ def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused,
             else:
                 hi = mid
         k = hi
-    return True
+    return True, sure
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -107,6 +107,87 @@ def test_long_edges_in_open_space_are_skipped_through_not_misread():
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("seed,with_table", [(0, True), (1, False), (2, True)])
+def test_each_rows_first_k_clear_edges_are_the_device_rules(seed, with_table):
+    """A grow's rows of candidates among old and new vertices (each pair of new ones in both
+    rows, many on cell corners, where an edge and its reversal round into different cells):
+    the host's first k clear edges of each row (each edge between new vertices read once where
+    its reversal surely agrees) are the device rule's, read edge by edge at every sample."""
+    from jaxsem.planning import _edges_kernels as kern  # layers: white-box
+
+    rng = np.random.default_rng(seed)
+    shape = (60, 80)
+    grid = Q.Grid.host((-1.3, 2.1), 0.1, shape)
+    occ = _map(rng, shape, 0.2)
+    M, s0, k, K, radius = 330, 30, 6, 24, 1.5
+    lo = np.asarray(grid.origin)
+    p = lo + rng.uniform(0.0, 1.0, (M, 2)) * [8.0, 6.0]
+    corner = rng.random(M) < 0.4
+    p[corner] = lo + np.round((p[corner] - lo) / 0.1) * 0.1
+    p = p.astype(np.float32)
+    _, first_of = np.unique(p, axis=0, return_index=True)
+    p = p[np.sort(first_of)]  # no two vertices at one point (an edge of length 0)
+    M = len(p)
+    d = np.linalg.norm(p[s0:, None].astype(np.float64) - p[None], axis=-1)
+    d[np.arange(M - s0), np.arange(s0, M)] = np.inf
+    cand = np.argsort(d, axis=1, kind="stable")[:, :K].astype(np.int32)
+    cand[np.take_along_axis(d, cand, 1) > radius] = M
+    S = _edges._edge_samples(radius, 0.1)
+    table = _edges._clearance_table_np(occ) if with_table else None
+    nbr, ok, w = _edges._first_clear_host(occ, p, cand, s0, k, S, grid, table)
+
+    rows = np.repeat(np.arange(s0, M), K)
+    flat = cand.ravel()
+    clear = _dense(occ, p[rows], p[np.minimum(flat, M - 1)], grid, S) & (flat < M)
+    clear = clear.reshape(-1, K)
+    first = np.cumsum(clear, 1) <= k
+    for i in range(M - s0):
+        want = cand[i][clear[i] & first[i]]
+        np.testing.assert_array_equal(nbr[i][ok[i]], want)
+        np.testing.assert_array_equal(w[i][ok[i]], np.linalg.norm(p[want] - p[s0 + i], axis=1).astype(np.float32))
+    assert 0.2 < clear.sum() / (flat < M).sum() < 0.9
+    # Some edges' reversals were not sure to agree: the second pass read them again.
+    state = np.zeros(cand.shape, np.uint8)
+    grids = _edges._host_grids(occ, table)
+    consts = _edges._host_call(grid)[1]
+    kern.first_clear_pairs(*grids, p, cand, s0, k, S, *consts, np.arange(M - s0), state, None)
+    assert np.any((state & kern._READ > 0) & (state & kern._BOTH == 0) & (cand >= s0) & (cand < M))
+
+
+def test_an_edge_whose_reversal_reads_another_answer_is_read_both_ways():
+    """Edges from a vertex on a cell corner beside blocked cells: the reversed edge's last sample
+    rounds to a neighbouring cell of the corner, and the rule's answers differ with the
+    direction. Each row of the pair keeps the other end exactly when its own direction is clear."""
+    shape = (60, 80)
+    grid = Q.Grid.host((-1.3, 2.1), 0.1, shape)
+    occ = np.zeros(shape, bool)
+    occ[::2, ::2] = np.random.default_rng(0).random((30, 40)) < 0.5
+    a = np.array([[-0.8, 2.9], [-0.4, 6.3], [1.9, 7.1], [-0.8, 7.5], [-0.4, 4.7]], np.float32)
+    b = np.array(
+        [
+            [0.43067107, 3.51397395],
+            [0.14826399, 6.57386494],
+            [0.54635257, 6.57387066],
+            [-0.1785281, 7.77992058],
+            [-0.14453362, 4.4650898],
+        ],
+        np.float32,
+    )
+    S = _edges._edge_samples(1.5, 0.1)
+    forward, backward = _dense(occ, a, b, grid, S), _dense(occ, b, a, grid, S)
+    assert np.all(forward != backward)
+    s0 = 2
+    p = np.concatenate([np.zeros((s0, 2), np.float32), a, b])
+    M, n = len(p), len(a)
+    cand = np.full((2 * n, 4), M, np.int32)
+    cand[:n, 1] = s0 + n + np.arange(n)  # a's row: its b
+    cand[n:, 2] = s0 + np.arange(n)  # b's row: its a
+    for table in (None, _edges._clearance_table_np(occ)):
+        nbr, ok, _ = _edges._first_clear_host(occ, p, cand, s0, 1, S, grid, table)
+        np.testing.assert_array_equal(ok[:, 0], np.concatenate([forward, backward]))
+        np.testing.assert_array_equal(nbr[ok], cand[cand < M][np.concatenate([forward, backward])])
+
+
 @pytest.fixture
 def float32():
     """The roadmap in float32, a user's default (the suite runs under x64, where the roadmap is
