@@ -102,14 +102,10 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
     order = _z_order(points)
     rank = np.empty_like(order)
     rank[order] = np.arange(M)
-    # The rows in search ids: row i is slot order[i]'s, naming search ids.
-    nb = np.asarray(nbr, np.int64)
-    nb = np.where(nb < M, rank[np.clip(nb, 0, M - 1)], nb)[order].astype(np.int32)
     lengths = w is None
-    w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(np.asarray(w, np.float64)[order])
-    pts = np.ascontiguousarray(points[order])
-    ptr, adj, wt, eid, measured = adjacency(nb, np.ascontiguousarray(entries[order]), w, pts, lengths, fixed)
-    eid = (order[eid // K] * K + eid % K).astype(eid.dtype)  # the entries' ids in the roadmap's rows
+    w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(w, np.float64)
+    nb = np.ascontiguousarray(nbr, np.int32)
+    ptr, adj, wt, eid, measured = adjacency(nb, np.ascontiguousarray(entries), w, points, order, rank, lengths, fixed)
     if lengths:
         ratio = 1.0
     elif ratio is None:

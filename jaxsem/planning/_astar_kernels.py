@@ -15,24 +15,26 @@ def entry_length(p, r, c):
 
 
 @numba.njit(cache=True, nogil=True)
-def adjacency(nbr, keep, w, p, use_lengths, once):
-    """Every kept entry (r, s) of ``nbr`` as an edge both ways, in CSR form by vertex: (ptr
-    (M + 1,), the other end, the weight, the entry id r * K + s) (a counting sort), and the
-    smallest weight / length over them (inf if none has a length). Weights: ``w[r, s]``, or
-    with ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12; ``w`` is
-    not read). ``once``: of a vertex's entries to one other end with one weight (an edge both
-    its ends chose) only the first stays; a search that never skips an entry reads the same
-    (the second relaxes nothing the first did not)."""
-    R, K = nbr.shape
-    M = p.shape[0]
+def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
+    """Every kept entry (r, s) of ``nbr`` (M, K) (slots) as an edge both ways, in CSR form by
+    search id (``order``: search id -> slot, ``rank``: slot -> search id; rows read in search-id
+    order): (ptr (M + 1,), the other end's search id, the weight, the entry id r * K + s in the
+    roadmap's rows) (a counting sort), and the smallest weight / length over them (inf if none
+    has a length). Weights: ``w[r, s]``, or with ``use_lengths`` the entries' lengths
+    (:func:`entry_length`, at least 1e-12; ``w`` is not read). ``once``: of a vertex's entries
+    to one other end with one weight (an edge both its ends chose) only the first stays; a
+    search that never skips an entry reads the same (the second relaxes nothing the first did
+    not)."""
+    M, K = nbr.shape
     ptr = np.zeros(M + 1, np.int64)
     ratio = np.inf
-    for r in range(R):
+    for i in range(M):
+        r = order[i]
         for s in range(K):
             if keep[r, s]:
                 c = nbr[r, s]
-                ptr[r + 1] += 1
-                ptr[c + 1] += 1
+                ptr[i + 1] += 1
+                ptr[rank[c] + 1] += 1
                 if not use_lengths:
                     dx = np.float64(p[c, 0]) - np.float64(p[r, 0])
                     dy = np.float64(p[c, 1]) - np.float64(p[r, 1])
@@ -46,12 +48,14 @@ def adjacency(nbr, keep, w, p, use_lengths, once):
     wt = np.empty(E, np.float64)
     eid = np.empty(E, np.int32)
     fill = ptr[:M].copy()
-    for r in range(R):
+    for i in range(M):
+        r = order[i]
         for s in range(K):
             if keep[r, s]:
                 c = np.int64(nbr[r, s])
                 x = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
-                for a, b in ((np.int64(r), c), (c, np.int64(r))):
+                j = np.int64(rank[c])
+                for a, b in ((np.int64(i), j), (j, np.int64(i))):
                     at = fill[a]
                     adj[at] = b
                     wt[at] = x
