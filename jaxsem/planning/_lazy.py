@@ -40,7 +40,7 @@ from ._edges import (
     _host_edges,
 )
 from ._grid import static_grid
-from ._neighbours import _candidates_host, _grid_dims, _knn_grid, _knn_rows
+from ._neighbours import _bucket, _candidates_host, _grid_dims, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
@@ -54,15 +54,41 @@ _CHUNK = 128
 # ------------------------------------------------------------------ growing without edge checks
 
 
-#: Vertices the lazy grow ranks on the device per call: one compiled shape, whatever their count.
-_RANK_CHUNK = 256
+#: Vertices the lazy grow ranks on the device per call: two compiled shapes, whatever their
+#: count (the host leaves a few rows of a grow to the device, now and then hundreds).
+_RANK_CHUNKS = (16, 256)
 
 
 @functools.partial(jax.jit, static_argnames=("radius", "extent"))
-def _grid_jit(points, valid, origin, *, radius, extent):
-    """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own)."""
+def _grid_jit(points, valid, origin, guess, *, radius, extent):
+    """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own). ``guess`` (M,)
+    int32: the host's bucket order (:func:`_host_order`), used where it is the device's own (its
+    bucket ids sorted, ties in index order), else the device sorts (a sort costs milliseconds
+    on a CPU; the check, microseconds)."""
     M = points.shape[0]
-    return _knn_grid(points - origin, valid & (jnp.arange(M) >= _QUERY), radius, extent)
+    db = points - origin
+    ok = valid & (jnp.arange(M) >= _QUERY)
+    gx, gy = _grid_dims(radius, extent)
+    bx, by = _bucket(db, radius, gx, gy)
+    bid = jnp.where(ok, by * gx + bx, gx * gy)
+    s = bid[guess]
+    agree = jnp.all((s[1:] > s[:-1]) | ((s[1:] == s[:-1]) & (guess[1:] > guess[:-1])))
+
+    def own():
+        order, sorted_bid = _knn_grid(db, ok, radius, extent)
+        return order.astype(guess.dtype), sorted_bid
+
+    return jax.lax.cond(agree, lambda: (guess, s), own)
+
+
+def _host_order(db, db_ok, radius: float, extent) -> np.ndarray:
+    """The bucket order of the local points ``db`` (M, 2) (:func:`_knn_grid`) as the host
+    computes it (int32): the device's but where a point lies within a rounding of a bucket's
+    edge."""
+    gx, gy = _grid_dims(radius, extent)
+    b = np.floor(db / db.dtype.type(radius)).astype(np.int64)
+    bid = np.where(db_ok, np.clip(b[:, 1], 0, gy - 1) * gx + np.clip(b[:, 0], 0, gx - 1), gx * gy)
+    return np.argsort(bid, kind="stable").astype(np.int32)
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "k", "radius", "extent", "cap", "sectors", "keep"))
@@ -112,18 +138,21 @@ def _grow_lazy(
     keep = 2 * k if sectors else k
     # The host ranks a row as the device does unless the samples' densities play a part.
     host_rank = sectors if dist is None or not sectors else None
-    cand, need, cap = _candidates_host(pts - np.asarray(origin_j), db_ok, rows, k, radius, extent, keep, cap, host_rank)
+    local = pts - np.asarray(origin_j)
+    cand, need, cap = _candidates_host(local, db_ok, rows, k, radius, extent, keep, cap, host_rank)
     if need.any():
         some = rows[need].astype(np.int32)
-        padded = np.concatenate([some, np.full(-len(some) % _RANK_CHUNK, some[-1], np.int32)])
-        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin_j, radius=radius, extent=extent)
+        chunk = _RANK_CHUNKS[0] if len(some) <= _RANK_CHUNKS[0] else _RANK_CHUNKS[1]
+        padded = np.concatenate([some, np.full(-len(some) % chunk, some[-1], np.int32)])
+        guess = _host_order(local, db_ok, radius, extent)
+        order, sorted_bid = _grid_jit(rm.points, rm.valid, origin_j, guess, radius=radius, extent=extent)
         while True:
             use = cap if 3 * cap < M else None
             parts = [
                 _knn_some_jit(
                     rm.points,
                     rm.valid,
-                    padded[i : i + _RANK_CHUNK],
+                    padded[i : i + chunk],
                     order,
                     sorted_bid,
                     dist,
@@ -135,7 +164,7 @@ def _grow_lazy(
                     sectors=sectors,
                     keep=keep,
                 )
-                for i in range(0, len(padded), _RANK_CHUNK)
+                for i in range(0, len(padded), chunk)
             ]
             if use is None or not any(bool(o) for _, o in parts):
                 break

@@ -115,3 +115,23 @@ def test_keys_that_round_together_are_left_to_the_device():
     assert _row_zero(_crowd(np.concatenate([base, near])))
     near[1] += [0.0, 0.05]
     assert not _row_zero(_crowd(np.concatenate([base, near])))
+
+
+def test_the_bucket_order_is_the_devices_from_a_right_or_a_wrong_guess():
+    """The grow's bucket order on the device from the host's guess: the device's own sort's
+    answer when the guess is right (points on bucket edges included), and when it is not."""
+    from jaxsem.planning._lazy import _grid_jit, _host_order  # layers: white-box
+    from jaxsem.planning._neighbours import _knn_grid  # layers: white-box
+
+    rng = np.random.default_rng(5)
+    p = rng.uniform(0.0, EXTENT[0], (700, 2)).astype(np.float32)
+    p[:40] = np.round(p[:40])  # on bucket edges (radius 1)
+    ok = rng.random(len(p)) > 0.05
+    origin = jnp.zeros(2, jnp.float32)
+    want = jax.jit(lambda: _knn_grid(jnp.asarray(p), jnp.asarray(ok) & (jnp.arange(len(p)) >= 2), RADIUS, EXTENT))()
+    guess = _host_order(p, ok & (np.arange(len(p)) >= 2), RADIUS, EXTENT)
+    for g in (guess, guess[::-1].copy(), np.roll(guess, 1)):
+        got = _grid_jit(jnp.asarray(p), jnp.asarray(ok), origin, jnp.asarray(g), radius=RADIUS, extent=EXTENT)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(guess, np.asarray(want[0]))
