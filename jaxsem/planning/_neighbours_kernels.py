@@ -177,8 +177,7 @@ def buckets(x, y, ok, side):
     start = np.zeros(gx * gy + 1, np.int64)
     for j in range(M):
         if ok[j]:
-            bx = min(max(np.int64(math.floor(np.float64(x[j]) / side)), 0), gx - 1)
-            by = min(max(np.int64(math.floor(np.float64(y[j]) / side)), 0), gy - 1)
+            bx, by = _home(x[j], y[j], side, gx, gy)
             bid[j] = by * gx + bx
             start[bid[j] + 1] += 1
     for b in range(gx * gy):
@@ -190,6 +189,21 @@ def buckets(x, y, ok, side):
             items[fill[bid[j]]] = j
             fill[bid[j]] += 1
     return gx, gy, start, items
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _home(qx, qy, side, gx, gy):
+    """The bucket (bx, by) of the point (qx, qy) (:func:`buckets`' arithmetic, clipped)."""
+    bx = min(max(np.int64(math.floor(np.float64(qx) / side)), 0), gx - 1)
+    by = min(max(np.int64(math.floor(np.float64(qy) / side)), 0), gy - 1)
+    return bx, by
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _strip(ry, bx, gx, start):
+    """The bucket-order positions [t0, t1) of the buckets bx - 1 .. bx + 1 of row ``ry`` (the 3
+    buckets of a row are contiguous)."""
+    return start[ry * gx + max(bx - 1, 0)], start[ry * gx + min(bx + 1, gx - 1) + 1]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -212,13 +226,11 @@ def row_candidates(x, y, ok, rows, gx, gy, start, items, side, lo2, hi2, keep):
         if not ok[q]:
             continue
         qx, qy = x[q], y[q]
-        bx = min(max(np.int64(math.floor(np.float64(qx) / side)), 0), gx - 1)
-        by = min(max(np.int64(math.floor(np.float64(qy) / side)), 0), gy - 1)
+        bx, by = _home(qx, qy, side, gx, gy)
         c = 0
         for ry in range(max(by - 1, 0), min(by + 2, gy)):
-            b0 = ry * gx + max(bx - 1, 0)
-            b1 = ry * gx + min(bx + 1, gx - 1)
-            for t in range(start[b0], start[b1 + 1]):  # the 3 buckets of a row are contiguous
+            t0, t1 = _strip(ry, bx, gx, start)
+            for t in range(t0, t1):
                 dx = sx[t] - qx
                 dy = sy[t] - qy
                 d = dx * dx + dy * dy  # in the points' dtype, as numba keeps float32 float32
@@ -282,14 +294,12 @@ def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
         if not ok[q]:
             continue
         qx, qy = x[q], y[q]
-        bx = min(max(np.int64(math.floor(np.float64(qx) / side)), 0), gx - 1)
-        by = min(max(np.int64(math.floor(np.float64(qy) / side)), 0), gy - 1)
+        bx, by = _home(qx, qy, side, gx, gy)
         c = 0
         cnt[:] = 0
         for ry in range(max(by - 1, 0), min(by + 2, gy)):
-            b0 = ry * gx + max(bx - 1, 0)
-            b1 = ry * gx + min(bx + 1, gx - 1)
-            for t in range(start[b0], start[b1 + 1]):
+            t0, t1 = _strip(ry, bx, gx, start)
+            for t in range(t0, t1):
                 dx = sx[t] - qx
                 dy = sy[t] - qy
                 d = dx * dx + dy * dy
