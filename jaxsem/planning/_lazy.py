@@ -40,7 +40,7 @@ from ._edges import (
     _host_edges,
 )
 from ._grid import static_grid
-from ._neighbours import _bucket, _candidates_host, _grid_dims, _knn_grid, _knn_rows
+from ._neighbours import _bucket_ids, _candidates_host, _grid_dims, _host_order, _knn_grid, _knn_rows
 from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
@@ -62,16 +62,13 @@ _RANK_CHUNKS = (16, 256)
 @functools.partial(jax.jit, static_argnames=("radius", "extent"))
 def _grid_jit(points, valid, origin, guess, *, radius, extent):
     """:func:`_knn_grid` of the roadmap's usable samples (the eager grow's own). ``guess`` (M,)
-    int32: the host's bucket order (:func:`_host_order`), used where it is the device's own (its
+    int32: the host's bucket order (:func:`~jaxsem.planning._neighbours._host_order`), used where it is the device's own (its
     bucket ids sorted, ties in index order), else the device sorts (a sort costs milliseconds
     on a CPU; the check, microseconds)."""
     M = points.shape[0]
     db = points - origin
     ok = valid & (jnp.arange(M) >= _QUERY)
-    gx, gy = _grid_dims(radius, extent)
-    bx, by = _bucket(db, radius, gx, gy)
-    bid = jnp.where(ok, by * gx + bx, gx * gy)
-    s = bid[guess]
+    s = _bucket_ids(db, ok, radius, extent)[guess]
     agree = jnp.all((s[1:] > s[:-1]) | ((s[1:] == s[:-1]) & (guess[1:] > guess[:-1])))
 
     def own():
@@ -79,16 +76,6 @@ def _grid_jit(points, valid, origin, guess, *, radius, extent):
         return order.astype(guess.dtype), sorted_bid
 
     return jax.lax.cond(agree, lambda: (guess, s), own)
-
-
-def _host_order(db, db_ok, radius: float, extent) -> np.ndarray:
-    """The bucket order of the local points ``db`` (M, 2) (:func:`_knn_grid`) as the host
-    computes it (int32): the device's but where a point lies within a rounding of a bucket's
-    edge."""
-    gx, gy = _grid_dims(radius, extent)
-    b = np.floor(db / db.dtype.type(radius)).astype(np.int64)
-    bid = np.where(db_ok, np.clip(b[:, 1], 0, gy - 1) * gx + np.clip(b[:, 0], 0, gx - 1), gx * gy)
-    return np.argsort(bid, kind="stable").astype(np.int32)
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "k", "radius", "extent", "cap", "sectors", "keep"))

@@ -177,11 +177,32 @@ def _grid_dims(radius: float, extent) -> tuple[int, int]:
 def _knn_grid(db, db_ok, radius: float, extent):
     """The bucketed search's (order, sorted bucket ids): ``db``'s points in bucket order (ties in
     index order), unusable ones last."""
-    gx, gy = _grid_dims(radius, extent)
-    bx, by = _bucket(db, radius, gx, gy)
-    bid = jnp.where(db_ok, by * gx + bx, gx * gy)  # unusable points: a bucket never read
+    bid = _bucket_ids(db, db_ok, radius, extent)
     order = jnp.argsort(bid)
     return order, bid[order]
+
+
+def _bucket_ids(db, db_ok, radius: float, extent):
+    """Each point's bucket id ``by * gx + bx``; unusable points ``gx * gy``, a bucket never read."""
+    gx, gy = _grid_dims(radius, extent)
+    bx, by = _bucket(db, radius, gx, gy)
+    return jnp.where(db_ok, by * gx + bx, gx * gy)
+
+
+def _host_buckets(db, radius: float, extent):
+    """:func:`_bucket` of the numpy points ``db`` (M, 2) on the host, in their dtype: (bx, by,
+    gx, gy); the device's but where a point lies within a rounding of a bucket's edge."""
+    gx, gy = _grid_dims(radius, extent)
+    cell = np.floor(db / db.dtype.type(radius)).astype(np.int64)
+    return np.clip(cell[:, 0], 0, gx - 1), np.clip(cell[:, 1], 0, gy - 1), gx, gy
+
+
+def _host_order(db, db_ok, radius: float, extent) -> np.ndarray:
+    """:func:`_knn_grid`'s bucket order of ``db`` (M, 2) as the host computes it (int32): a
+    guess the device checks (:func:`_host_buckets`)."""
+    bx, by, gx, gy = _host_buckets(db, radius, extent)
+    bid = np.where(db_ok, by * gx + bx, gx * gy)
+    return np.argsort(bid, kind="stable").astype(np.int32)
 
 
 def _bucket(p, radius: float, gx: int, gy: int):
@@ -394,10 +415,7 @@ def _strip_cap(db, db_ok, rows, count, radius: float, extent, cap: int) -> int:
     M = db.shape[0]
     if not 3 * cap < M:
         return cap
-    gx = max(1, int(math.ceil(extent[0] / radius)))
-    gy = max(1, int(math.ceil(extent[1] / radius)))
-    cell = np.floor(db / db.dtype.type(radius)).astype(np.int64)
-    bx, by = np.clip(cell[:, 0], 0, gx - 1), np.clip(cell[:, 1], 0, gy - 1)
+    bx, by, gx, gy = _host_buckets(db, radius, extent)
     ids = np.flatnonzero(db_ok)
     grid = np.bincount((by[ids] + 1) * (gx + 2) + bx[ids] + 1, minlength=(gy + 2) * (gx + 2))
     grid = grid.reshape(gy + 2, gx + 2)

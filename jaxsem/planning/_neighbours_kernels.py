@@ -221,30 +221,54 @@ def row_candidates(x, y, ok, rows, gx, gy, start, items, side, lo2, hi2, keep):
     cand = np.full((n, keep), M, np.int32)
     count = np.zeros(n, np.int64)
     border = np.zeros(n, np.bool_)
+    ids, d2 = _buffers(gx, gy, start, x.dtype)
     for i in range(n):
         q = rows[i]
         if not ok[q]:
             continue
-        qx, qy = x[q], y[q]
-        bx, by = _home(qx, qy, side, gx, gy)
-        c = 0
-        for ry in range(max(by - 1, 0), min(by + 2, gy)):
-            t0, t1 = _strip(ry, bx, gx, start)
-            for t in range(t0, t1):
-                dx = sx[t] - qx
-                dy = sy[t] - qy
-                d = dx * dx + dy * dy  # in the points' dtype, as numba keeps float32 float32
-                if d <= hi2:
-                    j = items[t]
-                    if j == q:
-                        continue
-                    if d > lo2:
-                        border[i] = True
-                    if c < keep:
-                        cand[i, c] = j
-                    c += 1
+        c = _collect(x, y, q, sx, sy, items, gx, gy, start, side, hi2, ids, d2)
+        for a in range(c):
+            if d2[a] > lo2:
+                border[i] = True
+        for a in range(min(c, keep)):
+            cand[i, a] = ids[a]
         count[i] = c
     return cand, count, border
+
+
+@numba.njit(cache=True, nogil=True)
+def _buffers(gx, gy, start, dtype):
+    """Buffers (ids int64, squared distances) with room for the points of any 3 x 3 buckets
+    (:func:`buckets`): three times the fullest strip of three buckets in a row."""
+    most = 0
+    for ry in range(gy):
+        for bx in range(gx):
+            t0, t1 = _strip(ry, bx, gx, start)
+            most = max(most, t1 - t0)
+    return np.empty(3 * most + 1, np.int64), np.empty(3 * most + 1, dtype)
+
+
+@numba.njit(cache=True, nogil=True)
+def _collect(x, y, q, sx, sy, items, gx, gy, start, side, bound, ids, d2):
+    """Point ``q``'s candidates among the bucketed points (``sx``, ``sy``: their coordinates in
+    bucket order): every usable ``j != q`` with ``dx * dx + dy * dy`` in the points' dtype
+    (rounded after each operation, as numba keeps float32 float32) at most ``bound``, in bucket
+    order, into the buffers ``ids``, ``d2`` (:func:`_buffers`: room for any 3 x 3 buckets).
+    Returns the count."""
+    qx, qy = x[q], y[q]
+    bx, by = _home(qx, qy, side, gx, gy)
+    c = 0
+    for ry in range(max(by - 1, 0), min(by + 2, gy)):
+        t0, t1 = _strip(ry, bx, gx, start)
+        for t in range(t0, t1):
+            dx = sx[t] - qx
+            dy = sy[t] - qy
+            d = dx * dx + dy * dy
+            if d <= bound and items[t] != q:
+                ids[c] = items[t]
+                d2[c] = d
+                c += 1
+    return c
 
 
 #: Relative gap below which two squared distances or keys of a row count as tied: the device's
@@ -284,48 +308,19 @@ def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
     bd = np.empty((S, mm), x.dtype)
     bi = np.empty((S, mm), np.int64)
     cnt = np.zeros(S, np.int64)
-    cap = 64
-    ids = np.empty(cap, np.int64)
-    d2 = np.empty(cap, x.dtype)
-    sec = np.empty(cap, np.int64)
-    near = np.empty(cap, np.bool_)
+    ids, d2 = _buffers(gx, gy, start, x.dtype)
+    near = np.empty(ids.shape[0], np.bool_)
     for i in range(n):
         q = rows[i]
         if not ok[q]:
             continue
         qx, qy = x[q], y[q]
-        bx, by = _home(qx, qy, side, gx, gy)
-        c = 0
+        c = _collect(x, y, q, sx, sy, items, gx, gy, start, side, r2, ids, d2)
         cnt[:] = 0
-        for ry in range(max(by - 1, 0), min(by + 2, gy)):
-            t0, t1 = _strip(ry, bx, gx, start)
-            for t in range(t0, t1):
-                dx = sx[t] - qx
-                dy = sy[t] - qy
-                d = dx * dx + dy * dy
-                if d <= r2:
-                    j = items[t]
-                    if j == q:
-                        continue
-                    if c == cap:  # grow the row's buffers
-                        cap *= 2
-                        ids2 = np.empty(cap, np.int64)
-                        d22 = np.empty(cap, x.dtype)
-                        sec2 = np.empty(cap, np.int64)
-                        near2 = np.empty(cap, np.bool_)
-                        ids2[:c] = ids[:c]
-                        d22[:c] = d2[:c]
-                        sec2[:c] = sec[:c]
-                        near2[:c] = near[:c]
-                        ids, d2, sec, near = ids2, d22, sec2, near2
-                    ids[c] = j
-                    d2[c] = d
-                    if sectors:
-                        s, nr = _sector(dx, dy, sectors)
-                        sec[c] = s
-                        near[c] = nr
-                        cnt[s] = _insert(bd[s], bi[s], cnt[s], m, d, c)
-                    c += 1
+        if sectors:
+            for a in range(c):  # each sector's m nearest, ties in arrival order (the device's slots)
+                s, near[a] = _sector(x[ids[a]] - qx, y[ids[a]] - qy, sectors)
+                cnt[s] = _insert(bd[s], bi[s], cnt[s], m, d2[a], a)
         if c == 0:
             continue
         if _ties(np.sort(d2[:c])):

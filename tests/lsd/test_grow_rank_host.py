@@ -120,8 +120,8 @@ def test_keys_that_round_together_are_left_to_the_device():
 def test_the_bucket_order_is_the_devices_from_a_right_or_a_wrong_guess():
     """The grow's bucket order on the device from the host's guess: the device's own sort's
     answer when the guess is right (points on bucket edges included), and when it is not."""
-    from jaxsem.planning._lazy import _grid_jit, _host_order  # layers: white-box
-    from jaxsem.planning._neighbours import _knn_grid  # layers: white-box
+    from jaxsem.planning._lazy import _grid_jit  # layers: white-box
+    from jaxsem.planning._neighbours import _host_order, _knn_grid  # layers: white-box
 
     rng = np.random.default_rng(5)
     p = rng.uniform(0.0, EXTENT[0], (700, 2)).astype(np.float32)
