@@ -517,18 +517,19 @@ def _host_edges(dtype) -> bool:
     return np.dtype(dtype) == np.float32 and _host_rule() is not None
 
 
-def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=None, k=None):
+def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=None, k=None, bits=None):
     """The edge rule of :func:`_edges_dense` on the host for float32 edges ``a`` -> ``b``
     (E, 2) with ``samples`` (E,) samples each (:func:`_edge_samples`), on the numpy bool grid
     ``blocked`` of the host ``grid``: (E,) bool, False where ``want`` (E,) is not set. The same
     answers as the device's rule, read from the start of each edge and skipping what the
     clearance ``table`` (:func:`_clearance_table`, numpy; None: none) vouches for. ``row``,
     ``k``: the edges come in rows of ``row`` in preference order, of which the caller keeps the
-    first ``k`` clear ones: the rest are not read (False). Only where :func:`_host_edges`."""
+    first ``k`` clear ones: the rest are not read (False). ``bits``: :func:`_bit_grids` of
+    ``blocked`` (the per-map setup's; made here if None). Only where :func:`_host_edges`."""
     kernels, consts = _host_call(grid)
     row = 1 if row is None else int(row)  # each edge a row of its own: every wanted one read
     k = 1 if k is None else int(k)
-    grids = _host_grids(blocked, table)
+    grids = _host_grids(blocked, table, bits)
     a, b = np.ascontiguousarray(a, np.float32), np.ascontiguousarray(b, np.float32)
     samples, want = np.ascontiguousarray(samples, np.int64), np.ascontiguousarray(want, bool)
     E = len(a)
@@ -540,19 +541,19 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
     return np.concatenate(_in_blocks(-(-E // row), E, run))
 
 
-def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, table):
+def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, table, bits=None):
     """Each row of ``cand`` (n, K) (the candidates of vertices ``s0 ..`` in preference order,
     ``len(pts)`` where none) read on the host until ``k`` edges from the vertex are clear (the
     rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
     eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
-    lengths). Only where :func:`_host_edges`."""
+    lengths). ``bits``: as :func:`_edges_clear_host`'s. Only where :func:`_host_edges`."""
     kernels, consts = _host_call(grid)
-    grids = _host_grids(blocked, table)
+    grids = _host_grids(blocked, table, bits)
     pts = np.ascontiguousarray(pts, np.float32)
     cand = np.ascontiguousarray(cand, np.int32)
     n, M = len(cand), len(pts)
-    # An edge between two new vertices is read once where its reversal reads the same: a first
-    # pass over every row, then a second (:func:`first_clear_pairs`).
+    # An edge between two new vertices is read once where its reversal reads the same cells: a
+    # first pass over every row, then a second (:func:`first_clear_pairs`).
     state = np.zeros(cand.shape, np.uint8)
     out = (np.full((n, k), M, np.int32), np.zeros((n, k), bool), np.full((n, k), np.inf, np.float32))
     # The first pass reads more of the earlier rows' edges: each thread takes every W-th run of
@@ -579,10 +580,32 @@ def _host_call(grid):
     return _edges_kernels, (np.asarray(grid.origin, np.float32), np.float32(1) / res, res, fused, recip)
 
 
-def _host_grids(blocked, table):
-    """(blocked, table, its block level) as the kernels read them (table None: none)."""
+def _host_grids(blocked, table, bits=None):
+    """(blocked, table, its block level, the grid's rows and columns as bits) as the kernels
+    read them (table None: none; ``bits``: :func:`_bit_grids` of ``blocked``, made here if
+    None)."""
     tab = np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32)
-    return np.ascontiguousarray(blocked, bool), tab, _BASE
+    rows, cols = _bit_grids(blocked) if bits is None else bits
+    return np.ascontiguousarray(blocked, bool), tab, _BASE, rows, cols
+
+
+def _bit_grids(blocked) -> tuple[np.ndarray, np.ndarray]:
+    """The bool grid ``blocked`` (H, W) as bits for the host rule's walk by lines: its rows
+    (H + 2, ceil((W + 2) / 64)) uint64, bit ``c + 1`` of word row ``r + 1`` set where cell
+    (r, c) is blocked, and the cells around the map set (off the map counts as blocked); and
+    its columns (W + 2, ceil((H + 2) / 64)) so. Per-map setup (:class:`~jaxsem.planning._map_setup._MapSetup`)."""
+    blocked = np.asarray(blocked, bool)
+    H, W = blocked.shape
+
+    def bits(g: np.ndarray) -> np.ndarray:
+        h, w = g.shape
+        padded = np.zeros((h, -(-w // 64) * 64), bool)
+        padded[:, :w] = g
+        return np.ascontiguousarray(np.packbits(padded, axis=1, bitorder="little").view("<u8"), np.uint64)
+
+    g = np.ones((H + 2, W + 2), bool)
+    g[1:-1, 1:-1] = blocked
+    return bits(g), bits(np.ascontiguousarray(g.T))
 
 
 def _in_blocks(rows: int, edges: int, run) -> list:

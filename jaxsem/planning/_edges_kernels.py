@@ -7,6 +7,11 @@ processor with fused multiply-add) or not, and its cell ``floor((p - origin) * i
 the float32 reciprocal of the resolution, as XLA folds a division by a constant) or
 ``floor((p - origin) / resolution)``. Which of the four the device's rule uses is measured, not
 assumed (:func:`jaxsem.planning._edges._host_rule`).
+
+An edge is read a line of cells at a time (:func:`_lines`: the rule's cells in one grid row, or
+column, are one range of bits), each sample's cell taken from real-number arithmetic except near
+a border, where the float32 rule decides; edges too close to a row or column for that read by
+samples (:func:`_walk`).
 """
 
 import numba
@@ -53,37 +58,43 @@ def sample_cells(a, b, S, origin, inv, res, fused, recip):
 
 
 @numba.njit(cache=True, nogil=True)
-def edges_clear(blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip, row, k):
+def edges_clear(blocked, table, base, rowbits, colbits, a, b, samples, want, origin, inv, res, fused, recip, row, k):
     """The edge rule on edges ``a`` -> ``b`` (E, 2) float32 with ``samples`` (E,) samples each,
     on the bool grid ``blocked`` (H, W): (E,) clear flags (False where ``want`` is not set).
     The edges come in rows of ``row`` (a vertex's candidates in preference order); in each
     row, the edges after its ``k``-th clear one are not read (False: a caller keeping the first
     ``k`` clear ones drops them anyway).
 
-    ``table``: clearance lower bounds in cells, one per block of ``2**base`` x ``2**base``
-    cells (shape (0, 0): none); see :func:`edge_clear`. It releases the GIL: callers run
-    blocks of rows on threads of their own."""
+    ``rowbits``, ``colbits``: the grid as bits (:func:`_lines`); ``table``: clearance lower
+    bounds in cells, one per block of ``2**base`` x ``2**base`` cells (shape (0, 0): none), for
+    the edges read by samples (:func:`edge_clear`). It releases the GIL: callers run blocks of
+    rows on threads of their own."""
     E = a.shape[0]
     out = np.zeros(E, np.bool_)
     for ri in range(-(-E // row)):
-        _row(
-            out,
-            ri * row,
-            min(ri * row + row, E),
-            k,
-            blocked,
-            table,
-            base,
-            a,
-            b,
-            samples,
-            want,
-            origin,
-            inv,
-            res,
-            fused,
-            recip,
-        )
+        found = 0
+        for e in range(ri * row, min(ri * row + row, E)):
+            if found >= k:
+                break
+            if want[e]:
+                out[e] = edge_clear(
+                    blocked,
+                    table,
+                    base,
+                    rowbits,
+                    colbits,
+                    a[e, 0],
+                    a[e, 1],
+                    b[e, 0],
+                    b[e, 1],
+                    samples[e],
+                    origin,
+                    inv,
+                    res,
+                    fused,
+                    recip,
+                )
+                found += out[e]
     return out
 
 
@@ -92,22 +103,25 @@ _READ, _CLEAR, _BOTH = 1, 2, 4
 
 
 @numba.njit(cache=True, nogil=True)
-def first_clear_pairs(blocked, table, base, pts, cand, s0, k, S, origin, inv, res, fused, recip, rows, state, out):
+def first_clear_pairs(
+    blocked, table, base, rowbits, colbits, pts, cand, s0, k, S, origin, inv, res, fused, recip, rows, state, out
+):
     """Each row ``i`` in ``rows`` (int64) of ``cand`` (n, K) (vertex ``s0 + i``'s candidates in
     preference order, ``M = len(pts)`` where none) read in order until ``k`` edges from the
     vertex are clear (the rule with ``S`` samples; see :func:`edges_clear`), in two passes over
-    every row, each edge between two of these rows read once where its reversal would read the
-    same (:func:`_walk`).
+    every row, each edge between two of these rows read once where its reversal surely reads the
+    same cells (:func:`_lines`).
 
     ``state`` (n, K) uint8, zeros before the first pass; ``out``: None in the first pass, which
     reads each row's edges to vertices earlier than its own vertex's (and to vertices outside
     ``s0 .. s0 + n``) until ``k`` of them are clear, noting for each whether the reversed edge
-    is sure to agree. The second pass (``out`` = (neighbours (n, k) int32, ``M`` past the last;
-    valid (n, k); weights (n, k): the edges' lengths in the points' dtype, as the roadmap weighs
-    an edge, inf past the last), filled in rows ``rows``) reads each row in order until ``k`` are clear, taking an edge's answer
-    from the first pass, from the other end's row where that row read the reversal surely, or
-    else reading it. Every pass of a row reads only ``state``'s rows written by earlier passes:
-    blocks of rows may run on threads of their own, the passes one after the other."""
+    is sure to agree. The second pass (``out`` = (neighbours
+    (n, k) int32, ``M`` past the last; valid (n, k); weights (n, k): the edges' lengths in the
+    points' dtype, as the roadmap weighs an edge, inf past the last), filled in rows ``rows``)
+    reads each row in order until ``k`` are clear, taking an edge's answer from the first pass,
+    from the other end's row where that row read the reversal surely, or else reading it. Every pass of a row reads only ``state``'s
+    rows written by earlier passes: blocks of rows may run on threads of their own, the passes
+    one after the other."""
     n, K = cand.shape
     M = pts.shape[0]
     for i in rows:
@@ -121,17 +135,20 @@ def first_clear_pairs(blocked, table, base, pts, cand, s0, k, S, origin, inv, re
             if c >= M:
                 continue
             mine = not (s0 <= c < v)  # the first pass' edges: the other end is not an earlier new row
+            bx, by = pts[c, 0], pts[c, 1]
             if out is None:
                 if not mine:
                     continue
-                clear, sure = _walk(
+                clear, sure = _clear(
                     blocked,
                     table,
                     base,
+                    rowbits,
+                    colbits,
                     ax,
                     ay,
-                    pts[c, 0],
-                    pts[c, 1],
+                    bx,
+                    by,
                     S,
                     origin,
                     inv,
@@ -153,7 +170,7 @@ def first_clear_pairs(blocked, table, base, pts, cand, s0, k, S, origin, inv, re
                                 break
                     if not (st & _READ and st & _BOTH):
                         clear = edge_clear(
-                            blocked, table, base, ax, ay, pts[c, 0], pts[c, 1], S, origin, inv, res, fused, recip
+                            blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip
                         )
                         st = _READ | (_CLEAR if clear else 0)
                 clear = bool(st & _CLEAR)
@@ -165,32 +182,29 @@ def first_clear_pairs(blocked, table, base, pts, cand, s0, k, S, origin, inv, re
             found += clear
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _row(out, e0, e1, k, blocked, table, base, a, b, samples, want, origin, inv, res, fused, recip):
-    """The edges ``e0 .. e1`` of one row into ``out``, until ``k`` are clear."""
-    found = 0
-    for e in range(e0, e1):
-        if found >= k:
-            break
-        if want[e]:
-            out[e] = edge_clear(
-                blocked, table, base, a[e, 0], a[e, 1], b[e, 0], b[e, 1], samples[e], origin, inv, res, fused, recip
-            )
-            found += out[e]
-
-
 @numba.njit(cache=True, nogil=True)
-def edge_clear(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
+def edge_clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip):
     """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
-    ``blocked`` (H, W): see :func:`_walk`."""
-    return _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip, False)[0]
+    ``blocked`` (H, W): see :func:`_clear`."""
+    return _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, False)[0]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+def _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+    """(the edge rule on the edge (ax, ay) -> (bx, by), and with ``both`` whether the reversed
+    edge surely reads the same): by lines of cells (:func:`_lines`), or by samples
+    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step."""
+    H, W = blocked.shape
+    st, sure = _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both)
+    if st < 0:
+        return _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip), False
+    return st == 1, sure
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
     """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
-    ``blocked`` (H, W), and (with ``both``) whether the reversed edge (bx, by) -> (ax, ay) has
-    the same answer for sure: (clear, sure).
+    ``blocked`` (H, W), read sample by sample.
 
     An edge is clear when every sample lies in a free cell on the grid and, where two consecutive
     samples differ in both row and column, both side cells of that step are free. Read from the
@@ -198,14 +212,7 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
     sample's clearance disc: no cell there is blocked or next to a blocked cell, so those samples
     and their steps' side cells are free (the skip stays a sample short of the disc's edge,
     which also covers the float32 samples' rounding). The answer is the rule's, read at every
-    sample.
-
-    The reversed edge's sample ``S - 1 - i`` is this one's sample ``i`` but for its rounding:
-    where every sample read here lies in the cell the reversed edge's own arithmetic puts it in
-    (the skipped ones lie inside clearance discs either way), the reversed edge reads the same
-    cells and steps, so its answer is this one's; a blocked answer needs only its blocking
-    samples to agree. Reads that gallop through a cell (long edges) are not compared: unsure."""
-    sure = both
+    sample."""
     H, W = blocked.shape
     TH, TW = table.shape
     ox, oy = origin[0], origin[1]
@@ -214,7 +221,6 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
     denom = np.float32(S - 1)
     step = np.sqrt(np.float64(dx) ** 2 + np.float64(dy) ** 2) / max(S - 1, 1)
     prev = False
-    psame = True
     pr = 0
     pc = 0
     k = 0
@@ -222,17 +228,11 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
         t = np.float32(k) / denom
         c = np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip))
         r = np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip))
-        same = True
-        if both:
-            u = np.float32(S - 1 - k) / denom  # the reversed edge's sample at this one
-            same = np.int64(_cell(_along(u, -dx, bx, fused), ox, inv, res, recip)) == c
-            same = same and np.int64(_cell(_along(u, -dy, by, fused), oy, inv, res, recip)) == r
         if r < 0 or r >= H or c < 0 or c >= W or blocked[r, c]:
-            return False, same
+            return False
         if prev and r != pr and c != pc and (blocked[pr, c] or blocked[r, pc]):
-            return False, same and psame
-        pr, pc, prev, psame = r, c, True, same
-        sure = sure and same
+            return False
+        pr, pc, prev = r, c, True
         m = 0
         if TH > 0 and step > 0:
             tr, tc = r >> base, c >> base
@@ -245,12 +245,11 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
             prev = False
             continue
         if step * 4 > res:
-            k += 1  # a few samples a cell (the roadmap's own edges): read the next one
+            k += 1  # a few samples a cell: read the next one
             continue
         # Each coordinate's cell is monotone in k (every operation rounds monotonically): the
         # samples up to the last one in this cell add nothing. Gallop to the first one past it
         # (a query's long edges: hundreds of samples a cell).
-        sure = False
         lo = k
         hi = k + 1
         run = 1
@@ -266,7 +265,7 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
             else:
                 hi = mid
         k = hi
-    return True, sure
+    return True
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -276,3 +275,143 @@ def _same(k, denom, dx, dy, ax, ay, ox, oy, inv, res, fused, recip, r, c):
     if np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip)) != c:
         return False
     return np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip)) == r
+
+
+#: The real-number sample (cells) ``(a - o) / res + k * d / res / (S - 1)`` lies within this
+#: many cells times ``|a| + |d| + |o|`` (metres) / ``res`` of the float32 rule's, either way of
+#: rounding it: six roundings of at most 2**-24 each, with a margin of 2.7.
+_SLACK = 2.0**-20
+
+#: Where a real-number sample's cell is unsure for more than this share of the way from one
+#: sample to the next, the walk by lines leaves the edge to :func:`_walk`.
+_SLOW = 0.25
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _exact(k, denom, d, a, o, inv, res, fused, recip):
+    """The float32 rule's cell of sample ``k`` along one axis."""
+    t = np.float32(k) / denom
+    return np.int64(_cell(_along(t, d, a, fused), o, inv, res, recip))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _reversed(k, denom, d, b, o, inv, res, fused, recip):
+    """The float32 rule's cell, along one axis, of the reversed edge's sample at this edge's
+    sample ``k`` (the reversed edge starts at ``b`` and goes by ``-d``)."""
+    u = np.float32(np.float32(denom) - np.float32(k)) / denom
+    return np.int64(_cell(_along(u, -d, b, fused), o, inv, res, recip))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell_at(k, f0, df, slack, denom, d, a, b, o, inv, res, fused, recip, both):
+    """(the rule's cell of sample ``k`` along one axis, whether the reversed edge puts it in the
+    same cell): the real-number sample's cell, or the float32 rule's where the sample lies
+    within ``slack`` cells of a border (only there can the reversed edge's differ; compared
+    when ``both``)."""
+    f = f0 + k * df
+    c = np.floor(f)
+    if f - c < slack or c + 1.0 - f < slack:
+        e = _exact(k, denom, d, a, o, inv, res, fused, recip)
+        return e, not both or _reversed(k, denom, d, b, o, inv, res, fused, recip) == e
+    return np.int64(c), True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _any_bit(bits, v, c0, c1):
+    """Whether any of bits ``c0 .. c1`` (0 <= c0 <= c1) of row ``v`` of the bit rows ``bits``
+    is set."""
+    w0 = c0 >> 6
+    w1 = c1 >> 6
+    lo = np.uint64(0xFFFFFFFFFFFFFFFF) << np.uint64(c0 & 63)
+    hi = np.uint64(0xFFFFFFFFFFFFFFFF) >> np.uint64(63 - (c1 & 63))
+    if w0 == w1:
+        return (bits[v, w0] & lo & hi) != 0
+    if bits[v, w0] & lo:
+        return True
+    for w in range(w0 + 1, w1):
+        if bits[v, w]:
+            return True
+    return (bits[v, w1] & hi) != 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+    """The edge rule (:func:`_walk`) on the edge (ax, ay) -> (bx, by) read a line of cells at a
+    time: (1 clear, 0 blocked, -1 where a line's first sample is unsure over too much of a step
+    (:data:`_SLOW`; the caller reads it by samples); with ``both``, whether the reversed edge
+    (bx, by) -> (ax, ay) surely has the same answer).
+
+    Lines are the grid's rows for an edge flatter than 45 degrees, else its columns. The samples
+    of one line lie in a run of cells, one cell apart at most (samples are at most half a cell
+    apart); with both side cells of each diagonal step, the rule reads in line ``v`` every cell
+    from the one of the last sample of the line before to the one of the first sample of the
+    line after (a straight step adds nothing): one test of a bit range. ``rowbits`` (H + 2, .)
+    uint64: the grid's rows as bits, off-map cells around it set; ``colbits`` (W + 2, .): its
+    columns so. Each sample's cell is the real-number sample's, made exact by the float32 rule
+    where the sample lies within :data:`_SLACK` of a border.
+
+    The reversed edge's samples are these but for their rounding, which can move only a sample
+    near a border. Its lines hold the same samples where the samples next to each change of line
+    (and the first and last) lie in the same line either way, and read the same cells where the
+    samples that end each line's range lie in the same cell either way: only those are compared.
+    A blocked answer needs only the lines read up to its blocked one to agree (the reversed edge
+    reads that line the same, or stops before it)."""
+    ox, oy = origin[0], origin[1]
+    dx = bx - ax
+    dy = by - ay
+    denom = np.float32(S - 1)
+    ir = 1.0 / np.float64(res)
+    per = ir / (S - 1)
+    fx0 = (np.float64(ax) - np.float64(ox)) * ir
+    fy0 = (np.float64(ay) - np.float64(oy)) * ir
+    dfx = np.float64(dx) * per
+    dfy = np.float64(dy) * per
+    ex = _SLACK * ir * (abs(np.float64(ax)) + abs(np.float64(dx)) + abs(np.float64(ox)))
+    ey = _SLACK * ir * (abs(np.float64(ay)) + abs(np.float64(dy)) + abs(np.float64(oy)))
+    if abs(dfy) <= abs(dfx):  # lines are rows
+        bits, HV, HU = rowbits, H, W
+        u0, du, eu, ua, ub, ud, uo = fx0, dfx, ex, ax, bx, dx, ox
+        v0, dv, ev, va, vb, vd, vo = fy0, dfy, ey, ay, by, dy, oy
+    else:
+        bits, HV, HU = colbits, W, H
+        u0, du, eu, ua, ub, ud, uo = fy0, dfy, ey, ay, by, dy, oy
+        v0, dv, ev, va, vb, vd, vo = fx0, dfx, ex, ax, bx, dx, ox
+    iv = 1.0 / dv if dv != 0 else 0.0
+    mv = ev * abs(iv)
+    if mv > _SLOW:
+        return -1, False
+    v, sure = _cell_at(0, v0, dv, ev, denom, vd, va, vb, vo, inv, res, fused, recip, both)
+    lo, same = _cell_at(0, u0, du, eu, denom, ud, ua, ub, uo, inv, res, fused, recip, both)
+    sure = sure and same
+    step = 1 if dv > 0 else -1
+    k = 0
+    while True:
+        kn = S
+        if dv != 0:
+            ks = (v + (1 if dv > 0 else 0) - v0) * iv  # the real sample index at the next border
+            if ks < S + 1:
+                kr = np.floor(ks + 0.5)
+                if abs(ks - kr) > mv:
+                    kn = np.int64(np.ceil(ks))
+                elif kr > S - 1:
+                    kn = S
+                else:
+                    i = np.int64(kr)
+                    e = _exact(i, denom, vd, va, vo, inv, res, fused, recip)
+                    kn = i if e != v else i + 1
+                    if both:
+                        sure = sure and _reversed(i, denom, vd, vb, vo, inv, res, fused, recip) == e
+                kn = min(max(kn, k + 1), S)
+        hi, same = _cell_at(min(kn, S - 1), u0, du, eu, denom, ud, ua, ub, uo, inv, res, fused, recip, both)
+        sure = sure and same
+        c0, c1 = (lo, hi) if lo <= hi else (hi, lo)
+        if v < 0 or v >= HV or c0 < -1 or c1 > HU:
+            return 0, sure
+        if _any_bit(bits, v + 1, c0 + 1, c1 + 1):
+            return 0, sure
+        if kn >= S:
+            return 1, sure
+        lo, same = _cell_at(kn - 1, u0, du, eu, denom, ud, ua, ub, uo, inv, res, fused, recip, both)
+        sure = sure and same
+        v += step
+        k = kn

@@ -162,7 +162,7 @@ def _grow_lazy(
 
 
 def _grow_checked_host(
-    roadmap, key, blocked, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids, table
+    roadmap, key, blocked, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids, table, bits
 ) -> tuple[Roadmap, int]:
     """The eager grow with its edges checked on the host (Euclidean weights, float32 points:
     :func:`~jaxsem.planning._edges._host_edges`): the lazy grow's samples and candidates (the
@@ -170,12 +170,13 @@ def _grow_checked_host(
     (the rule compiled on the host, the edges after the ``k``-th clear one unread), the first
     ``k`` clear ones kept and weighed by their lengths: the eager grow's edges and weights
     (:meth:`_LazyEdges.links`' rule). ``blocked``: the numpy grid of ``blocked_j``; ``table``:
-    its clearance table (numpy). Returns (roadmap, the cap that sufficed)."""
+    its clearance table (numpy), ``bits`` its bits (:func:`~jaxsem.planning._edges._bit_grids`).
+    Returns (roadmap, the cap that sufficed)."""
     k = roadmap.neighbors.shape[1]
     s0 = _QUERY + int(roadmap.num_samples)
     (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
     samples = _edge_samples(radius, float(grid.resolution))
-    nbr, ev, w = _first_clear_host(blocked, np.asarray(rm.points), cand, s0, k, samples, grid, table)
+    nbr, ev, w = _first_clear_host(blocked, np.asarray(rm.points), cand, s0, k, samples, grid, table, bits)
     return _set_rows_jit(rm, np.int32(s0), nbr, ev, w), cap
 
 
@@ -375,13 +376,14 @@ class _LazyEdges:
         return nbr, ev, w
 
 
-def _checker(blocked, blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK):
+def _checker(blocked, blocked_j, points, cand, grid, table, edge_samples: int, chunk: int = _CHUNK, bits=None):
     """``check(rows, slots) -> clear`` (numpy bool) for the edges from ``points[rows]`` to
     their candidates on ``grid`` (a :func:`~jaxsem.planning._grid.static_grid`) of the numpy
     bool grid ``blocked`` (``blocked_j``: its device copy): by the host's compiled rule where it
     matches the device's arithmetic (:func:`~jaxsem.planning._edges._edges_clear_host`), else
     ``chunk`` edges per call of the jitted rule (one compiled shape). ``table``: the clearance
-    table (None: every sample read)."""
+    table (None: every sample read); ``bits``: the host rule's bits of ``blocked`` (None: made
+    at each call)."""
     pts = np.asarray(points)
     dtype = pts.dtype
     host = _host_edges(dtype)
@@ -391,7 +393,7 @@ def _checker(blocked, blocked_j, points, cand, grid, table, edge_samples: int, c
         if host:
             n = np.full(len(rows), edge_samples, np.int64)
             out = _edges_clear_host(
-                blocked, pts[rows], pts[cand[rows, slots]], n, np.ones(len(rows), bool), grid, table_np
+                blocked, pts[rows], pts[cand[rows, slots]], n, np.ones(len(rows), bool), grid, table_np, bits=bits
             )
             return np.asarray(out)
         out = np.zeros(len(rows), bool)

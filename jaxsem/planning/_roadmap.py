@@ -1044,13 +1044,14 @@ def _links_checked(
     factor=None,
     reach=None,
     cost=None,
+    bits=None,
 ):
     """:func:`_query_links` of queries ``starts``, ``goals`` (Q, 2) (float64, checked) on a
     checked ``blocked`` grid (numpy), its device copy and its host ``grid``, the distribution
     already checked (a :class:`PRM`'s); ``table``: a clearance table for the queries' edges;
     ``reach``: the long edges' length rule (:func:`_query_samples`); ``cost``: the cell cost of
     ``distribution`` and ``factor`` (:func:`_edge_cost_jit`) when the caller keeps it (None:
-    made here).
+    made here); ``bits``: the host rule's bits of ``blocked`` (None: made here).
     The candidates and weights come from one compiled call; the edges are checked by the host's
     compiled rule (:func:`~jaxsem.planning._edges._edges_clear_host`: most query edges are
     blocked within a few cells of their start, and it stops there) where its float32
@@ -1088,7 +1089,7 @@ def _links_checked(
         # Each end keeps its first k clear candidates (_clear_first_np): the rest go unread.
         keep_k = (nbr.shape[-1], k) if nbr.shape[-1] > k else (None, None)
         clear = _edges_clear_host(
-            blocked, fa, fb, n, cand.reshape(-1), grid, np.asarray(table), row=keep_k[0], k=keep_k[1]
+            blocked, fa, fb, n, cand.reshape(-1), grid, np.asarray(table), row=keep_k[0], k=keep_k[1], bits=bits
         )
         ev = clear.reshape(nbr.shape)
     else:

@@ -188,6 +188,78 @@ def test_an_edge_whose_reversal_reads_another_answer_is_read_both_ways():
         np.testing.assert_array_equal(nbr[ok], cand[cand < M][np.concatenate([forward, backward])])
 
 
+def _read_set(rows, cols):
+    """The cells the edge rule reads for an edge whose samples fall in cells (rows, cols) (S,):
+    every sample's, and both side cells of each diagonal step (brute force)."""
+    cells = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    for k in range(1, len(rows)):
+        if rows[k] != rows[k - 1] and cols[k] != cols[k - 1]:
+            cells |= {(int(rows[k - 1]), int(cols[k])), (int(rows[k]), int(cols[k - 1]))}
+    return cells
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_reversal_read_by_lines_is_sure_only_where_it_reads_the_same(seed):
+    """Edges of which some middle sample rounds into another cell read from the other end (found
+    among many edges with a middle sample near a row or column border), each on a map with one
+    blocked cell that only one direction reads: the walk by lines gives each direction's answer
+    and never says the reversal surely agrees there; on a map of random cells, wherever it says
+    so, the answers agree. Answers by brute force over the samples' cells in the rule's float32
+    arithmetic (the device's: the probe), not by the device: under the suite's XLA flags a
+    program may round a sample near a border one way for its cells and the other for its side
+    cells."""
+    from jaxsem.planning import _edges_kernels as kern  # layers: white-box
+
+    rng = np.random.default_rng(seed)
+    shape = (80, 80)
+    res = 0.1
+    grid = Q.Grid.host((-3.3, 17.9), res, shape)
+    lo = np.asarray(grid.origin, np.float64)
+    n, S = 100_000, 33
+    mid = lo + rng.integers(20, 60, (n, 2)) * res  # a grid corner
+    along = rng.random(n) < 0.5
+    mid[along, 0] += rng.uniform(0, res, int(along.sum()))  # on a row border
+    mid[~along, 1] += rng.uniform(0, res, int((~along).sum()))  # on a column border
+    t = rng.uniform(0, 2 * np.pi, n)
+    h = rng.uniform(0.2, 1.5, (n, 1)) * np.stack([np.cos(t), np.sin(t)], 1)
+    at = rng.integers(1, S - 1, (n, 1)) / (S - 1)  # the middle sample put near the border
+    a, b = (mid - at * 2 * h).astype(np.float32), (mid + (1 - at) * 2 * h).astype(np.float32)
+    consts = _edges._host_call(grid)[1]
+    fr, fc = kern.sample_cells(a, b, S, *consts)
+    br, bc = kern.sample_cells(b, a, S, *consts)
+    reads = lambda i: (_read_set(fr[i], fc[i]), _read_set(br[i], bc[i]))
+    found = 0
+    for i in np.flatnonzero(np.any((fr != br[:, ::-1]) | (fc != bc[:, ::-1]), axis=1)):
+        fwd, bwd = reads(i)
+        if fwd == bwd:
+            continue
+        for cell, forward in ((min(fwd - bwd, default=None), False), (min(bwd - fwd, default=None), True)):
+            if cell is None:
+                continue
+            occ = np.zeros(shape, bool)
+            occ[cell] = True
+            rows, cols = _edges._bit_grids(occ)
+            st, sure = kern._lines(rows, cols, *shape, *a[i], *b[i], S, *consts, True)
+            assert st in (-1, forward) and not sure
+            found += 1
+        if found >= 40:
+            break
+    assert found >= 40
+    # Random cells: sure where the answers agree, never where they differ.
+    occ = rng.random(shape) < 0.1
+    rows, cols = _edges._bit_grids(occ)
+    blocked = {tuple(x) for x in np.argwhere(occ).tolist()}
+    differ = sure_differ = sure_n = 0
+    for i in rng.choice(n, 2000, replace=False):
+        fwd, bwd = (not (x & blocked) for x in reads(i))
+        st, sure = kern._lines(rows, cols, *shape, *a[i], *b[i], S, *consts, True)
+        assert st in (-1, fwd)
+        differ += fwd != bwd
+        sure_differ += sure and fwd != bwd
+        sure_n += sure
+    assert sure_differ == 0 and sure_n > 1000
+
+
 @pytest.fixture
 def float32():
     """The roadmap in float32, a user's default (the suite runs under x64, where the roadmap is
