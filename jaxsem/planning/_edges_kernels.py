@@ -10,8 +10,8 @@ assumed (:func:`jaxsem.planning._edges._host_rule`).
 
 An edge is read a line of cells at a time (:func:`_lines`: the rule's cells in one grid row, or
 column, are one range of bits), each sample's cell taken from real-number arithmetic except near
-a border, where the float32 rule decides; edges too close to a row or column for that read by
-samples (:func:`_walk`).
+a border, where the float32 rule decides; long edges, and edges too close to a row or column for
+that, are read by samples (:func:`_walk`).
 """
 
 import numba
@@ -193,7 +193,8 @@ def edge_clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin
 def _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
     """(the edge rule on the edge (ax, ay) -> (bx, by), and with ``both`` whether the reversed
     edge surely reads the same): by lines of cells (:func:`_lines`), or by samples
-    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step."""
+    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step or
+    the edge is long."""
     H, W = blocked.shape
     st, sure = _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both)
     if st < 0:
@@ -286,6 +287,10 @@ _SLACK = 2.0**-20
 #: sample to the next, the walk by lines leaves the edge to :func:`_walk`.
 _SLOW = 0.25
 
+#: Edges spanning more cells than this along a row or column are read by :func:`_walk`: in open
+#: space its clearance table skips most of a long edge, where lines read every cell.
+_LONG = 64.0
+
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _exact(k, denom, d, a, o, inv, res, fused, recip):
@@ -338,8 +343,8 @@ def _any_bit(bits, v, c0, c1):
 def _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
     """The edge rule (:func:`_walk`) on the edge (ax, ay) -> (bx, by) read a line of cells at a
     time: (1 clear, 0 blocked, -1 where a line's first sample is unsure over too much of a step
-    (:data:`_SLOW`; the caller reads it by samples); with ``both``, whether the reversed edge
-    (bx, by) -> (ax, ay) surely has the same answer).
+    (:data:`_SLOW`) or the edge is long (:data:`_LONG`): the caller reads it by samples; with
+    ``both``, whether the reversed edge (bx, by) -> (ax, ay) surely has the same answer).
 
     Lines are the grid's rows for an edge flatter than 45 degrees, else its columns. The samples
     of one line lie in a run of cells, one cell apart at most (samples are at most half a cell
@@ -378,7 +383,7 @@ def _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, r
         v0, dv, ev, va, vb, vd, vo = fx0, dfx, ex, ax, bx, dx, ox
     iv = 1.0 / dv if dv != 0 else 0.0
     mv = ev * abs(iv)
-    if mv > _SLOW:
+    if mv > _SLOW or abs(du) * (S - 1) > _LONG:
         return -1, False
     v, sure = _cell_at(0, v0, dv, ev, denom, vd, va, vb, vo, inv, res, fused, recip, both)
     lo, same = _cell_at(0, u0, du, eu, denom, ud, ua, ub, uo, inv, res, fused, recip, both)

@@ -164,6 +164,27 @@ def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
     assert signatures() == before
 
 
+@pytest.mark.parametrize("lazy", [False, True])
+def test_queries_keep_their_rows_on_the_host_until_the_roadmap_is_read(lazy, monkeypatch):
+    """A query leaves its start's and goal's rows on the host: they reach the roadmap pytree
+    (a device call) only when :attr:`PRM.roadmap` is read, once for any number of queries."""
+    import jaxsem.planning._prm as _prm_mod  # layers: white-box
+
+    calls = []
+    write = _prm_mod._with_query_jit
+    monkeypatch.setattr(_prm_mod, "_with_query_jit", lambda *a: calls.append(1) or write(*a))
+    occ = _blocks(9)
+    starts, goals = _ends(occ, 60, 3)
+    with jax.enable_x64(False):  # float32: the edges are checked on the host
+        prm = _prm(occ, lazy, 9)
+        for s, g in zip(starts, goals, strict=True):
+            prm.query(s, g)
+        assert calls == []
+        rows = np.asarray(prm.roadmap.points[:2])
+        np.testing.assert_allclose(rows, np.stack([starts[-1], goals[-1]]), atol=1e-6)
+        assert calls == [1]
+
+
 def test_query_many_bad_input():
     occ = _blocks(6)
     prm = _prm(occ, False, 6)
