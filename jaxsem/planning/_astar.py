@@ -65,20 +65,10 @@ class SearchGraph(NamedTuple):
 def _z_order(points) -> np.ndarray:
     """Slot ids (M,) sorted by the Z-order (Morton) code of their points on a 1024 x 1024 grid
     over the samples' box, slots 0 and 1 (the query's) first: neighbours in the plane get
-    nearby ids."""
-    p = np.nan_to_num(np.asarray(points, np.float64))
-    M = len(p)
-    if M <= 2:
-        return np.arange(M)
-    lo, hi = p[2:].min(0), p[2:].max(0)
-    span = max(float(np.max(hi - lo)), 1e-300)
-    cells = np.clip((p - lo) / span * 1023.0, 0, 1023).astype(np.int64)
-    code = np.zeros(M, np.int64)
-    for bit in range(10):
-        code |= ((cells[:, 0] >> bit) & 1) << (2 * bit)
-        code |= ((cells[:, 1] >> bit) & 1) << (2 * bit + 1)
-    code[:2] = -1
-    return np.argsort(code, kind="stable")
+    nearby ids (:func:`~jaxsem.planning._astar_kernels.z_order`)."""
+    from . import _astar_kernels
+
+    return _astar_kernels.z_order(np.ascontiguousarray(np.nan_to_num(np.asarray(points, np.float64))))
 
 
 def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *, fixed: bool = False) -> SearchGraph:

@@ -17,24 +17,26 @@ def entry_length(p, r, c):
 @numba.njit(cache=True, nogil=True)
 def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
     """Every kept entry (r, s) of ``nbr`` (M, K) (slots) as an edge both ways, in CSR form by
-    search id (``order``: search id -> slot, ``rank``: slot -> search id; rows read in search-id
-    order): (ptr (M + 1,), the other end's search id, the weight, the entry id r * K + s in the
-    roadmap's rows) (a counting sort), and the smallest weight / length over them (inf if none
-    has a length). Weights: ``w[r, s]``, or with ``use_lengths`` the entries' lengths
-    (:func:`entry_length`, at least 1e-12; ``w`` is not read). ``once``: of a vertex's entries
-    to one other end with one weight (an edge both its ends chose) only the first stays; a
-    search that never skips an entry reads the same (the second relaxes nothing the first did
-    not)."""
+    search id (``order``: search id -> slot, ``rank``: slot -> search id): (ptr (M + 1,), the
+    other end's search id, the weight, the entry id r * K + s in the roadmap's rows), and the
+    smallest weight / length over them (inf if none has a length). Weights: ``w[r, s]``, or with
+    ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12; ``w`` is not
+    read). A vertex lists the entries of rows earlier in search order that name it, then its
+    own row's, then those of later rows. ``once``: of a vertex's entries to one other end with
+    one weight (an edge both its ends chose) only the first stays; a search that never skips
+    an entry reads the same (the second relaxes nothing the first did not).
+
+    The entries that name a vertex are gathered first (a counting sort by the named vertex),
+    then each vertex's list is written in one pass."""
     M, K = nbr.shape
-    ptr = np.zeros(M + 1, np.int64)
     ratio = np.inf
+    into = np.zeros(M + 1, np.int64)  # entries naming each vertex, by search id
     for i in range(M):
         r = order[i]
         for s in range(K):
             if keep[r, s]:
                 c = nbr[r, s]
-                ptr[i + 1] += 1
-                ptr[rank[c] + 1] += 1
+                into[rank[c] + 1] += 1
                 if not use_lengths:
                     dx = np.float64(p[c, 0]) - np.float64(p[r, 0])
                     dy = np.float64(p[c, 1]) - np.float64(p[r, 1])
@@ -42,52 +44,102 @@ def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
                     if length > 0:
                         ratio = min(ratio, w[r, s] / length)
     for i in range(M):
-        ptr[i + 1] += ptr[i]
-    E = ptr[M]
-    adj = np.empty(E, np.int32)
-    wt = np.empty(E, np.float64)
-    eid = np.empty(E, np.int32)
-    fill = ptr[:M].copy()
+        into[i + 1] += into[i]
+    R = into[M]
+    src = np.empty(R, np.int32)  # the naming row's search id, in search order
+    rwt = np.empty(R, np.float64)
+    reid = np.empty(R, np.int32)
+    fill = into[:M].copy()
     for i in range(M):
         r = order[i]
         for s in range(K):
             if keep[r, s]:
                 c = np.int64(nbr[r, s])
-                x = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
                 j = np.int64(rank[c])
-                for a, b in ((np.int64(i), j), (j, np.int64(i))):
-                    at = fill[a]
-                    adj[at] = b
-                    wt[at] = x
-                    eid[at] = r * K + s
-                    fill[a] += 1
-    if once:
-        ptr, E = _first_of_each(ptr, adj, wt, eid)
-    return ptr, adj[:E], wt[:E], eid[:E], ratio
+                at = fill[j]
+                src[at] = i
+                rwt[at] = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
+                reid[at] = r * K + s
+                fill[j] += 1
+    ptr = np.zeros(M + 1, np.int64)
+    adj = np.empty(2 * R, np.int32)
+    wt = np.empty(2 * R, np.float64)
+    eid = np.empty(2 * R, np.int32)
+    last = np.full(M, -1, np.int64)  # the vertex whose list last named each end
+    first = np.zeros(M, np.int64)  # where that entry went
+    n = 0
+    for i in range(M):
+        r = order[i]
+        e = into[i]
+        # Rows earlier than i that name it, its own row, then later rows.
+        while e < into[i + 1] and src[e] < i:
+            n = _put(adj, wt, eid, last, first, n, i, src[e], rwt[e], reid[e], once)
+            e += 1
+        for s in range(K):
+            if keep[r, s]:
+                c = np.int64(nbr[r, s])
+                x = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
+                n = _put(adj, wt, eid, last, first, n, i, rank[c], x, r * K + s, once)
+        while e < into[i + 1]:
+            n = _put(adj, wt, eid, last, first, n, i, src[e], rwt[e], reid[e], once)
+            e += 1
+        ptr[i + 1] = n
+    return ptr, adj[:n], wt[:n], eid[:n], ratio
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _put(adj, wt, eid, last, first, n, a, b, x, e, once):
+    """Appends the entry (other end ``b``, weight ``x``, entry id ``e``) to vertex ``a``'s list
+    (written at ``n``) unless ``once`` and the list already holds ``b`` with weight ``x``.
+    Returns the new count."""
+    if once and last[b] == a and wt[first[b]] == x:
+        return n
+    last[b] = a
+    first[b] = n
+    adj[n] = b
+    wt[n] = x
+    eid[n] = e
+    return n + 1
 
 
 @numba.njit(cache=True, nogil=True)
-def _first_of_each(ptr, adj, wt, eid):
-    """Compacts the CSR in place, keeping each vertex's first entry of every (other end, weight).
-    Returns (the new ptr, the entries kept)."""
-    M = ptr.shape[0] - 1
-    last = np.full(M, -1, np.int64)  # the vertex whose list last named each end
-    first = np.zeros(M, np.int64)  # where that entry went
-    out = np.zeros(M + 1, np.int64)
-    j = 0
-    for a in range(M):
-        for e in range(ptr[a], ptr[a + 1]):
-            b = adj[e]
-            if last[b] == a and wt[first[b]] == wt[e]:
-                continue
-            last[b] = a
-            first[b] = j
-            adj[j] = b
-            wt[j] = wt[e]
-            eid[j] = eid[e]
-            j += 1
-        out[a + 1] = j
-    return out, j
+def z_order(p):
+    """Slot ids (M,) of the points ``p`` (M, 2) float64 (finite) sorted by the Z-order (Morton)
+    code of each point's cell on a 1024 x 1024 grid over the points from slot 2 on, slots 0 and
+    1 first; ties keep slot order (a stable radix sort of the 20-bit codes, 10 bits a pass)."""
+    M = p.shape[0]
+    out = np.arange(M)
+    if M <= 2:
+        return out
+    lo0, lo1, hi0, hi1 = p[2, 0], p[2, 1], p[2, 0], p[2, 1]
+    for i in range(3, M):
+        lo0, hi0 = min(lo0, p[i, 0]), max(hi0, p[i, 0])
+        lo1, hi1 = min(lo1, p[i, 1]), max(hi1, p[i, 1])
+    span = max(max(hi0 - lo0, hi1 - lo1), 1e-300)
+    code = np.zeros(M, np.int64)
+    for i in range(2, M):
+        cx = np.int64(min(max((p[i, 0] - lo0) / span * 1023.0, 0.0), 1023.0))
+        cy = np.int64(min(max((p[i, 1] - lo1) / span * 1023.0, 0.0), 1023.0))
+        z = 0
+        for bit in range(10):
+            z |= ((cx >> bit) & 1) << (2 * bit)
+            z |= ((cy >> bit) & 1) << (2 * bit + 1)
+        code[i] = z
+    tmp = np.empty(M - 2, np.int64)
+    keys = out[2:].copy()
+    for shift in (0, 10):
+        count = np.zeros(1025, np.int64)
+        for i in range(M - 2):
+            count[((code[keys[i]] >> shift) & 1023) + 1] += 1
+        for d in range(1024):
+            count[d + 1] += count[d]
+        for i in range(M - 2):
+            d = (code[keys[i]] >> shift) & 1023
+            tmp[count[d]] = keys[i]
+            count[d] += 1
+        keys, tmp = tmp, keys
+    out[2:] = keys
+    return out
 
 
 #: ``where`` of a vertex never queued / closed (else its slot in the heap).

@@ -176,6 +176,38 @@ def test_a_fixed_graph_keeps_an_edge_once_and_searches_the_same(seed, M, K, stre
         g_dst = rng.integers(2, M, n_g)
 
 
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10**6),
+    M=st.integers(3, 40),
+    K=st.integers(1, 5),
+    n_s=st.integers(1, 4),
+    n_g=st.integers(1, 4),
+)
+def test_a_fixed_graph_keeps_both_weights_of_an_edge_its_ends_weigh_apart(seed, M, K, n_s, n_g):
+    """An edge both ends chose with a weight of its own in each row (as ``-log p`` integrals read
+    from either end may be): ``fixed=True`` keeps both entries, and the search costs what the
+    brute force finds (the cheaper entry, whichever row lists it first)."""
+    rng = np.random.default_rng(seed)
+    pts, nbr, usable, _ = mutual_roadmap(rng, M, K, stretch=0.0)
+    d = pts[np.minimum(nbr, M - 1)].astype(np.float64) - pts[:, None, :]
+    w = np.maximum(np.hypot(d[..., 0], d[..., 1]) * (1 + 3 * rng.random((M, K))), 1e-12)
+    q = rng.uniform(0, 10, (2, 2))
+    pts64 = pts.astype(np.float64).copy()
+    pts64[:2] = q
+    s_dst = rng.integers(2, M, n_s)
+    g_dst = rng.integers(2, M, n_g)
+    s_w = np.hypot(*(pts64[s_dst] - q[0]).T) + 1e-9
+    g_w = np.hypot(*(pts64[g_dst] - q[1]).T) + 1e-9
+    graph = search_graph(nbr, usable, np.where(usable, w, np.inf), pts, usable, fixed=True)
+    cost, _ = astar_path(graph, q, s_dst, s_w, g_dst, g_w)
+    want = reference(pts64, nbr, usable, w, s_dst, s_w, g_dst, g_w)
+    if np.isfinite(want):
+        np.testing.assert_allclose(cost, want, rtol=1e-12)
+    else:
+        assert cost == np.inf
+
+
 def test_a_fixed_graph_refuses_flags_that_are_not_its_entries():
     pts = np.zeros((4, 2), np.float32)
     nbr = np.full((4, 1), 4, np.int32)
