@@ -68,7 +68,7 @@ def _z_order(points) -> np.ndarray:
     nearby ids (:func:`~jaxsem.planning._astar_kernels.z_order`)."""
     from . import _astar_kernels
 
-    return _astar_kernels.z_order(np.ascontiguousarray(np.nan_to_num(np.asarray(points, np.float64))))
+    return _astar_kernels.z_order(np.ascontiguousarray(np.nan_to_num(np.asarray(points, np.float64))), 2)
 
 
 def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *, fixed: bool = False) -> SearchGraph:

@@ -103,21 +103,21 @@ def _put(adj, wt, eid, last, first, n, a, b, x, e, once):
 
 
 @numba.njit(cache=True, nogil=True)
-def z_order(p):
-    """Slot ids (M,) of the points ``p`` (M, 2) float64 (finite) sorted by the Z-order (Morton)
-    code of each point's cell on a 1024 x 1024 grid over the points from slot 2 on, slots 0 and
-    1 first; ties keep slot order (a stable radix sort of the 20-bit codes, 10 bits a pass)."""
+def z_order(p, fixed):
+    """Slot ids (M,) of the points ``p`` (M, 2) float64 (finite): the first ``fixed`` in place,
+    the rest sorted by the Z-order (Morton) code of each point's cell on a 1024 x 1024 grid over
+    their box; ties keep slot order (a stable radix sort of the 20-bit codes, 10 bits a pass)."""
     M = p.shape[0]
     out = np.arange(M)
-    if M <= 2:
+    if M <= fixed:
         return out
-    lo0, lo1, hi0, hi1 = p[2, 0], p[2, 1], p[2, 0], p[2, 1]
-    for i in range(3, M):
+    lo0, lo1, hi0, hi1 = p[fixed, 0], p[fixed, 1], p[fixed, 0], p[fixed, 1]
+    for i in range(fixed + 1, M):
         lo0, hi0 = min(lo0, p[i, 0]), max(hi0, p[i, 0])
         lo1, hi1 = min(lo1, p[i, 1]), max(hi1, p[i, 1])
     span = max(max(hi0 - lo0, hi1 - lo1), 1e-300)
     code = np.zeros(M, np.int64)
-    for i in range(2, M):
+    for i in range(fixed, M):
         cx = np.int64(min(max((p[i, 0] - lo0) / span * 1023.0, 0.0), 1023.0))
         cy = np.int64(min(max((p[i, 1] - lo1) / span * 1023.0, 0.0), 1023.0))
         z = 0
@@ -125,20 +125,20 @@ def z_order(p):
             z |= ((cx >> bit) & 1) << (2 * bit)
             z |= ((cy >> bit) & 1) << (2 * bit + 1)
         code[i] = z
-    tmp = np.empty(M - 2, np.int64)
-    keys = out[2:].copy()
+    tmp = np.empty(M - fixed, np.int64)
+    keys = out[fixed:].copy()
     for shift in (0, 10):
         count = np.zeros(1025, np.int64)
-        for i in range(M - 2):
+        for i in range(M - fixed):
             count[((code[keys[i]] >> shift) & 1023) + 1] += 1
         for d in range(1024):
             count[d + 1] += count[d]
-        for i in range(M - 2):
+        for i in range(M - fixed):
             d = (code[keys[i]] >> shift) & 1023
             tmp[count[d]] = keys[i]
             count[d] += 1
         keys, tmp = tmp, keys
-    out[2:] = keys
+    out[fixed:] = keys
     return out
 
 

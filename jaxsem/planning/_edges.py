@@ -547,22 +547,32 @@ def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, t
     rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
     eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
     lengths). ``bits``: as :func:`_edges_clear_host`'s. Only where :func:`_host_edges`."""
+    from ._astar_kernels import z_order
+
     kernels, consts = _host_call(grid)
     grids = _host_grids(blocked, table, bits)
     pts = np.ascontiguousarray(pts, np.float32)
-    cand = np.ascontiguousarray(cand, np.int32)
     n, M = len(cand), len(pts)
+    # The rows in Z-order of their vertices: a row's second pass reads the rows of its nearby
+    # vertices, and those lie near it in memory.
+    vert = z_order(np.asarray(pts[s0 : s0 + n], np.float64), 0)
+    row_of = np.empty(n, np.int64)
+    row_of[vert] = np.arange(n)
+    cand = np.ascontiguousarray(np.asarray(cand, np.int32)[vert])
+    vert += s0
     # An edge between two new vertices is read once where its reversal reads the same cells: a
     # first pass over every row, then a second (:func:`first_clear_pairs`).
     state = np.zeros(cand.shape, np.uint8)
     out = (np.full((n, k), M, np.int32), np.zeros((n, k), bool), np.full((n, k), np.inf, np.float32))
-    # The first pass reads more of the earlier rows' edges: each thread takes every W-th run of
-    # 64 rows, not one contiguous block.
+    # Each thread takes every W-th run of 64 rows, not one contiguous block (the first pass of
+    # a row reads more edges the later its vertex).
     perm = np.argsort((np.arange(n) // 64) % _workers(), kind="stable")
     for res in (None, out):
 
         def run(r0: int, r1: int, res=res):
-            kernels.first_clear_pairs(*grids, pts, cand, s0, int(k), int(samples), *consts, perm[r0:r1], state, res)
+            kernels.first_clear_pairs(
+                *grids, pts, cand, vert, row_of, s0, int(k), int(samples), *consts, perm[r0:r1], state, res
+            )
 
         _in_blocks(n, cand.size, run)
     return out

@@ -104,28 +104,50 @@ _READ, _CLEAR, _BOTH = 1, 2, 4
 
 @numba.njit(cache=True, nogil=True)
 def first_clear_pairs(
-    blocked, table, base, rowbits, colbits, pts, cand, s0, k, S, origin, inv, res, fused, recip, rows, state, out
+    blocked,
+    table,
+    base,
+    rowbits,
+    colbits,
+    pts,
+    cand,
+    vert,
+    row_of,
+    s0,
+    k,
+    S,
+    origin,
+    inv,
+    res,
+    fused,
+    recip,
+    rows,
+    state,
+    out,
 ):
-    """Each row ``i`` in ``rows`` (int64) of ``cand`` (n, K) (vertex ``s0 + i``'s candidates in
-    preference order, ``M = len(pts)`` where none) read in order until ``k`` edges from the
-    vertex are clear (the rule with ``S`` samples; see :func:`edges_clear`), in two passes over
-    every row, each edge between two of these rows read once where its reversal surely reads the
-    same cells (:func:`_lines`).
+    """Each row ``i`` in ``rows`` (int64) of ``cand`` (n, K) (vertex ``vert[i]``'s candidates in
+    preference order, ``M = len(pts)`` where none; the vertices are ``s0 .. s0 + n``, vertex
+    ``s0 + x`` in row ``row_of[x]``) read in order until ``k`` edges from the vertex are clear
+    (the rule with ``S`` samples; see :func:`edges_clear`), in two passes over every row, each
+    edge between two of these rows read once where its reversal surely reads the same cells
+    (:func:`_lines`). Rows of vertices near each other in the plane placed near each other make
+    a row's reads of the other rows cheap.
 
     ``state`` (n, K) uint8, zeros before the first pass; ``out``: None in the first pass, which
     reads each row's edges to vertices earlier than its own vertex's (and to vertices outside
     ``s0 .. s0 + n``) until ``k`` of them are clear, noting for each whether the reversed edge
     is sure to agree. The second pass (``out`` = (neighbours
     (n, k) int32, ``M`` past the last; valid (n, k); weights (n, k): the edges' lengths in the
-    points' dtype, as the roadmap weighs an edge, inf past the last), filled in rows ``rows``)
-    reads each row in order until ``k`` are clear, taking an edge's answer from the first pass,
+    points' dtype, as the roadmap weighs an edge, inf past the last), filled in the rows of the
+    vertices of rows ``rows`` (vertex ``s0 + x`` in row ``x``) reads each row in order until
+    ``k`` are clear, taking an edge's answer from the first pass,
     from the other end's row where that row read the reversal surely, or else reading it. Every pass of a row reads only ``state``'s
     rows written by earlier passes: blocks of rows may run on threads of their own, the passes
     one after the other."""
     n, K = cand.shape
     M = pts.shape[0]
     for i in rows:
-        v = s0 + i
+        v = vert[i]
         ax, ay = pts[v, 0], pts[v, 1]
         found = 0
         for j in range(K):
@@ -163,7 +185,7 @@ def first_clear_pairs(
                 if not st & _READ:
                     st = 0
                     if not mine:
-                        other = c - s0
+                        other = row_of[c - s0]
                         for jj in range(K):
                             if cand[other, jj] == v:
                                 st = state[other, jj]
@@ -176,9 +198,9 @@ def first_clear_pairs(
                 clear = bool(st & _CLEAR)
                 if clear:
                     nbr, ok, w = out
-                    nbr[i, found] = c
-                    ok[i, found] = True
-                    w[i, found] = entry_length(pts, v, c)
+                    nbr[v - s0, found] = c
+                    ok[v - s0, found] = True
+                    w[v - s0, found] = entry_length(pts, v, c)
             found += clear
 
 

@@ -150,7 +150,8 @@ def test_each_rows_first_k_clear_edges_are_the_device_rules(seed, with_table):
     state = np.zeros(cand.shape, np.uint8)
     grids = _edges._host_grids(occ, table)
     consts = _edges._host_call(grid)[1]
-    kern.first_clear_pairs(*grids, p, cand, s0, k, S, *consts, np.arange(M - s0), state, None)
+    rows = np.arange(M - s0)
+    kern.first_clear_pairs(*grids, p, cand, rows + s0, rows, s0, k, S, *consts, rows, state, None)
     assert np.any((state & kern._READ > 0) & (state & kern._BOTH == 0) & (cand >= s0) & (cand < M))
 
 
