@@ -525,7 +525,8 @@ def _edges_clear_host(blocked, a, b, samples, want, grid, table=None, *, row=Non
     clearance ``table`` (:func:`_clearance_table`, numpy; None: none) vouches for. ``row``,
     ``k``: the edges come in rows of ``row`` in preference order, of which the caller keeps the
     first ``k`` clear ones: the rest are not read (False). ``bits``: :func:`_bit_grids` of
-    ``blocked`` (the per-map setup's; made here if None). Only where :func:`_host_edges`."""
+    ``blocked`` (the per-map setup's), or None: every edge read by samples (a few edges on a
+    map seen once cost less so than the bits). Only where :func:`_host_edges`."""
     kernels, consts = _host_call(grid)
     row = 1 if row is None else int(row)  # each edge a row of its own: every wanted one read
     k = 1 if k is None else int(k)
@@ -546,11 +547,12 @@ def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, t
     ``len(pts)`` where none) read on the host until ``k`` edges from the vertex are clear (the
     rule with ``samples`` samples, :func:`_edges_clear_host`; ``pts`` (M, 2) float32): the
     eager grow's first ``k`` clear candidates, as (neighbours (n, k), valid, weights: the edges'
-    lengths). ``bits``: as :func:`_edges_clear_host`'s. Only where :func:`_host_edges`."""
+    lengths). ``bits``: :func:`_bit_grids` of ``blocked`` (the per-map setup's; made here if
+    None). Only where :func:`_host_edges`."""
     from ._astar_kernels import z_order
 
     kernels, consts = _host_call(grid)
-    grids = _host_grids(blocked, table, bits)
+    grids = _host_grids(blocked, table, _bit_grids(blocked) if bits is None else bits)
     pts = np.ascontiguousarray(pts, np.float32)
     n, M = len(cand), len(pts)
     # The rows in Z-order of their vertices: a row's second pass reads the rows of its nearby
@@ -592,10 +594,11 @@ def _host_call(grid):
 
 def _host_grids(blocked, table, bits=None):
     """(blocked, table, its block level, the grid's rows and columns as bits) as the kernels
-    read them (table None: none; ``bits``: :func:`_bit_grids` of ``blocked``, made here if
-    None)."""
+    read them (table None: none; ``bits``: :func:`_bit_grids` of ``blocked``, or None: empty,
+    every edge read by samples)."""
     tab = np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32)
-    rows, cols = _bit_grids(blocked) if bits is None else bits
+    none = np.zeros((0, 0), np.uint64)
+    rows, cols = (none, none) if bits is None else bits
     return np.ascontiguousarray(blocked, bool), tab, _BASE, rows, cols
 
 

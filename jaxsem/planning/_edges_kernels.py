@@ -65,7 +65,8 @@ def edges_clear(blocked, table, base, rowbits, colbits, a, b, samples, want, ori
     row, the edges after its ``k``-th clear one are not read (False: a caller keeping the first
     ``k`` clear ones drops them anyway).
 
-    ``rowbits``, ``colbits``: the grid as bits (:func:`_lines`); ``table``: clearance lower
+    ``rowbits``, ``colbits``: the grid as bits (:func:`_lines`; shape (0, 0): none, every edge
+    read by samples); ``table``: clearance lower
     bounds in cells, one per block of ``2**base`` x ``2**base`` cells (shape (0, 0): none), for
     the edges read by samples (:func:`edge_clear`). It releases the GIL: callers run blocks of
     rows on threads of their own."""
@@ -215,10 +216,13 @@ def edge_clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin
 def _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
     """(the edge rule on the edge (ax, ay) -> (bx, by), and with ``both`` whether the reversed
     edge surely reads the same): by lines of cells (:func:`_lines`), or by samples
-    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step or
-    the edge is long."""
+    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step, the
+    edge is long, or no bits are given (``rowbits`` of shape (0, 0))."""
     H, W = blocked.shape
-    st, sure = _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both)
+    st = -1
+    sure = False
+    if rowbits.shape[0] > 0:
+        st, sure = _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both)
     if st < 0:
         return _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip), False
     return st == 1, sure

@@ -83,10 +83,11 @@ class _MapSetup:
         same = near is not None and near._table_np is not None and near.blocked.shape == self.blocked.shape
         self._near = near if same else None
 
-    def bits(self) -> tuple[np.ndarray, np.ndarray]:
+    def bits(self, make: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
         """The map's rows and columns as bits for the host's edge rule
-        (:func:`~jaxsem.planning._edges._bit_grids`), made on the first call."""
-        if self._bits is None:
+        (:func:`~jaxsem.planning._edges._bit_grids`), made on the first call with ``make`` (a
+        grow's thousands of edges; a query's few on a map seen once are read without: None)."""
+        if self._bits is None and make:
             self._bits = _bit_grids(self.blocked)
         return self._bits
 

@@ -345,7 +345,7 @@ class PRM:
             factor=self._factor,
             reach=self.reach,
             cost=self._edge_cost(),
-            bits=self._setup.bits() if _host_edges(self._roadmap.points.dtype) else None,
+            bits=self._setup.bits(make=False),
         )
         self._queries += len(q)
         if self._points is None:
@@ -391,7 +391,7 @@ class PRM:
             static_grid(self.grid),
             None if chunk is None or chunk <= _CHUNK else self._setup.table(),
             _edge_samples(self.radius, self.resolution),
-            bits=self._setup.bits() if _host_edges(self._roadmap.points.dtype) else None,
+            bits=self._setup.bits(make=chunk is not None and chunk > _CHUNK),
             **kw,
         )
 

@@ -79,15 +79,15 @@ def test_the_host_rule_gives_the_device_rules_flags(seed, density, res, origin, 
     want = _dense(occ, a, b, grid, samples)
     n = np.full(len(a), samples)
     every = np.ones(len(a), bool)
-    got = _edges._edges_clear_host(occ, a, b, n, every, grid)
-    np.testing.assert_array_equal(got, want)
     table = _edges._clearance_table_np(occ)
-    got_t = _edges._edges_clear_host(occ, a, b, n, every, grid, table)
-    np.testing.assert_array_equal(got_t, want)
+    bits = _edges._bit_grids(occ)
+    # By samples (with and without the table's skips) and by lines of cells.
+    for tab, bit in ((None, None), (table, None), (None, bits), (table, bits)):
+        np.testing.assert_array_equal(_edges._edges_clear_host(occ, a, b, n, every, grid, tab, bits=bit), want)
     if want.any() and not want.all():
         # The edges not wanted come back False whatever they are.
         some = rng.random(len(a)) < 0.5
-        np.testing.assert_array_equal(_edges._edges_clear_host(occ, a, b, n, some, grid, table), want & some)
+        np.testing.assert_array_equal(_edges._edges_clear_host(occ, a, b, n, some, grid, table, bits=bits), want & some)
 
 
 def test_long_edges_in_open_space_are_skipped_through_not_misread():
@@ -103,8 +103,9 @@ def test_long_edges_in_open_space_are_skipped_through_not_misread():
     want = _dense(occ, a, b, grid, S)
     assert 0 < want.sum() < len(want)
     table = _edges._clearance_table_np(occ)
-    got = _edges._edges_clear_host(occ, a, b, np.full(len(a), S), np.ones(len(a), bool), grid, table)
-    np.testing.assert_array_equal(got, want)
+    for bits in (None, _edges._bit_grids(occ)):
+        got = _edges._edges_clear_host(occ, a, b, np.full(len(a), S), np.ones(len(a), bool), grid, table, bits=bits)
+        np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.parametrize("seed,with_table", [(0, True), (1, False), (2, True)])
@@ -148,11 +149,12 @@ def test_each_rows_first_k_clear_edges_are_the_device_rules(seed, with_table):
     assert 0.2 < clear.sum() / (flat < M).sum() < 0.9
     # Some edges' reversals were not sure to agree: the second pass read them again.
     state = np.zeros(cand.shape, np.uint8)
-    grids = _edges._host_grids(occ, table)
+    grids = _edges._host_grids(occ, table, _edges._bit_grids(occ))
     consts = _edges._host_call(grid)[1]
     rows = np.arange(M - s0)
     kern.first_clear_pairs(*grids, p, cand, rows + s0, rows, s0, k, S, *consts, rows, state, None)
-    assert np.any((state & kern._READ > 0) & (state & kern._BOTH == 0) & (cand >= s0) & (cand < M))
+    pairs = (state & kern._READ > 0) & (cand >= s0) & (cand < M)
+    assert np.any(pairs & (state & kern._BOTH == 0)) and np.any(pairs & (state & kern._BOTH > 0))
 
 
 def test_an_edge_whose_reversal_reads_another_answer_is_read_both_ways():

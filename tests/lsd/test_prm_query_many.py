@@ -185,6 +185,21 @@ def test_queries_keep_their_rows_on_the_host_until_the_roadmap_is_read(lazy, mon
         assert calls == [1]
 
 
+def test_the_maps_bits_are_made_for_a_grows_edges_not_for_a_querys():
+    """The host rule's bit grids (per-map setup, several milliseconds on a large map) are made
+    by an eager grow, which reads thousands of edges; a lazy roadmap's queries, a few edges on
+    a map a robot sees once, read theirs by samples and make none."""
+    occ = _blocks(10)
+    starts, goals = _ends(occ, 70, 2)
+    with jax.enable_x64(False):  # float32: the edges are checked on the host
+        lazy = _prm(occ, True, 10)
+        lazy.query_many(starts, goals)
+        assert lazy._setup.bits(make=False) is None
+        eager = PRM(occ[::-1].copy(), _grid(), capacity=CAPACITY, radius=RADIUS)  # another map
+        eager.grow(jax.random.PRNGKey(10), CAPACITY)
+        assert eager._setup.bits(make=False) is not None
+
+
 def test_query_many_bad_input():
     occ = _blocks(6)
     prm = _prm(occ, False, 6)
