@@ -365,7 +365,7 @@ def _any_bit(bits, v, c0, c1):
     return (bits[v, w1] & hi) != 0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _lines(rowbits, colbits, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
     """The edge rule (:func:`_walk`) on the edge (ax, ay) -> (bx, by) read a line of cells at a
     time: (1 clear, 0 blocked, -1 where a line's first sample is unsure over too much of a step
