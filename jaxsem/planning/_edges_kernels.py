@@ -51,9 +51,8 @@ def sample_cells(a, b, S, origin, inv, res, fused, recip):
         dx = b[e, 0] - a[e, 0]
         dy = b[e, 1] - a[e, 1]
         for k in range(S):
-            t = np.float32(k) / denom
-            cols[e, k] = np.int64(_cell(_along(t, dx, a[e, 0], fused), origin[0], inv, res, recip))
-            rows[e, k] = np.int64(_cell(_along(t, dy, a[e, 1], fused), origin[1], inv, res, recip))
+            cols[e, k] = _exact(k, denom, dx, a[e, 0], origin[0], inv, res, fused, recip)
+            rows[e, k] = _exact(k, denom, dy, a[e, 1], origin[1], inv, res, fused, recip)
     return rows, cols
 
 
@@ -252,9 +251,8 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
     pc = 0
     k = 0
     while k < S:
-        t = np.float32(k) / denom
-        c = np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip))
-        r = np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip))
+        c = _exact(k, denom, dx, ax, ox, inv, res, fused, recip)
+        r = _exact(k, denom, dy, ay, oy, inv, res, fused, recip)
         if r < 0 or r >= H or c < 0 or c >= W or blocked[r, c]:
             return False
         if prev and r != pr and c != pc and (blocked[pr, c] or blocked[r, pc]):
@@ -298,10 +296,9 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
 @numba.njit(cache=True, nogil=True, inline="always")
 def _same(k, denom, dx, dy, ax, ay, ox, oy, inv, res, fused, recip, r, c):
     """Whether sample ``k`` lies in cell (r, c)."""
-    t = np.float32(k) / denom
-    if np.int64(_cell(_along(t, dx, ax, fused), ox, inv, res, recip)) != c:
+    if _exact(k, denom, dx, ax, ox, inv, res, fused, recip) != c:
         return False
-    return np.int64(_cell(_along(t, dy, ay, fused), oy, inv, res, recip)) == r
+    return _exact(k, denom, dy, ay, oy, inv, res, fused, recip) == r
 
 
 #: The real-number sample (cells) ``(a - o) / res + k * d / res / (S - 1)`` lies within this
