@@ -22,7 +22,8 @@ What a user calls, by job:
 - PRM: :class:`PRM` (build once, grow, update the map, many queries; :func:`clear_map_cache`
   drops the per-map setup it keeps for the latest maps), :func:`build_roadmap` (one shot),
   :func:`make_roadmap_builder` (pure, vmappable), :func:`roadmap_shortest_path` (scipy, host),
-  :func:`embed_local_distribution` (section 3.2.5);
+  :func:`embed_local_distribution` (section 3.2.5) and :class:`LocalDistribution` (the same
+  distribution held as its window, which the PRM samples and weighs from directly);
 - online loop: :func:`navigate` / :class:`Trial` (:class:`NavConfig`) with ``sampler=None``
   (uniform) or a function of :class:`LocalInputs` (:data:`CROP_SIZE` crops + context, built by
   :func:`local_inputs`) returning a distribution of the same size;
@@ -80,7 +81,10 @@ from ._prm import (
 )
 from ._roadmap import build_roadmap as build_roadmap, make_roadmap_builder as make_roadmap_builder
 from ._roadmap_search import roadmap_shortest_path as roadmap_shortest_path
-from ._sampling import embed_local_distribution as embed_local_distribution
+from ._sampling import (
+    LocalDistribution as LocalDistribution,
+    embed_local_distribution as embed_local_distribution,
+)
 from ._semantics import plot_semantics as plot_semantics
 from ._sensors import SensorConfig as SensorConfig, sense as sense
 from ._shortest_path import SoftCostGraph as SoftCostGraph, shortest_path as shortest_path

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import quadrics as Q
 from ._grid import OCCUPIED, GridLike, _grid, host_grid, static_grid
+from ._sampling import WindowCost, _read_cost
 
 
 def _edge_samples(radius: float, resolution: float) -> int:
@@ -67,7 +68,10 @@ def _read(values, rows, cols):
     XLA's CPU pipeline removes barriers before fusion (jax 0.10): the compiled read still
     computes each index inside the gather. The values are the same either way; indices made by
     a program of their own cost more than they save in the grow (the list is written to memory
-    and read back)."""
+    and read back). A :class:`~jaxsem.planning._sampling.WindowCost` is read as the grid it
+    stands for."""
+    if isinstance(values, WindowCost):
+        return _read_cost(values, rows, cols)
     flat = jax.lax.optimization_barrier(rows * values.shape[1] + cols)
     return jnp.take(values.reshape(-1), flat)
 

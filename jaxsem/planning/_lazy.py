@@ -41,7 +41,7 @@ from ._edges import (
 )
 from ._grid import static_grid
 from ._neighbours import _bucket_ids, _candidates_host, _grid_dims, _host_order, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit
+from ._roadmap import _QUERY, Roadmap, _candidates_jit, _density, _sample_lazy_jit, _weigh_rows_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
@@ -178,6 +178,53 @@ def _grow_checked_host(
     samples = _edge_samples(radius, float(grid.resolution))
     nbr, ev, w = _first_clear_host(blocked, np.asarray(rm.points), cand, s0, k, samples, grid, table, bits)
     return _set_rows_jit(rm, np.int32(s0), nbr, ev, w), cap
+
+
+def _grow_host_weighed(
+    roadmap, key, blocked, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids, table, cost
+) -> tuple[Roadmap, int]:
+    """The eager grow with its edges checked on the host and weighed on the device (weights
+    that integrate a cell ``cost``, :func:`~jaxsem.planning._roadmap._edge_cost`; float32
+    points: :func:`~jaxsem.planning._edges._host_edges`): the device's samples and candidates
+    (the eager grow's own search, :func:`_candidates_jit`), each row read on the host in
+    preference order until ``k`` are clear (the rule compiled on the host: the eager grow's
+    first ``k`` clear candidates), the kept links weighed as the eager grow weighs them. The
+    map's bits are not made (a navigation loop's map changes every replan): edges are read by
+    samples. ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table
+    (numpy). Returns (roadmap, the cap that sufficed)."""
+    M, k = roadmap.neighbors.shape
+    s0 = _QUERY + int(roadmap.num_samples)
+    before = bool(roadmap.overflow)
+    extent = _extent(grid)
+    while True:
+        use = cap if 3 * cap < M else None
+        rm, cand, ovf = _candidates_jit(
+            roadmap,
+            key,
+            blocked_j,
+            dist,
+            static_grid(grid),
+            n=n,
+            radius=radius,
+            extent=extent,
+            cap=use,
+            sectors=sectors,
+            uniform_samples=uniform_samples,
+            aids=aids,
+        )
+        if use is None or before or not bool(ovf):
+            break
+        cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
+    samples = _edge_samples(radius, float(grid.resolution))
+    nbr, ev, _ = _first_clear_host(
+        blocked, np.asarray(rm.points), np.asarray(cand), s0, k, samples, grid, table, _NO_BITS
+    )
+    rm = _weigh_rows_jit(rm, np.int32(s0), nbr, ev, cost, ovf, static_grid(grid), edge_samples=samples)
+    return rm, cap
+
+
+#: The host rule's "no bits" (every edge read by samples: :func:`~jaxsem.planning._edges._host_grids`).
+_NO_BITS = (np.zeros((0, 0), np.uint64), np.zeros((0, 0), np.uint64))
 
 
 @jax.jit

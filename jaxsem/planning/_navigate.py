@@ -69,7 +69,7 @@ from ._grid import (
 )
 from ._prm import PRM
 from ._roadmap import DEFAULT_SECTORS, LEARNED_RADIUS_FACTOR, default_radius, prm_star_k
-from ._sampling import embed_local_distribution
+from ._sampling import LocalDistribution, embed_local_distribution
 from ._sensors import SensorConfig, _check_resolution, _sense_in_place, _sense_jit, _sense_sizes
 
 CROP_SIZE = 160
@@ -148,6 +148,7 @@ def _unpooled(dist, scale: int, shape):
 #: :func:`embed_local_distribution` in one compiled call (op by op, each of its steps is a pass
 #: over the whole map).
 _embed_jit = jax.jit(embed_local_distribution, static_argnames=("full_shape", "outside_mass"))
+_full_jit = jax.jit(LocalDistribution.full, static_argnums=1)
 
 
 @jax.jit
@@ -463,6 +464,8 @@ class Trial:
         """The latest replan's (H, W) sampling distribution over the map (None before an LSD
         replan)."""
         d = self._last_distribution
+        if isinstance(d, LocalDistribution):
+            d = _full_jit(d, self._shape_p)
         return d if d is None or not self._pad else _unpadded(d, self.shape)
 
     @staticmethod
@@ -553,7 +556,10 @@ class Trial:
             local = local.reshape(CROP_SIZE, CROP_SIZE)
             q = None if cfg.outside_mass is None else float(cfg.outside_mass[int(self.goal_outdoors)])
             s = cfg.sampler_scale
-            if s == 1:
+            if s == 1 and q is None:
+                # The thesis' rule read from the window (no grid of the map's millions of cells).
+                dist = LocalDistribution.centred(local, inputs.center_cell, self._on_map)
+            elif s == 1:
                 on_map = self._on_map if self._pad else None
                 dist = _embed_jit(local, inputs.center_cell, known.shape, q, on_map)
             else:

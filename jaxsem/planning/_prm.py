@@ -9,12 +9,13 @@ import numpy as np
 
 from ._edges import _edge_samples, _host_edges
 from ._grid import UNKNOWN, GridLike, check_point, host_grid, static_grid
-from ._lazy import _CHUNK, _checker, _grow_checked_host, _grow_lazy, _LazyEdges
+from ._lazy import _CHUNK, _checker, _grow_checked_host, _grow_host_weighed, _grow_lazy, _LazyEdges
 from ._map_setup import _map_setup
 from ._roadmap import (
     _QUERY,
     DEFAULT_SECTORS,
     Roadmap,
+    _as_dist,
     _blocked_from,
     _check_distribution,
     _check_sectors,
@@ -31,6 +32,7 @@ from ._roadmap import (
     roadmap_init,
 )
 from ._roadmap_search import RoadmapPath, RoadmapPaths, _SampleGraph, _search_rows
+from ._sampling import LocalDistribution
 
 #: Roadmaps up to this many vertices search neighbours by brute force when their samples come from
 #: a distribution: a search over every vertex costs little at this size, and the strips' slots,
@@ -194,7 +196,8 @@ class PRM:
         return int(self._roadmap.points.shape[0]) - _QUERY
 
     def grow(self, key, n: int, distribution=None, *, uniform_samples: bool = False) -> int:
-        """Adds ``n`` samples from ``distribution`` ((H, W) cell weights; None: uniform over the
+        """Adds ``n`` samples from ``distribution`` ((H, W) cell weights, or a
+        :class:`~jaxsem.planning.LocalDistribution` standing for them; None: uniform over the
         cells not known occupied). ``uniform_samples``: draw the samples uniformly even so (the
         distribution still weights the edges under ``weight='neglogp'``). Returns the sample
         count."""
@@ -208,7 +211,7 @@ class PRM:
             raise ValueError(f"n: {n} more samples exceed the capacity ({self.capacity}, {self.count} used)")
         distribution = _check_distribution(distribution, self.blocked.shape)
         dtype = self.roadmap.points.dtype
-        dist = None if distribution is None else jnp.asarray(distribution, dtype)
+        dist = _as_dist(distribution, dtype)
         cap = self._cap or _initial_cap(
             self.capacity, self.blocked.shape, self.resolution, self.radius, self._free_cells
         )
@@ -216,7 +219,12 @@ class PRM:
             if self.capacity + _QUERY <= _BRUTE_FORCE_MAX:
                 cap = self.capacity  # every vertex a candidate: one program whatever the distribution
             else:
-                weights = np.where(self.blocked, 0.0, distribution)
+                full = (
+                    distribution.full(self.blocked.shape)
+                    if isinstance(distribution, LocalDistribution)
+                    else distribution
+                )
+                weights = np.where(self.blocked, 0.0, full)
                 cap = max(cap, _strip_cap(weights, self.count + int(n), self.resolution, self.radius))
         # The lazy and eager grows take the same samples (the eager grow also weighs its edges).
         args = (self.roadmap, key, self._blocked_j, dist, self.grid, int(n), self.radius, cap)
@@ -239,6 +247,21 @@ class PRM:
                 self._setup.aids(table=False),
                 np.asarray(self._setup.table()),
                 self._setup.bits(),
+            )
+        elif self.weight == "neglogp" and self._factor is None and _host_edges(dtype):
+            # Weights that integrate -log p: the edges checked on the host, weighed on the
+            # device, the same roadmap.
+            if distribution is not self.distribution:
+                self.distribution, self._cost = distribution, None
+            self.roadmap, self._cap = _grow_host_weighed(
+                *args[:2],
+                self.blocked,
+                *args[2:],
+                self.sectors,
+                bool(uniform_samples),
+                self._setup.aids(table=False),
+                np.asarray(self._setup.table()),
+                self._edge_cost(dist),
             )
         else:
             if distribution is not None and distribution is not self.distribution:
@@ -284,7 +307,7 @@ class PRM:
         # With a factor grid the kept edges are weighed again (their cells may have become known).
         reweigh = self._factor is not None
         dtype = self.roadmap.points.dtype
-        dist = jnp.asarray(self.distribution, dtype) if reweigh and self.distribution is not None else None
+        dist = _as_dist(self.distribution, dtype) if reweigh else None
         self.roadmap = _recheck_jit(
             self.roadmap,
             self._blocked_j,
@@ -371,7 +394,7 @@ class PRM:
         neglogp = self.weight == "neglogp"
         if self._cost is None and (neglogp or self._factor is not None):
             if dist is None and self.distribution is not None:
-                dist = jnp.asarray(self.distribution, self.roadmap.points.dtype)
+                dist = _as_dist(self.distribution, self.roadmap.points.dtype)
             if neglogp and dist is None:
                 return None  # no distribution yet: the caller refuses (weight='neglogp' needs one)
             self._cost = _edge_cost_jit(dist, self._factor, neglogp)

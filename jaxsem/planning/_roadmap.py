@@ -89,7 +89,17 @@ from ._edges import (
 from ._grid import OCCUPIED, GridLike, check_point, host_grid, static_grid
 from ._map_setup import _MapAids
 from ._neighbours import _knn, _per_sector, _select
-from ._sampling import _cost_grid, _sampling_weights, sample_free_cells, sample_points
+from ._sampling import (
+    LocalDistribution,
+    _cost_grid,
+    _local_cost,
+    _local_values,
+    _sampling_weights,
+    check_local_distribution,
+    sample_free_cells,
+    sample_local,
+    sample_points,
+)
 
 #: The connection policy of every public builder (:class:`PRM`, :func:`build_roadmap`,
 #: :func:`roadmap_grow`, :func:`roadmap_connect`, :func:`make_roadmap_builder`) and of the
@@ -192,11 +202,16 @@ def _sample_into(rm, key, blocked, distribution, grid, *, n, uniform_samples, ai
     valid flags, their first slot)."""
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
-    weights = _sampling_weights(blocked, None if uniform_samples else distribution)
     uniform = distribution is None or uniform_samples
-    if aids is not None and uniform and aids.free_words is not None:
-        new = sample_free_cells(key, aids.free_words, aids.free_counts, n, grid)
+    words = None if aids is None or aids.free_words is None else (aids.free_words, aids.free_counts)
+    if words is not None and uniform:
+        new = sample_free_cells(key, *words, n, grid)
+    elif words is not None and isinstance(distribution, LocalDistribution):
+        new = sample_local(key, distribution, blocked, *words, n, grid)
     else:
+        if isinstance(distribution, LocalDistribution):
+            distribution = distribution.full(grid.shape)
+        weights = _sampling_weights(blocked, None if uniform_samples else distribution)
         cdf = aids.uniform_cdf if aids is not None and uniform else None
         new = sample_points(key, weights, n, grid, cdf)
     r, c, on = _cells(new, grid)
@@ -214,6 +229,8 @@ def _density(points, distribution, grid, sectors):
     if not sectors or distribution is None:
         return None
     pr, pc, _ = _cells(points, grid)
+    if isinstance(distribution, LocalDistribution):
+        return _local_values(distribution, pr, pc)
     return distribution[pr, pc]
 
 
@@ -221,13 +238,18 @@ def _edge_cost(distribution, factor, neglogp):
     """The cell cost that edge weights integrate: ``-log p`` of the distribution (``neglogp``)
     or 1, times ``factor`` ((H, W) per-cell multipliers, e.g. :class:`PRM`'s ``unknown_weight``
     on unknown cells; None: none). None when both are off: the weight is the Euclidean length,
-    decided by the fast clear check."""
+    decided by the fast clear check. A :class:`LocalDistribution`'s cost is read from its window
+    (:class:`~jaxsem.planning._sampling.WindowCost`) unless a factor grid multiplies it."""
+    if isinstance(distribution, LocalDistribution):
+        if factor is None:
+            return _local_cost(distribution) if neglogp else None
+        distribution = distribution.full(factor.shape)
     if factor is None:
         return _cost_grid(distribution) if neglogp else None
     return (_cost_grid(distribution) if neglogp else 1.0) * factor
 
 
-def _grow_impl(
+def _grow_candidates(
     rm,
     key,
     blocked,
@@ -236,32 +258,21 @@ def _grow_impl(
     *,
     n,
     radius,
-    edge_samples,
     extent,
     cap,
-    neglogp,
     sectors=0,
     uniform_samples=False,
     aids: _MapAids | None = None,
-    factor=None,
-    cost=None,
     narrow=True,
 ):
-    """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
-    vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
-    none), then their links checked. ``grid``: the map's (:func:`static_grid` under jit);
-    ``edge_samples`` (:func:`_edge_samples` of the radius) and ``extent`` (:func:`_extent`): the
-    sizes its resolution sets, static. A brute-force search (``cap=None``) of a batch that leaves
-    the roadmap within its first :data:`_ACTIVE_STEP` slots reads only those (the same
-    candidates in the same order: the slots past them are empty), chosen inside the program
-    (one program whatever the count). ``cost``: the cell cost the edge weights integrate,
-    :func:`_edge_cost` of ``distribution`` and ``factor`` made beforehand (None: made here).
-    ``narrow``: the neighbour search picks its row width by a switch (:func:`_knn`; False in
-    a program that is vmapped, where a switch runs every branch). Returns the grown roadmap."""
+    """The first half of a grow (:func:`_grow_impl`): ``n`` new samples written into the
+    roadmap's points and valid flags, and each new vertex's candidates (n, K) in preference
+    order (K = 2k with sectors, k without; ``M`` where none). Returns (the roadmap with the
+    samples, the new points, the candidates, the new vertices' valid flags, their first slot,
+    whether a strip overflowed)."""
     M, k = rm.neighbors.shape
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
-    z = jnp.zeros((), jnp.int32)
     sampled, new, ok_new, s0 = _sample_into(
         rm,
         key,
@@ -297,12 +308,65 @@ def _grow_impl(
         nbr, ovf = jax.lax.cond(s0 + n <= A, prefix, every, None)
     else:
         nbr, ovf = search(points - origin, db_ok, new - origin, slots, density=density)
+    return sampled, new, nbr, ok_new, s0, ovf
+
+
+def _grow_impl(
+    rm,
+    key,
+    blocked,
+    distribution,
+    grid,
+    *,
+    n,
+    radius,
+    edge_samples,
+    extent,
+    cap,
+    neglogp,
+    sectors=0,
+    uniform_samples=False,
+    aids: _MapAids | None = None,
+    factor=None,
+    cost=None,
+    narrow=True,
+):
+    """One grow: ``n`` new samples written into the roadmap's points and valid flags, each new
+    vertex's candidates (n, K) in preference order (K = 2k with sectors, k without; ``M`` where
+    none), then their links checked. ``grid``: the map's (:func:`static_grid` under jit);
+    ``edge_samples`` (:func:`_edge_samples` of the radius) and ``extent`` (:func:`_extent`): the
+    sizes its resolution sets, static. A brute-force search (``cap=None``) of a batch that leaves
+    the roadmap within its first :data:`_ACTIVE_STEP` slots reads only those (the same
+    candidates in the same order: the slots past them are empty), chosen inside the program
+    (one program whatever the count). ``cost``: the cell cost the edge weights integrate,
+    :func:`_edge_cost` of ``distribution`` and ``factor`` made beforehand (None: made here).
+    ``narrow``: the neighbour search picks its row width by a switch (:func:`_knn`; False in
+    a program that is vmapped, where a switch runs every branch). Returns the grown roadmap."""
+    M, k = rm.neighbors.shape
+    dtype = rm.points.dtype
+    z = jnp.zeros((), jnp.int32)
+    sampled, new, nbr, ok_new, s0, ovf = _grow_candidates(
+        rm,
+        key,
+        blocked,
+        distribution,
+        grid,
+        n=n,
+        radius=radius,
+        extent=extent,
+        cap=cap,
+        sectors=sectors,
+        uniform_samples=uniform_samples,
+        aids=aids,
+        narrow=narrow,
+    )
     if cost is None:
         cost = _edge_cost(distribution, factor, neglogp)
     cand = (nbr < M) & ok_new[:, None]
     table = None if aids is None else aids.table
     S = edge_samples
-    nbr, ev, w = _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k)
+    grid = _grid(grid, dtype)
+    nbr, ev, w = _link_by_rows(blocked, cost, sampled.points, new, nbr, grid, S, cand, table, k)
     return sampled._replace(
         neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, (s0, z)),
         edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, (s0, z)),
@@ -359,6 +423,49 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 #: samples cross each cell several times, and the gather is the grow's costliest step), where
 #: made apart it is computed once per cell; the values read are the same.
 _edge_cost_jit = jax.jit(_edge_cost, static_argnums=2)
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "n", "radius", "extent", "cap", "sectors", "uniform_samples"))
+def _candidates_jit(rm, key, blocked, distribution, grid, *, n, radius, extent, cap, sectors, uniform_samples, aids):
+    """:func:`_grow_candidates` as one program: (the roadmap with the samples, the candidates
+    (n, K) with ``M`` where none or where the new vertex is not valid, whether a strip
+    overflowed)."""
+    M = rm.neighbors.shape[0]
+    sampled, _, nbr, ok_new, _, ovf = _grow_candidates(
+        rm,
+        key,
+        blocked,
+        distribution,
+        grid,
+        n=n,
+        radius=radius,
+        extent=extent,
+        cap=cap,
+        sectors=sectors,
+        uniform_samples=uniform_samples,
+        aids=aids,
+    )
+    return sampled, jnp.where(ok_new[:, None], nbr, M), ovf
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
+def _weigh_rows_jit(rm, s0, nbr, ev, cost, overflow, grid, *, edge_samples):
+    """``rm`` with rows ``s0 ..`` of its links set to the links ``nbr``, ``ev`` (n, k) found
+    clear elsewhere, weighed on the device by the cell ``cost`` (:func:`_edge_cost`) as the
+    grow weighs its links, and ``overflow`` or-ed in."""
+    M = rm.neighbors.shape[0]
+    dtype = rm.points.dtype
+    grid = _grid(grid, dtype)
+    new = jax.lax.dynamic_slice_in_dim(rm.points, s0, nbr.shape[0])
+    other = rm.points[jnp.minimum(nbr, M - 1)]
+    w = jnp.where(ev, _weights(cost, new[:, None, :], other, grid, edge_samples), jnp.inf)
+    at = (s0, jnp.zeros((), jnp.int32))
+    return rm._replace(
+        neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, at),
+        edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, at),
+        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), at),
+        overflow=rm.overflow | overflow,
+    )
 
 
 _grow_jit = functools.partial(
@@ -558,8 +665,23 @@ def _weights_ok(d):
     return jnp.all(jnp.isfinite(d) & (d >= 0)) & (jnp.sum(d) > 0)
 
 
+def _as_dist(distribution, dtype):
+    """A checked distribution (an (H, W) grid or a :class:`LocalDistribution`) on the device in
+    ``dtype`` (None stays None)."""
+    if distribution is None:
+        return None
+    if isinstance(distribution, LocalDistribution):
+        return distribution._replace(local=jnp.asarray(distribution.local, dtype))
+    return jnp.asarray(distribution, dtype)
+
+
 def _check_distribution(distribution, shape):
     if distribution is None or isinstance(distribution, Tracer):
+        return distribution
+    if isinstance(distribution, LocalDistribution):
+        if isinstance(distribution.local, Tracer):
+            return distribution
+        check_local_distribution(distribution, shape)
         return distribution
     d = distribution if isinstance(distribution, jax.Array) else np.asarray(distribution)
     if d.shape != tuple(shape):
@@ -667,7 +789,7 @@ def roadmap_grow(
     if count + int(n) > M - _QUERY:
         raise ValueError(f"n: {n} more samples exceed the roadmap's capacity ({M - _QUERY}, {count} used)")
     cap = bucket_cap or _initial_cap(count + int(n), blocked.shape, float(grid.resolution), radius)
-    dist = None if distribution is None else jnp.asarray(distribution, roadmap.points.dtype)
+    dist = _as_dist(distribution, roadmap.points.dtype)
     return _grow_exact(
         roadmap,
         key,
@@ -822,7 +944,7 @@ def _connect_checked(
     if not checked:
         distribution = _check_distribution(distribution, blocked.shape)
     dtype = roadmap.points.dtype
-    dist = None if distribution is None else jnp.asarray(distribution, dtype)
+    dist = _as_dist(distribution, dtype)
     start_j, goal_j = np.asarray(start, dtype), np.asarray(goal, dtype)
     aids = None
     if setup is not None:
@@ -1062,8 +1184,7 @@ def _links_checked(
     dtype = roadmap.points.dtype
     neglogp = weight == "neglogp"
     if cost is None and (neglogp or factor is not None):
-        dist = None if distribution is None else jnp.asarray(distribution, dtype)
-        cost = _edge_cost_jit(dist, factor, neglogp)
+        cost = _edge_cost_jit(_as_dist(distribution, dtype), factor, neglogp)
     samples = _query_samples(float(radius), grid, reach)
     grid_s = static_grid(grid)
     M, k = roadmap.neighbors.shape

@@ -5,6 +5,9 @@ in the full map (thesis 3.2.5). Part of the PRM (:mod:`jaxsem.planning._roadmap`
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -85,6 +88,28 @@ _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], np.uint8)
 _LOW_BITS = np.array([(1 << (j + 1)) - 1 for j in range(32)], np.uint64).astype(np.uint32)
 
 
+def _rank_to_flat(words, counts, rank):
+    """The flat index of the free cell of each rank ``rank`` (n,) int32 (0 is the first free cell
+    in flat order), from :func:`_free_words` ``(words, counts)``; ranks at or past the free count
+    give the last word's bits past its last free cell (callers clip)."""
+    wi = jnp.minimum(jnp.searchsorted(counts, rank, side="right"), counts.shape[0] - 1)
+    word = words[wi]
+    below = rank - (counts[wi] - jax.lax.population_count(word).astype(jnp.int32))  # rank in the word
+    upto = jax.lax.population_count(word[:, None] & jnp.asarray(_LOW_BITS)[None, :]).astype(jnp.int32)
+    bit = jnp.sum(upto <= below[:, None], axis=1, dtype=jnp.int32)
+    return wi * 32 + bit
+
+
+def _free_before(words, counts, flat):
+    """How many free cells come before each flat index ``flat`` (int32, on the grid) in flat
+    order (:func:`_free_words`' ``(words, counts)``)."""
+    wi = flat // 32
+    word = words[wi]
+    low = jnp.where(flat % 32 > 0, jnp.asarray(_LOW_BITS)[jnp.maximum(flat % 32 - 1, 0)], jnp.uint32(0))
+    before_word = counts[wi] - jax.lax.population_count(word).astype(jnp.int32)
+    return before_word + jax.lax.population_count(word & low).astype(jnp.int32)
+
+
 def sample_free_cells(key, words, counts, n: int, grid):
     """The draws of :func:`sample_points` over the uniform weights of the free cells, point for
     point (same ``key``, same cells, same jitter), from :func:`_free_words` ``(words, counts)``
@@ -98,12 +123,7 @@ def sample_free_cells(key, words, counts, n: int, grid):
     total = counts[-1]
     u = jax.random.uniform(k_cell, (n,), dtype) * total.astype(dtype)
     rank = jnp.floor(u).astype(jnp.int32)
-    wi = jnp.minimum(jnp.searchsorted(counts, rank, side="right"), counts.shape[0] - 1)
-    word = words[wi]
-    below = rank - (counts[wi] - jax.lax.population_count(word).astype(jnp.int32))  # rank in the word
-    upto = jax.lax.population_count(word[:, None] & jnp.asarray(_LOW_BITS)[None, :]).astype(jnp.int32)
-    bit = jnp.sum(upto <= below[:, None], axis=1, dtype=jnp.int32)
-    flat = jnp.where(rank < total, wi * 32 + bit, H * W - 1)
+    flat = jnp.where(rank < total, _rank_to_flat(words, counts, rank), H * W - 1)
     return _in_cells(k_in, flat, grid)
 
 
@@ -198,3 +218,184 @@ def _placed(local, center_cell, shape, fill):
     # Map cell (r0c + i, c0c + j) is window cell (r0c - r0 + i, c0c - c0 + j): padded row h + that.
     block = jax.lax.dynamic_slice(padded, (jnp.clip(h + r0c - r0, 0, 2 * h), jnp.clip(w + c0c - c0, 0, 2 * w)), (h, w))
     return jax.lax.dynamic_update_slice(jnp.full(shape, fill, local.dtype), block, (r0c, c0c))
+
+
+class LocalDistribution(NamedTuple):
+    """A robot-centred window of cell weights standing for the whole map's distribution, as
+    :func:`embed_local_distribution` (``outside_mass=None``, the thesis' rule) would make it:
+    the window's cells keep their weights, every other cell of the map gets the window's minimum,
+    cells past ``on_map`` (a padded grid's padding) get none, all renormalised. The roadmap
+    draws its samples, reads their densities and weighs its edges by ``-log p`` from the window
+    alone, so a replan reads the window's 25,600 cells and a few per sample, not the millions
+    of a campus map (:meth:`full` makes the (H, W) grid when one is wanted).
+
+    local: (h, w) weights >= 0 with a positive sum; corner: (2,) int32 map cell (row, col) of
+    ``local[0, 0]`` (may lie off the map); on_map: (2,) int32 rows and columns of the map (the
+    leading ones of the grid it is used on). Make one with :meth:`centred`. A pytree: it goes
+    through ``jit`` and ``vmap`` as it is.
+    """
+
+    local: jax.Array
+    corner: jax.Array
+    on_map: jax.Array
+
+    @classmethod
+    def centred(cls, local, center_cell, on_map) -> LocalDistribution:
+        """The window ``local`` (h, w) whose cell [h // 2, w // 2] lies on map cell
+        ``center_cell`` (row, col), on a map of ``on_map`` (rows, cols) cells (the cells of
+        :func:`embed_local_distribution`'s window)."""
+        local = jnp.asarray(local)
+        if local.ndim != 2:
+            raise ValueError(f"local: expected an (h, w) window, got shape {tuple(local.shape)}")
+        half = jnp.asarray([local.shape[0] // 2, local.shape[1] // 2], jnp.int32)
+        return cls(local, jnp.asarray(center_cell, jnp.int32) - half, jnp.asarray(on_map, jnp.int32))
+
+    def full(self, shape) -> jax.Array:
+        """The (H, W) distribution over a grid of ``shape`` (at least ``on_map``), summing to 1:
+        :func:`embed_local_distribution` of the window."""
+        h, w = self.local.shape
+        centre = self.corner + jnp.asarray([h // 2, w // 2], jnp.int32)
+        return embed_local_distribution(self.local, centre, tuple(int(x) for x in shape), on_map=self.on_map)
+
+
+def _window_cells(d: LocalDistribution):
+    """The window's map rows (h,) and columns (w,), and where its cells lie on the map (h, w)
+    (``d.on_map`` within the grid: :func:`check_local_distribution`)."""
+    h, w = d.local.shape
+    rows = d.corner[0] + jnp.arange(h, dtype=jnp.int32)
+    cols = d.corner[1] + jnp.arange(w, dtype=jnp.int32)
+    on = ((rows >= 0) & (rows < d.on_map[0]))[:, None] & ((cols >= 0) & (cols < d.on_map[1]))[None, :]
+    return rows, cols, on
+
+
+def _local_total(d: LocalDistribution):
+    """(the window's weights (h, w) with 0 off the map, the fill, the map's total weight), in
+    the window's dtype."""
+    _, _, on = _window_cells(d)
+    local = d.local
+    fill = jnp.min(local)
+    inner = jnp.where(on, local, 0.0)
+    cells = d.on_map[0].astype(local.dtype) * d.on_map[1].astype(local.dtype)
+    outside = cells - jnp.sum(on).astype(local.dtype)
+    return inner, fill, jnp.sum(inner) + fill * outside
+
+
+def check_local_distribution(d: LocalDistribution, shape) -> None:
+    """Refuses a :class:`LocalDistribution` that does not fit a grid of ``shape``, or whose
+    weights are not finite, non-negative with a positive sum (``ValueError`` naming
+    ``distribution``; the weights are read on the device when they live there: one pass
+    over the window)."""
+    local = d.local
+    if getattr(local, "ndim", 0) != 2 or not jnp.issubdtype(jnp.result_type(local), jnp.floating):
+        raise ValueError(
+            f"distribution: expected a float (h, w) window, got {jnp.shape(local)} {jnp.result_type(local)}"
+        )
+    if jnp.shape(d.corner) != (2,) or jnp.shape(d.on_map) != (2,):
+        raise ValueError("distribution: corner and on_map must be (2,) cell counts")
+    on_map = np.asarray(d.on_map)
+    if not (1 <= on_map[0] <= shape[0] and 1 <= on_map[1] <= shape[1]):
+        raise ValueError(f"distribution: on_map {tuple(on_map)} does not fit the map's shape {tuple(shape)}")
+    if not bool(_window_ok(local)):
+        raise ValueError("distribution: expected finite, non-negative weights with a positive sum")
+
+
+@jax.jit
+def _window_ok(local):
+    return jnp.all(jnp.isfinite(local) & (local >= 0)) & (jnp.sum(local) > 0)
+
+
+def _local_values(d: LocalDistribution, rows, cols):
+    """The normalised distribution at cells (rows, cols) of the grid: the window's weight, the
+    fill elsewhere on the map, 0 on the padding; divided by the map's total."""
+    inner, fill, total = _local_total(d)
+    h, w = d.local.shape
+    i, j = rows - d.corner[0], cols - d.corner[1]
+    inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+    v = jnp.take(inner.reshape(-1), jnp.clip(i, 0, h - 1) * w + jnp.clip(j, 0, w - 1))
+    on_map = (rows < d.on_map[0]) & (cols < d.on_map[1])
+    return jnp.where(inside, v, jnp.where(on_map, fill, 0.0)) / total
+
+
+class WindowCost(NamedTuple):
+    """``-log p`` of a :class:`LocalDistribution` as the edge weights read it (the values of
+    :func:`_cost_grid` of the full grid, read cell by cell, :func:`_read_cost`): the window's
+    cells, one value for the rest of the map and one for the padding."""
+
+    window: jax.Array
+    corner: jax.Array
+    on_map: jax.Array
+    outside: jax.Array
+    padding: jax.Array
+
+
+def _local_cost(d: LocalDistribution) -> WindowCost:
+    """:func:`_cost_grid` of ``d``'s full grid, as a :class:`WindowCost`."""
+    inner, fill, total = _local_total(d)
+    _, _, on = _window_cells(d)
+    nlog = lambda v: -jnp.log(jnp.maximum(v / total, 1e-30))
+    pad = jnp.asarray(-math.log(1e-30), d.local.dtype)
+    window = jnp.where(on, nlog(inner), pad)
+    return WindowCost(window, d.corner, d.on_map, nlog(fill), pad)
+
+
+def _read_cost(cost: WindowCost, rows, cols):
+    """``cost`` at cells (rows, cols) of the grid (on it)."""
+    h, w = cost.window.shape
+    i, j = rows - cost.corner[0], cols - cost.corner[1]
+    inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+    v = jnp.take(cost.window.reshape(-1), jnp.clip(i, 0, h - 1) * w + jnp.clip(j, 0, w - 1))
+    on_map = (rows < cost.on_map[0]) & (cols < cost.on_map[1])
+    return jnp.where(inside, v, jnp.where(on_map, cost.outside, cost.padding))
+
+
+def sample_local(key, d: LocalDistribution, blocked, words, counts, n: int, grid):
+    """``n`` world points (n, 2) drawn as :func:`sample_points` draws them from the full grid of
+    ``d`` restricted to the cells not ``blocked`` (:func:`_sampling_weights`), reading the window
+    and the map's free-cell words (:func:`_free_words` ``(words, counts)`` of ``blocked``, at
+    least one free cell): a draw falls in the window with its share of the mass (the inverse
+    CDF of its free cells' weights), else on a uniform free cell outside it (a rank among the
+    free cells outside the window, mapped to its cell past the window's free cells row by row).
+    The same distribution, other draws than the full grid's. Jittable."""
+    k_cell, k_in = jax.random.split(key)
+    return _in_cells(k_in, _local_cells(k_cell, d, blocked, words, counts, n, grid.shape, grid.origin.dtype), grid)
+
+
+def _local_cells(key, d: LocalDistribution, blocked, words, counts, n: int, shape, dtype):
+    """The flat cells (n,) int32 of :func:`sample_local`'s draws (before each is given a uniform
+    point inside its cell)."""
+    H, W = shape
+    h, w = d.local.shape
+    k_cell = key
+    d = d._replace(local=d.local.astype(dtype))
+    rows, cols, on = _window_cells(d)
+    rc, cc = jnp.clip(rows, 0, H - 1), jnp.clip(cols, 0, W - 1)
+    free_win = on & ~blocked[rc[:, None], cc[None, :]]
+    inner, fill, _ = _local_total(d)
+    wts = jnp.where(free_win, inner, 0.0).reshape(-1)
+    cdf = jax.lax.associative_scan(jnp.add, wts)
+    mass_in = cdf[-1]
+    per_row = jnp.sum(free_win, axis=1, dtype=jnp.int32)  # (h,) the window's free cells per row
+    free_total = counts[-1]
+    n_out = free_total - jnp.sum(per_row, dtype=jnp.int32)
+    mass_out = jnp.where(n_out > 0, fill * n_out.astype(dtype), 0.0)
+    total = mass_in + mass_out
+    u01 = jax.random.uniform(k_cell, (n,), dtype)
+    u = u01 * total
+    # In the window: the first cell whose running mass passes u (rounding past the total: the
+    # last cell with weight).
+    last = h * w - 1 - jnp.argmax(wts[::-1] > 0).astype(jnp.int32)
+    flat_w = jnp.minimum(jnp.searchsorted(cdf, u, side="right").astype(jnp.int32), last)
+    in_flat = rc[flat_w // w] * W + cc[flat_w % w]
+    # Outside: rank among the free cells outside the window, then past each row's block of the
+    # window's free cells that comes before it in flat order.
+    rank = jnp.floor((u - mass_in) / jnp.where(fill > 0, fill, 1.0)).astype(jnp.int32)
+    rank = jnp.clip(rank, 0, jnp.maximum(n_out - 1, 0))
+    first = _free_before(words, counts, rc * W + jnp.clip(cols[0], 0, W - 1))  # (h,) rank of each row's block
+    start = first - (jnp.cumsum(per_row, dtype=jnp.int32) - per_row)  # the block's place among the outside ranks
+    skip = jnp.sum(jnp.where(start[None, :] <= rank[:, None], per_row[None, :], 0), axis=1, dtype=jnp.int32)
+    out_flat = _rank_to_flat(words, counts, rank + skip)
+    # Nothing to draw from (no weight on a free cell): uniform over the free cells.
+    any_rank = jnp.minimum(jnp.floor(u01 * free_total.astype(dtype)).astype(jnp.int32), free_total - 1)
+    uni_flat = _rank_to_flat(words, counts, any_rank)
+    use_in = (u < mass_in) | ~(mass_out > 0)
+    return jnp.where(total > 0, jnp.where(use_in, in_flat, out_flat), uni_flat)
