@@ -449,23 +449,39 @@ def _candidates_jit(rm, key, blocked, distribution, grid, *, n, radius, extent, 
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
-def _weigh_rows_jit(rm, s0, nbr, ev, cost, overflow, grid, *, edge_samples):
+def _weigh_rows_jit(rm, s0, nbr, ev, rows, slots, cost, overflow, grid, *, edge_samples):
     """``rm`` with rows ``s0 ..`` of its links set to the links ``nbr``, ``ev`` (n, k) found
     clear elsewhere, weighed on the device by the cell ``cost`` (:func:`_edge_cost`) as the
-    grow weighs its links, and ``overflow`` or-ed in."""
+    grow weighs its links, and ``overflow`` or-ed in. ``rows``, ``slots`` (E,): the clear
+    links' places in ``nbr`` (padded with ``rows`` past ``n``): only those are weighed."""
     M = rm.neighbors.shape[0]
+    n = nbr.shape[0]
     dtype = rm.points.dtype
     grid = _grid(grid, dtype)
-    new = jax.lax.dynamic_slice_in_dim(rm.points, s0, nbr.shape[0])
-    other = rm.points[jnp.minimum(nbr, M - 1)]
-    w = jnp.where(ev, _weights(cost, new[:, None, :], other, grid, edge_samples), jnp.inf)
+    r = jnp.minimum(rows, n - 1)
+    a = rm.points[s0 + r]
+    b = rm.points[jnp.minimum(nbr[r, slots], M - 1)]
+    w = (
+        jnp.full(nbr.shape, jnp.inf, dtype)
+        .at[rows, slots]
+        .set(_weights(cost, a, b, grid, edge_samples).astype(dtype), mode="drop")
+    )
     at = (s0, jnp.zeros((), jnp.int32))
     return rm._replace(
         neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, at),
         edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, at),
-        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w.astype(dtype), at),
+        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w, at),
         overflow=rm.overflow | overflow,
     )
+
+
+def _list_size(m: int) -> int:
+    """``m`` rounded up to the ladder 256, 384, 512, 768, 1024, ... (each rung 1.5 or 4/3 of the
+    last): a list padded at most half again, and few compiled sizes."""
+    size = 256
+    while size < m:
+        size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
+    return size
 
 
 _grow_jit = functools.partial(
