@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from ._edges import _BASE, _TOP, _bit_grids, _clearance_table_np
-from ._sampling import _cdf, _free_words, _sampling_weights
+from ._sampling import _cdf, _free_words_of_blocked, _sampling_weights
 
 
 class _MapAids(NamedTuple):
@@ -63,16 +63,21 @@ class _MapSetup:
     while it grows, and its query's start and goal edges need the table only around them
     (:meth:`query_table`), so a first lazy build on a new map does without the whole table."""
 
-    def __init__(self, blocked: np.ndarray, dtype, near: _MapSetup | None = None):
-        self.blocked = np.array(blocked, bool)
+    def __init__(self, blocked: np.ndarray, dtype, near: _MapSetup | None = None, owned: bool = False):
+        if owned:  # the caller's fresh grid, kept as it is (and made read-only: it is the key)
+            self.blocked = np.asarray(blocked, bool)
+            self.blocked.flags.writeable = False
+        else:
+            self.blocked = np.array(blocked, bool)
         self.dtype = np.dtype(dtype)
         self.blocked_j = _aligned(self.blocked)
-        free = ~self.blocked.reshape(-1)
         self._words = self._counts = self._cdf = None
-        if 0 < np.count_nonzero(free) and self.blocked.size < 2**24:
-            words, counts = _free_words(free)
+        words, counts = _free_words_of_blocked(self.blocked) if self.blocked.size < 2**24 else (None, None)
+        if words is not None and counts is not None and counts[-1] > 0:
+            self.free_cells = int(counts[-1])
             self._words, self._counts = _aligned(words), _aligned(counts)
         else:  # nothing free (sampling falls back to every cell) or counts past float32's integers
+            self.free_cells = int(self.blocked.size - np.count_nonzero(self.blocked))
             self._cdf = _uniform_cdf_jit(self.blocked_j, self.dtype)
         self._table: jax.Array | None = None
         self._table_np: np.ndarray | None = None
@@ -189,16 +194,18 @@ def clear_map_cache() -> None:
     _AIDS_CACHE.clear()
 
 
-def _map_setup(blocked: np.ndarray, dtype) -> _MapSetup:
+def _map_setup(blocked: np.ndarray, dtype, owned: bool = False) -> _MapSetup:
     """The :class:`_MapSetup` of the bool grid ``blocked`` (numpy): from :data:`_AIDS_CACHE`
-    when the same map (cell for cell) and dtype were seen lately, else made and kept."""
+    when the same map (cell for cell) and dtype were seen lately, else made and kept.
+    ``owned``: ``blocked`` is the caller's own fresh grid, which nobody changes afterwards
+    (kept without a copy, made read-only)."""
     dt = np.dtype(dtype)
     for i, setup in enumerate(_AIDS_CACHE):
         if setup.dtype == dt and setup.blocked.shape == blocked.shape and np.array_equal(setup.blocked, blocked):
             _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
             return setup
     near = next((x for x in _AIDS_CACHE if x.blocked.shape == blocked.shape and x.has_table), None)
-    setup = _MapSetup(blocked, dt, near)
+    setup = _MapSetup(blocked, dt, near, owned=owned)
     _AIDS_CACHE.insert(0, setup)
     del _AIDS_CACHE[_AIDS_CACHE_SIZE:]
     return setup

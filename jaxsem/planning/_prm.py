@@ -98,6 +98,7 @@ class PRM:
         reach: float | None = None,
     ):
         blocked = _blocked_from("known_map", known_map)
+        fresh = blocked is not known_map and np.asarray(known_map).dtype != np.bool_  # made here: no copy kept
         if not isinstance(lazy, bool):
             raise ValueError(f"lazy: expected a bool, got {lazy!r}")
         if lazy and weight != "euclidean":
@@ -123,9 +124,9 @@ class PRM:
         self.blocked = blocked
         self._factor = self._factor_grid()
         self._cost = None  # the cell cost the weights integrate, made once per distribution and map
-        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=fresh)
         self._blocked_j = self._setup.blocked_j
-        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
+        self._free_cells = self._setup.free_cells
         self.radius = (
             float(radius)
             if radius is not None
@@ -287,6 +288,7 @@ class PRM:
         the links are first settled on the old map (every unchecked edge is checked there, as the
         eager grow did), so lazy saves nothing on a map that changes between queries."""
         blocked = _blocked_from("known_map", known_map)
+        fresh = blocked is not known_map and np.asarray(known_map).dtype != np.bool_  # made here: no copy kept
         if blocked.shape != self.blocked.shape:
             raise ValueError(f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}")
         unknown = self._unknown_cells(known_map)
@@ -301,9 +303,9 @@ class PRM:
         self._unknown = unknown
         self._factor = self._factor_grid()
         self._cost = None
-        self._setup = _map_setup(blocked, self.roadmap.points.dtype)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=fresh)
         self._blocked_j = self._setup.blocked_j
-        self._free_cells = int(blocked.size - np.count_nonzero(blocked))
+        self._free_cells = self._setup.free_cells
         # With a factor grid the kept edges are weighed again (their cells may have become known).
         reweigh = self._factor is not None
         dtype = self.roadmap.points.dtype

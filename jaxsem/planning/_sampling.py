@@ -71,8 +71,23 @@ def _free_words(free) -> tuple[np.ndarray, np.ndarray]:
     each word's running count of free cells, inclusive (int32). A few hundred kilobytes for a
     map of millions of cells, made in well under a millisecond: the CDF over every cell that
     :func:`sample_points` searches is 4 bytes a cell and its cumsum costs ~10x more."""
-    free = np.asarray(free, bool).reshape(-1)
-    b = np.packbits(free, bitorder="little")
+    return _words_and_counts(np.packbits(np.asarray(free, bool).reshape(-1), bitorder="little"))
+
+
+def _free_words_of_blocked(blocked) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_free_words` of the cells not ``blocked`` (a bool grid), without a negated copy of
+    the grid: its bits packed and flipped, the bits past its last cell cleared."""
+    blocked = np.asarray(blocked, bool).reshape(-1)
+    b = np.packbits(blocked, bitorder="little")
+    np.invert(b, out=b)
+    tail = blocked.size % 8
+    if tail:
+        b[-1] &= np.uint8((1 << tail) - 1)
+    return _words_and_counts(b)
+
+
+def _words_and_counts(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Packed bytes of free flags (little bit order) as :func:`_free_words`' words and counts."""
     b = np.concatenate([b, np.zeros(-len(b) % 4, np.uint8)])
     words = b.view("<u4").astype(np.uint32)
     if hasattr(np, "bitwise_count"):  # numpy >= 2

@@ -184,3 +184,16 @@ def test_bad_windows_are_refused_naming_the_distribution():
             prm.grow(jax.random.PRNGKey(0), 10, bad)
     with pytest.raises(ValueError, match="local"):
         LocalDistribution.centred(np.ones(8), (5, 5), (30, 40))
+
+
+@settings(max_examples=20, deadline=None)
+@given(rows=st.integers(1, 40), cols=st.integers(1, 70), p=st.floats(0.0, 1.0), seed=st.integers(0, 99))
+def test_the_free_words_of_a_blocked_grid_are_those_of_its_free_cells(rows, cols, p, seed):
+    """The per-map free-cell words made from the obstacle grid (bits flipped, the bits past the
+    last cell cleared) are those of the negated grid, at any size (tails of 1-31 bits)."""
+    from jaxsem.planning._sampling import _free_words_of_blocked  # layers: white-box
+
+    blocked = np.random.default_rng(seed).random((rows, cols)) < p
+    want, got = _free_words(~blocked), _free_words_of_blocked(blocked)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
