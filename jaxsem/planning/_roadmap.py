@@ -475,10 +475,10 @@ def _weigh_rows_jit(rm, s0, nbr, ev, rows, slots, cost, overflow, grid, *, edge_
     )
 
 
-def _list_size(m: int) -> int:
-    """``m`` rounded up to the ladder 256, 384, 512, 768, 1024, ... (each rung 1.5 or 4/3 of the
-    last): a list padded at most half again, and few compiled sizes."""
-    size = 256
+def _list_size(m: int, least: int = 256) -> int:
+    """``m`` rounded up to the ladder ``least`` (a power of two), 1.5 x, 2 x, 3 x, 4 x, ... (each
+    rung 1.5 or 4/3 of the last): a list padded at most half again, and few compiled sizes."""
+    size = least
     while size < m:
         size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
     return size
@@ -1151,6 +1151,37 @@ def _intervals_jit(blocked, fa, fb, edge, interval, grid, *, long_samples, subse
 _INTERVALS, _INTERVALS_WIDE = 1024, 8192
 
 
+def _weigh_kept(cost, a, other, short, ev, w, k: int, grid_s, samples) -> np.ndarray:
+    """The weights ``w`` (Q, 2, K) (lengths) of the query links each end keeps (its first ``k``
+    clear ones, :func:`_clear_first_np`'s) replaced by their ``cost`` integrals on the device:
+    the short links' (``edge_samples``) and the long links' (``long_samples``) each as one
+    padded list, the rest of the candidates unread."""
+    rows = ev.reshape(-1, ev.shape[-1])
+    keep = rows & (np.cumsum(rows, axis=1) <= k)
+    keep = keep.reshape(ev.shape)
+    w = np.array(w, copy=True)
+    lists = []
+    for sel in (keep & short, keep & ~short):
+        idx = np.flatnonzero(sel)
+        size = _list_size(len(idx), least=8)
+        pick = np.concatenate([idx, np.zeros(size - len(idx), np.int64)])
+        lists.append((idx, a.reshape(-1, 2)[pick], other.reshape(-1, 2)[pick]))
+    (si, sa, sb), (li, la, lb) = lists
+    ws, wl = _weigh_lists_jit(cost, sa, sb, la, lb, grid_s, **samples)
+    flat = w.reshape(-1)
+    flat[si] = np.asarray(ws)[: len(si)]
+    flat[li] = np.asarray(wl)[: len(li)]
+    return w
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples", "long_samples"))
+def _weigh_lists_jit(cost, sa, sb, la, lb, grid, *, edge_samples, long_samples):
+    """:func:`_weights` of the segments sa -> sb with ``edge_samples`` samples and la -> lb with
+    ``long_samples`` (the query links' two rules)."""
+    g = _grid(grid, sa.dtype)
+    return _weights(cost, sa, sb, g, edge_samples), _weights(cost, la, lb, g, long_samples)
+
+
 def _clear_first_np(nbr, ev, w, k: int, none: int):
     """:func:`_clear_first` on the host (the same selection)."""
     Qr, K = nbr.shape
@@ -1207,7 +1238,7 @@ def _links_checked(
     starts_d, goals_d = np.asarray(starts, dtype), np.asarray(goals, dtype)  # numpy into the jitted calls
     if _host_edges(dtype):
         ends = None
-        choice = _host_choice() if cost is None else None
+        choice = _host_choice()
         if choice is not None:
             pts, valid = roadmap.points, roadmap.valid
             ends = _links_ends_host(
@@ -1217,7 +1248,7 @@ def _links_checked(
             ends = (
                 np.asarray(x)
                 for x in _links_ends_jit(
-                    roadmap, starts_d, goals_d, cost, grid_s, radius=float(radius), **samples, sectors=sectors
+                    roadmap, starts_d, goals_d, None, grid_s, radius=float(radius), **samples, sectors=sectors
                 )
             )
         q, nbr, a, other, short, cand, w = ends
@@ -1229,6 +1260,8 @@ def _links_checked(
             blocked, fa, fb, n, cand.reshape(-1), grid, np.asarray(table), row=keep_k[0], k=keep_k[1], bits=bits
         )
         ev = clear.reshape(nbr.shape)
+        if cost is not None:  # weighed on the device, only the links each end keeps
+            w = _weigh_kept(cost, a, other, short, ev, w, k, grid_s, samples)
     else:
         q, nbr, w, ev = _links_device(
             roadmap,

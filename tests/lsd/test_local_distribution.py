@@ -197,3 +197,40 @@ def test_the_free_words_of_a_blocked_grid_are_those_of_its_free_cells(rows, cols
     want, got = _free_words(~blocked), _free_words_of_blocked(blocked)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+@pytest.mark.parametrize("window", [True, False])
+def test_a_weighed_query_links_alike_on_the_host_and_on_the_device(window, monkeypatch):
+    """A -log p roadmap's query: the host checks the start and goal links and the device weighs
+    only the ones kept; the same links, weights and paths as the device's own query (near and
+    far ends: short links and long ones)."""
+    from jaxsem.planning import _prm, _roadmap  # layers: white-box
+
+    rng = np.random.default_rng(5)
+    occ = np.zeros((90, 120), bool)
+    for _ in range(25):
+        r0, c0 = rng.integers(0, 85), rng.integers(0, 115)
+        occ[r0 : r0 + rng.integers(1, 6), c0 : c0 + rng.integers(1, 5)] = True
+    local = rng.random((40, 40)).astype(np.float32) + 1e-3
+    d = LocalDistribution.centred(local, (45, 30), occ.shape)
+    dist = d if window else np.asarray(d.full(occ.shape))
+    grid = Q.Grid.host(np.zeros(2), 0.1, occ.shape)
+    ends = [((0.5, 0.5), (11.5, 8.5)), ((2.0, 3.0), (3.5, 4.0)), ((11.8, 0.2), (0.3, 8.8))]
+
+    def paths(host):
+        prm = PRM(occ, grid, capacity=300, k=10, radius=1.5, weight="neglogp")
+        prm.grow(jax.random.PRNGKey(3), 300, dist)
+        if not host:
+            monkeypatch.setattr(_roadmap, "_host_edges", lambda dtype: False)
+        out = [prm.query(np.array(s), np.array(g)) for s, g in ends]
+        monkeypatch.undo()
+        return out
+
+    with jax.enable_x64(False):
+        a, b = paths(True), paths(False)
+    assert sum(p.found for p in a) >= 2
+    for p, q in zip(a, b, strict=True):
+        assert p.found == q.found
+        if p.found:
+            np.testing.assert_array_equal(p.points, q.points)
+            np.testing.assert_allclose(p.cost, q.cost, rtol=1e-6)
