@@ -204,7 +204,7 @@ def test_a_weighed_query_links_alike_on_the_host_and_on_the_device(window, monke
     """A -log p roadmap's query: the host checks the start and goal links and the device weighs
     only the ones kept; the same links, weights and paths as the device's own query (near and
     far ends: short links and long ones)."""
-    from jaxsem.planning import _prm, _roadmap  # layers: white-box
+    from jaxsem.planning import _roadmap  # layers: white-box
 
     rng = np.random.default_rng(5)
     occ = np.zeros((90, 120), bool)
