@@ -191,7 +191,8 @@ def _grow_host_weighed(
     first ``k`` clear candidates), the kept links weighed as the eager grow weighs them. The
     map's bits are not made (a navigation loop's map changes every replan): edges are read by
     samples. ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table
-    (numpy). Returns (roadmap, the cap that sufficed)."""
+    (numpy), or a function that returns it, called while the device searches the candidates
+    (the two overlap). Returns (roadmap, the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
     before = bool(roadmap.overflow)
@@ -212,6 +213,8 @@ def _grow_host_weighed(
             uniform_samples=uniform_samples,
             aids=aids,
         )
+        if callable(table):
+            table = table()  # host work while the device runs the search
         if use is None or before or not bool(ovf):
             break
         cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
@@ -221,7 +224,7 @@ def _grow_host_weighed(
     )
     # Only the clear links are weighed (their rows and slots, a padded list).
     rows, slots = np.nonzero(ev)
-    size = _list_size(len(rows))
+    size = _list_size(len(rows), ev.size)
     rows = np.concatenate([rows, np.full(size - len(rows), n, np.int64)]).astype(np.int32)
     slots = np.concatenate([slots, np.zeros(size - len(slots), np.int64)]).astype(np.int32)
     rm = _weigh_rows_jit(rm, np.int32(s0), nbr, ev, rows, slots, cost, ovf, static_grid(grid), edge_samples=samples)

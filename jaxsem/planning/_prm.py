@@ -254,6 +254,7 @@ class PRM:
             # device, the same roadmap.
             if distribution is not self.distribution:
                 self.distribution, self._cost = distribution, None
+            setup = self._setup
             self.roadmap, self._cap = _grow_host_weighed(
                 *args[:2],
                 self.blocked,
@@ -261,7 +262,7 @@ class PRM:
                 self.sectors,
                 bool(uniform_samples),
                 self._setup.aids(table=False),
-                np.asarray(self._setup.table()),
+                lambda: np.asarray(setup.table()),
                 self._edge_cost(dist),
             )
         else:

@@ -475,13 +475,15 @@ def _weigh_rows_jit(rm, s0, nbr, ev, rows, slots, cost, overflow, grid, *, edge_
     )
 
 
-def _list_size(m: int, least: int = 256) -> int:
-    """``m`` rounded up to the ladder ``least`` (a power of two), 1.5 x, 2 x, 3 x, 4 x, ... (each
-    rung 1.5 or 4/3 of the last): a list padded at most half again, and few compiled sizes."""
-    size = least
-    while size < m:
-        size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
-    return size
+def _list_size(m: int, total: int, rungs=(4, 2, 4 / 3, 1)) -> int:
+    """The padded length of a list of ``m`` of at most ``total`` items: the first of ``total``
+    divided by ``rungs`` (rounded up to a multiple of 8) that holds ``m``. A few fixed sizes per
+    ``total``, so a navigation loop compiles each in its first replans, not in later tasks."""
+    for r in rungs:
+        size = -(-int(math.ceil(total / r)) // 8) * 8
+        if m <= size:
+            return size
+    return -(-max(m, 1) // 8) * 8
 
 
 _grow_jit = functools.partial(
@@ -1161,9 +1163,11 @@ def _weigh_kept(cost, a, other, short, ev, w, k: int, grid_s, samples) -> np.nda
     keep = keep.reshape(ev.shape)
     w = np.array(w, copy=True)
     lists = []
-    for sel in (keep & short, keep & ~short):
+    # The long links (a query's ends beyond the radius) are few and each reads thousands of
+    # samples: their list starts small.
+    for sel, rungs in ((keep & short, (1,)), (keep & ~short, (keep.size / 8, keep.size / 32, 1))):
         idx = np.flatnonzero(sel)
-        size = _list_size(len(idx), least=8)
+        size = _list_size(len(idx), keep.size, rungs)
         pick = np.concatenate([idx, np.zeros(size - len(idx), np.int64)])
         lists.append((idx, a.reshape(-1, 2)[pick], other.reshape(-1, 2)[pick]))
     (si, sa, sb), (li, la, lb) = lists

@@ -396,10 +396,13 @@ def _local_cells(key, d: LocalDistribution, blocked, words, counts, n: int, shap
     total = mass_in + mass_out
     u01 = jax.random.uniform(k_cell, (n,), dtype)
     u = u01 * total
-    # In the window: the first cell whose running mass passes u (rounding past the total: the
-    # last cell with weight).
-    last = h * w - 1 - jnp.argmax(wts[::-1] > 0).astype(jnp.int32)
-    flat_w = jnp.minimum(jnp.searchsorted(cdf, u, side="right").astype(jnp.int32), last)
+    # In the window: the first cell whose running mass passes u. The scan's rounding can raise
+    # the running mass at a cell without weight (or leave u past the total): the draw then goes
+    # to the last cell with weight at or before it (the first one, if none is).
+    idx = jnp.arange(h * w, dtype=jnp.int32)
+    at_or_before = jax.lax.associative_scan(jnp.maximum, jnp.where(wts > 0, idx, -1))
+    found = jnp.minimum(jnp.searchsorted(cdf, u, side="right").astype(jnp.int32), h * w - 1)
+    flat_w = jnp.where(at_or_before[found] >= 0, at_or_before[found], jnp.argmax(wts > 0).astype(jnp.int32))
     in_flat = rc[flat_w // w] * W + cc[flat_w % w]
     # Outside: rank among the free cells outside the window, then past each row's block of the
     # window's free cells that comes before it in flat order.
