@@ -2,10 +2,11 @@
 
 :class:`LSDSampler` is the ``sampler`` callable of :func:`jaxsem.planning.navigate`: it takes the
 robot-centred :class:`jaxsem.planning.LocalInputs` (160 x 160 crops + context) and returns the
-network's probabilities over the window. The planner embeds the window into the full map (cells
-outside it get the window's minimum, then everything is renormalised:
-:func:`jaxsem.planning.embed_local_distribution`), samples PRM vertices from it and weights edges
-by the integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
+network's probabilities over the window. The planner reads the window as the full map's
+distribution (cells outside it get the window's minimum, then everything is renormalised:
+:func:`jaxsem.planning.embed_local_distribution`, held as its window by
+:class:`jaxsem.planning.LocalDistribution`), samples PRM vertices from it and weights edges by the
+integral of ``-log p`` (``NavConfig.edge_weight='neglogp'``, eq. 3.3).
 :func:`full_map_distribution` does the same embedding for a map state, for figures and users;
 :func:`full_map_sampler` wraps a sampler to see the true map in its window (the oracle's use).
 """

@@ -23,9 +23,11 @@ thesis`` runs both planners so, beside the defaults).
 
 Sampling: ``sampler=None`` is the uniform PRM with Euclidean edge weights (PRM + Unf). Otherwise
 ``sampler(inputs: LocalInputs) -> (160, 160)`` probabilities over the robot-centred window
-(e.g. the LSD network's softmax); the window is embedded in the full map (outside: the window's
-minimum, renormalised, section 3.2.5), the PRM samples from it, and edges are weighted by the
-integral of ``-log p`` (``edge_weight='neglogp'``, eq. 3.3) unless told otherwise. Both planners
+(e.g. the LSD network's softmax); the window stands for the full map's distribution (outside:
+the window's minimum, renormalised, section 3.2.5), held as a
+:class:`~jaxsem.planning.LocalDistribution` so that no grid of the map's size is made per replan;
+the PRM samples from it, and edges are weighted by the integral of ``-log p``
+(``edge_weight='neglogp'``, eq. 3.3) unless told otherwise. Both planners
 link vertices direction-first (``NavConfig.sectors``; see :mod:`jaxsem.planning._roadmap`), and a
 learned sampler's roadmap gets twice the uniform radius (``learned_radius_factor``): outside the
 window its few samples are too far apart for the uniform radius, which ended most Inside-Outside
