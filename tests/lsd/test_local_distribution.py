@@ -107,19 +107,24 @@ def test_the_windows_densities_and_cost_are_the_embedded_grids(centre, on_map):
     np.testing.assert_allclose(np.asarray(d.full((H, W))), np.asarray(full), rtol=1e-6)
 
 
+def _blocks_and_window(seed):
+    """A 90 x 120 map with 25 random blocks and a 40 x 40 window of random weights on it."""
+    rng = np.random.default_rng(seed)
+    occ = np.zeros((90, 120), bool)
+    for _ in range(25):
+        r0, c0 = rng.integers(0, 85), rng.integers(0, 115)
+        occ[r0 : r0 + rng.integers(1, 6), c0 : c0 + rng.integers(1, 5)] = True
+    local = rng.random((40, 40)).astype(np.float32) + 1e-3
+    return occ, LocalDistribution.centred(local, (45, 30), occ.shape)
+
+
 def test_a_grow_from_a_window_links_alike_on_the_host_and_on_the_device(monkeypatch):
     """The grow that checks a -log p roadmap's edges on the host and weighs them on the device
     keeps the device grow's links, weights to rounding, from the same window (same samples),
     only the clear links weighed."""
     from jaxsem.planning import _prm  # layers: white-box
 
-    rng = np.random.default_rng(3)
-    occ = np.zeros((90, 120), bool)
-    for _ in range(25):
-        r0, c0 = rng.integers(0, 85), rng.integers(0, 115)
-        occ[r0 : r0 + rng.integers(1, 6), c0 : c0 + rng.integers(1, 5)] = True
-    local = rng.random((40, 40)).astype(np.float32) + 1e-3
-    d = LocalDistribution.centred(local, (45, 30), occ.shape)
+    occ, d = _blocks_and_window(3)
     grid = Q.Grid.host(np.zeros(2), 0.1, occ.shape)
 
     def grown(host):
@@ -208,13 +213,7 @@ def test_a_weighed_query_links_alike_on_the_host_and_on_the_device(window, monke
     far ends: short links and long ones)."""
     from jaxsem.planning import _roadmap  # layers: white-box
 
-    rng = np.random.default_rng(5)
-    occ = np.zeros((90, 120), bool)
-    for _ in range(25):
-        r0, c0 = rng.integers(0, 85), rng.integers(0, 115)
-        occ[r0 : r0 + rng.integers(1, 6), c0 : c0 + rng.integers(1, 5)] = True
-    local = rng.random((40, 40)).astype(np.float32) + 1e-3
-    d = LocalDistribution.centred(local, (45, 30), occ.shape)
+    occ, d = _blocks_and_window(5)
     dist = d if window else np.asarray(d.full(occ.shape))
     grid = Q.Grid.host(np.zeros(2), 0.1, occ.shape)
     ends = [((0.5, 0.5), (11.5, 8.5)), ((2.0, 3.0), (3.5, 4.0)), ((11.8, 0.2), (0.3, 8.8))]
