@@ -41,7 +41,7 @@ from ._edges import (
 )
 from ._grid import static_grid
 from ._neighbours import _bucket_ids, _candidates_host, _grid_dims, _host_order, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, Roadmap, _candidates_jit, _density, _list_size, _sample_lazy_jit, _weigh_rows_jit
+from ._roadmap import _QUERY, Roadmap, _density, _list_size, _sample_lazy_jit, _weigh_rows_jit
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
@@ -76,6 +76,12 @@ def _grid_jit(points, valid, origin, guess, *, radius, extent):
         return order.astype(guess.dtype), sorted_bid
 
     return jax.lax.cond(agree, lambda: (guess, s), own)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _density_jit(points, distribution, grid):
+    """The samples' densities (M,) as the grow's neighbour search reads them (:func:`_density`)."""
+    return _density(points, distribution, _grid(grid, points.dtype), 1)
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "k", "radius", "extent", "cap", "sectors", "keep"))
@@ -123,10 +129,11 @@ def _grow_lazy(
     rows = np.arange(s0, s0 + n)
     extent = _extent(grid)
     keep = 2 * k if sectors else k
-    # The host ranks a row as the device does unless the samples' densities play a part.
-    host_rank = sectors if dist is None or not sectors else None
+    # The host ranks a row as the device does, with the samples' densities as the device reads
+    # them where they play a part (a distribution's samples, with sectors).
+    density = None if dist is None or not sectors else np.asarray(_density_jit(rm.points, dist, static_grid(grid)))
     local = pts - np.asarray(origin_j)
-    cand, need, cap = _candidates_host(local, db_ok, rows, k, radius, extent, keep, cap, host_rank)
+    cand, need, cap = _candidates_host(local, db_ok, rows, k, radius, extent, keep, cap, sectors, density)
     if need.any():
         some = rows[need].astype(np.int32)
         chunk = _RANK_CHUNKS[0] if len(some) <= _RANK_CHUNKS[0] else _RANK_CHUNKS[1]
@@ -185,39 +192,21 @@ def _grow_host_weighed(
 ) -> tuple[Roadmap, int]:
     """The eager grow with its edges checked on the host and weighed on the device (weights
     that integrate a cell ``cost``, :func:`~jaxsem.planning._roadmap._edge_cost`; float32
-    points: :func:`~jaxsem.planning._edges._host_edges`): the device's samples and candidates
-    (the eager grow's own search, :func:`_candidates_jit`), each row read on the host in
+    points: :func:`~jaxsem.planning._edges._host_edges`): the device's samples, the eager
+    grow's candidates (:func:`_grow_lazy`: ranked on the host with the samples' densities, the
+    device's search for the rows a rounding could reorder), each row read on the host in
     preference order until ``k`` are clear (the rule compiled on the host: the eager grow's
-    first ``k`` clear candidates), the kept links weighed as the eager grow weighs them. The
-    map's bits are not made (a navigation loop's map changes every replan): edges are read by
-    samples. ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table
-    (numpy), or a function that returns it, called while the device searches the candidates
-    (the two overlap). Returns (roadmap, the cap that sufficed)."""
+    first ``k`` clear candidates; a row of at most ``k`` candidates may keep them in another
+    slot order), the kept links weighed as the eager grow weighs them. The map's bits are not
+    made (a navigation loop's map changes every replan): edges are read by samples.
+    ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table (numpy), or a
+    function that returns it. Returns (roadmap, the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
-    before = bool(roadmap.overflow)
-    extent = _extent(grid)
-    while True:
-        use = cap if 3 * cap < M else None
-        rm, cand, ovf = _candidates_jit(
-            roadmap,
-            key,
-            blocked_j,
-            dist,
-            static_grid(grid),
-            n=n,
-            radius=radius,
-            extent=extent,
-            cap=use,
-            sectors=sectors,
-            uniform_samples=uniform_samples,
-            aids=aids,
-        )
-        if callable(table):
-            table = table()  # host work while the device runs the search
-        if use is None or before or not bool(ovf):
-            break
-        cap *= 4  # a strip held more than ``cap`` vertices: rerun, nothing dropped
+    (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
+    ovf = np.zeros((), bool)  # the host's strip counts size the device's search: it never overflows
+    if callable(table):
+        table = table()
     samples = _edge_samples(radius, float(grid.resolution))
     nbr, ev, _ = _first_clear_host(
         blocked, np.asarray(rm.points), np.asarray(cand), s0, k, samples, grid, table, _NO_BITS

@@ -348,7 +348,9 @@ def knn_within_radius(points, valid, k: int, radius: float, extent, bucket_cap: 
 _BORDER = 1e-5
 
 
-def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, cap: int, sectors: int | None = None):
+def _candidates_host(
+    db, db_ok, rows, k: int, radius: float, extent, keep: int, cap: int, sectors: int | None = None, density=None
+):
     """The lazy grow's neighbour search on the host (compiled, buckets of the radius:
     :mod:`jaxsem.planning._neighbours_kernels`), for the rows where the order of the candidates
     decides nothing: a row with at most ``k`` candidates keeps every clear one, whatever the
@@ -366,7 +368,9 @@ def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, 
     every row. ``sectors`` (not None: the grow's own, its samples' densities playing no part):
     the rows with more than ``k`` candidates are ranked here too, the device's order
     (:func:`~jaxsem.planning._neighbours_kernels.rank_rows`), but for those whose order a
-    rounding or a sector border could change. Returns (cand (n, keep) int32, ``M`` where none
+    rounding or a sector border could change. ``density``: (M,) float32, the samples' densities
+    as the device reads them (the grow's distribution at each sample), when they play a part
+    (learned samples with sectors). Returns (cand (n, keep) int32, ``M`` where none
     and in every ``need`` row, in index order in a row of at most ``k``; need (n,) bool; the
     cap)."""
     M = db.shape[0]
@@ -397,8 +401,10 @@ def _candidates_host(db, db_ok, rows, k: int, radius: float, extent, keep: int, 
         m = _per_sector(k, sectors) if sectors else 0
         todo = rows[many]
 
+        dens = np.zeros(0, np.float32) if density is None or not sectors else np.asarray(density, np.float32)
+
         def rank(r0: int, r1: int):
-            return kern.rank_rows(x, y, db_ok, todo[r0:r1], *grid, side, r2, keep, m, int(sectors))
+            return kern.rank_rows(x, y, db_ok, todo[r0:r1], *grid, side, r2, keep, m, int(sectors), dens)
 
         parts = _in_blocks(len(todo), len(todo) * keep, rank)
         ranked, unsure = (np.concatenate([p[i] for p in parts]) for i in range(2))

@@ -287,7 +287,7 @@ def _ties(v):
 
 
 @numba.njit(cache=True, nogil=True)
-def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
+def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors, dens):
     """The device's ranked candidates of the points ``rows`` (n,) (:func:`_select` of
     :mod:`jaxsem.planning._neighbours` over their candidates within the radius, ``r2`` its
     square: with ``sectors``, the ``m`` nearest of each direction sector first, then the rest by
@@ -296,7 +296,10 @@ def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
     own slot order, and rounds the keys its own way: a row whose squared distances or keys come
     within :data:`_TIE` of each other, or with a candidate on a sector border that could be
     reserved on either side, is unsure (the caller asks the device). Rows must have no candidate
-    within a hair of the radius (their sets are the device's)."""
+    within a hair of the radius (their sets are the device's). ``dens`` (M,) float32: the
+    samples' densities (the device's values), whose sparser candidates' ``2 m`` nearest come
+    first too (:func:`_select`'s ``sparser``; a density within a hair of the test's bound makes
+    the row unsure); empty: none."""
     M = x.shape[0]
     n = rows.shape[0]
     sx = x[items]
@@ -336,6 +339,22 @@ def rank_rows(x, y, ok, rows, gx, gy, start, items, side, r2, keep, m, sectors):
             for s in range(S):
                 for a in range(cnt[s]):
                     prio[bi[s, a]] = True
+            if dens.shape[0] > 0:
+                # The 2 m nearest candidates sampled no more densely than the query (float32,
+                # the device's test: density <= the query's x 1.001). No two d2 tie here.
+                bound = dens[q] * np.float32(1.001)
+                sp = np.zeros(c, np.bool_)
+                for a in range(c):
+                    v = dens[ids[a]]
+                    if abs(np.float64(v) - np.float64(bound)) <= 1e-6 * abs(np.float64(bound)):
+                        unsure[i] = True
+                    sp[a] = v <= bound
+                taken = 0
+                for a in np.argsort(np.where(sp, d2[:c], np.inf)):
+                    if taken >= min(2 * m, c) or not sp[a]:
+                        break
+                    prio[a] = True
+                    taken += 1
             for a in range(c):
                 if near[a]:
                     dxa = x[ids[a]] - qx
