@@ -425,29 +425,6 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 _edge_cost_jit = jax.jit(_edge_cost, static_argnums=2)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "n", "radius", "extent", "cap", "sectors", "uniform_samples"))
-def _candidates_jit(rm, key, blocked, distribution, grid, *, n, radius, extent, cap, sectors, uniform_samples, aids):
-    """:func:`_grow_candidates` as one program: (the roadmap with the samples, the candidates
-    (n, K) with ``M`` where none or where the new vertex is not valid, whether a strip
-    overflowed)."""
-    M = rm.neighbors.shape[0]
-    sampled, _, nbr, ok_new, _, ovf = _grow_candidates(
-        rm,
-        key,
-        blocked,
-        distribution,
-        grid,
-        n=n,
-        radius=radius,
-        extent=extent,
-        cap=cap,
-        sectors=sectors,
-        uniform_samples=uniform_samples,
-        aids=aids,
-    )
-    return sampled, jnp.where(ok_new[:, None], nbr, M), ovf
-
-
 @functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
 def _weigh_rows_jit(rm, s0, nbr, ev, rows, slots, cost, overflow, grid, *, edge_samples):
     """``rm`` with rows ``s0 ..`` of its links set to the links ``nbr``, ``ev`` (n, k) found
