@@ -152,6 +152,7 @@ def test_a_grow_from_a_window_links_alike_on_the_host_and_on_the_device(monkeypa
         np.testing.assert_allclose([w for _, w in x], [w for _, w in y], rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_trials_distribution_is_the_windows_embedded_grid():
     """The navigation loop plans from the window; what it reports as the replan's distribution
     is the grid the thesis' embedding makes (unpadded)."""
