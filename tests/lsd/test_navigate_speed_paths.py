@@ -27,6 +27,7 @@ from jaxsem.planning import (
     sample_tasks,
 )
 from jaxsem.planning._grid import static_grid  # layers: white-box
+from jaxsem.planning._sampling import WindowCost  # layers: white-box
 from jaxsem.planning._sensors import _sense_in_place, _sense_jit, _sense_sizes  # layers: white-box
 
 
@@ -148,7 +149,14 @@ def test_fast_loop_drives_the_old_loops_paths(monkeypatch):
     fast = drive()
     monkeypatch.setattr(_navigate, "_sense_in_place", _sense_jit)
     monkeypatch.setattr(_roadmap, "_ACTIVE_STEP", 10**9)
-    monkeypatch.setattr(_edges, "_read", lambda values, rows, cols: values[rows, cols])
+    window_read = _edges._read  # a window's cost (the learned sampler's) has one reading
+    monkeypatch.setattr(
+        _edges,
+        "_read",
+        lambda values, rows, cols: (
+            window_read(values, rows, cols) if isinstance(values, WindowCost) else values[rows, cols]
+        ),
+    )
     jax.clear_caches()
     old = drive()
     jax.clear_caches()
