@@ -242,3 +242,24 @@ def test_a_weighed_query_links_alike_on_the_host_and_on_the_device(window, monke
         if p.found:
             np.testing.assert_array_equal(p.points, q.points)
             np.testing.assert_allclose(p.cost, q.cost, rtol=1e-6)
+
+
+def test_a_batch_of_windows_goes_through_jit_and_vmap():
+    """``LocalDistribution`` is a pytree: made and read under ``jit`` and ``vmap`` (a batch of
+    robots' windows), each the embedded grid of its own window; a second call does not compile
+    again."""
+    rng = np.random.default_rng(2)
+    local = jnp.asarray(rng.random((3, h, w)) + 0.01, jnp.float32)
+    centres = jnp.asarray([[5, 5], [20, 60], [-3, 30]], jnp.int32)
+
+    @jax.jit
+    def grids(local, centres):
+        return jax.vmap(lambda l, c: LocalDistribution.centred(l, c, (H, W)).full((H, W)))(local, centres)
+
+    got = np.asarray(grids(local, centres))
+    for i in range(3):
+        want = embed_local_distribution(local[i], centres[i], (H, W))
+        np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-5)  # float32 sums in another order
+    before = grids._cache_size()
+    grids(local + 1.0, centres + 1)
+    assert grids._cache_size() == before
