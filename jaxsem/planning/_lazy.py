@@ -41,7 +41,7 @@ from ._edges import (
 )
 from ._grid import static_grid
 from ._neighbours import _bucket_ids, _candidates_host, _grid_dims, _host_order, _knn_grid, _knn_rows
-from ._roadmap import _QUERY, Roadmap, _density, _list_size, _sample_lazy_jit, _weigh_rows_jit
+from ._roadmap import _QUERY, Roadmap, _density, _sample_lazy_jit, _weigh_links
 from ._roadmap_search import _NOT_FOUND, RoadmapPath, _query_edges
 
 #: Edge status codes.
@@ -204,19 +204,15 @@ def _grow_host_weighed(
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
     (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
-    ovf = np.zeros((), bool)  # the host's strip counts size the device's search: it never overflows
     if callable(table):
         table = table()
     samples = _edge_samples(radius, float(grid.resolution))
     nbr, ev, _ = _first_clear_host(
         blocked, np.asarray(rm.points), np.asarray(cand), s0, k, samples, grid, table, _NO_BITS
     )
-    # Only the clear links are weighed (their rows and slots, a padded list).
-    rows, slots = np.nonzero(ev)
-    size = _list_size(len(rows), ev.size)
-    rows = np.concatenate([rows, np.full(size - len(rows), n, np.int64)]).astype(np.int32)
-    slots = np.concatenate([slots, np.zeros(size - len(slots), np.int64)]).astype(np.int32)
-    rm = _weigh_rows_jit(rm, np.int32(s0), nbr, ev, rows, slots, cost, ovf, static_grid(grid), edge_samples=samples)
+    # Only the clear links are weighed.
+    w = _weigh_links(rm.points, s0, nbr, ev, cost, static_grid(grid), samples)
+    rm = _set_rows_jit(rm, np.int32(s0), nbr, ev, w)
     return rm, cap
 
 

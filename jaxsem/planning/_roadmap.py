@@ -425,42 +425,37 @@ def _link_by_rows(blocked, cost, points, new, nbr, grid, S, cand, table, k: int)
 _edge_cost_jit = jax.jit(_edge_cost, static_argnums=2)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
-def _weigh_rows_jit(rm, s0, nbr, ev, rows, slots, cost, overflow, grid, *, edge_samples):
-    """``rm`` with rows ``s0 ..`` of its links set to the links ``nbr``, ``ev`` (n, k) found
-    clear elsewhere, weighed on the device by the cell ``cost`` (:func:`_edge_cost`) as the
-    grow weighs its links, and ``overflow`` or-ed in. ``rows``, ``slots`` (E,): the clear
-    links' places in ``nbr`` (padded with ``rows`` past ``n``): only those are weighed."""
-    M = rm.neighbors.shape[0]
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples"), donate_argnames=("w",))
+def _weigh_chunk_jit(w, points, s0, nbr, rows, slots, cost, grid, *, edge_samples):
+    """``w`` (n, k) with the links at ``rows``, ``slots`` (a chunk; rows past ``n`` are padding)
+    of vertices ``s0 ..`` to their neighbours ``nbr`` (n, k) set to their weights under the cell
+    ``cost`` (:func:`_edge_cost`), read as the grow reads them."""
+    M = points.shape[0]
     n = nbr.shape[0]
-    dtype = rm.points.dtype
-    grid = _grid(grid, dtype)
+    g = _grid(grid, points.dtype)
     r = jnp.minimum(rows, n - 1)
-    a = rm.points[s0 + r]
-    b = rm.points[jnp.minimum(nbr[r, slots], M - 1)]
-    w = (
-        jnp.full(nbr.shape, jnp.inf, dtype)
-        .at[rows, slots]
-        .set(_weights(cost, a, b, grid, edge_samples).astype(dtype), mode="drop")
-    )
-    at = (s0, jnp.zeros((), jnp.int32))
-    return rm._replace(
-        neighbors=jax.lax.dynamic_update_slice(rm.neighbors, nbr, at),
-        edge_valid=jax.lax.dynamic_update_slice(rm.edge_valid, ev, at),
-        edge_weight=jax.lax.dynamic_update_slice(rm.edge_weight, w, at),
-        overflow=rm.overflow | overflow,
-    )
+    a = points[s0 + r]
+    b = points[jnp.minimum(nbr[r, slots], M - 1)]
+    return w.at[rows, slots].set(_weights(cost, a, b, g, edge_samples).astype(w.dtype), mode="drop")
 
 
-def _list_size(m: int, total: int, rungs=(4, 2, 4 / 3, 1)) -> int:
-    """The padded length of a list of ``m`` of at most ``total`` items: the first of ``total``
-    divided by ``rungs`` (rounded up to a multiple of 8) that holds ``m``. A few fixed sizes per
-    ``total``, so a navigation loop compiles each in its first replans, not in later tasks."""
-    for r in rungs:
-        size = -(-int(math.ceil(total / r)) // 8) * 8
-        if m <= size:
-            return size
-    return -(-max(m, 1) // 8) * 8
+def _weigh_links(points, s0: int, nbr, ev, cost, grid_s, edge_samples: int) -> jax.Array:
+    """The weights (n, k) of the links ``ev`` of vertices ``s0 ..`` to ``nbr`` (n, k) (numpy),
+    inf elsewhere: only the links weighed, in chunks of a size fixed by (n, k) (one compiled
+    program however many links a grow keeps)."""
+    n, k = nbr.shape
+    per = -(-(n * k) // 8)  # an eighth of the slots, rounded up to a multiple of 8
+    chunk = -(-per // 8) * 8
+    rows, slots = np.nonzero(ev)
+    w = jnp.full((n, k), jnp.inf, points.dtype)
+    for i in range(0, max(len(rows), 1), chunk):
+        r = np.full(chunk, n, np.int32)
+        c = np.zeros(chunk, np.int32)
+        part = slice(i, min(i + chunk, len(rows)))
+        r[: part.stop - part.start] = rows[part]
+        c[: part.stop - part.start] = slots[part]
+        w = _weigh_chunk_jit(w, points, np.int32(s0), nbr, r, c, cost, grid_s, edge_samples=edge_samples)
+    return w
 
 
 _grow_jit = functools.partial(
@@ -981,6 +976,19 @@ def _links_ends(rm, start, goal, cost, grid, *, radius, edge_samples, long_sampl
 _links_ends_jit = jax.jit(_links_ends, static_argnames=("grid", "radius", "edge_samples", "long_samples", "sectors"))
 
 
+def _warm_once(call, signature) -> None:
+    """Runs ``call`` (a compiled program, its answer unused) the first time this process meets
+    ``signature``: the device's query links are the host's rare fallback (a sample on a sector
+    border), and compiled at that moment they would stall a query many trials later."""
+    if signature not in _WARM:
+        _WARM.add(signature)
+        call()
+
+
+#: Signatures :func:`_warm_once` has run.
+_WARM: set = set()
+
+
 def _links_ends_host(points, valid, starts, goals, k: int, *, radius, sectors, choice):
     """:func:`_links_ends` with lengths as weights, on the host: the same candidates, ends and
     flags, and the weights to a unit in the last place (numpy), for float32 ``points`` (M, 2),
@@ -1133,34 +1141,31 @@ _INTERVALS, _INTERVALS_WIDE = 1024, 8192
 def _weigh_kept(cost, a, other, short, ev, w, k: int, grid_s, samples) -> np.ndarray:
     """The weights ``w`` (Q, 2, K) (lengths) of the query links each end keeps (its first ``k``
     clear ones, :func:`_clear_first_np`'s) replaced by their ``cost`` integrals on the device:
-    the short links' (``edge_samples``) and the long links' (``long_samples``) each as one
-    padded list, the rest of the candidates unread."""
+    the short links' (``edge_samples``) as one list of every slot's size, the long links'
+    (``long_samples``, few, each reading thousands of samples) in chunks of 8; the rest of the
+    candidates unread. Fixed sizes: no program compiled after a query's first."""
     rows = ev.reshape(-1, ev.shape[-1])
-    keep = rows & (np.cumsum(rows, axis=1) <= k)
-    keep = keep.reshape(ev.shape)
+    keep = (rows & (np.cumsum(rows, axis=1) <= k)).reshape(-1)
     w = np.array(w, copy=True)
-    lists = []
-    # The long links (a query's ends beyond the radius) are few and each reads thousands of
-    # samples: their list starts small.
-    for sel, rungs in ((keep & short, (1,)), (keep & ~short, (keep.size / 8, keep.size / 32, 1))):
-        idx = np.flatnonzero(sel)
-        size = _list_size(len(idx), keep.size, rungs)
-        pick = np.concatenate([idx, np.zeros(size - len(idx), np.int64)])
-        lists.append((idx, a.reshape(-1, 2)[pick], other.reshape(-1, 2)[pick]))
-    (si, sa, sb), (li, la, lb) = lists
-    ws, wl = _weigh_lists_jit(cost, sa, sb, la, lb, grid_s, **samples)
     flat = w.reshape(-1)
-    flat[si] = np.asarray(ws)[: len(si)]
-    flat[li] = np.asarray(wl)[: len(li)]
+    fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
+    for sel, size, n_samples in (
+        (keep & short.reshape(-1), keep.size, samples["edge_samples"]),
+        (keep & ~short.reshape(-1), 8, samples["long_samples"]),
+    ):
+        idx = np.flatnonzero(sel)
+        for i in range(0, len(idx), size):
+            part = idx[i : i + size]
+            pick = np.concatenate([part, np.full(size - len(part), part[0])])
+            got = _weigh_list_jit(cost, fa[pick], fb[pick], grid_s, edge_samples=n_samples)
+            flat[part] = np.asarray(got)[: len(part)]
     return w
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "edge_samples", "long_samples"))
-def _weigh_lists_jit(cost, sa, sb, la, lb, grid, *, edge_samples, long_samples):
-    """:func:`_weights` of the segments sa -> sb with ``edge_samples`` samples and la -> lb with
-    ``long_samples`` (the query links' two rules)."""
-    g = _grid(grid, sa.dtype)
-    return _weights(cost, sa, sb, g, edge_samples), _weights(cost, la, lb, g, long_samples)
+@functools.partial(jax.jit, static_argnames=("grid", "edge_samples"))
+def _weigh_list_jit(cost, a, b, grid, *, edge_samples):
+    """:func:`_weights` of the segments a -> b (E, 2) with ``edge_samples`` samples."""
+    return _weights(cost, a, b, _grid(grid, a.dtype), edge_samples)
 
 
 def _clear_first_np(nbr, ev, w, k: int, none: int):
@@ -1225,13 +1230,13 @@ def _links_checked(
             ends = _links_ends_host(
                 np.asarray(pts), np.asarray(valid), starts_d, goals_d, k, radius=radius, sectors=sectors, choice=choice
             )
+        device = functools.partial(
+            _links_ends_jit, roadmap, starts_d, goals_d, None, grid_s, radius=float(radius), **samples, sectors=sectors
+        )
         if ends is None:
-            ends = (
-                np.asarray(x)
-                for x in _links_ends_jit(
-                    roadmap, starts_d, goals_d, None, grid_s, radius=float(radius), **samples, sectors=sectors
-                )
-            )
+            ends = tuple(np.asarray(x) for x in device())
+        else:
+            _warm_once(device, (roadmap.points.shape, roadmap.neighbors.shape, starts_d.shape, grid_s, radius, sectors))
         q, nbr, a, other, short, cand, w = ends
         fa, fb = a.reshape(-1, 2), other.reshape(-1, 2)
         n = np.where(short, samples["edge_samples"], samples["long_samples"]).reshape(-1)

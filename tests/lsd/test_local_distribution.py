@@ -263,3 +263,21 @@ def test_a_batch_of_windows_goes_through_jit_and_vmap():
     before = grids._cache_size()
     grids(local + 1.0, centres + 1)
     assert grids._cache_size() == before
+
+
+def test_the_device_query_links_are_compiled_at_the_first_query():
+    """The host links a float32 query; the device's program, its rare fallback (a sample on a
+    sector border), is compiled at the first query of a roadmap's shape, not when the fallback
+    first happens (in the navigation loop: a stall of ~0.1 s many trials later)."""
+    from jaxsem.planning import _roadmap  # layers: white-box
+
+    occ, d = _blocks_and_window(11)
+    with jax.enable_x64(False):
+        prm = PRM(occ, Q.Grid.host(np.zeros(2), 0.1, occ.shape), capacity=64, k=7, radius=1.5, weight="neglogp")
+        prm.grow(jax.random.PRNGKey(0), 64, d)
+        _roadmap._host_choice()  # the host's own probe (once per process) compiles a program of its own
+        before = _roadmap._links_ends_jit._cache_size()
+        prm.query(np.array([0.5, 0.5]), np.array([11.0, 8.0]))
+        after = _roadmap._links_ends_jit._cache_size()
+        prm.query(np.array([1.5, 0.5]), np.array([10.0, 8.0]))
+        assert after == before + 1 and _roadmap._links_ends_jit._cache_size() == after
