@@ -29,7 +29,8 @@ def sample_points(key, distribution, n: int, grid: Q.Grid, cdf=None):
     dtype). ``cdf``: its :func:`_cdf` when the caller keeps it. Without it the same inverse-CDF
     search runs in two levels (rows, then inside the row), which reads the map once instead of
     scanning it; a draw may then land in the next cell where rounding of the running sums
-    differs at a cell boundary (a cell without weight is never drawn). Jittable."""
+    differs at a cell boundary (a cell without weight is never drawn: where the rounding raises
+    a running mass at one, the draw goes to the last weighted cell before it). Jittable."""
     grid = require_type("grid", grid, Q.Grid)
     if tuple(grid.shape) != tuple(distribution.shape):
         raise ValueError(f"grid: expected the distribution's shape {tuple(distribution.shape)}, got {grid.shape}")
@@ -40,21 +41,37 @@ def sample_points(key, distribution, n: int, grid: Q.Grid, cdf=None):
         u = jax.random.uniform(k_cell, (n,), dtype) * cdf[-1]
         flat = jnp.clip(jnp.searchsorted(cdf, u, side="right"), 0, H * W - 1)
         return _in_cells(k_in, flat, grid)
-    # The same search in two levels (the rows' running masses, then the running mass inside each
-    # draw's row): n x W sums instead of a scan over every cell of the map.
+    return _in_cells(k_in, _grid_cells(k_cell, distribution, n, dtype), grid)
+
+
+def _grid_cells(k_cell, distribution, n: int, dtype):
+    """The flat cells (n,) int32 of :func:`sample_points`' two-level draws (before each is given
+    a uniform point inside its cell): the rows' running masses, then the running mass inside
+    each draw's row, n x W sums instead of a scan over every cell of the map."""
+    H, W = distribution.shape
     w = distribution.astype(dtype)
     row = jnp.sum(w, axis=1)
     rows_cdf = jax.lax.associative_scan(jnp.add, row)
     u = jax.random.uniform(k_cell, (n,), dtype) * rows_cdf[-1]
-    r = jnp.clip(jnp.searchsorted(rows_cdf, u, side="right"), 0, H - 1)
+    r = jnp.clip(jnp.searchsorted(rows_cdf, u, side="right"), 0, H - 1).astype(jnp.int32)
     before = jnp.where(r > 0, rows_cdf[jnp.maximum(r - 1, 0)], 0.0)
+    # The scans' rounding can raise a running mass at a row or cell without weight (or leave
+    # the target past a total): a draw then goes to the last one with weight at or before it
+    # (the first one, if none is), so a cell without weight is never drawn.
+    r = _weighted_at_or_before(row > 0, r)
     wr = w[r]  # (n, W)
     inside = jax.lax.associative_scan(jnp.add, wr, axis=1)
-    # Rounding may put the target past the row's own running total: then the row's last cell
-    # with weight (the row has some: its running mass passed u).
-    last = (W - 1 - jnp.argmax(wr[:, ::-1] > 0, axis=1)).astype(r.dtype)
-    c = jnp.minimum(jnp.sum(inside <= (u - before)[:, None], axis=1, dtype=r.dtype), last)
-    return _in_cells(k_in, r * W + c, grid)
+    c = jnp.minimum(jnp.sum(inside <= (u - before)[:, None], axis=1, dtype=jnp.int32), W - 1)
+    c = jax.vmap(_weighted_at_or_before)(wr > 0, c)
+    return r * W + c
+
+
+def _weighted_at_or_before(has, i):
+    """For indices ``i`` into the flags ``has`` (m,): the last index at or before each with a
+    flag set, or the first set one when none is."""
+    idx = jnp.arange(has.shape[0], dtype=jnp.int32)
+    at_or_before = jax.lax.associative_scan(jnp.maximum, jnp.where(has, idx, -1))
+    return jnp.where(at_or_before[i] >= 0, at_or_before[i], jnp.argmax(has).astype(jnp.int32))
 
 
 def _in_cells(k_in, flat, grid):
@@ -399,10 +416,8 @@ def _local_cells(key, d: LocalDistribution, blocked, words, counts, n: int, shap
     # In the window: the first cell whose running mass passes u. The scan's rounding can raise
     # the running mass at a cell without weight (or leave u past the total): the draw then goes
     # to the last cell with weight at or before it (the first one, if none is).
-    idx = jnp.arange(h * w, dtype=jnp.int32)
-    at_or_before = jax.lax.associative_scan(jnp.maximum, jnp.where(wts > 0, idx, -1))
     found = jnp.minimum(jnp.searchsorted(cdf, u, side="right").astype(jnp.int32), h * w - 1)
-    flat_w = jnp.where(at_or_before[found] >= 0, at_or_before[found], jnp.argmax(wts > 0).astype(jnp.int32))
+    flat_w = _weighted_at_or_before(wts > 0, found)
     in_flat = rc[flat_w // w] * W + cc[flat_w % w]
     # Outside: rank among the free cells outside the window, then past each row's block of the
     # window's free cells that comes before it in flat order.
