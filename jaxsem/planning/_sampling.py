@@ -54,11 +54,11 @@ def _grid_cells(k_cell, distribution, n: int, dtype):
     rows_cdf = jax.lax.associative_scan(jnp.add, row)
     u = jax.random.uniform(k_cell, (n,), dtype) * rows_cdf[-1]
     r = jnp.clip(jnp.searchsorted(rows_cdf, u, side="right"), 0, H - 1).astype(jnp.int32)
-    before = jnp.where(r > 0, rows_cdf[jnp.maximum(r - 1, 0)], 0.0)
     # The scans' rounding can raise a running mass at a row or cell without weight (or leave
     # the target past a total): a draw then goes to the last one with weight at or before it
     # (the first one, if none is), so a cell without weight is never drawn.
     r = _weighted_at_or_before(row > 0, r)
+    before = jnp.where(r > 0, rows_cdf[jnp.maximum(r - 1, 0)], 0.0)
     wr = w[r]  # (n, W)
     inside = jax.lax.associative_scan(jnp.add, wr, axis=1)
     c = jnp.minimum(jnp.sum(inside <= (u - before)[:, None], axis=1, dtype=jnp.int32), W - 1)
