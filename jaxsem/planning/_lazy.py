@@ -81,7 +81,7 @@ def _grid_jit(points, valid, origin, guess, *, radius, extent):
 @functools.partial(jax.jit, static_argnames=("grid",))
 def _density_jit(points, distribution, grid):
     """The samples' densities (M,) as the grow's neighbour search reads them (:func:`_density`)."""
-    return _density(points, distribution, _grid(grid, points.dtype), 1)
+    return _density(points, distribution, _grid(grid, points.dtype), sectors=1)  # any sectors: read them
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "k", "radius", "extent", "cap", "sectors", "keep"))
@@ -199,13 +199,11 @@ def _grow_host_weighed(
     first ``k`` clear candidates; a row of at most ``k`` candidates may keep them in another
     slot order), the kept links weighed as the eager grow weighs them. The map's bits are not
     made (a navigation loop's map changes every replan): edges are read by samples.
-    ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table (numpy), or a
-    function that returns it. Returns (roadmap, the cap that sufficed)."""
+    ``blocked``: the numpy grid of ``blocked_j``; ``table``: its clearance table (numpy).
+    Returns (roadmap, the cap that sufficed)."""
     M, k = roadmap.neighbors.shape
     s0 = _QUERY + int(roadmap.num_samples)
     (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
-    if callable(table):
-        table = table()
     samples = _edge_samples(radius, float(grid.resolution))
     nbr, ev, _ = _first_clear_host(
         blocked, np.asarray(rm.points), np.asarray(cand), s0, k, samples, grid, table, _NO_BITS

@@ -98,7 +98,6 @@ class PRM:
         reach: float | None = None,
     ):
         blocked = _blocked_from("known_map", known_map)
-        fresh = blocked is not known_map and np.asarray(known_map).dtype != np.bool_  # made here: no copy kept
         if not isinstance(lazy, bool):
             raise ValueError(f"lazy: expected a bool, got {lazy!r}")
         if lazy and weight != "euclidean":
@@ -124,7 +123,7 @@ class PRM:
         self.blocked = blocked
         self._factor = self._factor_grid()
         self._cost = None  # the cell cost the weights integrate, made once per distribution and map
-        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=fresh)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=_made_here(blocked, known_map))
         self._blocked_j = self._setup.blocked_j
         self._free_cells = self._setup.free_cells
         self.radius = (
@@ -254,7 +253,6 @@ class PRM:
             # device, the same roadmap.
             if distribution is not self.distribution:
                 self.distribution, self._cost = distribution, None
-            setup = self._setup
             self.roadmap, self._cap = _grow_host_weighed(
                 *args[:2],
                 self.blocked,
@@ -262,7 +260,7 @@ class PRM:
                 self.sectors,
                 bool(uniform_samples),
                 self._setup.aids(table=False),
-                lambda: np.asarray(setup.table()),
+                np.asarray(self._setup.table()),
                 self._edge_cost(dist),
             )
         else:
@@ -289,7 +287,6 @@ class PRM:
         the links are first settled on the old map (every unchecked edge is checked there, as the
         eager grow did), so lazy saves nothing on a map that changes between queries."""
         blocked = _blocked_from("known_map", known_map)
-        fresh = blocked is not known_map and np.asarray(known_map).dtype != np.bool_  # made here: no copy kept
         if blocked.shape != self.blocked.shape:
             raise ValueError(f"known_map: expected shape {self.blocked.shape}, got shape {blocked.shape}")
         unknown = self._unknown_cells(known_map)
@@ -304,7 +301,7 @@ class PRM:
         self._unknown = unknown
         self._factor = self._factor_grid()
         self._cost = None
-        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=fresh)
+        self._setup = _map_setup(blocked, self.roadmap.points.dtype, owned=_made_here(blocked, known_map))
         self._blocked_j = self._setup.blocked_j
         self._free_cells = self._setup.free_cells
         # With a factor grid the kept edges are weighed again (their cells may have become known).
@@ -447,3 +444,9 @@ def _points_batch(name: str, pts) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
         raise ValueError(f"{name}: expected world points (Q, 2) with Q >= 1, got shape {arr.shape}")
     return arr
+
+
+def _made_here(blocked: np.ndarray, known_map) -> bool:
+    """Whether ``blocked`` (:func:`_blocked_from` of ``known_map``) is a grid made from a partial
+    map here, not the caller's own bool grid: then the per-map setup keeps it without a copy."""
+    return blocked is not known_map and np.asarray(known_map).dtype != np.bool_

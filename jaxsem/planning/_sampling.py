@@ -340,12 +340,19 @@ def _local_values(d: LocalDistribution, rows, cols):
     """The normalised distribution at cells (rows, cols) of the grid: the window's weight, the
     fill elsewhere on the map, 0 on the padding; divided by the map's total."""
     inner, fill, total = _local_total(d)
-    h, w = d.local.shape
-    i, j = rows - d.corner[0], cols - d.corner[1]
+    return _window_read(inner, d.corner, d.on_map, fill, 0.0, rows, cols) / total
+
+
+def _window_read(window, corner, on_map, outside, padding, rows, cols):
+    """Cells (rows, cols) of the grid a window stands for: ``window`` (h, w) placed at map cell
+    ``corner``, ``outside`` elsewhere on the map's ``on_map`` rows and columns, ``padding``
+    past them."""
+    h, w = window.shape
+    i, j = rows - corner[0], cols - corner[1]
     inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
-    v = jnp.take(inner.reshape(-1), jnp.clip(i, 0, h - 1) * w + jnp.clip(j, 0, w - 1))
-    on_map = (rows < d.on_map[0]) & (cols < d.on_map[1])
-    return jnp.where(inside, v, jnp.where(on_map, fill, 0.0)) / total
+    v = jnp.take(window.reshape(-1), jnp.clip(i, 0, h - 1) * w + jnp.clip(j, 0, w - 1))
+    on = (rows < on_map[0]) & (cols < on_map[1])
+    return jnp.where(inside, v, jnp.where(on, outside, padding))
 
 
 class WindowCost(NamedTuple):
@@ -372,12 +379,7 @@ def _local_cost(d: LocalDistribution) -> WindowCost:
 
 def _read_cost(cost: WindowCost, rows, cols):
     """``cost`` at cells (rows, cols) of the grid (on it)."""
-    h, w = cost.window.shape
-    i, j = rows - cost.corner[0], cols - cost.corner[1]
-    inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
-    v = jnp.take(cost.window.reshape(-1), jnp.clip(i, 0, h - 1) * w + jnp.clip(j, 0, w - 1))
-    on_map = (rows < cost.on_map[0]) & (cols < cost.on_map[1])
-    return jnp.where(inside, v, jnp.where(on_map, cost.outside, cost.padding))
+    return _window_read(cost.window, cost.corner, cost.on_map, cost.outside, cost.padding, rows, cols)
 
 
 def sample_local(key, d: LocalDistribution, blocked, words, counts, n: int, grid):
@@ -392,12 +394,11 @@ def sample_local(key, d: LocalDistribution, blocked, words, counts, n: int, grid
     return _in_cells(k_in, _local_cells(k_cell, d, blocked, words, counts, n, grid.shape, grid.origin.dtype), grid)
 
 
-def _local_cells(key, d: LocalDistribution, blocked, words, counts, n: int, shape, dtype):
+def _local_cells(k_cell, d: LocalDistribution, blocked, words, counts, n: int, shape, dtype):
     """The flat cells (n,) int32 of :func:`sample_local`'s draws (before each is given a uniform
     point inside its cell)."""
     H, W = shape
     h, w = d.local.shape
-    k_cell = key
     d = d._replace(local=d.local.astype(dtype))
     rows, cols, on = _window_cells(d)
     rc, cc = jnp.clip(rows, 0, H - 1), jnp.clip(cols, 0, W - 1)
