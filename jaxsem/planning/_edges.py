@@ -597,20 +597,24 @@ def _host_call(grid):
 
 
 def _host_grids(blocked, table, bits=None):
-    """(blocked, table, its block level, the grid's rows and columns as bits) as the kernels
-    read them (table None: none; ``bits``: :func:`_bit_grids` of ``blocked``, or None: empty,
-    every edge read by samples)."""
+    """(blocked, table, its block level, the grid's rows and columns as bits, its box sums) as
+    the kernels read them (table None: none; ``bits``: :func:`_bit_grids` of ``blocked``, or
+    None: empty, every edge read by samples)."""
     tab = np.zeros((0, 0), np.int32) if table is None else np.ascontiguousarray(table, np.int32)
     none = np.zeros((0, 0), np.uint64)
-    rows, cols = (none, none) if bits is None else bits
-    return np.ascontiguousarray(blocked, bool), tab, _BASE, rows, cols
+    rows, cols, sums = (none, none, np.zeros((0, 0), np.uint16)) if bits is None else bits
+    return np.ascontiguousarray(blocked, bool), tab, _BASE, rows, cols, sums
 
 
-def _bit_grids(blocked) -> tuple[np.ndarray, np.ndarray]:
-    """The bool grid ``blocked`` (H, W) as bits for the host rule's walk by lines: its rows
-    (H + 2, ceil((W + 2) / 64)) uint64, bit ``c + 1`` of word row ``r + 1`` set where cell
-    (r, c) is blocked, and the cells around the map set (off the map counts as blocked); and
-    its columns (W + 2, ceil((H + 2) / 64)) so. Per-map setup (:class:`~jaxsem.planning._map_setup._MapSetup`)."""
+def _bit_grids(blocked) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bool grid ``blocked`` (H, W) as the host rule reads it by lines and boxes: its rows
+    as bits (H + 2, ceil((W + 2) / 64)) uint64, bit ``c + 1`` of word row ``r + 1`` set where
+    cell (r, c) is blocked, and the cells around the map set (off the map counts as blocked);
+    its columns (W + 2, ceil((H + 2) / 64)) so; and its blocked cells counted over boxes
+    (:func:`~jaxsem.planning._edges_kernels.box_sums`: an edge whose box of cells holds none
+    is clear without a read). Per-map setup (:class:`~jaxsem.planning._map_setup._MapSetup`)."""
+    from ._edges_kernels import box_sums
+
     blocked = np.asarray(blocked, bool)
     H, W = blocked.shape
 
@@ -622,7 +626,7 @@ def _bit_grids(blocked) -> tuple[np.ndarray, np.ndarray]:
 
     g = np.ones((H + 2, W + 2), bool)
     g[1:-1, 1:-1] = blocked
-    return bits(g), bits(np.ascontiguousarray(g.T))
+    return bits(g), bits(np.ascontiguousarray(g.T)), box_sums(np.ascontiguousarray(blocked))
 
 
 def _in_blocks(rows: int, edges: int, run) -> list:

@@ -57,7 +57,9 @@ def sample_cells(a, b, S, origin, inv, res, fused, recip):
 
 
 @numba.njit(cache=True, nogil=True)
-def edges_clear(blocked, table, base, rowbits, colbits, a, b, samples, want, origin, inv, res, fused, recip, row, k):
+def edges_clear(
+    blocked, table, base, rowbits, colbits, boxsum, a, b, samples, want, origin, inv, res, fused, recip, row, k
+):
     """The edge rule on edges ``a`` -> ``b`` (E, 2) float32 with ``samples`` (E,) samples each,
     on the bool grid ``blocked`` (H, W): (E,) clear flags (False where ``want`` is not set).
     The edges come in rows of ``row`` (a vertex's candidates in preference order); in each
@@ -83,6 +85,7 @@ def edges_clear(blocked, table, base, rowbits, colbits, a, b, samples, want, ori
                     base,
                     rowbits,
                     colbits,
+                    boxsum,
                     a[e, 0],
                     a[e, 1],
                     b[e, 0],
@@ -109,6 +112,7 @@ def first_clear_pairs(
     base,
     rowbits,
     colbits,
+    boxsum,
     pts,
     cand,
     vert,
@@ -167,6 +171,7 @@ def first_clear_pairs(
                     base,
                     rowbits,
                     colbits,
+                    boxsum,
                     ax,
                     ay,
                     bx,
@@ -192,7 +197,22 @@ def first_clear_pairs(
                                 break
                     if not (st & _READ and st & _BOTH):
                         clear = edge_clear(
-                            blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip
+                            blocked,
+                            table,
+                            base,
+                            rowbits,
+                            colbits,
+                            boxsum,
+                            ax,
+                            ay,
+                            bx,
+                            by,
+                            S,
+                            origin,
+                            inv,
+                            res,
+                            fused,
+                            recip,
                         )
                         st = _READ | (_CLEAR if clear else 0)
                 clear = bool(st & _CLEAR)
@@ -205,19 +225,25 @@ def first_clear_pairs(
 
 
 @numba.njit(cache=True, nogil=True)
-def edge_clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip):
+def edge_clear(blocked, table, base, rowbits, colbits, boxsum, ax, ay, bx, by, S, origin, inv, res, fused, recip):
     """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
     ``blocked`` (H, W): see :func:`_clear`."""
-    return _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, False)[0]
+    return _clear(
+        blocked, table, base, rowbits, colbits, boxsum, ax, ay, bx, by, S, origin, inv, res, fused, recip, False
+    )[0]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+def _clear(blocked, table, base, rowbits, colbits, boxsum, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
     """(the edge rule on the edge (ax, ay) -> (bx, by), and with ``both`` whether the reversed
-    edge surely reads the same): by lines of cells (:func:`_lines`), or by samples
-    (:func:`_walk`; not sure) where a line's first sample is unsure over too much of a step, the
-    edge is long, or no bits are given (``rowbits`` of shape (0, 0))."""
+    edge surely reads the same): clear at once where the box of cells the edge can read holds
+    no blocked cell (:func:`_box_free`; both ways, surely), else by lines of cells
+    (:func:`_lines`), or by samples (:func:`_walk`; not sure) where a line's first sample is
+    unsure over too much of a step, the edge is long, or no bits are given (``rowbits`` of
+    shape (0, 0))."""
     H, W = blocked.shape
+    if boxsum.shape[0] > 0 and _box_free(boxsum, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+        return True, True
     st = -1
     sure = False
     if rowbits.shape[0] > 0:
@@ -225,6 +251,62 @@ def _clear(blocked, table, base, rowbits, colbits, ax, ay, bx, by, S, origin, in
     if st < 0:
         return _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip), False
     return st == 1, sure
+
+
+#: The most cells a box may hold for :func:`_box_free` (its sums are kept modulo 2**16).
+_BOX_CELLS = 65535
+
+
+@numba.njit(cache=True, nogil=True)
+def box_sums(blocked):
+    """The blocked cells of ``blocked`` (H, W) counted over every box from the map's corner:
+    (H + 1, W + 1) uint16, entry (r, c) the count over rows < r and columns < c, modulo 2**16
+    (a box's count by four entries is exact modulo 2**16, so exact for a box of at most
+    :data:`_BOX_CELLS` cells)."""
+    H, W = blocked.shape
+    out = np.zeros((H + 1, W + 1), np.uint16)
+    for r in range(H):
+        run = 0
+        for c in range(W):
+            run += blocked[r, c]
+            out[r + 1, c + 1] = (np.int64(out[r, c + 1]) + run) & 0xFFFF
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_free(boxsum, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, both):
+    """Whether the box of cells spanned by the edge's first and last samples' cells (and, with
+    ``both``, the reversed edge's) lies on the map and holds no blocked cell (``boxsum``:
+    :func:`box_sums`). Each coordinate's cell is monotone along the samples (every operation
+    rounds monotonically), so every sample's cell, and both side cells of every diagonal step,
+    lie in that box: the rule reads the edge clear (and the reversed edge, with ``both``)."""
+    if S < 2:
+        return False
+    ox, oy = origin[0], origin[1]
+    dx = bx - ax
+    dy = by - ay
+    denom = np.float32(S - 1)
+    c0 = _exact(0, denom, dx, ax, ox, inv, res, fused, recip)
+    c1 = _exact(S - 1, denom, dx, ax, ox, inv, res, fused, recip)
+    r0 = _exact(0, denom, dy, ay, oy, inv, res, fused, recip)
+    r1 = _exact(S - 1, denom, dy, ay, oy, inv, res, fused, recip)
+    c0, c1 = min(c0, c1), max(c0, c1)
+    r0, r1 = min(r0, r1), max(r0, r1)
+    if both:
+        for k in (0, S - 1):
+            c = _reversed(k, denom, dx, bx, ox, inv, res, fused, recip)
+            r = _reversed(k, denom, dy, by, oy, inv, res, fused, recip)
+            c0, c1 = min(c0, c), max(c1, c)
+            r0, r1 = min(r0, r), max(r1, r)
+    if r0 < 0 or c0 < 0 or r1 >= H or c1 >= W or (r1 - r0 + 1) * (c1 - c0 + 1) > _BOX_CELLS:
+        return False
+    n = (
+        np.int64(boxsum[r1 + 1, c1 + 1])
+        - np.int64(boxsum[r0, c1 + 1])
+        - np.int64(boxsum[r1 + 1, c0])
+        + np.int64(boxsum[r0, c0])
+    )
+    return (n & 0xFFFF) == 0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

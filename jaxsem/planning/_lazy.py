@@ -215,7 +215,7 @@ def _grow_host_weighed(
 
 
 #: The host rule's "no bits" (every edge read by samples: :func:`~jaxsem.planning._edges._host_grids`).
-_NO_BITS = (np.zeros((0, 0), np.uint64), np.zeros((0, 0), np.uint64))
+_NO_BITS = (np.zeros((0, 0), np.uint64), np.zeros((0, 0), np.uint64), np.zeros((0, 0), np.uint16))
 
 
 @jax.jit

@@ -81,14 +81,14 @@ class _MapSetup:
             self._cdf = _uniform_cdf_jit(self.blocked_j, self.dtype)
         self._table: jax.Array | None = None
         self._table_np: np.ndarray | None = None
-        self._bits: tuple[np.ndarray, np.ndarray] | None = None
+        self._bits: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         # A map of the same shape seen lately whose table is made (a robot's map between two
         # looks differs in a window): that table is updated there instead of made anew, if
         # this map's is needed. Held until then only (never a chain of maps).
         same = near is not None and near._table_np is not None and near.blocked.shape == self.blocked.shape
         self._near = near if same else None
 
-    def bits(self, make: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
+    def bits(self, make: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The map's rows and columns as bits for the host's edge rule
         (:func:`~jaxsem.planning._edges._bit_grids`), made on the first call with ``make`` (a
         grow's thousands of edges; a query's few on a map seen once are read without: None)."""

@@ -191,6 +191,71 @@ def test_an_edge_whose_reversal_reads_another_answer_is_read_both_ways():
         np.testing.assert_array_equal(nbr[ok], cand[cand < M][np.concatenate([forward, backward])])
 
 
+def _pair_rows(a, b, s0=2):
+    """Points and candidate rows for edges a[i] <-> b[i] (E, 2): a's row names its b, b's row
+    its a (the grow's pairs of new vertices, each edge read once where its reversal surely
+    agrees)."""
+    n = len(a)
+    p = np.concatenate([np.zeros((s0, 2), np.float32), a, b])
+    M = len(p)
+    cand = np.full((2 * n, 3), M, np.int32)
+    cand[:n, 0] = s0 + n + np.arange(n)
+    cand[n:, 1] = s0 + np.arange(n)
+    return p, cand, s0
+
+
+def test_a_box_free_one_way_is_not_trusted_the_other_way():
+    """Edges ending on a cell corner, where the float32 sample at the far end rounds into the
+    cell before the corner's and the reversed edge starts in the corner's cell: that cell lies
+    outside the box of the edge's own samples. Blocked, it makes the edge clear one way only;
+    a box free of blocked cells is trusted for the reversal only where it also spans the
+    reversed edge's end cells (answers: the device's rule at every sample)."""
+    from jaxsem.planning import _edges_kernels as kern  # layers: white-box
+
+    shape = (60, 80)
+    grid = Q.Grid.host((-1.3, 2.1), 0.1, shape)
+    lo = np.asarray(grid.origin, np.float64)
+    rng = np.random.default_rng(4)
+    S = _edges._edge_samples(1.5, 0.1)
+    consts = _edges._host_call(grid)[1]
+    n = 20_000
+    b = (lo + rng.integers(20, 40, (n, 2)) * 0.1).astype(np.float32)  # on a corner
+    a = (b - rng.uniform(0.3, 1.4, (n, 2))).astype(np.float32)  # below and left: b's corner ends the box
+    fr, fc = kern.sample_cells(a, b, S, *consts)
+    br, bc = kern.sample_cells(b, a, S, *consts)
+    outside = (br.max(1) > fr.max(1)) | (bc.max(1) > fc.max(1))
+    pick = np.flatnonzero(outside)[:6]
+    assert len(pick) == 6
+    for i in pick:
+        occ = np.zeros(shape, bool)
+        occ[br[i].max(), bc[i].max()] = True  # read by the reversal only
+        forward, backward = (
+            _dense(occ, a[i : i + 1], b[i : i + 1], grid, S),
+            _dense(occ, b[i : i + 1], a[i : i + 1], grid, S),
+        )
+        assert forward[0] and not backward[0]
+        p, cand, s0 = _pair_rows(a[i : i + 1], b[i : i + 1])
+        _, ok, _ = _edges._first_clear_host(occ, p, cand, s0, 1, S, grid, None)
+        np.testing.assert_array_equal(ok[:, 0], [True, False])
+
+
+def test_a_box_of_more_cells_than_its_sums_count_is_read():
+    """The box sums count modulo 2**16: a box of more cells holding exactly 2**16 blocked ones
+    (one of them on the edge) sums to zero, and is read instead of trusted."""
+    shape = (300, 300)
+    grid = Q.Grid.host((0.0, 0.0), 0.1, shape)
+    occ = np.zeros(shape, bool)
+    occ[150, 150] = True  # on the diagonal
+    rest = np.flatnonzero(~np.eye(300, dtype=bool).ravel() & ~occ.ravel())
+    occ.ravel()[np.random.default_rng(0).choice(rest, 2**16 - 1, replace=False)] = True
+    a = np.array([[0.05, 0.05]], np.float32)
+    b = np.array([[29.95, 29.95]], np.float32)
+    S = _edges._edge_samples(45.0, 0.1)
+    assert not _dense(occ, a, b, grid, S)[0]
+    got = _edges._edges_clear_host(occ, a, b, np.full(1, S), np.ones(1, bool), grid, None, bits=_edges._bit_grids(occ))
+    assert not got[0]
+
+
 def _read_set(rows, cols):
     """The cells the edge rule reads for an edge whose samples fall in cells (rows, cols) (S,):
     every sample's, and both side cells of each diagonal step (brute force)."""
@@ -241,7 +306,7 @@ def test_a_reversal_read_by_lines_is_sure_only_where_it_reads_the_same(seed):
                 continue
             occ = np.zeros(shape, bool)
             occ[cell] = True
-            rows, cols = _edges._bit_grids(occ)
+            rows, cols, _ = _edges._bit_grids(occ)
             st, sure = kern._lines(rows, cols, *shape, *a[i], *b[i], S, *consts, True)
             assert st in (-1, forward) and not sure
             found += 1
@@ -250,7 +315,7 @@ def test_a_reversal_read_by_lines_is_sure_only_where_it_reads_the_same(seed):
     assert found >= 40
     # Random cells: sure where the answers agree, never where they differ.
     occ = rng.random(shape) < 0.1
-    rows, cols = _edges._bit_grids(occ)
+    rows, cols, _ = _edges._bit_grids(occ)
     blocked = {tuple(x) for x in np.argwhere(occ).tolist()}
     differ = sure_differ = sure_n = 0
     for i in rng.choice(n, 2000, replace=False):
