@@ -194,6 +194,16 @@ def clear_map_cache() -> None:
     _AIDS_CACHE.clear()
 
 
+def _same_cells(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether the bool grids ``a`` and ``b`` are the same cell for cell, compared eight cells
+    to a word (a map of millions of cells: a tenth of a cell-by-cell compare's time)."""
+    if a.shape != b.shape:
+        return False
+    a, b = np.ascontiguousarray(a, bool).reshape(-1), np.ascontiguousarray(b, bool).reshape(-1)
+    n = a.size // 8 * 8
+    return np.array_equal(a[:n].view(np.uint64), b[:n].view(np.uint64)) and np.array_equal(a[n:], b[n:])
+
+
 def _map_setup(blocked: np.ndarray, dtype, owned: bool = False) -> _MapSetup:
     """The :class:`_MapSetup` of the bool grid ``blocked`` (numpy): from :data:`_AIDS_CACHE`
     when the same map (cell for cell) and dtype were seen lately, else made and kept.
@@ -201,7 +211,7 @@ def _map_setup(blocked: np.ndarray, dtype, owned: bool = False) -> _MapSetup:
     (kept without a copy, made read-only)."""
     dt = np.dtype(dtype)
     for i, setup in enumerate(_AIDS_CACHE):
-        if setup.dtype == dt and setup.blocked.shape == blocked.shape and np.array_equal(setup.blocked, blocked):
+        if setup.dtype == dt and _same_cells(setup.blocked, blocked):
             _AIDS_CACHE.insert(0, _AIDS_CACHE.pop(i))
             return setup
     near = next((x for x in _AIDS_CACHE if x.blocked.shape == blocked.shape and x.has_table), None)

@@ -1143,6 +1143,22 @@ def test_the_per_map_setup_is_kept_by_content():
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@settings(max_examples=40, deadline=None)
+@given(shape=st.tuples(st.integers(1, 23), st.integers(1, 23)), seed=st.integers(0, 2**16), which=st.floats(0, 1))
+def test_a_map_one_cell_apart_is_not_taken_for_the_cached_one(shape, seed, which):
+    """The per-map cache matches maps eight cells to a word: a map differing from a cached one
+    in any single cell (the last cells too, past the last whole word) gets a setup of its own;
+    a copy of it, the cached one; a map of other shape with the same cells, its own."""
+    from jaxsem.planning._map_setup import _same_cells  # layers: white-box
+
+    occ = np.random.default_rng(seed).random(shape) < 0.3
+    other = occ.copy()
+    other.flat[min(int(which * occ.size), occ.size - 1)] ^= True
+    assert _same_cells(occ, occ.copy()) and not _same_cells(occ, other)
+    if occ.shape[0] > 1:
+        assert not _same_cells(occ, occ.reshape(1, -1))
+
+
 def test_free_cell_sampling_draws_the_cdf_samples():
     """Uniform samples come from the free cells' bit words (no CDF over every cell): the same
     points as the CDF search draws, bit for bit, on maps from empty to nearly full and with a
