@@ -170,7 +170,7 @@ def _grow_lazy(
 
 def _grow_checked_host(
     roadmap, key, blocked, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids, table, bits
-) -> tuple[Roadmap, int]:
+) -> tuple[Roadmap, int, tuple]:
     """The eager grow with its edges checked on the host (Euclidean weights, float32 points:
     :func:`~jaxsem.planning._edges._host_edges`): the lazy grow's samples and candidates (the
     eager grow's), each new vertex's candidates read in preference order until ``k`` are clear
@@ -178,13 +178,15 @@ def _grow_checked_host(
     ``k`` clear ones kept and weighed by their lengths: the eager grow's edges and weights
     (:meth:`_LazyEdges.links`' rule). ``blocked``: the numpy grid of ``blocked_j``; ``table``:
     its clearance table (numpy), ``bits`` its bits (:func:`~jaxsem.planning._edges._bit_grids`).
-    Returns (roadmap, the cap that sufficed)."""
+    Returns (roadmap, the cap that sufficed, (the first new row, the roadmap's points, the new
+    rows' neighbours, valid flags and weights) as numpy arrays: the host's copy of what it wrote)."""
     k = roadmap.neighbors.shape[1]
     s0 = _QUERY + int(roadmap.num_samples)
     (rm, cand), cap = _grow_lazy(roadmap, key, blocked_j, dist, grid, n, radius, cap, sectors, uniform_samples, aids)
     samples = _edge_samples(radius, float(grid.resolution))
-    nbr, ev, w = _first_clear_host(blocked, np.asarray(rm.points), cand, s0, k, samples, grid, table, bits)
-    return _set_rows_jit(rm, np.int32(s0), nbr, ev, w), cap
+    pts = np.asarray(rm.points)
+    nbr, ev, w = _first_clear_host(blocked, pts, cand, s0, k, samples, grid, table, bits)
+    return _set_rows_jit(rm, np.int32(s0), nbr, ev, w), cap, (s0, pts, nbr, ev, w)
 
 
 def _grow_host_weighed(

@@ -118,6 +118,10 @@ class PRM:
             raise ValueError(f"weight: expected 'euclidean' or 'neglogp', got {weight!r}")
         self._pending = None
         self._points: np.ndarray | None = None
+        # The host's copy of the roadmap's points and sample rows (neighbours, valid flags,
+        # weights), kept where the host wrote them (an eager grow checked on the host): the
+        # queries' search graph is made from it without reading the device's roadmap back.
+        self._rows: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._queries = 0
         self.roadmap = roadmap_init(capacity, prm_star_k(capacity) if k is None else k)
         self.blocked = blocked
@@ -175,6 +179,7 @@ class PRM:
         self._roadmap = value
         self._pending = None
         self._points = None
+        self._rows = None
 
     @property
     def origin(self) -> np.ndarray:
@@ -238,7 +243,8 @@ class PRM:
             # Lengths as weights: the edges checked on the host, the same roadmap.
             if distribution is not None and distribution is not self.distribution:
                 self.distribution, self._cost = distribution, None
-            self.roadmap, self._cap = _grow_checked_host(
+            rows = self._rows if self._rows is not None else _host_rows(self._roadmap)
+            self.roadmap, self._cap, (s0, pts, nbr, ev, w) = _grow_checked_host(
                 *args[:2],
                 self.blocked,
                 *args[2:],
@@ -248,6 +254,9 @@ class PRM:
                 np.asarray(self._setup.table()),
                 self._setup.bits(),
             )
+            for mine, new in zip(rows[1:], (nbr, ev, w), strict=True):
+                mine[s0 : s0 + len(new)] = new
+            self._rows = (pts, *rows[1:])
         elif self.weight == "neglogp" and self._factor is None and _host_edges(dtype):
             # Weights that integrate -log p: the edges checked on the host, weighed on the
             # device, the same roadmap.
@@ -372,9 +381,10 @@ class PRM:
         )
         self._queries += len(q)
         if self._points is None:
-            self._points = np.array(rm.points)
+            self._points = np.array(rm.points if self._rows is None else self._rows[0])
         if self._lazy is None and self._graph is None:
-            self._graph = _SampleGraph(rm)
+            rows = self._rows or (rm.points, rm.neighbors, rm.edge_valid, rm.edge_weight)
+            self._graph = _SampleGraph(*rows)
         out = []
         for i in range(len(q)):
             if self._lazy is not None:
@@ -444,6 +454,11 @@ def _points_batch(name: str, pts) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
         raise ValueError(f"{name}: expected world points (Q, 2) with Q >= 1, got shape {arr.shape}")
     return arr
+
+
+def _host_rows(rm: Roadmap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The roadmap's points, neighbours, valid flags and weights as (writable) numpy arrays."""
+    return np.array(rm.points), np.array(rm.neighbors), np.array(rm.edge_valid), np.array(rm.edge_weight)
 
 
 def _made_here(blocked: np.ndarray, known_map) -> bool:

@@ -85,17 +85,19 @@ def _edge_list(nbr, ok, w, rows):
 
 class _SampleGraph:
     """The samples' edges of an eager roadmap as a :class:`~jaxsem.planning._astar.SearchGraph`
-    (made once per roadmap; each query adds only its start's and goal's edges)."""
+    (made once per roadmap; each query adds only its start's and goal's edges), from its
+    points (M, 2), neighbours, valid flags and weights (M, k) (numpy or device arrays: the
+    query rows 0 and 1 are not read)."""
 
-    def __init__(self, roadmap: Roadmap):
-        nbr = np.asarray(roadmap.neighbors)
+    def __init__(self, points, neighbors, edge_valid, edge_weight):
+        nbr = np.asarray(neighbors)
         M = nbr.shape[0]
-        ok = np.asarray(roadmap.edge_valid) & (nbr >= _QUERY) & (nbr < M)
+        ok = np.asarray(edge_valid) & (nbr >= _QUERY) & (nbr < M)
         ok[:_QUERY] = False
         # float64 weights, tiny ones clamped (a zero weight would make a path's cost ambiguous).
-        w = np.where(ok, np.maximum(np.asarray(roadmap.edge_weight, np.float64), 1e-12), np.inf)
-        self.graph = search_graph(nbr, ok, w, np.asarray(roadmap.points), ok, fixed=True)
-        self.points = np.asarray(roadmap.points)
+        w = np.where(ok, np.maximum(np.asarray(edge_weight, np.float64), 1e-12), np.inf)
+        self.points = np.asarray(points)
+        self.graph = search_graph(nbr, ok, w, self.points, ok, fixed=True)
 
 
 def _query_edges(nq, okq, wq):
@@ -141,7 +143,8 @@ def roadmap_shortest_path(roadmap: Roadmap, source: int = START, target: int = G
     """Shortest path on the roadmap (host). Default: start (0) to goal (1), by the queries'
     A*; between other slots, scipy's Dijkstra over the whole undirected edge list."""
     if (source, target) == (START, GOAL):
-        return _search(_SampleGraph(roadmap), roadmap)
+        graph = _SampleGraph(roadmap.points, roadmap.neighbors, roadmap.edge_valid, roadmap.edge_weight)
+        return _search(graph, roadmap)
     pts = np.asarray(roadmap.points)
     M = pts.shape[0]
     src, dst, wt = _edge_list(

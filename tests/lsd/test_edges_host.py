@@ -398,6 +398,41 @@ def test_a_grow_checked_on_the_host_is_the_devices_roadmap(sectors, k, monkeypat
     assert len(calls) == 2
 
 
+def test_the_hosts_copy_of_the_grown_rows_is_the_roadmap(float32):
+    """The eager grows checked on the host keep a copy of the rows they write: after each grow it
+    is the device's roadmap (points and sample rows), and a query searched on it finds the path
+    searched on the device's arrays; a map update drops the copy, and the queries after it
+    search the updated roadmap."""
+    from jaxsem.planning._roadmap_search import roadmap_shortest_path  # layers: white-box
+
+    occ = _blocks(21)
+    grid = Q.Grid.host((-3.7, 1.3), 0.1, occ.shape)
+    free = np.argwhere(~occ)
+    s, g = ((free[np.random.default_rng(1).integers(len(free), size=2)][:, ::-1] + 0.5) * 0.1) + [-3.7, 1.3]
+    prm = PRM(occ, grid, capacity=700)
+
+    def same_path():
+        path = prm.query(s, g)
+        ref = roadmap_shortest_path(prm.roadmap)  # the search graph of the device's arrays
+        assert path.found == ref.found and path.cost == ref.cost
+        np.testing.assert_array_equal(path.vertices, ref.vertices)
+        return path
+
+    for key, n in ((8, 400), (9, 300)):
+        prm.grow(jax.random.PRNGKey(key), n)
+        assert prm._rows is not None
+        rm = prm.roadmap
+        np.testing.assert_array_equal(prm._rows[0], np.asarray(rm.points))
+        for mine, theirs in zip(prm._rows[1:], (rm.neighbors, rm.edge_valid, rm.edge_weight), strict=True):
+            np.testing.assert_array_equal(mine[2:], np.asarray(theirs)[2:])
+        assert same_path().found
+    changed = occ.copy()
+    changed[:, occ.shape[1] // 2 : occ.shape[1] // 2 + 3] = True  # a wall across the map
+    changed[tuple(np.floor((np.array([s, g]) - [-3.7, 1.3]) / 0.1).astype(int)[:, ::-1].T)] = False
+    assert prm.update_map(changed) and prm._rows is None
+    same_path()
+
+
 def _counted(f, calls):
     def wrapped(*args, **kw):
         calls.append(1)
