@@ -33,12 +33,13 @@ def _kernels():
     compiled, on first use: ``import jaxsem`` does not pay for them)."""
     from . import _astar_kernels as k
 
-    return k.adjacency, k.astar
+    return (k.adjacency_count, k.adjacency_scatter, k.adjacency_lists), k.astar
 
 
 class SearchGraph(NamedTuple):
-    """A roadmap's sample edges for :func:`astar_path`, both ways, in CSR form by vertex: ptr
-    (M + 1,), adj (E,) int32 the other end, wt (E,) float64 the weight, eid (E,) the entry's
+    """A roadmap's sample edges for :func:`astar_path`, both ways, listed by vertex: vertex
+    ``v``'s entries lie from start[v] to stop[v] (M,) (a list may end before the next one
+    starts) in adj (E,) int32 the other end, wt (E,) float64 the weight, eid (E,) the entry's
     index into ``usable`` (M * K,) bool, read at each search (a lazy roadmap updates it in
     place); points (M, 2) float64; ratio: the smallest weight / length over the entries (the
     heuristic's factor before the query's own edges).
@@ -46,10 +47,11 @@ class SearchGraph(NamedTuple):
     The search numbers the vertices in Z-order of their points (``order``: search id -> slot,
     ``rank``: slot -> search id; the query's slots 0 and 1 keep theirs): a search reads each
     vertex's cost, state and point where it reads its neighbours', in the same cache lines
-    (slot order is the order samples were drawn: neighbours anywhere). ptr, adj and px, py (the
+    (slot order is the order samples were drawn: neighbours anywhere). start, stop, adj and px, py (the
     points' columns) are in search ids; eid, points are the roadmap's."""
 
-    ptr: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
     adj: np.ndarray
     wt: np.ndarray
     eid: np.ndarray
@@ -86,7 +88,7 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
     entries = np.asarray(entries, bool)
     if not (usable.dtype == np.bool_ and usable.flags.c_contiguous and usable.shape == nbr.shape):
         raise ValueError(f"usable: expected a C-ordered bool array of shape {nbr.shape}")
-    adjacency, _ = _kernels()
+    (count, scatter, lists), _ = _kernels()
     points = np.ascontiguousarray(points)
     M, K = nbr.shape
     order = _z_order(points)
@@ -95,14 +97,56 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
     lengths = w is None
     w = np.zeros((1, 1)) if lengths else np.ascontiguousarray(w, np.float64)
     nb = np.ascontiguousarray(nbr, np.int32)
-    ptr, adj, wt, eid, measured = adjacency(nb, np.ascontiguousarray(entries), w, points, order, rank, lengths, fixed)
+    entries = np.ascontiguousarray(entries)
+    args = (nb, entries, w, points, order, rank, lengths)
+    # Three passes, each over blocks of search ids (on threads for a large roadmap).
+    blocks = _blocks(M, nb.size)
+    counts = np.zeros((len(blocks), M + 1), np.int64)  # entries of each block naming each vertex
+    own = np.zeros(M, np.int64)
+    measured = min(_each(blocks, lambda t, a, b: count(*args, a, b, counts[t], own)))
+    into = np.cumsum(counts.sum(0))  # where the entries naming each vertex start
+    R = int(into[M])
+    fills = into[:M] + np.cumsum(counts[:, 1:], axis=0) - counts[:, 1:]  # each block's place among them
+    src, rwt, reid = np.empty(R, np.int32), np.empty(R, np.float64), np.empty(R, np.int32)
+    _each(blocks, lambda t, a, b: scatter(*args, a, b, fills[t], src, rwt, reid))
+    start = into[:M] + np.cumsum(own) - own  # room for each vertex's entries
+    adj, wt, eid = np.empty(2 * R, np.int32), np.empty(2 * R, np.float64), np.empty(2 * R, np.int32)
+    stop = np.empty(M, np.int64)
+    _each(blocks, lambda t, a, b: lists(*args, fixed, a, b, into, src, rwt, reid, start, adj, wt, eid, stop))
     if lengths:
         ratio = 1.0
     elif ratio is None:
         ratio = float(measured) if np.isfinite(measured) else 1.0
     p = points.astype(np.float64)
     px, py = p[order, 0].copy(), p[order, 1].copy()
-    return SearchGraph(ptr, adj, wt, eid, usable.reshape(-1), p, px, py, ratio, order, rank)
+    return SearchGraph(start, stop, adj, wt, eid, usable.reshape(-1), p, px, py, ratio, order, rank)
+
+
+#: Blocks of search ids the search graph is made in (None: one per thread of the host's edge
+#: rule for roadmaps of :data:`_THREADS_FROM` entries or more, else one).
+_PARTS: int | None = None
+
+#: Roadmap entries (rows x slots) from which the search graph is made on threads.
+_THREADS_FROM = 2**18
+
+
+def _blocks(M: int, entries: int) -> list[tuple[int, int]]:
+    """The blocks of search ids ``[a, b)`` (:data:`_PARTS`)."""
+    from ._edges import _workers
+
+    parts = _PARTS if _PARTS is not None else _workers() if entries >= _THREADS_FROM else 1
+    cut = [M * i // parts for i in range(parts + 1)]
+    return [(a, b) for a, b in zip(cut[:-1], cut[1:], strict=True) if b > a] or [(0, M)]
+
+
+def _each(blocks: list[tuple[int, int]], run) -> list:
+    """``run(t, a, b)`` for each block ``t`` = [a, b): in this thread for one block, else on
+    the host edge rule's threads (the kernels release the GIL). The results in order."""
+    if len(blocks) == 1:
+        return [run(0, *blocks[0])]
+    from ._edges import _pool
+
+    return [job.result() for job in [_pool().submit(run, t, a, b) for t, (a, b) in enumerate(blocks)]]
 
 
 def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np.ndarray]:
@@ -125,7 +169,8 @@ def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np
     _, astar = _kernels()
     M = len(graph.rank)
     cost, path = astar(
-        graph.ptr,
+        graph.start,
+        graph.stop,
         graph.adj,
         graph.wt,
         graph.eid,

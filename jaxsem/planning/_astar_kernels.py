@@ -14,43 +14,50 @@ def entry_length(p, r, c):
     return np.float64(np.sqrt(dx * dx + dy * dy + p.dtype.type(1e-30)))
 
 
-@numba.njit(cache=True, nogil=True)
-def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
-    """Every kept entry (r, s) of ``nbr`` (M, K) (slots) as an edge both ways, in CSR form by
-    search id (``order``: search id -> slot, ``rank``: slot -> search id): (ptr (M + 1,), the
-    other end's search id, the weight, the entry id r * K + s in the roadmap's rows), and the
-    smallest weight / length over them (inf if none has a length). Weights: ``w[r, s]``, or with
-    ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12; ``w`` is not
-    read). A vertex lists the entries of rows earlier in search order that name it, then its
-    own row's, then those of later rows. ``once``: of a vertex's entries to one other end with
-    one weight (an edge both its ends chose) only the first stays; a search that never skips
-    an entry reads the same (the second relaxes nothing the first did not).
+# A roadmap's search graph (:func:`jaxsem.planning._astar.search_graph`) is made in three passes,
+# each over a block of search ids at a time (blocks may run on threads of their own, one pass
+# after the other): every kept entry (r, s) of ``nbr`` (M, K) (slots) becomes an edge both ways,
+# listed by search id (``order``: search id -> slot, ``rank``: slot -> search id) with the other
+# end's search id, its weight and its entry id r * K + s in the roadmap's rows. Weights:
+# ``w[r, s]``, or with ``use_lengths`` the entries' lengths (:func:`entry_length`, at least 1e-12;
+# ``w`` is not read). A vertex lists the entries of rows earlier in search order that name it,
+# then its own row's, then those of later rows, each list at its own place in one buffer
+# (``start``, ``stop``: a list may end before the next one starts).
 
-    The entries that name a vertex are gathered first (a counting sort by the named vertex),
-    then each vertex's list is written in one pass."""
-    M, K = nbr.shape
+
+@numba.njit(cache=True, nogil=True)
+def adjacency_count(nbr, keep, w, p, order, rank, use_lengths, i0, i1, into, own):
+    """The first pass over search ids ``i0 .. i1``: ``into[rank[c] + 1]`` counts the entries
+    naming each vertex ``c`` (added to what ``into`` holds), ``own[i]`` the kept entries of row
+    ``order[i]``. Returns the smallest weight / length over the block's entries (inf if none
+    has a length; 1 with ``use_lengths``)."""
+    K = nbr.shape[1]
     ratio = np.inf
-    into = np.zeros(M + 1, np.int64)  # entries naming each vertex, by search id
-    for i in range(M):
+    for i in range(i0, i1):
         r = order[i]
+        n = 0
         for s in range(K):
             if keep[r, s]:
                 c = nbr[r, s]
                 into[rank[c] + 1] += 1
+                n += 1
                 if not use_lengths:
                     dx = np.float64(p[c, 0]) - np.float64(p[r, 0])
                     dy = np.float64(p[c, 1]) - np.float64(p[r, 1])
                     length = np.sqrt(dx * dx + dy * dy)
                     if length > 0:
                         ratio = min(ratio, w[r, s] / length)
-    for i in range(M):
-        into[i + 1] += into[i]
-    R = into[M]
-    src = np.empty(R, np.int32)  # the naming row's search id, in search order
-    rwt = np.empty(R, np.float64)
-    reid = np.empty(R, np.int32)
-    fill = into[:M].copy()
-    for i in range(M):
+        own[i] = n
+    return ratio
+
+
+@numba.njit(cache=True, nogil=True)
+def adjacency_scatter(nbr, keep, w, p, order, rank, use_lengths, i0, i1, fill, src, rwt, reid):
+    """The second pass over search ids ``i0 .. i1``: each kept entry written at ``fill`` of the
+    vertex it names (then moved on): the naming row's search id ``src``, the weight ``rwt``, the
+    entry id ``reid`` (a counting sort by the named vertex)."""
+    K = nbr.shape[1]
+    for i in range(i0, i1):
         r = order[i]
         for s in range(K):
             if keep[r, s]:
@@ -61,16 +68,24 @@ def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
                 rwt[at] = max(entry_length(p, r, c), 1e-12) if use_lengths else w[r, s]
                 reid[at] = r * K + s
                 fill[j] += 1
-    ptr = np.zeros(M + 1, np.int64)
-    adj = np.empty(2 * R, np.int32)
-    wt = np.empty(2 * R, np.float64)
-    eid = np.empty(2 * R, np.int32)
+
+
+@numba.njit(cache=True, nogil=True)
+def adjacency_lists(
+    nbr, keep, w, p, order, rank, use_lengths, once, i0, i1, into, src, rwt, reid, start, adj, wt, eid, stop
+):
+    """The third pass: the lists of search ids ``i0 .. i1``, vertex ``i``'s written from
+    ``start[i]`` (room for the ``into[i + 1] - into[i]`` entries naming it and its own row's) to
+    ``stop[i]``. ``once``: of a vertex's entries to one other end with one weight (an edge both
+    its ends chose) only the first stays; a search that never skips an entry reads the same
+    (the second relaxes nothing the first did not)."""
+    M, K = nbr.shape
     last = np.full(M, -1, np.int64)  # the vertex whose list last named each end
     first = np.zeros(M, np.int64)  # where that entry went
-    n = 0
-    for i in range(M):
+    for i in range(i0, i1):
         r = order[i]
         e = into[i]
+        n = start[i]
         # Rows earlier than i that name it, its own row, then later rows.
         while e < into[i + 1] and src[e] < i:
             n = _put(adj, wt, eid, last, first, n, i, src[e], rwt[e], reid[e], once)
@@ -83,8 +98,7 @@ def adjacency(nbr, keep, w, p, order, rank, use_lengths, once):
         while e < into[i + 1]:
             n = _put(adj, wt, eid, last, first, n, i, src[e], rwt[e], reid[e], once)
             e += 1
-        ptr[i + 1] = n
-    return ptr, adj[:n], wt[:n], eid[:n], ratio
+        stop[i] = n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -209,9 +223,10 @@ def pop(hf, hn, where, size):
 
 
 @numba.njit(cache=True, nogil=True)
-def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
-    """(cost, path START ... GOAL) of the shortest path over the CSR ``ptr``, ``adj``, ``wt``
-    (entries whose flag ``usable[eid]`` is set) plus the start's edges ``s_dst``, ``s_w`` and the
+def astar(start, stop, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
+    """(cost, path START ... GOAL) of the shortest path over the lists ``start``, ``stop``,
+    ``adj``, ``wt`` (vertex ``v``'s entries from ``start[v]`` to ``stop[v]``; those whose flag
+    ``usable[eid]`` is set) plus the start's edges ``s_dst``, ``s_w`` and the
     goal's entries ``g_dst``, ``g_w``, by A* with the heuristic ``c * |x - (gx, gy)|``;
     (inf, empty) if there is none."""
     M = px.shape[0]
@@ -243,7 +258,7 @@ def astar(ptr, adj, wt, eid, usable, px, py, c, s_dst, s_w, g_dst, g_w, gx, gy):
         if gu + enter[u] < best:
             best = gu + enter[u]
             via = u
-        for e in range(ptr[u], ptr[u + 1]):
+        for e in range(start[u], stop[u]):
             v = adj[e]
             if where[v] != _CLOSED and usable[eid[e]]:
                 nd = gu + wt[e]

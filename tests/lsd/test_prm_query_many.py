@@ -145,7 +145,14 @@ def test_the_host_search_compiles_once_for_eager_and_lazy_roadmaps():
     seconds)."""
 
     def signatures():
-        kernels = (_kernels.adjacency, _kernels.astar, _edge_kernels.edges_clear, _edge_kernels.first_clear_pairs)
+        kernels = (
+            _kernels.adjacency_count,
+            _kernels.adjacency_scatter,
+            _kernels.adjacency_lists,
+            _kernels.astar,
+            _edge_kernels.edges_clear,
+            _edge_kernels.first_clear_pairs,
+        )
         return tuple(len(f.signatures) for f in kernels)
 
     def queries(seed):
