@@ -573,11 +573,11 @@ def _first_clear_host(blocked, pts, cand, s0: int, k: int, samples: int, grid, t
     # Each thread takes every W-th run of 64 rows, not one contiguous block (the first pass of
     # a row reads more edges the later its vertex).
     perm = np.argsort((np.arange(n) // 64) % _workers(), kind="stable")
-    for res in (None, out):
+    for second in (False, True):
 
-        def run(r0: int, r1: int, res=res):
+        def run(r0: int, r1: int, second=second):
             kernels.first_clear_pairs(
-                *grids, pts, cand, vert, row_of, s0, int(k), int(samples), *consts, perm[r0:r1], state, res
+                *grids, pts, cand, vert, row_of, s0, int(k), int(samples), *consts, perm[r0:r1], state, out, second
             )
 
         _in_blocks(n, cand.size, run)

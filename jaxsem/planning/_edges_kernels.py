@@ -128,6 +128,7 @@ def first_clear_pairs(
     rows,
     state,
     out,
+    second,
 ):
     """Each row ``i`` in ``rows`` (int64) of ``cand`` (n, K) (vertex ``vert[i]``'s candidates in
     preference order, ``M = len(pts)`` where none; the vertices are ``s0 .. s0 + n``, vertex
@@ -137,17 +138,18 @@ def first_clear_pairs(
     (:func:`_lines`). Rows of vertices near each other in the plane placed near each other make
     a row's reads of the other rows cheap.
 
-    ``state`` (n, K) uint8, zeros before the first pass; ``out``: None in the first pass, which
+    ``state`` (n, K) uint8, zeros before the first pass. The first pass (``second`` False)
     reads each row's edges to vertices earlier than its own vertex's (and to vertices outside
     ``s0 .. s0 + n``) until ``k`` of them are clear, noting for each whether the reversed edge
-    is sure to agree. The second pass (``out`` = (neighbours
-    (n, k) int32, ``M`` past the last; valid (n, k); weights (n, k): the edges' lengths in the
-    points' dtype, as the roadmap weighs an edge, inf past the last), filled in the rows of the
-    vertices of rows ``rows`` (vertex ``s0 + x`` in row ``x``) reads each row in order until
-    ``k`` are clear, taking an edge's answer from the first pass,
-    from the other end's row where that row read the reversal surely, or else reading it. Every pass of a row reads only ``state``'s
-    rows written by earlier passes: blocks of rows may run on threads of their own, the passes
-    one after the other."""
+    is sure to agree. The second pass (``second`` True) fills ``out`` = (neighbours (n, k) int32,
+    ``M`` past the last; valid (n, k); weights (n, k): the edges' lengths in the points' dtype,
+    as the roadmap weighs an edge, inf past the last) in the rows of the vertices of rows
+    ``rows`` (vertex ``s0 + x`` in row ``x``): it reads each row in order until ``k`` are clear,
+    taking an edge's answer from the first pass, from the other end's row where that row read
+    the reversal surely, or else reading it. Every pass of a row reads only ``state``'s rows
+    written by earlier passes: blocks of rows may run on threads of their own, the passes one
+    after the other. (One compiled function serves both passes: ``out`` is the same tuple in
+    both, ``second`` a flag, so numba compiles it once.)"""
     n, K = cand.shape
     M = pts.shape[0]
     for i in rows:
@@ -162,7 +164,7 @@ def first_clear_pairs(
                 continue
             mine = not (s0 <= c < v)  # the first pass' edges: the other end is not an earlier new row
             bx, by = pts[c, 0], pts[c, 1]
-            if out is None:
+            if not second:
                 if not mine:
                     continue
                 clear, sure = _clear(

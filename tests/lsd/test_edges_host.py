@@ -152,7 +152,8 @@ def test_each_rows_first_k_clear_edges_are_the_device_rules(seed, with_table):
     grids = _edges._host_grids(occ, table, _edges._bit_grids(occ))
     consts = _edges._host_call(grid)[1]
     rows = np.arange(M - s0)
-    kern.first_clear_pairs(*grids, p, cand, rows + s0, rows, s0, k, S, *consts, rows, state, None)
+    out = (np.full((M - s0, k), M, np.int32), np.zeros((M - s0, k), bool), np.full((M - s0, k), np.inf, np.float32))
+    kern.first_clear_pairs(*grids, p, cand, rows + s0, rows, s0, k, S, *consts, rows, state, out, False)
     pairs = (state & kern._READ > 0) & (cand >= s0) & (cand < M)
     assert np.any(pairs & (state & kern._BOTH == 0)) and np.any(pairs & (state & kern._BOTH > 0))
 
