@@ -311,7 +311,7 @@ def _box_free(boxsum, H, W, ax, ay, bx, by, S, origin, inv, res, fused, recip, b
     return (n & 0xFFFF) == 0
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, recip):
     """The edge rule on the edge (ax, ay) -> (bx, by) with ``S`` samples on the bool grid
     ``blocked`` (H, W), read sample by sample.
@@ -322,7 +322,9 @@ def _walk(blocked, table, base, ax, ay, bx, by, S, origin, inv, res, fused, reci
     sample's clearance disc: no cell there is blocked or next to a blocked cell, so those samples
     and their steps' side cells are free (the skip stays a sample short of the disc's edge,
     which also covers the float32 samples' rounding). The answer is the rule's, read at every
-    sample."""
+    sample. A function of its own, called, not inlined: numba compiles its body once for every
+    kernel that reads edges (long edges and maps without bits only; inlined everywhere, a cold
+    compile of the edge kernels took twice as long)."""
     H, W = blocked.shape
     TH, TW = table.shape
     ox, oy = origin[0], origin[1]
