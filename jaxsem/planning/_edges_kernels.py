@@ -8,10 +8,11 @@ the float32 reciprocal of the resolution, as XLA folds a division by a constant)
 ``floor((p - origin) / resolution)``. Which of the four the device's rule uses is measured, not
 assumed (:func:`jaxsem.planning._edges._host_rule`).
 
-An edge is read a line of cells at a time (:func:`_lines`: the rule's cells in one grid row, or
-column, are one range of bits), each sample's cell taken from real-number arithmetic except near
-a border, where the float32 rule decides; long edges, and edges too close to a row or column for
-that, are read by samples (:func:`_walk`).
+An edge whose box of cells holds no blocked cell is clear without a read (:func:`_box_free`: four
+reads of the map's box sums); others are read a line of cells at a time (:func:`_lines`: the
+rule's cells in one grid row, or column, are one range of bits), each sample's cell taken from
+real-number arithmetic except near a border, where the float32 rule decides; long edges, and
+edges too close to a row or column for that, are read by samples (:func:`_walk`).
 """
 
 import numba
@@ -67,7 +68,8 @@ def edges_clear(
     ``k`` clear ones drops them anyway).
 
     ``rowbits``, ``colbits``: the grid as bits (:func:`_lines`; shape (0, 0): none, every edge
-    read by samples); ``table``: clearance lower
+    read by samples); ``boxsum``: its box sums (:func:`box_sums`; shape (0, 0): none, no edge
+    settled by its box); ``table``: clearance lower
     bounds in cells, one per block of ``2**base`` x ``2**base`` cells (shape (0, 0): none), for
     the edges read by samples (:func:`edge_clear`). It releases the GIL: callers run blocks of
     rows on threads of their own."""
