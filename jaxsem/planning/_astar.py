@@ -100,19 +100,21 @@ def search_graph(nbr, usable, w, points, entries, ratio: float | None = None, *,
     entries = np.ascontiguousarray(entries)
     args = (nb, entries, w, points, order, rank, lengths)
     # Three passes, each over blocks of search ids (on threads for a large roadmap).
-    blocks = _blocks(M, nb.size)
+    from ._edges import _each_block
+
+    blocks = _vertex_blocks(M, nb.size)
     counts = np.zeros((len(blocks), M + 1), np.int64)  # entries of each block naming each vertex
     own = np.zeros(M, np.int64)
-    measured = min(_each(blocks, lambda t, a, b: count(*args, a, b, counts[t], own)))
+    measured = min(_each_block(blocks, lambda t, a, b: count(*args, a, b, counts[t], own)))
     into = np.cumsum(counts.sum(0))  # where the entries naming each vertex start
     R = int(into[M])
     fills = into[:M] + np.cumsum(counts[:, 1:], axis=0) - counts[:, 1:]  # each block's place among them
     src, rwt, reid = np.empty(R, np.int32), np.empty(R, np.float64), np.empty(R, np.int32)
-    _each(blocks, lambda t, a, b: scatter(*args, a, b, fills[t], src, rwt, reid))
+    _each_block(blocks, lambda t, a, b: scatter(*args, a, b, fills[t], src, rwt, reid))
     start = into[:M] + np.cumsum(own) - own  # room for each vertex's entries
     adj, wt, eid = np.empty(2 * R, np.int32), np.empty(2 * R, np.float64), np.empty(2 * R, np.int32)
     stop = np.empty(M, np.int64)
-    _each(blocks, lambda t, a, b: lists(*args, fixed, a, b, into, src, rwt, reid, start, adj, wt, eid, stop))
+    _each_block(blocks, lambda t, a, b: lists(*args, fixed, a, b, into, src, rwt, reid, start, adj, wt, eid, stop))
     if lengths:
         ratio = 1.0
     elif ratio is None:
@@ -130,23 +132,11 @@ _PARTS: int | None = None
 _THREADS_FROM = 2**18
 
 
-def _blocks(M: int, entries: int) -> list[tuple[int, int]]:
+def _vertex_blocks(M: int, entries: int) -> list[tuple[int, int]]:
     """The blocks of search ids ``[a, b)`` (:data:`_PARTS`)."""
-    from ._edges import _workers
+    from ._edges import _blocks, _workers
 
-    parts = _PARTS if _PARTS is not None else _workers() if entries >= _THREADS_FROM else 1
-    cut = [M * i // parts for i in range(parts + 1)]
-    return [(a, b) for a, b in zip(cut[:-1], cut[1:], strict=True) if b > a] or [(0, M)]
-
-
-def _each(blocks: list[tuple[int, int]], run) -> list:
-    """``run(t, a, b)`` for each block ``t`` = [a, b): in this thread for one block, else on
-    the host edge rule's threads (the kernels release the GIL). The results in order."""
-    if len(blocks) == 1:
-        return [run(0, *blocks[0])]
-    from ._edges import _pool
-
-    return [job.result() for job in [_pool().submit(run, t, a, b) for t, (a, b) in enumerate(blocks)]]
+    return _blocks(M, _PARTS if _PARTS is not None else _workers() if entries >= _THREADS_FROM else 1)
 
 
 def astar_path(graph: SearchGraph, q, s_dst, s_w, g_dst, g_w) -> tuple[float, np.ndarray]:

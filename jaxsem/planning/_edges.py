@@ -632,12 +632,22 @@ def _bit_grids(blocked) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _in_blocks(rows: int, edges: int, run) -> list:
     """``run(r0, r1)`` over ``rows`` rows: in one call, or, from :data:`_THREADS_FROM` ``edges``,
     in blocks of rows on threads (the kernels release the GIL). Returns the results in order."""
-    workers = _workers() if edges >= _THREADS_FROM else 1
-    cut = [rows * i // workers for i in range(workers + 1)]
-    blocks = [(r0, r1) for r0, r1 in zip(cut[:-1], cut[1:], strict=True) if r1 > r0] or [(0, 0)]
+    blocks = _blocks(rows, _workers() if edges >= _THREADS_FROM else 1)
+    return _each_block(blocks, lambda t, r0, r1: run(r0, r1))
+
+
+def _blocks(rows: int, parts: int) -> list[tuple[int, int]]:
+    """``rows`` rows cut into at most ``parts`` blocks ``[r0, r1)`` of nearly equal size."""
+    cut = [rows * i // parts for i in range(parts + 1)]
+    return [(r0, r1) for r0, r1 in zip(cut[:-1], cut[1:], strict=True) if r1 > r0] or [(0, rows)]
+
+
+def _each_block(blocks: list[tuple[int, int]], run) -> list:
+    """``run(t, r0, r1)`` for each block ``t`` = [r0, r1): in this thread for one block, else on
+    the host rule's threads (the kernels release the GIL). Returns the results in order."""
     if len(blocks) == 1:
-        return [run(*blocks[0])]
-    return [job.result() for job in [_pool().submit(run, r0, r1) for r0, r1 in blocks]]
+        return [run(0, *blocks[0])]
+    return [job.result() for job in [_pool().submit(run, t, r0, r1) for t, (r0, r1) in enumerate(blocks)]]
 
 
 #: Edges from which the host rule spreads its rows over threads (a grow's thousands; a query's
