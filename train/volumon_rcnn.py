@@ -65,6 +65,13 @@ def main(argv=None) -> int:
         help="colour-jitter the rendered frames too (no zoom: the head reads depth from apparent size)",
     )
     p.add_argument(
+        "--zoom-renders",
+        type=sc.positive_float,
+        default=1.0,
+        help="zoom each rendered frame by a factor log-uniform in [1/Z, Z], the intrinsics changed to match "
+        "(data.augment_batch): other cameras' focal lengths (default 1: none)",
+    )
+    p.add_argument(
         "--multiview-real",
         action="store_true",
         help="pair the real photos for the dual loss (data.multiview_frames: a second photo of the same desk)",
@@ -120,6 +127,9 @@ def main(argv=None) -> int:
     p.add_argument(
         "--points", type=sc.positive_int, default=64, help="depth points stored per rendered label with --primal"
     )
+    p.add_argument(
+        "--keep", type=sc.positive_int, default=2, help="checkpoints kept, the latest (default 2; more to average)"
+    )
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
@@ -174,6 +184,8 @@ def main(argv=None) -> int:
         learning_rate=a.learning_rate,
         augment_real=a.augment_real,
         augment_renders=a.augment_renders,
+        zoom_renders=a.zoom_renders,
+        keep=a.keep,
         multiview_real=a.multiview_real,
         distill_from=a.distill_from or "",
         train_only="" if a.train_only == "all" else a.train_only,

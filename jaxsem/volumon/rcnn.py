@@ -254,8 +254,14 @@ class RCNNTrainConfig:
         the same network) instead of a fresh initialisation; the optimiser starts afresh.
       augment_renders: the rendered frames' brightness, contrast and colour jittered as the
         photographs' are (:func:`jaxsem.volumon.data.jitter_batch`; labels kept), so the lift,
-        learnt on renders alone, meets the colour changes of photographs. No zoom: the head reads absolute depth from the
-        object's apparent size at the renders' one focal length, which a zoom would contradict.
+        learnt on renders alone, meets the colour changes of photographs (no zoom: see ``zoom_renders``).
+      zoom_renders: above 1, each rendered frame is also seen by another camera
+        (:func:`jaxsem.volumon.data.augment_batch`: zoomed by a factor log-uniform in
+        ``[1 / zoom_renders, zoom_renders]``, the intrinsics and stereo labels changed to match,
+        colour jittered). At the renders' one focal length an object's apparent size and its
+        box over the focal length (the lift's :func:`~jaxsem.models.box_features`) say the same,
+        so a lift may learn depth from either; one that learnt it from apparent size reads the
+        wrong depth from a camera of another focal length. 1: no zoom.
       multiview_real: the real photographs carry dual-loss labels from a second photograph of
         the same scene (:func:`jaxsem.volumon.data.multiview_frames`), so the lift learns depth on
         real pixels too, not only on renders. The caller pairs the frames; the flag records it,
@@ -295,6 +301,7 @@ class RCNNTrainConfig:
     distill_from: str = ""
     train_only: str = ""
     detector_lr_scale: float = 1.0
+    zoom_renders: float = 1.0
 
 
 #: The VoluMon head's own layers (the lift): what ``RCNNTrainConfig.train_only="lift"`` trains.
@@ -542,6 +549,8 @@ def train_rcnn(
         raise ValueError(f"detector_lr_scale: expected a number in (0, 1], got {config.detector_lr_scale!r}")
     if config.train_only and config.detector_lr_scale != 1.0:
         raise ValueError("detector_lr_scale: train_only already sets which layers learn; leave the scale at 1")
+    if not (config.zoom_renders >= 1.0 and np.isfinite(config.zoom_renders)):
+        raise ValueError(f"zoom_renders: expected a finite factor >= 1, got {config.zoom_renders!r}")
     if config.train_only and not config.init_from:
         raise ValueError(f"train_only: {config.train_only!r} keeps trained layers, so config.init_from must name them")
     model, variables = init_rcnn(jax.random.PRNGKey(config.seed), config.model, config.batch_size)
@@ -584,7 +593,10 @@ def train_rcnn(
             b = frames_batch(
                 renders, _indices(renders["image"].shape[0], config.batch_size - n_real, config.seed, step, 0)
             )
-            if config.augment_renders:
+            if config.zoom_renders > 1.0:
+                zoom = float(config.zoom_renders)
+                b = augment_batch(b, np.random.default_rng([config.seed, 4, step]), scale_range=(1.0 / zoom, zoom))
+            elif config.augment_renders:
                 b = jitter_batch(b, np.random.default_rng([config.seed, 3, step]))
             if n_real:
                 assert real is not None

@@ -110,3 +110,32 @@ def test_a_run_resumes_for_more_steps_and_refuses_another_recipe(tmp_path, optax
     assert [r["step"] for r in rows] == [2, 3]
     with pytest.raises(ConfigMismatchError, match="learning_rate"):
         train_rcnn(dataclasses.replace(longer, num_steps=4, learning_rate=5e-4), tmp_path, renders, progress=False)
+
+
+def test_zoomed_renders_reach_each_step_with_their_intrinsics(tmp_path, optax_promotion, monkeypatch):
+    from jaxsem.volumon import rcnn
+    from jaxsem.volumon.data import frame_arrays
+
+    renders = frame_arrays(_frames(4, 0), TINY.input_size, ("a", "b", "c"), 4)
+    seen: list = []
+    real_augment = rcnn.augment_batch
+
+    def spy(batch, rng, **kw):
+        out = real_augment(batch, rng, **kw)
+        seen.append((kw["scale_range"], out["K"][:, 0, 0] / batch["K"][:, 0, 0]))
+        return out
+
+    monkeypatch.setattr(rcnn, "augment_batch", spy)
+    base = RCNNTrainConfig(
+        model=TINY, batch_size=2, num_steps=2, checkpoint_every=0, eval_every=0, class_names=("a", "b", "c")
+    )
+    train_rcnn(base, tmp_path / "plain", renders, progress=False)
+    assert not seen  # no zoom unless asked
+    train_rcnn(dataclasses.replace(base, zoom_renders=1.5), tmp_path / "zoom", renders, progress=False)
+    assert len(seen) == 2  # every step's renders
+    for scale_range, ratio in seen:
+        assert scale_range == pytest.approx((1 / 1.5, 1.5))
+        assert np.all((ratio >= 1 / 1.5 - 1e-6) & (ratio <= 1.5 + 1e-6)) and np.any(np.abs(ratio - 1) > 1e-3)
+    for bad in (0.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="zoom_renders"):
+            train_rcnn(dataclasses.replace(base, zoom_renders=bad), tmp_path / "bad", renders, progress=False)
