@@ -43,11 +43,13 @@ from ._desk_frames import (
     jitter_batch as jitter_batch,
     load_frame_chunks as load_frame_chunks,
     multiview_frames as multiview_frames,
+    write_bop_scene as write_bop_scene,
     write_desk_frames as write_desk_frames,
 )
 from ._lmo_renders import (
     LMO_CLASS_NAMES as LMO_CLASS_NAMES,
     LMO_CLASS_SHAPES as LMO_CLASS_SHAPES,
+    LMO_K as LMO_K,
     LMO_OBJECT_IDS as LMO_OBJECT_IDS,
     DeskConfig as DeskConfig,
     desk_batch_source as desk_batch_source,
@@ -56,6 +58,7 @@ from ._lmo_renders import (
     face_color_atlas as face_color_atlas,
     is_desk_detections as is_desk_detections,
     load_desk_detections as load_desk_detections,
+    load_distractor_meshes as load_distractor_meshes,
     load_lmo_meshes as load_lmo_meshes,
     render_desk_frames as render_desk_frames,
     write_desk_detections as write_desk_detections,

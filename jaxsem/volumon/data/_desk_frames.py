@@ -10,12 +10,14 @@ along for scoring and the oracle, never for the weak losses.
 :func:`frame_arrays` turns frames into fixed-shape arrays at the network's image size (images
 uint8, K and boxes scaled, objects padded to ``max_objects`` with ``box_valid``);
 :func:`write_desk_frames` renders and stores them in resumable chunks; :func:`frames_batch` picks
-a training batch (images as float in [0, 1]).
+a training batch (images as float in [0, 1]); :func:`write_bop_scene` writes frames as a BOP scene
+(held-out renders scored by the commands that score the real photographs).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import pathlib
 
 import cv2
@@ -446,3 +448,65 @@ def load_frame_chunks(path) -> dict:
     points = POINT_KEYS if all(k in first for k in POINT_KEYS) else ()
     arrays = concat_npz(files, FRAME_KEYS + points)
     return with_teacher_keys(arrays)
+
+
+def write_bop_scene(frames, scene_dir) -> pathlib.Path:
+    """Write frame dicts (e.g. :func:`render_desk_frames`'s: ``rgb``, ``K``, ``objects`` with
+    ``obj_id``, ``rotation``, ``translation`` (metres), ``visible_box``, ``visible_fraction``) as a
+    BOP scene folder that :func:`jaxsem.volumon.data.load_bop_split` and every BOP command read:
+    ``rgb/NNNNNN.png``, ``scene_gt.json`` (millimetres), ``scene_camera.json``,
+    ``scene_gt_info.json`` (visible boxes as BOP's pixel indices; an unseen object gets -1
+    entries), and ``camera.json`` (the first frame's intrinsics and the image size, which
+    ``scene_camera.json`` does not hold: every frame must have that size). Frames are numbered
+    from 0 in order. The meshes are not written: the scene's
+    ``models/`` lies beside or above it, as in a BOP data set. Each file is written atomically; a
+    folder that already holds a ``scene_gt.json`` is refused (ValueError naming ``scene_dir``), so
+    no scene is overwritten. Returns the folder."""
+    from ..._atomic import atomic_write_bytes, atomic_write_text
+
+    scene = pathlib.Path(scene_dir)
+    if (scene / "scene_gt.json").exists():
+        raise ValueError(f"scene_dir: {scene} already holds a BOP scene (scene_gt.json)")
+    gt, cameras, info = {}, {}, {}
+    shared = None
+    for i, fr in enumerate(frames):
+        rgb = np.asarray(fr["rgb"])
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"frames: frame {i}: expected rgb (H, W, 3) uint8, got {rgb.shape} {rgb.dtype}")
+        if shared is None:
+            K0 = np.asarray(fr["K"], np.float64)
+            shared = {"fx": float(K0[0, 0]), "fy": float(K0[1, 1]), "cx": float(K0[0, 2]), "cy": float(K0[1, 2])}
+            shared |= {"width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
+        elif rgb.shape[:2] != (shared["height"], shared["width"]):
+            raise ValueError(f"frames: frame {i} is {rgb.shape[1]} x {rgb.shape[0]}, frame 0 was another size")
+        ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise ValueError(f"frames: frame {i}: its image could not be encoded as PNG")
+        atomic_write_bytes(scene / "rgb" / f"{i:06d}.png", png.tobytes(), record=False)
+        objs = fr["objects"]
+        gt[str(i)] = [
+            {
+                "obj_id": int(o["obj_id"]),
+                "cam_R_m2c": np.asarray(o["rotation"], np.float64).ravel().tolist(),
+                "cam_t_m2c": (1000.0 * np.asarray(o["translation"], np.float64)).tolist(),
+            }
+            for o in objs
+        ]
+        cameras[str(i)] = {"cam_K": np.asarray(fr["K"], np.float64).ravel().tolist(), "depth_scale": 1.0}
+        rows = []
+        for o in objs:
+            b = np.asarray(o["visible_box"], np.float64)
+            if np.all(np.isfinite(b)):  # the core's box edges to BOP's first pixel and last minus first
+                x0, y0 = b[0] + 0.5, b[1] + 0.5
+                box = [float(x0), float(y0), float(b[2] - 0.5 - x0), float(b[3] - 0.5 - y0)]
+                rows.append({"bbox_visib": box, "visib_fract": float(o["visible_fraction"])})
+            else:
+                rows.append({"bbox_visib": [-1, -1, -1, -1], "visib_fract": 0.0})
+        info[str(i)] = rows
+    if shared is None:
+        raise ValueError("frames: expected at least one frame")
+    atomic_write_text(scene / "camera.json", json.dumps(shared), record=False)
+    atomic_write_text(scene / "scene_camera.json", json.dumps(cameras), record=False)
+    atomic_write_text(scene / "scene_gt_info.json", json.dumps(info), record=False)
+    atomic_write_text(scene / "scene_gt.json", json.dumps(gt), record=False)  # last: it marks a whole scene
+    return scene
