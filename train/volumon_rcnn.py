@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import pathlib
 import sys
 
@@ -70,6 +71,12 @@ def main(argv=None) -> int:
         default=1.0,
         help="zoom each rendered frame by a factor log-uniform in [1/Z, Z], the intrinsics changed to match "
         "(data.augment_batch): other cameras' focal lengths (default 1: none)",
+    )
+    p.add_argument(
+        "--virtual-depth",
+        action="store_true",
+        help="the lift's depth is the renders' camera's, scaled to each image's focal length "
+        "(ReconstructionConfig.reference_focal: the renders' focal length at the input size)",
     )
     p.add_argument(
         "--multiview-real",
@@ -174,6 +181,12 @@ def main(argv=None) -> int:
         input_size=a.input_size or model.input_size,
         anchor_sizes=tuple(a.anchor_scale * float(s) for s in model.anchor_sizes),
     )
+    if a.virtual_depth:  # the renders' focal length at the input size (write_desk_frames scales LM-O's K)
+        W, H = model.input_size
+        focal = math.sqrt(df.LMO_K[0, 0] * W / 640.0 * df.LMO_K[1, 1] * H / 480.0)
+        model = dataclasses.replace(
+            model, reconstruction=dataclasses.replace(model.reconstruction, reference_focal=focal)
+        )
     config = rc.RCNNTrainConfig(
         model=model,
         loss=loss,

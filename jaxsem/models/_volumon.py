@@ -64,6 +64,14 @@ class ReconstructionConfig:
         baseline times the focal length of the training camera.
       alpha_delta: maximum pseudo-disparity (pixels); thesis 150. Minimum depth ``b f / alpha_delta``.
       min_depth, max_depth: range of the absolute depth mode (m); thesis 50 m maximum for doors.
+      reference_focal: 0, or the focal length (pixels of the network's input; the geometric mean
+        of ``f_x`` and ``f_y``) of the one camera the network learnt depth under. Then the depth
+        the free parameters give is that camera's (a *virtual* depth) and is scaled by the
+        image's focal length over this one: an object that looks the same through a focal length
+        ``s`` times as long lies ``s`` times as far, so a network that reads depth from how large
+        an object looks gives the right depth through another camera, or read at another input
+        size. 0: the depth as given (a network that saw many focal lengths, or reads depth from
+        the box over the focal length alone).
     """
 
     alpha_y: float = 0.1
@@ -73,8 +81,11 @@ class ReconstructionConfig:
     alpha_delta: float = 30.0
     min_depth: float = 0.05
     max_depth: float = 5.0
+    reference_focal: float = 0.0
 
     def __post_init__(self):
+        if not (np.isfinite(self.reference_focal) and self.reference_focal >= 0):
+            raise ValueError(f"reference_focal: expected 0 or a positive focal length, got {self.reference_focal!r}")
         if self.depth_mode not in ("disparity", "absolute"):
             raise ValueError(f"depth_mode: expected 'disparity' or 'absolute', got {self.depth_mode!r}")
         check_fields(
@@ -123,6 +134,9 @@ def reconstruct(phi, box, K, config: ReconstructionConfig = ReconstructionConfig
         tz = config.baseline_focal / disparity
     else:
         tz = config.min_depth + (config.max_depth - config.min_depth) * s
+    if config.reference_focal > 0:  # the reference camera's depth, to this camera's
+        focal = jnp.sqrt(jnp.maximum(K[..., 0, 0] * K[..., 1, 1], jnp.finfo(K.dtype).tiny))
+        tz = tz * focal / config.reference_focal
     # back-project (u, v) with K^-1 (camera frame): ray = [x, y, 1], the centre at depth tz on it
     ray = back_project(uv, jnp.ones_like(tz), K, jnp.eye(4, dtype=K.dtype))
     center = ray * tz[..., None]

@@ -65,6 +65,40 @@ def test_depth_parameterisations():
         ReconstructionConfig(depth_mode="metric")
 
 
+def test_a_reference_focal_makes_what_looks_the_same_through_a_longer_lens_lie_farther():
+    # Free parameters read from how an object looks: through a focal length s times as long the same
+    # look means an object s times as far (same size). With the reference camera's focal length the
+    # reconstruction says so: its projected box (the core's project_bbox) is the one through the
+    # reference camera, up to perspective; as given (no reference), the box grows s times.
+    rng = np.random.default_rng(3)
+    n = 64
+    phi = np.concatenate(
+        [rng.normal(-1, 0.3, (n, 3)), rng.normal(size=(n, 4)), rng.normal(0, 1, (n, 2)), rng.normal(-1.5, 0.3, (n, 1))],
+        -1,
+    )
+    lo = rng.uniform(20, 70, (n, 2))
+    box = np.concatenate([lo, lo + rng.uniform(4, 12, (n, 2))], -1)
+    ref, plain = ReconstructionConfig(reference_focal=110.0), ReconstructionConfig()
+    run = jax.jit(reconstruct, static_argnums=3)
+    e0 = run(phi, box, K, ref)
+    same = run(phi, box, K, plain)  # through the reference camera itself, nothing changes
+    np.testing.assert_allclose(np.asarray(e0.center), np.asarray(same.center), rtol=1e-12)
+    b0, _ = quadrics.project_bbox(e0.rotation, e0.center, e0.radii, K, jnp.eye(4))
+    w0 = np.asarray(b0[:, 2:] - b0[:, :2])
+    for s in (0.6, 1.7):
+        Ks = K.at[0, 0].multiply(s).at[1, 1].multiply(s)
+        e = run(phi, box, Ks, ref)
+        b, _ = quadrics.project_bbox(e.rotation, e.center, e.radii, Ks, jnp.eye(4))
+        assert np.max(np.abs(np.asarray(b - b0)) / np.concatenate([w0, w0], -1)) < 0.15
+        np.testing.assert_allclose(np.asarray(e.radii), np.asarray(e0.radii))
+        p = run(phi, box, Ks, plain)
+        bp, _ = quadrics.project_bbox(p.rotation, p.center, p.radii, Ks, jnp.eye(4))
+        assert abs(np.median(np.asarray(bp[:, 2:] - bp[:, :2]) / w0) / s - 1) < 0.05
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="reference_focal"):
+            ReconstructionConfig(reference_focal=bad)
+
+
 def test_egocentric_equals_allocentric_for_centred_object():
     rng = np.random.default_rng(2)
     q = rng.normal(size=(5, 4))
