@@ -112,6 +112,7 @@ def test_a_run_resumes_for_more_steps_and_refuses_another_recipe(tmp_path, optax
         train_rcnn(dataclasses.replace(longer, num_steps=4, learning_rate=5e-4), tmp_path, renders, progress=False)
 
 
+@pytest.mark.slow
 def test_zoomed_renders_reach_each_step_with_their_intrinsics(tmp_path, optax_promotion, monkeypatch):
     from jaxsem.volumon import rcnn
     from jaxsem.volumon.data import frame_arrays
