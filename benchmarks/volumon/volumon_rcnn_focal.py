@@ -146,7 +146,7 @@ def _figure(rows, on_truth, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxsem._atomic import atomic_savefig
+    from jaxsem.scripting import atomic_savefig
 
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     for m, by in rows.items():
