@@ -140,6 +140,8 @@ def main(argv=None) -> int:
     p.add_argument("--learning-rate", type=sc.positive_float, default=1e-3, help="Adam's step size (default 1e-3)")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
+    if a.zoom_renders < 1.0:
+        p.error(f"--zoom-renders: expected a factor of at least 1 (1: no zoom), got {a.zoom_renders}")
     models = a.models or (a.lmo / "models" if a.lmo else None)
     if models is None or not models.is_dir():
         p.error(f"--models: no LM-O meshes folder {models} (give --lmo or --models)")

@@ -195,6 +195,12 @@ def _cases(d):
             ["--val-to", "400"],
         ),
         (
+            "rcnn-train-zoom-below-one",
+            ["train/volumon_rcnn.py", "--workdir", str(out / "rcnn"), "--renders", str(out / "renders")]
+            + ["--models", str(d / "empty_dir"), "--zoom-renders", "0.5"],
+            ["--zoom-renders", "0.5"],
+        ),
+        (
             "rcnn-validation-folds",
             ["benchmarks/volumon/volumon_rcnn_validation.py", "--data", str(d / "bop"), "--models", "lmo-rcnn"]
             + ["--folds", "lmo-rcnn:300", "--out", str(out / "val")],
